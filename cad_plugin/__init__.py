@@ -1,0 +1,1 @@
+"""CadQuery CAM plugin: calibration features, parts, toolpaths. Imports cadquery lazily."""

@@ -1,0 +1,1 @@
+"""Shipped machine presets (TOML); see docs/machine-format.md."""

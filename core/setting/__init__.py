@@ -1,0 +1,1 @@
+"""Tool and workpiece setting errors: calibration procedures and estimators."""

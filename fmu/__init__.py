@@ -1,0 +1,1 @@
+"""FMUs of the compensation core and a machine model (FMI 2.0/3.0)."""
