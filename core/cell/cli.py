@@ -1,0 +1,139 @@
+"""`mtcomp cell serve` and `mtcomp cell plc-sim`: thin wrappers over mtcomp.cell."""
+from __future__ import annotations
+
+import argparse
+import importlib
+
+from .._io import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("cell", help="Modbus TCP bridge to the robot loading cell's PLC",
+                              description="Modbus TCP bridge to the PLC of the robot loading "
+                                          "cell (register map: docs/cell.md).")
+    sub = p.add_subparsers(dest="cell_command", metavar="CELL_COMMAND")
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+
+    s = sub.add_parser("serve", help="serve the cell's registers (mtcomp is the Modbus server)")
+    s.add_argument("--journal", required=True, help="journal file (JSON lines, appended)")
+    s.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default 127.0.0.1; 0.0.0.0 only if you mean it)")
+    s.add_argument("--port", type=int, default=5020,
+                   help="TCP port (default 5020; the Modbus port 502 needs privileges)")
+    s.add_argument("--word-order", choices=("big", "little"), default="big",
+                   help="order of the two registers of 32-bit values (default big = ABCD)")
+    s.add_argument("--measure", metavar="MODULE:CALLABLE",
+                   help="measurement step measure_and_compute(job) -> CellResult "
+                        "(default: the virtual cell)")
+    s.add_argument("--seed", type=int, default=0, help="virtual cell: random seed")
+    s.add_argument("--probe-time", type=float, default=0.0,
+                   help="virtual cell: simulated probing time in s")
+    s.add_argument("--measure-timeout", type=float, default=300.0,
+                   help="fault MEASURE_TIMEOUT after this many s (default 300)")
+    s.add_argument("--limit-mm", type=float, default=0.5, help="go/no-go limit |dx|,|dy|,|dz|")
+    s.add_argument("--limit-deg", type=float, default=0.5, help="go/no-go limit |a|,|b|,|c|")
+    s.add_argument("-v", "--verbose", action="store_true", help="log every state change")
+    s.set_defaults(func=_serve)
+
+    q = sub.add_parser("plc-sim", help="play the PLC and the loading robot against a server")
+    q.add_argument("--host", default="127.0.0.1")
+    q.add_argument("--port", type=int, default=5020)
+    q.add_argument("--cycles", type=int, default=1, help="load cycles to run (default 1)")
+    q.add_argument("--word-order", choices=("big", "little"), default="big")
+    q.add_argument("--first-part-id", type=int, default=1)
+    q.add_argument("--program-id", type=int, default=100)
+    q.add_argument("--seed", type=int, default=0,
+                   help="seed of the simulated connection drops")
+    q.add_argument("--disconnect-prob", type=float, default=0.0,
+                   help="probability of dropping the connection around a request")
+    q.add_argument("--poll", type=float, default=0.05, help="poll period in s (default 0.05)")
+    q.set_defaults(func=_plc_sim)
+
+
+def _load_measure(spec: str):
+    mod, _, name = spec.partition(":")
+    if not mod or not name:
+        raise InputError(f"expected MODULE:CALLABLE, got {spec!r}", field="--measure")
+    try:
+        fn = getattr(importlib.import_module(mod), name)
+    except (ImportError, AttributeError) as exc:
+        raise InputError(f"cannot load {spec}: {exc}", field="--measure") from None
+    if not callable(fn):
+        raise InputError(f"{spec} is not callable", field="--measure")
+    return fn
+
+
+def _serve(args) -> int:
+    import asyncio
+    import logging
+    import signal
+    from .cycle import CellConfig, Cycle
+    from .server import CellServer
+    from .virtual import ProbeModel, VirtualCell
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if not 0 <= args.port <= 65535:
+        raise InputError(f"port {args.port} outside 0..65535", field="--port")
+    measure = (_load_measure(args.measure) if args.measure else
+               VirtualCell(seed=args.seed, probe=ProbeModel(duration_s=args.probe_time)))
+    cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
+                     limit_mm=args.limit_mm, limit_deg=args.limit_deg)
+
+    async def main():
+        server = CellServer(Cycle(args.journal, measure, cfg), args.host, args.port)
+        try:
+            await server.start()
+        except (OSError, RuntimeError) as exc:
+            await server.cycle.stop()
+            raise InputError(f"cannot listen on {args.host}:{args.port}: {exc}",
+                             field="--port") from None
+        print(f"mtcomp cell: serving on {args.host}:{server.port}, journal {args.journal}",
+              flush=True)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        await stop.wait()
+        await server.stop()
+
+    asyncio.run(main())
+    return 0
+
+
+def _plc_sim(args) -> int:
+    import asyncio
+    from .plcsim import PlcSim
+
+    def show(i, rep):
+        if rep.results and len(rep.results) == i:
+            r = rep.results[-1]
+            pose = " ".join(f"{v:+.6f}" for v in r.pose)
+            print(f"cycle {i}: result {r.result_seq} part {r.part_id} program "
+                  f"{r.program_id} {'GO' if r.go else 'NO-GO'} pose {pose}", flush=True)
+        else:
+            print(f"cycle {i}: no result (faults so far: {rep.faults})", flush=True)
+
+    plc = PlcSim(args.host, args.port, word_order=args.word_order,
+                 first_part_id=args.first_part_id, program_id=args.program_id,
+                 disconnect_prob=args.disconnect_prob, seed=args.seed, poll_s=args.poll)
+    rep = asyncio.run(plc.run(args.cycles, show))
+    print(rep.summary())
+    return 0 if rep.duplicates == 0 and len(rep.results) == rep.cycles else 1
+
+
+def main(argv=None) -> int:
+    """Stand-alone entry (``python -m mtcomp.cell.cli serve ...``), same as ``mtcomp cell``."""
+    import sys
+    from .._io import MtcompError
+    parser = argparse.ArgumentParser(prog="mtcomp")
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["cell", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return int(args.func(args) or 0)
+    except MtcompError as exc:
+        print(f"mtcomp cell: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,358 @@
+"""The load cycle behind the Modbus handshake: a state machine with timeouts, faults and a journal.
+
+    IDLE --START--> MEASURING --(probe data in)--> COMPUTING --(result journaled)--> READY
+    READY --ACK(result_seq)--> IDLE;  MEASURING/COMPUTING --timeout/error/blank removed--> FAULT
+    FAULT --RESET--> IDLE;  MEASURING/COMPUTING --RESET--> IDLE (job aborted, no result)
+
+The cycle is transport-free: the Modbus server (or the client-mode poller) hands it the PLC's
+register writes (`plc_write`) and serves reads from `image`. It runs in one asyncio event loop;
+the measurement step runs in a worker thread so that the bus keeps answering.
+
+Exactly once: every command is identified by the PLC's ``command_seq`` and journaled (fsync)
+before its Modbus write is answered; a repeated ``command_seq`` is a no-op, so a PLC that lost a
+response simply writes the same command again. Every result gets a ``result_seq`` and is
+journaled before it appears in the registers; it stays presented (also across restarts) until
+the PLC acknowledges exactly that ``result_seq``.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from .journal import Journal, replay
+from .registers import (FIELDS, POSE_NAMES, Command, CommandStatus, Fault,
+                        RegisterImage, State, check_plc_write)
+
+log = logging.getLogger("mtcomp.cell")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One blank to measure. `on_phase` (not journaled) lets the measurement step report
+    that probing is done and computation started: call ``job.on_phase("computing")``."""
+    job_no: int
+    part_id: int
+    program_id: int
+    on_phase: Callable[[str], None] | None = field(default=None, compare=False, repr=False)
+
+    def to_dict(self) -> dict:
+        return {"job_no": self.job_no, "part_id": self.part_id, "program_id": self.program_id}
+
+
+@dataclass(frozen=True)
+class CellResult:
+    """What the measurement step returns.
+
+    pose6: workpiece setting (dx, dy, dz mm, a, b, c deg) with x_nominal = R x_real + d,
+    R = Rz(c) Ry(b) Rx(a); sigma6: its standard uncertainties (same units); program_id: the
+    compensated NC program; ok: False if the step itself judges the part unusable (no-go);
+    info: JSON-serialisable extras journaled with the result (e.g. fit residuals in mm).
+    """
+    pose6: tuple
+    sigma6: tuple
+    program_id: int
+    ok: bool = True
+    info: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        p, s = self.pose6, self.sigma6
+        lin = ", ".join(f"{n}={p[i] * 1e3:+.2f}±{s[i] * 1e3:.2f} µm" for i, n in
+                        enumerate(POSE_NAMES[:3]))
+        ang = ", ".join(f"{n}={p[i + 3] * 3600:+.1f}±{s[i + 3] * 3600:.1f}\"" for i, n in
+                        enumerate(POSE_NAMES[3:]))
+        return f"program {self.program_id}: {lin}; {ang}; {'ok' if self.ok else 'NOT ok'}"
+
+
+MeasureFn = Callable[[Job], CellResult]
+
+
+@dataclass(frozen=True)
+class CellConfig:
+    """Cycle settings. Limits decide go/no-go; timeouts in s; word_order of 32-bit values."""
+    word_order: str = "big"
+    measure_timeout_s: float = 300.0
+    heartbeat_s: float = 0.1
+    limit_mm: float = 0.5          # go only if |dx|, |dy|, |dz| <= limit_mm
+    limit_deg: float = 0.5         # ... and |a|, |b|, |c| <= limit_deg
+    sigma_limit_mm: float = 0.005  # ... and the translation uncertainties <= this
+    fsync: bool = True             # False only for benchmarks of the fsync cost
+
+
+def is_go(res: CellResult, cfg: CellConfig) -> bool:
+    p, s = res.pose6, res.sigma6
+    return bool(res.ok and all(abs(v) <= cfg.limit_mm for v in p[:3])
+                and all(abs(v) <= cfg.limit_deg for v in p[3:])
+                and all(v <= cfg.sigma_limit_mm for v in s[:3]))
+
+
+class Cycle:
+    """State machine + journal + register image. Create, `await start()`, `await stop()`."""
+
+    def __init__(self, journal_path: str | Path, measure_and_compute: MeasureFn,
+                 config: CellConfig = CellConfig()):
+        self.config = config
+        self.measure = measure_and_compute
+        self.image = RegisterImage(config.word_order)
+        self.journal = Journal.open(journal_path, fsync=config.fsync)
+        self.journal_ok = True
+        rec = replay(self.journal.records)
+        self._job_no, self._result_seq = rec.job_no, rec.result_seq
+        self._job: dict | None = None          # running job (busy states)
+        self._presented: dict | None = None    # result record waiting for ACK
+        self._task: asyncio.Task | None = None
+        self._hb_task: asyncio.Task | None = None
+        self._pool: ThreadPoolExecutor | None = None
+        self.publish_latency: list[float] = []  # s from step return to registers (benchmarks)
+        img = self.image
+        img.set("cmd_seq_echo", rec.cmd_seq)
+        img.set("cmd_status", rec.cmd_status)
+        if rec.last_result is not None:
+            self._show_result(rec.last_result)
+        if rec.state == "busy":
+            self._job = rec.job
+            self._set_state(State.MEASURING)
+            img.set("job_no", rec.job["job_no"])
+        elif rec.state == "ready":
+            self._presented = rec.result
+            self._set_state(State.READY)
+        elif rec.state == "fault":
+            self._set_state(State.FAULT, rec.fault)
+        self.journal.append("boot", state=rec.state,
+                            resume=rec.job["job_no"] if rec.state == "busy" else None,
+                            result_seq=rec.result_seq)
+        log.info("cell: journal %s replayed (%d records): %s", self.journal.path,
+                 len(self.journal.records), rec.state)
+
+    # -- life cycle -------------------------------------------------------------------------
+    async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="mtcomp-cell")
+        self._hb_task = asyncio.create_task(self._heartbeat())
+        if self._job is not None:  # restart mid-cycle: measure the same blank again
+            log.info("cell: resuming job %d after restart", self._job["job_no"])
+            self._launch(self._job)
+
+    async def stop(self) -> None:
+        for t in (self._task, self._hb_task):
+            if t is not None and not t.done():
+                t.cancel()
+                try:
+                    await t
+                except (asyncio.CancelledError, Exception):
+                    pass
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+        self.journal.close()
+
+    @property
+    def state(self) -> State:
+        return State(self.image.get("state"))
+
+    # -- PLC side ---------------------------------------------------------------------------
+    def plc_write(self, address: int, values: list[int]) -> tuple[int, str] | None:
+        """Apply a PLC write; returns (Modbus exception code, reason) to refuse it, else None.
+
+        Called from the event loop, so it never interleaves with a result being published.
+        """
+        bad = check_plc_write(address, values)
+        if bad:
+            log.warning("cell: refused PLC write at %d %s: %s", address, list(values), bad[1])
+            return bad
+        end = address + len(values)
+        regs = self.image.regs
+        regs[address:end] = [int(v) for v in values]
+        bl = FIELDS["blank_loaded"].address
+        if address <= bl < end and regs[bl] == 0 and self.state in (State.MEASURING,
+                                                                   State.COMPUTING):
+            self._fault(Fault.BLANK_REMOVED, "PLC cleared blank_loaded during the measurement")
+        seq_addr = FIELDS["command_seq"].address
+        if address <= seq_addr < end and regs[seq_addr] != self.image.get("cmd_seq_echo"):
+            return self._command(Command(regs[FIELDS["command"].address]), regs[seq_addr])
+        return None
+
+    def _command(self, cmd: Command, seq: int) -> tuple[int, str] | None:
+        img = self.image
+        if cmd == Command.NONE:
+            img.set("cmd_seq_echo", seq)
+            img.set("cmd_status", CommandStatus.OK)
+            return None
+        if not self.journal_ok:
+            return 4, "journal unavailable: command not accepted"
+        state = self.state
+        try:
+            if cmd == Command.START:
+                if state != State.IDLE:
+                    return self._reject(cmd, seq, CommandStatus.NOT_ALLOWED)
+                if img.get("blank_loaded") != 1:
+                    return self._reject(cmd, seq, CommandStatus.BLANK_NOT_LOADED)
+                if img.get("program_id") == 0:
+                    return self._reject(cmd, seq, CommandStatus.BAD_PROGRAM_ID)
+                job = Job(self._job_no + 1, img.get("part_id"), img.get("program_id")).to_dict()
+                self.journal.append("start", cmd_seq=seq, status=0, job=job)
+                self._job_no += 1
+                self._job = job
+                img.set("job_no", job["job_no"])
+                img.set("fault_code", 0)
+                self._set_state(State.MEASURING)
+                self._launch(job)
+            elif cmd == Command.ACK:
+                ack = img.get("ack_seq")
+                if state != State.READY:
+                    return self._reject(cmd, seq, CommandStatus.NOT_ALLOWED)
+                if self._presented is None or ack != self._presented["result_seq"]:
+                    return self._reject(cmd, seq, CommandStatus.BAD_ACK_SEQ)
+                self.journal.append("ack", cmd_seq=seq, status=0, result_seq=ack)
+                self._presented = None
+                self._set_state(State.IDLE)
+            elif cmd == Command.RESET:
+                if state == State.FAULT:
+                    self.journal.append("reset", cmd_seq=seq, status=0)
+                elif state in (State.MEASURING, State.COMPUTING):
+                    self.journal.append("abort", cmd_seq=seq, status=0, job=self._job)
+                    self._cancel_job()
+                else:  # IDLE: nothing to reset; READY: the result must be acknowledged first
+                    return self._reject(cmd, seq, CommandStatus.NOT_ALLOWED)
+                self._job = None
+                self._set_state(State.IDLE)
+        except OSError as exc:
+            self._journal_failed(exc)
+            return 4, f"journal write failed: {exc}"
+        img.set("cmd_seq_echo", seq)
+        img.set("cmd_status", CommandStatus.OK)
+        return None
+
+    def _reject(self, cmd: Command, seq: int, status: CommandStatus):
+        log.warning("cell: %s (seq %d) rejected in state %s: %s", cmd.name, seq,
+                    self.state.name, status.name)
+        try:
+            self.journal.append("command", cmd_seq=seq, command=int(cmd), status=int(status))
+        except OSError as exc:
+            self._journal_failed(exc)
+            return 4, f"journal write failed: {exc}"
+        self.image.set("cmd_seq_echo", seq)
+        self.image.set("cmd_status", status)
+        return None
+
+    # -- measurement ------------------------------------------------------------------------
+    def _launch(self, job: dict) -> None:
+        self._task = asyncio.create_task(self._run(job))
+
+    def _cancel_job(self) -> None:
+        if self._task is not None and not self._task.done():
+            self._task.cancel()
+        self._task = None
+
+    async def _run(self, job: dict) -> None:
+        loop = self._loop
+
+        def on_phase(name: str) -> None:  # called from the worker thread
+            if name == "computing":
+                loop.call_soon_threadsafe(self._phase_computing, job["job_no"])
+
+        stamp = {}
+
+        def work():
+            res = self.measure(Job(job["job_no"], job["part_id"], job["program_id"], on_phase))
+            stamp["t"] = time.perf_counter()
+            return res
+
+        try:
+            res = await asyncio.wait_for(loop.run_in_executor(self._pool, work),
+                                         self.config.measure_timeout_s)
+        except asyncio.TimeoutError:
+            if self._job is job:
+                self._fault(Fault.MEASURE_TIMEOUT,
+                            f"no result within {self.config.measure_timeout_s} s")
+            return
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # the step's own failure becomes a fault code, not a crash
+            log.exception("cell: measurement of job %d failed", job["job_no"])
+            if self._job is job:
+                self._fault(Fault.MEASURE_FAILED, f"{type(exc).__name__}: {exc}")
+            return
+        if self._job is not job:  # aborted or faulted meanwhile
+            return
+        try:
+            pose = tuple(float(v) for v in res.pose6)
+            sigma = tuple(float(v) for v in res.sigma6)
+            prog = int(res.program_id)
+            if len(pose) != 6 or len(sigma) != 6 or not all(map(math.isfinite, pose + sigma)) \
+                    or not 0 < prog <= 65535:
+                raise ValueError("need 6 finite pose values, 6 sigmas and a program id 1..65535")
+        except (TypeError, ValueError, AttributeError) as exc:
+            self._fault(Fault.BAD_RESULT, str(exc))
+            return
+        self._publish(job, res, pose, sigma, prog, stamp.get("t"))
+
+    def _phase_computing(self, job_no: int) -> None:
+        if self._job is not None and self._job["job_no"] == job_no \
+                and self.state == State.MEASURING:
+            self._set_state(State.COMPUTING)
+
+    def _publish(self, job, res, pose, sigma, prog, t_done) -> None:
+        seq = self._result_seq + 1
+        try:
+            rec = self.journal.append("result", result_seq=seq, job=job, pose=list(pose),
+                                      sigma=list(sigma), program_id=prog,
+                                      go=is_go(res, self.config), info=res.info)
+        except (OSError, ValueError) as exc:  # ValueError: info not JSON-serialisable
+            if isinstance(exc, OSError):
+                self._journal_failed(exc)
+            else:
+                self._fault(Fault.BAD_RESULT, f"result not journalable: {exc}")
+            return
+        self._result_seq = seq
+        self._presented = rec
+        self._job = None
+        self._show_result(rec)
+        self._set_state(State.READY)
+        if t_done is not None:
+            self.publish_latency.append(time.perf_counter() - t_done)
+
+    # -- helpers ----------------------------------------------------------------------------
+    def _show_result(self, rec: dict) -> None:
+        img = self.image
+        for n, v in zip(POSE_NAMES, rec["pose"]):
+            img.set(n, v)
+        for n, v in zip(POSE_NAMES, rec["sigma"]):
+            img.set(f"s_{n}", v)
+        img.set("program_id_out", rec["program_id"])
+        img.set("part_id_out", rec["job"]["part_id"])
+        img.set("go", 1 if rec["go"] else 0)
+        img.set("result_seq", rec["result_seq"])
+
+    def _set_state(self, state: State, fault: int = 0) -> None:
+        self.image.set("state", state)
+        self.image.set("fault_code", fault)
+
+    def _fault(self, code: Fault, why: str) -> None:
+        log.error("cell: fault %d %s: %s", code, code.name, why)
+        job = self._job
+        if self._task is not None and self._task is not asyncio.current_task():
+            self._cancel_job()
+        self._job = None
+        self._set_state(State.FAULT, code)
+        try:
+            self.journal.append("fault", code=int(code), name=code.name, why=why, job=job)
+        except OSError as exc:
+            self._journal_failed(exc)
+
+    def _journal_failed(self, exc: OSError) -> None:
+        log.error("cell: journal %s cannot be written (%s): refusing all commands",
+                  self.journal.path, exc)
+        self.journal_ok = False
+        self._job = None
+        self._set_state(State.FAULT, Fault.JOURNAL_FAILED)
+
+    async def _heartbeat(self) -> None:
+        while True:
+            await asyncio.sleep(self.config.heartbeat_s)
+            self.image.set("heartbeat", self.image.get("heartbeat") + 1)
+

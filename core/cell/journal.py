@@ -1,0 +1,154 @@
+"""Append-only, fsync'ed journal of the cell: the single source of truth across restarts.
+
+One JSON object per line (UTF-8, ``\\n``-terminated), written with ``write`` + ``fsync`` before
+the effect becomes visible to the PLC (the Modbus response to a command, or the result in the
+registers). Every record has ``n`` (1, 2, 3, ... without gaps), ``t`` (UTC, ISO 8601) and
+``ev`` (the event); see docs/cell.md for the events and their fields.
+
+Recovery: a crash can leave at most one torn record at the end (no newline or not JSON). It
+was never fsync'ed to completion, so nothing depended on it; `Journal.open` cuts it off and
+logs a warning. Damage anywhere else is reported as an InputError naming the line.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from .._io import InputError
+
+log = logging.getLogger("mtcomp.cell")
+
+EVENTS = ("boot", "command", "start", "phase", "result", "ack", "fault", "reset", "abort")
+
+
+class Journal:
+    """An open journal file. `append` returns only after the record is on disk (if `fsync`)."""
+
+    def __init__(self, path: Path, fd: int, records: list[dict], fsync: bool = True):
+        self.path, self._fd, self.records, self.fsync = path, fd, records, fsync
+        self.n = records[-1]["n"] if records else 0
+
+    @classmethod
+    def open(cls, path: str | os.PathLike, fsync: bool = True) -> "Journal":
+        """Open (creating if needed) and read `path`; a torn last record is cut off."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        records, keep = read_records(path, repair=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        if keep is not None:
+            os.ftruncate(fd, keep)
+            os.fsync(fd)
+        os.lseek(fd, 0, os.SEEK_END)
+        return cls(path, fd, records, fsync)
+
+    def append(self, ev: str, **data) -> dict:
+        """Write one record durably and return it. Raises OSError if the disk refuses."""
+        if ev not in EVENTS:
+            raise ValueError(f"unknown journal event {ev!r}")
+        rec = {"n": self.n + 1, "t": datetime.now(timezone.utc).isoformat(timespec="microseconds"),
+               "ev": ev, **data}
+        line = (json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n").encode()
+        # One write of the whole line: a crash leaves either the full record or a torn tail.
+        written = os.write(self._fd, line)
+        if written != len(line):
+            raise OSError(f"short write to {self.path}")
+        if self.fsync:
+            os.fsync(self._fd)
+        self.n += 1
+        self.records.append(rec)
+        return rec
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_records(path: str | os.PathLike, repair: bool = False) -> tuple[list[dict], int | None]:
+    """Parse a journal. Returns (records, keep) where `keep` is the byte length to truncate to
+    if the last record is torn (None if the file is intact).
+
+    With ``repair=False`` a torn tail is still skipped (it never took effect) but `keep` tells
+    the caller it is there.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return [], None
+    records: list[dict] = []
+    pos, lineno, keep = 0, 0, None
+    while pos < len(data):
+        end = data.find(b"\n", pos)
+        lineno += 1
+        last = end < 0 or end == len(data) - 1
+        raw = data[pos:] if end < 0 else data[pos:end]
+        try:
+            if end < 0:
+                raise ValueError("record not terminated")
+            rec = json.loads(raw.decode("utf-8"))
+            if not isinstance(rec, dict) or "n" not in rec or "ev" not in rec:
+                raise ValueError("not a journal record (needs 'n' and 'ev')")
+        except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            if last:
+                keep = pos
+                log.warning("%s:%d: torn last journal record dropped (%s)", path, lineno, exc)
+                break
+            raise InputError(f"damaged journal record: {exc}", path, lineno) from None
+        expected = records[-1]["n"] + 1 if records else 1
+        if rec["n"] != expected:
+            raise InputError(f"record number {rec['n']}, expected {expected}", path, lineno,
+                             "n")
+        records.append(rec)
+        pos = end + 1
+    return records, keep
+
+
+@dataclass
+class Recovered:
+    """What the journal says about the cell: the state to resume from after a restart."""
+    state: str = "idle"               # idle | busy | ready | fault
+    job: dict | None = None           # the running job (busy) or the job of the result (ready)
+    result: dict | None = None        # the presented, not yet acknowledged result (ready)
+    fault: int = 0
+    last_result: dict | None = None   # the last result ever journaled (acknowledged or not)
+    cmd_seq: int = 0                  # command_seq of the last command handled
+    cmd_status: int = 0
+    job_no: int = 0                   # highest job number used
+    result_seq: int = 0               # highest result sequence number used
+    results: list[dict] = field(default_factory=list)
+    acked: set = field(default_factory=set)
+
+
+def replay(records: list[dict]) -> Recovered:
+    """Fold the records into the cell's state (pure function of the journal)."""
+    r = Recovered()
+    for rec in records:
+        ev = rec["ev"]
+        if "cmd_seq" in rec:  # every command the PLC sent, accepted or rejected
+            r.cmd_seq, r.cmd_status = rec["cmd_seq"], rec.get("status", 0)
+        if ev == "start":
+            r.state, r.job, r.result, r.fault = "busy", rec["job"], None, 0
+            r.job_no = max(r.job_no, rec["job"]["job_no"])
+        elif ev == "result":
+            r.state, r.result, r.last_result = "ready", rec, rec
+            r.result_seq = max(r.result_seq, rec["result_seq"])
+            r.results.append(rec)
+        elif ev == "ack":
+            r.acked.add(rec["result_seq"])
+            r.state, r.result, r.job = "idle", None, None
+        elif ev == "fault":
+            r.state, r.fault, r.result, r.job = "fault", rec["code"], None, None
+        elif ev in ("reset", "abort"):
+            r.state, r.fault, r.job, r.result = "idle", 0, None, None
+    return r
