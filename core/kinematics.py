@@ -1,0 +1,312 @@
+"""Forward model and compensation (inverse) of a machine with setting and geometric errors.
+
+Exact homogeneous transforms, vectorised over N poses.  The math is written out in
+docs/model.md; every axis contributes
+
+    G_i(q) = L_i N_i(q) L_i^-1 . T(loc_i) D_i(q) T(-loc_i)
+
+(N_i nominal motion, L_i location error, D_i component error motion from the tables, acting
+about the axis' reference point loc_i), and the tool edge in the real workpiece frame is
+
+    p = Rw^T ( G_1 ... G_n (tool_point + tool_offset) - tw ).
+
+Poses in mm, axis commands in mm and deg, error angles in rad.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._io import MtcompError
+from .errors import ErrorSet
+from .machine import Machine
+
+#: Length (mm) that converts orientation residuals (rad) into the position scale of the
+#: Gauss-Newton problem; it only weights the residuals, the solution satisfies both exactly.
+ORIENTATION_SCALE = 100.0
+
+
+class LimitError(MtcompError):
+    """A compensated command leaves the travel of an axis."""
+
+    def __init__(self, axis: str, index: int, value: float, limits):
+        self.axis, self.index, self.value = axis, index, value
+        super().__init__(f"axis {axis} would have to move to {value:.6f}, outside its travel "
+                         f"[{limits[0]:g}, {limits[1]:g}] (point {index})")
+
+
+class ConvergenceError(MtcompError):
+    def __init__(self, index: int, residual: float):
+        self.index = index
+        super().__init__(f"compensation did not converge at point {index} (residual {residual:.3g}); "
+                         "the target may be unreachable or at a kinematic singularity")
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Tool poses in the workpiece frame: p (N,3) tool edge in mm, R (N,3,3) tool frame
+    orientation (columns: tool frame axes).  `v` is the tool axis direction (N,3)."""
+    p: np.ndarray
+    R: np.ndarray
+    tool_axis: tuple = (0.0, 0.0, 1.0)
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.R @ np.asarray(self.tool_axis, dtype=float)
+
+    def __len__(self):
+        return len(self.p)
+
+
+def rotvec_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N,3,3) of rotation vectors w (N,3) in rad (Rodrigues, exact)."""
+    w = np.asarray(w, dtype=float)
+    th = np.linalg.norm(w, axis=-1)
+    small = th < 1e-8
+    th_safe = np.where(small, 1.0, th)
+    # sin(th)/th and (1-cos th)/th^2 with series near zero to keep full precision.
+    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(th_safe) / th_safe)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(th_safe)) / th_safe**2)
+    x, y, z = w[..., 0], w[..., 1], w[..., 2]
+    K = np.zeros(w.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2], K[..., 1, 0] = -z, y, z
+    K[..., 1, 2], K[..., 2, 0], K[..., 2, 1] = -x, -y, x
+    eye = np.eye(3)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def axis_rotation(u, angle_rad: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N,3,3) about the unit vector u by angles (N,) in rad."""
+    u = np.asarray(u, dtype=float)
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    C = 1.0 - c
+    x, y, z = u
+    R = np.empty(np.shape(angle_rad) + (3, 3))
+    R[..., 0, 0] = c + x * x * C
+    R[..., 0, 1] = x * y * C - z * s
+    R[..., 0, 2] = x * z * C + y * s
+    R[..., 1, 0] = y * x * C + z * s
+    R[..., 1, 1] = c + y * y * C
+    R[..., 1, 2] = y * z * C - x * s
+    R[..., 2, 0] = z * x * C - y * s
+    R[..., 2, 1] = z * y * C + x * s
+    R[..., 2, 2] = c + z * z * C
+    return R
+
+
+def _as_commands(machine: Machine, q) -> np.ndarray:
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        q = q[None, :]
+    if q.ndim != 2 or q.shape[1] != machine.n_axes:
+        raise ValueError(f"commands must have shape (N, {machine.n_axes}) for axes "
+                         f"{' '.join(machine.axis_names)}, got {q.shape}")
+    return q
+
+
+def chain(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Pose (R (N,3,3), t (N,3)) of the last tool-side frame in the nominal workpiece frame."""
+    q = _as_commands(machine, q)
+    n = q.shape[0]
+    geo = errors.geometric if errors is not None else None
+    R = None  # identity until the first rotation, which saves matrix products
+    t = np.zeros((n, 3))
+    for i, ax in enumerate(machine.axes):
+        qi = q[:, i]
+        u = np.asarray(ax.direction)
+        loc = np.asarray(ax.location)
+        # Location errors: tilt of the axis (squareness), offset of a rotary axis, zero error.
+        d0, e0 = geo.location_of(ax.name) if geo is not None else (np.zeros(3), np.zeros(3))
+        if ax.is_rotary:
+            zero = float(e0 @ u)
+            tilt = e0 - zero * u
+            u_eff = rotvec_matrix(tilt[None])[0] @ u if np.any(tilt) else u
+            c = loc + d0
+            Rg = axis_rotation(u_eff, np.radians(qi) + zero)
+            tg = c - Rg @ c
+        else:
+            # A translation of a straight line changes nothing, so only the tilt of a linear
+            # axis (squareness) acts; positional location errors of linear axes are ignored.
+            u_eff = rotvec_matrix(e0[None])[0] @ u if np.any(e0) else u
+            Rg = None
+            tg = qi[:, None] * u_eff
+        # Component error motions from the tables, acting about the reference point.
+        table = geo.tables.get(ax.name) if geo is not None else None
+        if table is not None:
+            d, e = table.evaluate(qi, strict)
+            Re = rotvec_matrix(e)
+            te = loc + d - Re @ loc
+            if Rg is None:
+                Rg, tg = Re, te + tg
+            else:
+                tg = np.einsum("nij,nj->ni", Rg, te) + tg
+                Rg = Rg @ Re
+        # Compose: (R, t) . (Rg, tg)
+        if Rg is None:
+            t = t + (tg if R is None else np.einsum("nij,nj->ni", R, tg))
+        else:
+            t = t + (tg if R is None else np.einsum("nij,nj->ni", R, tg))
+            R = Rg if R is None else R @ Rg
+    if R is None:
+        R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    return R, t
+
+
+def forward(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = True) -> Pose:
+    """Real tool edge position (mm) and tool frame orientation in the real workpiece frame for
+    axis commands q (N, n_axes) in mm and deg, with all errors of `errors` (None: ideal)."""
+    R, t = chain(machine, q, errors, strict)
+    tp = np.asarray(machine.tool_point, dtype=float)
+    if errors is not None:
+        tp = tp + np.asarray(errors.tool.offset)
+    p = np.einsum("nij,j->ni", R, tp) + t
+    if errors is not None and not errors.workpiece.is_zero:
+        Rw = errors.workpiece.matrix
+        tw = np.asarray(errors.workpiece.translation)
+        p = (p - tw) @ Rw  # Rw^T (p - tw), row-vector form
+        R = np.einsum("ji,njk->nik", Rw, R)
+    return Pose(p, R, machine.tool_axis)
+
+
+def _orientation_mode(machine: Machine) -> int:
+    """0: position only; 2: position and tool direction; 3: position and full orientation."""
+    nr = machine.n_rotary
+    return 0 if nr == 0 else (3 if nr >= 3 else 2)
+
+
+def _perp_basis(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (N,3) perpendicular to the unit vectors v (N,3) and to each other."""
+    a = np.where(np.abs(v[:, [0]]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    e1 = np.cross(v, a)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return e1, np.cross(v, e1)
+
+
+def _residual(machine, q, errors, target: Pose, mode, basis, strict=False):
+    pose = forward(machine, q, errors, strict)
+    r = [pose.p - target.p]
+    if mode == 2:
+        v = pose.v
+        r += [ORIENTATION_SCALE * np.einsum("ni,ni->n", v, basis[0])[:, None],
+              ORIENTATION_SCALE * np.einsum("ni,ni->n", v, basis[1])[:, None]]
+    elif mode == 3:
+        M = np.einsum("nji,njk->nik", target.R, pose.R)  # R_target^T R
+        w = 0.5 * np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0], M[:, 1, 0] - M[:, 0, 1]], axis=1)
+        r.append(ORIENTATION_SCALE * w)
+    return np.concatenate(r, axis=1)
+
+
+def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q0=None, *,
+               tol: float = 1e-11, max_iter: int = 60) -> np.ndarray:
+    """Axis commands (N, n_axes) in mm and deg that put the real tool edge at target.p and the
+    tool in target's orientation (tool direction on machines with 1-2 rotary axes, full
+    orientation with 3), under `errors`.
+
+    q0 seeds the iteration (usually the programmed commands).  Gauss-Newton with a chord
+    Jacobian: it is taken by forward differences on the rigid (setting-error) model, since the
+    geometric tables change it by their slopes only (1e-4 at most), so each step contracts the
+    error by about that factor.  Points that do not contract (large workpiece rotations near a
+    singularity) get their Jacobian re-taken at the current iterate, i.e. full Newton.  A tiny
+    pull toward q0 picks the programmed rotary angles where the tool direction leaves them free
+    (e.g. C at B = 0 on a B-C table).
+    """
+    if q0 is None:
+        raise ValueError("compensate needs initial commands q0 (e.g. the programmed axis positions)")
+    q0 = _as_commands(machine, q0)
+    n, m = q0.shape
+    if len(target) != n:
+        raise ValueError(f"target has {len(target)} poses, q0 has {n}")
+    mode = _orientation_mode(machine)
+    basis = _perp_basis(target.v) if mode == 2 else (None, None)
+    rigid = None if errors is None else ErrorSet(errors.tool, errors.workpiece)
+    rot = np.array([a.is_rotary for a in machine.axes])
+    lam = 1e-12
+    q = q0.copy()
+    active = np.arange(n)
+    sub = lambda idx: Pose(target.p[idx], target.R[idx], target.tool_axis)  # noqa: E731
+    res = lambda qq, idx, err: _residual(machine, qq, err, sub(idx), mode,  # noqa: E731
+                                         (None if basis[0] is None else (basis[0][idx], basis[1][idx])))
+    it = 0
+    while active.size and it < max_iter:
+        qa = q[active]
+        # Chord Jacobian at the current iterate of the still active points.
+        h = 1e-6
+        r0 = res(qa, active, rigid)
+        J = np.empty((active.size, r0.shape[1], m))
+        for k in range(m):
+            dq = qa.copy()
+            dq[:, k] += h
+            J[:, :, k] = (res(dq, active, rigid) - r0) / h
+        JT = np.transpose(J, (0, 2, 1))
+        A = JT @ J + lam * np.eye(m)
+        K = np.linalg.solve(A, JT)
+        Ainv = np.linalg.inv(A)
+        r = res(qa, active, errors)
+        nr = np.linalg.norm(r, axis=1)
+        done = np.zeros(active.size, bool)
+        slow = np.zeros(active.size, bool)
+        for _ in range(8):
+            it += 1
+            step = np.einsum("nij,nj->ni", K, r) + lam * np.einsum("nij,nj->ni", Ainv, qa - q0[active])
+            # Damping: limit rotary steps to 20 deg (scaling the whole step, so the linear axes
+            # stay consistent) and halve steps that do not reduce the residual.
+            big = np.max(np.abs(step[:, rot]), axis=1, initial=0.0)
+            scale = np.minimum(1.0, 20.0 / np.maximum(big, 1e-300))
+            todo = np.arange(active.size)
+            qn, rn, nn = qa.copy(), r.copy(), nr.copy()
+            for _bt in range(30):
+                qt = qa[todo] - scale[todo, None] * step[todo]
+                rt = res(qt, active[todo], errors)
+                nt = np.linalg.norm(rt, axis=1)
+                ok = (nt < nr[todo]) | (nt <= 1e-12)
+                qn[todo[ok]], rn[todo[ok]], nn[todo[ok]] = qt[ok], rt[ok], nt[ok]
+                todo = todo[~ok]
+                if not todo.size:
+                    break
+                scale[todo] *= 0.5
+            stepped = np.max(np.abs(qn - qa), axis=1)
+            slow |= (nn > 0.1 * nr) & (nn > 1e-12)  # contraction too weak: re-linearise
+            done |= (stepped < tol) | (nn <= 1e-12)
+            qa, r, nr = qn, rn, nn
+            if done.all() or (slow & ~done).any():
+                break
+        q[active] = qa
+        active = active[~done]
+    r = _residual(machine, q, errors, target, mode, basis if basis[0] is not None else None, strict=True)
+    err = np.max(np.abs(r), axis=1)
+    bad = np.nonzero(~(err < 1e-7))[0]
+    if bad.size:
+        raise ConvergenceError(int(bad[0]), float(err[bad[0]]))
+    return q
+
+
+def round_to_resolution(machine: Machine, q: np.ndarray) -> np.ndarray:
+    """Round commands to each axis' resolution (the machine can only be told multiples of it)."""
+    res = machine.resolutions
+    return np.round(q / res) * res
+
+
+def check_limits(machine: Machine, q: np.ndarray) -> None:
+    """Raise LimitError naming the first point and axis outside its travel."""
+    for k, ax in enumerate(machine.axes):
+        lo, hi = ax.limits
+        bad = np.nonzero((q[:, k] < lo) | (q[:, k] > hi))[0]
+        if bad.size:
+            raise LimitError(ax.name, int(bad[0]), float(q[bad[0], k]), ax.limits)
+
+
+def retarget(machine: Machine, q_programmed, errors: ErrorSet | None, *, round_result: bool = False,
+             check: bool = True) -> np.ndarray:
+    """Compensated commands for a program written for the ideal machine: the real machine with
+    `errors` then puts the tool where the ideal machine would have put it."""
+    q_programmed = _as_commands(machine, q_programmed)
+    if errors is None or errors.is_zero:
+        q = q_programmed.copy()
+    else:
+        q = compensate(machine, forward(machine, q_programmed), errors, q_programmed)
+    if round_result:
+        q = round_to_resolution(machine, q)
+    if check:
+        check_limits(machine, q)
+    return q
