@@ -1,0 +1,477 @@
+"""Build the native FMI 2.0 Co-Simulation FMUs: the compensator and the virtual machine.
+
+One set of C sources (mtcomp/fmu/c) serves every machine: the machine description and the
+geometric error tables travel as resource files written here from the Python `Machine` and
+`ErrorSet`, the setting and location errors as parameters.  The archive carries its sources
+(listed in <SourceFiles>) so an importer can rebuild the binary with `fmpy compile`; here the
+linux64 binary is built through fmpy's cmake support (gcc).  Layout and variables: docs/fmu.md.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import html
+import math
+import os
+import shutil
+import tempfile
+import uuid
+import zipfile
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import numpy as np
+
+from .._io import MtcompError, atomic_path
+from ..errors import ErrorSet, component_names
+from ..machine import Machine, load_machine
+
+__all__ = ["build_compensator_fmu", "build_machine_fmu", "MachineDynamics", "Var", "write_model_description",
+           "machine_resource_text", "C_SOURCES", "FmuBuildError"]
+
+# Value references: must match fmu/c/common.h, compensator.c and machine.c.
+VR_CMD, VR_TOOL, VR_WP_T, VR_WP_A, VR_LOC = 0, 20, 23, 26, 40
+VR_OUT, VR_TOL, VR_RESIDUAL = 10, 30, 31
+IVR_MAXIT, IVR_ITERS = 0, 1
+SVR_TABLES = 0
+VR_SPINDLE, VR_KV, VR_BACKLASH, VR_TAU, VR_GAIN, VR_AMBIENT, VR_DRIFT, VR_NOISE = 9, 100, 110, 120, 121, 122, 123, 126
+VR_P, VR_V, VR_TEMP, VR_ACT = 130, 133, 136, 140
+IVR_SEED = 0
+# Parameter ranges enforced by the C code (common.h, machine.c); declared as min/max too.
+MAX_TOOL_OFFSET, MAX_WP_TRANSLATION, MAX_WP_ANGLE, MAX_LOC_LINEAR, MAX_LOC_ANGLE = 50.0, 500.0, 30.0, 5.0, 0.05
+
+C_SOURCES = {
+    "compensator": ("fmi2_base.c", "common.c", "mtk.c", "compensator.c"),
+    "machine": ("fmi2_base.c", "common.c", "mtk.c", "machine.c"),
+}
+C_HEADERS = ("model.h", "common.h", "mtk.h")
+FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+_XYZ = ("x", "y", "z")
+
+
+class FmuBuildError(MtcompError):
+    """The FMU could not be built (compiler missing, compilation failed)."""
+
+
+@dataclass(frozen=True)
+class Var:
+    """One model variable of an FMI 2.0 modelDescription."""
+    name: str
+    vr: int
+    causality: str                  # parameter | input | output
+    description: str
+    type: str = "Real"              # Real | Integer | String
+    variability: str | None = None  # default: continuous for Real inputs/outputs, fixed/tunable params
+    start: float | int | str | None = None
+    unit: str | None = None
+    display_unit: str | None = None
+    min: float | None = None
+    max: float | None = None
+
+    @property
+    def initial(self) -> str | None:
+        if self.causality == "parameter":
+            return "exact"
+        if self.causality == "output":
+            return "calculated"
+        return None
+
+
+# name -> (base unit exponents, factor, offset, display units {name: (factor, offset)})
+UNITS = {
+    "mm": ({"m": 1}, 1e-3, 0.0, {"um": (1e3, 0.0), "nm": (1e6, 0.0)}),
+    "deg": ({"rad": 1}, math.pi / 180.0, 0.0, {"arcsec": (3600.0, 0.0)}),
+    "rad": ({"rad": 1}, 1.0, 0.0, {"urad": (1e6, 0.0)}),
+    "s": ({"s": 1}, 1.0, 0.0, {}),
+    "1/s": ({"s": -1}, 1.0, 0.0, {}),
+    "1/min": ({"s": -1}, 1.0 / 60.0, 0.0, {}),
+    "degC": ({"K": 1}, 1.0, 273.15, {}),
+    "mm/K": ({"m": 1, "K": -1}, 1e-3, 0.0, {"um/K": (1e3, 0.0)}),
+    "K.min": ({"K": 1, "s": 1}, 60.0, 0.0, {}),
+    "1": ({}, 1.0, 0.0, {}),
+}
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x)) if not float(x).is_integer() or abs(x) >= 1e15 else str(int(x)) + ".0"
+
+
+def write_model_description(*, model_name: str, identifier: str, description: str, variables: list[Var],
+                            sources: tuple[str, ...], guid: str, step: float = 1e-3, stop: float = 1.0) -> bytes:
+    """modelDescription.xml (FMI 2.0 Co-Simulation) for native C sources: every Real with a
+    unit, outputs listed under Outputs and InitialUnknowns so validators find the structure."""
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "2.0", "modelName": model_name, "guid": guid, "description": description,
+        "author": "mtcomp", "version": _pkg_version(), "generationTool": f"mtcomp {_pkg_version()}",
+        "generationDateAndTime": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "variableNamingConvention": "structured", "numberOfEventIndicators": "0"})
+    cs = ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": identifier, "needsExecutionTool": "false",
+        "canHandleVariableCommunicationStepSize": "true", "canInterpolateInputs": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "true",
+        "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true",
+        "providesDirectionalDerivative": "false"})
+    sf = ET.SubElement(cs, "SourceFiles")
+    for s in sources:
+        ET.SubElement(sf, "File", {"name": s})
+    used = sorted({v.unit for v in variables if v.unit})
+    ud = ET.SubElement(root, "UnitDefinitions")
+    for name in used:
+        base, factor, offset, displays = UNITS[name]
+        u = ET.SubElement(ud, "Unit", {"name": name})
+        attrs = {k: str(e) for k, e in base.items()}
+        if factor != 1.0:
+            attrs["factor"] = repr(factor)
+        if offset:
+            attrs["offset"] = repr(offset)
+        ET.SubElement(u, "BaseUnit", attrs)
+        for dname, (dfac, doff) in displays.items():
+            da = {"name": dname, "factor": repr(dfac)}
+            if doff:
+                da["offset"] = repr(doff)
+            ET.SubElement(u, "DisplayUnit", da)
+    ET.SubElement(ET.SubElement(root, "LogCategories"), "Category",
+                  {"name": "logStatusError", "description": "Calls the FMU rejects"})
+    root[-1].append(ET.Element("Category", {"name": "logError", "description": "Invalid parameters or resources, failed evaluations"}))
+    root[-1].append(ET.Element("Category", {"name": "logAll", "description": "Information"}))
+    ET.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stopTime": _fmt(stop), "stepSize": repr(step)})
+    mv = ET.SubElement(root, "ModelVariables")
+    index = {}
+    for i, v in enumerate(variables, 1):
+        index[v.name] = i
+        attrs = {"name": v.name, "valueReference": str(v.vr), "description": v.description, "causality": v.causality}
+        variability = v.variability
+        if variability is None:
+            variability = ("continuous" if v.type == "Real" else "discrete") if v.causality != "parameter" else "fixed"
+        attrs["variability"] = variability
+        if v.initial:
+            attrs["initial"] = v.initial
+        sv = ET.SubElement(mv, "ScalarVariable", attrs)
+        ta = {}
+        if v.type == "Real":
+            if v.unit:
+                ta["unit"] = v.unit
+            if v.display_unit:
+                ta["displayUnit"] = v.display_unit
+        if v.min is not None:
+            ta["min"] = _fmt(v.min) if v.type == "Real" else str(int(v.min))
+        if v.max is not None:
+            ta["max"] = _fmt(v.max) if v.type == "Real" else str(int(v.max))
+        if v.start is not None and v.causality != "output":
+            ta["start"] = (_fmt(v.start) if v.type == "Real" else str(int(v.start)) if v.type == "Integer"
+                           else str(v.start))
+        ET.SubElement(sv, v.type, ta)
+    ms = ET.SubElement(root, "ModelStructure")
+    outs = [v for v in variables if v.causality == "output"]
+    o = ET.SubElement(ms, "Outputs")
+    for v in outs:
+        ET.SubElement(o, "Unknown", {"index": str(index[v.name])})
+    iu = ET.SubElement(ms, "InitialUnknowns")
+    for v in outs:
+        ET.SubElement(iu, "Unknown", {"index": str(index[v.name])})
+    ET.indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8")
+
+
+def _pkg_version() -> str:
+    from .. import __version__
+    return __version__
+
+
+def machine_resource_text(machine: Machine) -> str:
+    """The machine description resource read by mtk_load_machine (docs/fmu.md)."""
+    lines = ["# mtcomp machine description for the native FMU kernel; axes from the workpiece to the tool",
+             "# axis NAME KIND SIDE direction(3) location(3, mm) travel-low travel-high",
+             "mtcomp-machine 1", f"name {machine.name}",
+             "tool_point " + " ".join(repr(float(x)) for x in machine.tool_point),
+             "tool_axis " + " ".join(repr(float(x)) for x in machine.tool_axis)]
+    for a in machine.axes:
+        lo, hi = (float(x) for x in a.limits)
+        lim = [repr(x) if math.isfinite(x) else ("-1e300" if x < 0 else "1e300") for x in (lo, hi)]
+        lines.append(f"axis {a.name} {a.kind} {a.side} " + " ".join(repr(float(x)) for x in a.direction) + " "
+                     + " ".join(repr(float(x)) for x in a.location) + " " + " ".join(lim))
+    return "\n".join(lines) + "\n"
+
+
+def _axis_unit(machine: Machine, i: int) -> tuple[str, str | None]:
+    return ("deg", None) if machine.axes[i].is_rotary else ("mm", "um")
+
+
+def _common_vars(machine: Machine, errors: ErrorSet, tables_spec: str) -> list[Var]:
+    vs = []
+    for i, a in enumerate(machine.axes):
+        unit, _ = _axis_unit(machine, i)
+        vs.append(Var(f"command.{a.name}", VR_CMD + i, "input",
+                      f"Commanded position of axis {a.name} ({a.kind}, {a.side} side) as programmed, {unit}",
+                      start=0.0, unit=unit))
+    return vs
+
+
+def _param_vars(machine: Machine, errors: ErrorSet, tables_spec: str) -> list[Var]:
+    vs = []
+    for k, c in enumerate(_XYZ):
+        vs.append(Var(f"tool_setting.offset.{c}", VR_TOOL + k, "parameter",
+                      f"Tool setting error: {c} of the vector from the nominal tool point to the real edge, "
+                      "in the frame of the last tool-side axis", variability="tunable",
+                      start=errors.tool.offset[k], unit="mm", display_unit="um",
+                      min=-MAX_TOOL_OFFSET, max=MAX_TOOL_OFFSET))
+    for k, c in enumerate(_XYZ):
+        vs.append(Var(f"workpiece_setting.translation.{c}", VR_WP_T + k, "parameter",
+                      f"Workpiece setting error: {c} of the real workpiece origin in the nominal workpiece frame",
+                      variability="tunable", start=errors.workpiece.translation[k], unit="mm", display_unit="um",
+                      min=-MAX_WP_TRANSLATION, max=MAX_WP_TRANSLATION))
+    for k, c in enumerate("abc"):
+        vs.append(Var(f"workpiece_setting.angle.{c}", VR_WP_A + k, "parameter",
+                      f"Workpiece setting error: rotation {c} about {'XYZ'[k]} of the real workpiece frame "
+                      "(R = Rz(c) Ry(b) Rx(a))", variability="tunable", start=errors.workpiece.angles[k],
+                      unit="deg", display_unit="arcsec", min=-MAX_WP_ANGLE, max=MAX_WP_ANGLE))
+    loc = errors.geometric.location
+    for i, a in enumerate(machine.axes):
+        for k, c in enumerate("XYZABC"):
+            name = f"E{c}0{a.name}"
+            lin = k < 3
+            vs.append(Var(f"location.{name}", VR_LOC + 6 * i + k, "parameter",
+                          f"Location error {name} (ISO 230-1) of axis {a.name}: "
+                          + ("offset along " + c if lin else "rotation about " + c),
+                          start=loc.get(name, 0.0), unit="mm" if lin else "rad",
+                          display_unit="um" if lin else "urad",
+                          min=-(MAX_LOC_LINEAR if lin else MAX_LOC_ANGLE), max=MAX_LOC_LINEAR if lin else MAX_LOC_ANGLE))
+    vs.append(Var("geometric_tables", SVR_TABLES, "parameter",
+                  "Component error tables as 'AXIS:path;...', paths relative to the resources folder "
+                  "(CSV: position,E?AXIS..., mm and rad; empty: none)", type="String", start=tables_spec))
+    return vs
+
+
+@dataclass(frozen=True)
+class MachineDynamics:
+    """Start values of the machine FMU's dynamic parameters.
+
+    kv: servo gain per axis in 1/s (0: ideal servo, the axis is where it is commanded);
+    backlash per axis in mm or deg; thermal time constant (s), gain (K per 1/min of spindle
+    speed), ambient (degC) and drift of the tool edge in the tool frame (mm/K); noise: standard
+    deviation (mm) of the tool edge measurement with its seed.
+    """
+    kv: tuple[float, ...] | float = 0.0
+    backlash: tuple[float, ...] | float = 0.0
+    thermal_time_constant: float = 600.0
+    thermal_gain: float = 0.0
+    ambient: float = 20.0
+    drift: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    noise: float = 0.0
+    seed: int = 1
+
+    def per_axis(self, value, n: int, name: str) -> tuple[float, ...]:
+        if np.ndim(value) == 0:
+            return (float(value),) * n
+        v = tuple(float(x) for x in value)
+        if len(v) != n:
+            raise MtcompError(f"{name}: expected {n} values (one per axis), got {len(v)}")
+        return v
+
+
+def _resources(machine: Machine, errors: ErrorSet, res: Path) -> str:
+    res.mkdir(parents=True)
+    (res / "machine.txt").write_text(machine_resource_text(machine), encoding="utf-8")
+    items = []
+    if errors.geometric.tables:
+        (res / "tables").mkdir()
+        for ax, t in errors.geometric.tables.items():
+            if ax not in machine.axis_names:
+                raise MtcompError(f"error table for axis {ax}, but machine {machine.name} has axes "
+                                  f"{' '.join(machine.axis_names)}")
+            (res / "tables" / f"{ax}.csv").write_text(t.to_csv(), encoding="utf-8")
+            items.append(f"{ax}:tables/{ax}.csv")
+    return ";".join(items)
+
+
+def _documentation(doc: Path, title: str, summary: str, variables: list[Var], machine: Machine) -> None:
+    doc.mkdir(parents=True)
+    rows = "\n".join(
+        f"<tr><td><code>{html.escape(v.name)}</code></td><td>{v.causality}</td><td>{v.type}</td>"
+        f"<td>{html.escape(v.unit or '')}</td><td>{html.escape(v.description)}</td></tr>" for v in variables)
+    axes = ", ".join(f"{a.name} ({a.kind}, {a.side} side)" for a in machine.axes)
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+<style>body{{font-family:sans-serif;max-width:60em;margin:2em auto}}td,th{{border-bottom:1px solid #ccc;padding:2px 6px;text-align:left}}</style>
+</head><body>
+<h1>{html.escape(title)}</h1>
+<p>{html.escape(summary)}</p>
+<p>Machine <b>{html.escape(machine.name)}</b>: axes from the workpiece to the tool: {html.escape(axes)}.
+Units: mm, deg, s, degC; geometric error angles in rad. Every axis motion is the motion of the tool relative to
+the workpiece (ISO 841).</p>
+<p>FMI 2.0 Co-Simulation, native C (no Python at run time). The C sources are in <code>sources/</code>
+(rebuild for another platform with <code>fmpy compile</code>); the machine description and the geometric
+error tables are in <code>resources/</code>. Invalid parameters (NaN, out of range, missing or malformed
+resource tables) make the FMU return fmi2Error with a log message naming the variable or file.</p>
+<h2>Variables</h2>
+<table><tr><th>Name</th><th>Causality</th><th>Type</th><th>Unit</th><th>Description</th></tr>
+{rows}
+</table>
+<p>Generated by mtcomp {html.escape(_pkg_version())}; see docs/fmu.md in the mtcomp sources.</p>
+</body></html>
+"""
+    (doc / "index.html").write_text(page, encoding="utf-8")
+    (doc / "externalDependencies.txt").write_text(
+        "This FMU has no external dependencies: it needs no tool, licence, network access or Python\n"
+        "interpreter. The binary links only the C runtime and libm. Everything it reads is inside the\n"
+        "archive: resources/machine.txt and the error tables under resources/tables/.\n", encoding="utf-8")
+
+
+def _copy_sources(kind: str, src_dir: Path) -> tuple[str, ...]:
+    src_dir.mkdir(parents=True)
+    here = resources.files("mtcomp.fmu").joinpath("c")
+    for name in C_SOURCES[kind] + C_HEADERS:
+        with resources.as_file(here.joinpath(name)) as p:
+            shutil.copyfile(p, src_dir / name)
+    try:
+        import fmpy
+    except ImportError:  # pragma: no cover - fmpy is a dependency of the fmu extra
+        raise FmuBuildError("fmpy is needed to build FMUs (pip install mtcomp[fmu])") from None
+    ccode = Path(fmpy.__file__).parent / "c-code"
+    for h in FMI2_HEADERS:
+        shutil.copyfile(ccode / h, src_dir / h)
+    return C_SOURCES[kind]
+
+
+def _compile(unzipdir: Path) -> None:
+    """Compile the binary for this platform from the archive's sources with fmpy's CMake project
+    (the same build `fmpy compile` runs), quietly; the compiler output is kept for errors."""
+    import subprocess
+    import fmpy
+    from fmpy.build import create_cmake_settings
+    if shutil.which("cmake") is None:
+        raise FmuBuildError("cmake not found (pip install cmake): needed to compile the FMU")
+    source_dir = Path(fmpy.__file__).parent / "c-code"
+    with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-build-") as bd:
+        # -lm at the end of the link line: the kernel uses libm and plain C hosts may not load it.
+        create_cmake_settings(unzipdir, bd, cmake_options={"CMAKE_C_STANDARD_LIBRARIES:STRING": "-lm"})
+        for cmd in (["cmake", "-S", str(source_dir), "-B", bd],
+                    ["cmake", "--build", bd, "--target", "install", "--config", "Release"]):
+            run = subprocess.run(cmd, capture_output=True, text=True)
+            if run.returncode:
+                raise FmuBuildError(f"compiling the FMU failed ({' '.join(cmd[:2])}):\n{run.stdout[-3000:]}"
+                                    f"{run.stderr[-3000:]}")
+
+
+def _zip(folder: Path, out: Path) -> Path:
+    with atomic_path(out) as tmp:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+            for p in sorted(folder.rglob("*")):
+                if p.is_file():
+                    zf.write(p, p.relative_to(folder).as_posix())
+    return out
+
+
+def _guid(*parts: str) -> str:
+    h = hashlib.sha256("\0".join(parts).encode()).hexdigest()
+    return "{" + str(uuid.UUID(h[:32])) + "}"
+
+
+def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: str, title: str, summary: str,
+           extra_vars, compile_binary: bool) -> Path:
+    out_path = Path(out_path)
+    with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-") as td:
+        root = Path(td) / "fmu"
+        tables_spec = _resources(machine, errors, root / "resources")
+        variables = _common_vars(machine, errors, tables_spec) + extra_vars + _param_vars(machine, errors, tables_spec)
+        sources = _copy_sources(kind, root / "sources")
+        guid = _guid(kind, identifier, machine_resource_text(machine), repr(variables))
+        md = write_model_description(model_name=f"{title} ({machine.name})", identifier=identifier,
+                                     description=summary, variables=variables, sources=sources, guid=guid)
+        (root / "modelDescription.xml").write_bytes(md)
+        _documentation(root / "documentation", f"{title}: {machine.name}", summary, variables, machine)
+        if compile_binary:
+            _compile(root)
+        return _zip(root, out_path)
+
+
+def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None, *,
+                          identifier: str = "mtcomp_compensator", compile_binary: bool = True) -> Path:
+    """Build the compensator FMU for `machine` (preset name, TOML path or Machine).
+
+    Inputs `command.<AXIS>` (programmed commands), outputs `compensated.<AXIS>` = mtcomp.kinematics
+    .retarget of the inputs under the errors; `errors` gives the start values of the setting and
+    location parameters and the geometric tables stored as resources.  Returns the path written.
+    """
+    machine = load_machine(machine)
+    errors = errors or ErrorSet()
+    extra = []
+    for i, a in enumerate(machine.axes):
+        unit, _ = _axis_unit(machine, i)
+        extra.append(Var(f"compensated.{a.name}", VR_OUT + i, "output",
+                         f"Compensated command of axis {a.name} for the real machine, {unit}", unit=unit))
+    extra += [
+        Var("residual", VR_RESIDUAL, "output", "Largest residual of the compensation (position, mm; orientation "
+            "scaled by 100 mm/rad)", unit="mm", display_unit="nm"),
+        Var("iterations", IVR_ITERS, "output", "Gauss-Newton iterations used at the last evaluation",
+            type="Integer", variability="discrete"),
+        Var("tolerance", VR_TOL, "parameter", "Step tolerance of the compensation iteration, mm or deg",
+            variability="tunable", start=1e-11, unit="mm", min=1e-15, max=1e-3),
+        Var("max_iterations", IVR_MAXIT, "parameter", "Iteration limit of the compensation", type="Integer",
+            variability="tunable", start=30, min=1, max=1000),
+    ]
+    summary = ("Machine-tool error compensator: turns programmed axis commands into the commands that put the "
+               "real tool edge (with tool setting, workpiece setting and geometric errors) where the ideal "
+               "machine would have put it.")
+    return _build("compensator", machine, errors, out_path, identifier, "mtcomp compensator", summary, extra,
+                  compile_binary)
+
+
+def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None,
+                      dynamics: MachineDynamics | None = None, *, identifier: str = "mtcomp_machine",
+                      compile_binary: bool = True) -> Path:
+    """Build the virtual machine FMU (native C): axis commands and spindle speed in; real tool edge
+    position and direction in the real workpiece frame, actual axis positions and temperature out.
+    `errors` are the machine's true errors (start values and table resources), `dynamics` the
+    servo, backlash, thermal and noise start values."""
+    machine = load_machine(machine)
+    errors = errors or ErrorSet()
+    dyn = dynamics or MachineDynamics()
+    n = machine.n_axes
+    kv = dyn.per_axis(dyn.kv, n, "kv")
+    bl = dyn.per_axis(dyn.backlash, n, "backlash")
+    extra = [Var("spindle_speed", VR_SPINDLE, "input", "Spindle speed driving the thermal drift, 1/min",
+                 start=0.0, unit="1/min", min=0.0, max=1e6)]
+    for k, c in enumerate(_XYZ):
+        extra.append(Var(f"tool.{c}", VR_P + k, "output",
+                         f"{c} of the real tool edge in the real workpiece frame (with sensor noise)",
+                         unit="mm", display_unit="um"))
+    for k, c in enumerate(_XYZ):
+        extra.append(Var(f"tool_direction.{c}", VR_V + k, "output",
+                         f"{c} of the tool axis direction (unit vector from the edge into the holder)", unit="1"))
+    extra.append(Var("temperature", VR_TEMP, "output", "Machine temperature driving the thermal drift", unit="degC"))
+    for i, a in enumerate(machine.axes):
+        unit, disp = _axis_unit(machine, i)
+        extra.append(Var(f"actual.{a.name}", VR_ACT + i, "output",
+                         f"Actual position of axis {a.name} after servo lag and backlash, {unit}", unit=unit))
+    for i, a in enumerate(machine.axes):
+        extra.append(Var(f"servo.kv.{a.name}", VR_KV + i, "parameter",
+                         f"Position loop gain of axis {a.name} (first-order servo); 0 = ideal servo",
+                         start=kv[i], unit="1/s", min=0.0, max=1e4))
+    for i, a in enumerate(machine.axes):
+        unit, disp = _axis_unit(machine, i)
+        extra.append(Var(f"backlash.{a.name}", VR_BACKLASH + i, "parameter",
+                         f"Backlash (play width) of axis {a.name}, {unit}", start=bl[i], unit=unit,
+                         display_unit=disp, min=0.0, max=1.0))
+    extra += [
+        Var("thermal.time_constant", VR_TAU, "parameter", "Time constant of the machine temperature", start=dyn.thermal_time_constant,
+            unit="s", min=1e-3, max=1e6),
+        Var("thermal.gain", VR_GAIN, "parameter", "Steady temperature rise per unit spindle speed", start=dyn.thermal_gain,
+            unit="K.min", min=0.0, max=1.0),
+        Var("thermal.ambient", VR_AMBIENT, "parameter", "Ambient (and initial) temperature", start=dyn.ambient,
+            unit="degC", min=-50.0, max=100.0),
+    ]
+    for k, c in enumerate(_XYZ):
+        extra.append(Var(f"thermal.drift.{c}", VR_DRIFT + k, "parameter",
+                         f"Tool edge drift along tool-frame {c} per kelvin above ambient", start=dyn.drift[k],
+                         unit="mm/K", display_unit="um/K", min=-1.0, max=1.0))
+    extra += [
+        Var("noise.sigma", VR_NOISE, "parameter", "Standard deviation of the tool edge measurement noise",
+            start=dyn.noise, unit="mm", display_unit="nm", min=0.0, max=1.0),
+        Var("noise.seed", IVR_SEED, "parameter", "Seed of the measurement noise", type="Integer", start=int(dyn.seed)),
+    ]
+    summary = ("Virtual multi-axis machine tool with tool setting, workpiece setting and geometric errors, first-order "
+               "servos, backlash, thermal drift and sensor noise; the same forward model as mtcomp.kinematics.")
+    return _build("machine", machine, errors, out_path, identifier, "mtcomp machine", summary, extra, compile_binary)

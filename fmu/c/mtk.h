@@ -1,0 +1,70 @@
+/* mtk: the mtcomp kinematic kernel in C.
+ *
+ * Mirrors mtcomp.kinematics (docs/model.md): a serial chain of linear and rotary axes from the
+ * workpiece to the tool, each contributing
+ *     G_i(q) = L_i N_i(q) L_i^-1 . T(loc_i) D_i(q) T(-loc_i),
+ * tool setting offset at the end of the chain and the workpiece setting pose at its start;
+ * `mtk_compensate` is the same chord Gauss-Newton iteration as mtcomp.kinematics.compensate.
+ * Units: mm and deg for commands and setting errors, rad for geometric error angles.
+ * The machine comes from a resource file written at FMU build time (docs/fmu.md).
+ */
+#ifndef MTCOMP_MTK_H
+#define MTCOMP_MTK_H
+
+#include <stddef.h>
+
+#define MTK_MAX_AXES 9
+#define MTK_ERRLEN 512
+
+typedef struct {
+    int n;                  /* number of rows */
+    double *pos;            /* (n) axis position, mm or deg, strictly increasing */
+    double *val;            /* (n*6) components EX?, EY?, EZ? (mm), EA?, EB?, EC? (rad) */
+} mtk_table;
+
+typedef struct {
+    char name[64];
+    int n_axes;
+    char axis_name[MTK_MAX_AXES];
+    int rotary[MTK_MAX_AXES];
+    int tool_side[MTK_MAX_AXES];
+    double dir[MTK_MAX_AXES][3];
+    double loc[MTK_MAX_AXES][3];
+    double lo[MTK_MAX_AXES], hi[MTK_MAX_AXES];
+    double tool_point[3];
+    double tool_axis[3];
+    mtk_table *table[MTK_MAX_AXES];   /* NULL: no component errors for that axis */
+} mtk_model;
+
+/* Setting and location errors: the parameters of an FMU, may change between calls. */
+typedef struct {
+    double tool[3];                   /* tool setting offset, mm, last tool-side frame */
+    double wp_t[3];                   /* workpiece translation, mm */
+    double wp_a[3];                   /* workpiece angles a, b, c, deg: R = Rz(c) Ry(b) Rx(a) */
+    double loc[MTK_MAX_AXES][6];      /* E{X,Y,Z}0{axis} mm, E{A,B,C}0{axis} rad */
+    int use_tables;                   /* 0: ignore the tables (rigid model) */
+} mtk_errors;
+
+/* Return codes */
+enum { MTK_OK = 0, MTK_E_IO = 1, MTK_E_FORMAT = 2, MTK_E_RANGE = 3, MTK_E_LIMIT = 4,
+       MTK_E_CONVERGE = 5, MTK_E_ARG = 6 };
+
+int mtk_load_machine(const char *path, mtk_model **out, char *err);
+int mtk_load_table(mtk_model *m, const char *axis_name, const char *path, char *err);
+void mtk_free(mtk_model *m);
+void mtk_errors_zero(mtk_errors *e);
+int mtk_axis_index(const mtk_model *m, char axis_name);
+
+/* Tool edge p (mm) and tool frame R (row-major 3x3, columns = tool frame axes) in the real
+ * workpiece frame for commands q (mm, deg); e == NULL: ideal machine. */
+int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double R[9], char *err);
+
+/* Commands q (n_axes) that put the real tool edge at the ideal pose of q_prog under the errors e
+ * (mtcomp.kinematics.retarget with check=True).  iters and residual (mm) may be NULL. */
+int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
+                 double tol, int max_iter, int *iters, double *residual, char *err);
+
+/* Portable strtok_r: next token of s (or of *save when s is NULL) delimited by any of delim. */
+char *mtk_tok(char *s, const char *delim, char **save);
+
+#endif
