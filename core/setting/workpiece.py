@@ -1,0 +1,123 @@
+"""Workpiece setting errors after robot loading (paper 001): the public API and the NC transform.
+
+Work flow (each step a function; the CLI `mtcomp workpiece-setting` is a thin layer over them):
+
+    plan = plan_bowls(3)                                 # bowls.py: positions, depth, touches
+    roughing_program(plan), probing_program(plan)        # NC text for the two machines
+    touches = read_touches("touches.csv")                # or virtual_probe(true_pose, plan, ...)
+    fit = fit_bowls(touches, plan.probe_radius)          # sphere per bowl, probe radius removed
+    est = frame_from_bowls(fit, plan)                    # frame.py: WorkpieceSettingEstimate
+    est.save("errors.toml")                              # mtcomp.errors format
+    q_new = compensate_commands(machine, q, est.pose)    # this module
+
+The NC transform comes in two modes.  "3axis" is paper 001's formula applied to the tool-point
+coordinates of a program whose rotary axes stay at 0: x' = R x + t (= [ex ey ez](x - X) + X + d,
+see frame.pose_from_paper); the tool keeps its direction in the machine, so relative to the real
+blank it is tilted by the setting angles (harmless for a ball or a point-like edge).  "5axis"
+also keeps the tool direction relative to the real blank: the core's `kinematics.retarget`
+solves the axis commands (rotary angles included) that reproduce, on the machine with the
+workpiece setting error, the programmed contact point and tool direction.
+
+Units: mm, deg.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .._io import InputError
+from ..errors import ErrorSet, WorkpieceSetting
+from .bowls import (BowlFit, BowlPlan, SphereFit, Touches, fit_bowls, load_plan, plan_bowls,  # noqa: F401
+                    probing_program, read_touches, roughing_program, save_plan, virtual_probe,
+                    write_touches)
+from .frame import (WorkpieceSettingEstimate, apply_pose, frame_from_bowls, frame_from_points,  # noqa: F401
+                    paper_frame, paper_transform, pose_from_paper, pose_matrix)
+
+__all__ = [
+    "plan_bowls", "BowlPlan", "roughing_program", "probing_program", "save_plan", "load_plan",
+    "Touches", "read_touches", "write_touches", "virtual_probe", "fit_bowls", "BowlFit",
+    "SphereFit", "frame_from_bowls", "frame_from_points", "WorkpieceSettingEstimate",
+    "paper_frame", "paper_transform", "pose_from_paper", "apply_pose", "compensate_commands",
+    "is_three_axis",
+]
+
+
+def is_three_axis(machine, q) -> bool:
+    """True when every rotary axis command of q (N, n_axes) is 0 (a 3-axis program)."""
+    q = np.atleast_2d(np.asarray(q, float))
+    rot = list(machine.rotary_indices)
+    return not rot or bool(np.all(q[:, rot] == 0.0))
+
+
+def _where(k: int, lines, source) -> dict:
+    line = None if lines is None else int(np.asarray(lines)[k])
+    return {"file": source, "line": line}
+
+
+def _linear_map(machine):
+    """(A, p0): tool point p = A q_lin + p0 at all rotary axes 0 (affine there; taken from the
+    core's forward model, not re-derived)."""
+    from ..kinematics import forward
+    lin = [i for i in range(machine.n_axes) if i not in machine.rotary_indices]
+    q = np.zeros((len(lin) + 1, machine.n_axes))
+    for k, i in enumerate(lin):
+        q[k + 1, i] = 1.0
+    p = forward(machine, q).p
+    return np.column_stack([p[k + 1] - p[0] for k in range(len(lin))]), p[0], lin
+
+
+def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", *, lines=None,
+                        source=None, round_result: bool = False) -> np.ndarray:
+    """Axis commands (N, n_axes) mm/deg for the real blank at `pose` from commands q for the nominal one.
+
+    mode "3axis": paper 001's x' = R x + t on the tool point, rotary axes untouched (they must
+    be 0 on every line); "5axis": contact point and tool direction relative to the blank, via
+    kinematics.retarget; "auto": 3axis when the rotary axes are all 0, else 5axis.
+    lines: source line number of each row (for errors); source: program file name.
+    Raises InputError naming the line when a command would leave an axis' travel (or, in 3axis
+    mode, when a rotary axis is not at 0).
+    """
+    from ..kinematics import ConvergenceError, LimitError, check_limits, retarget, round_to_resolution
+    q = np.atleast_2d(np.asarray(q, float))
+    if q.shape[1] != machine.n_axes:
+        raise InputError(f"commands need {machine.n_axes} columns ({' '.join(machine.axis_names)}), "
+                         f"got {q.shape[1]}", source)
+    if mode == "auto":
+        mode = "3axis" if is_three_axis(machine, q) else "5axis"
+    if mode == "3axis":
+        rot = list(machine.rotary_indices)
+        if rot:
+            bad = np.flatnonzero(np.any(q[:, rot] != 0.0, axis=1))
+            if bad.size:
+                k = int(bad[0])
+                names = [machine.axis_names[i] for i in rot if q[k, i] != 0.0]
+                raise InputError(f"3-axis transform needs the rotary axes at 0, {names[0]} is "
+                                 f"{q[k, machine.index(names[0])]:g} deg; use the 5-axis mode",
+                                 **_where(k, lines, source))
+        A, p0, lin = _linear_map(machine)
+        R, t = pose_matrix(pose)
+        p = q[:, lin] @ A.T + p0                   # tool point in the nominal workpiece frame
+        p_new = p @ R.T + t                        # paper 001: x' = R x + t
+        out = q.copy()
+        out[:, lin] = np.linalg.solve(A, (p_new - p0).T).T
+        if round_result:
+            out = round_to_resolution(machine, out)
+        try:
+            check_limits(machine, out)
+        except LimitError as exc:
+            raise InputError(str(exc).replace(f" (point {exc.index})", ""),
+                             **_where(exc.index, lines, source)) from None
+        return out
+    if mode != "5axis":
+        raise InputError(f"mode must be auto, 3axis or 5axis, got {mode!r}", field="mode")
+    if not machine.rotary_indices:
+        raise InputError(f"machine {machine.name} has no rotary axes: use the 3-axis mode",
+                         field="mode")
+    try:
+        return retarget(machine, q, ErrorSet(workpiece=pose), round_result=round_result)
+    except LimitError as exc:
+        raise InputError(f"the compensated angles leave the travel: "
+                         f"{str(exc).replace(f' (point {exc.index})', '')}",
+                         **_where(exc.index, lines, source)) from None
+    except ConvergenceError as exc:
+        raise InputError(f"no axis commands reach this point and tool direction on the real "
+                         f"blank: {exc}", **_where(exc.index, lines, source)) from None
