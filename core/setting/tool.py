@@ -1,0 +1,368 @@
+"""Tool setting errors by grooving (paper 000): virtual grooving and the measurement sheet.
+
+The tool setting error is the vector t (mm) from the nominal tool point (the common rotation
+centre of A, B, C) to the real tool edge, in the frame carried by C (`mtcomp.errors.ToolSetting`).
+A groove cut with fixed rotary angles is the trace of the real edge, so it is the programmed
+groove shifted by R(A, B, C) t; everything here goes through `mtcomp.kinematics.forward`.
+
+Library entry points (re-exported here):
+
+* `make_plan`, `write_plan` (tool_plan): grooves, NC programs, layout PNG, measurement sheet;
+* `cut_grooves`, `simulate_grooving`: predicted grooves and synthetic microscope measurements;
+* `read_measurements`, `measurements_csv`: the filled measurement sheet;
+* `estimate` (tool_estimate): weighted least squares with covariance, plus the closed forms;
+* `paper_experiment`: the paper's Table 1 experiment, virtually.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._io import InputError, MtcompError
+from .tool_plan import (FEATURES, SHEET_COLUMNS, Groove, Plan, PlanOptions, commands_for_points,  # noqa: F401
+                        groove_width, load_plan, make_plan, nc_programs, plot_layout, sheet_template,
+                        write_plan)
+
+
+def _errorset(errors):
+    from ..errors import ErrorSet, ToolSetting
+    if errors is None:
+        return None
+    if isinstance(errors, ErrorSet):
+        return errors
+    if isinstance(errors, ToolSetting):
+        return ErrorSet(tool=errors)
+    return ErrorSet(tool=ToolSetting(tuple(np.asarray(errors, float))))
+
+
+# ---------------------------------------------------------------------------------------------
+# Virtual grooving
+
+@dataclass(frozen=True)
+class CutGroove:
+    """A groove as the real machine cuts it.  start/end: groove bottom (u, v) in the face frame,
+    mm; depth: below the real surface, mm (after touching off at the test's first groove);
+    width: at the surface, mm; tilt: tool axis tilt in the groove's cross-section, deg;
+    cut: False if the edge never enters the material (depth <= 0)."""
+    groove: Groove
+    start: tuple[float, float]
+    end: tuple[float, float]
+    depth: float
+    width: float
+    tilt: float
+    cut: bool
+
+    def point(self, feature: str) -> tuple[float, float]:
+        return self.start if feature == "start" else self.end
+
+
+def programmed_commands(machine, plan: Plan, items) -> np.ndarray:
+    """Axis commands (N, n_axes) of the programmed groove points (groove id, feature) at depth D."""
+    from ..machine import load_machine
+    m = load_machine(machine)
+    pts, ang = [], []
+    for gid, feat in items:
+        g = plan.groove(gid)
+        pts.append(plan.face_of(g).point(g.point(feat), g.depth)[0])
+        ang.append(g.angles)
+    return commands_for_points(m, np.array(pts), np.array(ang))
+
+
+def cut_grooves(machine, plan: Plan, errors=None, compensation=None, touch_off: bool = True) -> tuple[CutGroove, ...]:
+    """Predict the grooves cut on the real machine with `errors` (ErrorSet, ToolSetting or an
+    offset (3,) mm) by the plan's programs, compensated for `compensation` (ErrorSet or None).
+
+    touch_off: the surface is found with the real tool at each test's first groove orientation
+    (as an operator does), so that groove has exactly the depth of cut D; otherwise the surface
+    is the nominal face plane."""
+    from ..kinematics import forward, retarget
+    from ..machine import load_machine
+    m = load_machine(machine)
+    errs = _errorset(errors)
+    items = [(g.id, f) for g in plan.grooves for f in FEATURES]
+    q = programmed_commands(m, plan, items)
+    if compensation is not None:
+        q = retarget(m, q, _errorset(compensation), round_result=True)
+    pose = forward(m, q, errs)
+    out, ref_shift = [], {}
+    for k, g in enumerate(plan.grooves):
+        face = plan.face_of(g)
+        c = face.coords(pose.p[2 * k:2 * k + 2])          # (2, 3): u, v, depth below the nominal face
+        if touch_off and g.test not in ref_shift:
+            ref_shift[g.test] = c[0, 2] - g.depth
+        depth = float(np.mean(c[:, 2]) - (ref_shift.get(g.test, 0.0) if touch_off else 0.0))
+        # Tilt of the tool axis in the cross-section plane (normal: the cut direction).
+        v = pose.v[2 * k]
+        d3 = pose.p[2 * k + 1] - pose.p[2 * k]
+        d3 /= np.linalg.norm(d3)
+        vp = v - (v @ d3) * d3
+        n = np.asarray(face.normal)
+        tilt = float(np.degrees(np.arctan2(np.cross(n, vp) @ d3, n @ vp)))
+        width = float(groove_width(max(depth, 0.0), plan.options.tip_angle, tilt))
+        out.append(CutGroove(g, tuple(map(float, c[0, :2])), tuple(map(float, c[1, :2])), depth, width, tilt,
+                             depth > 0))
+    return tuple(out)
+
+
+def intersection(a: CutGroove, b: CutGroove):
+    """Crossing point (u, v) mm of the bottom lines of two cut grooves on the same face, or None
+    if the segments do not cross (parallel or apart)."""
+    if a.groove.face != b.groove.face:
+        return None
+    p, r = np.array(a.start), np.subtract(a.end, a.start)
+    q, s = np.array(b.start), np.subtract(b.end, b.start)
+    den = r[0] * s[1] - r[1] * s[0]
+    if abs(den) < 1e-12 * np.linalg.norm(r) * np.linalg.norm(s):
+        return None
+    w = q - p
+    ta = (w[0] * s[1] - w[1] * s[0]) / den
+    tb = (w[0] * r[1] - w[1] * r[0]) / den
+    if -1e-9 <= ta <= 1 + 1e-9 and -1e-9 <= tb <= 1 + 1e-9:
+        return tuple(map(float, p + ta * r))
+    return None
+
+
+def table1_distances(plan: Plan, cuts) -> dict[str, tuple[float, float]]:
+    """Groove distances like paper 000's Table 1, in mm, (du, dv) in the face frame.
+
+    A: between the A = 0 and A = 180 copies of each groove (du from the grooves along v, dv from
+    the grooves along u).  C: the gap where the triangle should close (start of its first side
+    against the end of its last side)."""
+    by = {c.groove.id: c for c in cuts}
+    out = {}
+    a = [g for g in plan.grooves if g.test == "A"]
+    a0 = [g for g in a if g.angles[0] == min(x.angles[0] for x in a)]
+    a1 = [g for g in a if g.angles[0] == max(x.angles[0] for x in a)]
+    if a0 and a1 and a0[0].angles != a1[0].angles:
+        du = dv = np.nan
+        for g0 in a0:
+            g1 = next((g for g in a1 if g.start == g0.start and g.end == g0.end), None)
+            if g1 is None:
+                continue
+            d = np.subtract(by[g1.id].start, by[g0.id].start)
+            if abs(g0.direction[0]) > abs(g0.direction[1]):   # along u: measures the v distance
+                dv = abs(d[1])
+            else:
+                du = abs(d[0])
+        out["A"] = (float(du), float(dv))
+    c = [g for g in plan.grooves if g.test == "C"]
+    if len(c) >= 2:
+        d = np.subtract(by[c[0].id].start, by[c[-1].id].end)
+        out["C"] = (float(abs(d[0])), float(abs(d[1])))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Measurements
+
+@dataclass(frozen=True)
+class MicroscopeNoise:
+    """Measurement noise (1 sigma, mm): position of the groove bottom in the face plane, depth."""
+    position: float = 0.001
+    depth: float = 0.001
+
+
+@dataclass(frozen=True)
+class PointMeasurement:
+    """One measured groove point: (u, v) mm in the face frame (any origin per test) and depth mm
+    below the surface; NaN where not measured.  sigma_*: 1-sigma (mm), None for the defaults."""
+    groove: str
+    feature: str
+    u: float
+    v: float
+    depth: float
+    sigma_pos: float | None = None
+    sigma_depth: float | None = None
+    line: int | None = None
+
+
+@dataclass(frozen=True)
+class GroovingMeasurements:
+    """Measured groove points of a plan, with default sigmas (mm) for rows that give none."""
+    plan: Plan
+    points: tuple[PointMeasurement, ...]
+    sigma_pos: float = 0.001
+    sigma_depth: float = 0.001
+    source: str = "<measurements>"
+
+    def __post_init__(self):
+        for name in ("sigma_pos", "sigma_depth"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"expected a positive sigma in mm, got {v!r}", field=name)
+
+
+def simulate_grooving(machine, tool_setting, plan: Plan | None = None, noise: MicroscopeNoise | None = None,
+                      seed=None, compensation=None, frame_offset: float = 0.0) -> GroovingMeasurements:
+    """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
+    (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
+    Gaussian noise of `noise` (default 1 um on positions and depths) from `seed`.
+
+    frame_offset: mm; each test is measured in a microscope frame whose origin is shifted by a
+    uniform random (u, v) in +-frame_offset (the estimator must not depend on it).
+    Raises MtcompError if a groove would not be cut (depth <= 0): increase the depth of cut."""
+    from ..machine import load_machine
+    m = load_machine(machine)
+    plan = plan or make_plan(m)
+    noise = noise or MicroscopeNoise()
+    rng = np.random.default_rng(seed)
+    cuts = {c.groove.id: c for c in cut_grooves(m, plan, tool_setting, compensation)}
+    uncut = [c.groove.id for c in cuts.values() if not c.cut]
+    if uncut:
+        raise MtcompError(f"grooves {', '.join(uncut)} would not be cut (the edge stays above the surface): "
+                          f"increase the depth of cut (now {plan.options.depth:g} mm)")
+    origin = {t: rng.uniform(-frame_offset, frame_offset, 2) if frame_offset else np.zeros(2) for t in plan.tests()}
+    pts = []
+    for gid, feat in plan.features():
+        c = cuts[gid]
+        u, v = np.add(c.point(feat), origin[c.groove.test]) + rng.normal(0.0, noise.position, 2)
+        d = c.depth + rng.normal(0.0, noise.depth)
+        pts.append(PointMeasurement(gid, feat, float(u), float(v), float(d)))
+    # Noise-free synthesis still needs finite weights: use the machine's resolution scale.
+    return GroovingMeasurements(plan, tuple(pts), noise.position or 1e-6, noise.depth or 1e-6, "<simulated>")
+
+
+def measurements_csv(meas: GroovingMeasurements, comment: str = "") -> str:
+    """The filled measurement sheet (same columns as the template)."""
+    plan = meas.plan
+    buf = io.StringIO()
+    buf.write("# mtcomp tool-setting measurement sheet (docs/tool-setting.md): groove bottom u, v in the face "
+              "frame and depth below the surface, mm\n")
+    if comment:
+        for line in comment.splitlines():
+            buf.write(f"# {line}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    extra = any(p.sigma_pos is not None or p.sigma_depth is not None for p in meas.points)
+    w.writerow(SHEET_COLUMNS + (("sigma_pos_mm", "sigma_depth_mm") if extra else ()))
+    cell = lambda x: "" if x is None or not np.isfinite(x) else f"{x:.7f}"  # noqa: E731
+    for p in meas.points:
+        g = plan.groove(p.groove)
+        u0, v0 = g.point(p.feature)
+        row = [p.groove, p.feature, g.test, g.face, f"{g.angles[0]:g}", f"{g.angles[1]:g}", f"{g.angles[2]:g}",
+               f"{u0:.6f}", f"{v0:.6f}", f"{g.depth:.6f}", cell(p.u), cell(p.v), cell(p.depth), ""]
+        if extra:
+            row += [cell(p.sigma_pos), cell(p.sigma_depth)]
+        w.writerow(row)
+    return buf.getvalue()
+
+
+_REQUIRED = ("groove", "feature", "u_mm", "v_mm", "depth_mm")
+
+
+def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.001,
+                      sigma_depth: float = 0.001) -> GroovingMeasurements:
+    """Read and validate a filled measurement sheet against its plan.
+
+    Every problem is an InputError naming the file, the line and the column: unknown groove ids
+    or features, angles that differ from the plan's, non-finite numbers, duplicate points, and
+    grooves of the plan without any measured value."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("measurement file not found", path) from None
+    lines = [(n, ln) for n, ln in enumerate(text.splitlines(), 1) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise InputError("empty measurement file", path)
+    hline, header = lines[0]
+    cols = [c.strip() for c in next(csv.reader([header]))]
+    missing = [c for c in _REQUIRED if c not in cols]
+    if missing:
+        raise InputError(f"missing columns {missing}; expected at least {', '.join(_REQUIRED)}", path, hline)
+    idx = {c: i for i, c in enumerate(cols)}
+    ids = plan.ids
+    pts, seen = [], {}
+
+    def number(cells, col, n, positive=False):
+        if col not in idx:
+            return None
+        s = cells[idx[col]].strip()
+        if s == "":
+            return np.nan
+        try:
+            x = float(s)
+        except ValueError:
+            raise InputError(f"malformed number {s!r}: expected mm (or an empty cell)", path, n, col) from None
+        if not np.isfinite(x):
+            raise InputError(f"{s!r}: expected a finite number (leave the cell empty if not measured)", path, n, col)
+        if positive and x <= 0:
+            raise InputError(f"{s!r}: expected a positive sigma", path, n, col)
+        return x
+
+    for n, ln in lines[1:]:
+        cells = [c.strip() for c in next(csv.reader([ln]))]
+        if len(cells) < len(cols):
+            cells += [""] * (len(cols) - len(cells))
+        gid, feat = cells[idx["groove"]], cells[idx["feature"]]
+        if gid not in ids:
+            raise InputError(f"unknown groove id {gid!r}; the plan has {', '.join(ids)}", path, n, "groove")
+        if feat not in FEATURES:
+            raise InputError(f"unknown feature {feat!r}; expected {' or '.join(FEATURES)}", path, n, "feature")
+        g = plan.groove(gid)
+        for k, col in enumerate(("a_deg", "b_deg", "c_deg")):
+            a = number(cells, col, n)
+            if a is not None and not np.isnan(a) and abs(a - g.angles[k]) > 1e-6:
+                raise InputError(f"inconsistent angles: {col} = {a:g} but the plan cuts groove {gid} at "
+                                 f"{'ABC'[k]} = {g.angles[k]:g} deg", path, n, col)
+        if "test" in idx and cells[idx["test"]] and cells[idx["test"]] != g.test:
+            raise InputError(f"groove {gid} belongs to test {g.test}, not {cells[idx['test']]!r}", path, n, "test")
+        key = (gid, feat)
+        if key in seen:
+            raise InputError(f"{gid} {feat} measured twice (first on line {seen[key]})", path, n, "groove")
+        seen[key] = n
+        u, v, d = (number(cells, c, n) for c in ("u_mm", "v_mm", "depth_mm"))
+        sp, sd = number(cells, "sigma_pos_mm", n, True), number(cells, "sigma_depth_mm", n, True)
+        sp = None if sp is None or np.isnan(sp) else sp
+        sd = None if sd is None or np.isnan(sd) else sd
+        if np.isnan(u) != np.isnan(v):
+            raise InputError("give both u_mm and v_mm of a point, or neither", path, n,
+                             "v_mm" if np.isnan(v) else "u_mm")
+        if np.isnan(u) and np.isnan(d):
+            continue  # row left empty: not measured
+        pts.append(PointMeasurement(gid, feat, u, v, d, sp, sd, n))
+    measured = {p.groove for p in pts}
+    for g in plan.grooves:
+        if g.id not in measured:
+            rows = [str(seen[(g.id, f)]) for f in FEATURES if (g.id, f) in seen]
+            shared = [f for f in FEATURES if (g.id, f) not in seen]
+            where = f"its rows (line {', '.join(rows)}) are empty" if rows else "it has no row"
+            raise InputError(f"missing groove {g.id} (test {g.test}): {where}; measure "
+                             f"{' and '.join(shared if not rows else FEATURES)} point(s), or remove the groove "
+                             "from the plan", path, int(rows[0]) if rows else None, "groove")
+    return GroovingMeasurements(plan, tuple(pts), sigma_pos, sigma_depth, str(path))
+
+
+# ---------------------------------------------------------------------------------------------
+# The paper's experiment, virtually
+
+def paper_offset() -> tuple[float, float, float]:
+    """A tool setting error (mm) that reproduces the A-axis distances of paper 000's Table 1
+    (490.04 and 680.12 um) with the default plan: |t_y| = du/2, |t_x| = dv/2 (signs chosen so
+    the C closing gap, (297.90, 662.03) um, comes nearest to the Table's (108.97, 852.81) um).  t_z, which Table 1
+    does not give, is set to 0.2 mm; the C distances follow from the same t (docs/tool-setting.md)."""
+    return (0.68012 / 2, 0.49004 / 2, 0.2)
+
+
+def paper_experiment(machine="robonano-ui", offset=None, noise: MicroscopeNoise | None = None, seed=None,
+                     plan: Plan | None = None):
+    """One virtual run of paper 000's experiment: cut with the true offset, measure with noise,
+    estimate, cut again with compensated programs.  Returns (estimate, original distances,
+    compensated distances); distances as in `table1_distances` (mm)."""
+    from .tool_estimate import estimate
+    from ..machine import load_machine
+    m = load_machine(machine)
+    plan = plan or make_plan(m)
+    offset = paper_offset() if offset is None else offset
+    meas = simulate_grooving(m, offset, plan, noise, seed)
+    est = estimate(m, meas)
+    before = table1_distances(plan, cut_grooves(m, plan, offset))
+    after = table1_distances(plan, cut_grooves(m, plan, offset, compensation=est.errors()))
+    return est, before, after
+
+
+from .tool_estimate import ToolSettingEstimate, estimate  # noqa: E402,F401  (public API)

@@ -1,0 +1,550 @@
+"""Estimating the tool setting error from measured grooves: closed forms and weighted least squares.
+
+Measurement model (exact, see docs/tool-setting.md): a groove point programmed at face
+coordinates y0 = (u, v, D) is measured at
+
+    y = y0 + B_f (p(q, t) - p(q, 0)) + n_test + noise,      p(q, t) - p(q, 0) = R(q) t
+
+with B_f the face basis (rows eu, ev, -normal), R(q) the tool frame orientation from
+`mtcomp.kinematics.forward`, and n_test an unknown per-test offset of the microscope origin
+(u, v) and of the surface (depth).  The model is linear in t, so the weighted least-squares
+solution and its covariance are exact (no iteration, no linearisation error).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._io import InputError, MtcompError
+from .tool_plan import Plan, commands_for_points
+
+COMPONENTS = ("t_x", "t_y", "t_z")
+#: Warn when a component's 1-sigma exceeds this multiple of the finest measurement sigma.
+ILL_CONDITIONED_FACTOR = 10.0
+
+
+# ---------------------------------------------------------------------------------------------
+# Closed forms (our derivation; sign convention: t = real edge minus rotation centre, tool frame)
+
+def b_depth_closed_form(theta2, theta3, d1, d2, d3):
+    """(t_x, t_z) mm from the depths d1, d2, d3 (mm) of B grooves cut at B = 0, theta2, theta3 deg.
+
+    Rigid rotation about Y of the edge offset (t_x, t_z): the edge height at B = theta is
+    -sin(theta) t_x + cos(theta) t_z, so with the surface touched off at B = 0
+        d(theta) - d(0) = sin(theta) t_x + (1 - cos(theta)) t_z,
+    two equations in two unknowns (Cramer's rule)."""
+    s2, s3 = np.sin(np.radians(theta2)), np.sin(np.radians(theta3))
+    k2, k3 = 1 - np.cos(np.radians(theta2)), 1 - np.cos(np.radians(theta3))
+    det = s2 * k3 - s3 * k2
+    e2, e3 = np.subtract(d2, d1), np.subtract(d3, d1)
+    return (e2 * k3 - e3 * k2) / det, (s2 * e3 - s3 * e2) / det
+
+
+def b_depth_closed_form_sigma(theta2, theta3, sigma_depth):
+    """1-sigma (mm) of (t_x, t_z) from `b_depth_closed_form` for independent depth noise sigma_depth."""
+    s2, s3 = np.sin(np.radians(theta2)), np.sin(np.radians(theta3))
+    k2, k3 = 1 - np.cos(np.radians(theta2)), 1 - np.cos(np.radians(theta3))
+    det = s2 * k3 - s3 * k2
+    gx = np.array([-(k3 - k2), k3, -k2]) / det      # d t_x / d (d1, d2, d3)
+    gz = np.array([-(s2 - s3), -s3, s2]) / det      # d t_z / d (d1, d2, d3)
+    return sigma_depth * np.linalg.norm(gx), sigma_depth * np.linalg.norm(gz)
+
+
+def b_position_closed_form(theta2, theta3, w2, w3):
+    """(t_x, t_z) mm from lateral groove shifts w2, w3 (mm) of B grooves at theta2, theta3 deg,
+    each relative to the B = 0 groove after removing the programmed spacing:
+        w(theta) = (cos(theta) - 1) t_x + sin(theta) t_z      (first order in t_z)."""
+    s2, s3 = np.sin(np.radians(theta2)), np.sin(np.radians(theta3))
+    c2, c3 = np.cos(np.radians(theta2)) - 1, np.cos(np.radians(theta3)) - 1
+    det = c2 * s3 - c3 * s2
+    return (w2 * s3 - w3 * s2) / det, (c2 * w3 - c3 * w2) / det
+
+
+def paper_eq1_dx(theta2, theta3, d1, d2, D):
+    """Paper 000 eq. (1) as printed: Delta X from depths d1 (at theta2), d2 (at theta3) and the
+    depth of cut D.  It equals -t_x: the paper's (Delta X, Delta Z) is the correction (rotation
+    centre minus edge), i.e. -(t_x, t_z) in our convention."""
+    s2, s3 = np.sin(np.radians(theta2)), np.sin(np.radians(theta3))
+    k2, k3 = 1 - np.cos(np.radians(theta2)), 1 - np.cos(np.radians(theta3))
+    return (-(d1 - D) * k3 + (d2 - D) * k2) / (s2 * k3 - s3 * k2)
+
+
+def paper_eq2_dz_printed(theta2, theta3, d1, d2, D):
+    """Paper 000 eq. (2) exactly as printed (a misprint: it does not recover Delta Z)."""
+    s2, s3 = np.sin(np.radians(theta2)), np.sin(np.radians(theta3))
+    k2, k3 = 1 - np.cos(np.radians(theta2)), 1 - np.cos(np.radians(theta3))
+    return ((d1 - D) * s2 + (d2 - D) * s3) / (s2 * k3 - s3 * k2)
+
+
+def paper_eq2_dz_derived(theta2, theta3, d1, d2, D):
+    """Eq. (2) re-derived in the paper's notation and sign (Delta Z = -t_z): the sines of the
+    printed form are swapped and one sign is flipped:
+        Delta Z = ((d1 - D) sin(theta3) - (d2 - D) sin(theta2)) / Det."""
+    s2, s3 = np.sin(np.radians(theta2)), np.sin(np.radians(theta3))
+    k2, k3 = 1 - np.cos(np.radians(theta2)), 1 - np.cos(np.radians(theta3))
+    return ((d1 - D) * s3 - (d2 - D) * s2) / (s2 * k3 - s3 * k2)
+
+
+def a_closed_form(delta_u, delta_v):
+    """(t_x, t_y) mm from the shift (delta_u, delta_v) mm of the A = 180 pattern against the A = 0
+    pattern on the side face (tool axis along X): the shift is (-2 t_y, 2 t_x)."""
+    return delta_v / 2.0, -delta_u / 2.0
+
+
+def c_closed_form(c_from, c_to, gap):
+    """(t_x, t_y) mm from the gap (du, dv) mm at a triangle vertex between the end of the side cut
+    at C = c_from and the start of the side cut at C = c_to (deg): gap = (Rz(c_to) - Rz(c_from)) t."""
+    def rz(c):
+        c = np.radians(c)
+        return np.array([[np.cos(c), -np.sin(c)], [np.sin(c), np.cos(c)]])
+    return tuple(np.linalg.solve(rz(c_to) - rz(c_from), np.asarray(gap, float)))
+
+
+def closed_forms(meas) -> dict[str, tuple]:
+    """The closed-form estimates per test from a measurement set of the default pattern
+    (averaging start and end points): {"A": (t_x, t_y), "C": (t_x, t_y), "B_depth": (t_x, t_z),
+    "B_position": (t_x, t_z)}, mm.  Tests without the needed points are left out."""
+    plan = meas.plan
+    pt = {(p.groove, p.feature): p for p in meas.points}
+
+    def get(g, f, attr):
+        p = pt.get((g.id, f))
+        if p is None and f == "start":
+            # shared start point listed once for the first groove with the same start and angles
+            for h in plan.grooves:
+                if h.test == g.test and h.angles == g.angles and h.start == g.start and (h.id, f) in pt:
+                    p = pt[(h.id, f)]
+                    break
+        return np.nan if p is None else getattr(p, attr)
+
+    out = {}
+    a = [g for g in plan.grooves if g.test == "A"]
+    if a:
+        angs = sorted({g.angles[0] for g in a})
+        if len(angs) == 2 and abs(angs[1] - angs[0] - 180) < 1e-9:
+            du, dv = [], []
+            for g0 in (g for g in a if g.angles[0] == angs[0]):
+                g1 = next((g for g in a if g.angles[0] == angs[1] and g.start == g0.start and g.end == g0.end), None)
+                if g1 is None:
+                    continue
+                for f in ("start", "end"):
+                    du.append(get(g1, f, "u") - get(g0, f, "u"))
+                    dv.append(get(g1, f, "v") - get(g0, f, "v"))
+            if du and np.all(np.isfinite(du)):
+                # The shift is measured A180 - A0 when angs[0] is 0: a_closed_form assumes that order.
+                out["A"] = a_closed_form(float(np.mean(du)), float(np.mean(dv)))
+    c = [g for g in plan.grooves if g.test == "C"]
+    if len(c) >= 2:
+        ests = []
+        for k in range(len(c)):
+            g0, g1 = c[k - 1], c[k]
+            if np.allclose(g0.end, g1.start, atol=1e-9):
+                gap = (get(g1, "start", "u") - get(g0, "end", "u"), get(g1, "start", "v") - get(g0, "end", "v"))
+                if np.all(np.isfinite(gap)):
+                    ests.append(c_closed_form(g0.angles[2], g1.angles[2], gap))
+        if ests:
+            out["C"] = tuple(np.mean(ests, axis=0))
+    b = [g for g in plan.grooves if g.test == "B"]
+    if len(b) >= 3 and b[0].angles[1] == 0:
+        g1, g2, g3 = b[:3]
+        th2, th3 = g2.angles[1], g3.angles[1]
+        dep = [np.nanmean([get(g, f, "depth") for f in ("start", "end")]) for g in (g1, g2, g3)]
+        if np.all(np.isfinite(dep)):
+            out["B_depth"] = b_depth_closed_form(th2, th3, *dep)
+        lat = [np.nanmean([get(g, f, "u") for f in ("start", "end")]) - g.start[0] for g in (g1, g2, g3)]
+        if np.all(np.isfinite(lat)):
+            out["B_position"] = b_position_closed_form(th2, th3, lat[1] - lat[0], lat[2] - lat[0])
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# General weighted least squares
+
+@dataclass(frozen=True)
+class Design:
+    """The linear measurement model: rows y = y0 + J t + N n + noise (mm)."""
+    y: np.ndarray          # (M,) measured
+    y0: np.ndarray         # (M,) predicted with t = 0 and no offsets
+    J: np.ndarray          # (M, 3) d y / d t
+    N: np.ndarray          # (M, K) nuisance indicator columns
+    sigma: np.ndarray      # (M,) 1-sigma, mm
+    labels: tuple          # (M,) "groove feature component"
+    lines: tuple           # (M,) line in the source file (or None)
+    nuisance_names: tuple  # (K,)
+
+
+def _rows_for(machine, plan: Plan, items):
+    """Nominal values y0 (P,3) and Jacobians (P,3,3) [component, t index] of groove points."""
+    from ..errors import ErrorSet, ToolSetting
+    from ..kinematics import forward
+    pts, ang, bases, y0 = [], [], [], []
+    for gid, feat in items:
+        g = plan.groove(gid)
+        face = plan.face_of(g)
+        pts.append(face.point(g.point(feat), g.depth)[0])
+        ang.append(g.angles)
+        bases.append(face.basis)
+        y0.append((*g.point(feat), g.depth))
+    q = commands_for_points(machine, np.array(pts), np.array(ang))
+    p0 = forward(machine, q, ErrorSet()).p
+    B = np.array(bases)
+    J = np.empty((len(items), 3, 3))
+    # Exact: the edge is rigidly attached to the last frame, so p is affine in t.
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = 1.0
+        dp = forward(machine, q, ErrorSet(tool=ToolSetting(tuple(e)))).p - p0
+        J[:, :, k] = np.einsum("nij,nj->ni", B, dp)
+    return np.array(y0, float), J
+
+
+def build_design(machine, meas) -> Design:
+    """Stack every measured scalar (u, v, depth of each point) into the linear model."""
+    from ..machine import load_machine
+    m = load_machine(machine)
+    plan = meas.plan
+    items = [(p.groove, p.feature) for p in meas.points]
+    if not items:
+        raise InputError("no measured points", meas.source)
+    Y0, JJ = _rows_for(m, plan, items)
+    y, y0, J, sig, labels, lines, nkeys = [], [], [], [], [], [], []
+    for k, p in enumerate(meas.points):
+        g = plan.groove(p.groove)
+        for c, (name, val) in enumerate((("u", p.u), ("v", p.v), ("depth", p.depth))):
+            if not np.isfinite(val):
+                continue
+            s = (p.sigma_depth or meas.sigma_depth) if c == 2 else (p.sigma_pos or meas.sigma_pos)
+            y.append(val)
+            y0.append(Y0[k, c])
+            J.append(JJ[k, c])
+            sig.append(s)
+            labels.append(f"{p.groove} {p.feature} {name}")
+            lines.append(p.line)
+            nkeys.append(f"{g.test}:{name}")
+    names = tuple(dict.fromkeys(nkeys))
+    N = np.zeros((len(y), len(names)))
+    for r, key in enumerate(nkeys):
+        N[r, names.index(key)] = 1.0
+    return Design(np.array(y), np.array(y0), np.array(J), N, np.array(sig), tuple(labels), tuple(lines), names)
+
+
+@dataclass(frozen=True)
+class ToolSettingEstimate:
+    """Result of `estimate`: the tool setting error with its covariance and the fit diagnostics.
+
+    tool_setting: ToolSetting (mm, tool frame).  cov: (3,3) mm^2.  nuisance: per-test offsets of
+    the microscope origin / surface (mm).  residuals: (M,) mm, measured minus fitted, with labels;
+    chi2 and dof of the weighted fit.  warnings: ill-conditioning and misfit notes."""
+    tool_setting: object
+    cov: np.ndarray
+    nuisance: dict
+    residuals: np.ndarray
+    normalized: np.ndarray
+    labels: tuple
+    lines: tuple
+    chi2: float
+    dof: int
+    warnings: tuple = ()
+    closed: dict = field(default_factory=dict)
+    source: str = ""
+
+    @property
+    def offset(self) -> np.ndarray:
+        return np.asarray(self.tool_setting.offset)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov))
+
+    def mahalanobis2(self, true_offset) -> float:
+        """Squared Mahalanobis distance of the estimate from a true offset (mm) under `cov`."""
+        d = self.offset - np.asarray(true_offset, float)
+        return float(d @ np.linalg.solve(self.cov, d))
+
+    def errors(self):
+        """An ErrorSet holding only this tool setting (for `retarget` and the errors TOML)."""
+        from ..errors import ErrorSet
+        return ErrorSet(tool=self.tool_setting)
+
+    def summary(self) -> str:
+        um = 1e3
+        lines = ["Tool setting error (edge minus rotation centre, tool frame), weighted least squares:"]
+        for k, name in enumerate(COMPONENTS):
+            lines.append(f"  {name} = {self.offset[k] * um:+10.3f} um  +- {self.sigma[k] * um:.3f} um (1 sigma)")
+        corr = self.cov / np.outer(self.sigma, self.sigma)
+        lines.append("  correlation: " + "; ".join(f"{COMPONENTS[i]}/{COMPONENTS[j]} {corr[i, j]:+.2f}"
+                                                 for i, j in ((0, 1), (0, 2), (1, 2))))
+        rms = np.sqrt(np.mean(self.residuals ** 2)) * um if self.residuals.size else float("nan")
+        worst = int(np.argmax(np.abs(self.normalized))) if self.normalized.size else None
+        lines.append(f"  fit: {self.residuals.size} values, chi2 = {self.chi2:.2f} on {self.dof} dof, "
+                     f"residual rms {rms:.3f} um")
+        if worst is not None:
+            where = f" (line {self.lines[worst]})" if self.lines[worst] else ""
+            lines.append(f"  largest normalised residual: {self.normalized[worst]:+.2f} at "
+                         f"{self.labels[worst]}{where}")
+        if self.closed:
+            lines.append("  closed forms: " + "; ".join(
+                f"{k} ({', '.join(f'{x * um:+.2f}' for x in v)}) um" for k, v in self.closed.items()))
+        for w in self.warnings:
+            lines.append(f"  WARNING: {w}")
+        return "\n".join(lines)
+
+
+def _solve(design: Design):
+    """Whitened least squares by SVD: parameters, covariance, rank information."""
+    A = np.hstack([design.J, design.N]) / design.sigma[:, None]
+    b = (design.y - design.y0) / design.sigma
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    U, s, Vt = np.linalg.svd(A / scale, full_matrices=False)
+    return A, b, scale, U, s, Vt
+
+
+def estimate(machine, meas, closed: bool = True) -> ToolSettingEstimate:
+    """Weighted least-squares tool setting error from a GroovingMeasurements (any grooves, any
+    angles), with covariance (known measurement sigmas, not rescaled by chi2), residuals,
+    closed-form estimates for comparison and warnings.  Raises InputError on singular geometry
+    (a component of t that the measured grooves cannot see)."""
+    from ..errors import ToolSetting
+    from ..machine import load_machine
+    from scipy import stats
+    m = load_machine(machine)
+    d = build_design(m, meas)
+    n_par = 3 + d.N.shape[1]
+    if d.y.size < n_par:
+        raise InputError(f"{d.y.size} measured values cannot determine {n_par} unknowns (3 tool setting "
+                         f"components and {d.N.shape[1]} per-test offsets): measure more grooves", meas.source)
+    A, b, scale, U, s, Vt = _solve(d)
+    tol = s[0] * 1e-9
+    if s[-1] <= tol:
+        null = Vt[s <= tol]
+        lost = [COMPONENTS[k] for k in range(3) if np.max(np.abs(null[:, k])) > 1e-3]
+        hint = ""
+        if "t_z" in lost:
+            hint = " (t_z needs B grooves at two or more inclinations, at least one non-zero)"
+        elif lost:
+            hint = " (t_x and t_y need the A pattern at A = 0 and 180, or C grooves at two or more C angles)"
+        raise InputError(f"singular geometry: the measured grooves do not determine {', '.join(lost) or 'the offsets'}"
+                         f"{hint}", meas.source)
+    x = (Vt.T @ ((U.T @ b) / s)) / scale
+    cov_full = (Vt.T / s ** 2) @ Vt / np.outer(scale, scale)
+    t = x[:3]
+    cov = cov_full[:3, :3]
+    fit = np.hstack([d.J, d.N]) @ x + d.y0
+    res = d.y - fit
+    norm = res / d.sigma
+    dof = int(d.y.size - n_par)
+    chi2 = float(norm @ norm)
+    warnings = []
+    sig = np.sqrt(np.diag(cov))
+    floor = float(np.min(d.sigma))
+    for k, name in enumerate(COMPONENTS):
+        if sig[k] > ILL_CONDITIONED_FACTOR * floor:
+            why = ""
+            if name == "t_z":
+                why = (": depths carry t_z only to second order (1 - cos theta) at small B inclinations; "
+                       "measure the lateral positions of the B grooves or add grooves at larger |B|")
+            warnings.append(f"ill-conditioned: {name} has sigma {sig[k] * 1e3:.2f} um, "
+                            f"{sig[k] / floor:.0f}x the finest measurement sigma{why}")
+    if dof > 0 and stats.chi2.sf(chi2, dof) < 1e-3:
+        worst = int(np.argmax(np.abs(norm)))
+        where = f" line {d.lines[worst]}" if d.lines[worst] else ""
+        warnings.append(f"residuals exceed the stated noise (chi2 {chi2:.1f} on {dof} dof); check{where} "
+                        f"({d.labels[worst]}, {norm[worst]:+.1f} sigma) or the sigmas")
+    cf = {}
+    if closed:
+        try:
+            cf = closed_forms(meas)
+        except (ValueError, KeyError, np.linalg.LinAlgError):
+            cf = {}
+    return ToolSettingEstimate(ToolSetting(tuple(t)), cov, dict(zip(d.nuisance_names, x[3:])), res, norm,
+                               d.labels, d.lines, chi2, dof, tuple(warnings), cf, meas.source)
+
+
+# ---------------------------------------------------------------------------------------------
+# Which extra groove helps most
+
+@dataclass(frozen=True)
+class GrooveSuggestion:
+    """A candidate extra groove and the expected 1-sigma of t (mm) with it added."""
+    groove: object
+    sigma: np.ndarray
+    trace_reduction: float   # reduction of trace(cov) in um^2
+
+
+def _information(machine, plan, items, sig_pos, sig_depth, nuis_names):
+    y0, J = _rows_for(machine, plan, items)
+    rows, nrows = [], []
+    for k, (gid, _f) in enumerate(items):
+        g = plan.groove(gid)
+        for c, name in enumerate(("u", "v", "depth")):
+            s = sig_depth if c == 2 else sig_pos
+            r = np.zeros(len(nuis_names))
+            key = f"{g.test}:{name}"
+            if key in nuis_names:
+                r[nuis_names.index(key)] = 1.0
+            rows.append(np.concatenate([J[k, c], r]) / s)
+    return np.array(rows)
+
+
+def suggest_grooves(machine, meas, candidates=None, top: int = 3) -> list[GrooveSuggestion]:
+    """Rank candidate extra grooves by the expected reduction of trace(cov t), measured like the
+    others (start and end points, u, v and depth, default sigmas).  Candidates default to B
+    grooves at +-5 .. +-45 deg and C sides at 60, 180, 300 deg that the plan lacks."""
+    from dataclasses import replace
+    from ..machine import load_machine
+    from .tool_plan import Groove
+    m = load_machine(machine)
+    plan = meas.plan
+    d = build_design(m, meas)
+    names = list(d.nuisance_names)
+    A = np.hstack([d.J, d.N]) / d.sigma[:, None]
+    info0 = A.T @ A
+    if candidates is None:
+        candidates = []
+        b = [g for g in plan.grooves if g.test == "B"]
+        if b:
+            have = {g.angles[1] for g in b}
+            last = b[-1]
+            for th in (5, -5, 10, -10, 15, -15, 20, -20, 30, -30, 45, -45):
+                if float(th) not in have:
+                    du = plan.options.spacing if plan.options.spacing else 2.0
+                    candidates.append(replace(last, id=f"B{th:+g}*", angles=(0.0, float(th), 0.0),
+                                              start=(last.start[0] + du, last.start[1]),
+                                              end=(last.end[0] + du, last.end[1])))
+        c = [g for g in plan.grooves if g.test == "C"]
+        if c:
+            have = {g.angles[2] % 360 for g in c}
+            for cc in (60.0, 180.0, 300.0):
+                if cc not in have:
+                    candidates.append(Groove(f"C{cc:g}*", "C", c[0].face, (0.0, 0.0, cc), c[0].start,
+                                             tuple(np.add(c[0].start, 3.0 * np.array(
+                                                 [-np.sin(np.radians(cc)), np.cos(np.radians(cc))]))),
+                                             c[0].depth))
+    base_cov = np.linalg.pinv(info0)[:3, :3]
+    out = []
+    for cand in candidates:
+        p2 = Plan(plan.machine, plan.options, plan.grooves + (cand,), plan.faces)
+        rows = _information(m, p2, [(cand.id, "start"), (cand.id, "end")], meas.sigma_pos, meas.sigma_depth, names)
+        info = info0 + rows.T @ rows
+        try:
+            cov = np.linalg.inv(info)[:3, :3]
+        except np.linalg.LinAlgError:
+            cov = np.linalg.pinv(info)[:3, :3]
+        out.append(GrooveSuggestion(cand, np.sqrt(np.diag(cov)), float(np.trace(base_cov - cov)) * 1e6))
+    out.sort(key=lambda s: -s.trace_reduction)
+    return out[:top]
+
+
+# ---------------------------------------------------------------------------------------------
+# Compensation outputs and report
+
+def write_errors(est: ToolSettingEstimate, path, source: str = "") -> object:
+    """Write the errors TOML (docs/errors-format.md) that `mtcomp compensate` reads, with the
+    1-sigma recorded under [uncertainty]."""
+    from ..errors import save_errors
+    meta = {"produced_by": "mtcomp tool-setting estimate", "method": "weighted least squares (paper 000 grooving)"}
+    if source:
+        meta["measurements"] = source
+    return save_errors(est.errors(), path, uncertainty={"tool_setting.offset": [float(x) for x in est.sigma]},
+                       meta=meta)
+
+
+def predicted_residuals(machine, plan: Plan, est: ToolSettingEstimate) -> dict:
+    """1-sigma (mm) of the Table 1 distances after compensation, from the estimate's covariance:
+    the residual setting error t - t_hat ~ N(0, cov) moves the grooves linearly."""
+    from ..machine import load_machine
+    m = load_machine(machine)
+    out = {}
+    a = [g for g in plan.grooves if g.test == "A"]
+    angs = sorted({g.angles[0] for g in a})
+    if len(angs) == 2:
+        g0 = next(g for g in a if g.angles[0] == angs[0])
+        g1 = next(g for g in a if g.angles[0] == angs[1] and g.start == g0.start)
+        _, J = _rows_for(m, plan, [(g0.id, "start"), (g1.id, "start")])
+        D = J[1, :2] - J[0, :2]
+        out["A"] = tuple(np.sqrt(np.diag(D @ est.cov @ D.T)))
+    c = [g for g in plan.grooves if g.test == "C"]
+    if len(c) >= 2:
+        _, J = _rows_for(m, plan, [(c[0].id, "start"), (c[-1].id, "end")])
+        D = J[0, :2] - J[1, :2]
+        out["C"] = tuple(np.sqrt(np.diag(D @ est.cov @ D.T)))
+    return out
+
+
+def report_text(machine, meas, est: ToolSettingEstimate) -> str:
+    """Plain-text report: estimate +- sigma, fit, closed forms, predicted residual after
+    compensation, and the groove that would help most."""
+    lines = [f"mtcomp tool-setting report: machine {meas.plan.machine}, measurements {meas.source}", "",
+             est.summary(), ""]
+    pr = predicted_residuals(machine, meas.plan, est)
+    if pr:
+        lines.append("Predicted groove distances after compensation (1 sigma, from the covariance):")
+        for k, (du, dv) in pr.items():
+            lines.append(f"  {k} test: du {du * 1e3:.3f} um, dv {dv * 1e3:.3f} um")
+        lines.append("")
+    sug = suggest_grooves(machine, meas)
+    if sug:
+        lines.append("Extra groove that would help most (expected 1 sigma of t_x, t_y, t_z with it):")
+        for s in sug:
+            g = s.groove
+            lines.append(f"  {g.id.rstrip('*')} at A{g.angles[0]:g} B{g.angles[1]:g} C{g.angles[2]:g}: "
+                         f"({', '.join(f'{x * 1e3:.3f}' for x in s.sigma)}) um, "
+                         f"trace(cov) -{s.trace_reduction:.3f} um^2")
+    return "\n".join(lines) + "\n"
+
+
+def plot_report(machine, meas, est: ToolSettingEstimate, path):
+    """Report figure (PNG): estimate with 1/3-sigma bars, normalised residuals, and the predicted
+    grooves before/after compensation on each face."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from pathlib import Path
+    from .._io import atomic_path
+    from .tool import cut_grooves
+    m = machine
+    plan = meas.plan
+    fig = plt.figure(figsize=(13, 8))
+    ax1 = fig.add_subplot(2, 2, 1)
+    x = np.arange(3)
+    ax1.bar(x, est.offset * 1e3, color="tab:blue", alpha=0.7)
+    ax1.errorbar(x, est.offset * 1e3, yerr=3 * est.sigma * 1e3, fmt="none", ecolor="k", capsize=6, label="3 sigma")
+    ax1.set_xticks(x, COMPONENTS)
+    ax1.set_ylabel("um")
+    ax1.set_title("tool setting error (tool frame)", fontsize=9)
+    for k in range(3):
+        ax1.text(k, est.offset[k] * 1e3, f"{est.offset[k] * 1e3:+.2f}\n+-{est.sigma[k] * 1e3:.2f}",
+                 ha="center", va="bottom", fontsize=8)
+    ax1.legend(fontsize=8)
+    ax2 = fig.add_subplot(2, 2, 2)
+    ax2.plot(est.normalized, "o", ms=3)
+    ax2.axhline(3, color="r", lw=0.6)
+    ax2.axhline(-3, color="r", lw=0.6)
+    ax2.set_ylabel("residual / sigma")
+    ax2.set_xlabel("measured value #")
+    ax2.set_title(f"normalised residuals (chi2 {est.chi2:.1f} on {est.dof} dof)", fontsize=9)
+    before = cut_grooves(m, plan, est.errors())
+    after = cut_grooves(m, plan, est.errors(), compensation=est.errors())
+    faces = [f for f in plan.faces if any(g.face == f for g in plan.grooves)]
+    for i, fname in enumerate(faces[:2]):
+        ax = fig.add_subplot(2, 2, 3 + i)
+        for g in (g for g in plan.grooves if g.face == fname):
+            ax.plot(*zip(g.start, g.end), color="0.6", lw=3, alpha=0.5)
+        for cs, col, lab in ((before, "tab:red", "as cut (estimated t)"), (after, "tab:green", "compensated")):
+            first = True
+            for c in (c for c in cs if c.groove.face == fname):
+                ax.plot(*zip(c.start, c.end), color=col, lw=1, label=lab if first else None)
+                first = False
+        ax.set_aspect("equal")
+        ax.set_title(f"{fname} face: nominal (grey), predicted grooves", fontsize=9)
+        ax.legend(fontsize=7)
+        ax.set_xlabel("u [mm]")
+        ax.set_ylabel("v [mm]")
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+    return path
