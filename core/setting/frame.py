@@ -327,8 +327,7 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
         S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = covs[i]
     cov = Jp @ S @ Jp.T
     cov = 0.5 * (cov + cov.T)
-    # floor of (0.1 nm)^2 per coordinate: numerical resolution, so noise-free data gives no alarms
-    Sr = Jr @ S @ Jr.T + np.eye(3 * n) * 1e-14
+    Sr = Jr @ S @ Jr.T
     res = r0.reshape(n, 3)
     # a gross misfit (swapped bowl ids, a bowl milled elsewhere) would give a confident but wrong
     # pose; it is an input error, not a statistic
@@ -343,9 +342,12 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
     for i in range(n):
         blk = Sr[3 * i:3 * i + 3, 3 * i:3 * i + 3]
         w, V = np.linalg.eigh(0.5 * (blk + blk.T))
-        keep = w > 1e-6 * w.max()
+        if not w.max() > 0:
+            continue  # no uncertainty given: nothing to judge against
+        keep = w > 1e-6 * w.max()  # directions the fit leaves free of residual (rank deficit)
         ri = V.T @ res[i]
-        stat[i] = float(np.sum(ri[keep] ** 2 / w[keep]))
+        # (0.1 nm)^2 floor: numerical resolution, so rounding never raises an alarm
+        stat[i] = float(np.sum(ri[keep] ** 2 / (w[keep] + 1e-14)))
         dof[i] = int(keep.sum())
         lim = chi2.ppf(alarm, dof[i])
         if stat[i] > lim:
