@@ -112,12 +112,12 @@ class Cycle:
         img = self.image
         img.set("cmd_seq_echo", rec.cmd_seq)
         img.set("cmd_status", rec.cmd_status)
+        img.set("job_no", rec.job_no)
         if rec.last_result is not None:
             self._show_result(rec.last_result)
         if rec.state == "busy":
             self._job = rec.job
             self._set_state(State.MEASURING)
-            img.set("job_no", rec.job["job_no"])
         elif rec.state == "ready":
             self._presented = rec.result
             self._set_state(State.READY)

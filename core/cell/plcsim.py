@@ -73,8 +73,8 @@ class PlcSim:
         self._connected_once = False
         self._seq: int | None = None
         self._heartbeat = 0
-        self._blank = 0
-        self._ack = 0
+        self.blank_loaded = 0
+        self.ack_seq = 0
         self._confirmed: set[int] = set()   # result_seqs whose ACK the server confirmed
         self._taken: set[int] = set()
         self.report = PlcReport()
@@ -151,12 +151,12 @@ class PlcSim:
         regs[f["plc_heartbeat"].address] = self._heartbeat
         regs[f["command"].address] = int(command)
         regs[f["command_seq"].address] = seq
-        regs[f["blank_loaded"].address] = self._blank
+        regs[f["blank_loaded"].address] = self.blank_loaded
         a = f["part_id"].address
         regs[a:a + 2] = encode_u32(self.part_id, self.word_order)
         regs[f["program_id"].address] = self.program_id
         a = f["ack_seq"].address
-        regs[a:a + 2] = encode_u32(self._ack, self.word_order)
+        regs[a:a + 2] = encode_u32(self.ack_seq, self.word_order)
         rsp = await self._request(lambda c: c.write_registers(PLC_BLOCK[0], regs,
                                                               device_id=self.device_id))
         if rsp.isError():
@@ -188,7 +188,7 @@ class PlcSim:
             self.report.results.append(Received(
                 seq, out["job_no"], out["part_id_out"], out["program_id_out"], bool(out["go"]),
                 out["pose"], out["sigma"], time.perf_counter()))
-        self._ack = seq
+        self.ack_seq = seq
         status, out = await self.command(Command.ACK)
         if status == CommandStatus.OK or State(out["state"]) == State.IDLE:
             self._confirmed.add(seq)
@@ -203,7 +203,7 @@ class PlcSim:
             await self.command(Command.RESET)
         if self.load_time_s:
             await asyncio.sleep(self.load_time_s)      # robot places the blank
-        self._blank = 1
+        self.blank_loaded = 1
         status, out = await self.command(Command.START)
         deadline = time.monotonic() + self.cycle_timeout_s
         while status == CommandStatus.OK:
@@ -226,7 +226,7 @@ class PlcSim:
             else:
                 await asyncio.sleep(0)
             out = await self.read()
-        self._blank = 0                                 # robot takes the part away
+        self.blank_loaded = 0                                 # robot takes the part away
         await self._write(Command.NONE, self._seq)      # same seq: no new command
         self.report.cycles += 1
         self.report.cycle_times.append(time.perf_counter() - t0)

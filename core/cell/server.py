@@ -72,6 +72,85 @@ class CellServer:
         return ExcCodes.ILLEGAL_FUNCTION
 
 
+class BackgroundServer:
+    """A CellServer running in its own thread and event loop, for tests, benchmarks and
+    notebooks: `start()` returns once it listens, `stop()` once it is down, `restart()` drops
+    everything (as a crash would, minus the process) and serves again from the same journal on
+    the same port. Use as a context manager so it always stops."""
+
+    def __init__(self, journal: str | Path, measure_and_compute: MeasureFn,
+                 config: CellConfig = CellConfig(), host: str = "127.0.0.1", port: int = 0):
+        self.journal, self.measure, self.config = Path(journal), measure_and_compute, config
+        self.host, self.port = host, port
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread = None
+        self.server: CellServer | None = None
+
+    def start(self) -> "BackgroundServer":
+        import threading
+        ready = threading.Event()
+
+        def run():
+            self._loop = asyncio.new_event_loop()
+            asyncio.set_event_loop(self._loop)
+            ready.set()
+            self._loop.run_forever()
+            self._loop.close()
+
+        self._thread = threading.Thread(target=run, name="mtcomp-cell-server", daemon=True)
+        self._thread.start()
+        ready.wait()
+        try:
+            self._serve()
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def _serve(self) -> None:
+        async def up():
+            srv = CellServer(Cycle(self.journal, self.measure, self.config), self.host, self.port)
+            await srv.start()
+            return srv
+        self.server = self.call(up())
+        self.port = self.server.port
+
+    def call(self, coro_or_fn, timeout: float = 30.0):
+        """Run a coroutine, or a plain function of the Cycle, in the server's loop; return
+        its value."""
+        if not asyncio.iscoroutine(coro_or_fn):
+            fn = coro_or_fn
+
+            async def wrap():
+                return fn(self.server.cycle)
+            coro_or_fn = wrap()
+        return asyncio.run_coroutine_threadsafe(coro_or_fn, self._loop).result(timeout)
+
+    def restart(self) -> None:
+        if self.server is not None:
+            self.call(self.server.stop())
+            self.server = None
+        self._serve()
+
+    def stop(self) -> None:
+        if self._loop is None:
+            return
+        try:
+            if self.server is not None:
+                self.call(self.server.stop())
+        finally:
+            self.server = None
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(10)
+            self._loop = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+
 @dataclass(frozen=True)
 class OnceResult:
     """Outcome of `run_virtual_cell_once`: the result as the PLC read it, the journal path,
