@@ -1,0 +1,475 @@
+"""Toolpaths for the calibration features and the papers' parts, and their machine axes.
+
+A :class:`Toolpath` is a sequence of tool poses in the workpiece frame (the CAD frame of
+:mod:`mtcomp.cad_plugin.features`: top face z = 0, material below): the controlled tool point
+``p`` (the tool edge of a V tool, the tip of a ball end mill or probe), the tool frame ``R``
+(columns x_t, y_t, tool axis; the tool axis points from the edge into the holder, x_t is the
+direction the rake face faces for a non-rotational tool), a motion code per point (rapid, feed,
+probe), and the unit normal of the target surface at the contact (NaN where the tool does not
+touch).  Units mm, deg, mm/min.
+
+Pure numpy: no CadQuery here.  :func:`to_axes` turns a toolpath into machine axis commands
+through :mod:`mtcomp.kinematics` (nominal inverse kinematics, or compensated for an error set).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._io import InputError, MtcompError
+
+RAPID, FEED, PROBE = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Tool:
+    """kind: "vtool" (non-rotational V tool, included `angle` deg), "ball" (ball end mill of
+    `radius` mm) or "probe" (touch probe, stylus ball `radius` mm).  number: T word."""
+    kind: str
+    radius: float = 0.0
+    angle: float = 90.0
+    number: int = 1
+    name: str = ""
+
+    def __post_init__(self):
+        if self.kind not in ("vtool", "ball", "probe"):
+            raise InputError(f"tool kind must be vtool, ball or probe, got {self.kind!r}", field="tool")
+        if self.kind != "vtool" and not self.radius > 0:
+            raise InputError(f"{self.kind} radius must be > 0 mm, got {self.radius}", field="tool.radius")
+
+    @property
+    def description(self) -> str:
+        if self.name:
+            return self.name
+        if self.kind == "vtool":
+            return f"non-rotational V tool {self.angle:g} deg"
+        return f"{'ball end mill' if self.kind == 'ball' else 'touch probe'} R{self.radius:g}"
+
+
+@dataclass(frozen=True)
+class Toolpath:
+    """Tool poses in the workpiece frame (see the module docstring)."""
+    p: np.ndarray                      # (N,3) controlled tool point, mm
+    R: np.ndarray                      # (N,3,3) tool frame, columns x_t, y_t, tool axis
+    motion: np.ndarray                 # (N,) RAPID / FEED / PROBE: how the tool moves TO the point
+    normal: np.ndarray                 # (N,3) target surface normal at the contact, NaN if none
+    tool: Tool
+    feed: float = 100.0                # mm/min
+    name: str = ""
+    meta: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self):
+        n = len(self.p)
+        for a, shape in ((self.p, (n, 3)), (self.R, (n, 3, 3)), (self.motion, (n,)),
+                         (self.normal, (n, 3))):
+            if np.shape(a) != shape:
+                raise ValueError(f"toolpath arrays disagree: expected {shape}, got {np.shape(a)}")
+
+    def __len__(self) -> int:
+        return len(self.p)
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Tool axis directions (N,3), from the edge into the holder."""
+        return self.R[:, :, 2]
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Ball centres (N,3) for ball tools and probes (tip + radius * axis)."""
+        return self.p + self.tool.radius * self.axis
+
+    @property
+    def cutting(self) -> np.ndarray:
+        """Mask of points reached by a feed (or probing) move that touch the target surface."""
+        return (self.motion != RAPID) & np.isfinite(self.normal[:, 0])
+
+    def concat(self, other: "Toolpath") -> "Toolpath":
+        return Toolpath(np.vstack([self.p, other.p]), np.concatenate([self.R, other.R]),
+                        np.concatenate([self.motion, other.motion]),
+                        np.vstack([self.normal, other.normal]), self.tool, self.feed, self.name,
+                        dict(self.meta))
+
+
+def _frames(feed_dir: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Tool frames (N,3,3) with tool axis `axis` and x_t the feed direction made normal to it."""
+    axis = axis / np.linalg.norm(axis, axis=1, keepdims=True)
+    x = feed_dir - np.einsum("ni,ni->n", feed_dir, axis)[:, None] * axis
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    return np.stack([x, np.cross(axis, x), axis], axis=2)
+
+
+def _vertical(n: int) -> np.ndarray:
+    return np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+
+
+class _Builder:
+    """Accumulates moves; rotation matrices per point."""
+
+    def __init__(self):
+        self.p, self.R, self.m, self.n = [], [], [], []
+
+    def add(self, p, R, motion, normal=None):
+        p = np.atleast_2d(np.asarray(p, float))
+        k = len(p)
+        R = np.asarray(R, float)
+        self.p.append(p)
+        self.R.append(np.broadcast_to(R, (k, 3, 3)) if R.ndim == 2 else R)
+        self.m.append(np.full(k, motion))
+        nn = np.full((k, 3), np.nan) if normal is None else np.broadcast_to(
+            np.asarray(normal, float), (k, 3))
+        self.n.append(nn)
+
+    def build(self, tool, feed, name, **meta) -> Toolpath:
+        return Toolpath(np.vstack(self.p), np.concatenate(self.R).copy(),
+                        np.concatenate(self.m), np.vstack(self.n).copy(), tool, feed, name, meta)
+
+
+def _samples(length: float, step: float) -> np.ndarray:
+    n = max(1, int(math.ceil(length / step - 1e-9)))
+    return np.linspace(0.0, 1.0, n + 1)
+
+
+# ----------------------------------------------------------------------------- V-grooves
+def vgroove_passes(segments, depth: float, tool: Tool, tilts=None, safe: float = 1.0,
+                   step: float = 0.5, feed: float = 50.0, name: str = "vgrooves") -> Toolpath:
+    """Straight V-grooves on the plane z = 0: per segment ((x0,y0),(x1,y1)) approach above the
+    start, plunge along the tool axis to `depth`, feed to the end (points every `step` mm),
+    retract.  The tool's rake face faces the feed; `tilts` (deg, per segment) turn the tool about
+    the feed direction (B tilts when feeding along Y), which the rotary axes carry."""
+    if tool.kind != "vtool":
+        raise InputError("V-grooves need a vtool", field="tool")
+    b = _Builder()
+    segs = [np.asarray(s, float) for s in segments]
+    tilts = np.zeros(len(segs)) if tilts is None else np.asarray(tilts, float)
+    for (p0, p1), tilt in zip(segs, tilts):
+        u = np.array([*(p1 - p0), 0.0])
+        length = float(np.linalg.norm(u))
+        u /= length
+        t = math.radians(tilt)
+        # Tool axis: +z turned by tilt about u (Rodrigues, u perpendicular to z).
+        v = math.cos(t) * np.array([0.0, 0, 1]) + math.sin(t) * np.cross(u, [0.0, 0, 1])
+        R = _frames(u[None], v[None])[0]
+        start, end = np.array([*p0, -depth]), np.array([*p1, -depth])
+        b.add(start + safe * v, R, RAPID)
+        s = _samples(length, step)
+        line = start + np.outer(s, end - start)
+        # Plunge (no surface contact yet), then the cut along the groove bottom line.
+        b.add(line[0], R, FEED)
+        b.add(line[1:], R, FEED, normal=v)
+        b.add(end + safe * v, R, FEED)
+    return b.build(tool, feed, name, depth=depth)
+
+
+def groove_plate_passes(layout=None, tool: Tool | None = None, **kw) -> Toolpath:
+    """V-groove passes of the groove calibration plate (see features.GroovePlateLayout)."""
+    if layout is None:
+        from .layout import GroovePlateLayout
+        layout = GroovePlateLayout()
+    tool = tool or Tool("vtool", angle=layout.angle)
+    g = layout.grooves()
+    return vgroove_passes([s for s, _ in g], layout.depth, tool, [t for _, t in g],
+                          name="groove-plate", **kw)
+
+
+def grating_passes(sphere_radius: float, psi, span: float, depth: float, tool: Tool,
+                   safe: float = 0.5, step_deg: float = 0.25, feed: float = 20.0,
+                   name: str = "grating") -> Toolpath:
+    """V-microgrooves on the concave sphere (centre (0, 0, R)) of features.sphere_vgrooves.
+
+    Along each groove the tool axis stays on the surface normal (through the sphere centre) and
+    the rake face faces the feed direction, so every point has its own orientation: the rotary
+    axes carry it.  The tool edge runs on the groove bottom, `depth` below the surface."""
+    if tool.kind != "vtool":
+        raise InputError("grating grooves need a vtool", field="tool")
+    rs = float(sphere_radius)
+    c0 = np.array([0.0, 0.0, rs])
+    b = _Builder()
+    for p in np.atleast_1d(np.asarray(psi, float)):
+        s, c = math.sin(math.radians(p)), math.cos(math.radians(p))
+        d = np.array([0.0, s, -c])
+        x = np.array([1.0, 0.0, 0.0])
+        half = math.radians(span / 2.0)
+        t = np.linspace(-half, half, max(2, int(math.ceil(span / step_deg)) + 1))
+        # Direction from the centre: turned by t about n = (0, c, s); n x d = -x, so the groove
+        # runs from +x to -x as t grows (same sense as the CAD revolution).
+        dirs = np.cos(t)[:, None] * d - np.sin(t)[:, None] * x
+        tang = -np.sin(t)[:, None] * d - np.cos(t)[:, None] * x
+        tip = c0 + (rs + depth) * dirs
+        R = _frames(tang, -dirs)
+        b.add(tip[0] - (safe + depth) * dirs[0], R[0], RAPID)
+        b.add(tip[0], R[0], FEED)
+        b.add(tip[1:], R[1:], FEED, normal=-dirs[1:])
+        b.add(tip[-1] - (safe + depth) * dirs[-1], R[-1], FEED)
+    return b.build(tool, feed, name, depth=depth, sphere_radius=rs)
+
+
+# ---------------------------------------------------------------------------------- bowls
+def bowl_milling(centres, radius: float, depth: float, tool: Tool, stepover: float = 0.05,
+                 step: float = 0.05, safe: float = 1.0, feed: float = 200.0,
+                 name: str = "bowls") -> Toolpath:
+    """Finish the spherical bowls of features.bowl with a smaller ball end mill.
+
+    Per bowl a spiral from the rim to the bottom: the ball centre stays on the sphere of
+    radius (radius - tool radius) about the bowl's sphere centre (x, y, radius - depth); the
+    contact point advances by `stepover` mm of arc per turn, points every `step` mm."""
+    if tool.kind != "ball" or tool.radius >= radius:
+        raise InputError("bowl milling needs a ball end mill smaller than the bowl", field="tool")
+    rt, R0 = tool.radius, radius
+    rim = math.acos((R0 - depth) / R0)       # polar angle of the rim (from the -z pole)
+    b = _Builder()
+    I = np.eye(3)
+    for cx, cy in np.asarray(centres, float):
+        cs = np.array([cx, cy, R0 - depth])
+        turns = rim * R0 / stepover
+        n = max(8, int(math.ceil(2 * math.pi * R0 * math.sin(rim) * turns / step)))
+        s = np.linspace(0.0, 1.0, n + 1)
+        theta = rim * (1.0 - s)               # contact polar angle: rim -> bottom
+        phi = 2 * math.pi * turns * s
+        nrm = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                        -np.cos(theta)], axis=1)  # outward from the sphere centre (into material)
+        centre = cs + (R0 - rt) * nrm
+        tip = centre - [0.0, 0.0, rt]
+        b.add(tip[0] + [0, 0, safe + depth], I, RAPID)
+        b.add(tip, I, FEED, normal=-nrm)
+        b.add(tip[-1] + [0, 0, safe + depth], I, FEED)
+    return b.build(tool, feed, name, radius=radius, depth=depth)
+
+
+def bowl_probing(centres, radius: float, depth: float, probe: Tool, polar=(0.0, 25.0, 40.0),
+                 n_azimuth: int = 6, approach: float = 0.2, safe: float = 1.0,
+                 feed: float = 20.0, name: str = "bowl-probing") -> Toolpath:
+    """Touch-probe each bowl (paper 001) at the bottom and on rings at `polar` angles (deg from
+    the bowl's axis, `n_azimuth` points per ring).  Each probing move runs along the surface
+    normal from `approach` mm off the surface to the nominal contact, where the stylus centre
+    is on the sphere of radius (radius - probe radius); the fit uses sphere centres, not the
+    lowest points (which move with the tilt of the blank)."""
+    if probe.kind != "probe" or probe.radius >= radius:
+        raise InputError("bowl probing needs a probe smaller than the bowl", field="tool")
+    rim = math.degrees(math.acos((radius - depth) / radius))
+    if max(polar) + math.degrees(math.asin(min(1.0, probe.radius / radius))) >= rim:
+        raise InputError(f"probing ring at {max(polar)} deg leaves the bowl (rim at {rim:.2f} deg)",
+                         field="polar")
+    b = _Builder()
+    I = np.eye(3)
+    for cx, cy in np.asarray(centres, float):
+        cs = np.array([cx, cy, radius - depth])
+        b.add(cs + [0, 0, safe - radius + depth + probe.radius], I, RAPID)
+        for th in polar:
+            phis = [0.0] if th == 0 else np.arange(n_azimuth) * 360.0 / n_azimuth
+            for ph in phis:
+                t, f = math.radians(th), math.radians(ph)
+                nrm = np.array([math.sin(t) * math.cos(f), math.sin(t) * math.sin(f), -math.cos(t)])
+                contact_c = cs + (radius - probe.radius) * nrm
+                start_c = contact_c - approach * nrm
+                b.add(start_c - [0, 0, probe.radius], I, FEED)
+                b.add(contact_c - [0, 0, probe.radius], I, PROBE, normal=-nrm)
+                b.add(start_c - [0, 0, probe.radius], I, FEED)
+        b.add(cs + [0, 0, safe - radius + depth + probe.radius], I, FEED)
+    return b.build(probe, feed, name, radius=radius, depth=depth)
+
+
+# -------------------------------------------------------------------------------- pyramid
+def pyramid_triangles(width: float, height: float, margin: float) -> np.ndarray:
+    """Triangles (M,3,3) of the pyramid's four slopes and of the surrounding flat z = 0 (a
+    square `margin` mm wider on each side), in the workpiece frame."""
+    w, m = width / 2.0, width / 2.0 + margin
+    apex = np.array([0.0, 0.0, height])
+    base = np.array([[-w, -w, 0], [w, -w, 0], [w, w, 0], [-w, w, 0]], float)
+    tris = [[base[i], base[(i + 1) % 4], apex] for i in range(4)]
+    sq = np.array([[-m, -m, 0], [m, -m, 0], [m, m, 0], [-m, m, 0]], float)
+    tris += [[sq[0], sq[1], sq[2]], [sq[0], sq[2], sq[3]]]
+    return np.array(tris)
+
+
+def drop_ball(xy: np.ndarray, triangles: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Drop a ball of radius r at each (x, y) onto triangles: the ball-centre height (N,) and
+    the unit contact normal (N,3) at the highest contact.  Exact: the ball touches a facet
+    interior, an edge or a vertex, and the centre height is the maximum over all of them.
+    (Written here because no maintained Python package does exact drop-cutter on meshes.)"""
+    xy = np.asarray(xy, float)
+    N = len(xy)
+    best = np.full(N, -np.inf)
+    cpt = np.zeros((N, 3))  # contact point of the best candidate
+
+    def take(z, contact):
+        better = z > best
+        best[better] = z[better]
+        cpt[better] = contact[better]
+
+    for tri in triangles:
+        a, b_, c = tri
+        n = np.cross(b_ - a, c - a)
+        n /= np.linalg.norm(n)
+        if n[2] < 0:
+            n = -n
+        if n[2] > 1e-12:  # facet interior: centre = contact + r n
+            q = xy - r * n[:2]
+            zc = a[2] - (n[0] * (q[:, 0] - a[0]) + n[1] * (q[:, 1] - a[1])) / n[2]
+            # barycentric test of the contact's projection
+            v0, v1 = (b_ - a)[:2], (c - a)[:2]
+            w = q - a[:2]
+            den = v0[0] * v1[1] - v1[0] * v0[1]
+            l1 = (w[:, 0] * v1[1] - v1[0] * w[:, 1]) / den
+            l2 = (v0[0] * w[:, 1] - w[:, 0] * v0[1]) / den
+            inside = (l1 >= 0) & (l2 >= 0) & (l1 + l2 <= 1)
+            z = np.where(inside, zc + r * n[2], -np.inf)
+            take(z, np.column_stack([q, zc]))
+        for p0, p1 in ((a, b_), (b_, c), (c, a)):
+            e = p1 - p0
+            exy = e[:2]
+            wxy = xy - p0[:2]
+            # |w - (w.e/|e|^2) e|^2 = r^2 with w = (wxy, z - p0z): quadratic in z.
+            ee = e @ e
+            A = 1.0 - e[2] ** 2 / ee
+            if A < 1e-14:
+                continue  # vertical edge: only its end points can be touched
+            we = wxy @ exy
+            Bq = -2.0 * we * e[2] / ee
+            C = (wxy ** 2).sum(1) - we ** 2 / ee - r * r
+            disc = Bq * Bq - 4 * A * C
+            ok = disc >= 0
+            dz = (-Bq + np.sqrt(np.where(ok, disc, 0))) / (2 * A)
+            tpar = (we + dz * e[2]) / ee
+            ok &= (tpar >= 0) & (tpar <= 1)
+            z = np.where(ok, p0[2] + dz, -np.inf)
+            take(z, p0 + np.clip(tpar, 0, 1)[:, None] * e)
+        for v in (a, b_, c):
+            d2 = ((xy - v[:2]) ** 2).sum(1)
+            ok = d2 <= r * r
+            z = np.where(ok, v[2] + np.sqrt(np.where(ok, r * r - d2, 0)), -np.inf)
+            take(z, np.broadcast_to(v, (N, 3)))
+    if not np.all(np.isfinite(best)):
+        raise MtcompError("drop_ball: points outside the surface")
+    nrm = np.column_stack([xy, best]) - cpt
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return best, nrm
+
+
+def scallop_stepover(radius: float, scallop: float) -> float:
+    """Stepover (mm) that leaves scallops of `scallop` mm between passes of a ball of `radius`
+    on a flat surface: s = 2 sqrt(2 r h - h^2)."""
+    if not 0 < scallop < radius:
+        raise InputError(f"scallop height must be in (0, tool radius), got {scallop}", field="scallop")
+    return 2.0 * math.sqrt(2.0 * radius * scallop - scallop ** 2)
+
+
+def pyramid_finishing(width: float = 3.45, angle: float = 164.81, tool: Tool | None = None,
+                      stepover: float | None = None, scallop: float | None = None,
+                      step: float = 0.01, margin: float = 0.3, safe: float = 0.5,
+                      feed: float = 300.0, name: str = "pyramid-finishing") -> Toolpath:
+    """Zig-zag raster finishing of paper 001's pyramid (and `margin` mm of the flat around it)
+    with a vertical ball end mill: passes along x, `stepover` mm apart in y (or the stepover
+    that leaves `scallop` mm on the flat), points every `step` mm along a pass; ball-centre
+    heights by exact drop-cutter, so each ball touches the CAD surface."""
+    from .layout import pyramid_height
+    tool = tool or Tool("ball", radius=0.5, name="ball end mill R0.5")
+    if tool.kind != "ball":
+        raise InputError("pyramid finishing needs a ball end mill", field="tool")
+    if (stepover is None) == (scallop is None):
+        raise InputError("give exactly one of stepover or scallop", field="stepover")
+    if scallop is not None:
+        stepover = scallop_stepover(tool.radius, scallop)
+    h = pyramid_height(width, angle)
+    tris = pyramid_triangles(width, h, margin + tool.radius)
+    lim = width / 2.0 + margin
+    ys = np.linspace(-lim, lim, int(math.ceil(2 * lim / stepover)) + 1)
+    xs = np.linspace(-lim, lim, int(math.ceil(2 * lim / step)) + 1)
+    b = _Builder()
+    I = np.eye(3)
+    for k, y in enumerate(ys):
+        x = xs if k % 2 == 0 else xs[::-1]
+        xy = np.column_stack([x, np.full_like(x, y)])
+        zc, nrm = drop_ball(xy, tris, tool.radius)
+        tip = np.column_stack([xy, zc - tool.radius])
+        if k == 0:
+            b.add(tip[0] + [0, 0, safe + h], I, RAPID)
+        b.add(tip, I, FEED, normal=nrm)
+    b.add(tip[-1] + [0, 0, safe + h], I, FEED)
+    return b.build(tool, feed, name, width=width, angle=angle, height=h, stepover=stepover,
+                   margin=margin)
+
+
+# --------------------------------------------------------------------------- machine axes
+def _rotary_seed(machine, R_target: np.ndarray) -> np.ndarray:
+    """Rotary angles (deg) whose nominal orientation is closest to R_target (3,3) on a 30 deg
+    grid over the rotary axes' travel; the kinematics' solver refines them."""
+    from ..kinematics import forward
+    rot = list(machine.rotary_indices)
+    grids = []
+    for i in rot:
+        lo, hi = machine.axes[i].limits
+        g = np.arange(-180.0, 180.0 + 1e-9, 30.0)
+        grids.append(g[(g >= lo) & (g <= hi)])
+    mesh = np.array(np.meshgrid(*grids, indexing="ij")).reshape(len(rot), -1).T
+    q = np.zeros((len(mesh), machine.n_axes))
+    q[:, rot] = mesh
+    pose = forward(machine, q)
+    if machine.n_rotary >= 3:
+        err = np.linalg.norm(pose.R - R_target[None], axis=(1, 2))
+    else:
+        err = np.linalg.norm(pose.v - (R_target @ np.asarray(machine.tool_axis))[None], axis=1)
+    # Among near-equal candidates prefer small angles.
+    score = err + 1e-3 * np.abs(mesh).sum(1) / 360.0
+    return mesh[int(np.argmin(score))]
+
+
+def _pinv_solve(machine, q0: np.ndarray, target_p: np.ndarray) -> np.ndarray:
+    """Move the linear axes so that the nominal tool point reaches target_p for the given rotary
+    angles: linear axes translate the tool point along their (possibly rotated) directions, so
+    one least-squares step is exact."""
+    from ..kinematics import forward
+    lin = [i for i, a in enumerate(machine.axes) if not a.is_rotary]
+    p0 = forward(machine, q0).p
+    J = np.empty((len(q0), 3, len(lin)))
+    for k, i in enumerate(lin):
+        dq = q0.copy()
+        dq[:, i] += 1.0
+        J[:, :, k] = forward(machine, dq).p - p0
+    q = q0.copy()
+    q[:, lin] += np.einsum("nij,nj->ni", np.linalg.pinv(J), target_p - p0)
+    return q
+
+
+def to_axes(machine, path: Toolpath, errors=None) -> np.ndarray:
+    """Machine axis commands (N, n_axes) in mm and deg that put the tool at the toolpath poses.
+
+    errors None: nominal inverse kinematics; an ErrorSet: commands compensated through
+    mtcomp.kinematics.compensate (the real machine with those errors then reaches the poses).
+    Position and tool direction are matched on machines with one or two rotary axes, the full
+    tool frame (the rake face of a non-rotational tool) with three.  Rotary angles follow the
+    path by continuation: a seed from a coarse grid wherever the orientation jumps (between
+    passes), the previous solution otherwise.
+    """
+    from ..kinematics import Pose, compensate
+    n = len(path)
+    tool_axis = np.asarray(machine.tool_axis, float)
+    # The machine's tool frame: tool axis = machine.tool_axis, x_t = the machine x made normal
+    # to it; the toolpath's frames are expressed with the tool axis as third column.
+    ref = np.array([[1.0, 0, 0]]) if abs(tool_axis[0]) < 0.9 else np.array([[0, 1.0, 0]])
+    M = _frames(ref, tool_axis[None])[0]
+    R = path.R @ M.T
+    rot = list(machine.rotary_indices)
+    if not rot and np.max(np.abs(path.axis - tool_axis)) > 1e-9:
+        raise MtcompError(f"machine {machine.name} has no rotary axis to tilt the tool")
+    q0 = np.zeros((n, machine.n_axes))
+    a = 0
+    while rot and a < n:
+        # Anchor: solve one point exactly from a grid seed, use it for the following points
+        # until the orientation has turned by more than about 12 deg.
+        qa = np.zeros((1, machine.n_axes))
+        qa[0, rot] = _rotary_seed(machine, R[a])
+        qa = _pinv_solve(machine, qa, path.p[a:a + 1])
+        qa = compensate(machine, Pose(path.p[a:a + 1], R[a:a + 1], machine.tool_axis), None, qa)
+        d = np.linalg.norm(R[a:] - R[a], axis=(1, 2))
+        jump = np.nonzero(d > 0.3)[0]
+        b = a + (int(jump[0]) if jump.size else n - a)
+        q0[a:b, rot] = qa[0, rot]
+        a = b
+    q0 = _pinv_solve(machine, q0, path.p)
+    target = Pose(path.p, R, machine.tool_axis)
+    q = compensate(machine, target, None, q0)
+    if errors is not None:
+        q = compensate(machine, target, errors, q)
+    return q
