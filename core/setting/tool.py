@@ -342,9 +342,10 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
 
 def paper_offset() -> tuple[float, float, float]:
     """A tool setting error (mm) that reproduces the A-axis distances of paper 000's Table 1
-    (490.04 and 680.12 um) with the default plan: |t_y| = du/2, |t_x| = dv/2 (signs chosen so
-    the C closing gap, (297.90, 662.03) um, comes nearest to the Table's (108.97, 852.81) um).  t_z, which Table 1
-    does not give, is set to 0.2 mm; the C distances follow from the same t (docs/tool-setting.md)."""
+    (490.04 and 680.12 um) with the default plan: |t_y| = du/2, |t_x| = dv/2.  The signs are
+    chosen so the C closing gap, (297.90, 662.03) um, comes nearest to the Table's (108.97,
+    852.81) um; with one tool offset both tests see the same t_x, t_y, so the Table's C values
+    cannot be matched too (docs/tool-setting.md).  t_z, which Table 1 does not give: 0.2 mm."""
     return (0.68012 / 2, 0.49004 / 2, 0.2)
 
 

@@ -101,6 +101,12 @@ def c_closed_form(c_from, c_to, gap):
     return tuple(np.linalg.solve(rz(c_to) - rz(c_from), np.asarray(gap, float)))
 
 
+def _mean_finite(values) -> float:
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    return float(np.mean(v)) if v.size else np.nan
+
+
 def closed_forms(meas) -> dict[str, tuple]:
     """The closed-form estimates per test from a measurement set of the default pattern
     (averaging start and end points): {"A": (t_x, t_y), "C": (t_x, t_y), "B_depth": (t_x, t_z),
@@ -144,17 +150,17 @@ def closed_forms(meas) -> dict[str, tuple]:
                 if np.all(np.isfinite(gap)):
                     ests.append(c_closed_form(g0.angles[2], g1.angles[2], gap))
         if ests:
-            out["C"] = tuple(np.mean(ests, axis=0))
+            out["C"] = tuple(map(float, np.mean(ests, axis=0)))
     b = [g for g in plan.grooves if g.test == "B"]
     if len(b) >= 3 and b[0].angles[1] == 0:
         g1, g2, g3 = b[:3]
         th2, th3 = g2.angles[1], g3.angles[1]
-        dep = [np.nanmean([get(g, f, "depth") for f in ("start", "end")]) for g in (g1, g2, g3)]
+        dep = [_mean_finite([get(g, f, "depth") for f in ("start", "end")]) for g in (g1, g2, g3)]
         if np.all(np.isfinite(dep)):
-            out["B_depth"] = b_depth_closed_form(th2, th3, *dep)
-        lat = [np.nanmean([get(g, f, "u") for f in ("start", "end")]) - g.start[0] for g in (g1, g2, g3)]
+            out["B_depth"] = tuple(map(float, b_depth_closed_form(th2, th3, *dep)))
+        lat = [_mean_finite([get(g, f, "u") for f in ("start", "end")]) - g.start[0] for g in (g1, g2, g3)]
         if np.all(np.isfinite(lat)):
-            out["B_position"] = b_position_closed_form(th2, th3, lat[1] - lat[0], lat[2] - lat[0])
+            out["B_position"] = tuple(map(float, b_position_closed_form(th2, th3, lat[1] - lat[0], lat[2] - lat[0])))
     return out
 
 
@@ -178,6 +184,10 @@ def _rows_for(machine, plan: Plan, items):
     """Nominal values y0 (P,3) and Jacobians (P,3,3) [component, t index] of groove points."""
     from ..errors import ErrorSet, ToolSetting
     from ..kinematics import forward
+    key = (machine, tuple(plan.grooves), tuple(plan.faces.items()), tuple(items))
+    hit = _ROWS_CACHE.get(key)
+    if hit is not None:
+        return hit
     pts, ang, bases, y0 = [], [], [], []
     for gid, feat in items:
         g = plan.groove(gid)
@@ -196,7 +206,17 @@ def _rows_for(machine, plan: Plan, items):
         e[k] = 1.0
         dp = forward(machine, q, ErrorSet(tool=ToolSetting(tuple(e)))).p - p0
         J[:, :, k] = np.einsum("nij,nj->ni", B, dp)
-    return np.array(y0, float), J
+    out = (np.array(y0, float), J)
+    for a in out:
+        a.setflags(write=False)
+    if len(_ROWS_CACHE) > 256:
+        _ROWS_CACHE.clear()
+    _ROWS_CACHE[key] = out
+    return out
+
+
+#: The model rows depend only on the machine and the plan (not on the data): memoised.
+_ROWS_CACHE: dict = {}
 
 
 def build_design(machine, meas) -> Design:

@@ -252,6 +252,11 @@ def commands_for_points(machine, points: np.ndarray, angles: np.ndarray) -> np.n
     m = machine
     points = np.atleast_2d(np.asarray(points, float))
     angles = np.atleast_2d(np.asarray(angles, float))
+    # Monte Carlo runs ask for the same programmed points thousands of times: memoise.
+    key = (m, points.tobytes(), angles.tobytes(), points.shape)
+    hit = _COMMAND_CACHE.get(key)
+    if hit is not None:
+        return hit.copy()
     n = points.shape[0]
     q = np.zeros((n, m.n_axes))
     for k, name in enumerate("ABC"):
@@ -268,7 +273,13 @@ def commands_for_points(machine, points: np.ndarray, angles: np.ndarray) -> np.n
         M[:, :, j] = forward(m, dq).p - p0
     x = np.linalg.solve(M, (points - p0)[..., None])[..., 0]
     q[:, lin] = x
+    if len(_COMMAND_CACHE) > 256:
+        _COMMAND_CACHE.clear()
+    _COMMAND_CACHE[key] = q.copy()
     return q
+
+
+_COMMAND_CACHE: dict = {}
 
 
 @dataclass(frozen=True)
@@ -486,6 +497,9 @@ def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
     colours = {"A": "tab:blue", "B": "tab:green", "C": "tab:red"}
     for ax, fname in zip(axs[0], faces):
         ax.add_patch(plt.Rectangle((-w / 2, -h / 2), w, h, fill=False, lw=1.0, color="0.3"))
+        labels: dict = {}
+        for g in (g for g in plan.grooves if g.face == fname):
+            labels.setdefault((g.start, g.end), []).append(g.id)
         for g in (g for g in plan.grooves if g.face == fname):
             lw_mm = float(groove_width(g.depth, plan.options.tip_angle))
             xs, ys = zip(g.start, g.end)
@@ -494,7 +508,9 @@ def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
             ax.annotate("", xy=g.end, xytext=g.start, arrowprops=dict(arrowstyle="->", color=colours[g.test], lw=0.8))
             mid = np.add(g.start, g.end) / 2
             off = 0.6 * np.array([-g.direction[1], g.direction[0]])
-            ax.text(*(mid + off), g.id, fontsize=8, ha="center", va="center", color=colours[g.test])
+            ids = labels.pop((g.start, g.end), None)
+            if ids:  # grooves cut along the same path (A = 0 and 180) share one label
+                ax.text(*(mid + off), " / ".join(ids), fontsize=8, ha="center", va="center", color=colours[g.test])
         if cuts:
             for c in (c for c in cuts if c.groove.face == fname):
                 ax.plot([c.start[0], c.end[0]], [c.start[1], c.end[1]], color="k", lw=0.8)
@@ -503,7 +519,7 @@ def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
         ax.set_ylim(-h / 2 - 1, h / 2 + 1)
         ax.set_xlabel("u [mm]")
         ax.set_ylabel("v [mm]")
-        ax.set_title(f"{fname} face ({_FACE_WORDS.get(fname, '')})", fontsize=9)
+        ax.set_title(_FACE_WORDS.get(fname, fname), fontsize=9)
         ax.grid(alpha=0.3)
     fig.suptitle(title or f"tool-setting grooving plan, machine {plan.machine} "
                  f"(D = {plan.options.depth:g} mm, tip {plan.options.tip_angle:g} deg)", fontsize=10)

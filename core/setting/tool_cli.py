@@ -1,0 +1,144 @@
+"""`mtcomp tool-setting plan|simulate|estimate`: a thin layer over mtcomp.setting.tool."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .._io import InputError
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.replace(" ", "").split(",") if x)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _tests(text: str) -> tuple[str, ...]:
+    t = tuple(x.strip().upper() for x in text.split(",") if x.strip())
+    if not t or any(x not in "ABC" or len(x) != 1 for x in t):
+        raise argparse.ArgumentTypeError(f"expected some of A,B,C, got {text!r}")
+    return t
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "tool-setting", help="tool setting errors by grooving (paper 000): plan, simulate, estimate",
+        description="Measure the offset of the tool edge from the rotation centres by cutting and "
+                    "measuring grooves (docs/tool-setting.md). Lengths in mm, angles in deg.")
+    sub = p.add_subparsers(dest="tool_setting_cmd", metavar="SUBCOMMAND", required=True)
+
+    pl = sub.add_parser("plan", help="NC programs, layout PNG and measurement sheet for the grooving tests")
+    pl.add_argument("--machine", default="robonano-ui", help="preset name or machine TOML (default robonano-ui)")
+    pl.add_argument("-o", "--outdir", required=True, help="output directory")
+    pl.add_argument("--tests", type=_tests, default=("A", "B", "C"), help="tests to plan (default A,B,C)")
+    pl.add_argument("--depth", type=float, default=0.1, help="depth of cut D, mm (default 0.1)")
+    pl.add_argument("--length", type=float, default=4.0, help="A and B groove length, mm (default 4)")
+    pl.add_argument("--triangle-side", type=float, default=6.0, help="C triangle side, mm (default 6)")
+    pl.add_argument("--spacing", type=float, default=2.0, help="B groove spacing, mm (default 2)")
+    pl.add_argument("--b-angles", type=_floats, default=(0.0, 10.0, -10.0),
+                    help="B inclinations, deg, the first is the reference (default 0,10,-10)")
+    pl.add_argument("--feed", type=float, default=50.0, help="cutting feed, mm/min (default 50)")
+    pl.add_argument("--plunge-feed", type=float, default=5.0, help="plunge feed, mm/min (default 5)")
+    pl.add_argument("--tip-angle", type=float, default=90.0, help="V tool included angle, deg (default 90)")
+    pl.add_argument("--no-png", action="store_true", help="skip the layout drawing")
+    pl.set_defaults(func=_plan)
+
+    si = sub.add_parser("simulate", help="virtual grooving: predicted grooves and synthetic measurements")
+    si.add_argument("--plan", required=True, help="plan.toml written by 'plan'")
+    si.add_argument("--machine", help="preset or TOML (default: the plan's machine)")
+    si.add_argument("--offset", type=float, nargs=3, required=True, metavar=("TX", "TY", "TZ"),
+                    help="true tool setting error, mm, tool frame")
+    si.add_argument("--sigma-pos", type=float, default=0.001, help="microscope position noise, mm (default 0.001)")
+    si.add_argument("--sigma-depth", type=float, default=0.001, help="microscope depth noise, mm (default 0.001)")
+    si.add_argument("--seed", type=int, default=None)
+    si.add_argument("--compensation", help="errors TOML the programs are compensated for (cut compensated grooves)")
+    si.add_argument("-o", "--output", required=True, help="filled measurement sheet (CSV)")
+    si.add_argument("--png", help="layout with the predicted grooves")
+    si.set_defaults(func=_simulate)
+
+    es = sub.add_parser("estimate", help="tool setting error with uncertainty from a filled measurement sheet")
+    es.add_argument("measurements", help="filled measurement sheet (CSV)")
+    es.add_argument("--plan", help="plan.toml (default: plan.toml next to the measurements)")
+    es.add_argument("--machine", help="preset or TOML (default: the plan's machine)")
+    es.add_argument("--sigma-pos", type=float, default=0.001, help="position sigma, mm, for rows without one")
+    es.add_argument("--sigma-depth", type=float, default=0.001, help="depth sigma, mm, for rows without one")
+    es.add_argument("-o", "--output", help="errors TOML for 'mtcomp compensate'")
+    es.add_argument("--report", help="text report")
+    es.add_argument("--png", help="report figure")
+    es.add_argument("--nc-dir", help="write compensated grooving programs here")
+    es.set_defaults(func=_estimate)
+
+
+def _plan(args) -> int:
+    from ..machine import load_machine
+    from .tool_plan import PlanOptions, make_plan, write_plan
+    m = load_machine(args.machine)
+    opts = PlanOptions(tests=args.tests, depth=args.depth, length=args.length, triangle_side=args.triangle_side,
+                       spacing=args.spacing, b_angles=args.b_angles, feed=args.feed, plunge_feed=args.plunge_feed,
+                       tip_angle=args.tip_angle)
+    plan = make_plan(m, opts)
+    files = write_plan(m, plan, args.outdir, png=not args.no_png)
+    print(f"{len(plan.grooves)} grooves ({', '.join(plan.ids)}) for machine {m.name}")
+    for f in files:
+        print(f"wrote {f}")
+    return 0
+
+
+def _machine_for(args, plan):
+    from ..machine import load_machine
+    return load_machine(args.machine or plan.machine)
+
+
+def _simulate(args) -> int:
+    from .._io import atomic_write
+    from ..errors import load_errors
+    from .tool import MicroscopeNoise, cut_grooves, load_plan, measurements_csv, plot_layout, simulate_grooving
+    plan = load_plan(args.plan)
+    m = _machine_for(args, plan)
+    for name in ("sigma_pos", "sigma_depth"):
+        if not getattr(args, name) >= 0:
+            raise InputError(f"expected a sigma >= 0 mm, got {getattr(args, name)}", field=name.replace("_", "-"))
+    comp = load_errors(args.compensation) if args.compensation else None
+    meas = simulate_grooving(m, tuple(args.offset), plan, MicroscopeNoise(args.sigma_pos, args.sigma_depth),
+                             args.seed, compensation=comp)
+    text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, sigma pos {args.sigma_pos} mm, "
+                                  f"depth {args.sigma_depth} mm, seed {args.seed}")
+    atomic_write(args.output, text)
+    print(f"wrote {args.output} ({len(meas.points)} points)")
+    if args.png:
+        plot_layout(plan, args.png, cuts=cut_grooves(m, plan, tuple(args.offset), comp),
+                    title=f"predicted grooves (black) for offset {tuple(args.offset)} mm")
+        print(f"wrote {args.png}")
+    return 0
+
+
+def _estimate(args) -> int:
+    from .._io import atomic_write
+    from .tool import load_plan, read_measurements
+    from .tool_estimate import estimate, plot_report, report_text, write_errors
+    from .tool_plan import nc_programs
+    meas_path = Path(args.measurements)
+    plan_path = Path(args.plan) if args.plan else meas_path.parent / "plan.toml"
+    if not plan_path.exists():
+        raise InputError("plan not found (give --plan)", plan_path)
+    plan = load_plan(plan_path)
+    m = _machine_for(args, plan)
+    meas = read_measurements(meas_path, plan, args.sigma_pos, args.sigma_depth)
+    est = estimate(m, meas)
+    # Compute every output before writing any, so a failure leaves nothing behind.
+    report = report_text(m, meas, est) if args.report else None
+    progs = nc_programs(m, plan, compensation=est.errors()) if args.nc_dir else {}
+    print(est.summary())
+    written = []
+    if args.output:
+        written.append(write_errors(est, args.output, source=meas_path.name))
+    if report is not None:
+        written.append(atomic_write(args.report, report))
+    for t, txt in progs.items():
+        written.append(atomic_write(Path(args.nc_dir) / f"tool_setting_{t}_compensated.nc", txt))
+    if args.png:
+        written.append(plot_report(m, meas, est, args.png))
+    for f in written:
+        print(f"wrote {f}")
+    return 0

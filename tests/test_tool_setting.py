@@ -1,0 +1,287 @@
+"""Tool setting errors by grooving (paper 000): plan, virtual grooving, closed forms, estimator."""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from mtcomp import InputError, MtcompError
+from mtcomp.errors import ErrorSet, ToolSetting
+from mtcomp.kinematics import forward
+from mtcomp.machine import load_machine
+from mtcomp.setting import tool_estimate as te
+from mtcomp.setting.tool import (GroovingMeasurements, MicroscopeNoise, PlanOptions, cut_grooves, intersection,
+                                 load_plan, make_plan, nc_programs, paper_experiment, paper_offset,
+                                 simulate_grooving, table1_distances)
+from mtcomp.setting.tool_plan import groove_width, plan_to_toml, sheet_template
+
+M = load_machine("robonano-ui")
+
+
+def rot(axis, deg):
+    """Independent right-hand rotation matrix (written out, not taken from mtcomp)."""
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return {"x": np.array([[1, 0, 0], [0, c, -s], [0, s, c]]),
+            "y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]),
+            "z": np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])}[axis]
+
+
+def edge_shift(angles, t):
+    """Shift of the cut edge for the robonano-ui chain Z -> A -> B -> C -> tool."""
+    a, b, c = angles
+    return rot("x", a) @ rot("y", b) @ rot("z", c) @ np.asarray(t)
+
+
+@pytest.fixture(scope="module")
+def plan():
+    return make_plan(M)
+
+
+# ---------------------------------------------------------------------------------- plan
+
+def test_default_plan_fits_plate_and_lists_each_point_once(plan):
+    assert plan.ids == ("C0", "C120", "C240", "A0-1", "A0-2", "A180-1", "A180-2", "B0", "B+10", "B-10")
+    for g in plan.grooves:
+        for p in (g.start, g.end):
+            assert max(abs(p[0]), abs(p[1])) <= 10.0
+    feats = plan.features()
+    # the A grooves share their start point: measured once per orientation
+    assert ("A0-2", "start") not in feats and ("A180-2", "start") not in feats
+    assert len(feats) == 2 * len(plan.grooves) - 2
+    # the triangle closes nominally and is equilateral
+    c = [g for g in plan.grooves if g.test == "C"]
+    assert np.allclose(c[-1].end, c[0].start, atol=1e-9)
+    assert np.allclose([np.hypot(*np.subtract(g.end, g.start)) for g in c], 6.0)
+
+
+def test_plan_too_big_for_plate_is_rejected():
+    with pytest.raises(InputError, match="outside the 20 x 20 mm plate"):
+        make_plan(M, PlanOptions(length=15.0))
+    with pytest.raises(InputError, match="tip angle"):
+        PlanOptions(tip_angle=180.0)
+
+
+def test_plan_needs_tool_side_rotary_axes():
+    with pytest.raises(MtcompError, match="tool side"):
+        make_plan("robonano-a0ib", PlanOptions(tests=("B", "C")))
+
+
+def test_plan_toml_round_trip(plan, tmp_path):
+    p = tmp_path / "plan.toml"
+    p.write_text(plan_to_toml(plan))
+    back = load_plan(p)
+    assert back.grooves == plan.grooves and back.machine == plan.machine
+    assert sheet_template(back) == sheet_template(plan)
+
+
+def test_nc_program_cuts_the_programmed_grooves(plan):
+    """Parse the NC words back and run them through the forward model: G01 cut blocks put the
+    nominal edge at the groove points at depth D on the face."""
+    progs = nc_programs(M, plan)
+    assert set(progs) == {"A", "B", "C"}
+    for test, text in progs.items():
+        cuts = [ln for ln in text.splitlines() if ln.startswith("G01") and "(cut)" in ln]
+        grooves = [g for g in plan.grooves if g.test == test]
+        assert len(cuts) == len(grooves)
+        for ln, g in zip(cuts, grooves):
+            q = [float(re.search(rf"\b{a}(-?\d+\.\d+)", ln).group(1)) for a in M.axis_names]
+            p = forward(M, np.array([q])).p[0]
+            face = plan.face_of(g)
+            assert np.allclose(face.coords(p[None])[0], (*g.end, g.depth), atol=1e-6)
+
+
+def test_groove_width():
+    assert groove_width(0.1, 90.0) == pytest.approx(0.2)
+    assert groove_width(0.1, 60.0) == pytest.approx(2 * 0.1 * np.tan(np.radians(30)))
+    # tilting the V widens the groove: tan(45+10) + tan(45-10)
+    assert groove_width(0.1, 90.0, 10.0) == pytest.approx(0.1 * (np.tan(np.radians(55)) + np.tan(np.radians(35))))
+
+
+# ---------------------------------------------------------------------------------- virtual grooving
+
+def test_virtual_grooves_match_an_independent_rigid_model(plan):
+    t = np.array([0.3, -0.2, 0.15])
+    cuts = cut_grooves(M, plan, ToolSetting(tuple(t)))
+    ref_depth = {}
+    for c in cuts:
+        g = c.groove
+        face = plan.face_of(g)
+        shift = face.basis @ edge_shift(g.angles, t)
+        assert np.allclose(c.start, np.add(g.start, shift[:2]), atol=1e-12)
+        assert np.allclose(c.end, np.add(g.end, shift[:2]), atol=1e-12)
+        ref_depth.setdefault(g.test, shift[2])
+        assert c.depth == pytest.approx(g.depth + shift[2] - ref_depth[g.test], abs=1e-12)
+    b = {c.groove.id: c for c in cuts}
+    th = np.radians(10)
+    assert b["B+10"].depth == pytest.approx(0.1 + np.sin(th) * t[0] + (1 - np.cos(th)) * t[2], abs=1e-12)
+    assert b["B+10"].tilt == pytest.approx(10.0) and b["B-10"].tilt == pytest.approx(-10.0)
+    assert b["B0"].width == pytest.approx(0.2)
+
+
+def test_a_patterns_intersect_where_shifted_lines_cross(plan):
+    # A = 180 moves the L shape by (-2 t_y, 2 t_x): with t_x, t_y < 0 its corner lies inside the
+    # A = 0 L shape, so the horizontal A0-1 crosses the vertical A180-2 there
+    cuts = {c.groove.id: c for c in cut_grooves(M, plan, (-0.3, -0.2, 0.0))}
+    x = intersection(cuts["A0-1"], cuts["A180-2"])
+    assert x is not None
+    assert x == pytest.approx((cuts["A180-2"].start[0], cuts["A0-1"].start[1]))
+    assert intersection(cuts["A0-1"], cuts["A180-1"]) is None   # parallel
+
+
+def test_uncut_groove_is_reported(plan):
+    shallow = make_plan(M, PlanOptions(depth=0.01))
+    with pytest.raises(MtcompError, match="would not be cut"):
+        simulate_grooving(M, (-0.5, 0.0, 0.0), shallow, seed=1)
+
+
+# ---------------------------------------------------------------------------------- closed forms
+
+@pytest.mark.parametrize("tx,tz", [(0.34, 0.2), (-0.12, 0.45), (0.05, -0.3)])
+def test_paper_eq2_misprint(tx, tz):
+    """Depths from the forward model; printed eq. (1) recovers Delta X = -t_x, printed eq. (2)
+    does not recover Delta Z = -t_z, the derived eq. (2) does exactly."""
+    plan = make_plan(M, PlanOptions(tests=("B",), b_angles=(0.0, 15.0, -25.0), depth=0.5))
+    cuts = {c.groove.id: c for c in cut_grooves(M, plan, (tx, 0.07, tz))}
+    D = cuts["B0"].depth                       # theta_1 = 0: the reference, = depth of cut
+    d1, d2 = cuts["B+15"].depth, cuts["B-25"].depth
+    assert te.paper_eq1_dx(15.0, -25.0, d1, d2, D) == pytest.approx(-tx, abs=1e-12)
+    assert te.paper_eq2_dz_derived(15.0, -25.0, d1, d2, D) == pytest.approx(-tz, abs=1e-12)
+    printed = te.paper_eq2_dz_printed(15.0, -25.0, d1, d2, D)
+    assert abs(printed - (-tz)) > 0.05 * abs(tz) + 0.01
+    # our own sign convention
+    assert te.b_depth_closed_form(15.0, -25.0, D, d1, d2) == pytest.approx((tx, tz), abs=1e-12)
+    w2 = cuts["B+15"].start[0] - plan.groove("B+15").start[0] - (cuts["B0"].start[0] - plan.groove("B0").start[0])
+    w3 = cuts["B-25"].start[0] - plan.groove("B-25").start[0] - (cuts["B0"].start[0] - plan.groove("B0").start[0])
+    assert te.b_position_closed_form(15.0, -25.0, w2, w3) == pytest.approx((tx, tz), abs=1e-12)
+
+
+def test_closed_forms_recover_noise_free_offset(plan):
+    t = (0.21, -0.37, 0.12)
+    meas = simulate_grooving(M, t, plan, MicroscopeNoise(0.0, 0.0), seed=1, frame_offset=0.4)
+    cf = te.closed_forms(meas)
+    assert cf["A"] == pytest.approx(t[:2], abs=1e-12)
+    assert cf["C"] == pytest.approx(t[:2], abs=1e-12)
+    assert cf["B_depth"] == pytest.approx((t[0], t[2]), abs=1e-12)
+    assert cf["B_position"] == pytest.approx((t[0], t[2]), abs=1e-9)
+
+
+def test_depth_closed_form_sigma_matches_monte_carlo():
+    rng = np.random.default_rng(5)
+    d = 0.1 + rng.normal(0, 1e-4, (4000, 3))
+    tx, tz = te.b_depth_closed_form(10.0, -10.0, d[:, 0], d[:, 1], d[:, 2])
+    sx, sz = te.b_depth_closed_form_sigma(10.0, -10.0, 1e-4)
+    assert np.std(tz) == pytest.approx(sz, rel=0.05)
+    assert np.std(tx) == pytest.approx(sx, rel=0.05)
+    # the field-note figure: about 8 um at +-10 deg with 0.1 um depth noise, 0.4 um at +-45 deg
+    assert sz * 1e3 == pytest.approx(8.06, abs=0.05)
+    assert te.b_depth_closed_form_sigma(45.0, -45.0, 1e-4)[1] * 1e3 == pytest.approx(0.42, abs=0.01)
+
+
+# ---------------------------------------------------------------------------------- least squares
+
+def test_least_squares_exact_without_noise(plan):
+    t = (-0.61, 0.83, -0.44)
+    meas = simulate_grooving(M, t, make_plan(M, PlanOptions(depth=0.3)), MicroscopeNoise(0, 0), seed=2,
+                             frame_offset=0.5)
+    est = te.estimate(M, meas)
+    assert est.offset == pytest.approx(t, abs=1e-9)
+    assert np.max(np.abs(est.residuals)) < 1e-9
+
+
+def _coverage(n, seed0):
+    plan = make_plan(M, PlanOptions(depth=0.3))
+    rng = np.random.default_rng(seed0)
+    inside, d2 = 0, []
+    for k in range(n):
+        t = rng.uniform(-1.0, 1.0, 3)
+        meas = simulate_grooving(M, t, plan, MicroscopeNoise(0.001, 0.001), seed=seed0 + 1 + k, frame_offset=0.5)
+        est = te.estimate(M, meas, closed=False)
+        inside += bool(np.all(np.abs(est.offset - t) <= 3 * est.sigma))
+        d2.append(est.mahalanobis2(t))
+    return inside / n, np.array(d2)
+
+
+def test_injected_and_recovered_1000_trials():
+    """Acceptance: 1,000 seeded trials, true offsets up to 1 mm, 1 um noise: all three components
+    within 3 sigma (reported covariance) in >= 99 %; the Mahalanobis distance is chi2(3)."""
+    from scipy import stats
+    rate, d2 = _coverage(1000, 20260)
+    assert rate >= 0.99
+    assert np.mean(d2 <= stats.chi2.ppf(0.99, 3)) >= 0.98
+    assert np.mean(d2) == pytest.approx(3.0, rel=0.1)
+
+
+def test_positions_beat_depths_by_5x_at_10_deg(plan):
+    """Acceptance: B at +-10 deg, 1 um microscope noise: the least-squares sigma of t_z using
+    the lateral positions is >= 5x smaller than the closed form's from depths alone."""
+    meas = simulate_grooving(M, (0.1, 0.1, 0.1), plan, MicroscopeNoise(0.001, 0.001), seed=3)
+    est = te.estimate(M, meas)
+    closed = te.b_depth_closed_form_sigma(10.0, -10.0, 0.001)[1]
+    assert closed / est.sigma[2] >= 5.0
+    # without the B grooves' lateral positions, the fit is left with the depths (and warns)
+    b_depth_only = [p if meas.plan.groove(p.groove).test != "B" else
+                    type(p)(p.groove, p.feature, np.nan, np.nan, p.depth) for p in meas.points]
+    est_d = te.estimate(M, GroovingMeasurements(meas.plan, tuple(b_depth_only), 0.001, 0.001))
+    assert est_d.sigma[2] > 5 * est.sigma[2]
+    assert any("t_z" in w and "second order" in w for w in est_d.warnings)
+    assert not est.warnings
+
+
+def test_covariance_matches_monte_carlo_scatter(plan):
+    t = np.array([0.2, -0.1, 0.3])
+    ests = []
+    for k in range(300):
+        meas = simulate_grooving(M, t, plan, MicroscopeNoise(0.001, 0.0002), seed=900 + k)
+        ests.append(te.estimate(M, meas, closed=False))
+    scatter = np.std([e.offset for e in ests], axis=0)
+    assert scatter == pytest.approx(ests[0].sigma, rel=0.15)
+
+
+def test_singular_geometry_names_the_component():
+    plan = make_plan(M, PlanOptions(tests=("C", "A")))
+    meas = simulate_grooving(M, (0.1, 0.2, 0.3), plan, seed=1)
+    with pytest.raises(InputError, match="singular geometry.*t_z"):
+        te.estimate(M, meas)
+
+
+def test_suggested_groove_predicts_the_covariance_it_gives(plan):
+    meas = simulate_grooving(M, (0.1, 0.2, 0.1), plan, seed=4)
+    best = te.suggest_grooves(M, meas, top=1)[0]
+    assert abs(best.groove.angles[1]) == 45.0          # the steepest B inclination on offer
+    est0 = te.estimate(M, meas)
+    assert best.sigma[2] < 0.5 * est0.sigma[2]
+    # cut and measure the suggested groove: the realised covariance is the predicted one
+    g = best.groove
+    from dataclasses import replace
+    plan2 = type(plan)(plan.machine, plan.options, plan.grooves + (replace(g, id="Bx"),), plan.faces)
+    est2 = te.estimate(M, simulate_grooving(M, (0.1, 0.2, 0.1), plan2, seed=4))
+    assert est2.sigma == pytest.approx(best.sigma, rel=1e-9)
+
+
+# ---------------------------------------------------------------------------------- compensation
+
+def test_paper_table1_distances_and_compensation(plan):
+    before = table1_distances(plan, cut_grooves(M, plan, paper_offset()))
+    assert before["A"] == pytest.approx((0.49004, 0.68012), abs=1e-9)
+    assert before["C"] == pytest.approx((0.29790, 0.66203), abs=1e-5)
+    # exact compensation leaves only the 1 nm command rounding
+    exact = table1_distances(plan, cut_grooves(M, plan, paper_offset(), compensation=ErrorSet(
+        tool=ToolSetting(paper_offset()))))
+    assert max(max(v) for v in exact.values()) < 3e-6
+    for seed in range(5):
+        est, b, after = paper_experiment(M, noise=MicroscopeNoise(0.001, 0.001), seed=seed)
+        assert max(max(v) for v in after.values()) < 0.005
+        assert b == before
+
+
+def test_report_and_errors_file(plan, tmp_path):
+    from mtcomp.errors import load_errors
+    meas = simulate_grooving(M, paper_offset(), plan, seed=7)
+    est = te.estimate(M, meas)
+    path = te.write_errors(est, tmp_path / "errors.toml")
+    assert load_errors(path).tool.offset == pytest.approx(est.offset, abs=1e-15)
+    text = te.report_text(M, meas, est)
+    assert "t_z" in text and "+-" in text and "after compensation" in text
+    png = te.plot_report(M, meas, est, tmp_path / "r.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
