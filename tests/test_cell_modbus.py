@@ -21,7 +21,7 @@ from mtcomp.cell.journal import read_records
 from mtcomp.cell.plcsim import PlcSim
 from mtcomp.cell.registers import FIELDS, OUT_BLOCK, PLC_BLOCK, POSE_NAMES
 from mtcomp.cell.server import BackgroundServer, run_virtual_cell_once
-from mtcomp.cell.virtual import ProbeModel, VirtualCell, robot_placement
+from mtcomp.cell.virtual import VirtualCell, robot_placement
 
 pytestmark = pytest.mark.timeout(120)
 

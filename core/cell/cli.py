@@ -28,6 +28,12 @@ def register(subparsers) -> None:
     s.add_argument("--seed", type=int, default=0, help="virtual cell: random seed")
     s.add_argument("--probe-time", type=float, default=0.0,
                    help="virtual cell: simulated probing time in s")
+    s.add_argument("--nc-dir", help="virtual cell: directory of part programs O<id>.nc to "
+                                    "compensate (default: none written)")
+    s.add_argument("--out-dir", help="virtual cell: where compensated programs go (default "
+                                     "--nc-dir)")
+    s.add_argument("--machine", default="robonano-a0ib",
+                   help="virtual cell: machine preset or TOML for the NC transform")
     s.add_argument("--measure-timeout", type=float, default=300.0,
                    help="fault MEASURE_TIMEOUT after this many s (default 300)")
     s.add_argument("--limit-mm", type=float, default=0.5, help="go/no-go limit |dx|,|dy|,|dz|")
@@ -69,13 +75,14 @@ def _serve(args) -> int:
     import signal
     from .cycle import CellConfig, Cycle
     from .server import CellServer
-    from .virtual import ProbeModel, VirtualCell
+    from .virtual import VirtualCell
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     if not 0 <= args.port <= 65535:
         raise InputError(f"port {args.port} outside 0..65535", field="--port")
     measure = (_load_measure(args.measure) if args.measure else
-               VirtualCell(seed=args.seed, probe=ProbeModel(duration_s=args.probe_time)))
+               VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
+                           out_dir=args.out_dir, machine=args.machine))
     cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
                      limit_mm=args.limit_mm, limit_deg=args.limit_deg)
 
