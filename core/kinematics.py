@@ -3,10 +3,11 @@
 Exact homogeneous transforms, vectorised over N poses.  The math is written out in
 docs/model.md; every axis contributes
 
-    G_i(q) = L_i N_i(q) L_i^-1 . T(loc_i) D_i(q) T(-loc_i)
+    G_i(q) = M_i(q) . E_i(q)   or   E_i(q) . M_i(q)
 
-(N_i nominal motion, L_i location error, D_i component error motion from the tables, acting
-about the axis' reference point loc_i), and the tool edge in the real workpiece frame is
+(M_i = L_i N_i L_i^-1 nominal motion with location errors, E_i = T(loc_i) D_i T(-loc_i) the
+component error motion from the tables about the axis' reference point; which side E_i stands on
+depends on the body that carries the errors, see docs/model.md), and the tool edge in the real workpiece frame is
 
     p = Rw^T ( G_1 ... G_n (tool_point + tool_offset) - tw ).
 
@@ -131,15 +132,23 @@ def chain(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = Tr
             u_eff = rotvec_matrix(e0[None])[0] @ u if np.any(e0) else u
             Rg = None
             tg = qi[:, None] * u_eff
-        # Component error motions from the tables, acting about the reference point.
+        # Component error motions from the tables, acting about the reference point.  They
+        # belong to the moving body for a linear axis (the far-from-base body: the child on the
+        # tool side, the parent on the workpiece side) and to the non-rotating body for a
+        # rotary axis (ISO 230-7 error motions in the fixed frame: the parent on the tool side,
+        # the child on the workpiece side).
         table = geo.tables.get(ax.name) if geo is not None else None
         if table is not None:
             d, e = table.evaluate(qi, strict)
             Re = rotvec_matrix(e)
             te = loc + d - Re @ loc
-            if Rg is None:
+            before = (ax.side == "workpiece") != ax.is_rotary  # D_i . N_i instead of N_i . D_i
+            if before:  # (Re, te) . (Rg, tg)
+                tg = np.einsum("nij,nj->ni", Re, tg) + te
+                Rg = Re if Rg is None else Re @ Rg
+            elif Rg is None:
                 Rg, tg = Re, te + tg
-            else:
+            else:  # (Rg, tg) . (Re, te)
                 tg = np.einsum("nij,nj->ni", Rg, te) + tg
                 Rg = Rg @ Re
         # Compose: (R, t) . (Rg, tg)
@@ -175,21 +184,13 @@ def _orientation_mode(machine: Machine) -> int:
     return 0 if nr == 0 else (3 if nr >= 3 else 2)
 
 
-def _perp_basis(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (N,3) perpendicular to the unit vectors v (N,3) and to each other."""
-    a = np.where(np.abs(v[:, [0]]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-    e1 = np.cross(v, a)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    return e1, np.cross(v, e1)
-
-
-def _residual(machine, q, errors, target: Pose, mode, basis, strict=False):
+def _residual(machine, q, errors, target: Pose, mode, strict=False):
     pose = forward(machine, q, errors, strict)
     r = [pose.p - target.p]
     if mode == 2:
-        v = pose.v
-        r += [ORIENTATION_SCALE * np.einsum("ni,ni->n", v, basis[0])[:, None],
-              ORIENTATION_SCALE * np.einsum("ni,ni->n", v, basis[1])[:, None]]
+        # All three components of v - v_target: the two perpendicular ones alone would also
+        # vanish at v = -v_target (a tool pointing the wrong way).
+        r.append(ORIENTATION_SCALE * (pose.v - target.v))
     elif mode == 3:
         M = np.einsum("nji,njk->nik", target.R, pose.R)  # R_target^T R
         w = 0.5 * np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0], M[:, 1, 0] - M[:, 0, 1]], axis=1)
@@ -218,15 +219,13 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
     if len(target) != n:
         raise ValueError(f"target has {len(target)} poses, q0 has {n}")
     mode = _orientation_mode(machine)
-    basis = _perp_basis(target.v) if mode == 2 else (None, None)
     rigid = None if errors is None else ErrorSet(errors.tool, errors.workpiece)
     rot = np.array([a.is_rotary for a in machine.axes])
     lam = 1e-12
     q = q0.copy()
     active = np.arange(n)
     sub = lambda idx: Pose(target.p[idx], target.R[idx], target.tool_axis)  # noqa: E731
-    res = lambda qq, idx, err: _residual(machine, qq, err, sub(idx), mode,  # noqa: E731
-                                         (None if basis[0] is None else (basis[0][idx], basis[1][idx])))
+    res = lambda qq, idx, err: _residual(machine, qq, err, sub(idx), mode)  # noqa: E731
     it = 0
     while active.size and it < max_iter:
         qa = q[active]
@@ -273,7 +272,7 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
                 break
         q[active] = qa
         active = active[~done]
-    r = _residual(machine, q, errors, target, mode, basis if basis[0] is not None else None, strict=True)
+    r = _residual(machine, q, errors, target, mode, strict=True)
     err = np.max(np.abs(r), axis=1)
     bad = np.nonzero(~(err < 1e-7))[0]
     if bad.size:

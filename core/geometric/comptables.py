@@ -92,8 +92,8 @@ class LatticeTable:
                   "positions; trilinear between nodes\n")
         for name, n in zip(a, self.nodes):
             step = np.diff(n)
-            buf.write(f"# axis {name}: {n.size} nodes from {n[0]!r} to {n[-1]!r} mm, spacing "
-                      f"{step.mean()!r} mm\n")
+            buf.write(f"# axis {name}: {n.size} nodes from {float(n[0])!r} to {float(n[-1])!r} mm, spacing "
+                      f"{float(step.mean())!r} mm\n")
         buf.write(",".join(["i", "j", "k", *a, *(f"d{x}" for x in a)]) + "\n")
         n1, n2, n3 = (n.size for n in self.nodes)
         for i in range(n1):

@@ -152,19 +152,20 @@ def plot_map(vmap: VolumetricMap, path: str | os.PathLike, levels: int = 3,
     ks = np.unique(np.linspace(0, zs.size - 1, min(levels, zs.size)).round().astype(int))
     mag = np.linalg.norm(E, axis=-1)
     vmax = mag.max()
-    fig, axs = plt.subplots(1, len(ks) + 1, figsize=(4.2 * (len(ks) + 1), 4.2), dpi=110)
+    fig, axs = plt.subplots(1, len(ks) + 1, figsize=(4.0 * (len(ks) + 1) + 1.5, 3.8), dpi=110,
+                            layout="constrained")
     for ax, k in zip(axs, ks):
         im = ax.pcolormesh(xs, ys, mag[:, :, k].T, shading="gouraud", vmin=0, vmax=vmax,
                            cmap="viridis")
         ax.quiver(xs, ys, E[:, :, k, 0].T, E[:, :, k, 1].T, color="w", angles="xy")
         ax.set_title(f"Z = {zs[k]:g} mm")
         ax.set_xlabel("X / mm")
-        ax.set_ylabel("Y / mm")
         ax.set_aspect("equal")
+    axs[0].set_ylabel("Y / mm")
     fig.colorbar(im, ax=axs[:len(ks)], label="|tool-tip error| / µm", shrink=0.8)
     ax = axs[-1]
     im2 = ax.pcolormesh(xs, ys, D.max(axis=2).T, shading="gouraud", cmap="magma")
-    ax.set_title("exact − first order (max over Z)")
+    ax.set_title("exact − first order, max over Z")
     ax.set_xlabel("X / mm")
     ax.set_aspect("equal")
     fig.colorbar(im2, ax=ax, label="nm", shrink=0.8)

@@ -37,7 +37,7 @@ __all__ = [
     "Touches", "read_touches", "write_touches", "virtual_probe", "fit_bowls", "BowlFit",
     "SphereFit", "frame_from_bowls", "frame_from_points", "WorkpieceSettingEstimate",
     "paper_frame", "paper_transform", "pose_from_paper", "apply_pose", "compensate_commands",
-    "is_three_axis",
+    "is_three_axis", "compensate_program",
 ]
 
 
@@ -121,3 +121,37 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
     except ConvergenceError as exc:
         raise InputError(f"no axis commands reach this point and tool direction on the real "
                          f"blank: {exc}", **_where(exc.index, lines, source)) from None
+
+
+def compensate_program(machine, program, pose: WorkpieceSetting, out=None, *, mode: str = "auto",
+                       chordal_tol: float = 1e-4) -> tuple[str, int] | int:
+    """Rewrite an NC program (path or text) for the real blank at `pose`; mtcomp.gcode does the text.
+
+    Every motion block's end point (and arc samples) goes through `compensate_commands`; axis
+    words are written at the machine's resolutions and all other text is kept.  The whole
+    program is checked first, so an axis that would leave its travel is an InputError naming the
+    program line and nothing is written.  With `out` the result is written atomically and the
+    number of motion blocks returned; without, (text, blocks).
+    """
+    from pathlib import Path
+
+    from .. import gcode
+    from .._io import atomic_write
+    if isinstance(program, (str, Path)) and Path(program).suffix and Path(program).exists():
+        path = Path(program)
+        text, name = path.read_text(encoding="utf-8"), str(path)
+    else:
+        text, name = str(program), "<program>"
+    prog = gcode.parse(text, axes=machine.axis_names, filename=name)
+    q_all = np.vstack([np.asarray(prog.start, float)[None], np.asarray(prog.position, float)])
+    if mode == "auto":
+        mode = "3axis" if is_three_axis(machine, q_all) else "5axis"
+    # validate every block with its line number before any text is produced
+    compensate_commands(machine, q_all[1:], pose, mode, lines=prog.line, source=name)
+    res = {a.name: a.resolution for a in machine.axes}
+    new = gcode.rewrite(prog, lambda q: compensate_commands(machine, q, pose, mode, source=name),
+                        resolution=res, chordal_tol=chordal_tol)
+    if out is None:
+        return new, len(prog)
+    atomic_write(out, new)
+    return len(prog)

@@ -1,0 +1,182 @@
+"""diagnose(): align, locate, explain, re-predict; the DiagnosisResult it returns."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import align as _align
+from . import data as _data
+from .effects import Context, candidates
+from .locate import Mismatch, conditions, locate
+from .select import Settings, cross_validate, n_effective, select
+
+
+@dataclass(frozen=True)
+class EffectResult:
+    """One effect named by the diagnosis, with its fitted parameters (mm, deg, s, degC, rpm)."""
+    name: str
+    outputs: tuple
+    inputs: tuple
+    params: dict
+    uncertainty: dict      # one standard deviation, same keys as params
+    evidence: dict
+    rms: dict              # output -> RMS of the effect's contribution (output unit)
+
+    @property
+    def output(self) -> str:
+        return ",".join(self.outputs)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "output": self.output, "inputs": list(self.inputs),
+                "params": self.params, "uncertainty": self.uncertainty,
+                "evidence": dict(self.evidence, rms=self.rms)}
+
+
+@dataclass(frozen=True)
+class DiagnosisResult:
+    """What disagrees, where, which effects explain it, and how much the fit improves.
+
+    `fit` holds RMS per output (output unit) of REC - SIM before and after adding the effects,
+    on all aligned samples and on held-out data (each of `folds` contiguous time blocks predicted
+    by the model fitted without it).
+    """
+    outputs: tuple
+    units: dict
+    noise_floor: dict
+    mismatch: tuple
+    effects: tuple
+    fit: dict
+    alignment: dict
+    conditions: dict
+    log: tuple
+    t: np.ndarray = field(repr=False)
+    rec: dict = field(repr=False)
+    sim: dict = field(repr=False)
+    corrected: dict = field(repr=False)
+    heldout_corrected: dict = field(repr=False)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    def to_dict(self) -> dict:
+        return _clean({
+            "outputs": list(self.outputs),
+            "noise_floor": dict(self.noise_floor),
+            "mismatch": [m.to_dict() for m in self.mismatch],
+            "effects": [e.to_dict() for e in self.effects],
+            "fit": self.fit,
+        })
+
+    def to_json(self, indent: int = 2) -> str:
+        return json.dumps(self.to_dict(), indent=indent)
+
+    def summary(self) -> str:
+        from .report import summary_text
+        return summary_text(self)
+
+    def report(self, plot_name: str | None = None) -> str:
+        from .report import markdown
+        return markdown(self, plot_name)
+
+    def plot(self, path) -> None:
+        from .report import plot
+        plot(self, path)
+
+
+def _clean(x):
+    """JSON-safe: numpy scalars to Python, NaN/inf to None."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        x = float(x)
+        return x if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.str_):
+        return str(x)
+    return x
+
+
+def _rms(a) -> float:
+    a = np.asarray(a, float)
+    return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
+
+
+def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> DiagnosisResult:
+    """Diagnose a simulation against a recording.
+
+    sim, rec: CSV paths, or mappings header -> 1-D array (dict, DataFrame-like) with a `t`
+    column in s (headers may carry units, ``z[um]``).  Columns in both are the outputs compared;
+    all others are inputs the effects may use.  Raises mtcomp.InputError for unusable input.
+    """
+    st = settings or Settings()
+    say = progress or (lambda msg: None)
+    S = _data.load(sim, "SIM")
+    R = _data.load(rec, "REC")
+    al = _align.align(S, R)
+    say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
+    mism = locate(al)
+    ctx = Context(al)
+    cands = candidates(ctx)
+    say(f"{len(cands)} candidate effects")
+    final, evidence, log = select(ctx, cands, st, progress=say)
+
+    # uncertainties: least-squares covariance scaled by the residual variance, inflated for
+    # correlated residuals (N / N_effective)
+    dof = max(final.n_rows - final.k, 1)
+    s2 = final.rss / dof
+    infl = ctx.N / n_effective(ctx, final.resid)
+    cov_eta_all = None
+    if final.jac_eta is not None and final.jac_eta.size:
+        cov_eta_all = np.linalg.pinv(final.jac_eta.T @ final.jac_eta) * s2 * infl
+    cov_beta_all = final.gram_inv * s2 * infl if final.gram_inv is not None else None
+    effects = []
+    ie = ib = 0
+    for c, eta, beta, contrib in zip(final.cands, final.etas, final.betas, final.contrib):
+        ne, nb = len(eta), len(beta)
+        ce = cov_eta_all[ie:ie + ne, ie:ie + ne] if cov_eta_all is not None and ne else np.zeros((0, 0))
+        cb = cov_beta_all[ib:ib + nb, ib:ib + nb] if cov_beta_all is not None and nb else np.zeros((0, 0))
+        ie += ne
+        ib += nb
+        params, unc = c.physical(ctx, eta, beta, ce, cb)
+        rms = {o: _rms(contrib[ctx.slices[o]] * ctx.sigma[o]) for o in c.outputs}
+        effects.append(EffectResult(c.name, tuple(c.outputs), tuple(c.inputs), params, unc,
+                                    evidence.get(c.label, {}), rms))
+
+    sig = ctx.sigma
+    corrected, held = {}, {}
+    if final.cands:
+        _, oof = cross_validate(ctx, final.cands, final.etas, st.folds)
+    else:
+        oof = ctx.z0
+    fitd = {"rms_before": {}, "rms_after": {}, "holdout_rms_before": {}, "holdout_rms_after": {}}
+    for o in al.outputs:
+        sl = ctx.slices[o]
+        before = al.rec[o] - al.sim[o]
+        after = final.resid[sl] * sig[o]
+        corrected[o] = al.rec[o] - after
+        held[o] = al.rec[o] - oof[sl] * sig[o]
+        fitd["rms_before"][o] = _rms(before)
+        fitd["rms_after"][o] = _rms(after)
+        fitd["holdout_rms_before"][o] = _rms(before)
+        fitd["holdout_rms_after"][o] = _rms(oof[sl] * sig[o])
+    cond = {o: conditions(al, o, al.rec[o] - al.sim[o], sig[o]) for o in al.outputs}
+    alignment = {"grid_step_s": al.dt, "samples": al.n, "t_start": float(al.t[0]),
+                 "t_end": float(al.t[-1]), "coarse_offset_s": al.offset0,
+                 "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
+                 "folds": st.folds, "quantum": dict(al.quantum),
+                 "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC")}
+    return DiagnosisResult(
+        outputs=tuple(al.outputs), units=dict(al.units), noise_floor=dict(al.noise_floor),
+        mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
+        conditions=cond, log=tuple(log), t=al.t, rec=dict(al.rec), sim=dict(al.sim),
+        corrected=corrected, heldout_corrected=held)
+
+
+__all__ = ["diagnose", "DiagnosisResult", "EffectResult", "Mismatch", "Settings"]

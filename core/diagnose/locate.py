@@ -1,0 +1,155 @@
+"""Find where and when the residual REC - SIM stands out of the noise, and say it in words.
+
+A sample is flagged when the running mean square of the residual over a window of w samples
+exceeds the noise variance by more than five of its standard errors (sigma^2 * sqrt(2/w)), or
+when the running mean exceeds five standard errors of a mean (sigma/sqrt(w)).  Flagged samples
+closer than a window are merged into spans; each span is described by the operating conditions
+that distinguish it from the rest of the recording: motion (which axes move, direction, speed,
+dwell), positions and angles, and temperatures or spindle speed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .align import Aligned
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    output: str
+    t_start: float
+    t_end: float
+    where: str
+    rms: float            # RMS of the residual in the span, output unit
+
+    def to_dict(self) -> dict:
+        return {"output": self.output, "t_start": round(self.t_start, 6),
+                "t_end": round(self.t_end, 6), "where": self.where, "rms": self.rms}
+
+
+def _running_mean(x: np.ndarray, w: int) -> np.ndarray:
+    c = np.concatenate([[0.0], np.cumsum(x)])
+    n = len(x)
+    i = np.arange(n)
+    lo = np.clip(i - w // 2, 0, n)
+    hi = np.clip(lo + w, 0, n)
+    lo = np.clip(hi - w, 0, n)
+    return (c[hi] - c[lo]) / (hi - lo)
+
+
+def flagged(r: np.ndarray, sigma: float, w: int) -> np.ndarray:
+    ms = _running_mean(r * r, w)
+    mu = _running_mean(r, w)
+    return (ms > sigma ** 2 * (1 + 5 * np.sqrt(2.0 / w))) | (np.abs(mu) > 5 * sigma / np.sqrt(w))
+
+
+def spans(mask: np.ndarray, w: int) -> list[tuple[int, int]]:
+    """Runs of True (end exclusive), gaps shorter than w merged, runs shorter than w/2 dropped."""
+    idx = np.flatnonzero(mask)
+    if not len(idx):
+        return []
+    breaks = np.flatnonzero(np.diff(idx) > w)
+    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
+    ends = np.concatenate([idx[breaks], [idx[-1]]]) + 1
+    return [(int(a), int(b)) for a, b in zip(starts, ends) if b - a >= max(w // 2, 1)]
+
+
+def _fmt(v: float, unit: str) -> str:
+    if unit == "mm" and abs(v) < 0.1:
+        return f"{v * 1e3:.3g} um"
+    return f"{v:.4g} {unit}".strip()
+
+
+def describe(al: Aligned, a: int, b: int) -> str:
+    """Words for the operating conditions of samples a:b against the whole recording."""
+    parts = [f"t {al.t[a]:.3f}-{al.t[b - 1]:.3f} s"]
+    moving, still = [], []
+    for k, s in al.signals.items():
+        if s.kind not in ("length", "angle") or np.ptp(s.values) == 0:
+            continue
+        v = np.gradient(s.values, al.dt)
+        vs = v[a:b]
+        thr = 1e-3 * np.max(np.abs(v))
+        mv = np.abs(vs) > thr
+        frac = float(np.mean(mv))
+        unit = s.unit or ""
+        if frac > 0.5:
+            pos, neg = np.mean(vs[mv] > 0), np.mean(vs[mv] < 0)
+            dirn = "+" if pos > 0.8 else ("-" if neg > 0.8 else "+/-")
+            speed = float(np.median(np.abs(vs[mv])))
+            moving.append(f"{k} moving {dirn} at {speed:.3g} {unit}/s")
+        elif frac < 0.1:
+            still.append(k)
+        seg = s.values[a:b]
+        full = np.ptp(s.values)
+        if np.ptp(seg) < 0.5 * full:
+            parts.append(f"{k} in {seg.min():.4g}..{seg.max():.4g} {unit}".rstrip())
+    if moving:
+        parts.insert(1, ", ".join(moving))
+    if still:
+        parts.insert(1 + bool(moving), ("dwell of " if not moving else "") + "/".join(still) + " at rest")
+    for k, s in al.signals.items():
+        if s.kind not in ("temperature", "speed") or np.ptp(s.values) == 0:
+            continue
+        seg = s.values[a:b]
+        q25, q75 = np.percentile(s.values, [25, 75])
+        m = float(np.mean(seg))
+        level = "high" if m > q75 else ("low" if m < q25 else None)
+        if level:
+            parts.append(f"{k} {level} ({seg.min():.4g}..{seg.max():.4g} {s.unit})")
+    return "; ".join(parts)
+
+
+def locate(al: Aligned, max_spans: int = 8) -> list[Mismatch]:
+    """Spans per output where the residual stands out of the noise floor, largest RMS first."""
+    n = al.n
+    w = int(np.clip(n // 200, 5, 400))
+    out = []
+    for o in al.outputs:
+        r = al.rec[o] - al.sim[o]
+        sig = al.noise_floor[o]
+        found = []
+        for a, b in spans(flagged(r, sig, w), w):
+            rms = float(np.sqrt(np.mean(r[a:b] ** 2)))
+            found.append(Mismatch(o, float(al.t[a]), float(al.t[b - 1]), describe(al, a, b), rms))
+        found.sort(key=lambda m: -m.rms * np.sqrt(m.t_end - m.t_start + al.dt))
+        out += found[:max_spans]
+    return out
+
+
+def conditions(al: Aligned, o: str, r: np.ndarray, sigma: float) -> list[str]:
+    """Operating conditions the residual of output o depends on, in words (global view).
+
+    For every moving axis: the mean residual moving +, moving -, and at rest; for every
+    temperature or speed input: the correlation of the residual with it.  Only differences
+    larger than five standard errors are reported.
+    """
+    out = []
+    n = len(r)
+    for k, s in al.signals.items():
+        if s.kind not in ("length", "angle") or np.ptp(s.values) == 0:
+            continue
+        v = np.gradient(s.values, al.dt)
+        thr = 1e-3 * np.max(np.abs(v))
+        groups = {"moving +": v > thr, "moving -": v < -thr, "at rest": np.abs(v) <= thr}
+        means = {g: (float(np.mean(r[m])), int(m.sum())) for g, m in groups.items() if m.sum() > 10}
+        if len(means) >= 2:
+            vals = [m for m, c in means.values()]
+            se = sigma / np.sqrt(min(c for _, c in means.values()))
+            if max(vals) - min(vals) > 5 * se and max(vals) - min(vals) > sigma:
+                txt = ", ".join(f"{g} {_fmt(m, al.units[o])}" for g, (m, _) in means.items())
+                out.append(f"{o} residual depends on the direction of {k}: {txt}")
+    for k, s in al.signals.items():
+        if np.ptp(s.values) == 0 or s.kind in ("time",):
+            continue
+        x = s.values - s.values.mean()
+        rr = r - r.mean()
+        den = np.sqrt((x @ x) * (rr @ rr))
+        if den == 0:
+            continue
+        c = float(x @ rr / den)
+        if abs(c) > 0.5 and abs(c) * np.sqrt(n) > 5:
+            out.append(f"{o} residual correlates with {k} (r = {c:+.2f})")
+    return out

@@ -1,0 +1,283 @@
+"""Fit sets of effects and choose among them: BIC, cross-validation on held-out time blocks.
+
+Fitting is variable projection: the nonlinear parameters (one or two per effect) are found by
+scipy.optimize.least_squares, started from a coarse grid, while the amplitudes are solved by
+linear least squares inside every residual evaluation.  Selection is forward stepwise: at each
+step every candidate is screened alone on the current residual, the best few are fitted jointly
+with the effects already chosen, and the best by BIC is kept only if it also lowers the
+cross-validated error on contiguous held-out blocks and is larger than a fraction of the noise.
+A backward pass then drops any effect the others have made redundant.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .effects import Candidate, Context
+
+
+@dataclass
+class Settings:
+    """Thresholds of the selection; defaults are tuned on benchmarks/diagnose_suite.py."""
+    max_effects: int = 4
+    bic_threshold: float = 10.0      # required BIC decrease ("very strong" evidence)
+    cv_min_gain: float = 0.01        # required relative decrease of the held-out error
+    min_effect_snr: float = 0.25     # effect RMS / noise floor below which it is noise
+    folds: int = 5
+    screen_rows: int = 6000          # samples per output used to screen candidates
+    top: int = 6                     # screened candidates fitted jointly per step
+    max_nfev: int = 60
+
+
+@dataclass
+class Fit:
+    cands: list
+    etas: list
+    betas: list
+    resid: np.ndarray          # whitened residual on all rows (model applied everywhere)
+    rss: float                 # on the fitted rows
+    n_rows: int
+    contrib: list              # whitened contribution of each effect (N,)
+    jac_eta: np.ndarray | None = None
+    gram_inv: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def k(self) -> int:
+        return sum(c.n_params() for c in self.cands)
+
+
+def _assemble(ctx: Context, cands, etas):
+    F = np.zeros(ctx.N)
+    Bs, sizes = [], []
+    for c, e in zip(cands, etas):
+        f, B = c.columns(ctx, e)
+        if f is not None:
+            F = F + f
+        Bs.append(B)
+        sizes.append(B.shape[1])
+    B = np.hstack(Bs) if Bs and sum(sizes) else np.zeros((ctx.N, 0))
+    return F, B, sizes
+
+
+def _solve(B: np.ndarray, y: np.ndarray):
+    """Least squares of y on the columns of B via the normalised normal equations.
+
+    Columns are scaled to unit norm first (their physical scales differ by 1e8), then the small
+    Gram matrix is solved with lstsq so collinear columns give the minimum-norm answer.
+    """
+    if B.shape[1] == 0:
+        return np.zeros(0), np.zeros((0, 0))
+    nrm = np.sqrt(np.einsum("ij,ij->j", B, B))
+    nrm[nrm == 0] = 1.0
+    Bn = B / nrm
+    G = Bn.T @ Bn
+    beta_n, *_ = np.linalg.lstsq(G, Bn.T @ y, rcond=1e-12)
+    Ginv = np.linalg.pinv(G, rcond=1e-12) / np.outer(nrm, nrm)
+    return beta_n / nrm, Ginv
+
+
+def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
+        max_nfev: int = 60, target: np.ndarray | None = None) -> Fit:
+    """Fit `cands` jointly to the whitened residual (`target`, default REC - SIM) on `rows`."""
+    from scipy.optimize import least_squares
+    z = ctx.z0 if target is None else target
+    rows = np.ones(ctx.N, bool) if rows is None else rows
+    nls = [len(c.nl_names) for c in cands]
+    lo, hi = [], []
+    for c in cands:
+        a, b = c.bounds(ctx)
+        lo += list(a)
+        hi += list(b)
+    x0 = np.concatenate([np.asarray(e, float) for e in etas0]) if sum(nls) else np.zeros(0)
+    x0 = np.clip(x0, lo, hi) if len(x0) else x0
+
+    def split(x):
+        out, i = [], 0
+        for m in nls:
+            out.append(x[i:i + m])
+            i += m
+        return out
+
+    def resid_rows(x):
+        F, B, _ = _assemble(ctx, cands, split(x))
+        y = z[rows] - F[rows]
+        Br = B[rows]
+        beta, _ = _solve(Br, y)
+        return y - Br @ beta
+
+    jac = None
+    x = x0
+    if len(x0):
+        # keep the start strictly inside the box: least_squares requires it
+        span = np.asarray(hi) - np.asarray(lo)
+        x0 = np.clip(x0, np.asarray(lo) + 1e-9 * span, np.asarray(hi) - 1e-9 * span)
+        res = least_squares(resid_rows, x0, bounds=(lo, hi), method="trf", x_scale=1.0,
+                            diff_step=1e-4, max_nfev=max_nfev)
+        x = res.x
+        jac = res.jac
+    etas = split(x)
+    F, B, sizes = _assemble(ctx, cands, etas)
+    beta, Ginv = _solve(B[rows], z[rows] - F[rows])
+    pred_parts, betas, i = [], [], 0
+    for c, e, m in zip(cands, etas, sizes):
+        f, Bc = c.columns(ctx, e)
+        b = beta[i:i + m]
+        part = (f if f is not None else 0.0) + (Bc @ b if m else 0.0)
+        pred_parts.append(np.broadcast_to(part, (ctx.N,)).copy() if np.isscalar(part) else part)
+        betas.append(b)
+        i += m
+    total = F + B @ beta
+    r = z - total
+    rr = r[rows]
+    return Fit(list(cands), etas, betas, r, float(rr @ rr), int(rows.sum()), pred_parts,
+               jac, Ginv)
+
+
+def rho1(ctx: Context, r: np.ndarray) -> float:
+    """Lag-one autocorrelation of a residual, averaged over outputs (>= 0)."""
+    vals = []
+    for sl in ctx.slices.values():
+        x = r[sl] - r[sl].mean()
+        d = float(x @ x)
+        if d > 0 and len(x) > 2:
+            vals.append(float(x[1:] @ x[:-1]) / d)
+    return float(np.clip(np.mean(vals), 0.0, 0.99)) if vals else 0.0
+
+
+def n_effective(ctx: Context, r: np.ndarray) -> float:
+    """Samples worth of independent information in a residual with AR(1)-like correlation."""
+    rho = rho1(ctx, r)
+    return max(ctx.N * (1 - rho) / (1 + rho), 10.0)
+
+
+def bic(rss: float, n_rows: int, k: int, neff: float) -> float:
+    return neff * math.log(max(rss, 1e-300) / n_rows) + k * math.log(neff)
+
+
+def blocks(n: int, folds: int) -> list[np.ndarray]:
+    edges = np.linspace(0, n, folds + 1).astype(int)
+    return [np.arange(edges[i], edges[i + 1]) for i in range(folds)]
+
+
+def cross_validate(ctx: Context, cands: list, etas: list, folds: int, max_nfev: int = 25):
+    """Fit on all but one contiguous block of time, predict it; returns (SSE, out-of-fold residual)."""
+    n = ctx.n
+    oof = np.array(ctx.z0, copy=True)
+    if not cands:
+        return float(oof @ oof), oof
+    O = len(ctx.outputs)
+    for blk in blocks(n, folds):
+        held = np.zeros(n, bool)
+        held[blk] = True
+        rows = np.tile(~held, O)
+        f = fit(ctx, cands, etas, rows, max_nfev=max_nfev)
+        hrows = np.tile(held, O)
+        oof[hrows] = f.resid[hrows]
+    return float(oof @ oof), oof
+
+
+def _conflicts(c: Candidate, model: list) -> bool:
+    for m in model:
+        if m.label == c.label:
+            return True
+        if c.name == m.name and c.name in ("workpiece_setting", "time_offset"):
+            return True
+        if (c.name == m.name and c.outputs == m.outputs
+                and c.name in ("backlash", "servo_lag", "scale_error", "periodic_pitch_error")):
+            return True
+        # squareness is nested in straightness of the same output along the same axis
+        if ({c.name, m.name} == {"squareness", "straightness"} and c.outputs == m.outputs
+                and c.inputs == m.inputs):
+            return True
+    return False
+
+
+def _screen_rows(ctx: Context, limit: int) -> np.ndarray:
+    step = max(1, int(math.ceil(ctx.n / limit)))
+    m = np.zeros(ctx.n, bool)
+    m[::step] = True
+    return np.tile(m, len(ctx.outputs))
+
+
+def select(ctx: Context, cands: list, settings: Settings | None = None, progress=None):
+    """Forward-backward selection; returns (final Fit, evidence per chosen effect, log)."""
+    st = settings or Settings()
+    log = []
+    model, etas = [], []
+    cur = fit(ctx, [], [])
+    cv_cur, _ = cross_validate(ctx, [], [], st.folds)
+    srows = _screen_rows(ctx, st.screen_rows)
+    evidence = {}
+    coarse_cache = {}
+    for step in range(st.max_effects):
+        scored = []
+        r_s = cur.resid
+        rss_s = float(r_s[srows] @ r_s[srows])
+        for c in cands:
+            if c in model or _conflicts(c, model):
+                continue
+            eta0 = c.coarse(ctx, r_s, srows)
+            f1 = fit(ctx, [c], [eta0], srows, max_nfev=15, target=r_s)
+            gain = rss_s - f1.rss
+            coarse_cache[c.label] = f1.etas[0]
+            if gain > 0:
+                scored.append((gain - c.n_params() * math.log(max(srows.sum(), 2)), c))
+        scored.sort(key=lambda g: -g[0])
+        trials = []
+        for _, c in scored[:st.top]:
+            f = fit(ctx, model + [c], etas + [coarse_cache[c.label]], max_nfev=st.max_nfev)
+            neff = n_effective(ctx, f.resid)
+            dbic = (bic(f.rss, f.n_rows, f.k, neff) - bic(cur.rss, cur.n_rows, cur.k, neff))
+            trials.append((dbic, c, f, neff))
+        trials.sort(key=lambda g: g[0])
+        accepted = False
+        for dbic, c, f, neff in trials[:3]:
+            if dbic > -st.bic_threshold:
+                break
+            contrib = f.contrib[-1]
+            snr = float(np.sqrt(np.mean(contrib ** 2) * len(ctx.outputs) / len(c.outputs)))
+            if snr < st.min_effect_snr:
+                log.append(f"step {step + 1}: {c.label} rejected: RMS {snr:.2f} x noise")
+                continue
+            cv_new, _ = cross_validate(ctx, model + [c], f.etas, st.folds)
+            gain = 1.0 - cv_new / cv_cur
+            if gain < st.cv_min_gain:
+                log.append(f"step {step + 1}: {c.label} rejected: held-out error "
+                           f"{-100 * gain:+.1f} %")
+                continue
+            log.append(f"step {step + 1}: {c.label} added: dBIC {dbic:.1f}, held-out error "
+                       f"{-100 * gain:+.1f} %, RMS {snr:.1f} x noise")
+            evidence[c.label] = {"delta_bic": round(float(dbic), 2),
+                                 "heldout_error_reduction": round(float(gain), 4),
+                                 "snr": round(snr, 2), "n_effective": round(float(neff), 1)}
+            model, etas, cur, cv_cur = model + [c], list(f.etas), f, cv_new
+            accepted = True
+            if progress:
+                progress(f"added {c.label}")
+            break
+        if not accepted:
+            break
+    # backward pass: an effect that a later one made redundant goes
+    changed = True
+    while changed and len(model) > 1:
+        changed = False
+        neff = n_effective(ctx, cur.resid)
+        b_full = bic(cur.rss, cur.n_rows, cur.k, neff)
+        worst = None
+        for i, c in enumerate(model):
+            sub = model[:i] + model[i + 1:]
+            f = fit(ctx, sub, etas[:i] + etas[i + 1:], max_nfev=st.max_nfev)
+            d = bic(f.rss, f.n_rows, f.k, neff) - b_full
+            if d < st.bic_threshold and (worst is None or d < worst[0]):
+                worst = (d, i, f)
+        if worst is not None:
+            d, i, f = worst
+            log.append(f"backward: {model[i].label} dropped (BIC rises by {d:.1f} only)")
+            evidence.pop(model[i].label, None)
+            model, etas, cur = model[:i] + model[i + 1:], etas[:i] + etas[i + 1:], f
+            changed = True
+    final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else cur
+    return final, evidence, log

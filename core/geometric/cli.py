@@ -1,0 +1,144 @@
+"""`mtcomp geometric ...`: ISO 230-2 evaluation, tables from runs, volumetric map, compensation
+tables, and a synthetic machine to try them on.  A thin layer over mtcomp.geometric."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .._io import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "geometric", help="geometric errors: ISO 230-2, tables from runs, volumetric map, "
+                          "compensation tables",
+        description="Geometric errors from laser-interferometer runs (docs/geometric.md).")
+    sub = p.add_subparsers(dest="geometric_command", metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+
+    s = sub.add_parser("iso230-2", help="evaluate a bidirectional positioning run (ISO 230-2)")
+    s.add_argument("run", help="run CSV: target,cycle,direction,deviation (mm)")
+    s.add_argument("--axis", default="", help="axis name for the report")
+    s.add_argument("-o", "--output", help="output stem (default: next to the run, <run>_iso230-2); "
+                                          "writes .txt, _positions.csv, _figures.csv, .png")
+    s.set_defaults(func=_iso)
+
+    s = sub.add_parser("build", help="component error tables from a measurement set")
+    s.add_argument("set", help="measurement set TOML (runs, set-up offsets)")
+    s.add_argument("--machine", help="machine preset or TOML (default: the set's machine)")
+    s.add_argument("-o", "--output", required=True,
+                   help="errors TOML to write (one CSV per axis next to it)")
+    s.set_defaults(func=_build)
+
+    s = sub.add_parser("map", help="volumetric error over the work volume (PNG, CSV, figures)")
+    s.add_argument("errors", help="errors TOML")
+    s.add_argument("--machine", default="vmc-moving-column", help="machine preset or TOML")
+    s.add_argument("--step", type=float, default=25.0, help="grid spacing, mm (default 25)")
+    s.add_argument("-o", "--output", required=True, help="output stem: .png, .csv, .txt")
+    s.set_defaults(func=_map)
+
+    s = sub.add_parser("table", help="compensation tables: 3-D lattice and ISO 230-1 CSV tables")
+    s.add_argument("errors", help="errors TOML (the model to compensate)")
+    s.add_argument("--machine", default="vmc-moving-column", help="machine preset or TOML")
+    s.add_argument("--lattice-step", type=float, default=25.0, help="lattice spacing, mm")
+    s.add_argument("--truth", help="errors TOML of the real machine for the residual "
+                                   "(default: the model itself, which shows the lattice "
+                                   "interpolation error)")
+    s.add_argument("-o", "--output", required=True, help="output directory")
+    s.set_defaults(func=_table)
+
+    s = sub.add_parser("simulate", help="synthetic machine and simulated interferometer runs")
+    s.add_argument("--machine", default="vmc-moving-column", help="machine preset or TOML")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--step", type=float, default=5.0, help="run target spacing, mm")
+    s.add_argument("--noise", type=float, nargs=3, metavar=("LIN_UM", "STRAIGHT_UM", "ANG_URAD"),
+                   default=(0.1, 0.2, 0.2), help="reading noise, 1 sigma (um, um, urad)")
+    s.add_argument("--reversal", type=float, default=2.0, help="reversal of positioning runs, um")
+    s.add_argument("-o", "--output", required=True,
+                   help="measurement set TOML to write; the true errors go to <stem>_truth.toml")
+    s.set_defaults(func=_simulate)
+
+
+def _iso(args: argparse.Namespace) -> int:
+    from . import iso230_2
+    run = iso230_2.read_run_csv(args.run, axis=args.axis)
+    res = iso230_2.evaluate(run)
+    stem = Path(args.output) if args.output else Path(args.run).with_name(
+        Path(args.run).stem + "_iso230-2")
+    out = iso230_2.write_report(res, stem)
+    print(res.summary(), end="")
+    print("written: " + ", ".join(str(p) for p in out.values()))
+    return 0
+
+
+def _build(args: argparse.Namespace) -> int:
+    from ..errors import save_errors
+    from . import tables
+    mset = tables.load_measurement_set(args.set)
+    res = tables.build_tables(args.machine or mset.machine, mset)
+    save_errors(res.errors, args.output, meta={"source": "mtcomp geometric build",
+                                               "measurement_set": Path(args.set).name})
+    print(res.summary(), end="")
+    print(f"written: {args.output}")
+    return 0
+
+
+def _load_errors(path):
+    from ..errors import load_errors
+    return load_errors(path)
+
+
+def _map(args: argparse.Namespace) -> int:
+    from .._io import atomic_write
+    from . import volumetric
+    if args.step <= 0:
+        raise InputError("must be positive", field="--step")
+    errors = _load_errors(args.errors)
+    vmap = volumetric.error_map(args.machine, errors, step=args.step)
+    stem = Path(args.output)
+    volumetric.plot_map(vmap, stem.with_name(stem.name + ".png"))
+    atomic_write(stem.with_name(stem.name + ".csv"), vmap.to_csv())
+    atomic_write(stem.with_name(stem.name + ".txt"), vmap.summary())
+    print(vmap.summary(), end="")
+    print(f"written: {stem}.png, {stem}.csv, {stem}.txt")
+    return 0
+
+
+def _table(args: argparse.Namespace) -> int:
+    from .._io import atomic_write
+    from . import comptables
+    if args.lattice_step <= 0:
+        raise InputError("must be positive", field="--lattice-step")
+    model = _load_errors(args.errors)
+    truth = _load_errors(args.truth) if args.truth else model
+    out = Path(args.output)
+    lat = comptables.lattice_table(args.machine, model, args.lattice_step)
+    atomic_write(out / "lattice.csv", lat.to_csv())
+    files = comptables.write_iso_tables(model.geometric, out, "comp")
+    rep = comptables.compensation_report(args.machine, truth, model, lat)
+    atomic_write(out / "residual.txt", rep.summary())
+    print(rep.summary(), end="")
+    print(f"written: {out / 'lattice.csv'}, " + ", ".join(str(f) for f in files)
+          + f", {out / 'residual.txt'}")
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from ..errors import save_errors
+    from ..machine import load_machine
+    from . import synthetic, tables
+    machine = load_machine(args.machine)
+    syn = synthetic.make_synthetic(machine, seed=args.seed, run_step=args.step,
+                                   min_wavelength=250.0)
+    truth = syn.errors()
+    lin, st, ang = args.noise
+    noise = tables.Noise(lin * 1e-3, st * 1e-3, ang * 1e-6, args.reversal * 1e-3)
+    mset = tables.simulate_runs(machine, truth, tables.Setup.typical(args.seed), noise,
+                                step=args.step, seed=args.seed)
+    out = Path(args.output)
+    tables.save_measurement_set(mset, out)
+    truth_path = out.with_name(out.stem + "_truth.toml")
+    save_errors(truth, truth_path, meta={"source": "mtcomp geometric simulate",
+                                         "seed": args.seed})
+    print(f"written: {out} ({len(mset.runs)} runs), {truth_path}")
+    return 0

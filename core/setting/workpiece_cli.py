@@ -1,0 +1,200 @@
+"""`mtcomp workpiece-setting plan|probe|fit|compensate|simulate` (paper 001): a thin layer over
+mtcomp.setting.workpiece.  File formats: docs/workpiece-setting.md."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from .._io import InputError
+
+
+def _floats(text: str, n: int | None, what: str) -> list[float]:
+    try:
+        vals = [float(v) for v in text.replace(";", ",").split(",") if v.strip()]
+    except ValueError:
+        raise InputError(f"expected comma-separated numbers, got {text!r}", field=what) from None
+    if n is not None and len(vals) != n:
+        raise InputError(f"expected {n} comma-separated numbers, got {len(vals)}", field=what)
+    return vals
+
+
+def _positions(text: str):
+    pts = []
+    for k, pair in enumerate(text.split(";")):
+        if pair.strip():
+            pts.append(_floats(pair, 2, f"positions[{k}]"))
+    return pts
+
+
+def _warn(lines):
+    for w in lines:
+        print(f"warning: {w}", file=sys.stderr)
+
+
+def cmd_plan(args) -> int:
+    from .._io import atomic_write, dump_toml
+    from .bowls import plan_bowls, plan_to_dict, probing_program, roughing_program
+    plan = plan_bowls(args.bowls, blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
+                      depth=args.depth, probe_radius=args.probe_radius, touches=args.touches,
+                      positions=_positions(args.positions) if args.positions else None)
+    out = Path(args.out)
+    rough = Path(args.roughing) if args.roughing else out.with_name(out.stem + "-roughing.nc")
+    probe = Path(args.probing) if args.probing else out.with_name(out.stem + "-probing.nc")
+    # all texts first, then the files: an error leaves nothing behind
+    texts = [(out, dump_toml(plan_to_dict(plan))), (rough, roughing_program(plan)),
+             (probe, probing_program(plan))]
+    for path, text in texts:
+        atomic_write(path, text)
+    print(f"{len(plan.bowls)} bowls R{plan.tool_radius:g} depth {plan.depth:g} mm, "
+          f"{len(plan.directions)} touches each with probe R{plan.probe_radius:g}: "
+          f"{out}, {rough}, {probe}")
+    return 0
+
+
+def cmd_probe(args) -> int:
+    import numpy as np
+    from ..errors import WorkpieceSetting
+    from .bowls import load_plan, virtual_probe, write_touches
+    plan = load_plan(args.plan)
+    v = _floats(args.pose, 6, "pose")
+    pose = WorkpieceSetting(tuple(v[:3]), tuple(v[3:]))
+    t = virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed))
+    write_touches(t, args.out)
+    print(f"{len(t.bowl)} virtual touches -> {args.out}")
+    return 0
+
+
+def cmd_fit(args) -> int:
+    from .._io import atomic_write, dump_toml
+    from .bowls import fit_bowls, load_plan, read_touches
+    from .frame import frame_from_bowls
+    plan = load_plan(args.plan)
+    touches = read_touches(args.touches)
+    radius = plan.tool_radius if args.fix_radius else args.bowl_radius
+    fit = fit_bowls(touches, plan.probe_radius, probe_sigma=args.probe_sigma, bowl_radius=radius,
+                    k=args.k, bowls=plan.ids if set(map(int, touches.bowl)) <= set(plan.ids) else None)
+    est = frame_from_bowls(fit, plan, method=args.method, file=args.touches)
+    print(fit.summary())
+    print(est.summary())
+    _warn(fit.warnings)
+    _warn(est.warnings)
+    if args.report:
+        rep = est.to_dict()
+        rep["bowl_fits"] = [{"id": f.bowl, "centre_mm": [float(v) for v in f.centre],
+                             "radius_mm": f.radius, "rms_um": f.rms * 1e3,
+                             "rejected_touches": [int(f.lines[j]) or j + 1 for j in f.rejected]}
+                            for f in fit.fits]
+        rep["probe_sigma_mm"] = fit.sigma
+        atomic_write(args.report, dump_toml(rep))
+    est.save(args.out, meta={"source": "mtcomp workpiece-setting fit", "plan": str(args.plan),
+                             "touches": str(args.touches), "method": est.method})
+    print(f"workpiece setting -> {args.out}")
+    return 0
+
+
+def cmd_compensate(args) -> int:
+    from ..errors import load_errors
+    from ..machine import load_machine
+    from .workpiece import compensate_program
+    machine = load_machine(args.machine)
+    errors = load_errors(args.errors)
+    n = compensate_program(machine, args.program, errors.workpiece, args.out, mode=args.mode)
+    print(f"{n} motion lines transformed ({args.mode}) -> {args.out}")
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from .._io import atomic_write
+    from .bowls import load_plan
+    from .cellsim import CellConfig, RobotPlacement, simulate_cell
+    robot = RobotPlacement(repeatability=args.repeatability, rotation_sigma=args.rotation_sigma,
+                           offset=tuple(_floats(args.gripper_offset, 3, "gripper-offset")),
+                           rotation=tuple(_floats(args.gripper_rotation, 3, "gripper-rotation")))
+    cfg = CellConfig(machine=args.machine, plan=load_plan(args.plan) if args.plan else None,
+                     robot=robot, probe_sigma=args.probe_sigma, mode=args.mode, trials=args.trials,
+                     seed=args.seed, bowl_radius=args.bowl_radius)
+
+    def progress(i, n):
+        if sys.stderr.isatty() and (i % 50 == 0 or i == n):
+            print(f"\r{i}/{n} trials", end="\n" if i == n else "", file=sys.stderr)
+    res = simulate_cell(cfg, progress)
+    table = res.table()
+    print(table)
+    if args.out:
+        atomic_write(args.out, table)
+    if args.png:
+        res.plot(args.png)
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "workpiece-setting", help="workpiece setting errors after robot loading (paper 001)",
+        description="Reference bowls, probing, sphere fit, workpiece frame with uncertainty, NC "
+                    "transform and a virtual cell for the setting of a blank loaded by a robot.")
+    sub = p.add_subparsers(dest="action", metavar="ACTION")
+    sub.required = True
+
+    a = sub.add_parser("plan", help="bowl plan, roughing program and probing program")
+    a.add_argument("--bowls", type=int, default=3, help="number of bowls (>= 3, default 3)")
+    a.add_argument("--blank", default="20,20,5", help="blank size lx,ly,lz mm (default 20,20,5)")
+    a.add_argument("--tool-radius", type=float, default=2.0, help="ball end mill radius, mm (2.0)")
+    a.add_argument("--depth", type=float, default=1.0, help="bowl depth, mm (1.0, <= radius)")
+    a.add_argument("--probe-radius", type=float, default=0.5, help="probe tip radius, mm (0.5)")
+    a.add_argument("--touches", type=int, default=9, help="touches per bowl (9)")
+    a.add_argument("--positions", help="explicit bowl positions 'x,y;x,y;...' mm")
+    a.add_argument("-o", "--out", required=True, help="plan TOML to write")
+    a.add_argument("--roughing", help="roughing program (default <plan>-roughing.nc)")
+    a.add_argument("--probing", help="probing program (default <plan>-probing.nc)")
+    a.set_defaults(func=cmd_plan)
+
+    a = sub.add_parser("probe", help="virtual probing of a blank at a given pose (touches CSV)")
+    a.add_argument("plan", help="plan TOML")
+    a.add_argument("--pose", required=True, help="true pose dx,dy,dz,a,b,c (mm, deg)")
+    a.add_argument("--noise", type=float, default=0.0, help="probe noise 1 sigma, mm (0)")
+    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("-o", "--out", required=True, help="touches CSV to write")
+    a.set_defaults(func=cmd_probe)
+
+    a = sub.add_parser("fit", help="fit bowls from probe touches, write the workpiece setting")
+    a.add_argument("plan", help="plan TOML")
+    a.add_argument("touches", help="touches CSV (bowl,x,y,z,ax,ay,az)")
+    a.add_argument("--probe-sigma", type=float, help="probe noise 1 sigma, mm (default: pooled "
+                   "from the fit residuals)")
+    g = a.add_mutually_exclusive_group()
+    g.add_argument("--bowl-radius", type=float, help="fix the bowl radius, mm (calibrated tool)")
+    g.add_argument("--fix-radius", action="store_true", help="fix the bowl radius at the plan's "
+                   "tool radius")
+    a.add_argument("--method", choices=("auto", "paper", "lsq"), default="auto",
+                   help="frame: paper (3 bowls), lsq (best-fit), auto (default)")
+    a.add_argument("--k", type=float, default=5.0, help="outlier threshold in sigma (5)")
+    a.add_argument("-o", "--out", required=True, help="errors TOML to write (mtcomp format)")
+    a.add_argument("--report", help="also write a report TOML (covariance, residuals)")
+    a.set_defaults(func=cmd_fit)
+
+    a = sub.add_parser("compensate", help="transform an NC program for the measured setting")
+    a.add_argument("program", help="NC program (G-code)")
+    a.add_argument("--errors", required=True, help="errors TOML with [workpiece_setting]")
+    a.add_argument("--machine", default="robonano-a0ib", help="machine preset or TOML")
+    a.add_argument("--mode", choices=("auto", "3axis", "5axis"), default="auto",
+                   help="3axis: paper 001 formula; 5axis: tool direction too (default auto)")
+    a.add_argument("-o", "--out", required=True, help="program to write")
+    a.set_defaults(func=cmd_compensate)
+
+    a = sub.add_parser("simulate", help="virtual cell Monte Carlo of paper 001's pyramid")
+    a.add_argument("--trials", type=int, default=500)
+    a.add_argument("--seed", type=int, default=1)
+    a.add_argument("--machine", default="robonano-a0ib")
+    a.add_argument("--plan", help="plan TOML (default: 3 bowls on the 20 mm blank)")
+    a.add_argument("--repeatability", type=float, default=0.030,
+                   help="robot pose repeatability RP (ISO 9283), mm (0.030)")
+    a.add_argument("--rotation-sigma", type=float, default=0.02,
+                   help="robot placement angle scatter, deg 1 sigma (0.02)")
+    a.add_argument("--gripper-offset", default="0,0,0", help="systematic offset dx,dy,dz mm")
+    a.add_argument("--gripper-rotation", default="0,0,0", help="systematic rotation a,b,c deg")
+    a.add_argument("--probe-sigma", type=float, default=0.0005, help="probe noise, mm (0.0005)")
+    a.add_argument("--bowl-radius", type=float, help="fix the fitted bowl radius, mm")
+    a.add_argument("--mode", choices=("3axis", "5axis"), default="3axis")
+    a.add_argument("-o", "--out", help="markdown table to write")
+    a.add_argument("--png", help="PNG plot to write")
+    a.set_defaults(func=cmd_simulate)
