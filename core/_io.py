@@ -74,7 +74,11 @@ def load_toml(path: str | os.PathLike) -> dict:
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        line = getattr(exc, "lineno", None)
+        import re
+        line = getattr(exc, "lineno", None)  # Python >= 3.14 only; older: parse the message
+        if line is None:
+            m = re.search(r"\(at line (\d+)", str(exc))
+            line = int(m.group(1)) if m else None
         raise InputError(f"invalid TOML: {exc}", path, line) from None
 
 

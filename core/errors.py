@@ -179,13 +179,13 @@ class AxisErrorTable:
         return d, e
 
     def to_csv(self) -> str:
-        names = component_names(self.axis)
+        names = [n for n in component_names(self.axis) if n in self.values]
         buf = io.StringIO()
         buf.write(f"# ISO 230-1 component errors of axis {self.axis}: position in "
                   f"{'deg' if self.axis in _ANG else 'mm'}, E?{self.axis} in mm, EA/EB/EC{self.axis} in rad\n")
-        buf.write(",".join(("position",) + names) + "\n")
+        buf.write(",".join(["position"] + names) + "\n")
         for i, p in enumerate(self.position):
-            row = [repr(float(p))] + [repr(float(self.values[n][i])) if n in self.values else "0.0" for n in names]
+            row = [repr(float(p))] + [repr(float(self.values[n][i])) for n in names]
             buf.write(",".join(row) + "\n")
         return buf.getvalue()
 

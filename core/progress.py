@@ -1,0 +1,31 @@
+"""A minimal progress display on stderr for long work (only when stderr is a terminal or asked)."""
+from __future__ import annotations
+
+import sys
+import time
+
+
+class Progress:
+    """Call with (done, total); prints a one-line bar at most every 0.2 s."""
+
+    def __init__(self, label: str, enabled: bool | None = None, stream=None):
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.enabled = self.stream.isatty() if enabled is None else enabled
+        self._last = 0.0
+        self._shown = False
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.enabled or total <= 0:
+            return
+        now = time.monotonic()
+        if done < total and now - self._last < 0.2:
+            return
+        self._last = now
+        frac = min(1.0, done / total)
+        bar = "#" * int(30 * frac)
+        self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%")
+        if done >= total:
+            self.stream.write("\n")
+        self.stream.flush()
+        self._shown = True

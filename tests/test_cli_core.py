@@ -1,0 +1,111 @@
+"""`mtcomp compensate` and `mtcomp machines` end to end, through the installed entry point."""
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from mtcomp import gcode
+from mtcomp.commands import compensate_program
+from mtcomp.errors import ErrorSet, ToolSetting, WorkpieceSetting, save_errors
+from mtcomp.kinematics import forward
+from mtcomp.machine import load_machine
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "mtcomp", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=120)
+
+
+PROGRAM = """O0042 (5-axis test program)
+G21 G90 G17
+N10 G0 X0 Y0 Z5. B15. C0
+N20 G1 Z0 F200
+N30 X5.0 Y2 C30.5 ; cut
+N40 Y-3.25 B20
+N50 G0 Z5.
+M30
+"""
+
+
+@pytest.fixture
+def setup(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    err = save_errors(ErrorSet(ToolSetting((0.49, -0.68, 0.1)), WorkpieceSetting((0.03, -0.02, 0.01), (0, 0, 0.1))),
+                      tmp_path / "e.toml")
+    return prog, err
+
+
+def test_compensate_cli_round_trip(setup, tmp_path):
+    prog, err = setup
+    out = tmp_path / "out.nc"
+    r = run("compensate", prog, "--machine", "robonano-a0ib", "--errors", err, "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert "before compensation" in r.stdout and "after  compensation" in r.stdout
+    m = load_machine("robonano-a0ib")
+    E = ErrorSet(ToolSetting((0.49, -0.68, 0.1)), WorkpieceSetting((0.03, -0.02, 0.01), (0, 0, 0.1)))
+    p0 = gcode.parse(PROGRAM, axes=m.axis_names)
+    p1 = gcode.parse(out.read_text(), axes=m.axis_names)
+    target = forward(m, p0.position).p
+    before = np.abs(forward(m, p0.position, E).p - target).max()
+    after = np.abs(forward(m, p1.position, E).p - target).max()
+    assert before > 0.4  # mm: the setting errors are hundreds of um
+    assert after < 2e-6  # 1 nm and 1e-5 deg resolution: rounding leaves about a nanometre
+    # Everything but axis words stays: comments, N numbers, M30.
+    assert out.read_text().splitlines()[0] == "O0042 (5-axis test program)"
+    assert "; cut" in out.read_text() and out.read_text().rstrip().endswith("M30")
+
+
+def test_zero_errors_reproduce_program_byte_for_byte():
+    m = load_machine("robonano-a0ib")
+    text, rep = compensate_program(PROGRAM, m, ErrorSet())
+    assert text == PROGRAM and rep["before_max"] == 0 and rep["after_max"] == 0
+
+
+def test_compensate_refuses_unknown_code_naming_line(setup, tmp_path):
+    prog, err = setup
+    prog.write_text(PROGRAM.replace("N40 Y-3.25", "N40 G68 Y-3.25"))
+    out = tmp_path / "out.nc"
+    r = run("compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out)
+    assert r.returncode == 2 and f"{prog}:6" in r.stderr
+    assert not out.exists() and not list(tmp_path.glob(".out.nc*"))
+
+
+def test_compensate_travel_limit_names_line(setup, tmp_path):
+    prog, err = setup
+    prog.write_text(PROGRAM.replace("N40 Y-3.25", "N40 Y39.8"))
+    out = tmp_path / "out.nc"
+    r = run("compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out)
+    assert r.returncode == 2, r.stdout
+    assert f"{prog}:6" in r.stderr and "axis Y" in r.stderr and "travel" in r.stderr
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("bad", ["missing_program", "missing_errors", "bad_machine"])
+def test_missing_inputs(setup, tmp_path, bad):
+    prog, err = setup
+    args = {"missing_program": (tmp_path / "nope.nc", "robonano-a0ib", err),
+            "missing_errors": (prog, "robonano-a0ib", tmp_path / "nope.toml"),
+            "bad_machine": (prog, "no-such-machine", err)}[bad]
+    r = run("compensate", args[0], "-m", args[1], "-e", args[2], "-o", tmp_path / "o.nc")
+    assert r.returncode == 2 and "error:" in r.stderr and "nope" in r.stderr or "no-such-machine" in r.stderr
+    assert not (tmp_path / "o.nc").exists()
+
+
+def test_machines_and_help():
+    r = run("machines")
+    assert r.returncode == 0 and "robonano-ui" in r.stdout and "vmc-moving-column" in r.stdout
+    r = run("machines", "robonano-ui")
+    assert r.returncode == 0 and 'name = "robonano-ui"' in r.stdout
+    r = run("--help")
+    assert r.returncode == 0 and "compensate" in r.stdout
+
+
+def test_import_is_light():
+    code = ("import sys, time; t = time.perf_counter(); import mtcomp, mtcomp.kinematics, mtcomp.cli; "
+            "print(time.perf_counter() - t); "
+            "assert not {'cadquery', 'fmpy', 'pymodbus', 'matplotlib'} & set(sys.modules), sorted(sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
