@@ -202,6 +202,13 @@ def _coverage(n, seed0):
     return inside / n, np.array(d2)
 
 
+def test_injected_and_recovered_quick():
+    rate, d2 = _coverage(150, 100)
+    assert rate >= 0.97
+    assert np.mean(d2) == pytest.approx(3.0, rel=0.25)
+
+
+@pytest.mark.slow
 def test_injected_and_recovered_1000_trials():
     """Acceptance: 1,000 seeded trials, true offsets up to 1 mm, 1 um noise: all three components
     within 3 sigma (reported covariance) in >= 99 %; the Mahalanobis distance is chi2(3)."""

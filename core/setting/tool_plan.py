@@ -327,6 +327,7 @@ def render_nc(machine, moves: list[Move], title: str) -> str:
     for mv in moves:
         words = ["G00" if mv.rapid else "G01"]
         for ax, val in zip(m.axes, mv.q):
+            val = round(float(val), ax.decimals) + 0.0   # + 0.0: no "-0.00000" words
             words.append(f"{ax.name}{val:.{ax.decimals}f}")
         if not mv.rapid:
             words.append(f"F{mv.feed:g}")

@@ -1,0 +1,129 @@
+"""`mtcomp tool-setting plan|simulate|estimate`: round trip and bad measurement files."""
+from __future__ import annotations
+
+import csv
+import io
+
+import numpy as np
+import pytest
+
+from mtcomp.cli import main
+from mtcomp.errors import load_errors
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ts")
+    assert main(["tool-setting", "plan", "-o", str(d)]) == 0
+    assert main(["tool-setting", "simulate", "--plan", str(d / "plan.toml"), "--offset", "0.34006", "0.24502", "0.2",
+                 "--seed", "11", "-o", str(d / "measured.csv"), "--png", str(d / "cut.png")]) == 0
+    return d
+
+
+def test_plan_outputs(work):
+    names = {p.name for p in work.iterdir()}
+    assert {"plan.toml", "measurements.csv", "layout.png", "tool_setting_A.nc", "tool_setting_B.nc",
+            "tool_setting_C.nc"} <= names
+    rows = list(csv.DictReader(io.StringIO("\n".join(
+        ln for ln in (work / "measurements.csv").read_text().splitlines() if not ln.startswith("#")))))
+    assert len(rows) == 18 and all(r["u_mm"] == "" for r in rows)
+    assert (work / "layout.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_estimate_round_trip(work, capsys):
+    out = work / "out"
+    rc = main(["tool-setting", "estimate", str(work / "measured.csv"), "-o", str(out / "errors.toml"),
+               "--report", str(out / "report.txt"), "--png", str(out / "report.png"), "--nc-dir", str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "t_x =" in text and "+-" in text
+    est = np.array(load_errors(out / "errors.toml").tool.offset)
+    assert est == pytest.approx([0.34006, 0.24502, 0.2], abs=0.012)
+    assert {"tool_setting_A_compensated.nc", "tool_setting_B_compensated.nc"} <= {p.name for p in out.iterdir()}
+    # the compensated A program moves the cut by about -R t: X differs by t_z at B = 90
+    orig = (work / "tool_setting_A.nc").read_text().splitlines()
+    comp = (out / "tool_setting_A_compensated.nc").read_text().splitlines()
+    cut_o = next(ln for ln in orig if "(cut)" in ln)
+    cut_c = next(ln for ln in comp if "(cut)" in ln)
+    x = lambda ln: float(ln.split()[1][1:])  # noqa: E731
+    assert x(cut_c) - x(cut_o) == pytest.approx(-est[2], abs=2e-6)
+
+
+def _edit(work, tmp_path, fn):
+    """Copy the filled sheet with rows changed by fn(list of dict rows) -> rows."""
+    lines = (work / "measured.csv").read_text().splitlines()
+    body = [ln for ln in lines if not ln.startswith("#")]
+    rows = list(csv.DictReader(io.StringIO("\n".join(body))))
+    header = body[0].split(",")
+    rows = fn(rows)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, header, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    (tmp_path / "plan.toml").write_text((work / "plan.toml").read_text())
+    p = tmp_path / "bad.csv"
+    p.write_text(buf.getvalue())
+    return p
+
+
+def _set(i, **kw):
+    def f(rows):
+        rows[i].update(kw)
+        return rows
+    return f
+
+
+@pytest.mark.parametrize("edit,message,line", [
+    (_set(3, groove="B+20"), "unknown groove id 'B+20'", 5),
+    (_set(4, u_mm="nan"), "expected a finite number", 6),
+    (_set(5, v_mm="1.2.3"), "malformed number", 7),
+    (_set(14, b_deg="15"), "inconsistent angles", 16),
+    (_set(0, feature="middle"), "unknown feature", 2),
+    (lambda rows: rows + [dict(rows[2])], "measured twice", 20),
+    (lambda rows: [r if r["groove"] != "B+10" else {**r, "u_mm": "", "v_mm": "", "depth_mm": ""} for r in rows],
+     "missing groove B+10", 16),
+    (lambda rows: [r for r in rows if r["groove"] != "C240"], "missing groove C240 (test C): it has no row", None),
+    (_set(2, v_mm=""), "give both u_mm and v_mm", 4),
+])
+def test_bad_measurement_files(work, tmp_path, capsys, edit, message, line):
+    bad = _edit(work, tmp_path, edit)
+    out = tmp_path / "errors.toml"
+    rc = main(["tool-setting", "estimate", str(bad), "-o", str(out), "--report", str(tmp_path / "r.txt")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert message in err
+    if line is not None:
+        assert f"bad.csv:{line}" in err
+    assert not out.exists() and not (tmp_path / "r.txt").exists()
+
+
+def test_singular_geometry_writes_nothing(tmp_path, capsys):
+    assert main(["tool-setting", "plan", "-o", str(tmp_path), "--tests", "A,C", "--no-png"]) == 0
+    assert main(["tool-setting", "simulate", "--plan", str(tmp_path / "plan.toml"), "--offset", "0.1", "0.2", "0.3",
+                 "--seed", "1", "-o", str(tmp_path / "m.csv")]) == 0
+    capsys.readouterr()
+    rc = main(["tool-setting", "estimate", str(tmp_path / "m.csv"), "-o", str(tmp_path / "e.toml")])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "m.csv" in err and "singular geometry" in err and "t_z" in err
+    assert not (tmp_path / "e.toml").exists()
+
+
+def test_errors_file_and_programs_are_accepted_by_mtcomp_compensate(work, tmp_path, capsys):
+    """`mtcomp compensate` reads the errors TOML and the plan's NC program; its output equals the
+    compensated program written by `estimate --nc-dir` (both through the core's retarget)."""
+    import re
+    out = tmp_path / "errors.toml"
+    assert main(["tool-setting", "estimate", str(work / "measured.csv"), "--plan", str(work / "plan.toml"),
+                 "-o", str(out), "--nc-dir", str(tmp_path)]) == 0
+    core = tmp_path / "A_core.nc"
+    assert main(["compensate", "--machine", "robonano-ui", "--errors", str(out), str(work / "tool_setting_A.nc"),
+                 "-o", str(core)]) == 0
+    words = lambda path: np.array([[float(v) for v in re.findall(r"\b[XYZABC](-?\d+\.\d+)", ln)]  # noqa: E731
+                                   for ln in path.read_text().splitlines() if ln.startswith(("G00", "G01"))])
+    ours = words(tmp_path / "tool_setting_A_compensated.nc")
+    theirs = words(core)
+    assert ours.shape == theirs.shape and ours.shape[0] > 0
+    assert np.max(np.abs(ours - theirs)) <= 1.5e-6
+    orig = words(work / "tool_setting_A.nc")
+    assert np.max(np.abs(ours - orig)) > 0.1   # the compensation really moved the axes
