@@ -364,6 +364,24 @@ def _zip(folder: Path, out: Path) -> Path:
     return out
 
 
+def _start_values(variables: list[Var]) -> str:
+    """resources/start.txt: the parameters' start values, read by the C code at instantiation so
+    its defaults are the modelDescription's start values."""
+    lines = ["# parameter start values (same as modelDescription.xml): kind value-reference value"]
+    for v in variables:
+        if v.causality != "parameter" or v.start is None:
+            continue
+        if v.type == "Real":
+            lines.append(f"r {v.vr} {float(v.start)!r}")
+        elif v.type == "Integer":
+            lines.append(f"i {v.vr} {int(v.start)}")
+        else:
+            if "\n" in str(v.start):
+                raise MtcompError(f"{v.name}: start value must be one line")
+            lines.append(f"s {v.vr} {v.start}")
+    return "\n".join(lines) + "\n"
+
+
 def _guid(*parts: str) -> str:
     h = hashlib.sha256("\0".join(parts).encode()).hexdigest()
     return "{" + str(uuid.UUID(h[:32])) + "}"
@@ -376,6 +394,7 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
         root = Path(td) / "fmu"
         tables_spec = _resources(machine, errors, root / "resources")
         variables = _common_vars(machine, errors, tables_spec) + extra_vars + _param_vars(machine, errors, tables_spec)
+        (root / "resources" / "start.txt").write_text(_start_values(variables), encoding="utf-8")
         sources = _copy_sources(kind, root / "sources")
         guid = _guid(kind, identifier, machine_resource_text(machine), repr(variables))
         md = write_model_description(model_name=f"{title} ({machine.name})", identifier=identifier,
@@ -410,7 +429,7 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
         Var("tolerance", VR_TOL, "parameter", "Step tolerance of the compensation iteration, mm or deg",
             variability="tunable", start=1e-11, unit="mm", min=1e-15, max=1e-3),
         Var("max_iterations", IVR_MAXIT, "parameter", "Iteration limit of the compensation", type="Integer",
-            variability="tunable", start=30, min=1, max=1000),
+            variability="tunable", start=60, min=1, max=1000),
     ]
     summary = ("Machine-tool error compensator: turns programmed axis commands into the commands that put the "
                "real tool edge (with tool setting, workpiece setting and geometric errors) where the ideal "

@@ -1,6 +1,7 @@
 /* Parameters and resources shared by the compensator and the machine FMU (see common.h). */
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "common.h"
@@ -80,6 +81,32 @@ void common_defaults(Instance *inst)
     /* The machine description fixes the number of axes (the structure of the FMU), so it is
      * read at instantiation; a failure is reported again when initialisation ends. */
     load_machine(inst);
+}
+
+/* Start values of the parameters, written by the builder from the same list as the start
+ * attributes of modelDescription.xml, so the FMU's defaults equal its declared start values.
+ * Lines: "r VR VALUE", "i VR VALUE" or "s VR TEXT". */
+void common_start_values(Instance *inst)
+{
+    char path[sizeof inst->resources + 64], line[MODEL_SLEN + 64];
+    FILE *f;
+    snprintf(path, sizeof path, "%s%s", inst->resources, START_RESOURCE);
+    f = fopen(path, "r");
+    if (!f) return;
+    while (fgets(line, sizeof line, f)) {
+        char kind;
+        unsigned vr;
+        int used = 0;
+        if (line[0] == '#' || sscanf(line, " %c %u %n", &kind, &vr, &used) < 2) continue;
+        if (kind == 'r' && vr < MODEL_NR) inst->st.r[vr] = strtod(line + used, NULL);
+        else if (kind == 'i' && vr < MODEL_NI) inst->st.i[vr] = atoi(line + used);
+        else if (kind == 's' && vr < MODEL_NS) {
+            char *v = line + used;
+            v[strcspn(v, "\r\n")] = 0;
+            snprintf(inst->st.s[vr], MODEL_SLEN, "%s", v);
+        }
+    }
+    fclose(f);
 }
 
 fmi2Status common_load(Instance *inst)

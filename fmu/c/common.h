@@ -15,6 +15,7 @@
 /* String value references */
 #define SVR_TABLES 0      /* geometric tables: "X:tables/X.csv;Z:tables/Z.csv" (resource paths) */
 #define MACHINE_RESOURCE "machine.txt"  /* machine description in the resources folder */
+#define START_RESOURCE "start.txt"      /* parameter start values in the resources folder */
 
 /* Range checks of the parameters shared by both models (limits documented in docs/fmu.md). */
 #define MAX_TOOL_OFFSET 50.0      /* mm */
@@ -27,6 +28,7 @@ int common_real_kind(unsigned vr, int n_axes);
 void common_vr_name(unsigned vr, const mtk_model *m, char *buf, size_t cap);
 fmi2Status common_check_real(Instance *inst, unsigned vr, double value);
 void common_defaults(Instance *inst);
+void common_start_values(Instance *inst);
 /* (Re)load the machine description and the geometric tables from the resources. */
 fmi2Status common_load(Instance *inst);
 void common_errors(const Instance *inst, mtk_errors *e);

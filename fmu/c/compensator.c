@@ -23,7 +23,8 @@ void model_defaults(Instance *inst)
 {
     common_defaults(inst);
     inst->st.r[VR_TOL] = 1e-11;
-    inst->st.i[IVR_MAXIT] = 30;
+    inst->st.i[IVR_MAXIT] = 60;
+    common_start_values(inst);
 }
 
 int model_real_kind(const Instance *inst, unsigned vr)

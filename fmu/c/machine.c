@@ -45,6 +45,7 @@ void model_defaults(Instance *inst)
     inst->st.r[VR_AMBIENT] = 20.0;
     inst->st.r[VR_TEMP] = 20.0;
     inst->st.i[IVR_SEED] = 1;
+    common_start_values(inst);
 }
 
 int model_real_kind(const Instance *inst, unsigned vr)

@@ -338,12 +338,18 @@ bad:
     return MTK_E_FORMAT;
 }
 
-/* Component errors at q: d (mm), e (rad); MTK_E_RANGE outside the table. */
-static int table_eval(const mtk_table *t, double q, double d[3], double e[3])
+/* Component errors at q: d (mm), e (rad).  strict: MTK_E_RANGE outside the table (1e-12
+ * tolerance); otherwise the end values are held (intermediate iterates of the compensation). */
+static int table_eval(const mtk_table *t, double q, double d[3], double e[3], int strict)
 {
     int lo = 0, hi = t->n - 1, k;
     double f;
-    if (!(q >= t->pos[0] - 1e-12 && q <= t->pos[t->n - 1] + 1e-12)) return MTK_E_RANGE;
+    if (isnan(q)) {
+        if (strict) return MTK_E_RANGE;
+        for (k = 0; k < 3; k++) d[k] = e[k] = NAN;
+        return MTK_OK;
+    }
+    if (strict && !(q >= t->pos[0] - 1e-12 && q <= t->pos[t->n - 1] + 1e-12)) return MTK_E_RANGE;
     if (q <= t->pos[0]) {
         for (k = 0; k < 3; k++) { d[k] = t->val[k]; e[k] = t->val[3 + k]; }
         return MTK_OK;
@@ -368,7 +374,8 @@ static int table_eval(const mtk_table *t, double q, double d[3], double e[3])
 
 /* ---------------------------------------------------------------- forward model */
 
-int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double Rout[9], char *err)
+static int forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double Rout[9],
+                   char *err, int strict)
 {
     double R[9], t[3] = {0, 0, 0}, tp[3];
     int i, k;
@@ -408,7 +415,7 @@ int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double
         }
         if (e && e->use_tables && m->table[i]) {
             double d[3], ang[3], Re[9], Rl[3], te[3], Rte[3];
-            if (table_eval(m->table[i], q[i], d, ang) != MTK_OK) {
+            if (table_eval(m->table[i], q[i], d, ang, strict) != MTK_OK) {
                 char msg[MTK_ERRLEN];
                 snprintf(msg, sizeof msg, "axis %c position %.6f is outside its error table range [%g, %g]",
                          m->axis_name[i], q[i], m->table[i]->pos[0], m->table[i]->pos[m->table[i]->n - 1]);
@@ -418,9 +425,18 @@ int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double
             rotvec(ang, Re);
             mat_vec(Re, loc, Rl);
             for (k = 0; k < 3; k++) te[k] = loc[k] + d[k] - Rl[k];
-            mat_vec(Rg, te, Rte);
-            for (k = 0; k < 3; k++) tg[k] += Rte[k];
-            mat_mul(Rg, Re, Rg);
+            /* The error motion belongs to the moving body of a linear axis and to the
+             * non-rotating body of a rotary axis: it stands before the nominal motion for a
+             * workpiece-side linear or a tool-side rotary axis (docs/model.md). */
+            if (m->tool_side[i] == m->rotary[i]) {     /* (Re, te) . (Rg, tg) */
+                mat_vec(Re, tg, Rte);
+                for (k = 0; k < 3; k++) tg[k] = Rte[k] + te[k];
+                mat_mul(Re, Rg, Rg);
+            } else {                                     /* (Rg, tg) . (Re, te) */
+                mat_vec(Rg, te, Rte);
+                for (k = 0; k < 3; k++) tg[k] += Rte[k];
+                mat_mul(Rg, Re, Rg);
+            }
         }
         {
             double Rtg[3];
@@ -447,6 +463,11 @@ int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double
     return MTK_OK;
 }
 
+int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double R[9], char *err)
+{
+    return forward(m, e, q, p, R, err, 1);
+}
+
 /* ---------------------------------------------------------------- compensation */
 
 static int n_rotary(const mtk_model *m)
@@ -458,21 +479,22 @@ static int n_rotary(const mtk_model *m)
 
 typedef struct {
     int mode;                 /* 0 position, 2 + tool direction, 3 + full orientation */
-    double p[3], R[9], e1[3], e2[3];
+    double p[3], R[9], v[3];
 } target_t;
 
 static int residual(const mtk_model *m, const mtk_errors *e, const double *q, const target_t *tg,
-                    double *r, char *err)
+                    double *r, char *err, int strict)
 {
     double p[3], R[9];
-    int k, rc = mtk_forward(m, e, q, p, R, err);
+    int k, rc = forward(m, e, q, p, R, err, strict);
     if (rc) return rc;
     for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
     if (tg->mode == 2) {
+        /* All three components of v - v_target: the two perpendicular ones alone would also
+         * vanish for a tool pointing the wrong way. */
         double v[3];
         mat_vec(R, m->tool_axis, v);
-        r[3] = ORIENTATION_SCALE * (v[0] * tg->e1[0] + v[1] * tg->e1[1] + v[2] * tg->e1[2]);
-        r[4] = ORIENTATION_SCALE * (v[0] * tg->e2[0] + v[1] * tg->e2[1] + v[2] * tg->e2[2]);
+        for (k = 0; k < 3; k++) r[3 + k] = ORIENTATION_SCALE * (v[k] - tg->v[k]);
     } else if (tg->mode == 3) {
         double M[9];
         int i, j;
@@ -486,12 +508,6 @@ static int residual(const mtk_model *m, const mtk_errors *e, const double *q, co
     return MTK_OK;
 }
 
-static void cross(const double a[3], const double b[3], double c[3])
-{
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
 
 /* Solve A X = B for X (n x n, n x k), partial pivoting; 0 if singular. A and B are destroyed. */
 static int solve(int n, double *A, double *B, int k)
@@ -536,12 +552,53 @@ static int errors_zero(const mtk_model *m, const mtk_errors *e, int *has_geo)
     return !rigid && !geo;
 }
 
+static double norm(const double *r, int rows)
+{
+    double s = 0.0;
+    int k;
+    for (k = 0; k < rows; k++) s += r[k] * r[k];
+    return sqrt(s);
+}
+
+/* Chord Jacobian at q by forward differences on the rigid model; K = A^-1 J^T, Ainv = A^-1
+ * with A = J^T J + lambda I.  Returns 0 if A is singular. */
+static int linearise(const mtk_model *m, const mtk_errors *rigid, const double *q, const target_t *tg,
+                     int rows, double *K, double *Ainv, char *err, int *rc)
+{
+    int n = m->n_axes, i, j, k;
+    double J[6 * MTK_MAX_AXES], r0[6], dq[MTK_MAX_AXES], A[MTK_MAX_AXES * MTK_MAX_AXES] = {0};
+    double Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
+    *rc = residual(m, rigid, q, tg, r0, err, 0);
+    if (*rc) return 0;
+    for (k = 0; k < n; k++) {
+        double rk[6];
+        memcpy(dq, q, n * sizeof(double));
+        dq[k] += FD_STEP;
+        *rc = residual(m, rigid, dq, tg, rk, err, 0);
+        if (*rc) return 0;
+        for (j = 0; j < rows; j++) J[j * n + k] = (rk[j] - r0[j]) / FD_STEP;
+    }
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) {
+            double s = 0.0;
+            for (k = 0; k < rows; k++) s += J[k * n + i] * J[k * n + j];
+            A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
+        }
+    for (i = 0; i < n; i++)
+        for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
+    memcpy(Acopy, A, sizeof A);
+    if (!solve(n, Acopy, K, rows)) return 0;
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) Ainv[i * n + j] = (i == j);
+    memcpy(Acopy, A, sizeof A);
+    return solve(n, Acopy, Ainv, n);
+}
+
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual_out, char *err)
 {
-    int n = m->n_axes, rows, i, j, k, it = 0, rc, has_geo = 0;
-    double J[6 * MTK_MAX_AXES], r0[6], r[6], A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
-    double K[MTK_MAX_AXES * 6], dq[MTK_MAX_AXES], step[MTK_MAX_AXES], resmax = 0.0;
+    int n = m->n_axes, rows, i, k, it = 0, rc = MTK_OK, has_geo = 0, done = 0;
+    double K[MTK_MAX_AXES * 6], Ainv[MTK_MAX_AXES * MTK_MAX_AXES], r[6], nr, resmax = 0.0;
     mtk_errors rigid;
     target_t tg;
     if (iters) *iters = 0;
@@ -562,74 +619,70 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
     tg.mode = n_rotary(m) == 0 ? 0 : (n_rotary(m) >= 3 ? 3 : 2);
     rc = mtk_forward(m, NULL, q_prog, tg.p, tg.R, err);
     if (rc) return rc;
-    rows = tg.mode == 0 ? 3 : (tg.mode == 2 ? 5 : 6);
-    if (tg.mode == 2) {
-        double v[3], a[3] = {0, 0, 0}, nrm;
-        mat_vec(tg.R, m->tool_axis, v);
-        if (fabs(v[0]) < 0.9) a[0] = 1.0; else a[1] = 1.0;
-        cross(v, a, tg.e1);
-        nrm = sqrt(tg.e1[0] * tg.e1[0] + tg.e1[1] * tg.e1[1] + tg.e1[2] * tg.e1[2]);
-        for (k = 0; k < 3; k++) tg.e1[k] /= nrm;
-        cross(v, tg.e1, tg.e2);
-    }
-    /* Chord Jacobian by forward differences on the rigid (setting errors only) model. */
+    rows = tg.mode == 0 ? 3 : 6;
+    mat_vec(tg.R, m->tool_axis, tg.v);
+    /* The chord Jacobian is taken on the rigid model (setting errors only). */
     mtk_errors_zero(&rigid);
     memcpy(rigid.tool, e->tool, sizeof rigid.tool);
     memcpy(rigid.wp_t, e->wp_t, sizeof rigid.wp_t);
     memcpy(rigid.wp_a, e->wp_a, sizeof rigid.wp_a);
     rigid.use_tables = 0;
-    rc = residual(m, &rigid, q_prog, &tg, r0, err);
-    if (rc) return rc;
-    for (k = 0; k < n; k++) {
-        double rk[6];
-        memcpy(dq, q_prog, n * sizeof(double));
-        dq[k] += FD_STEP;
-        rc = residual(m, &rigid, dq, &tg, rk, err);
-        if (rc) return rc;
-        for (j = 0; j < rows; j++) J[j * n + k] = (rk[j] - r0[j]) / FD_STEP;
-    }
-    /* A = J^T J + lambda I;  K = A^-1 J^T  (n x rows) */
-    for (i = 0; i < n; i++)
-        for (j = 0; j < n; j++) {
-            double s = 0.0;
-            for (k = 0; k < rows; k++) s += J[k * n + i] * J[k * n + j];
-            A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
-        }
-    for (i = 0; i < n; i++)
-        for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
-    memcpy(Acopy, A, sizeof A);
-    if (!solve(n, Acopy, K, rows)) {
-        seterr(err, "compensation did not converge: singular Jacobian (kinematic singularity)");
-        return MTK_E_CONVERGE;
-    }
     memcpy(q, q_prog, n * sizeof(double));
-    if (has_geo) {
-        rc = residual(m, e, q, &tg, r, err);
-        if (rc) return rc;
-    } else {
-        memcpy(r, r0, sizeof r);
-    }
-    for (it = 0; it < max_iter; it++) {
-        double pull[MTK_MAX_AXES], smax = 0.0;
-        for (i = 0; i < n; i++) pull[i] = q[i] - q_prog[i];
-        memcpy(Acopy, A, sizeof A);
-        if (!solve(n, Acopy, pull, 1)) {
+    /* Same iteration as mtcomp.kinematics.compensate, for one point. */
+    while (!done && it < max_iter) {
+        int inner, slow = 0;
+        if (!linearise(m, &rigid, q, &tg, rows, K, Ainv, err, &rc)) {
+            if (rc) return rc;
             seterr(err, "compensation did not converge: singular Jacobian (kinematic singularity)");
             return MTK_E_CONVERGE;
         }
-        for (i = 0; i < n; i++) {
-            double s = 0.0;
-            for (k = 0; k < rows; k++) s += K[i * rows + k] * r[k];
-            step[i] = s + LAMBDA * pull[i];
-            q[i] -= step[i];
-            if (fabs(step[i]) > smax) smax = fabs(step[i]);
-        }
-        rc = residual(m, e, q, &tg, r, err);
+        rc = residual(m, e, q, &tg, r, err, 0);
         if (rc) return rc;
-        if (smax < tol) { it++; break; }
+        nr = norm(r, rows);
+        for (inner = 0; inner < 8; inner++) {
+            double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0;
+            int bt;
+            it++;
+            for (i = 0; i < n; i++) {
+                double s = 0.0, pull = 0.0;
+                for (k = 0; k < rows; k++) s += K[i * rows + k] * r[k];
+                for (k = 0; k < n; k++) pull += Ainv[i * n + k] * (q[k] - q_prog[k]);
+                step[i] = s + LAMBDA * pull;
+                if (m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
+            }
+            /* Damping: rotary steps at most 20 deg (the whole step scaled), halved while the
+             * residual does not fall. */
+            scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
+            memcpy(qn, q, n * sizeof(double));
+            memcpy(rn, r, sizeof rn);
+            for (bt = 0; bt < 30; bt++) {
+                double qt[MTK_MAX_AXES], rt[6], nt;
+                for (i = 0; i < n; i++) qt[i] = q[i] - scale * step[i];
+                rc = residual(m, e, qt, &tg, rt, err, 0);
+                if (rc) return rc;
+                nt = norm(rt, rows);
+                if (nt < nr || nt <= 1e-12) {
+                    memcpy(qn, qt, n * sizeof(double));
+                    memcpy(rn, rt, sizeof rn);
+                    nn = nt;
+                    break;
+                }
+                scale *= 0.5;
+            }
+            for (i = 0; i < n; i++)
+                if (fabs(qn[i] - q[i]) > stepped) stepped = fabs(qn[i] - q[i]);
+            slow |= (nn > 0.1 * nr) && (nn > 1e-12);
+            done |= (stepped < tol) || (nn <= 1e-12);
+            memcpy(q, qn, n * sizeof(double));
+            memcpy(r, rn, sizeof r);
+            nr = nn;
+            if (done || slow) break;
+        }
     }
+    rc = residual(m, e, q, &tg, r, err, 1);
+    if (rc) return rc;
     for (k = 0; k < rows; k++)
-        if (fabs(r[k]) > resmax || isnan(r[k])) resmax = isnan(r[k]) ? NAN : fabs(r[k]);
+        if (isnan(r[k]) || fabs(r[k]) > resmax) resmax = isnan(r[k]) ? NAN : fabs(r[k]);
     if (iters) *iters = it;
     if (residual_out) *residual_out = resmax;
     if (!(resmax < CONVERGED)) {
