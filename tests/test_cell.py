@@ -162,3 +162,22 @@ def test_robot_placement_scatter():
     d = np.linalg.norm(p[:, :3] - p[:, :3].mean(0), axis=1)
     assert abs(d.mean() + 3 * d.std() - 0.030) < 0.002
     assert np.array_equal(robot_placement(5), robot_placement(5))
+
+
+def test_virtual_cell_writes_the_compensated_program(tmp_path):
+    """With NC programs configured, O<id+1000>.nc is the part program moved onto the measured
+    blank: x' = R x + t with R = Rz(c) Ry(b) Rx(a) (checked with scipy's rotation)."""
+    from scipy.spatial.transform import Rotation
+    (tmp_path / "O0100.nc").write_text("O0100\nG90 G21 G54\nG00 X0 Y0 Z2.\nG01 Z-0.1 F100.\n"
+                                       "G01 X1. Y0.5\nM30\n")
+    res = VirtualCell(nc_dir=str(tmp_path))(Job(1, 5, 100))
+    assert res.program_id == 1100 and res.info["program_file"] == "O1100.nc"
+    text = (tmp_path / "O1100.nc").read_text()
+    r = Rotation.from_euler("xyz", res.pose6[3:], degrees=True).as_matrix()
+    rows = [ln for ln in text.splitlines() if ln.startswith(("G00", "G01"))]
+    for row, p in zip(rows, ([0, 0, 2.0], [0, 0, -0.1], [1.0, 0.5, -0.1])):
+        words = dict((w[0], float(w[1:])) for w in row.split()[1:] if w[0] in "XYZ")
+        expected = r @ p + np.array(res.pose6[:3])
+        for k, axis in enumerate("XYZ"):
+            if axis in words:
+                assert abs(words[axis] - expected[k]) < 1.5e-6, row

@@ -512,3 +512,42 @@ def test_cli_plc_sim_against_a_server(cell, capsys):
     out = capsys.readouterr().out
     assert "result 2 part 2 program 1100 GO" in out
     assert main(["serve", "--journal", os.devnull, "--measure", "nomodule"]) == 2
+
+
+def test_client_mode_polls_a_plc_server(tmp_path):
+    """mtcomp as Modbus client: the PLC's data block is a plain Modbus server (no logic), the
+    PLC program and mtcomp both talk to it; mtcomp is restarted mid-run."""
+    from pymodbus.server import ModbusTcpServer
+    from pymodbus.simulator import DataType, SimData, SimDevice
+    from mtcomp.cell.client import CellClient
+    from mtcomp.cell.cycle import Cycle
+    journal, base = tmp_path / "client.jsonl", 100
+
+    async def main():
+        mem = ModbusTcpServer(SimDevice(id=0, simdata=[SimData(
+            address=0, values=[0] * 200, datatype=DataType.REGISTERS)]),
+            address=("127.0.0.1", 0))
+        await mem.serve_forever(background=True)
+        port = mem.transport.sockets[0].getsockname()[1]
+
+        def client():
+            return CellClient(Cycle(journal, VirtualCell(), CellConfig(word_order="little")),
+                              "127.0.0.1", port, base=base, poll_s=0.003).start()
+        cl = await client()
+        try:
+            plc = PlcSim("127.0.0.1", port, poll_s=0.003, base=base, word_order="little")
+            task = asyncio.create_task(plc.run(6))
+            while plc.report.cycles < 3:
+                await asyncio.sleep(0.002)
+            await cl.stop()
+            cl = await client()
+            rep = await asyncio.wait_for(task, 60)
+        finally:
+            await cl.stop()
+            await mem.shutdown()
+        return rep
+
+    rep = asyncio.run(main())
+    assert rep.cycles == 6 and not rep.faults
+    assert_exactly_once(rep, journal)
+    assert [b["ev"] for b in read_records(journal)[0]].count("boot") == 2

@@ -1,4 +1,4 @@
-"""`mtcomp cell serve` and `mtcomp cell plc-sim`: thin wrappers over mtcomp.cell."""
+"""`mtcomp cell serve|client|plc-sim`: thin wrappers over mtcomp.cell."""
 from __future__ import annotations
 
 import argparse
@@ -15,11 +15,39 @@ def register(subparsers) -> None:
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
 
     s = sub.add_parser("serve", help="serve the cell's registers (mtcomp is the Modbus server)")
-    s.add_argument("--journal", required=True, help="journal file (JSON lines, appended)")
     s.add_argument("--host", default="127.0.0.1",
                    help="address to bind (default 127.0.0.1; 0.0.0.0 only if you mean it)")
     s.add_argument("--port", type=int, default=5020,
                    help="TCP port (default 5020; the Modbus port 502 needs privileges)")
+    _cycle_options(s)
+    s.set_defaults(func=_serve)
+
+    c = sub.add_parser("client", help="poll a PLC that is the Modbus server (client mode)")
+    c.add_argument("--plc-host", required=True, help="the PLC's address")
+    c.add_argument("--plc-port", type=int, default=502, help="the PLC's Modbus port (502)")
+    c.add_argument("--base", type=int, default=0,
+                   help="PLC holding register where the map starts (default 0)")
+    c.add_argument("--poll", type=float, default=0.05, help="poll period in s (default 0.05)")
+    _cycle_options(c)
+    c.set_defaults(func=_serve)
+
+    q = sub.add_parser("plc-sim", help="play the PLC and the loading robot against a server")
+    q.add_argument("--host", default="127.0.0.1")
+    q.add_argument("--port", type=int, default=5020)
+    q.add_argument("--cycles", type=int, default=1, help="load cycles to run (default 1)")
+    q.add_argument("--word-order", choices=("big", "little"), default="big")
+    q.add_argument("--first-part-id", type=int, default=1)
+    q.add_argument("--program-id", type=int, default=100)
+    q.add_argument("--seed", type=int, default=0,
+                   help="seed of the simulated connection drops")
+    q.add_argument("--disconnect-prob", type=float, default=0.0,
+                   help="probability of dropping the connection around a request")
+    q.add_argument("--poll", type=float, default=0.05, help="poll period in s (default 0.05)")
+    q.set_defaults(func=_plc_sim)
+
+
+def _cycle_options(s) -> None:
+    s.add_argument("--journal", required=True, help="journal file (JSON lines, appended)")
     s.add_argument("--word-order", choices=("big", "little"), default="big",
                    help="order of the two registers of 32-bit values (default big = ABCD)")
     s.add_argument("--measure", metavar="MODULE:CALLABLE",
@@ -39,21 +67,8 @@ def register(subparsers) -> None:
     s.add_argument("--limit-mm", type=float, default=0.5, help="go/no-go limit |dx|,|dy|,|dz|")
     s.add_argument("--limit-deg", type=float, default=0.5, help="go/no-go limit |a|,|b|,|c|")
     s.add_argument("-v", "--verbose", action="store_true", help="log every state change")
-    s.set_defaults(func=_serve)
-
-    q = sub.add_parser("plc-sim", help="play the PLC and the loading robot against a server")
-    q.add_argument("--host", default="127.0.0.1")
-    q.add_argument("--port", type=int, default=5020)
-    q.add_argument("--cycles", type=int, default=1, help="load cycles to run (default 1)")
-    q.add_argument("--word-order", choices=("big", "little"), default="big")
-    q.add_argument("--first-part-id", type=int, default=1)
-    q.add_argument("--program-id", type=int, default=100)
-    q.add_argument("--seed", type=int, default=0,
-                   help="seed of the simulated connection drops")
-    q.add_argument("--disconnect-prob", type=float, default=0.0,
-                   help="probability of dropping the connection around a request")
-    q.add_argument("--poll", type=float, default=0.05, help="poll period in s (default 0.05)")
-    q.set_defaults(func=_plc_sim)
+    # benchmarks only: measures what the journal's fsync costs; loses the guarantee
+    s.add_argument("--no-fsync", action="store_true", help=argparse.SUPPRESS)
 
 
 def _load_measure(spec: str):
@@ -78,24 +93,33 @@ def _serve(args) -> int:
     from .virtual import VirtualCell
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    if not 0 <= args.port <= 65535:
-        raise InputError(f"port {args.port} outside 0..65535", field="--port")
+    port = args.plc_port if args.cell_command == "client" else args.port
+    if not 0 <= port <= 65535:
+        raise InputError(f"port {port} outside 0..65535", field="--port")
     measure = (_load_measure(args.measure) if args.measure else
                VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
                            out_dir=args.out_dir, machine=args.machine))
     cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
-                     limit_mm=args.limit_mm, limit_deg=args.limit_deg)
+                     limit_mm=args.limit_mm, limit_deg=args.limit_deg, fsync=not args.no_fsync)
 
     async def main():
-        server = CellServer(Cycle(args.journal, measure, cfg), args.host, args.port)
-        try:
-            await server.start()
-        except (OSError, RuntimeError) as exc:
-            await server.cycle.stop()
-            raise InputError(f"cannot listen on {args.host}:{args.port}: {exc}",
-                             field="--port") from None
-        print(f"mtcomp cell: serving on {args.host}:{server.port}, journal {args.journal}",
-              flush=True)
+        cycle = Cycle(args.journal, measure, cfg)
+        if args.cell_command == "client":
+            from .client import CellClient
+            server = await CellClient(cycle, args.plc_host, args.plc_port, args.base,
+                                      args.poll).start()
+            print(f"mtcomp cell: polling the PLC at {args.plc_host}:{args.plc_port} from "
+                  f"register {args.base}, journal {args.journal}", flush=True)
+        else:
+            server = CellServer(cycle, args.host, args.port)
+            try:
+                await server.start()
+            except (OSError, RuntimeError) as exc:
+                await server.cycle.stop()
+                raise InputError(f"cannot listen on {args.host}:{args.port}: {exc}",
+                                 field="--port") from None
+            print(f"mtcomp cell: serving on {args.host}:{server.port}, journal {args.journal}",
+                  flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):

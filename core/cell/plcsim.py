@@ -56,18 +56,23 @@ class PlcReport:
 
 class PlcSim:
     """Simulated cell PLC (Modbus TCP client). `disconnect_prob` is the probability that the
-    PLC drops its connection around any request (sometimes while the request is in flight)."""
+    PLC drops its connection around any request (sometimes while the request is in flight).
+
+    In client mode (mtcomp polls the PLC) the PLC's logic talks to its own data block; here
+    that block is a plain Modbus server and `base` the register where the map starts in it.
+    """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 502, word_order: str = "big",
                  first_part_id: int = 1, program_id: int = 100, disconnect_prob: float = 0.0,
                  seed: int = 0, poll_s: float = 0.0, request_timeout_s: float = 1.0,
                  reconnect_timeout_s: float = 30.0, cycle_timeout_s: float = 120.0,
-                 load_time_s: float = 0.0, device_id: int = 1):
+                 load_time_s: float = 0.0, device_id: int = 1, base: int = 0):
         self.host, self.port, self.word_order = host, port, word_order
         self.part_id, self.program_id = first_part_id, program_id
         self.disconnect_prob, self.poll_s = disconnect_prob, poll_s
         self.request_timeout_s, self.reconnect_timeout_s = request_timeout_s, reconnect_timeout_s
         self.cycle_timeout_s, self.load_time_s, self.device_id = cycle_timeout_s, load_time_s, device_id
+        self.base = base  # where the map starts in the server's holding registers
         self._rng = random.Random(seed)
         self._client = None
         self._connected_once = False
@@ -139,7 +144,7 @@ class PlcSim:
         """Read and decode the whole mtcomp -> PLC block in one request."""
         start, end = OUT_BLOCK
         rsp = await self._request(lambda c: c.read_holding_registers(
-            start, count=end - start, device_id=self.device_id))
+            self.base + start, count=end - start, device_id=self.device_id))
         if rsp.isError():
             raise MtcompError(f"PLC simulator: read refused: {rsp}")
         return decode_outputs(rsp.registers, self.word_order)
@@ -157,7 +162,7 @@ class PlcSim:
         regs[f["program_id"].address] = self.program_id
         a = f["ack_seq"].address
         regs[a:a + 2] = encode_u32(self.ack_seq, self.word_order)
-        rsp = await self._request(lambda c: c.write_registers(PLC_BLOCK[0], regs,
+        rsp = await self._request(lambda c: c.write_registers(self.base + PLC_BLOCK[0], regs,
                                                               device_id=self.device_id))
         if rsp.isError():
             raise MtcompError(f"PLC simulator: write refused: {rsp}")
@@ -171,11 +176,14 @@ class PlcSim:
         while True:
             await self._write(command, seq)
             out = await self.read()
-            if out["cmd_seq_echo"] == seq:  # else the server restarted before journaling it
+            if out["cmd_seq_echo"] == seq:
                 status = CommandStatus(out["cmd_status"])
                 if status != CommandStatus.OK:
                     self.report.rejected.append((command.name, status.name))
                 return status, out
+            # not taken (yet): the server restarted before journaling it, or mtcomp polls us
+            # (client mode); writing the same command_seq again is harmless
+            await asyncio.sleep(self.poll_s)
 
     # -- the cycle --------------------------------------------------------------------------
     async def _take_over(self, out: dict) -> None:
