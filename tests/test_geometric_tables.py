@@ -10,7 +10,7 @@ from mtcomp.geometric import comptables as ct
 from mtcomp.geometric import synthetic, tables, volumetric as vol
 from mtcomp.machine import load_machine
 
-STEP = 5.0           # run target spacing, mm
+STEP = 2.5           # run target spacing, mm
 NOISE = tables.Noise(linear=0.1e-3, straightness=0.2e-3, angular=0.2e-6, reversal=2e-3)
 
 

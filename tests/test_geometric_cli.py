@@ -1,0 +1,72 @@
+"""`mtcomp geometric` commands end to end, on files, through the command group's parser."""
+import argparse
+
+import numpy as np
+import pytest
+
+from mtcomp import MtcompError
+from mtcomp.errors import load_errors
+from mtcomp.geometric import cli
+from mtcomp.geometric.comptables import LatticeTable
+
+
+def run(argv):
+    parser = argparse.ArgumentParser(prog="mtcomp")
+    sub = parser.add_subparsers(dest="command")
+    cli.register(sub)
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except MtcompError as exc:  # what mtcomp.cli.main does
+        print(f"error: {exc}")
+        return 2
+
+
+def test_simulate_build_map_table(tmp_path, capsys):
+    s = str(tmp_path / "set.toml")
+    assert run(["geometric", "simulate", "-o", s, "--step", "20", "--seed", "4"]) == 0
+    assert run(["geometric", "iso230-2", str(tmp_path / "set_EXX.csv"), "--axis", "X"]) == 0
+    out = capsys.readouterr().out
+    assert "reversal value" in out
+    assert (tmp_path / "set_EXX_iso230-2.png").exists()
+    built = str(tmp_path / "built.toml")
+    assert run(["geometric", "build", s, "-o", built]) == 0
+    errs = load_errors(built)
+    assert set(errs.geometric.tables) == {"X", "Y", "Z"}
+    assert set(errs.geometric.location) == {"EC0Y", "EB0Z", "EA0Z"}
+    assert run(["geometric", "map", built, "--step", "50", "-o", str(tmp_path / "vm")]) == 0
+    assert (tmp_path / "vm.png").read_bytes()[:4] == b"\x89PNG"
+    rows = (tmp_path / "vm.csv").read_text().splitlines()
+    assert len(rows) == 2 + 13 * 9 * 7
+    truth = str(tmp_path / "set_truth.toml")
+    assert run(["geometric", "table", built, "--truth", truth, "--lattice-step", "100",
+                "-o", str(tmp_path / "comp")]) == 0
+    out = capsys.readouterr().out
+    assert "model-based (corrected commands)" in out
+    lat = LatticeTable.from_csv(tmp_path / "comp" / "lattice.csv")
+    assert lat.correction.shape == (7, 5, 4, 3)
+    assert np.abs(lat.correction).max() > 1e-3
+    assert (tmp_path / "comp" / "comp_Z.csv").read_text().splitlines()[1].startswith("position,EXZ")
+
+
+def test_bad_run_exits_2_with_file_and_line(tmp_path, capsys):
+    p = tmp_path / "bad.csv"
+    p.write_text("target,cycle,direction,deviation\n0,1,+,0\n100,1,+,0.001\n50,1,+,0\n"
+                 "100,1,-,0\n0,1,-,0\n")
+    assert run(["geometric", "iso230-2", str(p)]) == 2
+    out = capsys.readouterr().out
+    assert "bad.csv:4 [target]: non-monotonic targets" in out
+    assert not list(tmp_path.glob("bad_iso230-2*"))
+
+
+def test_missing_set_file(tmp_path, capsys):
+    assert run(["geometric", "build", str(tmp_path / "nope.toml"), "-o", str(tmp_path / "o.toml")]) == 2
+    assert "file not found" in capsys.readouterr().out
+    assert not (tmp_path / "o.toml").exists()
+
+
+@pytest.mark.parametrize("flag", ["--step", "--lattice-step"])
+def test_non_positive_spacing(tmp_path, capsys, flag):
+    cmd = "map" if flag == "--step" else "table"
+    assert run(["geometric", cmd, "x.toml", flag, "0", "-o", str(tmp_path / "o")]) == 2
+    assert f"[{flag}]" in capsys.readouterr().out
