@@ -583,12 +583,12 @@ def _algebraic_sphere(p: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def fit_sphere(points: np.ndarray, radius: float | None = None, x0=None):
-    """Geometric least-squares sphere through points (m, 3) mm (scipy least_squares, Levenberg-Marquardt).
+    """Geometric least-squares sphere through points (m, 3) mm (scipy, Levenberg-Marquardt).
 
     radius=None fits the radius too (needs m >= 4), else it is held fixed (m >= 3).
     Returns (centre (3,), rho, residuals (m,), jacobian (m, 4 or 3)).
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import leastsq
     p = np.asarray(points, float)
     if x0 is None:
         if len(p) >= 4:
@@ -611,11 +611,13 @@ def fit_sphere(points: np.ndarray, radius: float | None = None, x0=None):
         J = -d / n
         return np.column_stack([J, -np.ones(len(p))]) if free else J
 
-    # A well-started Gauss-Newton on this smooth problem converges in a few steps; 'lm' needs
-    # m >= number of parameters, which the callers check with a clear message.
+    # Levenberg-Marquardt (MINPACK through scipy.optimize.leastsq: the thin wrapper matters in
+    # Monte Carlo loops) from the algebraic start converges in a few steps; it needs at least as
+    # many touches as unknowns, which the callers check with a clear message.
     x0v = np.r_[c0, r0] if free else np.asarray(c0, float)
-    sol = least_squares(res, x0v, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    x = sol.x
+    x, ier = leastsq(res, x0v, Dfun=jac, xtol=1e-14, ftol=1e-15, maxfev=400)
+    if ier not in (1, 2, 3, 4):
+        raise MtcompError(f"sphere fit did not converge (MINPACK code {ier})")
     rho = float(x[3]) if free else float(radius)
     return x[:3].copy(), rho, res(x), jac(x)
 

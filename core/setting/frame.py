@@ -15,6 +15,7 @@ Units: mm, deg.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -186,6 +187,12 @@ def _estimate(measured, design, method) -> tuple[np.ndarray, np.ndarray]:
     return rigid_fit(measured, design)
 
 
+@functools.lru_cache(maxsize=64)
+def _chi2_quantile(p: float, dof: int) -> float:
+    from scipy.stats import chi2
+    return float(chi2.ppf(p, dof))
+
+
 def _params(R, t) -> np.ndarray:
     return np.r_[t, angles_from_matrix(R)]
 
@@ -280,6 +287,67 @@ class WorkpieceSettingEstimate:
         return "\n".join(out)
 
 
+def _loo_stat(m, d, covs, i, others):
+    """Bowl i against the rigid fit of `others`: chi-square of measured minus predicted centre."""
+    mo, do = m[others], d[others]
+    k = len(others)
+    h = 1e-5 * max(1.0, float(np.abs(d).max()))
+    E = np.eye(3 * k).reshape(3 * k, k, 3) * h
+    M = np.concatenate([mo[None], mo[None] + E, mo[None] - E])
+    Rb, tb = _estimate_batch(M, do, "lsq")
+    pred = Rb @ d[i] + tb                                    # (1 + 6k, 3)
+    J = ((pred[1:3 * k + 1] - pred[3 * k + 1:]) / (2 * h)).T   # (3, 3k)
+    S = np.zeros((3 * k, 3 * k))
+    for j, o in enumerate(others):
+        S[3 * j:3 * j + 3, 3 * j:3 * j + 3] = covs[o]
+    C = J @ S @ J.T + covs[i] + np.eye(3) * 1e-14
+    r = m[i] - pred[0]
+    return float(r @ np.linalg.solve(C, r)), r
+
+
+def _disagreeing_bowls(m, d, covs, ids, stat, Sr, res, alarm) -> list[str]:
+    """Warnings for bowls that disagree with the others beyond their uncertainty.
+
+    With four or more bowls each bowl is judged against the rigid fit of the others (leave one
+    out), so one bad bowl is named alone instead of smearing its error over all residuals; the
+    worst is reported and the rest re-checked without it.  Three bowls only allow the joint
+    test of the full-fit residuals (the triangle's shape).
+    """
+    n = len(m)
+    if not np.any(covs):
+        return []
+    out = []
+    if n >= 4:
+        active = list(range(n))
+        lim = _chi2_quantile(alarm, 3)
+        while len(active) >= 4:
+            scores = []
+            for i in active:
+                others = [o for o in active if o != i]
+                c2, r = _loo_stat(m, d, covs, i, others)
+                scores.append((c2, i, r))
+            c2, i, r = max(scores, key=lambda s: s[0])
+            if c2 <= lim:
+                break
+            out.append(f"bowl {ids[i]} disagrees with the other bowls: {np.linalg.norm(r) * 1e3:.3f} um "
+                       f"from where they put it, {math.sqrt(c2):.1f} sigma (chi2 {c2:.1f} > {lim:.1f}, "
+                       "3 dof): check the bowl (burr, chip, wrong id)")
+            active.remove(i)
+        return out
+    # joint test of all residuals against their (rank 3n - 6) propagated covariance
+    w, V = np.linalg.eigh(0.5 * (Sr + Sr.T))
+    keep = w > 1e-6 * w.max()
+    z = V.T @ res.ravel()
+    tot, k = float(np.sum(z[keep] ** 2 / (w[keep] + 1e-14))), int(keep.sum())
+    lim = _chi2_quantile(alarm, k)
+    if tot > lim:
+        worst = int(np.argmax(stat))
+        out.append(f"bowls {', '.join(map(str, ids))} do not form the planned triangle: chi2 "
+                   f"{tot:.1f} > {lim:.1f} ({k} dof), largest misfit at bowl {ids[worst]}: check the "
+                   "bowls (burr, chip, wrong id) or the plan")
+    return out
+
+
 def frame_from_points(measured, design, centre_covs=None, ids=None, method: str = "auto",
                       fit=None, alarm: float = 0.999, gross_limit: float = 0.1,
                       file=None) -> WorkpieceSettingEstimate:
@@ -292,7 +360,6 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
     exceeds the `alarm` quantile of its chi-square distribution gives a warning; one more than
     `gross_limit` mm off is an InputError naming it.
     """
-    from scipy.stats import chi2
     m = np.asarray(measured, float).reshape(-1, 3)
     d = np.asarray(design, float).reshape(-1, 3)
     n = len(m)
@@ -338,7 +405,6 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
                          "bowl id or plan?", file, field="bowl")
     stat = np.zeros(n)
     dof = np.zeros(n, int)
-    warnings = []
     for i in range(n):
         blk = Sr[3 * i:3 * i + 3, 3 * i:3 * i + 3]
         w, V = np.linalg.eigh(0.5 * (blk + blk.T))
@@ -349,12 +415,7 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
         # (0.1 nm)^2 floor: numerical resolution, so rounding never raises an alarm
         stat[i] = float(np.sum(ri[keep] ** 2 / (w[keep] + 1e-14)))
         dof[i] = int(keep.sum())
-        lim = chi2.ppf(alarm, dof[i])
-        if stat[i] > lim:
-            warnings.append(f"bowl {ids[i]} disagrees with the others: residual "
-                            f"{np.linalg.norm(res[i]) * 1e3:.3f} um is {math.sqrt(stat[i]):.1f} sigma "
-                            f"(chi2 {stat[i]:.1f} > {lim:.1f} for {dof[i]} dof): check the bowl "
-                            "(burr, chip, wrong id)")
+    warnings = _disagreeing_bowls(m, d, covs, ids, stat, Sr, res, alarm)
     return WorkpieceSettingEstimate(pose=make_pose(R, t), cov=cov, ids=ids, measured=m, design=d,
                                     residuals=res, residual_stat=stat, residual_dof=dof,
                                     method=method, warnings=tuple(warnings), fit=fit)
