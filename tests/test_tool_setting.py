@@ -14,7 +14,7 @@ from mtcomp.setting import tool_estimate as te
 from mtcomp.setting.tool import (GroovingMeasurements, MicroscopeNoise, PlanOptions, cut_grooves, intersection,
                                  load_plan, make_plan, nc_programs, paper_experiment, paper_offset,
                                  simulate_grooving, table1_distances)
-from mtcomp.setting.tool_plan import groove_width, plan_to_toml, sheet_template
+from mtcomp.setting.tool_plan import groove_top_centre_offset, groove_width, plan_to_toml, sheet_template
 
 M = load_machine("robonano-ui")
 
@@ -96,6 +96,10 @@ def test_groove_width():
     assert groove_width(0.1, 60.0) == pytest.approx(2 * 0.1 * np.tan(np.radians(30)))
     # tilting the V widens the groove: tan(45+10) + tan(45-10)
     assert groove_width(0.1, 90.0, 10.0) == pytest.approx(0.1 * (np.tan(np.radians(55)) + np.tan(np.radians(35))))
+    assert groove_top_centre_offset(0.1, 90.0) == 0.0
+    # top edges of a V tilted by 10 deg: at d tan(55) and -d tan(35) from the bottom line
+    assert groove_top_centre_offset(0.1, 90.0, 10.0) == pytest.approx(
+        (0.1 * np.tan(np.radians(55)) - 0.1 * np.tan(np.radians(35))) / 2)
 
 
 # ---------------------------------------------------------------------------------- virtual grooving
@@ -224,7 +228,8 @@ def test_positions_beat_depths_by_5x_at_10_deg(plan):
     the lateral positions is >= 5x smaller than the closed form's from depths alone."""
     meas = simulate_grooving(M, (0.1, 0.1, 0.1), plan, MicroscopeNoise(0.001, 0.001), seed=3)
     est = te.estimate(M, meas)
-    closed = te.b_depth_closed_form_sigma(10.0, -10.0, 0.001)[1]
+    # the closed form gets the same data: mean of start and end depth per groove
+    closed = te.b_depth_closed_form_sigma(10.0, -10.0, 0.001 / np.sqrt(2))[1]
     assert closed / est.sigma[2] >= 5.0
     # without the B grooves' lateral positions, the fit is left with the depths (and warns)
     b_depth_only = [p if meas.plan.groove(p.groove).test != "B" else

@@ -473,6 +473,15 @@ def groove_width(depth, tip_angle: float, tilt: float = 0.0):
     return np.asarray(depth) * (np.tan(h + t) + np.tan(h - t))
 
 
+def groove_top_centre_offset(depth, tip_angle: float, tilt: float = 0.0):
+    """Offset (mm) of the midpoint between a V-groove's two top edges from its bottom line,
+    depth * (tan(tip/2 + tilt) - tan(tip/2 - tilt)) / 2, towards d x n (d the cutting direction,
+    n the face normal) for a positive tilt.  Zero for an untilted tool; 36 um for D = 0.1 mm,
+    tip 90 deg, tilt 10 deg: measure the bottom line on inclined grooves, or correct by this."""
+    h, t = np.radians(tip_angle / 2.0), np.radians(tilt)
+    return np.asarray(depth) * (np.tan(h + t) - np.tan(h - t)) / 2.0
+
+
 def write_plan(machine, plan: Plan, outdir: str | os.PathLike, png: bool = True) -> list[Path]:
     """Write plan.toml, one NC program per test (tool_setting_<T>.nc), measurements.csv and layout.png."""
     outdir = Path(outdir)
