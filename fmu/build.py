@@ -335,12 +335,32 @@ def _copy_sources(kind: str, src_dir: Path) -> tuple[str, ...]:
     return C_SOURCES[kind]
 
 
-def _compile(unzipdir: Path) -> None:
-    """Compile the binary for this platform from the archive's sources with fmpy's CMake project
-    (the same build `fmpy compile` runs), quietly; the compiler output is kept for errors."""
+def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
+    """Compile the binary for this platform from the archive's sources, quietly (the compiler
+    output is kept for errors).  compiler="cmake": fmpy's CMake project, the same build
+    `fmpy compile` runs; "cc": one direct call of the C compiler (gcc), several times faster."""
     import subprocess
     import fmpy
     from fmpy.build import create_cmake_settings
+    if compiler == "cc":
+        import sysconfig
+        cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+        if not cc:
+            raise FmuBuildError("no C compiler found (cc/gcc)")
+        if fmpy.system != "linux":
+            raise FmuBuildError('compiler="cc" builds linux binaries only; use compiler="cmake"')
+        md = ET.parse(unzipdir / "modelDescription.xml").getroot()
+        ident = md.find("CoSimulation").get("modelIdentifier")
+        files = [str(unzipdir / "sources" / f.get("name")) for f in md.iter("File")]
+        out = unzipdir / "binaries" / fmpy.platform / f"{ident}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", "-I", str(unzipdir / "sources"), *files, "-o", str(out), "-lm"]
+        run = subprocess.run(cmd, capture_output=True, text=True)
+        if run.returncode:
+            raise FmuBuildError(f"compiling the FMU failed:\n{run.stderr[-3000:]}")
+        return
+    if compiler != "cmake":
+        raise FmuBuildError(f"compiler must be 'cmake' or 'cc', got {compiler!r}")
     if shutil.which("cmake") is None:
         raise FmuBuildError("cmake not found (pip install cmake): needed to compile the FMU")
     source_dir = Path(fmpy.__file__).parent / "c-code"
@@ -388,7 +408,7 @@ def _guid(*parts: str) -> str:
 
 
 def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: str, title: str, summary: str,
-           extra_vars, compile_binary: bool) -> Path:
+           extra_vars, compile_binary: bool, compiler: str) -> Path:
     out_path = Path(out_path)
     with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-") as td:
         root = Path(td) / "fmu"
@@ -402,12 +422,13 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
         (root / "modelDescription.xml").write_bytes(md)
         _documentation(root / "documentation", f"{title}: {machine.name}", summary, variables, machine)
         if compile_binary:
-            _compile(root)
+            _compile(root, compiler)
         return _zip(root, out_path)
 
 
 def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None, *,
-                          identifier: str = "mtcomp_compensator", compile_binary: bool = True) -> Path:
+                          identifier: str = "mtcomp_compensator", compile_binary: bool = True,
+                          compiler: str = "cmake") -> Path:
     """Build the compensator FMU for `machine` (preset name, TOML path or Machine).
 
     Inputs `command.<AXIS>` (programmed commands), outputs `compensated.<AXIS>` = mtcomp.kinematics
@@ -435,12 +456,12 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
                "real tool edge (with tool setting, workpiece setting and geometric errors) where the ideal "
                "machine would have put it.")
     return _build("compensator", machine, errors, out_path, identifier, "mtcomp compensator", summary, extra,
-                  compile_binary)
+                  compile_binary, compiler)
 
 
 def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None,
                       dynamics: MachineDynamics | None = None, *, identifier: str = "mtcomp_machine",
-                      compile_binary: bool = True) -> Path:
+                      compile_binary: bool = True, compiler: str = "cmake") -> Path:
     """Build the virtual machine FMU (native C): axis commands and spindle speed in; real tool edge
     position and direction in the real workpiece frame, actual axis positions and temperature out.
     `errors` are the machine's true errors (start values and table resources), `dynamics` the
@@ -493,4 +514,5 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     ]
     summary = ("Virtual multi-axis machine tool with tool setting, workpiece setting and geometric errors, first-order "
                "servos, backlash, thermal drift and sensor noise; the same forward model as mtcomp.kinematics.")
-    return _build("machine", machine, errors, out_path, identifier, "mtcomp machine", summary, extra, compile_binary)
+    return _build("machine", machine, errors, out_path, identifier, "mtcomp machine", summary, extra, compile_binary,
+                  compiler)
