@@ -39,14 +39,26 @@ def test_simulate_build_map_table(tmp_path, capsys):
     rows = (tmp_path / "vm.csv").read_text().splitlines()
     assert len(rows) == 2 + 13 * 9 * 7
     truth = str(tmp_path / "set_truth.toml")
+    prog = tmp_path / "part.nc"
+    prog.write_text("G90 G1 X10. Y20. Z-30. F1000\nX250. Y-150. Z-200.\nX-280. Y180. Z0.\n")
     assert run(["geometric", "table", built, "--truth", truth, "--lattice-step", "100",
-                "-o", str(tmp_path / "comp")]) == 0
+                "--program", str(prog), "-o", str(tmp_path / "comp")]) == 0
     out = capsys.readouterr().out
     assert "model-based (corrected commands)" in out
     lat = LatticeTable.from_csv(tmp_path / "comp" / "lattice.csv")
     assert lat.correction.shape == (7, 5, 4, 3)
     assert np.abs(lat.correction).max() > 1e-3
     assert (tmp_path / "comp" / "comp_Z.csv").read_text().splitlines()[1].startswith("position,EXZ")
+    # the rewritten program: corrected commands put the tool on the programmed points
+    from mtcomp import gcode
+    from mtcomp.kinematics import forward
+    from mtcomp.machine import load_machine
+    m = load_machine("vmc-moving-column")
+    new = gcode.parse((tmp_path / "comp" / "part_comp.nc").read_text(), axes=m.axis_names)
+    want = np.array([[10, 20, -30], [250, -150, -200], [-280, 180, 0]], float)
+    assert np.abs(new.position - want).max() > 1e-3          # the commands did move
+    got = forward(m, new.position, errs).p
+    assert np.abs(got - want).max() < 1e-3                    # rounding to the 1 µm resolution
 
 
 def test_bad_run_exits_2_with_file_and_line(tmp_path, capsys):

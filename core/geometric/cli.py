@@ -44,6 +44,8 @@ def register(subparsers) -> None:
     s.add_argument("--truth", help="errors TOML of the real machine for the residual "
                                    "(default: the model itself, which shows the lattice "
                                    "interpolation error)")
+    s.add_argument("--program", help="also rewrite this NC program with corrected commands "
+                                     "(written to DIR/<name>_comp<suffix>)")
     s.add_argument("-o", "--output", required=True, help="output directory")
     s.set_defaults(func=_table)
 
@@ -118,9 +120,31 @@ def _table(args: argparse.Namespace) -> int:
     rep = comptables.compensation_report(args.machine, truth, model, lat)
     atomic_write(out / "residual.txt", rep.summary())
     print(rep.summary(), end="")
+    if args.program:
+        _rewrite_program(args, model, out)
     print(f"written: {out / 'lattice.csv'}, " + ", ".join(str(f) for f in files)
           + f", {out / 'residual.txt'}")
     return 0
+
+
+def _rewrite_program(args: argparse.Namespace, model, out: Path) -> None:
+    """Corrected commands as an NC program, through the core's program rewriting (tables held
+    at their end values just beyond the travel, as in the other compensation forms)."""
+    from .._io import atomic_write
+    from ..commands import compensate_program
+    from ..machine import load_machine
+    from .comptables import extend_tables
+    src = Path(args.program)
+    try:
+        text = src.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("NC program not found", src) from None
+    machine = load_machine(args.machine)
+    new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src))
+    dst = out / (src.stem + "_comp" + src.suffix)
+    atomic_write(dst, new_text)
+    print(f"{src}: {rep['blocks']} motion blocks -> {dst}; model tool-edge error max "
+          f"{rep['before_max'] * 1e3:.3f} um before, {rep['after_max'] * 1e3:.4f} um after")
 
 
 def _simulate(args: argparse.Namespace) -> int:
