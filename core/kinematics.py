@@ -295,6 +295,54 @@ def check_limits(machine: Machine, q: np.ndarray) -> None:
             raise LimitError(ax.name, int(bad[0]), float(q[bad[0], k]), ax.limits)
 
 
+def _linear_axis_matrix(machine: Machine, q: np.ndarray):
+    """Nominal chain rotation R_c (N,3,3) and the matrix A (N,3,3) whose columns are the
+    directions of the three linear axes as the rotary axes before them in the chain turn them:
+    with the rotary angles fixed, the nominal tool position is affine in the linear axes, dp = A dq."""
+    n = q.shape[0]
+    R = None
+    cols = []
+    for i, ax in enumerate(machine.axes):
+        u = np.asarray(ax.direction)
+        if ax.is_rotary:
+            Rg = axis_rotation(u, np.radians(q[:, i]))
+            R = Rg if R is None else R @ Rg
+        else:
+            cols.append(np.broadcast_to(u, (n, 3)) if R is None else R @ u)
+    if R is None:
+        R = np.broadcast_to(np.eye(3), (n, 3, 3))
+    return R, np.stack(cols, axis=2)
+
+
+def _solve3(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve N 3x3 systems A x = b by Cramer's rule (much faster than a batched LU for 3x3)."""
+    c0, c1, c2 = A[:, :, 0], A[:, :, 1], A[:, :, 2]
+    det = np.einsum("ni,ni->n", c0, np.cross(c1, c2))
+    return np.stack([np.einsum("ni,ni->n", b, np.cross(c1, c2)),
+                     np.einsum("ni,ni->n", c0, np.cross(b, c2)),
+                     np.einsum("ni,ni->n", c0, np.cross(c1, b))], axis=1) / det[:, None]
+
+
+def _retarget_rigid(machine: Machine, q: np.ndarray, errors: ErrorSet) -> np.ndarray | None:
+    """Closed form for rigid setting errors when the rotary angles need not change (no
+    geometric errors, and no workpiece rotation unless the machine has no rotary axes):
+    A(theta) dq_lin = Rw p_ideal + tw - R_c (tool_point + t) - t_c(q).  None if not applicable."""
+    lin = [i for i, a in enumerate(machine.axes) if not a.is_rotary]
+    if (not errors.geometric.is_zero or len(lin) != 3
+            or (machine.n_rotary and any(errors.workpiece.angles))):
+        return None
+    R, A = _linear_axis_matrix(machine, q)
+    t = np.asarray(errors.tool.offset)
+    tw = np.asarray(errors.workpiece.translation)
+    rhs = tw - R @ t
+    if any(errors.workpiece.angles):  # 3-axis machine: the ideal point turns with the workpiece
+        p_ideal = forward(machine, q).p
+        rhs = rhs + p_ideal @ errors.workpiece.matrix.T - p_ideal
+    out = q.copy()
+    out[:, lin] += _solve3(A, rhs)
+    return out
+
+
 def retarget(machine: Machine, q_programmed, errors: ErrorSet | None, *, round_result: bool = False,
              check: bool = True) -> np.ndarray:
     """Compensated commands for a program written for the ideal machine: the real machine with
@@ -303,7 +351,9 @@ def retarget(machine: Machine, q_programmed, errors: ErrorSet | None, *, round_r
     if errors is None or errors.is_zero:
         q = q_programmed.copy()
     else:
-        q = compensate(machine, forward(machine, q_programmed), errors, q_programmed)
+        q = _retarget_rigid(machine, q_programmed, errors)
+        if q is None:
+            q = compensate(machine, forward(machine, q_programmed), errors, q_programmed)
     if round_result:
         q = round_to_resolution(machine, q)
     if check:

@@ -165,3 +165,18 @@ def test_first_order_model_differs_to_second_order(rng):
         diffs.append(np.max(np.abs(forward(m, q, E).p - first_order_linear_machine(m, q, E))))
     assert diffs[0] > 1e-9  # the difference is real (second-order terms of ~ 1e-8 mm)...
     assert 3.5 < diffs[0] / diffs[1] < 4.5 and 3.5 < diffs[1] / diffs[2] < 4.5  # ...and quadratic
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_rigid_closed_form_equals_iteration(name, rng):
+    """The closed form for rigid setting errors and the general Gauss-Newton agree."""
+    from mtcomp.kinematics import _retarget_rigid
+    m = load_machine(name)
+    E = ErrorSet(ToolSetting(tuple(rng.uniform(-1, 1, 3))),
+                 WorkpieceSetting(tuple(rng.uniform(-1, 1, 3)), (0.3, -0.2, 0.5) if m.n_rotary == 0 else (0, 0, 0)))
+    q = random_commands(m, 300, rng)
+    closed = _retarget_rigid(m, q, E)
+    assert closed is not None
+    iterated = compensate(m, forward(m, q), E, q)
+    assert np.max(np.abs(closed - iterated)) < 1e-9
+    assert np.max(np.abs(forward(m, closed, E).p - forward(m, q).p)) < 1e-9
