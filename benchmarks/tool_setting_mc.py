@@ -47,12 +47,13 @@ def paper_runs(m, n):
     ls, cf, tz_err = [], [], []
     t0 = time.perf_counter()
     for k in range(n):
-        meas = simulate_grooving(m, t_true, plan, noise, seed=10_000 + k)
+        meas = simulate_grooving(m, t_true, noise, seed=10_000 + k, plan=plan)
         est = te.estimate(m, meas)
         c = est.closed
         t_cf = np.array([(c["A"][0] + c["C"][0]) / 2, (c["A"][1] + c["C"][1]) / 2, c["B_depth"][1]])
         for t_hat, out in ((est.offset, ls), (t_cf, cf)):
-            d = table1_distances(plan, cut_grooves(m, plan, t_true, compensation=ErrorSet(tool=ToolSetting(tuple(t_hat)))))
+            comp = ErrorSet(tool=ToolSetting(tuple(t_hat)))
+            d = table1_distances(plan, cut_grooves(m, plan, t_true, compensation=comp))
             out.append([*d["A"], *d["C"]])
         tz_err.append((est.offset[2] - t_true[2], t_cf[2] - t_true[2]))
         progress(k + 1, n, t0, "paper experiment")
@@ -67,7 +68,7 @@ def coverage(m, n):
     t0 = time.perf_counter()
     for k in range(n):
         t = rng.uniform(-1.0, 1.0, 3)
-        meas = simulate_grooving(m, t, plan, MicroscopeNoise(0.001, 0.001), seed=20260 + 1 + k, frame_offset=0.5)
+        meas = simulate_grooving(m, t, MicroscopeNoise(0.001, 0.001), 20260 + 1 + k, plan=plan, frame_offset=0.5)
         est = te.estimate(m, meas, closed=False)
         z = np.abs(est.offset - t) / est.sigma
         comp.append(z <= 3)
@@ -81,7 +82,7 @@ def coverage(m, n):
 
 def tz_sigmas(m, sp, sd, theta=10.0):
     plan = make_plan(m, PlanOptions(b_angles=(0.0, theta, -theta)))
-    meas = simulate_grooving(m, (0.1, 0.1, 0.1), plan, MicroscopeNoise(sp, sd), seed=1)
+    meas = simulate_grooving(m, (0.1, 0.1, 0.1), plan=plan, noise=MicroscopeNoise(sp, sd), seed=1)
     est = te.estimate(m, meas, closed=False)
     # Same measurements for both: the closed form takes the mean of each groove's start and end
     # depths (sigma_depth / sqrt 2 per groove), the least squares takes every value.

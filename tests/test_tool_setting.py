@@ -136,7 +136,7 @@ def test_a_patterns_intersect_where_shifted_lines_cross(plan):
 def test_uncut_groove_is_reported(plan):
     shallow = make_plan(M, PlanOptions(depth=0.01))
     with pytest.raises(MtcompError, match="would not be cut"):
-        simulate_grooving(M, (-0.5, 0.0, 0.0), shallow, seed=1)
+        simulate_grooving(M, (-0.5, 0.0, 0.0), plan=shallow, seed=1)
 
 
 # ---------------------------------------------------------------------------------- closed forms
@@ -162,7 +162,7 @@ def test_paper_eq2_misprint(tx, tz):
 
 def test_closed_forms_recover_noise_free_offset(plan):
     t = (0.21, -0.37, 0.12)
-    meas = simulate_grooving(M, t, plan, MicroscopeNoise(0.0, 0.0), seed=1, frame_offset=0.4)
+    meas = simulate_grooving(M, t, plan=plan, noise=MicroscopeNoise(0.0, 0.0), seed=1, frame_offset=0.4)
     cf = te.closed_forms(meas)
     assert cf["A"] == pytest.approx(t[:2], abs=1e-12)
     assert cf["C"] == pytest.approx(t[:2], abs=1e-12)
@@ -186,7 +186,7 @@ def test_depth_closed_form_sigma_matches_monte_carlo():
 
 def test_least_squares_exact_without_noise(plan):
     t = (-0.61, 0.83, -0.44)
-    meas = simulate_grooving(M, t, make_plan(M, PlanOptions(depth=0.3)), MicroscopeNoise(0, 0), seed=2,
+    meas = simulate_grooving(M, t, plan=make_plan(M, PlanOptions(depth=0.3)), noise=MicroscopeNoise(0, 0), seed=2,
                              frame_offset=0.5)
     est = te.estimate(M, meas)
     assert est.offset == pytest.approx(t, abs=1e-9)
@@ -199,7 +199,7 @@ def _coverage(n, seed0):
     inside, d2 = 0, []
     for k in range(n):
         t = rng.uniform(-1.0, 1.0, 3)
-        meas = simulate_grooving(M, t, plan, MicroscopeNoise(0.001, 0.001), seed=seed0 + 1 + k, frame_offset=0.5)
+        meas = simulate_grooving(M, t, MicroscopeNoise(0.001, 0.001), seed0 + 1 + k, plan=plan, frame_offset=0.5)
         est = te.estimate(M, meas, closed=False)
         inside += bool(np.all(np.abs(est.offset - t) <= 3 * est.sigma))
         d2.append(est.mahalanobis2(t))
@@ -226,7 +226,7 @@ def test_injected_and_recovered_1000_trials():
 def test_positions_beat_depths_by_5x_at_10_deg(plan):
     """Acceptance: B at +-10 deg, 1 um microscope noise: the least-squares sigma of t_z using
     the lateral positions is >= 5x smaller than the closed form's from depths alone."""
-    meas = simulate_grooving(M, (0.1, 0.1, 0.1), plan, MicroscopeNoise(0.001, 0.001), seed=3)
+    meas = simulate_grooving(M, (0.1, 0.1, 0.1), plan=plan, noise=MicroscopeNoise(0.001, 0.001), seed=3)
     est = te.estimate(M, meas)
     # the closed form gets the same data: mean of start and end depth per groove
     closed = te.b_depth_closed_form_sigma(10.0, -10.0, 0.001 / np.sqrt(2))[1]
@@ -244,7 +244,7 @@ def test_covariance_matches_monte_carlo_scatter(plan):
     t = np.array([0.2, -0.1, 0.3])
     ests = []
     for k in range(300):
-        meas = simulate_grooving(M, t, plan, MicroscopeNoise(0.001, 0.0002), seed=900 + k)
+        meas = simulate_grooving(M, t, plan=plan, noise=MicroscopeNoise(0.001, 0.0002), seed=900 + k)
         ests.append(te.estimate(M, meas, closed=False))
     scatter = np.std([e.offset for e in ests], axis=0)
     assert scatter == pytest.approx(ests[0].sigma, rel=0.15)
@@ -252,13 +252,13 @@ def test_covariance_matches_monte_carlo_scatter(plan):
 
 def test_singular_geometry_names_the_component():
     plan = make_plan(M, PlanOptions(tests=("C", "A")))
-    meas = simulate_grooving(M, (0.1, 0.2, 0.3), plan, seed=1)
+    meas = simulate_grooving(M, (0.1, 0.2, 0.3), plan=plan, seed=1)
     with pytest.raises(InputError, match="singular geometry.*t_z"):
         te.estimate(M, meas)
 
 
 def test_suggested_groove_predicts_the_covariance_it_gives(plan):
-    meas = simulate_grooving(M, (0.1, 0.2, 0.1), plan, seed=4)
+    meas = simulate_grooving(M, (0.1, 0.2, 0.1), plan=plan, seed=4)
     best = te.suggest_grooves(M, meas, top=1)[0]
     assert abs(best.groove.angles[1]) == 45.0          # the steepest B inclination on offer
     est0 = te.estimate(M, meas)
@@ -267,7 +267,7 @@ def test_suggested_groove_predicts_the_covariance_it_gives(plan):
     g = best.groove
     from dataclasses import replace
     plan2 = type(plan)(plan.machine, plan.options, plan.grooves + (replace(g, id="Bx"),), plan.faces)
-    est2 = te.estimate(M, simulate_grooving(M, (0.1, 0.2, 0.1), plan2, seed=4))
+    est2 = te.estimate(M, simulate_grooving(M, (0.1, 0.2, 0.1), plan=plan2, seed=4))
     assert est2.sigma == pytest.approx(best.sigma, rel=1e-9)
 
 
@@ -289,7 +289,7 @@ def test_paper_table1_distances_and_compensation(plan):
 
 def test_report_and_errors_file(plan, tmp_path):
     from mtcomp.errors import load_errors
-    meas = simulate_grooving(M, paper_offset(), plan, seed=7)
+    meas = simulate_grooving(M, paper_offset(), plan=plan, seed=7)
     est = te.estimate(M, meas)
     path = te.write_errors(est, tmp_path / "errors.toml")
     assert load_errors(path).tool.offset == pytest.approx(est.offset, abs=1e-15)
@@ -297,3 +297,28 @@ def test_report_and_errors_file(plan, tmp_path):
     assert "t_z" in text and "+-" in text and "after compensation" in text
     png = te.plot_report(M, meas, est, tmp_path / "r.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# ---------------------------------------------------------------------------------- properties
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=60, deadline=None)
+@given(th2=st.floats(3, 60), th3=st.floats(-60, -3), tx=st.floats(-1, 1), tz=st.floats(-1, 1))
+def test_depth_closed_forms_invert_the_rigid_model(th2, th3, tx, tz):
+    """Derived forms invert d(theta) - d(0) = sin(theta) t_x + (1 - cos theta) t_z for any angles."""
+    d = lambda th: 0.1 + np.sin(np.radians(th)) * tx + (1 - np.cos(np.radians(th))) * tz  # noqa: E731
+    assert te.b_depth_closed_form(th2, th3, d(0), d(th2), d(th3)) == pytest.approx((tx, tz), abs=1e-9)
+    assert te.paper_eq2_dz_derived(th2, th3, d(th2), d(th3), d(0)) == pytest.approx(-tz, abs=1e-9)
+    assert te.paper_eq1_dx(th2, th3, d(th2), d(th3), d(0)) == pytest.approx(-tx, abs=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(t=st.tuples(*[st.floats(-1, 1)] * 3), c=st.floats(1, 179))
+def test_c_closed_form_any_angle_pair(t, c):
+    def rz(a):
+        a = np.radians(a)
+        return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    gap = (rz(c) - rz(0)) @ np.asarray(t[:2])
+    assert te.c_closed_form(0.0, c, gap) == pytest.approx(t[:2], abs=1e-9)

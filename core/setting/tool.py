@@ -197,11 +197,12 @@ class GroovingMeasurements:
                 raise InputError(f"expected a positive sigma in mm, got {v!r}", field=name)
 
 
-def simulate_grooving(machine, tool_setting, plan: Plan | None = None, noise: MicroscopeNoise | None = None,
-                      seed=None, compensation=None, frame_offset: float = 0.0) -> GroovingMeasurements:
+def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = None, seed=None, *,
+                      plan: Plan | None = None, compensation=None, frame_offset: float = 0.0) -> GroovingMeasurements:
     """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
     (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
-    Gaussian noise of `noise` (default 1 um on positions and depths) from `seed`.
+    Gaussian noise of `noise` (default 1 um on positions and depths) from `seed`.  plan: default
+    `make_plan(machine)`; compensation: ErrorSet the programs are compensated for.
 
     frame_offset: mm; each test is measured in a microscope frame whose origin is shifted by a
     uniform random (u, v) in +-frame_offset (the estimator must not depend on it).
@@ -359,7 +360,7 @@ def paper_experiment(machine="robonano-ui", offset=None, noise: MicroscopeNoise 
     m = load_machine(machine)
     plan = plan or make_plan(m)
     offset = paper_offset() if offset is None else offset
-    meas = simulate_grooving(m, offset, plan, noise, seed)
+    meas = simulate_grooving(m, offset, noise, seed, plan=plan)
     est = estimate(m, meas)
     before = table1_distances(plan, cut_grooves(m, plan, offset))
     after = table1_distances(plan, cut_grooves(m, plan, offset, compensation=est.errors()))

@@ -52,6 +52,8 @@ def register(subparsers) -> None:
     si.add_argument("--sigma-pos", type=float, default=0.001, help="microscope position noise, mm (default 0.001)")
     si.add_argument("--sigma-depth", type=float, default=0.001, help="microscope depth noise, mm (default 0.001)")
     si.add_argument("--seed", type=int, default=None)
+    si.add_argument("--frame-offset", type=float, default=0.0,
+                    help="random microscope origin per test, uniform in +-this, mm (default 0)")
     si.add_argument("--compensation", help="errors TOML the programs are compensated for (cut compensated grooves)")
     si.add_argument("-o", "--output", required=True, help="filled measurement sheet (CSV)")
     si.add_argument("--png", help="layout with the predicted grooves")
@@ -100,8 +102,8 @@ def _simulate(args) -> int:
         if not getattr(args, name) >= 0:
             raise InputError(f"expected a sigma >= 0 mm, got {getattr(args, name)}", field=name.replace("_", "-"))
     comp = load_errors(args.compensation) if args.compensation else None
-    meas = simulate_grooving(m, tuple(args.offset), plan, MicroscopeNoise(args.sigma_pos, args.sigma_depth),
-                             args.seed, compensation=comp)
+    meas = simulate_grooving(m, tuple(args.offset), MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
+                             plan=plan, compensation=comp, frame_offset=args.frame_offset)
     text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, sigma pos {args.sigma_pos} mm, "
                                   f"depth {args.sigma_depth} mm, seed {args.seed}")
     atomic_write(args.output, text)

@@ -20,7 +20,8 @@ from .._io import InputError, MtcompError
 from .tool_plan import Plan, commands_for_points
 
 COMPONENTS = ("t_x", "t_y", "t_z")
-#: Warn when a component's 1-sigma exceeds this multiple of the finest measurement sigma.
+#: Warn when a component's 1-sigma exceeds this multiple of the coarsest measurement sigma: the
+#: geometry then amplifies the instrument noise more than tenfold.
 ILL_CONDITIONED_FACTOR = 10.0
 
 
@@ -128,7 +129,7 @@ def closed_forms(meas) -> dict[str, tuple]:
     a = [g for g in plan.grooves if g.test == "A"]
     if a:
         angs = sorted({g.angles[0] for g in a})
-        if len(angs) == 2 and abs(angs[1] - angs[0] - 180) < 1e-9:
+        if angs == [0.0, 180.0] and all(g.angles[1] == 90.0 and g.angles[2] == 0.0 for g in a):
             du, dv = [], []
             for g0 in (g for g in a if g.angles[0] == angs[0]):
                 g1 = next((g for g in a if g.angles[0] == angs[1] and g.start == g0.start and g.end == g0.end), None)
@@ -138,7 +139,6 @@ def closed_forms(meas) -> dict[str, tuple]:
                     du.append(get(g1, f, "u") - get(g0, f, "u"))
                     dv.append(get(g1, f, "v") - get(g0, f, "v"))
             if du and np.all(np.isfinite(du)):
-                # The shift is measured A180 - A0 when angs[0] is 0: a_closed_form assumes that order.
                 out["A"] = a_closed_form(float(np.mean(du)), float(np.mean(dv)))
     c = [g for g in plan.grooves if g.test == "C"]
     if len(c) >= 2:
@@ -358,7 +358,7 @@ def estimate(machine, meas, closed: bool = True) -> ToolSettingEstimate:
     chi2 = float(norm @ norm)
     warnings = []
     sig = np.sqrt(np.diag(cov))
-    floor = float(np.min(d.sigma))
+    floor = float(np.max(d.sigma))
     for k, name in enumerate(COMPONENTS):
         if sig[k] > ILL_CONDITIONED_FACTOR * floor:
             why = ""
@@ -366,7 +366,7 @@ def estimate(machine, meas, closed: bool = True) -> ToolSettingEstimate:
                 why = (": depths carry t_z only to second order (1 - cos theta) at small B inclinations; "
                        "measure the lateral positions of the B grooves or add grooves at larger |B|")
             warnings.append(f"ill-conditioned: {name} has sigma {sig[k] * 1e3:.2f} um, "
-                            f"{sig[k] / floor:.0f}x the finest measurement sigma{why}")
+                            f"{sig[k] / floor:.0f}x the measurement noise{why}")
     if dof > 0 and stats.chi2.sf(chi2, dof) < 1e-3:
         worst = int(np.argmax(np.abs(norm)))
         where = f" line {d.lines[worst]}" if d.lines[worst] else ""

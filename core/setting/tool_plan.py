@@ -214,7 +214,8 @@ def make_plan(machine, options: PlanOptions | None = None) -> Plan:
         for a in o.a_angles:
             for j, d in enumerate(((1.0, 0.0), (0.0, 1.0)), 1):
                 grooves.append(Groove(f"A{_fmt_angle(a)}-{j}", "A", "side", (float(a), float(o.a_tilt), 0.0),
-                                      tuple(float(x) for x in s), tuple(float(x) for x in s + o.length * np.asarray(d)), D))
+                                      tuple(float(x) for x in s),
+                                      tuple(float(x) for x in s + o.length * np.asarray(d)), D))
     if "B" in o.tests:
         u0, v0 = o.b_origin
         for k, b in enumerate(o.b_angles):
@@ -425,7 +426,8 @@ def load_plan(path: str | os.PathLike) -> Plan:
             raise InputError("start and end coincide", path, field=fld)
         if gid in [x.id for x in grooves]:
             raise InputError(f"groove id {gid!r} appears twice", path, field=f"{fld}.id")
-        grooves.append(Groove(gid, test, face, tuple(map(float, ang)), tuple(map(float, st)), tuple(map(float, en)), dep))
+        grooves.append(Groove(gid, test, face, tuple(map(float, ang)), tuple(map(float, st)),
+                              tuple(map(float, en)), dep))
     if not grooves:
         raise InputError("the plan has no [[groove]] tables", path, field="groove")
     angles = {t: tuple(dict.fromkeys(g.angles[i] for g in grooves if g.test == t))
