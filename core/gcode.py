@@ -19,7 +19,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ._io import InputError
-from .gcode_format import MAX_EXACT_DIGITS, format_counts, parse_decimals, splice
+from .gcode_format import format_counts, parse_decimals, splice
 
 INCH = 25.4
 LINEAR = frozenset("XYZUVW")
@@ -78,8 +78,33 @@ _CHAR_HINT = {
     ")": "unbalanced ')' (comments may not nest)", "%": "'%' only on a line of its own",
     "/": "block delete '/' only at the start of a block",
 }
-_COMMENT_RE = re.compile(rb"\([^()\n]*\)|;[^\n]*|(?m:^%[^\n]*)")
-_BLOCK_DELETE_RE = re.compile(rb"(?m:^[ \t]*/)")
+_PAREN_RE = re.compile(rb"\([^()\n]*\)")
+_LINE_REST_RE = re.compile(rb"[^\n]*")
+
+
+def _comment_spans(data: bytes, b: np.ndarray) -> list:
+    """Byte spans of comments: ``( ... )`` on one line, ``;`` to the end of the line and lines
+    starting with ``%``.  Candidates come from numpy; only they are looked at in Python."""
+    cand = np.flatnonzero((b == 40) | (b == 59) | (b == 37))
+    spans = []
+    end = 0
+    for q in cand.tolist():
+        if q < end:
+            continue                                  # inside the previous comment
+        c = data[q]
+        if c == 40:
+            m = _PAREN_RE.match(data, q)
+            if m is None:
+                continue                              # stays in the code: reported as unbalanced
+            end = m.end()
+        elif c == 59:
+            end = _LINE_REST_RE.match(data, q).end()
+        else:
+            if q > 0 and data[q - 1] != 10:
+                continue                              # '%' not at a line start: reported
+            end = _LINE_REST_RE.match(data, q).end()
+        spans.append((q, end))
+    return spans
 
 
 def _ascii(letter: str) -> int:
@@ -200,23 +225,27 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- comments, % lines and block delete become blanks in a working copy
     code = b.copy()
-    spans = [m.span() for m in _COMMENT_RE.finditer(data)]
+    spans = _comment_spans(data, b)
     if spans:
-        sp = np.asarray(spans, np.int64)
-        if len(sp) < 4096:
+        if len(spans) < 4096:
             for s, e in spans:
                 code[s:e] = 32
         else:
+            sp = np.asarray(spans, np.int64)
             mark = np.zeros(nbytes + 1, np.int8)
             np.add.at(mark, sp[:, 0], 1)
             np.add.at(mark, sp[:, 1], -1)
             code[np.cumsum(mark[:-1], dtype=np.int8).view(bool)] = 32
     bd_lines = np.zeros(0, np.int64)
-    bd = [m.end() - 1 for m in _BLOCK_DELETE_RE.finditer(bytes(code))] if 47 in code else []
-    if bd:
-        bd = np.asarray(bd, np.int64)
-        code[bd] = 32
-        bd_lines = line_of(bd)
+    slash = np.flatnonzero(code == 47)
+    if len(slash):
+        # block delete: '/' as the first non-blank character of a line
+        ls = line_start[line_of(slash)]
+        bd = [int(q) for q, l0 in zip(slash, ls) if not bytes(code[l0:q]).strip(b" \t")]
+        if bd:
+            bd = np.asarray(bd, np.int64)
+            code[bd] = 32
+            bd_lines = line_of(bd)
 
     # -- character classes
     up = code | np.uint8(32)
@@ -259,21 +288,19 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   "lead the number", wline[i], filename)
     dot_pos = np.flatnonzero(code == 46)
     ndots = np.zeros(len(rs), np.int64)
+    dot_of_run = np.full(len(rs), -1, np.int64)
     if len(dot_pos):
         run = np.searchsorted(rs, dot_pos, side="right") - 1
         ndots = np.bincount(run, minlength=len(rs))
-    ndig = (re_ - rs) - ndots - np.isin(code[rs], (43, 45))
+        dot_of_run[run] = dot_pos
+    first_ch = code[rs]
+    ndig = (re_ - rs) - ndots - ((first_ch == 43) | (first_ch == 45))
     badnum = (ndots > 1) | (ndig < 1)
     if badnum.any():
         i = int(np.argmax(badnum))
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
-    value = np.empty(len(rs), np.float64)
-    longnum = ndig > MAX_EXACT_DIGITS
-    short = ~longnum
-    value[short] = parse_decimals(code, rs[short], re_[short])
-    for i in np.flatnonzero(longnum):   # rare: let Python's correctly rounded parser do them
-        value[i] = float(data[rs[i]:re_[i]])
+    value = parse_decimals(code, rs, re_, dot_of_run)
 
     # -- letters
     allowed = set("GMNOFSTPIJKR") | set(axes)
@@ -1021,7 +1048,11 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, dec, tol):
         fa0 = np.arctan2(sv - fv, su - fu)
         fa1 = np.arctan2(ev - fv, eu - fu)
         fsw = np.mod(geo.dirs * (fa1 - fa0), 2 * np.pi)
-        Rc = np.rint(rfit / resu).astype(np.int64) * np.where(fsw > np.pi, -1, 1)
+        # near 180 deg both signs describe the arc: keep the programmed one
+        orig_sign = np.sign(np.nan_to_num(np.asarray(program.radius)[k], nan=1.0))
+        near = np.abs(fsw - np.pi) * np.maximum(rfit, 1e-9) <= tol
+        sign = np.where(near, orig_sign, np.where(fsw > np.pi, -1, 1)).astype(np.int64)
+        Rc = np.rint(rfit / resu).astype(np.int64) * sign
         R = Rc * resu
         du, dv = eu - su, ev - sv
         d = np.hypot(du, dv)

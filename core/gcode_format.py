@@ -12,64 +12,64 @@ import numpy as np
 
 #: Powers of ten as exact float64 (10**22 is the largest exactly representable one).
 _POW10 = 10.0 ** np.arange(23)
-#: Significant digits that fit exactly into a float64 mantissa.
-MAX_EXACT_DIGITS = 15
 
 
-def parse_decimals(buf: np.ndarray, start: np.ndarray, end: np.ndarray,
-                   chunk: int = 1 << 18) -> np.ndarray:
+_ONES = np.uint64(0xFFFFFFFFFFFFFFFF)
+_POW10_U64 = np.array([10 ** k for k in range(20)], np.uint64)
+
+
+def _digits8(padded: np.ndarray, end: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Integer value of the digit strings of ``length`` <= 8 characters ending at ``end``
+    (exclusive, indices into ``padded`` which has 8 leading pad bytes), by SWAR arithmetic on one
+    uint64 per number (the classic eight-digits-at-once reduction)."""
+    win = np.lib.stride_tricks.sliding_window_view(padded, 8)
+    x = np.ascontiguousarray(win[end]).view("<u8").ravel()      # rows end at `end` (+8 pad)
+    shift = (8 * (8 - np.minimum(length, 8))).astype(np.uint64)
+    keep = np.where(length > 0, _ONES << np.minimum(shift, np.uint64(63)), np.uint64(0))
+    keep = np.where(shift == 64, np.uint64(0), keep)
+    x = (x & keep) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    x = x * np.uint64(10) + (x >> np.uint64(8))
+    m = np.uint64(0x000000FF000000FF)
+    x = (((x & m) * np.uint64(100 + (1000000 << 32)))
+         + (((x >> np.uint64(16)) & m) * np.uint64(1 + (10000 << 32)))) >> np.uint64(32)
+    return x
+
+
+def parse_decimals(buf: np.ndarray, start: np.ndarray, end: np.ndarray, dot: np.ndarray,
+                   padded: np.ndarray | None = None) -> np.ndarray:
     """Values of the decimal numbers ``buf[start[i]:end[i]]`` (float64, correctly rounded).
 
-    Each run must already be validated as ``[+-]?digits[.digits]`` with at least one digit and at
-    most ``MAX_EXACT_DIGITS`` digits.  The run is right-aligned in a fixed-width window; the digit
-    matrix times a vector of powers of ten gives the integer mantissa exactly (treating the point
-    as a zero digit), from which the point is removed arithmetically, and one correctly rounded
-    division by 10**decimals gives the value -- the same result as ``float(text)``.
+    Each run must already be validated as ``[+-]?digits[.digits]`` with at least one digit;
+    ``dot`` is the position of its point (-1 if none).  Integer and fraction digits (up to 8
+    each) are converted eight at a time in uint64 arithmetic, combined into an exact integer
+    mantissa and divided once by 10**decimals, which rounds correctly -- the same value as
+    ``float(text)``.  Longer numbers go through ``float``.  ``padded`` may pass
+    ``concatenate([8 blanks, buf])`` if the caller already has it.
     """
     n = len(start)
     out = np.empty(n, np.float64)
     if n == 0:
         return out
+    if padded is None:
+        padded = np.concatenate([np.full(8, 32, np.uint8), buf])
     start = np.asarray(start, np.int64)
     end = np.asarray(end, np.int64)
-    length = end - start
-    width = int(length.max())
-    win = np.lib.stride_tricks.sliding_window_view(buf, width)
-    col = np.arange(width)
-    weights = _POW10[width - 1 - col]
-    # digits after the point, from the positions of the points (one pass over the buffer)
-    dots = np.flatnonzero(buf == 46)
-    q = np.zeros(n, np.int64)
-    if len(dots):
-        run = np.searchsorted(end, dots, side="right")
-        ok = run < n
-        run, dots = run[ok], dots[ok]
-        ok = start[run] <= dots
-        q[run[ok]] = end[run[ok]] - dots[ok] - 1
-    hasdot = np.zeros(n, bool)
-    if len(dots):
-        hasdot[run[ok]] = True
-    first = np.maximum(end - width, 0)
-    shift_short = end - width < 0                     # runs too close to the buffer start
-    for lo in range(0, n, chunk):
-        hi = min(n, lo + chunk)
-        d = win[first[lo:hi]] - np.uint8(48)
-        if shift_short[lo:hi].any():
-            # only possible for the first few runs: rebuild their windows by hand
-            for i in np.flatnonzero(shift_short[lo:hi]):
-                row = np.full(width, 32, np.uint8)
-                seg = buf[start[lo + i]:end[lo + i]]
-                row[width - len(seg):] = seg
-                d[i] = row - np.uint8(48)
-        keep = (d < 10) & (col[None, :] >= (width - length[lo:hi])[:, None])
-        d *= keep
-        big = np.einsum("ij,j->i", d, weights)         # the point counts as a digit 0
-        ql = q[lo:hi]
-        low = np.fmod(big, _POW10[ql])                 # digits after the point
-        mant = np.where(hasdot[lo:hi], (big - low) / 10.0 + low, big)
-        out[lo:hi] = mant / _POW10[ql]
+    dot = np.asarray(dot, np.int64)
+    signed = (buf[start] == 45) | (buf[start] == 43)
+    istart = start + signed
+    hasdot = dot >= 0
+    iend = np.where(hasdot, dot, end)
+    ilen = iend - istart
+    flen = np.where(hasdot, end - dot - 1, 0)
+    long_ = (ilen > 8) | (flen > 8) | (ilen + flen > 15)
+    ip = _digits8(padded, iend, ilen)
+    fp = _digits8(padded, end, flen)
+    mant = ip * _POW10_U64[np.minimum(flen, 19)] + fp
+    out[:] = mant.astype(np.float64) / _POW10[np.minimum(flen, 22)]
     neg = buf[start] == 45
     out[neg] = -out[neg]
+    for i in np.flatnonzero(long_):
+        out[i] = float(buf[start[i]:end[i]].tobytes())
     return out
 
 
