@@ -551,3 +551,42 @@ def test_client_mode_polls_a_plc_server(tmp_path):
     assert rep.cycles == 6 and not rep.faults
     assert_exactly_once(rep, journal)
     assert [b["ev"] for b in read_records(journal)[0]].count("boot") == 2
+
+
+def test_client_mode_ignores_an_out_of_range_plc_block(tmp_path, caplog):
+    from pymodbus.client import AsyncModbusTcpClient
+    from pymodbus.server import ModbusTcpServer
+    from pymodbus.simulator import DataType, SimData, SimDevice
+    from mtcomp.cell.client import CellClient
+    from mtcomp.cell.cycle import Cycle
+    caplog.set_level(logging.WARNING, logger="mtcomp.cell")
+
+    async def main():
+        mem = ModbusTcpServer(SimDevice(id=0, simdata=[SimData(
+            address=0, values=[0] * 60, datatype=DataType.REGISTERS)]), address=("127.0.0.1", 0))
+        await mem.serve_forever(background=True)
+        port = mem.transport.sockets[0].getsockname()[1]
+        cl = await CellClient(Cycle(tmp_path / "c.jsonl", VirtualCell(), CellConfig()),
+                              "127.0.0.1", port, poll_s=0.002).start()
+        plc = AsyncModbusTcpClient("127.0.0.1", port=port)
+        await plc.connect()
+
+        async def state_and_echo():
+            await asyncio.sleep(0.05)
+            r = await plc.read_holding_registers(16, count=4, device_id=1)
+            return r.registers[0], r.registers[3]
+        try:
+            await plc.write_registers(0, [0, 9, 1, 1, 0, 1, 100, 0, 0], device_id=1)
+            refused = await state_and_echo()
+            await plc.write_registers(0, [0, 1, 1, 1, 0, 1, 100, 0, 0], device_id=1)
+            accepted = await state_and_echo()
+        finally:
+            plc.close()
+            await cl.stop()
+            await mem.shutdown()
+        return refused, accepted
+
+    refused, accepted = asyncio.run(main())
+    assert refused == (0, 0)                  # IDLE, command_seq 1 not taken
+    assert accepted[1] == 1 and accepted[0] in (1, 2, 3)
+    assert any("PLC block ignored" in r.getMessage() for r in caplog.records)

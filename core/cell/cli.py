@@ -103,7 +103,10 @@ def _serve(args) -> int:
                      limit_mm=args.limit_mm, limit_deg=args.limit_deg, fsync=not args.no_fsync)
 
     async def main():
-        cycle = Cycle(args.journal, measure, cfg)
+        try:
+            cycle = Cycle(args.journal, measure, cfg)
+        except OSError as exc:
+            raise InputError(f"cannot use the journal: {exc}", args.journal) from None
         if args.cell_command == "client":
             from .client import CellClient
             server = await CellClient(cycle, args.plc_host, args.plc_port, args.base,

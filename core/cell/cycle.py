@@ -302,7 +302,7 @@ class Cycle:
             rec = self.journal.append("result", result_seq=seq, job=job, pose=list(pose),
                                       sigma=list(sigma), program_id=prog,
                                       go=is_go(res, self.config), info=res.info)
-        except (OSError, ValueError) as exc:  # ValueError: info not JSON-serialisable
+        except (OSError, TypeError, ValueError) as exc:  # Type/ValueError: info not JSON
             if isinstance(exc, OSError):
                 self._journal_failed(exc)
             else:
