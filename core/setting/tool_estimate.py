@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._io import InputError, MtcompError
+from .._io import InputError
 from .tool_plan import Plan, commands_for_points
 
 COMPONENTS = ("t_x", "t_y", "t_z")
