@@ -101,6 +101,20 @@ def test_noisy_tables_reproduce_the_volumetric_error_within_the_noise(vmc, truth
         assert res.iso[ax].B_mean == pytest.approx(2e-3, abs=0.1e-3)
 
 
+def test_propagated_uncertainty_matches_the_scatter_of_repeated_builds(vmc, truth, setup):
+    builds = [tables.build_tables(vmc, tables.simulate_runs(vmc, truth, setup, NOISE, step=10.0,
+                                                            seed=s)) for s in range(30)]
+    for name in ("EXX", "EYX", "EBX", "EXZ", "EZZ", "ECY"):
+        v = np.array([b.geometric.tables[name[-1]].values[name] for b in builds])
+        emp = np.sqrt(np.mean(v.std(axis=0, ddof=1) ** 2))
+        pred = np.sqrt(np.mean(np.mean([b.uncertainty[name] for b in builds], axis=0) ** 2))
+        assert 0.67 < pred / emp < 1.5, name
+    for name in ("EC0Y", "EB0Z", "EA0Z"):
+        emp = np.std([b.geometric.location[name] for b in builds], ddof=1)
+        pred = np.mean([b.uncertainty[name] for b in builds])
+        assert 0.5 < pred / emp < 2.0, name
+
+
 def test_measurement_set_round_trip(tmp_path, vmc, truth, setup):
     ms = tables.simulate_runs(vmc, truth, setup, NOISE, step=20.0, seed=3)
     path = tables.save_measurement_set(ms, tmp_path / "set.toml")

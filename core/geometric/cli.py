@@ -78,8 +78,11 @@ def _build(args: argparse.Namespace) -> int:
     from . import tables
     mset = tables.load_measurement_set(args.set)
     res = tables.build_tables(args.machine or mset.machine, mset)
-    save_errors(res.errors, args.output, meta={"source": "mtcomp geometric build",
-                                               "measurement_set": Path(args.set).name})
+    # largest 1-sigma of each component (mm or rad) and the squareness sigmas, for the record
+    unc = {f"geometric.{k}": float(max(v) if hasattr(v, "__len__") else v)
+           for k, v in res.uncertainty.items()}
+    save_errors(res.errors, args.output, uncertainty=unc,
+                meta={"source": "mtcomp geometric build", "measurement_set": Path(args.set).name})
     print(res.summary(), end="")
     print(f"written: {args.output}")
     return 0

@@ -89,13 +89,18 @@ class BuildResult:
 
     errors: the ErrorSet (geometric part only); iso: ISO 230-2 results of the positioning runs
     by axis; slopes: least-squares slopes (mm/mm) removed from the Abbe-corrected straightness
-    runs by component; squareness: how each squareness was obtained; notes: what was assumed.
+    runs by component; squareness: how each squareness was obtained; notes: what was assumed;
+    uncertainty: 1-sigma (mm or rad) of every table value (component -> (M,)) and squareness
+    (name -> float) propagated to first order from the scatter of the cycles (the standard error
+    of each mean bidirectional deviation, including the datum's, and the angular runs' through
+    the Abbe arms); reversal and systematic effects of the set-up are not in it.
     """
     errors: ErrorSet
     iso: dict
     slopes: dict
     squareness: dict
     notes: tuple
+    uncertainty: dict = field(default_factory=dict)
 
     @property
     def geometric(self) -> GeometricErrors:
@@ -113,12 +118,17 @@ class BuildResult:
                     continue
                 unit, scale = ("um", 1e3) if name[1] in _LIN else ("urad", 1e6)
                 lines.append(f"    {name}: {v.min() * scale:9.3f} .. {v.max() * scale:9.3f} {unit}")
+                u = self.uncertainty.get(name)
+                if u is not None:
+                    lines[-1] += f"   (1 sigma up to {np.max(u) * scale:.3f} {unit})"
             if ax in self.iso:
                 r = self.iso[ax]
                 lines.append(f"    ISO 230-2 of the positioning run: A = {r.A * 1e3:.3f} um, "
                              f"B = {r.B * 1e3:.3f} um, R = {r.R * 1e3:.3f} um")
         for name, v in g.location.items():
-            lines.append(f"  {name} = {v * 1e6:.3f} urad ({self.squareness.get(name, 'given')})")
+            u = self.uncertainty.get(name)
+            su = f" +- {u * 1e6:.3f}" if u is not None else ""
+            lines.append(f"  {name} = {v * 1e6:.3f}{su} urad ({self.squareness.get(name, 'given')})")
         for n in self.notes:
             lines.append(f"  note: {n}")
         return "\n".join(lines) + "\n"
@@ -139,15 +149,20 @@ def _lever(machine: Machine, run: ComponentRun, s: np.ndarray) -> np.ndarray:
     return lever
 
 
-def _profile(run: ComponentRun, datum: float, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """(targets, mean bidirectional deviation zeroed at the datum) of a run."""
+def _profile(run: ComponentRun, datum: float, where: str):
+    """(targets, mean bidirectional deviation zeroed at the datum, its 1-sigma) of a run."""
     t = run.run.target
     if not (t[0] - 1e-9 <= datum <= t[-1] + 1e-9):
         raise InputError(f"run of {run.component} covers {t[0]:g} .. {t[-1]:g}, not the datum "
                          f"position {datum:g}", where, field=run.component)
     res = iso230_2.evaluate(run.run)
     v = res.mean_bi
-    return t, v - np.interp(datum, t, v)
+    n = run.run.n_cycles
+    sig = 0.5 * np.sqrt((res.s_up**2 + res.s_down**2) / n)
+    sig0 = np.interp(datum, t, sig)
+    # zeroing subtracts the (independent) datum value; at the datum itself it is exact
+    sig = np.sqrt(sig**2 + sig0**2) * (np.abs(t - datum) > 1e-9)
+    return t, v - np.interp(datum, t, v), sig
 
 
 def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.0) -> BuildResult:
@@ -161,8 +176,8 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
     machine = load_machine(machine)
     where = mset.source or "<measurement set>"
     notes: list[str] = []
-    tables, iso, slopes, sq_how = {}, {}, {}, {}
-    straight_slopes: dict[str, tuple[float, str]] = {}
+    tables, iso, slopes, sq_how, unc = {}, {}, {}, {}, {}
+    straight_slopes: dict[str, tuple[float, str, float]] = {}
     known = {r.component for r in mset.runs}
     for r in mset.runs:
         if r.axis not in machine.axis_names or machine.axis(r.axis).is_rotary:
@@ -181,13 +196,16 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
         grid = pos_run.run.target
         iso[a] = iso230_2.evaluate(pos_run.run)
         eps = np.zeros((grid.size, 3))
+        eps_sig = np.zeros((grid.size, 3))
         for c, d in enumerate("ABC"):
             r = mset.run(f"E{d}{a}")
             if r is None:
                 notes.append(f"no run of E{d}{a}: taken as zero")
                 continue
-            t, v = _profile(r, datum, where)
+            t, v, sg = _profile(r, datum, where)
             eps[:, c] = np.interp(grid, t, v)
+            eps_sig[:, c] = np.interp(grid, t, sg)
+            unc[f"E{d}{a}"] = eps_sig[:, c]
         values = {f"E{d}{a}": eps[:, c] for c, d in enumerate("ABC")}
         for c, d in enumerate(_LIN):
             name = f"E{d}{a}"
@@ -196,19 +214,26 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
                 notes.append(f"no run of {name}: taken as zero")
                 values[name] = np.zeros(grid.size)
                 continue
-            t, v = _profile(r, datum, where)
+            t, v, sg = _profile(r, datum, where)
             reading = np.interp(grid, t, v)
             lever = _lever(machine, r, grid)
             # Abbe contribution of the set-up: ε × ℓ, component d (hand-written: a cross product).
             delta = reading - np.cross(eps, lever)[:, c]
+            # its sensitivity to each angle c': (e_c' × ℓ)_d
+            sens = np.stack([np.cross(np.eye(3)[k], lever)[:, c] for k in range(3)], axis=1)
+            sig = np.sqrt(np.interp(grid, t, sg) ** 2 + np.sum((sens * eps_sig) ** 2, axis=1))
             if d != a:
                 slope, icpt = np.polyfit(grid, delta, 1)
                 delta = delta - (slope * grid + icpt)
                 delta = delta - np.interp(datum, grid, delta)
                 slopes[name] = float(slope)
+                # standard error of a least-squares slope with independent errors sig
+                xc = grid - grid.mean()
+                slope_sig = float(np.sqrt(np.sum((xc / np.sum(xc**2)) ** 2 * sig**2)))
                 if r.square:
-                    straight_slopes[name] = (float(slope), r.square)
+                    straight_slopes[name] = (float(slope), r.square, slope_sig)
             values[name] = delta
+            unc[name] = sig
         tables[a] = AxisErrorTable(a, grid, values, source=where)
     location = {}
     for (i, j), name in SQUARENESS_PAIRS.items():
@@ -222,6 +247,7 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
             ek, ui, uj = (np.eye(3)[_LIN.index(x)] for x in (k, i, j))
             # Tilt of axis j about k whose i-component of the motion slope equals S.
             location[name] = float(S / (np.cross(ek, uj) @ ui))
+            unc[name] = float(np.hypot(straight_slopes[a][2], straight_slopes[b][2]))
             sq_how[name] = f"optical square {straight_slopes[a][1]!r}: runs {a} and {b}"
         elif name in mset.location:
             location[name] = float(mset.location[name])
@@ -234,7 +260,7 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
             location[name] = float(v)
             sq_how[name] = "given in the measurement set"
     geo = GeometricErrors(tables, location)
-    return BuildResult(ErrorSet(geometric=geo), iso, slopes, sq_how, tuple(notes))
+    return BuildResult(ErrorSet(geometric=geo), iso, slopes, sq_how, tuple(notes), unc)
 
 
 # --------------------------------------------------------------------------- simulation
