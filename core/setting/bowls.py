@@ -687,9 +687,11 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
         used = np.ones(m, bool)
         lines = touches.lines[idx]
         where = lambda j: (f"line {int(lines[j])}" if lines[j] else f"touch {j + 1}")  # noqa: E731
-        if np.max(np.abs(r)) > k * thr_sigma:
-            # leave-one-out: the outlier's own residual is shrunk by its leverage in the full fit,
-            # so judge each touch against the sphere of the others
+        need = bool(np.max(np.abs(r)) > k * thr_sigma)
+        if need or probe_sigma is None:
+            # leave-one-out: the outlier's own residual is shrunk by its leverage in the full fit
+            # (with an estimated scale it can hide completely), so judge each touch against the
+            # sphere of the others
             best = None
             if m - 1 >= npar:
                 for j in range(m):
@@ -700,17 +702,19 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
                     if best is None or worst_rest < best[1] - 1e-12 or \
                             (abs(worst_rest - best[1]) <= 1e-12 and out > best[2]):
                         best = (j, worst_rest, out, cj, rhoj)
-            if best is None or m - 1 < npar + 1 or best[1] > k * thr_sigma:
+            can = best is not None and m - 1 >= npar + 1 and best[1] <= k * thr_sigma
+            if need and not can:
                 jw = int(np.argmax(np.abs(r)))
                 raise InputError(f"bowl {bid}: touches disagree with one sphere by up to "
                                  f"{np.max(np.abs(r)) * 1e3:.2f} um at {where(jw)} (noise "
                                  f"{thr_sigma * 1e3:.3f} um, limit {k:g} sigma): more than one bad "
                                  "touch, or too few touches to reject one", src, field="bowl")
-            j, worst_rest, out, cj, rhoj = best
-            used[j] = False
-            warnings.append(f"bowl {bid}: {where(j)} rejected, {out * 1e3:.2f} um off the sphere of "
-                            f"the other touches ({out / thr_sigma:.1f} sigma)")
-            c, rho, _r, _J = fit_sphere(p[used], fixed_rho, x0=np.r_[cj, rhoj])
+            if can and (need or best[2] > k * thr_sigma):
+                j, worst_rest, out, cj, rhoj = best
+                used[j] = False
+                warnings.append(f"bowl {bid}: {where(j)} rejected, {out * 1e3:.2f} um off the "
+                                f"sphere of the other touches ({out / thr_sigma:.1f} sigma)")
+                c, rho, _r, _J = fit_sphere(p[used], fixed_rho, x0=np.r_[cj, rhoj])
         resid = np.linalg.norm(p - c, axis=1) - rho
         far = np.flatnonzero(np.abs(resid) > gross_limit)
         if len(far):

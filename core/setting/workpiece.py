@@ -37,7 +37,7 @@ __all__ = [
     "Touches", "read_touches", "write_touches", "virtual_probe", "fit_bowls", "BowlFit",
     "SphereFit", "frame_from_bowls", "frame_from_points", "WorkpieceSettingEstimate",
     "paper_frame", "paper_transform", "pose_from_paper", "apply_pose", "compensate_commands",
-    "is_three_axis", "compensate_program",
+    "is_three_axis", "compensate_text", "compensate_program",
 ]
 
 
@@ -76,7 +76,7 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
     Raises InputError naming the line when a command would leave an axis' travel (or, in 3axis
     mode, when a rotary axis is not at 0).
     """
-    from ..kinematics import ConvergenceError, LimitError, check_limits, retarget, round_to_resolution
+    from ..kinematics import ConvergenceError, LimitError, check_limits, round_to_resolution
     q = np.atleast_2d(np.asarray(q, float))
     if q.shape[1] != machine.n_axes:
         raise InputError(f"commands need {machine.n_axes} columns ({' '.join(machine.axis_names)}), "
@@ -113,7 +113,11 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
         raise InputError(f"machine {machine.name} has no rotary axes: use the 3-axis mode",
                          field="mode")
     try:
-        return retarget(machine, q, ErrorSet(workpiece=pose), round_result=round_result)
+        out = _five_axis(machine, q, ErrorSet(workpiece=pose))
+        if round_result:
+            out = round_to_resolution(machine, out)
+        check_limits(machine, out)
+        return out
     except LimitError as exc:
         raise InputError(f"the compensated angles leave the travel: "
                          f"{str(exc).replace(f' (point {exc.index})', '')}",
@@ -123,35 +127,89 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
                          f"blank: {exc}", **_where(exc.index, lines, source)) from None
 
 
-def compensate_program(machine, program, pose: WorkpieceSetting, out=None, *, mode: str = "auto",
-                       chordal_tol: float = 1e-4) -> tuple[str, int] | int:
-    """Rewrite an NC program (path or text) for the real blank at `pose`; mtcomp.gcode does the text.
+def _five_axis(machine, q, errors):
+    """kinematics.compensate for the programmed poses, with a restart where Newton stalls.
 
-    Every motion block's end point (and arc samples) goes through `compensate_commands`; axis
-    words are written at the machine's resolutions and all other text is kept.  The whole
-    program is checked first, so an axis that would leave its travel is an InputError naming the
-    program line and nothing is written.  With `out` the result is written atomically and the
-    number of motion blocks returned; without, (text, blocks).
+    At a singular pose of the rotary axes (B = 0 on a B-C table) a small tilt of the blank can
+    need a large turn of the other rotary axis, which Newton started at the programmed angles
+    does not find.  A failing point is solved alone from rotary seeds 90 and 180 deg away, and
+    the angle change it needed seeds the rest of the program (neighbouring blocks need the same
+    turn), so a 3-axis program costs one restart, not one per block.
     """
-    from pathlib import Path
+    import itertools
 
+    from ..kinematics import ConvergenceError, Pose, compensate, forward
+    target = forward(machine, q)
+    rot = list(machine.rotary_indices)
+    q0 = q.copy()
+    out = np.empty_like(q)
+    start = 0
+    while start < len(q):
+        sub = slice(start, None)
+        try:
+            out[sub] = compensate(machine, Pose(target.p[sub], target.R[sub], target.tool_axis),
+                                  errors, q0[sub])
+            return out
+        except ConvergenceError as exc:
+            i = start + exc.index
+        one = Pose(target.p[i:i + 1], target.R[i:i + 1], target.tool_axis)
+        sol = None
+        for offs in itertools.product((0.0, 90.0, -90.0, 180.0), repeat=len(rot)):
+            seed = q0[i:i + 1].copy()
+            seed[0, rot] += offs
+            try:
+                sol = compensate(machine, one, errors, seed)
+                break
+            except ConvergenceError:
+                continue
+        if sol is None:
+            raise ConvergenceError(i, float("nan"))
+        if i > start:  # the block before i converged: solve it again (the exception lost it)
+            out[start:i] = compensate(machine, Pose(target.p[start:i], target.R[start:i],
+                                                    target.tool_axis), errors, q0[start:i])
+        out[i] = sol[0]
+        q0[i + 1:, rot] += sol[0, rot] - q[i, rot]
+        start = i + 1
+    return out
+
+
+def compensate_text(machine, text: str, pose: WorkpieceSetting, *, mode: str = "auto",
+                    filename: str = "<program>", chordal_tol: float = 1e-4) -> tuple[str, int]:
+    """Rewrite NC program text for the real blank at `pose`: (new text, motion blocks).
+
+    mtcomp.gcode reads the program and splices the new axis words in (every other byte is
+    kept); every block end point and arc sample goes through `compensate_commands`; axis words
+    are written at the machine's resolutions.  The whole program is checked first, so an axis
+    leaving its travel is an InputError naming `filename` and the line.
+    """
     from .. import gcode
-    from .._io import atomic_write
-    if isinstance(program, (str, Path)) and Path(program).suffix and Path(program).exists():
-        path = Path(program)
-        text, name = path.read_text(encoding="utf-8"), str(path)
-    else:
-        text, name = str(program), "<program>"
-    prog = gcode.parse(text, axes=machine.axis_names, filename=name)
+    prog = gcode.parse(text, axes=machine.axis_names, filename=filename)
     q_all = np.vstack([np.asarray(prog.start, float)[None], np.asarray(prog.position, float)])
     if mode == "auto":
         mode = "3axis" if is_three_axis(machine, q_all) else "5axis"
     # validate every block with its line number before any text is produced
-    compensate_commands(machine, q_all[1:], pose, mode, lines=prog.line, source=name)
+    compensate_commands(machine, q_all[1:], pose, mode, lines=prog.line, source=filename)
     res = {a.name: a.resolution for a in machine.axes}
-    new = gcode.rewrite(prog, lambda q: compensate_commands(machine, q, pose, mode, source=name),
+    new = gcode.rewrite(prog, lambda q: compensate_commands(machine, q, pose, mode, source=filename),
                         resolution=res, chordal_tol=chordal_tol)
-    if out is None:
-        return new, len(prog)
+    return new, len(prog)
+
+
+def compensate_program(machine, path, pose: WorkpieceSetting, out, *, mode: str = "auto",
+                       chordal_tol: float = 1e-4) -> int:
+    """Rewrite the NC program file `path` into `out` (atomically; nothing written on error).
+
+    Returns the number of motion blocks.  See `compensate_text`.
+    """
+    from pathlib import Path
+
+    from .._io import atomic_write
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError("program file not found", path) from None
+    new, n = compensate_text(machine, text, pose, mode=mode, filename=str(path),
+                             chordal_tol=chordal_tol)
     atomic_write(out, new)
-    return len(prog)
+    return n

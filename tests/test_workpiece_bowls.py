@@ -1,0 +1,190 @@
+"""Bowl plan, NC programs, touches CSV, virtual probing and sphere fits (paper 001)."""
+import math
+
+import numpy as np
+import pytest
+
+from mtcomp import InputError, MtcompError
+from mtcomp.errors import WorkpieceSetting
+from mtcomp.setting.bowls import (Touches, fit_bowls, fit_sphere, load_plan, plan_bowls,
+                                  probing_program, read_touches, roughing_program, save_plan,
+                                  touch_moves, virtual_probe, write_touches)
+
+POSE = WorkpieceSetting((0.012, -0.021, 0.033), (0.03, -0.02, 0.25))
+
+
+def test_default_plan_geometry():
+    plan = plan_bowls(3)
+    np.testing.assert_allclose(plan.centres, [[-7, -7, 1], [7, -7, 1], [-7, 7, 1]])
+    assert plan.probe_sphere_radius == 1.5
+    assert plan.opening_radius == pytest.approx(math.sqrt(3))
+    assert plan.rim_polar_angle == pytest.approx(60.0)
+    d = plan.dirs
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+    polar = np.degrees(np.arccos(-d[:, 2]))
+    assert polar.max() < plan.rim_polar_angle - 5               # every contact below the rim
+    assert len(d) == 9 and np.sum(polar < 1e-9) == 1
+    assert len(plan_bowls(6).bowls) == 6
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(n=2), "at least 3 bowls"),
+    (dict(depth=2.5), "depth must be in"),
+    (dict(probe_radius=1.9), "probe radius"),
+    (dict(positions=[(-7, -7), (-6, -7), (-7, 7)]), "overlap"),
+    (dict(positions=[(-9.5, -7), (7, -7), (-7, 7)]), "runs off"),
+    (dict(positions=[(-1, -7), (7, -7), (-7, 7)], keepout_radius=6.0), "part region"),
+])
+def test_plan_refuses_impossible_geometry(kw, match):
+    with pytest.raises(InputError, match=match):
+        plan_bowls(**kw)
+
+
+def test_plan_file_round_trip(tmp_path):
+    plan = plan_bowls(4, probe_radius=0.3, touches=11)
+    save_plan(plan, tmp_path / "p.toml")
+    back = load_plan(tmp_path / "p.toml")
+    assert back == plan
+
+
+def test_roughing_program_plunges_each_bowl_to_depth():
+    plan = plan_bowls(3)
+    text = roughing_program(plan)
+    for b in plan.bowls:
+        assert f"G00 X{b.x:g} Y{b.y:g}" in text
+    assert text.count("G01 Z-1 F") == 3
+    assert text.strip().endswith("%")
+
+
+def test_probing_moves_start_inside_and_end_beyond_the_probe_sphere():
+    plan = plan_bowls(3)
+    text = probing_program(plan)
+    assert text.count("G31") == 27
+    for bid, j, s, e, d in touch_moves(plan):
+        c = plan.centre_of(bid)
+        assert np.linalg.norm(s - c) == pytest.approx(plan.probe_sphere_radius - plan.clearance)
+        assert np.linalg.norm(e - c) == pytest.approx(plan.probe_sphere_radius + plan.overtravel)
+        np.testing.assert_allclose((e - s) / np.linalg.norm(e - s), d, atol=1e-12)
+
+
+def test_virtual_touches_lie_on_the_real_probe_sphere():
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0, 0)
+    R, tr = np.asarray(POSE.matrix), np.asarray(POSE.translation)
+    for b, c in zip(plan.bowls, plan.centres):
+        p = t.points[t.of(b.id)]
+        np.testing.assert_allclose(np.linalg.norm(p - (R @ c + tr), axis=1), 1.5, atol=1e-12)
+
+
+def test_virtual_probe_names_the_bowl_it_misses():
+    plan = plan_bowls(3)
+    with pytest.raises(MtcompError, match="bowl 1: touch .* outside the bowl"):
+        virtual_probe(WorkpieceSetting((0.6, 0, 0), (0, 0, 0)), plan, 0.0, 0)
+
+
+def test_sphere_fit_exact_and_probe_radius_accounted():
+    plan = plan_bowls(3, probe_radius=0.3)
+    t = virtual_probe(POSE, plan, 0.0, 0, bowl_radius_error=0.004)
+    fit = fit_bowls(t, plan.probe_radius)
+    R, tr = np.asarray(POSE.matrix), np.asarray(POSE.translation)
+    for f, c in zip(fit.fits, plan.centres):
+        np.testing.assert_allclose(f.centre, R @ c + tr, atol=1e-9)
+        assert f.radius == pytest.approx(2.004, abs=1e-9)          # bowl radius, not probe sphere
+        assert f.rms < 1e-9
+    # fixing the radius at the true value gives the same centres
+    fit2 = fit_bowls(t, plan.probe_radius, bowl_radius=2.004)
+    np.testing.assert_allclose(fit2.centres, fit.centres, atol=1e-9)
+
+
+def test_sphere_fit_covariance_is_sigma2_inverse_normal_matrix():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(12, 3))
+    d[:, 2] = -np.abs(d[:, 2])
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    c, rho = np.array([1.0, 2.0, 3.0]), 1.5
+    sig = 1e-3
+    est = []
+    for _ in range(2000):
+        p = c + (rho + rng.normal(0, sig, 12))[:, None] * d
+        cc, rr, *_ = fit_sphere(p)
+        est.append(np.r_[cc, rr])
+    t = Touches(np.ones(12, int), c + rho * d, d)
+    pred = fit_bowls(t, 0.5, probe_sigma=sig).fits[0].cov
+    ratio = np.sqrt(np.diag(np.cov(np.array(est).T)) / np.diag(pred))
+    assert np.all(np.abs(ratio - 1) < 0.08)
+
+
+@pytest.mark.parametrize("sigma", [0.0005, None])
+def test_one_outlier_touch_is_rejected_with_a_warning(sigma):
+    rng = np.random.default_rng(4)
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0005, rng)
+    clean = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005)
+    pts = t.points.copy()
+    k = t.of(2)[5]
+    pts[k] += 0.015 * t.approach[k]                                # a chip: 15 um
+    bad = Touches(t.bowl, pts, t.approach)
+    fit = fit_bowls(bad, plan.probe_radius, probe_sigma=sigma)
+    assert len(fit.warnings) == 1 and fit.warnings[0].startswith("bowl 2: touch 6 rejected")
+    assert fit.fits[1].rejected == (5,)
+    # the remaining touches give the centre to within its uncertainty
+    f = fit.fits[1]
+    e = f.centre - clean.fits[1].centre
+    assert np.linalg.norm(e) < 5 * np.sqrt(np.trace(f.centre_cov))
+    assert fit.fits[0].rejected == () and fit.fits[2].rejected == ()
+
+
+def test_two_bad_touches_or_a_far_touch_is_an_error_naming_bowl_and_line(tmp_path):
+    rng = np.random.default_rng(5)
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0005, rng)
+    pts = t.points.copy()
+    i2 = t.of(3)
+    pts[i2[2]] += 0.02 * t.approach[i2[2]]
+    pts[i2[6]] -= 0.02 * t.approach[i2[6]]
+    with pytest.raises(InputError, match="bowl 3: touches disagree"):
+        fit_bowls(Touches(t.bowl, pts, t.approach), plan.probe_radius, probe_sigma=0.0005)
+    pts = t.points.copy()
+    pts[i2[4]] += 0.3 * t.approach[i2[4]]                          # hit something else
+    path = tmp_path / "touches.csv"
+    write_touches(Touches(t.bowl, pts, t.approach), path)
+    with pytest.raises(InputError, match=r"touches.csv \[bowl\]: bowl 3: line 25 is 299.9 um off"):
+        fit_bowls(read_touches(path), plan.probe_radius, probe_sigma=0.0005)
+
+
+def test_too_few_or_degenerate_touches_name_the_bowl():
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0, 0)
+    keep = np.ones(len(t.bowl), bool)
+    keep[t.of(2)[4:]] = False
+    short = Touches(t.bowl[keep], t.points[keep], t.approach[keep])
+    with pytest.raises(InputError, match="bowl 2: 4 touches, at least 5 needed"):
+        fit_bowls(short, plan.probe_radius)
+    # one ring only: coplanar touches cannot give a free radius
+    ring = plan_bowls(3, touches=9)
+    pts = t.points.copy()
+    idx = t.of(1)
+    c = pts[idx].mean(axis=0)
+    pts[idx] = c + np.column_stack([np.cos(np.arange(9)), np.sin(np.arange(9)), np.zeros(9)])
+    with pytest.raises(InputError, match="bowl 1: touches are coplanar"):
+        fit_bowls(Touches(t.bowl, pts, t.approach), ring.probe_radius)
+
+
+def test_touches_csv_round_trip_and_errors(tmp_path):
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0005, 1)
+    path = tmp_path / "t.csv"
+    write_touches(t, path)
+    back = read_touches(path)
+    np.testing.assert_array_equal(back.bowl, t.bowl)
+    np.testing.assert_allclose(back.points, t.points, atol=1e-9)
+    np.testing.assert_allclose(back.approach, t.approach, atol=1e-9)
+    assert back.lines[0] == 3                                      # comment, header, first row
+    bad = path.read_text().splitlines()
+    bad[4] = bad[4].replace(bad[4].split(",")[2], "abc", 1)
+    path.write_text("\n".join(bad))
+    with pytest.raises(InputError, match=r"t.csv:5 \[y\]: expected a number"):
+        read_touches(path)
+    path.write_text("bowl,x,y,z\n1,0,0,0\n")
+    with pytest.raises(InputError, match="missing ax,ay,az"):
+        read_touches(path)
