@@ -41,7 +41,8 @@ def volume_grid(machine: Machine, step: float | tuple = 50.0, margin: float = 0.
 
 @dataclass(frozen=True)
 class VolumetricMap:
-    """Tool-tip error vectors (N,3) in mm at commands q (N,n), exact and first order.
+    """Tool-tip error vectors (N,3) in mm at commands q (N,n), exact and first order (None on
+    machines with rotary axes, which the first-order model does not cover).
 
     paper: paper 004's formulas (x from formula 4, y and z derived likewise) evaluated at the
     workpiece point W under the tool, or None if the machine is not the moving-column type;
@@ -50,7 +51,7 @@ class VolumetricMap:
     machine: str
     q: np.ndarray
     exact: np.ndarray
-    first: np.ndarray
+    first: np.ndarray | None = None
     paper: np.ndarray | None = None
     paper_origin: np.ndarray | None = None
 
@@ -65,7 +66,8 @@ class VolumetricMap:
         for c, d in enumerate("xyz"):
             out[f"max_{d}"] = float(np.abs(e[:, c]).max())
             out[f"rms_{d}"] = float(np.sqrt(np.mean(e[:, c] ** 2)))
-        out["first_order_diff_max"] = float(np.linalg.norm(self.first - e, axis=1).max())
+        if self.first is not None:
+            out["first_order_diff_max"] = float(np.linalg.norm(self.first - e, axis=1).max())
         if self.paper is not None:
             out["paper_diff_max"] = float(np.linalg.norm(self.paper - e, axis=1).max())
             out["paper_origin_diff_max"] = float(np.linalg.norm(self.paper_origin - e, axis=1).max())
@@ -77,8 +79,9 @@ class VolumetricMap:
                  f"  |e|: max {s['max'] * 1e3:.3f} um, RMS {s['rms'] * 1e3:.3f} um"]
         for d in "xyz":
             lines.append(f"  e{d}: max |.| {s['max_' + d] * 1e3:.3f} um, RMS {s['rms_' + d] * 1e3:.3f} um")
-        lines.append(f"  first-order model vs exact: max {s['first_order_diff_max'] * 1e6:.3f} nm "
-                     "(second-order terms)")
+        if self.first is not None:
+            lines.append(f"  first-order model vs exact: max {s['first_order_diff_max'] * 1e6:.3f} nm "
+                         "(second-order terms)")
         if self.paper is not None:
             lines.append(f"  paper 004 formulas (W under the tool) vs exact: max "
                          f"{s['paper_diff_max'] * 1e6:.3f} nm")
@@ -89,9 +92,11 @@ class VolumetricMap:
 
     def to_csv(self) -> str:
         names = [f"q{i}" for i in range(self.q.shape[1])]
-        rows = ["# tool-tip error, exact model: commands (mm) and error (mm)",
+        first = self.first if self.first is not None else np.full_like(self.exact, np.nan)
+        rows = ["# tool-tip error, exact model: commands (mm, deg) and error (mm); first order "
+                "(nan where not defined)",
                 ",".join(names + ["ex", "ey", "ez", "ex_first", "ey_first", "ez_first"])]
-        for qi, e, f in zip(self.q, self.exact, self.first):
+        for qi, e, f in zip(self.q, self.exact, first):
             rows.append(",".join(repr(float(v)) for v in (*qi, *e, *f)))
         return "\n".join(rows) + "\n"
 
@@ -112,7 +117,8 @@ def error_map(machine: Machine | str, errors: ErrorSet, q=None, step: float = 50
         q = volume_grid(machine, step, margin)
     q = np.atleast_2d(np.asarray(q, dtype=float))
     exact = forward(machine, q, errors).p - forward(machine, q).p
-    first = first_order.tool_tip_error(machine, q, errors.geometric)
+    first = (first_order.tool_tip_error(machine, q, errors.geometric)
+             if not machine.n_rotary else None)
     paper = paper0 = None
     if _is_moving_column(machine) and np.allclose(machine.tool_point, 0.0):
         k = first_order.paper_k(machine)
@@ -148,6 +154,8 @@ def plot_map(vmap: VolumetricMap, path: str | os.PathLike, levels: int = 3,
         raise ValueError("plot_map needs the map on a regular grid (volume_grid)")
     order = np.lexsort((q[:, 2], q[:, 1], q[:, 0]))
     E = vmap.exact[order].reshape(xs.size, ys.size, zs.size, 3) * 1e3  # µm
+    if vmap.first is None:
+        raise ValueError("plot_map draws maps of linear-axis machines")
     D = np.linalg.norm(vmap.first - vmap.exact, axis=1)[order].reshape(xs.size, ys.size, zs.size) * 1e6
     ks = np.unique(np.linspace(0, zs.size - 1, min(levels, zs.size)).round().astype(int))
     mag = np.linalg.norm(E, axis=-1)
