@@ -1,0 +1,90 @@
+"""`mtcomp workpiece-setting plan|probe|fit|compensate|simulate` end to end."""
+import numpy as np
+import pytest
+
+from mtcomp import gcode
+from mtcomp.cli import main
+from mtcomp.errors import ErrorSet, WorkpieceSetting, load_errors
+from mtcomp.kinematics import forward
+from mtcomp.machine import load_machine
+
+POSE = "0.02,-0.01,0.015,0.02,-0.03,0.2"
+PROGRAM = "%\nO0100\nG21 G90 G17\nG00 X1. Y2. Z5.\nG01 Z0.1 F100.\nG01 X3. Y-2. Z0.05\nG00 Z5.\nM30\n%\n"
+
+
+def _planned(tmp_path, *extra):
+    assert main(["workpiece-setting", "plan", "-o", str(tmp_path / "plan.toml"), *extra]) == 0
+    return tmp_path / "plan.toml"
+
+
+def test_plan_probe_fit_compensate_round_trip(tmp_path, capsys):
+    plan = _planned(tmp_path)
+    assert (tmp_path / "plan-roughing.nc").exists() and (tmp_path / "plan-probing.nc").exists()
+    touches = tmp_path / "touches.csv"
+    assert main(["workpiece-setting", "probe", str(plan), "--pose", POSE, "-o", str(touches)]) == 0
+    errors = tmp_path / "errors.toml"
+    assert main(["workpiece-setting", "fit", str(plan), str(touches), "-o", str(errors),
+                 "--report", str(tmp_path / "report.toml")]) == 0
+    wp = load_errors(errors).workpiece
+    v = [float(x) for x in POSE.split(",")]
+    np.testing.assert_allclose(wp.translation, v[:3], atol=1e-6)
+    np.testing.assert_allclose(wp.angles, v[3:], atol=1e-5)
+    # the errors file drives both the lead's general compensate and the paper-001 transform
+    prog = tmp_path / "prog.nc"
+    prog.write_text(PROGRAM)
+    m = load_machine("robonano-a0ib")
+    nominal = forward(m, gcode.parse(PROGRAM, axes=m.axis_names).position).p
+    true = ErrorSet(workpiece=WorkpieceSetting(tuple(v[:3]), tuple(v[3:])))
+    for cmd in (["compensate", str(prog), "-m", "robonano-a0ib", "-e", str(errors), "-o"],
+                ["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o"]):
+        out = tmp_path / f"out{len(cmd)}.nc"
+        assert main(cmd + [str(out)]) == 0
+        q = gcode.parse(out.read_text(), axes=m.axis_names).position
+        assert np.abs(forward(m, q, true).p - nominal).max() < 5e-6     # fit 1e-6 + rounding
+
+
+def test_fit_with_a_touch_far_off_names_the_bowl_and_writes_nothing(tmp_path, capsys):
+    plan = _planned(tmp_path)
+    touches = tmp_path / "touches.csv"
+    assert main(["workpiece-setting", "probe", str(plan), "--pose", POSE, "--noise", "0.0005",
+                 "-o", str(touches)]) == 0
+    lines = touches.read_text().splitlines()
+    cells = lines[12].split(",")                                 # bowl 2, 3rd touch
+    cells[3] = f"{float(cells[3]) - 0.2:.9f}"
+    lines[12] = ",".join(cells)
+    touches.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "errors.toml"
+    rep = tmp_path / "report.toml"
+    assert main(["workpiece-setting", "fit", str(plan), str(touches), "-o", str(out),
+                 "--report", str(rep)]) == 2
+    err = capsys.readouterr().err
+    assert "bowl 2: line 13 is" in err and "off the bowl's sphere" in err
+    assert not out.exists() and not rep.exists()
+
+
+def test_too_few_touches_and_collinear_plan_are_refused(tmp_path, capsys):
+    plan = _planned(tmp_path)
+    touches = tmp_path / "touches.csv"
+    main(["workpiece-setting", "probe", str(plan), "--pose", POSE, "-o", str(touches)])
+    lines = touches.read_text().splitlines()
+    keep = [ln for ln in lines if not ln.startswith("3,")] + \
+        [ln for ln in lines if ln.startswith("3,")][:3]
+    touches.write_text("\n".join(keep) + "\n")
+    assert main(["workpiece-setting", "fit", str(plan), str(touches), "-o",
+                 str(tmp_path / "e.toml")]) == 2
+    assert "bowl 3: 3 touches, at least 5 needed" in capsys.readouterr().err
+    assert not (tmp_path / "e.toml").exists()
+    sub = tmp_path / "sub"
+    assert main(["workpiece-setting", "plan", "-o", str(sub / "p.toml"),
+                 "--positions=-7,6;0,6.05;7,6.1"]) == 2
+    assert "collinear" in capsys.readouterr().err
+    assert not sub.exists() or not any(sub.iterdir())
+
+
+def test_simulate_writes_table_and_png(tmp_path, capsys):
+    md, png = tmp_path / "sim.md", tmp_path / "sim.png"
+    assert main(["workpiece-setting", "simulate", "--trials", "10", "--gripper-offset",
+                 "0.05,0,0.01", "-o", str(md), "--png", str(png)]) == 0
+    text = md.read_text()
+    assert "| W4 um | 3450 | 3448.4 |" in text and "gripper offset (0.05, 0.0, 0.01)" in text
+    assert png.read_bytes()[:4] == b"\x89PNG"
