@@ -28,7 +28,8 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
                         dwell: float = 0.0, max_arc_step_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Sample an NC program at the communication step.
 
-    program: path of an NC file, its text, or a parsed `mtcomp.gcode.Program`.  Linear and
+    program: path of an NC file, its text (anything with a line break), or a parsed
+    `mtcomp.gcode.Program`.  Linear and
     circular blocks run at their feed F (mm/min; a block moving only rotary axes at F deg/min,
     mixed moves at F along sqrt(sum of squared axis moves), the usual control convention), G0 at
     `rapid` (mm/min).  Returns (t (K,) s, q (K, n_axes) mm/deg) with t = 0, step, 2 step, ...
@@ -40,11 +41,12 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
         prog = program
     else:
         text, name = program, "<string>"
-        if isinstance(program, (str, os.PathLike)) and ("\n" not in str(program)) and Path(program).exists():
-            name = str(program)
-            text = Path(program).read_text(encoding="utf-8")
-        elif isinstance(program, os.PathLike):
-            raise InputError("NC program not found", program)
+        if isinstance(program, os.PathLike) or (isinstance(program, str) and "\n" not in program):
+            name = str(program)  # a path: program text always has a line break
+            try:
+                text = Path(program).read_text(encoding="utf-8")
+            except FileNotFoundError:
+                raise InputError("NC program not found", program) from None
         prog = gcode.parse(text, axes=machine.axis_names, filename=name)
     n = machine.n_axes
     if len(prog) == 0:

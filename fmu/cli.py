@@ -1,0 +1,117 @@
+"""`mtcomp fmu build|ssp` and `mtcomp cosim`: thin command line over mtcomp.fmu."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _floats(text: str, what: str) -> tuple[float, ...]:
+    from .._io import InputError
+    try:
+        return tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"expected comma-separated numbers, got {text!r}", field=what) from None
+
+
+def _dynamics(args):
+    from .build import MachineDynamics
+    kv = _floats(args.kv, "--kv")
+    bl = _floats(args.backlash, "--backlash")
+    return MachineDynamics(kv=kv[0] if len(kv) == 1 else kv, backlash=bl[0] if len(bl) == 1 else bl,
+                           noise=args.noise * 1e-6, seed=args.seed)
+
+
+def _errors(path):
+    from ..errors import ErrorSet, load_errors
+    return load_errors(path) if path else ErrorSet()
+
+
+def _build(args) -> int:
+    from .build import build_compensator_fmu, build_machine_fmu
+    errors = _errors(args.errors)
+    if args.kind == "compensator":
+        out = build_compensator_fmu(args.machine, args.output, errors, compiler=args.compiler)
+    else:
+        out = build_machine_fmu(args.machine, args.output, errors, _dynamics(args), compiler=args.compiler)
+    print(f"wrote {out}")
+    return 0
+
+
+def _ssp(args) -> int:
+    import tempfile
+    from .build import build_compensator_fmu, build_machine_fmu
+    from .ssp import write_ssp
+    true = _errors(args.errors)
+    ident = _errors(args.compensate) if args.compensate else true
+    with tempfile.TemporaryDirectory(prefix="mtcomp-ssp-") as td:
+        c = build_compensator_fmu(args.machine, Path(td) / "compensator.fmu", ident, compiler=args.compiler)
+        m = build_machine_fmu(args.machine, Path(td) / "machine.fmu", true, _dynamics(args), compiler=args.compiler)
+        out = write_ssp(args.output, c, m)
+    print(f"wrote {out}")
+    return 0
+
+
+def _cosim(args) -> int:
+    from .._io import InputError
+    from .cosim import cosimulate
+    prog = Path(args.program)
+    if not prog.is_file():
+        raise InputError("NC program not found", prog)
+    true = _errors(args.errors)
+    ident = _errors(args.compensate) if args.compensate else None
+    res = cosimulate(prog, args.machine, true, ident, step=args.step, dynamics=_dynamics(args),
+                     rapid=args.rapid, spindle_speed=args.spindle_speed, compiler=args.compiler)
+    prefix = Path(args.out) if args.out else Path(prog.stem + ".cosim")
+    csv_path = res.to_csv(prefix.with_name(prefix.name + ".csv"))
+    png_path = res.plot(prefix.with_name(prefix.name + ".png"))
+    print(res.summary())
+    print(f"wrote {csv_path} and {png_path}")
+    return 0
+
+
+def _dyn_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("machine dynamics (machine FMU)")
+    g.add_argument("--kv", default="0", help="servo gain(s) in 1/s, one value or one per axis (0: ideal servo)")
+    g.add_argument("--backlash", default="0", help="backlash in mm/deg, one value or one per axis")
+    g.add_argument("--noise", type=float, default=0.0, help="tool edge measurement noise, 1 sigma in nm")
+    g.add_argument("--seed", type=int, default=1, help="noise seed")
+
+
+def register(subparsers) -> None:
+    fmu = subparsers.add_parser("fmu", help="build the native compensator and machine FMUs (FMI 2.0)",
+                                description="Build FMI 2.0 Co-Simulation FMUs from the C sources (docs/fmu.md).")
+    fsub = fmu.add_subparsers(dest="fmu_command", metavar="COMMAND")
+    b = fsub.add_parser("build", help="build a compensator or machine FMU")
+    b.add_argument("kind", choices=("compensator", "machine"))
+    b.add_argument("--machine", required=True, help="preset name or machine TOML")
+    b.add_argument("--errors", help="errors TOML (start values of the parameters, tables as resources)")
+    b.add_argument("-o", "--output", required=True, help="FMU file to write")
+    b.add_argument("--compiler", choices=("cmake", "cc"), default="cmake",
+                   help="cmake: fmpy's CMake build (default); cc: one direct gcc call")
+    _dyn_args(b)
+    b.set_defaults(func=_build)
+    s = fsub.add_parser("ssp", help="SSP file wiring a compensator FMU to a machine FMU")
+    s.add_argument("--machine", required=True)
+    s.add_argument("--errors", help="true errors of the machine (errors TOML)")
+    s.add_argument("--compensate", help="errors the compensator corrects (default: the true ones)")
+    s.add_argument("-o", "--output", required=True)
+    s.add_argument("--compiler", choices=("cmake", "cc"), default="cmake")
+    _dyn_args(s)
+    s.set_defaults(func=_ssp)
+    fmu.set_defaults(func=lambda args: (fmu.print_help(), 2)[1])
+
+    c = subparsers.add_parser("cosim", help="co-simulate NC program -> compensator FMU -> machine FMU",
+                              description="Interpolate an NC program at the communication step, run it through "
+                                          "the compensator and machine FMUs with fmpy as the master, and report the "
+                                          "tool edge error with and without compensation (CSV + PNG).")
+    c.add_argument("program", help="NC program")
+    c.add_argument("--machine", required=True, help="preset name or machine TOML")
+    c.add_argument("--errors", required=True, help="true errors of the machine (errors TOML)")
+    c.add_argument("--compensate", help="identified errors the compensator corrects (default: the true ones)")
+    c.add_argument("--step", type=float, default=1e-3, help="communication step in s (default 0.001)")
+    c.add_argument("--rapid", type=float, default=3000.0, help="G0 rate in mm/min (default 3000)")
+    c.add_argument("--spindle-speed", type=float, default=0.0, help="spindle speed in 1/min (thermal drift)")
+    c.add_argument("--out", help="output prefix (default: PROGRAM.cosim): writes PREFIX.csv and PREFIX.png")
+    c.add_argument("--compiler", choices=("cmake", "cc"), default="cmake")
+    _dyn_args(c)
+    c.set_defaults(func=_cosim)

@@ -1,0 +1,499 @@
+"""The native FMUs: validation, kernel parity with the core, error handling, FMU state,
+co-simulation, and runs in two more importers (libcosimpy, the ecos C++ simulator).
+
+Every FMU here is built in the test session from the shipped C sources and run for real.
+"""
+from __future__ import annotations
+
+import csv
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.validation import validate_fmu  # noqa: E402
+
+from mtcomp.errors import (AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting,  # noqa: E402
+                           WorkpieceSetting, component_names)
+from mtcomp.fmu.build import MachineDynamics, build_compensator_fmu, build_machine_fmu  # noqa: E402
+from mtcomp.fmu.cosim import FmuRunner, cosimulate, interpolate_program  # noqa: E402
+from mtcomp.fmu.ssp import write_ssp  # noqa: E402
+from mtcomp.kinematics import forward, retarget  # noqa: E402
+from mtcomp.machine import load_machine  # noqa: E402
+
+PRESETS = ("robonano-ui", "robonano-a0ib", "vmc-moving-column")
+
+# A 5-axis program for the B-C table machine: simultaneous moves of X Y Z B C, an arc, a rapid.
+PROGRAM_5AX = """%
+O0005 (5-axis test path)
+G90 G21 G17
+G0 X0 Y0 Z5 B10 C0
+G1 X10 Y0 Z0 B20 C45 F600
+G1 X10 Y10 Z-2 B30 C120
+G2 X0 Y20 I-10 J0 F600
+G1 X-10 Y5 Z0 B15 C200 F900
+M30
+%
+"""
+# Setting errors of the size paper 000 reports (hundreds of um) plus a small workpiece tilt.
+SETTING = ErrorSet(ToolSetting((0.35, -0.20, 0.15)), WorkpieceSetting((0.10, -0.05, 0.02), (0.01, -0.02, 0.03)))
+
+
+def random_errors(machine, rng) -> ErrorSet:
+    """Setting, location and table errors of realistic size; tables reach beyond the travel."""
+    tables = {}
+    for a in machine.axes:
+        lo, hi = a.limits
+        pos = np.linspace(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo), 31)
+        tables[a.name] = AxisErrorTable(a.name, pos, {
+            n: rng.normal(0, 2e-3 if j < 3 else 1e-5, pos.size) for j, n in enumerate(component_names(a.name))})
+    loc = {f"E{c}0{a.name}": float(rng.normal(0, 5e-3 if c in "XYZ" else 2e-5))
+           for a in machine.axes for c in "XYZABC"}
+    return ErrorSet(ToolSetting(tuple(rng.normal(0, 0.3, 3))),
+                    WorkpieceSetting(tuple(rng.normal(0, 0.1, 3)), tuple(rng.normal(0, 0.02, 3))),
+                    GeometricErrors(tables, loc))
+
+
+@pytest.fixture(scope="session")
+def built(tmp_path_factory):
+    """Compensators for every preset (random errors), machine FMUs; one built through CMake."""
+    d = tmp_path_factory.mktemp("fmus")
+    rng = np.random.default_rng(2026)
+    out = {"dir": d, "errors": {}, "comp": {}}
+    for name in PRESETS:
+        m = load_machine(name)
+        e = random_errors(m, rng)
+        out["errors"][name] = e
+        compiler = "cmake" if name == "robonano-ui" else "cc"
+        out["comp"][name] = build_compensator_fmu(m, d / f"comp-{name}.fmu", e, compiler=compiler)
+    out["machine"] = build_machine_fmu("robonano-a0ib", d / "machine-a0ib.fmu", SETTING,
+                                       MachineDynamics(kv=40.0, noise=1e-4, seed=7), compiler="cc")
+    out["comp_setting"] = build_compensator_fmu("robonano-a0ib", d / "comp-a0ib-setting.fmu", SETTING, compiler="cc")
+    out["machine_ideal"] = build_machine_fmu("robonano-a0ib", d / "machine-a0ib-ideal.fmu", SETTING, compiler="cc")
+    return out
+
+
+def all_fmus(built):
+    return list(built["comp"].values()) + [built["machine"], built["comp_setting"], built["machine_ideal"]]
+
+
+# ---------------------------------------------------------------------------------------- build
+
+def test_every_fmu_validates_and_is_complete(built):
+    for path in all_fmus(built):
+        assert validate_fmu(str(path)) == [], path.name
+        names = set(zipfile.ZipFile(path).namelist())
+        for f in ("documentation/index.html", "documentation/externalDependencies.txt", "resources/machine.txt",
+                  "sources/mtk.c", "sources/fmi2_base.c", "sources/fmi2Functions.h"):
+            assert f in names, (path.name, f)
+        assert any(n.startswith("binaries/linux64/") and n.endswith(".so") for n in names)
+        md = read_model_description(str(path))
+        assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
+        for v in md.modelVariables:
+            assert v.description, v.name
+            if v.type == "Real":
+                assert v.unit in {"mm", "deg", "rad", "s", "1/s", "1/min", "degC", "mm/K", "K.min", "1"}, v.name
+        # translational errors display in um
+        units = {v.name: (v.unit, v.displayUnit) for v in md.modelVariables}
+        assert units["tool_setting.offset.x"] == ("mm", "um")
+        assert {v.index for v in md.outputs} == {v.index for v in md.initialUnknowns}
+
+
+def test_tables_travel_as_resources(built):
+    z = zipfile.ZipFile(built["comp"]["robonano-ui"])
+    names = z.namelist()
+    for ax in load_machine("robonano-ui").axis_names:
+        assert f"resources/tables/{ax}.csv" in names
+    start = z.read("resources/start.txt").decode()
+    assert "s 0 X:tables/X.csv;" in start
+
+
+# ---------------------------------------------------------------------------------------- parity
+
+def _sample(machine, n, rng):
+    lo = np.array([a.limits[0] for a in machine.axes])
+    hi = np.array([a.limits[1] for a in machine.axes])
+    q = lo + (hi - lo) * (0.1 + 0.8 * rng.random((n, machine.n_axes)))
+    if machine.name == "robonano-a0ib":
+        # Keep B off the B-C singularity (B = 0), where a tilted workpiece needs arbitrary C turns
+        # and both implementations rightly refuse.
+        b = machine.index("B")
+        q[:, b] = np.sign(q[:, b] + 1e-9) * (10.0 + np.abs(q[:, b]) * 0.8)
+    return q
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_c_kernel_matches_core_on_10000_poses(built, name):
+    m = load_machine(name)
+    e = built["errors"][name]
+    q = _sample(m, 10_000, np.random.default_rng(hash(name) % 2**32))
+    expected = retarget(m, q, e)
+    runner = FmuRunner(built["comp"][name], "parity")
+    try:
+        n = m.n_axes
+        cin = list(range(n))
+        cout = runner.refs([f"compensated.{a}" for a in m.axis_names])
+        runner.fmu.enterInitializationMode()
+        runner.fmu.setReal(cin, list(q[0]))
+        runner.fmu.exitInitializationMode()
+        got = np.empty_like(q)
+        set_real, get_real = runner.fmu.setReal, runner.fmu.getReal
+        for k in range(len(q)):
+            set_real(cin, list(q[k]))
+            got[k] = get_real(cout)
+    finally:
+        runner.close()
+    assert np.max(np.abs(got - expected)) <= 1e-9
+    # and the C result really does its job on the core's model
+    assert np.max(np.abs(forward(m, got, e).p - forward(m, q).p)) <= 1e-9
+    # the compensation is not trivial: it moves the axes by the size of the errors
+    assert np.max(np.abs(got - q)) > 1e-2
+
+
+# ---------------------------------------------------------------------------------------- errors
+
+def _fresh(path, logs):
+    r = FmuRunner(path, "bad", logs)
+    return r
+
+
+def test_nan_and_out_of_range_parameters_are_errors_with_a_message(built):
+    logs = []
+    r = _fresh(built["comp_setting"], logs)
+    try:
+        with pytest.raises(FMICallException):
+            r.set({"tool_setting.offset.x": float("nan")})
+        assert any(s == 3 and "NaN" in m and "tool_setting.offset.x" in m for s, _, m in logs)
+        logs.clear()
+        with pytest.raises(FMICallException):
+            r.set({"workpiece_setting.angle.b": 45.0})
+        assert any(s == 3 and "out of range" in m and "workpiece_setting.angle.b" in m for s, _, m in logs)
+        # the rejected values were not stored: the FMU still initialises and works
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(list(range(5)), [0, 10, 0, 0, 0])
+        r.fmu.exitInitializationMode()
+        assert np.isfinite(r.fmu.getReal(r.refs(["compensated.X"]))).all()
+        logs.clear()
+        with pytest.raises(FMICallException):
+            r.fmu.setReal([0], [float("inf")])
+        assert any("must be finite" in m for _, _, m in logs)
+    finally:
+        r.close()
+
+
+def test_missing_or_bad_table_resource_fails_initialisation_cleanly(built):
+    logs = []
+    r = _fresh(built["comp"]["robonano-ui"], logs)
+    try:
+        r.set({"geometric_tables": "X:tables/X.csv;Y:tables/nonexistent.csv"})
+        r.fmu.enterInitializationMode()
+        with pytest.raises(FMICallException):
+            r.fmu.exitInitializationMode()
+        assert any(s == 3 and "nonexistent.csv" in m and "not found" in m for s, _, m in logs)
+        with pytest.raises(FMICallException):  # no stepping after a failed initialisation
+            r.fmu.doStep(0.0, 1e-3)
+    finally:
+        r.close()
+    # a malformed table (a table for an axis of the wrong name) is reported too
+    logs.clear()
+    r = _fresh(built["comp"]["robonano-ui"], logs)
+    try:
+        r.set({"geometric_tables": "Q:tables/X.csv"})
+        r.fmu.enterInitializationMode()
+        with pytest.raises(FMICallException):
+            r.fmu.exitInitializationMode()
+        assert any("unknown axis 'Q'" in m for _, _, m in logs)
+    finally:
+        r.close()
+
+
+def test_simulate_fmu_with_bad_start_value_raises_and_does_not_crash(built):
+    with pytest.raises(Exception):
+        fmpy.simulate_fmu(str(built["comp_setting"]), stop_time=0.01, output_interval=1e-3,
+                          start_values={"location.EC0X": 1.0}, logger=lambda *a: None)
+    # the importer process is alive and the FMU still runs with good values
+    res = fmpy.simulate_fmu(str(built["comp_setting"]), stop_time=0.01, output_interval=1e-3,
+                            start_values={"command.B": 20.0})
+    assert len(res) == 11
+
+
+def test_unreachable_command_is_an_error_at_the_step(built):
+    logs = []
+    r = _fresh(built["comp_setting"], logs)
+    try:
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(list(range(5)), [0, 10, 0, 0, 0])
+        r.fmu.exitInitializationMode()
+        r.fmu.setReal([2], [-139.9])  # X near its travel end: the compensated X (-140.15) leaves it
+        with pytest.raises(FMICallException):
+            r.fmu.getReal(r.refs(["compensated.X"]))
+        assert any("outside its travel" in m for _, _, m in logs)
+    finally:
+        r.close()
+
+
+# ---------------------------------------------------------------------------------------- state
+
+def _machine_outputs(r):
+    return r.fmu.getReal(r.refs(["tool.x", "tool.y", "tool.z", "actual.X", "actual.B", "temperature"]))
+
+
+def test_fmu_state_get_set_serialize_repeats_identically(built):
+    r = FmuRunner(built["machine"], "state")
+    try:
+        cin = r.refs([f"command.{a}" for a in ("C", "B", "X", "Y", "Z")])
+        r.set({"thermal.gain": 1e-3, "thermal.time_constant": 0.05, "thermal.drift.z": 1e-3})
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(cin, [0, 10, 0, 0, 0])
+        r.set({"spindle_speed": 1000.0})
+        r.fmu.exitInitializationMode()
+        h = 1e-3
+
+        def run(t0, k0, n):
+            out = []
+            for k in range(k0, k0 + n):
+                r.fmu.setReal(cin, [5 * np.sin(k / 20), 10 + k / 10, k / 50, 0, -k / 100])
+                r.fmu.doStep(t0 + (k - k0) * h, h)
+                out.append(_machine_outputs(r))
+            return np.array(out)
+
+        run(0.0, 0, 20)
+        state = r.fmu.getFMUstate()
+        first = run(20 * h, 20, 30)
+        r.fmu.setFMUstate(state)
+        second = run(20 * h, 20, 30)
+        assert np.array_equal(first, second)          # noise, servo, temperature: all restored
+        assert np.ptp(first[:, 0]) > 0 and np.ptp(first[:, 5]) > 0
+        blob = r.fmu.serializeFMUstate(state)
+        r.fmu.freeFMUstate(state)
+    finally:
+        r.close()
+    # a new instance continues identically from the de-serialized state
+    r2 = FmuRunner(built["machine"], "state2")
+    try:
+        r2.set({"thermal.gain": 1e-3, "thermal.time_constant": 0.05, "thermal.drift.z": 1e-3})
+        r2.fmu.enterInitializationMode()
+        r2.fmu.exitInitializationMode()
+        st = r2.fmu.deSerializeFMUstate(blob)
+        r2.fmu.setFMUstate(st)
+        r2.fmu.freeFMUstate(st)
+        cin2 = r2.refs([f"command.{a}" for a in ("C", "B", "X", "Y", "Z")])
+        third = []
+        for k in range(20, 50):
+            r2.fmu.setReal(cin2, [5 * np.sin(k / 20), 10 + k / 10, k / 50, 0, -k / 100])
+            r2.fmu.doStep((k) * h, h)
+            third.append(_machine_outputs(r2))
+        assert np.array_equal(first, np.array(third))
+        with pytest.raises(FMICallException):  # a state of another model is refused
+            r2.fmu.deSerializeFMUstate(b"\0" * len(blob))
+    finally:
+        r2.close()
+
+
+# ---------------------------------------------------------------------------------------- machine model
+
+def test_machine_fmu_reproduces_core_forward_model(built):
+    m = load_machine("robonano-a0ib")
+    r = FmuRunner(built["machine_ideal"], "fwd")
+    q = _sample(m, 200, np.random.default_rng(3))
+    try:
+        cin = r.refs([f"command.{a}" for a in m.axis_names])
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(cin, list(q[0]))
+        r.fmu.exitInitializationMode()
+        got = []
+        for k in range(len(q)):
+            r.fmu.setReal(cin, list(q[k]))
+            got.append(r.fmu.getReal(r.refs(["tool.x", "tool.y", "tool.z", "tool_direction.x",
+                                              "tool_direction.y", "tool_direction.z"])))
+    finally:
+        r.close()
+    got = np.array(got)
+    pose = forward(m, q, SETTING)
+    assert np.max(np.abs(got[:, :3] - pose.p)) < 1e-11
+    assert np.max(np.abs(got[:, 3:] - pose.v)) < 1e-13
+
+
+def test_servo_is_first_order_and_backlash_a_play(built):
+    r = FmuRunner(built["machine_ideal"], "servo")
+    try:
+        r.set({"servo.kv.X": 20.0, "backlash.Y": 0.004})
+        cin = r.refs([f"command.{a}" for a in ("C", "B", "X", "Y", "Z")])
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(cin, [0, 10, 0, 0, 0])
+        r.fmu.exitInitializationMode()
+        r.fmu.setReal(cin, [0, 10, 1.0, 0.003, 0])   # X step of 1 mm; Y moves 3 um (inside the play)
+        h = 1e-3
+        xs = []
+        for k in range(100):
+            r.fmu.doStep(k * h, h)
+            xs.append(r.fmu.getReal(r.refs(["actual.X", "actual.Y"])))
+        xs = np.array(xs)
+        t = (np.arange(100) + 1) * h
+        assert np.allclose(xs[:, 0], 1.0 - np.exp(-20.0 * t), atol=1e-12)
+        assert np.allclose(xs[:, 1], 0.001, atol=1e-15)   # moved 3 um - 2 um half play
+        r.fmu.setReal(cin, [0, 10, 1.0, -0.001, 0])       # reverse by 4 um: still inside the play
+        r.fmu.doStep(100 * h, h)
+        assert r.fmu.getReal(r.refs(["actual.Y"]))[0] == pytest.approx(0.001, abs=1e-15)
+    finally:
+        r.close()
+
+
+# ---------------------------------------------------------------------------------------- co-simulation
+
+def test_interpolation_honours_the_feed():
+    m = load_machine("robonano-a0ib")
+    t, q = interpolate_program("G90 G1 X10 F600\nG1 X10 Y5 F300\n", m, 0.01)
+    # 10 mm at 600 mm/min = 1 s, then 5 mm at 300 mm/min = 1 s
+    assert t[-1] == pytest.approx(2.0)
+    x, y = q[:, m.index("X")], q[:, m.index("Y")]
+    assert x[50] == pytest.approx(5.0) and y[50] == 0.0
+    assert x[150] == pytest.approx(10.0) and y[150] == pytest.approx(2.5)
+    # a full circle of radius 5 at 600 mm/min: 2*pi*5/10 s, every sample on the circle
+    t, q = interpolate_program("G90 G0 X5 Y0\nG3 X5 Y0 I-5 J0 F600\n", m, 0.005)
+    on = q[t >= 0.105]                     # after the 0.1 s rapid to the start point
+    assert np.allclose(np.hypot(on[:, m.index("X")], on[:, m.index("Y")]), 5.0, atol=2e-3)
+    assert t[-1] == pytest.approx(5 / 3000 * 60 + 2 * np.pi * 5 / 10, abs=0.006)
+
+
+def test_cosimulation_compensates_setting_errors(tmp_path):
+    prog = tmp_path / "path5.nc"
+    prog.write_text(PROGRAM_5AX)
+    res = cosimulate(prog, "robonano-a0ib", SETTING, step=0.02, compiler="cc", workdir=tmp_path)
+    assert res.max_uncompensated >= 0.100             # hundreds of um without compensation
+    assert res.max_compensated <= 10e-6               # <= 10 nm with it (ideal servo, no noise)
+    assert len(res.t) > 500
+    # with servo lag on, the remaining error is the lag, and it is large
+    lag = cosimulate(prog, "robonano-a0ib", SETTING, step=0.02, compiler="cc", workdir=tmp_path,
+                     dynamics=MachineDynamics(kv=30.0))
+    remaining = np.linalg.norm(lag.p_compensated - lag.target - lag.p_lag, axis=1)
+    assert lag.max_compensated > 1e-3
+    assert np.max(remaining) <= 10e-6
+    png = lag.plot(tmp_path / "lag.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    lag.to_csv(tmp_path / "lag.csv")
+    rows = list(csv.reader(open(tmp_path / "lag.csv")))
+    assert rows[1][0] == "t" and len(rows) == len(lag.t) + 2
+    assert "with compensation" in lag.summary()
+
+
+def test_cosimulation_with_identified_errors_leaves_the_identification_error():
+    m = load_machine("robonano-a0ib")
+    q = np.column_stack([np.zeros(50), np.full(50, 20.0), np.linspace(0, 5, 50), np.zeros(50), np.zeros(50)])
+    ident = ErrorSet(ToolSetting((0.35, -0.20, 0.149)), SETTING.workpiece)   # 1 um off in z
+    res = cosimulate(q, m, SETTING, ident, step=0.01, compiler="cc")
+    # a tool z error of 1 um shows up as 1 um of tool edge error at every point
+    assert np.allclose(res.error_compensated, 1e-3, atol=2e-6)
+
+
+# ---------------------------------------------------------------------------------------- other importers
+
+@pytest.fixture(scope="module")
+def ssp_file(built, tmp_path_factory):
+    d = tmp_path_factory.mktemp("ssp")
+    return write_ssp(d / "cell.ssp", built["comp_setting"], built["machine_ideal"],
+                     commands={"C": 20.0, "B": 10.0, "X": 5.0})
+
+
+def _target():
+    return forward(load_machine("robonano-a0ib"), np.array([[20.0, 10.0, 5.0, 0.0, 0.0]])).p[0]
+
+
+def test_libcosimpy_runs_the_ssp_and_compensates(ssp_file):
+    pytest.importorskip("libcosimpy")
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+    log_output_level(CosimLogLevel.ERROR)
+    ex = CosimExecution.from_ssp_file(str(ssp_file), step_size=1_000_000)  # ns
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(obs)
+    assert ex.simulate_until(20_000_000)
+    mi = ex.slave_index_from_instance_name("machine")
+    refs = {v.name.decode(): v.reference for v in ex.slave_variables(mi)}
+    p = obs.last_real_values(mi, [refs["tool.x"], refs["tool.y"], refs["tool.z"]])
+    assert np.max(np.abs(np.array(p) - _target())) < 1e-9
+    # without the compensator the same machine is hundreds of um off
+    assert np.linalg.norm(forward(load_machine("robonano-a0ib"), np.array([[20.0, 10, 5, 0, 0]]), SETTING).p[0]
+                          - _target()) > 0.1
+
+
+def _ecos(tmp_path):
+    ecospy = pytest.importorskip("ecospy")
+    src = Path(ecospy.__file__).parent / "binaries"
+    if not (src / "ecos").exists() or sys.platform != "linux":
+        pytest.skip("ecos binary for linux not shipped")
+    dst = tmp_path / "ecos-bin"
+    dst.mkdir()
+    for f in ("ecos", "proxyfmu", "libecosc.so"):
+        if (src / f).exists():
+            shutil.copy(src / f, dst / f)
+            (dst / f).chmod(0o755)   # the wheel ships them without the exec bit
+    env = dict(os.environ)
+    tbb = [p for p in (Path(sys.prefix) / "lib",) if list(p.glob("libtbb.so.12*"))]
+    env["LD_LIBRARY_PATH"] = os.pathsep.join([str(p) for p in tbb] + [env.get("LD_LIBRARY_PATH", "")])
+    return dst / "ecos", env
+
+
+def _read_ecos_csv(path):
+    with open(path) as fh:
+        rows = list(csv.reader(fh))
+    head = [h.strip() for h in rows[0]]
+    return {h: np.array([float(r[i]) for r in rows[1:]]) for i, h in enumerate(head)}
+
+
+def test_ecos_runs_the_native_fmus_without_python(ssp_file, tmp_path):
+    ecos, env = _ecos(tmp_path)
+    run = subprocess.run([str(ecos), "simulate", "--path", str(ssp_file), "--stepSize", "0.001",
+                          "--stopTime", "0.03", "-l", "err"], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    out = _read_ecos_csv(next(tmp_path.glob("*.csv")))
+    p = np.array([out[f"machine::tool.{c}[REAL]"][-1] for c in "xyz"])
+    assert np.max(np.abs(p - _target())) <= 1e-6   # ecos writes 6 decimals (1 nm)
+    assert out["compensator::compensated.X[REAL]"][-1] != pytest.approx(5.0, abs=1e-3)
+
+
+def test_ecos_runs_a_single_machine_fmu(built, tmp_path):
+    ecos, env = _ecos(tmp_path)
+    run = subprocess.run([str(ecos), "simulate", "--path", str(built["machine_ideal"]), "--stepSize", "0.001",
+                          "--stopTime", "0.02", "-l", "err"], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    out = _read_ecos_csv(next(tmp_path.glob("*.csv")))
+    p0 = forward(load_machine("robonano-a0ib"), np.zeros((1, 5)), SETTING).p[0]
+    assert np.allclose([out[f"tool.{c}[REAL]"][-1] if f"tool.{c}[REAL]" in out
+                        else out[[k for k in out if k.endswith(f"tool.{c}[REAL]")][0]][-1] for c in "xyz"],
+                       p0, atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------- CLI
+
+def test_cli_builds_and_cosimulates(tmp_path, capsys):
+    from mtcomp.cli import main
+    from mtcomp.errors import save_errors
+    errs = tmp_path / "true.toml"
+    save_errors(SETTING, errs)
+    out = tmp_path / "c.fmu"
+    assert main(["fmu", "build", "compensator", "--machine", "robonano-a0ib", "--errors", str(errs),
+                 "-o", str(out), "--compiler", "cc"]) == 0
+    assert validate_fmu(str(out)) == []
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G0 X0 Y0 Z0 B10 C0\nG1 X2 B12 C10 F600\n")
+    assert main(["cosim", str(prog), "--machine", "robonano-a0ib", "--errors", str(errs), "--compensate",
+                 str(errs), "--step", "0.01", "--out", str(tmp_path / "run"), "--compiler", "cc"]) == 0
+    text = capsys.readouterr().out
+    assert "without compensation" in text and "with compensation" in text
+    assert (tmp_path / "run.csv").exists() and (tmp_path / "run.png").exists()
+    # bad input: a clear error, exit 2, no output written
+    assert main(["cosim", str(tmp_path / "missing.nc"), "--machine", "robonano-a0ib", "--errors", str(errs),
+                 "--out", str(tmp_path / "bad")]) == 2
+    assert not (tmp_path / "bad.csv").exists()
