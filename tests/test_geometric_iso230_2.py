@@ -3,6 +3,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from mtcomp import InputError
 from mtcomp.geometric import iso230_2 as iso
@@ -140,3 +141,22 @@ def test_figures_invariant_under_offset_and_reordering_of_cycles():
         assert getattr(a, k) == pytest.approx(getattr(b, k), abs=1e-12)
     # R_i ≥ R_i↑ and A ≥ E (definitions)
     assert np.all(a.R_i >= a.R_up_i) and a.A >= a.E
+
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(2, 6), m=st.integers(2, 8), seed=st.integers(0, 2**31 - 1),
+       k=st.floats(0.01, 100.0))
+def test_figure_relations_hold_for_any_run(n, m, seed, k):
+    """M ≤ E ≤ A, R_i ≥ R_i↑, R_i↓, |B_i| ≤ R_i; all figures scale with the deviations."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(1, 50, m))
+    up, dn = rng.normal(0, 5e-3, (n, m)), rng.normal(2e-3, 5e-3, (n, m))
+    a = iso.evaluate(iso.PositioningRun(t, up, dn))
+    assert a.M <= a.E + 1e-15 and a.E <= a.A + 1e-15
+    assert a.E_up <= a.A_up + 1e-15 and a.E_down <= a.A_down + 1e-15
+    assert np.all(a.R_i >= np.maximum(a.R_up_i, a.R_down_i))
+    assert np.all(np.abs(a.reversal_i) <= a.R_i + 1e-15)
+    b = iso.evaluate(iso.PositioningRun(t, k * up, k * dn))
+    for key, v in a.figures().items():
+        assert getattr(b, key) == pytest.approx(k * v, rel=1e-9, abs=1e-15)
