@@ -355,14 +355,40 @@ def scallop_stepover(radius: float, scallop: float) -> float:
     return 2.0 * math.sqrt(2.0 * radius * scallop - scallop ** 2)
 
 
+def _refine_passes(xs: np.ndarray, ys: np.ndarray, tris: np.ndarray, r: float, tol: float,
+                   rounds: int = 30) -> list[np.ndarray]:
+    """Per pass y, the x positions where straight moves between consecutive ball centres stay
+    within `tol` (mm, checked at segment midpoints) of the exact drop-cutter height."""
+    x = np.tile(np.asarray(xs, float), len(ys))
+    y = np.repeat(np.asarray(ys, float), len(xs))
+    z = drop_ball(np.column_stack([x, y]), tris, r)[0]
+    for _ in range(rounds):
+        same = y[:-1] == y[1:]
+        xm = 0.5 * (x[:-1] + x[1:])
+        seg = np.nonzero(same)[0]
+        zm = drop_ball(np.column_stack([xm[seg], y[seg]]), tris, r)[0]
+        bad = np.abs(zm - 0.5 * (z[seg] + z[seg + 1])) > tol
+        if not bad.any():
+            break
+        at = seg[bad] + 1
+        x, y, z = np.insert(x, at, xm[seg][bad]), np.insert(y, at, y[seg][bad]), np.insert(z, at, zm[bad])
+    cuts = np.nonzero(y[1:] != y[:-1])[0] + 1
+    return np.split(x, cuts)
+
+
 def pyramid_finishing(width: float = 3.45, angle: float = 164.81, tool: Tool | None = None,
                       stepover: float | None = None, scallop: float | None = None,
-                      step: float = 0.01, margin: float = 0.3, safe: float = 0.5,
-                      feed: float = 300.0, name: str = "pyramid-finishing") -> Toolpath:
+                      step: float = 0.01, tolerance: float = 1e-5, margin: float = 0.3,
+                      safe: float = 0.5, feed: float = 300.0,
+                      name: str = "pyramid-finishing") -> Toolpath:
     """Zig-zag raster finishing of paper 001's pyramid (and `margin` mm of the flat around it)
     with a vertical ball end mill: passes along x, `stepover` mm apart in y (or the stepover
-    that leaves `scallop` mm on the flat), points every `step` mm along a pass; ball-centre
-    heights by exact drop-cutter, so each ball touches the CAD surface."""
+    that leaves `scallop` mm on the flat), points every `step` mm along a pass.
+
+    Ball-centre heights come from an exact drop-cutter, so every point's ball touches the CAD
+    surface; segments are halved where the straight move between two points would leave the
+    tool-offset surface by more than `tolerance` mm (over the ridges the chord would gouge, in
+    the concave base corner it would leave material)."""
     from .layout import pyramid_height
     tool = tool or Tool("ball", radius=0.5, name="ball end mill R0.5")
     if tool.kind != "ball":
@@ -378,8 +404,8 @@ def pyramid_finishing(width: float = 3.45, angle: float = 164.81, tool: Tool | N
     xs = np.linspace(-lim, lim, int(math.ceil(2 * lim / step)) + 1)
     b = _Builder()
     I = np.eye(3)
-    for k, y in enumerate(ys):
-        x = xs if k % 2 == 0 else xs[::-1]
+    for k, (y, x) in enumerate(zip(ys, _refine_passes(xs, ys, tris, tool.radius, tolerance))):
+        x = x if k % 2 == 0 else x[::-1]
         xy = np.column_stack([x, np.full_like(x, y)])
         zc, nrm = drop_ball(xy, tris, tool.radius)
         tip = np.column_stack([xy, zc - tool.radius])
