@@ -130,6 +130,12 @@ def test_missing_positioning_run_and_bad_set(tmp_path, vmc, truth):
     no_exx = replace(ms, runs=tuple(r for r in ms.runs if r.component != "EXX"))
     with pytest.raises(InputError, match="no positioning run EXX"):
         tables.build_tables(vmc, no_exx)
+    short = replace(ms, runs=tuple(
+        replace(r, run=replace(r.run, target=r.run.target[:-1], up=r.run.up[:, :-1],
+                               down=r.run.down[:, :-1])) if r.component == "EBY" else r
+        for r in ms.runs))
+    with pytest.raises(InputError, match=r"run of EBY covers -200 .. 150 mm, less than"):
+        tables.build_tables(vmc, short)
     p = tables.save_measurement_set(ms, tmp_path / "s.toml")
     text = p.read_text().replace('component = "EYX"', 'component = "EYQ"', 1)
     p.write_text(text)

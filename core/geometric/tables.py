@@ -149,12 +149,16 @@ def _lever(machine: Machine, run: ComponentRun, s: np.ndarray) -> np.ndarray:
     return lever
 
 
-def _profile(run: ComponentRun, datum: float, where: str):
+def _profile(run: ComponentRun, datum: float, where: str, grid: np.ndarray | None = None):
     """(targets, mean bidirectional deviation zeroed at the datum, its 1-sigma) of a run."""
     t = run.run.target
     if not (t[0] - 1e-9 <= datum <= t[-1] + 1e-9):
         raise InputError(f"run of {run.component} covers {t[0]:g} .. {t[-1]:g}, not the datum "
                          f"position {datum:g}", where, field=run.component)
+    if grid is not None and (t[0] > grid[0] + 1e-9 or t[-1] < grid[-1] - 1e-9):
+        raise InputError(f"run of {run.component} covers {t[0]:g} .. {t[-1]:g} mm, less than the "
+                         f"positioning run's {grid[0]:g} .. {grid[-1]:g} mm", where,
+                         field=run.component)
     res = iso230_2.evaluate(run.run)
     v = res.mean_bi
     n = run.run.n_cycles
@@ -202,7 +206,7 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
             if r is None:
                 notes.append(f"no run of E{d}{a}: taken as zero")
                 continue
-            t, v, sg = _profile(r, datum, where)
+            t, v, sg = _profile(r, datum, where, grid)
             eps[:, c] = np.interp(grid, t, v)
             eps_sig[:, c] = np.interp(grid, t, sg)
             unc[f"E{d}{a}"] = eps_sig[:, c]
@@ -214,7 +218,7 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
                 notes.append(f"no run of {name}: taken as zero")
                 values[name] = np.zeros(grid.size)
                 continue
-            t, v, sg = _profile(r, datum, where)
+            t, v, sg = _profile(r, datum, where, grid)
             reading = np.interp(grid, t, v)
             lever = _lever(machine, r, grid)
             # Abbe contribution of the set-up: ε × ℓ, component d (hand-written: a cross product).
@@ -249,6 +253,9 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
             location[name] = float(S / (np.cross(ek, uj) @ ui))
             unc[name] = float(np.hypot(straight_slopes[a][2], straight_slopes[b][2]))
             sq_how[name] = f"optical square {straight_slopes[a][1]!r}: runs {a} and {b}"
+            if name in mset.location:
+                notes.append(f"{name} is given in the set and measured with the optical square: "
+                             "the measured value is used")
         elif name in mset.location:
             location[name] = float(mset.location[name])
             sq_how[name] = "given in the measurement set"
