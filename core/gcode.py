@@ -302,23 +302,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
               "digits with at most one decimal point", wline[i], filename)
     value = parse_decimals(code, rs, re_, dot_of_run)
 
-    # -- letters
-    allowed = set("GMNOFSTPIJKR") | set(axes)
-    if "X" not in axes:
-        allowed.add("X")                     # G4 X dwell time
-    known = np.zeros(26, bool)
-    known[[_ascii(c) for c in allowed]] = True
-    badlet = ~known[wlet]
-    if badlet.any():
-        i = int(np.argmax(badlet))
-        c = chr(65 + wlet[i])
-        if c in CANONICAL:
-            what = f"axis word {c} but the machine has axes {' '.join(axes)}"
-        else:
-            what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P, " \
-                   f"axes {' '.join(axes)}, arc words I J K R)"
-        _fail(what, wline[i], filename)
-
     G, M = _ascii("G"), _ascii("M")
     # -- duplicate addresses in one block (G and M may repeat)
     key = wline * 32 + wlet
@@ -363,6 +346,24 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                 f"unknown G code {word}: it may affect motion; refusing rather than guessing")
         _fail(what, wline[gi[j]], filename)
     gline = wline[gi]
+
+    # -- letters
+    allowed = set("GMNOFSTPIJKR") | set(axes)
+    if "X" not in axes:
+        allowed.add("X")                     # G4 X dwell time
+    known = np.zeros(26, bool)
+    known[[_ascii(c) for c in allowed]] = True
+    badlet = ~known[wlet]
+    if badlet.any():
+        i = int(np.argmax(badlet))
+        c = chr(65 + wlet[i])
+        if c in CANONICAL:
+            what = f"axis word {c} but the machine has axes {' '.join(axes)}"
+        else:
+            what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P, " \
+                   f"axes {' '.join(axes)}, arc words I J K R)"
+        _fail(what, wline[i], filename)
+
 
     def per_line(catid, mapping, label):
         sel = cat == catid
@@ -900,10 +901,15 @@ def _insert_words(ctx, cw, rows, gcol, letter: bytes, off, ln):
     word, else after the last word of the block."""
     p = ctx.p
     wpos, wend = np.asarray(p.w_pos), np.asarray(p.w_end)
-    allc = cw[rows]
+    # columns in canonical word order (X Y Z U V W A B C, then I J K R), whatever the machine's
+    # chain order of the axes is
+    n_ax = len(p.axes)
+    perm = sorted(range(n_ax), key=lambda c: CANONICAL.index(p.axes[c])) + list(range(n_ax, n_ax + 4))
+    allc = cw[rows][:, perm]
+    gcol_sorted = perm.index(gcol)
     m = len(rows)
     r_ = np.arange(m)
-    after, before = allc[:, gcol + 1:], allc[:, :gcol]
+    after, before = allc[:, gcol_sorted + 1:], allc[:, :gcol_sorted]
     has_next = (after >= 0).any(axis=1) if after.shape[1] else np.zeros(m, bool)
     nxt = after[r_, np.argmax(after >= 0, axis=1)] if after.shape[1] else np.full(m, -1)
     has_prev = (before >= 0).any(axis=1) if before.shape[1] else np.zeros(m, bool)
@@ -917,7 +923,7 @@ def _insert_words(ctx, cw, rows, gcol, letter: bytes, off, ln):
     spl = ctx.spaced[rows].astype(np.int64)
     sp_off, _ = ctx.edits.const(b" ")
     let_off, _ = ctx.edits.const(letter)
-    sub = _SUB_INSERT + 3 * gcol
+    sub = _SUB_INSERT + 3 * gcol_sorted
     lead = (mode == 1) | (mode == 3)             # after a word: " X1.0"; before one: "X1.0 "
     ed = ctx.edits
     ed.add(pos[lead], pos[lead], sub, sp_off, spl[lead])
@@ -1009,9 +1015,21 @@ def _circumcentre(ax, ay, bx, by, cx, cy):
     return ux, uy
 
 
+def _r_centre(su, sv, eu, ev, R, dirs):
+    """Centre the control computes for an R-format arc (R < 0: more than 180 deg)."""
+    du, dv = eu - su, ev - sv
+    d = np.hypot(du, dv)
+    h = np.sqrt(np.maximum(R * R - d * d / 4, 0.0))
+    dsafe = np.where(d > 0, d, 1.0)
+    s = dirs * np.sign(R)
+    return (su + eu) / 2 + s * h * (-dv / dsafe), (sv + ev) / 2 + s * h * (du / dsafe)
+
+
 def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, dec, tol):
     """Decide per arc whether the transformed arc is still a circle the control can run with
-    the rounded words (all samples within ``tol``); compute its new I J K / R words."""
+    rounded words (every transformed sample within ``tol`` of the control's path), and with
+    which I J K / R words: the programmed ones if they still fit (so a translation leaves them
+    untouched), else those of the circle through the transformed points."""
     n_ax = len(program.axes)
     k = geo.k
     m_arcs = len(k)
@@ -1024,103 +1042,95 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, dec, tol):
     first = np.cumsum(m) - m
     rowS = np.repeat(r_, m)
     su, sv, eu, ev = Sc[r_, u], Sc[r_, v], Ec[r_, u], Ec[r_, v]
-    # circle through the control's start and end and the transformed mid sample (full circles:
-    # through the samples at a quarter, half and three quarters)
-    mid = St[first + 2 * q - 1]
-    qa, qc = St[first + q - 1], St[first + 3 * q - 1]
-    full_c = np.all(Sc_i[r_[:, None], np.stack([u, v], 1)] == Ec_i[r_[:, None], np.stack([u, v], 1)], axis=1)
-    ax_ = np.where(geo.full, qa[r_, u], su)
-    ay_ = np.where(geo.full, qa[r_, v], sv)
-    cx_ = np.where(geo.full, qc[r_, u], eu)
-    cy_ = np.where(geo.full, qc[r_, v], ev)
-    fu, fv = _circumcentre(ax_, ay_, mid[r_, u], mid[r_, v], cx_, cy_)
-    ok = np.isfinite(fu) & np.isfinite(fv) & (full_c == geo.full)
-    fu, fv = np.nan_to_num(fu), np.nan_to_num(fv)
     resu, resv = res[u], res[v]
-    # words as the control will read them
-    I_u = np.rint((fu - su) / resu).astype(np.int64)
-    I_v = np.rint((fv - sv) / resv).astype(np.int64)
-    ccu = np.where(geo.rfmt, 0.0, su + I_u * resu)
-    ccv = np.where(geo.rfmt, 0.0, sv + I_v * resv)
-    rfit = np.hypot(su - fu, sv - fv)
-    if geo.rfmt.any():
-        # sweep of the fitted circle decides the sign of R
-        fa0 = np.arctan2(sv - fv, su - fu)
-        fa1 = np.arctan2(ev - fv, eu - fu)
-        fsw = np.mod(geo.dirs * (fa1 - fa0), 2 * np.pi)
-        # near 180 deg both signs describe the arc: keep the programmed one
-        orig_sign = np.sign(np.nan_to_num(np.asarray(program.radius)[k], nan=1.0))
-        near = np.abs(fsw - np.pi) * np.maximum(rfit, 1e-9) <= tol
-        sign = np.where(near, orig_sign, np.where(fsw > np.pi, -1, 1)).astype(np.int64)
-        Rc = np.rint(rfit / resu).astype(np.int64) * sign
-        R = Rc * resu
-        du, dv = eu - su, ev - sv
-        d = np.hypot(du, dv)
-        h = np.sqrt(np.maximum(R * R - d * d / 4, 0.0))
-        dsafe = np.where(d > 0, d, 1.0)
-        s = geo.dirs * np.sign(R)
-        ccu = np.where(geo.rfmt, (su + eu) / 2 + s * h * (-dv / dsafe), ccu)
-        ccv = np.where(geo.rfmt, (sv + ev) / 2 + s * h * (du / dsafe), ccv)
-        ok &= ~geo.rfmt | (R * R - d * d / 4 > -tol * (np.abs(R) + d))
-    else:
-        Rc = np.zeros(m_arcs, np.int64)
-    r0c = np.hypot(su - ccu, sv - ccv)
-    r1c = np.hypot(eu - ccu, ev - ccv)
-    a0c = np.arctan2(sv - ccv, su - ccu)
-    a1c = np.arctan2(ev - ccv, eu - ccu)
-    swc = np.mod(geo.dirs * (a1c - a0c), 2 * np.pi)
-    swc = np.where(full_c, 2 * np.pi, swc)
-    ok &= (np.abs(r1c - r0c) <= tol) & (swc > 0)
-    # samples against the control's path
-    cu_s, cv_s = ccu[rowS], ccv[rowS]
-    pu, pv = St[np.arange(len(St)), u[rowS]], St[np.arange(len(St)), v[rowS]]
-    f = np.mod(geo.dirs[rowS] * (np.arctan2(pv - cv_s, pu - cu_s) - a0c[rowS]), 2 * np.pi) \
-        / np.where(swc[rowS] > 0, swc[rowS], 1.0)
-    rad_dev = np.abs(np.hypot(pu - cu_s, pv - cv_s) - (r0c[rowS] + (r1c - r0c)[rowS] * f))
-    ws = w[rowS]
-    sw_, ew_ = Sc[rowS, ws], Ec[rowS, ws]
-    w_dev = np.abs(St[np.arange(len(St)), ws] - (sw_ + (ew_ - sw_) * f))
-    good = (f > 0) & (f < 1) & (rad_dev <= tol) & (w_dev <= tol)
-    # other axes (rotary) must stay where the arc starts
+    full_c = (Sc_i[r_, u] == Ec_i[r_, u]) & (Sc_i[r_, v] == Ec_i[r_, v])
+    base_ok = full_c == geo.full
+    # other axes (rotary) must not move, neither at the end nor at any sample
     other = np.ones((m_arcs, n_ax), bool)
     other[r_, u] = other[r_, v] = other[r_, w] = False
+    base_ok &= np.all(~other | (Ec_i == Sc_i), axis=1)
     St_i = np.rint(St / res).astype(np.int64)
-    good &= np.all(~other[rowS] | (St_i == Sc_i[rowS]), axis=1)
-    ok &= np.all(~other | (Ec_i == Sc_i), axis=1)
-    mono = np.ones(len(f), bool)
-    mono[1:] = (f[1:] > f[:-1]) | (rowS[1:] != rowS[:-1])
-    good &= mono
-    ok &= np.logical_and.reduceat(good, first) if len(good) else ok
-    keep = ok
+    samp_ok = np.all(~other[rowS] | (St_i == Sc_i[rowS]), axis=1)
+    pu, pv = St[np.arange(len(St)), u[rowS]], St[np.arange(len(St)), v[rowS]]
+    ws = w[rowS]
+    pw = St[np.arange(len(St)), ws]
+    sw_, ew_ = Sc[rowS, ws], Ec[rowS, ws]
 
-    # words of kept arcs: I J K (those of the plane) or R
+    def path_ok(ccu, ccv):
+        """Every sample within tol of the control's arc around (ccu, ccv)."""
+        r0c = np.hypot(su - ccu, sv - ccv)
+        r1c = np.hypot(eu - ccu, ev - ccv)
+        a0c = np.arctan2(sv - ccv, su - ccu)
+        a1c = np.arctan2(ev - ccv, eu - ccu)
+        swc = np.where(full_c, 2 * np.pi, np.mod(geo.dirs * (a1c - a0c), 2 * np.pi))
+        ok = base_ok & (np.abs(r1c - r0c) <= tol) & (swc > 0) & np.isfinite(ccu + ccv)
+        cu_s, cv_s = ccu[rowS], ccv[rowS]
+        f = np.mod(geo.dirs[rowS] * (np.arctan2(pv - cv_s, pu - cu_s) - a0c[rowS]), 2 * np.pi) \
+            / np.where(swc[rowS] > 0, swc[rowS], 1.0)
+        rad_dev = np.abs(np.hypot(pu - cu_s, pv - cv_s) - (r0c[rowS] + (r1c - r0c)[rowS] * f))
+        w_dev = np.abs(pw - (sw_ + (ew_ - sw_) * f))
+        good = samp_ok & (f > 0) & (f < 1) & (rad_dev <= tol) & (w_dev <= tol)
+        mono = np.ones(len(f), bool)
+        mono[1:] = (f[1:] > f[:-1]) | (rowS[1:] != rowS[:-1])
+        good &= mono
+        return ok & np.logical_and.reduceat(good, first)
+
+    # candidate 1: the programmed words
+    I0u = np.rint(np.asarray(program.ijk)[k, geo.iu] / resu).astype(np.int64)
+    I0v = np.rint(np.asarray(program.ijk)[k, geo.iv] / resv).astype(np.int64)
+    R0 = np.rint(np.nan_to_num(np.asarray(program.radius)[k]) / resu).astype(np.int64)
+    c1u, c1v = su + I0u * resu, sv + I0v * resv
+    if geo.rfmt.any():
+        ru, rv = _r_centre(su, sv, eu, ev, R0 * resu, geo.dirs)
+        c1u, c1v = np.where(geo.rfmt, ru, c1u), np.where(geo.rfmt, rv, c1v)
+    ok1 = path_ok(c1u, c1v)
+    # candidate 2: circle through the control's start and end and the transformed middle
+    # sample (full circles: through the samples at a quarter, half and three quarters)
+    mid = St[first + 2 * q - 1]
+    qa, qc = St[first + q - 1], St[first + 3 * q - 1]
+    fu, fv = _circumcentre(np.where(geo.full, qa[r_, u], su), np.where(geo.full, qa[r_, v], sv),
+                           mid[r_, u], mid[r_, v],
+                           np.where(geo.full, qc[r_, u], eu), np.where(geo.full, qc[r_, v], ev))
+    fu, fv = np.nan_to_num(fu, nan=np.inf), np.nan_to_num(fv, nan=np.inf)
+    with np.errstate(invalid="ignore", over="ignore"):
+        I1u = np.rint(np.where(np.isfinite(fu), (fu - su) / resu, 0)).astype(np.int64)
+        I1v = np.rint(np.where(np.isfinite(fv), (fv - sv) / resv, 0)).astype(np.int64)
+    c2u, c2v = np.where(np.isfinite(fu), su + I1u * resu, np.inf), np.where(np.isfinite(fv), sv + I1v * resv, np.inf)
+    R1 = R0.copy()
+    if geo.rfmt.any():
+        rfit = np.hypot(su - fu, sv - fv)
+        fsw = np.mod(geo.dirs * (np.arctan2(ev - fv, eu - fu) - np.arctan2(sv - fv, su - fu)), 2 * np.pi)
+        # near 180 deg both signs describe the arc: keep the programmed one
+        near = np.abs(fsw - np.pi) * np.where(np.isfinite(rfit), rfit, 0) <= tol
+        sign = np.where(near, np.sign(np.where(R0 != 0, R0, 1)), np.where(fsw > np.pi, -1, 1))
+        with np.errstate(invalid="ignore"):
+            R1 = np.where(np.isfinite(rfit), np.rint(rfit / resu), 0).astype(np.int64) * sign.astype(np.int64)
+        ru, rv = _r_centre(su, sv, eu, ev, R1 * resu, geo.dirs)
+        c2u, c2v = np.where(geo.rfmt, ru, c2u), np.where(geo.rfmt, rv, c2v)
+    ok2 = ~ok1 & path_ok(c2u, c2v)
+    keep = ok1 | ok2
+    Iu, Iv, Rc = np.where(ok1, I0u, I1u), np.where(ok1, I0v, I1v), np.where(ok1, R0, R1)
+
+    # words of kept arcs: I J K (the two of the plane) or R
     N = len(program)
     a_counts = np.zeros((N, 4), np.int64)
     a_rep = np.zeros((N, 4), bool)
     a_ins = np.zeros((N, 4), bool)
     cw = np.asarray(program.col_word)
-    kk, iu, iv = k[keep], geo.iu[keep], geo.iv[keep]
-    ijk_res = np.array([10.0 ** -dec.get(c, 6) for c in "XYZ"])
-    inch = np.asarray(program.inch)[kk]
-    orig_ijk = np.rint(np.asarray(program.ijk)[kk] / ijk_res).astype(np.int64)
-    ijk_f = keep & ~geo.rfmt
-    ijk_k = ijk_f[keep]
-    for idx_c, cnt in ((iu, I_u[keep]), (iv, I_v[keep])):
-        rows, cols = kk[ijk_k], idx_c[ijk_k]
-        a_counts[rows, cols] = cnt[ijk_k]
+    inch = np.asarray(program.inch)[k]
+    for idx_c, cnt, orig in ((geo.iu, Iu, I0u), (geo.iv, Iv, I0v)):
+        sel = keep & ~geo.rfmt
+        rows, cols = k[sel], idx_c[sel]
+        a_counts[rows, cols] = cnt[sel]
         pres = cw[rows, n_ax + cols] >= 0
-        orig = orig_ijk[ijk_k, cols]
-        a_rep[rows, cols] = pres & ((cnt[ijk_k] != orig) | inch[ijk_k])
-        a_ins[rows, cols] = ~pres & (cnt[ijk_k] != 0)
-    rk = ~ijk_k
-    if rk.any():
-        rows = kk[rk]
-        a_counts[rows, 3] = Rc[keep][rk]
-        origR = np.rint(np.asarray(program.radius)[rows] / resu[keep][rk]).astype(np.int64)
-        a_rep[rows, 3] = (Rc[keep][rk] != origR) | inch[rk]
-    a_dec = np.array([dec.get("X", 6), dec.get("Y", 6), dec.get("Z", 6), 0])
-    if geo.rfmt.any():
-        a_dec[3] = int(round(-math.log10(float(resu[geo.rfmt][0]))))
+        a_rep[rows, cols] = pres & ((cnt[sel] != orig[sel]) | inch[sel])
+        a_ins[rows, cols] = ~pres & (cnt[sel] != 0)
+    sel = keep & geo.rfmt
+    a_counts[k[sel], 3] = Rc[sel]
+    a_rep[k[sel], 3] = (Rc[sel] != R0[sel]) | inch[sel]
+    a_dec = np.array([dec.get("X", 6), dec.get("Y", 6), dec.get("Z", 6), 6])
+    if sel.any():
+        a_dec[3] = int(round(-math.log10(float(resu[sel][0]))))
     return keep, (a_rep, a_ins, a_counts, a_dec)
 
 
