@@ -131,6 +131,15 @@ def test_journal_damage_in_the_middle_names_the_line(tmp_path):
         read_records(p)
 
 
+def test_journal_has_one_writer(tmp_path):
+    from mtcomp import MtcompError
+    p = tmp_path / "j.jsonl"
+    with Journal.open(p):
+        with pytest.raises(MtcompError, match="in use"):
+            Journal.open(p)
+    Journal.open(p).close()                               # free again once closed
+
+
 def test_journal_lines_are_plain_json(tmp_path):
     p = tmp_path / "j.jsonl"
     with Journal.open(p) as j:
@@ -181,3 +190,12 @@ def test_virtual_cell_writes_the_compensated_program(tmp_path):
         for k, axis in enumerate("XYZ"):
             if axis in words:
                 assert abs(words[axis] - expected[k]) < 1.5e-6, row
+
+
+def test_import_is_light():
+    import subprocess
+    import sys
+    code = ("import sys, mtcomp.cell, mtcomp.cell.cli, mtcomp.cell.registers; "
+            "print(any(m.startswith(('pymodbus', 'scipy')) for m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .._io import InputError
+from .._io import InputError, MtcompError
 
 log = logging.getLogger("mtcomp.cell")
 
@@ -37,8 +37,13 @@ class Journal:
         """Open (creating if needed) and read `path`; a torn last record is cut off."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        records, keep = read_records(path, repair=True)
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            _lock(fd, path)
+            records, keep = read_records(path, repair=True)
+        except BaseException:
+            os.close(fd)
+            raise
         if keep is not None:
             os.ftruncate(fd, keep)
             os.fsync(fd)
@@ -72,6 +77,19 @@ class Journal:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _lock(fd: int, path: Path) -> None:
+    """One writer per journal: a second mtcomp on the same file would interleave records.
+    The lock (flock, POSIX) goes away with the process, also when it is killed."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise MtcompError(f"journal {path} is in use by another mtcomp cell process") from None
 
 
 def read_records(path: str | os.PathLike, repair: bool = False) -> tuple[list[dict], int | None]:
