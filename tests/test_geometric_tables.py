@@ -116,9 +116,11 @@ def test_propagated_uncertainty_matches_the_scatter_of_repeated_builds(vmc, trut
 
 
 def test_measurement_set_round_trip(tmp_path, vmc, truth, setup):
-    ms = tables.simulate_runs(vmc, truth, setup, NOISE, step=20.0, seed=3)
+    ms = tables.simulate_runs(vmc, truth, replace(setup, mounts={"EXX": "workpiece"}), NOISE,
+                              step=20.0, seed=3)
     path = tables.save_measurement_set(ms, tmp_path / "set.toml")
     back = tables.load_measurement_set(path)
+    assert back.run("EXX").mount == "workpiece" and back.run("EYX").mount == "tool"
     a, b = tables.build_tables(vmc, ms), tables.build_tables(vmc, back)
     for ax in "XYZ":
         assert a.geometric.tables[ax] == b.geometric.tables[ax]   # CSVs carry every bit
@@ -208,3 +210,24 @@ def test_synthetic_study_chain_writes_its_files(tmp_path):
     for p in r.files.values():
         assert p.exists()
     assert "Synthetic study on vmc-moving-column" in r.summary()
+
+
+def test_table_mounted_optics_as_in_paper_004(vmc, truth, grid, truth_map):
+    """Positioning and straightness of the table read from the bed with the optic on the table
+    at P2 from the origin (formula 10's set-up): the arm is P2 − 121, constant along the run."""
+    base = tables.Setup.typical(seed=5)
+    offs = dict(base.offsets, EXX=(40.0, 80.0, 30.0), EYX=(-60.0, 20.0, 45.0), EZX=(10.0, -70.0, 5.0))
+    setup = replace(base, offsets=offs, mounts={"EXX": "workpiece", "EYX": "workpiece",
+                                                 "EZX": "workpiece"})
+    ms = tables.simulate_runs(vmc, truth, setup, step=STEP)
+    good = vol.error_map(vmc, tables.build_tables(vmc, ms).errors, grid)
+    assert vol.compare(truth_map, good)["max"] < 1e-5
+    # the same readings taken for spindle-mounted optics: the arms are wrong by the table travel
+    blind = replace(ms, runs=tuple(replace(r, mount="tool") for r in ms.runs))
+    wrong = vol.error_map(vmc, tables.build_tables(vmc, blind).errors, grid)
+    assert vol.compare(truth_map, wrong)["max"] > 1e-3
+    # a table-mounted optic cannot move with the column
+    bad = replace(ms, runs=tuple(replace(r, mount="workpiece") if r.component == "EYY" else r
+                                 for r in ms.runs))
+    with pytest.raises(InputError, match="EYY: a workpiece-mounted optic moves only with a"):
+        tables.build_tables(vmc, bad)

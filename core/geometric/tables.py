@@ -47,10 +47,13 @@ class ComponentRun:
     """One interferometer run of one component error.
 
     axis: moving axis ("X"); component: ISO 230-1 name read by the run ("EXX", "EYX", "EAX"...);
-    run: the readings (deviation in mm for E[XYZ]?, rad for E[ABC]?); offset: measuring point
-    relative to the tool tip in the tool frame, mm; square: label shared by the two straightness
-    runs made against one optical square (e.g. "XY"), "" if none; at: positions (mm) of the other
-    axes during the run (default 0).
+    run: the readings in the tool-relative-to-workpiece sense (deviation in mm for E[XYZ]?, rad
+    for E[ABC]?); mount: "tool" -- the moving optic sits on the spindle side at `offset` from the
+    tool tip (tool frame) and the reference optic on the table -- or "workpiece" -- the moving
+    optic sits on the table at `offset` from the workpiece origin and the reference optic on the
+    bed (paper 004's arrangement for the table, formula 10; workpiece-side axes only); square:
+    label shared by the two straightness runs made against one optical square (e.g. "XY"), ""
+    if none; at: positions (mm) of the other axes during the run (default 0).
     """
     axis: str
     component: str
@@ -58,6 +61,7 @@ class ComponentRun:
     offset: tuple = (0.0, 0.0, 0.0)
     square: str = ""
     at: dict = field(default_factory=dict)
+    mount: str = "tool"
 
     @property
     def direction(self) -> str:
@@ -140,6 +144,10 @@ def _lever(machine: Machine, run: ComponentRun, s: np.ndarray) -> np.ndarray:
     the tool-side chain, a table's with the table, hence the table's own travel in its arm."""
     i = machine.index(run.axis)
     ax = machine.axis(run.axis)
+    if run.mount == "workpiece":
+        # a point fixed on the table and the table's own reference point: a constant arm
+        arm = np.asarray(run.offset, float) - np.asarray(ax.location, float)
+        return np.broadcast_to(arm, (s.size, 3))
     p = np.asarray(machine.tool_point, float) + np.asarray(run.offset, float)
     for other in machine.axes[i + 1:]:
         p = p + float(run.at.get(other.name, 0.0)) * np.asarray(other.direction, float)
@@ -187,6 +195,13 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
         if r.axis not in machine.axis_names or machine.axis(r.axis).is_rotary:
             raise InputError(f"run of {r.component}: machine {machine.name} has no linear axis "
                              f"{r.axis}", where, field=r.component)
+        if r.mount not in ("tool", "workpiece"):
+            raise InputError(f"mount must be 'tool' or 'workpiece', got {r.mount!r}", where,
+                             field=r.component)
+        if r.mount == "workpiece" and machine.axis(r.axis).side != "workpiece":
+            raise InputError(f"run of {r.component}: a workpiece-mounted optic moves only with a "
+                             f"workpiece-side axis; {r.axis} is on the tool side", where,
+                             field=r.component)
     for ax in machine.axes:
         if ax.is_rotary:
             continue
@@ -277,13 +292,14 @@ class Setup:
     """Where the optics sat: measuring point relative to the tool tip (mm, tool frame) per run.
 
     offsets: component name -> (3,) offset; `default` for the others.  Paper 004 calls them P
-    (positioning), H and V (horizontal and vertical straightness).  square_angles: misalignment
-    (rad) of the optical square used for each axis pair, about the third axis, and
-    straightness_offsets: arbitrary zero of each straightness run (mm); both must drop out.
+    (positioning), H and V (horizontal and vertical straightness).  mounts: component name ->
+    "tool" or "workpiece" (see ComponentRun; default "tool").  square_angles: misalignment (rad)
+    of the optical square used for each axis pair, about the third axis; it must drop out.
     """
     offsets: dict = field(default_factory=dict)
     default: tuple = (0.0, 0.0, 0.0)
     square_angles: dict = field(default_factory=dict)
+    mounts: dict = field(default_factory=dict)
 
     def offset(self, component: str) -> tuple:
         return tuple(self.offsets.get(component, self.default))
@@ -333,7 +349,7 @@ def simulate_runs(machine: Machine | str, truth: ErrorSet, setup: Setup = Setup(
     to the first target (the interferometer is zeroed there), with the straightness optic's
     misalignment and the noise added.
     """
-    from ..kinematics import forward
+    from ..kinematics import chain, forward
     from .synthetic import run_positions
 
     machine = load_machine(machine)
@@ -347,15 +363,31 @@ def simulate_runs(machine: Machine | str, truth: ErrorSet, setup: Setup = Setup(
         q = np.zeros((t.size, machine.n_axes))
         q[:, i] = t
         nominal = forward(machine, q).p
+        ws = replace(machine, axes=tuple(x for x in machine.axes if x.side == "workpiece"))
         for name in component_names(a):
             d = name[1]
             off = setup.offset(name)
-            mach = replace(machine, tool_point=tuple(np.asarray(machine.tool_point) + off))
-            pose = forward(mach, q, truth)
+            mount = setup.mounts.get(name, "tool")
+            if mount == "workpiece":
+                if ax.side != "workpiece":
+                    raise ValueError(f"{name}: a workpiece-mounted optic needs a workpiece-side axis")
+                # the table point `off` seen from the bed, b = R^T (w - t), against its nominal
+                # path; in the tool-relative sense the reading is minus its displacement
+                qw = q[:, [k for k, x in enumerate(machine.axes) if x.side == "workpiece"]]
+                Rw, tw = chain(ws, qw, truth)
+                _, tn = chain(ws, qw)
+                b = np.einsum("nji,nj->ni", Rw, np.asarray(off)[None, :] - tw)
+                point = np.asarray(off)[None, :] - b      # tool-relative displacement, real
+                point_nom = tn
+                R_rel = Rw
+            else:
+                mach = replace(machine, tool_point=tuple(np.asarray(machine.tool_point) + off))
+                pose = forward(mach, q, truth)
+                point, point_nom, R_rel = pose.p, nominal + np.asarray(off)[None, :], pose.R
             square = ""
             if d in _LIN:
                 c = _LIN.index(d)
-                reading = pose.p[:, c] - (nominal[:, c] + np.asarray(off)[c])
+                reading = point[:, c] - point_nom[:, c]
                 sigma = noise.linear if d == a else noise.straightness
                 if d != a:
                     pair = "".join(sorted(a + d))
@@ -369,7 +401,7 @@ def simulate_runs(machine: Machine | str, truth: ErrorSet, setup: Setup = Setup(
                     reading = reading - th * np.cross(ek, u)[c] * t
             else:
                 c = "ABC".index(d)
-                reading = _small_rotation(pose.R)[:, c]
+                reading = _small_rotation(R_rel)[:, c]
                 sigma = noise.angular
             reading = reading - reading[0]
             up = reading[None, :] + rng.normal(0.0, 1.0, (cycles, t.size)) * sigma
@@ -377,7 +409,8 @@ def simulate_runs(machine: Machine | str, truth: ErrorSet, setup: Setup = Setup(
             if d == a:
                 up, dn = up + 0.5 * noise.reversal, dn - 0.5 * noise.reversal
             run = PositioningRun(t, up, dn, axis=a, source=name)
-            runs.append(ComponentRun(a, name, run, tuple(float(x) for x in off), square))
+            runs.append(ComponentRun(a, name, run, tuple(float(x) for x in off), square,
+                                     mount=mount))
     return MeasurementSet(machine.name, tuple(runs))
 
 
@@ -396,6 +429,8 @@ def save_measurement_set(mset: MeasurementSet, path: str | os.PathLike) -> Path:
             entry["square"] = r.square
         if r.at:
             entry["at"] = {k: float(v) for k, v in r.at.items()}
+        if r.mount != "tool":
+            entry["mount"] = r.mount
         data["run"].append(entry)
     if mset.location:
         data["location"] = {k: float(v) for k, v in mset.location.items()}
@@ -420,7 +455,7 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
     runs, seen = [], set()
     for k, r in enumerate(raw):
         f = f"run[{k}]"
-        unknown = set(r) - {"axis", "component", "file", "offset", "square", "at"}
+        unknown = set(r) - {"axis", "component", "file", "offset", "square", "at", "mount"}
         if unknown:
             raise InputError(f"unknown keys {sorted(unknown)}", path, field=f)
         comp = r.get("component")
@@ -450,8 +485,13 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
         at = r.get("at", {})
         if not isinstance(at, dict) or not all(isinstance(v, (int, float)) for v in at.values()):
             raise InputError("at must map axis names to positions in mm", path, field=f"{f}.at")
+        mount = r.get("mount", "tool")
+        if mount not in ("tool", "workpiece"):
+            raise InputError(f"mount must be 'tool' or 'workpiece', got {mount!r}", path,
+                             field=f"{f}.mount")
         run = iso230_2.read_run_csv(path.parent / file, axis=ax)
-        runs.append(ComponentRun(ax, comp, run, off, square, {k: float(v) for k, v in at.items()}))
+        runs.append(ComponentRun(ax, comp, run, off, square, {k: float(v) for k, v in at.items()},
+                                 mount))
     loc = data.get("location", {})
     if not isinstance(loc, dict) or not all(isinstance(v, (int, float)) for v in loc.values()):
         raise InputError("location must map ISO names (e.g. EC0Y) to values in rad", path,
