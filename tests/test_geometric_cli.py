@@ -82,3 +82,13 @@ def test_non_positive_spacing(tmp_path, capsys, flag):
     cmd = "map" if flag == "--step" else "table"
     assert run(["geometric", cmd, "x.toml", flag, "0", "-o", str(tmp_path / "o")]) == 2
     assert f"[{flag}]" in capsys.readouterr().out
+
+
+def test_bad_program_leaves_no_tables(tmp_path, capsys):
+    s = str(tmp_path / "set.toml")
+    assert run(["geometric", "simulate", "-o", s, "--step", "50"]) == 0
+    assert run(["geometric", "build", s, "-o", str(tmp_path / "b.toml")]) == 0
+    assert run(["geometric", "table", str(tmp_path / "b.toml"), "--program",
+                str(tmp_path / "none.nc"), "-o", str(tmp_path / "out")]) == 2
+    assert "NC program not found" in capsys.readouterr().out
+    assert not (tmp_path / "out").exists()

@@ -117,23 +117,27 @@ def _table(args: argparse.Namespace) -> int:
     model = _load_errors(args.errors)
     truth = _load_errors(args.truth) if args.truth else model
     out = Path(args.output)
+    # Everything is computed before the first file is written, so bad input leaves no output.
+    program = _rewrite_program(args, model) if args.program else None
     lat = comptables.lattice_table(args.machine, model, args.lattice_step)
+    rep = comptables.compensation_report(args.machine, truth, model, lat)
     atomic_write(out / "lattice.csv", lat.to_csv())
     files = comptables.write_iso_tables(model.geometric, out, "comp")
-    rep = comptables.compensation_report(args.machine, truth, model, lat)
     atomic_write(out / "residual.txt", rep.summary())
     print(rep.summary(), end="")
-    if args.program:
-        _rewrite_program(args, model, out)
-    print(f"written: {out / 'lattice.csv'}, " + ", ".join(str(f) for f in files)
-          + f", {out / 'residual.txt'}")
+    written = [out / "lattice.csv", *files, out / "residual.txt"]
+    if program is not None:
+        name, text, msg = program
+        written.append(atomic_write(out / name, text))
+        print(msg + f" -> {out / name}")
+    print("written: " + ", ".join(str(f) for f in written))
     return 0
 
 
-def _rewrite_program(args: argparse.Namespace, model, out: Path) -> None:
+def _rewrite_program(args: argparse.Namespace, model):
     """Corrected commands as an NC program, through the core's program rewriting (tables held
-    at their end values just beyond the travel, as in the other compensation forms)."""
-    from .._io import atomic_write
+    at their end values just beyond the travel, as in the other compensation forms).
+    Returns (file name, text, message)."""
     from ..commands import compensate_program
     from ..machine import load_machine
     from .comptables import extend_tables
@@ -144,10 +148,9 @@ def _rewrite_program(args: argparse.Namespace, model, out: Path) -> None:
         raise InputError("NC program not found", src) from None
     machine = load_machine(args.machine)
     new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src))
-    dst = out / (src.stem + "_comp" + src.suffix)
-    atomic_write(dst, new_text)
-    print(f"{src}: {rep['blocks']} motion blocks -> {dst}; model tool-edge error max "
-          f"{rep['before_max'] * 1e3:.3f} um before, {rep['after_max'] * 1e3:.4f} um after")
+    msg = (f"{src}: {rep['blocks']} motion blocks; model tool-edge error max "
+           f"{rep['before_max'] * 1e3:.3f} um before, {rep['after_max'] * 1e3:.4f} um after")
+    return src.stem + "_comp" + src.suffix, new_text, msg
 
 
 def _simulate(args: argparse.Namespace) -> int:
