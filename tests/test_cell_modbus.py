@@ -524,6 +524,10 @@ def test_cli_plc_sim_against_a_server(cell, capsys):
     out = capsys.readouterr().out
     assert "result 2 part 2 program 1100 GO" in out
     assert main(["serve", "--journal", os.devnull, "--measure", "nomodule"]) == 2
+    missing = bs.journal.parent / "no-such-dir" / "j.jsonl"
+    assert main(["serve", "--journal", str(missing), "--port", "0"]) == 2
+    assert "cannot use the journal" in capsys.readouterr().err
+    assert not missing.parent.exists()
 
 
 def test_client_mode_polls_a_plc_server(tmp_path):

@@ -35,8 +35,7 @@ class Journal:
     @classmethod
     def open(cls, path: str | os.PathLike, fsync: bool = True) -> "Journal":
         """Open (creating if needed) and read `path`; a torn last record is cut off."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        path = Path(path)  # the directory must exist: a mistyped path is an error, not a new tree
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             _lock(fd, path)

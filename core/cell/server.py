@@ -170,7 +170,8 @@ def run_virtual_cell_once(journal: str | Path, part_id: int = 1, program_id: int
     """Start the server and the PLC simulator on loopback, run one load cycle, stop both.
 
     Returns what the PLC received (decoded from the registers) and the journal path; the
-    journal is appended to, so repeated calls continue its sequence numbers.
+    journal is appended to, so repeated calls continue its sequence numbers (its directory
+    must exist).
     """
     from .plcsim import PlcSim
     from .virtual import VirtualCell, robot_placement
