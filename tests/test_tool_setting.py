@@ -322,3 +322,22 @@ def test_c_closed_form_any_angle_pair(t, c):
         return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
     gap = (rz(c) - rz(0)) @ np.asarray(t[:2])
     assert te.c_closed_form(0.0, c, gap) == pytest.approx(t[:2], abs=1e-9)
+
+
+# ---------------------------------------------------------------------------------- microscope frame
+
+def test_fit_rotation_removes_a_turned_microscope_frame(plan):
+    t = (0.34, 0.245, 0.2)
+    meas0 = simulate_grooving(M, t, MicroscopeNoise(0.0, 0.0), 3, plan=plan, frame_offset=0.5, frame_rotation=0.2)
+    exact = te.estimate(M, meas0, fit_rotation=True)
+    assert exact.offset == pytest.approx(t, abs=1e-10)
+    assert all(abs(v) <= np.radians(0.2) for k, v in exact.nuisance.items() if k.endswith(":rot"))
+    # with 1 um noise: without the rotation fit the estimate is biased and the misfit is flagged
+    hits, flagged = 0, 0
+    for seed in range(20):
+        meas = simulate_grooving(M, t, MicroscopeNoise(0.001, 0.001), seed, plan=plan, frame_rotation=0.1)
+        est = te.estimate(M, meas, fit_rotation=True)
+        hits += est.mahalanobis2(t) <= 11.34
+        flagged += any("exceed the stated noise" in w for w in te.estimate(M, meas).warnings)
+    assert hits >= 19 and flagged >= 15
+    assert "microscope frame rotation" in est.summary()

@@ -198,14 +198,17 @@ class GroovingMeasurements:
 
 
 def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = None, seed=None, *,
-                      plan: Plan | None = None, compensation=None, frame_offset: float = 0.0) -> GroovingMeasurements:
+                      plan: Plan | None = None, compensation=None, frame_offset: float = 0.0,
+                      frame_rotation: float = 0.0) -> GroovingMeasurements:
     """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
     (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
     Gaussian noise of `noise` (default 1 um on positions and depths) from `seed`.  plan: default
     `make_plan(machine)`; compensation: ErrorSet the programs are compensated for.
 
     frame_offset: mm; each test is measured in a microscope frame whose origin is shifted by a
-    uniform random (u, v) in +-frame_offset (the estimator must not depend on it).
+    uniform random (u, v) in +-frame_offset (the estimator must not depend on it), and turned by
+    a uniform random angle in +-frame_rotation deg (about the face origin; `estimate(...,
+    fit_rotation=True)` removes it).
     Raises MtcompError if a groove would not be cut (depth <= 0): increase the depth of cut."""
     from ..machine import load_machine
     m = load_machine(machine)
@@ -218,10 +221,15 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
         raise MtcompError(f"grooves {', '.join(uncut)} would not be cut (the edge stays above the surface): "
                           f"increase the depth of cut (now {plan.options.depth:g} mm)")
     origin = {t: rng.uniform(-frame_offset, frame_offset, 2) if frame_offset else np.zeros(2) for t in plan.tests()}
+    turn = {}
+    for t in plan.tests():
+        a = np.radians(rng.uniform(-frame_rotation, frame_rotation)) if frame_rotation else 0.0
+        turn[t] = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
     pts = []
     for gid, feat in plan.features():
         c = cuts[gid]
-        u, v = np.add(c.point(feat), origin[c.groove.test]) + rng.normal(0.0, noise.position, 2)
+        test = c.groove.test
+        u, v = turn[test] @ np.asarray(c.point(feat)) + origin[test] + rng.normal(0.0, noise.position, 2)
         d = c.depth + rng.normal(0.0, noise.depth)
         pts.append(PointMeasurement(gid, feat, float(u), float(v), float(d)))
     # Noise-free synthesis still needs finite weights: use the machine's resolution scale.

@@ -54,6 +54,8 @@ def register(subparsers) -> None:
     si.add_argument("--seed", type=int, default=None)
     si.add_argument("--frame-offset", type=float, default=0.0,
                     help="random microscope origin per test, uniform in +-this, mm (default 0)")
+    si.add_argument("--frame-rotation", type=float, default=0.0,
+                    help="random microscope frame rotation per test, uniform in +-this, deg (default 0)")
     si.add_argument("--compensation", help="errors TOML the programs are compensated for (cut compensated grooves)")
     si.add_argument("-o", "--output", required=True, help="filled measurement sheet (CSV)")
     si.add_argument("--png", help="layout with the predicted grooves")
@@ -65,6 +67,8 @@ def register(subparsers) -> None:
     es.add_argument("--machine", help="preset or TOML (default: the plan's machine)")
     es.add_argument("--sigma-pos", type=float, default=0.001, help="position sigma, mm, for rows without one")
     es.add_argument("--sigma-depth", type=float, default=0.001, help="depth sigma, mm, for rows without one")
+    es.add_argument("--fit-rotation", action="store_true",
+                    help="also fit a rotation of the microscope frame per test (not aligned to the face axes)")
     es.add_argument("-o", "--output", help="errors TOML for 'mtcomp compensate'")
     es.add_argument("--report", help="text report")
     es.add_argument("--png", help="report figure")
@@ -103,7 +107,8 @@ def _simulate(args) -> int:
             raise InputError(f"expected a sigma >= 0 mm, got {getattr(args, name)}", field=name.replace("_", "-"))
     comp = load_errors(args.compensation) if args.compensation else None
     meas = simulate_grooving(m, tuple(args.offset), MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
-                             plan=plan, compensation=comp, frame_offset=args.frame_offset)
+                             plan=plan, compensation=comp, frame_offset=args.frame_offset,
+                             frame_rotation=args.frame_rotation)
     text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, sigma pos {args.sigma_pos} mm, "
                                   f"depth {args.sigma_depth} mm, seed {args.seed}")
     atomic_write(args.output, text)
@@ -127,7 +132,7 @@ def _estimate(args) -> int:
     plan = load_plan(plan_path)
     m = _machine_for(args, plan)
     meas = read_measurements(meas_path, plan, args.sigma_pos, args.sigma_depth)
-    est = estimate(m, meas)
+    est = estimate(m, meas, fit_rotation=args.fit_rotation)
     # Compute every output before writing any, so a failure leaves nothing behind.
     report = report_text(m, meas, est) if args.report else None
     progs = nc_programs(m, plan, compensation=est.errors()) if args.nc_dir else {}

@@ -178,6 +178,11 @@ class Design:
     labels: tuple          # (M,) "groove feature component"
     lines: tuple           # (M,) line in the source file (or None)
     nuisance_names: tuple  # (K,)
+    point: np.ndarray = None   # (M,) index of the measured point of each row
+    comp: np.ndarray = None    # (M,) 0 = u, 1 = v, 2 = depth
+    tests: tuple = ()          # (P,) test of each measured point
+    Y0: np.ndarray = None      # (P,3) nominal (u, v, depth) of each point
+    JJ: np.ndarray = None      # (P,3,3) d(u, v, depth)/dt of each point
 
 
 def _rows_for(machine, plan: Plan, items):
@@ -228,7 +233,7 @@ def build_design(machine, meas) -> Design:
     if not items:
         raise InputError("no measured points", meas.source)
     Y0, JJ = _rows_for(m, plan, items)
-    y, y0, J, sig, labels, lines, nkeys = [], [], [], [], [], [], []
+    y, y0, J, sig, labels, lines, nkeys, pidx, comp = [], [], [], [], [], [], [], [], []
     for k, p in enumerate(meas.points):
         g = plan.groove(p.groove)
         for c, (name, val) in enumerate((("u", p.u), ("v", p.v), ("depth", p.depth))):
@@ -242,11 +247,47 @@ def build_design(machine, meas) -> Design:
             labels.append(f"{p.groove} {p.feature} {name}")
             lines.append(p.line)
             nkeys.append(f"{g.test}:{name}")
+            pidx.append(k)
+            comp.append(c)
     names = tuple(dict.fromkeys(nkeys))
     N = np.zeros((len(y), len(names)))
     for r, key in enumerate(nkeys):
         N[r, names.index(key)] = 1.0
-    return Design(np.array(y), np.array(y0), np.array(J), N, np.array(sig), tuple(labels), tuple(lines), names)
+    tests = tuple(plan.groove(p.groove).test for p in meas.points)
+    return Design(np.array(y), np.array(y0), np.array(J), N, np.array(sig), tuple(labels), tuple(lines), names,
+                  np.array(pidx), np.array(comp), tests, Y0, JJ)
+
+
+def _model(d: Design, x: np.ndarray, rot_tests: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Model values F (M,) and Jacobian A (M, n_par) at parameters x = [t, offsets, rotations].
+
+    Without rotations the model is linear: F = y0 + [J N] x.  A rotation phi (rad) of a test's
+    microscope frame maps the true (u, v) to Rot(phi) (u, v) (then the offset is added); it is
+    exact here and solved by Gauss-Newton."""
+    K = d.N.shape[1]
+    t = x[:3]
+    F = d.y0 + d.J @ t + d.N @ x[3:3 + K]
+    A = np.hstack([d.J, d.N, np.zeros((d.y.size, len(rot_tests)))])
+    for j, test in enumerate(rot_tests):
+        phi = x[3 + K + j]
+        c, s_ = np.cos(phi), np.sin(phi)
+        pts = np.array([k for k, tt in enumerate(d.tests) if tt == test])
+        uv = d.Y0[pts, :2] + d.JJ[pts, :2] @ t                      # true (u, v) of the points
+        Juv = d.JJ[pts, :2]                                         # (p, 2, 3)
+        rot = np.array([[c, -s_], [s_, c]])
+        drot = np.array([[-s_, -c], [c, -s_]])
+        ruv, duv = uv @ rot.T, uv @ drot.T
+        rJ = np.einsum("ij,pjk->pik", rot, Juv)
+        where = {int(k): i for i, k in enumerate(pts)}
+        for r in np.nonzero(d.comp < 2)[0]:
+            i = where.get(int(d.point[r]))
+            if i is None:
+                continue
+            cc = d.comp[r]
+            F[r] += ruv[i, cc] - uv[i, cc]
+            A[r, :3] = rJ[i, cc]
+            A[r, 3 + K + j] = duv[i, cc]
+    return F, A
 
 
 @dataclass(frozen=True)
@@ -268,6 +309,7 @@ class ToolSettingEstimate:
     warnings: tuple = ()
     closed: dict = field(default_factory=dict)
     source: str = ""
+    nuisance_sigma: dict = field(default_factory=dict)
 
     @property
     def offset(self) -> np.ndarray:
@@ -303,6 +345,11 @@ class ToolSettingEstimate:
             where = f" (line {self.lines[worst]})" if self.lines[worst] else ""
             lines.append(f"  largest normalised residual: {self.normalized[worst]:+.2f} at "
                          f"{self.labels[worst]}{where}")
+        rots = [k for k in self.nuisance if k.endswith(":rot")]
+        if rots:
+            lines.append("  microscope frame rotation: " + "; ".join(
+                f"{k[:-4]} test {self.nuisance[k] * 1e3:+.3f} +- {self.nuisance_sigma.get(k, np.nan) * 1e3:.3f} mrad"
+                for k in rots))
         if self.closed:
             lines.append("  closed forms: " + "; ".join(
                 f"{k} ({', '.join(f'{x * um:+.2f}' for x in v)}) um" for k, v in self.closed.items()))
@@ -311,47 +358,50 @@ class ToolSettingEstimate:
         return "\n".join(lines)
 
 
-def _solve(design: Design):
-    """Whitened least squares by SVD: parameters, covariance, rank information."""
-    A = np.hstack([design.J, design.N]) / design.sigma[:, None]
-    b = (design.y - design.y0) / design.sigma
-    scale = np.linalg.norm(A, axis=0)
-    scale[scale == 0] = 1.0
-    U, s, Vt = np.linalg.svd(A / scale, full_matrices=False)
-    return A, b, scale, U, s, Vt
-
-
-def estimate(machine, meas, closed: bool = True) -> ToolSettingEstimate:
+def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False) -> ToolSettingEstimate:
     """Weighted least-squares tool setting error from a GroovingMeasurements (any grooves, any
     angles), with covariance (known measurement sigmas, not rescaled by chi2), residuals,
     closed-form estimates for comparison and warnings.  Raises InputError on singular geometry
-    (a component of t that the measured grooves cannot see)."""
+    (a component of t that the measured grooves cannot see).
+
+    fit_rotation: also estimate a rotation of the microscope frame per test (rad, in `nuisance`
+    as "<test>:rot"), for sheets measured without aligning the microscope to the face axes."""
     from ..errors import ToolSetting
     from ..machine import load_machine
     from scipy import stats
     m = load_machine(machine)
     d = build_design(m, meas)
-    n_par = 3 + d.N.shape[1]
+    rot_tests = tuple(t for t in dict.fromkeys(d.tests)
+                      if fit_rotation and f"{t}:u" in d.nuisance_names and f"{t}:v" in d.nuisance_names)
+    n_par = 3 + d.N.shape[1] + len(rot_tests)
     if d.y.size < n_par:
         raise InputError(f"{d.y.size} measured values cannot determine {n_par} unknowns (3 tool setting "
-                         f"components and {d.N.shape[1]} per-test offsets): measure more grooves", meas.source)
-    A, b, scale, U, s, Vt = _solve(d)
-    tol = s[0] * 1e-9
-    if s[-1] <= tol:
-        null = Vt[s <= tol]
-        lost = [COMPONENTS[k] for k in range(3) if np.max(np.abs(null[:, k])) > 1e-3]
-        hint = ""
-        if "t_z" in lost:
-            hint = " (t_z needs B grooves at two or more inclinations, at least one non-zero)"
-        elif lost:
-            hint = " (t_x and t_y need the A pattern at A = 0 and 180, or C grooves at two or more C angles)"
-        raise InputError(f"singular geometry: the measured grooves do not determine {', '.join(lost) or 'the offsets'}"
-                         f"{hint}", meas.source)
-    x = (Vt.T @ ((U.T @ b) / s)) / scale
+                         f"components and {n_par - 3} per-test offsets/rotations): measure more grooves",
+                         meas.source)
+    x = np.zeros(n_par)
+    # Gauss-Newton; the model is linear without rotations, so one step is then exact.
+    for it in range(30):
+        F, A = _model(d, x, rot_tests)
+        Aw = A / d.sigma[:, None]
+        scale = np.linalg.norm(Aw, axis=0)
+        scale[scale == 0] = 1.0
+        U, s, Vt = np.linalg.svd(Aw / scale, full_matrices=False)
+        if it == 0:
+            _check_singular(s, Vt, meas.source)
+        dx = (Vt.T @ ((U.T @ ((d.y - F) / d.sigma)) / s)) / scale
+        x = x + dx
+        if not rot_tests or np.max(np.abs(dx)) < 1e-12:   # mm and rad
+            break
+    else:
+        raise InputError("the fit with microscope frame rotations did not converge", meas.source)
+    fit, A = _model(d, x, rot_tests)
+    Aw = A / d.sigma[:, None]
+    scale = np.linalg.norm(Aw, axis=0)
+    scale[scale == 0] = 1.0
+    U, s, Vt = np.linalg.svd(Aw / scale, full_matrices=False)
     cov_full = (Vt.T / s ** 2) @ Vt / np.outer(scale, scale)
     t = x[:3]
     cov = cov_full[:3, :3]
-    fit = np.hstack([d.J, d.N]) @ x + d.y0
     res = d.y - fit
     norm = res / d.sigma
     dof = int(d.y.size - n_par)
@@ -378,8 +428,25 @@ def estimate(machine, meas, closed: bool = True) -> ToolSettingEstimate:
             cf = closed_forms(meas)
         except (ValueError, KeyError, np.linalg.LinAlgError):
             cf = {}
-    return ToolSettingEstimate(ToolSetting(tuple(t)), cov, dict(zip(d.nuisance_names, x[3:])), res, norm,
-                               d.labels, d.lines, chi2, dof, tuple(warnings), cf, meas.source)
+    names = d.nuisance_names + tuple(f"{t_}:rot" for t_ in rot_tests)
+    nuis_sig = np.sqrt(np.diag(cov_full))[3:]
+    return ToolSettingEstimate(ToolSetting(tuple(t)), cov, dict(zip(names, x[3:])), res, norm,
+                               d.labels, d.lines, chi2, dof, tuple(warnings), cf, meas.source,
+                               dict(zip(names, nuis_sig)))
+
+
+def _check_singular(s, Vt, source):
+    tol = s[0] * 1e-9
+    if s[-1] <= tol:
+        null = Vt[s <= tol]
+        lost = [COMPONENTS[k] for k in range(3) if np.max(np.abs(null[:, k])) > 1e-3]
+        hint = ""
+        if "t_z" in lost:
+            hint = " (t_z needs B grooves at two or more inclinations, at least one non-zero)"
+        elif lost:
+            hint = " (t_x and t_y need the A pattern at A = 0 and 180, or C grooves at two or more C angles)"
+        what = ", ".join(lost) if lost else "the per-test offsets or rotations (too few points in a test)"
+        raise InputError(f"singular geometry: the measured grooves do not determine {what}{hint}", source)
 
 
 # ---------------------------------------------------------------------------------------------
