@@ -341,3 +341,17 @@ def test_fit_rotation_removes_a_turned_microscope_frame(plan):
         flagged += any("exceed the stated noise" in w for w in te.estimate(M, meas).warnings)
     assert hits >= 19 and flagged >= 15
     assert "microscope frame rotation" in est.summary()
+
+
+@settings(max_examples=10, deadline=None)
+@given(b=st.lists(st.floats(-40, 40).filter(lambda x: abs(x) > 1), min_size=1, max_size=4, unique=True),
+       c=st.lists(st.sampled_from([0.0, 60.0, 90.0, 150.0, 200.0, 270.0]), min_size=2, max_size=4, unique=True),
+       t=st.tuples(*[st.floats(-0.5, 0.5)] * 3))
+def test_least_squares_any_angles_exact(b, c, t):
+    """Any number of B inclinations and C angles (open polygons too): noise-free data give t exactly."""
+    opts = PlanOptions(tests=("B", "C"), b_angles=(0.0, *b), c_angles=tuple(c), depth=0.5, triangle_side=3.0,
+                       spacing=0.5, c_centre=(-5.0, 0.0), b_origin=(1.0, -2.0))
+    plan = make_plan(M, opts)
+    meas = simulate_grooving(M, t, MicroscopeNoise(0.0, 0.0), 1, plan=plan, frame_offset=0.2)
+    est = te.estimate(M, meas)
+    assert est.offset == pytest.approx(t, abs=1e-9)

@@ -203,7 +203,7 @@ def make_plan(machine, options: PlanOptions | None = None) -> Plan:
         for d in dirs:
             pts.append(pts[-1] + L * d)
         closed = np.allclose(pts[-1], pts[0], atol=1e-9)
-        centre = np.mean(pts[:-1], axis=0) if closed else np.zeros(2)
+        centre = np.mean(pts[:-1] if closed else pts, axis=0)
         shift = np.asarray(o.c_centre) - centre
         for k, c in enumerate(o.c_angles):
             grooves.append(Groove(f"C{_fmt_angle(c)}", "C", "top", (0.0, 0.0, float(c)),
