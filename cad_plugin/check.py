@@ -215,3 +215,36 @@ def plot_check(path: Toolpath, form: FormCheck, out, title: str = "") -> None:
     with atomic_path(out) as tmp:
         fig.savefig(tmp, format="png", dpi=120)
     plt.close(fig)
+
+
+def plot_toolpath(path: Toolpath, out, title: str = "", q: np.ndarray | None = None,
+                  names=()) -> None:
+    """PNG: top view of the toolpath (cutting points coloured by tip z) and, if given, the axis
+    commands over the block index."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from .._io import atomic_path
+    fig, axs = plt.subplots(1, 2 if q is not None else 1, figsize=(11 if q is not None else 6, 4.8))
+    a0 = axs[0] if q is not None else axs
+    cut = path.cutting
+    a0.plot(path.p[:, 0], path.p[:, 1], lw=0.3, color="0.6")
+    sc = a0.scatter(path.p[cut, 0], path.p[cut, 1], c=path.p[cut, 2], s=1, cmap="viridis")
+    fig.colorbar(sc, ax=a0, label="tip z [mm]")
+    a0.set_aspect("equal")
+    a0.set_xlabel("x [mm]")
+    a0.set_ylabel("y [mm]")
+    a0.set_title(f"{path.name}: {len(path)} poses, {path.tool.description}")
+    if q is not None:
+        a1 = axs[1]
+        for k, name in enumerate(names):
+            a1.plot(q[:, k], lw=0.8, label=f"{name} [{'deg' if name in 'ABC' else 'mm'}]")
+        a1.set_xlabel("block")
+        a1.set_title("axis commands")
+        a1.legend(fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)

@@ -33,7 +33,7 @@ __all__ = [
     "vgroove", "bowl", "pyramid", "sphere_vgrooves", "register",
     "groove_plate", "bowl_blank", "pyramid_part", "concave_grating",
     "GroovePlateLayout", "BowlBlankLayout", "PyramidLayout", "GratingLayout",
-    "vgroove_section", "pyramid_height", "volume",
+    "vgroove_section", "pyramid_height", "volume", "plan_plate", "plan_tilts",
 ]
 
 
@@ -203,6 +203,54 @@ def groove_plate(layout: GroovePlateLayout = GroovePlateLayout()) -> cq.Workplan
     wp = _plate(layout.size, layout.size, layout.thickness)
     for seg, tilt in layout.grooves():
         wp = _context(vgroove(wp, seg, layout.depth, layout.angle, tilt, clean=False).val())
+    return _single(wp.newObject([wp.findSolid().clean()]))
+
+
+def plan_tilts(plan) -> list[float]:
+    """Tilt (deg) of the tool about the cutting direction for every groove of a tool-setting
+    plan (mtcomp.setting.tool_plan.Plan), from the nominal kinematics of the plan's machine at
+    the groove's (A, B, C): the angle from the face normal n to the tool axis v, positive
+    towards d x n (d the cutting direction), as in tool_plan's CutGroove."""
+    from ..kinematics import forward
+    from ..machine import load_machine
+    m = load_machine(plan.machine)
+    tilts = []
+    for g in plan.grooves:
+        q = np.zeros((1, m.n_axes))
+        for k, name in enumerate("ABC"):
+            if name in m.axis_names:
+                q[0, m.index(name)] = g.angles[k]
+        v = forward(m, q).v[0]
+        face = plan.face_of(g)
+        n = np.asarray(face.normal, float)
+        du, dv = g.direction
+        d = du * np.asarray(face.eu, float) + dv * np.asarray(face.ev, float)
+        tilts.append(math.degrees(math.atan2(v @ np.cross(d, n), v @ n)))
+    return tilts
+
+
+def plan_plate(plan, face: str = "top", thickness: float = 3.0) -> cq.Workplane:
+    """Plate carrying the grooves that a tool-setting plan (mtcomp.setting.tool_plan) cuts on one
+    of its faces ("top" or "side"), as the ideal machine cuts them: the plate is the plan's
+    plate size centred on the face origin, `thickness` mm behind the face, in the workpiece
+    frame.  Passes that coincide nominally (A = 0 and A = 180 deg) are cut once."""
+    f = plan.faces[face]
+    w, h = plan.options.plate
+    grooves = [(g, t) for g, t in zip(plan.grooves, plan_tilts(plan)) if g.face == face]
+    if not grooves:
+        raise InputError(f"the plan has no grooves on face {face!r}", field="face")
+    plane = cq.Plane(origin=tuple(f.origin), xDir=tuple(f.eu), normal=tuple(f.normal))
+    wp = (cq.Workplane(plane).box(w, h, thickness, centered=(True, True, False))
+          .translate(tuple(-thickness * np.asarray(f.normal, float))))
+    wp = cq.Workplane(plane).add(wp.val()).newObject([])
+    seen = set()
+    for g, tilt in grooves:
+        key = (tuple(np.round(g.start, 9)), tuple(np.round(g.end, 9)), round(tilt, 9), g.depth)
+        if key in seen:
+            continue
+        seen.add(key)
+        cut = vgroove(wp, [g.start, g.end], g.depth, plan.options.tip_angle, tilt, clean=False)
+        wp = cq.Workplane(plane).add(cut.val()).newObject([])
     return _single(wp.newObject([wp.findSolid().clean()]))
 
 

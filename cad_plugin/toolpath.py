@@ -495,7 +495,20 @@ def to_axes(machine, path: Toolpath, errors=None) -> np.ndarray:
         a = b
     q0 = _pinv_solve(machine, q0, path.p)
     target = Pose(path.p, R, machine.tool_axis)
-    q = compensate(machine, target, None, q0)
+    q = _unwrap(machine, compensate(machine, target, None, q0))
     if errors is not None:
         q = compensate(machine, target, errors, q)
+    return q
+
+
+def _unwrap(machine, q: np.ndarray) -> np.ndarray:
+    """Rotary angles made continuous along the path (no 360 deg turn between neighbours that
+    stand for the same orientation), shifted by whole turns into the travel where possible."""
+    q = q.copy()
+    for i in machine.rotary_indices:
+        lo, hi = machine.axes[i].limits
+        u = np.degrees(np.unwrap(np.radians(q[:, i])))
+        u -= 360.0 * np.round((u.mean() - 0.5 * (lo + hi)) / 360.0) if np.isfinite(lo + hi) else 0.0
+        if np.all((u >= lo) & (u <= hi)):
+            q[:, i] = u
     return q

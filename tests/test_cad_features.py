@@ -188,6 +188,31 @@ def test_failed_export_leaves_no_file(tmp_path):
 
 
 def test_package_import_stays_light():
-    code = ("import sys, mtcomp, mtcomp.cad_plugin; "
+    code = ("import sys, mtcomp, mtcomp.cad_plugin, mtcomp.cad_plugin.cli, mtcomp.cad_plugin.layout; "
             "assert 'cadquery' not in sys.modules and 'OCP' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.mark.parametrize("face", ["top", "side"])
+def test_plate_of_the_tool_setting_plan(face):
+    from mtcomp.setting.tool_plan import groove_width, make_plan
+    plan = make_plan("robonano-ui")
+    tilts = dict(zip(plan.ids, F.plan_tilts(plan)))
+    # B grooves (along +Y at B = theta) are tilted by theta about the cutting direction.
+    assert tilts["B+10"] == pytest.approx(10.0) and tilts["B-10"] == pytest.approx(-10.0)
+    assert tilts["C120"] == pytest.approx(0.0, abs=1e-12) and tilts["A180-1"] == pytest.approx(0.0, abs=1e-12)
+    solid = F.plan_plate(plan, face).val()
+    w, h = plan.options.plate
+    D = plan.options.depth
+    # Independent: sections in face coordinates as in the flat-plate test.
+    passes = {(g.start, g.end, round(tilts[g.id], 9)) for g in plan.grooves if g.face == face}
+    lay = type("L", (), {"depth": D, "angle": plan.options.tip_angle,
+                         "grooves": lambda self: [(np.array([s, e]), t) for s, e, t in passes]})()
+    x, wts = np.polynomial.legendre.leggauss(3)
+    removed = sum(wi * union_area(groove_rectangles(lay, -D / 2 + xi * D / 2))
+                  for xi, wi in zip(x, wts)) * D / 2
+    assert F.volume(solid) == pytest.approx(w * h * 3.0 - removed, rel=REL)
+    # ... and the groove widths agree with the tool-setting module's formula.
+    bb_removed = sum(groove_width(D, 90.0, t) * D / 2 * np.hypot(*np.subtract(e, s))
+                     for s, e, t in passes)
+    assert removed < bb_removed  # overlaps at shared points are removed once

@@ -119,3 +119,13 @@ def test_axes_reproduce_grating_poses_nominal_and_compensated():
     assert np.max(np.abs(real.p - tp.p)) < 1e-9
     assert np.max(np.abs(real.R - tp.R)) < 1e-9
     assert np.max(np.abs(forward(m, q, err).p - tp.p)) > 1e-3  # uncompensated misses
+
+
+def test_rotary_axes_stay_continuous_along_the_grating():
+    m = load_machine("robonano-ui")
+    g = F.GratingLayout()
+    tp = T.grating_passes(g.sphere_radius, g.psi, g.span, g.depth, T.Tool("vtool"))
+    q = T.to_axes(m, tp)
+    rot = list(m.rotary_indices)
+    # Same orientation can be written C = -180 or +180: the path never swaps within a run.
+    assert np.max(np.abs(np.diff(q[:, rot], axis=0))) < 20.0

@@ -1,0 +1,68 @@
+"""`mtcomp cad features` / `mtcomp cad toolpath` end to end (in-process CLI)."""
+import numpy as np
+import pytest
+
+pytest.importorskip("cadquery")
+from mtcomp import gcode  # noqa: E402
+from mtcomp.cad_plugin.export import import_step  # noqa: E402
+from mtcomp.cad_plugin import features as F  # noqa: E402
+from mtcomp.cli import main  # noqa: E402
+from mtcomp.errors import load_errors  # noqa: E402
+from mtcomp.kinematics import forward  # noqa: E402
+from mtcomp.machine import load_machine  # noqa: E402
+
+
+def test_features_writes_step_and_stl(tmp_path, capsys):
+    step, stl = tmp_path / "blank.step", tmp_path / "blank.stl"
+    assert main(["cad", "features", "bowl-blank", "-o", str(step), "-o", str(stl),
+                 "--param", "bowl_depth=0.5"]) == 0
+    expected = F.volume(F.bowl_blank(F.BowlBlankLayout(bowl_depth=0.5)))
+    assert F.volume(import_step(step)) == pytest.approx(expected, rel=1e-9)
+    assert stl.stat().st_size > 84
+    assert f"volume {expected:.9f}" in capsys.readouterr().out
+
+
+def test_bad_parameter_exits_2_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "g.step"
+    assert main(["cad", "features", "grating", "-o", str(out), "--param", "pitch=fine"]) == 2
+    assert "pitch" in capsys.readouterr().err
+    assert main(["cad", "features", "grating", "-o", str(tmp_path / "g.iges")]) == 2
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_toolpath_compensated_program_and_check(tmp_path, capsys):
+    (tmp_path / "err.toml").write_text(
+        "[workpiece_setting]\ntranslation = [0.02, -0.01, 0.008]\nangles = [0.1, -0.2, 0.5]\n")
+    nc, png = tmp_path / "pyr.nc", tmp_path / "pyr.png"
+    assert main(["cad", "toolpath", "pyramid", "-o", str(nc), "--png", str(png),
+                 "--errors", str(tmp_path / "err.toml"), "--stepover", "0.1", "--step", "0.05",
+                 "--grid", "0.02"]) == 0
+    out = capsys.readouterr().out
+    assert "uncompensated program" in out and "width error max" in out
+    m = load_machine("robonano-a0ib")
+    q = gcode.parse(nc.read_text(), axes=m.axis_names).position
+    err = load_errors(tmp_path / "err.toml")
+    # The program puts the real ball where the CAD toolpath wants it.
+    from mtcomp.cad_plugin.toolpath import Tool, pyramid_finishing
+    tp = pyramid_finishing(tool=Tool("ball", 0.5), stepover=0.1, step=0.05)
+    assert np.max(np.abs(forward(m, q, err).p - tp.p)) < 5e-6
+    assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_toolpath_grating_plain_axes(tmp_path):
+    nc = tmp_path / "g.nc"
+    assert main(["cad", "toolpath", "grating", "-m", "robonano-ui", "-o", str(nc),
+                 "--png", str(tmp_path / "g.png"), "--param", "n_grooves=3"]) == 0
+    prog = gcode.parse(nc.read_text(), axes=("X", "Y", "Z", "A", "B", "C"))
+    # per groove: approach, 16 deg / 0.25 deg + 1 = 65 points on the groove, retract
+    assert prog.position.shape[0] == 3 * (1 + 65 + 1)
+
+
+def test_plan_plate_from_a_tool_setting_plan(tmp_path):
+    from mtcomp.setting.tool_plan import make_plan, plan_to_toml
+    plan = make_plan("robonano-ui")
+    (tmp_path / "plan.toml").write_text(plan_to_toml(plan))
+    out = tmp_path / "top.step"
+    assert main(["cad", "features", "plan-plate", "--plan", str(tmp_path / "plan.toml"),
+                 "-o", str(out)]) == 0
+    assert F.volume(import_step(out)) == pytest.approx(F.volume(F.plan_plate(plan, "top")), rel=1e-9)
