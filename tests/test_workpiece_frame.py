@@ -106,6 +106,7 @@ def _coverage(n, method, trials, seed, sigma=0.0005):
     return inside / trials, per / trials
 
 
+@pytest.mark.slow
 def test_acceptance_recovered_pose_within_3_sigma_in_99_percent_of_1000_trials():
     joint, per = _coverage(3, "paper", 1000, seed=2024)
     assert joint >= 0.99
@@ -118,6 +119,7 @@ def test_coverage_with_more_bowls_and_least_squares():
     assert per.min() >= 0.98
 
 
+@pytest.mark.slow
 def test_propagated_covariance_matches_monte_carlo():
     rng = np.random.default_rng(5)
     plan = plan_bowls(3)

@@ -242,24 +242,29 @@ def roughing_program(plan: BowlPlan, peck: float = 0.5) -> str:
     return "\n".join(out) + "\n"
 
 
+def _move_arrays(plan: BowlPlan, aim=None):
+    """Probing moves as arrays: bowl ids (K,), touch numbers (K,), start (K,3), end (K,3), approach (K,3)."""
+    R, t = _aim_rt(aim)
+    rho = plan.probe_sphere_radius
+    cm = plan.centres @ R.T + t                     # (n, 3) aimed sphere centres
+    dm = plan.dirs @ R.T                            # (m, 3) aimed directions
+    n, m = len(cm), len(dm)
+    C = np.repeat(cm, m, axis=0)
+    D = np.tile(dm, (n, 1))
+    ids = np.repeat(np.array(plan.ids, int), m)
+    num = np.tile(np.arange(1, m + 1), n)
+    return ids, num, C + (rho - plan.clearance) * D, C + (rho + plan.overtravel) * D, D
+
+
 def touch_moves(plan: BowlPlan, aim=None) -> list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
-    """Probing moves: (bowl id, touch index, start point, end point, unit approach) in the machine frame.
+    """Probing moves: (bowl id, touch number, start point, end point, unit approach) in the machine frame.
 
     Probe-centre positions, mm.  The start point lies `clearance` inside the probe-centre sphere,
     the end point `overtravel` beyond it, both on the radial line through the sphere centre, so the
     probe ball never meets the rim (it stays inside the bowl's sphere).  `aim`, a WorkpieceSetting,
     places the moves on a blank already located coarsely (two-pass probing); None = nominal.
     """
-    R, t = _aim_rt(aim)
-    rho = plan.probe_sphere_radius
-    moves = []
-    for b, c in zip(plan.bowls, plan.centres):
-        for j, d in enumerate(plan.dirs):
-            cm = R @ c + t
-            dm = R @ d
-            moves.append((b.id, j + 1, cm + (rho - plan.clearance) * dm,
-                          cm + (rho + plan.overtravel) * dm, dm))
-    return moves
+    return [(int(i), int(j), s, e, d) for i, j, s, e, d in zip(*_move_arrays(plan, aim))]
 
 
 def _aim_rt(aim):
@@ -477,31 +482,30 @@ def virtual_probe(true_pose, plan: BowlPlan, noise_sigma: float = 0.0, rng=None,
     from .frame import pose_matrix
     Rt, tt = pose_matrix(true_pose) if true_pose is not None else (np.eye(3), np.zeros(3))
     rho = plan.probe_sphere_radius + bowl_radius_error
-    centres = {b.id: Rt @ c + tt for b, c in zip(plan.bowls, plan.centres)}
-    ez_real = Rt[:, 2]
-    ids, pts, apps = [], [], []
-    for bid, j, s, _e, d in touch_moves(plan, aim):
-        c = centres[bid]
-        w = s - c
-        # |w + lam d| = rho, lam > 0: the start point must be inside the sphere
-        bq = w @ d
-        cq = w @ w - rho * rho
-        if cq >= 0:
-            raise MtcompError(f"bowl {bid}: touch {j} starts outside the bowl "
-                              f"({math.sqrt(w @ w):.3f} mm from its centre, sphere radius "
-                              f"{rho:.3f}); locate the blank coarsely first (aim)")
-        lam = -bq + math.sqrt(bq * bq - cq)
-        p = s + lam * d
-        # contact point on the bowl wall must lie below the real top face (inside the cavity)
-        contact = c + (p - c) * ((rho + plan.probe_radius) / rho)
-        top = Rt @ np.zeros(3) + tt
-        if (contact - top) @ ez_real > -1e-3:
-            raise MtcompError(f"bowl {bid}: touch {j} would hit the rim or the top face, not the "
-                              "bowl wall; locate the blank coarsely first (aim)")
-        ids.append(bid)
-        pts.append(p + rng.normal(0.0, noise_sigma) * d if noise_sigma > 0 else p)
-        apps.append(d)
-    return Touches(bowl=np.array(ids, int), points=np.array(pts), approach=np.array(apps))
+    ids, num, S, _E, D = _move_arrays(plan, aim)
+    Cr = (plan.centres @ Rt.T + tt)[np.repeat(np.arange(len(plan.bowls)), len(plan.dirs))]
+    W = S - Cr
+    # |w + lam d| = rho with lam > 0: the start point must be inside the sphere
+    bq = np.einsum("ij,ij->i", W, D)
+    cq = np.einsum("ij,ij->i", W, W) - rho * rho
+    out = np.flatnonzero(cq >= 0)
+    if out.size:
+        k = int(out[0])
+        raise MtcompError(f"bowl {ids[k]}: touch {num[k]} starts outside the bowl "
+                          f"({math.sqrt(W[k] @ W[k]):.3f} mm from its centre, sphere radius "
+                          f"{rho:.3f}); locate the blank coarsely first (aim)")
+    lam = -bq + np.sqrt(bq * bq - cq)
+    P = S + lam[:, None] * D
+    # the contact point on the bowl wall must lie below the real top face (inside the cavity)
+    contact = Cr + (P - Cr) * ((rho + plan.probe_radius) / rho)
+    above = np.flatnonzero((contact - tt) @ Rt[:, 2] > -1e-3)
+    if above.size:
+        k = int(above[0])
+        raise MtcompError(f"bowl {ids[k]}: touch {num[k]} would hit the rim or the top face, not "
+                          "the bowl wall; locate the blank coarsely first (aim)")
+    if noise_sigma > 0:
+        P = P + rng.normal(0.0, noise_sigma, len(P))[:, None] * D
+    return Touches(bowl=ids, points=P, approach=D)
 
 
 # --------------------------------------------------------------------------------------------

@@ -64,10 +64,9 @@ def paper_frame(s1, s2, s3) -> np.ndarray:
     s1, s2, s3 = (np.asarray(s, float) for s in (s1, s2, s3))
     u, v = s2 - s1, s3 - s1
     ex = u / np.linalg.norm(u)
-    ez = np.cross(u, v)
+    ez = _cross(u, v)
     ez /= np.linalg.norm(ez)
-    ey = np.cross(ez, ex)
-    return np.column_stack([ex, ey, ez])
+    return np.column_stack([ex, _cross(ez, ex), ez])
 
 
 def paper_rotation(measured, design) -> np.ndarray:
@@ -105,12 +104,12 @@ def check_bowl_geometry(points, ids, what: str = "measured", min_separation: flo
     if len(p) < 3:
         raise InputError(f"{len(p)} {what} bowl(s) {ids}: at least 3 needed to define a frame",
                          file, field="bowl")
-    for i in range(len(p)):
-        for j in range(i + 1, len(p)):
-            dist = float(np.linalg.norm(p[i] - p[j]))
-            if dist < min_separation:
-                raise InputError(f"{what} bowls {ids[i]} and {ids[j]} coincide ({dist:.4f} mm "
-                                 f"apart, need >= {min_separation:g} mm)", file, field="bowl")
+    dist = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=-1))
+    dist[np.tril_indices(len(p))] = np.inf
+    i, j = np.unravel_index(int(np.argmin(dist)), dist.shape)
+    if dist[i, j] < min_separation:
+        raise InputError(f"{what} bowls {ids[i]} and {ids[j]} coincide ({dist[i, j]:.4f} mm "
+                         f"apart, need >= {min_separation:g} mm)", file, field="bowl")
     sv = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
     if sv[1] < min_spread * sv[0]:
         # name the bowls that span the line: the direction of the largest singular value
@@ -119,7 +118,7 @@ def check_bowl_geometry(points, ids, what: str = "measured", min_separation: flo
                          "rotation about their line", file, field="bowl")
     if len(p) == 3:
         u, v = p[1] - p[0], p[2] - p[0]
-        s = np.linalg.norm(np.cross(u, v)) / (np.linalg.norm(u) * np.linalg.norm(v))
+        s = math.sqrt(_cross(u, v) @ _cross(u, v) / ((u @ u) * (v @ v)))
         if s < min_spread:
             raise InputError(f"{what} bowls {ids[0]}, {ids[1]}, {ids[2]} are (nearly) collinear "
                              f"(sin of the angle at bowl {ids[0]} = {s:.4f})", file, field="bowl")
