@@ -111,39 +111,74 @@ def format_counts(counts: np.ndarray, decimals: int) -> tuple[np.ndarray, np.nda
 def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
            src: np.ndarray, src_off: np.ndarray, src_len: np.ndarray,
            chunk_bytes: int = 1 << 24, progress=None) -> bytes:
-    """Apply edits to a byte buffer in one vectorised pass.
+    """Apply edits to a byte buffer.
 
     Edit i removes ``orig[pos[i]:stop[i]]`` (nothing if equal) and puts ``src[src_off[i]:
-    src_off[i] + src_len[i]]`` there.  Edits at the same position are applied in ``sub`` order;
-    removed ranges must not overlap.  The output is gathered in chunks of about
-    ``chunk_bytes`` so the index arrays stay small.
+    src_off[i] + src_len[i]]`` there.  Edits at one position are applied in ``sub`` order (then
+    in the order given); removed ranges must not overlap.
+
+    Replacements by text of the same length (the common case: a changed coordinate keeps its
+    width) are written in place, grouped by length, one row copy per edit.  What remains is
+    spliced by joining slices when there are few pieces, else by one vectorised gather in chunks
+    of about ``chunk_bytes`` output bytes.
     """
     pos = np.asarray(pos, np.int64)
     if len(pos) == 0:
         return orig.tobytes()
-    order = np.lexsort((sub, pos))
-    pos, stop = pos[order], np.asarray(stop, np.int64)[order]
-    src_off, src_len = np.asarray(src_off, np.int64)[order], np.asarray(src_len, np.int64)[order]
+    stop = np.asarray(stop, np.int64)
+    sub = np.asarray(sub, np.int64)
+    src_off = np.asarray(src_off, np.int64)
+    src_len = np.asarray(src_len, np.int64)
+    out = orig.copy()
+    same = (stop - pos == src_len) & (src_len > 0)
+    if same.any():
+        for L in np.unique(src_len[same]).tolist():
+            g = same & (src_len == L)
+            dst = np.lib.stride_tricks.as_strided(out, shape=(len(out) - L + 1, L), strides=(1, 1))
+            srcw = np.lib.stride_tricks.sliding_window_view(src, L)
+            dst[pos[g]] = srcw[src_off[g]]
+        rest = ~same & ((src_len > 0) | (stop > pos))
+        pos, stop, sub, src_off, src_len = pos[rest], stop[rest], sub[rest], src_off[rest], src_len[rest]
+    if len(pos) == 0:
+        if progress is not None:
+            progress(len(out), len(out))
+        return out.tobytes()
+    # edits come in runs sorted by position (one run per kind of edit): a stable argsort on a
+    # combined key merges the runs cheaply
+    order = np.argsort(pos * 4096 + sub, kind="stable")
+    pos, stop, src_off, src_len = pos[order], stop[order], src_off[order], src_len[order]
     prev_end = np.concatenate([[0], np.maximum.accumulate(stop)[:-1]])
     if np.any(pos < prev_end):
         raise AssertionError("overlapping edits")  # a programming error, never user input
-    n_orig = len(orig)
-    buf = np.concatenate([orig, src])
-    # pieces: original chunk before edit i, then edit i; then the tail
-    p_off = np.empty(2 * len(pos) + 1, np.int64)
-    p_len = np.empty(2 * len(pos) + 1, np.int64)
+    n_orig = len(out)
+    tail = int(stop.max())
+    npieces = 2 * len(pos) + 1
+    if npieces * 64 < n_orig:
+        # few pieces: join memory slices (no per-byte index arrays)
+        mo, ms = memoryview(out), memoryview(src)
+        parts = []
+        for p0, e0, so, sl in zip(prev_end.tolist(), pos.tolist(), src_off.tolist(), src_len.tolist()):
+            parts.append(mo[p0:e0])
+            parts.append(ms[so:so + sl])
+        parts.append(mo[tail:])
+        res = b"".join(parts)
+        if progress is not None:
+            progress(len(res), len(res))
+        return res
+    buf = np.concatenate([out, src])
+    p_off = np.empty(npieces, np.int64)
+    p_len = np.empty(npieces, np.int64)
     p_off[0:-1:2] = prev_end
     p_len[0:-1:2] = pos - prev_end
     p_off[1::2] = src_off + n_orig
     p_len[1::2] = src_len
-    tail = int(stop.max())
     p_off[-1] = tail
     p_len[-1] = n_orig - tail
     keep = p_len > 0
     p_off, p_len = p_off[keep], p_len[keep]
     out_end = np.cumsum(p_len)
     total = int(out_end[-1]) if len(out_end) else 0
-    out = np.empty(total, np.uint8)
+    res = np.empty(total, np.uint8)
     out_start = out_end - p_len
     first = 0
     npieces = len(p_len)
@@ -152,10 +187,10 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
         last = min(max(last, first + 1), npieces)
         o0 = int(out_start[first])
         o1 = int(out_end[last - 1])
-        shift = np.repeat(p_off[first:last] - (out_start[first:last] - o0), p_len[first:last])
-        shift += np.arange(o1 - o0)
-        out[o0:o1] = buf[shift]
+        idx = np.repeat(p_off[first:last] - (out_start[first:last] - o0), p_len[first:last])
+        idx += np.arange(o1 - o0)
+        res[o0:o1] = buf[idx]
         first = last
         if progress is not None:
             progress(o1, total)
-    return out.tobytes()
+    return res.tobytes()
