@@ -137,6 +137,11 @@ class AxisErrorTable:
             arr.setflags(write=False)
             vals[k] = arr
         pos.setflags(write=False)
+        stack = np.zeros((pos.size, 6))
+        for j, name in enumerate(names):
+            if name in vals:
+                stack[:, j] = vals[name]
+        object.__setattr__(self, "_stack", stack)
         object.__setattr__(self, "axis", axis)
         object.__setattr__(self, "position", pos)
         object.__setattr__(self, "values", MappingProxyType(vals))
@@ -170,13 +175,13 @@ class AxisErrorTable:
         if strict and np.any(out):
             i = int(np.argmax(out))
             raise TableRangeError(self.axis, i, float(q[i]), lo, hi)
-        d = np.zeros((q.size, 3))
-        e = np.zeros((q.size, 3))
-        for j, name in enumerate(component_names(self.axis)):
-            v = self.values.get(name)
-            if v is not None:
-                (d if j < 3 else e)[:, j % 3] = np.interp(q, self.position, v)
-        return d, e
+        # One bracket search for all six components (np.interp would search six times).
+        pos = self.position
+        j = np.clip(np.searchsorted(pos, q, side="right") - 1, 0, pos.size - 2)
+        f = np.clip((q - pos[j]) / (pos[j + 1] - pos[j]), 0.0, 1.0)[:, None]
+        stack = self._stack
+        v = stack[j] + f * (stack[j + 1] - stack[j])
+        return v[:, :3], v[:, 3:]
 
     def to_csv(self) -> str:
         names = [n for n in component_names(self.axis) if n in self.values]
