@@ -355,3 +355,23 @@ def test_least_squares_any_angles_exact(b, c, t):
     meas = simulate_grooving(M, t, MicroscopeNoise(0.0, 0.0), 1, plan=plan, frame_offset=0.2)
     est = te.estimate(M, meas)
     assert est.offset == pytest.approx(t, abs=1e-9)
+
+
+def test_known_axis_location_errors_are_included(plan):
+    """A C axis off the common centre (EX0C, EY0C) makes the A and C tests disagree, as in the
+    paper's Table 1; with the location errors known, the tool offset is recovered exactly."""
+    from mtcomp.errors import GeometricErrors
+    t = (0.34, 0.245, 0.2)
+    geo = GeometricErrors(location={"EX0C": 0.04, "EY0C": -0.03})
+    true = ErrorSet(tool=ToolSetting(t), geometric=geo)
+    meas = simulate_grooving(M, true, MicroscopeNoise(0.0, 0.0), 1, plan=plan)
+    blind = te.estimate(M, meas)
+    assert np.max(np.abs(blind.residuals)) > 0.01         # the tests disagree by tens of um
+    cf = blind.closed
+    assert abs(cf["A"][0] - cf["C"][0]) > 0.01 or abs(cf["A"][1] - cf["C"][1]) > 0.01
+    aware = te.estimate(M, meas, known=ErrorSet(geometric=geo))
+    assert aware.offset == pytest.approx(t, abs=1e-10)
+    assert np.max(np.abs(aware.residuals)) < 1e-10
+    # compensating tool offset and location errors together leaves no groove distance
+    after = table1_distances(plan, cut_grooves(M, plan, true, compensation=aware.errors(ErrorSet(geometric=geo))))
+    assert max(max(v) for v in after.values()) < 3e-6

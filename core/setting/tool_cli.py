@@ -69,6 +69,7 @@ def register(subparsers) -> None:
     es.add_argument("--sigma-depth", type=float, default=0.001, help="depth sigma, mm, for rows without one")
     es.add_argument("--fit-rotation", action="store_true",
                     help="also fit a rotation of the microscope frame per test (not aligned to the face axes)")
+    es.add_argument("--known-errors", help="errors TOML with already known geometric errors to include in the model")
     es.add_argument("-o", "--output", help="errors TOML for 'mtcomp compensate'")
     es.add_argument("--report", help="text report")
     es.add_argument("--png", help="report figure")
@@ -132,14 +133,18 @@ def _estimate(args) -> int:
     plan = load_plan(plan_path)
     m = _machine_for(args, plan)
     meas = read_measurements(meas_path, plan, args.sigma_pos, args.sigma_depth)
-    est = estimate(m, meas, fit_rotation=args.fit_rotation)
+    known = None
+    if args.known_errors:
+        from ..errors import load_errors
+        known = load_errors(args.known_errors)
+    est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known)
     # Compute every output before writing any, so a failure leaves nothing behind.
     report = report_text(m, meas, est) if args.report else None
-    progs = nc_programs(m, plan, compensation=est.errors()) if args.nc_dir else {}
+    progs = nc_programs(m, plan, compensation=est.errors(known)) if args.nc_dir else {}
     print(est.summary())
     written = []
     if args.output:
-        written.append(write_errors(est, args.output, source=meas_path.name))
+        written.append(write_errors(est, args.output, source=meas_path.name, known=known))
     if report is not None:
         written.append(atomic_write(args.report, report))
     for t, txt in progs.items():

@@ -185,38 +185,46 @@ class Design:
     JJ: np.ndarray = None      # (P,3,3) d(u, v, depth)/dt of each point
 
 
-def _rows_for(machine, plan: Plan, items):
-    """Nominal values y0 (P,3) and Jacobians (P,3,3) [component, t index] of groove points."""
+def _rows_for(machine, plan: Plan, items, known=None):
+    """Predicted values y0 (P,3) with t = 0 and Jacobians (P,3,3) [component, t index] of groove
+    points.  known: ErrorSet of errors already known (geometric, workpiece setting) that the
+    prediction includes; its tool setting is ignored (that is what is estimated)."""
     from ..errors import ErrorSet, ToolSetting
     from ..kinematics import forward
+    base = ErrorSet()
+    if known is not None and not (known.geometric.is_zero and known.workpiece.is_zero):
+        base = ErrorSet(workpiece=known.workpiece, geometric=known.geometric)
     key = (machine, tuple(plan.grooves), tuple(plan.faces.items()), tuple(items))
-    hit = _ROWS_CACHE.get(key)
+    hit = _ROWS_CACHE.get(key) if base.is_zero else None
     if hit is not None:
         return hit
-    pts, ang, bases, y0 = [], [], [], []
+    pts, ang, bases, origins = [], [], [], []
     for gid, feat in items:
         g = plan.groove(gid)
         face = plan.face_of(g)
         pts.append(face.point(g.point(feat), g.depth)[0])
         ang.append(g.angles)
         bases.append(face.basis)
-        y0.append((*g.point(feat), g.depth))
+        origins.append(face.origin)
     q = commands_for_points(machine, np.array(pts), np.array(ang))
-    p0 = forward(machine, q, ErrorSet()).p
+    p0 = forward(machine, q, base).p
     B = np.array(bases)
     J = np.empty((len(items), 3, 3))
     # Exact: the edge is rigidly attached to the last frame, so p is affine in t.
     for k in range(3):
         e = np.zeros(3)
         e[k] = 1.0
-        dp = forward(machine, q, ErrorSet(tool=ToolSetting(tuple(e)))).p - p0
+        dp = forward(machine, q, ErrorSet(tool=ToolSetting(tuple(e)), workpiece=base.workpiece,
+                                          geometric=base.geometric)).p - p0
         J[:, :, k] = np.einsum("nij,nj->ni", B, dp)
-    out = (np.array(y0, float), J)
+    y0 = np.einsum("nij,nj->ni", B, p0 - np.array(origins))
+    out = (y0, J)
     for a in out:
         a.setflags(write=False)
-    if len(_ROWS_CACHE) > 256:
-        _ROWS_CACHE.clear()
-    _ROWS_CACHE[key] = out
+    if base.is_zero:
+        if len(_ROWS_CACHE) > 256:
+            _ROWS_CACHE.clear()
+        _ROWS_CACHE[key] = out
     return out
 
 
@@ -224,7 +232,7 @@ def _rows_for(machine, plan: Plan, items):
 _ROWS_CACHE: dict = {}
 
 
-def build_design(machine, meas) -> Design:
+def build_design(machine, meas, known=None) -> Design:
     """Stack every measured scalar (u, v, depth of each point) into the linear model."""
     from ..machine import load_machine
     m = load_machine(machine)
@@ -232,7 +240,7 @@ def build_design(machine, meas) -> Design:
     items = [(p.groove, p.feature) for p in meas.points]
     if not items:
         raise InputError("no measured points", meas.source)
-    Y0, JJ = _rows_for(m, plan, items)
+    Y0, JJ = _rows_for(m, plan, items, known)
     y, y0, J, sig, labels, lines, nkeys, pidx, comp = [], [], [], [], [], [], [], [], []
     for k, p in enumerate(meas.points):
         g = plan.groove(p.groove)
@@ -324,10 +332,13 @@ class ToolSettingEstimate:
         d = self.offset - np.asarray(true_offset, float)
         return float(d @ np.linalg.solve(self.cov, d))
 
-    def errors(self):
-        """An ErrorSet holding only this tool setting (for `retarget` and the errors TOML)."""
+    def errors(self, known=None):
+        """An ErrorSet with this tool setting (for `retarget` and the errors TOML), plus the
+        geometric and workpiece setting errors of `known` if given."""
         from ..errors import ErrorSet
-        return ErrorSet(tool=self.tool_setting)
+        if known is None:
+            return ErrorSet(tool=self.tool_setting)
+        return ErrorSet(tool=self.tool_setting, workpiece=known.workpiece, geometric=known.geometric)
 
     def summary(self) -> str:
         um = 1e3
@@ -358,19 +369,21 @@ class ToolSettingEstimate:
         return "\n".join(lines)
 
 
-def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False) -> ToolSettingEstimate:
+def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, known=None) -> ToolSettingEstimate:
     """Weighted least-squares tool setting error from a GroovingMeasurements (any grooves, any
     angles), with covariance (known measurement sigmas, not rescaled by chi2), residuals,
     closed-form estimates for comparison and warnings.  Raises InputError on singular geometry
     (a component of t that the measured grooves cannot see).
 
     fit_rotation: also estimate a rotation of the microscope frame per test (rad, in `nuisance`
-    as "<test>:rot"), for sheets measured without aligning the microscope to the face axes."""
+    as "<test>:rot"), for sheets measured without aligning the microscope to the face axes.
+    known: ErrorSet of already known geometric / workpiece setting errors, included in the
+    model (e.g. the location errors of the A and C axes from a prior calibration)."""
     from ..errors import ToolSetting
     from ..machine import load_machine
     from scipy import stats
     m = load_machine(machine)
-    d = build_design(m, meas)
+    d = build_design(m, meas, known)
     rot_tests = tuple(t for t in dict.fromkeys(d.tests)
                       if fit_rotation and f"{t}:u" in d.nuisance_names and f"{t}:v" in d.nuisance_names)
     n_par = 3 + d.N.shape[1] + len(rot_tests)
@@ -527,14 +540,14 @@ def suggest_grooves(machine, meas, candidates=None, top: int = 3) -> list[Groove
 # ---------------------------------------------------------------------------------------------
 # Compensation outputs and report
 
-def write_errors(est: ToolSettingEstimate, path, source: str = "") -> object:
+def write_errors(est: ToolSettingEstimate, path, source: str = "", known=None) -> object:
     """Write the errors TOML (docs/errors-format.md) that `mtcomp compensate` reads, with the
-    1-sigma recorded under [uncertainty]."""
+    1-sigma recorded under [uncertainty]; `known` errors (see `estimate`) are written with it."""
     from ..errors import save_errors
     meta = {"produced_by": "mtcomp tool-setting estimate", "method": "weighted least squares (paper 000 grooving)"}
     if source:
         meta["measurements"] = source
-    return save_errors(est.errors(), path, uncertainty={"tool_setting.offset": [float(x) for x in est.sigma]},
+    return save_errors(est.errors(known), path, uncertainty={"tool_setting.offset": [float(x) for x in est.sigma]},
                        meta=meta)
 
 
