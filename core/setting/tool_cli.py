@@ -85,6 +85,10 @@ def _plan(args) -> int:
                        spacing=args.spacing, b_angles=args.b_angles, feed=args.feed, plunge_feed=args.plunge_feed,
                        tip_angle=args.tip_angle)
     plan = make_plan(m, opts)
+    if Path(args.machine).exists():
+        # a machine file, not a preset: record where it is so simulate/estimate find it
+        from dataclasses import replace
+        plan = replace(plan, machine=str(Path(args.machine).resolve()))
     files = write_plan(m, plan, args.outdir, png=not args.no_png)
     print(f"{len(plan.grooves)} grooves ({', '.join(plan.ids)}) for machine {m.name}")
     for f in files:
