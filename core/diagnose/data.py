@@ -163,6 +163,17 @@ def read_table(path: str | Path, role: str = "file") -> Table:
         raise InputError("no time column `t` (expected a header like `t,x,y,...` with t in s)",
                          path, hline + 1, field="t")
     ncol = len(cols)
+    body = [s for s in lines[hline + 1:] if s.strip() and not s.lstrip().startswith("#")]
+    if len(body) == len(lines) - hline - 1 and len(body) >= 2:
+        # fast path: numpy's C parser; any problem falls through to the checking parser below,
+        # which names the line and column
+        try:
+            data = np.loadtxt(lines[hline + 1:], delimiter=delim, ndmin=2, dtype=float)
+            if data.shape[1] == ncol:
+                return _from_matrix(str(path), cols, data, list(range(hline + 2, hline + 2 + len(data))),
+                                    hline + 1)
+        except ValueError:
+            pass
     rows, linenos = [], []
     for i in range(hline + 1, len(lines)):
         s = lines[i].strip()

@@ -9,9 +9,13 @@ of different noise weigh by their information.
 
 Signatures and parameters (documented for users in docs/diagnose.md):
 
-- thermal_drift: r = k * (F_tau[u] - u(t0)), F_tau a first-order lag of a driver u (spindle
-  speed, a logged temperature, any other slowly varying input); k in mm per unit of u, tau in s.
-- backlash: r = -b/2 * d(t), d = +1/-1 the direction of the axis' last motion (kept during dwells).
+- thermal_drift: r = k (F_tau[u] - u(t0)) + r0 exp(-(t - t0)/tau) + c, F_tau a first-order lag
+  of a driver u (spindle speed, a logged temperature, any other slowly varying input) started
+  in steady state; k in mm per unit of u, tau in s, r0 the unknown initial thermal state and c
+  the unknown reference (mm).
+- backlash: play operator of width b on the axis position: after a reversal at p_rev the
+  error moves from +-b/2 to -+b/2 over the first b of travel, r = clip(d b/2 - (p - p_rev), -b/2, b/2),
+  d = +1/-1 the direction of the last motion (kept during dwells).
 - servo_lag: r = F_{1/kv}[p] - p, p the simulated axis position: a first-order position loop
   of gain kv (1/s); the steady following error is v/kv.
 - periodic_pitch_error: r = A sin(2 pi p / L) + B cos(2 pi p / L), L the screw lead (mm).
@@ -103,35 +107,75 @@ def rot(axis: int, theta_rad: np.ndarray) -> np.ndarray:
     return R
 
 
-class Context:
-    """Stacked, whitened layout of the outputs and cached driver signals."""
+def backlash_play(p: np.ndarray, b: float, d: np.ndarray | None = None) -> np.ndarray:
+    """Error y - p of a play (backlash) operator of width b driven by the position p.
 
-    def __init__(self, al: Aligned, sigma: dict | None = None):
+    Vectorised form of y_k = clip(y_{k-1}, p_k - b/2, p_k + b/2): between reversals the output
+    is at most b/2 behind; right after a reversal at p_rev it stands still until the input has
+    travelled b.  Before the first motion the play is assumed taken up in that motion's direction.
+    """
+    d = direction_of_motion(p) if d is None else d
+    h = 0.5 * b
+    n = len(p)
+    change = np.flatnonzero(d[1:] != d[:-1]) + 1
+    # reversal position: the position just before the direction changed
+    rev_idx = np.zeros(n, dtype=np.intp)
+    rev_idx[change] = change - 1
+    np.maximum.accumulate(rev_idx, out=rev_idx)
+    p_rev = p[rev_idx]
+    r = np.clip(d * h - (p - p_rev), -h, h)
+    if len(change):
+        r[:change[0]] = -d[0] * h
+    else:
+        r[:] = -d[0] * h
+    return r
+
+
+class Context:
+    """Stacked, whitened layout of the outputs on a subset `idx` of the grid samples.
+
+    Signals (and the filters run on them) always use the full grid; only the rows that enter
+    the least-squares problems are the subset, so selection can run on a few thousand samples
+    per output and the final fit on all of them.
+    """
+
+    def __init__(self, al: Aligned, idx: np.ndarray | None = None, sigma: dict | None = None):
         self.al = al
+        self.idx = np.arange(al.n) if idx is None else np.asarray(idx)
+        self.full = len(self.idx) == al.n
         self.outputs = al.outputs
         self.sigma = dict(sigma or al.noise_floor)
-        n = al.n
+        n = len(self.idx)
         self.n = n
         self.slices = {k: slice(i * n, (i + 1) * n) for i, k in enumerate(self.outputs)}
         self.N = n * len(self.outputs)
-        self.z0 = np.concatenate([(al.rec[k] - al.sim[k]) / self.sigma[k] for k in self.outputs])
+        self.t = al.t[self.idx]
+        self.z0 = np.concatenate([(al.rec[k] - al.sim[k])[self.idx] / self.sigma[k]
+                                  for k in self.outputs])
         self.duration = float(al.t[-1] - al.t[0])
         self._dir = {}
 
+    def values(self, key: str) -> np.ndarray:
+        """Full-grid values of a driver signal."""
+        return self.al.signals[key].values
+
     def vec(self, parts: dict) -> np.ndarray:
-        """Stack per-output arrays (in output units) into a whitened vector."""
+        """Stack full-grid per-output arrays (output units) into a whitened vector on idx."""
         v = np.zeros(self.N)
         for k, a in parts.items():
+            a = np.asarray(a)
+            if not self.full and len(a) == self.al.n:
+                a = a[self.idx]
             v[self.slices[k]] = a / self.sigma[k]
         return v
 
     def direction(self, key: str) -> np.ndarray:
         if key not in self._dir:
-            self._dir[key] = direction_of_motion(self.al.signals[key].values)
+            self._dir[key] = direction_of_motion(self.values(key))
         return self._dir[key]
 
 
-@dataclass
+@dataclass(eq=False)
 class Candidate:
     """One effect on given outputs driven by given inputs; subclasses define the model."""
     name: str
@@ -141,6 +185,9 @@ class Candidate:
 
     nl_names = ()  # names of the nonlinear parameters (class attribute, not a field)
 
+    def __post_init__(self):
+        self._cache = {}
+
     @property
     def label(self) -> str:
         return f"{self.name}[{','.join(self.outputs)}<-{','.join(self.inputs)}]"
@@ -148,11 +195,26 @@ class Candidate:
     def n_params(self) -> int:
         return self.n_lin + len(self.nl_names)
 
-    # -- to override --
     def bounds(self, ctx: Context):
         return [], []
 
-    def columns(self, ctx: Context, eta) -> tuple[np.ndarray | None, np.ndarray]:
+    def columns(self, ctx: Context, eta) -> tuple:
+        """(fixed (N,) or None, B (N, n_lin)) on ctx's rows, whitened; cached per (ctx, eta)."""
+        key = (id(ctx),) + tuple(round(float(e), 10) for e in np.atleast_1d(eta))
+        hit = self._cache.get(key)
+        if hit is None:
+            if len(self._cache) > 48:
+                self._cache.clear()
+            fixed, cols = self.build(ctx, np.atleast_1d(np.asarray(eta, float)))
+            B = (np.column_stack([ctx.vec(c) for c in cols]) if cols
+                 else np.zeros((ctx.N, 0)))
+            hit = (ctx.vec(fixed) if fixed is not None else None, B)
+            self._cache[key] = hit
+        return hit
+
+    # -- to override --
+    def build(self, ctx: Context, eta) -> tuple:
+        """(fixed part {output: full-grid array} or None, [column {output: array}, ...])."""
         raise NotImplementedError
 
     def coarse(self, ctx: Context, resid: np.ndarray, rows: np.ndarray):
@@ -163,14 +225,21 @@ class Candidate:
         raise NotImplementedError
 
     # -- helpers --
+    def _rows_for(self, ctx, rows):
+        m = np.zeros(ctx.N, bool)
+        for o in self.outputs:
+            m[ctx.slices[o]] = True
+        return np.flatnonzero(m & rows)
+
     def _grid_best(self, ctx, resid, rows, grid):
+        ir = self._rows_for(ctx, rows)
         best, best_rss = None, np.inf
         for g in grid:
-            eta = np.array([g])
+            eta = np.atleast_1d(g)
             fixed, B = self.columns(ctx, eta)
-            y = resid[rows] - (fixed[rows] if fixed is not None else 0.0)
+            y = resid[ir] - (fixed[ir] if fixed is not None else 0.0)
             if B.shape[1]:
-                Br = B[rows]
+                Br = B[ir]
                 beta, *_ = np.linalg.lstsq(Br, y, rcond=None)
                 y = y - Br @ beta
             rss = float(y @ y)
@@ -187,51 +256,66 @@ class ThermalDrift(Candidate):
     nl_names = ("log_tau",)
 
     def __init__(self, output, driver):
-        super().__init__("thermal_drift", (output,), (driver,), 1)
-        self._cache = {}
+        super().__init__("thermal_drift", (output,), (driver,), 3)
 
     def bounds(self, ctx):
         lo = math.log(max(ctx.al.dt, 1e-3))
         hi = math.log(max(10 * ctx.duration, 10 * ctx.al.dt))
         return [lo], [hi]
 
-    def columns(self, ctx, eta):
-        key = round(float(eta[0]), 12)
-        if key not in self._cache:
-            if len(self._cache) > 64:
-                self._cache.clear()
-            u = ctx.al.signals[self.inputs[0]].values
-            y = first_order(u, ctx.al.dt, math.exp(key)) - u[0]
-            self._cache[key] = ctx.vec({self.outputs[0]: y})[:, None]
-        return None, self._cache[key]
+    def build(self, ctx, eta):
+        u = ctx.values(self.inputs[0])
+        tau = math.exp(eta[0])
+        y = first_order(u, ctx.al.dt, tau) - u[0]
+        # the structure's thermal state at the start is unknown: a free initial transient, and
+        # a free offset (the drift is measured from an unknown reference state)
+        tr = np.exp(-(ctx.al.t - ctx.al.t[0]) / tau)
+        o = self.outputs[0]
+        return None, [{o: y}, {o: tr}, {o: np.ones_like(y)}]
 
     def coarse(self, ctx, resid, rows):
         lo, hi = self.bounds(ctx)
-        return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 24))
+        return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 20))
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         tau = math.exp(eta[0])
-        sig = ctx.al.signals[self.inputs[0]]
-        unit = sig.unit or "unit"
-        return ({"gain_mm_per_" + unit.replace("/", "_"): float(beta[0]), "tau_s": tau},
-                {"gain_mm_per_" + unit.replace("/", "_"): _se(cov_beta, 0),
-                 "tau_s": tau * _se(cov_eta, 0)})
+        unit = (ctx.al.signals[self.inputs[0]].unit or "unit").replace("/", "_").replace("%", "pct")
+        g = "gain_mm_per_" + unit
+        u = ctx.al.units[self.outputs[0]]
+        return ({g: float(beta[0]), "tau_s": tau, f"initial_{u}": float(beta[1]),
+                 f"offset_{u}": float(beta[2])},
+                {g: _se(cov_beta, 0), "tau_s": tau * _se(cov_eta, 0), f"initial_{u}": _se(cov_beta, 1),
+                 f"offset_{u}": _se(cov_beta, 2)})
 
 
 class Backlash(Candidate):
-    def __init__(self, output):
-        super().__init__("backlash", (output,), (output,), 1)
-        self._col = None
+    nl_names = ("log_b",)
 
-    def columns(self, ctx, eta):
-        if self._col is None:
-            d = ctx.direction(self.outputs[0])
-            self._col = ctx.vec({self.outputs[0]: -0.5 * d})[:, None]
-        return None, self._col
+    def __init__(self, output):
+        super().__init__("backlash", (output,), (output,), 0)
+
+    def bounds(self, ctx):
+        span = float(np.ptp(ctx.values(self.outputs[0])))
+        return [math.log(1e-8 * max(span, 1e-6))], [math.log(0.05 * max(span, 1e-6))]
+
+    def build(self, ctx, eta):
+        o = self.outputs[0]
+        return {o: backlash_play(ctx.values(o), math.exp(eta[0]), ctx.direction(o))}, []
+
+    def coarse(self, ctx, resid, rows):
+        # the linear (instant-reversal) approximation gives b directly
+        o = self.outputs[0]
+        ir = self._rows_for(ctx, rows)
+        col = ctx.vec({o: -0.5 * ctx.direction(o)})[ir]
+        den = float(col @ col)
+        b = float(col @ resid[ir]) / den if den > 0 else 0.0
+        lo, hi = self.bounds(ctx)
+        return np.array([float(np.clip(math.log(max(b, 1e-300)), lo[0], hi[0]))])
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         u = ctx.al.units[self.outputs[0]]
-        return {f"backlash_{u}": float(beta[0])}, {f"backlash_{u}": _se(cov_beta, 0)}
+        b = math.exp(eta[0])
+        return {f"backlash_{u}": b}, {f"backlash_{u}": b * _se(cov_eta, 0)}
 
 
 class ServoLag(Candidate):
@@ -239,24 +323,26 @@ class ServoLag(Candidate):
 
     def __init__(self, output):
         super().__init__("servo_lag", (output,), (output,), 0)
-        self._cache = {}
 
     def bounds(self, ctx):
         return [math.log(max(0.5, 1.0 / ctx.duration))], [math.log(max(20.0 / ctx.al.dt, 1.0))]
 
-    def columns(self, ctx, eta):
-        key = round(float(eta[0]), 12)
-        if key not in self._cache:
-            if len(self._cache) > 64:
-                self._cache.clear()
-            p = ctx.al.signals[self.outputs[0]].values
-            y = first_order(p, ctx.al.dt, math.exp(-key)) - p
-            self._cache[key] = ctx.vec({self.outputs[0]: y})
-        return self._cache[key], np.zeros((ctx.N, 0))
+    UPSAMPLE = 4
+
+    def build(self, ctx, eta):
+        # the filter runs on a 4x finer grid from SIM's spline: the ramp-invariant step assumes
+        # the input linear between samples, and a moving axis is parabolic while it accelerates
+        al = ctx.al
+        o = self.outputs[0]
+        m = self.UPSAMPLE
+        tf = al.t[0] + (al.t[-1] - al.t[0]) * np.arange((al.n - 1) * m + 1) / ((al.n - 1) * m)
+        pf = al.sim_spline[o](tf)
+        y = first_order(pf, al.dt / m, math.exp(-eta[0]))[::m] - al.sim[o]
+        return {o: y}, []
 
     def coarse(self, ctx, resid, rows):
         lo, hi = self.bounds(ctx)
-        return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 32))
+        return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 24))
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         kv = math.exp(eta[0])
@@ -269,54 +355,51 @@ class PeriodicPitch(Candidate):
     def __init__(self, output):
         super().__init__("periodic_pitch_error", (output,), (output,), 2)
 
-    def _range(self, ctx):
-        p = ctx.al.signals[self.outputs[0]].values
-        return float(np.ptp(p)), p
-
     def bounds(self, ctx):
-        rng, p = self._range(ctx)
-        step = np.median(np.abs(np.diff(p))[np.abs(np.diff(p)) > 0]) if np.any(np.diff(p)) else 1.0
-        lo = max(0.2, 4 * step)
+        p = ctx.values(self.outputs[0])
+        rng = float(np.ptp(p))
+        lo = max(0.2, rng / 4000.0)
         hi = max(rng / 2.0, 1.01 * lo)
         return [math.log(lo)], [math.log(hi)]
 
-    def columns(self, ctx, eta):
-        p = ctx.al.signals[self.outputs[0]].values
-        ph = 2 * np.pi * p / math.exp(eta[0])
+    def build(self, ctx, eta):
+        ph = 2 * np.pi * ctx.values(self.outputs[0]) / math.exp(eta[0])
         o = self.outputs[0]
-        return None, np.column_stack([ctx.vec({o: np.sin(ph)}), ctx.vec({o: np.cos(ph)})])
+        return None, [{o: np.sin(ph)}, {o: np.cos(ph)}]
 
     def coarse(self, ctx, resid, rows):
-        # a periodogram of the residual binned by position: the screw error repeats in p, not t
-        from scipy.signal import lombscargle
+        # periodogram of the residual binned by position (the screw error repeats in p, not in
+        # t): bin means on a uniform position grid, empty bins zero, FFT zero-padded 8x
         lo, hi = self.bounds(ctx)
-        rng, p = self._range(ctx)
-        sl = ctx.slices[self.outputs[0]]
-        rmask = rows[sl]
-        pp, rr = p[rmask], resid[sl][rmask]
-        nb = int(min(4000, max(16, len(pp) // 4)))
-        edges = np.linspace(pp.min(), pp.max() + 1e-12, nb + 1)
-        idx = np.clip(np.searchsorted(edges, pp, side="right") - 1, 0, nb - 1)
+        o = self.outputs[0]
+        sl = ctx.slices[o]
+        rm = rows[sl]
+        pp = ctx.values(o)[ctx.idx][rm]
+        rr = resid[sl][rm]
+        pmin, pmax = float(pp.min()), float(pp.max())
+        lead_min = math.exp(lo[0])
+        nb = int(min(8192, max(16, 4 * (pmax - pmin) / lead_min)))
+        h = (pmax - pmin) / nb if pmax > pmin else 1.0
+        idx = np.clip(((pp - pmin) / h).astype(int), 0, nb - 1)
         cnt = np.bincount(idx, minlength=nb)
         ok = cnt > 0
-        centres = 0.5 * (edges[:-1] + edges[1:])[ok]
-        means = (np.bincount(idx, rr, minlength=nb)[ok]) / cnt[ok]
-        means = means - means.mean()
-        if len(centres) < 8:
+        means = np.zeros(nb)
+        means[ok] = np.bincount(idx, rr, minlength=nb)[ok] / cnt[ok]
+        means[ok] -= means[ok].mean()
+        nfft = 8 * nb
+        spec = np.abs(np.fft.rfft(means, nfft)) ** 2
+        f = np.fft.rfftfreq(nfft, h)  # cycles per mm
+        keep = (f >= math.exp(-hi[0])) & (f <= math.exp(-lo[0]))
+        if not keep.any():
             return np.array([0.5 * (lo[0] + hi[0])])
-        fmin, fmax = math.exp(-hi[0]), math.exp(-lo[0])
-        df = 1.0 / (8.0 * max(rng, 1e-9))
-        nf = int(min(20000, max(64, (fmax - fmin) / df)))
-        f = np.linspace(fmin, fmax, nf)
-        pw = lombscargle(centres, means, 2 * np.pi * f, precenter=True)
-        return np.array([-math.log(f[int(np.argmax(pw))])])
+        k = np.flatnonzero(keep)[np.argmax(spec[keep])]
+        return np.array([float(np.clip(-math.log(f[k]), lo[0], hi[0]))])
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         lead = math.exp(eta[0])
         a, b = float(beta[0]), float(beta[1])
         amp = math.hypot(a, b)
         u = ctx.al.units[self.outputs[0]]
-        # amplitude error from the 2x2 covariance along the amplitude direction
         if cov_beta is not None and cov_beta.size and amp > 0:
             g = np.array([a / amp, b / amp])
             s_amp = float(np.sqrt(max(g @ cov_beta[:2, :2] @ g, 0)))
@@ -333,9 +416,9 @@ class ScaleError(Candidate):
     def __init__(self, output):
         super().__init__("scale_error", (output,), (output,), 1)
 
-    def columns(self, ctx, eta):
+    def build(self, ctx, eta):
         o = self.outputs[0]
-        return None, ctx.vec({o: ctx.al.signals[o].values})[:, None]
+        return None, [{o: ctx.values(o)}]
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         return {"scale": float(beta[0])}, {"scale": _se(cov_beta, 0)}
@@ -345,8 +428,8 @@ class Squareness(Candidate):
     def __init__(self, output, driver):
         super().__init__("squareness", (output,), (driver,), 1)
 
-    def columns(self, ctx, eta):
-        return None, ctx.vec({self.outputs[0]: ctx.al.signals[self.inputs[0]].values})[:, None]
+    def build(self, ctx, eta):
+        return None, [{self.outputs[0]: ctx.values(self.inputs[0])}]
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         return ({"angle_deg": math.degrees(float(beta[0]))},
@@ -361,19 +444,15 @@ class Straightness(Candidate):
 
     def __init__(self, output, driver):
         super().__init__("straightness", (output,), (driver,), len(self.ORDERS))
-        self._cols = None
 
     def _xi(self, ctx):
-        p = ctx.al.signals[self.inputs[0]].values
+        p = ctx.values(self.inputs[0])
         lo, hi = float(p.min()), float(p.max())
         return (2 * p - (lo + hi)) / max(hi - lo, 1e-12), lo, hi
 
-    def columns(self, ctx, eta):
-        if self._cols is None:
-            xi, _, _ = self._xi(ctx)
-            o = self.outputs[0]
-            self._cols = np.column_stack([ctx.vec({o: c}) for c in legendre_cols(xi, self.ORDERS)])
-        return None, self._cols
+    def build(self, ctx, eta):
+        xi, _, _ = self._xi(ctx)
+        return None, [{self.outputs[0]: c} for c in legendre_cols(xi, self.ORDERS)]
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         _, lo, hi = self._xi(ctx)
@@ -393,21 +472,15 @@ class PivotOffset(Candidate):
     def __init__(self, outputs, driver, axis: int, comps: tuple):
         super().__init__("pivot_offset", tuple(outputs), (driver,), len(comps))
         self.axis = axis
-        self.comps = comps          # tool-edge offset components (0=x,1=y,2=z) in the plane
-        self._cols = None
-        self._lin = None
+        self.comps = comps  # tool-edge offset components (0=x,1=y,2=z) in the plane of rotation
 
-    def columns(self, ctx, eta):
-        if self._cols is None:
-            th = np.radians(ctx.al.signals[self.inputs[0]].values)
-            R = rot(self.axis, th)
-            cols = []
-            for c in self.comps:
-                col = R[:, :, c] - np.eye(3)[c]  # (R - I) e_c
-                parts = {o: col[:, LIN_AXIS[ctx.al.signals[o].letter]] for o in self.outputs}
-                cols.append(ctx.vec(parts))
-            self._cols = np.column_stack(cols)
-        return None, self._cols
+    def build(self, ctx, eta):
+        R = rot(self.axis, np.radians(ctx.values(self.inputs[0])))
+        cols = []
+        for c in self.comps:
+            col = R[:, :, c] - np.eye(3)[c]  # (R - I) e_c
+            cols.append({o: col[:, LIN_AXIS[ctx.al.signals[o].letter]] for o in self.outputs})
+        return None, cols
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         names = [f"d{'xyz'[c]}_mm" for c in self.comps]
@@ -416,38 +489,36 @@ class PivotOffset(Candidate):
 
 
 class WorkpieceSetting(Candidate):
-    def __init__(self, outputs, with_rotation: bool):
+    def __init__(self, al: Aligned, outputs, with_rotation: bool):
         super().__init__("workpiece_setting", tuple(outputs), tuple(outputs), 0)
         self.with_rotation = with_rotation
-        self._cols = None
-        self._names = []
-
-    def columns(self, ctx, eta):
-        if self._cols is None:
-            al = ctx.al
-            lets = {al.signals[o].letter: o for o in self.outputs}
-            n = al.n
-            p = np.zeros((n, 3))
-            for L, o in lets.items():
-                p[:, LIN_AXIS[L]] = al.signals[o].values
-            cols, names = [], []
-            for L, o in sorted(lets.items()):
-                cols.append(ctx.vec({o: -np.ones(n)}))
-                names.append(f"t{L}_mm")
-            if self.with_rotation:
-                for ax in range(3):
-                    w = np.zeros(3)
-                    w[ax] = 1.0
-                    r = -np.cross(w, p)  # -(w x p)
-                    parts = {o: r[:, LIN_AXIS[L]] for L, o in lets.items()}
-                    if all(np.ptp(v) == 0 and not v.any() for v in parts.values()):
-                        continue
-                    cols.append(ctx.vec(parts))
+        lets = {al.signals[o].letter: o for o in self.outputs}
+        names = [f"t{L}_mm" for L in sorted(lets)]
+        self._rot = []
+        if with_rotation:
+            for ax in range(3):
+                # w about ax moves the two other components, each needs the third's position
+                seen = [L for L in lets if LIN_AXIS[L] != ax
+                        and "xyz"[3 - ax - LIN_AXIS[L]] in lets]
+                if seen:
+                    self._rot.append(ax)
                     names.append(f"r{'xyz'[ax]}_deg")
-            self._cols = np.column_stack(cols)
-            self._names = names
-            self.n_lin = len(names)
-        return None, self._cols
+        self._names = names
+        self.n_lin = len(names)
+
+    def build(self, ctx, eta):
+        al = ctx.al
+        lets = {al.signals[o].letter: o for o in self.outputs}
+        p = np.zeros((al.n, 3))
+        for L, o in lets.items():
+            p[:, LIN_AXIS[L]] = ctx.values(o)
+        cols = [{o: -np.ones(al.n)} for L, o in sorted(lets.items())]
+        for ax in self._rot:
+            w = np.zeros(3)
+            w[ax] = 1.0
+            r = -np.cross(w, p)  # -(w x p)
+            cols.append({o: r[:, LIN_AXIS[L]] for L, o in lets.items()})
+        return None, cols
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         par, unc = {}, {}
@@ -463,25 +534,17 @@ class TimeOffset(Candidate):
 
     def __init__(self, outputs):
         super().__init__("time_offset", tuple(outputs), ("t",), 0)
-        self._cache = {}
 
     def bounds(self, ctx):
         al = ctx.al
         w = max(10.0 * al.dt, 0.02 * abs(al.offset0))
-        lo = (al.offset0 - w) / al.dt
-        hi = (al.offset0 + w) / al.dt
-        return [lo], [hi]
+        return [(al.offset0 - w) / al.dt], [(al.offset0 + w) / al.dt]
 
-    def columns(self, ctx, eta):
-        key = round(float(eta[0]), 10)
-        if key not in self._cache:
-            if len(self._cache) > 64:
-                self._cache.clear()
-            al = ctx.al
-            tau = key * al.dt
-            parts = {o: al.sim_spline[o](al.t - tau) - al.sim[o] for o in self.outputs}
-            self._cache[key] = ctx.vec(parts)
-        return self._cache[key], np.zeros((ctx.N, 0))
+    def build(self, ctx, eta):
+        al = ctx.al
+        tau = float(eta[0]) * al.dt
+        # evaluated on ctx's rows only: the spline needs no neighbours
+        return {o: al.sim_spline[o](ctx.t - tau) - al.sim[o][ctx.idx] for o in self.outputs}, []
 
     def coarse(self, ctx, resid, rows):
         lo, hi = self.bounds(ctx)
@@ -494,9 +557,8 @@ class TimeOffset(Candidate):
         return {"offset_s": float(eta[0]) * dt}, {"offset_s": _se(cov_eta, 0) * dt}
 
 
-def candidates(ctx: Context) -> list[Candidate]:
+def candidates(al: Aligned) -> list[Candidate]:
     """Every effect the data could support, given the outputs' kinds and the available drivers."""
-    al = ctx.al
     outs = [o for o in al.outputs if al.kinds[o] in ("length", "angle")]
     moving = {o for o in outs if np.ptp(al.sim[o]) > 0}
     sig = al.signals
@@ -527,12 +589,10 @@ def candidates(ctx: Context) -> list[Candidate]:
             out.append(PivotOffset(affected, d, ax, tuple(plane)))
     if lin_outs:
         wo = [lin_outs[L] for L in sorted(lin_outs)]
-        out.append(WorkpieceSetting(wo, False))
-        if len(wo) >= 2:
-            out.append(WorkpieceSetting(wo, True))
-        for c in out[-2:]:
-            if isinstance(c, WorkpieceSetting):
-                c.columns(ctx, ())  # fixes n_lin: which rotations the outputs can see
+        out.append(WorkpieceSetting(al, wo, False))
+        ws = WorkpieceSetting(al, wo, True)
+        if ws._rot:
+            out.append(ws)
     if moving:
         out.append(TimeOffset(tuple(o for o in al.outputs if o in moving)))
     return out

@@ -11,7 +11,7 @@ from . import align as _align
 from . import data as _data
 from .effects import Context, candidates
 from .locate import Mismatch, conditions, locate
-from .select import Settings, cross_validate, n_effective, select
+from .select import Settings, cross_validate, fit, n_effective, select
 
 
 @dataclass(frozen=True)
@@ -122,10 +122,16 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
     al = _align.align(S, R)
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
-    ctx = Context(al)
-    cands = candidates(ctx)
-    say(f"{len(cands)} candidate effects")
-    final, evidence, log = select(ctx, cands, st, progress=say)
+    # selection on an evenly strided subset of the grid (filters still run on all samples),
+    # then the chosen effects are refitted on every sample
+    step = max(1, int(np.ceil(al.n / st.fit_rows)))
+    ctx_sel = Context(al, np.arange(0, al.n, step))
+    cands = candidates(al)
+    say(f"{len(cands)} candidate effects, selecting on {ctx_sel.n} of {al.n} samples")
+    chosen, evidence, log = select(ctx_sel, cands, st, progress=say)
+    ctx = Context(al) if step > 1 else ctx_sel
+    final = (fit(ctx, chosen.cands, chosen.etas, max_nfev=15) if step > 1 and chosen.cands
+             else (chosen if step == 1 else fit(ctx, [], [])))
 
     # uncertainties: least-squares covariance scaled by the residual variance, inflated for
     # correlated residuals (N / N_effective)
@@ -151,10 +157,21 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
 
     sig = ctx.sigma
     corrected, held = {}, {}
+    oof = np.array(ctx.z0, copy=True)
     if final.cands:
-        _, oof = cross_validate(ctx, final.cands, final.etas, st.folds)
-    else:
-        oof = ctx.z0
+        # held-out prediction: fold models fitted on the selection subset without the block,
+        # evaluated on every sample of the block
+        folds = []
+        cross_validate(ctx_sel, final.cands, final.etas, st.folds, max_nfev=20, fits=folds)
+        starts = [f.extra["held"][0] for f in folds] + [np.inf]
+        for i, f in enumerate(folds):
+            inblk = (al.t >= starts[i]) & (al.t < starts[i + 1])
+            pred = np.zeros(ctx.N)
+            for c, eta, beta in zip(f.cands, f.etas, f.betas):
+                fx, B = c.columns(ctx, eta)
+                pred += (fx if fx is not None else 0.0) + (B @ beta if B.shape[1] else 0.0)
+            m = np.tile(inblk, len(al.outputs))
+            oof[m] = ctx.z0[m] - pred[m]
     fitd = {"rms_before": {}, "rms_after": {}, "holdout_rms_before": {}, "holdout_rms_after": {}}
     for o in al.outputs:
         sl = ctx.slices[o]

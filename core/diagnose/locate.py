@@ -122,15 +122,13 @@ def locate(al: Aligned, max_spans: int = 8) -> list[Mismatch]:
 def conditions(al: Aligned, o: str, r: np.ndarray, sigma: float) -> list[str]:
     """Operating conditions the residual of output o depends on, in words (global view).
 
-    For every moving axis: the mean residual moving +, moving -, and at rest; for every
-    temperature or speed input: the correlation of the residual with it.  Only differences
-    larger than five standard errors are reported.
+    The mean residual while o's own axis moves +, moves - and rests (reported when the groups
+    differ by more than five standard errors and the noise floor), and the input (temperature,
+    speed, position of another axis, ...) the residual correlates with most (|r| > 0.5).
     """
     out = []
-    n = len(r)
-    for k, s in al.signals.items():
-        if s.kind not in ("length", "angle") or np.ptp(s.values) == 0:
-            continue
+    s = al.signals.get(o)
+    if s is not None and np.ptp(s.values) > 0:
         v = np.gradient(s.values, al.dt)
         thr = 1e-3 * np.max(np.abs(v))
         groups = {"moving +": v > thr, "moving -": v < -thr, "at rest": np.abs(v) <= thr}
@@ -138,18 +136,19 @@ def conditions(al: Aligned, o: str, r: np.ndarray, sigma: float) -> list[str]:
         if len(means) >= 2:
             vals = [m for m, c in means.values()]
             se = sigma / np.sqrt(min(c for _, c in means.values()))
-            if max(vals) - min(vals) > 5 * se and max(vals) - min(vals) > sigma:
+            if max(vals) - min(vals) > max(5 * se, sigma):
                 txt = ", ".join(f"{g} {_fmt(m, al.units[o])}" for g, (m, _) in means.items())
-                out.append(f"{o} residual depends on the direction of {k}: {txt}")
-    for k, s in al.signals.items():
-        if np.ptp(s.values) == 0 or s.kind in ("time",):
+                out.append(f"{o} residual depends on the direction of motion of {o}: {txt}")
+    best = None
+    rr = r - r.mean()
+    nr = float(np.sqrt(rr @ rr))
+    for k, sg in al.signals.items():
+        if k == o or np.ptp(sg.values) == 0 or nr == 0:
             continue
-        x = s.values - s.values.mean()
-        rr = r - r.mean()
-        den = np.sqrt((x @ x) * (rr @ rr))
-        if den == 0:
-            continue
-        c = float(x @ rr / den)
-        if abs(c) > 0.5 and abs(c) * np.sqrt(n) > 5:
-            out.append(f"{o} residual correlates with {k} (r = {c:+.2f})")
+        x = sg.values - sg.values.mean()
+        c = float(x @ rr / (np.sqrt(x @ x) * nr))
+        if abs(c) > 0.5 and (best is None or abs(c) > abs(best[1])):
+            best = (k, c)
+    if best:
+        out.append(f"{o} residual correlates most with {best[0]} (r = {best[1]:+.2f})")
     return out

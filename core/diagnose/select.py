@@ -24,9 +24,10 @@ class Settings:
     max_effects: int = 4
     bic_threshold: float = 10.0      # required BIC decrease ("very strong" evidence)
     cv_min_gain: float = 0.01        # required relative decrease of the held-out error
-    min_effect_snr: float = 0.25     # effect RMS / noise floor below which it is noise
+    min_effect_snr: float = 0.5      # effect RMS / noise floor below which it is noise
     folds: int = 5
-    screen_rows: int = 6000          # samples per output used to screen candidates
+    fit_rows: int = 6000             # samples per output used for selection (all for the final fit)
+    screen_rows: int = 2000          # samples per output used to screen candidates
     top: int = 6                     # screened candidates fitted jointly per step
     max_nfev: int = 60
 
@@ -62,20 +63,22 @@ def _assemble(ctx: Context, cands, etas):
     return F, B, sizes
 
 
-def _solve(B: np.ndarray, y: np.ndarray):
+def _solve(B: np.ndarray, y: np.ndarray, want_inverse: bool = False):
     """Least squares of y on the columns of B via the normalised normal equations.
 
-    Columns are scaled to unit norm first (their physical scales differ by 1e8), then the small
-    Gram matrix is solved with lstsq so collinear columns give the minimum-norm answer.
+    Columns are scaled to unit norm (their physical scales differ by 1e8) and the small Gram
+    matrix is solved with lstsq, so collinear columns give the minimum-norm answer.  Returns
+    (beta, inverse Gram matrix in beta's units or None).
     """
-    if B.shape[1] == 0:
-        return np.zeros(0), np.zeros((0, 0))
-    nrm = np.sqrt(np.einsum("ij,ij->j", B, B))
+    p = B.shape[1]
+    if p == 0:
+        return np.zeros(0), (np.zeros((0, 0)) if want_inverse else None)
+    G = B.T @ B
+    nrm = np.sqrt(np.diag(G)).copy()
     nrm[nrm == 0] = 1.0
-    Bn = B / nrm
-    G = Bn.T @ Bn
-    beta_n, *_ = np.linalg.lstsq(G, Bn.T @ y, rcond=1e-12)
-    Ginv = np.linalg.pinv(G, rcond=1e-12) / np.outer(nrm, nrm)
+    Gn = G / np.outer(nrm, nrm)
+    beta_n, *_ = np.linalg.lstsq(Gn, (B.T @ y) / nrm, rcond=1e-12)
+    Ginv = np.linalg.pinv(Gn, rcond=1e-12) / np.outer(nrm, nrm) if want_inverse else None
     return beta_n / nrm, Ginv
 
 
@@ -84,7 +87,9 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
     """Fit `cands` jointly to the whitened residual (`target`, default REC - SIM) on `rows`."""
     from scipy.optimize import least_squares
     z = ctx.z0 if target is None else target
-    rows = np.ones(ctx.N, bool) if rows is None else rows
+    if rows is not None and rows.all():
+        rows = None
+    take = (lambda a: a) if rows is None else (lambda a: a[rows])
     nls = [len(c.nl_names) for c in cands]
     lo, hi = [], []
     for c in cands:
@@ -103,8 +108,8 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
 
     def resid_rows(x):
         F, B, _ = _assemble(ctx, cands, split(x))
-        y = z[rows] - F[rows]
-        Br = B[rows]
+        y = take(z) - take(F)
+        Br = take(B)
         beta, _ = _solve(Br, y)
         return y - Br @ beta
 
@@ -120,7 +125,7 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
         jac = res.jac
     etas = split(x)
     F, B, sizes = _assemble(ctx, cands, etas)
-    beta, Ginv = _solve(B[rows], z[rows] - F[rows])
+    beta, Ginv = _solve(take(B), take(z) - take(F), want_inverse=True)
     pred_parts, betas, i = [], [], 0
     for c, e, m in zip(cands, etas, sizes):
         f, Bc = c.columns(ctx, e)
@@ -131,9 +136,8 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
         i += m
     total = F + B @ beta
     r = z - total
-    rr = r[rows]
-    return Fit(list(cands), etas, betas, r, float(rr @ rr), int(rows.sum()), pred_parts,
-               jac, Ginv)
+    rr = take(r)
+    return Fit(list(cands), etas, betas, r, float(rr @ rr), len(rr), pred_parts, jac, Ginv)
 
 
 def rho1(ctx: Context, r: np.ndarray) -> float:
@@ -162,8 +166,13 @@ def blocks(n: int, folds: int) -> list[np.ndarray]:
     return [np.arange(edges[i], edges[i + 1]) for i in range(folds)]
 
 
-def cross_validate(ctx: Context, cands: list, etas: list, folds: int, max_nfev: int = 25):
-    """Fit on all but one contiguous block of time, predict it; returns (SSE, out-of-fold residual)."""
+def cross_validate(ctx: Context, cands: list, etas: list, folds: int, max_nfev: int = 25,
+                   fits: list | None = None):
+    """Fit on all but one contiguous block of time, predict it.
+
+    Returns (SSE of the held-out predictions, out-of-fold whitened residual); the fold fits are
+    appended to `fits` if given (with the held-out time span in fit.extra).
+    """
     n = ctx.n
     oof = np.array(ctx.z0, copy=True)
     if not cands:
@@ -176,6 +185,9 @@ def cross_validate(ctx: Context, cands: list, etas: list, folds: int, max_nfev: 
         f = fit(ctx, cands, etas, rows, max_nfev=max_nfev)
         hrows = np.tile(held, O)
         oof[hrows] = f.resid[hrows]
+        if fits is not None:
+            f.extra["held"] = (float(ctx.t[blk[0]]), float(ctx.t[blk[-1]]))
+            fits.append(f)
     return float(oof @ oof), oof
 
 
@@ -229,10 +241,15 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
         trials = []
         for _, c in scored[:st.top]:
             f = fit(ctx, model + [c], etas + [coarse_cache[c.label]], max_nfev=st.max_nfev)
-            neff = n_effective(ctx, f.resid)
-            dbic = (bic(f.rss, f.n_rows, f.k, neff) - bic(cur.rss, cur.n_rows, cur.k, neff))
-            trials.append((dbic, c, f, neff))
-        trials.sort(key=lambda g: g[0])
+            trials.append((c, f))
+        if not trials:
+            break
+        # one effective sample size for every trial of the step (from the best fit's residual):
+        # BIC values computed with different N_eff would not be comparable
+        neff = n_effective(ctx, min(trials, key=lambda g: g[1].rss)[1].resid)
+        b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
+        trials = sorted(((bic(f.rss, f.n_rows, f.k, neff) - b_cur, c, f, neff) for c, f in trials),
+                        key=lambda g: g[0])
         accepted = False
         for dbic, c, f, neff in trials[:3]:
             if dbic > -st.bic_threshold:

@@ -76,11 +76,24 @@ class Trajectory:
 
 
 def _first_order(u, dt, tau):
-    """Reference first-order lag by exact exponential stepping of a fine grid (independent of
-    the diagnosis' ramp-invariant filter: zero-order hold on a 10x finer grid)."""
+    """Reference first-order lag on a fine grid by the trapezoidal (bilinear) rule: second-order
+    accurate and independent of the diagnosis' ramp-invariant filter."""
     from scipy.signal import lfilter
-    a = math.exp(-dt / tau)
-    y, _ = lfilter([1 - a], [1, -a], u, zi=[a * u[0]])
+    x = dt / tau
+    b = [x / (2 + x), x / (2 + x)]
+    a = [1.0, -(2 - x) / (2 + x)]
+    y, _ = lfilter(b, a, u, zi=[u[0] * (1 - b[0])])
+    return y
+
+
+def _play(p, b, first_dir):
+    """Output of a play operator of width b (sequential reference implementation)."""
+    h = 0.5 * b
+    y = np.empty_like(p)
+    cur = p[0] - first_dir * h
+    for k, pk in enumerate(p.tolist()):
+        cur = min(max(cur, pk - h), pk + h)
+        y[k] = cur
     return y
 
 
@@ -188,10 +201,10 @@ def make_case(effects=(), seed: int = 0, duration: float = 60.0, sim_rate: float
             unit = "rpm" if drv == "s" else "degC"
             truth.append((name, ("z",), {f"gain_mm_per_{unit}": gain, "tau_s": tau, "driver": drv}))
         elif name == "backlash":
-            from .effects import direction_of_motion
-            pf = axes["x"](tf)
-            d = direction_of_motion(pf)
-            err["x"] += -0.5 * p["backlash_mm"] * np.interp(tp, tf, d)
+            # play operator stepped sample by sample (rate independent, and exact here because
+            # every reversal happens at rest)
+            seg0 = axes["x"].seg[0]
+            err["x"] += _play(true["x"], p["backlash_mm"], np.sign(seg0[2] - seg0[1])) - true["x"]
             truth.append((name, ("x",), dict(p)))
         elif name == "servo_lag":
             pf = axes["y"](tf)

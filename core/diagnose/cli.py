@@ -1,0 +1,42 @@
+"""`mtcomp diagnose`: compare a simulation with a recording, name and fit what is missing."""
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "diagnose", help="locate where SIM and REC disagree and name the physical effect",
+        description="Align a simulation (SIM) and a recording (REC), find where they disagree, "
+                    "name the physical effects the simulation left out (thermal_drift, backlash, "
+                    "servo_lag, periodic_pitch_error, scale_error, squareness, straightness, "
+                    "pivot_offset, workpiece_setting, time_offset), fit them and show the fit "
+                    "improve on held-out data. Columns in both files are compared; all other "
+                    "columns are inputs. Units mm, deg, s, degC unless the header says, e.g. z[um].")
+    p.add_argument("--sim", required=True, metavar="SIM.csv", help="simulated signals (CSV, column t in s)")
+    p.add_argument("--rec", required=True, metavar="REC.csv", help="recorded signals (CSV, column t in s)")
+    p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
+    p.add_argument("--plot", metavar="OUT.png", help="plot recorded/simulated/corrected and residuals")
+    p.add_argument("--report", metavar="OUT.md", help="write a Markdown report")
+    p.add_argument("--quiet", action="store_true", help="do not print the summary")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import os
+    from .._io import atomic_write
+    from .engine import diagnose
+    res = diagnose(args.sim, args.rec)
+    if args.json:
+        atomic_write(args.json, res.to_json() + "\n")
+    if args.plot:
+        res.plot(args.plot)
+    if args.report:
+        plot_name = None
+        if args.plot:
+            plot_name = os.path.relpath(os.path.abspath(args.plot),
+                                        os.path.dirname(os.path.abspath(args.report)))
+        atomic_write(args.report, res.report(plot_name))
+    if not args.quiet:
+        print(res.summary())
+    return 0

@@ -1,0 +1,164 @@
+"""Text summary, Markdown report and PNG plot of a DiagnosisResult (um/urad/ppm for reading)."""
+from __future__ import annotations
+
+import math
+
+SIGNATURE = {
+    "thermal_drift": "slow drift following a first-order lag of a thermal load "
+                     "(spindle speed or a logged temperature)",
+    "backlash": "offset that flips sign with the direction of the axis' last motion",
+    "servo_lag": "lag proportional to velocity with first-order dynamics (position loop gain kv)",
+    "periodic_pitch_error": "error periodic in the axis position (period = screw lead)",
+    "scale_error": "error proportional to the axis' own position",
+    "squareness": "error proportional to another axis' position",
+    "straightness": "smooth curve of the error along another axis' travel",
+    "pivot_offset": "error following (R(angle) - I) d of a rotary axis: tool edge off its centre",
+    "workpiece_setting": "constant offset and small rotation of the workpiece frame",
+    "time_offset": "every output lags the simulation by the same time (clock offset)",
+}
+
+
+def _val(v: float, key: str) -> str:
+    """A parameter value for humans: mm -> um, small angles -> urad, ratios -> ppm."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "n/a"
+    if key.endswith("_mm") and abs(v) < 1.0:
+        return f"{v * 1e3:.4g} um"
+    if key.endswith("_deg") and key != "phase_deg" and abs(v) < 0.1:
+        return f"{math.radians(v) * 1e6:.4g} urad"
+    if key == "scale":
+        return f"{v * 1e6:.4g} ppm"
+    if key.startswith("gain_mm_per"):
+        return f"{v * 1e3:.4g} um/{key.split('_per_', 1)[1]}"
+    if key.endswith("_s") and abs(v) < 1.0:
+        return f"{v * 1e3:.4g} ms"
+    return f"{v:.5g}"
+
+
+def _len(v: float, unit: str) -> str:
+    if unit == "mm":
+        return f"{v * 1e3:.4g} um"
+    if unit == "deg":
+        return f"{math.radians(v) * 1e6:.4g} urad"
+    return f"{v:.4g} {unit}"
+
+
+def _effect_line(e) -> str:
+    ps = ", ".join(f"{k} = {_val(v, k)} +/- {_val(e.uncertainty.get(k), k)}"
+                   for k, v in e.params.items() if not k.startswith("range_"))
+    return f"{e.name} on {e.output} (from {', '.join(e.inputs)}): {ps}"
+
+
+def summary_text(res) -> str:
+    a = res.alignment
+    lines = [f"diagnosis of {len(res.outputs)} output(s) over {a['samples']} samples "
+             f"({a['t_start']:.3f}..{a['t_end']:.3f} s, step {a['grid_step_s'] * 1e3:.3g} ms)"]
+    for o in res.outputs:
+        u = res.units[o]
+        lines.append(f"  {o}: noise floor {_len(res.noise_floor[o], u)}, RMS "
+                     f"{_len(res.fit['rms_before'][o], u)} -> {_len(res.fit['rms_after'][o], u)}, "
+                     f"held out {_len(res.fit['holdout_rms_before'][o], u)} -> "
+                     f"{_len(res.fit['holdout_rms_after'][o], u)}")
+    if res.mismatch:
+        lines.append("where the residual stands out:")
+        for m in res.mismatch[:12]:
+            lines.append(f"  {m.output}: RMS {_len(m.rms, res.units[m.output])}; {m.where}")
+    else:
+        lines.append("the residual is within the noise everywhere")
+    for o, cs in res.conditions.items():
+        for c in cs:
+            lines.append(f"  {c}")
+    if res.effects:
+        lines.append("effects:")
+        for e in res.effects:
+            lines.append("  " + _effect_line(e))
+    else:
+        lines.append("effects: none (the residual is explained by noise)")
+    return "\n".join(lines)
+
+
+def markdown(res, plot_name: str | None = None) -> str:
+    a = res.alignment
+    out = ["# Diagnosis: simulation vs recording", "",
+           f"SIM `{a['sim']}` ({a['sim_rate_hz']:.4g} Hz) against REC `{a['rec']}` "
+           f"({a['rec_rate_hz']:.4g} Hz): {a['samples']} common samples from {a['t_start']:.3f} "
+           f"to {a['t_end']:.3f} s every {a['grid_step_s'] * 1e3:.4g} ms. "
+           f"Coarse clock offset from cross-correlation: {a['coarse_offset_s'] * 1e3:.4g} ms.", "",
+           "## Fit", "",
+           "| output | noise floor | RMS before | RMS after | held-out before | held-out after |",
+           "|---|---|---|---|---|---|"]
+    for o in res.outputs:
+        u = res.units[o]
+        f = res.fit
+        out.append(f"| {o} | {_len(res.noise_floor[o], u)} | {_len(f['rms_before'][o], u)} | "
+                   f"{_len(f['rms_after'][o], u)} | {_len(f['holdout_rms_before'][o], u)} | "
+                   f"{_len(f['holdout_rms_after'][o], u)} |")
+    out += ["", f"Held out: each of {a['folds']} contiguous time blocks is predicted by the "
+            "effects fitted on the other blocks.", "", "## Effects", ""]
+    if res.effects:
+        out += ["| effect | output | inputs | parameters (1 sigma) | evidence |", "|---|---|---|---|---|"]
+        for e in res.effects:
+            ps = "<br>".join(f"{k} = {_val(v, k)} +/- {_val(e.uncertainty.get(k), k)}"
+                             for k, v in e.params.items() if not k.startswith("range_"))
+            ev = ", ".join(f"{k} {v}" for k, v in e.evidence.items())
+            out.append(f"| {e.name} | {e.output} | {', '.join(e.inputs)} | {ps} | {ev} |")
+        out += ["", "Signatures: " + "; ".join(f"**{e.name}**: {SIGNATURE.get(e.name, '')}"
+                                               for e in res.effects) + "."]
+    else:
+        out.append("None: the residual is explained by noise.")
+    out += ["", "## Where the residual stands out", ""]
+    if res.mismatch:
+        out += ["| output | t start (s) | t end (s) | RMS | conditions |", "|---|---|---|---|---|"]
+        for m in res.mismatch:
+            out.append(f"| {m.output} | {m.t_start:.3f} | {m.t_end:.3f} | "
+                       f"{_len(m.rms, res.units[m.output])} | {m.where} |")
+    else:
+        out.append("Nowhere: the residual is within the noise floor.")
+    conds = [c for cs in res.conditions.values() for c in cs]
+    if conds:
+        out += ["", "Dependence on operating conditions:", ""] + [f"- {c}" for c in conds]
+    out += ["", "## Selection log", ""] + [f"- {x}" for x in res.log] if res.log else []
+    if plot_name:
+        out += ["", f"![recorded, simulated and corrected]({plot_name})"]
+    return "\n".join(out) + "\n"
+
+
+def plot(res, path) -> None:
+    """PNG: per output, recorded/simulated/corrected (top) and residuals before/after (bottom)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from .._io import atomic_path
+    outs = list(res.outputs)[:6]
+    fig, axes = plt.subplots(2 * len(outs), 1, figsize=(10, 3.2 * len(outs) + 0.5), sharex=True,
+                             squeeze=False)
+    t = res.t
+    for i, o in enumerate(outs):
+        u = res.units[o]
+        scale, ru = (1e3, "um") if u == "mm" else ((math.pi / 180 * 1e6, "urad") if u == "deg" else (1, u))
+        ax = axes[2 * i, 0]
+        ax.plot(t, res.rec[o], lw=0.8, label="recorded")
+        ax.plot(t, res.sim[o], lw=0.8, ls="--", label="simulated")
+        ax.plot(t, res.corrected[o], lw=0.8, ls=":", label="simulated + effects")
+        ax.set_ylabel(f"{o} ({u})")
+        ax.legend(loc="upper right", fontsize=7)
+        ax = axes[2 * i + 1, 0]
+        ax.plot(t, (res.rec[o] - res.sim[o]) * scale, lw=0.6, label="REC - SIM")
+        ax.plot(t, (res.rec[o] - res.corrected[o]) * scale, lw=0.6, label="after (fitted)")
+        ax.plot(t, (res.rec[o] - res.heldout_corrected[o]) * scale, lw=0.6, alpha=0.7,
+                label="after (held out)")
+        for m in res.mismatch:
+            if m.output == o:
+                ax.axvspan(m.t_start, m.t_end, color="0.85", zorder=0)
+        n = res.noise_floor[o] * scale
+        ax.axhline(2 * n, color="k", lw=0.4, ls=":")
+        ax.axhline(-2 * n, color="k", lw=0.4, ls=":")
+        ax.set_ylabel(f"residual {o} ({ru})")
+        ax.legend(loc="upper right", fontsize=7)
+    axes[-1, 0].set_xlabel("t (s)")
+    names = ", ".join(res.names) or "no effect (noise)"
+    fig.suptitle(f"Diagnosis: {names}", fontsize=10)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
