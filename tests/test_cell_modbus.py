@@ -612,3 +612,38 @@ def test_client_mode_ignores_an_out_of_range_plc_block(tmp_path, caplog):
     assert refused == (0, 0)                  # IDLE, command_seq 1 not taken
     assert accepted[1] == 1 and accepted[0] in (1, 2, 3)
     assert any("PLC block ignored" in r.getMessage() for r in caplog.records)
+
+
+def test_probe_file_step_waits_for_the_nc(cell, tmp_path):
+    """Real-machine step: MEASURING until the NC's touch file arrives, then the result; a bad
+    file is a MEASURE_FAILED fault naming it."""
+    from mtcomp.cell.virtual import ProbeFileCell
+    from mtcomp.errors import WorkpieceSetting
+    from mtcomp.setting.workpiece import plan_bowls, save_plan, virtual_probe, write_touches
+    plan, inbox = plan_bowls(3), tmp_path / "inbox"
+    inbox.mkdir()
+    save_plan(plan, tmp_path / "plan.toml")
+    step = ProbeFileCell(str(inbox), str(tmp_path / "plan.toml"), probe_sigma_mm=0.0005,
+                         poll_s=0.01, settle_s=0.05, wait_s=20)
+    bs = cell(step)
+    mb = RawModbus(bs.port)
+    try:
+        assert mb.command(1, 1, part=42) is None
+        time.sleep(0.1)
+        assert mb.outputs()["state"] == 1                  # no file yet: still measuring
+        truth = robot_placement(42, 9)
+        touches = virtual_probe(WorkpieceSetting(tuple(truth[:3]), tuple(truth[3:])), plan,
+                                0.0005, np.random.default_rng(5))
+        write_touches(touches, inbox / "42.csv")
+        out = wait_for(lambda: (o := mb.outputs())["state"] == 3 and o, 20, "READY")
+        assert np.all(np.abs(np.array(out["pose"]) - truth) < 5 * np.array(out["sigma"]))
+        assert (inbox / "42.csv.job1").exists() and not (inbox / "42.csv").exists()
+        assert mb.command(2, 2, part=42, ack=1) is None
+        (inbox / "43.csv").write_text("bowl,x,y,z,ax,ay,az\n1,0,0,zero,0,0,-1\n")
+        assert mb.command(1, 3, part=43) is None
+        out = wait_for(lambda: (o := mb.outputs())["state"] == 4 and o, 20, "FAULT")
+        assert out["fault_code"] == 2
+    finally:
+        mb.close()
+    fault = [r for r in read_records(bs.journal)[0] if r["ev"] == "fault"][0]
+    assert "43.csv.job2:2" in fault["why"]

@@ -53,15 +53,20 @@ def _cycle_options(s) -> None:
     s.add_argument("--measure", metavar="MODULE:CALLABLE",
                    help="measurement step measure_and_compute(job) -> CellResult "
                         "(default: the virtual cell)")
+    s.add_argument("--probe-inbox", metavar="DIR",
+                   help="real machine: directory where the NC writes the touches CSV "
+                        "<part_id>.csv (needs --plan); default: the virtual cell")
+    s.add_argument("--plan", help="bowl plan TOML (mtcomp workpiece-setting plan)")
+    s.add_argument("--probe-sigma", type=float,
+                   help="real machine: probe noise 1 sigma in mm (default: from the residuals)")
     s.add_argument("--seed", type=int, default=0, help="virtual cell: random seed")
     s.add_argument("--probe-time", type=float, default=0.0,
                    help="virtual cell: simulated probing time in s")
-    s.add_argument("--nc-dir", help="virtual cell: directory of part programs O<id>.nc to "
-                                    "compensate (default: none written)")
-    s.add_argument("--out-dir", help="virtual cell: where compensated programs go (default "
-                                     "--nc-dir)")
+    s.add_argument("--nc-dir", help="directory of part programs O<id>.nc to compensate "
+                                    "(default: no program written)")
+    s.add_argument("--out-dir", help="where compensated programs go (default --nc-dir)")
     s.add_argument("--machine", default="robonano-a0ib",
-                   help="virtual cell: machine preset or TOML for the NC transform")
+                   help="machine preset or TOML for the NC transform")
     s.add_argument("--measure-timeout", type=float, default=300.0,
                    help="fault MEASURE_TIMEOUT after this many s (default 300)")
     s.add_argument("--limit-mm", type=float, default=0.5, help="go/no-go limit |dx|,|dy|,|dz|")
@@ -96,9 +101,18 @@ def _serve(args) -> int:
     port = args.plc_port if args.cell_command == "client" else args.port
     if not 0 <= port <= 65535:
         raise InputError(f"port {port} outside 0..65535", field="--port")
-    measure = (_load_measure(args.measure) if args.measure else
-               VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
-                           out_dir=args.out_dir, machine=args.machine))
+    if args.measure:
+        measure = _load_measure(args.measure)
+    elif args.probe_inbox:
+        if not args.plan:
+            raise InputError("--probe-inbox needs --plan (the bowl plan TOML)", field="--plan")
+        from .virtual import ProbeFileCell
+        measure = ProbeFileCell(args.probe_inbox, args.plan, probe_sigma_mm=args.probe_sigma,
+                                wait_s=args.measure_timeout, nc_dir=args.nc_dir,
+                                out_dir=args.out_dir, machine=args.machine)
+    else:
+        measure = VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
+                              out_dir=args.out_dir, machine=args.machine)
     cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
                      limit_mm=args.limit_mm, limit_deg=args.limit_deg, fsync=not args.no_fsync)
 

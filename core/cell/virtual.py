@@ -1,4 +1,5 @@
-"""The virtual cell: the default `measure_and_compute` step, built on mtcomp.setting.workpiece.
+"""Measurement steps built on mtcomp.setting.workpiece: the virtual cell (the default
+`measure_and_compute`) and `ProbeFileCell`, which takes the probe data from the real NC.
 
 The robot places blank `part_id` with the placement error of `setting.cellsim.RobotPlacement`
 (ISO 9283 repeatability RP = 30 µm by default); the machine runs the probing program of the
@@ -62,7 +63,7 @@ class VirtualCell:
 
     def __call__(self, job: Job) -> CellResult:
         from ..errors import WorkpieceSetting
-        from ..setting.workpiece import fit_bowls, frame_from_bowls, plan_bowls, virtual_probe
+        from ..setting.workpiece import plan_bowls, virtual_probe
         plan = self.plan if self.plan is not None else _default_plan(plan_bowls)
         truth = robot_placement(job.part_id, self.seed, self.robot)
         # probing noise differs per measurement (job number), the placement per part; a job
@@ -74,21 +75,81 @@ class VirtualCell:
                                 self.probe_sigma_mm, rng)
         if job.on_phase is not None:
             job.on_phase("computing")
-        fit = fit_bowls(touches, plan.probe_radius, probe_sigma=self.probe_sigma_mm)
-        est = frame_from_bowls(fit, plan)
-        prog = (job.program_id + self.program_offset - 1) % 9999 + 1
-        info = {"method": est.method, "warnings": list(est.warnings),
-                "bowl_rms_mm": [float(f.rms) for f in fit.fits]}
-        if self.nc_dir is not None:
-            from ..machine import load_machine
-            from ..setting.workpiece import compensate_program
-            src = Path(self.nc_dir) / f"O{job.program_id:04d}.nc"
-            dst = Path(self.out_dir or self.nc_dir) / f"O{prog:04d}.nc"
-            info["blocks"] = int(compensate_program(load_machine(self.machine), src, est.pose,
-                                                    dst))
-            info["program_file"] = dst.name
-        return CellResult(tuple(float(v) for v in est.params), tuple(float(v) for v in est.std),
-                          prog, not est.warnings, info)
+        return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.program_offset,
+                                   self.nc_dir, self.out_dir, self.machine)
+
+
+def result_from_touches(job: Job, touches, plan, probe_sigma_mm, program_offset: int,
+                        nc_dir=None, out_dir=None, machine: str = "robonano-a0ib") -> CellResult:
+    """Bowl fit, paper-001 frame and (with `nc_dir`) the compensated program: the part of the
+    step shared by the virtual cell and the real machine (`ProbeFileCell`)."""
+    from ..setting.workpiece import fit_bowls, frame_from_bowls
+    fit = fit_bowls(touches, plan.probe_radius, probe_sigma=probe_sigma_mm)
+    est = frame_from_bowls(fit, plan, file=touches.source)
+    prog = (job.program_id + program_offset - 1) % 9999 + 1
+    info = {"method": est.method, "warnings": list(est.warnings),
+            "bowl_rms_mm": [float(f.rms) for f in fit.fits]}
+    if touches.source:
+        info["touches_file"] = Path(touches.source).name
+    if nc_dir is not None:
+        from ..machine import load_machine
+        from ..setting.workpiece import compensate_program
+        src = Path(nc_dir) / f"O{job.program_id:04d}.nc"
+        dst = Path(out_dir or nc_dir) / f"O{prog:04d}.nc"
+        info["blocks"] = int(compensate_program(load_machine(machine), src, est.pose, dst))
+        info["program_file"] = dst.name
+    return CellResult(tuple(float(v) for v in est.params), tuple(float(v) for v in est.std),
+                      prog, not est.warnings, info)
+
+
+@dataclass(frozen=True)
+class ProbeFileCell:
+    """Measurement step for a real machine: the NC runs the probing program and writes the
+    touches (CSV of `mtcomp.setting.workpiece.read_touches`: bowl,x,y,z,ax,ay,az) into `inbox`
+    as ``pattern`` (fields part_id, job_no, program_id). The step waits for that file (its
+    size unchanged for `settle_s`; writers should better write a temporary name and rename),
+    claims it by renaming it to ``<name>.job<job_no>`` (so a later job never reuses it, and a
+    job resumed after a restart finds it again), fits the bowls of `plan` (a plan TOML) and
+    writes the compensated program as `VirtualCell` does. Gives up after `wait_s` (set it no
+    longer than the cycle's measure timeout). probe_sigma_mm None pools the noise from the
+    fit residuals.
+    """
+    inbox: str
+    plan: str
+    pattern: str = "{part_id}.csv"
+    probe_sigma_mm: float | None = None
+    poll_s: float = 0.2
+    settle_s: float = 0.5
+    wait_s: float = 300.0
+    program_offset: int = 1000
+    nc_dir: str | None = None
+    out_dir: str | None = None
+    machine: str = "robonano-a0ib"
+
+    def __call__(self, job: Job) -> CellResult:
+        import os
+        from .._io import MtcompError
+        from ..setting.workpiece import load_plan, read_touches
+        plan = load_plan(self.plan)
+        src = Path(self.inbox) / self.pattern.format(part_id=job.part_id, job_no=job.job_no,
+                                                     program_id=job.program_id)
+        claimed = src.with_name(f"{src.name}.job{job.job_no}")
+        deadline = time.monotonic() + self.wait_s
+        size = None
+        while not claimed.exists():
+            now = src.stat().st_size if src.exists() else None
+            if now is not None and now == size:
+                os.replace(src, claimed)
+                break
+            if time.monotonic() > deadline:
+                raise MtcompError(f"no probe data {src} within {self.wait_s} s")
+            size = now
+            time.sleep(self.settle_s if now is not None else self.poll_s)
+        touches = read_touches(claimed)
+        if job.on_phase is not None:
+            job.on_phase("computing")
+        return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.program_offset,
+                                   self.nc_dir, self.out_dir, self.machine)
 
 
 _PLAN = {}
