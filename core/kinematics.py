@@ -199,7 +199,7 @@ def _residual(machine, q, errors, target: Pose, mode, strict=False):
 
 
 def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q0=None, *,
-               tol: float = 1e-11, max_iter: int = 60) -> np.ndarray:
+               tol: float = 1e-10, max_iter: int = 60) -> np.ndarray:
     """Axis commands (N, n_axes) in mm and deg that put the real tool edge at target.p and the
     tool in target's orientation (tool direction on machines with 1-2 rotary axes, full
     orientation with 3), under `errors`.
@@ -244,31 +244,35 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
         r = res(qa, active, errors)
         nr = np.linalg.norm(r, axis=1)
         done = np.zeros(active.size, bool)
-        slow = np.zeros(active.size, bool)
+        live = np.arange(active.size)  # points still iterating on this Jacobian
         for _ in range(8):
             it += 1
-            step = np.einsum("nij,nj->ni", K, r) + lam * np.einsum("nij,nj->ni", Ainv, qa - q0[active])
+            L = live
+            step = (np.einsum("nij,nj->ni", K[L], r[L])
+                    + lam * np.einsum("nij,nj->ni", Ainv[L], qa[L] - q0[active[L]]))
             # Damping: limit rotary steps to 20 deg (scaling the whole step, so the linear axes
             # stay consistent) and halve steps that do not reduce the residual.
             big = np.max(np.abs(step[:, rot]), axis=1, initial=0.0)
             scale = np.minimum(1.0, 20.0 / np.maximum(big, 1e-300))
-            todo = np.arange(active.size)
-            qn, rn, nn = qa.copy(), r.copy(), nr.copy()
+            todo = np.arange(L.size)
+            qn, rn, nn = qa[L], r[L], nr[L].copy()
             for _bt in range(30):
-                qt = qa[todo] - scale[todo, None] * step[todo]
-                rt = res(qt, active[todo], errors)
+                qt = qa[L[todo]] - scale[todo, None] * step[todo]
+                rt = res(qt, active[L[todo]], errors)
                 nt = np.linalg.norm(rt, axis=1)
-                ok = (nt < nr[todo]) | (nt <= 1e-12)
+                ok = (nt < nr[L[todo]]) | (nt <= 1e-12)
                 qn[todo[ok]], rn[todo[ok]], nn[todo[ok]] = qt[ok], rt[ok], nt[ok]
                 todo = todo[~ok]
                 if not todo.size:
                     break
                 scale[todo] *= 0.5
-            stepped = np.max(np.abs(qn - qa), axis=1)
-            slow |= (nn > 0.1 * nr) & (nn > 1e-12)  # contraction too weak: re-linearise
-            done |= (stepped < tol) | (nn <= 1e-12)
-            qa, r, nr = qn, rn, nn
-            if done.all() or (slow & ~done).any():
+            stepped = np.max(np.abs(qn - qa[L]), axis=1)
+            fin = (stepped < tol) | (nn <= 1e-12)
+            slow = (nn > 0.1 * nr[L]) & ~fin  # contraction too weak: re-linearise these
+            qa[L], r[L], nr[L] = qn, rn, nn
+            done[L[fin]] = True
+            live = L[~fin & ~slow]
+            if not live.size:
                 break
         q[active] = qa
         active = active[~done]
