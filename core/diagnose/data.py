@@ -130,7 +130,7 @@ def _quantum(values: np.ndarray) -> float:
     # a genuinely quantised signal has all values on the q lattice
     k = v / q
     frac = np.abs(k - np.round(k))
-    if np.mean(frac < 1e-3) > 0.99 and len(u) < 0.7 * len(v):
+    if np.mean(frac < 1e-3) > 0.99:
         return q
     return 0.0
 
