@@ -501,3 +501,24 @@ def test_cli_builds_and_cosimulates(tmp_path, capsys):
     assert main(["cosim", str(tmp_path / "missing.nc"), "--machine", "robonano-a0ib", "--errors", str(errs),
                  "--out", str(tmp_path / "bad")]) == 2
     assert not (tmp_path / "bad.csv").exists()
+
+
+def test_an_importer_can_rebuild_the_binary_from_the_sources(built, tmp_path):
+    """fmpy's own build of the archive's <SourceFiles> (what `fmpy compile` runs), no mtcomp code."""
+    from fmpy.build import build_platform_binary
+    d = tmp_path / "unzipped"
+    with zipfile.ZipFile(built["comp_setting"]) as z:
+        z.extractall(d)
+    shutil.rmtree(d / "binaries")
+    (tmp_path / "build").mkdir()
+    build_platform_binary(d, build_dir=tmp_path / "build")
+    rebuilt = tmp_path / "rebuilt.fmu"
+    with zipfile.ZipFile(rebuilt, "w") as z:
+        for p in sorted(d.rglob("*")):
+            if p.is_file():
+                z.write(p, p.relative_to(d).as_posix())
+    assert validate_fmu(str(rebuilt)) == []
+    res = fmpy.simulate_fmu(str(rebuilt), stop_time=0.002, output_interval=1e-3,
+                            start_values={"command.B": 20.0, "command.X": 3.0})
+    expected = retarget(load_machine("robonano-a0ib"), np.array([[0, 20.0, 3.0, 0, 0]]), SETTING)[0]
+    assert res["compensated.X"][-1] == pytest.approx(expected[2], abs=1e-9)
