@@ -188,3 +188,36 @@ def test_touches_csv_round_trip_and_errors(tmp_path):
     path.write_text("bowl,x,y,z\n1,0,0,0\n")
     with pytest.raises(InputError, match="missing ax,ay,az"):
         read_touches(path)
+
+
+def test_shared_radius_fit_is_exact_and_cuts_the_tilt_uncertainty():
+    from mtcomp.setting.frame import frame_from_bowls
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0, 0, bowl_radius_error=-0.003)
+    fit = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005)
+    assert fit.shared_radius
+    R, tr = np.asarray(POSE.matrix), np.asarray(POSE.translation)
+    for f, c in zip(fit.fits, plan.centres):
+        np.testing.assert_allclose(f.centre, R @ c + tr, atol=1e-9)
+        assert f.radius == pytest.approx(1.997, abs=1e-9)
+    # the shared radius correlates the centre heights: off-diagonal blocks are not zero
+    full = fit.centre_cov_full
+    assert full[2, 5] > 0.5 * np.sqrt(full[2, 2] * full[5, 5])
+    per = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005, shared_radius=False)
+    assert not np.any(per.centre_cov_full[0:3, 3:6])
+    e_sh, e_per = frame_from_bowls(fit, plan), frame_from_bowls(per, plan)
+    assert e_sh.std[3] < 0.3 * e_per.std[3] and e_sh.std[4] < 0.3 * e_per.std[4]
+    assert e_sh.std[2] < e_per.std[2]
+
+
+def test_a_bowl_of_another_radius_is_refused_by_the_shared_fit():
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0, 0)
+    pts = t.points.copy()
+    i2 = t.of(2)
+    pts[i2] += 0.2 * t.approach[i2]                               # bowl 2 cut 0.2 mm larger
+    bad = Touches(t.bowl, pts, t.approach)
+    with pytest.raises(InputError, match="bowl 2: the bowls do not share one radius"):
+        fit_bowls(bad, plan.probe_radius, probe_sigma=0.0005)
+    fit = fit_bowls(bad, plan.probe_radius, probe_sigma=0.0005, shared_radius=False)
+    assert fit.fits[1].radius == pytest.approx(2.2, abs=1e-4)

@@ -544,16 +544,34 @@ class SphereFit:
 
 @dataclass(frozen=True)
 class BowlFit:
-    """Sphere fits of all bowls; `warnings` lists rejected touches and other notes for the user."""
+    """Sphere fits of all bowls; `warnings` lists rejected touches and other notes for the user.
+
+    shared_cov: (3n, 3n) covariance of all centres when one radius was fitted for all bowls."""
     fits: tuple[SphereFit, ...]
     probe_radius: float
     sigma: float
     sigma_known: bool
     warnings: tuple[str, ...] = ()
+    shared_cov: np.ndarray | None = None
 
     @property
     def ids(self) -> tuple[int, ...]:
         return tuple(f.bowl for f in self.fits)
+
+    @property
+    def shared_radius(self) -> bool:
+        return self.shared_cov is not None
+
+    @property
+    def centre_cov_full(self) -> np.ndarray:
+        """(3n, 3n) covariance of all centres, mm^2 (block diagonal unless the radius is shared)."""
+        if self.shared_cov is not None:
+            return self.shared_cov
+        n = len(self.fits)
+        out = np.zeros((3 * n, 3 * n))
+        for i, f in enumerate(self.fits):
+            out[3 * i:3 * i + 3, 3 * i:3 * i + 3] = f.centre_cov
+        return out
 
     @property
     def centres(self) -> np.ndarray:
@@ -565,8 +583,9 @@ class BowlFit:
 
     def summary(self) -> str:
         src = "given" if self.sigma_known else "pooled from residuals"
+        shared = ", one radius for all bowls" if self.shared_radius else ""
         lines = [f"bowl sphere fits (probe radius {self.probe_radius:g} mm, probe noise "
-                 f"{self.sigma * 1e3:.3f} um {src})",
+                 f"{self.sigma * 1e3:.3f} um {src}{shared})",
                  " bowl        cx mm        cy mm        cz mm    radius mm  s(c) um  rms um  touches"]
         for f in self.fits:
             sd = np.sqrt(np.clip(np.diag(f.centre_cov), 0, None)) * 1e3
@@ -631,13 +650,73 @@ def _cov(J: np.ndarray, sigma: float) -> np.ndarray:
     return sigma * sigma * np.linalg.inv(JTJ)
 
 
+def _shared_fit(done, touches, gross_limit, limit, src, probe_radius):
+    """Joint fit of all bowl centres with one probe-centre radius over the touches kept.
+
+    Returns the updated per-bowl records, (J^T J)^-1 of (c_1 .. c_n, rho), SSR and dof.
+    """
+    from scipy.optimize import leastsq
+    n = len(done)
+    pts = [touches.points[touches.of(bid)] for bid, *_ in done]
+    used = [rec[4] for rec in done]
+    P = np.concatenate([p[u] for p, u in zip(pts, used)])
+    owner = np.concatenate([np.full(int(u.sum()), b) for b, u in enumerate(used)])
+    x0 = np.r_[np.concatenate([rec[1] for rec in done]), np.mean([rec[2] for rec in done])]
+
+    def res(x):
+        C = x[:3 * n].reshape(n, 3)[owner]
+        return np.sqrt(((P - C) ** 2).sum(axis=1)) - x[-1]
+
+    def jac(x):
+        C = x[:3 * n].reshape(n, 3)[owner]
+        D = P - C
+        D /= np.sqrt((D * D).sum(axis=1))[:, None]
+        J = np.zeros((len(P), 3 * n + 1))
+        for a in range(3):
+            J[np.arange(len(P)), 3 * owner + a] = -D[:, a]
+        J[:, -1] = -1.0
+        return J
+
+    x, ier = leastsq(res, x0, Dfun=jac, xtol=1e-14, ftol=1e-15, maxfev=400)
+    if ier not in (1, 2, 3, 4):
+        raise MtcompError(f"joint sphere fit did not converge (MINPACK code {ier})")
+    J = jac(x)
+    inv = np.linalg.inv(J.T @ J)
+    r = res(x)
+    if np.max(np.abs(r)) > limit:
+        # name the bowl whose own radius is furthest from the others'
+        radii = np.array([rec[2] for rec in done])
+        b = int(np.argmax(np.abs(radii - np.median(radii))))
+        own = ", ".join(f"{rec[0]}: {rec[2] + probe_radius:.4f}" for rec in done)
+        raise InputError(f"bowl {done[b][0]}: the bowls do not share one radius (own fits, bowl: "
+                         f"radius mm: {own}; joint misfit up to {np.max(np.abs(r)) * 1e3:.2f} um > "
+                         f"{limit * 1e3:.2f} um): cut with another tool? fit a radius per bowl",
+                         src, field="bowl")
+    out = []
+    for b, (bid, _c, _rho, _resid, u, lines, _J) in enumerate(done):
+        c = x[3 * b:3 * b + 3]
+        resid = np.sqrt(((pts[b] - c) ** 2).sum(axis=1)) - x[-1]
+        far = np.flatnonzero(np.abs(resid) > gross_limit)
+        if len(far):
+            j = far[np.argmax(np.abs(resid[far]))]
+            where = f"line {int(lines[j])}" if lines[j] else f"touch {j + 1}"
+            raise InputError(f"bowl {bid}: {where} is {resid[j] * 1e3:.1f} um off the sphere with "
+                             f"the radius shared by all bowls (limit {gross_limit * 1e3:.0f} um): "
+                             "was this bowl cut with another tool?", src, field="bowl")
+        out.append((bid, c.copy(), float(x[-1]), resid, u, lines, None))
+    return out, inv, float(r @ r), len(P) - (3 * n + 1)
+
+
 def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | None = None,
-              bowl_radius: float | None = None, k: float = 5.0, gross_limit: float = 0.05,
-              bowls=None) -> BowlFit:
+              bowl_radius: float | None = None, shared_radius: bool = True, k: float = 5.0,
+              gross_limit: float = 0.05, bowls=None) -> BowlFit:
     """Fit every bowl's sphere from its touches, with the probe radius accounted for.
 
     probe_sigma: probe noise (1 sigma along the approach, mm); None pools it from the residuals.
-    bowl_radius: fix the bowl radius (mm) instead of fitting it.  Robustness: a touch whose
+    bowl_radius: fix the bowl radius (mm) instead of fitting it.  shared_radius (default): fit one
+    radius for all bowls (one ball end mill cut them all): the bowls' centre heights then no longer
+    carry independent radius errors, which cuts the tilt uncertainty several times; the centres
+    become correlated (BowlFit.centre_cov_full).  Robustness: a touch whose
     leave-one-out residual exceeds k sigma is rejected (at most one per bowl, with a warning);
     any touch still beyond k sigma after that, or one more than `gross_limit` mm off its sphere
     (the probe hit the rim, the top face or another bowl), is an error naming the bowl and line.
@@ -740,13 +819,28 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
         ssr = sum(float(d[3][d[4]] @ d[3][d[4]]) for d in done)
         dof = sum(int(d[4].sum()) - npar for d in done)
         sigma, known = math.sqrt(ssr / dof), False
+    full = None
+    if shared_radius and fixed_rho is None and len(done) > 1:
+        done, full, ssr, dof = _shared_fit(done, touches, gross_limit, k * thr_sigma, src,
+                                           probe_radius)
+        if probe_sigma is None:
+            sigma = math.sqrt(ssr / dof)
     fits = []
-    for bid, c, rho, resid, used, lines, Ju in done:
-        cov = _cov(Ju, sigma)
+    for b, (bid, c, rho, resid, used, lines, Ju) in enumerate(done):
+        if full is not None:
+            sel = [3 * b, 3 * b + 1, 3 * b + 2, 3 * len(done)]
+            cov = sigma * sigma * full[np.ix_(sel, sel)]
+        else:
+            cov = _cov(Ju, sigma)
         if fixed_rho is not None:
             cov = np.pad(cov, ((0, 1), (0, 1)))
         fits.append(SphereFit(bowl=bid, centre=c, radius=rho + probe_radius, cov=cov,
                               residuals=resid, used=used, sigma=sigma, lines=lines,
                               fixed_radius=fixed_rho is not None))
+    if full is not None:
+        n3 = 3 * len(done)
+        return BowlFit(fits=tuple(fits), probe_radius=float(probe_radius), sigma=sigma,
+                       sigma_known=known, warnings=tuple(warnings),
+                       shared_cov=sigma * sigma * full[:n3, :n3])
     return BowlFit(fits=tuple(fits), probe_radius=float(probe_radius), sigma=sigma,
                    sigma_known=known, warnings=tuple(warnings))

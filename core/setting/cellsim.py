@@ -157,7 +157,8 @@ class RobotPlacement:
 class CellConfig:
     """Monte Carlo settings: machine, bowl plan, robot, probe noise (mm, 1 sigma along the
     approach), pyramid, NC transform mode, trials, seed; bowl_radius fixes the fitted bowl radius
-    (a calibrated ball end mill) instead of fitting it."""
+    (a calibrated ball end mill) instead of fitting it; shared_radius fits one radius for all
+    bowls, else one per bowl."""
     machine: str = "robonano-a0ib"
     plan: object = None
     robot: RobotPlacement = field(default_factory=RobotPlacement)
@@ -167,6 +168,7 @@ class CellConfig:
     trials: int = 500
     seed: int = 1
     bowl_radius: float | None = None
+    shared_radius: bool = True
 
 
 @dataclass(frozen=True)
@@ -180,6 +182,12 @@ class CellResult:
     config: CellConfig
 
     NAMES = ("W1", "W2", "W3", "W4", "S1&S2", "S3&S4")
+
+    def _radius_text(self) -> str:
+        cfg = self.config
+        if cfg.bowl_radius is not None:
+            return f"fixed at {cfg.bowl_radius:g} mm"
+        return "fitted, one for all bowls" if cfg.shared_radius else "fitted per bowl"
 
     def table_rows(self) -> list[tuple]:
         """(name, target, paper, comp mean, comp sd, comp min, comp max, uncomp mean, uncomp sd)."""
@@ -199,7 +207,7 @@ class CellResult:
                 f"{cfg.robot.repeatability * 1e3:g} um, rotation sd {cfg.robot.rotation_sigma:g} deg, "
                 f"gripper offset {tuple(cfg.robot.offset)} mm, rotation {tuple(cfg.robot.rotation)} deg; "
                 f"probe noise {cfg.probe_sigma * 1e3:g} um; {cfg.mode} transform"
-                f"{'' if cfg.bowl_radius is None else f'; bowl radius fixed at {cfg.bowl_radius:g} mm'}.\n\n")
+                f"; bowl radius {self._radius_text()}.\n\n")
         lines = ["| quantity | target | paper 001 | compensated mean | sd | min | max | "
                  "uncompensated mean | sd |",
                  "|---|---|---|---|---|---|---|---|---|"]
@@ -272,7 +280,7 @@ def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResul
         true = config.robot.sample(rng)
         touches = virtual_probe(true, plan, config.probe_sigma, rng)
         fit = fit_bowls(touches, plan.probe_radius, probe_sigma=config.probe_sigma or None,
-                        bowl_radius=config.bowl_radius)
+                        bowl_radius=config.bowl_radius, shared_radius=config.shared_radius)
         est = frame_from_bowls(fit, plan)
         perr.append(np.r_[est.pose.translation, est.pose.angles]
                     - np.r_[true.translation, true.angles])

@@ -354,7 +354,8 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
 
     method: "paper" (needs exactly the first three used: S1 origin, S1S2, plane), "lsq"
     (least-squares rigid fit over all bowls), "auto" = paper for 3 bowls, lsq for more.
-    centre_covs: (n, 3, 3) mm^2, propagated to the pose by the estimator's Jacobian (central
+    centre_covs: (n, 3, 3) mm^2 per bowl, or (3n, 3n) with the correlations between bowls (shared
+    radius fit), propagated to the pose by the estimator's Jacobian (central
     differences of the whole estimator, so it holds for either method).  A bowl whose residual
     exceeds the `alarm` quantile of its chi-square distribution gives a warning; one more than
     `gross_limit` mm off is an InputError naming it.
@@ -375,7 +376,19 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
         raise InputError(f"the paper-001 frame uses exactly three bowls, got {n}; use method lsq",
                          field="method")
     R, t = _estimate(m, d, method)
-    covs = np.zeros((n, 3, 3)) if centre_covs is None else np.asarray(centre_covs, float)
+    if centre_covs is None:
+        S = np.zeros((3 * n, 3 * n))
+    else:
+        cc = np.asarray(centre_covs, float)
+        if cc.shape == (3 * n, 3 * n):
+            S = 0.5 * (cc + cc.T)
+        elif cc.shape == (n, 3, 3):
+            S = np.zeros((3 * n, 3 * n))
+            for i in range(n):
+                S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = cc[i]
+        else:
+            raise ValueError(f"centre_covs must be ({n}, 3, 3) or ({3 * n}, {3 * n}), got {cc.shape}")
+    covs = np.array([S[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(n)])
 
     r0 = (m - (d @ R.T + t)).ravel()
     # Jacobians of the estimator (pose parameters and residuals) by central differences over
@@ -388,9 +401,6 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
     Rs = (M - (d @ Rb.transpose(0, 2, 1) + tb[:, None, :])).reshape(len(M), -1)
     Jp = ((P[:3 * n] - P[3 * n:]) / (2 * h)).T
     Jr = ((Rs[:3 * n] - Rs[3 * n:]) / (2 * h)).T
-    S = np.zeros((3 * n, 3 * n))
-    for i in range(n):
-        S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = covs[i]
     cov = Jp @ S @ Jp.T
     cov = 0.5 * (cov + cov.T)
     Sr = Jr @ S @ Jr.T
@@ -439,5 +449,7 @@ def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
                          f"(plan bowls {list(plan.ids)})", file, field="bowl")
     ids = plan.ids
     m = np.array([fitted[b].centre for b in ids])
-    covs = np.array([fitted[b].centre_cov for b in ids])
+    order = [fit.ids.index(b) for b in ids]
+    sel = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i in order])
+    covs = fit.centre_cov_full[np.ix_(sel, sel)]
     return frame_from_points(m, plan.centres, covs, ids, method, fit=fit, alarm=alarm, file=file)

@@ -71,8 +71,10 @@ def cmd_fit(args) -> int:
     plan = load_plan(args.plan)
     touches = read_touches(args.touches)
     radius = plan.tool_radius if args.fix_radius else args.bowl_radius
+    known = set(map(int, touches.bowl)) <= set(plan.ids)
     fit = fit_bowls(touches, plan.probe_radius, probe_sigma=args.probe_sigma, bowl_radius=radius,
-                    k=args.k, bowls=plan.ids if set(map(int, touches.bowl)) <= set(plan.ids) else None)
+                    shared_radius=not args.radius_per_bowl, k=args.k,
+                    bowls=plan.ids if known else None)
     est = frame_from_bowls(fit, plan, method=args.method, file=args.touches)
     print(fit.summary())
     print(est.summary())
@@ -112,7 +114,8 @@ def cmd_simulate(args) -> int:
                            rotation=tuple(_floats(args.gripper_rotation, 3, "gripper-rotation")))
     cfg = CellConfig(machine=args.machine, plan=load_plan(args.plan) if args.plan else None,
                      robot=robot, probe_sigma=args.probe_sigma, mode=args.mode, trials=args.trials,
-                     seed=args.seed, bowl_radius=args.bowl_radius)
+                     seed=args.seed, bowl_radius=args.bowl_radius,
+                     shared_radius=not args.radius_per_bowl)
 
     def progress(i, n):
         if sys.stderr.isatty() and (i % 50 == 0 or i == n):
@@ -165,6 +168,8 @@ def register(subparsers) -> None:
     g.add_argument("--bowl-radius", type=float, help="fix the bowl radius, mm (calibrated tool)")
     g.add_argument("--fix-radius", action="store_true", help="fix the bowl radius at the plan's "
                    "tool radius")
+    g.add_argument("--radius-per-bowl", action="store_true", help="fit a radius per bowl "
+                   "(default: one radius for all bowls, cut by one tool)")
     a.add_argument("--method", choices=("auto", "paper", "lsq"), default="auto",
                    help="frame: paper (3 bowls), lsq (best-fit), auto (default)")
     a.add_argument("--k", type=float, default=5.0, help="outlier threshold in sigma (5)")
@@ -193,7 +198,10 @@ def register(subparsers) -> None:
     a.add_argument("--gripper-offset", default="0,0,0", help="systematic offset dx,dy,dz mm")
     a.add_argument("--gripper-rotation", default="0,0,0", help="systematic rotation a,b,c deg")
     a.add_argument("--probe-sigma", type=float, default=0.0005, help="probe noise, mm (0.0005)")
-    a.add_argument("--bowl-radius", type=float, help="fix the fitted bowl radius, mm")
+    g = a.add_mutually_exclusive_group()
+    g.add_argument("--bowl-radius", type=float, help="fix the fitted bowl radius, mm")
+    g.add_argument("--radius-per-bowl", action="store_true",
+                   help="fit a radius per bowl (default: one for all bowls)")
     a.add_argument("--mode", choices=("3axis", "5axis"), default="3axis")
     a.add_argument("-o", "--out", help="markdown table to write")
     a.add_argument("--png", help="PNG plot to write")
