@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given, settings, strategies as st
 
 from mtcomp import InputError
 from mtcomp.cell import registers as rg
@@ -199,3 +199,76 @@ def test_import_is_light():
             "print(any(m.startswith(('pymodbus', 'scipy')) for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+# -- the cycle against random PLC behaviour (no sockets) --------------------------------------
+def _instant(job):
+    from mtcomp.cell.cycle import CellResult
+    return CellResult((0.001 * job.job_no, 0.0, 0.0, 0.0, 0.0, 0.01), (1e-4,) * 6,
+                      job.program_id + 1)
+
+
+_op = st.one_of(
+    st.tuples(st.just("cmd"), st.integers(0, 3), st.integers(1, 4), st.integers(0, 1),
+              st.sampled_from([0, 100]), st.integers(0, 3)),
+    st.tuples(st.just("restart")),
+    st.tuples(st.just("blank"), st.integers(0, 1)))
+
+
+@settings(max_examples=60, deadline=None)  # 1,500 examples pass too; 60 keep CI fast
+@given(st.lists(_op, min_size=1, max_size=25))
+def test_cycle_restart_is_transparent_and_results_go_out_once(ops):
+    """Whatever the PLC writes, in whatever order, with repeated command numbers: a restart
+    shows the PLC exactly the registers it saw before (heartbeat aside), a result is never
+    presented again after its ACK, and every result is ACKed at most once."""
+    import asyncio
+    import tempfile
+    from mtcomp.cell.cycle import Cycle
+    from mtcomp.cell.registers import State
+
+    def visible(c):
+        r = list(c.image.regs[rg.OUT_BLOCK[0]:])
+        r[rg.FIELDS["heartbeat"].address - rg.OUT_BLOCK[0]] = 0
+        return r
+
+    async def settle(c):
+        for _ in range(2000):
+            if c.state not in (State.MEASURING, State.COMPUTING):
+                return
+            await asyncio.sleep(0.001)
+        raise AssertionError("measurement did not finish")
+
+    async def main(path):
+        c = Cycle(path, _instant)
+        await c.start()
+        acked = set()
+        try:
+            for op in ops:
+                if op[0] == "restart":
+                    before = visible(c)
+                    await c.stop()
+                    c = Cycle(path, _instant)
+                    await c.start()
+                    await settle(c)
+                    assert visible(c) == before
+                elif op[0] == "blank":
+                    assert c.plc_write(3, [op[1]]) is None
+                else:
+                    _, cmd, seq, blank, prog, ack = op
+                    assert c.plc_write(0, [0, cmd, seq, blank, 0, 1, prog, 0, ack]) is None
+                await settle(c)
+                if c.state == State.READY:
+                    assert c.image.get("result_seq") not in acked
+                acked = {r["result_seq"] for r in c.journal.records if r["ev"] == "ack"}
+        finally:
+            await c.stop()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "j.jsonl"
+        asyncio.run(main(path))
+        recs = read_records(path)[0]
+        res = [r["result_seq"] for r in recs if r["ev"] == "result"]
+        acks = [r["result_seq"] for r in recs if r["ev"] == "ack"]
+        assert res == list(range(1, len(res) + 1))
+        assert len(acks) == len(set(acks)) and set(acks) <= set(res)
+        assert replay(recs).state in ("idle", "ready", "fault")

@@ -178,12 +178,10 @@ class Cycle:
 
     def _command(self, cmd: Command, seq: int) -> tuple[int, str] | None:
         img = self.image
-        if cmd == Command.NONE:
-            img.set("cmd_seq_echo", seq)
-            img.set("cmd_status", CommandStatus.OK)
-            return None
         if not self.journal_ok:
             return 4, "journal unavailable: command not accepted"
+        if cmd == Command.NONE:  # nothing to do, but the echo must survive a restart too
+            return self._reject(cmd, seq, CommandStatus.OK)
         state = self.state
         try:
             if cmd == Command.START:
@@ -228,8 +226,10 @@ class Cycle:
         return None
 
     def _reject(self, cmd: Command, seq: int, status: CommandStatus):
-        log.warning("cell: %s (seq %d) rejected in state %s: %s", cmd.name, seq,
-                    self.state.name, status.name)
+        """Journal and echo a command that has no effect (rejected, or NONE)."""
+        if status != CommandStatus.OK:
+            log.warning("cell: %s (seq %d) rejected in state %s: %s", cmd.name, seq,
+                        self.state.name, status.name)
         try:
             self.journal.append("command", cmd_seq=seq, command=int(cmd), status=int(status))
         except OSError as exc:
