@@ -173,7 +173,11 @@ class PlcSim:
             self._seq = (await self.read())["cmd_seq_echo"]
         self._seq = self._seq % 65535 + 1
         seq = self._seq
+        deadline = time.monotonic() + self.reconnect_timeout_s
         while True:
+            if time.monotonic() > deadline:
+                raise MtcompError(f"PLC simulator: {command.name} (seq {seq}) not taken within "
+                                  f"{self.reconnect_timeout_s} s")
             await self._write(command, seq)
             out = await self.read()
             if out["cmd_seq_echo"] == seq:
@@ -216,7 +220,7 @@ class PlcSim:
         deadline = time.monotonic() + self.cycle_timeout_s
         while status == CommandStatus.OK:
             state = State(out["state"])
-            if state == State.READY and out["result_seq"] not in self._confirmed:
+            if state == State.READY:  # (a result ACKed before would count as a duplicate)
                 await self._take_over(out)
                 break
             if state == State.FAULT:
@@ -234,7 +238,7 @@ class PlcSim:
             else:
                 await asyncio.sleep(0)
             out = await self.read()
-        self.blank_loaded = 0                                 # robot takes the part away
+        self.blank_loaded = 0                           # the robot takes the part away
         await self._write(Command.NONE, self._seq)      # same seq: no new command
         self.report.cycles += 1
         self.report.cycle_times.append(time.perf_counter() - t0)
