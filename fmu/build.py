@@ -48,6 +48,7 @@ C_SOURCES = {
 }
 C_HEADERS = ("model.h", "common.h", "mtk.h")
 FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+FMI3_HEADERS = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
 _XYZ = ("x", "y", "z")
 
 
@@ -171,6 +172,95 @@ def write_model_description(*, model_name: str, identifier: str, description: st
     iu = ET.SubElement(ms, "InitialUnknowns")
     for v in outs:
         ET.SubElement(iu, "Unknown", {"index": str(index[v.name])})
+    ET.indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8")
+
+
+VR3_OFFSET = {"Real": 0, "Integer": 1000, "String": 2000}   # fmi3_base.c: references unique across types
+VR3_TIME = 3000
+_TYPE3 = {"Real": "Float64", "Integer": "Int32", "String": "String"}
+
+
+def write_model_description3(*, model_name: str, identifier: str, description: str, variables: list[Var],
+                             guid: str, step: float = 1e-3, stop: float = 1.0) -> bytes:
+    """modelDescription.xml (FMI 3.0 Co-Simulation) of the same variables; value references are
+    made unique across types as fmi3_base.c maps them, plus the independent variable `time`."""
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "3.0", "modelName": model_name, "instantiationToken": guid, "description": description,
+        "author": "mtcomp", "version": _pkg_version(), "generationTool": f"mtcomp {_pkg_version()}",
+        "generationDateAndTime": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "variableNamingConvention": "structured"})
+    ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": identifier, "needsExecutionTool": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "true",
+        "canSerializeFMUState": "true", "providesDirectionalDerivatives": "false",
+        "canHandleVariableCommunicationStepSize": "true", "hasEventMode": "false",
+        "providesIntermediateUpdate": "false", "canReturnEarlyAfterIntermediateUpdate": "false"})
+    used = sorted({v.unit for v in variables if v.unit} | {"s"})
+    ud = ET.SubElement(root, "UnitDefinitions")
+    for name in used:
+        base, factor, offset, displays = UNITS[name]
+        u = ET.SubElement(ud, "Unit", {"name": name})
+        attrs = {k: str(e) for k, e in base.items()}
+        if factor != 1.0:
+            attrs["factor"] = repr(factor)
+        if offset:
+            attrs["offset"] = repr(offset)
+        ET.SubElement(u, "BaseUnit", attrs)
+        for dname, (dfac, doff) in displays.items():
+            da = {"name": dname, "factor": repr(dfac)}
+            if doff:
+                da["offset"] = repr(doff)
+            ET.SubElement(u, "DisplayUnit", da)
+    cats = ET.SubElement(root, "LogCategories")
+    for n, d in (("logStatusError", "Calls the FMU rejects"),
+                 ("logError", "Invalid parameters or resources, failed evaluations"), ("logAll", "Information")):
+        ET.SubElement(cats, "Category", {"name": n, "description": d})
+    ET.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stopTime": _fmt(stop), "stepSize": repr(step)})
+    mv = ET.SubElement(root, "ModelVariables")
+    ET.SubElement(mv, "Float64", {"name": "time", "valueReference": str(VR3_TIME), "causality": "independent",
+                                  "variability": "continuous", "description": "Simulation time", "unit": "s"})
+    for v in variables:
+        attrs = {"name": v.name, "valueReference": str(VR3_OFFSET[v.type] + v.vr), "description": v.description,
+                 "causality": v.causality}
+        variability = v.variability
+        if variability is None:
+            variability = ("continuous" if v.type == "Real" else "discrete") if v.causality != "parameter" else "fixed"
+        attrs["variability"] = variability
+        if v.initial:
+            attrs["initial"] = v.initial
+        if v.type == "Real":
+            if v.unit:
+                attrs["unit"] = v.unit
+            if v.display_unit:
+                attrs["displayUnit"] = v.display_unit
+        if v.min is not None:
+            attrs["min"] = _fmt(v.min) if v.type == "Real" else str(int(v.min))
+        if v.max is not None:
+            attrs["max"] = _fmt(v.max) if v.type == "Real" else str(int(v.max))
+        start = v.start if v.causality != "output" else None
+        if start is not None and v.type != "String":
+            attrs["start"] = _fmt(start) if v.type == "Real" else str(int(start))
+        el = ET.SubElement(mv, _TYPE3[v.type], attrs)
+        if start is not None and v.type == "String":
+            ET.SubElement(el, "Start", {"value": str(start)})
+    ms = ET.SubElement(root, "ModelStructure")
+    outs = [v for v in variables if v.causality == "output"]
+    for v in outs:
+        ET.SubElement(ms, "Output", {"valueReference": str(VR3_OFFSET[v.type] + v.vr)})
+    for v in outs:
+        ET.SubElement(ms, "InitialUnknown", {"valueReference": str(VR3_OFFSET[v.type] + v.vr)})
+    ET.indent(root)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8")
+
+
+def write_build_description(identifier: str, sources: tuple[str, ...]) -> bytes:
+    """sources/buildDescription.xml (FMI 3.0): how an importer compiles the sources."""
+    root = ET.Element("fmiBuildDescription", {"fmiVersion": "3.0"})
+    bc = ET.SubElement(root, "BuildConfiguration", {"modelIdentifier": identifier})
+    sfs = ET.SubElement(bc, "SourceFileSet", {"language": "C99"})
+    for s in sources:
+        ET.SubElement(sfs, "SourceFile", {"name": s})
     ET.indent(root)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8")
 
@@ -319,10 +409,11 @@ resource tables) make the FMU return fmi2Error with a log message naming the var
         "archive: resources/machine.txt and the error tables under resources/tables/.\n", encoding="utf-8")
 
 
-def _copy_sources(kind: str, src_dir: Path) -> tuple[str, ...]:
+def _copy_sources(kind: str, src_dir: Path, fmi_version: int = 2) -> tuple[str, ...]:
     src_dir.mkdir(parents=True)
     here = resources.files("mtcomp.fmu").joinpath("c")
-    for name in C_SOURCES[kind] + C_HEADERS:
+    files = C_SOURCES[kind] if fmi_version == 2 else ("fmi3_base.c",) + C_SOURCES[kind]
+    for name in files + C_HEADERS:
         with resources.as_file(here.joinpath(name)) as p:
             shutil.copyfile(p, src_dir / name)
     try:
@@ -330,9 +421,9 @@ def _copy_sources(kind: str, src_dir: Path) -> tuple[str, ...]:
     except ImportError:  # pragma: no cover - fmpy is a dependency of the fmu extra
         raise FmuBuildError("fmpy is needed to build FMUs (pip install mtcomp[fmu])") from None
     ccode = Path(fmpy.__file__).parent / "c-code"
-    for h in FMI2_HEADERS:
+    for h in FMI2_HEADERS + (FMI3_HEADERS if fmi_version == 3 else ()):
         shutil.copyfile(ccode / h, src_dir / h)
-    return C_SOURCES[kind]
+    return files
 
 
 def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
@@ -349,10 +440,11 @@ def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
             raise FmuBuildError("no C compiler found (cc/gcc)")
         if fmpy.system != "linux":
             raise FmuBuildError('compiler="cc" builds linux binaries only; use compiler="cmake"')
-        md = ET.parse(unzipdir / "modelDescription.xml").getroot()
-        ident = md.find("CoSimulation").get("modelIdentifier")
-        files = [str(unzipdir / "sources" / f.get("name")) for f in md.iter("File")]
-        out = unzipdir / "binaries" / fmpy.platform / f"{ident}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
+        md = fmpy.read_model_description(unzipdir)
+        ident = md.coSimulation.modelIdentifier
+        files = [str(unzipdir / "sources" / f) for f in md.buildConfigurations[0].sourceFileSets[0].sourceFiles]
+        platform = fmpy.platform if md.fmiVersion == "2.0" else fmpy.platform_tuple
+        out = unzipdir / "binaries" / platform / f"{ident}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
         out.parent.mkdir(parents=True, exist_ok=True)
         cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", "-I", str(unzipdir / "sources"), *files, "-o", str(out), "-lm"]
         run = subprocess.run(cmd, capture_output=True, text=True)
@@ -408,17 +500,24 @@ def _guid(*parts: str) -> str:
 
 
 def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: str, title: str, summary: str,
-           extra_vars, compile_binary: bool, compiler: str) -> Path:
+           extra_vars, compile_binary: bool, compiler: str, fmi_version: int = 2) -> Path:
+    if fmi_version not in (2, 3):
+        raise MtcompError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
     out_path = Path(out_path)
     with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-") as td:
         root = Path(td) / "fmu"
         tables_spec = _resources(machine, errors, root / "resources")
         variables = _common_vars(machine, errors, tables_spec) + extra_vars + _param_vars(machine, errors, tables_spec)
         (root / "resources" / "start.txt").write_text(_start_values(variables), encoding="utf-8")
-        sources = _copy_sources(kind, root / "sources")
-        guid = _guid(kind, identifier, machine_resource_text(machine), repr(variables))
-        md = write_model_description(model_name=f"{title} ({machine.name})", identifier=identifier,
-                                     description=summary, variables=variables, sources=sources, guid=guid)
+        sources = _copy_sources(kind, root / "sources", fmi_version)
+        guid = _guid(kind, identifier, str(fmi_version), machine_resource_text(machine), repr(variables))
+        if fmi_version == 2:
+            md = write_model_description(model_name=f"{title} ({machine.name})", identifier=identifier,
+                                         description=summary, variables=variables, sources=sources, guid=guid)
+        else:
+            md = write_model_description3(model_name=f"{title} ({machine.name})", identifier=identifier,
+                                          description=summary, variables=variables, guid=guid)
+            (root / "sources" / "buildDescription.xml").write_bytes(write_build_description(identifier, sources))
         (root / "modelDescription.xml").write_bytes(md)
         _documentation(root / "documentation", f"{title}: {machine.name}", summary, variables, machine)
         if compile_binary:
@@ -428,12 +527,13 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
 
 def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None, *,
                           identifier: str = "mtcomp_compensator", compile_binary: bool = True,
-                          compiler: str = "cmake") -> Path:
+                          compiler: str = "cmake", fmi_version: int = 2) -> Path:
     """Build the compensator FMU for `machine` (preset name, TOML path or Machine).
 
     Inputs `command.<AXIS>` (programmed commands), outputs `compensated.<AXIS>` = mtcomp.kinematics
     .retarget of the inputs under the errors; `errors` gives the start values of the setting and
-    location parameters and the geometric tables stored as resources.  Returns the path written.
+    location parameters and the geometric tables stored as resources.  fmi_version 2 (default) or 3
+    (FMI 3.0 Co-Simulation from the same sources).  Returns the path written.
     """
     machine = load_machine(machine)
     errors = errors or ErrorSet()
@@ -456,12 +556,13 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
                "real tool edge (with tool setting, workpiece setting and geometric errors) where the ideal "
                "machine would have put it.")
     return _build("compensator", machine, errors, out_path, identifier, "mtcomp compensator", summary, extra,
-                  compile_binary, compiler)
+                  compile_binary, compiler, fmi_version)
 
 
 def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None,
                       dynamics: MachineDynamics | None = None, *, identifier: str = "mtcomp_machine",
-                      compile_binary: bool = True, compiler: str = "cmake") -> Path:
+                      compile_binary: bool = True, compiler: str = "cmake",
+                      fmi_version: int = 2) -> Path:
     """Build the virtual machine FMU (native C): axis commands and spindle speed in; real tool edge
     position and direction in the real workpiece frame, actual axis positions and temperature out.
     `errors` are the machine's true errors (start values and table resources), `dynamics` the
@@ -515,4 +616,4 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     summary = ("Virtual multi-axis machine tool with tool setting, workpiece setting and geometric errors, first-order "
                "servos, backlash, thermal drift and sensor noise; the same forward model as mtcomp.kinematics.")
     return _build("machine", machine, errors, out_path, identifier, "mtcomp machine", summary, extra, compile_binary,
-                  compiler)
+                  compiler, fmi_version)

@@ -30,9 +30,10 @@ def _build(args) -> int:
     from .build import build_compensator_fmu, build_machine_fmu
     errors = _errors(args.errors)
     if args.kind == "compensator":
-        out = build_compensator_fmu(args.machine, args.output, errors, compiler=args.compiler)
+        out = build_compensator_fmu(args.machine, args.output, errors, compiler=args.compiler, fmi_version=args.fmi)
     else:
-        out = build_machine_fmu(args.machine, args.output, errors, _dynamics(args), compiler=args.compiler)
+        out = build_machine_fmu(args.machine, args.output, errors, _dynamics(args), compiler=args.compiler,
+                                fmi_version=args.fmi)
     print(f"wrote {out}")
     return 0
 
@@ -88,6 +89,7 @@ def register(subparsers) -> None:
     b.add_argument("-o", "--output", required=True, help="FMU file to write")
     b.add_argument("--compiler", choices=("cmake", "cc"), default="cmake",
                    help="cmake: fmpy's CMake build (default); cc: one direct gcc call")
+    b.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2.0)")
     _dyn_args(b)
     b.set_defaults(func=_build)
     s = fsub.add_parser("ssp", help="SSP file wiring a compensator FMU to a machine FMU")
