@@ -154,8 +154,12 @@ def align(sim: Table, rec: Table) -> Aligned:
             f"time spans overlap by {overlap:g} s only ({n_sim_in} SIM and {n_rec_in} REC samples): "
             "expected at least 8 samples of each in the common span", rec.path, field="t")
 
-    sim_splines = {k: _spline(sim.t, sim.columns[k].values) for k in sim.columns}
-    rec_splines = {k: _spline(rec.t, rec.columns[k].values) for k in rec.columns}
+    # outputs: cubic splines (smooth motion, interpolation error far below the noise); inputs:
+    # linear (spindle speed steps, logged temperatures: a cubic would ring at every step)
+    def interp(t, y, cubic):
+        return _spline(t, y) if cubic else (lambda x, _t=t, _y=y: np.interp(x, _t, _y))
+    sim_splines = {k: interp(sim.t, c.values, k in common) for k, c in sim.columns.items()}
+    rec_splines = {k: interp(rec.t, c.values, k in common) for k, c in rec.columns.items()}
 
     # coarse offset: search up to a quarter of the overlap, on a grid of at most 2^15 points
     max_lag = 0.25 * overlap
