@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -134,7 +135,7 @@ def _sample(machine, n, rng):
 def test_c_kernel_matches_core_on_10000_poses(built, name):
     m = load_machine(name)
     e = built["errors"][name]
-    q = _sample(m, 10_000, np.random.default_rng(hash(name) % 2**32))
+    q = _sample(m, 10_000, np.random.default_rng(zlib.crc32(name.encode())))
     expected = retarget(m, q, e)
     runner = FmuRunner(built["comp"][name], "parity")
     try:
@@ -345,6 +346,32 @@ def test_servo_is_first_order_and_backlash_a_play(built):
         assert r.fmu.getReal(r.refs(["actual.Y"]))[0] == pytest.approx(0.001, abs=1e-15)
     finally:
         r.close()
+
+
+def test_thermal_drift_is_first_order_and_moves_the_tool_edge(built):
+    m = load_machine("robonano-a0ib")
+    r = FmuRunner(built["machine_ideal"], "thermal")
+    q = [30.0, 15.0, 2.0, -1.0, 3.0]
+    tau, gain, speed, drift = 0.05, 2e-4, 5000.0, (0.0, 0.0, 1.5e-3)   # 1 K per 5000 1/min
+    try:
+        r.set({"thermal.time_constant": tau, "thermal.gain": gain, "thermal.drift.z": drift[2]})
+        cin = r.refs([f"command.{a}" for a in m.axis_names])
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(cin, q)
+        r.set({"spindle_speed": speed})
+        r.fmu.exitInitializationMode()
+        h = 0.01
+        for k in range(20):
+            r.fmu.doStep(k * h, h)
+        temp = r.fmu.getReal(r.refs(["temperature"]))[0]
+        p = np.array(r.fmu.getReal(r.refs(["tool.x", "tool.y", "tool.z"])))
+    finally:
+        r.close()
+    dT = gain * speed * (1 - np.exp(-0.2 / tau))
+    assert temp == pytest.approx(20.0 + dT, abs=1e-12)
+    hot = ErrorSet(ToolSetting(tuple(np.add(SETTING.tool.offset, np.multiply(drift, dT)))), SETTING.workpiece)
+    assert np.allclose(p, forward(m, np.array([q]), hot).p[0], atol=1e-12)
+    assert np.linalg.norm(p - forward(m, np.array([q]), SETTING).p[0]) == pytest.approx(1.5e-3 * dT, rel=1e-9)
 
 
 # ---------------------------------------------------------------------------------------- co-simulation
