@@ -247,60 +247,31 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             code[bd] = 32
             bd_lines = line_of(bd)
 
-    # -- character classes
-    up = code | np.uint8(32)
-    letter = (up - np.uint8(97)) < 26
-    del up
-    numc = ((code - np.uint8(48)) < 10) | (code == 46) | (code == 45) | (code == 43)
-    space = (code == 32) | (code == 9) | (code == 13) | (code == 10) | (code == 12)
-    bad = ~(letter | numc | space)
-    if bad.any():
-        p = int(np.argmax(bad))
-        ch = data[p:p + 1].decode("latin-1")
+    # -- character classes and words: a letter immediately followed by a run of number
+    # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
+    lp, rs, re_, dot_of_run, twodots, sign_at, bad_at = _tokenise(code, line_start)
+    if bad_at >= 0:
+        ch = data[bad_at:bad_at + 1].decode("latin-1")
         hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
-        _fail(f"unexpected character {ch!r}: {hint}", line_of(p), filename)
-    del bad, space
-
-    # -- words: a letter immediately followed by a run of number characters
-    lp = np.flatnonzero(letter)
-    dn = np.diff(numc.view(np.int8))
-    rs = np.flatnonzero(dn == 1) + 1
-    re_ = np.flatnonzero(dn == -1) + 1
-    if nbytes and numc[0]:
-        rs = np.concatenate(([0], rs))
-    if nbytes and numc[-1]:
-        re_ = np.concatenate((re_, [nbytes]))
-    del dn
+        _fail(f"unexpected character {ch!r}: {hint}", line_of(bad_at), filename)
     if len(rs) != len(lp) or np.any(rs != lp + 1):
-        _word_error(code, letter, numc, lp, rs, re_, line_of, filename)
-    del letter, numc
+        _word_error(code, lp, rs, re_, line_of, filename)
     wlet = ((code[lp] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
     wline = line_of(lp)
 
     # -- number syntax: sign only first, at most one point, at least one digit
-    sign_pos = np.flatnonzero((code == 45) | (code == 43))
-    if len(sign_pos):
-        run = np.searchsorted(rs, sign_pos, side="right") - 1
-        badsign = rs[run] != sign_pos
-        if badsign.any():
-            i = run[np.argmax(badsign)]
-            _fail(f"malformed number {_word_text(data, lp[i], re_[i])!r}: a sign may only "
-                  "lead the number", wline[i], filename)
-    dot_pos = np.flatnonzero(code == 46)
-    ndots = np.zeros(len(rs), np.int64)
-    dot_of_run = np.full(len(rs), -1, np.int64)
-    if len(dot_pos):
-        run = np.searchsorted(rs, dot_pos, side="right") - 1
-        ndots = np.bincount(run, minlength=len(rs))
-        dot_of_run[run] = dot_pos
+    if sign_at >= 0:
+        i = int(np.searchsorted(rs, sign_at, side="right") - 1)
+        _fail(f"malformed number {_word_text(data, lp[i], re_[i])!r}: a sign may only "
+              "lead the number", wline[i], filename)
     first_ch = code[rs]
-    ndig = (re_ - rs) - ndots - ((first_ch == 43) | (first_ch == 45))
-    badnum = (ndots > 1) | (ndig < 1)
+    ndig = (re_ - rs) - (dot_of_run >= 0) - ((first_ch == 43) | (first_ch == 45))
+    badnum = twodots | (ndig < 1)
     if badnum.any():
         i = int(np.argmax(badnum))
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
-    value = parse_decimals(code, rs, re_, dot_of_run)
+    value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
 
     G, M = _ascii("G"), _ascii("M")
     # -- duplicate addresses in one block (G and M may repeat)
@@ -464,11 +435,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     incremental = incr_line[blines]
     inch = inch_line[blines]
     feed = feed_line[blines]
-    lin_scale = np.where(inch, INCH, 1.0)
     vals = np.where(col_word >= 0, value[np.maximum(col_word, 0)], np.nan)
-    for k, c in enumerate(cols):
-        if c in LINEAR or c in ARC_WORDS:
-            vals[:, k] *= lin_scale
+    if inch.any():
+        lin_scale = np.where(inch, INCH, 1.0)
+        for k, c in enumerate(cols):
+            if c in LINEAR or c in ARC_WORDS:
+                vals[:, k] *= lin_scale
     present = col_word[:, :n_ax] >= 0
 
     # -- absolute modal positions: last absolute value plus the increments since
@@ -536,7 +508,7 @@ def _word_text(data: bytes, s, e) -> str:
     return data[int(s):int(e)].decode("utf-8", "replace")
 
 
-def _word_error(code, letter, numc, lp, rs, re_, line_of, filename):
+def _word_error(code, lp, rs, re_, line_of, filename):
     """Find the first token that is not letter+number and say what it is."""
     ok_letter = np.isin(lp + 1, rs)
     ok_run = np.isin(rs - 1, lp)
@@ -544,7 +516,7 @@ def _word_error(code, letter, numc, lp, rs, re_, line_of, filename):
     p2 = rs[np.argmax(~ok_run)] if (~ok_run).any() else None
     if p1 is not None and (p2 is None or p1 < p2):
         e = p1
-        while e < len(code) and letter[e]:
+        while e < len(code) and 0 <= (int(code[e]) | 32) - 97 < 26:
             e += 1
         word = bytes(code[p1:e]).decode("latin-1")
         if len(word) > 1:
@@ -555,6 +527,68 @@ def _word_error(code, letter, numc, lp, rs, re_, line_of, filename):
     e = re_[np.searchsorted(rs, p2)]
     _fail(f"number {bytes(code[p2:e]).decode('latin-1')!r} without an address letter",
           line_of(p2), filename)
+
+
+def _tokenise(code: np.ndarray, line_start: np.ndarray, chunk: int = 1 << 18):
+    """Split the (comment-blanked) code into words, in chunks that fit the cache; chunks end
+    at line starts so no word is split.
+
+    Returns letter positions, number runs [start, end) (``start = letter + 1`` when the code is
+    well-formed, checked by the caller), per run the position of its point (-1 if none), per
+    run whether it has more than one point, the position of the first sign that does not lead
+    its number (-1 if none) and of the first character that is none of letter, number, blank.
+    """
+    n = len(code)
+    cuts = [0]
+    while cuts[-1] < n:
+        want = cuts[-1] + chunk
+        if want >= n:
+            cuts.append(n)
+            break
+        j = int(np.searchsorted(line_start, want))      # next line start at or after `want`
+        cuts.append(int(line_start[j]) if j < len(line_start) else n)
+    out = [[], [], [], [], []]
+    bad_at = sign_at = -1
+    u8 = np.uint8
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        c = code[a:b]
+        letter = ((c | u8(32)) - u8(97)) < u8(26)
+        numc = ((c - u8(43)) < u8(15)) & (c != 44) & (c != 47)     # + - . and digits
+        if bad_at < 0:
+            bad = ~(letter | numc | (c == 32) | ((c - u8(9)) < u8(5)))
+            if bad.any():
+                bad_at = a + int(np.argmax(bad))
+        d = np.diff(numc.view(np.int8))
+        lp = np.flatnonzero(letter)
+        nstart = np.count_nonzero(d == 1) + int(len(c) > 0 and bool(numc[0]))
+        rs = lp + 1
+        if nstart != len(lp) or (len(rs) and (rs[-1] >= len(c) or not numc[rs].all())):
+            # not well-formed: the exact run starts for the caller's error message
+            rs = np.flatnonzero(d == 1) + 1
+            if len(c) and numc[0]:
+                rs = np.concatenate(([0], rs))
+        re_ = np.flatnonzero(d == -1) + 1
+        if len(c) and numc[-1]:
+            re_ = np.concatenate((re_, [len(c)]))
+        if sign_at < 0:
+            # a sign anywhere but in front of its number follows a number character
+            sg = np.flatnonzero((c == 45) | (c == 43))
+            sg = sg[sg > 0]
+            bad_s = numc[sg - 1]
+            if bad_s.any():
+                sign_at = a + int(sg[np.argmax(bad_s)])
+        dpos = np.flatnonzero(c == 46)
+        drun = np.searchsorted(rs, dpos, side="right") - 1
+        dot = np.full(len(rs), -1, np.int64)
+        dot[drun] = dpos + a
+        two = np.zeros(len(rs), bool)
+        two[drun[1:][drun[1:] == drun[:-1]]] = True
+        out[0].append(lp + a)
+        out[1].append(rs + a)
+        out[2].append(re_ + a)
+        out[3].append(dot)
+        out[4].append(two)
+    return tuple(np.concatenate(o) for o in out) + (sign_at, bad_at)
 
 
 def _plane_cols(axes, plane):

@@ -36,39 +36,45 @@ def _digits8(padded: np.ndarray, end: np.ndarray, length: np.ndarray) -> np.ndar
 
 
 def parse_decimals(buf: np.ndarray, start: np.ndarray, end: np.ndarray, dot: np.ndarray,
-                   padded: np.ndarray | None = None) -> np.ndarray:
+                   first: np.ndarray | None = None, chunk: int = 1 << 16) -> np.ndarray:
     """Values of the decimal numbers ``buf[start[i]:end[i]]`` (float64, correctly rounded).
 
     Each run must already be validated as ``[+-]?digits[.digits]`` with at least one digit;
-    ``dot`` is the position of its point (-1 if none).  Integer and fraction digits (up to 8
-    each) are converted eight at a time in uint64 arithmetic, combined into an exact integer
-    mantissa and divided once by 10**decimals, which rounds correctly -- the same value as
-    ``float(text)``.  Longer numbers go through ``float``.  ``padded`` may pass
-    ``concatenate([8 blanks, buf])`` if the caller already has it.
+    ``dot`` is the position of its point (-1 if none), ``first`` may pass ``buf[start]``.
+    Integer and fraction digits (up to 8 each) are converted eight at a time in uint64
+    arithmetic, combined into an exact integer mantissa and divided once by 10**decimals, which
+    rounds correctly -- the same value as ``float(text)``.  Longer numbers go through ``float``.
+    Works in chunks so that the temporaries stay in the cache.
     """
     n = len(start)
     out = np.empty(n, np.float64)
     if n == 0:
         return out
-    if padded is None:
-        padded = np.concatenate([np.full(8, 32, np.uint8), buf])
+    padded = np.concatenate([np.full(8, 32, np.uint8), buf])
     start = np.asarray(start, np.int64)
     end = np.asarray(end, np.int64)
     dot = np.asarray(dot, np.int64)
-    signed = (buf[start] == 45) | (buf[start] == 43)
-    istart = start + signed
-    hasdot = dot >= 0
-    iend = np.where(hasdot, dot, end)
-    ilen = iend - istart
-    flen = np.where(hasdot, end - dot - 1, 0)
-    long_ = (ilen > 8) | (flen > 8) | (ilen + flen > 15)
-    ip = _digits8(padded, iend, ilen)
-    fp = _digits8(padded, end, flen)
-    mant = ip * _POW10_U64[np.minimum(flen, 19)] + fp
-    out[:] = mant.astype(np.float64) / _POW10[np.minimum(flen, 22)]
-    neg = buf[start] == 45
-    out[neg] = -out[neg]
-    for i in np.flatnonzero(long_):
+    first = buf[start] if first is None else first
+    long_all = []
+    for lo in range(0, n, chunk):
+        hi = min(n, lo + chunk)
+        s, e, d, f = start[lo:hi], end[lo:hi], dot[lo:hi], first[lo:hi]
+        neg = f == 45
+        istart = s + (neg | (f == 43))
+        hasdot = d >= 0
+        iend = np.where(hasdot, d, e)
+        ilen = iend - istart
+        flen = np.where(hasdot, e - d - 1, 0)
+        long_ = (ilen > 8) | (flen > 8) | (ilen + flen > 15)
+        if long_.any():
+            long_all.append(np.flatnonzero(long_) + lo)
+            flen = np.minimum(flen, 19)
+        mant = _digits8(padded, iend, ilen) * _POW10_U64[flen] + _digits8(padded, e, flen)
+        val = mant.astype(np.float64)
+        val /= _POW10[flen]
+        np.negative(val, out=val, where=neg)
+        out[lo:hi] = val
+    for i in (np.concatenate(long_all) if long_all else ()):
         out[i] = float(buf[start[i]:end[i]].tobytes())
     return out
 
