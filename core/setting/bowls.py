@@ -746,10 +746,10 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
         if sv[1] < 1e-3 * max(sv[0], 1e-12) or sv[0] < 1e-6:
             raise InputError(f"bowl {bid}: touches are coincident or collinear; spread them over "
                              "the bowl wall", src, field="bowl")
-        c, rho, r, J = fit_sphere(p, fixed_rho)
         if npar == 4 and sv[2] < 1e-3 * sv[0]:
             raise InputError(f"bowl {bid}: touches are coplanar (one circle); a sphere with free "
                              "radius needs touches at two or more depths", src, field="bowl")
+        c, rho, r, J = fit_sphere(p, fixed_rho)
         raw.append((bid, idx, p, c, rho, r, J))
     if probe_sigma is not None:
         if not probe_sigma >= 0:
