@@ -52,7 +52,6 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
     if len(prog) == 0:
         raise InputError("the program has no motion blocks", prog.filename)
     ix = {a: k for k, a in enumerate(machine.axis_names)}
-    lin = np.array([not a.is_rotary for a in machine.axes])
     points = [np.asarray(prog.start, float)]
     times = [0.0]
     prev = np.asarray(prog.start, float)
@@ -97,7 +96,6 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
     q = np.empty((k, n))
     for j in range(n):
         q[:, j] = np.interp(t, t_nodes, q_nodes[:, j])
-    del lin
     return t, q
 
 

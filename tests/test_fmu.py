@@ -391,6 +391,7 @@ def test_interpolation_honours_the_feed():
     assert t[-1] == pytest.approx(5 / 3000 * 60 + 2 * np.pi * 5 / 10, abs=0.006)
 
 
+@pytest.mark.slow
 def test_cosimulation_compensates_setting_errors(tmp_path):
     prog = tmp_path / "path5.nc"
     prog.write_text(PROGRAM_5AX)
@@ -508,6 +509,7 @@ def test_ecos_runs_a_single_machine_fmu(built, tmp_path):
 
 # ---------------------------------------------------------------------------------------- CLI
 
+@pytest.mark.slow
 def test_cli_builds_and_cosimulates(tmp_path, capsys):
     from mtcomp.cli import main
     from mtcomp.errors import save_errors
@@ -528,6 +530,11 @@ def test_cli_builds_and_cosimulates(tmp_path, capsys):
     assert main(["cosim", str(tmp_path / "missing.nc"), "--machine", "robonano-a0ib", "--errors", str(errs),
                  "--out", str(tmp_path / "bad")]) == 2
     assert not (tmp_path / "bad.csv").exists()
+    # the SSP of the pair
+    assert main(["fmu", "ssp", "--machine", "robonano-a0ib", "--errors", str(errs), "-o", str(tmp_path / "c.ssp"),
+                 "--compiler", "cc"]) == 0
+    names = zipfile.ZipFile(tmp_path / "c.ssp").namelist()
+    assert {"SystemStructure.ssd", "resources/compensator.fmu", "resources/machine.fmu"} <= set(names)
 
 
 def test_an_importer_can_rebuild_the_binary_from_the_sources(built, tmp_path):
