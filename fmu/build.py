@@ -25,7 +25,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 from .._io import MtcompError, atomic_path
-from ..errors import ErrorSet, component_names
+from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 
 __all__ = ["build_compensator_fmu", "build_machine_fmu", "MachineDynamics", "Var", "write_model_description",

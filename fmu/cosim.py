@@ -268,20 +268,6 @@ class CosimResult:
         return Path(path)
 
 
-def _errors_start(errors: ErrorSet, machine: Machine) -> dict:
-    """Parameter values of an ErrorSet for the FMUs (the tables must be resources of the FMU)."""
-    vals = {}
-    for k, c in enumerate("xyz"):
-        vals[f"tool_setting.offset.{c}"] = errors.tool.offset[k]
-        vals[f"workpiece_setting.translation.{c}"] = errors.workpiece.translation[k]
-    for k, c in enumerate("abc"):
-        vals[f"workpiece_setting.angle.{c}"] = errors.workpiece.angles[k]
-    for a in machine.axes:
-        for c in "XYZABC":
-            vals[f"location.E{c}0{a.name}"] = errors.geometric.location.get(f"E{c}0{a.name}", 0.0)
-    return vals
-
-
 def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed: float):
     """One run; comp_path None: the machine gets the programmed commands."""
     names = machine.axis_names
