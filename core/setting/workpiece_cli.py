@@ -37,12 +37,16 @@ def cmd_plan(args) -> int:
     plan = plan_bowls(args.bowls, blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
                       depth=args.depth, probe_radius=args.probe_radius, touches=args.touches,
                       positions=_positions(args.positions) if args.positions else None)
+    aim = None
+    if args.aim:
+        from ..errors import load_errors
+        aim = load_errors(args.aim).workpiece
     out = Path(args.out)
     rough = Path(args.roughing) if args.roughing else out.with_name(out.stem + "-roughing.nc")
     probe = Path(args.probing) if args.probing else out.with_name(out.stem + "-probing.nc")
     # all texts first, then the files: an error leaves nothing behind
     texts = [(out, dump_toml(plan_to_dict(plan))), (rough, roughing_program(plan)),
-             (probe, probing_program(plan))]
+             (probe, probing_program(plan, aim=aim))]
     for path, text in texts:
         atomic_write(path, text)
     print(f"{len(plan.bowls)} bowls R{plan.tool_radius:g} depth {plan.depth:g} mm, "
@@ -149,6 +153,8 @@ def register(subparsers) -> None:
     a.add_argument("-o", "--out", required=True, help="plan TOML to write")
     a.add_argument("--roughing", help="roughing program (default <plan>-roughing.nc)")
     a.add_argument("--probing", help="probing program (default <plan>-probing.nc)")
+    a.add_argument("--aim", help="errors TOML of a coarse first probing: place the probing "
+                   "moves on the blank where it was found (second pass)")
     a.set_defaults(func=cmd_plan)
 
     a = sub.add_parser("probe", help="virtual probing of a blank at a given pose (touches CSV)")
