@@ -88,3 +88,12 @@ def test_simulate_writes_table_and_png(tmp_path, capsys):
     text = md.read_text()
     assert "| W4 um | 3450 | 3448.4 |" in text and "gripper offset (0.05, 0.0, 0.01)" in text
     assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_second_pass_probing_program_is_aimed_at_the_coarse_pose(tmp_path):
+    from mtcomp.errors import save_errors
+    coarse = tmp_path / "coarse.toml"
+    save_errors(ErrorSet(workpiece=WorkpieceSetting((0.8, -0.3, 0.0), (0.0, 0.0, 0.0))), coarse)
+    _planned(tmp_path, "--aim", str(coarse), "--probing", str(tmp_path / "second.nc"))
+    text = (tmp_path / "second.nc").read_text()
+    assert "G00 X-6.2 Y-7.3 Z5" in text and "G00 X7.8 Y-7.3 Z5" in text
