@@ -26,6 +26,12 @@ def test_plan_probe_fit_compensate_round_trip(tmp_path, capsys):
     assert main(["workpiece-setting", "fit", str(plan), str(touches), "-o", str(errors),
                  "--report", str(tmp_path / "report.toml")]) == 0
     wp = load_errors(errors).workpiece
+    from mtcomp._io import load_toml
+    unc = load_toml(errors)["uncertainty"]
+    cov = np.array(unc["workpiece_setting.covariance"])
+    assert cov.shape == (6, 6) and np.allclose(cov, cov.T)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), unc["workpiece_setting.translation"]
+                               + unc["workpiece_setting.angles"], rtol=1e-12)
     v = [float(x) for x in POSE.split(",")]
     np.testing.assert_allclose(wp.translation, v[:3], atol=1e-6)
     np.testing.assert_allclose(wp.angles, v[3:], atol=1e-5)

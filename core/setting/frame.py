@@ -241,12 +241,15 @@ class WorkpieceSettingEstimate:
         return ErrorSet(workpiece=self.pose)
 
     def save(self, path, meta: dict | None = None):
-        """Write the errors TOML (mtcomp.errors format) with 1-sigma values recorded, atomically."""
+        """Write the errors TOML (mtcomp.errors format) atomically, recording the 1-sigma values and
+        the 6x6 covariance (dx dy dz mm, a b c deg) under [uncertainty]."""
         from ..errors import save_errors
         sd = self.std
         return save_errors(self.to_errorset(), path, meta=meta, uncertainty={
             "workpiece_setting.translation": [float(v) for v in sd[:3]],
-            "workpiece_setting.angles": [float(v) for v in sd[3:]]})
+            "workpiece_setting.angles": [float(v) for v in sd[3:]],
+            "workpiece_setting.covariance_order": list(PARAM_NAMES),
+            "workpiece_setting.covariance": [[float(v) for v in row] for row in self.cov]})
 
     def to_dict(self) -> dict:
         """Report data (TOML-ready): pose, standard deviations, covariance, per-bowl residuals."""
