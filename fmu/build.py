@@ -548,7 +548,7 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
         Var("iterations", IVR_ITERS, "output", "Gauss-Newton iterations used at the last evaluation",
             type="Integer", variability="discrete"),
         Var("tolerance", VR_TOL, "parameter", "Step tolerance of the compensation iteration, mm or deg",
-            variability="tunable", start=1e-11, unit="mm", min=1e-15, max=1e-3),
+            variability="tunable", start=1e-10, unit="mm", min=1e-15, max=1e-3),
         Var("max_iterations", IVR_MAXIT, "parameter", "Iteration limit of the compensation", type="Integer",
             variability="tunable", start=60, min=1, max=1000),
     ]

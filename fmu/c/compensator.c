@@ -22,7 +22,7 @@ static int n_axes(const Instance *inst) { return inst->kin ? inst->kin->n_axes :
 void model_defaults(Instance *inst)
 {
     common_defaults(inst);
-    inst->st.r[VR_TOL] = 1e-11;
+    inst->st.r[VR_TOL] = 1e-10;
     inst->st.i[IVR_MAXIT] = 60;
     common_start_values(inst);
 }
