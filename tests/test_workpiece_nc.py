@@ -90,3 +90,16 @@ def test_angles_beyond_travel_are_refused_naming_the_line(tmp_path):
     src.write_text("G21 G90\nG01 X0. Y39.99 Z0. F100.\nM30\n")
     with pytest.raises(InputError, match=r"five.nc:2: axis Y would have to move to 40.0"):
         compensate_program(M, src, WorkpieceSetting((0, 0.05, 0), (0, 0, 0)), out)
+
+
+@pytest.mark.parametrize("preset", ["robonano-a0ib", "robonano-ui", "vmc-moving-column"])
+def test_three_axis_formula_on_every_preset(preset):
+    m = load_machine(preset)
+    rng = np.random.default_rng(21)
+    lin = [i for i in range(m.n_axes) if i not in m.rotary_indices]
+    q = np.zeros((30, m.n_axes))
+    q[:, lin] = rng.uniform(-5, 5, (30, 3))
+    pose = WorkpieceSetting((0.1, -0.2, 0.3), (0.5, -0.4, 1.0))
+    q_new = compensate_commands(m, q, pose, "3axis")
+    assert np.abs(forward(m, q_new, ErrorSet(workpiece=pose)).p - forward(m, q).p).max() < 1e-12
+    assert np.array_equal(q_new[:, list(m.rotary_indices)], q[:, list(m.rotary_indices)])

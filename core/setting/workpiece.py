@@ -94,6 +94,10 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
                                  f"{q[k, machine.index(names[0])]:g} deg; use the 5-axis mode",
                                  **_where(k, lines, source))
         A, p0, lin = _linear_map(machine)
+        if A.shape != (3, 3) or abs(np.linalg.det(A)) < 1e-9:
+            raise InputError(f"the 3-axis transform needs three independent linear axes; "
+                             f"machine {machine.name} has {', '.join(machine.axis_names[i] for i in lin)}",
+                             field="mode")
         R, t = pose_matrix(pose)
         p = q[:, lin] @ A.T + p0                   # tool point in the nominal workpiece frame
         p_new = p @ R.T + t                        # paper 001: x' = R x + t
@@ -119,7 +123,8 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
         check_limits(machine, out)
         return out
     except LimitError as exc:
-        raise InputError(f"the compensated angles leave the travel: "
+        what = "angles" if machine.axis(exc.axis).is_rotary else "commands"
+        raise InputError(f"the compensated {what} leave the travel: "
                          f"{str(exc).replace(f' (point {exc.index})', '')}",
                          **_where(exc.index, lines, source)) from None
     except ConvergenceError as exc:
