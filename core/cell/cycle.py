@@ -123,9 +123,13 @@ class Cycle:
             self._set_state(State.READY)
         elif rec.state == "fault":
             self._set_state(State.FAULT, rec.fault)
-        self.journal.append("boot", state=rec.state,
-                            resume=rec.job["job_no"] if rec.state == "busy" else None,
-                            result_seq=rec.result_seq)
+        try:
+            self.journal.append("boot", state=rec.state,
+                                resume=rec.job["job_no"] if rec.state == "busy" else None,
+                                result_seq=rec.result_seq)
+        except BaseException:
+            self.journal.close()
+            raise
         log.info("cell: journal %s replayed (%d records): %s", self.journal.path,
                  len(self.journal.records), rec.state)
 
