@@ -171,8 +171,8 @@ class Program:
 
     @property
     def lines(self) -> list[str]:
-        """The original lines, with their line endings."""
-        return self.text.splitlines(keepends=True)
+        """The original lines (split at LF only, as the line numbers count), with endings."""
+        return re.findall(r"[^\n]*\n|[^\n]+\Z", self.text)
 
     @property
     def is_arc(self) -> np.ndarray:
@@ -257,7 +257,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if len(rs) != len(lp) or np.any(rs != lp + 1):
         _word_error(code, lp, rs, re_, line_of, filename)
     wlet = ((code[lp] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
-    wline = line_of(lp)
+    wline = line_of(lp).astype(np.int32)
 
     # -- number syntax: sign only first, at most one point, at least one digit
     if sign_at >= 0:
@@ -272,16 +272,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
     value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
+    # positions fit 32 bits (programs under 2 GB); free what is no longer needed
+    if nbytes >= 2**31 - 1:
+        raise InputError("programs of 2 GB and more are not supported", file=filename)
+    lp, re_ = lp.astype(np.int32), re_.astype(np.int32)
+    del code, rs, dot_of_run, twodots, first_ch, ndig, badnum
 
     G, M = _ascii("G"), _ascii("M")
     # -- duplicate addresses in one block (G and M may repeat)
-    key = wline * 32 + wlet
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    dup = (ks[1:] == ks[:-1]) & (wlet[order[1:]] != G) & (wlet[order[1:]] != M)
+    key = wline.astype(np.int64) * 32 + wlet
+    key[(wlet == G) | (wlet == M)] = -1
+    key.sort()
+    dup = (key[1:] == key[:-1]) & (key[1:] >= 0)
     if dup.any():
-        i = order[1:][np.argmax(dup)]
-        _fail(f"address {chr(65 + wlet[i])} appears twice in one block", wline[i], filename)
+        k = key[1:][np.argmax(dup)]
+        _fail(f"address {chr(65 + int(k % 32))} appears twice in one block", int(k // 32), filename)
+    del key, dup
 
     # -- G codes
     gi = np.flatnonzero(wlet == G)
@@ -394,13 +400,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- axis and arc words -> block columns
     cols = list(axes) + list(ARC_WORDS)
-    col_of_letter = np.full(26, -1, np.int64)
+    col_of_letter = np.full(26, -1, np.int8)
     for k, c in enumerate(cols):
         col_of_letter[_ascii(c)] = k
     wcol = col_of_letter[wlet]
     # X in a dwell block is the dwell time, not an axis
     dwell_x = (wlet == _ascii("X")) & dwell_line[wline]
-    wcol = np.where(dwell_x, -1, wcol)
+    if dwell_x.any():
+        wcol = np.where(dwell_x, np.int8(-1), wcol)
+    del dwell_x
     axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
     arc_w = np.flatnonzero(wcol >= n_ax)
     if len(axis_w):
@@ -426,16 +434,18 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     nblk = len(blines)
     blk_of_line = np.full(n_lines, -1, np.int64)
     blk_of_line[blines] = np.arange(nblk)
-    col_word = np.full((nblk, n_ax + 4), -1, np.int64)
+    col_word = np.full((nblk, n_ax + 4), -1, np.int32)
     cw = np.flatnonzero(wcol >= 0)
     col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
+    del cw, wcol
 
     motion = mode_line[blines]
     plane = plane_line[blines]
     incremental = incr_line[blines]
     inch = inch_line[blines]
     feed = feed_line[blines]
-    vals = np.where(col_word >= 0, value[np.maximum(col_word, 0)], np.nan)
+    vals = value[np.maximum(col_word, 0)]
+    vals[col_word < 0] = np.nan
     if inch.any():
         lin_scale = np.where(inch, INCH, 1.0)
         for k, c in enumerate(cols):
@@ -458,7 +468,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
-    radius = vals[:, n_ax + 3]
+    radius = vals[:, n_ax + 3].copy()
+    del vals
     arc_centre = np.full((nblk, 3), np.nan)
     arc_sweep = np.full(nblk, np.nan)
     is_arc = (motion == 2) | (motion == 3)
@@ -588,7 +599,8 @@ def _tokenise(code: np.ndarray, line_start: np.ndarray, chunk: int = 1 << 18):
         out[2].append(re_ + a)
         out[3].append(dot)
         out[4].append(two)
-    return tuple(np.concatenate(o) for o in out) + (sign_at, bad_at)
+    empty = (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
+    return tuple(np.concatenate(o) if o else e for o, e in zip(out, empty)) + (sign_at, bad_at)
 
 
 def _plane_cols(axes, plane):
@@ -737,11 +749,13 @@ class _Edits:
         return base
 
     def add(self, pos, stop, sub, off, length):
-        self.pos.append(np.asarray(pos, np.int64).ravel())
-        self.stop.append(np.broadcast_to(np.asarray(stop, np.int64), np.shape(pos)).ravel())
-        self.sub.append(np.broadcast_to(np.asarray(sub, np.int64), np.shape(pos)).ravel())
-        self.off.append(np.broadcast_to(np.asarray(off, np.int64), np.shape(pos)).ravel())
-        self.len.append(np.broadcast_to(np.asarray(length, np.int64), np.shape(pos)).ravel())
+        # 32-bit positions and offsets (texts under 2 GB) keep millions of edits small
+        shape = np.shape(pos)
+        self.pos.append(np.asarray(pos, np.int32).ravel())
+        self.stop.append(np.broadcast_to(np.asarray(stop, np.int32), shape).ravel())
+        self.sub.append(np.broadcast_to(np.asarray(sub, np.int16), shape).ravel())
+        self.off.append(np.broadcast_to(np.asarray(off, np.int32), shape).ravel())
+        self.len.append(np.broadcast_to(np.asarray(length, np.int32), shape).ravel())
 
     def const(self, text: bytes) -> tuple[int, int]:
         return self.add_buffer(np.frombuffer(text, np.uint8)), len(text)
@@ -749,7 +763,10 @@ class _Edits:
     def apply(self, orig: np.ndarray, progress=None) -> bytes:
         if not self.pos:
             return orig.tobytes()
-        cat = np.concatenate
+        def cat(parts):
+            out = np.concatenate(parts)
+            parts.clear()                     # free the pieces as soon as they are joined
+            return out
         src = cat(self.bufs) if self.bufs else np.zeros(0, np.uint8)
         return splice(orig, cat(self.pos), cat(self.stop), cat(self.sub), src, cat(self.off),
                       cat(self.len), progress=progress)
@@ -843,19 +860,26 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
             raise ValueError(f"chordal_tol {chordal_tol} mm is below twice the axis resolution")
     samp = _arc_samples(geo, n_ax) if geo is not None else np.zeros((0, n_ax))
     Q = np.vstack([program.start[None, :], P, samp])
+    del samp
     Qt = _call_transform(transform, Q)
-    C = np.rint(Qt[:N + 1] / res).astype(np.int64)               # row 0: transformed start
-    ctrl0 = np.rint(program.start / res).astype(np.int64)        # the control really starts here
-    prev = np.vstack([ctrl0[None, :], C[1:N]])
-    new = C[1:]
+    del Q
+    St = Qt[N + 1:].copy()                                        # arc samples
+    C = np.empty((N + 1, n_ax), np.int64)
+    for k in range(n_ax):
+        C[:, k] = np.rint(Qt[:N + 1, k] / res[k])
+    del Qt
+    # row 0 becomes where the control really starts (untransformed): then prev = C[:-1]
+    C[0] = np.rint(program.start / res)
+    prev, new = C[:N], C[1:]
 
     keep = np.ones(len(ak), bool)
     arc_cols = None
     if geo is not None:
-        keep, arc_cols = _arc_keep(program, geo, Qt[N + 1:], prev, new, res, dec, chordal_tol)
+        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, dec, chordal_tol)
+    del St
     lin = ak[~keep]
     seg = None
-    val = new.copy()
+    inner_rows = inner_pts = None
     if len(lin):
         seg = _linearisation_points(_subset(geo, ~keep), n_ax, chordal_tol)
         if len(seg.points):
@@ -863,26 +887,43 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
         else:
             seg.counts = np.zeros((0, n_ax), np.int64)
         inner = seg.count > 0
-        val[lin[inner]] = seg.counts[seg.first[inner]]
+        # the block itself goes to its first segment point; later points become new lines
+        inner_rows, inner_pts = lin[inner], seg.counts[seg.first[inner]]
 
     inc = np.asarray(program.incremental)
-    target = np.where(inc[:, None], val - prev, val)
-    cw = np.array(program.col_word)
+    cw = np.asarray(program.col_word)
     if len(lin):
+        cw = cw.copy()
         cw[lin, n_ax:] = -1          # removed arc words are no anchors for inserted words
-    present = cw[:, :n_ax] >= 0
     wv = np.asarray(program.w_value)
-    lin_cols = np.array([a in LINEAR for a in axes])
-    inch_ax = np.asarray(program.inch)[:, None] & lin_cols[None, :]
-    orig_counts = np.rint(np.where(present, wv[np.maximum(cw[:, :n_ax], 0)], 0.0)
-                          * np.where(inch_ax, INCH, 1.0) / res).astype(np.int64)
-    replace = present & ((target != orig_counts) | inch_ax)
-    insert = ~present & (val != prev)
-    _word_edits(ctx, cw, replace, insert, target, d_ax, list(axes), 0)
+    inch = np.asarray(program.inch)
+    any_inch = bool(inch.any())
+    for k, a in enumerate(axes):
+        v = new[:, k]
+        if inner_rows is not None:
+            v = v.copy()
+            v[inner_rows] = inner_pts[:, k]
+        pv = prev[:, k]
+        target = np.where(inc, v - pv, v)
+        wk = cw[:, k]
+        pres = wk >= 0
+        ov = wv[np.maximum(wk, 0)]
+        force = None
+        if any_inch and a in LINEAR:
+            ov = ov * np.where(inch, INCH, 1.0)
+            force = inch
+        oc = np.rint(ov / res[k]).astype(np.int64)
+        differs = target != oc
+        if force is not None:
+            differs |= force
+        _column_edits(ctx, cw, k, a.encode(), int(d_ax[k]), np.flatnonzero(pres & differs),
+                      np.flatnonzero(~pres & (v != pv)), target)
 
     if arc_cols is not None:
         a_rep, a_ins, a_counts, a_dec = arc_cols
-        _word_edits(ctx, cw, a_rep, a_ins, a_counts, a_dec, list(ARC_WORDS), n_ax)
+        for j, letter in enumerate(ARC_WORDS):
+            _column_edits(ctx, cw, n_ax + j, letter.encode(), int(a_dec[j]),
+                          np.flatnonzero(a_rep[:, j]), np.flatnonzero(a_ins[:, j]), a_counts[:, j])
     if len(lin):
         _linearise_edits(ctx, lin, seg, prev, new, d_ax, chordal_tol, geo, ~keep)
     _restore_modal_arcs(ctx, lin)
@@ -912,21 +953,21 @@ def _call_transform(transform, q):
     return out
 
 
-def _word_edits(ctx, cw, replace, insert, counts, d_cols, letters, col0):
-    """Replace and insert the words of columns col0.. (counts in resolution units)."""
+def _column_edits(ctx, cw, col, letter: bytes, decimals: int, rep_rows, ins_rows, counts):
+    """Replace the number of word column ``col`` in blocks ``rep_rows`` and insert the word
+    into blocks ``ins_rows``; ``counts`` (N,) in resolution units."""
+    rows = np.concatenate([rep_rows, ins_rows])
+    if not len(rows):
+        return
     p = ctx.p
-    wpos, wend = np.asarray(p.w_pos), np.asarray(p.w_end)
-    for k in range(len(letters)):
-        rows = np.flatnonzero(replace[:, k] | insert[:, k])
-        if not len(rows):
-            continue
-        buf, off, ln = format_counts(counts[rows, k], int(d_cols[k]))
-        off = off + ctx.edits.add_buffer(buf)
-        rep = replace[rows, k]
-        w = cw[rows[rep], col0 + k]
-        ctx.edits.add(wpos[w] + 1, wend[w], _SUB_REPLACE, off[rep], ln[rep])
-        if (~rep).any():
-            _insert_words(ctx, cw, rows[~rep], col0 + k, letters[k].encode(), off[~rep], ln[~rep])
+    buf, off, ln = format_counts(counts[rows], decimals)
+    off = off + ctx.edits.add_buffer(buf)
+    nr = len(rep_rows)
+    if nr:
+        w = cw[rep_rows, col]
+        ctx.edits.add(np.asarray(p.w_pos)[w] + 1, np.asarray(p.w_end)[w], _SUB_REPLACE, off[:nr], ln[:nr])
+    if len(ins_rows):
+        _insert_words(ctx, cw, ins_rows, col, letter, off[nr:], ln[nr:])
 
 
 def _insert_words(ctx, cw, rows, gcol, letter: bytes, off, ln):

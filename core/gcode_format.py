@@ -128,18 +128,17 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     spliced by joining slices when there are few pieces, else by one vectorised gather in chunks
     of about ``chunk_bytes`` output bytes.
     """
-    pos = np.asarray(pos, np.int64)
+    pos = np.asarray(pos)
     if len(pos) == 0:
         return orig.tobytes()
-    stop = np.asarray(stop, np.int64)
-    sub = np.asarray(sub, np.int64)
-    src_off = np.asarray(src_off, np.int64)
-    src_len = np.asarray(src_len, np.int64)
+    stop, sub = np.asarray(stop), np.asarray(sub)
+    src_off, src_len = np.asarray(src_off), np.asarray(src_len)
     out = orig.copy()
     same = (stop - pos == src_len) & (src_len > 0)
     if same.any():
-        for L in np.unique(src_len[same]).tolist():
-            g = same & (src_len == L)
+        lens = src_len[same]
+        for L in np.unique(lens).tolist():
+            g = np.flatnonzero(same)[lens == L]
             dst = np.lib.stride_tricks.as_strided(out, shape=(len(out) - L + 1, L), strides=(1, 1))
             srcw = np.lib.stride_tricks.sliding_window_view(src, L)
             dst[pos[g]] = srcw[src_off[g]]
@@ -149,6 +148,8 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
         if progress is not None:
             progress(len(out), len(out))
         return out.tobytes()
+    pos, stop, sub = pos.astype(np.int64), stop.astype(np.int64), sub.astype(np.int64)
+    src_off, src_len = src_off.astype(np.int64), src_len.astype(np.int64)
     # edits come in runs sorted by position (one run per kind of edit): a stable argsort on a
     # combined key merges the runs cheaply
     order = np.argsort(pos * 4096 + sub, kind="stable")

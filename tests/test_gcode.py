@@ -490,3 +490,20 @@ def test_groove5x_compensated_with_setting_errors_reaches_the_programmed_edge_po
     strip = lambda s: re.sub(r" ?[XYZBCIJKR][-+.0-9]+", "", s)
     assert [strip(a) for a in out.splitlines() if "LINEARISED" not in a][:40] == \
         [strip(a) for a in text.splitlines()][:40]
+
+
+@pytest.mark.parametrize("text", ["", "\n", "(only a comment)\n", "%\n%", "M30"])
+def test_programs_without_motion(text):
+    p = gcode.parse(text, axes=XYZBC)
+    assert len(p) == 0
+    assert gcode.rewrite(p, shift([1, 1, 1, 1, 1])) == text
+
+
+def test_lines_and_progress():
+    text = "G1 X1.\r\n(A)\nY2."
+    p = gcode.parse(text, axes=XYZBC)
+    assert p.lines == ["G1 X1.\r\n", "(A)\n", "Y2."]
+    seen = []
+    out = gcode.rewrite(p, shift([0, 0, 0, 0, 0.5]), progress=lambda done, total: seen.append((done, total)))
+    assert out == "G1 X1. C0.50000\r\n(A)\nY2."
+    assert seen and seen[-1][0] == seen[-1][1] == len(out.encode())
