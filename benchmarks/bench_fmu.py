@@ -12,6 +12,7 @@ Writes its section of docs/benchmarks.md.  Run: python benchmarks/bench_fmu.py
 """
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -180,7 +181,9 @@ def main() -> None:
         "",
         "`benchmarks/bench_fmu.py`: robonano-a0ib, tool and workpiece setting errors plus component "
         "tables on all five axes, a smooth simultaneous 5-axis path; each step sets the five "
-        "programmed commands, steps, and reads the compensated commands. " + machine_line(),
+        "programmed commands, steps, and reads the compensated commands. " + machine_line()
+        + f" Load average during the run: {os.getloadavg()[0]:.1f} (other jobs share the machine; repeated runs "
+        "vary by tens of percent).",
         "",
         "| how the step is driven | native C FMU (us/step) | pythonfmu FMU (us/step) | ratio |",
         "|---|---:|---:|---:|",
