@@ -198,20 +198,8 @@ def _residual(machine, q, errors, target: Pose, mode, strict=False):
     return np.concatenate(r, axis=1)
 
 
-def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q0=None, *,
-               tol: float = 1e-10, max_iter: int = 60) -> np.ndarray:
-    """Axis commands (N, n_axes) in mm and deg that put the real tool edge at target.p and the
-    tool in target's orientation (tool direction on machines with 1-2 rotary axes, full
-    orientation with 3), under `errors`.
-
-    q0 seeds the iteration (usually the programmed commands).  Gauss-Newton with a chord
-    Jacobian: it is taken by forward differences on the rigid (setting-error) model, since the
-    geometric tables change it by their slopes only (1e-4 at most), so each step contracts the
-    error by about that factor.  Points that do not contract (large workpiece rotations near a
-    singularity) get their Jacobian re-taken at the current iterate, i.e. full Newton.  A tiny
-    pull toward q0 picks the programmed rotary angles where the tool direction leaves them free
-    (e.g. C at B = 0 on a B-C table).
-    """
+def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, max_iter: int):
+    """The Gauss-Newton iteration of `compensate`; returns (q, max abs residual per point)."""
     if q0 is None:
         raise ValueError("compensate needs initial commands q0 (e.g. the programmed axis positions)")
     q0 = _as_commands(machine, q0)
@@ -276,11 +264,62 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
                 break
         q[active] = qa
         active = active[~done]
-    r = _residual(machine, q, errors, target, mode, strict=True)
-    err = np.max(np.abs(r), axis=1)
+    r = _residual(machine, q, errors, target, mode)
+    return q, np.max(np.abs(r), axis=1)
+
+
+#: Rotary offsets (deg) tried as new starting points where the iteration from the programmed
+#: angles fails; nearest first.
+_SEED_OFFSETS = (90.0, -90.0, 180.0)
+
+
+def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q0=None, *,
+               tol: float = 1e-10, max_iter: int = 60) -> np.ndarray:
+    """Axis commands (N, n_axes) in mm and deg that put the real tool edge at target.p and the
+    tool in target's orientation (tool direction on machines with 1-2 rotary axes, full
+    orientation with 3), under `errors`.
+
+    q0 seeds the iteration (usually the programmed commands).  Gauss-Newton with a chord
+    Jacobian: it is taken by forward differences on the rigid (setting-error) model, since the
+    geometric tables change it by their slopes only (1e-4 at most), so each step contracts the
+    error by about that factor.  Points that do not contract (large workpiece rotations near a
+    singularity) get their Jacobian re-taken at the current iterate, i.e. full Newton.  A tiny
+    pull toward q0 picks the programmed rotary angles where the tool direction leaves them free
+    (e.g. C at B = 0 on a B-C table).
+
+    Where the iteration fails from q0 (a tilted workpiece at a singularity: with B = 0 on a B-C
+    table, a tilt about X needs C turned by 90 deg), it restarts from rotary seeds offset by
+    +-90 and 180 deg, one axis at a time and then pairs, and keeps the converged solution with
+    the smallest rotary change.  Points that fail from every seed raise ConvergenceError.
+    """
+    if q0 is None:
+        raise ValueError("compensate needs initial commands q0 (e.g. the programmed axis positions)")
+    q0 = _as_commands(machine, q0)
+    if len(target) != len(q0):
+        raise ValueError(f"target has {len(target)} poses, q0 has {len(q0)}")
+    q, err = _solve(machine, target, errors, q0, tol, max_iter)
     bad = np.nonzero(~(err < 1e-7))[0]
     if bad.size:
-        raise ConvergenceError(int(bad[0]), float(err[bad[0]]))
+        rot = list(machine.rotary_indices)
+        seeds = [{k: o} for k in rot for o in _SEED_OFFSETS]
+        seeds += [{k: o, j: p} for i, k in enumerate(rot) for j in rot[i + 1:]
+                  for o in _SEED_OFFSETS for p in _SEED_OFFSETS]
+        best = np.full(bad.size, np.inf)
+        sub = Pose(target.p[bad], target.R[bad], target.tool_axis)
+        for seed in seeds:
+            qs = q0[bad].copy()
+            for k, o in seed.items():
+                qs[:, k] += o
+            qt, et = _solve(machine, sub, errors, qs, tol, max_iter)
+            change = np.sum(np.abs(qt[:, rot] - q0[bad][:, rot]), axis=1)
+            better = (et < 1e-7) & (change < best - 1e-9)
+            q[bad[better]] = qt[better]
+            err[bad[better]] = et[better]
+            best[better] = change[better]
+        bad = np.nonzero(~(err < 1e-7))[0]
+        if bad.size:
+            raise ConvergenceError(int(bad[0]), float(err[bad[0]]))
+    _residual(machine, q, errors, target, _orientation_mode(machine), strict=True)  # table ranges
     return q
 
 

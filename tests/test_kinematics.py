@@ -180,3 +180,17 @@ def test_rigid_closed_form_equals_iteration(name, rng):
     iterated = compensate(m, forward(m, q), E, q)
     assert np.max(np.abs(closed - iterated)) < 1e-9
     assert np.max(np.abs(forward(m, closed, E).p - forward(m, q).p)) < 1e-9
+
+
+def test_tilted_blank_at_the_singularity_turns_c():
+    """A 3-axis program (B = C = 0) on a B-C table with the blank tilted about X: the tool
+    direction can only be matched by turning C by 90 deg and tilting B; compensate finds it."""
+    m = load_machine("robonano-a0ib")
+    q = np.zeros((4, 5))
+    q[:, 2:] = [[0, 0, 1], [5, 0, 0], [5, 3, 0], [0, 3, -0.5]]
+    E = ErrorSet(workpiece=WorkpieceSetting((0.01, 0.02, 0.0), (0.5, 0.0, 0.0)))
+    qc = retarget(m, q, E)
+    assert np.allclose(np.abs(qc[:, 0]), 90.0, atol=1e-6) and np.allclose(np.abs(qc[:, 1]), 0.5, atol=1e-6)
+    got = forward(m, qc, E)
+    want = forward(m, q)
+    assert np.max(np.abs(got.p - want.p)) < 1e-6 and np.max(np.abs(got.v - want.v)) < 1e-9
