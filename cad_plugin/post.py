@@ -132,22 +132,21 @@ def post(machine, path: Toolpath, q: np.ndarray | None = None, options: PostOpti
     last_g = None
     last_f = None
     for i in range(len(path)):
-        words = []
         m = int(path.motion[i])
+        axes = [(k, a + strs[k][i]) for k, a in enumerate(letters)
+                if strs[k][i] != last[k] or (m == PROBE and k == 0)]
+        if not axes:
+            continue  # no motion: nothing to write, modal state unchanged
         g = {RAPID: "G00", FEED: "G01", PROBE: "G31"}[m]
-        if m == PROBE or g != last_g:
-            words.append(g)
-            last_g = g if m != PROBE else None  # G31 is one-shot
-        for k, a in enumerate(letters):
-            s = strs[k][i]
-            if s != last[k] or (m == PROBE and k == 0):
-                words.append(a + s)
-                last[k] = s
+        words = [g] if (m == PROBE or g != last_g) else []
+        last_g = None if m == PROBE else g  # G31 is one-shot: the next block restates G01/G00
+        for k, w in axes:
+            words.append(w)
+            last[k] = strs[k][i]
         if m != RAPID and path.feed != last_f:
             words.append(f"F{path.feed:g}")
             last_f = path.feed
-        if len(words) > (1 if words and words[0] in ("G00", "G01") else 0):
-            block(" ".join(words))
+        block(" ".join(words))
     if options.tcp:
         block("G49")
     if options.spindle:

@@ -101,3 +101,14 @@ def test_probing_program_uses_skip_moves():
     text = P.post(m, tp)
     assert text.count("G31") == int(np.sum(tp.motion == T.PROBE)) == 39
     assert "TOUCH PROBE R0.25" in text
+
+
+def test_motion_mode_is_restated_after_a_skip_move():
+    m = load_machine("robonano-a0ib")
+    L = BowlBlankLayout()
+    tp = T.bowl_probing(L.centres[:1], L.bowl_radius, L.bowl_depth, T.Tool("probe", 0.25))
+    blocks = [ln.split(" ", 1)[1] for ln in P.post(m, tp).splitlines() if ln.startswith("N")]
+    after = [blocks[i + 1] for i, b in enumerate(blocks) if b.startswith("G31")]
+    assert after and all(b.startswith(("G01", "G00")) for b in after)
+    # The G31 blocks carry the full target (a skip move needs its end point).
+    assert all(len(b.split()) >= 2 for b in blocks if b.startswith("G31"))
