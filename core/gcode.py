@@ -791,6 +791,7 @@ class _Ctx:
         self.blines = np.asarray(program.line) - 1
         self._anch = None
         self._spaced = None
+        self.added_lines = {}            # block index -> lines inserted after it
 
     @property
     def anchors(self):
@@ -834,14 +835,23 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
     """Rewrite the program's axis words for new commanded positions.
 
     ``transform(q)`` maps absolute commanded positions (M, n_axes) in mm/deg to new ones.  It is
-    called once with the start position, every block end point and sample points of every arc,
-    and a second time only if some arcs must be linearised (with their segment points).
+    called once with rows [start, block end points 1..N, arc samples] and a second time only if
+    some arcs must be linearised (with their segment points).
     ``resolution``: per axis letter a resolution (power of ten, e.g. 1e-6) or a number of
     decimals; default 1e-6 mm for X Y Z (U V W), 1e-5 deg for A B C.  ``chordal_tol`` (mm):
     largest deviation of the output path from the transformed arcs.  ``progress(done, total)``
     is called while the output is assembled (bytes).  Everything except the axis words of motion
     blocks (and, for arcs, I J K R and linearisation) stays byte for byte; see docs/gcode.md.
     """
+    return rewrite_with_lines(program, transform, resolution=resolution,
+                              chordal_tol=chordal_tol, progress=progress)[0]
+
+
+def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
+                       resolution=None, chordal_tol: float = 1e-4, progress=None):
+    """`rewrite`, also returning for every motion block the 1-based line of the output where
+    the block ends (after a linearised arc: its last segment line), so that the output can be
+    compared block by block with the input."""
     axes = program.axes
     n_ax = len(axes)
     dec = _decimals(resolution, axes)
@@ -938,7 +948,12 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
         buf, off, ln = format_counts(np.rint(program.w_value[w] * INCH * 1e4).astype(np.int64), 4)
         base = ed.add_buffer(buf)
         ed.add(program.w_pos[w] + 1, program.w_end[w], _SUB_REPLACE, base + off, ln)
-    return ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
+    text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
+    added = np.zeros(N, np.int64)
+    for k, n_add in ctx.added_lines.items():
+        added[k] = n_add
+    out_line = np.asarray(program.line) + np.cumsum(added)
+    return text, out_line
 
 
 def _call_transform(transform, q):
@@ -1296,6 +1311,7 @@ def _linearise_edits(ctx, lin, seg: _Segments, prev, new, d_ax, tol, geo, sel):
             last = ptc
         if lines:
             pieces.append((le, le, _SUB_LINES, "".join(eol + ln for ln in lines).encode()))
+            ctx.added_lines[k] = len(lines)
     if pieces:
         buf = b"".join(pc[3] for pc in pieces)
         base = ed.add_buffer(np.frombuffer(buf, np.uint8))

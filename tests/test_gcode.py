@@ -507,3 +507,15 @@ def test_lines_and_progress():
     out = gcode.rewrite(p, shift([0, 0, 0, 0, 0.5]), progress=lambda done, total: seen.append((done, total)))
     assert out == "G1 X1. C0.50000\r\n(A)\nY2."
     assert seen and seen[-1][0] == seen[-1][1] == len(out.encode())
+
+
+def test_rewrite_with_lines_maps_blocks_to_output_lines():
+    p = gcode.parse(ARCS, axes=("X", "Y", "Z"))
+    out, lines = gcode.rewrite_with_lines(p, rot_x(0.5), chordal_tol=1e-3)
+    q = gcode.parse(out, axes=("X", "Y", "Z"))
+    tf = rot_x(0.5)
+    at = {int(ln): i for i, ln in enumerate(q.line)}
+    got = q.position[[at[int(ln)] for ln in lines]]
+    assert np.allclose(got, tf(p.position), atol=1e-6)
+    out2, lines2 = gcode.rewrite_with_lines(p, shift([1, 0, 0]))
+    assert np.array_equal(lines2, p.line)
