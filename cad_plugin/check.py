@@ -75,6 +75,52 @@ def ball_envelope(centres: np.ndarray, radius: float, xs: np.ndarray, ys: np.nda
 
 
 @dataclass(frozen=True)
+class ProbeRun:
+    """Virtual probing: recorded (M,3) stylus-centre positions in the nominal workpiece frame as
+    the control reports them (nominal kinematics of the axis positions at the skip), the bowl
+    index of each touch, and the skip fraction along each G31 move (NaN: no touch)."""
+    recorded: np.ndarray
+    bowl: np.ndarray
+    fraction: np.ndarray
+
+
+def simulate_probing(machine, path: Toolpath, q: np.ndarray, errors=None) -> ProbeRun:
+    """Run a :func:`~mtcomp.cad_plugin.toolpath.bowl_probing` program on the machine with
+    `errors`: each G31 move (axes interpolated linearly) stops where the real stylus ball
+    touches the real bowl (the CAD bowl in the real workpiece frame), and the control records
+    its axis positions there.  Returns the positions through the nominal kinematics (what the
+    control reports in workpiece coordinates)."""
+    from ..kinematics import forward
+    from .toolpath import PROBE
+    q = np.asarray(q, float)
+    r = path.tool.radius
+    R0, d0 = path.meta["radius"], path.meta["depth"]
+    bowls = np.array([[cx, cy, R0 - d0] for cx, cy in path.meta["centres"]])
+    rho = R0 - r
+    idx = np.nonzero(path.motion == PROBE)[0]
+    qa, qb = q[idx - 1], q[idx]
+    pa, pb = real_centres(machine, path, qa, errors), real_centres(machine, path, qb, errors)
+    k = np.argmin(np.linalg.norm(path.centre[idx][:, None, :] - bowls[None], axis=2), axis=1)
+    S = bowls[k]
+    # The stylus centre moves (nearly) straight: |pa + s (pb - pa) - S| = rho, first root.
+    d, w = pb - pa, pa - S
+    A, B, Cc = (d * d).sum(1), 2 * (d * w).sum(1), (w * w).sum(1) - rho * rho
+    disc = B * B - 4 * A * Cc
+    s = (-B + np.sqrt(np.where(disc >= 0, disc, np.nan))) / (2 * A)  # leaving the air ball
+    s = np.where((s >= 0) & (s <= 1), s, np.nan)
+    # With the rotary axes standing still the stylus centre moves straight between the two
+    # end points, so the root above is the exact skip point (checked below).
+    rot = list(machine.rotary_indices)
+    if rot and np.max(np.abs(qb[:, rot] - qa[:, rot]), initial=0.0) > 1e-9:
+        raise MtcompError("a probing move turns a rotary axis; simulate_probing assumes it does not")
+    qs = qa + np.nan_to_num(s)[:, None] * (qb - qa)
+    nominal = forward(machine, qs)
+    rec = nominal.p + r * nominal.v
+    rec[np.isnan(s)] = np.nan
+    return ProbeRun(rec, k, s)
+
+
+@dataclass(frozen=True)
 class FormCheck:
     """Machined surface against the CAD target on a grid: error = machined - target height, mm
     (positive: material left).  max is the largest |error|."""

@@ -238,13 +238,16 @@ def bowl_milling(centres, radius: float, depth: float, tool: Tool, stepover: flo
 
 
 def bowl_probing(centres, radius: float, depth: float, probe: Tool, polar=(0.0, 25.0, 40.0),
-                 n_azimuth: int = 6, approach: float = 0.2, safe: float = 1.0,
-                 feed: float = 20.0, name: str = "bowl-probing") -> Toolpath:
+                 n_azimuth: int = 6, approach: float = 0.2, overtravel: float = 0.1,
+                 safe: float = 1.0, feed: float = 20.0, name: str = "bowl-probing") -> Toolpath:
     """Touch-probe each bowl (paper 001) at the bottom and on rings at `polar` angles (deg from
-    the bowl's axis, `n_azimuth` points per ring).  Each probing move runs along the surface
-    normal from `approach` mm off the surface to the nominal contact, where the stylus centre
-    is on the sphere of radius (radius - probe radius); the fit uses sphere centres, not the
-    lowest points (which move with the tilt of the blank)."""
+    the bowl's axis, `n_azimuth` points per ring).
+
+    Each probing move (G31) runs along the surface normal from `approach` mm off the surface
+    to `overtravel` mm past the nominal contact, so a blank that sits off by less than that
+    still triggers the skip.  At the nominal contact the stylus centre is on the sphere of
+    radius (radius - probe radius): :func:`probe_contacts` gives those points.  Fit sphere
+    centres, not the lowest points (which move with the tilt of the blank)."""
     if probe.kind != "probe" or probe.radius >= radius:
         raise InputError("bowl probing needs a probe smaller than the bowl", field="tool")
     rim = math.degrees(math.acos((radius - depth) / radius))
@@ -264,10 +267,18 @@ def bowl_probing(centres, radius: float, depth: float, probe: Tool, polar=(0.0, 
                 contact_c = cs + (radius - probe.radius) * nrm
                 start_c = contact_c - approach * nrm
                 b.add(start_c - [0, 0, probe.radius], I, FEED)
-                b.add(contact_c - [0, 0, probe.radius], I, PROBE, normal=-nrm)
+                b.add(contact_c + overtravel * nrm - [0, 0, probe.radius], I, PROBE, normal=-nrm)
                 b.add(start_c - [0, 0, probe.radius], I, FEED)
         b.add(cs + [0, 0, safe - radius + depth + probe.radius], I, FEED)
-    return b.build(probe, feed, name, radius=radius, depth=depth)
+    return b.build(probe, feed, name, radius=radius, depth=depth, approach=approach,
+                   overtravel=overtravel, centres=[tuple(map(float, c)) for c in centres])
+
+
+def probe_contacts(path: Toolpath) -> np.ndarray:
+    """Nominal stylus-centre contacts (M,3) of the probing moves of a :func:`bowl_probing` path:
+    the G31 end points moved back by the overtravel along the surface normal."""
+    touch = path.motion == PROBE
+    return path.centre[touch] + path.meta.get("overtravel", 0.0) * path.normal[touch]
 
 
 # -------------------------------------------------------------------------------- pyramid

@@ -83,3 +83,26 @@ def test_nominal_envelope_never_gouges_and_scallops_as_predicted(program):
     fillet = r * (1 / math.cos(BETA / 2) - 1)
     edge = (np.abs(a - W / 2) < 0.03) & (b < 0.5)
     assert fillet <= np.nanmax(form.error[edge]) <= fillet + s * s / (8 * r) * 1.01
+
+
+def test_virtual_probing_recovers_the_real_bowl_centres():
+    from mtcomp.cad_plugin.layout import BowlBlankLayout
+    from mtcomp.setting.bowls import fit_sphere
+    m = load_machine("robonano-a0ib")
+    L = BowlBlankLayout()
+    probe = T.Tool("probe", radius=0.25)
+    tp = T.bowl_probing(L.centres, L.bowl_radius, L.bowl_depth, probe, overtravel=0.1)
+    ws = WorkpieceSetting((0.030, -0.025, 0.012), (0.1, -0.15, 0.4))
+    run = C.simulate_probing(m, tp, T.to_axes(m, tp), ErrorSet(workpiece=ws))
+    assert np.all(np.isfinite(run.fraction)) and np.ptp(run.fraction) > 0
+    Rw, t = ws.matrix, np.asarray(ws.translation)
+    for k, (cx, cy) in enumerate(L.centres):
+        centre, rho, *_ = fit_sphere(run.recorded[run.bowl == k])
+        # x_nominal = R x_real + t: the control sees the real bowl's centre there.
+        expected = Rw @ np.array([cx, cy, L.bowl_radius - L.bowl_depth]) + t
+        assert np.max(np.abs(centre - expected)) < 1e-9
+        assert rho == pytest.approx(L.bowl_radius - probe.radius, abs=1e-9)
+    # On the ideal set-up every skip happens at the nominal contact, 2/3 along the move.
+    ideal = C.simulate_probing(m, tp, T.to_axes(m, tp), None)
+    assert np.allclose(ideal.fraction, 0.2 / 0.3, atol=1e-12)
+    assert np.allclose(ideal.recorded, T.probe_contacts(tp), atol=1e-12)

@@ -64,15 +64,18 @@ def test_bowl_milling_and_probing_on_offset_spheres():
     idx = pick(tp.cutting, 100)
     assert np.max(np.abs(distances(tp.centre[idx], solid) - tool.radius)) < TOL
     probe = T.Tool("probe", radius=0.25)
-    pp = T.bowl_probing(L.centres, L.bowl_radius, L.bowl_depth, probe, approach=0.2)
+    pp = T.bowl_probing(L.centres, L.bowl_radius, L.bowl_depth, probe, approach=0.2,
+                        overtravel=0.1)
     touch = pp.motion == T.PROBE
     assert touch.sum() == 3 * (1 + 2 * 6)
-    assert np.max(np.abs(distances(pp.centre[touch], solid) - probe.radius)) < TOL
-    # Each probing move starts 0.2 mm off along the normal and runs along it.
+    contacts = T.probe_contacts(pp)
+    assert np.max(np.abs(distances(contacts, solid) - probe.radius)) < TOL
+    # Each probing move starts 0.2 mm off along the normal and runs 0.1 mm past the contact.
     start = np.nonzero(touch)[0] - 1
     dirs = pp.centre[touch] - pp.centre[start]
-    assert np.allclose(np.linalg.norm(dirs, axis=1), 0.2)
-    assert np.allclose(dirs / 0.2, -pp.normal[touch], atol=1e-12)
+    assert np.allclose(np.linalg.norm(dirs, axis=1), 0.3)
+    assert np.allclose(dirs / 0.3, -pp.normal[touch], atol=1e-12)
+    assert np.allclose(np.linalg.norm(contacts - pp.centre[start], axis=1), 0.2)
 
 
 def test_grating_tool_edge_on_groove_bottom_and_normal_to_the_surface():
