@@ -302,7 +302,7 @@ def main(argv=None) -> int:
                   resolution=res_map)
     prof.disable()
     s = io.StringIO()
-    pstats.Stats(prof, stream=s).sort_stats("tottime").print_stats(8)
+    pstats.Stats(prof, stream=s).strip_dirs().sort_stats("tottime").print_stats(8)
     top = [ln for ln in s.getvalue().splitlines() if re.match(r"\s+\d+\s+\d", ln)][:8]
 
     rate = lambda k, c: f"{k / c:,.0f}"  # noqa: E731

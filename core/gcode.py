@@ -280,14 +280,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     G, M = _ascii("G"), _ascii("M")
     # -- duplicate addresses in one block (G and M may repeat)
-    key = wline.astype(np.int64) * 32 + wlet
-    key[(wlet == G) | (wlet == M)] = -1
-    key.sort()
-    dup = (key[1:] == key[:-1]) & (key[1:] >= 0)
+    # stable radix sort by letter keeps each letter's words in line order: a repeated letter in
+    # a block shows as two neighbours with the same letter and line
+    order = np.argsort(wlet, kind="stable")
+    sl, sw = wlet[order], wline[order]
+    dup = (sl[1:] == sl[:-1]) & (sw[1:] == sw[:-1]) & (sl[1:] != G) & (sl[1:] != M)
     if dup.any():
-        k = key[1:][np.argmax(dup)]
-        _fail(f"address {chr(65 + int(k % 32))} appears twice in one block", int(k // 32), filename)
-    del key, dup
+        j = int(np.argmax(dup)) + 1
+        _fail(f"address {chr(65 + int(sl[j]))} appears twice in one block", int(sw[j]), filename)
+    del order, sl, sw, dup
 
     # -- G codes
     gi = np.flatnonzero(wlet == G)
@@ -935,7 +936,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
             _column_edits(ctx, cw, n_ax + j, letter.encode(), int(a_dec[j]),
                           np.flatnonzero(a_rep[:, j]), np.flatnonzero(a_ins[:, j]), a_counts[:, j])
     if len(lin):
-        _linearise_edits(ctx, lin, seg, prev, new, d_ax, chordal_tol, geo, ~keep)
+        _linearise_edits(ctx, lin, seg, prev, new, d_ax, chordal_tol)
     _restore_modal_arcs(ctx, lin)
 
     ed = ctx.edits
@@ -1254,7 +1255,7 @@ def _fmt(c: int, d: int) -> str:
     return "-" + s if c < 0 else s
 
 
-def _linearise_edits(ctx, lin, seg: _Segments, prev, new, d_ax, tol, geo, sel):
+def _linearise_edits(ctx, lin, seg: _Segments, prev, new, d_ax, tol):
     """Blocks of linearised arcs: G2/G3 -> G1, arc words out, a comment with the tolerance,
     and the remaining segment points as new lines after the block."""
     p, ed, data = ctx.p, ctx.edits, ctx.data

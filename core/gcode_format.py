@@ -137,7 +137,7 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     same = (stop - pos == src_len) & (src_len > 0)
     if same.any():
         lens = src_len[same]
-        for L in np.unique(lens).tolist():
+        for L in np.flatnonzero(np.bincount(lens)).tolist():
             g = np.flatnonzero(same)[lens == L]
             dst = np.lib.stride_tricks.as_strided(out, shape=(len(out) - L + 1, L), strides=(1, 1))
             srcw = np.lib.stride_tricks.sliding_window_view(src, L)
