@@ -28,6 +28,7 @@ class Signal:
     values: np.ndarray
     source: str          # "sim", "rec" or "sim-output"
     letter: str | None   # ISO axis letter for length/angle signals
+    native: tuple = ()   # (t, values) as sampled in its file, t on SIM's clock
 
 
 @dataclass(frozen=True)
@@ -193,12 +194,13 @@ def align(sim: Table, rec: Table) -> Aligned:
         signals[k] = Signal(k, c.header, c.kind, c.unit, sim_on[k], "sim-output", _letter(k, c.kind))
     for tab, on, src in ((sim, sim_on, "sim"), (rec, rec_on, "rec")):
         for k, c in tab.columns.items():
-            if k in outputs:
+            if k in outputs or k in signals:
                 continue
             v = on[k]
             if c.kind == "other" and np.ptp(v) == 0:
                 continue
-            signals[k] = Signal(k, c.header, c.kind, c.unit, v, src, _letter(k, c.kind))
+            signals[k] = Signal(k, c.header, c.kind, c.unit, v, src, _letter(k, c.kind),
+                                (tab.t, c.values))
     al = Aligned(
         t=tg, dt=dt, outputs=tuple(outputs),
         headers={k: sim.columns[k].header for k in outputs},

@@ -264,9 +264,22 @@ class ThermalDrift(Candidate):
         return [lo], [hi]
 
     def build(self, ctx, eta):
-        u = ctx.values(self.inputs[0])
+        al = ctx.al
+        sig = al.signals[self.inputs[0]]
+        u = sig.values
         tau = math.exp(eta[0])
-        y = first_order(u, ctx.al.dt, tau) - u[0]
+        tn, vn = sig.native if sig.native else (al.t, u)
+        dt_native = float(np.median(np.diff(tn)))
+        m = int(np.clip(math.ceil(al.dt / dt_native), 1, max(1, 200_000 // al.n)))
+        if m > 1:
+            # a sparse grid: filter the driver as it was sampled (a spindle-speed step smeared
+            # over one coarse step would shift the response by half a step)
+            k = np.arange((al.n - 1) * m + 1)
+            tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
+            uf = np.interp(tf, tn, vn)
+            y = first_order(uf, al.dt / m, tau)[::m] - uf[0]
+        else:
+            y = first_order(u, al.dt, tau) - u[0]
         # the structure's thermal state at the start is unknown: a free initial transient, and
         # a free offset (the drift is measured from an unknown reference state)
         tr = np.exp(-(ctx.al.t - ctx.al.t[0]) / tau)
@@ -325,19 +338,27 @@ class ServoLag(Candidate):
         super().__init__("servo_lag", (output,), (output,), 0)
 
     def bounds(self, ctx):
-        return [math.log(max(0.5, 1.0 / ctx.duration))], [math.log(max(20.0 / ctx.al.dt, 1.0))]
-
-    UPSAMPLE = 4
+        # up to 20 per grid step, or 5x SIM's rate when the recording is sparse (the lag is
+        # resolved through SIM, which is dense)
+        hi = max(20.0 / ctx.al.dt, 5.0 * ctx.al.rates["sim"], 1.0)
+        return [math.log(max(0.5, 1.0 / ctx.duration))], [math.log(hi)]
 
     def build(self, ctx, eta):
-        # the filter runs on a 4x finer grid from SIM's spline: the ramp-invariant step assumes
-        # the input linear between samples, and a moving axis is parabolic while it accelerates
+        # the filter runs on a finer grid from SIM's spline: the ramp-invariant step assumes the
+        # input linear between samples, and a moving axis is parabolic while it accelerates;
+        # at least 4x finer, and fine against SIM's own step and the lag itself.  It starts
+        # up to 20 lags before the grid (SIM permitting): the axis may be moving at the start.
         al = ctx.al
         o = self.outputs[0]
-        m = self.UPSAMPLE
-        tf = al.t[0] + (al.t[-1] - al.t[0]) * np.arange((al.n - 1) * m + 1) / ((al.n - 1) * m)
+        tau = math.exp(-eta[0])
+        h_want = min(0.25 / al.rates["sim"], tau / 8)
+        m = int(np.clip(math.ceil(al.dt / h_want), 4, max(4, 400_000 // al.n)))
+        h = al.dt / m
+        warm = int(min(max(al.t[0] - al.sim_span[0], 0.0), 20 * tau) / h)
+        k = np.arange(-warm, (al.n - 1) * m + 1)
+        tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
         pf = al.sim_spline[o](tf)
-        y = first_order(pf, al.dt / m, math.exp(-eta[0]))[::m] - al.sim[o]
+        y = first_order(pf, h, tau)[warm::m] - al.sim[o]
         return {o: y}, []
 
     def coarse(self, ctx, resid, rows):
@@ -505,6 +526,10 @@ class WorkpieceSetting(Candidate):
                     names.append(f"r{'xyz'[ax]}_deg")
         self._names = names
         self.n_lin = len(names)
+
+    @property
+    def label(self) -> str:
+        return super().label + ("+rotation" if self.with_rotation else "")
 
     def build(self, ctx, eta):
         al = ctx.al

@@ -173,6 +173,11 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
             m = np.tile(inblk, len(al.outputs))
             oof[m] = ctx.z0[m] - pred[m]
     fitd = {"rms_before": {}, "rms_after": {}, "holdout_rms_before": {}, "holdout_rms_after": {}}
+    # noise floor: the residual after the fit shows the noise better when the effects change
+    # quickly between samples (sparse recordings); never above the estimate before the fit
+    floor = {o: min(al.noise_floor[o], _align.noise_sigma(final.resid[ctx.slices[o]] * sig[o],
+                                                            al.quantum[o]))
+             for o in al.outputs}
     for o in al.outputs:
         sl = ctx.slices[o]
         before = al.rec[o] - al.sim[o]
@@ -184,13 +189,17 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
         fitd["holdout_rms_before"][o] = _rms(before)
         fitd["holdout_rms_after"][o] = _rms(oof[sl] * sig[o])
     cond = {o: conditions(al, o, al.rec[o] - al.sim[o], sig[o]) for o in al.outputs}
+    # the recording-wide conditions of an output belong to the words of each of its spans
+    mism = [Mismatch(m.output, m.t_start, m.t_end,
+                     m.where + "".join(f"; overall: {c}" for c in cond[m.output]), m.rms)
+            for m in mism]
     alignment = {"grid_step_s": al.dt, "samples": al.n, "t_start": float(al.t[0]),
                  "t_end": float(al.t[-1]), "coarse_offset_s": al.offset0,
                  "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
                  "folds": st.folds, "quantum": dict(al.quantum),
                  "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC")}
     return DiagnosisResult(
-        outputs=tuple(al.outputs), units=dict(al.units), noise_floor=dict(al.noise_floor),
+        outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
         conditions=cond, log=tuple(log), t=al.t, rec=dict(al.rec), sim=dict(al.sim),
         corrected=corrected, heldout_corrected=held)

@@ -228,30 +228,42 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
         scored = []
         r_s = cur.resid
         rss_s = float(r_s[srows] @ r_s[srows])
+        nlog = math.log(max(srows.sum(), 2))
         for c in cands:
-            if c in model or _conflicts(c, model):
+            if c in model:
                 continue
-            eta0 = c.coarse(ctx, r_s, srows)
-            f1 = fit(ctx, [c], [eta0], srows, max_nfev=15, target=r_s)
-            gain = rss_s - f1.rss
+            # a candidate that conflicts with one chosen effect may replace it (translation ->
+            # translation and rotation, squareness -> straightness): greedy steps are not final
+            conf = [i for i, m in enumerate(model) if _conflicts(c, [m])]
+            if len(conf) > 1:
+                continue
+            swap = conf[0] if conf else None
+            base = r_s if swap is None else r_s + cur.contrib[swap]
+            eta0 = c.coarse(ctx, base, srows)
+            f1 = fit(ctx, [c], [eta0], srows, max_nfev=15, target=base)
             coarse_cache[c.label] = f1.etas[0]
+            dk = c.n_params() - (model[swap].n_params() if swap is not None else 0)
+            gain = rss_s - f1.rss
             if gain > 0:
-                scored.append((gain - c.n_params() * math.log(max(srows.sum(), 2)), c))
+                scored.append((gain - dk * nlog, c, swap))
         scored.sort(key=lambda g: -g[0])
         trials = []
-        for _, c in scored[:st.top]:
-            f = fit(ctx, model + [c], etas + [coarse_cache[c.label]], max_nfev=st.max_nfev)
-            trials.append((c, f))
+        for _, c, swap in scored[:st.top]:
+            keep = [i for i in range(len(model)) if i != swap]
+            m_new = [model[i] for i in keep] + [c]
+            e_new = [etas[i] for i in keep] + [coarse_cache[c.label]]
+            f = fit(ctx, m_new, e_new, max_nfev=st.max_nfev)
+            trials.append((c, swap, m_new, f))
         if not trials:
             break
         # one effective sample size for every trial of the step (from the best fit's residual):
         # BIC values computed with different N_eff would not be comparable
-        neff = n_effective(ctx, min(trials, key=lambda g: g[1].rss)[1].resid)
+        neff = n_effective(ctx, min(trials, key=lambda g: g[3].rss)[3].resid)
         b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
-        trials = sorted(((bic(f.rss, f.n_rows, f.k, neff) - b_cur, c, f, neff) for c, f in trials),
-                        key=lambda g: g[0])
+        trials = sorted(((bic(f.rss, f.n_rows, f.k, neff) - b_cur, c, swap, m_new, f)
+                         for c, swap, m_new, f in trials), key=lambda g: g[0])
         accepted = False
-        for dbic, c, f, neff in trials[:3]:
+        for dbic, c, swap, m_new, f in trials[:3]:
             if dbic > -st.bic_threshold:
                 break
             contrib = f.contrib[-1]
@@ -259,21 +271,24 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             if snr < st.min_effect_snr:
                 log.append(f"step {step + 1}: {c.label} rejected: RMS {snr:.2f} x noise")
                 continue
-            cv_new, _ = cross_validate(ctx, model + [c], f.etas, st.folds)
+            cv_new, _ = cross_validate(ctx, m_new, f.etas, st.folds)
             gain = 1.0 - cv_new / cv_cur
             if gain < st.cv_min_gain:
                 log.append(f"step {step + 1}: {c.label} rejected: held-out error "
                            f"{-100 * gain:+.1f} %")
                 continue
-            log.append(f"step {step + 1}: {c.label} added: dBIC {dbic:.1f}, held-out error "
+            what = "added" if swap is None else f"replaces {model[swap].label}"
+            log.append(f"step {step + 1}: {c.label} {what}: dBIC {dbic:.1f}, held-out error "
                        f"{-100 * gain:+.1f} %, RMS {snr:.1f} x noise")
+            if swap is not None:
+                evidence.pop(model[swap].label, None)
             evidence[c.label] = {"delta_bic": round(float(dbic), 2),
                                  "heldout_error_reduction": round(float(gain), 4),
                                  "snr": round(snr, 2), "n_effective": round(float(neff), 1)}
-            model, etas, cur, cv_cur = model + [c], list(f.etas), f, cv_new
+            model, etas, cur, cv_cur = m_new, list(f.etas), f, cv_new
             accepted = True
             if progress:
-                progress(f"added {c.label}")
+                progress(f"{what} {c.label}")
             break
         if not accepted:
             break
