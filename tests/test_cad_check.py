@@ -106,3 +106,27 @@ def test_virtual_probing_recovers_the_real_bowl_centres():
     ideal = C.simulate_probing(m, tp, T.to_axes(m, tp), None)
     assert np.allclose(ideal.fraction, 0.2 / 0.3, atol=1e-12)
     assert np.allclose(ideal.recorded, T.probe_contacts(tp), atol=1e-12)
+
+
+def test_paper_001_loop_probe_fit_compensate_machine(program):
+    """Probe the bowls of a misplaced blank, estimate its setting from the sphere centres
+    (the workpiece-setting module), compensate the finishing program, machine virtually."""
+    from mtcomp.cad_plugin.layout import BowlBlankLayout
+    from mtcomp.setting.bowls import fit_sphere
+    from mtcomp.setting.frame import frame_from_points
+    m, tp = program
+    L = BowlBlankLayout()
+    true = ErrorSet(workpiece=WorkpieceSetting((-0.042, 0.018, 0.021), (-0.15, 0.2, -0.6)))
+    probe = T.Tool("probe", radius=0.25)
+    pp = T.bowl_probing(L.centres, L.bowl_radius, L.bowl_depth, probe)
+    run = C.simulate_probing(m, pp, T.to_axes(m, pp), true)
+    measured = np.array([fit_sphere(run.recorded[run.bowl == k])[0] for k in range(3)])
+    design = np.array([[x, y, L.bowl_radius - L.bowl_depth] for x, y in L.centres])
+    est = frame_from_points(measured, design, method="paper").pose
+    assert np.allclose(est.translation, true.workpiece.translation, atol=1e-9)
+    assert np.allclose(est.angles, true.workpiece.angles, atol=1e-8)
+    text = P.post(m, tp, errors=ErrorSet(workpiece=est))
+    q = gcode.parse(text, axes=m.axis_names).position
+    meas = C.pyramid_widths_angles(m, tp, q, true)
+    assert np.max(np.abs(meas.widths - W)) < 0.01e-3
+    assert np.max(np.abs(meas.angles - ANGLE)) < 0.001
