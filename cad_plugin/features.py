@@ -22,6 +22,7 @@ import cadquery as cq
 import numpy as np
 
 from .._io import InputError
+from .export import export_step, export_stl  # noqa: F401  (re-exported for convenience)
 from .layout import (BowlBlankLayout, GratingLayout, GroovePlateLayout, PyramidLayout,  # noqa: F401
                      pyramid_height, vgroove_section)
 
@@ -34,6 +35,7 @@ __all__ = [
     "groove_plate", "bowl_blank", "pyramid_part", "concave_grating",
     "GroovePlateLayout", "BowlBlankLayout", "PyramidLayout", "GratingLayout",
     "vgroove_section", "pyramid_height", "volume", "plan_plate", "plan_tilts",
+    "export_step", "export_stl",
 ]
 
 

@@ -53,8 +53,11 @@ class GroovePlateLayout:
     Plate `size` x `size` x `thickness` (brass), grooves `depth` deep cut by a tool of included
     `angle`; lengths in mm, angles in deg.  Three patterns:
 
-    * A: two grooves of `length` sharing the start point `a_origin`, along +x and +y (cut once
-      at A = 0 and once at A = 180 deg; nominally they coincide, a tool setting error splits them);
+    * A: two grooves of `length` sharing the start point `a_origin`, along +x and +y: the shape
+      of the A test's pattern.  The A test itself needs the tool along the A axis, cutting at
+      A = 0 and again at A = 180 deg on a face normal to X (mtcomp.setting.tool_plan, see
+      features.plan_plate); with no setting error both cuts coincide, so the nominal part
+      carries one pair;
     * C: an equilateral triangle of side `c_side` centred on `c_centre`, one side per C position
       (0, 120, 240 deg);
     * B: parallel grooves along +y of `length`, at x = `b_x` offsets from `b_origin`, cut with the

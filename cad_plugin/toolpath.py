@@ -514,12 +514,15 @@ def to_axes(machine, path: Toolpath, errors=None) -> np.ndarray:
 
 def _unwrap(machine, q: np.ndarray) -> np.ndarray:
     """Rotary angles made continuous along the path (no 360 deg turn between neighbours that
-    stand for the same orientation), shifted by whole turns into the travel where possible."""
+    stand for the same orientation), then shifted by the whole number of turns that keeps them
+    closest to zero; left as solved if that does not fit the travel."""
     q = q.copy()
     for i in machine.rotary_indices:
         lo, hi = machine.axes[i].limits
         u = np.degrees(np.unwrap(np.radians(q[:, i])))
-        u -= 360.0 * np.round((u.mean() - 0.5 * (lo + hi)) / 360.0) if np.isfinite(lo + hi) else 0.0
-        if np.all((u >= lo) & (u <= hi)):
+        turns = np.arange(-3, 4)
+        worst = [np.max(np.abs(u + 360.0 * k)) for k in turns]
+        u = u + 360.0 * turns[int(np.argmin(worst))]
+        if np.all((u >= lo + 1e-6) & (u <= hi - 1e-6)):
             q[:, i] = u
     return q
