@@ -112,3 +112,15 @@ def test_motion_mode_is_restated_after_a_skip_move():
     assert after and all(b.startswith(("G01", "G00")) for b in after)
     # The G31 blocks carry the full target (a skip move needs its end point).
     assert all(len(b.split()) >= 2 for b in blocks if b.startswith("G31"))
+
+
+def test_groove_plate_program_keeps_rotary_angles_near_zero():
+    m = load_machine("robonano-ui")
+    tp = T.groove_plate_passes()
+    q = T.to_axes(m, tp)
+    # C turns to 0 / +-120 / 90 deg with the pass directions; never a full turn near the limits.
+    c = q[:, m.index("C")]
+    assert np.max(np.abs(c)) <= 180 + 1e-9
+    text = P.post(m, tp, q)
+    assert np.max(np.abs(gcode.parse(text, axes=m.axis_names).position - round_to_resolution(m, q))) < 1e-12
+    assert np.allclose(forward(m, q).R, tp.R, atol=1e-12)
