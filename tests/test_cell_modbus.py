@@ -563,7 +563,7 @@ def test_client_mode_polls_a_plc_server(tmp_path):
             await mem.shutdown()
         return rep
 
-    rep = asyncio.run(main())
+    rep = asyncio.run(asyncio.wait_for(main(), 90))
     assert rep.cycles == 6 and not rep.faults
     assert_exactly_once(rep, journal)
     assert [b["ev"] for b in read_records(journal)[0]].count("boot") == 2
@@ -608,7 +608,7 @@ def test_client_mode_ignores_an_out_of_range_plc_block(tmp_path, caplog):
             await mem.shutdown()
         return refused, accepted
 
-    refused, accepted = asyncio.run(main())
+    refused, accepted = asyncio.run(asyncio.wait_for(main(), 60))
     assert refused == (0, 0)                  # IDLE, command_seq 1 not taken
     assert accepted[1] == 1 and accepted[0] in (1, 2, 3)
     assert any("PLC block ignored" in r.getMessage() for r in caplog.records)

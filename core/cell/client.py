@@ -28,6 +28,7 @@ class CellClient:
         self.cycle, self.host, self.port, self.base = cycle, host, port, base
         self.poll_s, self.device_id, self.timeout_s = poll_s, device_id, timeout_s
         self._task: asyncio.Task | None = None
+        self._stopping = False
         self.connected = asyncio.Event()
 
     async def start(self) -> "CellClient":
@@ -36,6 +37,9 @@ class CellClient:
         return self
 
     async def stop(self) -> None:
+        # a flag as well as the cancel: a cancel that lands inside a pymodbus request can come
+        # back as a ModbusIOException, which the poll loop would take for a lost connection
+        self._stopping = True
         if self._task is not None:
             self._task.cancel()
             try:
@@ -50,7 +54,7 @@ class CellClient:
         client, last_in, last_out, refused = None, None, None, None
         n_in = PLC_BLOCK[1] - PLC_BLOCK[0]
         try:
-            while True:
+            while not self._stopping:
                 try:
                     if client is None or not client.connected:
                         if client is not None:
@@ -80,6 +84,8 @@ class CellClient:
                             raise ModbusException(f"PLC refused the write: {rsp}")
                         last_out = list(out)
                 except (ModbusException, OSError, asyncio.TimeoutError) as exc:
+                    if self._stopping:
+                        break
                     log.warning("cell: PLC connection: %s; retrying", exc)
                     self.connected.clear()
                     if client is not None:
