@@ -163,9 +163,18 @@ def cmd_toolpath(args) -> int:
                          + (" (compensated)" if errors else ""))
     elif args.png:
         from ..kinematics import forward
-        pose = forward(machine, qr, errors)
-        dev = np.linalg.norm(pose.p - path.p, axis=1)
-        print(f"  forward model: largest tool point deviation {dev.max() * 1e3:.4f} um")
+        def deviation(qq):
+            pose = forward(machine, qq, errors)
+            dev = np.linalg.norm(pose.p - path.p, axis=1)
+            ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", pose.v, path.axis), -1, 1)))
+            return dev.max() * 1e3, float(np.sqrt(np.mean(dev ** 2))) * 1e3, ang.max()
+        d = deviation(qr)
+        print(f"  forward model{' with the errors' if errors else ''}: tool point deviation max "
+              f"{d[0]:.4f} um, RMS {d[1]:.4f} um; tool axis off by {d[2]:.6f} deg at most")
+        if errors is not None:
+            d0 = deviation(round_to_resolution(machine, T.to_axes(machine, path)))
+            print(f"  uncompensated: tool point deviation max {d0[0]:.4f} um, RMS {d0[1]:.4f} um; "
+                  f"tool axis off by {d0[2]:.6f} deg at most")
         C.plot_toolpath(path, args.png, f"{path.name} on {machine.name}", q=qr,
                         names=machine.axis_names)
     atomic_write(args.out, text)

@@ -66,3 +66,18 @@ def test_plan_plate_from_a_tool_setting_plan(tmp_path):
     assert main(["cad", "features", "plan-plate", "--plan", str(tmp_path / "plan.toml"),
                  "-o", str(out)]) == 0
     assert F.volume(import_step(out)) == pytest.approx(F.volume(F.plan_plate(plan, "top")), rel=1e-9)
+
+
+def test_grating_compensated_for_a_tool_setting_error(tmp_path, capsys):
+    (tmp_path / "tool.toml").write_text("[tool_setting]\noffset = [0.490, 0.680, -0.012]\n")
+    assert main(["cad", "toolpath", "grating", "-m", "robonano-ui", "-o", str(tmp_path / "g.nc"),
+                 "--png", str(tmp_path / "g.png"), "--param", "n_grooves=2",
+                 "--errors", str(tmp_path / "tool.toml")]) == 0
+    out = capsys.readouterr().out
+    # Uncompensated, the edge is off by the whole offset at every point (a rigid offset in the
+    # tool frame); compensated, by the command rounding only.
+    off = np.linalg.norm([490.0, 680.0, -12.0])
+    unc = float(out.split("uncompensated: tool point deviation max ")[1].split(" um")[0])
+    assert unc == pytest.approx(off, abs=0.005)  # to the command rounding (1 nm, 1e-5 deg)
+    comp = float(out.split("deviation max ")[1].split(" um")[0])
+    assert comp < 0.005
