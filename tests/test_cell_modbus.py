@@ -2,7 +2,6 @@
 and a killed process), malformed and out-of-range writes, two clients, faults, and an
 independent Modbus TCP reader (raw sockets + struct, no pymodbus) checking the float32s."""
 import asyncio
-import json
 import logging
 import os
 import signal
@@ -19,7 +18,7 @@ import pytest
 from mtcomp.cell.cycle import CellConfig, CellResult
 from mtcomp.cell.journal import read_records
 from mtcomp.cell.plcsim import PlcSim
-from mtcomp.cell.registers import FIELDS, OUT_BLOCK, PLC_BLOCK, POSE_NAMES
+from mtcomp.cell.registers import FIELDS, OUT_BLOCK, POSE_NAMES
 from mtcomp.cell.server import BackgroundServer, run_virtual_cell_once
 from mtcomp.cell.virtual import VirtualCell, robot_placement
 
