@@ -71,7 +71,8 @@ class PlcSim:
         self.part_id, self.program_id = first_part_id, program_id
         self.disconnect_prob, self.poll_s = disconnect_prob, poll_s
         self.request_timeout_s, self.reconnect_timeout_s = request_timeout_s, reconnect_timeout_s
-        self.cycle_timeout_s, self.load_time_s, self.device_id = cycle_timeout_s, load_time_s, device_id
+        self.cycle_timeout_s, self.load_time_s = cycle_timeout_s, load_time_s
+        self.device_id = device_id
         self.base = base  # where the map starts in the server's holding registers
         self._rng = random.Random(seed)
         self._client = None

@@ -168,7 +168,8 @@ class RegisterImage:
         if f.kind == "u16":
             self.regs[f.address] = int(value) & 0xFFFF
         elif f.kind == "u32":
-            self.regs[f.address:f.address + 2] = encode_u32(int(value) & 0xFFFFFFFF, self.word_order)
+            self.regs[f.address:f.address + 2] = encode_u32(int(value) & 0xFFFFFFFF,
+                                                            self.word_order)
         else:
             self.regs[f.address:f.address + 2] = encode_f32(value, self.word_order)
 
