@@ -338,7 +338,17 @@ Targets: end to end >= 500,000 lines/s: {target(e2e_rate >= 5e5)}; peak memory <
 {target(e2e['maxrss_mb'] < 1536)}; kernel >= 10 M points/s with setting errors:
 {target(len(pts) / c_ks >= 1e7)}; >= 2 M points/s with geometric tables: {target(ng / c_kg >= 2e6)}.
 
-Where the time goes (cProfile of parse + rewrite with retarget, top functions by own time):
+Where the time goes: of the in-process figures, parse takes {c_parse:.2f} s, the compensation
+kernel {c_ks:.2f} s and the G-code side of the rewrite (decisions, number formatting, splicing)
+{c_rw:.2f} s; the rest of the end-to-end time is reading, decoding, encoding and writing
+{mb:.0f} MB. Parse is a fixed number of numpy passes: tokenising the text in cache-sized chunks
+(about fifteen byte-wise passes), converting the {len(prog.w_value):,} numbers eight digits at a
+time in uint64 arithmetic (two unaligned 8-byte gathers per number dominate), then building
+the per-block arrays (modal fills, scatter of the words into block columns, positions).
+Every step is memory-bound numpy; going much faster needs a compiled tokenizer (one pass over
+the bytes instead of one per operation). The compensation kernel belongs to
+`mtcomp.kinematics`; the geometric-table path is its iterative solver. cProfile of parse +
+rewrite with retarget, top functions by own time:
 
 ```
 {chr(10).join(top)}
