@@ -646,3 +646,18 @@ def test_probe_file_step_waits_for_the_nc(cell, tmp_path):
         mb.close()
     fault = [r for r in read_records(bs.journal)[0] if r["ev"] == "fault"][0]
     assert "43.csv.job2:2" in fault["why"]
+
+
+def test_run_virtual_cell_once_truth_follows_the_step(tmp_path):
+    from mtcomp.setting.cellsim import RobotPlacement
+    robot = RobotPlacement(repeatability=0.3, offset=(0.05, 0.0, 0.0))
+    r = run_virtual_cell_once(tmp_path / "j.jsonl", part_id=9,
+                              measure_and_compute=VirtualCell(seed=4, robot=robot))
+    assert np.allclose(r.true_pose, robot_placement(9, 4, robot))
+    assert np.all(np.abs(np.array(r.result.pose6) - r.true_pose) < 5 * np.array(r.result.sigma6))
+    assert run_virtual_cell_once(tmp_path / "k.jsonl", measure_and_compute=_nan_free).true_pose \
+        is None
+
+
+def _nan_free(job):
+    return CellResult((0.0,) * 6, (1e-4,) * 6, 7)

@@ -154,7 +154,8 @@ class BackgroundServer:
 @dataclass(frozen=True)
 class OnceResult:
     """Outcome of `run_virtual_cell_once`: the result as the PLC read it, the journal path,
-    the true placement of the blank and the PLC simulator's report."""
+    the true placement of the blank (None unless the step is a `VirtualCell`) and the PLC
+    simulator's report."""
     result: CellResult
     result_seq: int
     go: bool
@@ -193,5 +194,7 @@ def run_virtual_cell_once(journal: str | Path, part_id: int = 1, program_id: int
         raise MtcompError(f"the cycle produced no result (faults: {report.faults})")
     got = report.results[0]
     res = CellResult(got.pose, got.sigma, got.program_id)
-    return OnceResult(res, got.result_seq, got.go, tuple(robot_placement(part_id, seed)),
-                      Path(journal), report)
+    # the truth is known only to the virtual cell (its own seed and robot model)
+    truth = (tuple(float(v) for v in robot_placement(part_id, measure.seed, measure.robot))
+             if isinstance(measure, VirtualCell) else None)
+    return OnceResult(res, got.result_seq, got.go, truth, Path(journal), report)
