@@ -333,7 +333,8 @@ def check_limits(machine: Machine, q: np.ndarray) -> None:
     """Raise LimitError naming the first point and axis outside its travel."""
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
-        bad = np.nonzero((q[:, k] < lo) | (q[:, k] > hi))[0]
+        tol = 0.5 * ax.resolution  # a command rounded to the resolution may sit a few ulp outside
+        bad = np.nonzero((q[:, k] < lo - tol) | (q[:, k] > hi + tol))[0]
         if bad.size:
             raise LimitError(ax.name, int(bad[0]), float(q[bad[0], k]), ax.limits)
 

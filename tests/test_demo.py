@@ -21,7 +21,7 @@ def test_demo_quick(tmp_path):
     diag = json.loads((out / "diagnose" / "diagnosis.json").read_text())
     assert "backlash" in [e["name"] for e in diag["effects"]]
     # The co-simulation: compensation removes most of the placement error.
-    data = np.genfromtxt(out / "cosim.csv", delimiter=",", names=True, comments="#")
+    data = np.genfromtxt(out / "cosim.csv", delimiter=",", names=True, skip_header=1)
     assert data["error_compensated_um"].max() < 0.2 * data["error_uncompensated_um"].max()
     # The compensated program the cell wrote exists and differs from the nominal one.
     assert (out / "nc" / "O1100.nc").read_text() != (out / "nc" / "O0100.nc").read_text()

@@ -119,3 +119,18 @@ def test_bad_errors_files(tmp_path, toml, msg):
     with pytest.raises(InputError) as exc:
         load_errors(f)
     assert msg in str(exc.value)
+
+
+def test_atomic_write_permissions_and_no_leftovers(tmp_path):
+    import os
+    import stat
+    from mtcomp._io import atomic_path, atomic_write
+    f = atomic_write(tmp_path / "a.txt", "x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(f.stat().st_mode) == 0o666 & ~mask
+    with pytest.raises(RuntimeError):
+        with atomic_path(tmp_path / "b.txt") as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("fails midway")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
