@@ -655,9 +655,9 @@ def test_run_virtual_cell_once_truth_follows_the_step(tmp_path):
                               measure_and_compute=VirtualCell(seed=4, robot=robot))
     assert np.allclose(r.true_pose, robot_placement(9, 4, robot))
     assert np.all(np.abs(np.array(r.result.pose6) - r.true_pose) < 5 * np.array(r.result.sigma6))
-    assert run_virtual_cell_once(tmp_path / "k.jsonl", measure_and_compute=_nan_free).true_pose \
+    assert run_virtual_cell_once(tmp_path / "k.jsonl", measure_and_compute=_zero_step).true_pose \
         is None
 
 
-def _nan_free(job):
+def _zero_step(job):
     return CellResult((0.0,) * 6, (1e-4,) * 6, 7)
