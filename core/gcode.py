@@ -227,7 +227,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     code = b.copy()
     spans = _comment_spans(data, b)
     if spans:
-        if len(spans) < 4096:
+        if len(spans) < 1 << 18:                  # slice assignments: cheap per comment
             for s, e in spans:
                 code[s:e] = 32
         else:
@@ -249,7 +249,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- character classes and words: a letter immediately followed by a run of number
     # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
-    lp, rs, re_, dot_of_run, twodots, sign_at, bad_at = _tokenise(code, line_start)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at = _tokenise(code, line_start)
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
         hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
@@ -257,7 +257,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if len(rs) != len(lp) or np.any(rs != lp + 1):
         _word_error(code, lp, rs, re_, line_of, filename)
     wlet = ((code[lp] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
-    wline = line_of(lp).astype(np.int32)
 
     # -- number syntax: sign only first, at most one point, at least one digit
     if sign_at >= 0:
@@ -547,7 +546,7 @@ def _tokenise(code: np.ndarray, line_start: np.ndarray, chunk: int = 1 << 18):
 
     Returns letter positions, number runs [start, end) (``start = letter + 1`` when the code is
     well-formed, checked by the caller), per run the position of its point (-1 if none), per
-    run whether it has more than one point, the position of the first sign that does not lead
+    run whether it has more than one point, the 0-based line of each letter, the position of the first sign that does not lead
     its number (-1 if none) and of the first character that is none of letter, number, blank.
     """
     n = len(code)
@@ -559,11 +558,12 @@ def _tokenise(code: np.ndarray, line_start: np.ndarray, chunk: int = 1 << 18):
             break
         j = int(np.searchsorted(line_start, want))      # next line start at or after `want`
         cuts.append(int(line_start[j]) if j < len(line_start) else n)
-    out = [[], [], [], [], []]
+    out = [[], [], [], [], [], []]
     bad_at = sign_at = -1
     u8 = np.uint8
     for a, b in zip(cuts[:-1], cuts[1:]):
         c = code[a:b]
+        line0 = int(np.searchsorted(line_start, a, side="right")) - 1   # chunk starts a line
         letter = ((c | u8(32)) - u8(97)) < u8(26)
         numc = ((c - u8(43)) < u8(15)) & (c != 44) & (c != 47)     # + - . and digits
         if bad_at < 0:
@@ -600,7 +600,9 @@ def _tokenise(code: np.ndarray, line_start: np.ndarray, chunk: int = 1 << 18):
         out[2].append(re_ + a)
         out[3].append(dot)
         out[4].append(two)
-    empty = (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool),)
+        nlc = np.cumsum(c == 10, dtype=np.int32)                    # line of each letter
+        out[5].append(nlc[lp] + np.int32(line0))
+    empty = (np.zeros(0, np.int64),) * 4 + (np.zeros(0, bool), np.zeros(0, np.int32))
     return tuple(np.concatenate(o) if o else e for o, e in zip(out, empty)) + (sign_at, bad_at)
 
 
