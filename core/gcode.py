@@ -184,8 +184,9 @@ class Program:
                 f"({n_arc} arcs, {int(self.incremental.sum())} in G91), axes {' '.join(self.axes)}")
 
 
-def _fail(what: str, program_lines: np.ndarray | int, filename: str):
-    raise InputError(what, file=filename, line=int(program_lines) + 1)
+def _fail(what: str, line_index, filename: str):
+    """Raise InputError for a 0-based line index (the message shows it 1-based)."""
+    raise InputError(what, file=filename, line=int(line_index) + 1)
 
 
 def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
@@ -351,8 +352,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             _fail(f"two {label} G codes in one block", ln, filename)
         out = np.full(n_lines, -1, np.int64)
         wout = np.full(n_lines, -1, np.int64)
-        out[lines_] = [mapping[int(v)] for v in vals] if len(vals) < 64 else \
-            _map_codes(vals, mapping)
+        out[lines_] = _map_codes(vals, mapping)
         wout[lines_] = words
         return out, wout
 
