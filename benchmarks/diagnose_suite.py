@@ -18,7 +18,6 @@ Writes its section of docs/benchmarks.md and the figures block of docs/diagnose.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import tempfile
@@ -164,8 +163,10 @@ def markdown(results, tim, wall_total, quick) -> str:
              "clock starting up to 2 s apart; 3-5 temperatures and 1-4 auxiliary columns logged; "
              "um headers and 1-5 nm quantisation in some.", "",
              "| criterion | result | target |", "|---|---|---|",
-             f"| right effect set named | {ok_eff}/{len(eff)} = {100 * ok_eff / max(len(eff), 1):.1f} % | >= 95 % |",
-             f"| nothing named on null cases | {ok_null}/{len(null)} = {100 * ok_null / max(len(null), 1):.1f} % | >= 95 % |",
+             f"| right effect set named | {ok_eff}/{len(eff)} = "
+             f"{100 * ok_eff / max(len(eff), 1):.1f} % | >= 95 % |",
+             f"| nothing named on null cases | {ok_null}/{len(null)} = "
+             f"{100 * ok_null / max(len(null), 1):.1f} % | >= 95 % |",
              f"| held-out RMS after / noise floor (effect cases) | median {np.median(ratios):.2f}, "
              f"95th pct {np.percentile(ratios, 95):.2f}, max {ratios.max():.2f}; "
              f"{np.mean(ratios <= 1.5) * 100:.1f} % <= 1.5 | <= 1.5 |",

@@ -100,6 +100,13 @@ def test_two_effects_on_quantised_um_recording():
     assert res.noise_floor["z"] >= 5e-5 / math.sqrt(12) * 0.999
     b = _one(res, "backlash").params["backlash_mm"]
     assert b == pytest.approx(case.truth[0][2]["backlash_mm"], rel=0.03)
+    # located and said in words: x depends on its direction of motion, z drifts with an input
+    # (which one correlates most is not a test of cause: the logged temperatures are smooth)
+    wx = " ".join(m.where for m in res.mismatch if m.output == "x")
+    wz = " ".join(m.where for m in res.mismatch if m.output == "z")
+    assert "direction of motion of x" in wx
+    assert "z residual correlates most with" in wz
+    assert not [m for m in res.mismatch if m.output == "y"]
 
 
 def test_large_clock_offset_and_other_rates():

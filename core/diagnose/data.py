@@ -206,8 +206,8 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None)
     bad = ~np.isfinite(data)
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        raise InputError(f"value is {data[r, c]} (expected a finite number)", path, linenos[r] if linenos else None,
-                         field=cols[c][0])
+        raise InputError(f"value is {data[r, c]} (expected a finite number)", path,
+                         linenos[r] if linenos else None, field=cols[c][0])
     columns = {}
     t = None
     for j, (hdr, key, unit) in enumerate(cols):
@@ -229,14 +229,15 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None)
         if kind is None:  # a unit we do not know: keep the values as written
             kind, cunit = "other", unit
         else:
-            cunit = INTERFACE_UNIT[kind] if unit or kind != "other" else ""
+            cunit = INTERFACE_UNIT[kind]
         q = _quantum(raw)
         columns[key] = Column(key, hdr, kind, cunit, raw * fac + off, q * abs(fac))
     dt = np.diff(t)
     if not np.all(dt > 0):
         i = int(np.argmax(~(dt > 0)))
         raise InputError(f"t must increase strictly: {t[i + 1]:g} s follows {t[i]:g} s "
-                         "(sort the rows or remove duplicates)", path, linenos[i + 1] if linenos else None, field="t")
+                         "(sort the rows or remove duplicates)", path,
+                         linenos[i + 1] if linenos else None, field="t")
     return Table(str(path), t, columns)
 
 

@@ -22,6 +22,8 @@ def _val(v: float, key: str) -> str:
     """A parameter value for humans: mm -> um, small angles -> urad, ratios -> ppm."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "n/a"
+    if key.endswith("_mm") and abs(v) < 1e-3:
+        return f"{v * 1e6:.4g} nm"
     if key.endswith("_mm") and abs(v) < 1.0:
         return f"{v * 1e3:.4g} um"
     if key.endswith("_deg") and key != "phase_deg" and abs(v) < 0.1:
@@ -37,7 +39,7 @@ def _val(v: float, key: str) -> str:
 
 def _len(v: float, unit: str) -> str:
     if unit == "mm":
-        return f"{v * 1e3:.4g} um"
+        return f"{v * 1e6:.4g} nm" if abs(v) < 1e-3 else f"{v * 1e3:.4g} um"
     if unit == "deg":
         return f"{math.radians(v) * 1e6:.4g} urad"
     return f"{v:.4g} {unit}"

@@ -292,6 +292,12 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             break
         if not accepted:
             break
+    # exchange pass: greedy steps can pick a combination that mimics a simpler truth (a
+    # workpiece rotation plus a squareness of the other axis reproduce one squareness); try
+    # replacing each chosen effect by the best few candidates screened on what it explained
+    if len(model) >= 2:
+        model, etas, cur, cv_cur = _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows,
+                                             coarse_cache, evidence, log)
     # backward pass: an effect that a later one made redundant goes
     changed = True
     while changed and len(model) > 1:
@@ -313,3 +319,45 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             changed = True
     final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else cur
     return final, evidence, log
+
+
+def _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows, coarse_cache, evidence, log):
+    """Replace one chosen effect by another candidate while that lowers BIC by the threshold."""
+    nlog = math.log(max(srows.sum(), 2))
+    for _ in range(3):
+        neff = n_effective(ctx, cur.resid)
+        b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
+        best = None
+        for i, e in enumerate(model):
+            rest, rest_etas = model[:i] + model[i + 1:], etas[:i] + etas[i + 1:]
+            base = cur.resid + cur.contrib[i]
+            rss_base = float(base[srows] @ base[srows])
+            scored = []
+            for c in cands:
+                if c in model or _conflicts(c, rest):
+                    continue
+                eta0 = coarse_cache.get(c.label)
+                if eta0 is None:
+                    continue
+                # at the nonlinear parameters found when screening: only the amplitudes move
+                f1 = fit(ctx, [c], [eta0], srows, max_nfev=1, target=base) if len(eta0) else \
+                    fit(ctx, [c], [eta0], srows, target=base)
+                scored.append((rss_base - f1.rss - c.n_params() * nlog, c))
+            scored.sort(key=lambda g: -g[0])
+            for _, c in scored[:2]:
+                f = fit(ctx, rest + [c], rest_etas + [coarse_cache[c.label]], max_nfev=st.max_nfev)
+                d = bic(f.rss, f.n_rows, f.k, neff) - b_cur
+                if d < -st.bic_threshold and (best is None or d < best[0]):
+                    best = (d, i, c, f)
+        if best is None:
+            break
+        d, i, c, f = best
+        m_new = model[:i] + model[i + 1:] + [c]
+        cv_new, _ = cross_validate(ctx, m_new, f.etas, st.folds)
+        if cv_new > cv_cur * (1.0 + st.cv_min_gain):
+            break
+        log.append(f"exchange: {c.label} replaces {model[i].label} (BIC {d:.1f})")
+        old = evidence.pop(model[i].label, {})
+        evidence[c.label] = dict(old, delta_bic_exchange=round(float(d), 2))
+        model, etas, cur, cv_cur = m_new, list(f.etas), f, cv_new
+    return model, etas, cur, cv_cur
