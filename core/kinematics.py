@@ -60,6 +60,12 @@ class Pose:
         return len(self.p)
 
 
+def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Stacked matrix products A[n] @ B[n]: einsum with optimize=True runs several times faster
+    than matmul on stacks of small matrices."""
+    return np.einsum("nij,njk->nik", A, B, optimize=True)
+
+
 def rotvec_matrix(w: np.ndarray) -> np.ndarray:
     """Rotation matrices (N,3,3) of rotation vectors w (N,3) in rad (Rodrigues, exact)."""
     w = np.asarray(w, dtype=float)
@@ -74,7 +80,8 @@ def rotvec_matrix(w: np.ndarray) -> np.ndarray:
     K[..., 0, 1], K[..., 0, 2], K[..., 1, 0] = -z, y, z
     K[..., 1, 2], K[..., 2, 0], K[..., 2, 1] = -x, -y, x
     eye = np.eye(3)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    KK = _mm(K, K) if K.ndim == 3 else K @ K
+    return eye + a[..., None, None] * K + b[..., None, None] * KK
 
 
 def axis_rotation(u, angle_rad: np.ndarray) -> np.ndarray:
@@ -145,18 +152,18 @@ def chain(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = Tr
             before = (ax.side == "workpiece") != ax.is_rotary  # D_i . N_i instead of N_i . D_i
             if before:  # (Re, te) . (Rg, tg)
                 tg = np.einsum("nij,nj->ni", Re, tg) + te
-                Rg = Re if Rg is None else Re @ Rg
+                Rg = Re if Rg is None else _mm(Re, Rg)
             elif Rg is None:
                 Rg, tg = Re, te + tg
             else:  # (Rg, tg) . (Re, te)
                 tg = np.einsum("nij,nj->ni", Rg, te) + tg
-                Rg = Rg @ Re
+                Rg = _mm(Rg, Re)
         # Compose: (R, t) . (Rg, tg)
         if Rg is None:
             t = t + (tg if R is None else np.einsum("nij,nj->ni", R, tg))
         else:
             t = t + (tg if R is None else np.einsum("nij,nj->ni", R, tg))
-            R = Rg if R is None else R @ Rg
+            R = Rg if R is None else _mm(R, Rg)
     if R is None:
         R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
     return R, t
@@ -226,7 +233,7 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
             dq[:, k] += h
             J[:, :, k] = (res(dq, active, rigid) - r0) / h
         JT = np.transpose(J, (0, 2, 1))
-        A = JT @ J + lam * np.eye(m)
+        A = _mm(JT, J) + lam * np.eye(m)
         K = np.linalg.solve(A, JT)
         Ainv = np.linalg.inv(A)
         r = res(qa, active, errors)
@@ -350,7 +357,7 @@ def _linear_axis_matrix(machine: Machine, q: np.ndarray):
         u = np.asarray(ax.direction)
         if ax.is_rotary:
             Rg = axis_rotation(u, np.radians(q[:, i]))
-            R = Rg if R is None else R @ Rg
+            R = Rg if R is None else _mm(R, Rg)
         else:
             cols.append(np.broadcast_to(u, (n, 3)) if R is None else R @ u)
     if R is None:
