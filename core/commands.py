@@ -26,31 +26,37 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, convert_inch=convert_inch)
     n_blocks = len(prog)
 
+    calls = [0]
+
     def transform(q):
+        # gcode.rewrite calls this with [start, block ends 1..N, arc samples] first and, when
+        # arcs are linearised, a second time with segment points only.
+        first = calls[0] == 0
+        calls[0] += 1
         out = np.empty_like(q)
         for s in range(0, len(q), CHUNK):
             try:
                 out[s:s + CHUNK] = retarget(machine, q[s:s + CHUNK], errors)
             except (LimitError, ConvergenceError, TableRangeError) as exc:
                 i = s + exc.index
-                where = (int(prog.line[i - 1]) if 1 <= i <= n_blocks and len(q) > n_blocks else None)
-                raise InputError(f"cannot compensate: {exc}", filename, where) from None
+                if first and 1 <= i <= n_blocks:
+                    raise InputError(f"cannot compensate: {exc}", filename, int(prog.line[i - 1])) from None
+                where = "an interior point of an arc" if first else "an interior point of a linearised arc"
+                raise InputError(f"cannot compensate {where}: {exc}", filename) from None
             if progress:
                 progress(min(s + CHUNK, len(q)), len(q))
         return out
 
     res = {a.name: a.resolution for a in machine.axes}
-    new_text = gcode.rewrite(prog, transform, resolution=res, chordal_tol=chordal_tol)
+    new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=chordal_tol)
     # Check the result as the machine will run it: re-read the written program (rounded
     # numbers, linearised arcs) and put it through the forward model with the errors.
     target = forward(machine, prog.position)
     before = np.linalg.norm(forward(machine, prog.position, errors).p - target.p, axis=1)
     after_prog = gcode.parse(new_text, axes=machine.axis_names, filename=filename)
-    if len(after_prog) == n_blocks:
-        after = np.linalg.norm(forward(machine, after_prog.position, errors).p - target.p, axis=1)
-    else:  # arcs were linearised: compare at the original block end points
-        idx = np.searchsorted(after_prog.line, prog.line, side="right") - 1
-        after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)
+    # the output block that ends each input block (linearised arcs add lines after their block)
+    idx = np.searchsorted(after_prog.line, out_line)
+    after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines,
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
@@ -63,7 +69,8 @@ def _cmd_compensate(args) -> int:
     errors = load_errors(args.errors)
     src = Path(args.program)
     try:
-        text = src.read_text(encoding="utf-8")
+        with open(src, encoding="utf-8", newline="") as fh:  # keep CR LF byte for byte
+            text = fh.read()
     except FileNotFoundError:
         raise InputError("NC program not found", src) from None
     except UnicodeDecodeError as exc:

@@ -109,3 +109,29 @@ def test_import_is_light():
             "assert not {'cadquery', 'fmpy', 'pymodbus', 'matplotlib'} & set(sys.modules), sorted(sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
+
+
+def test_shipped_example_after_error_with_linearised_arcs(tmp_path):
+    """The README example: arcs tilted by the workpiece rotation are linearised, and the
+    before/after figures compare each input block with the output block that ends it."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    out = tmp_path / "g.nc"
+    r = run("compensate", root / "examples/programs/groove5x.nc", "-m", "robonano-a0ib",
+            "-e", root / "examples/errors/setting-example.toml", "-o", out)
+    assert r.returncode == 0, r.stderr
+    after_nm = float(r.stdout.split("after  compensation: max")[1].split("nm")[0])
+    before_um = float(r.stdout.split("before compensation: max")[1].split("um")[0])
+    assert after_nm < 2.0 and before_um > 300
+    assert "linearised" in out.read_text() or len(out.read_text().splitlines()) > 93
+
+
+def test_crlf_program_kept_byte_for_byte(tmp_path):
+    prog = tmp_path / "crlf.nc"
+    prog.write_bytes(PROGRAM.replace("\n", "\r\n").encode())
+    err = tmp_path / "zero.toml"
+    err.write_text("")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes() == prog.read_bytes()
