@@ -137,12 +137,13 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
     # correlated residuals (N / N_effective)
     dof = max(final.n_rows - final.k, 1)
     s2 = final.rss / dof
-    infl = ctx.N / n_effective(ctx, final.resid)
+    infl = ctx.N / n_effective(ctx)
     cov_eta_all = None
     if final.jac_eta is not None and final.jac_eta.size:
         cov_eta_all = np.linalg.pinv(final.jac_eta.T @ final.jac_eta) * s2 * infl
     cov_beta_all = final.gram_inv * s2 * infl if final.gram_inv is not None else None
     effects = []
+    clock_fine = (0.0, 0.0)
     ie = ib = 0
     for c, eta, beta, contrib in zip(final.cands, final.etas, final.betas, final.contrib):
         ne, nb = len(eta), len(beta)
@@ -152,6 +153,11 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
         ib += nb
         params, unc = c.physical(ctx, eta, beta, ce, cb)
         rms = {o: _rms(contrib[ctx.slices[o]] * ctx.sigma[o]) for o in c.outputs}
+        if c.name == "time_offset" and al.clock_offset:
+            # the clocks were aligned: what is left of the offset refines that alignment (a
+            # latency on top of another clock start cannot be told from it)
+            clock_fine = (params["offset_s"], unc["offset_s"])
+            continue
         effects.append(EffectResult(c.name, tuple(c.outputs), tuple(c.inputs), params, unc,
                                     evidence.get(c.label, {}), rms))
 
@@ -162,7 +168,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
         # held-out prediction: fold models fitted on the selection subset without the block,
         # evaluated on every sample of the block
         folds = []
-        cross_validate(ctx_sel, final.cands, final.etas, st.folds, max_nfev=20, fits=folds)
+        cross_validate(ctx_sel, final.cands, final.etas, st.folds, fits=folds)
         starts = [f.extra["held"][0] for f in folds] + [np.inf]
         for i, f in enumerate(folds):
             inblk = (al.t >= starts[i]) & (al.t < starts[i + 1])
@@ -194,7 +200,9 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
                      m.where + "".join(f"; overall: {c}" for c in cond[m.output]), m.rms)
             for m in mism]
     alignment = {"grid_step_s": al.dt, "samples": al.n, "t_start": float(al.t[0]),
-                 "t_end": float(al.t[-1]), "coarse_offset_s": al.offset0,
+                 "t_end": float(al.t[-1]), "clock_offset_s": al.clock_offset + clock_fine[0],
+                 "clock_offset_uncertainty_s": clock_fine[1],
+                 "coarse_offset_s": al.offset0,
                  "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
                  "folds": st.folds, "quantum": dict(al.quantum),
                  "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC")}

@@ -55,6 +55,8 @@ def summary_text(res) -> str:
     a = res.alignment
     lines = [f"diagnosis of {len(res.outputs)} output(s) over {a['samples']} samples "
              f"({a['t_start']:.3f}..{a['t_end']:.3f} s, step {a['grid_step_s'] * 1e3:.3g} ms)"]
+    if a.get("clock_offset_s"):
+        lines.append(f"  REC's clock aligned onto SIM's: REC time - {a['clock_offset_s']:.6g} s")
     for o in res.outputs:
         u = res.units[o]
         lines.append(f"  {o}: noise floor {_len(res.noise_floor[o], u)}, RMS "
@@ -85,7 +87,9 @@ def markdown(res, plot_name: str | None = None) -> str:
            f"SIM `{a['sim']}` ({a['sim_rate_hz']:.4g} Hz) against REC `{a['rec']}` "
            f"({a['rec_rate_hz']:.4g} Hz): {a['samples']} common samples from {a['t_start']:.3f} "
            f"to {a['t_end']:.3f} s every {a['grid_step_s'] * 1e3:.4g} ms. "
-           f"Coarse clock offset from cross-correlation: {a['coarse_offset_s'] * 1e3:.4g} ms.", "",
+           f"Clock offset removed before the comparison (REC time minus SIM time, from the "
+           f"cross-correlation of the velocities): {a.get('clock_offset_s', 0.0):.6g} s; remaining "
+           f"coarse offset {a['coarse_offset_s'] * 1e3:.4g} ms (left to `time_offset`).", "",
            "## Fit", "",
            "| output | noise floor | RMS before | RMS after | held-out before | held-out after |",
            "|---|---|---|---|---|---|"]

@@ -115,7 +115,7 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
 
     jac = None
     x = x0
-    if len(x0):
+    if len(x0) and max_nfev > 0:
         # keep the start strictly inside the box: least_squares requires it
         span = np.asarray(hi) - np.asarray(lo)
         x0 = np.clip(x0, np.asarray(lo) + 1e-9 * span, np.asarray(hi) - 1e-9 * span)
@@ -140,21 +140,57 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
     return Fit(list(cands), etas, betas, r, float(rr @ rr), len(rr), pred_parts, jac, Ginv)
 
 
-def rho1(ctx: Context, r: np.ndarray) -> float:
-    """Lag-one autocorrelation of a residual, averaged over outputs (>= 0)."""
+def noise_rho(ctx: Context, r: np.ndarray) -> float:
+    """Lag-one autocorrelation of the noise in a residual, averaged over outputs (0..0.99).
+
+    From first differences taken where the simulated axes are at rest (every effect of the
+    library is constant or slow there, so the differences are noise; elsewhere an unexplained
+    effect would look like strongly correlated noise); from all samples when there are fewer
+    than 30 such pairs.  For AR(1) noise of lag-one correlation rho, the differences have
+    lag-one correlation -(1 - rho)/2.  Differences are clipped at 5 robust sigmas.
+    """
+    al = ctx.al
+    still = np.ones(ctx.n, bool)
+    for o in ctx.outputs:
+        p = al.sim[o][ctx.idx]
+        dp = np.abs(np.diff(p))
+        ok = np.concatenate([[True], dp <= 1e-7 * max(float(np.ptp(p)), 1e-12)])
+        still &= ok & np.concatenate([ok[1:], [True]])
+    # pairs of consecutive differences inside a rest: samples k, k+1, k+2 all still
+    trip = still[:-2] & still[1:-1] & still[2:]
     vals = []
     for sl in ctx.slices.values():
-        x = r[sl] - r[sl].mean()
-        d = float(x @ x)
-        if d > 0 and len(x) > 2:
-            vals.append(float(x[1:] @ x[:-1]) / d)
+        rs = r[sl]
+        d = np.diff(rs)
+        if trip.sum() >= 30:
+            a, b = d[:-1][trip], d[1:][trip]
+        else:
+            a, b = d[:-1], d[1:]
+        if len(a) < 8:
+            continue
+        allv = np.concatenate([a, b])
+        med = np.median(allv)
+        sd = 1.4826 * np.median(np.abs(allv - med))
+        if sd == 0:
+            continue
+        a = np.clip(a - med, -5 * sd, 5 * sd)
+        b = np.clip(b - med, -5 * sd, 5 * sd)
+        den = float(np.sqrt((a @ a) * (b @ b)))
+        if den > 0:
+            vals.append(1.0 + 2.0 * float(a @ b) / den)
     return float(np.clip(np.mean(vals), 0.0, 0.99)) if vals else 0.0
 
 
-def n_effective(ctx: Context, r: np.ndarray) -> float:
-    """Samples worth of independent information in a residual with AR(1)-like correlation."""
-    rho = rho1(ctx, r)
-    return max(ctx.N * (1 - rho) / (1 + rho), 10.0)
+def n_effective(ctx: Context) -> float:
+    """Samples worth of independent information, given the noise's lag-one correlation.
+
+    Estimated once per context from the raw residual REC - SIM (the noise does not change with
+    the model), so every BIC of a selection uses the same value.
+    """
+    if getattr(ctx, "_neff", None) is None:
+        rho = noise_rho(ctx, ctx.z0)
+        ctx._neff = max(ctx.N * (1 - rho) / (1 + rho), 10.0)
+    return ctx._neff
 
 
 def bic(rss: float, n_rows: int, k: int, neff: float) -> float:
@@ -166,9 +202,14 @@ def blocks(n: int, folds: int) -> list[np.ndarray]:
     return [np.arange(edges[i], edges[i + 1]) for i in range(folds)]
 
 
-def cross_validate(ctx: Context, cands: list, etas: list, folds: int, max_nfev: int = 25,
+def cross_validate(ctx: Context, cands: list, etas: list, folds: int, max_nfev: int = 0,
                    fits: list | None = None):
     """Fit on all but one contiguous block of time, predict it.
+
+    By default the nonlinear parameters stay at `etas` (fitted on all samples) and only the
+    amplitudes are refitted per fold: refitting a time constant on 80 % of a recording can run
+    off to a bound where its columns are nearly collinear and the prediction of the held-out
+    block explodes, which would reject a right effect for a numerical reason.
 
     Returns (SSE of the held-out predictions, out-of-fold whitened residual); the fold fits are
     appended to `fits` if given (with the held-out time span in fit.extra).
@@ -256,9 +297,9 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             trials.append((c, swap, m_new, f))
         if not trials:
             break
-        # one effective sample size for every trial of the step (from the best fit's residual):
-        # BIC values computed with different N_eff would not be comparable
-        neff = n_effective(ctx, min(trials, key=lambda g: g[3].rss)[3].resid)
+        # one effective sample size for every BIC (from the noise, not from what is left of the
+        # effects): values computed with different N_eff would not be comparable
+        neff = n_effective(ctx)
         b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
         trials = sorted(((bic(f.rss, f.n_rows, f.k, neff) - b_cur, c, swap, m_new, f)
                          for c, swap, m_new, f in trials), key=lambda g: g[0])
@@ -302,7 +343,7 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
     changed = True
     while changed and len(model) > 1:
         changed = False
-        neff = n_effective(ctx, cur.resid)
+        neff = n_effective(ctx)
         b_full = bic(cur.rss, cur.n_rows, cur.k, neff)
         worst = None
         for i, c in enumerate(model):
@@ -325,7 +366,7 @@ def _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows, coarse_cache, evi
     """Replace one chosen effect by another candidate while that lowers BIC by the threshold."""
     nlog = math.log(max(srows.sum(), 2))
     for _ in range(3):
-        neff = n_effective(ctx, cur.resid)
+        neff = n_effective(ctx)
         b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
         best = None
         for i, e in enumerate(model):
