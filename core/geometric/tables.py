@@ -63,14 +63,6 @@ class ComponentRun:
     at: dict = field(default_factory=dict)
     mount: str = "tool"
 
-    @property
-    def direction(self) -> str:
-        return self.component[1]
-
-    @property
-    def is_angular(self) -> bool:
-        return self.component[1] in "ABC"
-
 
 @dataclass(frozen=True)
 class MeasurementSet:
