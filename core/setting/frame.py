@@ -171,14 +171,6 @@ def _estimate_batch(M, design, method):
     return R, mc[:, 0] - dc @ R.transpose(0, 2, 1)
 
 
-def _angles_batch(R):
-    # errors.angles_from_matrix over a stack
-    b = np.arcsin(np.clip(-R[:, 2, 0], -1, 1))
-    a = np.arctan2(R[:, 2, 1], R[:, 2, 2])
-    c = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-    return np.degrees(np.stack([a, b, c], axis=-1))
-
-
 def _estimate(measured, design, method) -> tuple[np.ndarray, np.ndarray]:
     if method == "paper":
         R = paper_rotation(measured, design)
@@ -190,10 +182,6 @@ def _estimate(measured, design, method) -> tuple[np.ndarray, np.ndarray]:
 def _chi2_quantile(p: float, dof: int) -> float:
     from scipy.stats import chi2
     return float(chi2.ppf(p, dof))
-
-
-def _params(R, t) -> np.ndarray:
-    return np.r_[t, angles_from_matrix(R)]
 
 
 @dataclass(frozen=True)
@@ -400,7 +388,8 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
     E = np.eye(3 * n).reshape(3 * n, n, 3) * h
     M = np.concatenate([m[None] + E, m[None] - E])
     Rb, tb = _estimate_batch(M, d, method)
-    P = np.concatenate([tb, _angles_batch(Rb)], axis=1)
+    # angles_from_matrix indexes r[i, j]: a (3, 3, n) stack gives (3, n) angles
+    P = np.concatenate([tb, angles_from_matrix(Rb.transpose(1, 2, 0)).T], axis=1)
     Rs = (M - (d @ Rb.transpose(0, 2, 1) + tb[:, None, :])).reshape(len(M), -1)
     Jp = ((P[:3 * n] - P[3 * n:]) / (2 * h)).T
     Jr = ((Rs[:3 * n] - Rs[3 * n:]) / (2 * h)).T
