@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import InputError, MtcompError
+from ..errors import rotation_matrix_xyz
 from .tool_plan import (FEATURES, SHEET_COLUMNS, Groove, Plan, PlanOptions, commands_for_points,  # noqa: F401
                         groove_width, load_plan, make_plan, nc_programs, plot_layout, sheet_template,
                         write_plan)
@@ -223,8 +224,8 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
     origin = {t: rng.uniform(-frame_offset, frame_offset, 2) if frame_offset else np.zeros(2) for t in plan.tests()}
     turn = {}
     for t in plan.tests():
-        a = np.radians(rng.uniform(-frame_rotation, frame_rotation)) if frame_rotation else 0.0
-        turn[t] = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        a = rng.uniform(-frame_rotation, frame_rotation) if frame_rotation else 0.0
+        turn[t] = rotation_matrix_xyz((0.0, 0.0, a))[:2, :2]     # in-plane turn of the face frame
     pts = []
     for gid, feat in plan.features():
         c = cuts[gid]

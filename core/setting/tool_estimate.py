@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._io import InputError
+from ..errors import rotation_matrix_xyz
 from .tool_plan import Plan, commands_for_points
 
 COMPONENTS = ("t_x", "t_y", "t_z")
@@ -97,8 +98,7 @@ def c_closed_form(c_from, c_to, gap):
     """(t_x, t_y) mm from the gap (du, dv) mm at a triangle vertex between the end of the side cut
     at C = c_from and the start of the side cut at C = c_to (deg): gap = (Rz(c_to) - Rz(c_from)) t."""
     def rz(c):
-        c = np.radians(c)
-        return np.array([[np.cos(c), -np.sin(c)], [np.sin(c), np.cos(c)]])
+        return rotation_matrix_xyz((0.0, 0.0, c))[:2, :2]
     return tuple(np.linalg.solve(rz(c_to) - rz(c_from), np.asarray(gap, float)))
 
 
