@@ -314,6 +314,9 @@ def test_fmu_state_get_set_serialize_repeats_identically(built):
         assert np.array_equal(first, np.array(third))
         with pytest.raises(FMICallException):  # a state of another model is refused
             r2.fmu.deSerializeFMUstate(b"\0" * len(blob))
+        # right header (magic, size, mode) but no String value terminated: refused, not trusted
+        with pytest.raises(FMICallException):
+            r2.fmu.deSerializeFMUstate(bytes(blob[:16]) + b"A" * (len(blob) - 16))
     finally:
         r2.close()
 

@@ -378,8 +378,11 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *state)
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_t *size)
 {
-    UNUSED(c);
     UNUSED(state);
+    if (!size) {
+        inst_log((Instance *)c, fmi2Error, "logStatusError", "fmi2SerializedFMUstateSize: size is NULL");
+        return fmi2Error;
+    }
     *size = sizeof(ModelState);
     return fmi2OK;
 }
@@ -396,6 +399,15 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte b
     return fmi2OK;
 }
 
+static int state_is_sane(const ModelState *st)
+{
+    int k;
+    if (st->mode < MODE_INSTANTIATED || st->mode > MODE_ERROR) return 0;
+    for (k = 0; k < MODEL_NS; k++)
+        if (!memchr(st->s[k], 0, MODEL_SLEN)) return 0;
+    return 1;
+}
+
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *state)
 {
     Instance *inst = (Instance *)c;
@@ -409,6 +421,12 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size
     memcpy(&tmp, bytes, sizeof tmp);
     if (tmp.magic != MODEL_MAGIC || tmp.size != sizeof(ModelState)) {
         inst_log(inst, fmi2Error, "logStatusError", "serialized FMU state belongs to another model or build");
+        return fmi2Error;
+    }
+    /* The bytes come from outside: a state that would later make the FMU read past a String
+     * variable or run in an unknown mode is refused here rather than trusted. */
+    if (!state_is_sane(&tmp)) {
+        inst_log(inst, fmi2Error, "logStatusError", "serialized FMU state is corrupt (mode or String values)");
         return fmi2Error;
     }
     if (!*state) *state = malloc(sizeof(ModelState));

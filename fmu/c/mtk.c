@@ -290,10 +290,14 @@ int mtk_load_table(mtk_model *m, const char *axis_name, const char *path, char *
             continue;
         }
         if (t->n == cap) {
+            /* keep the old blocks on failure so that `bad` frees them */
+            double *pos, *val;
             cap = cap ? 2 * cap : 64;
-            t->pos = (double *)realloc(t->pos, cap * sizeof(double));
-            t->val = (double *)realloc(t->val, 6 * cap * sizeof(double));
-            if (!t->pos || !t->val) goto bad;
+            pos = (double *)realloc(t->pos, cap * sizeof(double));
+            if (pos) t->pos = pos;
+            val = pos ? (double *)realloc(t->val, 6 * cap * sizeof(double)) : NULL;
+            if (val) t->val = val;
+            if (!pos || !val) goto bad;
         }
         {
             int k;
@@ -539,7 +543,7 @@ static int solve(int n, double *A, double *B, int k)
     return 1;
 }
 
-static int errors_zero(const mtk_model *m, const mtk_errors *e, int *has_geo)
+static int errors_zero(const mtk_model *m, const mtk_errors *e)
 {
     int i, k, geo = 0, rigid = 0;
     for (k = 0; k < 3; k++)
@@ -548,7 +552,6 @@ static int errors_zero(const mtk_model *m, const mtk_errors *e, int *has_geo)
         if (e->use_tables && m->table[i]) geo = 1;
         for (k = 0; k < 6; k++) geo |= (e->loc[i][k] != 0.0);
     }
-    *has_geo = geo;
     return !rigid && !geo;
 }
 
@@ -597,7 +600,7 @@ static int linearise(const mtk_model *m, const mtk_errors *rigid, const double *
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual_out, char *err)
 {
-    int n = m->n_axes, rows, i, k, it = 0, rc = MTK_OK, has_geo = 0, done = 0;
+    int n = m->n_axes, rows, i, k, it = 0, rc = MTK_OK, done = 0;
     double K[MTK_MAX_AXES * 6], Ainv[MTK_MAX_AXES * MTK_MAX_AXES], r[6], nr, resmax = 0.0;
     mtk_errors rigid;
     target_t tg;
@@ -611,7 +614,7 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
             return MTK_E_ARG;
         }
     }
-    if (!e || errors_zero(m, e, &has_geo)) {
+    if (!e || errors_zero(m, e)) {
         memcpy(q, q_prog, n * sizeof(double));
         goto limits;
     }
