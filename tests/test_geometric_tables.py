@@ -181,6 +181,14 @@ def test_lattice_and_iso_tables_round_trip(tmp_path, vmc, clean):
     np.testing.assert_array_equal(back.correction, lat.correction)
     for a, b in zip(back.nodes, lat.nodes):
         np.testing.assert_array_equal(a, b)
+    bad = (tmp_path / "lat.csv").read_text().splitlines()
+    k = next(i for i, ln in enumerate(bad) if ln.startswith("0,0,0,"))
+    cells = bad[k].split(",")
+    cells[7] = "x1"
+    bad[k] = ",".join(cells)
+    (tmp_path / "bad.csv").write_text("\n".join(bad) + "\n")
+    with pytest.raises(InputError, match=rf"bad.csv:{k + 1} \[d{lat.axes[1]}\]: expected a number, got 'x1'"):
+        ct.LatticeTable.from_csv(tmp_path / "bad.csv")
     files = ct.write_iso_tables(clean.geometric, tmp_path, "comp")
     t = AxisErrorTable.from_csv(tmp_path / "comp_X.csv")
     assert t == clean.geometric.tables["X"]

@@ -121,12 +121,15 @@ class LatticeTable:
         axes = tuple(hdr[3:6])
         data = []
         for n, ln in rows[1:]:
-            try:
-                vals = [float(x) for x in ln.split(",")]
-            except ValueError:
-                raise InputError("malformed number", path, n) from None
-            if len(vals) != 9:
-                raise InputError(f"expected 9 values, got {len(vals)}", path, n)
+            cells = ln.split(",")
+            if len(cells) != 9:
+                raise InputError(f"expected 9 values, got {len(cells)}", path, n)
+            vals = []
+            for name, x in zip(hdr, cells):
+                try:
+                    vals.append(float(x))
+                except ValueError:
+                    raise InputError(f"expected a number, got {x.strip()!r}", path, n, field=name.strip()) from None
             data.append(vals)
         d = np.array(data)
         idx = d[:, :3].astype(int)
