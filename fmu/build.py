@@ -72,6 +72,14 @@ class Var:
     max: float | None = None
 
     @property
+    def effective_variability(self) -> str:
+        if self.variability is not None:
+            return self.variability
+        if self.causality == "parameter":
+            return "fixed"
+        return "continuous" if self.type == "Real" else "discrete"
+
+    @property
     def initial(self) -> str | None:
         if self.causality == "parameter":
             return "exact"
@@ -93,6 +101,25 @@ UNITS = {
     "K.min": ({"K": 1, "s": 1}, 60.0, 0.0, {}),
     "1": ({}, 1.0, 0.0, {}),
 }
+
+
+def _unit_definitions(root: ET.Element, used) -> None:
+    """<UnitDefinitions> of the units in `used` (same element in FMI 2.0 and 3.0)."""
+    ud = ET.SubElement(root, "UnitDefinitions")
+    for name in sorted(used):
+        base, factor, offset, displays = UNITS[name]
+        u = ET.SubElement(ud, "Unit", {"name": name})
+        attrs = {k: str(e) for k, e in base.items()}
+        if factor != 1.0:
+            attrs["factor"] = repr(factor)
+        if offset:
+            attrs["offset"] = repr(offset)
+        ET.SubElement(u, "BaseUnit", attrs)
+        for dname, (dfac, doff) in displays.items():
+            da = {"name": dname, "factor": repr(dfac)}
+            if doff:
+                da["offset"] = repr(doff)
+            ET.SubElement(u, "DisplayUnit", da)
 
 
 def _fmt(x: float) -> str:
@@ -117,22 +144,7 @@ def write_model_description(*, model_name: str, identifier: str, description: st
     sf = ET.SubElement(cs, "SourceFiles")
     for s in sources:
         ET.SubElement(sf, "File", {"name": s})
-    used = sorted({v.unit for v in variables if v.unit})
-    ud = ET.SubElement(root, "UnitDefinitions")
-    for name in used:
-        base, factor, offset, displays = UNITS[name]
-        u = ET.SubElement(ud, "Unit", {"name": name})
-        attrs = {k: str(e) for k, e in base.items()}
-        if factor != 1.0:
-            attrs["factor"] = repr(factor)
-        if offset:
-            attrs["offset"] = repr(offset)
-        ET.SubElement(u, "BaseUnit", attrs)
-        for dname, (dfac, doff) in displays.items():
-            da = {"name": dname, "factor": repr(dfac)}
-            if doff:
-                da["offset"] = repr(doff)
-            ET.SubElement(u, "DisplayUnit", da)
+    _unit_definitions(root, {v.unit for v in variables if v.unit})
     ET.SubElement(ET.SubElement(root, "LogCategories"), "Category",
                   {"name": "logStatusError", "description": "Calls the FMU rejects"})
     root[-1].append(ET.Element("Category", {"name": "logError", "description": "Invalid parameters or resources, failed evaluations"}))
@@ -143,10 +155,7 @@ def write_model_description(*, model_name: str, identifier: str, description: st
     for i, v in enumerate(variables, 1):
         index[v.name] = i
         attrs = {"name": v.name, "valueReference": str(v.vr), "description": v.description, "causality": v.causality}
-        variability = v.variability
-        if variability is None:
-            variability = ("continuous" if v.type == "Real" else "discrete") if v.causality != "parameter" else "fixed"
-        attrs["variability"] = variability
+        attrs["variability"] = v.effective_variability
         if v.initial:
             attrs["initial"] = v.initial
         sv = ET.SubElement(mv, "ScalarVariable", attrs)
@@ -196,22 +205,7 @@ def write_model_description3(*, model_name: str, identifier: str, description: s
         "canSerializeFMUState": "true", "providesDirectionalDerivatives": "false",
         "canHandleVariableCommunicationStepSize": "true", "hasEventMode": "false",
         "providesIntermediateUpdate": "false", "canReturnEarlyAfterIntermediateUpdate": "false"})
-    used = sorted({v.unit for v in variables if v.unit} | {"s"})
-    ud = ET.SubElement(root, "UnitDefinitions")
-    for name in used:
-        base, factor, offset, displays = UNITS[name]
-        u = ET.SubElement(ud, "Unit", {"name": name})
-        attrs = {k: str(e) for k, e in base.items()}
-        if factor != 1.0:
-            attrs["factor"] = repr(factor)
-        if offset:
-            attrs["offset"] = repr(offset)
-        ET.SubElement(u, "BaseUnit", attrs)
-        for dname, (dfac, doff) in displays.items():
-            da = {"name": dname, "factor": repr(dfac)}
-            if doff:
-                da["offset"] = repr(doff)
-            ET.SubElement(u, "DisplayUnit", da)
+    _unit_definitions(root, {v.unit for v in variables if v.unit} | {"s"})
     cats = ET.SubElement(root, "LogCategories")
     for n, d in (("logStatusError", "Calls the FMU rejects"),
                  ("logError", "Invalid parameters or resources, failed evaluations"), ("logAll", "Information")):
@@ -223,10 +217,7 @@ def write_model_description3(*, model_name: str, identifier: str, description: s
     for v in variables:
         attrs = {"name": v.name, "valueReference": str(VR3_OFFSET[v.type] + v.vr), "description": v.description,
                  "causality": v.causality}
-        variability = v.variability
-        if variability is None:
-            variability = ("continuous" if v.type == "Real" else "discrete") if v.causality != "parameter" else "fixed"
-        attrs["variability"] = variability
+        attrs["variability"] = v.effective_variability
         if v.initial:
             attrs["initial"] = v.initial
         if v.type == "Real":
@@ -376,7 +367,8 @@ def _resources(machine: Machine, errors: ErrorSet, res: Path) -> str:
     return ";".join(items)
 
 
-def _documentation(doc: Path, title: str, summary: str, variables: list[Var], machine: Machine) -> None:
+def _documentation(doc: Path, title: str, summary: str, variables: list[Var], machine: Machine,
+                   fmi_version: int = 2) -> None:
     doc.mkdir(parents=True)
     rows = "\n".join(
         f"<tr><td><code>{html.escape(v.name)}</code></td><td>{v.causality}</td><td>{v.type}</td>"
@@ -391,10 +383,10 @@ def _documentation(doc: Path, title: str, summary: str, variables: list[Var], ma
 <p>Machine <b>{html.escape(machine.name)}</b>: axes from the workpiece to the tool: {html.escape(axes)}.
 Units: mm, deg, s, degC; geometric error angles in rad. Every axis motion is the motion of the tool relative to
 the workpiece (ISO 841).</p>
-<p>FMI 2.0 Co-Simulation, native C (no Python at run time). The C sources are in <code>sources/</code>
+<p>FMI {fmi_version}.0 Co-Simulation, native C (no Python at run time). The C sources are in <code>sources/</code>
 (rebuild for another platform with <code>fmpy compile</code>); the machine description and the geometric
 error tables are in <code>resources/</code>. Invalid parameters (NaN, out of range, missing or malformed
-resource tables) make the FMU return fmi2Error with a log message naming the variable or file.</p>
+resource tables) make the FMU return fmi{fmi_version}Error with a log message naming the variable or file.</p>
 <h2>Variables</h2>
 <table><tr><th>Name</th><th>Causality</th><th>Type</th><th>Unit</th><th>Description</th></tr>
 {rows}
@@ -519,7 +511,7 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
                                           description=summary, variables=variables, guid=guid)
             (root / "sources" / "buildDescription.xml").write_bytes(write_build_description(identifier, sources))
         (root / "modelDescription.xml").write_bytes(md)
-        _documentation(root / "documentation", f"{title}: {machine.name}", summary, variables, machine)
+        _documentation(root / "documentation", f"{title}: {machine.name}", summary, variables, machine, fmi_version)
         if compile_binary:
             _compile(root, compiler)
         return _zip(root, out_path)

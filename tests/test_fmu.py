@@ -605,6 +605,7 @@ def test_fmi3_fmus_validate_and_match_the_core(built, fmi3):
         assert validate_fmu(str(p)) == []
         names = zipfile.ZipFile(p).namelist()
         assert "sources/buildDescription.xml" in names and "sources/fmi3_base.c" in names
+        assert b"FMI 3.0 Co-Simulation" in zipfile.ZipFile(p).read("documentation/index.html")
         assert any(n.startswith("binaries/x86_64-linux/") for n in names)
     m = load_machine("robonano-ui")
     e = built["errors"]["robonano-ui"]
