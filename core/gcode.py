@@ -871,7 +871,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         lin_res = max(res[geo.u.max()], res[geo.v.max()], res[geo.u.min()], res[geo.v.min()])
         if chordal_tol < 2 * lin_res:
             raise ValueError(f"chordal_tol {chordal_tol} mm is below twice the axis resolution")
-    samp = _arc_samples(geo, n_ax) if geo is not None else np.zeros((0, n_ax))
+    samp = _arc_samples(geo) if geo is not None else np.zeros((0, n_ax))
     Q = np.vstack([program.start[None, :], P, samp])
     del samp
     Qt = _call_transform(transform, Q)
@@ -938,7 +938,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
             _column_edits(ctx, cw, n_ax + j, letter.encode(), int(a_dec[j]),
                           np.flatnonzero(a_rep[:, j]), np.flatnonzero(a_ins[:, j]), a_counts[:, j])
     if len(lin):
-        _linearise_edits(ctx, lin, seg, prev, new, d_ax, chordal_tol)
+        _linearise_edits(ctx, lin, seg, new, d_ax, chordal_tol)
     _restore_modal_arcs(ctx, lin)
 
     ed = ctx.edits
@@ -1067,7 +1067,7 @@ def _subset(geo: _ArcGeo, sel) -> _ArcGeo:
 
 def _arc_params(program: Program, ak) -> _ArcGeo:
     cols, _ = _plane_cols(program.axes, np.asarray(program.plane)[ak])
-    u, v, w, iu, iv, iw = cols
+    u, v, w, iu, iv, _ = cols
     P = np.asarray(program.position)
     S = np.vstack([program.start[None, :], P])[ak]
     E = P[ak]
@@ -1085,12 +1085,13 @@ def _arc_params(program: Program, ak) -> _ArcGeo:
 
 
 def _n_samples(geo):
-    """Interior check samples per arc: 4q - 1 at t = j/4q, spacing at most 22.5 deg."""
+    """q = ceil(|sweep| / 90 deg) per arc: the check takes 4q - 1 interior samples at t = j/4q,
+    at most 22.5 deg apart."""
     q = np.maximum(1, np.ceil(np.abs(geo.sweep) / (np.pi / 2) - 1e-9)).astype(np.int64)
     return q
 
 
-def _arc_samples(geo: _ArcGeo, n_ax) -> np.ndarray:
+def _arc_samples(geo: _ArcGeo) -> np.ndarray:
     q = _n_samples(geo)
     m = 4 * q - 1
     row = np.repeat(np.arange(len(q)), m)
@@ -1257,7 +1258,7 @@ def _fmt(c: int, d: int) -> str:
     return "-" + s if c < 0 else s
 
 
-def _linearise_edits(ctx, lin, seg: _Segments, prev, new, d_ax, tol):
+def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, tol):
     """Blocks of linearised arcs: G2/G3 -> G1, arc words out, a comment with the tolerance,
     and the remaining segment points as new lines after the block."""
     p, ed, data = ctx.p, ctx.edits, ctx.data
