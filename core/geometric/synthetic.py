@@ -88,7 +88,6 @@ def make_synthetic(machine: Machine, seed: int = 0, max_linear: float = 0.020,
     for ax in machine.axes:
         if ax.is_rotary:
             raise ValueError("synthetic errors are defined for linear axes only")
-        lo, hi = ax.limits
         s = run_positions(ax, run_step)
         for name in component_names(ax.name):
             c = rng.normal(size=3)

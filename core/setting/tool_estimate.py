@@ -474,8 +474,8 @@ class GrooveSuggestion:
 
 
 def _information(machine, plan, items, sig_pos, sig_depth, nuis_names):
-    y0, J = _rows_for(machine, plan, items)
-    rows, nrows = [], []
+    _, J = _rows_for(machine, plan, items)
+    rows = []
     for k, (gid, _f) in enumerate(items):
         g = plan.groove(gid)
         for c, name in enumerate(("u", "v", "depth")):
