@@ -1,5 +1,6 @@
 """Bowl plan, NC programs, touches CSV, virtual probing and sphere fits (paper 001)."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -51,9 +52,22 @@ def test_roughing_program_plunges_each_bowl_to_depth():
     plan = plan_bowls(3)
     text = roughing_program(plan)
     for b in plan.bowls:
-        assert f"G00 X{b.x:g} Y{b.y:g}" in text
-    assert text.count("G01 Z-1 F") == 3
+        assert f"G00 X{b.x:g}. Y{b.y:g}." in text
+    assert text.count("G01 Z-1. F") == 3
     assert text.strip().endswith("%")
+    # read back: the deepest point of each plunge is the bowl position at -depth
+    from mtcomp import gcode
+    p = gcode.parse(text, axes=("X", "Y", "Z"))
+    low = p.position[np.isclose(p.position[:, 2], -plan.depth)]
+    np.testing.assert_allclose(low[:, :2], [(b.x, b.y) for b in plan.bowls])
+
+
+@pytest.mark.parametrize("program", [roughing_program, probing_program])
+def test_axis_words_carry_a_decimal_point(program):
+    # without one, a control reading least input increments takes X7 as 7 um
+    code = re.sub(r"\([^)]*\)", "", program(plan_bowls(3)))
+    words = re.findall(r"[XYZ](-?[0-9.]+)", code)
+    assert words and all("." in w for w in words)
 
 
 def test_probing_moves_start_inside_and_end_beyond_the_probe_sphere():

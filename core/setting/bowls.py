@@ -213,6 +213,13 @@ def _fmt(v: float, digits: int = 4) -> str:
 _f = _fmt
 
 
+def _ax(v: float, digits: int = 4) -> str:
+    """An axis word's number, always with a decimal point: a control set to read numbers without
+    one in least input increments would take `X7` as 7 um (docs/gcode.md)."""
+    s = _fmt(v, digits)
+    return s if "." in s else s + "."
+
+
 def roughing_program(plan: BowlPlan, peck: float = 0.5) -> str:
     """3-axis program for the ordinary machining centre that plunges every bowl with the ball end mill.
 
@@ -223,20 +230,20 @@ def roughing_program(plan: BowlPlan, peck: float = 0.5) -> str:
     out = ["%", "O0001 (MTCOMP BOWLS ROUGHING)",
            f"(BALL END MILL R{_f(R)}, {len(plan.bowls)} BOWLS, DEPTH {_f(h)} MM, TIP PROGRAMMED)",
            "G21 G90 G17 G40 G49 G80", "G54", f"S{_f(plan.spindle_speed)} M03",
-           f"G00 Z{_f(plan.safe_z)}"]
+           f"G00 Z{_ax(plan.safe_z)}"]
     for b in plan.bowls:
         out.append(f"(BOWL {b.id})")
-        out.append(f"G00 X{_f(b.x)} Y{_f(b.y)}")
+        out.append(f"G00 X{_ax(b.x)} Y{_ax(b.y)}")
         out.append("G00 Z0.5")
         z = 0.0
         while z > -h + 1e-9:
             z = max(z - peck, -h)
-            out.append(f"G01 Z{_f(z)} F{_f(plan.plunge_feed)}")
+            out.append(f"G01 Z{_ax(z)} F{_f(plan.plunge_feed)}")
             if z > -h + 1e-9:
                 out.append("G00 Z0.5")
-                out.append(f"G00 Z{_f(z + 0.05)}")
+                out.append(f"G00 Z{_ax(z + 0.05)}")
         out.append("G04 P500")
-        out.append(f"G00 Z{_f(plan.safe_z)}")
+        out.append(f"G00 Z{_ax(plan.safe_z)}")
     out += ["M05", "M30", "%"]
     return "\n".join(out) + "\n"
 
@@ -285,6 +292,9 @@ def probing_program(plan: BowlPlan, aim=None) -> str:
 
     def _f(v, digits=6):  # nanometre resolution on the ultraprecision machine
         return _fmt(v, digits)
+
+    def _a(v):
+        return _ax(v, 6)
     out = ["%", "O0002 (MTCOMP BOWLS PROBING)",
            f"(PROBE TIP R{_f(plan.probe_radius)}, PROBE-CENTRE POSITIONS, {len(plan.dirs)} TOUCHES PER BOWL)",
            "G21 G90 G17 G40 G80", "G54"]
@@ -295,14 +305,14 @@ def probing_program(plan: BowlPlan, aim=None) -> str:
     for b, c in zip(plan.bowls, plan.centres):
         cm = R @ c + t
         out.append(f"(BOWL {b.id})")
-        out.append(f"G00 X{_f(cm[0])} Y{_f(cm[1])} Z{_f(plan.safe_z)}")
-        out.append(f"G01 Z{_f(cm[2])} F{_f(plan.probe_feed * 4)}")
+        out.append(f"G00 X{_a(cm[0])} Y{_a(cm[1])} Z{_a(plan.safe_z)}")
+        out.append(f"G01 Z{_a(cm[2])} F{_f(plan.probe_feed * 4)}")
         for _, j, s, e, d in by_bowl[b.id]:
             out.append(f"(TOUCH {b.id}.{j} APPROACH {d[0]:.6f} {d[1]:.6f} {d[2]:.6f})")
-            out.append(f"G01 X{_f(s[0])} Y{_f(s[1])} Z{_f(s[2])} F{_f(plan.probe_feed * 4)}")
-            out.append(f"G31 X{_f(e[0])} Y{_f(e[1])} Z{_f(e[2])} F{_f(plan.probe_feed)}")
-            out.append(f"G01 X{_f(cm[0])} Y{_f(cm[1])} Z{_f(cm[2])} F{_f(plan.probe_feed * 4)}")
-        out.append(f"G00 Z{_f(plan.safe_z)}")
+            out.append(f"G01 X{_a(s[0])} Y{_a(s[1])} Z{_a(s[2])} F{_f(plan.probe_feed * 4)}")
+            out.append(f"G31 X{_a(e[0])} Y{_a(e[1])} Z{_a(e[2])} F{_f(plan.probe_feed)}")
+            out.append(f"G01 X{_a(cm[0])} Y{_a(cm[1])} Z{_a(cm[2])} F{_f(plan.probe_feed * 4)}")
+        out.append(f"G00 Z{_a(plan.safe_z)}")
     out += ["M30", "%"]
     return "\n".join(out) + "\n"
 
