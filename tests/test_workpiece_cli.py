@@ -103,3 +103,14 @@ def test_second_pass_probing_program_is_aimed_at_the_coarse_pose(tmp_path):
     _planned(tmp_path, "--aim", str(coarse), "--probing", str(tmp_path / "second.nc"))
     text = (tmp_path / "second.nc").read_text()
     assert "G00 X-6.2 Y-7.3 Z5" in text and "G00 X7.8 Y-7.3 Z5" in text
+
+
+def test_compensate_refuses_an_errors_file_without_a_workpiece_setting(tmp_path, capsys):
+    from mtcomp.errors import ToolSetting, save_errors
+    errors = save_errors(ErrorSet(tool=ToolSetting((0.1, 0.0, 0.0))), tmp_path / "tool.toml")
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    out = tmp_path / "out.nc"
+    assert main(["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out)]) == 2
+    assert "tool.toml [workpiece_setting]: no [workpiece_setting] section" in capsys.readouterr().err
+    assert not out.exists()

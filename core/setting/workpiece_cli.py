@@ -99,10 +99,15 @@ def cmd_fit(args) -> int:
 
 
 def cmd_compensate(args) -> int:
+    from .._io import load_toml
     from ..errors import load_errors
     from ..machine import load_machine
     from .workpiece import compensate_program
     machine = load_machine(args.machine)
+    # an errors file without the section would read as a zero pose and copy the program unchanged
+    if "workpiece_setting" not in load_toml(args.errors):
+        raise InputError("no [workpiece_setting] section: expected the output of "
+                         "'mtcomp workpiece-setting fit'", args.errors, field="workpiece_setting")
     errors = load_errors(args.errors)
     n = compensate_program(machine, args.program, errors.workpiece, args.out, mode=args.mode)
     print(f"{n} motion lines transformed ({args.mode}) -> {args.out}")
