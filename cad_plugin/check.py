@@ -236,6 +236,17 @@ def pyramid_widths_angles(machine, path: Toolpath, q: np.ndarray, errors=None) -
     return PyramidMeasure(widths, np.array([ang(0, 1), ang(2, 3)]), N, D)
 
 
+def _top_view(ax, path: Toolpath, size: float):
+    """Top view of a toolpath: every move in grey, cutting points coloured by tip z (mm)."""
+    cut = path.cutting
+    ax.plot(path.p[:, 0], path.p[:, 1], lw=0.3, color="0.6")
+    sc = ax.scatter(path.p[cut, 0], path.p[cut, 1], c=path.p[cut, 2], s=size, cmap="viridis")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    return sc
+
+
 def plot_check(path: Toolpath, form: FormCheck, out, title: str = "") -> None:
     """PNG: the toolpath (top view, cutting moves) and the form error map in um."""
     import matplotlib
@@ -243,12 +254,7 @@ def plot_check(path: Toolpath, form: FormCheck, out, title: str = "") -> None:
     import matplotlib.pyplot as plt
     from .._io import atomic_path
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 4.8))
-    cut = path.cutting
-    a0.plot(path.p[:, 0], path.p[:, 1], lw=0.3, color="0.6")
-    a0.scatter(path.p[cut, 0], path.p[cut, 1], c=path.p[cut, 2], s=0.5, cmap="viridis")
-    a0.set_aspect("equal")
-    a0.set_xlabel("x [mm]")
-    a0.set_ylabel("y [mm]")
+    _top_view(a0, path, 0.5)
     a0.set_title(f"toolpath {path.name} ({len(path)} poses), colour: tip z")
     im = a1.imshow(form.error * 1e3, origin="lower", cmap="coolwarm",
                    extent=[form.x[0], form.x[-1], form.y[0], form.y[-1]])
@@ -273,13 +279,7 @@ def plot_toolpath(path: Toolpath, out, title: str = "", q: np.ndarray | None = N
     from .._io import atomic_path
     fig, axs = plt.subplots(1, 2 if q is not None else 1, figsize=(11 if q is not None else 6, 4.8))
     a0 = axs[0] if q is not None else axs
-    cut = path.cutting
-    a0.plot(path.p[:, 0], path.p[:, 1], lw=0.3, color="0.6")
-    sc = a0.scatter(path.p[cut, 0], path.p[cut, 1], c=path.p[cut, 2], s=1, cmap="viridis")
-    fig.colorbar(sc, ax=a0, label="tip z [mm]")
-    a0.set_aspect("equal")
-    a0.set_xlabel("x [mm]")
-    a0.set_ylabel("y [mm]")
+    fig.colorbar(_top_view(a0, path, 1.0), ax=a0, label="tip z [mm]")
     a0.set_title(f"{path.name}: {len(path)} poses, {path.tool.description}")
     if q is not None:
         a1 = axs[1]
