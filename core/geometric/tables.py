@@ -32,6 +32,7 @@ from .._io import InputError, atomic_write, dump_toml, load_toml
 from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, component_names
 from ..machine import Machine, load_machine
 from . import iso230_2
+from .first_order import measured_feed
 from .iso230_2 import PositioningRun
 
 __all__ = ["ComponentRun", "MeasurementSet", "Setup", "Noise", "BuildResult", "build_tables",
@@ -228,8 +229,8 @@ def build_tables(machine: Machine | str, mset: MeasurementSet, datum: float = 0.
             t, v, sg = _profile(r, datum, where, grid)
             reading = np.interp(grid, t, v)
             lever = _lever(machine, r, grid)
-            # Abbe contribution of the set-up: ε × ℓ, component d (hand-written: a cross product).
-            delta = reading - np.cross(eps, lever)[:, c]
+            # the set-up's Abbe contribution ε × ℓ removed (formula 10), component d of the reading
+            delta = measured_feed(reading[:, None] * np.eye(3)[c], lever, eps)[:, c]
             # its sensitivity to each angle c': (e_c' × ℓ)_d
             sens = np.stack([np.cross(np.eye(3)[k], lever)[:, c] for k in range(3)], axis=1)
             sig = np.sqrt(np.interp(grid, t, sg) ** 2 + np.sum((sens * eps_sig) ** 2, axis=1))
