@@ -7,8 +7,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 from . import comptables, iso230_2, synthetic, tables, volumetric
@@ -74,11 +72,8 @@ def synthetic_study(machine: Machine | str = "vmc-moving-column", seed: int = 0,
     tmap = volumetric.error_map(machine, truth, grid)
     bmap = volumetric.error_map(machine, build.errors, grid)
     lat = comptables.lattice_table(machine, build.errors, lattice_step)
-    rng = np.random.default_rng(seed)
-    lo = np.array([a.limits[0] for a in machine.axes])
-    hi = np.array([a.limits[1] for a in machine.axes])
-    q = np.vstack([grid, lo + (hi - lo) * rng.random((n_random, machine.n_axes))])
-    rep = comptables.compensation_report(machine, truth, build.errors, lat, q=q)
+    rep = comptables.compensation_report(machine, truth, build.errors, lat, n_random=n_random,
+                                         step=map_step, seed=seed)
     files: dict = {}
     if out_dir is not None:
         d = Path(out_dir)
