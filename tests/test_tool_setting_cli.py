@@ -7,6 +7,7 @@ import io
 import numpy as np
 import pytest
 
+from mtcomp._io import load_toml
 from mtcomp.cli import main
 from mtcomp.errors import load_errors
 
@@ -38,7 +39,9 @@ def test_estimate_round_trip(work, capsys):
     text = capsys.readouterr().out
     assert "t_x =" in text and "+-" in text
     est = np.array(load_errors(out / "errors.toml").tool.offset)
-    assert est == pytest.approx([0.34006, 0.24502, 0.2], abs=0.012)
+    sigma = np.array(load_toml(out / "errors.toml")["uncertainty"]["tool_setting.offset"])
+    assert np.all(sigma > 0) and sigma[2] > 5 * sigma[0]      # t_z from the B grooves is the weak one
+    assert np.all(np.abs(est - [0.34006, 0.24502, 0.2]) <= 4 * sigma)
     assert {"tool_setting_A_compensated.nc", "tool_setting_B_compensated.nc"} <= {p.name for p in out.iterdir()}
     # the compensated A program moves the cut by about -R t: X differs by t_z at B = 90
     orig = (work / "tool_setting_A.nc").read_text().splitlines()
