@@ -58,7 +58,7 @@ def test_simulate_build_map_table(tmp_path, capsys):
     want = np.array([[10, 20, -30], [250, -150, -200], [-280, 180, 0]], float)
     assert np.abs(new.position - want).max() > 1e-3          # the commands did move
     got = forward(m, new.position, errs).p
-    assert np.abs(got - want).max() < 1e-3                    # rounding to the 1 µm resolution
+    assert np.abs(got - want).max() < 1e-4                    # rounding to the 0.1 µm resolution
 
 
 def test_bad_run_exits_2_with_file_and_line(tmp_path, capsys):
