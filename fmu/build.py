@@ -264,7 +264,7 @@ def _pkg_version() -> str:
 def machine_resource_text(machine: Machine) -> str:
     """The machine description resource read by mtk_load_machine (docs/fmu.md)."""
     lines = ["# mtcomp machine description for the native FMU kernel; axes from the workpiece to the tool",
-             "# axis NAME KIND SIDE direction(3) location(3, mm) travel-low travel-high",
+             "# axis NAME KIND SIDE direction(3) location(3, mm) travel-low travel-high resolution",
              "mtcomp-machine 1", f"name {machine.name}",
              "tool_point " + " ".join(repr(float(x)) for x in machine.tool_point),
              "tool_axis " + " ".join(repr(float(x)) for x in machine.tool_axis)]
@@ -272,7 +272,8 @@ def machine_resource_text(machine: Machine) -> str:
         lo, hi = (float(x) for x in a.limits)
         lim = [repr(x) if math.isfinite(x) else ("-1e300" if x < 0 else "1e300") for x in (lo, hi)]
         lines.append(f"axis {a.name} {a.kind} {a.side} " + " ".join(repr(float(x)) for x in a.direction) + " "
-                     + " ".join(repr(float(x)) for x in a.location) + " " + " ".join(lim))
+                     + " ".join(repr(float(x)) for x in a.location) + " " + " ".join(lim)
+                     + f" {float(a.resolution)!r}")
     return "\n".join(lines) + "\n"
 
 

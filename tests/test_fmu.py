@@ -27,7 +27,7 @@ from mtcomp.errors import (AxisErrorTable, ErrorSet, GeometricErrors, ToolSettin
 from mtcomp.fmu.build import MachineDynamics, build_compensator_fmu, build_machine_fmu  # noqa: E402
 from mtcomp.fmu.cosim import FmuRunner, cosimulate, interpolate_program  # noqa: E402
 from mtcomp.fmu.ssp import write_ssp  # noqa: E402
-from mtcomp.kinematics import forward, retarget  # noqa: E402
+from mtcomp.kinematics import LimitError, forward, retarget  # noqa: E402
 from mtcomp.machine import load_machine  # noqa: E402
 
 PRESETS = ("robonano-ui", "robonano-a0ib", "vmc-moving-column")
@@ -253,6 +253,38 @@ def test_unreachable_command_is_an_error_at_the_step(built):
         assert any("outside its travel" in m for _, _, m in logs)
     finally:
         r.close()
+
+
+@pytest.mark.parametrize("beyond,accepted", [(0.4, True), (0.6, False)])
+def test_travel_check_tolerates_half_a_resolution_step_like_the_core(built, beyond, accepted):
+    m = load_machine("robonano-a0ib")
+    x, res = m.index("X"), m.axes[m.index("X")].resolution
+    goal = m.axes[x].limits[0] - beyond * res          # compensated X this far beyond the travel
+    q = np.array([[0.0, 10.0, -139.9, 0.0, 0.0]])
+    for _ in range(3):   # programmed X whose compensated X is `goal` (dX/dX = 1 up to 1e-4)
+        q[0, x] -= retarget(m, q, SETTING, check=False)[0, x] - goal
+    core_ok = True
+    try:
+        retarget(m, q, SETTING)
+    except LimitError:
+        core_ok = False
+    logs = []
+    r = FmuRunner(built["comp_setting"], "travel", logs)
+    try:
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(list(range(5)), [0, 10, 0, 0, 0])
+        r.fmu.exitInitializationMode()
+        r.fmu.setReal(list(range(5)), list(q[0]))
+        try:
+            got = r.fmu.getReal(r.refs(["compensated.X"]))[0]
+            fmu_ok = True
+        except FMICallException:
+            fmu_ok = False
+    finally:
+        r.close()
+    assert core_ok == fmu_ok == accepted
+    if accepted:
+        assert got == pytest.approx(goal, abs=1e-9)
 
 
 # ---------------------------------------------------------------------------------------- state

@@ -159,8 +159,9 @@ static int read_doubles(char **s, double *x, int n)
  *   name <name>
  *   tool_point x y z
  *   tool_axis x y z
- *   axis <letter> linear|rotary workpiece|tool dx dy dz lx ly lz lo hi
- * Axes in chain order from the workpiece to the tool. */
+ *   axis <letter> linear|rotary workpiece|tool dx dy dz lx ly lz lo hi [resolution]
+ * Axes in chain order from the workpiece to the tool.  The travel check tolerates half a
+ * resolution step, as mtcomp.kinematics.check_limits does (no resolution: none). */
 int mtk_load_machine(const char *path, mtk_model **out, char *err)
 {
     FILE *f = fopen(path, "r");
@@ -217,6 +218,14 @@ int mtk_load_machine(const char *path, mtk_model **out, char *err)
             memcpy(m->loc[i], v + 3, 3 * sizeof(double));
             m->lo[i] = v[6];
             m->hi[i] = v[7];
+            {
+                char *end;
+                double res = strtod(s, &end);
+                if (end != s) {
+                    if (!(res > 0.0 && res <= 1.0)) goto bad;
+                    m->slack[i] = 0.5 * res;
+                }
+            }
             m->n_axes++;
         } else {
             goto bad;
@@ -697,7 +706,7 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
     }
 limits:
     for (i = 0; i < n; i++) {
-        if (q[i] < m->lo[i] || q[i] > m->hi[i]) {
+        if (q[i] < m->lo[i] - m->slack[i] || q[i] > m->hi[i] + m->slack[i]) {
             char msg[MTK_ERRLEN];
             snprintf(msg, sizeof msg, "axis %c would have to move to %.6f, outside its travel [%g, %g]",
                      m->axis_name[i], q[i], m->lo[i], m->hi[i]);

@@ -31,6 +31,7 @@ typedef struct {
     double dir[MTK_MAX_AXES][3];
     double loc[MTK_MAX_AXES][3];
     double lo[MTK_MAX_AXES], hi[MTK_MAX_AXES];
+    double slack[MTK_MAX_AXES];       /* half a resolution step: travel check tolerance */
     double tool_point[3];
     double tool_axis[3];
     mtk_table *table[MTK_MAX_AXES];   /* NULL: no component errors for that axis */
