@@ -79,8 +79,9 @@ def _dyn_args(p: argparse.ArgumentParser) -> None:
 
 
 def register(subparsers) -> None:
-    fmu = subparsers.add_parser("fmu", help="build the native compensator and machine FMUs (FMI 2.0)",
-                                description="Build FMI 2.0 Co-Simulation FMUs from the C sources (docs/fmu.md).")
+    fmu = subparsers.add_parser("fmu", help="build the native compensator and machine FMUs (FMI 2.0 or 3.0)",
+                                description="Build FMI 2.0 (or, with --fmi 3, FMI 3.0) Co-Simulation FMUs from "
+                                            "the C sources (docs/fmu.md).")
     fsub = fmu.add_subparsers(dest="fmu_command", metavar="COMMAND")
     b = fsub.add_parser("build", help="build a compensator or machine FMU")
     b.add_argument("kind", choices=("compensator", "machine"))
@@ -93,10 +94,10 @@ def register(subparsers) -> None:
     _dyn_args(b)
     b.set_defaults(func=_build)
     s = fsub.add_parser("ssp", help="SSP file wiring a compensator FMU to a machine FMU")
-    s.add_argument("--machine", required=True)
+    s.add_argument("--machine", required=True, help="preset name or machine TOML")
     s.add_argument("--errors", help="true errors of the machine (errors TOML)")
     s.add_argument("--compensate", help="errors the compensator corrects (default: the true ones)")
-    s.add_argument("-o", "--output", required=True)
+    s.add_argument("-o", "--output", required=True, help="SSP file to write")
     s.add_argument("--compiler", choices=("cmake", "cc"), default="cmake")
     _dyn_args(s)
     s.set_defaults(func=_ssp)

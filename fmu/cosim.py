@@ -337,7 +337,8 @@ def cosimulate(program, machine, true_errors: ErrorSet, identified_errors: Error
     if isinstance(program, np.ndarray) or (isinstance(program, (list, tuple)) and np.ndim(program) == 2):
         q = np.asarray(program, dtype=float)
         if q.ndim != 2 or q.shape[1] != machine.n_axes or len(q) < 2:
-            raise InputError(f"axis command array must have shape (K >= 2, {machine.n_axes}), got {q.shape}")
+            raise InputError(f"axis command array must have shape (K >= 2, {machine.n_axes}), got {q.shape}",
+                             field="program")
         t = np.arange(len(q)) * step
     else:
         t, q = interpolate_program(program, machine, step, rapid=rapid)
