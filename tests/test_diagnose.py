@@ -155,3 +155,14 @@ def test_vectorised_backlash_matches_sequential_play_operator():
     ref = synth._play(p, b, first) - p
     got = backlash_play(p, b, direction_of_motion(p))
     assert np.max(np.abs(got - ref)) < 1e-12
+
+
+def test_sparse_recording_of_a_few_hundred_samples():
+    # REC at 5 Hz (200 samples) against a dense SIM: two effects still named and recovered
+    case = synth.make_case([("squareness", PARAMS["squareness"]), ("backlash", PARAMS["backlash"])],
+                           seed=8, duration=40.0, sim_rate=200.0, rec_rate=5.0, n_temps=3, n_junk=3)
+    res = diagnose(case.sim, case.rec)
+    assert res.alignment["samples"] < 210
+    assert sorted(res.names) == ["backlash", "squareness"], res.summary()
+    assert _one(res, "backlash").params["backlash_mm"] == pytest.approx(4e-3, rel=0.02)
+    assert _one(res, "squareness").params["angle_deg"] == pytest.approx(math.degrees(-40e-6), rel=0.02)
