@@ -48,6 +48,19 @@ def test_plan_file_round_trip(tmp_path):
     assert back == plan
 
 
+@pytest.mark.parametrize("key,value,field", [("depth", "-1.0", "depth"), ("depth", "2.5", "depth"),
+                                             ("tool_radius", "0.0", "tool_radius"),
+                                             ("blank", "[20.0, 20.0]", "blank")])
+def test_plan_file_with_impossible_geometry_names_the_field(tmp_path, key, value, field):
+    path = save_plan(plan_bowls(3), tmp_path / "p.toml")
+    text = re.sub(rf"(?m)^{key} = .*$", f"{key} = {value}", path.read_text())
+    if key == "blank":   # written over several lines: replace the whole array
+        text = re.sub(r"(?ms)^blank = \[.*?\]", f"blank = {value}", path.read_text())
+    path.write_text(text)
+    with pytest.raises(InputError, match=rf"p.toml \[{field}\]: "):
+        load_plan(path)
+
+
 def test_roughing_program_plunges_each_bowl_to_depth():
     plan = plan_bowls(3)
     text = roughing_program(plan)

@@ -362,6 +362,9 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
     if np.any(np.abs(norms - 1) > 1e-6):
         raise InputError("every direction must be a unit vector", file, field="directions")
     blank = d.get("blank", [20.0, 20.0, 5.0])
+    if (not isinstance(blank, list) or len(blank) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in blank)):
+        raise InputError(f"expected three positive sizes [lx, ly, lz] mm, got {blank!r}", file, field="blank")
     plan = BowlPlan(bowls=tuple(bowls), blank=tuple(float(v) for v in blank),
                     tool_radius=num("tool_radius"), depth=num("depth"),
                     probe_radius=num("probe_radius"),
@@ -370,6 +373,11 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
                     safe_z=num("safe_z", 5.0), keepout_radius=num("keepout_radius", 3.0),
                     spindle_speed=num("spindle_speed", 8000.0), plunge_feed=num("plunge_feed", 100.0),
                     probe_feed=num("probe_feed", 50.0))
+    if plan.tool_radius <= 0:
+        raise InputError(f"tool radius must be > 0 mm, got {plan.tool_radius:g}", file, field="tool_radius")
+    if not 0 < plan.depth <= plan.tool_radius:
+        raise InputError(f"depth must be in (0, tool radius = {plan.tool_radius:g}] mm, got {plan.depth:g}",
+                         file, field="depth")
     if not 0 < plan.probe_radius < plan.tool_radius:
         raise InputError(f"probe radius {plan.probe_radius} must be in (0, tool radius "
                          f"{plan.tool_radius}) mm", file, field="probe_radius")
