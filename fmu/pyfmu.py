@@ -16,6 +16,7 @@ from xml.etree import ElementTree as ET
 from .._io import atomic_path, dump_toml
 from ..errors import ErrorSet, save_errors
 from ..machine import Machine, load_machine
+from .build import _unit_definitions
 
 __all__ = ["build_python_compensator_fmu"]
 
@@ -23,15 +24,11 @@ __all__ = ["build_python_compensator_fmu"]
 def _patch_model_description(xml: bytes, machine: Machine) -> bytes:
     root = ET.fromstring(xml)
     units = {a.name: ("deg" if a.is_rotary else "mm") for a in machine.axes}
-    ud = ET.Element("UnitDefinitions")
-    for name, base, factor in (("mm", "m", "0.001"), ("deg", "rad", "0.017453292519943295")):
-        u = ET.SubElement(ud, "Unit", {"name": name})
-        ET.SubElement(u, "BaseUnit", {base: "1", "factor": factor})
-        if name == "mm":
-            ET.SubElement(u, "DisplayUnit", {"name": "um", "factor": "1000.0"})
+    holder = ET.Element("holder")
+    _unit_definitions(holder, set(units.values()))   # the native FMUs' definitions
     # UnitDefinitions come right after the CoSimulation element (FMI 2.0 schema order)
     idx = [i for i, el in enumerate(root) if el.tag == "CoSimulation"][0]
-    root.insert(idx + 1, ud)
+    root.insert(idx + 1, holder[0])
     for sv in root.iter("ScalarVariable"):
         axis = sv.get("name").rsplit(".", 1)[-1]
         real = sv.find("Real")

@@ -606,6 +606,21 @@ def test_an_importer_can_rebuild_the_binary_from_the_sources(built, tmp_path):
     assert res["compensated.X"][-1] == pytest.approx(expected[2], abs=1e-9)
 
 
+def test_pythonfmu_baseline_validates_and_matches_the_core(tmp_path):
+    """The benchmark's pythonfmu compensator: units added by the build, same outputs as the core."""
+    pytest.importorskip("pythonfmu")
+    from mtcomp.fmu.pyfmu import build_python_compensator_fmu
+    path = build_python_compensator_fmu("robonano-a0ib", tmp_path / "py.fmu", SETTING)
+    assert validate_fmu(str(path)) == []
+    units = {v.name: v.unit for v in read_model_description(str(path)).modelVariables}
+    assert units["command.X"] == "mm" and units["compensated.B"] == "deg"
+    res = fmpy.simulate_fmu(str(path), stop_time=0.002, output_interval=1e-3,
+                            start_values={"command.B": 20.0, "command.X": 3.0})
+    expected = retarget(load_machine("robonano-a0ib"), np.array([[0, 20.0, 3.0, 0, 0]]), SETTING)[0]
+    assert res["compensated.X"][-1] == pytest.approx(expected[2], abs=1e-12)
+    assert abs(expected[2] - 3.0) > 0.1
+
+
 # ---------------------------------------------------------------------------------------- FMI 3.0
 
 @pytest.fixture(scope="module")
