@@ -75,6 +75,23 @@ def test_plan_toml_round_trip(plan, tmp_path):
     assert sheet_template(back) == sheet_template(plan)
 
 
+@pytest.mark.parametrize("line,match", [
+    ('depth_mm = "x"', r"\[plan.depth_mm\]: expected a number, got 'x'"),
+    ("depth_mm = -0.1", r"\[plan.depth_mm\]: expected a positive number"),
+    ("tip_angle_deg = 200.0", r"\[plan.tip_angle_deg\]: tip angle"),
+    ("plate_mm = [20.0]", r"\[plan.plate_mm\]: expected two positive sizes"),
+])
+def test_plan_toml_bad_head_names_the_key(plan, tmp_path, line, match):
+    key = line.split(" =")[0]
+    text = plan_to_toml(plan)
+    head, rest = text.split("[[face]]", 1)
+    head = re.sub(rf"(?ms)^{key} = (\[.*?\]|[^\n]*)$", line, head)
+    p = tmp_path / "plan.toml"
+    p.write_text(head + "[[face]]" + rest)
+    with pytest.raises(InputError, match=match):
+        load_plan(p)
+
+
 def test_nc_program_cuts_the_programmed_grooves(plan):
     """Parse the NC words back and run them through the forward model: G01 cut blocks put the
     nominal edge at the groove points at depth D on the face."""

@@ -439,14 +439,31 @@ def load_plan(path: str | os.PathLike) -> Plan:
     return Plan(str(head["machine"]), o, tuple(grooves), faces)
 
 
+# [plan] keys of the file -> PlanOptions fields (with the defaults of a plan written by hand)
+_HEAD_KEYS = {"depth_mm": ("depth", 0.1), "tip_angle_deg": ("tip_angle", 90.0),
+              "feed_mm_per_min": ("feed", 50.0), "plunge_feed_mm_per_min": ("plunge_feed", 5.0),
+              "clearance_mm": ("clearance", 0.5), "safe_mm": ("safe", 5.0)}
+
+
 def _options_from_head(head: dict, grooves, angles) -> PlanOptions:
-    return PlanOptions(tests=tuple(t for t in TESTS if any(g.test == t for g in grooves)),
-                    depth=float(head.get("depth_mm", 0.1)), tip_angle=float(head.get("tip_angle_deg", 90.0)),
-                    feed=float(head.get("feed_mm_per_min", 50.0)),
-                    plunge_feed=float(head.get("plunge_feed_mm_per_min", 5.0)),
-                    clearance=float(head.get("clearance_mm", 0.5)), safe=float(head.get("safe_mm", 5.0)),
-                    plate=tuple(head.get("plate_mm", (20.0, 20.0))), a_angles=angles["A"],
-                    b_angles=angles["B"], c_angles=angles["C"])
+    kw = {}
+    for key, (name, default) in _HEAD_KEYS.items():
+        v = head.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise InputError(f"expected a number, got {v!r}", field=f"plan.{key}")
+        kw[name] = float(v)
+    plate = head.get("plate_mm", [20.0, 20.0])
+    if (not isinstance(plate, (list, tuple)) or len(plate) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in plate)):
+        raise InputError(f"expected two positive sizes [w, h] mm, got {plate!r}", field="plan.plate_mm")
+    try:
+        return PlanOptions(tests=tuple(t for t in TESTS if any(g.test == t for g in grooves)),
+                           plate=tuple(float(v) for v in plate), a_angles=angles["A"],
+                           b_angles=angles["B"], c_angles=angles["C"], **kw)
+    except InputError as exc:   # name the key of the file, not the option
+        key = next((k for k, (n, _) in _HEAD_KEYS.items() if n == exc.field), None)
+        # angles and tests come from the [[groove]] tables
+        raise InputError(exc.what, field=f"plan.{key}" if key else "groove") from None
 
 
 def sheet_template(plan: Plan) -> str:
