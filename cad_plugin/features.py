@@ -22,6 +22,7 @@ import cadquery as cq
 import numpy as np
 
 from .._io import InputError
+from ..kinematics import axis_rotation
 from .export import export_step, export_stl  # noqa: F401  (re-exported for convenience)
 from .layout import (BowlBlankLayout, GratingLayout, GroovePlateLayout, PyramidLayout,  # noqa: F401
                      pyramid_height, vgroove_section)
@@ -137,10 +138,9 @@ def sphere_vgrooves(self: cq.Workplane, sphere_radius: float, psi, span: float, 
         s, c = math.sin(math.radians(p)), math.cos(math.radians(p))
         d = np.array([0.0, s, -c])          # from the centre to the groove's mid point
         n = np.array([0.0, c, s])           # normal of the groove plane = revolution axis
-        # Profile in the meridional plane at the groove's start, turned by -span/2 about n
-        # (Rodrigues with n x d = -x); the revolution then sweeps +span about n.
-        t0 = math.radians(-span / 2.0)
-        d0 = math.cos(t0) * d - math.sin(t0) * np.array([1.0, 0.0, 0.0])
+        # Profile in the meridional plane at the groove's start, turned by -span/2 about n;
+        # the revolution then sweeps +span about n.
+        d0 = axis_rotation(n, math.radians(-span / 2.0)) @ d
         apex = centre + (rs + depth) * d0
         top = centre + (rs - _CLEAR) * d0
         w = (depth + _CLEAR) * math.tan(half)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._io import InputError, MtcompError
+from ..kinematics import axis_rotation
 
 RAPID, FEED, PROBE = 0, 1, 2
 
@@ -147,9 +148,7 @@ def vgroove_passes(segments, depth: float, tool: Tool, tilts=None, safe: float =
         u = np.array([*(p1 - p0), 0.0])
         length = float(np.linalg.norm(u))
         u /= length
-        t = math.radians(tilt)
-        # Tool axis: +z turned by tilt about u (Rodrigues, u perpendicular to z).
-        v = math.cos(t) * np.array([0.0, 0, 1]) + math.sin(t) * np.cross(u, [0.0, 0, 1])
+        v = axis_rotation(u, math.radians(tilt)) @ [0.0, 0.0, 1.0]   # tool axis: +z turned about u
         R = _frames(u[None], v[None])[0]
         start, end = np.array([*p0, -depth]), np.array([*p1, -depth])
         b.add(start + safe * v, R, RAPID)
@@ -189,13 +188,15 @@ def grating_passes(sphere_radius: float, psi, span: float, depth: float, tool: T
     for p in np.atleast_1d(np.asarray(psi, float)):
         s, c = math.sin(math.radians(p)), math.cos(math.radians(p))
         d = np.array([0.0, s, -c])
-        x = np.array([1.0, 0.0, 0.0])
+        n = np.array([0.0, c, s])
         half = math.radians(span / 2.0)
         t = np.linspace(-half, half, max(2, int(math.ceil(span / step_deg)) + 1))
-        # Direction from the centre: turned by t about n = (0, c, s); n x d = -x, so the groove
-        # runs from +x to -x as t grows (same sense as the CAD revolution).
-        dirs = np.cos(t)[:, None] * d - np.sin(t)[:, None] * x
-        tang = -np.sin(t)[:, None] * d - np.cos(t)[:, None] * x
+        # Direction from the centre: d turned by t about n; n x d = -x, so the groove runs from
+        # +x to -x as t grows (same sense as the CAD revolution); the feed direction is the
+        # derivative, n x d turned by t.
+        Rt = axis_rotation(n, t)
+        dirs = Rt @ d
+        tang = Rt @ np.cross(n, d)
         tip = c0 + (rs + depth) * dirs
         R = _frames(tang, -dirs)
         b.add(tip[0] - (safe + depth) * dirs[0], R[0], RAPID)
