@@ -40,7 +40,7 @@ def test_simulate_build_map_table(tmp_path, capsys):
     assert len(rows) == 2 + 13 * 9 * 7
     truth = str(tmp_path / "set_truth.toml")
     prog = tmp_path / "part.nc"
-    prog.write_text("G90 G1 X10. Y20. Z-30. F1000\nX250. Y-150. Z-200.\nX-280. Y180. Z0.\n")
+    prog.write_bytes(b"G90 G1 X10. Y20. Z-30. F1000\r\nX250. Y-150. Z-200.\r\nX-280. Y180. Z0.\r\n")
     assert run(["geometric", "table", built, "--truth", truth, "--lattice-step", "100",
                 "--program", str(prog), "-o", str(tmp_path / "comp")]) == 0
     out = capsys.readouterr().out
@@ -54,7 +54,9 @@ def test_simulate_build_map_table(tmp_path, capsys):
     from mtcomp.kinematics import forward
     from mtcomp.machine import load_machine
     m = load_machine("vmc-moving-column")
-    new = gcode.parse((tmp_path / "comp" / "part_comp.nc").read_text(), axes=m.axis_names)
+    raw = (tmp_path / "comp" / "part_comp.nc").read_bytes()
+    assert raw.count(b"\r\n") == 3 and raw.count(b"\n") == 3          # CR LF kept
+    new = gcode.parse(raw.decode(), axes=m.axis_names)
     want = np.array([[10, 20, -30], [250, -150, -200], [-280, 180, 0]], float)
     assert np.abs(new.position - want).max() > 1e-3          # the commands did move
     got = forward(m, new.position, errs).p

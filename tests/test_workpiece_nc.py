@@ -103,3 +103,16 @@ def test_three_axis_formula_on_every_preset(preset):
     q_new = compensate_commands(m, q, pose, "3axis")
     assert np.abs(forward(m, q_new, ErrorSet(workpiece=pose)).p - forward(m, q).p).max() < 1e-12
     assert np.array_equal(q_new[:, list(m.rotary_indices)], q[:, list(m.rotary_indices)])
+
+
+def test_program_file_keeps_crlf_and_refuses_binary(tmp_path):
+    src = tmp_path / "crlf.nc"
+    src.write_bytes(b"G21 G90\r\nG01 X1. Y2. Z0.1 F100. (A)\r\nM30\r\n")
+    out = tmp_path / "out.nc"
+    assert compensate_program(M, src, WorkpieceSetting((0.001, 0.002, 0.003), (0, 0, 0)), out) == 1
+    assert out.read_bytes() == b"G21 G90\r\nG01 X1.001000 Y2.002000 Z0.103000 F100. (A)\r\nM30\r\n"
+    src.write_bytes(b"G01 X1.\xff\xfe\n")
+    with pytest.raises(InputError, match=r"crlf.nc: not a text file"):
+        compensate_program(M, src, WorkpieceSetting((0.001, 0, 0), (0, 0, 0)), tmp_path / "o2.nc")
+    assert not (tmp_path / "o2.nc").exists()
+

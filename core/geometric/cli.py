@@ -141,11 +141,9 @@ def _rewrite_program(args: argparse.Namespace, model):
     from ..commands import compensate_program
     from ..machine import load_machine
     from .comptables import extend_tables
+    from ..gcode import read_program
     src = Path(args.program)
-    try:
-        text = src.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("NC program not found", src) from None
+    text = read_program(src)
     machine = load_machine(args.machine)
     new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src))
     msg = (f"{src}: {rep['blocks']} motion blocks; model tool-edge error max "

@@ -208,12 +208,10 @@ def compensate_program(machine, path, pose: WorkpieceSetting, out, *, mode: str 
     """
     from pathlib import Path
 
+    from .. import gcode
     from .._io import atomic_write
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("program file not found", path) from None
+    text = gcode.read_program(path)
     new, n = compensate_text(machine, text, pose, mode=mode, filename=str(path),
                              chordal_tol=chordal_tol)
     atomic_write(out, new)
