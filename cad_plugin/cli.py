@@ -27,7 +27,7 @@ def _parse_params(items, cls, what: str) -> dict:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10
         import tomli as tomllib
-    fields = {f.name for f in dataclasses.fields(cls)} if cls is not None else None
+    fields = {f.name: f.default for f in dataclasses.fields(cls)} if cls is not None else None
     out = {}
     for item in items or []:
         if "=" not in item:
@@ -41,6 +41,12 @@ def _parse_params(items, cls, what: str) -> dict:
         except tomllib.TOMLDecodeError:
             raise InputError(f"cannot read value {value!r} (TOML syntax: 0.05, [1.0, 2.0])",
                              field=f"--param {name}") from None
+        default = fields.get(name, dataclasses.MISSING) if fields is not None else dataclasses.MISSING
+        number = (int, float)
+        if isinstance(default, number) and (isinstance(v, bool) or not isinstance(v, number)):
+            raise InputError(f"expected a number, got {value!r}", field=f"--param {name}")
+        if isinstance(default, tuple) and not isinstance(v, list):
+            raise InputError(f"expected a list such as [1.0, 2.0], got {value!r}", field=f"--param {name}")
         out[name] = tuple(tuple(x) if isinstance(x, list) else x for x in v) if isinstance(v, list) else v
     return out
 
@@ -94,16 +100,16 @@ def cmd_features(args) -> int:
 
 
 def _toolpath(args):
-    from . import layout as L, toolpath as T
+    from . import toolpath as T
     if args.kind == "pyramid":
-        lay = L.PyramidLayout(**_parse_params(args.param, L.PyramidLayout, "pyramid"))
+        lay = _layout("pyramid", args.param)
         tool = T.Tool("ball", radius=args.tool_radius or 0.5, number=args.tool_number)
         step = dict(stepover=args.stepover) if args.scallop is None else dict(scallop=args.scallop)
         if args.stepover is None and args.scallop is None:
             step = dict(stepover=0.02)
         return T.pyramid_finishing(lay.width, lay.angle, tool, step=args.step or 0.01, **step)
     if args.kind in ("bowls", "probe-bowls"):
-        lay = L.BowlBlankLayout(**_parse_params(args.param, L.BowlBlankLayout, "bowl-blank"))
+        lay = _layout("bowl-blank", args.param)
         if args.kind == "bowls":
             tool = T.Tool("ball", radius=args.tool_radius or 0.5, number=args.tool_number)
             return T.bowl_milling(lay.centres, lay.bowl_radius, lay.bowl_depth, tool,
@@ -111,9 +117,9 @@ def _toolpath(args):
         probe = T.Tool("probe", radius=args.tool_radius or 0.25, number=args.tool_number)
         return T.bowl_probing(lay.centres, lay.bowl_radius, lay.bowl_depth, probe)
     if args.kind == "groove-plate":
-        lay = L.GroovePlateLayout(**_parse_params(args.param, L.GroovePlateLayout, "groove-plate"))
+        lay = _layout("groove-plate", args.param)
         return T.groove_plate_passes(lay, T.Tool("vtool", angle=lay.angle, number=args.tool_number))
-    lay = L.GratingLayout(**_parse_params(args.param, L.GratingLayout, "grating"))
+    lay = _layout("grating", args.param)
     return T.grating_passes(lay.sphere_radius, lay.psi, lay.span, lay.depth,
                             T.Tool("vtool", angle=lay.angle, number=args.tool_number))
 
@@ -152,8 +158,8 @@ def cmd_toolpath(args) -> int:
         print("    " + form.summary())
         print("    " + meas.summary(path.meta["width"], path.meta["angle"]).replace("\n", "\n    "))
         if errors is not None:
-            q0 = T.to_axes(machine, path)
-            bad = C.pyramid_widths_angles(machine, path, round_to_resolution(machine, q0), errors)
+            q0 = round_to_resolution(machine, T.to_axes(machine, path))   # as posted, like qr
+            bad = C.pyramid_widths_angles(machine, path, q0, errors)
             bad_form = C.form_error(machine, path, q0, errors, target, extent, grid=args.grid)
             print("  uncompensated program on the same machine:")
             print("    " + bad_form.summary())

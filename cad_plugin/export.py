@@ -26,7 +26,7 @@ def export_step(shape, path: str | os.PathLike) -> Path:
         # own writer so the temporary name does not matter.
         status = shape.exportStep(str(tmp))
         if int(status) != 1:  # IFSelect_RetDone
-            raise MtcompError(f"STEP export failed ({status})")
+            raise MtcompError(f"{path}: STEP export failed ({status})")
     return Path(path)
 
 
@@ -37,7 +37,7 @@ def export_stl(shape, path: str | os.PathLike, tolerance: float = 1e-3,
     with atomic_path(path) as tmp:
         if not shape.exportStl(str(tmp), tolerance=tolerance, angularTolerance=angular_tolerance,
                                ascii=ascii):
-            raise MtcompError("STL export failed")
+            raise MtcompError(f"{path}: STL export failed")
     return Path(path)
 
 

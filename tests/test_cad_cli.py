@@ -27,6 +27,11 @@ def test_bad_parameter_exits_2_and_writes_nothing(tmp_path, capsys):
     assert main(["cad", "features", "grating", "-o", str(out), "--param", "pitch=fine"]) == 2
     assert "pitch" in capsys.readouterr().err
     assert main(["cad", "features", "grating", "-o", str(tmp_path / "g.iges")]) == 2
+    # a well-formed TOML value of the wrong type is refused too, for toolpaths as for features
+    assert main(["cad", "toolpath", "grating", "-o", str(tmp_path / "g.nc"), "--param", 'depth="x"']) == 2
+    assert "[--param depth]: expected a number" in capsys.readouterr().err
+    assert main(["cad", "toolpath", "pyramid", "-o", str(tmp_path / "p.nc"), "--param", "size=1"]) == 2
+    assert "pyramid has no parameter 'size'" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
 
 
