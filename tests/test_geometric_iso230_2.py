@@ -113,6 +113,13 @@ def test_non_monotonic_targets_name_the_line(tmp_path):
         iso.read_run_csv(p)
 
 
+def test_binary_file_is_an_input_error(tmp_path):
+    p = tmp_path / "run.bin"
+    p.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff\xfe")
+    with pytest.raises(InputError, match=r"run.bin:1: header lacks column"):
+        iso.read_run_csv(p)
+
+
 def test_bad_fields(tmp_path):
     p = _lines(tmp_path, extra=["300.0,1,sideways,0.0"])
     with pytest.raises(InputError, match=r"\[direction\]"):

@@ -215,6 +215,9 @@ def test_touches_csv_round_trip_and_errors(tmp_path):
     path.write_text("bowl,x,y,z\n1,0,0,0\n")
     with pytest.raises(InputError, match="missing ax,ay,az"):
         read_touches(path)
+    path.write_bytes(b"\xff\xfe\x00b\x00o\x00w\x00l\x00\n")     # UTF-16, not a touches CSV
+    with pytest.raises(InputError, match=r"t.csv:1: header must contain"):
+        read_touches(path)
 
 
 def test_shared_radius_fit_is_exact_and_cuts_the_tilt_uncertainty():

@@ -109,7 +109,7 @@ class LatticeTable:
         """Read a lattice written by `to_csv` (nodes from the rows, any regular grid)."""
         path = Path(path)
         try:
-            lines = path.read_text(encoding="utf-8").splitlines()
+            lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
         except FileNotFoundError:
             raise InputError("file not found", path) from None
         rows = [(n, ln) for n, ln in enumerate(lines, 1) if ln.strip() and not ln.startswith("#")]

@@ -215,7 +215,7 @@ def read_run_csv(path: str | os.PathLike, axis: str = "") -> PositioningRun:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = path.read_text(encoding="utf-8-sig", errors="replace")  # bad bytes fail as cells
     except FileNotFoundError:
         raise InputError("file not found", path) from None
     rows = [(k + 1, line) for k, line in enumerate(text.splitlines())

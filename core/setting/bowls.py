@@ -439,7 +439,7 @@ def read_touches(path) -> Touches:
     """Read a touches CSV (columns bowl,x,y,z,ax,ay,az; '#' comments); errors name file and line."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8", errors="replace")  # bad bytes fail as cells
     except FileNotFoundError:
         raise InputError("file not found", path) from None
     rows, header = [], None

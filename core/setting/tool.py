@@ -273,7 +273,7 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
     grooves of the plan without any measured value."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8", errors="replace")  # bad bytes fail as cells
     except FileNotFoundError:
         raise InputError("measurement file not found", path) from None
     lines = [(n, ln) for n, ln in enumerate(text.splitlines(), 1) if ln.strip() and not ln.lstrip().startswith("#")]
