@@ -141,33 +141,34 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
 
 
 def noise_rho(ctx: Context, r: np.ndarray) -> float:
-    """Lag-one autocorrelation of the noise in a residual, averaged over outputs (0..0.99).
+    """Lag-one autocorrelation of the noise in a residual, median over outputs (0..0.99).
 
-    From first differences taken where the simulated axes are at rest (every effect of the
+    From first differences taken where the simulated axes are all at rest (every effect of the
     library is constant or slow there, so the differences are noise; elsewhere an unexplained
-    effect would look like strongly correlated noise); from all samples when there are fewer
-    than 30 such pairs.  For AR(1) noise of lag-one correlation rho, the differences have
-    lag-one correlation -(1 - rho)/2.  Differences are clipped at 5 robust sigmas.
+    effect would look like strongly correlated noise), else where the output's own axis rests;
+    white (0) when neither gives 30 pairs.  For AR(1) noise of lag-one correlation rho, the
+    differences have lag-one correlation -(1 - rho)/2.  Differences are clipped at 5 robust
+    sigmas.
     """
     al = ctx.al
-    still = np.ones(ctx.n, bool)
-    for o in ctx.outputs:
-        p = al.sim[o][ctx.idx]
-        dp = np.abs(np.diff(p))
-        ok = np.concatenate([[True], dp <= 1e-7 * max(float(np.ptp(p)), 1e-12)])
-        still &= ok & np.concatenate([ok[1:], [True]])
-    # pairs of consecutive differences inside a rest: samples k, k+1, k+2 all still
-    trip = still[:-2] & still[1:-1] & still[2:]
+
+    def still_of(keys):
+        st = np.ones(ctx.n, bool)
+        for o in keys:
+            p = al.sim[o][ctx.idx]
+            ok = np.concatenate([[True], np.abs(np.diff(p)) <= 1e-7 * max(float(np.ptp(p)), 1e-12)])
+            st &= ok & np.concatenate([ok[1:], [True]])
+        # pairs of consecutive differences inside a rest: samples k, k+1, k+2 all still
+        return st[:-2] & st[1:-1] & st[2:]
+
+    trip_all = still_of(ctx.outputs)
     vals = []
-    for sl in ctx.slices.values():
-        rs = r[sl]
-        d = np.diff(rs)
-        if trip.sum() >= 30:
-            a, b = d[:-1][trip], d[1:][trip]
-        else:
-            a, b = d[:-1], d[1:]
-        if len(a) < 8:
-            continue
+    for o, sl in ctx.slices.items():
+        trip = trip_all if trip_all.sum() >= 30 else still_of([o])
+        if trip.sum() < 30:
+            continue  # no quiet stretch to tell noise from signal: taken as white
+        d = np.diff(r[sl])
+        a, b = d[:-1][trip], d[1:][trip]
         allv = np.concatenate([a, b])
         med = np.median(allv)
         sd = 1.4826 * np.median(np.abs(allv - med))
@@ -177,8 +178,10 @@ def noise_rho(ctx: Context, r: np.ndarray) -> float:
         b = np.clip(b - med, -5 * sd, 5 * sd)
         den = float(np.sqrt((a @ a) * (b @ b)))
         if den > 0:
-            vals.append(1.0 + 2.0 * float(a @ b) / den)
-    return float(np.clip(np.mean(vals), 0.0, 0.99)) if vals else 0.0
+            vals.append(float(np.clip(1.0 + 2.0 * float(a @ b) / den, 0.0, 0.99)))
+    # median over outputs: one output whose effect moves while its own axis rests (a
+    # squareness driven by another axis) must not make every output's noise look correlated
+    return float(np.median(vals)) if vals else 0.0
 
 
 def n_effective(ctx: Context) -> float:
