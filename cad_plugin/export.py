@@ -7,20 +7,20 @@ from pathlib import Path
 from .._io import MtcompError, atomic_path
 
 
-def _shape(obj):
-    """Accept a cq.Shape or a cq.Workplane (its first object)."""
+def _shape(obj, path):
+    """Accept a cq.Shape or a cq.Workplane (its first object); `path` names the output in errors."""
     import cadquery as cq
     if isinstance(obj, cq.Workplane):
         vals = [v for v in obj.vals() if isinstance(v, cq.Shape)]
         if not vals:
-            raise MtcompError("the workplane carries no shape to export")
+            raise MtcompError(f"{path}: the workplane carries no shape to export")
         return vals[0] if len(vals) == 1 else cq.Compound.makeCompound(vals)
     return obj
 
 
 def export_step(shape, path: str | os.PathLike) -> Path:
     """Write `shape` (mm) to a STEP file (AP214, unit mm)."""
-    shape = _shape(shape)
+    shape = _shape(shape, path)
     with atomic_path(path) as tmp:
         # OCC picks the writer from the file name only through cq.exporters; call the shape's
         # own writer so the temporary name does not matter.
@@ -33,7 +33,7 @@ def export_step(shape, path: str | os.PathLike) -> Path:
 def export_stl(shape, path: str | os.PathLike, tolerance: float = 1e-3,
                angular_tolerance: float = 0.1, ascii: bool = False) -> Path:
     """Write a triangulation of `shape` to STL: chordal `tolerance` mm, `angular_tolerance` rad."""
-    shape = _shape(shape)
+    shape = _shape(shape, path)
     with atomic_path(path) as tmp:
         if not shape.exportStl(str(tmp), tolerance=tolerance, angularTolerance=angular_tolerance,
                                ascii=ascii):

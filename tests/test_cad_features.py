@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 cq = pytest.importorskip("cadquery")
+from mtcomp import MtcompError  # noqa: E402
 from mtcomp.cad_plugin import features as F  # noqa: E402
 from mtcomp.cad_plugin.export import export_step, export_stl, import_step  # noqa: E402
 
@@ -182,7 +183,7 @@ def test_step_round_trip_and_stl(tmp_path):
 
 
 def test_failed_export_leaves_no_file(tmp_path):
-    with pytest.raises(Exception):
+    with pytest.raises(MtcompError, match="empty.step: the workplane carries no shape"):
         export_step(cq.Workplane("XY"), tmp_path / "empty.step")
     assert list(tmp_path.iterdir()) == []
 
