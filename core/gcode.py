@@ -23,7 +23,6 @@ from .gcode_format import format_counts, parse_decimals, splice
 
 INCH = 25.4
 LINEAR = frozenset("XYZUVW")
-ROTARY = frozenset("ABC")
 CANONICAL = "XYZUVWABC"
 ARC_WORDS = "IJKR"
 
