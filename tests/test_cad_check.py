@@ -104,8 +104,8 @@ def test_virtual_probing_recovers_the_real_bowl_centres():
         assert rho == pytest.approx(L.bowl_radius - probe.radius, abs=1e-9)
     # On the ideal set-up every skip happens at the nominal contact, 2/3 along the move.
     ideal = C.simulate_probing(m, tp, T.to_axes(m, tp), None)
-    assert np.allclose(ideal.fraction, 0.2 / 0.3, atol=1e-12)
-    assert np.allclose(ideal.recorded, T.probe_contacts(tp), atol=1e-12)
+    assert np.allclose(ideal.fraction, 0.2 / 0.3, rtol=0, atol=1e-12)
+    assert np.allclose(ideal.recorded, T.probe_contacts(tp), rtol=0, atol=1e-12)
 
 
 def test_paper_001_loop_probe_fit_compensate_machine(program):
@@ -123,8 +123,8 @@ def test_paper_001_loop_probe_fit_compensate_machine(program):
     measured = np.array([fit_sphere(run.recorded[run.bowl == k])[0] for k in range(3)])
     design = np.array([[x, y, L.bowl_radius - L.bowl_depth] for x, y in L.centres])
     est = frame_from_points(measured, design, method="paper").pose
-    assert np.allclose(est.translation, true.workpiece.translation, atol=1e-9)
-    assert np.allclose(est.angles, true.workpiece.angles, atol=1e-8)
+    assert np.allclose(est.translation, true.workpiece.translation, rtol=0, atol=1e-9)
+    assert np.allclose(est.angles, true.workpiece.angles, rtol=0, atol=1e-8)
     text = P.post(m, tp, errors=ErrorSet(workpiece=est))
     q = gcode.parse(text, axes=m.axis_names).position
     meas = C.pyramid_widths_angles(m, tp, q, true)

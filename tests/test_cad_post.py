@@ -123,4 +123,4 @@ def test_groove_plate_program_keeps_rotary_angles_near_zero():
     assert np.max(np.abs(c)) <= 180 + 1e-9
     text = P.post(m, tp, q)
     assert np.max(np.abs(gcode.parse(text, axes=m.axis_names).position - round_to_resolution(m, q))) < 1e-12
-    assert np.allclose(forward(m, q).R, tp.R, atol=1e-12)
+    assert np.allclose(forward(m, q).R, tp.R, rtol=0, atol=1e-12)

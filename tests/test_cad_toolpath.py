@@ -74,7 +74,7 @@ def test_bowl_milling_and_probing_on_offset_spheres():
     start = np.nonzero(touch)[0] - 1
     dirs = pp.centre[touch] - pp.centre[start]
     assert np.allclose(np.linalg.norm(dirs, axis=1), 0.3)
-    assert np.allclose(dirs / 0.3, -pp.normal[touch], atol=1e-12)
+    assert np.allclose(dirs / 0.3, -pp.normal[touch], rtol=0, atol=1e-12)
     assert np.allclose(np.linalg.norm(contacts - pp.centre[start], axis=1), 0.2)
 
 
@@ -89,7 +89,7 @@ def test_grating_tool_edge_on_groove_bottom_and_normal_to_the_surface():
     centre = np.array([0, 0, g.sphere_radius])
     to_centre = centre - tp.p[idx]
     to_centre /= np.linalg.norm(to_centre, axis=1, keepdims=True)
-    assert np.allclose(tp.axis[idx], to_centre, atol=1e-12)
+    assert np.allclose(tp.axis[idx], to_centre, rtol=0, atol=1e-12)
     # The rake face faces the feed.
     feed = np.diff(tp.p, axis=0)[idx - 1]
     feed /= np.linalg.norm(feed, axis=1, keepdims=True)
