@@ -184,12 +184,16 @@ def test_virtual_cell_writes_the_compensated_program(tmp_path):
     text = (tmp_path / "O1100.nc").read_text()
     r = Rotation.from_euler("xyz", res.pose6[3:], degrees=True).as_matrix()
     rows = [ln for ln in text.splitlines() if ln.startswith(("G00", "G01"))]
+    assert len(rows) == 3, text                   # the loop below checks every motion block
+    checked = 0
     for row, p in zip(rows, ([0, 0, 2.0], [0, 0, -0.1], [1.0, 0.5, -0.1])):
         words = dict((w[0], float(w[1:])) for w in row.split()[1:] if w[0] in "XYZ")
         expected = r @ p + np.array(res.pose6[:3])
         for k, axis in enumerate("XYZ"):
             if axis in words:
                 assert abs(words[axis] - expected[k]) < 1.5e-6, row
+                checked += 1
+    assert checked == 9, text                     # the tilt moves every axis of every block
 
 
 def test_import_is_light():
