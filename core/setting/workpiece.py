@@ -14,8 +14,8 @@ The NC transform comes in two modes.  "3axis" is paper 001's formula applied to 
 coordinates of a program whose rotary axes stay at 0: x' = R x + t (= [ex ey ez](x - X) + X + d,
 see frame.pose_from_paper); the tool keeps its direction in the machine, so relative to the real
 blank it is tilted by the setting angles (harmless for a ball or a point-like edge).  "5axis"
-also keeps the tool direction relative to the real blank: the core's `kinematics.retarget`
-solves the axis commands (rotary angles included) that reproduce, on the machine with the
+also keeps the tool direction relative to the real blank: the core's `kinematics.compensate`
+(as `retarget` does, plus restarts where Newton stalls near a singular pose) solves the axis commands (rotary angles included) that reproduce, on the machine with the
 workpiece setting error, the programmed contact point and tool direction.
 
 Units: mm, deg.
@@ -71,7 +71,7 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
 
     mode "3axis": paper 001's x' = R x + t on the tool point, rotary axes untouched (they must
     be 0 on every line); "5axis": contact point and tool direction relative to the blank, via
-    kinematics.retarget; "auto": 3axis when the rotary axes are all 0, else 5axis.
+    kinematics.compensate of the programmed poses (`_five_axis`); "auto": 3axis when the rotary axes are all 0, else 5axis.
     lines: source line number of each row (for errors); source: program file name.
     Raises InputError naming the line when a command would leave an axis' travel (or, in 3axis
     mode, when a rotary axis is not at 0).
