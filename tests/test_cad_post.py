@@ -34,10 +34,10 @@ def test_program_reads_back_to_the_axis_commands(grating):
     for s in ("ROBONANO-UI", "AXES X Y Z A B C", "T3", "UNITS MM DEG", "NOT COMPENSATED"):
         assert s in header
     n = [int(x) for x in re.findall(r"^N(\d+) ", text, re.M)]
-    assert n == list(range(10, 10 * len(n) + 1, 10))
+    assert len(n) > len(tp) and n == list(range(10, 10 * len(n) + 1, 10))
     # Decimals follow the resolutions: 1 nm -> 6 decimals, 1e-5 deg -> 5 decimals.
-    assert all(len(v) == 6 for v in re.findall(r"X-?\d+\.(\d+)", text))
-    assert all(len(v) == 5 for v in re.findall(r"B-?\d+\.(\d+)", text))
+    xs, bs = re.findall(r"X-?\d+\.(\d+)", text), re.findall(r"B-?\d+\.(\d+)", text)
+    assert xs and bs and all(len(v) == 6 for v in xs) and all(len(v) == 5 for v in bs)
     assert "T3 M06" in text and "M30" in text
 
 
@@ -45,7 +45,8 @@ def test_decimals_override_and_no_line_numbers(grating):
     m, tp, q = grating
     text = P.post(m, tp, q, P.PostOptions(decimals={"X": 4}, line_numbers=False))
     assert not re.search(r"^N\d", text, re.M)
-    assert all(len(v) == 4 for v in re.findall(r"X-?\d+\.(\d+)", text))
+    xs = re.findall(r"X-?\d+\.(\d+)", text)
+    assert xs and all(len(v) == 4 for v in xs)
     prog = gcode.parse(text, axes=m.axis_names)
     assert np.max(np.abs(prog.position[:, 0] - q[:, 0])) <= 0.5e-4 + 1e-12
     with pytest.raises(ValueError):
@@ -111,7 +112,8 @@ def test_motion_mode_is_restated_after_a_skip_move():
     after = [blocks[i + 1] for i, b in enumerate(blocks) if b.startswith("G31")]
     assert after and all(b.startswith(("G01", "G00")) for b in after)
     # The G31 blocks carry the full target (a skip move needs its end point).
-    assert all(len(b.split()) >= 2 for b in blocks if b.startswith("G31"))
+    skips = [b for b in blocks if b.startswith("G31")]
+    assert skips and all(len(b.split()) >= 2 for b in skips)
 
 
 def test_groove_plate_program_keeps_rotary_angles_near_zero():
