@@ -15,7 +15,8 @@ coordinates of a program whose rotary axes stay at 0: x' = R x + t (= [ex ey ez]
 see frame.pose_from_paper); the tool keeps its direction in the machine, so relative to the real
 blank it is tilted by the setting angles (harmless for a ball or a point-like edge).  "5axis"
 also keeps the tool direction relative to the real blank: the core's `kinematics.compensate`
-(as `retarget` does, plus restarts where Newton stalls near a singular pose) solves the axis commands (rotary angles included) that reproduce, on the machine with the
+(as `retarget` does, plus restarts where Newton stalls near a singular pose) solves the axis
+commands (rotary angles included) that reproduce, on the machine with the
 workpiece setting error, the programmed contact point and tool direction.
 
 Units: mm, deg.
