@@ -167,8 +167,9 @@ def cmd_toolpath(args) -> int:
         if args.png:
             C.plot_check(path, form, args.png, f"{path.name} on {machine.name}"
                          + (" (compensated)" if errors else ""))
-    elif args.png:
+    else:
         from ..kinematics import forward
+
         def deviation(qq):
             pose = forward(machine, qq, errors)
             dev = np.linalg.norm(pose.p - path.p, axis=1)
@@ -181,8 +182,9 @@ def cmd_toolpath(args) -> int:
             d0 = deviation(round_to_resolution(machine, T.to_axes(machine, path)))
             print(f"  uncompensated: tool point deviation max {d0[0]:.4f} um, RMS {d0[1]:.4f} um; "
                   f"tool axis off by {d0[2]:.6f} deg at most")
-        C.plot_toolpath(path, args.png, f"{path.name} on {machine.name}", q=qr,
-                        names=machine.axis_names)
+        if args.png:
+            C.plot_toolpath(path, args.png, f"{path.name} on {machine.name}", q=qr,
+                            names=machine.axis_names)
     atomic_write(args.out, text)
     print(f"  wrote {args.out}" + (f" and {args.png}" if args.png else ""))
     return 0

@@ -63,6 +63,14 @@ def test_toolpath_grating_plain_axes(tmp_path):
     assert prog.position.shape[0] == 3 * (1 + 65 + 1)
 
 
+def test_toolpath_deviation_is_reported_without_a_png(tmp_path, capsys):
+    assert main(["cad", "toolpath", "grating", "-m", "robonano-ui", "-o", str(tmp_path / "g.nc"),
+                 "--param", "n_grooves=1"]) == 0
+    out = capsys.readouterr().out
+    assert float(out.split("tool point deviation max ")[1].split(" um")[0]) < 0.005
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["g.nc"]
+
+
 def test_plan_plate_from_a_tool_setting_plan(tmp_path):
     from mtcomp.setting.tool_plan import make_plan, plan_to_toml
     plan = make_plan("robonano-ui")
