@@ -230,6 +230,29 @@ def test_missing_or_bad_table_resource_fails_initialisation_cleanly(built):
         r.close()
 
 
+@pytest.mark.parametrize("location", [b"", b"file:///" + b"x" * 5000])
+def test_unusable_resource_location_fails_initialisation(built, tmp_path, monkeypatch, location):
+    """No location (or one too long for the FMU): an error, never a machine.txt from the
+    working folder or from a truncated path."""
+    import ctypes
+    logs = []
+    r = FmuRunner(built["comp_setting"], "ok", logs)
+    try:
+        monkeypatch.chdir(tmp_path)
+        (tmp_path / "machine.txt").write_bytes(zipfile.ZipFile(built["comp_setting"]).read("resources/machine.txt"))
+        c = r.fmu.fmi2Instantiate(b"nores", 1, r.md.guid.encode(), location, ctypes.byref(r._cb), 0, 0)
+        assert c
+        try:
+            r.fmu.fmi2EnterInitializationMode(c)
+            with pytest.raises(FMICallException):
+                r.fmu.fmi2ExitInitializationMode(c)
+        finally:
+            r.fmu.fmi2FreeInstance(c)
+        assert any(s == 3 and "no usable fmuResourceLocation" in m for s, _, m in logs)
+    finally:
+        r.close()
+
+
 def test_simulate_fmu_with_bad_start_value_raises_and_does_not_crash(built):
     with pytest.raises(FMICallException, match="fmi2SetReal"):
         fmpy.simulate_fmu(str(built["comp_setting"]), stop_time=0.01, output_interval=1e-3,

@@ -67,6 +67,11 @@ static fmi2Status load_machine(Instance *inst)
     char path[sizeof inst->resources + 64], err[MTK_ERRLEN];
     mtk_free(inst->kin);
     inst->kin = NULL;
+    if (!inst->resources[0]) {
+        /* no (usable) resource location: never fall back to a machine.txt in the working folder */
+        inst_log(inst, fmi2Error, "logError", "no usable fmuResourceLocation: cannot read %s", MACHINE_RESOURCE);
+        return fmi2Error;
+    }
     snprintf(path, sizeof path, "%s%s", inst->resources, MACHINE_RESOURCE);
     if (mtk_load_machine(path, &inst->kin, err) != MTK_OK) {
         inst_log(inst, fmi2Error, "logError", "%s", err);
@@ -90,6 +95,7 @@ void common_start_values(Instance *inst)
 {
     char path[sizeof inst->resources + 64], line[MODEL_SLEN + 64];
     FILE *f;
+    if (!inst->resources[0]) return;
     snprintf(path, sizeof path, "%s%s", inst->resources, START_RESOURCE);
     f = fopen(path, "r");
     if (!f) return;

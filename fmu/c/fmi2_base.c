@@ -57,6 +57,10 @@ static int uri_to_path(const char *uri, char *out, size_t cap)
             out[n++] = *p++;
         }
     }
+    if (*p) {            /* longer than the buffer: a truncated path would name another file */
+        out[0] = 0;
+        return 0;
+    }
     if (n > 0 && out[n - 1] != '/') out[n++] = '/';
     out[n] = 0;
     return 1;
