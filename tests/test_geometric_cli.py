@@ -94,3 +94,11 @@ def test_bad_program_leaves_no_tables(tmp_path, capsys):
                 str(tmp_path / "none.nc"), "-o", str(tmp_path / "out")]) == 2
     assert "NC program not found" in capsys.readouterr().out
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("cmd", [["map", "e.toml"], ["table", "e.toml"], ["simulate"]])
+def test_machine_with_rotary_axes_is_refused_naming_the_option(tmp_path, capsys, cmd):
+    assert run(["geometric", *cmd, "--machine", "robonano-ui", "-o", str(tmp_path / "o")]) == 2
+    assert "[--machine]: machine robonano-ui has axes X Y Z A B C" in capsys.readouterr().out
+    assert not list(tmp_path.iterdir())
+

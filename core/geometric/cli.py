@@ -88,6 +88,17 @@ def _build(args: argparse.Namespace) -> int:
     return 0
 
 
+def _linear_machine(spec, three: bool = True):
+    """The machine of --machine, refused up front when the command cannot handle it."""
+    from ..machine import load_machine
+    m = load_machine(spec)
+    if m.n_rotary or (three and m.n_axes != 3):
+        raise InputError(f"machine {m.name} has axes {' '.join(m.axis_names)}: this command covers "
+                         f"{'3-axis machines with' if three else 'machines with'} linear axes only",
+                         field="--machine")
+    return m
+
+
 def _load_errors(path):
     from ..errors import load_errors
     return load_errors(path)
@@ -98,8 +109,9 @@ def _map(args: argparse.Namespace) -> int:
     from . import volumetric
     if args.step <= 0:
         raise InputError("must be positive", field="--step")
+    machine = _linear_machine(args.machine)
     errors = _load_errors(args.errors)
-    vmap = volumetric.error_map(args.machine, errors, step=args.step)
+    vmap = volumetric.error_map(machine, errors, step=args.step)
     stem = Path(args.output)
     volumetric.plot_map(vmap, stem.with_name(stem.name + ".png"))
     atomic_write(stem.with_name(stem.name + ".csv"), vmap.to_csv())
@@ -114,13 +126,14 @@ def _table(args: argparse.Namespace) -> int:
     from . import comptables
     if args.lattice_step <= 0:
         raise InputError("must be positive", field="--lattice-step")
+    machine = _linear_machine(args.machine)
     model = _load_errors(args.errors)
     truth = _load_errors(args.truth) if args.truth else model
     out = Path(args.output)
     # Everything is computed before the first file is written, so bad input leaves no output.
     program = _rewrite_program(args, model) if args.program else None
-    lat = comptables.lattice_table(args.machine, model, args.lattice_step)
-    rep = comptables.compensation_report(args.machine, truth, model, lat)
+    lat = comptables.lattice_table(machine, model, args.lattice_step)
+    rep = comptables.compensation_report(machine, truth, model, lat)
     atomic_write(out / "lattice.csv", lat.to_csv())
     files = comptables.write_iso_tables(model.geometric, out, "comp")
     atomic_write(out / "residual.txt", rep.summary())
@@ -139,9 +152,9 @@ def _rewrite_program(args: argparse.Namespace, model):
     at their end values just beyond the travel, as in the other compensation forms).
     Returns (file name, text, message)."""
     from ..commands import compensate_program
+    from ..gcode import read_program
     from ..machine import load_machine
     from .comptables import extend_tables
-    from ..gcode import read_program
     src = Path(args.program)
     text = read_program(src)
     machine = load_machine(args.machine)
@@ -153,9 +166,8 @@ def _rewrite_program(args: argparse.Namespace, model):
 
 def _simulate(args: argparse.Namespace) -> int:
     from ..errors import save_errors
-    from ..machine import load_machine
     from . import synthetic, tables
-    machine = load_machine(args.machine)
+    machine = _linear_machine(args.machine, three=False)
     syn = synthetic.make_synthetic(machine, seed=args.seed, run_step=args.step,
                                    min_wavelength=250.0)
     truth = syn.errors()
