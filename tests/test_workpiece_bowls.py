@@ -103,6 +103,14 @@ def test_virtual_touches_lie_on_the_real_probe_sphere():
         np.testing.assert_allclose(np.linalg.norm(p - (R @ c + tr), axis=1), 1.5, atol=1e-12)
 
 
+def test_negative_noise_and_threshold_are_refused():
+    plan = plan_bowls(3)
+    with pytest.raises(InputError, match=r"\[noise\]: probe noise must be >= 0"):
+        virtual_probe(POSE, plan, -0.001, 0)
+    with pytest.raises(InputError, match=r"\[k\]: outlier threshold must be > 0"):
+        fit_bowls(virtual_probe(POSE, plan, 0.0, 0), plan.probe_radius, k=0.0)
+
+
 def test_virtual_probe_names_the_bowl_it_misses():
     plan = plan_bowls(3)
     with pytest.raises(MtcompError, match="bowl 1: touch .* outside the bowl"):

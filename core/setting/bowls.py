@@ -495,6 +495,8 @@ def virtual_probe(true_pose, plan: BowlPlan, noise_sigma: float = 0.0, rng=None,
     (pretravel scatter).  Raises MtcompError naming the bowl when a move would miss the bowl wall
     (blank too far from `aim`: probe once coarsely, then again with `aim` = the coarse result).
     """
+    if not noise_sigma >= 0:
+        raise InputError(f"probe noise must be >= 0 mm, got {noise_sigma}", field="noise")
     rng = np.random.default_rng(rng)
     from .frame import pose_matrix
     Rt, tt = pose_matrix(true_pose) if true_pose is not None else (np.eye(3), np.zeros(3))
@@ -741,6 +743,8 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
     """
     if probe_radius <= 0:
         raise InputError(f"probe radius must be > 0 mm, got {probe_radius}", field="probe_radius")
+    if not k > 0:
+        raise InputError(f"outlier threshold must be > 0 sigma, got {k}", field="k")
     src = touches.source
     ids = sorted(set(int(b) for b in touches.bowl)) if bowls is None else list(bowls)
     npar = 4 if bowl_radius is None else 3
