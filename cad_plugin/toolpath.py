@@ -86,12 +86,6 @@ class Toolpath:
         """Mask of points reached by a feed (or probing) move that touch the target surface."""
         return (self.motion != RAPID) & np.isfinite(self.normal[:, 0])
 
-    def concat(self, other: "Toolpath") -> "Toolpath":
-        return Toolpath(np.vstack([self.p, other.p]), np.concatenate([self.R, other.R]),
-                        np.concatenate([self.motion, other.motion]),
-                        np.vstack([self.normal, other.normal]), self.tool, self.feed, self.name,
-                        dict(self.meta))
-
 
 def _frames(feed_dir: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Tool frames (N,3,3) with tool axis `axis` and x_t the feed direction made normal to it."""
@@ -99,10 +93,6 @@ def _frames(feed_dir: np.ndarray, axis: np.ndarray) -> np.ndarray:
     x = feed_dir - np.einsum("ni,ni->n", feed_dir, axis)[:, None] * axis
     x /= np.linalg.norm(x, axis=1, keepdims=True)
     return np.stack([x, np.cross(axis, x), axis], axis=2)
-
-
-def _vertical(n: int) -> np.ndarray:
-    return np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
 
 
 class _Builder:
