@@ -86,6 +86,15 @@ def test_non_positive_spacing(tmp_path, capsys, flag):
     assert f"[{flag}]" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("args,flag", [(["--step", "0"], "--step"), (["--step", "-5"], "--step"),
+                                       (["--noise", "-1", "0", "0"], "--noise"),
+                                       (["--reversal", "-2"], "--reversal")])
+def test_simulate_refuses_bad_spacing_and_noise(tmp_path, capsys, args, flag):
+    assert run(["geometric", "simulate", *args, "-o", str(tmp_path / "s.toml")]) == 2
+    assert f"[{flag}]" in capsys.readouterr().out
+    assert not list(tmp_path.iterdir())
+
+
 def test_bad_program_leaves_no_tables(tmp_path, capsys):
     s = str(tmp_path / "set.toml")
     assert run(["geometric", "simulate", "-o", s, "--step", "50"]) == 0

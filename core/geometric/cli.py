@@ -167,6 +167,11 @@ def _rewrite_program(args: argparse.Namespace, model):
 def _simulate(args: argparse.Namespace) -> int:
     from ..errors import save_errors
     from . import synthetic, tables
+    if not args.step > 0:
+        raise InputError("must be positive", field="--step")
+    if not (min(args.noise) >= 0 and args.reversal >= 0):
+        raise InputError(f"noise and reversal must be >= 0, got {args.noise} and {args.reversal}",
+                         field="--noise" if min(args.noise) < 0 else "--reversal")
     machine = _linear_machine(args.machine, three=False)
     syn = synthetic.make_synthetic(machine, seed=args.seed, run_step=args.step,
                                    min_wavelength=250.0)
