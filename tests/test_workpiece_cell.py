@@ -49,6 +49,14 @@ def test_robot_repeatability_maps_to_iso9283_rp():
     assert dist.mean() + 3 * dist.std() == pytest.approx(0.030, rel=0.02)
 
 
+@pytest.mark.parametrize("kw,field", [({"repeatability": -0.03}, "repeatability"),
+                                      ({"rotation_sigma": -1.0}, "rotation_sigma")])
+def test_negative_robot_scatter_is_refused(kw, field):
+    from mtcomp import InputError
+    with pytest.raises(InputError, match=rf"\[{field}\]: .* must be >= 0"):
+        RobotPlacement(**kw)
+
+
 def test_noise_free_cell_gives_the_exact_pyramid_and_compensation_matters():
     cfg = CellConfig(trials=20, probe_sigma=0.0, seed=3,
                      robot=RobotPlacement(offset=(0.05, -0.03, 0.02), rotation=(0.05, -0.05, 0.3)))

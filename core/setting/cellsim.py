@@ -146,6 +146,12 @@ class RobotPlacement:
     # mean + 3 sd of the distance of a 3-D isotropic normal with unit sigma per axis
     RP_PER_SIGMA = 2 * math.sqrt(2 / math.pi) + 3 * math.sqrt(3 - 8 / math.pi)
 
+    def __post_init__(self):
+        for name, unit in (("repeatability", "mm"), ("rotation_sigma", "deg")):
+            v = getattr(self, name)
+            if not v >= 0:
+                raise InputError(f"{name.replace('_', ' ')} must be >= 0 {unit}, got {v}", field=name)
+
     def sample(self, rng) -> WorkpieceSetting:
         s = self.repeatability / self.RP_PER_SIGMA
         t = np.asarray(self.offset, float) + rng.normal(0.0, s, 3)
