@@ -60,7 +60,7 @@ def _fmt(value: float, decimals: int) -> str:
     return "0." + "0" * decimals if s.lstrip("-").strip("0.") == "" else s
 
 
-def axis_words(machine, path: Toolpath, q: np.ndarray, tcp: bool) -> tuple[list[str], np.ndarray]:
+def axis_words(machine, q: np.ndarray, tcp: bool) -> tuple[list[str], np.ndarray]:
     """Letters and values (N, n) written per block: the axis commands, or in TCP mode the tool
     point in the workpiece frame under the nominal kinematics plus the rotary angles."""
     letters = list(machine.axis_names)
@@ -90,7 +90,7 @@ def post(machine, path: Toolpath, q: np.ndarray | None = None, options: PostOpti
         q = to_axes(machine, path, errors)
     q = round_to_resolution(machine, np.asarray(q, float))
     check_limits(machine, q)
-    letters, values = axis_words(machine, path, q, options.tcp)
+    letters, values = axis_words(machine, q, options.tcp)
     dec = {a.name: a.decimals for a in machine.axes}
     dec.update({k.upper(): int(v) for k, v in (options.decimals or {}).items()})
     unknown = set(dec) - set(letters)

@@ -281,7 +281,7 @@ def _axis_unit(machine: Machine, i: int) -> tuple[str, str | None]:
     return ("deg", None) if machine.axes[i].is_rotary else ("mm", "um")
 
 
-def _common_vars(machine: Machine, errors: ErrorSet, tables_spec: str) -> list[Var]:
+def _common_vars(machine: Machine) -> list[Var]:
     vs = []
     for i, a in enumerate(machine.axes):
         unit, _ = _axis_unit(machine, i)
@@ -500,7 +500,7 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
     with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-") as td:
         root = Path(td) / "fmu"
         tables_spec = _resources(machine, errors, root / "resources")
-        variables = _common_vars(machine, errors, tables_spec) + extra_vars + _param_vars(machine, errors, tables_spec)
+        variables = _common_vars(machine) + extra_vars + _param_vars(machine, errors, tables_spec)
         (root / "resources" / "start.txt").write_text(_start_values(variables), encoding="utf-8")
         sources = _copy_sources(kind, root / "sources", fmi_version)
         guid = _guid(kind, identifier, str(fmi_version), machine_resource_text(machine), repr(variables))

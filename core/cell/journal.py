@@ -39,7 +39,7 @@ class Journal:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
             _lock(fd, path)
-            records, keep = read_records(path, repair=True)
+            records, keep = read_records(path)
         except BaseException:
             os.close(fd)
             raise
@@ -91,12 +91,10 @@ def _lock(fd: int, path: Path) -> None:
         raise MtcompError(f"journal {path} is in use by another mtcomp cell process") from None
 
 
-def read_records(path: str | os.PathLike, repair: bool = False) -> tuple[list[dict], int | None]:
+def read_records(path: str | os.PathLike) -> tuple[list[dict], int | None]:
     """Parse a journal. Returns (records, keep) where `keep` is the byte length to truncate to
-    if the last record is torn (None if the file is intact).
-
-    With ``repair=False`` a torn tail is still skipped (it never took effect) but `keep` tells
-    the caller it is there.
+    if the last record is torn (None if the file is intact). A torn tail is skipped (it never
+    took effect); truncating it is the caller's choice (`Journal.open` does).
     """
     path = Path(path)
     try:
