@@ -465,18 +465,26 @@ def _free_port():
 
 
 def _serve_process(journal, port, probe_time):
-    p = subprocess.Popen([sys.executable, "-m", "mtcomp.cell.cli", "serve", "--journal",
-                          str(journal), "--port", str(port), "--probe-time", str(probe_time)],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # output to a file, not a pipe nobody drains (a full pipe would block the server)
+    log = journal.with_name(f"serve-{port}-{time.monotonic_ns()}.log")
+    with open(log, "wb") as out:
+        p = subprocess.Popen([sys.executable, "-m", "mtcomp.cell.cli", "serve", "--journal",
+                              str(journal), "--port", str(port), "--probe-time", str(probe_time)],
+                             stdout=out, stderr=subprocess.STDOUT)
 
     def up():
         try:
             socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
             return True
         except OSError:
-            assert p.poll() is None, p.stderr.read().decode()
+            assert p.poll() is None, log.read_text()
             return False
-    wait_for(up, 30, "mtcomp cell serve")
+    try:
+        wait_for(up, 30, "mtcomp cell serve")
+    except BaseException:
+        p.kill()          # never leave a server behind when it did not come up
+        p.wait(10)
+        raise
     return p
 
 
