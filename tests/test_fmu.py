@@ -230,6 +230,35 @@ def test_missing_or_bad_table_resource_fails_initialisation_cleanly(built):
         r.close()
 
 
+@pytest.mark.parametrize("table", [
+    "position,EXX,EXX\n0,1e-3,1e-3\n1,2e-3,2e-3\n",            # a component named twice
+    "position,EXX\n0,1e-3" + "0" * 5000 + "\n1,2e-3\n",          # a line longer than the reader's buffer
+    "position,EXX\n1,1e-3\n0,2e-3\n",                           # positions not increasing
+    "position,EXX\n0,nan\n1,2e-3\n",
+])
+def test_malformed_table_resource_is_refused_with_file_and_line(built, tmp_path, table):
+    d = tmp_path / "fmu"
+    with zipfile.ZipFile(built["comp_setting"]) as z:
+        z.extractall(d)
+    (d / "resources" / "tables").mkdir(exist_ok=True)
+    (d / "resources" / "tables" / "bad.csv").write_text(table)
+    path = tmp_path / "bad.fmu"
+    with zipfile.ZipFile(path, "w") as z:
+        for f in sorted(d.rglob("*")):
+            if f.is_file():
+                z.write(f, f.relative_to(d).as_posix())
+    logs = []
+    r = FmuRunner(path, "badtable", logs)
+    try:
+        r.set({"geometric_tables": "X:tables/bad.csv"})
+        r.fmu.enterInitializationMode()
+        with pytest.raises(FMICallException):
+            r.fmu.exitInitializationMode()
+    finally:
+        r.close()
+    assert any(s == 3 and "bad.csv:" in m and "malformed error table" in m for s, _, m in logs), logs
+
+
 @pytest.mark.parametrize("location", [b"", b"file:///" + b"x" * 5000])
 def test_unusable_resource_location_fails_initialisation(built, tmp_path, monkeypatch, location):
     """No location (or one too long for the FMU): an error, never a machine.txt from the

@@ -185,6 +185,7 @@ int mtk_load_machine(const char *path, mtk_model **out, char *err)
         char key[32], *s = line;
         int used = 0;
         lineno++;
+        if (!strchr(line, '\n') && !feof(f)) goto bad;  /* longer than the buffer */
         while (isspace((unsigned char)*s)) s++;
         if (!*s || *s == '#') continue;
         if (sscanf(s, "%31s%n", key, &used) != 1) continue;
@@ -254,7 +255,7 @@ int mtk_load_table(mtk_model *m, const char *axis_name, const char *path, char *
 {
     FILE *f;
     char line[4096], msg[MTK_ERRLEN];
-    int col[8], ncol = 0, lineno = 0, cap = 0, idx;
+    int col[8], ncol = 0, lineno = 0, cap = 0, idx, seen = 0;
     mtk_table *t;
     idx = (axis_name && strlen(axis_name) == 1) ? mtk_axis_index(m, axis_name[0]) : -1;
     if (idx < 0) {
@@ -274,6 +275,7 @@ int mtk_load_table(mtk_model *m, const char *axis_name, const char *path, char *
     while (fgets(line, sizeof line, f)) {
         char *s = line, *tok, *save = NULL;
         lineno++;
+        if (!strchr(line, '\n') && !feof(f)) goto bad;  /* longer than the buffer */
         while (isspace((unsigned char)*s)) s++;
         if (!*s || *s == '#') continue;
         if (ncol == 0) {
@@ -293,6 +295,8 @@ int mtk_load_table(mtk_model *m, const char *axis_name, const char *path, char *
                 if (ncol >= 7 || strlen(tok) != 3 || tok[0] != 'E' || tok[2] != m->axis_name[idx]) goto bad;
                 hit = strchr(comp, tok[1]);
                 if (!hit || !tok[1]) goto bad;
+                if (seen & (1 << (hit - comp))) goto bad;   /* a component named twice */
+                seen |= 1 << (hit - comp);
                 col[ncol++] = (int)(hit - comp);
             }
             if (ncol < 1) goto bad;
