@@ -64,6 +64,20 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> Path:
     return Path(path)
 
 
+def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str = "file") -> str:
+    """Read a UTF-8 text file; a missing or binary file becomes an InputError naming it.
+    newline="" keeps CR LF line endings byte for byte."""
+    try:
+        with open(path, encoding="utf-8", newline=newline) as fh:
+            return fh.read()
+    except FileNotFoundError:
+        raise InputError(f"{what} not found", path) from None
+    except IsADirectoryError:
+        raise InputError(f"{what} is a directory", path) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", path) from None
+
+
 def load_toml(path: str | os.PathLike) -> dict:
     """Read a TOML file; a syntax error becomes an InputError naming the file and line."""
     try:
@@ -71,10 +85,7 @@ def load_toml(path: str | os.PathLike) -> dict:
     except ModuleNotFoundError:  # Python 3.10
         import tomli as tomllib
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
+    text = read_text(path)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

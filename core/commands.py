@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import InputError, atomic_write
+from ._io import InputError, atomic_write, read_text
 from .errors import ErrorSet, TableRangeError, load_errors
 from .kinematics import ConvergenceError, LimitError, forward, retarget
 from .machine import list_presets, load_machine
@@ -68,13 +68,7 @@ def _cmd_compensate(args) -> int:
     machine = load_machine(args.machine)
     errors = load_errors(args.errors)
     src = Path(args.program)
-    try:
-        with open(src, encoding="utf-8", newline="") as fh:  # keep CR LF byte for byte
-            text = fh.read()
-    except FileNotFoundError:
-        raise InputError("NC program not found", src) from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", src) from None
+    text = read_text(src, newline="", what="NC program")  # newline="": keep CR LF byte for byte
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
     new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=args.chordal_tol * 1e-3,
                                        convert_inch=args.inch, progress=Progress("compensating", args.progress))

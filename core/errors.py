@@ -17,7 +17,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ._io import InputError, MtcompError, atomic_write, dump_toml, load_toml
+from ._io import InputError, MtcompError, atomic_write, dump_toml, load_toml, read_text
 
 _LIN = "XYZ"
 _ANG = "ABC"
@@ -44,11 +44,12 @@ def rotation_matrix_xyz(angles_deg) -> np.ndarray:
 
 
 def angles_from_matrix(r: np.ndarray) -> np.ndarray:
-    """Inverse of `rotation_matrix_xyz`: (a, b, c) in deg with b in [-90, 90]."""
-    b = np.arcsin(np.clip(-r[2, 0], -1.0, 1.0))
-    a = np.arctan2(r[2, 1], r[2, 2])
-    c = np.arctan2(r[1, 0], r[0, 0])
-    return np.degrees([a, b, c])
+    """Inverse of `rotation_matrix_xyz`: (a, b, c) in deg with b in [-90, 90]; r may be a
+    stack (..., 3, 3), giving (..., 3)."""
+    b = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
+    a = np.arctan2(r[..., 2, 1], r[..., 2, 2])
+    c = np.arctan2(r[..., 1, 0], r[..., 0, 0])
+    return np.degrees(np.stack([a, b, c], axis=-1))
 
 
 @dataclass(frozen=True)
@@ -198,10 +199,7 @@ class AxisErrorTable:
     def from_csv(cls, path: str | os.PathLike, axis: str | None = None) -> "AxisErrorTable":
         """Read one axis' table (docs/errors-format.md). The axis is taken from the header names."""
         path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise InputError("error table file not found", path) from None
+        text = read_text(path, what="error table file")
         rows = [(n, line) for n, line in enumerate(text.splitlines(), 1)
                 if line.strip() and not line.lstrip().startswith("#")]
         if not rows:

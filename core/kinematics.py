@@ -249,9 +249,11 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
             # stay consistent) and halve steps that do not reduce the residual.
             big = np.max(np.abs(step[:, rot]), axis=1, initial=0.0)
             scale = np.minimum(1.0, 20.0 / np.maximum(big, 1e-300))
-            todo = np.arange(L.size)
+            # A step below the tolerance is convergence: no evaluation, no backtracking (at the
+            # rounding floor a trial cannot lower the residual and would only be halved away).
+            todo = np.nonzero(np.max(np.abs(step), axis=1) >= tol)[0]
             qn, rn, nn = qa[L], r[L], nr[L].copy()
-            for _bt in range(30):
+            for _bt in range(30 if todo.size else 0):
                 qt = qa[L[todo]] - scale[todo, None] * step[todo]
                 rt = res(qt, active[L[todo]], errors)
                 nt = np.linalg.norm(rt, axis=1)

@@ -134,3 +134,14 @@ def test_atomic_write_permissions_and_no_leftovers(tmp_path):
             tmp.write_text("half")
             raise RuntimeError("fails midway")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+def test_binary_files_are_named_not_tracebacks(tmp_path):
+    f = tmp_path / "x.bin"
+    f.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    with pytest.raises(InputError, match="not a text file"):
+        load_errors(f)
+    with pytest.raises(InputError, match="not a text file"):
+        AxisErrorTable.from_csv(f)
+    with pytest.raises(InputError, match="not a text file"):
+        load_machine(f)

@@ -388,8 +388,7 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
     E = np.eye(3 * n).reshape(3 * n, n, 3) * h
     M = np.concatenate([m[None] + E, m[None] - E])
     Rb, tb = _estimate_batch(M, d, method)
-    # angles_from_matrix indexes r[i, j]: a (3, 3, n) stack gives (3, n) angles
-    P = np.concatenate([tb, angles_from_matrix(Rb.transpose(1, 2, 0)).T], axis=1)
+    P = np.concatenate([tb, angles_from_matrix(Rb)], axis=1)
     Rs = (M - (d @ Rb.transpose(0, 2, 1) + tb[:, None, :])).reshape(len(M), -1)
     Jp = ((P[:3 * n] - P[3 * n:]) / (2 * h)).T
     Jr = ((Rs[:3 * n] - Rs[3 * n:]) / (2 * h)).T
