@@ -230,6 +230,43 @@ def test_missing_or_bad_table_resource_fails_initialisation_cleanly(built):
         r.close()
 
 
+def _repack(fmu, tmp_path, files: dict) -> Path:
+    """A copy of `fmu` with some archive files replaced or added (tampered resources)."""
+    d = tmp_path / "fmu"
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(d)
+    for name, text in files.items():
+        (d / name).parent.mkdir(parents=True, exist_ok=True)
+        (d / name).write_text(text)
+    path = tmp_path / "repacked.fmu"
+    with zipfile.ZipFile(path, "w") as z:
+        for f in sorted(d.rglob("*")):
+            if f.is_file():
+                z.write(f, f.relative_to(d).as_posix())
+    return path
+
+
+def test_out_of_range_start_values_are_refused_at_build_and_at_initialisation(built, tmp_path):
+    from mtcomp import MtcompError
+    with pytest.raises(MtcompError, match=r"tool_setting.offset.x = 60.0 is outside \[-50.0, 50.0\]"):
+        build_compensator_fmu("robonano-a0ib", tmp_path / "big.fmu", ErrorSet(ToolSetting((60.0, 0, 0))),
+                              compile_binary=False)
+    assert not (tmp_path / "big.fmu").exists()
+    # a start value the FMU never saw through fmi2SetReal (resources/start.txt) is checked too
+    start = zipfile.ZipFile(built["comp_setting"]).read("resources/start.txt").decode()
+    assert "\nr 20 0.35\n" in start
+    path = _repack(built["comp_setting"], tmp_path, {"resources/start.txt": start.replace("\nr 20 0.35\n", "\nr 20 60.0\n")})
+    logs = []
+    r = FmuRunner(path, "start", logs)
+    try:
+        r.fmu.enterInitializationMode()
+        with pytest.raises(FMICallException):
+            r.fmu.exitInitializationMode()
+    finally:
+        r.close()
+    assert any(s == 3 and "tool_setting.offset.x = 60 is out of range" in m for s, _, m in logs), logs
+
+
 @pytest.mark.parametrize("table", [
     "position,EXX,EXX\n0,1e-3,1e-3\n1,2e-3,2e-3\n",            # a component named twice
     "position,EXX\n0,1e-3" + "0" * 5000 + "\n1,2e-3\n",          # a line longer than the reader's buffer
@@ -237,16 +274,7 @@ def test_missing_or_bad_table_resource_fails_initialisation_cleanly(built):
     "position,EXX\n0,nan\n1,2e-3\n",
 ])
 def test_malformed_table_resource_is_refused_with_file_and_line(built, tmp_path, table):
-    d = tmp_path / "fmu"
-    with zipfile.ZipFile(built["comp_setting"]) as z:
-        z.extractall(d)
-    (d / "resources" / "tables").mkdir(exist_ok=True)
-    (d / "resources" / "tables" / "bad.csv").write_text(table)
-    path = tmp_path / "bad.fmu"
-    with zipfile.ZipFile(path, "w") as z:
-        for f in sorted(d.rglob("*")):
-            if f.is_file():
-                z.write(f, f.relative_to(d).as_posix())
+    path = _repack(built["comp_setting"], tmp_path, {"resources/tables/bad.csv": table})
     logs = []
     r = FmuRunner(path, "badtable", logs)
     try:

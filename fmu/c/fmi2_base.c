@@ -16,6 +16,8 @@
 
 #define UNUSED(x) (void)(x)
 
+static fmi2Status check_parameters(Instance *inst);
+
 void inst_log(Instance *inst, fmi2Status status, const char *category, const char *fmt, ...)
 {
     char msg[1024];
@@ -154,7 +156,8 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c)
         inst_log(inst, fmi2Error, "logStatusError", "fmi2ExitInitializationMode outside initialization mode");
         return fmi2Error;
     }
-    s = model_exit_init(inst);
+    s = check_parameters(inst);
+    if (s == fmi2OK) s = model_exit_init(inst);
     if (s > fmi2Warning) {
         inst->st.mode = MODE_ERROR;
         return s;
@@ -189,6 +192,20 @@ fmi2Status fmi2Reset(fmi2Component c)
 
 /* ---------------------------------------------------------------- values */
 
+/* Every Real parameter through the model's range checks: start values come from
+ * resources/start.txt and states, which fmi2SetReal never saw. */
+static fmi2Status check_parameters(Instance *inst)
+{
+    unsigned vr;
+    for (vr = 0; vr < MODEL_NR; vr++) {
+        int kind = model_real_kind(inst, vr);
+        if ((kind == VAR_PARAM_FIXED || kind == VAR_PARAM_TUNABLE) &&
+            model_check_real(inst, vr, inst->st.r[vr]) != fmi2OK)
+            return fmi2Error;
+    }
+    return fmi2OK;
+}
+
 static fmi2Status refresh(Instance *inst)
 {
     fmi2Status s = fmi2OK;
@@ -198,7 +215,8 @@ static fmi2Status refresh(Instance *inst)
     } else if (inst->st.mode == MODE_INIT && inst->st.dirty) {
         /* Initial outputs requested in initialization mode: initialise with what is set so
          * far (repeated, with the final values, when initialization mode ends). */
-        s = model_exit_init(inst);
+        s = check_parameters(inst);
+        if (s == fmi2OK) s = model_exit_init(inst);
         if (s <= fmi2Warning) inst->st.dirty = 0;
     }
     return s;
