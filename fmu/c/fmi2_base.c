@@ -193,7 +193,7 @@ fmi2Status fmi2Reset(fmi2Component c)
 /* ---------------------------------------------------------------- values */
 
 /* Every Real parameter through the model's range checks: start values come from
- * resources/start.txt and states, which fmi2SetReal never saw. */
+ * resources/start.txt, which fmi2SetReal never saw. */
 static fmi2Status check_parameters(Instance *inst)
 {
     unsigned vr;
