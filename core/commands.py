@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import InputError, atomic_write, read_text
+from ._io import InputError, atomic_write
 from .errors import ErrorSet, TableRangeError, load_errors
 from .kinematics import ConvergenceError, LimitError, forward, retarget
 from .machine import list_presets, load_machine
@@ -68,7 +68,8 @@ def _cmd_compensate(args) -> int:
     machine = load_machine(args.machine)
     errors = load_errors(args.errors)
     src = Path(args.program)
-    text = read_text(src, newline="", what="NC program")  # newline="": keep CR LF byte for byte
+    from .gcode import read_program
+    text = read_program(src)  # keeps CR LF byte for byte
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
     new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=args.chordal_tol * 1e-3,
                                        convert_inch=args.inch, progress=Progress("compensating", args.progress))

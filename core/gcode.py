@@ -713,13 +713,8 @@ def write(program: Program) -> str:
 def read_program(path) -> str:
     """The text of an NC program file, line endings untouched (CR LF stays CR LF, which
     ``Path.read_text`` would turn into LF).  A missing or binary file is an InputError."""
-    try:
-        with open(path, encoding="utf-8", newline="") as fh:
-            return fh.read()
-    except FileNotFoundError:
-        raise InputError("NC program not found", path) from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", path) from None
+    from ._io import read_text
+    return read_text(path, newline="", what="NC program")
 
 
 # ----------------------------------------------------------------------------------------------
