@@ -130,3 +130,14 @@ def test_paper_001_loop_probe_fit_compensate_machine(program):
     meas = C.pyramid_widths_angles(m, tp, q, true)
     assert np.max(np.abs(meas.widths - W)) < 0.01e-3
     assert np.max(np.abs(meas.angles - ANGLE)) < 0.001
+
+
+def test_bowl_blank_layout_is_the_workpiece_settings_default_plan():
+    """The CAD blank and the probing/fit side (mtcomp.setting.workpiece, used by the cell) must
+    describe the same blank: same bowls, blank size, ball radius and depth."""
+    from mtcomp.cad_plugin.layout import BowlBlankLayout
+    from mtcomp.setting.workpiece import plan_bowls
+    L, plan = BowlBlankLayout(), plan_bowls(3)
+    assert [(b.x, b.y) for b in plan.bowls] == [tuple(c) for c in L.centres]
+    assert plan.blank == (L.size, L.size, L.thickness)
+    assert (plan.tool_radius, plan.depth) == (L.bowl_radius, L.bowl_depth)
