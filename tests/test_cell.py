@@ -109,6 +109,8 @@ def test_journal_torn_tail_is_cut_and_appending_continues(tmp_path):
         j.append("reset", cmd_seq=1, status=0)
     good = p.read_bytes()
     p.write_bytes(good + b'{"n":2,"t":"x","ev":"sta')   # crash in the middle of a write
+    recs, keep = read_records(p)                          # reading skips the tail and says where
+    assert [r["cmd_seq"] for r in recs] == [1] and keep == len(good)
     with Journal.open(p) as j:
         assert j.n == 1
         j.append("reset", cmd_seq=2, status=0)
