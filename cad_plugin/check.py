@@ -236,6 +236,18 @@ def pyramid_widths_angles(machine, path: Toolpath, q: np.ndarray, errors=None) -
     return PyramidMeasure(widths, np.array([ang(0, 1), ang(2, 3)]), N, D)
 
 
+def _save(fig, out, title: str) -> None:
+    """Title, layout, PNG written atomically, figure closed."""
+    import matplotlib.pyplot as plt
+    from .._io import atomic_path
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+
+
 def _top_view(ax, path: Toolpath, size: float):
     """Top view of a toolpath: every move in grey, cutting points coloured by tip z (mm)."""
     cut = path.cutting
@@ -252,7 +264,6 @@ def plot_check(path: Toolpath, form: FormCheck, out, title: str = "") -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from .._io import atomic_path
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 4.8))
     _top_view(a0, path, 0.5)
     a0.set_title(f"toolpath {path.name} ({len(path)} poses), colour: tip z")
@@ -261,12 +272,7 @@ def plot_check(path: Toolpath, form: FormCheck, out, title: str = "") -> None:
     fig.colorbar(im, ax=a1, label="machined - target [um]")
     a1.set_xlabel("x [mm]")
     a1.set_title(f"form error: max {form.max * 1e3:.3f} um, RMS {form.rms * 1e3:.3f} um")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    _save(fig, out, title)
 
 
 def plot_toolpath(path: Toolpath, out, title: str = "", q: np.ndarray | None = None,
@@ -276,7 +282,6 @@ def plot_toolpath(path: Toolpath, out, title: str = "", q: np.ndarray | None = N
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from .._io import atomic_path
     fig, axs = plt.subplots(1, 2 if q is not None else 1, figsize=(11 if q is not None else 6, 4.8))
     a0 = axs[0] if q is not None else axs
     fig.colorbar(_top_view(a0, path, 1.0), ax=a0, label="tip z [mm]")
@@ -288,9 +293,4 @@ def plot_toolpath(path: Toolpath, out, title: str = "", q: np.ndarray | None = N
         a1.set_xlabel("block")
         a1.set_title("axis commands")
         a1.legend(fontsize=8)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    _save(fig, out, title)

@@ -79,6 +79,20 @@ class Var:
             return "fixed"
         return "continuous" if self.type == "Real" else "discrete"
 
+    def type_attributes(self) -> dict:
+        """unit, displayUnit, min and max as XML attributes (FMI 2.0 puts them on the type
+        element, FMI 3.0 on the variable)."""
+        a = {}
+        if self.type == "Real":
+            if self.unit:
+                a["unit"] = self.unit
+            if self.display_unit:
+                a["displayUnit"] = self.display_unit
+        for key, value in (("min", self.min), ("max", self.max)):
+            if value is not None:
+                a[key] = _fmt(value) if self.type == "Real" else str(int(value))
+        return a
+
     @property
     def initial(self) -> str | None:
         if self.causality == "parameter":
@@ -159,16 +173,7 @@ def write_model_description(*, model_name: str, identifier: str, description: st
         if v.initial:
             attrs["initial"] = v.initial
         sv = ET.SubElement(mv, "ScalarVariable", attrs)
-        ta = {}
-        if v.type == "Real":
-            if v.unit:
-                ta["unit"] = v.unit
-            if v.display_unit:
-                ta["displayUnit"] = v.display_unit
-        if v.min is not None:
-            ta["min"] = _fmt(v.min) if v.type == "Real" else str(int(v.min))
-        if v.max is not None:
-            ta["max"] = _fmt(v.max) if v.type == "Real" else str(int(v.max))
+        ta = v.type_attributes()
         if v.start is not None and v.causality != "output":
             ta["start"] = (_fmt(v.start) if v.type == "Real" else str(int(v.start)) if v.type == "Integer"
                            else str(v.start))
@@ -220,15 +225,7 @@ def write_model_description3(*, model_name: str, identifier: str, description: s
         attrs["variability"] = v.effective_variability
         if v.initial:
             attrs["initial"] = v.initial
-        if v.type == "Real":
-            if v.unit:
-                attrs["unit"] = v.unit
-            if v.display_unit:
-                attrs["displayUnit"] = v.display_unit
-        if v.min is not None:
-            attrs["min"] = _fmt(v.min) if v.type == "Real" else str(int(v.min))
-        if v.max is not None:
-            attrs["max"] = _fmt(v.max) if v.type == "Real" else str(int(v.max))
+        attrs.update(v.type_attributes())
         start = v.start if v.causality != "output" else None
         if start is not None and v.type != "String":
             attrs["start"] = _fmt(start) if v.type == "Real" else str(int(start))
