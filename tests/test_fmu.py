@@ -752,6 +752,30 @@ def test_fmi3_fmus_validate_and_match_the_core(built, fmi3):
     assert np.max(np.abs(np.array(got) - retarget(m, q, e))) <= 1e-9
 
 
+def test_fmi3_resource_path_is_a_plain_path(fmi3, tmp_path):
+    """FMI 3.0 passes a path, not a URI: a folder named with a '%' escape is used as it is."""
+    from fmpy.fmi3 import FMU3Slave
+    d = tmp_path / "unzipped%41"
+    with zipfile.ZipFile(fmi3["machine"]) as z:
+        z.extractall(d)
+    (tmp_path / "unzippedA").mkdir()          # what a URI decoder would wrongly open
+    md = read_model_description(str(fmi3["machine"]))
+    logs = []
+    s = FMU3Slave(guid=md.guid, unzipDirectory=str(d), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="pct")
+    s.instantiate(logMessage=lambda env, status, cat, msg: logs.append((status, msg.decode())))
+    try:
+        s.enterInitializationMode()
+        s.exitInitializationMode()
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        p0 = forward(load_machine("robonano-a0ib"), np.zeros((1, 5)), SETTING).p[0]
+        assert np.max(np.abs(np.array(s.getFloat64([vr["tool.x"], vr["tool.y"], vr["tool.z"]])) - p0)) < 1e-3
+        s.terminate()
+    finally:
+        s.freeInstance()
+    assert not [m for st, m in logs if st >= 3], logs
+
+
 def test_fmi3_state_restore_repeats_identically(fmi3):
     logs = []
     s, vr = _slave3(fmi3["machine"], logs)

@@ -72,6 +72,7 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
 {
     Callbacks3 *w;
     fmi2Component c;
+    char *uri = NULL;
     UNUSED(earlyReturnAllowed); UNUSED(requiredIntermediateVariables); UNUSED(nRequiredIntermediateVariables);
     UNUSED(intermediateUpdate);
     if (eventModeUsed) {
@@ -85,7 +86,29 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     w->fmi2.componentEnvironment = w;
     w->env = instanceEnvironment;
     w->log = logMessage;
-    c = fmi2Instantiate(instanceName, fmi2CoSimulation, instantiationToken, resourcePath, &w->fmi2, visible, loggingOn);
+    if (resourcePath) {
+        /* FMI 3.0 gives a plain path, the FMI 2.0 wrapper expects a URI: escape '%' so that a
+         * folder named like "a%41" is not decoded into another one */
+        const char *p;
+        char *o;
+        uri = (char *)malloc(3 * strlen(resourcePath) + 8);
+        if (!uri) {
+            free(w);
+            return NULL;
+        }
+        o = uri + sprintf(uri, "file://");
+        for (p = resourcePath; *p; p++) {
+            if (*p == '%') {
+                memcpy(o, "%25", 3);
+                o += 3;
+            } else {
+                *o++ = *p;
+            }
+        }
+        *o = 0;
+    }
+    c = fmi2Instantiate(instanceName, fmi2CoSimulation, instantiationToken, uri, &w->fmi2, visible, loggingOn);
+    free(uri);
     if (!c) free(w);
     return c;
 }
