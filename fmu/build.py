@@ -499,8 +499,9 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
         tables_spec = _resources(machine, errors, root / "resources")
         variables = _common_vars(machine) + extra_vars + _param_vars(machine, errors, tables_spec)
         for v in variables:   # the C code refuses these values; refuse to build such an FMU
-            if v.type != "String" and v.start is not None and (v.min is not None or v.max is not None) \
-                    and not (-math.inf if v.min is None else v.min) <= v.start <= (math.inf if v.max is None else v.max):
+            lo = -math.inf if v.min is None else v.min
+            hi = math.inf if v.max is None else v.max
+            if v.type != "String" and v.start is not None and not lo <= v.start <= hi:
                 raise MtcompError(f"{v.name} = {v.start!r} is outside [{v.min}, {v.max}], the range the FMU accepts")
         (root / "resources" / "start.txt").write_text(_start_values(variables), encoding="utf-8")
         sources = _copy_sources(kind, root / "sources", fmi_version)

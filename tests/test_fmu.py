@@ -255,7 +255,8 @@ def test_out_of_range_start_values_are_refused_at_build_and_at_initialisation(bu
     # a start value the FMU never saw through fmi2SetReal (resources/start.txt) is checked too
     start = zipfile.ZipFile(built["comp_setting"]).read("resources/start.txt").decode()
     assert "\nr 20 0.35\n" in start
-    path = _repack(built["comp_setting"], tmp_path, {"resources/start.txt": start.replace("\nr 20 0.35\n", "\nr 20 60.0\n")})
+    path = _repack(built["comp_setting"], tmp_path,
+                   {"resources/start.txt": start.replace("\nr 20 0.35\n", "\nr 20 60.0\n")})
     logs = []
     r = FmuRunner(path, "start", logs)
     try:
