@@ -238,14 +238,11 @@ def pyramid_widths_angles(machine, path: Toolpath, q: np.ndarray, errors=None) -
 
 def _save(fig, out, title: str) -> None:
     """Title, layout, PNG written atomically, figure closed."""
-    import matplotlib.pyplot as plt
-    from .._io import atomic_path
+    from .._io import save_figure
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, out, dpi=120)
 
 
 def _top_view(ax, path: Toolpath, size: float):

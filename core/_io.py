@@ -78,6 +78,15 @@ def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str 
         raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", path) from None
 
 
+def save_figure(fig, path: str | os.PathLike, dpi: int | None = None) -> Path:
+    """Write a matplotlib figure as PNG atomically, then close it (figures are not reused)."""
+    import matplotlib.pyplot as plt
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", **({} if dpi is None else {"dpi": dpi}))
+    plt.close(fig)
+    return Path(path)
+
+
 def load_toml(path: str | os.PathLike) -> dict:
     """Read a TOML file; a syntax error becomes an InputError naming the file and line."""
     try:

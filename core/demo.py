@@ -12,7 +12,6 @@ Stages (each prints its progress and timing; every number in the report is compu
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import InputError, MtcompError, atomic_path, atomic_write
+from .._io import InputError, MtcompError, atomic_write, save_figure
 from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 from . import build as _b
@@ -262,9 +262,7 @@ class CosimResult:
         a2.legend(loc="best")
         a2.grid(True, alpha=0.3)
         fig.tight_layout()
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png", dpi=110)
-        plt.close(fig)
+        save_figure(fig, path, dpi=110)
         return Path(path)
 
 

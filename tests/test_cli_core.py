@@ -1,7 +1,6 @@
 """`mtcomp compensate` and `mtcomp machines` end to end, through the installed entry point."""
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest

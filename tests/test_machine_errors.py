@@ -7,7 +7,7 @@ from mtcomp._io import dump_toml
 from mtcomp.errors import (AxisErrorTable, ErrorSet, GeometricErrors, TableRangeError, ToolSetting,
                            WorkpieceSetting, angles_from_matrix, load_errors, rotation_matrix_xyz,
                            save_errors)
-from mtcomp.machine import list_presets, load_machine, machine_from_dict
+from mtcomp.machine import load_machine, machine_from_dict
 
 
 @pytest.mark.parametrize("name", ["robonano-ui", "robonano-a0ib", "vmc-moving-column"])

@@ -1,6 +1,5 @@
 """`mtcomp workpiece-setting plan|probe|fit|compensate|simulate` end to end."""
 import numpy as np
-import pytest
 
 from mtcomp import gcode
 from mtcomp.cli import main

@@ -134,7 +134,7 @@ def plot(res, path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from .._io import atomic_path
+    from .._io import save_figure
     outs = list(res.outputs)[:6]
     fig, axes = plt.subplots(2 * len(outs), 1, figsize=(10, 3.2 * len(outs) + 0.5), sharex=True,
                              squeeze=False)
@@ -165,6 +165,4 @@ def plot(res, path) -> None:
     names = ", ".join(res.names) or "no effect (noise)"
     fig.suptitle(f"Diagnosis: {names}", fontsize=10)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import InputError, atomic_path, atomic_write
+from .._io import InputError, atomic_write, save_figure
 
 __all__ = ["PositioningRun", "Iso2302Result", "read_run_csv", "evaluate", "plot", "write_report",
            "run_to_csv"]
@@ -355,9 +355,7 @@ def plot(result: Iso2302Result, path: str | os.PathLike, title: str | None = Non
     ax.legend(loc="lower right", fontsize=8)
     ax.grid(True, lw=0.3)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
     return Path(path)
 
 

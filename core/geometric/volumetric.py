@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import atomic_path
+from .._io import save_figure
 from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 from . import first_order
@@ -180,7 +180,5 @@ def plot_map(vmap: VolumetricMap, path: str | os.PathLike, levels: int = 3,
     s = vmap.stats()
     fig.suptitle(title or f"Volumetric error of {vmap.machine}: max {s['max'] * 1e3:.2f} µm, "
                  f"RMS {s['rms'] * 1e3:.2f} µm")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
     return Path(path)

@@ -235,7 +235,7 @@ class CellResult:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-        from .._io import atomic_path
+        from .._io import save_figure
         fig, ax = plt.subplots(1, 3, figsize=(13, 4))
         for k in range(4):
             ax[0].hist(self.compensated[f"W{k + 1}"], bins=30, histtype="step", label=f"W{k + 1}")
@@ -261,9 +261,7 @@ class CellResult:
                      f"{ang} deg (target {PAPER_TARGET['angle']:g})", fontsize=10)
         ax[2].legend(fontsize=8)
         fig.tight_layout()
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
-        plt.close(fig)
+        save_figure(fig, path, dpi=110)
 
 
 def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResult:

@@ -364,7 +364,6 @@ def paper_experiment(machine="robonano-ui", offset=None, noise: MicroscopeNoise 
     """One virtual run of paper 000's experiment: cut with the true offset, measure with noise,
     estimate, cut again with compensated programs.  Returns (estimate, original distances,
     compensated distances); distances as in `table1_distances` (mm)."""
-    from .tool_estimate import estimate
     from ..machine import load_machine
     m = load_machine(machine)
     plan = plan or make_plan(m)

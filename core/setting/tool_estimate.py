@@ -602,7 +602,7 @@ def plot_report(machine, meas, est: ToolSettingEstimate, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from pathlib import Path
-    from .._io import atomic_path
+    from .._io import save_figure
     from .tool import cut_grooves
     m = machine
     plan = meas.plan
@@ -644,7 +644,5 @@ def plot_report(machine, meas, est: ToolSettingEstimate, path):
         ax.set_ylabel("v [mm]")
     fig.tight_layout()
     path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
     return path

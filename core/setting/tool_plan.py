@@ -323,7 +323,7 @@ def render_nc(machine, moves: list[Move], title: str) -> str:
     """G-code text (ISO 6983 words, mm and deg, absolute) of moves; every block states every axis."""
     from ..machine import load_machine
     m = load_machine(machine)
-    lines = [f"%", f"({title})", "(units mm, deg; tool edge programmed on the rotation centres)",
+    lines = ["%", f"({title})", "(units mm, deg; tool edge programmed on the rotation centres)",
              "G21 G90 G94"]
     for mv in moves:
         words = ["G00" if mv.rapid else "G01"]
@@ -519,7 +519,7 @@ def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from .._io import atomic_path
+    from .._io import save_figure
     faces = [f for f in plan.faces if any(g.face == f for g in plan.grooves)]
     fig, axs = plt.subplots(1, len(faces), figsize=(6 * len(faces), 6), squeeze=False)
     w, h = plan.options.plate
@@ -554,7 +554,5 @@ def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
                  f"(D = {plan.options.depth:g} mm, tip {plan.options.tip_angle:g} deg)", fontsize=10)
     fig.tight_layout()
     path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path
