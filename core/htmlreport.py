@@ -38,8 +38,8 @@ class Section:
 
     def table(self, header: list[str], rows: list[list], caption: str | None = None) -> "Section":
         def cell(v):
-            if isinstance(v, float):
-                return f"{v:.4g}" if abs(v) < 1e5 else f"{v:.6g}"
+            if isinstance(v, float):  # 4 significant digits, 6 for large values (3450.05, 164.810)
+                return f"{v:.4g}" if abs(v) < 100 else f"{v:.6g}"
             return html.escape(str(v))
         h = "".join(f"<th>{html.escape(str(x))}</th>" for x in header)
         body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in r) + "</tr>" for r in rows)
