@@ -27,7 +27,7 @@ from mtcomp.errors import (AxisErrorTable, ErrorSet, GeometricErrors, ToolSettin
 from mtcomp.fmu.build import MachineDynamics, build_compensator_fmu, build_machine_fmu  # noqa: E402
 from mtcomp.fmu.cosim import FmuRunner, cosimulate, interpolate_program  # noqa: E402
 from mtcomp.fmu.ssp import write_ssp  # noqa: E402
-from mtcomp.kinematics import LimitError, forward, retarget  # noqa: E402
+from mtcomp.kinematics import ConvergenceError, LimitError, compensate, forward, retarget  # noqa: E402
 from mtcomp.machine import load_machine  # noqa: E402
 
 PRESETS = ("robonano-ui", "robonano-a0ib", "vmc-moving-column")
@@ -124,8 +124,8 @@ def _sample(machine, n, rng):
     hi = np.array([a.limits[1] for a in machine.axes])
     q = lo + (hi - lo) * (0.1 + 0.8 * rng.random((n, machine.n_axes)))
     if machine.name == "robonano-a0ib":
-        # Keep B off the B-C singularity (B = 0), where a tilted workpiece needs arbitrary C turns
-        # and both implementations rightly refuse.
+        # Keep B off the B-C singularity (B = 0), where a tilted workpiece needs C turned by a
+        # quarter turn (the restarts, tested on their own below).
         b = machine.index("B")
         q[:, b] = np.sign(q[:, b] + 1e-9) * (10.0 + np.abs(q[:, b]) * 0.8)
     return q
@@ -176,6 +176,53 @@ def test_c_iteration_matches_the_core_closed_form_for_rigid_errors(tmp_path):
     finally:
         r.close()
     assert np.max(np.abs(got - retarget(m, q, e))) <= 1e-9
+
+
+def test_c_kernel_restarts_like_the_core_at_the_b_c_singularity(tmp_path):
+    """A 3-axis program (B = C = 0) on the B-C table with the blank tilted about X: the iteration
+    from the programmed angles fails, and the kernel must restart from the same rotary seeds as
+    mtcomp.kinematics.compensate and keep the same solution (C turned by 90 deg, B tilted)."""
+    m = load_machine("robonano-a0ib")
+    e = ErrorSet(workpiece=WorkpieceSetting((0.01, 0.02, -0.005), (0.5, 0.0, 0.0)))
+    path = build_compensator_fmu(m, tmp_path / "tilted.fmu", e, compiler="cc")
+    q = np.zeros((7, 5))
+    q[:, 2:] = [[0, 0, 1], [5, 0, 0], [5, 3, 0], [0, 3, -0.5], [-20, 10, 2], [30, -15, -5], [-35, -25, 8]]
+    expected = retarget(m, q, e)
+    # the core's answer is the restart one: C a quarter turn away, B tilted by the blank's angle
+    assert np.allclose(np.abs(expected[:, 0]), 90.0, atol=1e-6)
+    assert np.allclose(np.abs(expected[:, 1]), 0.5, atol=1e-6)
+    logs = []
+    r = FmuRunner(path, "tilted", logs)
+    try:
+        cout = r.refs([f"compensated.{a}" for a in m.axis_names])
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(list(range(5)), list(q[0]))
+        r.fmu.exitInitializationMode()
+        got = np.array([(r.fmu.setReal(list(range(5)), list(qk)), r.fmu.getReal(cout))[1] for qk in q])
+        residual = r.fmu.getReal(r.refs(["residual"]))[0]
+    finally:
+        r.close()
+    assert not [msg for s, _, msg in logs if s >= 3], logs
+    assert np.max(np.abs(got - expected)) <= 1e-9
+    assert residual < 1e-7
+    pose, ideal = forward(m, got, e), forward(m, q)
+    assert np.max(np.abs(pose.p - ideal.p)) <= 1e-9 and np.max(np.abs(pose.v - ideal.v)) <= 1e-9
+    # With 2 iterations per attempt no seed converges: both refuse, naming the residual of the
+    # attempt from the programmed commands.
+    with pytest.raises(ConvergenceError) as core_error:
+        compensate(m, forward(m, q[2:3]), e, q[2:3], max_iter=2)
+    logs = []
+    r = FmuRunner(path, "few-iterations", logs)
+    try:
+        r.set({"max_iterations": 2})
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(list(range(5)), list(q[2]))
+        with pytest.raises(FMICallException):
+            r.fmu.exitInitializationMode()
+    finally:
+        r.close()
+    residual_text = str(core_error.value).split("(residual ")[1].split(")")[0]
+    assert any(s == 3 and f"did not converge (residual {residual_text})" in msg for s, _, msg in logs), logs
 
 
 # ---------------------------------------------------------------------------------------- errors

@@ -610,11 +610,87 @@ static int linearise(const mtk_model *m, const mtk_errors *rigid, const double *
     return solve(n, Acopy, Ainv, n);
 }
 
+/* The Gauss-Newton iteration of mtcomp.kinematics._solve for one point, started at `seed` and
+ * pulled (weight LAMBDA) toward it.  Leaves the iterate in q and its largest residual component
+ * (mm, tables held at their ends, NaN propagated) in *resmax; adds the iterations to *iters.
+ * A singular Jacobian ends the attempt with *singular set and *resmax infinite. */
+static int iterate(const mtk_model *m, const mtk_errors *e, const mtk_errors *rigid, const target_t *tg,
+                   int rows, const double *seed, double *q, double tol, int max_iter, int *iters,
+                   double *resmax, int *singular, char *err)
+{
+    int n = m->n_axes, i, k, it = 0, rc = MTK_OK, done = 0;
+    double K[MTK_MAX_AXES * 6], Ainv[MTK_MAX_AXES * MTK_MAX_AXES], r[6], nr;
+    *singular = 0;
+    *resmax = INFINITY;
+    memcpy(q, seed, n * sizeof(double));
+    while (!done && it < max_iter) {
+        int inner, slow = 0;
+        if (!linearise(m, rigid, q, tg, rows, K, Ainv, err, &rc)) {
+            *iters += it;
+            if (rc) return rc;
+            *singular = 1;
+            return MTK_OK;
+        }
+        rc = residual(m, e, q, tg, r, err, 0);
+        if (rc) return rc;
+        nr = norm(r, rows);
+        for (inner = 0; inner < 8; inner++) {
+            double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0;
+            int bt;
+            it++;
+            for (i = 0; i < n; i++) {
+                double s = 0.0, pull = 0.0;
+                for (k = 0; k < rows; k++) s += K[i * rows + k] * r[k];
+                for (k = 0; k < n; k++) pull += Ainv[i * n + k] * (q[k] - seed[k]);
+                step[i] = s + LAMBDA * pull;
+                if (m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
+            }
+            /* Damping: rotary steps at most 20 deg (the whole step scaled), halved while the
+             * residual does not fall. */
+            scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
+            memcpy(qn, q, n * sizeof(double));
+            memcpy(rn, r, sizeof rn);
+            for (bt = 0; bt < 30; bt++) {
+                double qt[MTK_MAX_AXES], rt[6], nt;
+                for (i = 0; i < n; i++) qt[i] = q[i] - scale * step[i];
+                rc = residual(m, e, qt, tg, rt, err, 0);
+                if (rc) return rc;
+                nt = norm(rt, rows);
+                if (nt < nr || nt <= 1e-12) {
+                    memcpy(qn, qt, n * sizeof(double));
+                    memcpy(rn, rt, sizeof rn);
+                    nn = nt;
+                    break;
+                }
+                scale *= 0.5;
+            }
+            for (i = 0; i < n; i++)
+                if (fabs(qn[i] - q[i]) > stepped) stepped = fabs(qn[i] - q[i]);
+            slow |= (nn > 0.1 * nr) && (nn > 1e-12);
+            done |= (stepped < tol) || (nn <= 1e-12);
+            memcpy(q, qn, n * sizeof(double));
+            memcpy(r, rn, sizeof r);
+            nr = nn;
+            if (done || slow) break;
+        }
+    }
+    *iters += it;
+    rc = residual(m, e, q, tg, r, err, 0);
+    if (rc) return rc;
+    *resmax = 0.0;
+    for (k = 0; k < rows; k++)
+        if (isnan(r[k]) || fabs(r[k]) > *resmax) *resmax = isnan(r[k]) ? NAN : fabs(r[k]);
+    return MTK_OK;
+}
+
+/* Rotary offsets (deg) of the restart seeds, as mtcomp.kinematics._SEED_OFFSETS. */
+static const double SEED_OFFSETS[3] = {90.0, -90.0, 180.0};
+
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual_out, char *err)
 {
-    int n = m->n_axes, rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], Ainv[MTK_MAX_AXES * MTK_MAX_AXES], r[6], nr, resmax = 0.0;
+    int n = m->n_axes, rows, i, k, it = 0, rc = MTK_OK, singular = 0;
+    double r[6], resmax = 0.0, res0;
     mtk_errors rigid;
     target_t tg;
     if (iters) *iters = 0;
@@ -643,58 +719,61 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
     memcpy(rigid.wp_t, e->wp_t, sizeof rigid.wp_t);
     memcpy(rigid.wp_a, e->wp_a, sizeof rigid.wp_a);
     rigid.use_tables = 0;
-    memcpy(q, q_prog, n * sizeof(double));
-    /* Same iteration as mtcomp.kinematics.compensate, for one point. */
-    while (!done && it < max_iter) {
-        int inner, slow = 0;
-        if (!linearise(m, &rigid, q, &tg, rows, K, Ainv, err, &rc)) {
+    /* Same iteration as mtcomp.kinematics.compensate, for one point: from the programmed
+     * commands first. */
+    rc = iterate(m, e, &rigid, &tg, rows, q_prog, q, tol, max_iter, &it, &res0, &singular, err);
+    if (rc) return rc;
+    if (!(res0 < CONVERGED)) {
+        /* Where that fails (a tilted workpiece at a singularity: B = 0 on a B-C table needs C
+         * turned by 90 deg), restart from the programmed commands with rotary axes offset by
+         * SEED_OFFSETS: each rotary axis alone, then each pair, in the core's order; keep the
+         * converged solution with the smallest sum of |rotary change| (ties: the first). */
+        enum { MAX_SEEDS = 3 * MTK_MAX_AXES + 9 * MTK_MAX_AXES * (MTK_MAX_AXES - 1) / 2 };
+        int rot[MTK_MAX_AXES], nrot = 0, ns = 0, s, a, b, oa, ob, sa[MAX_SEEDS], sb[MAX_SEEDS], sing;
+        double va[MAX_SEEDS], vb[MAX_SEEDS], best = INFINITY, seed[MTK_MAX_AXES], qt[MTK_MAX_AXES], et;
+        for (i = 0; i < n; i++)
+            if (m->rotary[i]) rot[nrot++] = i;
+        for (a = 0; a < nrot; a++)
+            for (oa = 0; oa < 3; oa++, ns++) {
+                sa[ns] = rot[a]; va[ns] = SEED_OFFSETS[oa];
+                sb[ns] = -1; vb[ns] = 0.0;
+            }
+        for (a = 0; a < nrot; a++)
+            for (b = a + 1; b < nrot; b++)
+                for (oa = 0; oa < 3; oa++)
+                    for (ob = 0; ob < 3; ob++, ns++) {
+                        sa[ns] = rot[a]; va[ns] = SEED_OFFSETS[oa];
+                        sb[ns] = rot[b]; vb[ns] = SEED_OFFSETS[ob];
+                    }
+        for (s = 0; s < ns; s++) {
+            double change = 0.0;
+            memcpy(seed, q_prog, n * sizeof(double));
+            seed[sa[s]] += va[s];
+            if (sb[s] >= 0) seed[sb[s]] += vb[s];
+            rc = iterate(m, e, &rigid, &tg, rows, seed, qt, tol, max_iter, &it, &et, &sing, err);
             if (rc) return rc;
-            seterr(err, "compensation did not converge: singular Jacobian (kinematic singularity)");
+            for (a = 0; a < nrot; a++) change += fabs(qt[rot[a]] - q_prog[rot[a]]);
+            if (et < CONVERGED && change < best - 1e-9) {
+                memcpy(q, qt, n * sizeof(double));
+                best = change;
+            }
+        }
+        if (best == INFINITY) {
+            /* No seed converged: report the attempt from the programmed commands, as the core. */
+            char msg[MTK_ERRLEN];
+            if (iters) *iters = it;
+            if (residual_out) *residual_out = res0;
+            if (singular)
+                snprintf(msg, sizeof msg, "compensation did not converge: singular Jacobian (kinematic "
+                         "singularity)");
+            else
+                snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may "
+                         "be unreachable or at a kinematic singularity", res0);
+            seterr(err, msg);
             return MTK_E_CONVERGE;
         }
-        rc = residual(m, e, q, &tg, r, err, 0);
-        if (rc) return rc;
-        nr = norm(r, rows);
-        for (inner = 0; inner < 8; inner++) {
-            double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0;
-            int bt;
-            it++;
-            for (i = 0; i < n; i++) {
-                double s = 0.0, pull = 0.0;
-                for (k = 0; k < rows; k++) s += K[i * rows + k] * r[k];
-                for (k = 0; k < n; k++) pull += Ainv[i * n + k] * (q[k] - q_prog[k]);
-                step[i] = s + LAMBDA * pull;
-                if (m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
-            }
-            /* Damping: rotary steps at most 20 deg (the whole step scaled), halved while the
-             * residual does not fall. */
-            scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
-            memcpy(qn, q, n * sizeof(double));
-            memcpy(rn, r, sizeof rn);
-            for (bt = 0; bt < 30; bt++) {
-                double qt[MTK_MAX_AXES], rt[6], nt;
-                for (i = 0; i < n; i++) qt[i] = q[i] - scale * step[i];
-                rc = residual(m, e, qt, &tg, rt, err, 0);
-                if (rc) return rc;
-                nt = norm(rt, rows);
-                if (nt < nr || nt <= 1e-12) {
-                    memcpy(qn, qt, n * sizeof(double));
-                    memcpy(rn, rt, sizeof rn);
-                    nn = nt;
-                    break;
-                }
-                scale *= 0.5;
-            }
-            for (i = 0; i < n; i++)
-                if (fabs(qn[i] - q[i]) > stepped) stepped = fabs(qn[i] - q[i]);
-            slow |= (nn > 0.1 * nr) && (nn > 1e-12);
-            done |= (stepped < tol) || (nn <= 1e-12);
-            memcpy(q, qn, n * sizeof(double));
-            memcpy(r, rn, sizeof r);
-            nr = nn;
-            if (done || slow) break;
-        }
     }
+    /* Strict evaluation: a converged command outside an error table's range is an error. */
     rc = residual(m, e, q, &tg, r, err, 1);
     if (rc) return rc;
     for (k = 0; k < rows; k++)

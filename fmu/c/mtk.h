@@ -4,7 +4,8 @@
  * workpiece to the tool, each contributing
  *     G_i(q) = L_i N_i(q) L_i^-1 . T(loc_i) D_i(q) T(-loc_i),
  * tool setting offset at the end of the chain and the workpiece setting pose at its start;
- * `mtk_compensate` is the same chord Gauss-Newton iteration as mtcomp.kinematics.compensate.
+ * `mtk_retarget` is the same chord Gauss-Newton iteration as mtcomp.kinematics.compensate,
+ * with the same restarts from rotary seeds where the iteration from the commands fails.
  * Units: mm and deg for commands and setting errors, rad for geometric error angles.
  * The machine comes from a resource file written at FMU build time (docs/fmu.md).
  */
@@ -61,7 +62,9 @@ int mtk_axis_index(const mtk_model *m, char axis_name);
 int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double R[9], char *err);
 
 /* Commands q (n_axes) that put the real tool edge at the ideal pose of q_prog under the errors e
- * (mtcomp.kinematics.retarget with check=True).  iters and residual (mm) may be NULL. */
+ * (mtcomp.kinematics.retarget with check=True).  max_iter bounds each attempt (the one from
+ * q_prog and every restart); iters receives the iterations of all attempts together, residual
+ * the largest residual component (mm; orientation scaled by 100 mm/rad).  Both may be NULL. */
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual, char *err);
 
