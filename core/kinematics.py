@@ -321,7 +321,9 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
                 qs[:, k] += o
             qt, et = _solve(machine, sub, errors, qs, tol, max_iter)
             change = np.sum(np.abs(qt[:, rot] - q0[bad][:, rot]), axis=1)
-            better = (et < 1e-7) & (change < best - 1e-9)
+            # solutions within 1e-6 (deg) of rotary change are ties: the first seed wins, so
+            # neighbouring points of a path take the same branch
+            better = (et < 1e-7) & (change < best - 1e-6)
             q[bad[better]] = qt[better]
             err[bad[better]] = et[better]
             best[better] = change[better]

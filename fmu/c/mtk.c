@@ -753,7 +753,8 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
             rc = iterate(m, e, &rigid, &tg, rows, seed, qt, tol, max_iter, &it, &et, &sing, err);
             if (rc) return rc;
             for (a = 0; a < nrot; a++) change += fabs(qt[rot[a]] - q_prog[rot[a]]);
-            if (et < CONVERGED && change < best - 1e-9) {
+            /* within 1e-6 deg of rotary change a tie: the first seed wins (same branch along a path) */
+            if (et < CONVERGED && change < best - 1e-6) {
                 memcpy(q, qt, n * sizeof(double));
                 best = change;
             }
