@@ -134,49 +134,11 @@ def compensate_commands(machine, q, pose: WorkpieceSetting, mode: str = "auto", 
 
 
 def _five_axis(machine, q, errors):
-    """kinematics.compensate for the programmed poses, with a restart where Newton stalls.
-
-    At a singular pose of the rotary axes (B = 0 on a B-C table) a small tilt of the blank can
-    need a large turn of the other rotary axis, which Newton started at the programmed angles
-    does not find.  A failing point is solved alone from rotary seeds 90 and 180 deg away, and
-    the angle change it needed seeds the rest of the program (neighbouring blocks need the same
-    turn), so a 3-axis program costs one restart, not one per block.
-    """
-    import itertools
-
-    from ..kinematics import ConvergenceError, Pose, compensate, forward
-    target = forward(machine, q)
-    rot = list(machine.rotary_indices)
-    q0 = q.copy()
-    out = np.empty_like(q)
-    start = 0
-    while start < len(q):
-        sub = slice(start, None)
-        try:
-            out[sub] = compensate(machine, Pose(target.p[sub], target.R[sub], target.tool_axis),
-                                  errors, q0[sub])
-            return out
-        except ConvergenceError as exc:
-            i = start + exc.index
-        one = Pose(target.p[i:i + 1], target.R[i:i + 1], target.tool_axis)
-        sol = None
-        for offs in itertools.product((0.0, 90.0, -90.0, 180.0), repeat=len(rot)):
-            seed = q0[i:i + 1].copy()
-            seed[0, rot] += offs
-            try:
-                sol = compensate(machine, one, errors, seed)
-                break
-            except ConvergenceError:
-                continue
-        if sol is None:
-            raise ConvergenceError(i, float("nan"))
-        if i > start:  # the block before i converged: solve it again (the exception lost it)
-            out[start:i] = compensate(machine, Pose(target.p[start:i], target.R[start:i],
-                                                    target.tool_axis), errors, q0[start:i])
-        out[i] = sol[0]
-        q0[i + 1:, rot] += sol[0, rot] - q[i, rot]
-        start = i + 1
-    return out
+    """kinematics.compensate for the programmed poses.  At a singular pose of the rotary axes
+    (B = 0 on a B-C table) a small tilt of the blank needs a large turn of the other rotary
+    axis; compensate finds it by restarting from rotary seeds (docs/model.md)."""
+    from ..kinematics import compensate, forward
+    return compensate(machine, forward(machine, q), errors, q)
 
 
 def compensate_text(machine, text: str, pose: WorkpieceSetting, *, mode: str = "auto",
