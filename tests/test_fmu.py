@@ -131,27 +131,33 @@ def _sample(machine, n, rng):
     return q
 
 
+def _compensate_through_fmu(path, machine, q, name, logs=None, extra=()):
+    """Drive the compensator FMU with the commands q (one setReal/getReal per row); returns the
+    compensated commands (K, n) and the values of the `extra` variables after the last row."""
+    r = FmuRunner(path, name, logs)
+    try:
+        cin = list(range(machine.n_axes))
+        cout = r.refs([f"compensated.{a}" for a in machine.axis_names])
+        r.fmu.enterInitializationMode()
+        r.fmu.setReal(cin, list(q[0]))
+        r.fmu.exitInitializationMode()
+        got = np.empty_like(q)
+        set_real, get_real = r.fmu.setReal, r.fmu.getReal
+        for k in range(len(q)):
+            set_real(cin, list(q[k]))
+            got[k] = get_real(cout)
+        return got, (get_real(r.refs(list(extra))) if extra else [])
+    finally:
+        r.close()
+
+
 @pytest.mark.parametrize("name", PRESETS)
 def test_c_kernel_matches_core_on_10000_poses(built, name):
     m = load_machine(name)
     e = built["errors"][name]
     q = _sample(m, 10_000, np.random.default_rng(zlib.crc32(name.encode())))
     expected = retarget(m, q, e)
-    runner = FmuRunner(built["comp"][name], "parity")
-    try:
-        n = m.n_axes
-        cin = list(range(n))
-        cout = runner.refs([f"compensated.{a}" for a in m.axis_names])
-        runner.fmu.enterInitializationMode()
-        runner.fmu.setReal(cin, list(q[0]))
-        runner.fmu.exitInitializationMode()
-        got = np.empty_like(q)
-        set_real, get_real = runner.fmu.setReal, runner.fmu.getReal
-        for k in range(len(q)):
-            set_real(cin, list(q[k]))
-            got[k] = get_real(cout)
-    finally:
-        runner.close()
+    got, _ = _compensate_through_fmu(built["comp"][name], m, q, "parity")
     assert np.max(np.abs(got - expected)) <= 1e-9
     # and the C result really does its job on the core's model
     assert np.max(np.abs(forward(m, got, e).p - forward(m, q).p)) <= 1e-9
@@ -166,15 +172,7 @@ def test_c_iteration_matches_the_core_closed_form_for_rigid_errors(tmp_path):
     e = ErrorSet(ToolSetting((0.35, -0.20, 0.15)), WorkpieceSetting((0.10, -0.05, 0.02)))
     path = build_compensator_fmu(m, tmp_path / "rigid.fmu", e, compiler="cc")
     q = _sample(m, 2000, np.random.default_rng(11))
-    r = FmuRunner(path, "rigid")
-    try:
-        cout = r.refs([f"compensated.{a}" for a in m.axis_names])
-        r.fmu.enterInitializationMode()
-        r.fmu.setReal(list(range(5)), list(q[0]))
-        r.fmu.exitInitializationMode()
-        got = np.array([(r.fmu.setReal(list(range(5)), list(qk)), r.fmu.getReal(cout))[1] for qk in q])
-    finally:
-        r.close()
+    got, _ = _compensate_through_fmu(path, m, q, "rigid")
     assert np.max(np.abs(got - retarget(m, q, e))) <= 1e-9
 
 
@@ -192,16 +190,7 @@ def test_c_kernel_restarts_like_the_core_at_the_b_c_singularity(tmp_path):
     assert np.allclose(np.abs(expected[:, 0]), 90.0, atol=1e-6)
     assert np.allclose(np.abs(expected[:, 1]), 0.5, atol=1e-6)
     logs = []
-    r = FmuRunner(path, "tilted", logs)
-    try:
-        cout = r.refs([f"compensated.{a}" for a in m.axis_names])
-        r.fmu.enterInitializationMode()
-        r.fmu.setReal(list(range(5)), list(q[0]))
-        r.fmu.exitInitializationMode()
-        got = np.array([(r.fmu.setReal(list(range(5)), list(qk)), r.fmu.getReal(cout))[1] for qk in q])
-        residual = r.fmu.getReal(r.refs(["residual"]))[0]
-    finally:
-        r.close()
+    got, (residual,) = _compensate_through_fmu(path, m, q, "tilted", logs, extra=("residual",))
     assert not [msg for s, _, msg in logs if s >= 3], logs
     assert np.max(np.abs(got - expected)) <= 1e-9
     assert residual < 1e-7
