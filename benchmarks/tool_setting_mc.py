@@ -26,11 +26,10 @@ from _report import machine_line, update_section  # noqa: E402
 from mtcomp.errors import ErrorSet, ToolSetting  # noqa: E402
 from mtcomp.machine import load_machine  # noqa: E402
 from mtcomp.setting import tool_estimate as te  # noqa: E402
-from mtcomp.setting.tool import (MicroscopeNoise, PlanOptions, cut_grooves, make_plan, paper_offset,  # noqa: E402
+from mtcomp.setting.tool import (PAPER_COMPENSATED, PAPER_ORIGINAL, MicroscopeNoise, PlanOptions, cut_grooves,  # noqa: E402
+                                 make_plan, paper_offset,
                                  simulate_grooving, table1_distances)
 
-PAPER_BEFORE = {"A": (490.04, 680.12), "C": (108.97, 852.81)}
-PAPER_AFTER = {"A": (4.06, 2.97), "C": (0.74, 1.40)}
 
 
 def progress(i, n, t0, what):
@@ -95,8 +94,8 @@ def main(n: int = 1000) -> str:
     before, ls, cf, tz = paper_runs(m, n)
     cov_comp, cov_all, cov_m99, d2mean = coverage(m, n)
     names = ["A du", "A dv", "C du", "C dv"]
-    paper_b = [*PAPER_BEFORE["A"], *PAPER_BEFORE["C"]]
-    paper_a = [*PAPER_AFTER["A"], *PAPER_AFTER["C"]]
+    paper_b = [*PAPER_ORIGINAL["A"], *PAPER_ORIGINAL["C"]]
+    paper_a = [*PAPER_COMPENSATED["A"], *PAPER_COMPENSATED["C"]]
     ours_b = [x * 1e3 for x in (*before["A"], *before["C"])]
     rows = ["| distance | paper original | virtual original | paper compensated | LS compensated mean | "
             "LS 95th pct | closed-form compensated mean | closed-form 95th pct |",

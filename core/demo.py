@@ -20,8 +20,6 @@ import numpy as np
 
 from ._io import atomic_write
 
-PAPER001_TABLE1 = {"W1": 3449.5, "W2": 3450.3, "W3": 3451.4, "W4": 3448.4, "S1&S2": 164.86, "S3&S4": 164.90}
-PAPER000_TABLE1 = {"A du": (490.04, 4.06), "A dv": (680.12, 2.97), "C du": (108.97, 0.74), "C dv": (852.81, 1.40)}
 
 
 class _Stages:
@@ -119,7 +117,7 @@ def stage_cell(out: Path, seed: int, quick: bool) -> dict:
             "path": path, "q": q, "nominal_program": nc / "O0100.nc"}
 
 
-def _pose_errors(p6) -> "object":
+def _pose_errors(p6):
     from .errors import ErrorSet, WorkpieceSetting
     return ErrorSet(workpiece=WorkpieceSetting(tuple(p6[:3]), tuple(p6[3:])))
 
@@ -232,14 +230,13 @@ def _report(out: Path, r: dict, quick: bool, times: dict) -> Path:
     s.table(["component", "hidden truth (µm)", "estimate (µm)", "1σ (µm)", "error / σ"],
             [[c, t["truth"][i] * 1e3, t["estimate"][i] * 1e3, t["sigma"][i] * 1e3,
               (t["estimate"][i] - t["truth"][i]) / t["sigma"][i]] for i, c in enumerate("xyz")])
+    from .setting.tool import PAPER_COMPENSATED, PAPER_ORIGINAL
     rows = []
-    for k, (paper_before, paper_after) in PAPER000_TABLE1.items():
-        axis, comp = k.split()
-        b = t["before"].get(axis)
-        a = t["after"].get(axis)
-        j = 0 if comp == "du" else 1
-        rows.append([f"against {axis}: {comp}", b[j] * 1e3 if b else float("nan"), paper_before,
-                     a[j] * 1e3 if a else float("nan"), paper_after])
+    for axis in ("A", "C"):
+        b, a = t["before"].get(axis), t["after"].get(axis)
+        for j, comp in enumerate(("du", "dv")):
+            rows.append([f"against {axis}: {comp}", b[j] * 1e3 if b else float("nan"), PAPER_ORIGINAL[axis][j],
+                         a[j] * 1e3 if a else float("nan"), PAPER_COMPENSATED[axis][j]])
     s.table(["groove distance", "original NC, this run (µm)", "paper 000 (µm)",
              "compensated NC, this run (µm)", "paper 000 (µm)"], rows)
     s.figure(t["png"], "grooves, residuals and the estimate")
@@ -265,11 +262,12 @@ def _report(out: Path, r: dict, quick: bool, times: dict) -> Path:
            "the machine has the truth).")
     s.figure(r["cosim"]["png"], "tool-edge error over time, with and without compensation")
     S.append(s)
+    from .setting.cellsim import PAPER_TABLE1, PAPER_TARGET
     p = r["pyramid"]
     s = Section("5. The machined pyramid beside paper 001's Table 1")
-    rows = [[f"W{i + 1} (µm)", 3450.0, PAPER001_TABLE1[f"W{i + 1}"], p["comp"].widths[i] * 1e3,
+    rows = [[f"W{i + 1} (µm)", PAPER_TARGET["width"], PAPER_TABLE1[f"W{i + 1}"], p["comp"].widths[i] * 1e3,
              p["unc"].widths[i] * 1e3] for i in range(4)]
-    rows += [[f"angle {n} (deg)", 164.81, PAPER001_TABLE1[n], p["comp"].angles[i], p["unc"].angles[i]]
+    rows += [[f"angle {n} (deg)", PAPER_TARGET["angle"], PAPER_TABLE1[n], p["comp"].angles[i], p["unc"].angles[i]]
              for i, n in enumerate(("S1&S2", "S3&S4"))]
     s.table(["quantity", "target", "paper 001", "compensated (this run)", "uncompensated (this run)"], rows)
     s.text("Widths move with the height error of the blank (dW = 2 dz / tan β, about 15x); the slope "

@@ -350,6 +350,12 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
 # ---------------------------------------------------------------------------------------------
 # The paper's experiment, virtually
 
+#: Paper 000, Table 1: groove distances (du, dv) in um against the A and C axes, cut with the
+#: original and with the compensated NC data.
+PAPER_ORIGINAL = {"A": (490.04, 680.12), "C": (108.97, 852.81)}
+PAPER_COMPENSATED = {"A": (4.06, 2.97), "C": (0.74, 1.40)}
+
+
 def paper_offset() -> tuple[float, float, float]:
     """A tool setting error (mm) that reproduces the A-axis distances of paper 000's Table 1
     (490.04 and 680.12 um) with the default plan: |t_y| = du/2, |t_x| = dv/2.  The signs are
