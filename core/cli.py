@@ -12,7 +12,7 @@ import sys
 from . import __version__
 from ._io import MtcompError
 
-# (module, description) of every command group; each module defines register(subparsers).
+# The module of every command group; each defines register(subparsers).
 COMMAND_MODULES = [
     "mtcomp.commands",            # compensate, machines
     "mtcomp.setting.tool_cli",    # tool-setting plan|simulate|estimate

@@ -13,7 +13,6 @@ class Progress:
         self.stream = stream or sys.stderr
         self.enabled = self.stream.isatty() if enabled is None else enabled
         self._last = 0.0
-        self._shown = False
 
     def __call__(self, done: int, total: int) -> None:
         if not self.enabled or total <= 0:
@@ -28,4 +27,3 @@ class Progress:
         if done >= total:
             self.stream.write("\n")
         self.stream.flush()
-        self._shown = True
