@@ -1,6 +1,7 @@
 """Shared input/output helpers: errors that name the file, line or field, and atomic writes."""
 from __future__ import annotations
 
+import errno
 import os
 import tempfile
 from contextlib import contextmanager
@@ -34,6 +35,8 @@ def atomic_path(path: str | os.PathLike):
     Nothing is left behind on failure, so a crash never leaves a half-written output.
     """
     path = Path(path)
+    if path.is_dir():  # say so by its name, not by the temporary file's
+        raise IsADirectoryError(errno.EISDIR, "Is a directory", str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
@@ -64,18 +67,54 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> Path:
     return Path(path)
 
 
-def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str = "file") -> str:
-    """Read a UTF-8 text file; a missing or binary file becomes an InputError naming it.
-    newline="" keeps CR LF line endings byte for byte."""
+# Text inputs larger than this are refused before they exhaust memory (bytes; an NC program of
+# ten million blocks is about 300 MB).
+MAX_TEXT_BYTES = 2 << 30
+
+
+def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str = "file",
+              encoding: str = "utf-8", max_bytes: int | None = None) -> str:
+    """Read a UTF-8 text file; a missing, binary, oversized or device file becomes an InputError
+    naming it.  newline="" keeps CR LF line endings byte for byte; newline=None turns CR LF and
+    CR into LF (as `open` does).  encoding="utf-8-sig" drops a byte-order mark."""
+    import stat
+    limit = MAX_TEXT_BYTES if max_bytes is None else int(max_bytes)
     try:
-        with open(path, encoding="utf-8", newline=newline) as fh:
-            return fh.read()
+        st = os.stat(path)
+        if stat.S_ISDIR(st.st_mode):
+            raise InputError(f"{what} is a directory", path)
+        if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) or stat.S_ISSOCK(st.st_mode):
+            # /dev/zero never ends, a terminal waits for typing: neither is an input file
+            raise InputError(f"{what} is a device, not a regular file", path)
+        chunks, size = [], 0
+        with open(path, "rb") as fh:
+            while True:
+                chunk = fh.read(1 << 20)
+                if not chunk:
+                    break
+                nul = chunk.find(b"\0")
+                if nul >= 0:
+                    raise InputError(f"not a text file (NUL byte at byte {size + nul})", path)
+                size += len(chunk)
+                if size > limit:
+                    raise InputError(f"{what} is larger than {limit / 2**20:.0f} MiB", path)
+                chunks.append(chunk)
     except FileNotFoundError:
         raise InputError(f"{what} not found", path) from None
     except IsADirectoryError:
         raise InputError(f"{what} is a directory", path) from None
+    except PermissionError:
+        raise InputError(f"{what} cannot be read (permission denied)", path) from None
+    except NotADirectoryError:
+        raise InputError(f"{what} not found (a part of the path is a file)", path) from None
+    data = b"".join(chunks)
+    try:
+        text = data.decode(encoding)
     except UnicodeDecodeError as exc:
-        raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", path) from None
+        raise InputError(f"not a text file (not UTF-8: {exc.reason} at byte {exc.start})", path) from None
+    if newline is None:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    return text
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int | None = None) -> Path:
@@ -87,14 +126,17 @@ def save_figure(fig, path: str | os.PathLike, dpi: int | None = None) -> Path:
     return Path(path)
 
 
-def load_toml(path: str | os.PathLike) -> dict:
+def load_toml(path: str | os.PathLike, *, what: str = "file") -> dict:
     """Read a TOML file; a syntax error becomes an InputError naming the file and line."""
+    return parse_toml(read_text(Path(path), what=what), path)
+
+
+def parse_toml(text: str, path: str | os.PathLike = "<string>") -> dict:
+    """Parse TOML text; a syntax error becomes an InputError naming `path` and the line."""
     try:
         import tomllib
     except ModuleNotFoundError:  # Python 3.10
         import tomli as tomllib
-    path = Path(path)
-    text = read_text(path)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -104,6 +146,59 @@ def load_toml(path: str | os.PathLike) -> dict:
             m = re.search(r"\(at line (\d+)", str(exc))
             line = int(m.group(1)) if m else None
         raise InputError(f"invalid TOML: {exc}", path, line) from None
+    except RecursionError:  # thousands of nested arrays
+        raise InputError("invalid TOML: nested too deeply", path) from None
+
+
+def toml_lines(text: str) -> dict[str, int]:
+    """Line (1-based) of every key and table header of a TOML text, by dotted path with array
+    indices, e.g. ``axis[2].resolution`` -> 31, ``geometric.location.EC0Y`` -> 12.
+
+    TOML parsers give values without positions; this light scanner lets an error about a field
+    name its line.  It reads header lines and ``key =`` lines only (no multi-line strings or
+    arrays), which is what hand-written set-up files contain; a field it cannot place has no line.
+    """
+    import re
+    key_re = r'(?:[A-Za-z0-9_-]+|"[^"]*"|\'[^\']*\')'
+    dotted = rf"{key_re}(?:\s*\.\s*{key_re})*"
+    head_re = re.compile(rf"^\s*(\[\[?)\s*({dotted})\s*\]\]?\s*(?:#.*)?$")
+    assign_re = re.compile(rf"^\s*({dotted})\s*=")
+
+    def parts(k):
+        return [p.strip().strip("'\"") for p in re.findall(key_re, k)]
+
+    out: dict[str, int] = {}
+    counts: dict[str, int] = {}
+    prefix = ""
+    for n, line in enumerate(text.split("\n"), 1):
+        m = head_re.match(line)
+        if m:
+            name = ".".join(parts(m.group(2)))
+            if m.group(1) == "[[":
+                counts[name] = counts.get(name, -1) + 1
+                prefix = f"{name}[{counts[name]}]"
+            else:
+                prefix = name
+            out.setdefault(prefix, n)
+            continue
+        m = assign_re.match(line)
+        if m:
+            key = ".".join(parts(m.group(1)))
+            out.setdefault(f"{prefix}.{key}" if prefix else key, n)
+    return out
+
+
+def locate_field(exc: "InputError", text: str) -> "InputError":
+    """The same error with the line of its field filled in from the TOML text (when found)."""
+    if exc.line is not None or not exc.field:
+        return exc
+    lines = toml_lines(text)
+    f = exc.field
+    while f:  # the field itself, else the nearest enclosing key or table that has a line
+        if f in lines:
+            return InputError(exc.what, exc.file, lines[f], exc.field)
+        f = f[:f.rindex("[")] if f.endswith("]") else f.rpartition(".")[0]
+    return exc
 
 
 def dump_toml(data: dict) -> str:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ._io import InputError, atomic_write
+from .cliargs import positive_float
 from .errors import ErrorSet, TableRangeError, load_errors
 from .kinematics import ConvergenceError, LimitError, forward, retarget
 from .machine import list_presets, load_machine
@@ -66,7 +67,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
 
 def _cmd_compensate(args) -> int:
     machine = load_machine(args.machine)
-    errors = load_errors(args.errors)
+    errors = load_errors(args.errors, machine=machine)
     src = Path(args.program)
     from .gcode import read_program
     text = read_program(src)  # keeps CR LF byte for byte
@@ -105,7 +106,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--machine", "-m", required=True, help=f"preset ({', '.join(list_presets())}) or TOML file")
     p.add_argument("--errors", "-e", required=True, help="errors TOML (docs/errors-format.md)")
     p.add_argument("-o", "--output", help="output program (default: PROGRAM_comp.nc)")
-    p.add_argument("--chordal-tol", type=float, default=0.1, metavar="UM",
+    p.add_argument("--chordal-tol", type=positive_float, default=0.1, metavar="UM",
                    help="chordal tolerance for linearised arcs in um (default 0.1)")
     p.add_argument("--inch", action="store_true", help="accept G20 (inch) data and convert it to mm")
     p.add_argument("--progress", action="store_true", default=None, help="show a progress bar")

@@ -7,7 +7,6 @@ docs/errors-format.md.
 """
 from __future__ import annotations
 
-import csv
 import io
 import os
 import re
@@ -17,11 +16,22 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ._io import InputError, MtcompError, atomic_write, dump_toml, load_toml, read_text
+from ._io import InputError, MtcompError, atomic_write, dump_toml, locate_field, parse_toml, read_text
+from .csvtable import read_csv
+from .validate import check_keys, number, string, table, vector
 
 _LIN = "XYZ"
 _ANG = "ABC"
 _LOC_RE = re.compile(r"^E([XYZABC])0([XYZUVWABC])$")
+_COMP_RE = re.compile(r"^E[XYZABC][XYZUVWABC]$")
+_AXES = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
+
+# Magnitude limits of error values: larger values are not errors of a machine but a different
+# machine (put them into its description).  Translational errors and setting offsets in mm,
+# angular geometric errors in rad; table positions in mm or deg.
+MAX_TRANSLATIONAL = 1000.0
+MAX_ANGULAR = 0.1
+MAX_POSITION = 1e6
 
 
 class TableRangeError(MtcompError):
@@ -197,45 +207,38 @@ class AxisErrorTable:
 
     @classmethod
     def from_csv(cls, path: str | os.PathLike, axis: str | None = None) -> "AxisErrorTable":
-        """Read one axis' table (docs/errors-format.md). The axis is taken from the header names."""
-        path = Path(path)
-        text = read_text(path, what="error table file")
-        rows = [(n, line) for n, line in enumerate(text.splitlines(), 1)
-                if line.strip() and not line.lstrip().startswith("#")]
-        if not rows:
-            raise InputError("empty error table", path)
-        hline, header = rows[0]
-        cols = [c.strip() for c in next(csv.reader([header]))]
-        if not cols or cols[0] != "position":
-            raise InputError(f"first column must be 'position', got {cols[:1]}", path, hline)
-        axes = {c[-1] for c in cols[1:]}
+        """Read one axis' table (docs/errors-format.md). The axis is taken from the header names.
+
+        Header units are converted (``position [deg]``, ``EXX [um]``, ``EAX [urad]``); without a
+        unit, position is in mm (deg for a rotary axis), E?K in mm and EA/EB/ECK in rad."""
+        t = read_csv(path, what="error table")
+        cols = t.names
+        if cols[0] != "position":
+            raise t.error(f"first column must be 'position', got {cols[0]!r}")
+        names = cols[1:]
+        bad = [c for c in names if not _COMP_RE.match(c)]
+        if bad:
+            raise t.error(f"unknown column {bad[0]!r}; expected ISO 230-1 component names "
+                          f"E<X|Y|Z|A|B|C><axis>, e.g. EXX,EYX,EZX,EAX,EBX,ECX", None, bad[0])
+        axes = sorted({c[-1] for c in names})
         if axis is None:
             if len(axes) != 1:
-                raise InputError(f"columns must name one axis (e.g. EXX,EYX,...), got {cols[1:]}", path, hline)
-            axis = axes.pop()
-        names = component_names(axis)
-        for c in cols[1:]:
-            if c not in names:
-                raise InputError(f"unknown column {c!r}; expected some of {', '.join(names)}", path, hline)
-        if len(set(cols)) != len(cols):
-            raise InputError("duplicate column", path, hline)
-        data = np.empty((len(rows) - 1, len(cols)))
-        for k, (n, line) in enumerate(rows[1:]):
-            cells = [c.strip() for c in next(csv.reader([line]))]
-            if len(cells) != len(cols):
-                raise InputError(f"expected {len(cols)} values, got {len(cells)}", path, n)
-            for j, c in enumerate(cells):
-                try:
-                    x = float(c)
-                except ValueError:
-                    raise InputError(f"malformed number {c!r} in column {cols[j]}", path, n) from None
-                if not np.isfinite(x):
-                    raise InputError(f"{c!r} in column {cols[j]}: expected a finite number", path, n)
-                data[k, j] = x
-            if k and data[k, 0] <= data[k - 1, 0]:
-                raise InputError(f"positions must increase strictly ({data[k, 0]:g} after {data[k - 1, 0]:g})",
-                                 path, n)
-        return cls(axis, data[:, 0], {c: data[:, j] for j, c in enumerate(cols) if j}, source=str(path))
+                raise t.error(f"columns must name one axis (e.g. EXX,EYX,...), got {', '.join(names) or 'none'}")
+            axis = axes[0]
+        comps = component_names(axis)
+        for c in names:
+            if c not in comps:
+                raise t.error(f"unknown column {c!r}; expected some of {', '.join(comps)}", None, c)
+        if len(t) < 2:
+            raise InputError("an error table needs at least two rows", t.source)
+        rotary = axis in _ANG
+        pos = t.numbers("position", unit="deg" if rotary else "mm", max_abs=MAX_POSITION)
+        for k in range(1, len(pos)):
+            if pos[k] <= pos[k - 1]:
+                raise t.error(f"positions must increase strictly ({pos[k]:g} after {pos[k - 1]:g})", k, "position")
+        vals = {c: t.numbers(c, unit="rad" if c[1] in _ANG else "mm",
+                             max_abs=MAX_ANGULAR if c[1] in _ANG else MAX_TRANSLATIONAL) for c in names}
+        return cls(axis, pos, vals, source=t.source)
 
 
 @dataclass(frozen=True)
@@ -259,9 +262,7 @@ class GeometricErrors:
             if not _LOC_RE.match(k):
                 raise InputError(f"unknown location error {k!r}; expected names like EC0Y, EX0C",
                                  field=f"location.{k}")
-            if not isinstance(v, (int, float)) or not np.isfinite(v):
-                raise InputError(f"expected a finite number, got {v!r}", field=f"location.{k}")
-            loc[k] = float(v)
+            loc[k] = _location_value(k, v, None, f"location.{k}")
         object.__setattr__(self, "tables", MappingProxyType(tables))
         object.__setattr__(self, "location", MappingProxyType(loc))
 
@@ -288,54 +289,104 @@ class ErrorSet:
         return self.tool.is_zero and self.workpiece.is_zero and self.geometric.is_zero
 
 
-def _check_keys(d: dict, allowed: set, file, prefix: str):
-    unknown = set(d) - allowed
-    if unknown:
-        raise InputError(f"unknown keys {sorted(unknown)}; expected some of {sorted(allowed)}", file, field=prefix)
+def _location_value(name: str, value, file, field_name: str) -> float:
+    ang = name[1] in _ANG
+    return number(value, file, field_name, max_abs=MAX_ANGULAR if ang else MAX_TRANSLATIONAL,
+                  unit="rad" if ang else "mm")
 
 
 def errors_from_dict(data: dict, file: str | os.PathLike = "<dict>", base: Path | None = None) -> ErrorSet:
-    """Build an ErrorSet from the TOML structure of docs/errors-format.md."""
-    _check_keys(data, {"tool_setting", "workpiece_setting", "geometric", "uncertainty", "meta"}, file, "<top>")
+    """Build an ErrorSet from the TOML structure of docs/errors-format.md.
+
+    Every value is checked here, once: types, shapes, finiteness, magnitudes (setting errors
+    within MAX_TRANSLATIONAL mm / 360 deg, geometric ones within MAX_TRANSLATIONAL mm and
+    MAX_ANGULAR rad), axis letters and unknown keys; a rejection is an InputError naming the
+    file and field."""
+    data = table(data, file, "<top>")
+    check_keys(data, ("tool_setting", "workpiece_setting", "geometric", "uncertainty", "meta"), file, None)
+    for k in ("uncertainty", "meta"):
+        if k in data:
+            table(data[k], file, k)
     tool = ToolSetting()
     wp = WorkpieceSetting()
     geo = GeometricErrors()
-    try:
-        if "tool_setting" in data:
-            ts = data["tool_setting"]
-            _check_keys(ts, {"offset", "sigma"}, file, "tool_setting")
-            tool = ToolSetting(tuple(ts.get("offset", (0, 0, 0))))
-        if "workpiece_setting" in data:
-            ws = data["workpiece_setting"]
-            _check_keys(ws, {"translation", "angles", "sigma"}, file, "workpiece_setting")
-            wp = WorkpieceSetting(tuple(ws.get("translation", (0, 0, 0))), tuple(ws.get("angles", (0, 0, 0))))
-    except InputError as exc:
-        raise InputError(exc.what, file, field=exc.field) from None
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"expected numbers: {exc}", file) from None
+    if "tool_setting" in data:
+        ts = table(data["tool_setting"], file, "tool_setting")
+        check_keys(ts, ("offset", "sigma"), file, "tool_setting")
+        if "sigma" in ts:
+            vector(ts["sigma"], 3, file, "tool_setting.sigma", lo=0.0, max_abs=MAX_TRANSLATIONAL, unit="mm")
+        tool = ToolSetting(vector(ts.get("offset", [0.0] * 3), 3, file, "tool_setting.offset",
+                                  max_abs=MAX_TRANSLATIONAL, unit="mm"))
+    if "workpiece_setting" in data:
+        ws = table(data["workpiece_setting"], file, "workpiece_setting")
+        check_keys(ws, ("translation", "angles", "sigma"), file, "workpiece_setting")
+        if "sigma" in ws:
+            vector(ws["sigma"], (1, 6), file, "workpiece_setting.sigma", lo=0.0, max_abs=MAX_TRANSLATIONAL)
+        wp = WorkpieceSetting(
+            vector(ws.get("translation", [0.0] * 3), 3, file, "workpiece_setting.translation",
+                   max_abs=MAX_TRANSLATIONAL, unit="mm"),
+            vector(ws.get("angles", [0.0] * 3), 3, file, "workpiece_setting.angles", max_abs=360.0, unit="deg"))
     if "geometric" in data:
-        g = data["geometric"]
-        _check_keys(g, {"tables", "location"}, file, "geometric")
+        g = table(data["geometric"], file, "geometric")
+        check_keys(g, ("tables", "location"), file, "geometric")
         tables = {}
-        for ax, rel in g.get("tables", {}).items():
+        for ax, rel in table(g.get("tables", {}), file, "geometric.tables").items():
+            f = f"geometric.tables.{ax}"
+            if ax not in _AXES:
+                raise InputError(f"unknown axis {ax!r}; expected one of {', '.join(_AXES)}", file, field=f)
+            rel = string(rel, file, f)
             p = Path(rel)
             if not p.is_absolute() and base is not None:
                 p = base / p
+            if p.is_dir():
+                raise InputError(f"{rel!r} is a directory; expected the CSV file of axis {ax}", file, field=f)
             t = AxisErrorTable.from_csv(p)
             if t.axis != ax:
-                raise InputError(f"table {rel} holds axis {t.axis}, not {ax}", file, field=f"geometric.tables.{ax}")
+                raise InputError(f"table {rel} holds axis {t.axis}, not {ax}", file, field=f)
             tables[ax] = t
-        try:
-            geo = GeometricErrors(tables, g.get("location", {}))
-        except InputError as exc:
-            raise InputError(exc.what, file, field=f"geometric.{exc.field}") from None
+        loc = {}
+        for k, v in table(g.get("location", {}), file, "geometric.location").items():
+            f = f"geometric.location.{k}"
+            if not _LOC_RE.match(k):
+                raise InputError(f"unknown location error {k!r}; expected names like EC0Y, EX0C", file, field=f)
+            loc[k] = _location_value(k, v, file, f)
+        geo = GeometricErrors(tables, loc)
     return ErrorSet(tool, wp, geo)
 
 
-def load_errors(path: str | os.PathLike) -> ErrorSet:
-    """Read an errors TOML file (tables referenced by relative path are read from its folder)."""
+def check_for_machine(errors: ErrorSet, machine, file: str | os.PathLike | None = None) -> ErrorSet:
+    """Refuse geometric errors of axes the machine does not have (a table or a location error
+    such as EX0U, EC0W or EX0A on a machine without U, W or A): they would be ignored, and the
+    program come out unchanged.  Returns `errors`."""
+    names = tuple(machine.axis_names)
+    have = f"machine {machine.name!r} has axes {' '.join(names)}"
+    for ax in errors.geometric.tables:
+        if ax not in names:
+            raise InputError(f"error table for axis {ax}, but {have}", file, field=f"geometric.tables.{ax}")
+    for k in errors.geometric.location:
+        if k[-1] not in names:
+            raise InputError(f"location error {k} of axis {k[-1]}, but {have}", file,
+                             field=f"geometric.location.{k}")
+    return errors
+
+
+def load_errors(path: str | os.PathLike, machine=None) -> ErrorSet:
+    """Read an errors TOML file (tables referenced by relative path are read from its folder).
+
+    With a machine (a Machine or anything `load_machine` takes), errors of axes it does not
+    have are refused (`check_for_machine`)."""
     path = Path(path)
-    return errors_from_dict(load_toml(path), path, path.parent)
+    text = read_text(path, what="errors file")
+    try:
+        errors = errors_from_dict(parse_toml(text, path), path, path.parent)
+        if machine is not None:
+            from .machine import load_machine
+            check_for_machine(errors, load_machine(machine), path)
+        return errors
+    except InputError as exc:
+        if exc.file is not None and str(exc.file) != str(path):
+            raise  # an error in a table CSV names its own file and line
+        raise locate_field(InputError(exc.what, path, exc.line, exc.field), text) from None
 
 
 def save_errors(errors: ErrorSet, path: str | os.PathLike, *, uncertainty: dict | None = None,

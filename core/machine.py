@@ -8,6 +8,7 @@ listed order.  Lengths in mm, angles in deg.  File format: docs/machine-format.m
 """
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from importlib import resources
@@ -15,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import InputError, load_toml
+from ._io import InputError, locate_field, parse_toml, read_text
+from .validate import check_keys, number, string, table, vector
 
 AXIS_NAMES = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
 LINEAR_NAMES = ("X", "Y", "Z", "U", "V", "W")
@@ -110,29 +112,52 @@ class Machine:
         }
 
 
+# Travel limits, locations and tool points beyond this are not a machine tool (mm or deg).
+MAX_EXTENT = 1e6
+# Least command increments an NC control offers: powers of ten from 1 nm (or 1e-9 deg) to 1.
+RESOLUTIONS = tuple(10.0 ** -k for k in range(10))
+
+
 def _vec3(value, file, field_name, unit=False):
-    try:
-        v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"expected 3 numbers, got {value!r}", file, field=field_name) from None
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise InputError(f"expected 3 finite numbers, got {value!r}", file, field=field_name)
+    v = vector(value, 3, file, field_name, max_abs=MAX_EXTENT, nonzero=unit)
     if unit:
-        n = np.linalg.norm(v)
+        n = math.sqrt(sum(x * x for x in v))
         if n < 1e-12:
             raise InputError("direction must not be the zero vector", file, field=field_name)
-        v = v / n
-    return tuple(float(x) for x in v)
+        v = tuple(x / n for x in v)
+    return v
+
+
+def _resolution(value, file, field_name) -> float:
+    """The command increment: a power of ten in [1e-9, 1].  A control's least input increment is
+    always one (0.001, 0.0001, ... mm), and programs are written with that many decimals; a
+    step such as 5e-6 has no decimal representation the control would read."""
+    r = number(value, file, field_name, lo=0.0, lo_open=True, hi=1.0)
+    for p in RESOLUTIONS:
+        if abs(r - p) <= 1e-9 * p:
+            return p
+    raise InputError(f"resolution must be a power of ten from 1e-9 to 1 (the control's least command "
+                     f"increment, e.g. 1e-6 mm or 1e-5 deg), got {value!r}", file, field=field_name)
+
+
+_AXIS_KEYS = ("name", "kind", "side", "direction", "location", "limits", "resolution")
 
 
 def machine_from_dict(data: dict, file: str | os.PathLike = "<dict>") -> Machine:
-    """Build and validate a Machine from the TOML structure of docs/machine-format.md."""
-    head = data.get("machine")
-    if not isinstance(head, dict):
+    """Build and validate a Machine from the TOML structure of docs/machine-format.md.
+
+    Every value is checked once here (types, ranges, shapes, finiteness, unknown keys); a
+    rejection is an InputError naming the file and field."""
+    data = table(data, file, "<top>")
+    check_keys(data, ("machine", "axis"), file, None)
+    if "machine" not in data:
         raise InputError("missing [machine] table", file, field="machine")
-    name = head.get("name")
-    if not isinstance(name, str) or not name:
-        raise InputError("expected a non-empty string", file, field="machine.name")
+    head = table(data["machine"], file, "machine")
+    if "name" not in head:
+        raise InputError("missing name (a non-empty string)", file, field="machine.name")
+    name = string(head["name"], file, "machine.name", max_len=200)
+    description = string(head.get("description", ""), file, "machine.description", nonempty=False)
+    sources = string(head.get("sources", ""), file, "machine.sources", nonempty=False)
     raw_axes = data.get("axis")
     if not isinstance(raw_axes, list) or not raw_axes:
         raise InputError("expected at least one [[axis]] table", file, field="axis")
@@ -140,25 +165,23 @@ def machine_from_dict(data: dict, file: str | os.PathLike = "<dict>") -> Machine
     seen_tool_side = False
     for i, ax in enumerate(raw_axes):
         f = f"axis[{i}]"
-        if not isinstance(ax, dict):
-            raise InputError("expected a table", file, field=f)
-        unknown = set(ax) - {"name", "kind", "side", "direction", "location", "limits", "resolution"}
-        if unknown:
-            raise InputError(f"unknown keys {sorted(unknown)}", file, field=f)
-        an = ax.get("name")
-        if an not in AXIS_NAMES:
+        ax = table(ax, file, f)
+        check_keys(ax, _AXIS_KEYS, file, f)
+        if "name" not in ax:
+            raise InputError(f"missing name (one of {', '.join(AXIS_NAMES)})", file, field=f"{f}.name")
+        an = ax["name"]
+        if not isinstance(an, str) or an not in AXIS_NAMES:
             raise InputError(f"axis name must be one of {', '.join(AXIS_NAMES)}, got {an!r}", file, field=f"{f}.name")
         if an in [a.name for a in axes]:
             raise InputError(f"axis {an} appears twice", file, field=f"{f}.name")
-        kind = ax.get("kind", "rotary" if an in ROTARY_NAMES else "linear")
-        if kind not in ("linear", "rotary"):
-            raise InputError(f"kind must be 'linear' or 'rotary', got {kind!r}", file, field=f"{f}.kind")
+        kind = string(ax.get("kind", "rotary" if an in ROTARY_NAMES else "linear"), file, f"{f}.kind",
+                      choices=("linear", "rotary"))
         if (kind == "rotary") != (an in ROTARY_NAMES):
             raise InputError(f"axis {an} must be {'rotary' if an in ROTARY_NAMES else 'linear'} (ISO 841)",
                              file, field=f"{f}.kind")
-        side = ax.get("side")
-        if side not in ("workpiece", "tool"):
-            raise InputError(f"side must be 'workpiece' or 'tool', got {side!r}", file, field=f"{f}.side")
+        if "side" not in ax:
+            raise InputError("missing side ('workpiece' or 'tool')", file, field=f"{f}.side")
+        side = string(ax["side"], file, f"{f}.side", choices=("workpiece", "tool"))
         # One base: every workpiece-side axis is listed before every tool-side axis.
         if side == "tool":
             seen_tool_side = True
@@ -169,23 +192,20 @@ def machine_from_dict(data: dict, file: str | os.PathLike = "<dict>") -> Machine
         if "direction" not in ax:
             raise InputError("missing direction", file, field=f"{f}.direction")
         direction = _vec3(ax["direction"], file, f"{f}.direction", unit=True)
-        location = _vec3(ax.get("location", [0, 0, 0]), file, f"{f}.location")
-        lim = ax.get("limits", [-np.inf, np.inf])
-        try:
-            lo, hi = (float(x) for x in lim)
-        except (TypeError, ValueError):
-            raise InputError(f"expected [low, high], got {lim!r}", file, field=f"{f}.limits") from None
-        if not lo < hi or np.isnan(lo) or np.isnan(hi):
+        location = _vec3(ax.get("location", [0.0, 0.0, 0.0]), file, f"{f}.location")
+        lim = ax.get("limits", [-math.inf, math.inf])
+        if not isinstance(lim, list) or len(lim) != 2:
+            raise InputError(f"expected [low, high], got {lim!r}", file, field=f"{f}.limits")
+        lo, hi = (number(x, file, f"{f}.limits[{j}]", allow_inf=True, max_abs=MAX_EXTENT,
+                         unit="deg" if kind == "rotary" else "mm") for j, x in enumerate(lim))
+        if not lo < hi:
             raise InputError(f"expected low < high, got {lim!r}", file, field=f"{f}.limits")
-        res = ax.get("resolution", 1e-5 if kind == "rotary" else 1e-6)
-        if not isinstance(res, (int, float)) or not (0 < res <= 1) or not np.isfinite(res):
-            raise InputError(f"expected a resolution in (0, 1], got {res!r}", file, field=f"{f}.resolution")
-        axes.append(Axis(an, kind, side, direction, location, (lo, hi), float(res)))
-    tool_point = _vec3(head.get("tool_point", [0, 0, 0]), file, "machine.tool_point")
-    tool_axis = _vec3(head.get("tool_axis", [0, 0, 1]), file, "machine.tool_axis", unit=True)
+        res = _resolution(ax.get("resolution", 1e-5 if kind == "rotary" else 1e-6), file, f"{f}.resolution")
+        axes.append(Axis(an, kind, side, direction, location, (lo, hi), res))
+    tool_point = _vec3(head.get("tool_point", [0.0, 0.0, 0.0]), file, "machine.tool_point")
+    tool_axis = _vec3(head.get("tool_axis", [0.0, 0.0, 1.0]), file, "machine.tool_axis", unit=True)
     extra = {k: v for k, v in head.items() if k not in ("name", "description", "sources", "tool_point", "tool_axis")}
-    return Machine(name, tuple(axes), tool_point, tool_axis, str(head.get("description", "")),
-                   str(head.get("sources", "")), extra)
+    return Machine(name, tuple(axes), tool_point, tool_axis, description, sources, extra)
 
 
 def list_presets() -> list[str]:
@@ -200,9 +220,13 @@ def load_machine(spec: str | os.PathLike | Machine) -> Machine:
     spec_s = str(spec)
     if spec_s in list_presets():
         res = resources.files("mtcomp.presets").joinpath(spec_s + ".toml")
-        with resources.as_file(res) as path:
-            return machine_from_dict(load_toml(path), f"preset {spec_s}")
+        return machine_from_dict(parse_toml(res.read_text(encoding="utf-8"), f"preset {spec_s}"),
+                                 f"preset {spec_s}")
     path = Path(spec_s)
     if not path.exists():
         raise InputError(f"no such machine file or preset (presets: {', '.join(list_presets())})", spec_s)
-    return machine_from_dict(load_toml(path), path)
+    text = read_text(path, what="machine file")
+    try:
+        return machine_from_dict(parse_toml(text, path), path)
+    except InputError as exc:
+        raise locate_field(exc, text) from None
