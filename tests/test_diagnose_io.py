@@ -99,6 +99,7 @@ def test_cli_subprocess_writes_json_plot_and_report(tmp_path):
     synth.write_csv(sim, case.sim)
     synth.write_csv(rec, case.rec)
     js, png, md = tmp_path / "out" / "d.json", tmp_path / "out" / "d.png", tmp_path / "out" / "d.md"
+    (tmp_path / "out").mkdir()  # the CLI writes into existing folders only
     p = subprocess.run([sys.executable, "-m", "mtcomp", "diagnose", "--sim", str(sim), "--rec", str(rec),
                         "--json", str(js), "--plot", str(png), "--report", str(md)],
                        capture_output=True, text=True, timeout=300)

@@ -33,6 +33,7 @@ def test_plan_outputs(work):
 
 def test_estimate_round_trip(work, capsys):
     out = work / "out"
+    out.mkdir()  # the CLI writes into existing folders only
     rc = main(["tool-setting", "estimate", str(work / "measured.csv"), "-o", str(out / "errors.toml"),
                "--report", str(out / "report.txt"), "--png", str(out / "report.png"), "--nc-dir", str(out)])
     assert rc == 0

@@ -80,6 +80,7 @@ def test_too_few_touches_and_collinear_plan_are_refused(tmp_path, capsys):
     assert "bowl 3: 3 touches, at least 5 needed" in capsys.readouterr().err
     assert not (tmp_path / "e.toml").exists()
     sub = tmp_path / "sub"
+    sub.mkdir()  # outputs go into existing folders only (the CLI refuses a missing parent)
     assert main(["workpiece-setting", "plan", "-o", str(sub / "p.toml"),
                  "--positions=-7,6;0,6.05;7,6.1"]) == 2
     assert "collinear" in capsys.readouterr().err
