@@ -48,7 +48,7 @@ UNITS: dict[str, tuple[str, float, float]] = {
 # enough below float overflow that sums, squares and least squares stay finite.
 MAX_ABS = 1e12
 
-_NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
+_NUMBER = r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"  # ASCII digits only
 _NUMBER_RE = re.compile(_NUMBER)
 _HEADER_RE = re.compile(r"^(?P<name>[^\[\(]*?)\s*(?:[\[\(]\s*(?P<unit>[^\]\)]*?)\s*[\]\)])?$")
 
@@ -64,7 +64,7 @@ def unit_factor(unit: str | None, to: str | None, *, source=None, line=None, col
                          f"({', '.join(u for u, q in UNITS.items() if b and q[0] == b[0])})",
                          source, line, column)
     if b is None or a[0] != b[0]:
-        raise InputError(f"unit {unit!r} is not a unit of {b[0] if b else to!r}; expected {to}",
+        raise InputError(f"unit {unit!r} is not a unit of {b[0] if b else repr(to)}; expected {to}",
                          source, line, column)
     # v_to = ((v * fa + oa) - ob) / fb
     return a[1] / b[1], (a[2] - b[2]) / b[1]
@@ -140,7 +140,7 @@ class CsvTable:
         """The integer in one cell (digits with an optional sign), within [lo, hi]."""
         c = self.col(name)
         s = self.rows[row][c.index]
-        if not re.fullmatch(r"[+-]?\d{1,18}", s):
+        if not re.fullmatch(r"[+-]?[0-9]{1,18}", s):
             raise InputError(f"expected an integer, got {_show(s)}", self.source, self.lines[row], c.header)
         v = int(s)
         if (lo is not None and v < lo) or (hi is not None and v > hi):

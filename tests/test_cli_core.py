@@ -137,3 +137,110 @@ def test_crlf_program_kept_byte_for_byte(tmp_path):
     r = run("compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out)
     assert r.returncode == 0, r.stderr
     assert out.read_bytes() == prog.read_bytes()
+
+
+# ---- issue 15/19 reproducers: every bad input is one line and a non-zero exit, never a traceback
+
+def main_inproc(argv):
+    """mtcomp's main in this process: (exit status, stdout, stderr)."""
+    import contextlib
+    import io
+    from mtcomp.cli import main
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            rc = main([str(a) for a in argv])
+        except SystemExit as exc:  # argparse usage errors
+            rc = exc.code
+    return rc, out.getvalue(), err.getvalue()
+
+
+def _one_line_error(rc, err, status=2):
+    assert rc == status, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(("usage:", " "))]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_internal_error_is_one_line_and_debug_shows_traceback(monkeypatch):
+    import mtcomp.commands as commands
+
+    def boom(args):
+        return {}["no such key"]
+    monkeypatch.setattr(commands, "_cmd_machines", boom)
+    rc, _, err = main_inproc(["machines"])
+    line = _one_line_error(rc, err, 3)
+    assert "internal error: KeyError" in line and "--debug" in line
+    rc, _, err = main_inproc(["machines", "--debug"])  # accepted after the command too
+    assert rc == 3 and "Traceback" in err and "boom" in err
+
+
+@pytest.mark.parametrize("target", ["dir", "nonexist", "file_parent"])
+def test_output_paths_refused_cleanly(setup, tmp_path, target):
+    prog, err = setup
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "afile").write_text("x")
+    out = {"dir": tmp_path / "adir", "nonexist": tmp_path / "nonexist" / "deeper" / "x.nc",
+           "file_parent": tmp_path / "afile" / "x.nc"}[target]
+    rc, _, e = main_inproc(["compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out])
+    line = _one_line_error(rc, e)
+    assert ("is a folder" in line) if target == "dir" else ("cannot write" in line)
+    assert not (tmp_path / "nonexist").exists()
+    assert sorted(p.name for p in (tmp_path / "adir").iterdir()) == []
+
+
+def test_existing_file_as_output_folder(tmp_path):
+    afile = tmp_path / "AFILE"
+    afile.write_text("keep")
+    rc, _, e = main_inproc(["tool-setting", "plan", "-o", afile])
+    assert "already exists and is not a folder" in _one_line_error(rc, e)
+    rc, _, e = main_inproc(["demo", "--out", afile, "--quick"])
+    assert "already exists and is not a folder" in _one_line_error(rc, e)
+    assert afile.read_text() == "keep"
+
+
+def test_device_as_program_is_refused(setup, tmp_path):
+    _, err = setup
+    rc, _, e = main_inproc(["compensate", "/dev/zero", "-m", "robonano-a0ib", "-e", err, "-o", tmp_path / "o.nc"])
+    assert "not a regular file" in _one_line_error(rc, e)
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "abc"])
+def test_chordal_tolerance_checked_by_the_parser(setup, tmp_path, value):
+    prog, err = setup
+    rc, _, e = main_inproc(["compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", tmp_path / "o.nc",
+                            f"--chordal-tol={value}"])
+    assert "--chordal-tol" in _one_line_error(rc, e)
+    assert not (tmp_path / "o.nc").exists()
+
+
+@pytest.mark.parametrize("toml, csv, field", [
+    ("[geometric.location]\nEX0U = 0.001\n", None, "geometric.location.EX0U"),
+    ("[geometric.location]\nEC0W = 1e-6\n", None, "geometric.location.EC0W"),
+    ("[geometric.location]\nEX0A = 0.002\n", None, "geometric.location.EX0A"),
+    ("[geometric.tables]\nU = 'u.csv'\n", "position,EXU\n0,0.001\n10,0.002\n", "geometric.tables.U"),
+])
+def test_errors_of_axes_the_machine_lacks_are_refused(setup, tmp_path, toml, csv, field):
+    prog, _ = setup
+    err = tmp_path / "axes.toml"
+    err.write_text("# errors of an axis robonano-a0ib does not have\n" + toml)
+    if csv:
+        (tmp_path / "u.csv").write_text(csv)
+    out = tmp_path / "o.nc"
+    rc, _, e = main_inproc(["compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out])
+    line = _one_line_error(rc, e)
+    assert f"axes.toml:3 [{field}]" in line and "has axes C B X Y Z" in line
+    assert not out.exists()
+
+
+def test_machine_resolution_not_a_power_of_ten(setup, tmp_path):
+    prog, err = setup
+    from mtcomp._io import dump_toml
+    d = load_machine("robonano-a0ib").to_dict()
+    d["axis"][2]["resolution"] = 5e-6
+    mf = tmp_path / "m.toml"
+    mf.write_text(dump_toml(d))
+    rc, _, e = main_inproc(["compensate", prog, "-m", mf, "-e", err, "-o", tmp_path / "o.nc"])
+    line = _one_line_error(rc, e)
+    assert "[axis[2].resolution]" in line and "power of ten" in line

@@ -145,3 +145,114 @@ def test_binary_files_are_named_not_tracebacks(tmp_path):
         AxisErrorTable.from_csv(f)
     with pytest.raises(InputError, match="not a text file"):
         load_machine(f)
+
+
+# ---- issue 15 reproducers: each was a traceback or a silent acceptance
+
+@pytest.mark.parametrize("toml, field, msg", [
+    ('tool_setting = ""\n', "tool_setting", "expected a table"),
+    ("geometric = []\n", "geometric", "expected a table"),
+    ("[geometric.tables]\nX = nan\n", "geometric.tables.X", "expected a string"),
+    ("[geometric.tables]\nX = ''\n", "geometric.tables.X", "non-empty"),
+    ("[geometric.tables]\nX = '.'\n", "geometric.tables.X", "is a directory"),
+    ("[geometric.tables]\nQ = 'q.csv'\n", "geometric.tables.Q", "unknown axis"),
+    ("[geometric.location]\nEC0Y = true\n", "geometric.location.EC0Y", "got true"),
+    ("[geometric.location]\nEC0Y = '1e-6'\n", "geometric.location.EC0Y", "expected a number"),
+    ("[geometric.location]\nEC0Y = 18446744073709551616\n", "geometric.location.EC0Y", "out of range"),
+    ("[geometric.location]\nEC0Y = 3\n", "geometric.location.EC0Y", "out of range"),
+    ("[geometric]\nlocation = 5\n", "geometric.location", "expected a table"),
+    ("[tool_setting]\noffset = [1, 2, true]\n", "tool_setting.offset[2]", "got true"),
+    ("[tool_setting]\noffset = [[1, 2, 3]]\n", "tool_setting.offset", "list of 3 numbers"),
+    ("[workpiece_setting]\nangles = [0, 0, 1e300]\n", "workpiece_setting.angles[2]", "out of range"),
+    ("[workpiece_setting]\nsigma = [-1]\n", "workpiece_setting.sigma[0]", ">= 0"),
+    ("meta = 3\n", "meta", "expected a table"),
+    ("extra = 1\n", "extra", "unknown key"),
+])
+def test_errors_toml_reproducers(tmp_path, toml, field, msg):
+    f = tmp_path / "e.toml"
+    f.write_text("# line 1 is a comment\n" + toml)
+    with pytest.raises(InputError) as exc:
+        load_errors(f)
+    assert exc.value.field == field and msg in str(exc.value)
+    assert str(exc.value).startswith(f"{f}:")  # the TOML line of the field is named
+
+
+@pytest.mark.parametrize("csv, line, msg", [
+    ("position,,EXX\n0,0,0\n1,0,0\n", 1, "column 2 of the header has no name"),
+    ("position,EXX,EXX\n0,0,0\n1,0,0\n", 1, "appears twice"),
+    ("position,EXX\n0,1_0\n1,0\n", 2, "expected a number"),
+    ("position,EXX\n0,\u0661\n1,0\n", 2, "expected a number"),
+    ("position,EXX\n0," + "9" * 400 + "\n1,0\n", 2, "out of range"),
+    ("position,EXX\n0,1e300\n1,0\n", 2, "out of range"),
+    ("position,EAX\n0,0.5\n1,0\n", 2, "out of range"),
+    ("position,EXX\n0,\"1\n1\",0\n", 2, "quoted cell"),
+    ("position,EXX [furlong]\n0,0\n1,0\n", 1, "unknown unit"),
+    ("position,EXX [deg]\n0,0\n1,0\n", 1, "not a unit of length"),
+    ("position,EXX,EYY\n0,0,0\n1,0,0\n", 1, "one axis"),
+    ("position,EXX\n0,0\n", None, "at least two rows"),
+])
+def test_table_csv_reproducers(tmp_path, csv, line, msg):
+    f = tmp_path / "t.csv"
+    f.write_text(csv)
+    with pytest.raises(InputError) as exc:
+        AxisErrorTable.from_csv(f)
+    assert msg in str(exc.value)
+    assert exc.value.line == line and str(exc.value.file) == str(f)
+
+
+def test_table_header_units_are_converted(tmp_path):
+    f = tmp_path / "t.csv"
+    f.write_text("# interferometer export\nposition [m],EXX [um],EBX (urad)\n0,1.5,-2\n0.1,2.5,4\n")
+    t = AxisErrorTable.from_csv(f)
+    assert t.axis == "X" and list(t.position) == [0.0, 100.0]
+    assert np.allclose(t.values["EXX"], [1.5e-3, 2.5e-3], rtol=1e-15)
+    assert np.allclose(t.values["EBX"], [-2e-6, 4e-6], rtol=1e-15)
+    f.write_text("position [deg],ECC [arcsec]\n-180,3.6\n180,-3.6\n")
+    t = AxisErrorTable.from_csv(f)
+    assert t.axis == "C" and np.allclose(t.values["ECC"], [np.pi / 180 / 1000, -np.pi / 180 / 1000], rtol=1e-12)
+
+
+@pytest.mark.parametrize("mutate, field, msg", [
+    (lambda d: d["axis"][2].update(resolution=5e-6), "axis[2].resolution", "power of ten"),
+    (lambda d: d["axis"][2].update(resolution=1e-10), "axis[2].resolution", "power of ten"),
+    (lambda d: d["axis"][2].update(resolution=True), "axis[2].resolution", "got true"),
+    (lambda d: d["axis"][2].update(direction=["1", "0", "0"]), "axis[2].direction[0]", "expected a number"),
+    (lambda d: d["axis"][2].update(direction=[[1, 0, 0]]), "axis[2].direction", "list of 3"),
+    (lambda d: d["axis"][2].update(limits=[-1, 2**64]), "axis[2].limits[1]", "out of range"),
+    (lambda d: d["axis"][2].update(limits=[True, 5]), "axis[2].limits[0]", "got true"),
+    (lambda d: d["axis"][2].update(location=[0, 0, 1e300]), "axis[2].location[2]", "out of range"),
+    (lambda d: d["axis"][2].update(side=1), "axis[2].side", "expected a string"),
+    (lambda d: d["axis"][2].update(name=["X"]), "axis[2].name", "axis name"),
+    (lambda d: d["machine"].update(name=3), "machine.name", "expected a string"),
+    (lambda d: d["machine"].update(tool_axis=[0, 0, 0]), "machine.tool_axis", "non-zero"),
+    (lambda d: d.update(axes=[]), "axes", "unknown key"),
+    (lambda d: d.update(axis={"name": "X"}), "axis", "at least one"),
+])
+def test_machine_reproducers(tmp_path, mutate, field, msg):
+    d = _machine_dict()
+    mutate(d)
+    f = tmp_path / "m.toml"
+    f.write_text(dump_toml(d))
+    with pytest.raises(InputError) as exc:
+        load_machine(f)
+    assert exc.value.field == field and msg in str(exc.value)
+    assert exc.value.line is not None  # the line of the field (or of its table) is named
+
+
+def test_power_of_ten_resolutions_accepted(tmp_path):
+    d = _machine_dict()
+    for i, r in enumerate((1, 1e-3, 1e-4, 1e-7, 1e-9)):
+        d["axis"][i]["resolution"] = r
+    f = tmp_path / "m.toml"
+    f.write_text(dump_toml(d))
+    m = load_machine(f)
+    assert [a.decimals for a in m.axes] == [0, 3, 4, 7, 9]
+
+
+def test_check_for_machine_library_call():
+    from mtcomp.errors import check_for_machine
+    m = load_machine("vmc-moving-column")
+    ok = ErrorSet(geometric=GeometricErrors(location={"EC0Y": 1e-5}))
+    assert check_for_machine(ok, m) is ok
+    with pytest.raises(InputError, match="EX0C of axis C"):
+        check_for_machine(ErrorSet(geometric=GeometricErrors(location={"EX0C": 1e-3})), m)
