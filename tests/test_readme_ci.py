@@ -33,3 +33,25 @@ def test_documented_docs_exist():
     text = (ROOT / "README.md").read_text()
     for link in re.findall(r"\]\((docs/[^)]+)\)", text):
         assert (ROOT / link).exists(), link
+
+
+def test_packaging_metadata():
+    """[all] is what a user needs (no test tools); tests install [all,dev]; typed; SPDX license."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    project, extras = meta["project"], meta["project"]["optional-dependencies"]
+    user = " ".join(extras["all"])
+    for tool in ("pytest", "hypothesis", "dev"):
+        assert tool not in user, f"[all] pulls in {tool}"
+    assert {d.split(">")[0].split("=")[0] for d in extras["dev"]} >= {"pytest", "hypothesis", "pytest-timeout"}
+    for name in ("fmu", "cad", "cell", "cosim"):
+        assert name in user
+    assert "'.[all,dev]'" in _block("test-command") and "'.[all]'" in _block("main-command")
+    assert project["license"] == "MIT" and not any(c.startswith("License ::") for c in project["classifiers"])
+    assert any(r.startswith("setuptools>=7") and int(r.split(">=")[1].split(".")[0]) >= 77
+               for r in meta["build-system"]["requires"])  # SPDX expressions need setuptools >= 77
+    assert "py.typed" in meta["tool"]["setuptools"]["package-data"]["mtcomp"]
+    assert (ROOT / "core" / "py.typed").exists()
