@@ -373,11 +373,18 @@ def campaign(per_surface: int, seed: int, timeout: float, surfaces: list[str] | 
 
 
 def report(results: dict, per_surface: int, seed: int, timeout: float, wall: float) -> str:
+    import subprocess
     from _report import machine_line
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                             timeout=10).stdout.strip()
+    except OSError:
+        rev = ""
     lines = ["## Fuzzing the inputs (`benchmarks/fuzz.py`)", "",
-             f"`python benchmarks/fuzz.py --per-surface {per_surface} --seed {seed} --timeout {timeout:g}`: "
-             f"mutated valid inputs of every command-line input surface, each run in a forked child with a "
-             f"{timeout:g} s bound. {machine_line()} Wall time {wall:.0f} s.", "",
+             f"`python benchmarks/fuzz.py --per-surface {per_surface} --seed {seed} --timeout {timeout:g}`"
+             f"{f' at commit {rev}' if rev else ''}: mutated valid inputs of every command-line input surface, "
+             f"each run in a forked child with a {timeout:g} s bound. {machine_line()} Wall time {wall:.0f} s, "
+             f"CPU per surface in the table.", "",
              "| surface | tried | accepted | refused (one line) | tracebacks | hangs | half-written | "
              "silent-wrong | CPU s |", "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for name, c in results.items():

@@ -56,3 +56,23 @@ def test_cli_options_never_crash(work, command, argv):
         assert "error:" in e
     assert not [p for p in work.rglob("*.tmp")], "half-written output left behind"
     assert not (work / "nodir").exists()
+
+
+@pytest.mark.slow
+def test_fuzz_campaign_harness_counts(tmp_path):
+    """benchmarks/fuzz.py end to end on two core surfaces: every input is counted once, none of
+    them gives a traceback, a hang or a half-written output, and failures keep a reproducer."""
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    sys.path.insert(0, str(root / "benchmarks"))
+    try:
+        import fuzz
+    finally:
+        sys.path.remove(str(root / "benchmarks"))
+    res = fuzz.campaign(6, 3, 20.0, ["errors-csv", "machine-toml", "cli-options"], tmp_path / "repro", 3000)
+    assert set(res) == {"errors-csv", "machine-toml", "cli-options"}
+    for name, c in res.items():
+        assert c["tried"] == 6 == c["accepted"] + c["refused"] + c["tracebacks"] + c["hangs"], (name, c)
+        assert c["tracebacks"] == c["hangs"] == c["half_written"] == 0, (name, c["kinds"])
+    assert res["errors-csv"]["refused"] > 0  # the mutations reach the reader's checks
