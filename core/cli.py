@@ -52,7 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Options that name files or folders the command writes (argparse dest names).  Their parent
 # folder must exist: a mistyped `-o /nonexist/x.nc` is refused instead of creating /nonexist.
-OUTPUT_DESTS = ("output", "out", "outdir", "out_dir", "report", "png", "journal")
+# (nc_dir is an input folder for `cell serve`: the check is harmless there, its parent exists.)
+OUTPUT_DESTS = ("output", "out", "outdir", "out_dir", "report", "png", "plot", "json", "journal", "nc_dir")
 
 
 def _check_outputs(args) -> None:
