@@ -32,8 +32,6 @@ ORIENTATION_SCALE = 100.0
 WO_HELD = ORIENTATION_SCALE * 1e-3
 #: Largest residual (mm; orientation in ORIENTATION_SCALE units) accepted as converged.
 CONVERGED = 1e-7
-#: Forward-difference step of the chord Jacobian (mm or deg).
-FD_STEP = 1e-6
 #: Default pole tolerance (deg), see `compensate` (mtk.h MTK_POLE_TOL).
 POLE_TOLERANCE = 0.2
 
@@ -244,6 +242,59 @@ def _sub(target: Pose, idx) -> Pose:
     return Pose(target.p[idx], target.R[idx], target.tool_axis)
 
 
+def _rigid_jacobian(machine: Machine, q: np.ndarray, rigid, target: Pose, mode: int, wo: float) -> np.ndarray:
+    """Jacobian (N, rows, n_axes) of the residual of the rigid model (setting errors only), per mm
+    or deg, analytic: a linear axis moves the tool along its direction as the axes before it
+    turn it, w = R_pre u; a rotary axis turns the tool about the line through its centre
+    c_w = R_pre c + t_pre along w: dp = w x (p - c_w), dR = [w]x R (per rad), in the nominal
+    workpiece frame, then turned into the real one by Rw^T (mtk.c jacobian)."""
+    n, m = q.shape
+    eye = np.eye(3)
+    R = np.broadcast_to(eye, (n, 3, 3))
+    t = np.zeros((n, 3))
+    pre = []
+    for i, ax in enumerate(machine.axes):
+        pre.append((R, t))
+        u = np.asarray(ax.direction, dtype=float)
+        if ax.is_rotary:
+            c = np.asarray(ax.location, dtype=float)
+            Rg = axis_rotation(u, np.radians(q[:, i]))
+            tg = c - Rg @ c
+            t = t + np.einsum("nij,nj->ni", R, tg)
+            R = _mm(R, Rg) if i else Rg
+        else:
+            t = t + q[:, i, None] * (R @ u)
+    tp = np.asarray(machine.tool_point, dtype=float)
+    if rigid is not None:
+        tp = tp + np.asarray(rigid.tool.offset)
+    p = R @ tp + t
+    v = R @ np.asarray(machine.tool_axis, dtype=float)
+    RwT = rigid.workpiece.matrix.T if rigid is not None else eye
+    rows = 3 if mode == 0 else 6
+    J = np.zeros((n, rows, m))
+    for i, ax in enumerate(machine.axes):
+        Rp, tpre = pre[i]
+        w = Rp @ np.asarray(ax.direction, dtype=float)
+        if not ax.is_rotary:
+            J[:, :3, i] = w @ RwT.T
+            continue
+        w = w * (np.pi / 180.0)
+        cw = Rp @ np.asarray(ax.location, dtype=float) + tpre
+        J[:, :3, i] = np.cross(w, p - cw) @ RwT.T
+        if mode == 2:
+            J[:, 3:, i] = wo * (np.cross(w, v) @ RwT.T)
+        elif mode == 3:
+            W = np.zeros((n, 3, 3))
+            W[:, 0, 1], W[:, 0, 2], W[:, 1, 0] = -w[:, 2], w[:, 1], w[:, 2]
+            W[:, 1, 2], W[:, 2, 0], W[:, 2, 1] = -w[:, 0], -w[:, 1], w[:, 0]
+            dR = np.einsum("ij,njk->nik", RwT, _mm(W, R))
+            dM = np.einsum("nji,njk->nik", target.R, dR)
+            J[:, 3, i] = wo * 0.5 * (dM[:, 2, 1] - dM[:, 1, 2])
+            J[:, 4, i] = wo * 0.5 * (dM[:, 0, 2] - dM[:, 2, 0])
+            J[:, 5, i] = wo * 0.5 * (dM[:, 1, 0] - dM[:, 0, 1])
+    return J
+
+
 def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, max_iter: int,
            free: np.ndarray | None = None, wo: float = ORIENTATION_SCALE):
     """The Gauss-Newton iteration of `compensate`; returns (q, residual rows (N, 3 or 6)).
@@ -260,20 +311,13 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
     it = 0
     while active.size and it < max_iter:
         qa = q[active]
-        # Chord Jacobian at the current iterate of the still active points.
-        h = FD_STEP
-        r0 = res(qa, active, rigid)
-        J = np.empty((active.size, r0.shape[1], m))
-        for k in range(m):
-            dq = qa.copy()
-            dq[:, k] += h
-            J[:, :, k] = (res(dq, active, rigid) - r0) / h
+        # Chord Jacobian (of the rigid model) at the current iterate of the still active points.
+        J = _rigid_jacobian(machine, qa, rigid, _sub(target, active), mode, wo)
         if free is not None:
             J *= free[active][:, None, :]
         JT = np.transpose(J, (0, 2, 1))
         A = _mm(JT, J) + lam * np.eye(m)
         K = np.linalg.solve(A, JT)
-        Ainv = np.linalg.inv(A)
         r = res(qa, active, errors)
         nr = np.linalg.norm(r, axis=1)
         done = np.zeros(active.size, bool)
@@ -281,8 +325,10 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
         for _ in range(8):
             it += 1
             L = live
-            step = (np.einsum("nij,nj->ni", K[L], r[L])
-                    + lam * np.einsum("nij,nj->ni", Ainv[L], qa[L] - q0[active[L]]))
+            # Damped least squares (lam): no component along a null direction of the Jacobian,
+            # so where the orientation leaves an axis free it keeps the seed's value, and no
+            # pull toward the seed that would bias the converged point.
+            step = np.einsum("nij,nj->ni", K[L], r[L])
             if free is not None:
                 step = np.where(free[active[L]], step, 0.0)
             # Damping: limit rotary steps to 20 deg (scaling the whole step, so the linear axes
@@ -330,18 +376,13 @@ def _pole_axis(machine: Machine, target: Pose, errors, q: np.ndarray, pole_toler
     """(N,) the rotary axis at a pole at q, or -1: an axis whose effect on the orientation lies
     within sin(pole_tolerance) of what the other rotary axes do (C at B = 0 on a B-C table turns
     the tool about itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of
-    several, the last in the chain.  Columns by forward differences on the rigid model, as the
-    chord Jacobian."""
+    several, the last in the chain.  Columns of the rigid model's Jacobian, as the chord
+    Jacobian's."""
     mode = _orientation_mode(machine)
     rigid = None if errors is None else ErrorSet(errors.tool, errors.workpiece)
     rot = list(machine.rotary_indices)
-    r0 = _residual(machine, q, rigid, target, mode)
-    cols = []
-    for k in rot:
-        dq = q.copy()
-        dq[:, k] += FD_STEP
-        cols.append(((_residual(machine, dq, rigid, target, mode) - r0) / FD_STEP)[:, 3:]
-                    / (ORIENTATION_SCALE * np.pi / 180.0))
+    J = _rigid_jacobian(machine, q, rigid, target, mode, 1.0)
+    cols = [J[:, 3:, k] * (180.0 / np.pi) for k in rot]
     thr = np.sin(np.radians(pole_tolerance))
     hold = np.full(len(q), -1)
     for a, ka in enumerate(rot):
@@ -471,7 +512,7 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
     orientation with 3), under `errors`.
 
     q0 seeds the iteration (usually the programmed commands, in path order).  Gauss-Newton with
-    a chord Jacobian: it is taken by forward differences on the rigid (setting-error) model,
+    a chord Jacobian: the analytic one of the rigid (setting-error) model,
     since the geometric tables change it by their slopes only (1e-4 at most), so each step
     contracts the error by about that factor.  Points that do not contract (large workpiece
     rotations near a singularity) get their Jacobian re-taken at the current iterate, i.e. full

@@ -13,8 +13,7 @@
 #include "mtk.h"
 
 #define ORIENTATION_SCALE 100.0  /* mm per rad, as mtcomp.kinematics.ORIENTATION_SCALE */
-#define FD_STEP 1e-6             /* forward-difference step of the chord Jacobian, mm or deg */
-#define LAMBDA 1e-12             /* pull toward the programmed commands at singularities */
+#define LAMBDA 1e-12             /* damping of the least-squares steps (singular Jacobians) */
 #define CONVERGED 1e-7           /* largest residual accepted after the iteration, mm */
 #define DEG (3.14159265358979323846 / 180.0)
 
@@ -618,7 +617,7 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
         for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
     } else if (P->mode == 3) {
         const double *T = tg->R;
-        double M21 = T[1] * R[2] + T[4] * R[5] + T[7] * R[8], M12 = T[2] * R[1] + T[5] * R[4] + T[8] * R[7];
+        double M21 = T[2] * R[1] + T[5] * R[4] + T[8] * R[7], M12 = T[1] * R[2] + T[4] * R[5] + T[7] * R[8];
         double M02 = T[0] * R[2] + T[3] * R[5] + T[6] * R[8], M20 = T[2] * R[0] + T[5] * R[3] + T[8] * R[6];
         double M10 = T[1] * R[0] + T[4] * R[3] + T[7] * R[6], M01 = T[0] * R[1] + T[3] * R[4] + T[6] * R[7];
         r[3] = wo * 0.5 * (M21 - M12);
@@ -678,28 +677,96 @@ static double norm(const double *r, int rows)
     return sqrt(s);
 }
 
-/* Forward-difference Jacobian J (rows x n, row-major) of the rigid model's residual at q. */
+/* Jacobian J (rows x n, row-major, per mm or deg) of the rigid model's residual at q, analytic
+ * (mtcomp.kinematics._rigid_jacobian): a linear axis moves the tool along its direction as the
+ * axes before it turn it, w = R_pre u; a rotary axis turns the tool about the line through its
+ * centre c_w = R_pre c + t_pre along w, dp = w x (p - c_w) and dR = [w]x R (per rad), all in
+ * the nominal workpiece frame and then turned into the real one by Rw^T.  The rigid model has
+ * no tables and no location errors (prepare with geo = 0). */
 static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J)
 {
-    int n = Pr->n, j, k, rc;
-    double r0[6], rk[6], dq[MTK_MAX_AXES];
-    rc = residual(Pr, q, tg, r0, wo, 0, NULL);
-    if (rc) return rc;
-    memcpy(dq, q, n * sizeof(double));
-    for (k = 0; k < n; k++) {
-        dq[k] = q[k] + FD_STEP;
-        rc = residual(Pr, dq, tg, rk, wo, 0, NULL);
-        if (rc) return rc;
-        dq[k] = q[k];
-        for (j = 0; j < Pr->rows; j++) J[j * n + k] = (rk[j] - r0[j]) / FD_STEP;
+    const mtk_model *m = Pr->m;
+    double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
+    int n = Pr->n, i, k, ident = 1;
+    eye(R);
+    for (i = 0; i < n; i++) {
+        memcpy(Rpre[i], R, sizeof R);
+        memcpy(tpre[i], t, sizeof t);
+        if (m->rotary[i]) {
+            double Rg[9], tg[3], tmp[3];
+            const double *c = Pr->c[i];
+            axis_rotation(Pr->ueff[i], q[i] * DEG + Pr->zero[i], Rg);
+            for (k = 0; k < 3; k++)
+                tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
+            if (ident) {
+                for (k = 0; k < 3; k++) t[k] += tg[k];
+                memcpy(R, Rg, sizeof R);
+                ident = 0;
+            } else {
+                mat_vec(R, tg, tmp);
+                for (k = 0; k < 3; k++) t[k] += tmp[k];
+                mat_mul(R, Rg, R);
+            }
+        } else {
+            double w[3];
+            mat_vec(R, Pr->ueff[i], w);
+            for (k = 0; k < 3; k++) t[k] += q[i] * w[k];
+        }
+    }
+    mat_vec(R, Pr->tp, p);
+    for (k = 0; k < 3; k++) p[k] += t[k];
+    mat_vec(R, m->tool_axis, v);
+    for (i = 0; i < n; i++) {
+        double w[3], dp[3], dpr[3], dv[3];
+        mat_vec(Rpre[i], Pr->ueff[i], w);
+        if (!m->rotary[i]) {
+            mat_vec(Pr->RwT, w, dpr);
+            for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
+            for (k = 3; k < Pr->rows; k++) J[k * n + i] = 0.0;
+            continue;
+        }
+        {
+            double cw[3], d[3];
+            mat_vec(Rpre[i], Pr->c[i], cw);
+            for (k = 0; k < 3; k++) {
+                cw[k] += tpre[i][k];
+                d[k] = p[k] - cw[k];
+                w[k] *= DEG;
+            }
+            dp[0] = w[1] * d[2] - w[2] * d[1];
+            dp[1] = w[2] * d[0] - w[0] * d[2];
+            dp[2] = w[0] * d[1] - w[1] * d[0];
+            mat_vec(Pr->RwT, dp, dpr);
+            for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
+        }
+        if (Pr->mode == 2) {
+            double c[3];
+            c[0] = w[1] * v[2] - w[2] * v[1];
+            c[1] = w[2] * v[0] - w[0] * v[2];
+            c[2] = w[0] * v[1] - w[1] * v[0];
+            mat_vec(Pr->RwT, c, dv);
+            for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
+        } else if (Pr->mode == 3) {
+            /* dM = T^T Rw^T [w]x R; rows: half the vee of its antisymmetric part */
+            double W[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
+            int r, c;
+            mat_mul(W, R, dR);
+            mat_mul(Pr->RwT, dR, dR);
+            for (r = 0; r < 3; r++)
+                for (c = 0; c < 3; c++)
+                    dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
+            J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
+            J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
+            J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
+        }
     }
     return MTK_OK;
 }
 
-/* K = A^-1 J^T, Ainv = A^-1 with A = J^T J + lambda I, the columns of frozen axes zeroed.
+/* K = A^-1 J^T with A = J^T J + lambda I, the columns of frozen axes zeroed.
  * Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     double *K, double *Ainv, int *rc)
+                     double *K, int *rc)
 {
     int n = Pr->n, rows = Pr->rows, i, j, k;
     double J[6 * MTK_MAX_AXES], A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
@@ -718,15 +785,11 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
     for (i = 0; i < n; i++)
         for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
     memcpy(Acopy, A, (size_t)n * n * sizeof(double));
-    if (!solve(n, Acopy, K, rows)) return 0;
-    for (i = 0; i < n; i++)
-        for (j = 0; j < n; j++) Ainv[i * n + j] = (i == j);
-    memcpy(Acopy, A, (size_t)n * n * sizeof(double));
-    return solve(n, Acopy, Ainv, n);
+    return solve(n, Acopy, K, rows);
 }
 
 /* The Gauss-Newton iteration of mtcomp.kinematics._solve for one point, started at `seed` and
- * pulled (weight LAMBDA) toward it; frozen axes (freeze[k] != 0, may be NULL) keep the seed's
+ * damped least-squares steps; frozen axes (freeze[k] != 0, may be NULL) keep the seed's
  * value.  Leaves the iterate in q and its residual rows (tables held at their ends) in r; adds
  * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set. */
 static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
@@ -734,7 +797,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                    int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], Ainv[MTK_MAX_AXES * MTK_MAX_AXES], nr;
+    double K[MTK_MAX_AXES * 6], nr;
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     rc = residual(P, q, tg, r, wo, 0, NULL);
@@ -742,7 +805,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     nr = norm(r, rows);
     while (!done && it < max_iter) {
         int inner, slow = 0;
-        if (!linearise(Pr, q, tg, wo, freeze, K, Ainv, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, K, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
@@ -754,11 +817,12 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             int bt;
             it++;
             for (i = 0; i < n; i++) {
-                double s = 0.0, pull = 0.0;
+                /* damped least squares: no component along a null direction of J (an axis the
+                 * orientation leaves free keeps the seed's value), no bias of the solution */
+                double s = 0.0;
                 if (freeze && freeze[i]) { step[i] = 0.0; continue; }
                 for (k = 0; k < rows; k++) s += K[i * rows + k] * r[k];
-                for (k = 0; k < n; k++) pull += Ainv[i * n + k] * (q[k] - seed[k]);
-                step[i] = s + LAMBDA * pull;
+                step[i] = s;
                 if (P->m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
                 if (fabs(step[i]) > smax) smax = fabs(step[i]);
             }
@@ -827,9 +891,9 @@ static int pole_axis(const prep_t *Pr, const double *q, const target_t *tg, doub
 {
     int n = Pr->n, a, b, j, k, hold = -1;
     double J[6 * MTK_MAX_AXES], col[MTK_MAX_AXES][3], thr = sin(pole_tol * DEG);
-    if (jacobian(Pr, q, tg, ORIENTATION_SCALE, J)) return -1;
+    if (jacobian(Pr, q, tg, 1.0, J)) return -1;
     for (a = 0; a < Pr->nrot; a++)
-        for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / (ORIENTATION_SCALE * DEG);
+        for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / DEG;
     for (a = 0; a < Pr->nrot; a++) {
         double basis[MTK_MAX_AXES][3], v[3];
         int nb = 0;
@@ -866,11 +930,12 @@ typedef struct {
 /* Rotary offsets (deg) of the restart seeds, as mtcomp.kinematics._SEED_OFFSETS. */
 static const double SEED_OFFSETS[3] = {90.0, -90.0, 180.0};
 
-/* Commands q for one target (mtcomp.kinematics.compensate for one point): from `start` (the
- * programmed commands, or them plus the previous pose's correction along a path); at a pole the
- * pole axis is held first and kept if the tool direction is then within pole_tol; else the
- * exact solution from start, from q0, from rotary seeds about q0 (least rotary change).
- * Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from start) or MTK_E_RANGE (*bad). */
+/* Commands q for one target (mtcomp.kinematics.compensate for one point).  At a pole (checked
+ * at `start`: q0, or q0 plus the previous pose's correction along a path) the pole axis is held
+ * and the result kept if the tool direction is then within pole_tol; else the exact solution
+ * from q0, then from start (the branch the path is on), then from rotary seeds about q0 (least
+ * rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0) or MTK_E_RANGE
+ * (*bad). */
 static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, const double *q0,
                       const double *start, const opt_t *o, double *q, int *iters, double *res,
                       double *res0, int *singular, int *bad, int *held)
@@ -893,7 +958,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             }
         }
     }
-    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, qt, o->tol, o->max_iter, iters, r, &sing);
+    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
@@ -902,11 +967,12 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
         goto strict;
     }
     if (memcmp(start, q0, n * sizeof(double))) {
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, qt, o->tol, o->max_iter, iters, r, &sing);
+        /* continuation: the previous pose's correction keeps the branch the path is on */
+        double e1;
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
-        *singular = sing;
-        *res0 = sing ? INFINITY : maxabs(r, rows);
-        if (*res0 < CONVERGED) {
+        e1 = sing ? INFINITY : maxabs(r, rows);
+        if (e1 < CONVERGED) {
             memcpy(q, qt, n * sizeof(double));
             goto strict;
         }
