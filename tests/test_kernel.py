@@ -169,3 +169,17 @@ def test_without_a_compiler_the_numpy_kernel_runs_with_a_one_line_notice(tmp_pat
     assert run.stdout.split() == ["-0.1", "False"]
     notice = [ln for ln in run.stderr.splitlines() if ln.strip()]
     assert len(notice) == 1 and "numpy" in notice[0] and "kernel" in notice[0]
+
+
+@pytest.mark.slow
+def test_a_fresh_install_with_gcc_builds_the_kernel(tmp_path):
+    """A non-editable install (setup.py's build hook) puts the library the loader looks for
+    next to mtcomp._kernel."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    if not (root / "setup.py").is_file():
+        pytest.skip("not a source checkout")
+    run = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
+                          "--target", str(tmp_path / "site"), str(root)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert (tmp_path / "site" / "mtcomp" / _kernel.library_name(_kernel.source_hash())).is_file()
