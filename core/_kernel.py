@@ -28,7 +28,7 @@ import numpy as np
 MAX_AXES = 9
 #: Return codes of mtk.h
 OK, E_RANGE, E_LIMIT, E_CONVERGE = 0, 3, 4, 5
-CFLAGS = ("-O2", "-std=c99", "-fPIC", "-shared")
+CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared")
 
 _SUFFIX = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
 

@@ -24,7 +24,7 @@ static void seterr(char *err, const char *msg)
 
 /* ---------------------------------------------------------------- small 3-vector algebra */
 
-static void mat_vec(const double A[9], const double x[3], double y[3])
+static inline void mat_vec(const double A[9], const double x[3], double y[3])
 {
     double t0 = A[0] * x[0] + A[1] * x[1] + A[2] * x[2];
     double t1 = A[3] * x[0] + A[4] * x[1] + A[5] * x[2];
@@ -32,7 +32,7 @@ static void mat_vec(const double A[9], const double x[3], double y[3])
     y[0] = t0; y[1] = t1; y[2] = t2;
 }
 
-static void mat_mul(const double A[9], const double B[9], double C[9])
+static inline void mat_mul(const double A[9], const double B[9], double C[9])
 {
     double T[9];
     int i, j;
@@ -70,7 +70,7 @@ static void rotvec(const double w[3], double R[9])
 }
 
 /* Rotation about unit vector u by angle (rad). */
-static void axis_rotation(const double u[3], double ang, double R[9])
+static inline void axis_rotation(const double u[3], double ang, double R[9])
 {
     double c = cos(ang), s = sin(ang), C = 1.0 - c;
     double x = u[0], y = u[1], z = u[2];
@@ -766,12 +766,18 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
 /* K = A^-1 J^T with A = J^T J + lambda I, the columns of frozen axes zeroed.
  * Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     double *K, int *rc)
+                     const double *J0, double *K, int *rc)
 {
     int n = Pr->n, rows = Pr->rows, i, j, k;
     double J[6 * MTK_MAX_AXES], A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
-    *rc = jacobian(Pr, q, tg, wo, J);
-    if (*rc) return 0;
+    if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
+        memcpy(J, J0, (size_t)rows * n * sizeof(double));
+        for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
+        *rc = MTK_OK;
+    } else {
+        *rc = jacobian(Pr, q, tg, wo, J);
+        if (*rc) return 0;
+    }
     if (freeze)
         for (k = 0; k < n; k++)
             if (freeze[k])
@@ -791,10 +797,11 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
 /* The Gauss-Newton iteration of mtcomp.kinematics._solve for one point, started at `seed` and
  * damped least-squares steps; frozen axes (freeze[k] != 0, may be NULL) keep the seed's
  * value.  Leaves the iterate in q and its residual rows (tables held at their ends) in r; adds
- * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set. */
+ * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0: the
+ * rigid Jacobian at seed if already known (NULL: taken here). */
 static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
-                   const double *seed, double *q, double tol, int max_iter, int *iters, double *r,
-                   int *singular)
+                   const double *seed, const double *J0, double *q, double tol, int max_iter, int *iters,
+                   double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
     double K[MTK_MAX_AXES * 6], nr;
@@ -805,7 +812,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     nr = norm(r, rows);
     while (!done && it < max_iter) {
         int inner, slow = 0;
-        if (!linearise(Pr, q, tg, wo, freeze, K, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
@@ -886,14 +893,13 @@ static double orientation_angle(const prep_t *P, const double *r, double wo)
 /* The rotary axis at a pole at q, or -1: an axis whose effect on the orientation lies within
  * sin(pole_tol) of what the other rotary axes do (C at B = 0 on a B-C table turns the tool about
  * itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of several, the last
- * in the chain (mtcomp.kinematics._pole_axis). */
-static int pole_axis(const prep_t *Pr, const double *q, const target_t *tg, double pole_tol)
+ * in the chain (mtcomp.kinematics._pole_axis).  J: the rigid Jacobian at q (ORIENTATION_SCALE). */
+static int pole_axis(const prep_t *Pr, const double *J, double pole_tol)
 {
     int n = Pr->n, a, b, j, k, hold = -1;
-    double J[6 * MTK_MAX_AXES], col[MTK_MAX_AXES][3], thr = sin(pole_tol * DEG);
-    if (jacobian(Pr, q, tg, 1.0, J)) return -1;
+    double col[MTK_MAX_AXES][3], thr = sin(pole_tol * DEG);
     for (a = 0; a < Pr->nrot; a++)
-        for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / DEG;
+        for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / (ORIENTATION_SCALE * DEG);
     for (a = 0; a < Pr->nrot; a++) {
         double basis[MTK_MAX_AXES][3], v[3];
         int nb = 0;
@@ -930,51 +936,68 @@ typedef struct {
 /* Rotary offsets (deg) of the restart seeds, as mtcomp.kinematics._SEED_OFFSETS. */
 static const double SEED_OFFSETS[3] = {90.0, -90.0, 180.0};
 
+/* How a pose was solved (solve_pose's *how) */
+enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
+
 /* Commands q for one target (mtcomp.kinematics.compensate for one point).  At a pole (checked
  * at `start`: q0, or q0 plus the previous pose's correction along a path) the pole axis is held
  * and the result kept if the tool direction is then within pole_tol; else the exact solution
- * from q0, then from start (the branch the path is on), then from rotary seeds about q0 (least
- * rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0) or MTK_E_RANGE
- * (*bad). */
+ * from start if warm (the previous pose on the branch nearest its program: a warm start costs
+ * one iteration less and keeps the path's branch), from q0, from start, then from rotary seeds
+ * about q0 (least rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0)
+ * or MTK_E_RANGE (*bad). */
 static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, const double *q0,
-                      const double *start, const opt_t *o, double *q, int *iters, double *res,
-                      double *res0, int *singular, int *bad, int *held)
+                      const double *start, int warm, const opt_t *o, double *q, int *iters, double *res,
+                      double *res0, int *singular, int *bad, int *held, int *how)
 {
-    int n = P->n, rows = P->rows, sing = 0, rc;
-    double r[6], qt[MTK_MAX_AXES];
+    int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
+    int tables = 0;
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], wacc = ORIENTATION_SCALE;
+    const double *Jq0 = differs ? NULL : J0;
     *held = -1;
     *singular = 0;
+    *res0 = INFINITY;
+    for (k = 0; k < n; k++) tables |= P->tab[k] != NULL;
+    rc = jacobian(Pr, start, tg, ORIENTATION_SCALE, J0);
+    if (rc) return rc;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
-        int hold = pole_axis(Pr, start, tg, o->pole_tol);
+        int hold = pole_axis(Pr, J0, o->pole_tol);
         if (hold >= 0) {
             int freeze[MTK_MAX_AXES] = {0};
             freeze[hold] = 1;
-            rc = iterate(P, Pr, tg, WO_HELD, freeze, start, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pr, tg, WO_HELD, freeze, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
-                memcpy(q, qt, n * sizeof(double));
                 *held = hold;
-                goto strict;
+                *how = HOW_HELD;
+                wacc = WO_HELD;
+                goto accept;
             }
         }
     }
-    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, qt, o->tol, o->max_iter, iters, r, &sing);
+    if (differs && warm) {
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+        if (rc) return rc;
+        if (!sing && maxabs(r, rows) < CONVERGED) {
+            *how = HOW_WARM;
+            goto accept;
+        }
+    }
+    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, Jq0, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
     if (*res0 < CONVERGED) {
-        memcpy(q, qt, n * sizeof(double));
-        goto strict;
+        *how = HOW_Q0;
+        goto accept;
     }
-    if (memcmp(start, q0, n * sizeof(double))) {
+    if (differs && !warm) {
         /* continuation: the previous pose's correction keeps the branch the path is on */
-        double e1;
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
-        e1 = sing ? INFINITY : maxabs(r, rows);
-        if (e1 < CONVERGED) {
-            memcpy(q, qt, n * sizeof(double));
-            goto strict;
+        if (!sing && maxabs(r, rows) < CONVERGED) {
+            *how = HOW_WARM;
+            goto accept;
         }
     }
     {
@@ -999,16 +1022,16 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
                     }
         for (s = 0; s < ns; s++) {
             double change = 0.0, et;
-            int k;
             memcpy(seed, q0, n * sizeof(double));
             seed[sa[s]] += va[s];
             if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             et = sing ? INFINITY : maxabs(r, rows);
             for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
             if (et < CONVERGED && change < best - 1e-6) {
                 memcpy(q, qt, n * sizeof(double));
+                memcpy(racc, r, rows * sizeof(double));
                 best = change;
             }
         }
@@ -1016,12 +1039,20 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             *res = *res0;
             return MTK_E_CONVERGE;
         }
+        *how = HOW_SEED;
+        goto strict;
     }
+accept:
+    memcpy(q, qt, n * sizeof(double));
+    memcpy(racc, r, rows * sizeof(double));
 strict:
-    /* Strict evaluation: a converged command outside an error table's range is an error. */
-    rc = residual(P, q, tg, r, *held >= 0 ? WO_HELD : ORIENTATION_SCALE, 1, bad);
-    if (rc) return rc;
-    *res = maxabs(r, *held >= 0 ? 3 : rows);
+    /* Strict evaluation: a converged command outside an error table's range is an error (without
+     * tables the iteration's residual is the strict one). */
+    if (tables) {
+        rc = residual(P, q, tg, racc, wacc, 1, bad);
+        if (rc) return rc;
+    }
+    *res = maxabs(racc, *held >= 0 ? 3 : rows);
     if (!(*res < CONVERGED)) {
         *res0 = *res;
         return MTK_E_CONVERGE;
@@ -1135,7 +1166,8 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
             o.tol = tol;
             o.max_iter = max_iter;
             o.pole_tol = MTK_POLE_TOL;
-            rc = solve_pose(&P, &Pr, &tg, q_prog, q_prog, &o, q, &it, &res, &res0, &singular, &bad, &held);
+            int how;
+            rc = solve_pose(&P, &Pr, &tg, q_prog, q_prog, 0, &o, q, &it, &res, &res0, &singular, &bad, &held, &how);
             if (iters) *iters = it;
             if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
             if (rc == MTK_E_RANGE) {
@@ -1235,7 +1267,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     mtk_errors rigid, zero;
     opt_t so;
     long i, failed = 0;
-    int nax = m->n_axes, k, have_prev = 0;
+    int nax = m->n_axes, k, have_prev = 0, warm = 0;
     double corr[MTK_MAX_AXES];
     if (!e) {
         mtk_errors_zero(&zero);
@@ -1252,7 +1284,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         const double *qa = q0 + i * nax;
         double *qo = q + i * nax, start[MTK_MAX_AXES], r0 = 0.0;
         target_t tg;
-        int it = 0, bad = -1, held = -1, sing = 0, rc;
+        int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
         status[i] = MTK_OK;
         info[i] = -1;
         res[i] = 0.0;
@@ -1269,11 +1301,13 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         memcpy(start, qa, nax * sizeof(double));
         if (o->continuation && have_prev)
             for (k = 0; k < nax; k++) start[k] += corr[k];
-        rc = solve_pose(&P, &Pr, &tg, qa, start, &so, qo, &it, &res[i], &r0, &sing, &bad, &held);
+        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, &res[i], &r0, &sing, &bad,
+                        &held, &how);
         if (rc == MTK_OK) {
             info[i] = held;
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
+            warm = how != HOW_SEED;
         } else {
             status[i] = rc;
             info[i] = bad;
