@@ -26,6 +26,14 @@ from .machine import Machine
 #: Length (mm) that converts orientation residuals (rad) into the position scale of the
 #: Gauss-Newton problem; it only weights the residuals, the solution satisfies both exactly.
 ORIENTATION_SCALE = 100.0
+#: Orientation weight (mm per rad) while an axis at a pole is held: the orientation is then met
+#: in least squares, and the small weight keeps the position exact even where the tables'
+#: angular errors couple the linear axes into the orientation (mtk.c WO_HELD).
+WO_HELD = ORIENTATION_SCALE * 1e-3
+#: Largest residual (mm; orientation in ORIENTATION_SCALE units) accepted as converged.
+CONVERGED = 1e-7
+#: Default pole tolerance (deg), see `compensate` (mtk.h MTK_POLE_TOL).
+POLE_TOLERANCE = 0.2
 
 
 class LimitError(MtcompError):
@@ -169,9 +177,33 @@ def chain(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = Tr
     return R, t
 
 
-def forward(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = True) -> Pose:
+def _backend(backend: str | None):
+    """The compiled kernel (ctypes library) or None for the numpy reference implementation."""
+    if backend == "numpy":
+        return None
+    if backend not in (None, "c"):
+        raise ValueError(f"backend must be None, 'c' or 'numpy', got {backend!r}")
+    from . import _kernel
+    lib = _kernel.load()
+    if lib is None and backend == "c":
+        raise RuntimeError(f"the compiled kernel is unavailable ({_kernel._state.get('reason')})")
+    return lib
+
+
+def forward(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = True, *,
+            backend: str | None = None) -> Pose:
     """Real tool edge position (mm) and tool frame orientation in the real workpiece frame for
-    axis commands q (N, n_axes) in mm and deg, with all errors of `errors` (None: ideal)."""
+    axis commands q (N, n_axes) in mm and deg, with all errors of `errors` (None: ideal).
+
+    backend: None (the compiled kernel where available, else numpy), "c" or "numpy"."""
+    q = _as_commands(machine, q)
+    lib = _backend(backend)
+    if lib is not None:
+        from . import _kernel
+        p, R, bad = _kernel.forward(lib, machine, q, errors, strict)
+        if bad < 0:
+            return Pose(p, R, machine.tool_axis)
+        # outside a table: the numpy model raises the same error the reference raises
     R, t = chain(machine, q, errors, strict)
     tp = np.asarray(machine.tool_point, dtype=float)
     if errors is not None:
@@ -191,51 +223,101 @@ def _orientation_mode(machine: Machine) -> int:
     return 0 if nr == 0 else (3 if nr >= 3 else 2)
 
 
-def _residual(machine, q, errors, target: Pose, mode, strict=False):
-    pose = forward(machine, q, errors, strict)
+def _residual(machine, q, errors, target: Pose, mode, strict=False, wo=ORIENTATION_SCALE):
+    """Residual rows: position (mm), then the orientation error times wo (mm per rad)."""
+    pose = forward(machine, q, errors, strict, backend="numpy")
     r = [pose.p - target.p]
     if mode == 2:
         # All three components of v - v_target: the two perpendicular ones alone would also
         # vanish at v = -v_target (a tool pointing the wrong way).
-        r.append(ORIENTATION_SCALE * (pose.v - target.v))
+        r.append(wo * (pose.v - target.v))
     elif mode == 3:
         M = np.einsum("nji,njk->nik", target.R, pose.R)  # R_target^T R
         w = 0.5 * np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0], M[:, 1, 0] - M[:, 0, 1]], axis=1)
-        r.append(ORIENTATION_SCALE * w)
+        r.append(wo * w)
     return np.concatenate(r, axis=1)
 
 
-def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, max_iter: int):
-    """The Gauss-Newton iteration of `compensate`; returns (q, max abs residual per point)."""
-    if q0 is None:
-        raise ValueError("compensate needs initial commands q0 (e.g. the programmed axis positions)")
+def _sub(target: Pose, idx) -> Pose:
+    return Pose(target.p[idx], target.R[idx], target.tool_axis)
+
+
+def _rigid_jacobian(machine: Machine, q: np.ndarray, rigid, target: Pose, mode: int, wo: float) -> np.ndarray:
+    """Jacobian (N, rows, n_axes) of the residual of the rigid model (setting errors only), per mm
+    or deg, analytic: a linear axis moves the tool along its direction as the axes before it
+    turn it, w = R_pre u; a rotary axis turns the tool about the line through its centre
+    c_w = R_pre c + t_pre along w: dp = w x (p - c_w), dR = [w]x R (per rad), in the nominal
+    workpiece frame, then turned into the real one by Rw^T (mtk.c jacobian)."""
+    n, m = q.shape
+    eye = np.eye(3)
+    R = np.broadcast_to(eye, (n, 3, 3))
+    t = np.zeros((n, 3))
+    pre = []
+    for i, ax in enumerate(machine.axes):
+        pre.append((R, t))
+        u = np.asarray(ax.direction, dtype=float)
+        if ax.is_rotary:
+            c = np.asarray(ax.location, dtype=float)
+            Rg = axis_rotation(u, np.radians(q[:, i]))
+            tg = c - Rg @ c
+            t = t + np.einsum("nij,nj->ni", R, tg)
+            R = _mm(R, Rg) if i else Rg
+        else:
+            t = t + q[:, i, None] * (R @ u)
+    tp = np.asarray(machine.tool_point, dtype=float)
+    if rigid is not None:
+        tp = tp + np.asarray(rigid.tool.offset)
+    p = R @ tp + t
+    v = R @ np.asarray(machine.tool_axis, dtype=float)
+    RwT = rigid.workpiece.matrix.T if rigid is not None else eye
+    rows = 3 if mode == 0 else 6
+    J = np.zeros((n, rows, m))
+    for i, ax in enumerate(machine.axes):
+        Rp, tpre = pre[i]
+        w = Rp @ np.asarray(ax.direction, dtype=float)
+        if not ax.is_rotary:
+            J[:, :3, i] = w @ RwT.T
+            continue
+        w = w * (np.pi / 180.0)
+        cw = Rp @ np.asarray(ax.location, dtype=float) + tpre
+        J[:, :3, i] = np.cross(w, p - cw) @ RwT.T
+        if mode == 2:
+            J[:, 3:, i] = wo * (np.cross(w, v) @ RwT.T)
+        elif mode == 3:
+            W = np.zeros((n, 3, 3))
+            W[:, 0, 1], W[:, 0, 2], W[:, 1, 0] = -w[:, 2], w[:, 1], w[:, 2]
+            W[:, 1, 2], W[:, 2, 0], W[:, 2, 1] = -w[:, 0], -w[:, 1], w[:, 0]
+            dR = np.einsum("ij,njk->nik", RwT, _mm(W, R))
+            dM = np.einsum("nji,njk->nik", target.R, dR)
+            J[:, 3, i] = wo * 0.5 * (dM[:, 2, 1] - dM[:, 1, 2])
+            J[:, 4, i] = wo * 0.5 * (dM[:, 0, 2] - dM[:, 2, 0])
+            J[:, 5, i] = wo * 0.5 * (dM[:, 1, 0] - dM[:, 0, 1])
+    return J
+
+
+def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, max_iter: int,
+           free: np.ndarray | None = None, wo: float = ORIENTATION_SCALE):
+    """The Gauss-Newton iteration of `compensate`; returns (q, residual rows (N, 3 or 6)).
+    free (N, n_axes) bool: axes that may move (None: all); the others keep q0's value."""
     q0 = _as_commands(machine, q0)
     n, m = q0.shape
-    if len(target) != n:
-        raise ValueError(f"target has {len(target)} poses, q0 has {n}")
     mode = _orientation_mode(machine)
     rigid = None if errors is None else ErrorSet(errors.tool, errors.workpiece)
     rot = np.array([a.is_rotary for a in machine.axes])
     lam = 1e-12
     q = q0.copy()
     active = np.arange(n)
-    sub = lambda idx: Pose(target.p[idx], target.R[idx], target.tool_axis)  # noqa: E731
-    res = lambda qq, idx, err: _residual(machine, qq, err, sub(idx), mode)  # noqa: E731
+    res = lambda qq, idx, err: _residual(machine, qq, err, _sub(target, idx), mode, wo=wo)  # noqa: E731
     it = 0
     while active.size and it < max_iter:
         qa = q[active]
-        # Chord Jacobian at the current iterate of the still active points.
-        h = 1e-6
-        r0 = res(qa, active, rigid)
-        J = np.empty((active.size, r0.shape[1], m))
-        for k in range(m):
-            dq = qa.copy()
-            dq[:, k] += h
-            J[:, :, k] = (res(dq, active, rigid) - r0) / h
+        # Chord Jacobian (of the rigid model) at the current iterate of the still active points.
+        J = _rigid_jacobian(machine, qa, rigid, _sub(target, active), mode, wo)
+        if free is not None:
+            J *= free[active][:, None, :]
         JT = np.transpose(J, (0, 2, 1))
         A = _mm(JT, J) + lam * np.eye(m)
         K = np.linalg.solve(A, JT)
-        Ainv = np.linalg.inv(A)
         r = res(qa, active, errors)
         nr = np.linalg.norm(r, axis=1)
         done = np.zeros(active.size, bool)
@@ -243,8 +325,12 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
         for _ in range(8):
             it += 1
             L = live
-            step = (np.einsum("nij,nj->ni", K[L], r[L])
-                    + lam * np.einsum("nij,nj->ni", Ainv[L], qa[L] - q0[active[L]]))
+            # Damped least squares (lam): no component along a null direction of the Jacobian,
+            # so where the orientation leaves an axis free it keeps the seed's value, and no
+            # pull toward the seed that would bias the converged point.
+            step = np.einsum("nij,nj->ni", K[L], r[L])
+            if free is not None:
+                step = np.where(free[active[L]], step, 0.0)
             # Damping: limit rotary steps to 20 deg (scaling the whole step, so the linear axes
             # stay consistent) and halve steps that do not reduce the residual.
             big = np.max(np.abs(step[:, rot]), axis=1, initial=0.0)
@@ -273,8 +359,47 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
                 break
         q[active] = qa
         active = active[~done]
-    r = _residual(machine, q, errors, target, mode)
-    return q, np.max(np.abs(r), axis=1)
+    return q, _residual(machine, q, errors, target, mode, wo=wo)
+
+
+def _max_abs(r: np.ndarray) -> np.ndarray:
+    return np.max(np.abs(r), axis=1)  # NaN propagates: a NaN residual never passes
+
+
+def _orientation_angle(r: np.ndarray, mode: int) -> np.ndarray:
+    """Angle (rad) of unweighted orientation residual rows r (N,3)."""
+    x = np.linalg.norm(r, axis=1)
+    return 2.0 * np.arcsin(np.minimum(1.0, 0.5 * x)) if mode == 2 else np.arcsin(np.minimum(1.0, x))
+
+
+def _pole_axis(machine: Machine, target: Pose, errors, q: np.ndarray, pole_tolerance: float) -> np.ndarray:
+    """(N,) the rotary axis at a pole at q, or -1: an axis whose effect on the orientation lies
+    within sin(pole_tolerance) of what the other rotary axes do (C at B = 0 on a B-C table turns
+    the tool about itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of
+    several, the last in the chain.  Columns of the rigid model's Jacobian, as the chord
+    Jacobian's."""
+    mode = _orientation_mode(machine)
+    rigid = None if errors is None else ErrorSet(errors.tool, errors.workpiece)
+    rot = list(machine.rotary_indices)
+    J = _rigid_jacobian(machine, q, rigid, target, mode, 1.0)
+    cols = [J[:, 3:, k] * (180.0 / np.pi) for k in rot]
+    thr = np.sin(np.radians(pole_tolerance))
+    hold = np.full(len(q), -1)
+    for a, ka in enumerate(rot):
+        basis = []
+        for b in range(len(rot)):
+            if b == a:
+                continue
+            w = cols[b].copy()
+            for e in basis:
+                w -= np.sum(w * e, axis=1)[:, None] * e
+            s = np.linalg.norm(w, axis=1)
+            basis.append(np.where(s[:, None] > 1e-9, w / np.maximum(s, 1e-300)[:, None], 0.0))
+        v = cols[a].copy()
+        for e in basis:
+            v -= np.sum(v * e, axis=1)[:, None] * e
+        hold = np.where(np.linalg.norm(v, axis=1) < thr, ka, hold)
+    return hold
 
 
 #: Rotary offsets (deg) tried as new starting points where the iteration from the programmed
@@ -282,55 +407,148 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
 _SEED_OFFSETS = (90.0, -90.0, 180.0)
 
 
+def _compensate_numpy(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, max_iter: int,
+                      pole_tolerance: float) -> np.ndarray:
+    """The reference implementation of `compensate` (the compiled kernel mirrors it per pose)."""
+    n, m = q0.shape
+    mode = _orientation_mode(machine)
+    q = q0.copy()
+    held = np.full(n, -1)
+    if pole_tolerance > 0 and mode >= 2:
+        hold = _pole_axis(machine, target, errors, q0, pole_tolerance)
+        idx = np.nonzero(hold >= 0)[0]
+        if idx.size:
+            free = np.ones((idx.size, m), bool)
+            free[np.arange(idx.size), hold[idx]] = False
+            qh, rh = _solve(machine, _sub(target, idx), errors, q0[idx], tol, max_iter, free, WO_HELD)
+            ok = ((_max_abs(rh[:, :3]) < CONVERGED)
+                  & (_orientation_angle(rh[:, 3:] / WO_HELD, mode) <= np.radians(pole_tolerance)))
+            q[idx[ok]] = qh[ok]
+            held[idx[ok]] = hold[idx[ok]]
+    rest = np.nonzero(held < 0)[0]
+    if rest.size:
+        sub = _sub(target, rest)
+        qr, rr = _solve(machine, sub, errors, q0[rest], tol, max_iter)
+        err = _max_abs(rr)
+        bad = np.nonzero(~(err < CONVERGED))[0]
+        if bad.size:
+            rot = list(machine.rotary_indices)
+            seeds = [{k: o} for k in rot for o in _SEED_OFFSETS]
+            seeds += [{k: o, j: p} for i, k in enumerate(rot) for j in rot[i + 1:]
+                      for o in _SEED_OFFSETS for p in _SEED_OFFSETS]
+            best = np.full(bad.size, np.inf)
+            sb = _sub(sub, bad)
+            qb0 = q0[rest[bad]]
+            for seed in seeds:
+                qs = qb0.copy()
+                for k, o in seed.items():
+                    qs[:, k] += o
+                qt, rt = _solve(machine, sb, errors, qs, tol, max_iter)
+                et = _max_abs(rt)
+                change = np.sum(np.abs(qt[:, rot] - qb0[:, rot]), axis=1)
+                # solutions within 1e-6 (deg) of rotary change are ties: the first seed wins, so
+                # neighbouring points of a path take the same branch
+                better = (et < CONVERGED) & (change < best - 1e-6)
+                qr[bad[better]] = qt[better]
+                best[better] = change[better]
+            failed = np.nonzero(best == np.inf)[0]
+            if failed.size:
+                i = bad[failed[0]]
+                raise ConvergenceError(int(rest[i]), float(err[i]))
+        q[rest] = qr
+    # Strict evaluation: a converged command outside an error table's range is an error.
+    forward(machine, q, errors, True, backend="numpy")
+    return q
+
+
+class SwingError(MtcompError):
+    """The compensation would turn a rotary axis further in one block than allowed."""
+
+    def __init__(self, index: int, axis: str, swing: float, limit: float):
+        self.index, self.axis, self.swing = index, axis, swing
+        super().__init__(
+            f"point {index}: the compensation turns axis {axis} by {swing:.4f} deg beyond the programmed "
+            f"motion in one block (max_swing {limit:g} deg); alternatives: position-only compensation with "
+            "the rotary axes as programmed (3-axis mode: mtcomp workpiece-setting compensate --mode 3axis), "
+            "holding the pole axis (a larger pole_tolerance), or a larger max_swing to accept this branch")
+
+
+def _check_swing(machine: Machine, q: np.ndarray, q0: np.ndarray, max_swing: float | None) -> None:
+    """Raise SwingError at the first block whose rotary correction changes by more than
+    max_swing (deg) from the previous block's (the first block: from the programmed angles)."""
+    rot = list(machine.rotary_indices)
+    if max_swing is None or not rot or not len(q):
+        return
+    c = q[:, rot] - q0[:, rot]
+    s = np.abs(np.diff(c, axis=0, prepend=0.0))
+    over = np.argwhere(~(s <= max_swing))
+    if over.size:
+        i, j = over[0]
+        raise SwingError(int(i), machine.axes[rot[j]].name, float(s[i, j]), max_swing)
+
+
+def _raise_kernel_failures(machine: Machine, errors, q, res, status, info) -> None:
+    from . import _kernel
+    from .errors import TableRangeError
+    bad = np.nonzero(status == _kernel.E_CONVERGE)[0]
+    if bad.size:
+        raise ConvergenceError(int(bad[0]), float(res[bad[0]]))
+    bad = np.nonzero(status == _kernel.E_RANGE)[0]
+    if bad.size:
+        i = int(bad[0])
+        ax = machine.axes[int(info[i])].name
+        lo, hi = errors.geometric.tables[ax].range
+        raise TableRangeError(ax, i, float(q[i, int(info[i])]), lo, hi)
+    if np.any(status != 0):
+        raise RuntimeError(f"kinematic kernel status {int(status[status != 0][0])}")
+
+
 def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q0=None, *,
-               tol: float = 1e-10, max_iter: int = 60) -> np.ndarray:
+               tol: float = 1e-10, max_iter: int = 60, pole_tolerance: float = None,
+               continuation: bool = True, max_swing: float | None = None,
+               backend: str | None = None) -> np.ndarray:
     """Axis commands (N, n_axes) in mm and deg that put the real tool edge at target.p and the
     tool in target's orientation (tool direction on machines with 1-2 rotary axes, full
     orientation with 3), under `errors`.
 
-    q0 seeds the iteration (usually the programmed commands).  Gauss-Newton with a chord
-    Jacobian: it is taken by forward differences on the rigid (setting-error) model, since the
-    geometric tables change it by their slopes only (1e-4 at most), so each step contracts the
-    error by about that factor.  Points that do not contract (large workpiece rotations near a
-    singularity) get their Jacobian re-taken at the current iterate, i.e. full Newton.  A tiny
-    pull toward q0 picks the programmed rotary angles where the tool direction leaves them free
-    (e.g. C at B = 0 on a B-C table).
+    q0 seeds the iteration (usually the programmed commands, in path order).  Gauss-Newton with
+    a chord Jacobian: the analytic one of the rigid (setting-error) model,
+    since the geometric tables change it by their slopes only (1e-4 at most), so each step
+    contracts the error by about that factor.  Points that do not contract (large workpiece
+    rotations near a singularity) get their Jacobian re-taken at the current iterate, i.e. full
+    Newton.  A tiny pull toward q0 picks the programmed rotary angles where the tool direction
+    leaves them free.
 
-    Where the iteration fails from q0 (a tilted workpiece at a singularity: with B = 0 on a B-C
-    table, a tilt about X needs C turned by 90 deg), it restarts from rotary seeds offset by
-    +-90 and 180 deg, one axis at a time and then pairs, and keeps the converged solution with
-    the smallest rotary change.  Points that fail from every seed raise ConvergenceError.
+    Poles (pole_tolerance, deg; default POLE_TOLERANCE, 0 disables): where a rotary axis' effect
+    on the orientation lies within the tolerance of what the other rotary axes do (C at B = 0 on
+    a B-C table, A and C at B = 90 on an A-B-C head), that axis keeps its programmed value, the
+    others meet the orientation in least squares and the position exactly, as controls hold
+    the pole axis; this is kept if the orientation is then within pole_tolerance, so a small
+    blank tilt never turns C by tens of degrees.  Otherwise the exact solution: from q0 and,
+    where that fails, from rotary seeds offset by +-90 and 180 deg (one axis, then pairs),
+    keeping the smallest rotary change.  Points that fail from every seed raise ConvergenceError.
+
+    continuation: the compiled kernel starts each point from the previous point's correction
+    (warm start: fewer iterations, and a path keeps the rotary branch it is on).
+    max_swing (deg, None: no bound): SwingError at the first point whose rotary correction
+    changes by more than this from the previous point's.
+    backend: None (compiled kernel where available, else numpy), "c" or "numpy" (reference).
     """
     if q0 is None:
         raise ValueError("compensate needs initial commands q0 (e.g. the programmed axis positions)")
     q0 = _as_commands(machine, q0)
     if len(target) != len(q0):
         raise ValueError(f"target has {len(target)} poses, q0 has {len(q0)}")
-    q, err = _solve(machine, target, errors, q0, tol, max_iter)
-    bad = np.nonzero(~(err < 1e-7))[0]
-    if bad.size:
-        rot = list(machine.rotary_indices)
-        seeds = [{k: o} for k in rot for o in _SEED_OFFSETS]
-        seeds += [{k: o, j: p} for i, k in enumerate(rot) for j in rot[i + 1:]
-                  for o in _SEED_OFFSETS for p in _SEED_OFFSETS]
-        best = np.full(bad.size, np.inf)
-        sub = Pose(target.p[bad], target.R[bad], target.tool_axis)
-        for seed in seeds:
-            qs = q0[bad].copy()
-            for k, o in seed.items():
-                qs[:, k] += o
-            qt, et = _solve(machine, sub, errors, qs, tol, max_iter)
-            change = np.sum(np.abs(qt[:, rot] - q0[bad][:, rot]), axis=1)
-            # solutions within 1e-6 (deg) of rotary change are ties: the first seed wins, so
-            # neighbouring points of a path take the same branch
-            better = (et < 1e-7) & (change < best - 1e-6)
-            q[bad[better]] = qt[better]
-            err[bad[better]] = et[better]
-            best[better] = change[better]
-        bad = np.nonzero(~(err < 1e-7))[0]
-        if bad.size:
-            raise ConvergenceError(int(bad[0]), float(err[bad[0]]))
-    _residual(machine, q, errors, target, _orientation_mode(machine), strict=True)  # table ranges
+    pole_tolerance = POLE_TOLERANCE if pole_tolerance is None else float(pole_tolerance)
+    lib = _backend(backend)
+    if lib is not None:
+        from . import _kernel
+        q, res, status, info = _kernel.solve(lib, machine, errors, q0, target=target, tol=tol, max_iter=max_iter,
+                                             pole_tolerance=pole_tolerance, continuation=continuation)
+        _raise_kernel_failures(machine, errors, q, res, status, info)
+    else:
+        q = _compensate_numpy(machine, target, errors, q0, tol, max_iter, pole_tolerance)
+    _check_swing(machine, q, q0, max_swing)
     return q
 
 
@@ -391,7 +609,7 @@ def _retarget_rigid(machine: Machine, q: np.ndarray, errors: ErrorSet) -> np.nda
     tw = np.asarray(errors.workpiece.translation)
     rhs = tw - R @ t
     if any(errors.workpiece.angles):  # 3-axis machine: the ideal point turns with the workpiece
-        p_ideal = forward(machine, q).p
+        p_ideal = forward(machine, q, backend="numpy").p
         rhs = rhs + p_ideal @ errors.workpiece.matrix.T - p_ideal
     out = q.copy()
     out[:, lin] += _solve3(A, rhs)
@@ -399,16 +617,28 @@ def _retarget_rigid(machine: Machine, q: np.ndarray, errors: ErrorSet) -> np.nda
 
 
 def retarget(machine: Machine, q_programmed, errors: ErrorSet | None, *, round_result: bool = False,
-             check: bool = True) -> np.ndarray:
+             check: bool = True, pole_tolerance: float | None = None, continuation: bool = True,
+             max_swing: float | None = None, backend: str | None = None) -> np.ndarray:
     """Compensated commands for a program written for the ideal machine: the real machine with
-    `errors` then puts the tool where the ideal machine would have put it."""
+    `errors` then puts the tool where the ideal machine would have put it.  q_programmed in
+    program order (see `compensate` for the pole, continuation, max_swing and backend options)."""
     q_programmed = _as_commands(machine, q_programmed)
     if errors is None or errors.is_zero:
         q = q_programmed.copy()
     else:
-        q = _retarget_rigid(machine, q_programmed, errors)
-        if q is None:
-            q = compensate(machine, forward(machine, q_programmed), errors, q_programmed)
+        pole_tolerance = POLE_TOLERANCE if pole_tolerance is None else float(pole_tolerance)
+        lib = _backend(backend)
+        if lib is not None:
+            from . import _kernel
+            q, res, status, info = _kernel.solve(lib, machine, errors, q_programmed, tol=1e-10, max_iter=60,
+                                                 pole_tolerance=pole_tolerance, continuation=continuation)
+            _raise_kernel_failures(machine, errors, q, res, status, info)
+        else:
+            q = _retarget_rigid(machine, q_programmed, errors)
+            if q is None:
+                q = _compensate_numpy(machine, forward(machine, q_programmed, backend="numpy"), errors,
+                                      q_programmed, 1e-10, 60, pole_tolerance)
+        _check_swing(machine, q, q_programmed, max_swing)
     if round_result:
         q = round_to_resolution(machine, q)
     if check:

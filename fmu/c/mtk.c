@@ -13,8 +13,7 @@
 #include "mtk.h"
 
 #define ORIENTATION_SCALE 100.0  /* mm per rad, as mtcomp.kinematics.ORIENTATION_SCALE */
-#define FD_STEP 1e-6             /* forward-difference step of the chord Jacobian, mm or deg */
-#define LAMBDA 1e-12             /* pull toward the programmed commands at singularities */
+#define LAMBDA 1e-12             /* damping of the least-squares steps (singular Jacobians) */
 #define CONVERGED 1e-7           /* largest residual accepted after the iteration, mm */
 #define DEG (3.14159265358979323846 / 180.0)
 
@@ -25,7 +24,7 @@ static void seterr(char *err, const char *msg)
 
 /* ---------------------------------------------------------------- small 3-vector algebra */
 
-static void mat_vec(const double A[9], const double x[3], double y[3])
+static inline void mat_vec(const double A[9], const double x[3], double y[3])
 {
     double t0 = A[0] * x[0] + A[1] * x[1] + A[2] * x[2];
     double t1 = A[3] * x[0] + A[4] * x[1] + A[5] * x[2];
@@ -33,7 +32,7 @@ static void mat_vec(const double A[9], const double x[3], double y[3])
     y[0] = t0; y[1] = t1; y[2] = t2;
 }
 
-static void mat_mul(const double A[9], const double B[9], double C[9])
+static inline void mat_mul(const double A[9], const double B[9], double C[9])
 {
     double T[9];
     int i, j;
@@ -71,7 +70,7 @@ static void rotvec(const double w[3], double R[9])
 }
 
 /* Rotation about unit vector u by angle (rad). */
-static void axis_rotation(const double u[3], double ang, double R[9])
+static inline void axis_rotation(const double u[3], double ang, double R[9])
 {
     double c = cos(ang), s = sin(ang), C = 1.0 - c;
     double x = u[0], y = u[1], z = u[2];
@@ -389,103 +388,47 @@ static int table_eval(const mtk_table *t, double q, double d[3], double e[3], in
     return MTK_OK;
 }
 
-/* ---------------------------------------------------------------- forward model */
+/* ---------------------------------------------------------------- prepared model
+ *
+ * Everything that does not depend on the commands is computed once per error set: effective
+ * axis directions (location tilts), rotary centres and zero errors, the tool point with its
+ * setting offset, the transposed workpiece rotation.  A forward evaluation then only builds
+ * the axis rotations, looks up the tables and composes 3x3 products (identity skipped). */
 
-static int forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double Rout[9],
-                   char *err, int strict)
+typedef struct {
+    const mtk_model *m;
+    int n, nrot, mode, rows;
+    int rot_idx[MTK_MAX_AXES];
+    double ueff[MTK_MAX_AXES][3];
+    double c[MTK_MAX_AXES][3];        /* rotary centre with its location offset, mm */
+    double zero[MTK_MAX_AXES];        /* zero-position error of a rotary axis, rad */
+    const mtk_table *tab[MTK_MAX_AXES];
+    double tp[3];                     /* tool point + tool setting offset, mm */
+    int wp;                           /* workpiece pose differs from identity */
+    double RwT[9], tw[3], Rw[9];
+    int closed;                       /* closed form of retarget applies (rigid, no rotation) */
+} prep_t;
+
+/* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
+ * µrad angles of error tables; truncation below 1e-24), sin/cos above. */
+static void rotvec_fast(const double w[3], double R[9])
 {
-    double R[9], t[3] = {0, 0, 0}, tp[3];
-    int i, k;
-    eye(R);
-    for (i = 0; i < m->n_axes; i++) {
-        const double *u = m->dir[i], *loc = m->loc[i];
-        const double *d0 = e ? e->loc[i] : NULL, *e0 = e ? e->loc[i] + 3 : NULL;
-        double Rg[9], tg[3], ueff[3];
-        if (m->rotary[i]) {
-            double zero = 0.0, tilt[3] = {0, 0, 0}, c[3], Rc[3];
-            if (e0) {
-                zero = e0[0] * u[0] + e0[1] * u[1] + e0[2] * u[2];
-                for (k = 0; k < 3; k++) tilt[k] = e0[k] - zero * u[k];
-            }
-            if (tilt[0] != 0.0 || tilt[1] != 0.0 || tilt[2] != 0.0) {
-                double Rt[9];
-                rotvec(tilt, Rt);
-                mat_vec(Rt, u, ueff);
-            } else {
-                memcpy(ueff, u, sizeof ueff);
-            }
-            for (k = 0; k < 3; k++) c[k] = loc[k] + (d0 ? d0[k] : 0.0);
-            axis_rotation(ueff, q[i] * DEG + zero, Rg);
-            mat_vec(Rg, c, Rc);
-            for (k = 0; k < 3; k++) tg[k] = c[k] - Rc[k];
-        } else {
-            /* Only the tilt (squareness) of a linear axis acts, as in the core. */
-            if (e0 && (e0[0] != 0.0 || e0[1] != 0.0 || e0[2] != 0.0)) {
-                double Rt[9];
-                rotvec(e0, Rt);
-                mat_vec(Rt, u, ueff);
-            } else {
-                memcpy(ueff, u, sizeof ueff);
-            }
-            eye(Rg);
-            for (k = 0; k < 3; k++) tg[k] = q[i] * ueff[k];
-        }
-        if (e && e->use_tables && m->table[i]) {
-            double d[3], ang[3], Re[9], Rl[3], te[3], Rte[3];
-            if (table_eval(m->table[i], q[i], d, ang, strict) != MTK_OK) {
-                char msg[MTK_ERRLEN];
-                snprintf(msg, sizeof msg, "axis %c position %.6f is outside its error table range [%g, %g]",
-                         m->axis_name[i], q[i], m->table[i]->pos[0], m->table[i]->pos[m->table[i]->n - 1]);
-                seterr(err, msg);
-                return MTK_E_RANGE;
-            }
-            rotvec(ang, Re);
-            mat_vec(Re, loc, Rl);
-            for (k = 0; k < 3; k++) te[k] = loc[k] + d[k] - Rl[k];
-            /* The error motion belongs to the moving body of a linear axis and to the
-             * non-rotating body of a rotary axis: it stands before the nominal motion for a
-             * workpiece-side linear or a tool-side rotary axis (docs/model.md). */
-            if (m->tool_side[i] == m->rotary[i]) {     /* (Re, te) . (Rg, tg) */
-                mat_vec(Re, tg, Rte);
-                for (k = 0; k < 3; k++) tg[k] = Rte[k] + te[k];
-                mat_mul(Re, Rg, Rg);
-            } else {                                     /* (Rg, tg) . (Re, te) */
-                mat_vec(Rg, te, Rte);
-                for (k = 0; k < 3; k++) tg[k] += Rte[k];
-                mat_mul(Rg, Re, Rg);
-            }
-        }
-        {
-            double Rtg[3];
-            mat_vec(R, tg, Rtg);
-            for (k = 0; k < 3; k++) t[k] += Rtg[k];
-            mat_mul(R, Rg, R);
-        }
+    double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], a, b;
+    if (t2 < 1e-6) {
+        a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0));
+        b = 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0));
+    } else {
+        double th = sqrt(t2);
+        a = sin(th) / th;
+        b = (1.0 - cos(th)) / t2;
     }
-    for (k = 0; k < 3; k++) tp[k] = m->tool_point[k] + (e ? e->tool[k] : 0.0);
-    mat_vec(R, tp, p);
-    for (k = 0; k < 3; k++) p[k] += t[k];
-    if (e && (e->wp_t[0] != 0.0 || e->wp_t[1] != 0.0 || e->wp_t[2] != 0.0 ||
-              e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0)) {
-        double Rw[9], RwT[9], dp[3];
-        int r, c;
-        rotation_xyz(e->wp_a, Rw);
-        for (r = 0; r < 3; r++)
-            for (c = 0; c < 3; c++) RwT[3 * r + c] = Rw[3 * c + r];
-        for (k = 0; k < 3; k++) dp[k] = p[k] - e->wp_t[k];
-        mat_vec(RwT, dp, p);
-        mat_mul(RwT, R, R);
-    }
-    if (Rout) memcpy(Rout, R, sizeof R);
-    return MTK_OK;
+    R[0] = 1.0 - b * (w[1] * w[1] + w[2] * w[2]);
+    R[4] = 1.0 - b * (w[0] * w[0] + w[2] * w[2]);
+    R[8] = 1.0 - b * (w[0] * w[0] + w[1] * w[1]);
+    R[1] = -a * w[2] + b * w[0] * w[1]; R[3] = a * w[2] + b * w[0] * w[1];
+    R[2] = a * w[1] + b * w[0] * w[2];  R[6] = -a * w[1] + b * w[0] * w[2];
+    R[5] = -a * w[0] + b * w[1] * w[2]; R[7] = a * w[0] + b * w[1] * w[2];
 }
-
-int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double R[9], char *err)
-{
-    return forward(m, e, q, p, R, err, 1);
-}
-
-/* ---------------------------------------------------------------- compensation */
 
 static int n_rotary(const mtk_model *m)
 {
@@ -494,37 +437,195 @@ static int n_rotary(const mtk_model *m)
     return n;
 }
 
-typedef struct {
-    int mode;                 /* 0 position, 2 + tool direction, 3 + full orientation */
-    double p[3], R[9], v[3];
-} target_t;
-
-static int residual(const mtk_model *m, const mtk_errors *e, const double *q, const target_t *tg,
-                    double *r, char *err, int strict)
+/* geo = 0: the rigid model (setting errors only: the chord Jacobian's model). */
+static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
 {
-    double p[3], R[9];
-    int k, rc = forward(m, e, q, p, R, err, strict);
-    if (rc) return rc;
-    for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
-    if (tg->mode == 2) {
-        /* All three components of v - v_target: the two perpendicular ones alone would also
-         * vanish for a tool pointing the wrong way. */
-        double v[3];
-        mat_vec(R, m->tool_axis, v);
-        for (k = 0; k < 3; k++) r[3 + k] = ORIENTATION_SCALE * (v[k] - tg->v[k]);
-    } else if (tg->mode == 3) {
-        double M[9];
-        int i, j;
-        for (i = 0; i < 3; i++)          /* M = Rt^T R */
-            for (j = 0; j < 3; j++)
-                M[3 * i + j] = tg->R[i] * R[j] + tg->R[3 + i] * R[3 + j] + tg->R[6 + i] * R[6 + j];
-        r[3] = ORIENTATION_SCALE * 0.5 * (M[7] - M[5]);
-        r[4] = ORIENTATION_SCALE * 0.5 * (M[2] - M[6]);
-        r[5] = ORIENTATION_SCALE * 0.5 * (M[3] - M[1]);
+    int i, k, any_geo = 0;
+    memset(P, 0, sizeof *P);
+    P->m = m;
+    P->n = m->n_axes;
+    P->nrot = n_rotary(m);
+    P->mode = P->nrot == 0 ? 0 : (P->nrot >= 3 ? 3 : 2);
+    P->rows = P->mode == 0 ? 3 : 6;
+    for (i = 0; i < m->n_axes; i++) {
+        const double *u = m->dir[i];
+        const double *d0 = (e && geo) ? e->loc[i] : NULL, *e0 = (e && geo) ? e->loc[i] + 3 : NULL;
+        if (m->rotary[i]) {
+            double zero = 0.0, tilt[3] = {0, 0, 0};
+            if (e0) {
+                zero = e0[0] * u[0] + e0[1] * u[1] + e0[2] * u[2];
+                for (k = 0; k < 3; k++) tilt[k] = e0[k] - zero * u[k];
+            }
+            if (tilt[0] != 0.0 || tilt[1] != 0.0 || tilt[2] != 0.0) {
+                double Rt[9];
+                rotvec(tilt, Rt);
+                mat_vec(Rt, u, P->ueff[i]);
+            } else {
+                memcpy(P->ueff[i], u, 3 * sizeof(double));
+            }
+            for (k = 0; k < 3; k++) P->c[i][k] = m->loc[i][k] + (d0 ? d0[k] : 0.0);
+            P->zero[i] = zero;
+        } else {
+            /* Only the tilt (squareness) of a linear axis acts, as in the core. */
+            if (e0 && (e0[0] != 0.0 || e0[1] != 0.0 || e0[2] != 0.0)) {
+                double Rt[9];
+                rotvec(e0, Rt);
+                mat_vec(Rt, u, P->ueff[i]);
+            } else {
+                memcpy(P->ueff[i], u, 3 * sizeof(double));
+            }
+        }
+        if (e && geo) {
+            for (k = 0; k < 6; k++) any_geo |= (e->loc[i][k] != 0.0);
+            if (e->use_tables && m->table[i]) {
+                P->tab[i] = m->table[i];
+                any_geo = 1;
+            }
+        }
+    }
+    for (i = 0, k = 0; i < m->n_axes; i++)
+        if (m->rotary[i]) P->rot_idx[k++] = i;
+    for (k = 0; k < 3; k++) P->tp[k] = m->tool_point[k] + (e ? e->tool[k] : 0.0);
+    if (e && (e->wp_t[0] != 0.0 || e->wp_t[1] != 0.0 || e->wp_t[2] != 0.0 ||
+              e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0)) {
+        int r, c;
+        P->wp = 1;
+        rotation_xyz(e->wp_a, P->Rw);
+        for (r = 0; r < 3; r++)
+            for (c = 0; c < 3; c++) P->RwT[3 * r + c] = P->Rw[3 * c + r];
+        memcpy(P->tw, e->wp_t, sizeof P->tw);
+    } else {
+        eye(P->Rw);
+        eye(P->RwT);
+    }
+    {
+        int nlin = 0, rotated = e && (e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0);
+        for (i = 0; i < m->n_axes; i++) nlin += !m->rotary[i];
+        P->closed = e && !any_geo && nlin == 3 && !(P->nrot && rotated);
+    }
+}
+
+/* Pose of the tool in the real workpiece frame (mtcomp.kinematics.forward).  A table range
+ * violation (strict) returns MTK_E_RANGE with the axis in *bad. */
+static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int strict, int *bad)
+{
+    const mtk_model *m = P->m;
+    double t[3] = {0, 0, 0};
+    int ident = 1, i, k;
+    for (i = 0; i < P->n; i++) {
+        double Rg[9], tg[3];
+        int grot = 0;
+        if (m->rotary[i]) {
+            const double *c = P->c[i];
+            axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            for (k = 0; k < 3; k++)
+                tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
+            grot = 1;
+        } else {
+            for (k = 0; k < 3; k++) tg[k] = q[i] * P->ueff[i][k];
+        }
+        if (P->tab[i]) {
+            double d[3], ang[3], Re[9], te[3], tmp[3];
+            const double *loc = m->loc[i];
+            if (table_eval(P->tab[i], q[i], d, ang, strict) != MTK_OK) {
+                if (bad) *bad = i;
+                return MTK_E_RANGE;
+            }
+            rotvec_fast(ang, Re);
+            for (k = 0; k < 3; k++)
+                te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+            /* The error motion belongs to the moving body of a linear axis and to the
+             * non-rotating body of a rotary axis: it stands before the nominal motion for a
+             * workpiece-side linear or a tool-side rotary axis (docs/model.md). */
+            if (m->tool_side[i] == m->rotary[i]) {      /* (Re, te) . (Rg, tg) */
+                mat_vec(Re, tg, tmp);
+                for (k = 0; k < 3; k++) tg[k] = tmp[k] + te[k];
+                if (grot) mat_mul(Re, Rg, Rg); else memcpy(Rg, Re, sizeof Rg);
+            } else {                                     /* (Rg, tg) . (Re, te) */
+                if (grot) {
+                    mat_vec(Rg, te, tmp);
+                    for (k = 0; k < 3; k++) tg[k] += tmp[k];
+                    mat_mul(Rg, Re, Rg);
+                } else {
+                    for (k = 0; k < 3; k++) tg[k] += te[k];
+                    memcpy(Rg, Re, sizeof Rg);
+                }
+            }
+            grot = 1;
+        }
+        if (ident) {
+            for (k = 0; k < 3; k++) t[k] += tg[k];
+            if (grot) { memcpy(R, Rg, sizeof Rg); ident = 0; }
+        } else {
+            double tmp[3];
+            mat_vec(R, tg, tmp);
+            for (k = 0; k < 3; k++) t[k] += tmp[k];
+            if (grot) mat_mul(R, Rg, R);
+        }
+    }
+    if (ident) eye(R);
+    mat_vec(R, P->tp, p);
+    for (k = 0; k < 3; k++) p[k] += t[k];
+    if (P->wp) {
+        double dp[3];
+        for (k = 0; k < 3; k++) dp[k] = p[k] - P->tw[k];
+        mat_vec(P->RwT, dp, p);
+        mat_mul(P->RwT, R, R);
     }
     return MTK_OK;
 }
 
+static void range_message(const mtk_model *m, int i, double q, char *err)
+{
+    char msg[MTK_ERRLEN];
+    snprintf(msg, sizeof msg, "axis %c position %.6f is outside its error table range [%g, %g]",
+             m->axis_name[i], q, m->table[i]->pos[0], m->table[i]->pos[m->table[i]->n - 1]);
+    seterr(err, msg);
+}
+
+int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double R[9], char *err)
+{
+    prep_t P;
+    int bad = -1, rc;
+    double Rl[9];
+    prepare(m, e, 1, &P);
+    rc = fwd(&P, q, p, R ? R : Rl, 1, &bad);
+    if (rc) range_message(m, bad, q[bad], err);
+    return rc;
+}
+
+/* ---------------------------------------------------------------- compensation */
+
+typedef struct {
+    double p[3], R[9], v[3];
+} target_t;
+
+/* Residual rows: position (mm), then the orientation (tool direction v - v_target, or the
+ * small rotation of R_target^T R) times `wo` (mm per rad). */
+static int residual(const prep_t *P, const double *q, const target_t *tg, double *r, double wo, int strict,
+                    int *bad)
+{
+    double p[3], R[9];
+    int k, rc = fwd(P, q, p, R, strict, bad);
+    if (rc) return rc;
+    for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
+    if (P->mode == 2) {
+        /* All three components of v - v_target: the two perpendicular ones alone would also
+         * vanish for a tool pointing the wrong way. */
+        double v[3];
+        mat_vec(R, P->m->tool_axis, v);
+        for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
+    } else if (P->mode == 3) {
+        const double *T = tg->R;
+        double M21 = T[2] * R[1] + T[5] * R[4] + T[8] * R[7], M12 = T[1] * R[2] + T[4] * R[5] + T[7] * R[8];
+        double M02 = T[0] * R[2] + T[3] * R[5] + T[6] * R[8], M20 = T[2] * R[0] + T[5] * R[3] + T[8] * R[6];
+        double M10 = T[1] * R[0] + T[4] * R[3] + T[7] * R[6], M01 = T[0] * R[1] + T[3] * R[4] + T[6] * R[7];
+        r[3] = wo * 0.5 * (M21 - M12);
+        r[4] = wo * 0.5 * (M02 - M20);
+        r[5] = wo * 0.5 * (M10 - M01);
+    }
+    return MTK_OK;
+}
 
 /* Solve A X = B for X (n x n, n x k), partial pivoting; 0 if singular. A and B are destroyed. */
 static int solve(int n, double *A, double *B, int k)
@@ -576,24 +677,111 @@ static double norm(const double *r, int rows)
     return sqrt(s);
 }
 
-/* Chord Jacobian at q by forward differences on the rigid model; K = A^-1 J^T, Ainv = A^-1
- * with A = J^T J + lambda I.  Returns 0 if A is singular. */
-static int linearise(const mtk_model *m, const mtk_errors *rigid, const double *q, const target_t *tg,
-                     int rows, double *K, double *Ainv, char *err, int *rc)
+/* Jacobian J (rows x n, row-major, per mm or deg) of the rigid model's residual at q, analytic
+ * (mtcomp.kinematics._rigid_jacobian): a linear axis moves the tool along its direction as the
+ * axes before it turn it, w = R_pre u; a rotary axis turns the tool about the line through its
+ * centre c_w = R_pre c + t_pre along w, dp = w x (p - c_w) and dR = [w]x R (per rad), all in
+ * the nominal workpiece frame and then turned into the real one by Rw^T.  The rigid model has
+ * no tables and no location errors (prepare with geo = 0). */
+static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J)
 {
-    int n = m->n_axes, i, j, k;
-    double J[6 * MTK_MAX_AXES], r0[6], dq[MTK_MAX_AXES], A[MTK_MAX_AXES * MTK_MAX_AXES] = {0};
-    double Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
-    *rc = residual(m, rigid, q, tg, r0, err, 0);
-    if (*rc) return 0;
-    for (k = 0; k < n; k++) {
-        double rk[6];
-        memcpy(dq, q, n * sizeof(double));
-        dq[k] += FD_STEP;
-        *rc = residual(m, rigid, dq, tg, rk, err, 0);
-        if (*rc) return 0;
-        for (j = 0; j < rows; j++) J[j * n + k] = (rk[j] - r0[j]) / FD_STEP;
+    const mtk_model *m = Pr->m;
+    double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
+    int n = Pr->n, i, k, ident = 1;
+    eye(R);
+    for (i = 0; i < n; i++) {
+        memcpy(Rpre[i], R, sizeof R);
+        memcpy(tpre[i], t, sizeof t);
+        if (m->rotary[i]) {
+            double Rg[9], tg[3], tmp[3];
+            const double *c = Pr->c[i];
+            axis_rotation(Pr->ueff[i], q[i] * DEG + Pr->zero[i], Rg);
+            for (k = 0; k < 3; k++)
+                tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
+            if (ident) {
+                for (k = 0; k < 3; k++) t[k] += tg[k];
+                memcpy(R, Rg, sizeof R);
+                ident = 0;
+            } else {
+                mat_vec(R, tg, tmp);
+                for (k = 0; k < 3; k++) t[k] += tmp[k];
+                mat_mul(R, Rg, R);
+            }
+        } else {
+            double w[3];
+            mat_vec(R, Pr->ueff[i], w);
+            for (k = 0; k < 3; k++) t[k] += q[i] * w[k];
+        }
     }
+    mat_vec(R, Pr->tp, p);
+    for (k = 0; k < 3; k++) p[k] += t[k];
+    mat_vec(R, m->tool_axis, v);
+    for (i = 0; i < n; i++) {
+        double w[3], dp[3], dpr[3], dv[3];
+        mat_vec(Rpre[i], Pr->ueff[i], w);
+        if (!m->rotary[i]) {
+            mat_vec(Pr->RwT, w, dpr);
+            for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
+            for (k = 3; k < Pr->rows; k++) J[k * n + i] = 0.0;
+            continue;
+        }
+        {
+            double cw[3], d[3];
+            mat_vec(Rpre[i], Pr->c[i], cw);
+            for (k = 0; k < 3; k++) {
+                cw[k] += tpre[i][k];
+                d[k] = p[k] - cw[k];
+                w[k] *= DEG;
+            }
+            dp[0] = w[1] * d[2] - w[2] * d[1];
+            dp[1] = w[2] * d[0] - w[0] * d[2];
+            dp[2] = w[0] * d[1] - w[1] * d[0];
+            mat_vec(Pr->RwT, dp, dpr);
+            for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
+        }
+        if (Pr->mode == 2) {
+            double c[3];
+            c[0] = w[1] * v[2] - w[2] * v[1];
+            c[1] = w[2] * v[0] - w[0] * v[2];
+            c[2] = w[0] * v[1] - w[1] * v[0];
+            mat_vec(Pr->RwT, c, dv);
+            for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
+        } else if (Pr->mode == 3) {
+            /* dM = T^T Rw^T [w]x R; rows: half the vee of its antisymmetric part */
+            double W[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
+            int r, c;
+            mat_mul(W, R, dR);
+            mat_mul(Pr->RwT, dR, dR);
+            for (r = 0; r < 3; r++)
+                for (c = 0; c < 3; c++)
+                    dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
+            J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
+            J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
+            J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
+        }
+    }
+    return MTK_OK;
+}
+
+/* K = A^-1 J^T with A = J^T J + lambda I, the columns of frozen axes zeroed.
+ * Returns 0 if A is singular. */
+static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
+                     const double *J0, double *K, int *rc)
+{
+    int n = Pr->n, rows = Pr->rows, i, j, k;
+    double J[6 * MTK_MAX_AXES], A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
+    if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
+        memcpy(J, J0, (size_t)rows * n * sizeof(double));
+        for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
+        *rc = MTK_OK;
+    } else {
+        *rc = jacobian(Pr, q, tg, wo, J);
+        if (*rc) return 0;
+    }
+    if (freeze)
+        for (k = 0; k < n; k++)
+            if (freeze[k])
+                for (j = 0; j < rows; j++) J[j * n + k] = 0.0;
     for (i = 0; i < n; i++)
         for (j = 0; j < n; j++) {
             double s = 0.0;
@@ -602,63 +790,64 @@ static int linearise(const mtk_model *m, const mtk_errors *rigid, const double *
         }
     for (i = 0; i < n; i++)
         for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
-    memcpy(Acopy, A, sizeof A);
-    if (!solve(n, Acopy, K, rows)) return 0;
-    for (i = 0; i < n; i++)
-        for (j = 0; j < n; j++) Ainv[i * n + j] = (i == j);
-    memcpy(Acopy, A, sizeof A);
-    return solve(n, Acopy, Ainv, n);
+    memcpy(Acopy, A, (size_t)n * n * sizeof(double));
+    return solve(n, Acopy, K, rows);
 }
 
 /* The Gauss-Newton iteration of mtcomp.kinematics._solve for one point, started at `seed` and
- * pulled (weight LAMBDA) toward it.  Leaves the iterate in q and its largest residual component
- * (mm, tables held at their ends, NaN propagated) in *resmax; adds the iterations to *iters.
- * A singular Jacobian ends the attempt with *singular set and *resmax infinite. */
-static int iterate(const mtk_model *m, const mtk_errors *e, const mtk_errors *rigid, const target_t *tg,
-                   int rows, const double *seed, double *q, double tol, int max_iter, int *iters,
-                   double *resmax, int *singular, char *err)
+ * damped least-squares steps; frozen axes (freeze[k] != 0, may be NULL) keep the seed's
+ * value.  Leaves the iterate in q and its residual rows (tables held at their ends) in r; adds
+ * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0: the
+ * rigid Jacobian at seed if already known (NULL: taken here). */
+static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
+                   const double *seed, const double *J0, double *q, double tol, int max_iter, int *iters,
+                   double *r, int *singular)
 {
-    int n = m->n_axes, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], Ainv[MTK_MAX_AXES * MTK_MAX_AXES], r[6], nr;
+    int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
+    double K[MTK_MAX_AXES * 6], nr;
     *singular = 0;
-    *resmax = INFINITY;
     memcpy(q, seed, n * sizeof(double));
+    rc = residual(P, q, tg, r, wo, 0, NULL);
+    if (rc) return rc;
+    nr = norm(r, rows);
     while (!done && it < max_iter) {
         int inner, slow = 0;
-        if (!linearise(m, rigid, q, tg, rows, K, Ainv, err, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
             return MTK_OK;
         }
-        rc = residual(m, e, q, tg, r, err, 0);
-        if (rc) return rc;
-        nr = norm(r, rows);
         for (inner = 0; inner < 8; inner++) {
-            double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0;
+            double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0,
+                   smax = 0.0;
             int bt;
             it++;
             for (i = 0; i < n; i++) {
-                double s = 0.0, pull = 0.0;
+                /* damped least squares: no component along a null direction of J (an axis the
+                 * orientation leaves free keeps the seed's value), no bias of the solution */
+                double s = 0.0;
+                if (freeze && freeze[i]) { step[i] = 0.0; continue; }
                 for (k = 0; k < rows; k++) s += K[i * rows + k] * r[k];
-                for (k = 0; k < n; k++) pull += Ainv[i * n + k] * (q[k] - seed[k]);
-                step[i] = s + LAMBDA * pull;
-                if (m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
+                step[i] = s;
+                if (P->m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
+                if (fabs(step[i]) > smax) smax = fabs(step[i]);
             }
             /* Damping: rotary steps at most 20 deg (the whole step scaled), halved while the
-             * residual does not fall. */
+             * residual does not fall.  A step below the tolerance is convergence: no evaluation
+             * (at the rounding floor a trial cannot lower the residual). */
             scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
             memcpy(qn, q, n * sizeof(double));
-            memcpy(rn, r, sizeof rn);
-            for (bt = 0; bt < 30; bt++) {
+            memcpy(rn, r, rows * sizeof(double));
+            for (bt = 0; bt < (smax >= tol ? 30 : 0); bt++) {
                 double qt[MTK_MAX_AXES], rt[6], nt;
                 for (i = 0; i < n; i++) qt[i] = q[i] - scale * step[i];
-                rc = residual(m, e, qt, tg, rt, err, 0);
+                rc = residual(P, qt, tg, rt, wo, 0, NULL);
                 if (rc) return rc;
                 nt = norm(rt, rows);
                 if (nt < nr || nt <= 1e-12) {
                     memcpy(qn, qt, n * sizeof(double));
-                    memcpy(rn, rt, sizeof rn);
+                    memcpy(rn, rt, rows * sizeof(double));
                     nn = nt;
                     break;
                 }
@@ -669,35 +858,293 @@ static int iterate(const mtk_model *m, const mtk_errors *e, const mtk_errors *ri
             slow |= (nn > 0.1 * nr) && (nn > 1e-12);
             done |= (stepped < tol) || (nn <= 1e-12);
             memcpy(q, qn, n * sizeof(double));
-            memcpy(r, rn, sizeof r);
+            memcpy(r, rn, rows * sizeof(double));
             nr = nn;
             if (done || slow) break;
         }
     }
     *iters += it;
-    rc = residual(m, e, q, tg, r, err, 0);
-    if (rc) return rc;
-    *resmax = 0.0;
-    for (k = 0; k < rows; k++)
-        if (isnan(r[k]) || fabs(r[k]) > *resmax) *resmax = isnan(r[k]) ? NAN : fabs(r[k]);
     return MTK_OK;
 }
+
+/* Orientation weight (mm per rad) while an axis at a pole is held: the tool direction is then
+ * met in least squares, and the small weight keeps the position exact even where the tables'
+ * angular errors couple the linear axes into the orientation. */
+#define WO_HELD (ORIENTATION_SCALE * 1e-3)
+
+static double maxabs(const double *r, int rows)
+{
+    double s = 0.0;
+    int k;
+    for (k = 0; k < rows; k++) {
+        if (isnan(r[k])) return NAN;
+        if (fabs(r[k]) > s) s = fabs(r[k]);
+    }
+    return s;
+}
+
+/* Angle (rad) of the orientation residual rows r (weight wo). */
+static double orientation_angle(const prep_t *P, const double *r, double wo)
+{
+    double x = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) / wo;
+    return P->mode == 2 ? 2.0 * asin(fmin(1.0, 0.5 * x)) : asin(fmin(1.0, x));
+}
+
+/* The rotary axis at a pole at q, or -1: an axis whose effect on the orientation lies within
+ * sin(pole_tol) of what the other rotary axes do (C at B = 0 on a B-C table turns the tool about
+ * itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of several, the last
+ * in the chain (mtcomp.kinematics._pole_axis).  J: the rigid Jacobian at q (ORIENTATION_SCALE). */
+static int pole_axis(const prep_t *Pr, const double *J, double pole_tol)
+{
+    int n = Pr->n, a, b, j, k, hold = -1;
+    double col[MTK_MAX_AXES][3], thr = sin(pole_tol * DEG);
+    for (a = 0; a < Pr->nrot; a++)
+        for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / (ORIENTATION_SCALE * DEG);
+    for (a = 0; a < Pr->nrot; a++) {
+        double basis[MTK_MAX_AXES][3], v[3];
+        int nb = 0;
+        for (b = 0; b < Pr->nrot; b++) {
+            double w[3], s;
+            if (b == a) continue;
+            memcpy(w, col[b], sizeof w);
+            for (k = 0; k < nb; k++) {
+                double d = w[0] * basis[k][0] + w[1] * basis[k][1] + w[2] * basis[k][2];
+                for (j = 0; j < 3; j++) w[j] -= d * basis[k][j];
+            }
+            s = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+            if (s > 1e-9) {
+                for (j = 0; j < 3; j++) basis[nb][j] = w[j] / s;
+                nb++;
+            }
+        }
+        memcpy(v, col[a], sizeof v);
+        for (k = 0; k < nb; k++) {
+            double d = v[0] * basis[k][0] + v[1] * basis[k][1] + v[2] * basis[k][2];
+            for (j = 0; j < 3; j++) v[j] -= d * basis[k][j];
+        }
+        if (sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) < thr) hold = Pr->rot_idx[a];
+    }
+    return hold;
+}
+
+typedef struct {
+    double tol;
+    int max_iter;
+    double pole_tol;
+} opt_t;
 
 /* Rotary offsets (deg) of the restart seeds, as mtcomp.kinematics._SEED_OFFSETS. */
 static const double SEED_OFFSETS[3] = {90.0, -90.0, 180.0};
 
+/* How a pose was solved (solve_pose's *how) */
+enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
+
+/* Commands q for one target (mtcomp.kinematics.compensate for one point).  At a pole (checked
+ * at `start`: q0, or q0 plus the previous pose's correction along a path) the pole axis is held
+ * and the result kept if the tool direction is then within pole_tol; else the exact solution
+ * from start if warm (the previous pose on the branch nearest its program: a warm start costs
+ * one iteration less and keeps the path's branch), from q0, from start, then from rotary seeds
+ * about q0 (least rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0)
+ * or MTK_E_RANGE (*bad). */
+static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, const double *q0,
+                      const double *start, int warm, const opt_t *o, double *q, int *iters, double *res,
+                      double *res0, int *singular, int *bad, int *held, int *how)
+{
+    int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
+    int tables = 0;
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], wacc = ORIENTATION_SCALE;
+    const double *Jq0 = differs ? NULL : J0;
+    *held = -1;
+    *singular = 0;
+    *res0 = INFINITY;
+    for (k = 0; k < n; k++) tables |= P->tab[k] != NULL;
+    rc = jacobian(Pr, start, tg, ORIENTATION_SCALE, J0);
+    if (rc) return rc;
+    if (o->pole_tol > 0.0 && P->mode >= 2) {
+        int hold = pole_axis(Pr, J0, o->pole_tol);
+        if (hold >= 0) {
+            int freeze[MTK_MAX_AXES] = {0};
+            freeze[hold] = 1;
+            rc = iterate(P, Pr, tg, WO_HELD, freeze, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+            if (rc) return rc;
+            if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
+                *held = hold;
+                *how = HOW_HELD;
+                wacc = WO_HELD;
+                goto accept;
+            }
+        }
+    }
+    if (differs && warm) {
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+        if (rc) return rc;
+        if (!sing && maxabs(r, rows) < CONVERGED) {
+            *how = HOW_WARM;
+            goto accept;
+        }
+    }
+    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, Jq0, qt, o->tol, o->max_iter, iters, r, &sing);
+    if (rc) return rc;
+    *singular = sing;
+    *res0 = sing ? INFINITY : maxabs(r, rows);
+    if (*res0 < CONVERGED) {
+        *how = HOW_Q0;
+        goto accept;
+    }
+    if (differs && !warm) {
+        /* continuation: the previous pose's correction keeps the branch the path is on */
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+        if (rc) return rc;
+        if (!sing && maxabs(r, rows) < CONVERGED) {
+            *how = HOW_WARM;
+            goto accept;
+        }
+    }
+    {
+        /* Where that fails (a tilted workpiece at a singularity: B = 0 on a B-C table needs C
+         * turned by 90 deg), restart from q0 with rotary axes offset by SEED_OFFSETS: each rotary
+         * axis alone, then each pair, in the core's order; keep the converged solution with the
+         * smallest sum of |rotary change| (within 1e-6 deg a tie: the first seed wins). */
+        int a, b, oa, ob, s, ns = 0, sa[3 * MTK_MAX_AXES * MTK_MAX_AXES], sb[3 * MTK_MAX_AXES * MTK_MAX_AXES];
+        double va[3 * MTK_MAX_AXES * MTK_MAX_AXES], vb[3 * MTK_MAX_AXES * MTK_MAX_AXES];
+        double best = INFINITY, seed[MTK_MAX_AXES];
+        for (a = 0; a < P->nrot; a++)
+            for (oa = 0; oa < 3; oa++, ns++) {
+                sa[ns] = P->rot_idx[a]; va[ns] = SEED_OFFSETS[oa];
+                sb[ns] = -1; vb[ns] = 0.0;
+            }
+        for (a = 0; a < P->nrot; a++)
+            for (b = a + 1; b < P->nrot; b++)
+                for (oa = 0; oa < 3; oa++)
+                    for (ob = 0; ob < 3; ob++, ns++) {
+                        sa[ns] = P->rot_idx[a]; va[ns] = SEED_OFFSETS[oa];
+                        sb[ns] = P->rot_idx[b]; vb[ns] = SEED_OFFSETS[ob];
+                    }
+        for (s = 0; s < ns; s++) {
+            double change = 0.0, et;
+            memcpy(seed, q0, n * sizeof(double));
+            seed[sa[s]] += va[s];
+            if (sb[s] >= 0) seed[sb[s]] += vb[s];
+            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
+            if (rc) return rc;
+            et = sing ? INFINITY : maxabs(r, rows);
+            for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
+            if (et < CONVERGED && change < best - 1e-6) {
+                memcpy(q, qt, n * sizeof(double));
+                memcpy(racc, r, rows * sizeof(double));
+                best = change;
+            }
+        }
+        if (best == INFINITY) {
+            *res = *res0;
+            return MTK_E_CONVERGE;
+        }
+        *how = HOW_SEED;
+        goto strict;
+    }
+accept:
+    memcpy(q, qt, n * sizeof(double));
+    memcpy(racc, r, rows * sizeof(double));
+strict:
+    /* Strict evaluation: a converged command outside an error table's range is an error (without
+     * tables the iteration's residual is the strict one). */
+    if (tables) {
+        rc = residual(P, q, tg, racc, wacc, 1, bad);
+        if (rc) return rc;
+    }
+    *res = maxabs(racc, *held >= 0 ? 3 : rows);
+    if (!(*res < CONVERGED)) {
+        *res0 = *res;
+        return MTK_E_CONVERGE;
+    }
+    return MTK_OK;
+}
+
+/* Closed form of retarget for rigid setting errors when the rotary angles need not change (no
+ * geometric errors; no workpiece rotation unless the machine has no rotary axes): with the
+ * rotary angles fixed the nominal tool position is affine in the three linear axes,
+ * A dq = Rw p_ideal + tw - p_ideal - R_c t (mtcomp.kinematics._retarget_rigid). */
+static int closed_form(const prep_t *P, const double *q, double *out)
+{
+    const mtk_model *m = P->m;
+    double R[9], A[3][3], rhs[3], t[3], Rt[3], det, x[3];
+    int i, k, nc = 0, lin[3], ident = 1;
+    eye(R);
+    for (i = 0; i < P->n; i++) {
+        if (m->rotary[i]) {
+            double Rg[9];
+            axis_rotation(m->dir[i], q[i] * DEG, Rg);
+            if (ident) memcpy(R, Rg, sizeof R); else mat_mul(R, Rg, R);
+            ident = 0;
+        } else {
+            double c[3];
+            mat_vec(R, m->dir[i], c);
+            for (k = 0; k < 3; k++) A[k][nc] = c[k];
+            lin[nc++] = i;
+        }
+    }
+    for (k = 0; k < 3; k++) t[k] = P->tp[k] - m->tool_point[k];
+    mat_vec(R, t, Rt);
+    for (k = 0; k < 3; k++) rhs[k] = P->tw[k] - Rt[k];
+    if (P->wp && P->nrot == 0) {
+        double p[3], Rp[3];
+        for (k = 0; k < 3; k++) p[k] = m->tool_point[k];  /* nominal chain without rotation: p = tp + sum q u */
+        for (i = 0; i < P->n; i++)
+            for (k = 0; k < 3; k++) p[k] += q[i] * m->dir[i][k];
+        mat_vec(P->Rw, p, Rp);
+        for (k = 0; k < 3; k++) rhs[k] += Rp[k] - p[k];
+    }
+    /* Cramer's rule */
+#define DET3(c0, c1, c2) (c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c0[1] * (c1[0] * c2[2] - c1[2] * c2[0]) \
+                          + c0[2] * (c1[0] * c2[1] - c1[1] * c2[0]))
+    {
+        double c0[3] = {A[0][0], A[1][0], A[2][0]}, c1[3] = {A[0][1], A[1][1], A[2][1]},
+               c2[3] = {A[0][2], A[1][2], A[2][2]};
+        det = DET3(c0, c1, c2);
+        if (det == 0.0) return 0;
+        x[0] = DET3(rhs, c1, c2) / det;
+        x[1] = DET3(c0, rhs, c2) / det;
+        x[2] = DET3(c0, c1, rhs) / det;
+    }
+#undef DET3
+    memcpy(out, q, P->n * sizeof(double));
+    for (k = 0; k < 3; k++) out[lin[k]] += x[k];
+    return 1;
+}
+
+static int limits(const mtk_model *m, const double *q)
+{
+    int i;
+    for (i = 0; i < m->n_axes; i++)
+        if (q[i] < m->lo[i] - m->slack[i] || q[i] > m->hi[i] + m->slack[i]) return i;
+    return -1;
+}
+
+static void rigid_errors(const mtk_errors *e, mtk_errors *rigid)
+{
+    mtk_errors_zero(rigid);
+    memcpy(rigid->tool, e->tool, sizeof rigid->tool);
+    memcpy(rigid->wp_t, e->wp_t, sizeof rigid->wp_t);
+    memcpy(rigid->wp_a, e->wp_a, sizeof rigid->wp_a);
+    rigid->use_tables = 0;
+}
+
+static void make_target(const prep_t *Pi, const double *q, target_t *tg)
+{
+    fwd(Pi, q, tg->p, tg->R, 0, NULL);
+    mat_vec(tg->R, Pi->m->tool_axis, tg->v);
+}
+
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual_out, char *err)
 {
-    int n = m->n_axes, rows, i, k, it = 0, rc = MTK_OK, singular = 0;
-    double r[6], resmax = 0.0, res0;
-    mtk_errors rigid;
-    target_t tg;
+    int n = m->n_axes, i, it = 0, rc, bad = -1, held, singular = 0;
+    double res = 0.0, res0 = 0.0;
+    char msg[MTK_ERRLEN];
     if (iters) *iters = 0;
     if (residual_out) *residual_out = 0.0;
     for (i = 0; i < n; i++) {
         if (!isfinite(q_prog[i])) {
-            char msg[MTK_ERRLEN];
             snprintf(msg, sizeof msg, "axis %c command is not a finite number", m->axis_name[i]);
             seterr(err, msg);
             return MTK_E_ARG;
@@ -705,98 +1152,181 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
     }
     if (!e || errors_zero(m, e)) {
         memcpy(q, q_prog, n * sizeof(double));
-        goto limits;
-    }
-    /* Target: the ideal machine's pose at the programmed commands. */
-    tg.mode = n_rotary(m) == 0 ? 0 : (n_rotary(m) >= 3 ? 3 : 2);
-    rc = mtk_forward(m, NULL, q_prog, tg.p, tg.R, err);
-    if (rc) return rc;
-    rows = tg.mode == 0 ? 3 : 6;
-    mat_vec(tg.R, m->tool_axis, tg.v);
-    /* The chord Jacobian is taken on the rigid model (setting errors only). */
-    mtk_errors_zero(&rigid);
-    memcpy(rigid.tool, e->tool, sizeof rigid.tool);
-    memcpy(rigid.wp_t, e->wp_t, sizeof rigid.wp_t);
-    memcpy(rigid.wp_a, e->wp_a, sizeof rigid.wp_a);
-    rigid.use_tables = 0;
-    /* Same iteration as mtcomp.kinematics.compensate, for one point: from the programmed
-     * commands first. */
-    rc = iterate(m, e, &rigid, &tg, rows, q_prog, q, tol, max_iter, &it, &res0, &singular, err);
-    if (rc) return rc;
-    if (!(res0 < CONVERGED)) {
-        /* Where that fails (a tilted workpiece at a singularity: B = 0 on a B-C table needs C
-         * turned by 90 deg), restart from the programmed commands with rotary axes offset by
-         * SEED_OFFSETS: each rotary axis alone, then each pair, in the core's order; keep the
-         * converged solution with the smallest sum of |rotary change| (ties: the first). */
-        enum { MAX_SEEDS = 3 * MTK_MAX_AXES + 9 * MTK_MAX_AXES * (MTK_MAX_AXES - 1) / 2 };
-        int rot[MTK_MAX_AXES], nrot = 0, ns = 0, s, a, b, oa, ob, sa[MAX_SEEDS], sb[MAX_SEEDS], sing;
-        double va[MAX_SEEDS], vb[MAX_SEEDS], best = INFINITY, seed[MTK_MAX_AXES], qt[MTK_MAX_AXES], et;
-        for (i = 0; i < n; i++)
-            if (m->rotary[i]) rot[nrot++] = i;
-        for (a = 0; a < nrot; a++)
-            for (oa = 0; oa < 3; oa++, ns++) {
-                sa[ns] = rot[a]; va[ns] = SEED_OFFSETS[oa];
-                sb[ns] = -1; vb[ns] = 0.0;
-            }
-        for (a = 0; a < nrot; a++)
-            for (b = a + 1; b < nrot; b++)
-                for (oa = 0; oa < 3; oa++)
-                    for (ob = 0; ob < 3; ob++, ns++) {
-                        sa[ns] = rot[a]; va[ns] = SEED_OFFSETS[oa];
-                        sb[ns] = rot[b]; vb[ns] = SEED_OFFSETS[ob];
-                    }
-        for (s = 0; s < ns; s++) {
-            double change = 0.0;
-            memcpy(seed, q_prog, n * sizeof(double));
-            seed[sa[s]] += va[s];
-            if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(m, e, &rigid, &tg, rows, seed, qt, tol, max_iter, &it, &et, &sing, err);
-            if (rc) return rc;
-            for (a = 0; a < nrot; a++) change += fabs(qt[rot[a]] - q_prog[rot[a]]);
-            /* within 1e-6 deg of rotary change a tie: the first seed wins (same branch along a path) */
-            if (et < CONVERGED && change < best - 1e-6) {
-                memcpy(q, qt, n * sizeof(double));
-                best = change;
-            }
-        }
-        if (best == INFINITY) {
-            /* No seed converged: report the attempt from the programmed commands, as the core. */
-            char msg[MTK_ERRLEN];
+    } else {
+        prep_t P, Pr, Pi;
+        mtk_errors rigid;
+        target_t tg;
+        opt_t o;
+        prepare(m, e, 1, &P);
+        if (!(P.closed && closed_form(&P, q_prog, q))) {
+            rigid_errors(e, &rigid);
+            prepare(m, &rigid, 0, &Pr);
+            prepare(m, NULL, 0, &Pi);
+            make_target(&Pi, q_prog, &tg);
+            o.tol = tol;
+            o.max_iter = max_iter;
+            o.pole_tol = MTK_POLE_TOL;
+            int how;
+            rc = solve_pose(&P, &Pr, &tg, q_prog, q_prog, 0, &o, q, &it, &res, &res0, &singular, &bad, &held, &how);
             if (iters) *iters = it;
-            if (residual_out) *residual_out = res0;
-            if (singular)
-                snprintf(msg, sizeof msg, "compensation did not converge: singular Jacobian (kinematic "
-                         "singularity)");
-            else
-                snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may "
-                         "be unreachable or at a kinematic singularity", res0);
-            seterr(err, msg);
-            return MTK_E_CONVERGE;
+            if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
+            if (rc == MTK_E_RANGE) {
+                range_message(m, bad, q[bad], err);
+                return rc;
+            }
+            if (rc == MTK_E_CONVERGE) {
+                if (singular && res0 == INFINITY)
+                    snprintf(msg, sizeof msg, "compensation did not converge: singular Jacobian (kinematic "
+                             "singularity)");
+                else
+                    snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may "
+                             "be unreachable or at a kinematic singularity", res0);
+                seterr(err, msg);
+                return rc;
+            }
+            if (rc) return rc;
         }
     }
-    /* Strict evaluation: a converged command outside an error table's range is an error. */
-    rc = residual(m, e, q, &tg, r, err, 1);
-    if (rc) return rc;
-    for (k = 0; k < rows; k++)
-        if (isnan(r[k]) || fabs(r[k]) > resmax) resmax = isnan(r[k]) ? NAN : fabs(r[k]);
-    if (iters) *iters = it;
-    if (residual_out) *residual_out = resmax;
-    if (!(resmax < CONVERGED)) {
-        char msg[MTK_ERRLEN];
-        snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may be "
-                 "unreachable or at a kinematic singularity", resmax);
+    i = limits(m, q);
+    if (i >= 0) {
+        snprintf(msg, sizeof msg, "axis %c would have to move to %.6f, outside its travel [%g, %g]",
+                 m->axis_name[i], q[i], m->lo[i], m->hi[i]);
         seterr(err, msg);
-        return MTK_E_CONVERGE;
-    }
-limits:
-    for (i = 0; i < n; i++) {
-        if (q[i] < m->lo[i] - m->slack[i] || q[i] > m->hi[i] + m->slack[i]) {
-            char msg[MTK_ERRLEN];
-            snprintf(msg, sizeof msg, "axis %c would have to move to %.6f, outside its travel [%g, %g]",
-                     m->axis_name[i], q[i], m->lo[i], m->hi[i]);
-            seterr(err, msg);
-            return MTK_E_LIMIT;
-        }
+        return MTK_E_LIMIT;
     }
     return MTK_OK;
+}
+
+/* ---------------------------------------------------------------- batches (the library's entry) */
+
+mtk_model *mtk_model_new(int n_axes, const char *axis_names, const int *rotary, const int *tool_side,
+                         const double *dir, const double *loc, const double *lo, const double *hi,
+                         const double *slack, const double *tool_point, const double *tool_axis)
+{
+    mtk_model *m;
+    int i;
+    if (n_axes < 1 || n_axes > MTK_MAX_AXES) return NULL;
+    m = (mtk_model *)calloc(1, sizeof *m);
+    if (!m) return NULL;
+    m->n_axes = n_axes;
+    for (i = 0; i < n_axes; i++) {
+        m->axis_name[i] = axis_names[i];
+        m->rotary[i] = rotary[i];
+        m->tool_side[i] = tool_side[i];
+        memcpy(m->dir[i], dir + 3 * i, 3 * sizeof(double));
+        memcpy(m->loc[i], loc + 3 * i, 3 * sizeof(double));
+        m->lo[i] = lo[i];
+        m->hi[i] = hi[i];
+        m->slack[i] = slack[i];
+    }
+    memcpy(m->tool_point, tool_point, 3 * sizeof(double));
+    memcpy(m->tool_axis, tool_axis, 3 * sizeof(double));
+    return m;
+}
+
+int mtk_model_set_table(mtk_model *m, int axis, int n, const double *pos, const double *val)
+{
+    mtk_table *t;
+    if (axis < 0 || axis >= m->n_axes || n < 2) return MTK_E_ARG;
+    t = (mtk_table *)calloc(1, sizeof *t);
+    if (!t) return MTK_E_IO;
+    t->pos = (double *)malloc(n * sizeof(double));
+    t->val = (double *)malloc(6 * n * sizeof(double));
+    if (!t->pos || !t->val) {
+        free(t->pos); free(t->val); free(t);
+        return MTK_E_IO;
+    }
+    memcpy(t->pos, pos, n * sizeof(double));
+    memcpy(t->val, val, 6 * n * sizeof(double));
+    t->n = n;
+    if (m->table[axis]) {
+        free(m->table[axis]->pos); free(m->table[axis]->val); free(m->table[axis]);
+    }
+    m->table[axis] = t;
+    return MTK_OK;
+}
+
+long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q, double *p, double *R,
+                       int strict, int *bad_axis)
+{
+    prep_t P;
+    long i;
+    int nax = m->n_axes;
+    prepare(m, e, 1, &P);
+    for (i = 0; i < n; i++) {
+        if (fwd(&P, q + i * nax, p + 3 * i, R + 9 * i, strict, bad_axis) != MTK_OK) return i;
+    }
+    return -1;
+}
+
+/* Shared loop of the two batch entries: targets either given (p_t, R_t) or the ideal poses of q0. */
+static long batch(const mtk_model *m, const mtk_errors *e, long n, const double *p_t, const double *R_t,
+                  const double *q0, double *q, const mtk_options *o, double *res, int *status, int *info)
+{
+    prep_t P, Pr, Pi;
+    mtk_errors rigid, zero;
+    opt_t so;
+    long i, failed = 0;
+    int nax = m->n_axes, k, have_prev = 0, warm = 0;
+    double corr[MTK_MAX_AXES];
+    if (!e) {
+        mtk_errors_zero(&zero);
+        e = &zero;
+    }
+    prepare(m, e, 1, &P);
+    rigid_errors(e, &rigid);
+    prepare(m, &rigid, 0, &Pr);
+    prepare(m, NULL, 0, &Pi);
+    so.tol = o->tol;
+    so.max_iter = o->max_iter;
+    so.pole_tol = o->pole_tol;
+    for (i = 0; i < n; i++) {
+        const double *qa = q0 + i * nax;
+        double *qo = q + i * nax, start[MTK_MAX_AXES], r0 = 0.0;
+        target_t tg;
+        int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
+        status[i] = MTK_OK;
+        info[i] = -1;
+        res[i] = 0.0;
+        if (!p_t && P.closed) {
+            if (closed_form(&P, qa, qo)) continue;
+        }
+        if (p_t) {
+            memcpy(tg.p, p_t + 3 * i, sizeof tg.p);
+            memcpy(tg.R, R_t + 9 * i, sizeof tg.R);
+            mat_vec(tg.R, m->tool_axis, tg.v);
+        } else {
+            make_target(&Pi, qa, &tg);
+        }
+        memcpy(start, qa, nax * sizeof(double));
+        if (o->continuation && have_prev)
+            for (k = 0; k < nax; k++) start[k] += corr[k];
+        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, &res[i], &r0, &sing, &bad,
+                        &held, &how);
+        if (rc == MTK_OK) {
+            info[i] = held;
+            for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
+            have_prev = 1;
+            warm = how != HOW_SEED;
+        } else {
+            status[i] = rc;
+            info[i] = bad;
+            if (rc == MTK_E_CONVERGE) res[i] = r0;
+            have_prev = 0;
+            failed++;
+        }
+    }
+    return failed;
+}
+
+long mtk_retarget_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, double *q,
+                        const mtk_options *o, double *res, int *status, int *info)
+{
+    return batch(m, e, n, NULL, NULL, q_prog, q, o, res, status, info);
+}
+
+long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const double *p_t, const double *R_t,
+                          const double *q0, double *q, const mtk_options *o, double *res, int *status, int *info)
+{
+    return batch(m, e, n, p_t, R_t, q0, q, o, res, status, info);
 }

@@ -68,6 +68,36 @@ int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual, char *err);
 
+/* Pole tolerance (deg) of mtk_retarget: within it of a pole (C at B = 0 on a B-C table, A and C
+ * at B = 90 on an A-B-C head) the pole axis is held and the tool direction met in least squares
+ * (mtcomp.kinematics.POLE_TOLERANCE). */
+#define MTK_POLE_TOL 0.2
+
+/* ---------------------------------------------------------------- batches (library entry)
+ * The machine built in memory (no resource files) and whole arrays of poses per call, row-major:
+ * q (n, n_axes), p (n, 3), R (n, 9). */
+typedef struct {
+    double tol;          /* step tolerance, mm or deg */
+    int max_iter;        /* iterations per attempt */
+    double pole_tol;     /* deg; 0: no pole handling */
+    int continuation;    /* start each pose from the previous pose's correction */
+} mtk_options;
+
+mtk_model *mtk_model_new(int n_axes, const char *axis_names, const int *rotary, const int *tool_side,
+                         const double *dir, const double *loc, const double *lo, const double *hi,
+                         const double *slack, const double *tool_point, const double *tool_axis);
+int mtk_model_set_table(mtk_model *m, int axis, int n, const double *pos, const double *val);
+/* Returns the index of the first pose outside a table's range (strict; axis in *bad_axis), or -1. */
+long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q, double *p, double *R,
+                       int strict, int *bad_axis);
+/* Per pose: status MTK_OK, MTK_E_CONVERGE or MTK_E_RANGE; info the held pole axis (-1: none) or the
+ * axis outside its table; res the largest residual (mm; held: position only).  Returns the number
+ * of failed poses. */
+long mtk_retarget_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, double *q,
+                        const mtk_options *o, double *res, int *status, int *info);
+long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const double *p_t, const double *R_t,
+                          const double *q0, double *q, const mtk_options *o, double *res, int *status, int *info);
+
 /* Portable strtok_r: next token of s (or of *save when s is NULL) delimited by any of delim. */
 char *mtk_tok(char *s, const char *delim, char **save);
 

@@ -1,0 +1,282 @@
+"""The compiled kinematic kernel (fmu/c/mtk.c) called in batches from Python.
+
+The same C source is compiled into the FMUs and, as a plain shared library (no Python headers),
+loaded here through ctypes: arrays in, arrays out, one call per batch.  The library is looked
+for, in order, next to this module (built at install time by setup.py), then in a per-user cache
+keyed by the hash of the source (`~/.cache/mtcomp/kernel/<hash>/`, or $MTCOMP_CACHE_DIR), and
+compiled there on first use with the C compiler ($CC, cc or gcc).  Without a compiler the
+library uses its numpy reference implementation (mtcomp.kinematics) and says so once on stderr.
+MTCOMP_KERNEL=numpy forces the numpy implementation.
+
+ctypes rather than a C extension: the kernel must build with nothing but gcc (no Python headers),
+and ctypes releases the GIL during the call.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+MAX_AXES = 9
+#: Return codes of mtk.h
+OK, E_RANGE, E_LIMIT, E_CONVERGE = 0, 3, 4, 5
+CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared")
+
+_SUFFIX = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
+
+
+def source_dir() -> Path:
+    """Folder of mtk.c and mtk.h (package data of mtcomp.fmu, or the source tree)."""
+    here = Path(__file__).resolve().parent
+    for cand in (here.parent / "fmu" / "c", here / "fmu" / "c"):
+        if (cand / "mtk.c").is_file():
+            return cand
+    import importlib.util
+    spec = importlib.util.find_spec("mtcomp.fmu")
+    if spec and spec.origin:
+        return Path(spec.origin).parent / "c"
+    return here / "fmu" / "c"
+
+
+def source_hash(src: Path | None = None) -> str:
+    """Hash of the kernel source and the compile flags: the key of a built library."""
+    src = src or source_dir()
+    h = hashlib.sha256()
+    for name in ("mtk.h", "mtk.c"):
+        h.update((src / name).read_bytes())
+    h.update(" ".join(CFLAGS).encode())
+    return h.hexdigest()[:16]
+
+
+def library_name(digest: str) -> str:
+    return f"libmtk-{digest}{_SUFFIX}"
+
+
+def cache_dir() -> Path:
+    base = os.environ.get("MTCOMP_CACHE_DIR")
+    if base:
+        return Path(base) / "kernel"
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return Path(xdg if xdg else Path.home() / ".cache") / "mtcomp" / "kernel"
+
+
+def find_compiler() -> str | None:
+    cc = os.environ.get("CC")
+    if cc:
+        return shutil.which(cc.split()[0]) and cc.split()[0]
+    return shutil.which("cc") or shutil.which("gcc")
+
+
+def compile_library(out: Path, src: Path | None = None, cc: str | None = None) -> Path:
+    """Compile mtk.c into the shared library `out` (written atomically).  Raises OSError or
+    RuntimeError (with the compiler's message) on failure."""
+    src = src or source_dir()
+    cc = cc or find_compiler()
+    if not cc:
+        raise OSError("no C compiler found (cc/gcc)")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".mtk-", suffix=_SUFFIX, dir=out.parent)
+    os.close(fd)
+    try:
+        run = subprocess.run([cc, *CFLAGS, str(src / "mtk.c"), "-o", tmp, "-lm"],
+                             capture_output=True, text=True)
+        if run.returncode:
+            raise RuntimeError(f"compiling the kinematic kernel failed:\n{run.stderr[-2000:]}")
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return out
+
+
+class _Errors(ctypes.Structure):
+    """mtk_errors of mtk.h"""
+    _fields_ = [("tool", ctypes.c_double * 3), ("wp_t", ctypes.c_double * 3), ("wp_a", ctypes.c_double * 3),
+                ("loc", (ctypes.c_double * 6) * MAX_AXES), ("use_tables", ctypes.c_int)]
+
+
+class _Options(ctypes.Structure):
+    """mtk_options of mtk.h"""
+    _fields_ = [("tol", ctypes.c_double), ("max_iter", ctypes.c_int), ("pole_tol", ctypes.c_double),
+                ("continuation", ctypes.c_int)]
+
+
+_D = ctypes.POINTER(ctypes.c_double)
+_I = ctypes.POINTER(ctypes.c_int)
+
+
+def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
+    vp, c_long = ctypes.c_void_p, ctypes.c_long
+    lib.mtk_model_new.restype = vp
+    lib.mtk_model_new.argtypes = [ctypes.c_int, ctypes.c_char_p, _I, _I, _D, _D, _D, _D, _D, _D, _D]
+    lib.mtk_model_set_table.restype = ctypes.c_int
+    lib.mtk_model_set_table.argtypes = [vp, ctypes.c_int, ctypes.c_int, _D, _D]
+    lib.mtk_free.restype = None
+    lib.mtk_free.argtypes = [vp]
+    lib.mtk_forward_batch.restype = c_long
+    lib.mtk_forward_batch.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, ctypes.c_int, _I]
+    lib.mtk_retarget_batch.restype = c_long
+    lib.mtk_retarget_batch.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, ctypes.POINTER(_Options),
+                                       _D, _I, _I]
+    lib.mtk_compensate_batch.restype = c_long
+    lib.mtk_compensate_batch.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D,
+                                         ctypes.POINTER(_Options), _D, _I, _I]
+    return lib
+
+
+_state: dict = {}
+
+
+def load(quiet: bool = False) -> ctypes.CDLL | None:
+    """The kernel library, built on first use; None (numpy fallback) without a compiler."""
+    if "lib" in _state:
+        return _state["lib"]
+    lib = None
+    reason = ""
+    if os.environ.get("MTCOMP_KERNEL", "").lower() == "numpy":
+        _state["lib"] = None
+        _state["reason"] = "MTCOMP_KERNEL=numpy"
+        return None
+    try:
+        src = source_dir()
+        digest = source_hash(src)
+        name = library_name(digest)
+        candidates = [Path(__file__).resolve().parent / name, cache_dir() / digest / name]
+        path = next((p for p in candidates if p.is_file()), None)
+        if path is None:
+            path = compile_library(candidates[1], src)
+        lib = _bind(ctypes.CDLL(str(path)))
+        _state["path"] = path
+    except (OSError, RuntimeError) as exc:
+        reason = str(exc).splitlines()[0]
+        lib = None
+    _state["lib"] = lib
+    _state["reason"] = reason
+    if lib is None and not quiet:
+        sys.stderr.write(f"mtcomp: compiled kinematic kernel unavailable ({reason}); using the slower numpy "
+                         "implementation\n")
+    return lib
+
+
+def available() -> bool:
+    """True if the compiled kernel is in use."""
+    return load(quiet=True) is not None
+
+
+# ------------------------------------------------------------------------------------ model cache
+
+class _Model:
+    """An mtk_model built from a Machine and the tables of an ErrorSet (freed with the object)."""
+
+    def __init__(self, lib, machine, tables):
+        self.lib = lib
+        n = machine.n_axes
+        names = "".join(a.name for a in machine.axes).encode()
+        rot = (ctypes.c_int * n)(*[int(a.is_rotary) for a in machine.axes])
+        side = (ctypes.c_int * n)(*[int(a.side == "tool") for a in machine.axes])
+        arr = lambda v: np.ascontiguousarray(v, dtype=float)  # noqa: E731
+        d = arr([a.direction for a in machine.axes])
+        lc = arr([a.location for a in machine.axes])
+        lo = arr([a.limits[0] for a in machine.axes])
+        hi = arr([a.limits[1] for a in machine.axes])
+        # check_limits' tolerance: half a resolution step
+        sl = arr([0.5 * a.resolution for a in machine.axes])
+        tp, ta = arr(machine.tool_point), arr(machine.tool_axis)
+        self.ptr = lib.mtk_model_new(n, names, rot, side, *(_p(x) for x in (d, lc, lo, hi, sl, tp, ta)))
+        if not self.ptr:
+            raise MemoryError("mtk_model_new failed")
+        for k, a in enumerate(machine.axes):
+            t = tables.get(a.name)
+            if t is not None:
+                pos = arr(t.position)
+                val = arr(t._stack)
+                if lib.mtk_model_set_table(self.ptr, k, pos.size, _p(pos), _p(val)) != OK:
+                    raise MemoryError("mtk_model_set_table failed")
+
+    def __del__(self):
+        if getattr(self, "ptr", None):
+            self.lib.mtk_free(self.ptr)
+            self.ptr = None
+
+
+def _p(a: np.ndarray):
+    return a.ctypes.data_as(_D)
+
+
+_models: dict = {}
+
+
+def model(lib, machine, errors):
+    """The cached C model of `machine` with the tables of `errors` (keyed by identity; the key
+    objects are held so that ids are not reused)."""
+    tables = dict(errors.geometric.tables) if errors is not None else {}
+    key = (id(machine), tuple(sorted((k, id(t)) for k, t in tables.items())))
+    hit = _models.get(key)
+    if hit is not None:
+        return hit[0]
+    if len(_models) > 32:
+        _models.clear()
+    m = _Model(lib, machine, tables)
+    _models[key] = (m, machine, tables)
+    return m
+
+
+def c_errors(machine, errors) -> _Errors:
+    e = _Errors()
+    e.use_tables = 1
+    if errors is None:
+        return e
+    e.tool[:] = errors.tool.offset
+    e.wp_t[:] = errors.workpiece.translation
+    e.wp_a[:] = errors.workpiece.angles
+    for k, a in enumerate(machine.axes):
+        d, r = errors.geometric.location_of(a.name)
+        e.loc[k][:] = [*d, *r]
+    return e
+
+
+# ------------------------------------------------------------------------------------ batch calls
+
+def forward(lib, machine, q: np.ndarray, errors, strict: bool):
+    """(p (N,3), R (N,3,3), first bad index or -1)."""
+    q = np.ascontiguousarray(q, dtype=float)
+    n = q.shape[0]
+    p = np.empty((n, 3))
+    R = np.empty((n, 3, 3))
+    bad_axis = ctypes.c_int(-1)
+    m = model(lib, machine, errors)
+    bad = lib.mtk_forward_batch(m.ptr, ctypes.byref(c_errors(machine, errors)), n, _p(q), _p(p), _p(R),
+                                int(strict), ctypes.byref(bad_axis))
+    return p, R, int(bad)
+
+
+def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_iter: int,
+          pole_tolerance: float, continuation: bool):
+    """retarget (target None: the ideal poses of q0) or compensate in C.
+    Returns (q, residual (N,), status (N,), info (N,))."""
+    q0 = np.ascontiguousarray(q0, dtype=float)
+    n = q0.shape[0]
+    q = np.empty_like(q0)
+    res = np.empty(n)
+    status = np.empty(n, dtype=np.intc)
+    info = np.empty(n, dtype=np.intc)
+    opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)))
+    m = model(lib, machine, errors)
+    e = ctypes.byref(c_errors(machine, errors))
+    si, ii = status.ctypes.data_as(_I), info.ctypes.data_as(_I)
+    if target is None:
+        lib.mtk_retarget_batch(m.ptr, e, n, _p(q0), _p(q), ctypes.byref(opt), _p(res), si, ii)
+    else:
+        tp = np.ascontiguousarray(target.p, dtype=float)
+        tR = np.ascontiguousarray(target.R, dtype=float)
+        lib.mtk_compensate_batch(m.ptr, e, n, _p(tp), _p(tR), _p(q0), _p(q), ctypes.byref(opt), _p(res), si, ii)
+    return q, res, status, info

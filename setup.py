@@ -1,0 +1,43 @@
+"""Build hook: compile the kinematic kernel (fmu/c/mtk.c) into a plain shared library next to
+mtcomp._kernel at install time, with the C compiler the FMUs need anyway ($CC, cc or gcc).
+Without a compiler the install goes on: the library is then built on first use into the per-user
+cache, or mtcomp runs its numpy implementation (core/_kernel.py).  Metadata: pyproject.toml."""
+import hashlib
+import os
+import shutil
+import subprocess
+import sysconfig
+from pathlib import Path
+
+from setuptools import setup
+from setuptools.command.build_py import build_py
+
+# Must match core/_kernel.py (CFLAGS, source_hash, library_name); tests/test_kernel.py checks it.
+CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared")
+SRC = Path(__file__).resolve().parent / "fmu" / "c"
+
+
+def kernel_name() -> str:
+    h = hashlib.sha256()
+    for name in ("mtk.h", "mtk.c"):
+        h.update((SRC / name).read_bytes())
+    h.update(" ".join(CFLAGS).encode())
+    return f"libmtk-{h.hexdigest()[:16]}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
+
+
+class BuildWithKernel(build_py):
+    def run(self):
+        super().run()
+        cc = os.environ.get("CC", "").split()[:1] or [shutil.which("cc") or shutil.which("gcc") or ""]
+        if not cc[0] or getattr(self, "editable_mode", False):
+            return  # editable installs build on first use into the cache
+        out = Path(self.build_lib) / "mtcomp" / kernel_name()
+        out.parent.mkdir(parents=True, exist_ok=True)
+        run = subprocess.run([cc[0], *CFLAGS, str(SRC / "mtk.c"), "-o", str(out), "-lm"],
+                             capture_output=True, text=True)
+        if run.returncode:
+            print(f"mtcomp: the kinematic kernel was not compiled ({run.stderr.strip()[:200]}); "
+                  "it is built on first use or the numpy implementation runs")
+
+
+setup(cmdclass={"build_py": BuildWithKernel})

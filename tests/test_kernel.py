@@ -1,0 +1,185 @@
+"""The compiled kernel (fmu/c/mtk.c through ctypes) against the numpy reference, its build and
+fallback, and the rotary solutions that follow the path (issue 14 item 2)."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mtcomp import _kernel
+from mtcomp.errors import (ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting, load_errors)
+from mtcomp.kinematics import SwingError, compensate, forward, retarget
+from mtcomp.machine import load_machine
+
+from _models import random_commands, random_errors
+
+PRESETS = ["robonano-ui", "robonano-a0ib", "vmc-moving-column"]
+KINDS = ["tool", "wp_translation", "wp_rotation", "location", "tables", "all"]
+EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "examples", "errors")
+
+pytestmark = pytest.mark.skipif(not _kernel.available(), reason="no C compiler: the numpy reference runs alone")
+
+
+def _errors(machine, kind, rng):
+    full = random_errors(machine, rng, wp_angle=2.0 if machine.n_rotary else 0.5)
+    if kind == "all":
+        return full
+    if kind == "tool":
+        return ErrorSet(full.tool)
+    if kind == "wp_translation":
+        return ErrorSet(workpiece=WorkpieceSetting(full.workpiece.translation))
+    if kind == "wp_rotation":
+        return ErrorSet(workpiece=full.workpiece)
+    if kind == "location":
+        return ErrorSet(geometric=GeometricErrors(location=full.geometric.location))
+    return ErrorSet(geometric=GeometricErrors(tables=full.geometric.tables))
+
+
+@pytest.mark.parametrize("name", PRESETS)
+@pytest.mark.parametrize("kind", KINDS)
+def test_c_and_numpy_agree_on_every_preset_and_error_kind(name, kind, rng):
+    m = load_machine(name)
+    E = _errors(m, kind, rng)
+    assert not E.is_zero
+    q = random_commands(m, 200, rng, span=0.3)
+    Pc, Pn = forward(m, q, E, backend="c"), forward(m, q, E, backend="numpy")
+    assert np.max(np.abs(Pc.p - Pn.p)) <= 1e-12 and np.max(np.abs(Pc.R - Pn.R)) <= 1e-14
+    target = forward(m, q)
+    qc = compensate(m, target, E, q, backend="c")
+    qn = compensate(m, target, E, q, backend="numpy")
+    # commands within 1e-9 mm / deg, and both reach the target within 1e-9 mm
+    assert np.max(np.abs(qc - qn)) <= 1e-9
+    for qq in (qc, qn):
+        assert np.max(np.abs(forward(m, qq, E, backend="numpy").p - target.p)) <= 1e-9
+    rc = retarget(m, q, E, backend="c", check=False)
+    rn = retarget(m, q, E, backend="numpy", check=False)
+    assert np.max(np.abs(rc - rn)) <= 1e-9
+
+
+def test_table_range_error_is_the_references(rng):
+    m = load_machine("vmc-moving-column")
+    E = random_errors(m, rng)
+    lo, hi = E.geometric.tables["X"].range
+    q = random_commands(m, 5, rng, span=0.3)
+    q[3, 0] = hi + 1.0
+    from mtcomp.errors import TableRangeError
+    for be in ("c", "numpy"):
+        with pytest.raises(TableRangeError) as exc:
+            forward(m, q, E, backend=be)
+        assert exc.value.axis == "X" and exc.value.index == 3
+
+
+def _tilted_blank_program(n):
+    q = np.zeros((n, 5))
+    s = np.linspace(0.0, 1.0, n)
+    q[:, 2] = 30.0 * np.cos(40 * s)  # X
+    q[:, 3] = 30.0 * np.sin(40 * s)  # Y
+    q[:, 4] = -0.01 * s              # Z
+    return q
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_three_axis_program_on_a_tilted_blank_keeps_c(backend):
+    """Issue 14: a 3-axis program (B = C = 0) on robonano-a0ib with the blank tilted 0.03 deg
+    commanded C = 33.8 deg (the tilt's direction) in every block.  Within the pole tolerance C
+    is held at its programmed value, B takes the part of the tilt it can, the position is exact."""
+    m = load_machine("robonano-a0ib")
+    E = ErrorSet(workpiece=WorkpieceSetting((0.01, 0.02, 0.0), (0.025, -0.0167, 0.0)))
+    assert np.hypot(0.025, 0.0167) < 0.031
+    q = _tilted_blank_program(20_000 if backend == "c" else 2000)
+    out = retarget(m, q, E, backend=backend)
+    assert np.all(out[:, 0] == 0.0)                      # C never turns
+    assert np.max(np.abs(out[:, 1])) < 0.031             # B by the tilt at most
+    assert np.ptp(out[:, 1]) < 1e-6                      # ... the same in every block
+    P, ideal = forward(m, out, E), forward(m, q)
+    assert np.max(np.abs(P.p - ideal.p)) <= 1e-9
+    ang = np.degrees(np.arccos(np.clip(np.sum(P.v * ideal.v, axis=1), -1, 1)))
+    assert np.max(ang) <= 0.031                          # the tool direction left, below the tilt
+    # the exact tool direction is still there on request: C follows the tilt direction
+    exact = retarget(m, q[:50], E, backend=backend, pole_tolerance=0.0)
+    assert np.allclose(np.abs(exact[:, 0]), np.degrees(np.arctan2(0.025, 0.0167)) + 0.0, atol=1.0) or \
+        np.allclose(np.abs(exact[:, 0]), 180 - np.degrees(np.arctan2(0.025, 0.0167)), atol=1.0) or \
+        np.all(np.abs(exact[:, 0]) > 10.0)
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_head_at_b90_does_not_swing_a_and_c(backend):
+    """Issue 14: robonano-ui at B = 90 with the example setting errors gave A -78.69 and
+    C +78.71 deg for a 0.15 deg correction (A and C are parallel there)."""
+    m = load_machine("robonano-ui")
+    E = load_errors(os.path.join(EXAMPLES, "setting-example.toml"))
+    q = np.array([[1.0, 2.0, 3.0, 0.0, 90.0, 0.0], [5.0, -2.0, 1.0, 0.0, 90.0, 0.0]])
+    out = retarget(m, q, E, backend=backend)
+    assert np.max(np.abs(out[:, 3:] - q[:, 3:])) < 0.2
+    P, ideal = forward(m, out, E), forward(m, q)
+    assert np.max(np.abs(P.p - ideal.p)) <= 1e-9
+    M = np.einsum("nji,njk->nik", ideal.R, P.R)
+    ang = np.degrees(np.arccos(np.clip((np.trace(M, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    assert np.max(ang) <= 0.2
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_bounded_swing_names_the_block_and_the_alternatives(backend):
+    m = load_machine("robonano-a0ib")
+    E = ErrorSet(workpiece=WorkpieceSetting((0.0, 0.0, 0.0), (0.5, 0.0, 0.0)))  # beyond the pole tolerance
+    q = _tilted_blank_program(10)
+    out = retarget(m, q, E, backend=backend)
+    assert np.allclose(np.abs(out[:, 0]), 90.0, atol=1e-6)  # exact: C a quarter turn
+    assert np.ptp(out[:, 0]) < 1e-6                          # once, not per block
+    with pytest.raises(SwingError) as exc:
+        retarget(m, q, E, backend=backend, max_swing=5.0)
+    assert exc.value.index == 0 and exc.value.axis == "C"
+    assert "3-axis" in str(exc.value) and "pole_tolerance" in str(exc.value)
+
+
+def test_continuation_keeps_the_branch_along_a_path():
+    """Along a path the kernel starts each block from the previous block's correction; with it
+    and without it the same solution where the solution is unique."""
+    m = load_machine("robonano-a0ib")
+    E = ErrorSet(ToolSetting((0.1, -0.05, 0.2)), WorkpieceSetting((0.01, 0.02, 0.0), (0.3, -0.2, 0.5)))
+    q = np.zeros((500, 5))
+    s = np.linspace(0, 1, 500)
+    q[:, 0], q[:, 1], q[:, 2], q[:, 3] = 90 * s, 10 + 20 * s, 20 * np.cos(6 * s), 20 * np.sin(6 * s)
+    a = retarget(m, q, E, backend="c")
+    b = retarget(m, q, E, backend="c", continuation=False)
+    assert np.max(np.abs(a - b)) <= 1e-9
+    assert np.max(np.abs(np.diff(a[:, :2] - q[:, :2], axis=0))) < 0.05  # smooth rotary correction (no jump of a branch)
+
+
+def test_kernel_builds_into_a_cache_keyed_by_the_source_hash(tmp_path):
+    out = tmp_path / _kernel.library_name(_kernel.source_hash())
+    _kernel.compile_library(out)
+    assert out.is_file() and _kernel.source_hash() in out.name
+    lib = _kernel._bind(__import__("ctypes").CDLL(str(out)))
+    m = load_machine("robonano-a0ib")
+    q = random_commands(m, 10, np.random.default_rng(1))
+    p, R, bad = _kernel.forward(lib, m, q, None, True)
+    assert bad == -1 and np.allclose(p, forward(m, q, backend="numpy").p, atol=1e-12)
+
+
+def test_without_a_compiler_the_numpy_kernel_runs_with_a_one_line_notice(tmp_path):
+    code = ("import numpy as np; from mtcomp.machine import load_machine; from mtcomp.errors import "
+            "ErrorSet, ToolSetting; from mtcomp.kinematics import retarget; from mtcomp import _kernel; "
+            "m = load_machine('robonano-a0ib'); q = np.zeros((3, 5)); "
+            "print(retarget(m, q, ErrorSet(ToolSetting((0.1, 0, 0))))[0, 2], _kernel.available())")
+    env = dict(os.environ, CC=str(tmp_path / "no-such-cc"), MTCOMP_CACHE_DIR=str(tmp_path / "cache"))
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == ["-0.1", "False"]
+    notice = [ln for ln in run.stderr.splitlines() if ln.strip()]
+    assert len(notice) == 1 and "numpy" in notice[0] and "kernel" in notice[0]
+
+
+@pytest.mark.slow
+def test_a_fresh_install_with_gcc_builds_the_kernel(tmp_path):
+    """A non-editable install (setup.py's build hook) puts the library the loader looks for
+    next to mtcomp._kernel."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    if not (root / "setup.py").is_file():
+        pytest.skip("not a source checkout")
+    run = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
+                          "--target", str(tmp_path / "site"), str(root)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert (tmp_path / "site" / "mtcomp" / _kernel.library_name(_kernel.source_hash())).is_file()
