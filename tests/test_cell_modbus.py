@@ -546,7 +546,7 @@ def test_cli_plc_sim_against_a_server(cell, capsys):
     bs = cell()
     assert main(["plc-sim", "--port", str(bs.port), "--cycles", "2", "--poll", "0"]) == 0
     out = capsys.readouterr().out
-    assert "result 2 part 2 program 1100 GO" in out
+    assert "result 2 part 2 program O1100 GO" in out
     assert main(["serve", "--journal", os.devnull, "--measure", "nomodule"]) == 2
     missing = bs.journal.parent / "no-such-dir" / "j.jsonl"
     assert main(["serve", "--journal", str(missing), "--port", "0"]) == 2
