@@ -20,7 +20,6 @@ import asyncio
 import logging
 import math
 import time
-import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -143,7 +142,7 @@ class Cycle:
         self._task: asyncio.Task | None = None
         self._hb_task: asyncio.Task | None = None
         self._pool: ThreadPoolExecutor | None = None
-        self._readers = weakref.WeakSet()       # connections that read the presented result
+        self._readers: list = []                # connections that read the presented result
         self.publish_latency: list[float] = []  # s from step return to registers (benchmarks)
         img = self.image
         img.set("cmd_seq_echo", rec.cmd_seq)
@@ -196,12 +195,30 @@ class Cycle:
 
     # -- PLC side ---------------------------------------------------------------------------
     def note_read(self, peer, address: int, count: int) -> None:
-        """A connection `peer` (any weak-referenceable token) read `count` registers from
-        `address`: if that covered ``result_seq`` of a presented result, the peer may ACK it."""
+        """A connection `peer` read `count` registers from `address`: if that covered
+        ``result_seq`` of a presented result, the peer may ACK it (see `may_ack`)."""
         f = FIELDS["result_seq"]
         if peer is not None and self._presented is not None and \
-                address <= f.address and f.address + f.size <= address + count:
-            self._readers.add(peer)
+                address <= f.address and f.address + f.size <= address + count and \
+                not any(r is peer for r in self._readers):
+            self._readers.append(peer)
+
+    def may_ack(self, peer) -> bool:
+        """The connection that read the result may ACK it; so may a later connection from the
+        same address once that reader has closed (a PLC that reconnects, or a tool such as
+        mbpoll that opens one connection per request). A client that never read the result,
+        while the reader is still connected, may not. Peers are the server's connection
+        tokens: attributes ``address`` and ``closed`` (anything else: same object only)."""
+        if peer is None:
+            return True
+        for r in self._readers:
+            if r is peer:
+                return True
+            addr = getattr(r, "address", None)
+            if addr is not None and addr == getattr(peer, "address", None) and \
+                    getattr(r, "closed", False):
+                return True
+        return False
 
     def plc_write(self, address: int, values: list[int], peer=None) -> tuple[int, str] | None:
         """Apply a PLC write; returns (Modbus exception code, reason) to refuse it, else None.
@@ -259,7 +276,7 @@ class Cycle:
                     return self._reject(cmd, seq, CommandStatus.NOT_ALLOWED)
                 if self._presented is None or ack != self._presented["result_seq"]:
                     return self._reject(cmd, seq, CommandStatus.BAD_ACK_SEQ)
-                if peer is not None and peer not in self._readers:
+                if not self.may_ack(peer):
                     return self._reject(cmd, seq, CommandStatus.NOT_READ)
                 self.journal.append("ack", cmd_seq=seq, status=0, result_seq=ack)
                 self._presented = None
@@ -401,7 +418,7 @@ class Cycle:
             return
         self._result_seq = seq
         self._presented = rec
-        self._readers = weakref.WeakSet()
+        self._readers = []
         self._job = None
         self._show_result(rec)
         self._set_state(State.READY)

@@ -36,6 +36,25 @@ LOOPBACK = ("127.0.0.1", "::1")
 _peer = contextvars.ContextVar("mtcomp_cell_peer", default=None)
 
 
+class Peer:
+    """One client connection as the cycle sees it: its address and whether it has closed
+    (a weak reference: a closed connection is not kept alive by the cycle)."""
+    __slots__ = ("address", "_conn", "__weakref__")
+
+    def __init__(self, conn):
+        import weakref
+        try:
+            self.address = conn.transport.get_extra_info("peername")[0]
+        except (AttributeError, TypeError, IndexError):
+            self.address = None
+        self._conn = weakref.ref(conn)
+
+    @property
+    def closed(self) -> bool:
+        conn = self._conn()
+        return conn is None or conn.transport is None or conn.transport.is_closing()
+
+
 def parse_allow(allow) -> tuple:
     """Peer allow-list: addresses or networks (``10.0.0.5``, ``10.0.0.0/24``, ``::1``)."""
     nets = []
@@ -177,7 +196,9 @@ def _server_class(base):
                 rsp.transaction_id, rsp.dev_id = pdu.transaction_id, pdu.dev_id
                 self.server_send(rsp, self.last_addr)
                 return
-            token = _peer.set(self)   # the cycle learns which connection reads and writes
+            if getattr(self, "cell_peer", None) is None:
+                self.cell_peer = Peer(self)
+            token = _peer.set(self.cell_peer)   # the cycle learns who reads and writes
             try:
                 await super().handle_request()
             finally:
