@@ -460,3 +460,33 @@ def test_default_numbering():
     assert cp.target_number(0) is None and cp.target_number(7000) is None
     assert cp.target_number(6999) == 7999
     assert VirtualCell()(Job(1, 5, 100)).program is None
+
+
+@pytest.mark.skipif(not __import__("shutil").which("mbpoll"), reason="mbpoll not installed")
+def test_docs_mbpoll_recipe_runs_a_cycle(serve, tmp_path):
+    """The docs' mbpoll commands, run by Debian's mbpoll (an independent Modbus master): one
+    connection per call, START, poll, read the result, ACK."""
+    import re
+    import subprocess
+    import numpy as np
+    nc = nc_dir(tmp_path / "nc")
+    bs = serve(VirtualCell(nc_dir=str(nc)))
+
+    def mbpoll(*args):
+        out = subprocess.run(["mbpoll", "-m", "tcp", "-p", str(bs.port), "-a", "1", *args],
+                             capture_output=True, text=True, timeout=20)
+        assert out.returncode == 0, out.stdout + out.stderr
+        return [float(v) for v in re.findall(r"^\[\d+\]:\s+(\S+)", out.stdout, re.M)]
+
+    mbpoll("-t", "4", "-0", "-r", "0", "127.0.0.1", "0", "1", "1", "1", "0", "77", "100",
+           "0", "0")
+    wait_for(lambda: mbpoll("-t", "4", "-0", "-r", "16", "-c", "1", "-1", "127.0.0.1") == [3],
+             30, "READY")
+    assert mbpoll("-t", "4:int", "-B", "-0", "-r", "21", "-c", "1", "-1", "127.0.0.1") == [1]
+    pose = mbpoll("-t", "4:float", "-B", "-0", "-r", "28", "-c", "6", "-1", "127.0.0.1")
+    j = results_in(bs.journal)[1]
+    np.testing.assert_allclose(pose, j["pose"], rtol=1e-5, atol=1e-9)   # mbpoll prints 6 digits
+    mbpoll("-t", "4", "-0", "-r", "0", "127.0.0.1", "0", "2", "2", "1", "0", "77", "100", "0",
+           "1")
+    assert mbpoll("-t", "4", "-0", "-r", "16", "-c", "1", "-1", "127.0.0.1") == [0]
+    assert [r["ev"] for r in read_records(bs.journal)[0]][-1] == "ack"
