@@ -490,3 +490,37 @@ def test_docs_mbpoll_recipe_runs_a_cycle(serve, tmp_path):
            "1")
     assert mbpoll("-t", "4", "-0", "-r", "16", "-c", "1", "-1", "127.0.0.1") == [0]
     assert [r["ev"] for r in read_records(bs.journal)[0]][-1] == "ack"
+
+
+# -- fuzzed cell runs (issue 14 acceptance) ------------------------------------------------------
+def _bench():
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_cell.py"
+    spec = importlib.util.spec_from_file_location("bench_cell", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_fuzzed_cell_runs_never_say_go_without_a_verified_program(tmp_path):
+    """benchmarks/bench_cell.py --fuzz, small: random programs, targets, directories, numbers,
+    edits between writing and publishing, connection drops."""
+    c = _bench().fuzz(40, 3, tmp_path)
+    assert c["cycles"] == 40 and c["duplicates"] == 0
+    assert c["go_without_verified_program"] == 0
+    assert c["protected_changed"] == 0 and c["tracebacks"] == 0
+    assert c["go"] >= 5 and len(c["faults"]) >= 2          # the run exercised both sides
+
+
+def test_the_fuzz_counts_a_go_without_verification(tmp_path, monkeypatch):
+    """The fuzz's check can fail: with the publish-time re-check switched off, files deleted or
+    edited after writing come out as GO and are counted."""
+    import mtcomp.cell.cycle as cycle
+    b = _bench()
+    monkeypatch.setattr(cycle, "recheck", lambda *a, **k: None)
+    monkeypatch.setitem(b._W, "tamper", (("edit", 1), ("delete", 1)))
+    for k, v in (("source", "ok"), ("target", "absent"), ("nc", "ok"), ("program", 100)):
+        monkeypatch.setitem(b._W, k, ((v, 1),))
+    c = b.fuzz(4, 0, tmp_path, p_drop=0.0)
+    assert c["go"] == 4 and c["go_without_verified_program"] == 4
