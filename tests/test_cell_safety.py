@@ -84,8 +84,8 @@ def test_missing_program_directory_or_file_is_a_fault_code_not_a_traceback(serve
 
 
 def test_docs_give_the_zero_padded_program_file_name():
-    from test_cell import DOCS
-    text = DOCS.read_text(encoding="utf-8")
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[1] / "docs" / "cell.md").read_text(encoding="utf-8")
     assert "O<program_id>.nc" not in text and "`O0100.nc`" in text
     assert cp.program_file_name(100) == "O0100.nc" and cp.program_file_name(12345) == "O12345.nc"
 
@@ -524,3 +524,36 @@ def test_the_fuzz_counts_a_go_without_verification(tmp_path, monkeypatch):
         monkeypatch.setitem(b._W, k, ((v, 1),))
     c = b.fuzz(4, 0, tmp_path, p_drop=0.0)
     assert c["go"] == 4 and c["go_without_verified_program"] == 4
+
+
+def test_a_step_claiming_a_program_it_did_not_verify_gets_no_go(serve, tmp_path):
+    """The cycle does not trust the step: a ProgramInfo pointing at a file without the cell's
+    marker (here a shop program, its checksum copied correctly) is re-verified and refused."""
+    import dataclasses
+    nc = nc_dir(tmp_path / "nc")
+    shop = nc / "O1100.nc"
+    shop.write_bytes(PART_PROGRAM.encode())
+    inner = VirtualCell()
+
+    def forging(job):
+        res = inner(job)
+        sha, crc = cp.file_checksums(shop.read_bytes())
+        info = cp.ProgramInfo(str(shop), 1100, 100, job.part_id, job.job_no, sha, crc,
+                              shop.stat().st_size, 4, "robonano-a0ib")
+        return dataclasses.replace(res, program=info)
+    bs = serve(forging)
+    r = one_cycle(bs).results[0]
+    assert not r.go and r.nogo == NoGo.NOT_VERIFIED
+    assert "marker" in results_in(bs.journal)[1]["program"]["why"]
+
+
+def test_binding_beyond_loopback_warns(tmp_path, capsys):
+    """192.0.2.1 (TEST-NET-1) is not on this machine: the bind fails, after the warning."""
+    from mtcomp.cell.cli import main
+    assert main(["serve", "--journal", str(tmp_path / "j.jsonl"), "--host", "192.0.2.1",
+                 "--port", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "warning: listening on 192.0.2.1, not loopback" in err
+    assert "writes are accepted only from 127.0.0.1/32, ::1/128 (give the PLC's address with " \
+           "--allow)" in err
+    assert "cannot listen on 192.0.2.1" in err
