@@ -10,8 +10,16 @@ B. Handshake: the same two processes with a measurement step that takes no time 
    returning in the server to the PLC reading it), with the journal fsync'ed (the product) and,
    as the baseline, without fsync; plus the bare Modbus round trip (write + read of 9 and 38
    registers) as the floor.
+C. Fuzzed cell runs (`--fuzz N`, also run by tests/test_cell_safety.py with a small N): N load
+   cycles over loopback, each with a random program situation: part program present, missing,
+   binary, unparsable, leaving the travel or itself a compensated program; target absent, a shop
+   program, the cell's own, a cell program edited by hand or a directory; no --nc-dir or a
+   missing one; program ids out of the range; the file edited, deleted, swapped for another
+   blank's or rewritten identically between writing and publishing; random connection drops.
+   Counted: GO without a verified program for this blank on disk (must be 0), protected files
+   changed (must be 0), tracebacks logged (must be 0), and the outcomes.
 
-Usage: python benchmarks/bench_cell.py [--cycles 1000] [--quick]
+Usage: python benchmarks/bench_cell.py [--cycles 1000] [--quick] | --fuzz N [--seed S]
 """
 from __future__ import annotations
 
@@ -197,6 +205,200 @@ def journal_append(n: int, workdir: Path):
     return np.percentile(ts, 50), np.percentile(ts, 99)
 
 
+PART = "%\nO{n:04d} (FUZZ PART)\nG90 G21 G54\nG00 X0 Y0 Z2.\nG01 Z-0.1 F100.\nG02 X2. Y0 I1. J0\nG01 X1. Y0.5\nM30\n%\n"
+TRAVEL = "O{n:04d}\nG90 G21\nG01 X0 Y0 F100.\nG01 X139.99999\nG01 X-139.99999\nM30\n"
+_W = {"source": (("ok", 10), ("missing", 1), ("binary", 1), ("unparsable", 1), ("travel", 1),
+                 ("cell_output", 1)),
+      "target": (("absent", 5), ("ours", 5), ("shop", 1), ("edited", 1), ("directory", 1)),
+      "nc": (("ok", 10), ("none", 1), ("missing_dir", 1)),
+      "tamper": (("none", 8), ("same", 2), ("edit", 1), ("delete", 1), ("swap", 1)),
+      "program": ((100, 10), (1500, 3), (42, 3), (7000, 1), (9000, 1))}
+
+
+def _pick(rng, what):
+    names, weights = zip(*_W[what])
+    return rng.choices(names, weights)[0]
+
+
+def fuzz(n_cycles: int, seed: int, workdir: Path, p_drop: float = 0.02) -> dict:
+    """C: fuzzed cell runs (see the module docstring); returns the counts."""
+    import logging
+    import shutil
+    import zlib
+    from mtcomp.cell import program as cp
+    from mtcomp.cell.cycle import CellConfig
+    from mtcomp.cell.plcsim import PlcSim
+    from mtcomp.cell.registers import Fault, NoGo
+    from mtcomp.cell.server import BackgroundServer
+    from mtcomp.cell.virtual import VirtualCell
+    from mtcomp.machine import load_machine
+    rng = random.Random(seed)
+    nc = workdir / "fuzz-nc"
+    nc.mkdir(parents=True, exist_ok=True)
+    machine = load_machine("robonano-a0ib")
+    plan = {}                       # part id -> scenario
+    outputs: list[bytes] = []       # verified cell outputs seen so far (for swaps and sources)
+    steps = {"ok": VirtualCell(seed=seed, nc_dir=str(nc)), "none": VirtualCell(seed=seed),
+             "missing_dir": VirtualCell(seed=seed, nc_dir=str(workdir / "no-such-dir"))}
+
+    def step(job):
+        sc = plan[job.part_id]
+        res = steps[sc["nc"]](job)
+        prog = res.program
+        if prog is not None:
+            path = Path(prog.path)
+            outputs.append(path.read_bytes())
+            t = sc["tamper"]
+            if t == "same":
+                path.write_bytes(path.read_bytes())
+            elif t == "edit":
+                with open(path, "a") as fh:
+                    fh.write("G00 Z50.\n")
+            elif t == "delete":
+                path.unlink()
+            elif t == "swap" and len(outputs) > 1:
+                path.write_bytes(outputs[-2])       # an earlier blank's (marker intact)
+        return res
+
+    class Tracebacks(logging.Handler):
+        n = 0
+
+        def emit(self, record):
+            if record.exc_info:
+                Tracebacks.n += 1
+    tb = Tracebacks()
+    log = logging.getLogger("mtcomp.cell")
+    log.addHandler(tb)
+    counts = {"cycles": 0, "results": 0, "go": 0, "go_without_verified_program": 0,
+              "protected_changed": 0, "tracebacks": 0, "start_refused": 0,
+              "faults": {}, "nogo": {}}
+    protected: dict[Path, bytes | None] = {}
+
+    def prepare(part, sc):
+        src = nc / cp.program_file_name(sc["program"])
+        dst = nc / cp.program_file_name(sc["program"] + 1000)
+        for p in (src, dst):
+            protected.pop(p, None)
+            if p.is_dir():
+                shutil.rmtree(p)
+        if sc["source"] == "missing":
+            src.unlink(missing_ok=True)
+        elif sc["source"] == "binary":
+            src.write_bytes(bytes(range(256)))
+        elif sc["source"] == "unparsable":
+            src.write_text("O0001\nG01 X1..2\nM30\n")
+        elif sc["source"] == "travel":
+            src.write_text(TRAVEL.format(n=sc["program"]))
+        elif sc["source"] == "cell_output" and outputs:
+            src.write_bytes(outputs[-1])
+        else:
+            src.write_text(PART.format(n=sc["program"]))
+        t = sc["target"]
+        existing = dst.read_bytes() if dst.is_file() else None
+        if t == "absent" or (t == "ours" and (existing is None or cp.read_marker(existing) is None)):
+            dst.unlink(missing_ok=True)
+        elif t == "shop":
+            dst.write_bytes(b"O%04d (SHOP PROGRAM)\nG00 X0\nM30\n" % (sc["program"] + 1000))
+        elif t == "edited":
+            base = existing if existing and cp.read_marker(existing) else (outputs[-1] if outputs
+                                                                           else None)
+            if base is None:
+                dst.write_bytes(b"(MTCOMP-CELL O1100 FROM O0100 PART 1 JOB 1 BODY 0000000000000000)\n")
+            else:
+                dst.write_bytes(base.replace(b"M30", b"M00\nM30"))
+        elif t == "directory":
+            dst.unlink(missing_ok=True)
+            dst.mkdir()
+        if t in ("shop", "edited", "directory"):
+            protected[dst] = None if dst.is_dir() else dst.read_bytes()
+
+    def check_go(r):
+        """A GO must name a file on disk, intact, for this blank and job, that parses and stays
+        in the travel, with the CRC the PLC read."""
+        path = nc / cp.program_file_name(r.program_id)
+        try:
+            data = path.read_bytes()
+            if r.program_id == 0 or zlib.crc32(data) != r.program_crc:
+                return False
+            mark = cp.read_marker(data)
+            if mark is None or mark.part_id != r.part_id or (mark.job_no & 0xFFFF) != r.job_no:
+                return False
+            cp.verify_program_bytes(data, machine, name=path.name, out_id=r.program_id,
+                                    part_id=r.part_id, job_no=mark.job_no)
+            return True
+        except (OSError, cp.CellFault):
+            return False
+
+    bs = BackgroundServer(workdir / "fuzz.jsonl", step, CellConfig(measure_timeout_s=60)).start()
+    try:
+        async def run():
+            plc = PlcSim("127.0.0.1", bs.port, disconnect_prob=p_drop, seed=seed,
+                         request_timeout_s=0.5, reconnect_timeout_s=30)
+            try:
+                for i in range(n_cycles):
+                    part = i + 1
+                    sc = {k: _pick(rng, k) for k in _W}
+                    plan[part] = sc
+                    prepare(part, sc)
+                    plc.part_id, plc.program_id = part, sc["program"]
+                    n_res, n_rej = len(plc.report.results), len(plc.report.rejected)
+                    await plc.cycle()
+                    counts["cycles"] += 1
+                    if len(plc.report.rejected) > n_rej and \
+                            plc.report.rejected[-1] == ("START", "BAD_PROGRAM_ID"):
+                        counts["start_refused"] += 1
+                    if len(plc.report.results) > n_res:
+                        r = plc.report.results[-1]
+                        counts["results"] += 1
+                        if r.go:
+                            counts["go"] += 1
+                            if not check_go(r):
+                                counts["go_without_verified_program"] += 1
+                        else:
+                            for b in NoGo:
+                                if r.nogo & b:
+                                    counts["nogo"][b.name] = counts["nogo"].get(b.name, 0) + 1
+                    for p, data in protected.items():
+                        now = None if p.is_dir() else (p.read_bytes() if p.exists() else b"")
+                        if now != data:
+                            counts["protected_changed"] += 1
+            finally:
+                plc._drop()
+            return plc.report
+        rep = asyncio.run(run())
+    finally:
+        bs.stop()
+        log.removeHandler(tb)
+    for _, code in rep.faults:
+        name = Fault(code).name if code in Fault._value2member_map_ else str(code)
+        counts["faults"][name] = counts["faults"].get(name, 0) + 1
+    counts["tracebacks"] = Tracebacks.n
+    counts["duplicates"] = rep.duplicates
+    return counts
+
+
+def fuzz_markdown(c: dict, seed: int, elapsed: float) -> str:
+    faults = ", ".join(f"{k} {v}" for k, v in sorted(c["faults"].items())) or "none"
+    nogo = ", ".join(f"{k} {v}" for k, v in sorted(c["nogo"].items())) or "none"
+    ok = not (c["go_without_verified_program"] or c["protected_changed"] or c["tracebacks"]
+              or c["duplicates"])
+    return f"""**Fuzzed cell runs** (`python benchmarks/bench_cell.py --fuzz {c['cycles']} --seed {seed}`,
+{elapsed:.0f} s): {c['cycles']} load cycles over loopback with random part programs, targets,
+directories, program numbers, edits between writing and publishing and connection drops.
+
+| count | value |
+|---|---|
+| GO without a verified program for this blank on disk | **{c['go_without_verified_program']}** |
+| protected files (shop programs, edited cell programs, directories) changed | **{c['protected_changed']}** |
+| tracebacks logged | **{c['tracebacks']}** |
+| results / GO | {c['results']} / {c['go']} |
+| NO-GO reasons | {nogo} |
+| faults | {faults} |
+| START refused (number outside the range) | {c['start_refused']} |
+
+Verdict: **{'PASS' if ok else 'FAIL'}**."""
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cycles", type=int, default=1000, help="acceptance load cycles (1000)")
@@ -206,7 +408,24 @@ def main(argv=None) -> int:
     ap.add_argument("--handshake-cycles", type=int, default=500)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--quick", action="store_true", help="small run, do not write the docs")
+    ap.add_argument("--fuzz", type=int, metavar="N",
+                    help="only C: N fuzzed cycles; writes the counts to docs/cell.md")
     args = ap.parse_args(argv)
+    if args.fuzz:
+        import logging
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+        logging.getLogger("mtcomp.cell").setLevel(logging.ERROR)
+        sys.path.insert(0, str(HERE))
+        from _report import update_section
+        t0 = time.perf_counter()
+        with tempfile.TemporaryDirectory() as tmp:
+            c = fuzz(args.fuzz, args.seed, Path(tmp))
+        md = fuzz_markdown(c, args.seed, time.perf_counter() - t0)
+        print(json.dumps(c), file=sys.stderr)
+        print(md)
+        if not args.quick:
+            update_section("cell_fuzz", md, HERE.parent / "docs" / "cell.md")
+        return 0 if "**PASS**" in md else 1
     if args.quick:
         args.cycles, args.restart_every, args.handshake_cycles = 60, 20, 100
     import logging

@@ -151,13 +151,25 @@ class Gate:
             self.done.set()
 
 
+PART_PROGRAM = "%\nO0100 (PYRAMID)\nG90 G21 G54\nG00 X0 Y0 Z2.\nG01 Z-0.1 F100.\nG01 X1. Y0.5\nM30\n%\n"
+
+
+def nc_dir(where, ids=(100,)):
+    """A directory of part programs O<id>.nc (the same short program under each number)."""
+    where.mkdir(exist_ok=True)
+    for i in ids:
+        (where / f"O{i:04d}.nc").write_text(PART_PROGRAM.replace("O0100", f"O{i:04d}"))
+    return where
+
+
 @pytest.fixture
 def cell(tmp_path):
     servers = []
+    nc = nc_dir(tmp_path / "nc")
 
     def make(measure=None, journal=None, **cfg):
-        bs = BackgroundServer(journal or tmp_path / "journal.jsonl", measure or VirtualCell(),
-                              CellConfig(**cfg))
+        bs = BackgroundServer(journal or tmp_path / "journal.jsonl",
+                              measure or VirtualCell(nc_dir=str(nc)), CellConfig(**cfg))
         servers.append(bs.start())
         return bs
     yield make
@@ -181,7 +193,7 @@ def test_full_cycles_recover_the_robot_placement(cell):
     try:
         hb = mb.read(FIELDS["heartbeat"].address, 1)[0]
         wait_for(lambda: mb.read(FIELDS["heartbeat"].address, 1)[0] != hb, 5, "heartbeat")
-        assert mb.read(FIELDS["map_version"].address, 1) == [1]
+        assert mb.read(FIELDS["map_version"].address, 1) == [2]
     finally:
         mb.close()
 
@@ -514,14 +526,16 @@ def test_killed_process_resumes_from_the_journal(tmp_path):
     assert [r["ev"] for r in recs] == ["boot", "start", "boot", "result", "ack"]
     assert recs[2]["resume"] == 1
     res = results_in(journal)[1]
-    assert res["job"] == {"job_no": 1, "part_id": 77, "program_id": 100}
+    assert res["job"] == {"job_no": 1, "part_id": 77, "program_id": 100, "out_program_id": 1100}
     assert out["pose"] == f32(res["pose"])
 
 
 def test_run_virtual_cell_once(tmp_path):
-    r = run_virtual_cell_once(tmp_path / "once.jsonl", part_id=3, program_id=42)
+    nc = nc_dir(tmp_path / "nc", (42,))
+    r = run_virtual_cell_once(tmp_path / "once.jsonl", part_id=3, program_id=42,
+                              measure_and_compute=VirtualCell(nc_dir=str(nc)))
     j = results_in(r.journal)[r.result_seq]
-    assert list(r.result.pose6) == f32(j["pose"]) and r.result.program_id == 1042
+    assert list(r.result.pose6) == f32(j["pose"]) and r.result.program_id == 1042 and r.go
     assert np.all(np.abs(np.array(r.result.pose6) - r.true_pose) < 5 * np.array(r.result.sigma6))
     r2 = run_virtual_cell_once(tmp_path / "once.jsonl", part_id=4, word_order="little")
     assert r2.result_seq == 2
@@ -532,7 +546,7 @@ def test_cli_plc_sim_against_a_server(cell, capsys):
     bs = cell()
     assert main(["plc-sim", "--port", str(bs.port), "--cycles", "2", "--poll", "0"]) == 0
     out = capsys.readouterr().out
-    assert "result 2 part 2 program 1100 GO" in out
+    assert "result 2 part 2 program O1100 GO" in out
     assert main(["serve", "--journal", os.devnull, "--measure", "nomodule"]) == 2
     missing = bs.journal.parent / "no-such-dir" / "j.jsonl"
     assert main(["serve", "--journal", str(missing), "--port", "0"]) == 2

@@ -19,6 +19,11 @@ def register(subparsers) -> None:
                    help="address to bind (default 127.0.0.1; 0.0.0.0 only if you mean it)")
     s.add_argument("--port", type=int, default=5020,
                    help="TCP port (default 5020; the Modbus port 502 needs privileges)")
+    s.add_argument("--unit-id", type=int, default=1,
+                   help="Modbus unit id answered (default 1; 255 is always answered too)")
+    s.add_argument("--allow", action="append", metavar="ADDR[/NET]",
+                   help="peer allowed to write (the PLC's address; repeat or comma-separate; "
+                        "default 127.0.0.1 and ::1)")
     _cycle_options(s)
     s.set_defaults(func=_serve)
 
@@ -28,6 +33,8 @@ def register(subparsers) -> None:
     c.add_argument("--base", type=int, default=0,
                    help="PLC holding register where the map starts (default 0)")
     c.add_argument("--poll", type=float, default=0.05, help="poll period in s (default 0.05)")
+    c.add_argument("--unit-id", type=int, default=1,
+                   help="unit id of the PLC's Modbus server (default 1)")
     _cycle_options(c)
     c.set_defaults(func=_serve)
 
@@ -43,6 +50,7 @@ def register(subparsers) -> None:
     q.add_argument("--disconnect-prob", type=float, default=0.0,
                    help="probability of dropping the connection around a request")
     q.add_argument("--poll", type=float, default=0.05, help="poll period in s (default 0.05)")
+    q.add_argument("--unit-id", type=int, default=1, help="unit id to address (default 1)")
     q.set_defaults(func=_plc_sim)
 
 
@@ -62,9 +70,14 @@ def _cycle_options(s) -> None:
     s.add_argument("--seed", type=int, default=0, help="virtual cell: random seed")
     s.add_argument("--probe-time", type=float, default=0.0,
                    help="virtual cell: simulated probing time in s")
-    s.add_argument("--nc-dir", help="directory of part programs O<id>.nc to compensate "
-                                    "(default: no program written)")
+    s.add_argument("--nc-dir", help="directory of part programs O0100.nc (O + 4 digits) to "
+                                    "compensate (default: no program written, always NO-GO)")
     s.add_argument("--out-dir", help="where compensated programs go (default --nc-dir)")
+    s.add_argument("--program-offset", type=int, default=1000,
+                   help="compensated program number = program_id + this (default 1000)")
+    s.add_argument("--program-range", default="1000-7999", metavar="LOW-HIGH",
+                   help="numbers the compensated programs may take (default 1000-7999); a "
+                        "START whose number falls outside is refused, never wrapped")
     s.add_argument("--machine", default="robonano-a0ib",
                    help="machine preset or TOML for the NC transform")
     s.add_argument("--measure-timeout", type=float, default=300.0,
@@ -89,18 +102,47 @@ def _load_measure(spec: str):
     return fn
 
 
+def _program_range(text: str) -> tuple[int, int]:
+    lo, sep, hi = text.partition("-")
+    try:
+        rng = (int(lo), int(hi))
+    except ValueError:
+        raise InputError(f"expected LOW-HIGH (e.g. 1000-7999), got {text!r}",
+                         field="--program-range") from None
+    if not sep:
+        raise InputError(f"expected LOW-HIGH, got {text!r}", field="--program-range")
+    return rng
+
+
 def _serve(args) -> int:
     import asyncio
     import logging
     import signal
+    import sys
+    from pathlib import Path
     from .cycle import CellConfig, Cycle
-    from .server import CellServer
+    from .server import LOOPBACK, CellServer, is_loopback_host, parse_allow
     from .virtual import VirtualCell
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     port = args.plc_port if args.cell_command == "client" else args.port
     if not 0 <= port <= 65535:
         raise InputError(f"port {port} outside 0..65535", field="--port")
+    if not 0 <= args.unit_id <= 255:
+        raise InputError(f"unit id {args.unit_id} outside 0..255", field="--unit-id")
+    for opt, d in (("--nc-dir", args.nc_dir), ("--out-dir", args.out_dir)):
+        if d is not None and not Path(d).is_dir():
+            raise InputError("directory does not exist", d, field=opt)
+    allow = LOOPBACK
+    if args.cell_command == "serve":
+        if args.allow:
+            allow = parse_allow(args.allow)
+        if not is_loopback_host(args.host):
+            print(f"mtcomp cell: warning: listening on {args.host}, not loopback: Modbus has no "
+                  f"authentication; writes are accepted only from "
+                  f"{', '.join(map(str, parse_allow(allow)))}"
+                  + ("" if args.allow else " (give the PLC's address with --allow)"),
+                  file=sys.stderr, flush=True)
     if args.measure:
         measure = _load_measure(args.measure)
     elif args.probe_inbox:
@@ -113,8 +155,13 @@ def _serve(args) -> int:
     else:
         measure = VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
                               out_dir=args.out_dir, machine=args.machine)
-    cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
-                     limit_mm=args.limit_mm, limit_deg=args.limit_deg, fsync=not args.no_fsync)
+    try:
+        cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
+                         limit_mm=args.limit_mm, limit_deg=args.limit_deg,
+                         fsync=not args.no_fsync, program_offset=args.program_offset,
+                         program_range=_program_range(args.program_range))
+    except ValueError as exc:
+        raise InputError(str(exc), field="--program-range") from None
 
     async def main():
         try:
@@ -124,15 +171,14 @@ def _serve(args) -> int:
         if args.cell_command == "client":
             from .client import CellClient
             server = await CellClient(cycle, args.plc_host, args.plc_port, args.base,
-                                      args.poll).start()
+                                      args.poll, device_id=args.unit_id).start()
             print(f"mtcomp cell: polling the PLC at {args.plc_host}:{args.plc_port} from "
                   f"register {args.base}, journal {args.journal}", flush=True)
         else:
-            server = CellServer(cycle, args.host, args.port)
+            server = CellServer(cycle, args.host, args.port, args.unit_id, allow)
             try:
                 await server.start()
             except (OSError, RuntimeError) as exc:
-                await server.cycle.stop()
                 raise InputError(f"cannot listen on {args.host}:{args.port}: {exc}",
                                  field="--port") from None
             print(f"mtcomp cell: serving on {args.host}:{server.port}, journal {args.journal}",
@@ -152,21 +198,51 @@ def _plc_sim(args) -> int:
     import asyncio
     from .plcsim import PlcSim
 
+    from .registers import Fault, NoGo
+
+    def fault_text(code: int) -> str:
+        try:
+            return f"fault {code} {Fault(code).name}"
+        except ValueError:
+            return f"fault {code}"
+
+    def nogo_text(bits: int) -> str:
+        names = [b.name for b in NoGo if bits & b]
+        return f" ({', '.join(names) or bits})" if bits else ""
+
+    seen = {"results": 0, "faults": 0}
+
     def show(i, rep):
-        if rep.results and len(rep.results) == i:
+        if len(rep.results) > seen["results"]:
             r = rep.results[-1]
             pose = " ".join(f"{v:+.6f}" for v in r.pose)
-            print(f"cycle {i}: result {r.result_seq} part {r.part_id} program "
-                  f"{r.program_id} {'GO' if r.go else 'NO-GO'} pose {pose}", flush=True)
+            prog = f"program O{r.program_id:04d}" if r.program_id else "no program"
+            print(f"cycle {i}: result {r.result_seq} part {r.part_id} {prog} "
+                  f"{'GO' if r.go else 'NO-GO' + nogo_text(r.nogo)} pose {pose}", flush=True)
+        elif len(rep.faults) > seen["faults"]:
+            part, code = rep.faults[-1]
+            print(f"cycle {i}: no result for part {part}: {fault_text(code)}"
+                  f"{' (see the journal for why)' if code else ''}", flush=True)
         else:
-            print(f"cycle {i}: no result (faults so far: {rep.faults})", flush=True)
+            print(f"cycle {i}: no result", flush=True)
+        seen["results"], seen["faults"] = len(rep.results), len(rep.faults)
 
     plc = PlcSim(args.host, args.port, word_order=args.word_order,
                  first_part_id=args.first_part_id, program_id=args.program_id,
-                 disconnect_prob=args.disconnect_prob, seed=args.seed, poll_s=args.poll)
+                 disconnect_prob=args.disconnect_prob, seed=args.seed, poll_s=args.poll,
+                 device_id=args.unit_id)
     rep = asyncio.run(plc.run(args.cycles, show))
     print(rep.summary())
+    for status, n in sorted(_count(rep.rejected).items()):
+        print(f"  command {status[0]} refused {n} time(s): {status[1]}")
     return 0 if rep.duplicates == 0 and len(rep.results) == rep.cycles else 1
+
+
+def _count(items) -> dict:
+    out: dict = {}
+    for it in items:
+        out[it] = out.get(it, 0) + 1
+    return out
 
 
 def main(argv=None) -> int:

@@ -2,9 +2,11 @@
 
 Same register map and cycle as server mode, placed in the PLC's holding registers from `base`:
 mtcomp reads the PLC block (base+0..base+8) every `poll_s` and hands it to the cycle when it
-changed, and writes the mtcomp block (base+16..base+53) whenever it changed (at least with every
+changed, and writes the mtcomp block (base+16..base+56) whenever it changed (at least with every
 heartbeat). There is nobody to answer with a Modbus exception here, so a PLC block with an
-out-of-range value is logged and ignored until the PLC changes it.
+out-of-range value is logged and ignored until the PLC changes it. A read that returns fewer
+(or more) registers than asked for is never taken as a partial block: the connection is dropped
+and the read repeated.
 """
 from __future__ import annotations
 
@@ -25,6 +27,8 @@ class CellClient:
                  poll_s: float = 0.05, device_id: int = 1, timeout_s: float = 1.0):
         if not 0 <= base <= 65535 - OUT_BLOCK[1]:
             raise ValueError(f"base {base} leaves no room for the {OUT_BLOCK[1]} registers")
+        if not 0 <= device_id <= 255:
+            raise ValueError(f"unit id {device_id} outside 0..255")
         self.cycle, self.host, self.port, self.base = cycle, host, port, base
         self.poll_s, self.device_id, self.timeout_s = poll_s, device_id, timeout_s
         self._task: asyncio.Task | None = None
@@ -70,6 +74,9 @@ class CellClient:
                     if rsp.isError():
                         raise ModbusException(f"PLC refused the read: {rsp}")
                     regs = list(rsp.registers)
+                    if len(regs) != n_in:
+                        raise ModbusException(f"PLC answered {len(regs)} registers for a read "
+                                              f"of {n_in}: not taken as a partial block")
                     if regs != last_in:
                         last_in = regs
                         bad = self.cycle.plc_write(PLC_BLOCK[0], regs)

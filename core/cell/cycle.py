@@ -25,8 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from .._io import MtcompError
 from .journal import Journal, replay
-from .registers import (FIELDS, POSE_NAMES, Command, CommandStatus, Fault,
+from .program import DEFAULT_OFFSET, DEFAULT_RANGE, CellFault, ProgramInfo, recheck, target_number
+from .registers import (FIELDS, POSE_NAMES, Command, CommandStatus, Fault, NoGo,
                         RegisterImage, State, check_plc_write)
 
 log = logging.getLogger("mtcomp.cell")
@@ -35,14 +37,18 @@ log = logging.getLogger("mtcomp.cell")
 @dataclass(frozen=True)
 class Job:
     """One blank to measure. `on_phase` (not journaled) lets the measurement step report
-    that probing is done and computation started: call ``job.on_phase("computing")``."""
+    that probing is done and computation started: call ``job.on_phase("computing")``.
+    `out_program_id` is the number the compensated program must get (the cycle derives it from
+    its program offset and range; None outside a cycle: `program.DEFAULT_OFFSET` applies)."""
     job_no: int
     part_id: int
     program_id: int
     on_phase: Callable[[str], None] | None = field(default=None, compare=False, repr=False)
+    out_program_id: int | None = None
 
     def to_dict(self) -> dict:
-        return {"job_no": self.job_no, "part_id": self.part_id, "program_id": self.program_id}
+        return {"job_no": self.job_no, "part_id": self.part_id, "program_id": self.program_id,
+                "out_program_id": self.out_program_id}
 
 
 @dataclass(frozen=True)
@@ -52,13 +58,17 @@ class CellResult:
     pose6: workpiece setting (dx, dy, dz mm, a, b, c deg) with x_nominal = R x_real + d,
     R = Rz(c) Ry(b) Rx(a); sigma6: its standard uncertainties (same units); program_id: the
     compensated NC program; ok: False if the step itself judges the part unusable (no-go);
-    info: JSON-serialisable extras journaled with the result (e.g. fit residuals in mm).
+    info: JSON-serialisable extras journaled with the result (e.g. fit residuals in mm);
+    program: the program as written and verified (`program.write_program`), None if the step
+    wrote none. Without a program the result is always a no-go: the cell never says GO for a
+    program it has not written and verified for this blank.
     """
     pose6: tuple
     sigma6: tuple
     program_id: int
     ok: bool = True
     info: dict = field(default_factory=dict)
+    program: ProgramInfo | None = None
 
     def summary(self) -> str:
         p, s = self.pose6, self.sigma6
@@ -82,13 +92,37 @@ class CellConfig:
     limit_deg: float = 0.5         # ... and |a|, |b|, |c| <= limit_deg
     sigma_limit_mm: float = 0.005  # ... and the translation uncertainties <= this
     fsync: bool = True             # False only for benchmarks of the fsync cost
+    program_offset: int = DEFAULT_OFFSET        # compensated program = program_id + offset ...
+    program_range: tuple = DEFAULT_RANGE        # ... which must lie in this range (inclusive)
+    program_check: Callable | None = field(default=None, compare=False)  # extra verification
+
+    def __post_init__(self):
+        from .program import check_numbering
+        check_numbering(self.program_offset, self.program_range)
+
+
+def nogo_bits(res: CellResult, cfg: CellConfig, program_ok: bool = True) -> int:
+    """Why a result is a no-go (registers.NoGo bits; 0 = go)."""
+    p, s = res.pose6, res.sigma6
+    bits = 0
+    if not (all(abs(v) <= cfg.limit_mm for v in p[:3])
+            and all(abs(v) <= cfg.limit_deg for v in p[3:])):
+        bits |= NoGo.LIMITS
+    if not all(v <= cfg.sigma_limit_mm for v in s[:3]):
+        bits |= NoGo.UNCERTAINTY
+    if not res.ok:
+        bits |= NoGo.STEP
+    if res.program is None:
+        bits |= NoGo.NO_PROGRAM
+    elif not program_ok:
+        bits |= NoGo.NOT_VERIFIED
+    return int(bits)
 
 
 def is_go(res: CellResult, cfg: CellConfig) -> bool:
-    p, s = res.pose6, res.sigma6
-    return bool(res.ok and all(abs(v) <= cfg.limit_mm for v in p[:3])
-                and all(abs(v) <= cfg.limit_deg for v in p[3:])
-                and all(v <= cfg.sigma_limit_mm for v in s[:3]))
+    """Go: setting and uncertainty within the limits, the step content, and a program written
+    (whether it is still intact on disk is checked when the result is published)."""
+    return nogo_bits(res, cfg) == 0
 
 
 class Cycle:
@@ -108,6 +142,7 @@ class Cycle:
         self._task: asyncio.Task | None = None
         self._hb_task: asyncio.Task | None = None
         self._pool: ThreadPoolExecutor | None = None
+        self._readers: list = []                # connections that read the presented result
         self.publish_latency: list[float] = []  # s from step return to registers (benchmarks)
         img = self.image
         img.set("cmd_seq_echo", rec.cmd_seq)
@@ -159,10 +194,39 @@ class Cycle:
         return State(self.image.get("state"))
 
     # -- PLC side ---------------------------------------------------------------------------
-    def plc_write(self, address: int, values: list[int]) -> tuple[int, str] | None:
+    def note_read(self, peer, address: int, count: int) -> None:
+        """A connection `peer` read `count` registers from `address`: if that covered
+        ``result_seq`` of a presented result, the peer may ACK it (see `may_ack`)."""
+        f = FIELDS["result_seq"]
+        if peer is not None and self._presented is not None and \
+                address <= f.address and f.address + f.size <= address + count and \
+                not any(r is peer for r in self._readers):
+            self._readers.append(peer)
+
+    def may_ack(self, peer) -> bool:
+        """The connection that read the result may ACK it; so may a later connection from the
+        same address once that reader has closed (a PLC that reconnects, or a tool such as
+        mbpoll that opens one connection per request). A client that never read the result,
+        while the reader is still connected, may not. Peers are the server's connection
+        tokens: attributes ``address`` and ``closed`` (anything else: same object only)."""
+        if peer is None:
+            return True
+        for r in self._readers:
+            if r is peer:
+                return True
+            addr = getattr(r, "address", None)
+            if addr is not None and addr == getattr(peer, "address", None) and \
+                    getattr(r, "closed", False):
+                return True
+        return False
+
+    def plc_write(self, address: int, values: list[int], peer=None) -> tuple[int, str] | None:
         """Apply a PLC write; returns (Modbus exception code, reason) to refuse it, else None.
 
-        Called from the event loop, so it never interleaves with a result being published.
+        `peer` identifies the connection (server mode): an ACK is accepted only from a
+        connection that has read the presented result (`note_read`). None (client mode: the
+        PLC is the only party) skips that check. Called from the event loop, so it never
+        interleaves with a result being published.
         """
         bad = check_plc_write(address, values)
         if bad:
@@ -177,10 +241,10 @@ class Cycle:
             self._fault(Fault.BLANK_REMOVED, "PLC cleared blank_loaded during the measurement")
         seq_addr = FIELDS["command_seq"].address
         if address <= seq_addr < end and regs[seq_addr] != self.image.get("cmd_seq_echo"):
-            return self._command(Command(regs[FIELDS["command"].address]), regs[seq_addr])
+            return self._command(Command(regs[FIELDS["command"].address]), regs[seq_addr], peer)
         return None
 
-    def _command(self, cmd: Command, seq: int) -> tuple[int, str] | None:
+    def _command(self, cmd: Command, seq: int, peer=None) -> tuple[int, str] | None:
         img = self.image
         if not self.journal_ok:
             return 4, "journal unavailable: command not accepted"
@@ -193,9 +257,12 @@ class Cycle:
                     return self._reject(cmd, seq, CommandStatus.NOT_ALLOWED)
                 if img.get("blank_loaded") != 1:
                     return self._reject(cmd, seq, CommandStatus.BLANK_NOT_LOADED)
-                if img.get("program_id") == 0:
+                cfg = self.config
+                out = target_number(img.get("program_id"), cfg.program_offset, cfg.program_range)
+                if out is None:  # 0, or its compensated number would leave the shop's range
                     return self._reject(cmd, seq, CommandStatus.BAD_PROGRAM_ID)
-                job = Job(self._job_no + 1, img.get("part_id"), img.get("program_id")).to_dict()
+                job = Job(self._job_no + 1, img.get("part_id"), img.get("program_id"),
+                          out_program_id=out).to_dict()
                 self.journal.append("start", cmd_seq=seq, status=0, job=job)
                 self._job_no += 1
                 self._job = job
@@ -209,6 +276,8 @@ class Cycle:
                     return self._reject(cmd, seq, CommandStatus.NOT_ALLOWED)
                 if self._presented is None or ack != self._presented["result_seq"]:
                     return self._reject(cmd, seq, CommandStatus.BAD_ACK_SEQ)
+                if not self.may_ack(peer):
+                    return self._reject(cmd, seq, CommandStatus.NOT_READ)
                 self.journal.append("ack", cmd_seq=seq, status=0, result_seq=ack)
                 self._presented = None
                 self._set_state(State.IDLE)
@@ -260,15 +329,31 @@ class Cycle:
                 loop.call_soon_threadsafe(self._phase_computing, job["job_no"])
 
         stamp = {}
+        out_id = job.get("out_program_id") or target_number(
+            job["program_id"], self.config.program_offset, self.config.program_range)
 
         def work():
-            res = self.measure(Job(job["job_no"], job["part_id"], job["program_id"], on_phase))
+            res = self.measure(Job(job["job_no"], job["part_id"], job["program_id"], on_phase,
+                                   out_program_id=out_id))
+            # the program as it is on disk now, checked again in full just before publishing
+            prog = getattr(res, "program", None)
+            why = None
+            if prog is not None:
+                if not isinstance(prog, ProgramInfo):
+                    why = "the step returned no ProgramInfo"
+                elif (prog.part_id, prog.job_no, prog.program_id) != \
+                        (job["part_id"], job["job_no"], out_id):
+                    why = (f"program O{prog.program_id:04d} is for part {prog.part_id} job "
+                           f"{prog.job_no}, not O{out_id:04d} part {job['part_id']} job "
+                           f"{job['job_no']}")
+                else:
+                    why = recheck(prog, extra_check=self.config.program_check)
             stamp["t"] = time.perf_counter()
-            return res
+            return res, why
 
         try:
-            res = await asyncio.wait_for(loop.run_in_executor(self._pool, work),
-                                         self.config.measure_timeout_s)
+            res, not_verified = await asyncio.wait_for(loop.run_in_executor(self._pool, work),
+                                                       self.config.measure_timeout_s)
         except asyncio.TimeoutError:
             if self._job is job:
                 self._fault(Fault.MEASURE_TIMEOUT,
@@ -276,7 +361,15 @@ class Cycle:
             return
         except asyncio.CancelledError:
             raise
-        except Exception as exc:  # the step's own failure becomes a fault code, not a crash
+        except CellFault as exc:      # a refusal with its own code: one line, no traceback
+            if self._job is job:
+                self._fault(exc.code, str(exc))
+            return
+        except MtcompError as exc:    # bad probe data, fit refused, ...: one line
+            if self._job is job:
+                self._fault(Fault.MEASURE_FAILED, str(exc))
+            return
+        except Exception as exc:  # a bug in the step: a fault code, and the traceback in the log
             log.exception("cell: measurement of job %d failed", job["job_no"])
             if self._job is job:
                 self._fault(Fault.MEASURE_FAILED, f"{type(exc).__name__}: {exc}")
@@ -286,26 +379,37 @@ class Cycle:
         try:
             pose = tuple(float(v) for v in res.pose6)
             sigma = tuple(float(v) for v in res.sigma6)
-            prog = int(res.program_id)
-            if len(pose) != 6 or len(sigma) != 6 or not all(map(math.isfinite, pose + sigma)) \
-                    or not 0 < prog <= 65535:
-                raise ValueError("need 6 finite pose values, 6 sigmas and a program id 1..65535")
+            if len(pose) != 6 or len(sigma) != 6 or not all(map(math.isfinite, pose + sigma)):
+                raise ValueError("need 6 finite pose values and 6 sigmas")
+            nogo = nogo_bits(res, self.config, program_ok=not_verified is None)
         except (TypeError, ValueError, AttributeError) as exc:
             self._fault(Fault.BAD_RESULT, str(exc))
             return
-        self._publish(job, res, pose, sigma, prog, stamp.get("t"))
+        if not_verified is not None:
+            log.error("cell: job %d: program not verified, NO-GO: %s", job["job_no"],
+                      not_verified)
+        self._publish(job, res, pose, sigma, nogo, not_verified, stamp.get("t"))
 
     def _phase_computing(self, job_no: int) -> None:
         if self._job is not None and self._job["job_no"] == job_no \
                 and self.state == State.MEASURING:
             self._set_state(State.COMPUTING)
 
-    def _publish(self, job, res, pose, sigma, prog, t_done) -> None:
+    def _publish(self, job, res, pose, sigma, nogo, not_verified, t_done) -> None:
         seq = self._result_seq + 1
+        prog = res.program if isinstance(res.program, ProgramInfo) else None
+        program = None
+        if prog is not None:
+            program = prog.to_dict()
+            program["verified"] = not_verified is None
+            if not_verified is not None:
+                program["why"] = not_verified
         try:
+            # no program, no number: the PLC must not start whatever carries the number
             rec = self.journal.append("result", result_seq=seq, job=job, pose=list(pose),
-                                      sigma=list(sigma), program_id=prog,
-                                      go=is_go(res, self.config), info=res.info)
+                                      sigma=list(sigma),
+                                      program_id=prog.program_id if prog else 0,
+                                      go=nogo == 0, nogo=nogo, program=program, info=res.info)
         except (OSError, TypeError, ValueError) as exc:  # Type/ValueError: info not JSON
             if isinstance(exc, OSError):
                 self._journal_failed(exc)
@@ -314,6 +418,7 @@ class Cycle:
             return
         self._result_seq = seq
         self._presented = rec
+        self._readers = []
         self._job = None
         self._show_result(rec)
         self._set_state(State.READY)
@@ -331,6 +436,10 @@ class Cycle:
         img.set("part_id_out", rec["job"]["part_id"])
         img.set("go", 1 if rec["go"] else 0)
         img.set("result_seq", rec["result_seq"])
+        prog = rec.get("program")
+        img.set("program_crc", prog["crc32"] if prog else 0)
+        # journals of map version 1 have no nogo: say "unknown" (bit 15) for their no-gos
+        img.set("nogo", rec.get("nogo", 0 if rec["go"] else 0x8000))
 
     def _set_state(self, state: State, fault: int = 0) -> None:
         self.image.set("state", state)

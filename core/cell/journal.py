@@ -5,9 +5,11 @@ the effect becomes visible to the PLC (the Modbus response to a command, or the 
 registers). Every record has ``n`` (1, 2, 3, ... without gaps), ``t`` (UTC, ISO 8601) and
 ``ev`` (the event); see docs/cell.md for the events and their fields.
 
-Recovery: a crash can leave at most one torn record at the end (no newline or not JSON). It
-was never fsync'ed to completion, so nothing depended on it; `Journal.open` cuts it off and
-logs a warning. Damage anywhere else is reported as an InputError naming the line.
+Recovery: a crash can leave at most one torn record: the end of the file without its final
+newline (each record goes out in one write with its newline last). It was never fsync'ed to
+completion, so nothing depended on it; `Journal.open` cuts it off and logs a warning. Anything
+else that is not a valid record, also a complete last line, is damage and reported as an
+InputError naming the line and field: the journal is never "repaired" beyond a torn tail.
 """
 from __future__ import annotations
 
@@ -108,18 +110,19 @@ def read_records(path: str | os.PathLike) -> tuple[list[dict], int | None]:
         lineno += 1
         last = end < 0 or end == len(data) - 1
         raw = data[pos:] if end < 0 else data[pos:end]
+        if end < 0:  # the only tear a crash can leave: the record's own newline never made it
+            keep = pos
+            log.warning("%s:%d: torn last journal record dropped (%d bytes without their "
+                        "newline)", path, lineno, len(raw))
+            break
         try:
-            if end < 0:
-                raise ValueError("record not terminated")
             rec = json.loads(raw.decode("utf-8"))
-            if not isinstance(rec, dict) or "n" not in rec or "ev" not in rec:
-                raise ValueError("not a journal record (needs 'n' and 'ev')")
         except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-            if last:
-                keep = pos
-                log.warning("%s:%d: torn last journal record dropped (%s)", path, lineno, exc)
-                break
-            raise InputError(f"damaged journal record: {exc}", path, lineno) from None
+            what = "last line" if last else "line"
+            raise InputError(f"damaged journal record ({what} complete, so not a torn write: "
+                             f"{exc}); restore the journal from a backup or remove the line by "
+                             f"hand", path, lineno) from None
+        check_record(rec, path, lineno)
         expected = records[-1]["n"] + 1 if records else 1
         if rec["n"] != expected:
             raise InputError(f"record number {rec['n']}, expected {expected}", path, lineno,
@@ -127,6 +130,63 @@ def read_records(path: str | os.PathLike) -> tuple[list[dict], int | None]:
         records.append(rec)
         pos = end + 1
     return records, keep
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v) -> bool:
+    import math
+    return (isinstance(v, (int, float)) and not isinstance(v, bool)
+            and math.isfinite(v))
+
+
+_JOB = {"job_no": _is_int, "part_id": _is_int, "program_id": _is_int}
+_SIX = (lambda v: isinstance(v, list) and len(v) == 6 and all(map(_is_num, v)),
+        "a list of 6 finite numbers")
+_INT = (_is_int, "an integer")
+# required fields per event, with their check and what the check expects
+_SCHEMA = {
+    "boot": {"state": (lambda v: v in ("idle", "busy", "ready", "fault"),
+                       "idle, busy, ready or fault"), "result_seq": _INT},
+    "command": {"cmd_seq": _INT, "command": _INT, "status": _INT},
+    "start": {"cmd_seq": _INT, "job": (lambda v: _job_ok(v), "a job {job_no, part_id, "
+                                                            "program_id} of integers")},
+    "phase": {},
+    "result": {"result_seq": _INT, "job": (lambda v: _job_ok(v), "a job {job_no, part_id, "
+                                                                "program_id} of integers"),
+               "pose": _SIX, "sigma": _SIX, "program_id": _INT,
+               "go": (lambda v: isinstance(v, bool), "true or false")},
+    "ack": {"cmd_seq": _INT, "result_seq": _INT},
+    "fault": {"code": _INT},
+    "reset": {"cmd_seq": _INT},
+    "abort": {"cmd_seq": _INT},
+}
+
+
+def _job_ok(v) -> bool:
+    return isinstance(v, dict) and all(k in v and f(v[k]) for k, f in _JOB.items())
+
+
+def check_record(rec, path, lineno: int) -> None:
+    """Raise InputError naming the line and field unless `rec` is a well-formed record."""
+    if not isinstance(rec, dict):
+        raise InputError("not a journal record (expected a JSON object)", path, lineno)
+    if not _is_int(rec.get("n")) or rec["n"] < 1:
+        raise InputError("missing or not a positive integer", path, lineno, "n")
+    ev = rec.get("ev")
+    if ev not in _SCHEMA:
+        raise InputError(f"unknown event {ev!r}, expected one of {', '.join(EVENTS)}", path,
+                         lineno, "ev")
+    if not isinstance(rec.get("t"), str):
+        raise InputError("missing or not a time stamp", path, lineno, "t")
+    for name, (ok, what) in _SCHEMA[ev].items():
+        if name not in rec:
+            raise InputError(f"{ev} record without {name!r}", path, lineno, name)
+        if not ok(rec[name]):
+            raise InputError(f"{ev} record: expected {what}, got {rec[name]!r}", path, lineno,
+                             name)
 
 
 @dataclass

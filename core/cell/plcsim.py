@@ -35,6 +35,8 @@ class Received:
     pose: tuple
     sigma: tuple
     t_seen: float  # time.perf_counter() when the PLC first read it
+    nogo: int = 0          # why go is 0 (registers.NoGo bits)
+    program_crc: int = 0   # CRC-32 of the compensated program file, 0 = none
 
 
 @dataclass
@@ -200,9 +202,15 @@ class PlcSim:
             self._taken.add(seq)
             self.report.results.append(Received(
                 seq, out["job_no"], out["part_id_out"], out["program_id_out"], bool(out["go"]),
-                out["pose"], out["sigma"], time.perf_counter()))
+                out["pose"], out["sigma"], time.perf_counter(), out["nogo"], out["program_crc"]))
         self.ack_seq = seq
+        deadline = time.monotonic() + self.reconnect_timeout_s
         status, out = await self.command(Command.ACK)
+        # NOT_READ: the ACK went out on a new connection (after a drop) that has not read the
+        # result; command() has just read it on this one, so the same ACK again is taken
+        while status == CommandStatus.NOT_READ and out["result_seq"] == seq \
+                and State(out["state"]) == State.READY and time.monotonic() < deadline:
+            status, out = await self.command(Command.ACK)
         if status == CommandStatus.OK or State(out["state"]) == State.IDLE:
             self._confirmed.add(seq)
 

@@ -6,7 +6,7 @@ that go on the wire (the PLC's "40001" is address 0). The map has two blocks:
 * PLC -> mtcomp, addresses 0..8: written by the PLC (function codes 6 and 16). A write that
   touches any other address is refused with Modbus exception 02 (ILLEGAL DATA ADDRESS); a value
   outside the field's range is refused with exception 03 (ILLEGAL DATA VALUE).
-* mtcomp -> PLC, addresses 16..53: read-only for every client; the PLC reads the whole block
+* mtcomp -> PLC, addresses 16..56: read-only for every client; the PLC reads the whole block
   with one function-3 request so that it always sees one consistent snapshot.
 
 32-bit values span two registers. Their word order is configurable ("big": high word at the
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 WORD_ORDERS = ("big", "little")
-MAP_VERSION = 1
+MAP_VERSION = 2
 
 
 class State(IntEnum):
@@ -47,8 +47,9 @@ class CommandStatus(IntEnum):
     NOT_ALLOWED = 1        # command not allowed in the current state
     BLANK_NOT_LOADED = 2   # START while ``blank_loaded`` is 0
     BAD_ACK_SEQ = 3        # ACK for a result sequence number that is not the one presented
-    BAD_PROGRAM_ID = 4     # START with program id 0
+    BAD_PROGRAM_ID = 4     # START with program id 0, or its compensated number out of range
     JOURNAL_DOWN = 5       # the journal cannot be written: nothing is accepted
+    NOT_READ = 6           # ACK from a connection that has not read the presented result
 
 
 class Fault(IntEnum):
@@ -59,6 +60,18 @@ class Fault(IntEnum):
     BAD_RESULT = 3        # the measurement step returned non-finite or malformed values
     BLANK_REMOVED = 4     # the PLC cleared ``blank_loaded`` while the blank was being measured
     JOURNAL_FAILED = 5    # the journal could not be written; no result can be guaranteed
+    PROGRAM_MISSING = 6   # the part program, its directory or the output directory is missing
+    PROGRAM_EXISTS = 7    # the target file is not the cell's to replace (never overwritten)
+    PROGRAM_FAILED = 8    # the program could not be compensated, written or verified
+
+
+class NoGo(IntEnum):
+    """Bits of ``nogo``: why ``go`` is 0 (0 = go)."""
+    LIMITS = 1           # workpiece setting outside --limit-mm / --limit-deg
+    UNCERTAINTY = 2      # translation uncertainty above the limit
+    STEP = 4             # the measurement step flagged the blank (e.g. bowl residual alarm)
+    NO_PROGRAM = 8       # no compensated program was written (no --nc-dir)
+    NOT_VERIFIED = 16    # the program on disk failed the check right before publishing
 
 
 @dataclass(frozen=True)
@@ -103,7 +116,8 @@ _FIELDS = [
     Field("cmd_seq_echo", 19, "u16", False, "command_seq of the last command handled"),
     Field("cmd_status", 20, "u16", False, "outcome of that command (0 = accepted)"),
     Field("result_seq", 21, "u32", False, "sequence number of the presented result, 0 = none"),
-    Field("go", 23, "u16", False, "1 = go (setting within limits), 0 = no-go; valid in READY"),
+    Field("go", 23, "u16", False,
+          "1 = go: run program_id_out, written and verified for this blank; 0 = no-go"),
     Field("part_id_out", 24, "u32", False, "part id the presented result belongs to"),
     Field("program_id_out", 26, "u16", False, "id of the compensated NC program"),
     Field("job_no", 27, "u16", False, "low 16 bits of the running/last job number"),
@@ -113,12 +127,14 @@ _FIELDS = [
       for i, (n, u) in enumerate(zip(POSE_NAMES, POSE_UNITS))],
     Field("word_order", 52, "u16", False, "0 = big (high word first), 1 = little"),
     Field("map_version", 53, "u16", False, f"register map version ({MAP_VERSION})"),
+    Field("program_crc", 54, "u32", False, "CRC-32 of the compensated program file, 0 = none"),
+    Field("nogo", 56, "u16", False, "why go is 0: bit mask of NoGo, 0 when go"),
 ]
 FIELDS: dict[str, Field] = {f.name: f for f in _FIELDS}
 
 PLC_BLOCK = (0, 9)          # [start, end) of the PLC-writable block
-OUT_BLOCK = (16, 54)        # [start, end) of the mtcomp-written block
-N_REGISTERS = OUT_BLOCK[1]  # addresses 0..53 exist; 9..15 read as 0 and are not writable
+OUT_BLOCK = (16, 57)        # [start, end) of the mtcomp-written block
+N_REGISTERS = OUT_BLOCK[1]  # addresses 0..56 exist; 9..15 read as 0 and are not writable
 
 
 def encode_u32(value: int, word_order: str = "big") -> list[int]:
@@ -151,7 +167,7 @@ def _check_order(word_order: str) -> str:
 
 
 class RegisterImage:
-    """The 54 registers as a plain list, with typed access by field name.
+    """The 57 registers as a plain list, with typed access by field name.
 
     Pure data: the Modbus server copies slices of `regs` into its responses, the cycle sets
     fields. Not thread-safe by itself; the server touches it only from its event loop.

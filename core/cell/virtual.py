@@ -46,20 +46,21 @@ class VirtualCell:
     probe_time_s: simulated duration of the probing program; plan: a `BowlPlan` (default
     `plan_bowls(3)`: three R2 bowls on a 20 x 20 x 5 mm blank).
 
-    The compensated program number is `program_id + program_offset`, wrapped into 1..9999. With
-    `nc_dir` set, the part program ``O<program_id:04d>.nc`` is read from it and the rewritten
-    program ``O<new id:04d>.nc`` is written (atomically) to `out_dir` (default `nc_dir`), for
-    `machine` (a preset name or TOML path).
+    With `nc_dir` set, the part program ``O<program_id:04d>.nc`` (O0100.nc) is read from it
+    and the program compensated for the measured blank is written as ``O<job.out_program_id:04d>
+    .nc`` (O1100.nc) to `out_dir` (default `nc_dir`), for `machine` (a preset name or TOML path),
+    and verified (`program.write_program`; `program_check` adds a check). Without `nc_dir` no
+    program is written and the result is a no-go.
     """
     seed: int = 0
     robot: object = None
     probe_sigma_mm: float = 0.0005
     probe_time_s: float = 0.0
     plan: object = None
-    program_offset: int = 1000
     nc_dir: str | None = None
     out_dir: str | None = None
     machine: str = "robonano-a0ib"
+    program_check: object = None
 
     def __call__(self, job: Job) -> CellResult:
         from ..errors import WorkpieceSetting
@@ -75,31 +76,39 @@ class VirtualCell:
                                 self.probe_sigma_mm, rng)
         if job.on_phase is not None:
             job.on_phase("computing")
-        return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.program_offset,
-                                   self.nc_dir, self.out_dir, self.machine)
+        return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.nc_dir,
+                                   self.out_dir, self.machine, self.program_check)
 
 
-def result_from_touches(job: Job, touches, plan, probe_sigma_mm, program_offset: int,
-                        nc_dir=None, out_dir=None, machine: str = "robonano-a0ib") -> CellResult:
-    """Bowl fit, paper-001 frame and (with `nc_dir`) the compensated program: the part of the
-    step shared by the virtual cell and the real machine (`ProbeFileCell`)."""
+def result_from_touches(job: Job, touches, plan, probe_sigma_mm, nc_dir=None, out_dir=None,
+                        machine="robonano-a0ib", program_check=None) -> CellResult:
+    """Bowl fit, paper-001 frame and (with `nc_dir`) the compensated, verified program: the part
+    of the step shared by the virtual cell and the real machine (`ProbeFileCell`)."""
     from ..setting.workpiece import fit_bowls, frame_from_bowls
+    from .program import CellFault, program_file_name, target_number, write_program
+    from .registers import Fault
     fit = fit_bowls(touches, plan.probe_radius, probe_sigma=probe_sigma_mm)
     est = frame_from_bowls(fit, plan, file=touches.source)
-    prog = (job.program_id + program_offset - 1) % 9999 + 1
+    prog = job.out_program_id or target_number(job.program_id)
+    if prog is None:
+        raise CellFault(Fault.PROGRAM_FAILED, f"no compensated program number for program "
+                                              f"{job.program_id} in the default range")
     info = {"method": est.method, "warnings": list(est.warnings),
             "bowl_rms_mm": [float(f.rms) for f in fit.fits]}
     if touches.source:
         info["touches_file"] = Path(touches.source).name
+    written = None
     if nc_dir is not None:
         from ..machine import load_machine
-        from ..setting.workpiece import compensate_program
-        src = Path(nc_dir) / f"O{job.program_id:04d}.nc"
-        dst = Path(out_dir or nc_dir) / f"O{prog:04d}.nc"
-        info["blocks"] = int(compensate_program(load_machine(machine), src, est.pose, dst))
-        info["program_file"] = dst.name
+        written = write_program(load_machine(machine),
+                                Path(nc_dir) / program_file_name(job.program_id),
+                                Path(out_dir or nc_dir) / program_file_name(prog), est.pose,
+                                source_id=job.program_id, out_id=prog, part_id=job.part_id,
+                                job_no=job.job_no, extra_check=program_check)
+        info["blocks"] = written.blocks
+        info["program_file"] = Path(written.path).name
     return CellResult(tuple(float(v) for v in est.params), tuple(float(v) for v in est.std),
-                      prog, not est.warnings, info)
+                      prog, not est.warnings, info, written)
 
 
 @dataclass(frozen=True)
@@ -121,10 +130,10 @@ class ProbeFileCell:
     poll_s: float = 0.2
     settle_s: float = 0.5
     wait_s: float = 300.0
-    program_offset: int = 1000
     nc_dir: str | None = None
     out_dir: str | None = None
     machine: str = "robonano-a0ib"
+    program_check: object = None
 
     def __call__(self, job: Job) -> CellResult:
         import os
@@ -148,8 +157,8 @@ class ProbeFileCell:
         touches = read_touches(claimed)
         if job.on_phase is not None:
             job.on_phase("computing")
-        return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.program_offset,
-                                   self.nc_dir, self.out_dir, self.machine)
+        return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.nc_dir,
+                                   self.out_dir, self.machine, self.program_check)
 
 
 _PLAN = {}
