@@ -141,8 +141,17 @@ def cmd_toolpath(args) -> int:
     stock = parse_stock(args.stock) if args.stock else default_stock(args)
     linked, q_linked = T.link_safely(machine, path, q, stock, args.clearance, errors=errors)
     t2 = time.perf_counter()
+    def template(value):
+        return value.replace("\\n", "\n") if value is not None else None
+    extra = {k: v for k, v in dict(
+        preamble=template(args.preamble), postamble=template(args.postamble),
+        tool_change=template(args.tool_change)).items() if v is not None}
     opts = P.PostOptions(program_number=args.program_number, tcp=args.tcp,
-                         line_numbers=not args.no_line_numbers, spindle=args.spindle)
+                         line_numbers=not args.no_line_numbers, spindle=args.spindle,
+                         line_start=args.line_start, line_step=args.line_step,
+                         line_wrap=args.line_wrap, tool_length=args.g43,
+                         rotary_feed=args.rotary_feed, plunge_feed=args.plunge_feed,
+                         coolant=args.coolant, probe_log=args.probe_log, **extra)
     text = P.post(machine, linked, q_linked, opts, errors=errors,
                   errors_name=Path(args.errors).name if args.errors else "")
     t3 = time.perf_counter()
@@ -285,6 +294,23 @@ def register(subparsers) -> None:
     t.add_argument("--tcp", action="store_true", help="G43.4 tool-centre-point output")
     t.add_argument("--program-number", type=int, default=1000)
     t.add_argument("--no-line-numbers", action="store_true")
+    t.add_argument("--line-start", type=int, help="first N number (default: the step)")
+    t.add_argument("--line-step", type=int, default=10, help="N increment (default 10)")
+    t.add_argument("--line-wrap", type=int, default=99999,
+                   help="largest N before numbering starts again (default 99999; 0: never)")
+    t.add_argument("--g43", action="store_true",
+                   help="G43 H<tool> with the first move (machine-axes output; length in H)")
+    t.add_argument("--rotary-feed", default="tool-tip", choices=("tool-tip", "inverse-time", "axes"),
+                   help="feed of moves that turn rotary axes without TCP: per-block F that keeps "
+                        "the tool-tip feed (default), G93 inverse time, or F as programmed")
+    t.add_argument("--plunge-feed", type=float, help="feed of plunges along the tool axis, mm/min")
+    t.add_argument("--coolant", choices=("M07", "M08"), help="coolant on after the tool change")
+    t.add_argument("--preamble", help="preamble blocks ('\\n' between blocks; fields {program} "
+                                      "{tool} {work_offset} {spindle})")
+    t.add_argument("--tool-change", help="tool change blocks (default 'T{tool} M06')")
+    t.add_argument("--postamble", help="blocks before M30")
+    t.add_argument("--probe-log", action="store_true",
+                   help="probe-bowls: record skip positions with POPEN/DPRNT (read_skip_log)")
     t.add_argument("--spindle", type=float, help="spindle speed, rpm (rotating tools)")
     t.add_argument("--tool-number", type=int, default=1)
     t.add_argument("--tool-radius", type=float, help="ball / probe radius, mm")
