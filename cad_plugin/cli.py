@@ -87,7 +87,7 @@ def cmd_features(args) -> int:
         if o.suffix.lower() == ".stl":
             export_stl(part, o, tolerance=args.stl_tolerance)
         else:
-            export_step(part, o)
+            export_step(part, o, name=f"{args.kind}: {FEATURES[args.kind][2]}")
     t3 = time.perf_counter()
     bb = part.val().BoundingBox()
     print(f"{args.kind}: {FEATURES[args.kind][2]}")

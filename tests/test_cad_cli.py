@@ -18,6 +18,10 @@ def test_features_writes_step_and_stl(tmp_path, capsys):
                  "--param", "bowl_depth=0.5"]) == 0
     expected = F.volume(F.bowl_blank(F.BowlBlankLayout(bowl_depth=0.5)))
     assert F.volume(import_step(step)) == pytest.approx(expected, rel=1e-9)
+    # The STEP product carries the part's name (issue 19: no product name), unit mm.
+    text = step.read_text()
+    assert "PRODUCT('bowl-blank: blank with three R2 bowls (paper 001)'" in text
+    assert "SI_UNIT(.MILLI.,.METRE.)" in text
     assert stl.stat().st_size > 84
     assert f"volume {expected:.9f}" in capsys.readouterr().out
 
