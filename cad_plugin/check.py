@@ -133,9 +133,9 @@ class FormCheck:
     peak: float
 
     def summary(self) -> str:
-        return (f"form error against the CAD target: max |e| {self.max * 1e3:.4f} um, "
-                f"RMS {self.rms * 1e3:.4f} um (from {self.min * 1e3:+.4f} to "
-                f"{self.peak * 1e3:+.4f} um, {np.isfinite(self.error).sum()} grid points)")
+        return (f"form error against the CAD target: max |e| {self.max * 1e3:.4f} µm, "
+                f"RMS {self.rms * 1e3:.4f} µm (from {self.min * 1e3:+.4f} to "
+                f"{self.peak * 1e3:+.4f} µm, {np.isfinite(self.error).sum()} grid points)")
 
 
 def pyramid_surface(width: float, height: float):
@@ -187,10 +187,10 @@ class PyramidMeasure:
     def summary(self, width: float | None = None, angle: float | None = None) -> str:
         w = " ".join(f"W{i + 1} {v * 1e3:.4f}" for i, v in enumerate(self.widths))
         a = f"S1&S2 {self.angles[0]:.5f}  S3&S4 {self.angles[1]:.5f}"
-        out = f"widths [um]: {w}\nangles [deg]: {a}"
+        out = f"widths [µm]: {w}\nangles [deg]: {a}"
         if width is not None:
-            out += (f"\nwidth error max {np.max(np.abs(self.widths - width)) * 1e3:.4f} um"
-                    f" (target {width * 1e3:g} um)")
+            out += (f"\nwidth error max {np.max(np.abs(self.widths - width)) * 1e3:.4f} µm"
+                    f" (target {width * 1e3:g} µm)")
         if angle is not None:
             out += f"; angle error max {np.max(np.abs(self.angles - angle)):.5f} deg (target {angle:g})"
         return out

@@ -141,35 +141,33 @@ def default_skip_vars(machine) -> dict:
 
 
 def _block_feeds(machine, path: Toolpath, q: np.ndarray, options: PostOptions):
-    """Per point: ("G94"|"G93", F) of the move into it (None for rapids and probing)."""
+    """Per point: ("G94"|"G93", F) of the move into it (None for rapids, probing, point 0)."""
     from ..kinematics import forward
     n = len(path)
-    out = [None] * n
     rot = list(machine.rotary_indices)
     lin = [i for i in range(machine.n_axes) if i not in rot]
     p = forward(machine, q).p
-    axis = path.axis
-    for i in range(1, n):
-        if path.motion[i] != FEED:
-            continue
-        f = path.feed
-        dp = p[i] - p[i - 1]
-        tip = float(np.linalg.norm(dp))
-        if options.plunge_feed is not None and tip > 0 and \
-                float(dp @ -axis[i]) > math.cos(math.radians(10.0)) * tip:
-            f = options.plunge_feed
-        turns = bool(rot) and np.any(np.abs(q[i, rot] - q[i - 1, rot]) > 0)
-        if not turns or options.tcp or options.rotary_feed == "axes" or tip == 0:
-            out[i] = ("G94", f)
-            continue
-        if options.rotary_feed == "inverse-time":
-            out[i] = ("G93", f / tip)   # 1 / block duration in min
+    dp = np.diff(p, axis=0)
+    tip = np.linalg.norm(dp, axis=1)
+    feed = np.full(n - 1, float(path.feed))
+    if options.plunge_feed is not None:
+        down = np.einsum("ij,ij->i", dp, -path.axis[1:])
+        feed[(tip > 0) & (down > math.cos(math.radians(10.0)) * tip)] = options.plunge_feed
+    dq = np.diff(q, axis=0)
+    turns = np.any(dq[:, rot] != 0, axis=1) if rot else np.zeros(n - 1, bool)
+    plain = ~turns | options.tcp | (options.rotary_feed == "axes") | (tip == 0)
+    length = np.sqrt(np.sum(dq[:, lin] ** 2, axis=1) + np.sum(dq[:, rot] ** 2, axis=1))
+    safe_tip = np.where(tip > 0, tip, 1.0)
+    out = [None] * n
+    for i in np.nonzero(path.motion[1:] == FEED)[0]:
+        if plain[i]:
+            out[i + 1] = ("G94", float(feed[i]))
+        elif options.rotary_feed == "inverse-time":
+            out[i + 1] = ("G93", float(feed[i] / safe_tip[i]))        # 1 / block duration, 1/min
         else:
             # Fanuc G94 with rotary axes: F is the feed along the vector of all axis moves, deg
-            # counted as mm; this F gives the block the duration tip / f.
-            length = float(np.sqrt(np.sum((q[i, lin] - q[i - 1, lin]) ** 2)
-                                   + np.sum((q[i, rot] - q[i - 1, rot]) ** 2)))
-            out[i] = ("G94", f * length / tip)
+            # counted as mm; this F gives the block the duration tip / feed.
+            out[i + 1] = ("G94", float(feed[i] * length[i] / safe_tip[i]))
     return out
 
 

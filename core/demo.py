@@ -564,7 +564,7 @@ def render_summary_png(r: dict, out, total: float | None = None):
     """A PNG of the report's opening table (for docs/; the HTML is the report)."""
     rows = summary_rows(r)
     header = ["stage", "machine", "hidden (the truth)", "measured", "error before", "error after", "paper"]
-    fig = _figure(15, 0.32 * (len(rows) + 1) + 0.5)
+    fig = _figure(20, 0.32 * (len(rows) + 1) + 0.5)
     ax = fig.subplots()
     ax.axis("off")
     widths = np.array([max(len(str(x)) for x in col) for col in zip(header, *rows)], float)
@@ -573,6 +573,7 @@ def render_summary_png(r: dict, out, total: float | None = None):
     tab.auto_set_font_size(False)
     tab.set_fontsize(8.5)
     for (i, _), cell in tab.get_celld().items():
+        cell.PAD = 0.02
         if i == 0:
             cell.set_facecolor("#f6f8fa")
             cell.set_text_props(weight="bold")
