@@ -72,6 +72,7 @@ def cmd_features(args) -> int:
         layout = _layout(args.kind, args.param)
     outs = [Path(o) for o in args.out]
     for o in outs:
+        _check_out_dir(o)
         if o.suffix.lower() not in (".step", ".stp", ".stl"):
             raise InputError("output must end in .step, .stp or .stl", field=str(o))
     t0 = time.perf_counter()
@@ -124,8 +125,20 @@ def _toolpath(args):
                             T.Tool("vtool", angle=lay.angle, number=args.tool_number))
 
 
+def _check_out_dir(path) -> None:
+    """Outputs go into an existing folder: a typo must not create a directory tree."""
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise InputError(f"folder {parent} does not exist", field=str(path))
+    if Path(path).is_dir():
+        raise InputError("is a folder; give a file name", field=str(path))
+
+
 def cmd_toolpath(args) -> int:
     import numpy as np
+    for o in (args.out, args.png):
+        if o:
+            _check_out_dir(o)
 
     from ..errors import load_errors
     from ..machine import load_machine

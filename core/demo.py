@@ -587,7 +587,13 @@ def render_summary_png(r: dict, out, total: float | None = None):
 def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, stream=None) -> dict:
     """Run every stage, write `out/report.html`; returns the stage results."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        from ._io import InputError
+        raise InputError("the output folder is an existing file; give a folder name", field="--out")
+    if not out.parent.is_dir():
+        from ._io import InputError
+        raise InputError(f"folder {out.parent} does not exist", field="--out")
+    out.mkdir(exist_ok=True)
     st = _Stages(8, stream)
     r = {}
     r["cad"] = st.run("CAD: bowl blank and pyramid (CadQuery, STEP)", stage_cad, out)
@@ -619,5 +625,6 @@ def register(sub) -> None:
                                    "loading over Modbus, FMU co-simulation, pyramid check, diagnosis.")
     p.add_argument("--out", default="mtcomp-demo", help="output folder (default: mtcomp-demo)")
     p.add_argument("--quick", action="store_true", help="smaller stages (for tests, < 30 s)")
-    p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--seed", type=int, default=7,
+                   help="seed of every random draw (hidden errors, noise), default 7: same seed, same report")
     p.set_defaults(func=_cmd)

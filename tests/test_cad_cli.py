@@ -104,3 +104,14 @@ def test_grating_compensated_for_a_tool_setting_error(tmp_path, capsys):
     assert unc == pytest.approx(off, abs=0.005)  # to the command rounding (1 nm, 1e-5 deg)
     comp = float(out.split("deviation max ")[1].split(" µm")[0])
     assert comp < 0.005
+
+
+def test_outputs_into_missing_folders_or_onto_folders_are_refused(tmp_path, capsys):
+    """Issue 19: `-o /nonexist/x.nc` created the folder; now a one-line error, nothing written."""
+    missing = tmp_path / "nope" / "x.nc"
+    assert main(["cad", "toolpath", "groove-plate", "-o", str(missing)]) == 2
+    assert "does not exist" in capsys.readouterr().err and not (tmp_path / "nope").exists()
+    assert main(["cad", "features", "bowl-blank", "-o", str(tmp_path)]) == 2
+    assert main(["cad", "toolpath", "groove-plate", "-o", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("error:") == 2

@@ -84,3 +84,14 @@ def _plot_everything(tmp_path):
     for f in figs:
         labels = [a.get_ylabel() + a.get_xlabel() + a.get_title() for a in f.axes]
         assert not any("[um]" in s or " um" in s for s in labels)
+
+
+def test_demo_out_onto_a_file_is_a_clean_error(tmp_path, capsys):
+    from mtcomp.cli import main
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    assert main(["demo", "--quick", "--out", str(afile)]) == 2
+    err = capsys.readouterr().err
+    assert "existing file" in err and "Traceback" not in err and afile.read_text() == "keep me"
+    assert main(["demo", "--quick", "--out", str(tmp_path / "no" / "such")]) == 2
+    assert not (tmp_path / "no").exists()
