@@ -11,6 +11,7 @@ Measured in one run, side by side:
   against a straightforward baseline written here (for every grid point, every ball within the
   full tool radius, found with scipy's cKDTree), both on the same swept ball centres; they must
   agree to 1e-12 mm;
+* the verification of the compensated program (``mtcomp.verify``) beside reading it alone;
 * the parts' build times and volumes, ``features.volume`` (adaptive integration) against
   CadQuery's ``Shape.Volume()`` and the analytic grating volume.
 
@@ -90,6 +91,15 @@ def main(argv=None) -> int:
     diff = float(np.nanmax(np.abs(env[iy, ix] - base)))
     print(f"  splat {ew:.2f} s, baseline {bw:.2f} s, max difference {diff:.2e} mm", flush=True)
     meas = C.pyramid_widths_angles(m, tp, qr, err)
+    print("verify ...", flush=True)
+    from mtcomp import gcode
+    from mtcomp.cad_plugin.layout import pyramid_height
+    from mtcomp.verify import Box, HalfSpace, verify_program
+    _, gw, gc = timed(gcode.parse, text, axes=m.axis_names)   # baseline: reading alone
+    stock = Box((-10.0, -10.0, -5.0), (10.0, 10.0, pyramid_height(3.45, 164.81)))
+    ver, verw, verc = timed(verify_program, m, text, stock=stock, part=HalfSpace(0.0), clearance=0.2,
+                        tool_radius=0.5, errors=err, tolerance=1e-3)
+    print(f"  read {gw:.2f} s, read + verify {verw:.2f} s, {ver.n_samples} samples", flush=True)
 
     print("parts ...", flush=True)
     from mtcomp.cad_plugin import features as F  # noqa: E402 (cadquery import)
@@ -129,6 +139,11 @@ def main(argv=None) -> int:
         f"| {ew:.2f} | {ec:.2f} | {len(xs) ** 2 / ew:,.0f} points/s |",
         f"| envelope, baseline (every ball within r, cKDTree) | same balls, {args.sample} sampled "
         f"grid points | {bw:.2f} | {bc:.2f} | {args.sample / bw:,.0f} points/s |",
+        f"| program read back (`gcode.parse`, baseline of the next row) | {n} | {gw:.2f} | {gc:.2f} "
+        f"| {n / gw:,.0f} blocks/s |",
+        f"| verification (`verify_program`: read, every block swept at ≤ 5 µm through the forward "
+        f"model with the error, rapids against the blank, feeds against z = 0) | {ver.n_samples} samples "
+        f"| {verw:.2f} | {verc:.2f} | {n / verw:,.0f} blocks/s |",
         "",
         f"Splat and baseline agree to {diff:.1e} mm on the sampled points. Compensated program (rounded to 1 nm / 1e-5°) "
         "through the forward model with the same error: widths "

@@ -4,7 +4,7 @@ target (form error max / RMS, a PNG), plus paper 001's pyramid measures (base wi
 angle between opposite slopes).
 
 The machine itself is never re-modelled here: the real tool poses come from
-:func:`mtcomp.kinematics.forward`.  Units mm and deg (reports in um).
+:func:`mtcomp.kinematics.forward`.  Units mm and deg (reports in µm).
 """
 from __future__ import annotations
 
@@ -133,9 +133,9 @@ class FormCheck:
     peak: float
 
     def summary(self) -> str:
-        return (f"form error against the CAD target: max |e| {self.max * 1e3:.4f} um, "
-                f"RMS {self.rms * 1e3:.4f} um (from {self.min * 1e3:+.4f} to "
-                f"{self.peak * 1e3:+.4f} um, {np.isfinite(self.error).sum()} grid points)")
+        return (f"form error against the CAD target: max |e| {self.max * 1e3:.4f} µm, "
+                f"RMS {self.rms * 1e3:.4f} µm (from {self.min * 1e3:+.4f} to "
+                f"{self.peak * 1e3:+.4f} µm, {np.isfinite(self.error).sum()} grid points)")
 
 
 def pyramid_surface(width: float, height: float):
@@ -187,10 +187,10 @@ class PyramidMeasure:
     def summary(self, width: float | None = None, angle: float | None = None) -> str:
         w = " ".join(f"W{i + 1} {v * 1e3:.4f}" for i, v in enumerate(self.widths))
         a = f"S1&S2 {self.angles[0]:.5f}  S3&S4 {self.angles[1]:.5f}"
-        out = f"widths [um]: {w}\nangles [deg]: {a}"
+        out = f"widths [µm]: {w}\nangles [deg]: {a}"
         if width is not None:
-            out += (f"\nwidth error max {np.max(np.abs(self.widths - width)) * 1e3:.4f} um"
-                    f" (target {width * 1e3:g} um)")
+            out += (f"\nwidth error max {np.max(np.abs(self.widths - width)) * 1e3:.4f} µm"
+                    f" (target {width * 1e3:g} µm)")
         if angle is not None:
             out += f"; angle error max {np.max(np.abs(self.angles - angle)):.5f} deg (target {angle:g})"
         return out
@@ -237,12 +237,13 @@ def pyramid_widths_angles(machine, path: Toolpath, q: np.ndarray, errors=None) -
 
 
 def _save(fig, out, title: str) -> None:
-    """Title, layout, PNG written atomically, figure closed."""
-    from .._io import save_figure
+    """Title, layout, and the PNG written atomically when `out` is given."""
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    save_figure(fig, out, dpi=120)
+    if out is not None:
+        from .._io import save_figure
+        save_figure(fig, out, dpi=120)
 
 
 def _top_view(ax, path: Toolpath, size: float):
@@ -256,30 +257,30 @@ def _top_view(ax, path: Toolpath, size: float):
     return sc
 
 
-def plot_check(path: Toolpath, form: FormCheck, out, title: str = "") -> None:
-    """PNG: the toolpath (top view, cutting moves) and the form error map in um."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 4.8))
+def plot_check(path: Toolpath, form: FormCheck, out=None, title: str = ""):
+    """The toolpath (top view, cutting moves) and the form error map in µm; written as PNG to
+    `out` if given.  Returns the matplotlib Figure (no pyplot state, backend untouched)."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(11, 4.8))
+    a0, a1 = fig.subplots(1, 2)
     _top_view(a0, path, 0.5)
     a0.set_title(f"toolpath {path.name} ({len(path)} poses), colour: tip z")
     im = a1.imshow(form.error * 1e3, origin="lower", cmap="coolwarm",
                    extent=[form.x[0], form.x[-1], form.y[0], form.y[-1]])
-    fig.colorbar(im, ax=a1, label="machined - target [um]")
+    fig.colorbar(im, ax=a1, label="machined − target [µm]")
     a1.set_xlabel("x [mm]")
-    a1.set_title(f"form error: max {form.max * 1e3:.3f} um, RMS {form.rms * 1e3:.3f} um")
+    a1.set_title(f"form error: max {form.max * 1e3:.3f} µm, RMS {form.rms * 1e3:.3f} µm")
     _save(fig, out, title)
+    return fig
 
 
-def plot_toolpath(path: Toolpath, out, title: str = "", q: np.ndarray | None = None,
-                  names=()) -> None:
-    """PNG: top view of the toolpath (cutting points coloured by tip z) and, if given, the axis
-    commands over the block index."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axs = plt.subplots(1, 2 if q is not None else 1, figsize=(11 if q is not None else 6, 4.8))
+def plot_toolpath(path: Toolpath, out=None, title: str = "", q: np.ndarray | None = None,
+                  names=()):
+    """Top view of the toolpath (cutting points coloured by tip z) and, if given, the axis
+    commands over the block index; PNG to `out` if given.  Returns the Figure."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(11 if q is not None else 6, 4.8))
+    axs = fig.subplots(1, 2 if q is not None else 1)
     a0 = axs[0] if q is not None else axs
     fig.colorbar(_top_view(a0, path, 1.0), ax=a0, label="tip z [mm]")
     a0.set_title(f"{path.name}: {len(path)} poses, {path.tool.description}")
@@ -289,5 +290,6 @@ def plot_toolpath(path: Toolpath, out, title: str = "", q: np.ndarray | None = N
             a1.plot(q[:, k], lw=0.8, label=f"{name} [{'deg' if name in 'ABC' else 'mm'}]")
         a1.set_xlabel("block")
         a1.set_title("axis commands")
-        a1.legend(fontsize=8)
+        a1.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     _save(fig, out, title)
+    return fig

@@ -72,6 +72,7 @@ def cmd_features(args) -> int:
         layout = _layout(args.kind, args.param)
     outs = [Path(o) for o in args.out]
     for o in outs:
+        _check_out_dir(o)
         if o.suffix.lower() not in (".step", ".stp", ".stl"):
             raise InputError("output must end in .step, .stp or .stl", field=str(o))
     t0 = time.perf_counter()
@@ -87,7 +88,7 @@ def cmd_features(args) -> int:
         if o.suffix.lower() == ".stl":
             export_stl(part, o, tolerance=args.stl_tolerance)
         else:
-            export_step(part, o)
+            export_step(part, o, name=f"{args.kind}: {FEATURES[args.kind][2]}")
     t3 = time.perf_counter()
     bb = part.val().BoundingBox()
     print(f"{args.kind}: {FEATURES[args.kind][2]}")
@@ -124,8 +125,20 @@ def _toolpath(args):
                             T.Tool("vtool", angle=lay.angle, number=args.tool_number))
 
 
+def _check_out_dir(path) -> None:
+    """Outputs go into an existing folder: a typo must not create a directory tree."""
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise InputError(f"folder {parent} does not exist", field=str(path))
+    if Path(path).is_dir():
+        raise InputError("is a folder; give a file name", field=str(path))
+
+
 def cmd_toolpath(args) -> int:
     import numpy as np
+    for o in (args.out, args.png):
+        if o:
+            _check_out_dir(o)
 
     from ..errors import load_errors
     from ..machine import load_machine
@@ -137,15 +150,45 @@ def cmd_toolpath(args) -> int:
     path = _toolpath(args)
     t1 = time.perf_counter()
     q = T.to_axes(machine, path, errors)
+    from ..verify import parse_stock, verify_program
+    stock = parse_stock(args.stock) if args.stock else default_stock(args)
+    linked, q_linked = T.link_safely(machine, path, q, stock, args.clearance, errors=errors)
     t2 = time.perf_counter()
+    def template(value):
+        return value.replace("\\n", "\n") if value is not None else None
+    extra = {k: v for k, v in dict(
+        preamble=template(args.preamble), postamble=template(args.postamble),
+        tool_change=template(args.tool_change)).items() if v is not None}
     opts = P.PostOptions(program_number=args.program_number, tcp=args.tcp,
-                         line_numbers=not args.no_line_numbers, spindle=args.spindle)
-    text = P.post(machine, path, q, opts, errors=errors,
+                         line_numbers=not args.no_line_numbers, spindle=args.spindle,
+                         line_start=args.line_start, line_step=args.line_step,
+                         line_wrap=args.line_wrap, tool_length=args.g43,
+                         rotary_feed=args.rotary_feed, plunge_feed=args.plunge_feed,
+                         coolant=args.coolant, probe_log=args.probe_log, **extra)
+    text = P.post(machine, linked, q_linked, opts, errors=errors,
                   errors_name=Path(args.errors).name if args.errors else "")
     t3 = time.perf_counter()
     print(f"{path.name}: {len(path)} poses, tool {path.tool.description}, machine {machine.name}")
     print(f"  toolpath {t1 - t0:.2f} s, axes{' (compensated)' if errors else ''} {t2 - t1:.2f} s, "
-          f"post {t3 - t2:.2f} s")
+          f"post {t3 - t2:.2f} s; {len(linked) - len(path)} poses added for safe rapid links")
+    # The emitted text itself is read back and run through the machine (with the errors it
+    # was compensated for): what is verified is what the control gets.
+    part = None
+    if args.part:
+        from ..verify import ShapeStock
+        part = ShapeStock.from_step(args.part)
+    ver = verify_program(machine, text, filename=str(args.out), stock=stock, part=part,
+                         clearance=args.clearance, errors=errors,
+                         tool_radius=path.tool.radius if path.tool.kind != "vtool" else 0.0,
+                         raise_on_violation=not args.warn_only)
+    print("  " + ver.summary().replace("\n", "\n  "))
+    if path.tool.kind == "vtool":
+        rk = np.abs(T.rake_error(machine, path, q, errors))
+        worst = float(np.nanmax(rk)) if np.isfinite(rk).any() else float("nan")
+        if not worst < 0.01:
+            print(f"  WARNING: the rake face of the non-rotational tool is off the feed direction by up "
+                  f"to {worst:.3f} deg ({int(np.sum(rk >= 0.01))} poses): {machine.name} cannot turn "
+                  "the tool about its axis there")
     from ..kinematics import round_to_resolution
     qr = round_to_resolution(machine, q)
     if path.tool.kind == "ball" and path.name == "pyramid-finishing":
@@ -173,20 +216,65 @@ def cmd_toolpath(args) -> int:
         def deviation(qq):
             pose = forward(machine, qq, errors)
             dev = np.linalg.norm(pose.p - path.p, axis=1)
-            ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", pose.v, path.axis), -1, 1)))
-            return dev.max() * 1e3, float(np.sqrt(np.mean(dev ** 2))) * 1e3, ang.max()
-        d = deviation(qr)
-        print(f"  forward model{' with the errors' if errors else ''}: tool point deviation max "
-              f"{d[0]:.4f} um, RMS {d[1]:.4f} um; tool axis off by {d[2]:.6f} deg at most")
+            # angle from the cross product: arccos loses everything below 1e-8 rad
+            ang = np.arcsin(np.clip(np.linalg.norm(np.cross(pose.v, path.axis), axis=1), 0, 1))
+            return (f"tool point deviation max {dev.max() * 1e3:.4f} µm, RMS "
+                    f"{np.sqrt(np.mean(dev ** 2)) * 1e3:.4f} µm; tool axis deviation max "
+                    f"{float(ang.max()) * 1e6:.3g} µrad")
+        print(f"  forward model{' with the errors' if errors else ''} (command rounding only): "
+              + deviation(qr))
         if errors is not None:
-            d0 = deviation(round_to_resolution(machine, T.to_axes(machine, path)))
-            print(f"  uncompensated: tool point deviation max {d0[0]:.4f} um, RMS {d0[1]:.4f} um; "
-                  f"tool axis off by {d0[2]:.6f} deg at most")
+            print("  uncompensated: " + deviation(round_to_resolution(machine, T.to_axes(machine, path))))
         if args.png:
             C.plot_toolpath(path, args.png, f"{path.name} on {machine.name}", q=qr,
                             names=machine.axis_names)
     atomic_write(args.out, text)
     print(f"  wrote {args.out}" + (f" and {args.png}" if args.png else ""))
+    return 0
+
+
+def default_stock(args):
+    """The blank of each toolpath kind as an analytic box (workpiece frame, mm)."""
+    from ..verify import Box, CylinderZ, Intersection, SphereCavity
+    if args.kind == "groove-plate":
+        L = _layout("groove-plate", args.param)
+        return Box((-L.size / 2, -L.size / 2, -L.thickness), (L.size / 2, L.size / 2, 0.0))
+    if args.kind in ("bowls", "probe-bowls", "pyramid"):
+        L = _layout("bowl-blank", args.param if args.kind != "pyramid" else [])
+        top = 0.0
+        if args.kind == "pyramid":
+            from .layout import pyramid_height
+            P = _layout("pyramid", args.param)
+            top = pyramid_height(P.width, P.angle)
+        return Box((-L.size / 2, -L.size / 2, -L.thickness), (L.size / 2, L.size / 2, top))
+    L = _layout("grating", args.param)
+    a, R = L.aperture_radius, L.sphere_radius
+    rim = R - (R * R - a * a) ** 0.5
+    return Intersection((CylinderZ(a, -L.height, rim), SphereCavity((0.0, 0.0, R), R)))
+
+
+def cmd_verify(args) -> int:
+    from ..errors import load_errors
+    from ..machine import load_machine
+    from .._io import read_text
+    from ..verify import ShapeStock, VerifyError, parse_stock, verify_program
+    machine = load_machine(args.machine)
+    if not args.stock and not args.part:
+        raise InputError("give --stock and/or --part", field="--stock")
+    stock = parse_stock(args.stock) if args.stock else None
+    part = ShapeStock.from_step(args.part) if args.part else None
+    errors = load_errors(args.errors) if args.errors else None
+    text = read_text(args.program, what="NC program")
+    try:
+        res = verify_program(machine, text, filename=str(args.program), stock=stock, part=part,
+                             clearance=args.clearance, tolerance=args.tolerance, errors=errors,
+                             tool_radius=args.tool_radius, step=args.step, raise_on_violation=False)
+    except VerifyError as exc:  # not raised with raise_on_violation=False; kept for clarity
+        res = exc.result
+    print(res.summary(max_listed=20))
+    if not res.ok and not args.warn_only:
+        raise VerifyError(f"{len(res.violations)} block(s) fail; first: "
+                          + res.violations[0].describe(res.clearance, res.tolerance), res)
     return 0
 
 
@@ -219,6 +307,23 @@ def register(subparsers) -> None:
     t.add_argument("--tcp", action="store_true", help="G43.4 tool-centre-point output")
     t.add_argument("--program-number", type=int, default=1000)
     t.add_argument("--no-line-numbers", action="store_true")
+    t.add_argument("--line-start", type=int, help="first N number (default: the step)")
+    t.add_argument("--line-step", type=int, default=10, help="N increment (default 10)")
+    t.add_argument("--line-wrap", type=int, default=99999,
+                   help="largest N before numbering starts again (default 99999; 0: never)")
+    t.add_argument("--g43", action="store_true",
+                   help="G43 H<tool> with the first move (machine-axes output; length in H)")
+    t.add_argument("--rotary-feed", default="tool-tip", choices=("tool-tip", "inverse-time", "axes"),
+                   help="feed of moves that turn rotary axes without TCP: per-block F that keeps "
+                        "the tool-tip feed (default), G93 inverse time, or F as programmed")
+    t.add_argument("--plunge-feed", type=float, help="feed of plunges along the tool axis, mm/min")
+    t.add_argument("--coolant", choices=("M07", "M08"), help="coolant on after the tool change")
+    t.add_argument("--preamble", help="preamble blocks ('\\n' between blocks; fields {program} "
+                                      "{tool} {work_offset} {spindle})")
+    t.add_argument("--tool-change", help="tool change blocks (default 'T{tool} M06')")
+    t.add_argument("--postamble", help="blocks before M30")
+    t.add_argument("--probe-log", action="store_true",
+                   help="probe-bowls: record skip positions with POPEN/DPRNT (read_skip_log)")
     t.add_argument("--spindle", type=float, help="spindle speed, rpm (rotating tools)")
     t.add_argument("--tool-number", type=int, default=1)
     t.add_argument("--tool-radius", type=float, help="ball / probe radius, mm")
@@ -227,6 +332,32 @@ def register(subparsers) -> None:
     t.add_argument("--step", type=float, help="mm between points along a pass")
     t.add_argument("--grid", type=float, default=0.01, help="virtual check grid, mm")
     t.add_argument("--param", action="append", metavar="NAME=VALUE", help="layout parameter")
+    t.add_argument("--stock", help="stock for the verification: box:x0,y0,z0,x1,y1,z1 (mm), "
+                                   "plane:Z or a STEP file (default: the part's blank)")
+    t.add_argument("--part", help="STEP of the finished part: feed moves must not gouge it")
+    t.add_argument("--clearance", type=float, default=0.2,
+                   help="least distance of rapid moves from the stock, mm (default 0.2)")
+    t.add_argument("--warn-only", action="store_true",
+                   help="write the program even if the verification fails (prints the failures)")
     t.set_defaults(func=cmd_toolpath)
+
+    v = subparsers.add_parser(
+        "verify", help="simulate an NC program through the machine model against stock and part",
+        description="Run every block (rapids included, axes interpolated linearly as the control "
+                    "does) through the machine's forward model and check rapids against the stock "
+                    "with a clearance and feeds against the part (docs/verify.md).")
+    v.add_argument("program", help="NC program (.nc)")
+    v.add_argument("-m", "--machine", required=True, help="preset name or machine TOML")
+    v.add_argument("--stock", help="box:x0,y0,z0,x1,y1,z1 (mm), plane:Z or a STEP file")
+    v.add_argument("--part", help="STEP of the finished part (feed moves must not gouge it)")
+    v.add_argument("--clearance", type=float, default=0.2, help="rapid clearance, mm (default 0.2)")
+    v.add_argument("--tolerance", type=float, default=5e-4,
+                   help="allowed depth of feed moves into the part, mm (default 0.0005)")
+    v.add_argument("--tool-radius", type=float, default=0.0,
+                   help="ball radius of the tool, mm (0: the tool point, e.g. a V tool's edge)")
+    v.add_argument("--errors", help="errors TOML of the real machine (default: nominal)")
+    v.add_argument("--step", type=float, default=0.005, help="largest sample spacing, mm")
+    v.add_argument("--warn-only", action="store_true", help="report failures, exit 0")
+    v.set_defaults(func=cmd_verify)
 
 

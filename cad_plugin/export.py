@@ -18,14 +18,31 @@ def _shape(obj, path):
     return obj
 
 
-def export_step(shape, path: str | os.PathLike) -> Path:
-    """Write `shape` (mm) to a STEP file (AP214, unit mm)."""
+def export_step(shape, path: str | os.PathLike, name: str | None = None) -> Path:
+    """Write `shape` (mm) to a STEP file (AP214, unit mm) whose product is called `name`
+    (default: the file name without suffix), so CAD/CAM importers show a part name instead of
+    an empty or generic one."""
     shape = _shape(shape, path)
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPCAFControl import STEPCAFControl_Writer
+    from OCP.STEPControl import STEPControl_AsIs
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDataStd import TDataStd_Name
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+    name = name or Path(path).stem
+    # The product name lives in an XCAF document: one label holding the shape, named.
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    label = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main()).AddShape(shape.wrapped, False)
+    TDataStd_Name.Set_s(label, TCollection_ExtendedString(name))
+    Interface_Static.SetCVal_s("write.step.unit", "MM")
+    writer = STEPCAFControl_Writer()
+    if not writer.Transfer(doc, STEPControl_AsIs):
+        raise MtcompError(f"{path}: STEP export failed (transfer)")
     with atomic_path(path) as tmp:
-        # OCC picks the writer from the file name only through cq.exporters; call the shape's
-        # own writer so the temporary name does not matter.
-        status = shape.exportStep(str(tmp))
-        if int(status) != 1:  # IFSelect_RetDone
+        status = writer.Write(str(tmp))
+        if status != IFSelect_RetDone:
             raise MtcompError(f"{path}: STEP export failed ({status})")
     return Path(path)
 

@@ -16,6 +16,8 @@ compensated.  The format is described in docs/cad.md.
 """
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,18 +28,48 @@ from .toolpath import FEED, PROBE, RAPID, Toolpath
 
 @dataclass(frozen=True)
 class PostOptions:
-    """program_number: O word (1-9999).  tcp: G43.4 tool-centre-point output instead of machine
-    axes.  line_numbers / line_step: N words.  decimals: per-axis override {letter: n}; default
-    from the axis resolution.  spindle: rpm for rotating tools (None: no spindle, e.g. a
-    non-rotational tool or a probe).  work_offset: G54..G59.  comment: free text in the header."""
+    """Options of :func:`post` (docs/cad.md, "Post-processor").
+
+    program_number: O word (1-9999).  tcp: G43.4 tool-centre-point output instead of machine
+    axes.  line_numbers / line_start / line_step / line_wrap: N words (none if line_numbers is
+    False), the first number, the increment, and the largest number before they start again at
+    line_start (99999: the five digits of most controls; 0: never wrap).  decimals: per-axis
+    override {letter: n}; default from the axis resolution.  spindle: rpm for rotating tools
+    (None: no spindle, e.g. a non-rotational tool or a probe).  coolant: M code switched on
+    after the spindle and off (M09) at the end, e.g. "M08"; None: none.  work_offset: G54..G59.
+    comment: free text in the header.  tool_length: write ``G43 H<tool>`` with the first move in
+    machine-axes mode (the Z words are the tool edge; the control adds the length in H).
+    rotary_feed: feed of feed moves that turn a rotary axis without TCP, where a Fanuc control
+    spreads F over all axes with degrees counted as mm: "tool-tip" (default) writes per block
+    the G94 F that gives the programmed feed at the tool tip, "inverse-time" writes G93 blocks
+    with F = 1 / duration in 1/min, "axes" leaves F as programmed (tool tip slower or faster).
+    plunge_feed: mm/min for moves into the material along the tool axis (None: the feed).
+    preamble / tool_change / postamble: block templates, one block per line, with the fields
+    {program} {tool} {work_offset} {spindle}; the postamble comes before M30.
+    probe_log: probing programs record every skip position with a Fanuc macro (POPEN, DPRNT
+    of the skip variables, PCLOS) in the format :func:`read_skip_log` reads.  skip_vars:
+    {axis letter: macro variable number} of the skip positions; default X Y Z 5061-5063, the
+    other axes 5064... in A B C order.
+    """
     program_number: int = 1000
     tcp: bool = False
     line_numbers: bool = True
     line_step: int = 10
+    line_start: int | None = None
+    line_wrap: int = 99999
     decimals: dict | None = None
     spindle: float | None = None
+    coolant: str | None = None
     work_offset: str = "G54"
     comment: str = ""
+    tool_length: bool = False
+    rotary_feed: str = "tool-tip"
+    plunge_feed: float | None = None
+    preamble: str = "G21 G90 G94 G17 G40 G49 G80 {work_offset}"
+    tool_change: str = "T{tool} M06"
+    postamble: str = ""
+    probe_log: bool = False
+    skip_vars: dict | None = None
 
     def __post_init__(self):
         if not 1 <= int(self.program_number) <= 9999:
@@ -46,6 +78,21 @@ class PostOptions:
         if self.work_offset not in ("G54", "G55", "G56", "G57", "G58", "G59"):
             raise InputError(f"work offset must be G54..G59, got {self.work_offset}",
                              field="work_offset")
+        if self.rotary_feed not in ("tool-tip", "inverse-time", "axes"):
+            raise InputError(f"rotary_feed must be tool-tip, inverse-time or axes, got "
+                             f"{self.rotary_feed!r}", field="rotary_feed")
+        start = self.line_step if self.line_start is None else self.line_start
+        if self.line_step < 1 or start < 1 or (self.line_wrap and self.line_wrap <= start):
+            raise InputError("line numbers need step >= 1, start >= 1 and wrap > start (0: no wrap)",
+                             field="line_numbers")
+        if self.plunge_feed is not None and not self.plunge_feed > 0:
+            raise InputError("plunge feed must be > 0 mm/min", field="plunge_feed")
+        if self.coolant is not None and self.coolant.upper() not in ("M07", "M08"):
+            raise InputError(f"coolant must be M07 or M08, got {self.coolant!r}", field="coolant")
+
+    @property
+    def first_line(self) -> int:
+        return self.line_step if self.line_start is None else self.line_start
 
 
 def _clean(text: str) -> str:
@@ -77,6 +124,59 @@ def axis_words(machine, q: np.ndarray, tcp: bool) -> tuple[list[str], np.ndarray
     return letters, values
 
 
+def _template(text: str, fields: dict, what: str) -> list[str]:
+    try:
+        out = text.format(**fields)
+    except (KeyError, IndexError, ValueError) as exc:
+        raise InputError(f"template {text!r}: {exc}; fields: {', '.join('{' + k + '}' for k in fields)}",
+                         field=what) from None
+    return [ln.strip() for ln in out.splitlines() if ln.strip()]
+
+
+def default_skip_vars(machine) -> dict:
+    """Macro variables of the skip position per axis letter: X Y Z #5061-#5063 (Fanuc), then the
+    other axes in A B C U V W order from #5064."""
+    order = [a for a in "XYZABCUVW" if a in machine.axis_names]
+    return {a: 5061 + k for k, a in enumerate(order)}
+
+
+def _block_feeds(machine, path: Toolpath, q: np.ndarray, options: PostOptions):
+    """Per point: ("G94"|"G93", F) of the move into it (None for rapids, probing, point 0)."""
+    from ..kinematics import forward
+    n = len(path)
+    rot = list(machine.rotary_indices)
+    lin = [i for i in range(machine.n_axes) if i not in rot]
+    p = forward(machine, q).p
+    dp = np.diff(p, axis=0)
+    tip = np.linalg.norm(dp, axis=1)
+    feed = np.full(n - 1, float(path.feed))
+    if options.plunge_feed is not None:
+        down = np.einsum("ij,ij->i", dp, -path.axis[1:])
+        feed[(tip > 0) & (down > math.cos(math.radians(10.0)) * tip)] = options.plunge_feed
+    dq = np.diff(q, axis=0)
+    turns = np.any(dq[:, rot] != 0, axis=1) if rot else np.zeros(n - 1, bool)
+    plain = ~turns | options.tcp | (options.rotary_feed == "axes") | (tip == 0)
+    length = np.sqrt(np.sum(dq[:, lin] ** 2, axis=1) + np.sum(dq[:, rot] ** 2, axis=1))
+    safe_tip = np.where(tip > 0, tip, 1.0)
+    out = [None] * n
+    for i in np.nonzero(path.motion[1:] == FEED)[0]:
+        if plain[i]:
+            out[i + 1] = ("G94", float(feed[i]))
+        elif options.rotary_feed == "inverse-time":
+            out[i + 1] = ("G93", float(feed[i] / safe_tip[i]))        # 1 / block duration, 1/min
+        else:
+            # Fanuc G94 with rotary axes: F is the feed along the vector of all axis moves, deg
+            # counted as mm; this F gives the block the duration tip / feed.
+            out[i + 1] = ("G94", float(feed[i] * length[i] / safe_tip[i]))
+    return out
+
+
+def _fmt_feed(f: float) -> str:
+    """F word: up to 4 significant decimals, never in exponent form."""
+    s = f"{f:.4f}".rstrip("0")
+    return s + "0" if s.endswith(".") else s
+
+
 def post(machine, path: Toolpath, q: np.ndarray | None = None, options: PostOptions = PostOptions(),
          errors=None, errors_name: str = "") -> str:
     """NC program text for `path` on `machine`.
@@ -97,18 +197,30 @@ def post(machine, path: Toolpath, q: np.ndarray | None = None, options: PostOpti
     if unknown:
         raise InputError(f"decimals given for axes {sorted(unknown)} the machine does not have",
                          field="decimals")
+    probing = bool(np.any(path.motion == PROBE))
+    skip_vars = dict(options.skip_vars or default_skip_vars(machine))
+    if options.probe_log and probing:
+        missing = [a for a in letters if a not in skip_vars]
+        if missing:
+            raise InputError(f"no skip variable for axes {missing}", field="skip_vars")
 
     lines: list[str] = []
-    n = [0]
+    n = [None]
 
     def block(text: str) -> None:
         if options.line_numbers:
-            n[0] += options.line_step
-            lines.append(f"N{n[0]} {text}")
+            nxt = options.first_line if n[0] is None else n[0] + options.line_step
+            if options.line_wrap and nxt > options.line_wrap:
+                nxt = options.first_line
+            n[0] = nxt
+            lines.append(f"N{nxt} {text}")
         else:
             lines.append(text)
 
     tool = path.tool
+    fields = {"program": int(options.program_number), "tool": tool.number,
+              "work_offset": options.work_offset,
+              "spindle": int(round(options.spindle)) if options.spindle else 0}
     comp = (f"COMPENSATED FOR {errors_name or 'GIVEN ERRORS'}" if errors is not None
             else "NOT COMPENSATED")
     lines += ["%", f"O{int(options.program_number):04d} ({_clean(path.name or 'MTCOMP')})",
@@ -120,37 +232,136 @@ def post(machine, path: Toolpath, q: np.ndarray | None = None, options: PostOpti
               f"({len(path)} POSES FROM MTCOMP CAD_PLUGIN)"]
     if options.comment:
         lines.append(f"({_clean(options.comment)})")
-    block(f"G21 G90 G94 G17 G40 G49 G80 {options.work_offset}")
-    block(f"T{tool.number} M06")
+    if options.probe_log and probing:
+        lines.append("(SKIP POSITIONS: " + " ".join(f"{a}#{skip_vars[a]}" for a in letters)
+                     + "; DPRNT LINES T<BOWL> I J K <AXES>)")
+    for b in _template(options.preamble, fields, "preamble"):
+        block(b)
+    for b in _template(options.tool_change, fields, "tool_change"):
+        block(b)
     if options.spindle:
         block(f"S{int(round(options.spindle))} M03")
+    if options.coolant:
+        block(options.coolant.upper())
     if options.tcp:
         block(f"G43.4 H{tool.number}")
+    if options.probe_log and probing:
+        block("POPEN")
 
+    feeds = _block_feeds(machine, path, q, options)
     strs = [[_fmt(v, dec[a]) for v in values[:, k]] for k, a in enumerate(letters)]
     last = [None] * len(letters)
     last_g = None
     last_f = None
+    feed_mode = "G94"
+    length_on = not options.tool_length or options.tcp
+    touch = 0
+    centres = path.meta.get("centres")
     for i in range(len(path)):
         m = int(path.motion[i])
-        axes = [(k, a + strs[k][i]) for k, a in enumerate(letters)
-                if strs[k][i] != last[k] or (m == PROBE and k == 0)]
+        axes = [(k, a + strs[k][i]) for k, a in enumerate(letters) if strs[k][i] != last[k]]
         if not axes:
             continue  # no motion: nothing to write, modal state unchanged
         g = {RAPID: "G00", FEED: "G01", PROBE: "G31"}[m]
-        words = [g] if (m == PROBE or g != last_g) else []
+        words = []
+        mode = feeds[i][0] if feeds[i] is not None else None
+        if mode is not None and mode != feed_mode:
+            words.append(mode)
+            feed_mode = mode
+        if m == PROBE or g != last_g:
+            words.append(g)
         last_g = None if m == PROBE else g  # G31 is one-shot: the next block restates G01/G00
+        if not length_on:
+            words += [f"G43 H{tool.number}"]
+            length_on = True
         for k, w in axes:
             words.append(w)
             last[k] = strs[k][i]
-        if m != RAPID and path.feed != last_f:
-            words.append(f"F{path.feed:g}")
-            last_f = path.feed
+        if m == PROBE:
+            if path.feed != last_f:
+                words.append(f"F{_fmt_feed(path.feed)}")
+                last_f = path.feed
+        elif feeds[i] is not None:
+            f = feeds[i][1]
+            if mode == "G93" or f != last_f:   # G93: F on every block
+                words.append(f"F{_fmt_feed(f)}")
+                last_f = f if mode != "G93" else None
+        if m == PROBE and options.probe_log:
+            touch += 1
+            a = -path.normal[i]
+            bowl = 1
+            if centres:
+                c = np.asarray(centres, float)
+                bowl = int(np.argmin(np.linalg.norm(c - path.p[i, :2], axis=1))) + 1
+            block(f"#100={bowl}")
+            for k, v in zip((101, 102, 103), a):
+                block(f"#{k}={v:.6f}")
         block(" ".join(words))
+        if m == PROBE and options.probe_log:
+            vals = "*".join(f"{a}#{skip_vars[a]}[{_int_digits(machine, a)}"
+                            f"{min(dec[a], 8 - _int_digits(machine, a))}]" for a in letters)
+            block(f"DPRNT[T#100[30]*I#101[16]*J#102[16]*K#103[16]*{vals}]")
+    if feed_mode == "G93":
+        block("G94")
+    if options.probe_log and probing:
+        block("PCLOS")
     if options.tcp:
         block("G49")
+    elif options.tool_length:
+        block("G49")
+    if options.coolant:
+        block("M09")
     if options.spindle:
         block("M05")
+    for b in _template(options.postamble, fields, "postamble"):
+        block(b)
     block("M30")
     lines.append("%")
     return "\n".join(lines) + "\n"
+
+
+def _int_digits(machine, letter: str) -> int:
+    """Integer digits of a DPRNT field [ab] for an axis: enough for its travel.  Fanuc allows
+    a + b <= 8, so the decimals give way where the travel needs three digits (10 nm, far below
+    a probe's repeatability)."""
+    lo, hi = machine.axis(letter).limits
+    return max(1, len(str(int(max(abs(lo), abs(hi))))))
+
+
+def read_skip_log(text: str, machine, probe_radius: float, filename: str = "<string>"):
+    """Touches from the skip-position log a ``probe_log`` program writes (DPRNT lines ``T<bowl>
+    I<ax> J<ay> K<az> <axis letter><value> ...``, spaces and leading zeros as the control prints
+    them; other lines are ignored).
+
+    The skip positions are axis positions: the probe centre in the nominal workpiece frame is
+    the nominal forward model of those positions plus `probe_radius` along the tool axis, which
+    is what the touches CSV holds (docs/workpiece-setting.md).  Returns
+    :class:`mtcomp.setting.workpiece.Touches`; write it with ``write_touches``."""
+    from ..kinematics import forward
+    from ..setting.workpiece import Touches
+    word = re.compile(r"([A-Z])\s*([-+]?\s*(?:\d+\.?\d*|\.\d+))")
+    bowls, approach, qs, src = [], [], [], []
+    letters = list(machine.axis_names)
+    for k, line in enumerate(text.splitlines(), 1):
+        s = line.strip().upper()
+        if not s.startswith("T"):
+            continue
+        vals = {}
+        for letter, num in word.findall(s):
+            vals[letter] = float(num.replace(" ", ""))
+        need = ["T", "I", "J", "K", *letters]
+        missing = [x for x in need if x not in vals]
+        if missing:
+            raise InputError(f"skip log line without {', '.join(missing)}", filename, k)
+        a = np.array([vals["I"], vals["J"], vals["K"]])
+        if not np.linalg.norm(a) > 0:
+            raise InputError("approach direction I J K is zero", filename, k, "I")
+        bowls.append(int(round(vals["T"])))
+        approach.append(a / np.linalg.norm(a))
+        qs.append([vals[x] for x in letters])
+        src.append(k)
+    if not bowls:
+        raise InputError("no skip positions (lines T<bowl> I J K and the axes)", filename)
+    pose = forward(machine, np.array(qs, float))
+    centre = pose.p + probe_radius * pose.v
+    return Touches(np.array(bowls), centre, np.array(approach), np.array(src), filename)

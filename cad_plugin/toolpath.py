@@ -473,10 +473,9 @@ def to_axes(machine, path: Toolpath, errors=None) -> np.ndarray:
     from ..kinematics import Pose, compensate
     n = len(path)
     tool_axis = np.asarray(machine.tool_axis, float)
-    # The machine's tool frame: tool axis = machine.tool_axis, x_t = the machine x made normal
-    # to it; the toolpath's frames are expressed with the tool axis as third column.
-    ref = np.array([[1.0, 0, 0]]) if abs(tool_axis[0]) < 0.9 else np.array([[0, 1.0, 0]])
-    M = _frames(ref, tool_axis[None])[0]
+    # The machine's tool frame: tool axis = machine.tool_axis, x_t = the rake direction of a
+    # non-rotational tool (rake_direction); the toolpath's frames carry the same columns.
+    M = machine_tool_frame(machine)
     R = path.R @ M.T
     rot = list(machine.rotary_indices)
     if not rot and np.max(np.abs(path.axis - tool_axis)) > 1e-9:
@@ -497,9 +496,95 @@ def to_axes(machine, path: Toolpath, errors=None) -> np.ndarray:
         a = b
     q0 = _pinv_solve(machine, q0, path.p)
     target = Pose(path.p, R, machine.tool_axis)
-    q = _unwrap(machine, compensate(machine, target, None, q0))
+    q = compensate(machine, target, None, q0)
+    if path.tool.kind == "vtool" and machine.n_rotary < 3:
+        q = _align_rake(machine, q, R, path.p)
+    q = _unwrap(machine, q)
     if errors is not None:
         q = compensate(machine, target, errors, q)
+    return q
+
+
+def rake_direction(machine) -> np.ndarray:
+    """Unit direction (3,) the rake face of a non-rotational tool faces, in the machine's tool
+    frame with every rotary axis at 0: ``rake_direction = [x, y, z]`` in the machine TOML's
+    [machine] table if given; else machine x on machines with three rotary axes (they set the
+    full tool frame), else the direction of the first rotary axis normal to the tool axis (a
+    tilt of that axis then turns the tool about the feed, as paper 000's B-tilted grooves need),
+    else machine x.  Always made normal to the tool axis."""
+    ta = np.asarray(machine.tool_axis, float)
+    given = machine.extra.get("rake_direction")
+    if given is not None:
+        d = np.asarray(given, float)
+        if d.shape != (3,) or np.linalg.norm(np.cross(d, ta)) < 1e-6:
+            raise InputError("rake_direction must be 3 numbers not along the tool axis",
+                             field="machine.rake_direction")
+    else:
+        d = np.array([1.0, 0.0, 0.0]) if abs(ta[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        if machine.n_rotary < 3:
+            for i in machine.rotary_indices:
+                u = np.asarray(machine.axes[i].direction, float)
+                if abs(u @ ta) < 1e-9:
+                    d = u
+                    break
+    d = d - (d @ ta) * ta
+    return d / np.linalg.norm(d)
+
+
+def machine_tool_frame(machine) -> np.ndarray:
+    """(3,3) columns: rake direction, tool axis x rake, tool axis (machine tool frame)."""
+    ta = np.asarray(machine.tool_axis, float)
+    return _frames(rake_direction(machine)[None], ta[None])[0]
+
+
+def rake_error(machine, path: Toolpath, q: np.ndarray, errors=None) -> np.ndarray:
+    """Angle (N,) deg about the tool axis between the rake direction the machine reaches with
+    commands q and the toolpath's x_t (the feed direction for a V tool); NaN where the tool
+    axis itself is off by more than 1 deg."""
+    from ..kinematics import forward
+    pose = forward(machine, q, errors)
+    M = machine_tool_frame(machine)
+    got = np.einsum("nij,j->ni", pose.R, M[:, 0])
+    want, v = path.R[:, :, 0], path.axis
+    ang = np.degrees(np.arctan2(np.einsum("ni,ni->n", np.cross(got, want), v),
+                                np.einsum("ni,ni->n", got, want)))
+    off = np.einsum("ni,ni->n", pose.v, v) < math.cos(math.radians(1.0))
+    return np.where(off, np.nan, ang)
+
+
+def _align_rake(machine, q: np.ndarray, R_target: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Machines that set only the tool direction (fewer than three rotary axes): where a rotary
+    axis turns the workpiece (or tool) about the tool axis itself (B = 0 on a B-C table, the
+    pole), that axis is free for the direction; turn it so the rake face faces the feed, then
+    move the linear axes to keep the tool point.  Elsewhere the direction fixes the rotary
+    angles and the rake stays where the kinematics puts it (see rake_error)."""
+    from ..kinematics import forward
+    M = machine_tool_frame(machine)
+    q = q.copy()
+
+    def state(qq):
+        pose = forward(machine, qq)
+        got = np.einsum("nij,j->ni", pose.R, M[:, 0])
+        want = np.einsum("nij,j->ni", R_target, M[:, 0])
+        v = pose.v
+        phi = np.arctan2(np.einsum("ni,ni->n", np.cross(got, want), v), np.einsum("ni,ni->n", got, want))
+        return v, phi
+
+    v0, phi = state(q)
+    done = np.zeros(len(q), bool)
+    for i in machine.rotary_indices:
+        d = 1e-3  # deg
+        qd = q.copy()
+        qd[:, i] += d
+        v1, phi1 = state(qd)
+        spin = -(phi1 - phi) / math.radians(d)          # d(rake angle)/d(q_i), 1 or -1 at a pole
+        still = np.linalg.norm(v1 - v0, axis=1) < 1e-9 * d
+        k = still & (np.abs(np.abs(spin) - 1) < 1e-6) & ~done & (np.abs(phi) > 1e-12)
+        if k.any():
+            q[k, i] += np.degrees(phi[k]) / spin[k]
+            done |= k
+    if done.any():
+        q[done] = _pinv_solve(machine, q[done], p[done])
     return q
 
 
@@ -517,3 +602,90 @@ def _unwrap(machine, q: np.ndarray) -> np.ndarray:
         if np.all((u >= lo + 1e-6) & (u <= hi - 1e-6)):
             q[:, i] = u
     return q
+
+
+# ------------------------------------------------------------------------------ safe links
+def retract_axis(machine) -> int:
+    """Index of the linear axis that moves the tool away from the workpiece along the tool
+    axis (rotary axes at 0): the retract axis of the links between passes."""
+    ta = np.asarray(machine.tool_axis, float)
+    for i, a in enumerate(machine.axes):
+        if not a.is_rotary and abs(abs(np.asarray(a.direction, float) @ ta) - 1) < 1e-9:
+            return i
+    raise MtcompError(f"machine {machine.name}: no linear axis along the tool axis to retract")
+
+
+def link_safely(machine, path: Toolpath, q: np.ndarray, stock=None, clearance: float = 0.2,
+                step: float = 0.005, errors=None) -> tuple[Toolpath, np.ndarray]:
+    """Rapid links that keep `clearance` mm from the stock, rotary moves at a safe height.
+
+    Every rapid block that turns a rotary axis, or whose straight axis interpolation would come
+    closer than `clearance` to the stock, becomes: retract along the tool axis (the retract
+    axis alone), turn the rotary axes there, move the other linear axes, then the original
+    rapid down to the approach point.  The retract height is the lowest of the block's two
+    heights raised by 0, 1, 2, 5, 10 ... mm at which all four moves keep the clearance
+    (checked with :func:`mtcomp.verify.sweep`, tool radius included); without a stock, the
+    top of the retract axis' travel less 1 mm.  Returns the new toolpath (inserted poses:
+    motion RAPID, nominal forward pose, no contact normal) and its axis commands."""
+    from ..kinematics import forward
+    from ..verify import sweep
+    q = np.asarray(q, float)
+    z = retract_axis(machine)
+    rot = list(machine.rotary_indices)
+    res = machine.resolutions
+    lo, hi = machine.axes[z].limits
+    sign = 1.0 if np.asarray(machine.axes[z].direction, float) @ np.asarray(machine.tool_axis, float) > 0 else -1.0
+    r = path.tool.radius if path.tool.kind in ("ball", "probe") else 0.0
+
+    def clear(qs) -> bool:
+        if stock is None:
+            return True
+        pts, _, _ = sweep(machine, qs, np.arange(1, len(qs)), errors, r, step)
+        return bool(np.all(stock.distance(pts) - r - step / 2 >= clearance))
+
+    inserts = {}
+    for i in np.nonzero(path.motion == RAPID)[0]:
+        if i == 0:
+            continue
+        a, b = q[i - 1], q[i]
+        turns = bool(rot) and np.any(np.abs(b[rot] - a[rot]) > res[rot] / 2)
+        if not turns and clear(np.array([a, b])):
+            continue
+        base = max(a[z], b[z]) if sign > 0 else min(a[z], b[z])
+        heights = ([hi - 1.0 if sign > 0 else lo + 1.0] if stock is None else
+                   [base + sign * h for h in (0, 1, 2, 5, 10, 20, 50, 100, 200)])
+        for h in heights:
+            if not lo <= h <= hi:
+                continue
+            up, turn, over = a.copy(), a.copy(), b.copy()
+            up[z] = turn[z] = over[z] = h
+            turn[rot] = b[rot]
+            seq = np.array([a, up, turn, over, b])
+            if clear(seq):
+                inserts[int(i)] = seq[1:4]
+                break
+        else:
+            raise MtcompError(f"pose {i}: no retract height within the travel of "
+                              f"{machine.axes[z].name} keeps {clearance:g} mm from the stock "
+                              "for this rapid link")
+    if not inserts:
+        return path, q
+    M = machine_tool_frame(machine)
+    b = _Builder()
+    qs = []
+    last = 0
+    for i in sorted(inserts):
+        sl = slice(last, i)
+        b.add(path.p[sl], path.R[sl], 0)
+        b.m[-1] = path.motion[sl].copy()
+        b.n[-1] = path.normal[sl]
+        qs.append(q[sl])
+        pose = forward(machine, inserts[i])
+        b.add(pose.p, pose.R @ M, RAPID)
+        qs.append(inserts[i])
+        last = i
+    b.add(path.p[last:], path.R[last:], 0)
+    b.m[-1] = path.motion[last:].copy()
+    b.n[-1] = path.normal[last:]
+    qs.append(q[last:])
+    return b.build(path.tool, path.feed, path.name, **path.meta), np.vstack(qs)

@@ -118,11 +118,15 @@ def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str 
 
 
 def save_figure(fig, path: str | os.PathLike, dpi: int | None = None) -> Path:
-    """Write a matplotlib figure as PNG atomically, then close it (figures are not reused)."""
-    import matplotlib.pyplot as plt
+    """Write a matplotlib figure as PNG atomically.  A `matplotlib.figure.Figure` renders with
+    the Agg canvas whatever the session's backend; pyplot is neither imported nor switched, and a
+    figure that pyplot manages is closed there (so a notebook does not show it twice)."""
+    import sys
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", **({} if dpi is None else {"dpi": dpi}))
-    plt.close(fig)
+    plt = sys.modules.get("matplotlib.pyplot")
+    if plt is not None and getattr(fig.canvas, "manager", None) is not None:
+        plt.close(fig)
     return Path(path)
 
 

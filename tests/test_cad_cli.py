@@ -18,6 +18,10 @@ def test_features_writes_step_and_stl(tmp_path, capsys):
                  "--param", "bowl_depth=0.5"]) == 0
     expected = F.volume(F.bowl_blank(F.BowlBlankLayout(bowl_depth=0.5)))
     assert F.volume(import_step(step)) == pytest.approx(expected, rel=1e-9)
+    # The STEP product carries the part's name (issue 19: no product name), unit mm.
+    text = step.read_text()
+    assert "PRODUCT('bowl-blank: blank with three R2 bowls (paper 001)'" in text
+    assert "SI_UNIT(.MILLI.,.METRE.)" in text
     assert stl.stat().st_size > 84
     assert f"volume {expected:.9f}" in capsys.readouterr().out
 
@@ -59,15 +63,21 @@ def test_toolpath_grating_plain_axes(tmp_path):
     assert main(["cad", "toolpath", "grating", "-m", "robonano-ui", "-o", str(nc),
                  "--png", str(tmp_path / "g.png"), "--param", "n_grooves=3"]) == 0
     prog = gcode.parse(nc.read_text(), axes=("X", "Y", "Z", "A", "B", "C"))
-    # per groove: approach, 16 deg / 0.25 deg + 1 = 65 points on the groove, retract
-    assert prog.position.shape[0] == 3 * (1 + 65 + 1)
+    # per groove: approach, 16 deg / 0.25 deg + 1 = 65 points on the groove, retract; between
+    # grooves the rotary axes turn in a link of their own (retract, turn, move over) before the
+    # approach rapid, so no rapid turns a rotary axis while it moves a linear one.
+    n_link = prog.position.shape[0] - 3 * (1 + 65 + 1)
+    assert 0 < n_link <= 2 * 3
+    fast = np.nonzero(prog.motion == 0)[0][1:]  # from the second rapid on
+    d = np.abs(prog.position[fast] - prog.position[fast - 1]) > 1e-9
+    assert not np.any(d[:, 3:].any(axis=1) & d[:, :3].any(axis=1))
 
 
 def test_toolpath_deviation_is_reported_without_a_png(tmp_path, capsys):
     assert main(["cad", "toolpath", "grating", "-m", "robonano-ui", "-o", str(tmp_path / "g.nc"),
                  "--param", "n_grooves=1"]) == 0
     out = capsys.readouterr().out
-    assert float(out.split("tool point deviation max ")[1].split(" um")[0]) < 0.005
+    assert float(out.split("tool point deviation max ")[1].split(" µm")[0]) < 0.005
     assert sorted(p.name for p in tmp_path.iterdir()) == ["g.nc"]
 
 
@@ -90,7 +100,18 @@ def test_grating_compensated_for_a_tool_setting_error(tmp_path, capsys):
     # Uncompensated, the edge is off by the whole offset at every point (a rigid offset in the
     # tool frame); compensated, by the command rounding only.
     off = np.linalg.norm([490.0, 680.0, -12.0])
-    unc = float(out.split("uncompensated: tool point deviation max ")[1].split(" um")[0])
+    unc = float(out.split("uncompensated: tool point deviation max ")[1].split(" µm")[0])
     assert unc == pytest.approx(off, abs=0.005)  # to the command rounding (1 nm, 1e-5 deg)
-    comp = float(out.split("deviation max ")[1].split(" um")[0])
+    comp = float(out.split("deviation max ")[1].split(" µm")[0])
     assert comp < 0.005
+
+
+def test_outputs_into_missing_folders_or_onto_folders_are_refused(tmp_path, capsys):
+    """Issue 19: `-o /nonexist/x.nc` created the folder; now a one-line error, nothing written."""
+    missing = tmp_path / "nope" / "x.nc"
+    assert main(["cad", "toolpath", "groove-plate", "-o", str(missing)]) == 2
+    assert "does not exist" in capsys.readouterr().err and not (tmp_path / "nope").exists()
+    assert main(["cad", "features", "bowl-blank", "-o", str(tmp_path)]) == 2
+    assert main(["cad", "toolpath", "groove-plate", "-o", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.count("error:") == 2

@@ -12,10 +12,24 @@ def test_demo_quick(tmp_path):
     r = subprocess.run([sys.executable, "-m", "mtcomp", "demo", "--quick", "--out", str(out)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
-    for k in range(1, 8):
-        assert f"[{k}/7]" in r.stdout
+    for k in range(1, 9):
+        assert f"[{k}/8]" in r.stdout
     html = (out / "report.html").read_text()
-    assert html.count("data:image/png;base64,") >= 3 and "<script" not in html
+    assert html.count("data:image/png;base64,") >= 4 and "<script" not in html
+    # The report opens with the summary table: hidden truth, measured, before/after, paper.
+    first = html.index("<h2>")
+    assert html[first:].startswith("<h2>Summary</h2><table>")
+    summary = html[first:html.index("<h2>", first + 1)]
+    for col in ("machine", "hidden (the truth)", "measured", "error before", "error after", "paper"):
+        assert f"<th>{col}</th>" in summary
+    for machine in ("robonano-ui", "robonano-a0ib", "vmc-moving-column"):
+        assert machine in summary
+    assert "Total time" in summary and "passed the verification" in summary
+    assert "Differences from the paper" in html and html.count("Error sources") >= 4
+    text = html.split("</style>")[1]
+    assert " um" not in text and "(um)" not in text and "µm" in text
+    assert (out / "summary.png").read_bytes()[:4] == b"\x89PNG"
+    assert "[um]" not in r.stdout and " um" not in r.stdout
     assert (out / "cad" / "pyramid.step").stat().st_size > 1000
     # The diagnosis names the concealed backlash.
     diag = json.loads((out / "diagnose" / "diagnosis.json").read_text())
@@ -25,3 +39,59 @@ def test_demo_quick(tmp_path):
     assert data["error_compensated_um"].max() < 0.2 * data["error_uncompensated_um"].max()
     # The compensated program the cell wrote exists and differs from the nominal one.
     assert (out / "nc" / "O1100.nc").read_text() != (out / "nc" / "O0100.nc").read_text()
+
+
+def test_plots_leave_the_callers_backend_alone(tmp_path):
+    """Notebook-style: a user has chosen a backend (svg here) and imported pyplot; every plotting
+    call of the demo and the CAD plugin returns a Figure, writes its PNG, and leaves the backend
+    and pyplot's figure list as they were (issue 19: library plotting switched them to Agg)."""
+    import matplotlib
+    original = matplotlib.get_backend()
+    matplotlib.use("svg")
+    try:
+        _plot_everything(tmp_path)
+    finally:
+        matplotlib.use(original)   # the rest of the test session keeps its backend
+
+
+def _plot_everything(tmp_path):
+    import matplotlib
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+
+    from mtcomp import demo
+    from mtcomp._io import save_figure
+    from mtcomp.cad_plugin import check as C, toolpath as T
+    before = (matplotlib.get_backend(), plt.get_fignums())
+    tp = T.pyramid_finishing(stepover=0.2, step=0.1)
+    x = np.linspace(-1, 1, 5)
+    form = C.FormCheck(x, x, np.zeros((5, 5)), 0.0, 0.0, 0.0, 0.0)
+    t = {"truth": np.array([0.34, 0.248, 0.197]), "estimate": np.array([0.3405, 0.2482, 0.196]),
+         "sigma": np.array([3e-4, 3e-4, 3e-3]), "before": {"A": (0.49, 0.68), "C": (0.29, 0.66)},
+         "after": {"A": (4e-4, 1e-3), "C": (6e-4, 7e-4)}}
+    M = type("M", (), {"widths": np.full(4, 3.455), "angles": np.full(2, 164.81)})
+    figs = [C.plot_check(tp, form, tmp_path / "check.png"),
+            C.plot_toolpath(tp, tmp_path / "path.png", q=np.zeros((len(tp), 3)), names="XYZ"),
+            demo.plot_tool_setting(t, tmp_path / "tool.png"),
+            demo.plot_pyramid({"comp": M, "unc": M}, tmp_path / "pyr.png")]
+    assert all(isinstance(f, Figure) for f in figs)
+    save_figure(figs[0], tmp_path / "again.png")
+    assert (matplotlib.get_backend(), plt.get_fignums()) == before
+    assert matplotlib.get_backend() == "svg"
+    assert all((tmp_path / n).read_bytes()[:4] == b"\x89PNG"
+               for n in ("check.png", "path.png", "tool.png", "pyr.png", "again.png"))
+    # No figure label says "um" for micrometres.
+    for f in figs:
+        labels = [a.get_ylabel() + a.get_xlabel() + a.get_title() for a in f.axes]
+        assert not any("[um]" in s or " um" in s for s in labels)
+
+
+def test_demo_out_onto_a_file_is_a_clean_error(tmp_path, capsys):
+    from mtcomp.cli import main
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    assert main(["demo", "--quick", "--out", str(afile)]) == 2
+    err = capsys.readouterr().err
+    assert "existing file" in err and "Traceback" not in err and afile.read_text() == "keep me"
+    assert main(["demo", "--quick", "--out", str(tmp_path / "no" / "such")]) == 2
+    assert not (tmp_path / "no").exists()

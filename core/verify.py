@@ -1,0 +1,481 @@
+"""Verification of NC programs: run a whole program through the machine model and check the
+tool against the stock (rapids keep a clearance) and the part (feeds do not gouge).
+
+Every block is interpolated in axis space as a control without tool centre point control does
+(G00 and G01 both linear in the axis commands; Fanuc parameter LRP = 1 for G00; G02/G03 on
+their circle in the plane axes, the other axes linear), and the real tool point comes from
+:func:`mtcomp.kinematics.forward` (nominal, or with an error set).  The samples along a block
+lie at most ``step`` mm apart (measured on the tool point, refined until true), so every point
+of the swept tool path lies within step/2 of a sample: the reported clearance is exact to
+step/2 and a violation is declared when ``clearance_at_samples - step/2 < clearance``.
+
+Checks (mm):
+* rapid blocks (G00): signed distance of the tool to the **stock** >= ``clearance``;
+* feed blocks (G01/G02/G03, not G31): the tool does not enter the **part** by more than
+  ``tolerance`` (the finished shape; the cut itself touches it);
+* G31 probing moves end past the surface by design and are not checked.
+
+The tool is a point (the edge of a V tool) or a ball of ``tool_radius`` about the point
+``tool_radius`` along the tool axis (ball end mill, probe).  The holder and the flanks of a V
+tool are not modelled.  Stocks: :class:`Box` (analytic), :class:`HalfSpace` (a plane with
+material below) and :class:`ShapeStock` (any CadQuery/OCP solid, e.g. from a STEP file, signed
+distance through OCP's BRepExtrema and solid classifier).  Units mm, deg; reports in µm.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._io import InputError, MtcompError
+
+RAPID, FEED, PROBE = 0, 1, 2
+
+
+class VerifyError(MtcompError):
+    """A program fails the verification; `result` holds the full report."""
+
+    def __init__(self, message: str, result: "VerifyResult"):
+        self.result = result
+        super().__init__(message)
+
+
+# ----------------------------------------------------------------------------------- stocks
+@dataclass(frozen=True)
+class Box:
+    """Axis-aligned box [lo, hi] in the workpiece frame, mm."""
+    lo: tuple
+    hi: tuple
+
+    def __post_init__(self):
+        lo, hi = np.asarray(self.lo, float), np.asarray(self.hi, float)
+        if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo):
+            raise InputError(f"box needs lo < hi in x, y, z, got {self.lo} {self.hi}", field="stock")
+
+    def distance(self, pts: np.ndarray) -> np.ndarray:
+        """Signed distance (N,) mm: positive outside, negative inside (exact for a box)."""
+        lo, hi = np.asarray(self.lo, float), np.asarray(self.hi, float)
+        c, h = (lo + hi) / 2, (hi - lo) / 2
+        d = np.abs(np.asarray(pts, float) - c) - h
+        out = np.linalg.norm(np.maximum(d, 0.0), axis=1)
+        return out + np.minimum(d.max(axis=1), 0.0)
+
+    def describe(self) -> str:
+        return ("box x [{:g}, {:g}] y [{:g}, {:g}] z [{:g}, {:g}] mm"
+                .format(self.lo[0], self.hi[0], self.lo[1], self.hi[1], self.lo[2], self.hi[2]))
+
+
+@dataclass(frozen=True)
+class HalfSpace:
+    """Material below the plane z = `top` (workpiece frame), mm."""
+    top: float = 0.0
+
+    def distance(self, pts: np.ndarray) -> np.ndarray:
+        return np.asarray(pts, float)[:, 2] - self.top
+
+    def describe(self) -> str:
+        return f"material below z = {self.top:g} mm"
+
+
+@dataclass(frozen=True)
+class CylinderZ:
+    """Material in the cylinder about the z axis of `radius` between z0 and z1, mm."""
+    radius: float
+    z0: float
+    z1: float
+
+    def distance(self, pts: np.ndarray) -> np.ndarray:
+        pts = np.asarray(pts, float)
+        dr = np.hypot(pts[:, 0], pts[:, 1]) - self.radius
+        dz = np.maximum(self.z0 - pts[:, 2], pts[:, 2] - self.z1)
+        return np.hypot(np.maximum(dr, 0), np.maximum(dz, 0)) + np.minimum(np.maximum(dr, dz), 0)
+
+    def describe(self) -> str:
+        return f"cylinder R{self.radius:g} z [{self.z0:g}, {self.z1:g}] mm"
+
+
+@dataclass(frozen=True)
+class SphereCavity:
+    """Material outside the sphere of `radius` about `centre` (a concave dish), mm."""
+    centre: tuple
+    radius: float
+
+    def distance(self, pts: np.ndarray) -> np.ndarray:
+        return self.radius - np.linalg.norm(np.asarray(pts, float) - np.asarray(self.centre, float), axis=1)
+
+    def describe(self) -> str:
+        return f"outside the sphere R{self.radius:g} about {tuple(self.centre)}"
+
+
+@dataclass(frozen=True)
+class Intersection:
+    """Material common to several stocks.  The distance is the largest of theirs: exact inside,
+    a lower bound outside (never larger than the true clearance, so a check stays safe)."""
+    parts: tuple
+
+    def distance(self, pts: np.ndarray) -> np.ndarray:
+        return np.max([s.distance(pts) for s in self.parts], axis=0)
+
+    def describe(self) -> str:
+        return " and ".join(s.describe() for s in self.parts)
+
+
+class ShapeStock:
+    """A CadQuery Workplane/Shape or OCP TopoDS_Shape as stock or part.
+
+    Signed distance per point through OCP (BRepExtrema_DistShapeShape for the distance,
+    BRepClass3d_SolidClassifier for the sign), about a millisecond per point near the solid;
+    points farther from the bounding box than `far` mm take the box distance (a lower bound,
+    which is all a clearance check needs)."""
+
+    def __init__(self, shape, name: str = "shape", far: float = 5.0):
+        import cadquery as cq
+        if isinstance(shape, cq.Workplane):
+            shape = shape.val()
+        self.shape = shape.wrapped if hasattr(shape, "wrapped") else shape
+        bb = cq.Shape.cast(self.shape).BoundingBox()
+        self.box = Box((bb.xmin, bb.ymin, bb.zmin), (bb.xmax, bb.ymax, bb.zmax))
+        self.name, self.far = name, far
+
+    @classmethod
+    def from_step(cls, path) -> "ShapeStock":
+        from pathlib import Path
+        p = Path(path)
+        if not p.is_file():
+            raise InputError("STEP file not found", p)
+        import cadquery as cq
+        try:
+            shape = cq.importers.importStep(str(p)).val()
+        except Exception as exc:  # OCP raises its own types for unreadable files
+            raise InputError(f"cannot read STEP: {exc}", p) from None
+        return cls(shape, p.name)
+
+    def distance(self, pts: np.ndarray) -> np.ndarray:
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepClass3d import BRepClass3d_SolidClassifier
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.gp import gp_Pnt
+        from OCP.TopAbs import TopAbs_IN
+        pts = np.asarray(pts, float)
+        d = self.box.distance(pts)
+        near = np.nonzero(d < self.far)[0]
+        classifier = BRepClass3d_SolidClassifier(self.shape)
+        for i in near:
+            p = gp_Pnt(*map(float, pts[i]))
+            ext = BRepExtrema_DistShapeShape(self.shape, BRepBuilderAPI_MakeVertex(p).Vertex())
+            dist = ext.Value()
+            classifier.Perform(p, 1e-7)
+            d[i] = -dist if classifier.State() == TopAbs_IN else dist
+        return d
+
+    def describe(self) -> str:
+        return f"solid {self.name} ({self.box.describe()})"
+
+
+def parse_stock(spec: str):
+    """Stock from the command line: ``box:x0,y0,z0,x1,y1,z1`` (mm), ``plane:Z`` (material below
+    z = Z) or a STEP file name."""
+    s = str(spec).strip()
+    if s.lower().startswith("box:"):
+        try:
+            v = [float(x) for x in s[4:].split(",")]
+        except ValueError:
+            v = []
+        if len(v) != 6:
+            raise InputError(f"expected box:x0,y0,z0,x1,y1,z1 in mm, got {spec!r}", field="--stock")
+        return Box(tuple(v[:3]), tuple(v[3:]))
+    if s.lower().startswith("plane:"):
+        try:
+            return HalfSpace(float(s[6:]))
+        except ValueError:
+            raise InputError(f"expected plane:Z in mm, got {spec!r}", field="--stock") from None
+    if s.lower().endswith((".step", ".stp")):
+        return ShapeStock.from_step(s)
+    raise InputError(f"stock must be box:x0,y0,z0,x1,y1,z1, plane:Z or a .step file, got {spec!r}",
+                     field="--stock")
+
+
+# ---------------------------------------------------------------------------------- sampling
+def _tool_points(machine, q: np.ndarray, errors, tool_radius: float) -> np.ndarray:
+    from .kinematics import forward
+    pose = forward(machine, q, errors, strict=False)
+    return pose.p + tool_radius * pose.v if tool_radius else pose.p
+
+
+def _interpolate(qa, qb, frac, arc=None):
+    """Axis positions at fractions `frac` (M,) between block ends qa, qb (M, n): linear, or for
+    arcs (centre (M, 2), sweep (M,), plane columns (M, 2)) on the circle."""
+    q = qa + frac[:, None] * (qb - qa)
+    if arc is not None:
+        centre, sweep, cols, is_arc = arc
+        k = np.nonzero(is_arc)[0]
+        if k.size:
+            iu, iv = cols[k, 0], cols[k, 1]
+            su, sv = qa[k, iu] - centre[k, 0], qa[k, iv] - centre[k, 1]
+            r0, a0 = np.hypot(su, sv), np.arctan2(sv, su)
+            eu, ev = qb[k, iu] - centre[k, 0], qb[k, iv] - centre[k, 1]
+            r1 = np.hypot(eu, ev)
+            a = a0 + frac[k] * sweep[k]
+            r = r0 + frac[k] * (r1 - r0)  # a control spreads a small radius mismatch linearly
+            q[k, iu] = centre[k, 0] + r * np.cos(a)
+            q[k, iv] = centre[k, 1] + r * np.sin(a)
+    return q
+
+
+def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
+          step: float = 0.005, arcs=None, max_rounds: int = 12):
+    """Samples of the tool along the moves into `blocks` (indices i >= 1: the move q[i-1] -> q[i]).
+
+    Returns (points (M,3) mm, owner (M,) block index, spacing (B,) largest distance between
+    consecutive samples of each block, mm).  The number of samples of each block doubles until
+    that spacing is <= step, so every point of the swept path is within step/2 of a sample.
+    arcs: optional (centre (N,2), sweep (N,), plane columns (N,2), is_arc (N,)) per block."""
+    blocks = np.asarray(blocks, int)
+    q = np.asarray(q, float)
+    if blocks.size == 0:
+        return np.zeros((0, 3)), np.zeros(0, int), np.zeros(0)
+    ends = _tool_points(machine, q, errors, tool_radius)
+    n = np.maximum(1, np.ceil(np.linalg.norm(ends[blocks] - ends[blocks - 1], axis=1) / step)).astype(int)
+    rot = list(machine.rotary_indices)
+    if rot:  # rotary blocks: start from 8 samples per degree turned, refined below
+        turn = np.abs(q[blocks][:, rot] - q[blocks - 1][:, rot]).max(axis=1)
+        n = np.maximum(n, np.ceil(turn * 8).astype(int))
+    if arcs is not None:
+        n = np.maximum(n, np.where(arcs[3][blocks], np.ceil(np.abs(arcs[1][blocks]) * 180).astype(int), 1))
+    for _ in range(max_rounds):
+        owner = np.repeat(np.arange(len(blocks)), n + 1)
+        start = np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+        frac = (np.arange(owner.size) - start) / np.repeat(n, n + 1)
+        b = blocks[owner]
+        sub = None if arcs is None else (arcs[0][b], arcs[1][b], arcs[2][b], arcs[3][b])
+        pts = _tool_points(machine, _interpolate(q[b - 1], q[b], frac, sub), errors, tool_radius)
+        gap = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        gap[np.cumsum(n + 1)[:-1] - 1] = 0.0  # across two blocks
+        spacing = np.zeros(len(blocks))
+        np.maximum.at(spacing, owner[:-1], gap)
+        bad = spacing > step * (1 + 1e-9)
+        if not bad.any():
+            break
+        n = np.where(bad, n * np.maximum(2, np.ceil(spacing / step)).astype(int), n)
+    return pts, blocks[owner], spacing
+
+
+# ----------------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class Violation:
+    """One block that fails: `kind` "rapid" (clearance to the stock) or "gouge" (into the part);
+    `value` the clearance (rapid) or the signed distance to the part (gouge), mm; `point` the
+    worst tool point (workpiece frame, mm); `block` row index, `line` source line (1-based)."""
+    block: int
+    line: int
+    kind: str
+    value: float
+    point: tuple
+    text: str = ""
+
+    def describe(self, clearance: float, tolerance: float) -> str:
+        where = f"line {self.line}" + (f" ({self.text.strip()})" if self.text else "")
+        x, y, z = self.point
+        if self.kind == "rapid":
+            what = ("the tool enters the stock" if self.value < 0 else "the tool passes the stock")
+            return (f"{where}: rapid move: {what} at {_um(self.value)} (clearance "
+                    f"{_um(clearance)} required) at x {x:.4f} y {y:.4f} z {z:.4f} mm")
+        return (f"{where}: feed move gouges the part by {_um(-self.value)} (tolerance "
+                f"{_um(tolerance)}) at x {x:.4f} y {y:.4f} z {z:.4f} mm")
+
+
+def _um(mm: float) -> str:
+    """A length in µm with the digits it needs (nm-level values keep them)."""
+    v = mm * 1e3
+    if abs(v) >= 100:
+        return f"{v:.0f} µm"
+    if abs(v) >= 1:
+        return f"{v:.2f} µm"
+    return f"{v * 1e3:.0f} nm"
+
+
+@dataclass(frozen=True)
+class VerifyResult:
+    """Outcome of :func:`verify_commands` / :func:`verify_program` (lengths mm).
+
+    min_clearance: smallest clearance of any rapid to the stock (inf without rapids or stock),
+    min_clearance_line: its source line; min_part: smallest signed distance of a feed move to
+    the part (inf without a part); violations: worst sample of every failing block."""
+    name: str
+    n_blocks: int
+    n_samples: int
+    step: float
+    clearance: float
+    tolerance: float
+    min_clearance: float
+    min_clearance_line: int
+    min_part: float
+    violations: tuple = field(default_factory=tuple)
+    stock: str = ""
+    part: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.violations
+
+    def summary(self, max_listed: int = 5) -> str:
+        head = (f"verify {self.name}: {self.n_blocks} blocks, {self.n_samples} tool samples at most "
+                f"{_um(self.step)} apart (clearances exact to {_um(self.step / 2)})")
+        lines = [head]
+        if self.stock:
+            mc = ("no rapid move" if not math.isfinite(self.min_clearance) else
+                  f"min rapid clearance {_um(self.min_clearance)} at line {self.min_clearance_line}")
+            lines.append(f"  stock {self.stock}: {mc} (required {_um(self.clearance)})")
+        if self.part:
+            mp = ("no feed move" if not math.isfinite(self.min_part) else
+                  f"feed moves reach {_um(-self.min_part)} into it" if self.min_part < 0 else
+                  f"feed moves stay {_um(self.min_part)} off it at least")
+            lines.append(f"  part {self.part}: {mp} (tolerance {_um(self.tolerance)})")
+        if self.violations:
+            lines.append(f"  {len(self.violations)} block(s) FAIL:")
+            for v in self.violations[:max_listed]:
+                lines.append("    " + v.describe(self.clearance, self.tolerance))
+            if len(self.violations) > max_listed:
+                lines.append(f"    ... and {len(self.violations) - max_listed} more")
+        else:
+            lines.append("  passed")
+        return "\n".join(lines)
+
+
+def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, part=None,
+                    tolerance: float = 5e-4, tool_radius: float = 0.0, errors=None,
+                    step: float = 0.005, lines=None, texts=None, arcs=None, name: str = "program",
+                    raise_on_violation: bool = True) -> VerifyResult:
+    """Verify axis commands q (N, n_axes) mm/deg with per-block motion codes (N,) (0 rapid,
+    1 feed, 2 probe, 3 feed on an arc).
+
+    The move into block 0 starts from an unknown position: only its end point is checked.
+    stock/part: objects with ``distance(points) -> signed mm`` (Box, HalfSpace, ShapeStock);
+    tool_radius: ball radius, mm (0: a point tool); errors: ErrorSet of the real machine (None:
+    nominal); lines/texts: source line numbers and texts for the messages.  Raises VerifyError
+    naming the first failing block (all are in ``.result``) unless raise_on_violation is False.
+    """
+    if stock is None and part is None:
+        raise InputError("nothing to verify against: give a stock and/or a part", field="stock")
+    if not step > 0 or not clearance >= 0 or not tolerance >= 0:
+        raise InputError("step must be > 0 and clearance, tolerance >= 0 mm", field="step")
+    q = np.asarray(q, float)
+    motion = np.asarray(motion, int)
+    if len(motion) != len(q):
+        raise ValueError("q and motion disagree in length")
+    lines = np.arange(1, len(q) + 1) if lines is None else np.asarray(lines, int)
+    violations = []
+    n_samples = 0
+    min_c, min_c_line, min_p = math.inf, 0, math.inf
+
+    def worst_per_block(pts, owner, dist, bad_mask, kind):
+        out = []
+        for b in np.unique(owner[bad_mask]):
+            sel = np.nonzero(owner == b)[0]
+            k = sel[np.argmin(dist[sel])]
+            out.append(Violation(int(b), int(lines[b]), kind, float(dist[k]),
+                                 tuple(float(x) for x in pts[k]),
+                                 texts[b] if texts is not None else ""))
+        return out
+
+    idx = np.arange(1, len(q))
+    if stock is not None:
+        rb = idx[motion[1:] == RAPID]
+        pts, owner, _ = sweep(machine, q, rb, errors, tool_radius, step, arcs)
+        if motion.size and motion[0] == RAPID:  # end point of the first move
+            pts = np.vstack([_tool_points(machine, q[:1], errors, tool_radius), pts])
+            owner = np.concatenate([[0], owner])
+        n_samples += len(pts)
+        if len(pts):
+            dist = stock.distance(pts) - tool_radius
+            k = int(np.argmin(dist))
+            min_c, min_c_line = float(dist[k]), int(lines[owner[k]])
+            violations += worst_per_block(pts, owner, dist, dist - step / 2 < clearance, "rapid")
+    if part is not None:
+        fb = idx[(motion[1:] == FEED) | (motion[1:] == 3)]
+        pts, owner, _ = sweep(machine, q, fb, errors, tool_radius, step, arcs)
+        n_samples += len(pts)
+        if len(pts):
+            dist = part.distance(pts) - tool_radius
+            min_p = float(dist.min())
+            violations += worst_per_block(pts, owner, dist, dist < -tolerance, "gouge")
+    violations.sort(key=lambda v: v.block)
+    res = VerifyResult(name, len(q), n_samples, step, clearance, tolerance, min_c, min_c_line, min_p,
+                       tuple(violations), stock.describe() if stock is not None else "",
+                       part.describe() if part is not None else "")
+    if violations and raise_on_violation:
+        raise VerifyError(f"{name}: " + violations[0].describe(clearance, tolerance)
+                          + (f" (and {len(violations) - 1} more blocks)" if len(violations) > 1 else ""),
+                          res)
+    return res
+
+
+# ---------------------------------------------------------------------------------- programs
+#: Words and lines the reader of mtcomp.gcode refuses but that do not move the tool differently
+#: in a verification: the skip move G31 runs (at most) to its end point, G43 H / G49 (the
+#: program is written for the tool point, the length is in the H register), G93/G94 (feed only),
+#: and macro output lines of a probing macro (POPEN, DPRNT, PCLOS, #-assignments).
+_MACRO_LINE = re.compile(r"^\s*(?:N\d+\s*)?(?:POPEN|PCLOS|DPRNT\[.*\]|#\d+\s*=.*)\s*(?:\(.*\))?\s*$",
+                         re.IGNORECASE)
+_DROP_WORDS = re.compile(r"\bG(?:43(?:\.0)?\s*H\d+|49|93|94)\b(?![.\d])", re.IGNORECASE)
+_G31 = re.compile(r"\bG31\b(?![.\d])", re.IGNORECASE)
+
+
+def _prepare(text: str) -> tuple[str, set]:
+    """Program text the motion reader accepts, same line numbering; the lines with G31."""
+    out, probe_lines = [], set()
+    for k, line in enumerate(text.split("\n"), 1):
+        code = re.sub(r"\([^()]*\)", lambda m: " " * len(m.group()), line)
+        if _MACRO_LINE.match(code):
+            out.append("")
+            continue
+        if _G31.search(code):
+            probe_lines.add(k)
+            code = _G31.sub("G01", code)
+        code = _DROP_WORDS.sub("", code)
+        out.append(code)
+    return "\n".join(out), probe_lines
+
+
+def program_commands(machine, text: str, filename: str = "<string>"):
+    """Axis commands (N, n_axes), motion codes (N,), source lines (N,), line texts and arc data
+    of an NC program, read through :func:`mtcomp.gcode.parse`."""
+    from . import gcode
+    clean, probe_lines = _prepare(text)
+    prog = gcode.parse(clean, axes=machine.axis_names, filename=filename)
+    motion = np.asarray(prog.motion, int).copy()
+    motion[motion < 0] = RAPID  # axis words before any motion code: the control's power-on G00
+    motion[(motion == 2) | (motion == 3)] = 3
+    probe = np.isin(prog.line, sorted(probe_lines))
+    motion[probe] = PROBE
+    # A block after G31 without its own motion word continues in the modal G00/G01 of before.
+    raw = np.asarray(prog.motion_word) >= 0
+    for i in np.nonzero(~raw & ~probe)[0]:
+        if i > 0 and probe[i - 1]:
+            j = i - 1
+            while j >= 0 and probe[j]:
+                j -= 1
+            motion[i] = motion[j] if j >= 0 else RAPID
+            probe[i] = False
+    src = text.split("\n")
+    texts = [src[int(ln) - 1] if 0 < int(ln) <= len(src) else "" for ln in prog.line]
+    arcs = None
+    if (motion == 3).any():
+        cols = np.zeros((len(prog), 2), int)
+        for k, pl in enumerate(prog.plane):
+            pair = {17: "XY", 18: "ZX", 19: "YZ"}[int(pl)]
+            cols[k] = [machine.axis_names.index(a) if a in machine.axis_names else 0 for a in pair]
+        centre3 = np.asarray(prog.arc_centre, float)
+        centre = np.take_along_axis(centre3, np.array([[{"X": 0, "Y": 1, "Z": 2}.get(
+            machine.axis_names[c], 0) for c in row] for row in cols]), axis=1)
+        arcs = (centre, np.nan_to_num(np.asarray(prog.arc_sweep, float)), cols, motion == 3)
+    return prog.position, motion, np.asarray(prog.line, int), texts, arcs
+
+
+def verify_program(machine, text: str, *, filename: str = "<string>", **kw) -> VerifyResult:
+    """Read an NC program (text) for `machine` and :func:`verify_commands` it (same keywords)."""
+    q, motion, lines, texts, arcs = program_commands(machine, text, filename)
+    kw.setdefault("name", filename)
+    return verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, **kw)

@@ -1,0 +1,141 @@
+"""Verification of NC programs (mtcomp.verify): rapids against the stock with a clearance,
+feeds against the part, every block interpolated in axis space through the forward model."""
+import math
+
+import numpy as np
+import pytest
+
+from mtcomp.cli import main
+from mtcomp.kinematics import forward
+from mtcomp.machine import load_machine
+from mtcomp.verify import (Box, CylinderZ, HalfSpace, Intersection, SphereCavity, VerifyError,
+                           parse_stock, verify_commands, verify_program)
+
+PLATE = Box((-10.0, -10.0, -3.0), (10.0, 10.0, 0.0))   # the groove plate's blank
+
+# The rapid of issue 14: from B+30 with the tool about 1 mm over the plate to B-30.
+REPRODUCER = """%
+O1000 (SEEDED GOUGING RAPID)
+N10 G21 G90 G94 G17
+N20 G00 C0.00000 B30.00000 X0.025000 Y-4.000000 Z0.956699
+N30 G00 B-30.00000 X3.439102 Y-8.000000 Z-1.043301
+N40 G01 Z-2.043301 F50
+N50 M30
+%
+"""
+
+
+def test_box_distance_is_exact_inside_and_outside():
+    b = Box((0, 0, 0), (2, 4, 6))
+    pts = np.array([[1, 2, 3], [3, 2, 3], [3, 5, 3], [3, 5, 7], [1, 2, 0.5], [-1, 2, 3]])
+    want = [-1.0, 1.0, math.sqrt(2), math.sqrt(3), -0.5, 1.0]
+    assert np.allclose(b.distance(pts), want, rtol=0, atol=1e-15)
+    dish = Intersection((CylinderZ(5, -3, 1), SphereCavity((0, 0, 20), 20)))
+    # on the axis 0.1 mm over the dish bottom: 0.1 mm of air; 0.1 mm below: in the material
+    assert dish.distance(np.array([[0, 0, 0.1], [0, 0, -0.1]])) == pytest.approx([0.1, -0.1])
+    assert HalfSpace(0.5).distance(np.array([[9, 9, 0.7]]))[0] == pytest.approx(0.2)
+    assert parse_stock("box:-10,-10,-3,10,10,0") == PLATE
+    with pytest.raises(ValueError, match="box:x0"):
+        parse_stock("box:1,2,3")
+
+
+def test_seeded_gouging_rapid_is_caught_and_named():
+    m = load_machine("robonano-a0ib")
+    with pytest.raises(VerifyError, match=r"line 5 \(N30 G00 B-30.00000") as exc:
+        verify_program(m, REPRODUCER, stock=PLATE, clearance=0.2)
+    res = exc.value.result
+    assert [v.line for v in res.violations] == [5] and res.violations[0].kind == "rapid"
+    # Independent model of this block: the B table turns the plate about the machine Y axis
+    # through the origin (C = 0), the linear axes move the tool; the tool tip in the plate's
+    # frame is the machine position turned back by B.  Axes interpolated linearly, sampled
+    # 200,000 times: the deepest point is 45.7 µm below the top face (issue 14).
+    t = np.linspace(0, 1, 200001)
+    a, b = np.array([30.0, 0.025, -4.0, 0.956699]), np.array([-30.0, 3.439102, -8.0, -1.043301])
+    s = a + t[:, None] * (b - a)
+    B = np.radians(s[:, 0])
+    z_plate = -np.sin(B) * s[:, 1] + np.cos(B) * s[:, 3]
+    q_end = np.array([[0.0, *a], [0.0, *b]])
+    zf = forward(m, q_end).p[:, 2]
+    assert zf == pytest.approx([-math.sin(B[0]) * a[1] + math.cos(B[0]) * a[3],
+                                -math.sin(B[-1]) * b[1] + math.cos(B[-1]) * b[3]], abs=1e-12)
+    assert z_plate.min() == pytest.approx(-0.0457, abs=2e-4)
+    assert res.min_clearance == pytest.approx(z_plate.min(), abs=res.step / 2)
+    # As a warning: the same report, no exception.
+    warn = verify_program(m, REPRODUCER, stock=PLATE, clearance=0.2, raise_on_violation=False)
+    assert not warn.ok and "line 5" in warn.summary()
+
+
+def test_sampling_bounds_the_clearance_of_a_rotary_rapid():
+    m = load_machine("robonano-a0ib")
+    q = np.array([[0, 40, -12, 0, 6.0], [170, -60, 8, 3, 4.0]])
+    for step in (0.05, 0.005):
+        r = verify_commands(m, q, [0, 0], stock=PLATE, clearance=0.0, step=step,
+                            raise_on_violation=False)
+        t = np.linspace(0, 1, 400001)
+        dense = PLATE.distance(forward(m, q[0] + t[:, None] * (q[1] - q[0])).p).min()
+        assert dense <= r.min_clearance + 1e-12 <= dense + step / 2 + 1e-9
+
+
+def test_arc_blocks_follow_the_circle_not_the_chord():
+    m = load_machine("vmc-moving-column")
+    # A half circle of radius 10 in XY about (0, 0); the chord from (10,0) to (-10,0) stays at
+    # y = 0, the arc bulges to y = +10 (G03, counter-clockwise) through a pillar at y in [9, 11].
+    text = "G21 G90 G17\nG00 X10. Y0. Z5.\nG03 X-10. Y0. I-10. J0.\nM30\n"
+    pillar = Box((-1.0, 9.0, 0.0), (1.0, 11.0, 10.0))
+    res = verify_program(m, text, part=pillar, tolerance=0.0, raise_on_violation=False)
+    assert [v.line for v in res.violations] == [3]
+    assert res.min_part == pytest.approx(-1.0, abs=0.003)    # at (0, 10): 1 mm from every side face
+    lin = verify_program(m, text.replace("G03 X-10. Y0. I-10. J0.", "G01 X-10. Y0."), part=pillar,
+                         tolerance=0.0, raise_on_violation=False)
+    assert lin.ok and lin.min_part == pytest.approx(9.0)
+
+
+def test_ball_feed_against_a_cadquery_part():
+    cq = pytest.importorskip("cadquery")
+    from mtcomp.verify import ShapeStock
+    m = load_machine("vmc-moving-column")
+    part = ShapeStock(cq.Workplane("XY").box(10, 10, 2).translate((0, 0, -1)), "block")
+    # A ball R1 riding on the top face (tip at z = 0) touches it; 3 µm lower it gouges.
+    ok = "G21 G90\nG00 X-3. Y0. Z2.\nG01 Z0. F100\nX3.\nM30\n"
+    res = verify_program(m, ok, part=part, tool_radius=1.0, step=0.05)
+    assert res.ok and res.min_part == pytest.approx(0.0, abs=1e-7)
+    bad = ok.replace("X3.", "X3. Z-0.003")
+    with pytest.raises(VerifyError, match="line 4 .*gouges the part by 3.00 µm"):
+        verify_program(m, bad, part=part, tool_radius=1.0, step=0.05)
+
+
+def test_verify_command_exits_nonzero_naming_the_block(tmp_path, capsys):
+    nc = tmp_path / "seed.nc"
+    nc.write_text(REPRODUCER)
+    args = ["verify", str(nc), "-m", "robonano-a0ib", "--stock", "box:-10,-10,-3,10,10,0"]
+    assert main(args) == 2
+    io = capsys.readouterr()
+    assert "line 5" in io.err and "Traceback" not in io.err and "FAIL" in io.out
+    assert main(args + ["--warn-only"]) == 0
+    assert main(["verify", str(nc), "-m", "robonano-a0ib", "--stock", "box:1,2"]) == 2
+    assert "box:x0" in capsys.readouterr().err
+
+
+def test_cad_toolpath_groove_plate_is_safe_and_faces_the_feed(tmp_path, capsys):
+    """Issue 14's reproducer: the emitted program passes the verification with the stated
+    clearance, turns the rotary axes only in links of their own, and turns C so the rake face
+    of the non-rotational tool faces the feed."""
+    from mtcomp import gcode
+    from mtcomp.cad_plugin import toolpath as T
+    nc = tmp_path / "gp.nc"
+    assert main(["cad", "toolpath", "groove-plate", "-o", str(nc), "--clearance", "0.3"]) == 0
+    out = capsys.readouterr().out
+    assert "passed" in out and "off by 0.000000 deg" not in out and "WARNING" not in out
+    m = load_machine("robonano-a0ib")
+    res = verify_program(m, nc.read_text(), stock=PLATE, clearance=0.3)
+    assert res.ok and res.min_clearance >= 0.3
+    prog = gcode.parse(nc.read_text(), axes=m.axis_names)
+    fast = np.nonzero(prog.motion == 0)[0][1:]
+    d = np.abs(prog.position[fast] - prog.position[fast - 1]) > 1e-9
+    assert not np.any(d[:, :2].any(axis=1) & d[:, 2:].any(axis=1))   # C/B alone, never with XYZ
+    tp = T.groove_plate_passes()
+    q = T.to_axes(m, tp)
+    assert np.nanmax(np.abs(T.rake_error(m, tp, q))) < 1e-6
+    # C follows the pass directions: A pattern (+x, +y), C triangle (three sides), B grooves (+y)
+    starts = np.nonzero(tp.motion == T.RAPID)[0]
+    assert np.ptp(q[starts, m.index("C")]) >= 120.0
