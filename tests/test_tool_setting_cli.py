@@ -37,10 +37,15 @@ def test_estimate_round_trip(work, capsys):
                "--report", str(out / "report.txt"), "--png", str(out / "report.png"), "--nc-dir", str(out)])
     assert rc == 0
     text = capsys.readouterr().out
-    assert "t_x =" in text and "+-" in text
+    assert "t_x =" in text and "±" in text and "EX0C =" in text and "against C" in text
+    errs = load_errors(out / "errors.toml")
+    assert set(errs.geometric.location) == {"EX0C", "EY0C", "EZ0A"}
+    unc = load_toml(out / "errors.toml")["uncertainty"]
+    assert all(unc[f"geometric.location.{k}"] > 0 for k in ("EX0C", "EY0C", "EZ0A"))
     est = np.array(load_errors(out / "errors.toml").tool.offset)
     sigma = np.array(load_toml(out / "errors.toml")["uncertainty"]["tool_setting.offset"])
-    assert np.all(sigma > 0) and sigma[2] > 5 * sigma[0]      # t_z from the B grooves is the weak one
+    # t_z and (with the C and A centres free) t_x come from the B grooves alone: the weak ones
+    assert np.all(sigma > 0) and sigma[2] > 5 * sigma[1] and sigma[0] > 5 * sigma[1]
     assert np.all(np.abs(est - [0.34006, 0.24502, 0.2]) <= 4 * sigma)
     assert {"tool_setting_A_compensated.nc", "tool_setting_B_compensated.nc"} <= {p.name for p in out.iterdir()}
     # the compensated A program moves the cut by about -R t: X differs by t_z at B = 90
@@ -50,6 +55,22 @@ def test_estimate_round_trip(work, capsys):
     cut_c = next(ln for ln in comp if "(cut)" in ln)
     x = lambda ln: float(ln.split()[1][1:])  # noqa: E731
     assert x(cut_c) - x(cut_o) == pytest.approx(-est[2], abs=2e-6)
+
+
+def test_plan_says_what_is_observable(tmp_path, capsys):
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "ac"), "--tests", "A,C", "--no-png"]) == 0
+    out = capsys.readouterr().out
+    assert "estimated): t_x, t_y, EX0C, EY0C" in out
+    assert "not observable: t_z: no groove of the plan moves with it" in out
+
+
+def test_estimate_tool_offset_only(work, tmp_path, capsys):
+    rc = main(["tool-setting", "estimate", str(work / "measured.csv"), "--locations", "none",
+               "-o", str(tmp_path / "e.toml")])
+    assert rc == 0
+    assert "EX0C =" not in capsys.readouterr().out
+    assert not load_errors(tmp_path / "e.toml").geometric.location
+    assert main(["tool-setting", "estimate", str(work / "measured.csv"), "--locations", "EX0Q"]) != 0
 
 
 def _edit(work, tmp_path, fn):
