@@ -167,6 +167,11 @@ def table1_signed(plan: Plan, cuts) -> dict[str, tuple[float, float]]:
 # ---------------------------------------------------------------------------------------------
 # Measurements
 
+#: Accepted 1-sigma of a measured value, mm: below 1e-9 the weights overflow the fit, above 10 mm
+#: the value says nothing about a tool offset.
+SIGMA_RANGE = (1e-9, 10.0)
+
+
 @dataclass(frozen=True)
 class MicroscopeNoise:
     """Measurement noise (1 sigma, mm): position of the groove bottom in the face plane, depth."""
@@ -200,8 +205,9 @@ class GroovingMeasurements:
     def __post_init__(self):
         for name in ("sigma_pos", "sigma_depth"):
             v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise InputError(f"expected a positive sigma in mm, got {v!r}", field=name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and SIGMA_RANGE[0] <= v <= SIGMA_RANGE[1]):
+                raise InputError(f"expected a sigma between {SIGMA_RANGE[0]:g} and {SIGMA_RANGE[1]:g} mm, got {v!r}",
+                                 field=name)
 
 
 def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = None, seed=None, *,
@@ -306,8 +312,11 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
             raise InputError(f"malformed number {s!r}: expected mm (or an empty cell)", path, n, col) from None
         if not np.isfinite(x):
             raise InputError(f"{s!r}: expected a finite number (leave the cell empty if not measured)", path, n, col)
-        if positive and x <= 0:
-            raise InputError(f"{s!r}: expected a positive sigma", path, n, col)
+        if positive and not SIGMA_RANGE[0] <= x <= SIGMA_RANGE[1]:
+            raise InputError(f"{s!r}: expected a sigma between {SIGMA_RANGE[0]:g} and {SIGMA_RANGE[1]:g} mm",
+                             path, n, col)
+        if abs(x) > 1e6:
+            raise InputError(f"{s!r}: expected at most 1e6 mm", path, n, col)
         return x
 
     for n, ln in lines[1:]:

@@ -254,6 +254,10 @@ def build_design(machine, meas, known=None, names=COMPONENTS) -> Design:
             nkeys.append(f"{g.test}:{name}")
             pidx.append(k)
             comp.append(c)
+    big = [k for k, v in enumerate(y) if abs(v) > 1e6]
+    if big:
+        raise InputError(f"measured value {y[big[0]]!r} mm ({labels[big[0]]}) is beyond 1e6 mm", meas.source,
+                         lines[big[0]])
     names = tuple(dict.fromkeys(nkeys))
     N = np.zeros((len(y), len(names)))
     for r, key in enumerate(nkeys):
@@ -465,6 +469,18 @@ def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, kno
         raise InputError(f"{d.y.size} measured values cannot determine {n_par} unknowns ({P} setting and "
                          f"location parameters and {n_par - P} per-test offsets/rotations): measure more grooves",
                          meas.source)
+    try:
+        return _estimate(m, meas, d, names, locs, unobs, rot_tests, n_par, closed, known)
+    except np.linalg.LinAlgError as exc:
+        # SVD failure: values or weights outside what the geometry can take (huge or tiny)
+        raise InputError(f"the least-squares fit failed ({exc}): check the measured values and sigmas for "
+                         "extreme numbers", meas.source) from None
+
+
+def _estimate(m, meas, d, names, locs, unobs, rot_tests, n_par, closed, known):
+    from ..errors import ToolSetting
+    from scipy import stats
+    P = len(names)
     x = np.zeros(n_par)
     # Gauss-Newton; the model is linear without rotations, so one step is then exact.
     for it in range(30):

@@ -390,34 +390,59 @@ def load_plan(path: str | os.PathLike) -> Plan:
     head = d.get("plan")
     if not isinstance(head, dict) or "machine" not in head:
         raise InputError("missing [plan] table with a machine name", path, field="plan")
+    if not isinstance(head["machine"], str) or not head["machine"].strip():
+        raise InputError(f"expected a machine preset name or file, got {head['machine']!r}", path,
+                         field="plan.machine")
 
     def num(x, fld, n=None):
-        try:
-            a = np.asarray(x, float)
-        except (TypeError, ValueError):
-            raise InputError(f"expected numbers, got {x!r}", path, field=fld) from None
-        if (n is not None and a.shape != (n,)) or not np.all(np.isfinite(a)):
-            raise InputError(f"expected {n or 1} finite number(s), got {x!r}", path, field=fld)
+        flat = x if isinstance(x, (list, tuple)) else [x]
+        if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in flat):
+            raise InputError(f"expected {'a list of ' + str(n) + ' numbers' if n else 'a number'}, got {x!r}",
+                             path, field=fld)
+        a = np.asarray(x, float)
+        if (n is not None and a.shape != (n,)) or (n is None and a.shape != ()) or not np.all(np.isfinite(a)) \
+                or np.any(np.abs(a) > 1e6):
+            raise InputError(f"expected {n or 1} finite number(s) of at most 1e6 (mm, deg), got {x!r}", path,
+                             field=fld)
         return a
 
+    def tables(key):
+        v = d.get(key, [])
+        if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+            raise InputError(f"expected [[{key}]] tables, got {type(v).__name__} {v!r:.40}", path, field=key)
+        return v
+
+    def text(g, k, fld):
+        v = g[k]
+        if not isinstance(v, str) or not v.strip():
+            raise InputError(f"expected a non-empty string, got {v!r}", path, field=f"{fld}.{k}")
+        return v
+
     faces = {}
-    for i, f in enumerate(d.get("face", [])):
+    for i, f in enumerate(tables("face")):
         try:
             vecs = [num(f[k], f"face[{i}].{k}", 3) for k in ("origin", "eu", "ev", "normal")]
-            faces[str(f["name"])] = Face(str(f["name"]), *[tuple(map(float, v)) for v in vecs])
+            name = text(f, "name", f"face[{i}]")
         except KeyError as exc:
             raise InputError(f"missing key {exc}", path, field=f"face[{i}]") from None
+        frame = np.array(vecs[1:])
+        if not np.allclose(frame @ frame.T, np.eye(3), atol=1e-6) or np.linalg.det(frame) < 0:
+            raise InputError("eu, ev, normal must be orthonormal unit vectors (right-handed: normal = eu x ev)",
+                             path, field=f"face[{i}]")
+        faces[name] = Face(name, *[tuple(map(float, v)) for v in vecs])
     faces = faces or dict(DEFAULT_FACES)
     grooves = []
-    for i, g in enumerate(d.get("groove", [])):
+    for i, g in enumerate(tables("groove")):
         fld = f"groove[{i}]"
         try:
-            gid, test, face = str(g["id"]), str(g["test"]), str(g["face"])
+            gid, test, face = text(g, "id", fld), text(g, "test", fld), text(g, "face", fld)
             ang = num(g["angles_deg"], f"{fld}.angles_deg", 3)
             st, en = num(g["start_mm"], f"{fld}.start_mm", 2), num(g["end_mm"], f"{fld}.end_mm", 2)
             dep = float(num(g["depth_mm"], f"{fld}.depth_mm"))
         except KeyError as exc:
             raise InputError(f"missing key {exc}", path, field=fld) from None
+        if not dep > 0:
+            raise InputError(f"expected a positive depth of cut, mm, got {dep!r}", path, field=f"{fld}.depth_mm")
         if test not in TESTS:
             raise InputError(f"test must be one of {', '.join(TESTS)}, got {test!r}", path, field=f"{fld}.test")
         if face not in faces:
