@@ -51,13 +51,51 @@ class SphereFit:
 class BowlFit:
     """Sphere fits of all bowls; `warnings` lists rejected touches and other notes for the user.
 
-    shared_cov: (3n, 3n) covariance of all centres when one radius was fitted for all bowls."""
+    shared_cov: (3n, 3n) covariance of all centres when one radius was fitted for all bowls;
+    shared_cov_rho: (3n + 1, 3n + 1) the same with the shared probe-centre sphere radius last."""
     fits: tuple[SphereFit, ...]
     probe_radius: float
     sigma: float
     sigma_known: bool
     warnings: tuple[str, ...] = ()
     shared_cov: np.ndarray | None = None
+    shared_cov_rho: np.ndarray | None = None
+
+    def reference_points(self, design_radius: float, up, ids=None) -> tuple[np.ndarray, np.ndarray]:
+        """Material reference points of the bowls and their (3n, 3n) covariance, mm, mm^2.
+
+        The bottom of a bowl is where the cutter tip was, fixed in the material; its centre is
+        one cutter radius above, so a cutter radius or run-out error moves the centre but not the
+        bottom.  Returned: centre - (fitted radius - design_radius) * up per bowl, i.e. the
+        bottom point (centre minus fitted radius along the blank's own z axis `up`, a unit vector
+        in the machine frame) raised by the design radius: the point the plan's design centre
+        (`BowlPlan.centres`, nominal radius) stands for.  Height comes from the bottom, tilt and
+        x, y from the centres.  `up` from a first frame fit (centres alone give the tilt right:
+        a radius error moves every centre alike)."""
+        up = np.asarray(up, float) / np.linalg.norm(up)
+        ids = self.ids if ids is None else tuple(ids)
+        by = {f.bowl: k for k, f in enumerate(self.fits)}
+        n = len(ids)
+        pts = np.empty((n, 3))
+        for i, b in enumerate(ids):
+            f = self.fits[by[b]]
+            pts[i] = f.centre - (f.radius - design_radius) * up
+        if self.shared_cov_rho is not None:
+            N = len(self.fits)
+            A = np.zeros((3 * n, 3 * N + 1))
+            for i, b in enumerate(ids):
+                k = by[b]
+                A[3 * i:3 * i + 3, 3 * k:3 * k + 3] = np.eye(3)
+                A[3 * i:3 * i + 3, -1] = -up
+            cov = A @ self.shared_cov_rho @ A.T
+        else:
+            cov = np.zeros((3 * n, 3 * n))
+            Ai = np.column_stack([np.eye(3), -up])
+            for i, b in enumerate(ids):
+                f = self.fits[by[b]]
+                c4 = np.asarray(f.cov, float)
+                cov[3 * i:3 * i + 3, 3 * i:3 * i + 3] = Ai @ c4 @ Ai.T
+        return pts, 0.5 * (cov + cov.T)
 
     @property
     def ids(self) -> tuple[int, ...]:
@@ -348,6 +386,6 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
         n3 = 3 * len(done)
         return BowlFit(fits=tuple(fits), probe_radius=float(probe_radius), sigma=sigma,
                        sigma_known=known, warnings=tuple(warnings),
-                       shared_cov=sigma * sigma * full[:n3, :n3])
+                       shared_cov=sigma * sigma * full[:n3, :n3], shared_cov_rho=sigma * sigma * full)
     return BowlFit(fits=tuple(fits), probe_radius=float(probe_radius), sigma=sigma,
                    sigma_known=known, warnings=tuple(warnings))

@@ -210,19 +210,36 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
         raw = d["bowls"]
     except KeyError:
         raise InputError("missing list of [[bowls]] (id, x, y)", file, field="bowls") from None
+    if not isinstance(raw, list) or not raw:
+        raise InputError(f"expected a list of [[bowls]] tables (id, x, y), got {raw!r:.40}", file, field="bowls")
     bowls = []
     for k, b in enumerate(raw):
-        try:
-            bowls.append(Bowl(int(b["id"]), float(b["x"]), float(b["y"])))
-        except (KeyError, TypeError, ValueError):
-            raise InputError("each bowl needs integer id and numbers x, y (mm)", file,
-                             field=f"bowls[{k}]") from None
+        if not isinstance(b, dict) or not {"id", "x", "y"} <= set(b):
+            raise InputError("each bowl needs an integer id and numbers x, y (mm)", file, field=f"bowls[{k}]")
+        bid, x, y = b["id"], b["x"], b["y"]
+        # an id must be a whole number: a float like 1.0 is taken, inf, nan, 1.5 or a string are not
+        if isinstance(bid, bool) or not isinstance(bid, (int, float)) or not math.isfinite(bid) \
+                or bid != int(bid) or not 0 < bid < 1e9:
+            raise InputError(f"bowl id must be a positive integer below 1e9, got {bid!r}", file,
+                             field=f"bowls[{k}].id")
+        for name, v in (("x", x), ("y", y)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) > 1e4:
+                raise InputError(f"expected a finite position of at most 1e4 mm, got {v!r}", file,
+                                 field=f"bowls[{k}].{name}")
+        bowls.append(Bowl(int(bid), float(x), float(y)))
     ids = [b.id for b in bowls]
     if len(set(ids)) != len(ids):
         raise InputError(f"bowl ids must be unique, got {ids}", file, field="bowls")
-    dirs = np.asarray(d.get("directions", []), float).reshape(-1, 3) if d.get("directions") else None
-    if dirs is None or len(dirs) == 0:
+    raw_dirs = d.get("directions")
+    if not raw_dirs:
         raise InputError("missing list of contact directions [[x, y, z], ...]", file, field="directions")
+    if (not isinstance(raw_dirs, list)
+            or not all(isinstance(r, list) and len(r) == 3
+                       and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in r)
+                       for r in raw_dirs)):
+        raise InputError(f"expected a list of [x, y, z] unit vectors, got {raw_dirs!r:.60}", file,
+                         field="directions")
+    dirs = np.asarray(raw_dirs, float)
     norms = np.linalg.norm(dirs, axis=1)
     if np.any(np.abs(norms - 1) > 1e-6):
         raise InputError("every direction must be a unit vector", file, field="directions")
@@ -246,6 +263,13 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
     if not 0 < plan.probe_radius < plan.tool_radius:
         raise InputError(f"probe radius {plan.probe_radius} must be in (0, tool radius "
                          f"{plan.tool_radius}) mm", file, field="probe_radius")
+    for key in ("tool_radius", "depth", "probe_radius", "clearance", "overtravel", "safe_z", "keepout_radius",
+                "spindle_speed", "plunge_feed", "probe_feed"):
+        v = getattr(plan, key)
+        if not math.isfinite(v) or abs(v) > 1e6:
+            raise InputError(f"expected a finite number of at most 1e6, got {v!r}", file, field=key)
+    if not math.isfinite(sum(plan.blank)) or max(plan.blank) > 1e4:
+        raise InputError(f"expected finite blank sizes of at most 1e4 mm, got {list(plan.blank)}", file, field="blank")
     return plan
 
 

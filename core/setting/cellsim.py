@@ -164,7 +164,14 @@ class CellConfig:
     """Monte Carlo settings: machine, bowl plan, robot, probe noise (mm, 1 sigma along the
     approach), pyramid, NC transform mode, trials, seed; bowl_radius fixes the fitted bowl radius
     (a calibrated ball end mill) instead of fitting it; shared_radius fits one radius for all
-    bowls, else one per bowl."""
+    bowls, else one per bowl.
+
+    Bowl-making errors of the ordinary machine (mm): cutter_radius_error (real ball end mill
+    radius minus nominal, the same for every bowl), runout (radial run-out of the ball),
+    bowl_position_sigma (1 sigma per axis of each bowl's position, drawn per trial; z moves its
+    bottom against the top face).  reference: "bottom" (height from the bowls' bottom points,
+    default) or "centre" (fitted centres against nominal-radius design centres).
+    microscope_scale: relative scale error of the width measurement (0.001 = +0.1 %)."""
     machine: str = "robonano-a0ib"
     plan: object = None
     robot: RobotPlacement = field(default_factory=RobotPlacement)
@@ -175,6 +182,11 @@ class CellConfig:
     seed: int = 1
     bowl_radius: float | None = None
     shared_radius: bool = True
+    cutter_radius_error: float = 0.0
+    runout: float = 0.0
+    bowl_position_sigma: float = 0.0
+    reference: str = "bottom"
+    microscope_scale: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -280,18 +292,32 @@ def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResul
     rng = np.random.default_rng(config.seed)
     q_nom, face = finishing_commands(machine, config.pyramid)
     comp, unc, perr = [], [], []
+    if not config.bowl_position_sigma >= 0:
+        raise InputError(f"bowl position sigma must be >= 0 mm, got {config.bowl_position_sigma}",
+                         field="bowl_position_sigma")
+    if not (math.isfinite(config.microscope_scale) and abs(config.microscope_scale) < 0.1):
+        raise InputError(f"microscope scale error must be a small fraction, got {config.microscope_scale}",
+                         field="microscope_scale")
+    scale = 1.0 + config.microscope_scale
+
+    def measured(d):
+        return {k: (v * scale if k.startswith("W") else v) for k, v in d.items()}
+
     for i in range(config.trials):
         true = config.robot.sample(rng)
-        touches = virtual_probe(true, plan, config.probe_sigma, rng)
+        off = (rng.normal(0.0, config.bowl_position_sigma, (len(plan.bowls), 3))
+               if config.bowl_position_sigma > 0 else None)
+        touches = virtual_probe(true, plan, config.probe_sigma, rng, cutter_radius_error=config.cutter_radius_error,
+                                runout=config.runout, bowl_offsets=off)
         fit = fit_bowls(touches, plan.probe_radius, probe_sigma=config.probe_sigma or None,
                         bowl_radius=config.bowl_radius, shared_radius=config.shared_radius)
-        est = frame_from_bowls(fit, plan)
+        est = frame_from_bowls(fit, plan, reference=config.reference)
         perr.append(np.r_[est.pose.translation, est.pose.angles]
                     - np.r_[true.translation, true.angles])
         q_new = compensate_commands(machine, q_nom, est.pose, config.mode)
         real = ErrorSet(workpiece=true)
-        comp.append(measure_pyramid(forward(machine, q_new, real).p, face))
-        unc.append(measure_pyramid(forward(machine, q_nom, real).p, face))
+        comp.append(measured(measure_pyramid(forward(machine, q_new, real).p, face)))
+        unc.append(measured(measure_pyramid(forward(machine, q_nom, real).p, face)))
         if progress is not None:
             progress(i + 1, config.trials)
     keys = comp[0].keys()

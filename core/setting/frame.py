@@ -421,14 +421,27 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
                                     method=method, warnings=tuple(warnings), fit=fit)
 
 
+REFERENCES = ("bottom", "centre")
+
+
 def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
-                     file=None) -> WorkpieceSettingEstimate:
+                     file=None, reference: str = "bottom") -> WorkpieceSettingEstimate:
     """Workpiece setting from sphere fits (BowlFit) and the plan's design centres (BowlPlan).
+
+    reference: "bottom" (default): the height of each bowl from its bottom point (fitted centre
+    minus fitted radius along the blank's z), tilt and x, y from the centres
+    (`BowlFit.reference_points`), so a cutter radius or run-out error of the ball end mill that
+    cut the bowls does not read as a height error; the radius uncertainty is propagated.
+    "centre": the fitted centres against the design centres of the nominal radius (a cutter
+    radius error dR then reads as dz = dR).
 
     Uses the bowls present in both, in the plan's order (S1 = first plan bowl).  Bowls of the plan
     without touches are an error naming them: a frame silently built from other bowls than
     planned would hide a probing failure.
     """
+    if reference not in REFERENCES:
+        raise InputError(f"reference must be one of {', '.join(REFERENCES)}, got {reference!r}",
+                         field="reference")
     fitted = {f.bowl: f for f in fit.fits}
     missing = [b for b in plan.ids if b not in fitted]
     if missing:
@@ -443,4 +456,9 @@ def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
     order = [fit.ids.index(b) for b in ids]
     sel = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i in order])
     covs = fit.centre_cov_full[np.ix_(sel, sel)]
-    return frame_from_points(m, plan.centres, covs, ids, method, fit=fit, alarm=alarm, file=file)
+    est = frame_from_points(m, plan.centres, covs, ids, method, fit=fit, alarm=alarm, file=file)
+    if reference == "centre":
+        return est
+    up = est.R[:, 2]
+    pts, cov = fit.reference_points(plan.tool_radius, up, ids)
+    return frame_from_points(pts, plan.centres, cov, ids, method, fit=fit, alarm=alarm, file=file)
