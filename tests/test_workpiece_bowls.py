@@ -183,7 +183,7 @@ def test_two_bad_touches_or_a_far_touch_is_an_error_naming_bowl_and_line(tmp_pat
     pts[i2[4]] += 0.3 * t.approach[i2[4]]                          # hit something else
     path = tmp_path / "touches.csv"
     write_touches(Touches(t.bowl, pts, t.approach), path)
-    with pytest.raises(InputError, match=r"touches.csv \[bowl\]: bowl 3: line 25 is 299.9 um off"):
+    with pytest.raises(InputError, match=r"touches.csv \[bowl\]: bowl 3: line 25 is 299.9 µm off"):
         fit_bowls(read_touches(path), plan.probe_radius, probe_sigma=0.0005)
 
 

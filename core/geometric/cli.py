@@ -54,8 +54,8 @@ def register(subparsers) -> None:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--step", type=float, default=5.0, help="run target spacing, mm")
     s.add_argument("--noise", type=float, nargs=3, metavar=("LIN_UM", "STRAIGHT_UM", "ANG_URAD"),
-                   default=(0.1, 0.2, 0.2), help="reading noise, 1 sigma (um, um, urad)")
-    s.add_argument("--reversal", type=float, default=2.0, help="reversal of positioning runs, um")
+                   default=(0.1, 0.2, 0.2), help="reading noise, 1 sigma (µm, µm, µrad)")
+    s.add_argument("--reversal", type=float, default=2.0, help="reversal of positioning runs, µm")
     s.add_argument("-o", "--output", required=True,
                    help="measurement set TOML to write; the true errors go to <stem>_truth.toml")
     s.set_defaults(func=_simulate)
@@ -160,7 +160,7 @@ def _rewrite_program(args: argparse.Namespace, model):
     machine = load_machine(args.machine)
     new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src))
     msg = (f"{src}: {rep['blocks']} motion blocks; model tool-edge error max "
-           f"{rep['before_max'] * 1e3:.3f} um before, {rep['after_max'] * 1e3:.4f} um after")
+           f"{rep['before_max'] * 1e3:.3f} µm before, {rep['after_max'] * 1e3:.4f} µm after")
     return src.stem + "_comp" + src.suffix, new_text, msg
 
 

@@ -145,7 +145,7 @@ class Iso2302Result:
                  ("M", "range of mean bidirectional positional deviation"),
                  ("B", "reversal value"), ("B_mean", "mean reversal value")]
         for key, text in names:
-            lines.append(f"  {key:<7s} {getattr(self, key) * um:10.3f} um   {text}")
+            lines.append(f"  {key:<7s} {getattr(self, key) * um:10.3f} µm   {text}")
         lines += ["", "  target/mm    x_up/um  x_down/um    x_bi/um    s_up/um  s_down/um"
                       "      B_i/um     R_i/um"]
         for i, t in enumerate(r.target):
@@ -327,14 +327,13 @@ def run_to_csv(run: PositioningRun) -> str:
 
 def plot(result: Iso2302Result, path: str | os.PathLike, title: str | None = None) -> Path:
     """Draw the standard's figure (mean deviations ± 2s per direction, figures A, B, E, M, R) to PNG."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     um = 1e3
     r = result.run
     t = r.target
-    fig, ax = plt.subplots(figsize=(8, 5), dpi=120)
+    fig = Figure(figsize=(8, 5), dpi=120)
+    ax = fig.subplots()
     for j in range(r.n_cycles):
         ax.plot(t, r.up[j] * um, ".", color="tab:red", ms=3, alpha=0.5)
         ax.plot(t, r.down[j] * um, ".", color="tab:blue", ms=3, alpha=0.5)

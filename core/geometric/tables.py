@@ -120,8 +120,8 @@ class BuildResult:
                     lines[-1] += f"   (1 sigma up to {np.max(u) * scale:.3f} {unit})"
             if ax in self.iso:
                 r = self.iso[ax]
-                lines.append(f"    ISO 230-2 of the positioning run: A = {r.A * 1e3:.3f} um, "
-                             f"B = {r.B * 1e3:.3f} um, R = {r.R * 1e3:.3f} um")
+                lines.append(f"    ISO 230-2 of the positioning run: A = {r.A * 1e3:.3f} µm, "
+                             f"B = {r.B * 1e3:.3f} µm, R = {r.R * 1e3:.3f} µm")
         for name, v in g.location.items():
             u = self.uncertainty.get(name)
             su = f" +- {u * 1e6:.3f}" if u is not None else ""

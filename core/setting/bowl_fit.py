@@ -128,8 +128,8 @@ class BowlFit:
         src = "given" if self.sigma_known else "pooled from residuals"
         shared = ", one radius for all bowls" if self.shared_radius else ""
         lines = [f"bowl sphere fits (probe radius {self.probe_radius:g} mm, probe noise "
-                 f"{self.sigma * 1e3:.3f} um {src}{shared})",
-                 " bowl        cx mm        cy mm        cz mm    radius mm  s(c) um  rms um  touches"]
+                 f"{self.sigma * 1e3:.3f} µm {src}{shared})",
+                 " bowl        cx mm        cy mm        cz mm    radius mm  s(c) µm  rms µm  touches"]
         for f in self.fits:
             sd = np.sqrt(np.clip(np.diag(f.centre_cov), 0, None)) * 1e3
             lines.append(f" {f.bowl:4d} {f.centre[0]:12.6f} {f.centre[1]:12.6f} {f.centre[2]:12.6f} "
@@ -232,8 +232,8 @@ def _shared_fit(done, touches, gross_limit, limit, src, probe_radius):
         b = int(np.argmax(np.abs(radii - np.median(radii))))
         own = ", ".join(f"{rec[0]}: {rec[2] + probe_radius:.4f}" for rec in done)
         raise InputError(f"bowl {done[b][0]}: the bowls do not share one radius (own fits, bowl: "
-                         f"radius mm: {own}; joint misfit up to {np.max(np.abs(r)) * 1e3:.2f} um > "
-                         f"{limit * 1e3:.2f} um): cut with another tool? fit a radius per bowl",
+                         f"radius mm: {own}; joint misfit up to {np.max(np.abs(r)) * 1e3:.2f} µm > "
+                         f"{limit * 1e3:.2f} µm): cut with another tool? fit a radius per bowl",
                          src, field="bowl")
     out = []
     for b, (bid, _c, _rho, _resid, u, lines, _J) in enumerate(done):
@@ -243,8 +243,8 @@ def _shared_fit(done, touches, gross_limit, limit, src, probe_radius):
         if len(far):
             j = far[np.argmax(np.abs(resid[far]))]
             where = f"line {int(lines[j])}" if lines[j] else f"touch {j + 1}"
-            raise InputError(f"bowl {bid}: {where} is {resid[j] * 1e3:.1f} um off the sphere with "
-                             f"the radius shared by all bowls (limit {gross_limit * 1e3:.0f} um): "
+            raise InputError(f"bowl {bid}: {where} is {resid[j] * 1e3:.1f} µm off the sphere with "
+                             f"the radius shared by all bowls (limit {gross_limit * 1e3:.0f} µm): "
                              "was this bowl cut with another tool?", src, field="bowl")
         out.append((bid, c.copy(), float(x[-1]), resid, u, lines, None))
     return out, inv, float(r @ r), len(P) - (3 * n + 1)
@@ -334,21 +334,21 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
             if need and not can:
                 jw = int(np.argmax(np.abs(r)))
                 raise InputError(f"bowl {bid}: touches disagree with one sphere by up to "
-                                 f"{np.max(np.abs(r)) * 1e3:.2f} um at {where(jw)} (noise "
-                                 f"{thr_sigma * 1e3:.3f} um, limit {k:g} sigma): more than one bad "
+                                 f"{np.max(np.abs(r)) * 1e3:.2f} µm at {where(jw)} (noise "
+                                 f"{thr_sigma * 1e3:.3f} µm, limit {k:g} sigma): more than one bad "
                                  "touch, or too few touches to reject one", src, field="bowl")
             if can and (need or best[2] > k * thr_sigma):
                 j, worst_rest, out, cj, rhoj = best
                 used[j] = False
-                warnings.append(f"bowl {bid}: {where(j)} rejected, {out * 1e3:.2f} um off the "
+                warnings.append(f"bowl {bid}: {where(j)} rejected, {out * 1e3:.2f} µm off the "
                                 f"sphere of the other touches ({out / thr_sigma:.1f} sigma)")
                 c, rho, _r, _J = fit_sphere(p[used], fixed_rho, x0=np.r_[cj, rhoj])
         resid = np.linalg.norm(p - c, axis=1) - rho
         far = np.flatnonzero(np.abs(resid) > gross_limit)
         if len(far):
             j = far[np.argmax(np.abs(resid[far]))]
-            raise InputError(f"bowl {bid}: {where(j)} is {resid[j] * 1e3:.1f} um off the bowl's "
-                             f"sphere (limit {gross_limit * 1e3:.0f} um): the probe did not touch "
+            raise InputError(f"bowl {bid}: {where(j)} is {resid[j] * 1e3:.1f} µm off the bowl's "
+                             f"sphere (limit {gross_limit * 1e3:.0f} µm): the probe did not touch "
                              "this bowl's wall (rim, top face, wrong bowl id?)", src, field="bowl")
         d = p[used] - c
         Ju = -d / np.linalg.norm(d, axis=1)[:, None]

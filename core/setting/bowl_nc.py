@@ -17,7 +17,7 @@ _f = _fmt
 
 def _ax(v: float, digits: int = 4) -> str:
     """An axis word's number, always with a decimal point: a control set to read numbers without
-    one in least input increments would take `X7` as 7 um (docs/gcode.md)."""
+    one in least input increments would take `X7` as 7 µm (docs/gcode.md)."""
     s = _fmt(v, digits)
     return s if "." in s else s + "."
 

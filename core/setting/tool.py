@@ -215,7 +215,7 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
                       frame_rotation: float = 0.0) -> GroovingMeasurements:
     """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
     (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
-    Gaussian noise of `noise` (default 1 um on positions and depths) from `seed`.  plan: default
+    Gaussian noise of `noise` (default 1 µm on positions and depths) from `seed`.  plan: default
     `make_plan(machine)`; compensation: ErrorSet the programs are compensated for.
 
     frame_offset: mm; each test is measured in a microscope frame whose origin is shifted by a
@@ -365,7 +365,7 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
 # ---------------------------------------------------------------------------------------------
 # The paper's experiment, virtually
 
-#: Paper 000, Table 1: groove distances (du, dv) in um against the A and C axes, cut with the
+#: Paper 000, Table 1: groove distances (du, dv) in µm against the A and C axes, cut with the
 #: original and with the compensated NC data.
 PAPER_ORIGINAL = {"A": (490.04, 680.12), "C": (108.97, 852.81)}
 PAPER_COMPENSATED = {"A": (4.06, 2.97), "C": (0.74, 1.40)}

@@ -353,8 +353,11 @@ def nc_programs(machine, plan: Plan, compensation=None) -> dict[str, str]:
         if compensation is not None:
             q = retarget(m, np.array([mv.q for mv in moves]), compensation, round_result=True)
             moves = [replace(mv, q=tuple(qq)) for mv, qq in zip(moves, q)]
-            off = ", ".join(f"{x * 1e3:.3f}" for x in compensation.tool.offset)
-            title += f", compensated for tool setting offset ({off}) um"
+            off = ", ".join(f"{x:.6f}" for x in compensation.tool.offset)
+            title += f", compensated for tool setting offset ({off}) mm"
+            loc = compensation.geometric.location
+            if loc:
+                title += " and " + ", ".join(f"{k} {v:.6f}" for k, v in loc.items()) + " mm"
         out[t] = render_nc(m, moves, title)
     return out
 
@@ -520,7 +523,7 @@ def groove_width(depth, tip_angle: float, tilt: float = 0.0):
 def groove_top_centre_offset(depth, tip_angle: float, tilt: float = 0.0):
     """Offset (mm) of the midpoint between a V-groove's two top edges from its bottom line,
     depth * (tan(tip/2 + tilt) - tan(tip/2 - tilt)) / 2, towards d x n (d the cutting direction,
-    n the face normal) for a positive tilt.  Zero for an untilted tool; 36 um for D = 0.1 mm,
+    n the face normal) for a positive tilt.  Zero for an untilted tool; 36 µm for D = 0.1 mm,
     tip 90 deg, tilt 10 deg: measure the bottom line on inclined grooves, or correct by this."""
     h, t = np.radians(tip_angle / 2.0), np.radians(tilt)
     return np.asarray(depth) * (np.tan(h + t) - np.tan(h - t)) / 2.0
@@ -541,16 +544,16 @@ def write_plan(machine, plan: Plan, outdir: str | os.PathLike, png: bool = True)
 def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
     """Layout drawing (PNG): plate outline, nominal grooves with their ids and widths, and, if
     given, the predicted real grooves `cuts` (from `mtcomp.setting.tool.cut_grooves`)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
     from .._io import save_figure
     faces = [f for f in plan.faces if any(g.face == f for g in plan.grooves)]
-    fig, axs = plt.subplots(1, len(faces), figsize=(6 * len(faces), 6), squeeze=False)
+    fig = Figure(figsize=(6 * len(faces), 6))
+    axs = fig.subplots(1, len(faces), squeeze=False)
     w, h = plan.options.plate
     colours = {"A": "tab:blue", "B": "tab:green", "C": "tab:red"}
     for ax, fname in zip(axs[0], faces):
-        ax.add_patch(plt.Rectangle((-w / 2, -h / 2), w, h, fill=False, lw=1.0, color="0.3"))
+        ax.add_patch(Rectangle((-w / 2, -h / 2), w, h, fill=False, lw=1.0, color="0.3"))
         labels: dict = {}
         for g in (g for g in plan.grooves if g.face == fname):
             labels.setdefault((g.start, g.end), []).append(g.id)
