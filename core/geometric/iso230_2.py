@@ -285,9 +285,17 @@ def read_run_csv(path: str | os.PathLike, axis: str = "") -> PositioningRun:
         raise InputError(f"unequal cycle counts: {len(cycles[+1])} cycles in the positive "
                          f"direction, {len(cycles[-1])} in the negative direction", path,
                          field="cycle")
-    # Reference target list: the first positive run; every other run must visit the same targets.
-    ref_key = (+1, cycles[+1][0])
-    ref = np.array([t for t, _, _ in runs[ref_key]])
+    # Reference target list: the targets most runs visit (in more than half of them), so a target
+    # missing from the first cycle is reported as missing there, not as extra everywhere else.
+    counts: dict[float, int] = {}
+    for seq in runs.values():
+        for t, _, _ in seq:
+            key = next((k for k in counts if abs(k - t) <= _TARGET_TOL), t)
+            counts[key] = counts.get(key, 0) + 1
+    ref = np.array(sorted(t for t, c in counts.items() if 2 * c > len(runs)))
+    if ref.size < 2:
+        raise InputError("no two targets are shared by most cycles: expected every cycle to approach the "
+                         "same target positions", path, field="target")
     up = np.empty((len(cycles[+1]), ref.size))
     dn = np.empty_like(up)
     for d, arr in ((+1, up), (-1, dn)):
@@ -306,8 +314,8 @@ def read_run_csv(path: str | os.PathLike, axis: str = "") -> PositioningRun:
                     what.append("extra target(s) " + ", ".join(f"{v:g}" for v in extra))
                 raise InputError(
                     f"unequal cycles: cycle {c}, direction {'+' if d > 0 else '-'} has "
-                    f"{'; '.join(what) or 'different targets'} compared with cycle "
-                    f"{ref_key[1]}, direction +", path, seq[0][2], "target")
+                    f"{'; '.join(what) or 'different targets'} compared with the targets most cycles "
+                    f"approach ({', '.join(f'{v:g}' for v in ref)})", path, seq[0][2], "target")
             arr[j] = np.array([v for _, v, _ in seq])[order]
     return PositioningRun(target=ref, up=up, down=dn, axis=axis, source=str(path))
 
