@@ -38,10 +38,15 @@ def test_estimate_round_trip(work, capsys):
                "--report", str(out / "report.txt"), "--png", str(out / "report.png"), "--nc-dir", str(out)])
     assert rc == 0
     text = capsys.readouterr().out
-    assert "t_x =" in text and "+-" in text
+    assert "t_x =" in text and "±" in text and "EX0C =" in text and "against C" in text
+    errs = load_errors(out / "errors.toml")
+    assert set(errs.geometric.location) == {"EX0C", "EY0C", "EZ0A"}
+    unc = load_toml(out / "errors.toml")["uncertainty"]
+    assert all(unc[f"geometric.location.{k}"] > 0 for k in ("EX0C", "EY0C", "EZ0A"))
     est = np.array(load_errors(out / "errors.toml").tool.offset)
     sigma = np.array(load_toml(out / "errors.toml")["uncertainty"]["tool_setting.offset"])
-    assert np.all(sigma > 0) and sigma[2] > 5 * sigma[0]      # t_z from the B grooves is the weak one
+    # t_z and (with the C and A centres free) t_x come from the B grooves alone: the weak ones
+    assert np.all(sigma > 0) and sigma[2] > 5 * sigma[1] and sigma[0] > 5 * sigma[1]
     assert np.all(np.abs(est - [0.34006, 0.24502, 0.2]) <= 4 * sigma)
     assert {"tool_setting_A_compensated.nc", "tool_setting_B_compensated.nc"} <= {p.name for p in out.iterdir()}
     # the compensated A program moves the cut by about -R t: X differs by t_z at B = 90
@@ -51,6 +56,22 @@ def test_estimate_round_trip(work, capsys):
     cut_c = next(ln for ln in comp if "(cut)" in ln)
     x = lambda ln: float(ln.split()[1][1:])  # noqa: E731
     assert x(cut_c) - x(cut_o) == pytest.approx(-est[2], abs=2e-6)
+
+
+def test_plan_says_what_is_observable(tmp_path, capsys):
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "ac"), "--tests", "A,C", "--no-png"]) == 0
+    out = capsys.readouterr().out
+    assert "estimated): t_x, t_y, EX0C, EY0C" in out
+    assert "not observable: t_z: no groove of the plan moves with it" in out
+
+
+def test_estimate_tool_offset_only(work, tmp_path, capsys):
+    rc = main(["tool-setting", "estimate", str(work / "measured.csv"), "--locations", "none",
+               "-o", str(tmp_path / "e.toml")])
+    assert rc == 0
+    assert "EX0C =" not in capsys.readouterr().out
+    assert not load_errors(tmp_path / "e.toml").geometric.location
+    assert main(["tool-setting", "estimate", str(work / "measured.csv"), "--locations", "EX0Q"]) != 0
 
 
 def _edit(work, tmp_path, fn):
@@ -131,3 +152,85 @@ def test_errors_file_and_programs_are_accepted_by_mtcomp_compensate(work, tmp_pa
     assert np.max(np.abs(ours - theirs)) <= 1.5e-6
     orig = words(work / "tool_setting_A.nc")
     assert np.max(np.abs(ours - orig)) > 0.1   # the compensation really moved the axes
+
+
+# ------------------------------------------------------------------ issue 15: bad plans and fits
+
+def _edited_plan(work, tmp_path, section, old, new):
+    """plan.toml with the first `old` after the first line starting with `section` replaced."""
+    text = (work / "plan.toml").read_text()
+    k = text.index(section)
+    assert old in text[k:]
+    p = tmp_path / "plan.toml"
+    p.write_text(text[:k] + text[k:].replace(old, new, 1))
+    return p
+
+
+@pytest.mark.parametrize("section,old,new,field", [
+    ("[[groove]]", 'id = "C0"', 'id = 3', "groove[0].id"),
+    ("[[groove]]", 'test = "C"', 'test = ["C"]', "groove[0].test"),
+    ("[[groove]]", 'face = "top"', 'face = 1.5', "groove[0].face"),
+    ("[[groove]]", 'depth_mm = 0.1', 'depth_mm = true', "groove[0].depth_mm"),
+    ("[[groove]]", 'depth_mm = 0.1', 'depth_mm = -0.1', "groove[0].depth_mm"),
+    ("[[groove]]", 'depth_mm = 0.1', 'depth_mm = 1e300', "groove[0].depth_mm"),
+    ("[[groove]]", 'depth_mm = 0.1', 'depth_mm = "0.1"', "groove[0].depth_mm"),
+    ("[[face]]", 'name = "top"', 'name = {a = 1}', "face[0].name"),
+    ("[[face]]", 'origin = [', 'origin = [[1], ', "face[0].origin"),
+    ("[[face]]", 'ev = [\n    0.0,\n    1.0,', 'ev = [\n    1.0,\n    0.0,', "face[0]"),
+    ("[plan]", 'machine = "robonano-ui"', 'machine = 7', "plan.machine"),
+])
+def test_plan_with_wrong_types_is_refused(work, tmp_path, section, old, new, field):
+    """Issue 15: wrong types in face/groove were tracebacks (TypeError, LinAlgError)."""
+    from mtcomp import InputError
+    from mtcomp.setting.tool_plan import load_plan
+    p = _edited_plan(work, tmp_path, section, old, new)
+    with pytest.raises(InputError) as exc:
+        load_plan(p)
+    assert exc.value.field == field
+    # the CLI says it in one line and exits non-zero
+    (tmp_path / "measured.csv").write_text((work / "measured.csv").read_text())
+    assert main(["tool-setting", "estimate", str(tmp_path / "measured.csv"), "--plan", str(p)]) != 0
+
+
+@pytest.mark.parametrize("top,field", [('face = "top"\n', "face"), ("groove = [1, 2]\n", "groove"),
+                                       ('groove = [{id = "x"}, 3]\n', "groove")])
+def test_plan_with_non_table_arrays_is_refused(tmp_path, top, field):
+    from mtcomp import InputError
+    from mtcomp.setting.tool_plan import load_plan
+    p = tmp_path / "plan.toml"
+    p.write_text(top + '[plan]\nmachine = "robonano-ui"\n')
+    with pytest.raises(InputError) as exc:
+        load_plan(p)
+    assert exc.value.field == field
+
+
+def test_fit_with_extreme_sigmas_is_an_input_error(work, tmp_path):
+    """Issue 15: a singular / overflowing fit was a LinAlgError traceback."""
+    from mtcomp import InputError
+    from mtcomp.machine import load_machine
+    from mtcomp.setting import tool_estimate as te
+    from mtcomp.setting.tool import GroovingMeasurements, load_plan, read_measurements
+    plan = load_plan(work / "plan.toml")
+    meas = read_measurements(work / "measured.csv", plan)
+    with pytest.raises(InputError, match="sigma"):
+        GroovingMeasurements(plan, meas.points, 1e-300, 0.001)
+    p = _edit(work, tmp_path, _set(2, sigma_pos_mm="1e-300") if False else (lambda r: r))
+    rows = p.read_text().splitlines()
+    rows[0] += ",sigma_pos_mm"
+    rows[1] += ",1e-300"
+    p.write_text("\n".join(rows) + "\n")
+    with pytest.raises(InputError, match="sigma between"):
+        read_measurements(p, plan)
+    # huge measured values: refused where read
+    big = p.read_text().replace(",1e-300", ",0.001").splitlines()
+    cells = big[1].split(",")
+    cells[10] = "1e200"
+    big[1] = ",".join(cells)
+    p.write_text("\n".join(big) + "\n")
+    with pytest.raises(InputError, match="at most 1e6"):
+        read_measurements(p, plan)
+    # a numerically impossible fit is an InputError, not a LinAlgError
+    pts = list(meas.points)
+    pts[0] = type(pts[0])(pts[0].groove, pts[0].feature, 1e200, 1e200, 1e200)
+    with pytest.raises(InputError):
+        te.estimate(load_machine("robonano-ui"), GroovingMeasurements(plan, tuple(pts), 0.001, 0.001))

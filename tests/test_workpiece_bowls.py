@@ -183,7 +183,7 @@ def test_two_bad_touches_or_a_far_touch_is_an_error_naming_bowl_and_line(tmp_pat
     pts[i2[4]] += 0.3 * t.approach[i2[4]]                          # hit something else
     path = tmp_path / "touches.csv"
     write_touches(Touches(t.bowl, pts, t.approach), path)
-    with pytest.raises(InputError, match=r"touches.csv \[bowl\]: bowl 3: line 25 is 299.9 um off"):
+    with pytest.raises(InputError, match=r"touches.csv \[bowl\]: bowl 3: line 25 is 299.9 µm off"):
         fit_bowls(read_touches(path), plan.probe_radius, probe_sigma=0.0005)
 
 
@@ -243,9 +243,15 @@ def test_shared_radius_fit_is_exact_and_cuts_the_tilt_uncertainty():
     assert full[2, 5] > 0.5 * np.sqrt(full[2, 2] * full[5, 5])
     per = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005, shared_radius=False)
     assert not np.any(per.centre_cov_full[0:3, 3:6])
-    e_sh, e_per = frame_from_bowls(fit, plan), frame_from_bowls(per, plan)
+    e_sh = frame_from_bowls(fit, plan, reference="centre")
+    e_per = frame_from_bowls(per, plan, reference="centre")
     assert e_sh.std[3] < 0.3 * e_per.std[3] and e_sh.std[4] < 0.3 * e_per.std[4]
     assert e_sh.std[2] < e_per.std[2]
+    # bottom points (centre - fitted radius) do not carry the radius error at all: per-bowl fits
+    # then give the tilt better than centres, and the shared radius adds little
+    b_sh, b_per = frame_from_bowls(fit, plan), frame_from_bowls(per, plan)
+    assert b_per.std[3] < 0.5 * e_per.std[3] and b_per.std[2] < 0.5 * e_per.std[2]
+    assert b_sh.std[3] <= b_per.std[3] * 1.0001
 
 
 def test_a_bowl_of_another_radius_is_refused_by_the_shared_fit():
@@ -259,3 +265,82 @@ def test_a_bowl_of_another_radius_is_refused_by_the_shared_fit():
         fit_bowls(bad, plan.probe_radius, probe_sigma=0.0005)
     fit = fit_bowls(bad, plan.probe_radius, probe_sigma=0.0005, shared_radius=False)
     assert fit.fits[1].radius == pytest.approx(2.2, abs=1e-4)
+
+
+# ------------------------------------------------------------------ issue 17: cutter radius, run-out
+
+def test_cutter_radius_error_moves_the_centre_not_the_bottom():
+    """A ball end mill 2 µm larger, plunged to the planned depth, cuts a sphere 2 µm larger whose
+    centre sits 2 µm higher; the bottom stays (the old simulation kept the centre fixed)."""
+    plan = plan_bowls(3)
+    t = virtual_probe(None, plan, 0.0, 0, cutter_radius_error=0.002)
+    fit = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005)
+    for f, c in zip(fit.fits, plan.centres):
+        np.testing.assert_allclose(f.centre, c + [0, 0, 0.002], atol=1e-9)
+        assert f.radius == pytest.approx(plan.tool_radius + 0.002, abs=1e-9)
+        assert f.centre[2] - f.radius == pytest.approx(-plan.depth, abs=1e-9)
+
+
+def test_frame_height_from_bottom_points_ignores_the_cutter_radius():
+    from mtcomp.setting.frame import frame_from_bowls
+    plan = plan_bowls(3)
+    t = virtual_probe(POSE, plan, 0.0, 0, cutter_radius_error=0.002)
+    fit = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005)
+    est = frame_from_bowls(fit, plan)
+    np.testing.assert_allclose(est.pose.translation, POSE.translation, atol=1e-8)
+    np.testing.assert_allclose(est.pose.angles, POSE.angles, atol=1e-7)
+    old = frame_from_bowls(fit, plan, reference="centre")
+    # the centres read the radius error as height: dz = dR along the blank's z
+    assert old.pose.translation[2] - POSE.translation[2] == pytest.approx(0.002, abs=1e-6)
+    with pytest.raises(InputError, match="reference"):
+        frame_from_bowls(fit, plan, reference="top")
+
+
+def test_cutter_radius_error_of_2um_changes_pyramid_widths_by_less_than_half_a_micron():
+    """Issue 17 acceptance: compensated pyramid widths (paper 001) with a 2 µm cutter radius error
+    differ from those without by < 0.5 µm; from centres they moved by 15 dR = 30 µm."""
+    from mtcomp.setting.cellsim import CellConfig, simulate_cell
+    out = {}
+    for ref in ("bottom", "centre"):
+        for dR in (0.0, 0.002):
+            r = simulate_cell(CellConfig(trials=4, seed=5, cutter_radius_error=dR, reference=ref))
+            out[ref, dR] = np.array([r.compensated[f"W{k}"] for k in range(1, 5)])
+    assert np.max(np.abs(out["bottom", 0.002] - out["bottom", 0.0])) < 0.5
+    assert np.min(out["centre", 0.002] - out["centre", 0.0]) > 25.0
+
+
+def test_runout_widens_the_bowl_and_barely_moves_its_bottom():
+    """2 µm radial run-out: the cavity is a spindle torus; the sphere fit's bottom stays within
+    0.4 µm of the true bottom (the centre moves 3.4 µm)."""
+    plan = plan_bowls(3)
+    t = virtual_probe(None, plan, 0.0, 0, runout=0.002)
+    fit = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005)
+    for f, c in zip(fit.fits, plan.centres):
+        np.testing.assert_allclose(f.centre[:2], c[:2], atol=1e-9)        # symmetric about the axis
+        # r(phi) = R + e sin(phi) on the wall: the sphere through touches up to 48 deg from the
+        # bottom extrapolates it to a radius R + 1.9 e with the centre 1.7 e higher
+        assert 0.003 < f.radius - plan.tool_radius < 0.0045
+        assert abs(f.centre[2] - f.radius + plan.depth) < 0.0005           # bottom within 0.5 µm
+        assert f.centre[2] - c[2] > 0.002                                  # the centre rises more
+
+
+@pytest.mark.parametrize("edit,field", [
+    (lambda d: d.update(directions=[[0, 0, -1, 0]]), "directions"),
+    (lambda d: d.update(directions=[0, 0, -1]), "directions"),
+    (lambda d: d.update(directions=[["a", 0, -1]]), "directions"),
+    (lambda d: d["bowls"][0].update(id=float("inf")), "bowls[0].id"),
+    (lambda d: d["bowls"][0].update(id=1.5), "bowls[0].id"),
+    (lambda d: d["bowls"][0].update(id="1"), "bowls[0].id"),
+    (lambda d: d["bowls"][1].update(x=float("nan")), "bowls[1].x"),
+    (lambda d: d.update(bowls=[1, 2, 3]), "bowls[0]"),
+    (lambda d: d.update(bowls="x"), "bowls"),
+    (lambda d: d.update(depth=float("inf")), "depth"),
+])
+def test_bad_plan_fields_are_input_errors(edit, field):
+    """Issue 15: a bad `directions` shape (ValueError) or a bowl id = inf (OverflowError) crashed."""
+    from mtcomp.setting.bowls import plan_from_dict, plan_to_dict
+    d = plan_to_dict(plan_bowls(3))
+    edit(d)
+    with pytest.raises(InputError) as exc:
+        plan_from_dict(d, file="plan.toml")
+    assert exc.value.field == field

@@ -114,3 +114,21 @@ def test_compensate_refuses_an_errors_file_without_a_workpiece_setting(tmp_path,
     assert main(["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out)]) == 2
     assert "tool.toml [workpiece_setting]: no [workpiece_setting] section" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_compensate_refuses_to_drop_the_tool_setting_of_the_errors_file(tmp_path, capsys):
+    """Issue 14: [tool_setting] of the errors file was silently dropped."""
+    from mtcomp.errors import ToolSetting, save_errors
+    errors = save_errors(ErrorSet(tool=ToolSetting((0.1, 0.0, 0.0)),
+                                  workpiece=WorkpieceSetting((0.01, 0.0, 0.0), (0.0, 0.0, 0.0))),
+                         tmp_path / "both.toml")
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    out = tmp_path / "out.nc"
+    assert main(["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "[tool_setting]" in err and "mtcomp compensate" in err and "--workpiece-only" in err
+    assert not out.exists()
+    assert main(["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out),
+                 "--workpiece-only"]) == 0
+    assert out.exists()

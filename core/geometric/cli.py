@@ -23,6 +23,17 @@ def register(subparsers) -> None:
                                           "writes .txt, _positions.csv, _figures.csv, .png")
     s.set_defaults(func=_iso)
 
+    s = sub.add_parser("reversal", help="reversal (backlash) per target from an ISO 230-2 run: bidirectional "
+                                        "tables and the backlash parameter for the control")
+    s.add_argument("run", help="run CSV: target,cycle,direction,deviation (mm)")
+    s.add_argument("--axis", default="X", help="axis name (default X)")
+    s.add_argument("--unit", type=float, default=1e-6,
+                   help="control's detection unit, mm (default 1e-6 = 1 nm)")
+    s.add_argument("--interval", type=float, help="compensation interval, mm (default: mean target spacing)")
+    s.add_argument("-o", "--output", required=True, help="output directory: <axis>_reversal.csv (mm) and "
+                                                          "<axis>_pitch_bidirectional.csv (detection units)")
+    s.set_defaults(func=_reversal)
+
     s = sub.add_parser("build", help="component error tables from a measurement set")
     s.add_argument("set", help="measurement set TOML (runs, set-up offsets)")
     s.add_argument("--machine", help="machine preset or TOML (default: the set's machine)")
@@ -54,8 +65,8 @@ def register(subparsers) -> None:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--step", type=float, default=5.0, help="run target spacing, mm")
     s.add_argument("--noise", type=float, nargs=3, metavar=("LIN_UM", "STRAIGHT_UM", "ANG_URAD"),
-                   default=(0.1, 0.2, 0.2), help="reading noise, 1 sigma (um, um, urad)")
-    s.add_argument("--reversal", type=float, default=2.0, help="reversal of positioning runs, um")
+                   default=(0.1, 0.2, 0.2), help="reading noise, 1 sigma (µm, µm, µrad)")
+    s.add_argument("--reversal", type=float, default=2.0, help="reversal of positioning runs, µm")
     s.add_argument("-o", "--output", required=True,
                    help="measurement set TOML to write; the true errors go to <stem>_truth.toml")
     s.set_defaults(func=_simulate)
@@ -70,6 +81,20 @@ def _iso(args: argparse.Namespace) -> int:
     out = iso230_2.write_report(res, stem)
     print(res.summary(), end="")
     print("written: " + ", ".join(str(p) for p in out.values()))
+    return 0
+
+
+def _reversal(args: argparse.Namespace) -> int:
+    from . import iso230_2
+    from .reversal import reversal_table
+    table = reversal_table(iso230_2.evaluate(iso230_2.read_run_csv(args.run, axis=args.axis)))
+    files = table.write(args.output, unit=args.unit, interval=args.interval)
+    um = 1e3
+    print(f"axis {table.axis}: reversal B = {table.B * um:.3f} µm, mean reversal B_mean = {table.B_mean * um:+.3f} µm, "
+          f"backlash (lost motion) = {table.backlash * um:+.3f} µm")
+    for p, b in zip(table.position, table.reversal_i):
+        print(f"  {p:10.3f} mm  B_i = {b * um:+8.3f} µm")
+    print("written: " + ", ".join(str(f) for f in files))
     return 0
 
 
@@ -160,7 +185,7 @@ def _rewrite_program(args: argparse.Namespace, model):
     machine = load_machine(args.machine)
     new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src))
     msg = (f"{src}: {rep['blocks']} motion blocks; model tool-edge error max "
-           f"{rep['before_max'] * 1e3:.3f} um before, {rep['after_max'] * 1e3:.4f} um after")
+           f"{rep['before_max'] * 1e3:.3f} µm before, {rep['after_max'] * 1e3:.4f} µm after")
     return src.stem + "_comp" + src.suffix, new_text, msg
 
 

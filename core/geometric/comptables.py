@@ -192,7 +192,7 @@ class CompensationReport:
     def summary(self) -> str:
         lines = [f"Tool-tip error over {self.n_points} points of the work volume"]
         for k, (mx, rms) in self.figures.items():
-            lines.append(f"  {k:<34s} max {mx * 1e3:9.4f} um   RMS {rms * 1e3:9.4f} um")
+            lines.append(f"  {k:<34s} max {mx * 1e3:9.4f} µm   RMS {rms * 1e3:9.4f} µm")
         return "\n".join(lines) + "\n"
 
 

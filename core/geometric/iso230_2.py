@@ -145,7 +145,7 @@ class Iso2302Result:
                  ("M", "range of mean bidirectional positional deviation"),
                  ("B", "reversal value"), ("B_mean", "mean reversal value")]
         for key, text in names:
-            lines.append(f"  {key:<7s} {getattr(self, key) * um:10.3f} um   {text}")
+            lines.append(f"  {key:<7s} {getattr(self, key) * um:10.3f} µm   {text}")
         lines += ["", "  target/mm    x_up/um  x_down/um    x_bi/um    s_up/um  s_down/um"
                       "      B_i/um     R_i/um"]
         for i, t in enumerate(r.target):
@@ -285,9 +285,17 @@ def read_run_csv(path: str | os.PathLike, axis: str = "") -> PositioningRun:
         raise InputError(f"unequal cycle counts: {len(cycles[+1])} cycles in the positive "
                          f"direction, {len(cycles[-1])} in the negative direction", path,
                          field="cycle")
-    # Reference target list: the first positive run; every other run must visit the same targets.
-    ref_key = (+1, cycles[+1][0])
-    ref = np.array([t for t, _, _ in runs[ref_key]])
+    # Reference target list: the targets most runs visit (in more than half of them), so a target
+    # missing from the first cycle is reported as missing there, not as extra everywhere else.
+    counts: dict[float, int] = {}
+    for seq in runs.values():
+        for t, _, _ in seq:
+            key = next((k for k in counts if abs(k - t) <= _TARGET_TOL), t)
+            counts[key] = counts.get(key, 0) + 1
+    ref = np.array(sorted(t for t, c in counts.items() if 2 * c > len(runs)))
+    if ref.size < 2:
+        raise InputError("no two targets are shared by most cycles: expected every cycle to approach the "
+                         "same target positions", path, field="target")
     up = np.empty((len(cycles[+1]), ref.size))
     dn = np.empty_like(up)
     for d, arr in ((+1, up), (-1, dn)):
@@ -306,8 +314,8 @@ def read_run_csv(path: str | os.PathLike, axis: str = "") -> PositioningRun:
                     what.append("extra target(s) " + ", ".join(f"{v:g}" for v in extra))
                 raise InputError(
                     f"unequal cycles: cycle {c}, direction {'+' if d > 0 else '-'} has "
-                    f"{'; '.join(what) or 'different targets'} compared with cycle "
-                    f"{ref_key[1]}, direction +", path, seq[0][2], "target")
+                    f"{'; '.join(what) or 'different targets'} compared with the targets most cycles "
+                    f"approach ({', '.join(f'{v:g}' for v in ref)})", path, seq[0][2], "target")
             arr[j] = np.array([v for _, v, _ in seq])[order]
     return PositioningRun(target=ref, up=up, down=dn, axis=axis, source=str(path))
 
@@ -327,14 +335,13 @@ def run_to_csv(run: PositioningRun) -> str:
 
 def plot(result: Iso2302Result, path: str | os.PathLike, title: str | None = None) -> Path:
     """Draw the standard's figure (mean deviations ± 2s per direction, figures A, B, E, M, R) to PNG."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     um = 1e3
     r = result.run
     t = r.target
-    fig, ax = plt.subplots(figsize=(8, 5), dpi=120)
+    fig = Figure(figsize=(8, 5), dpi=120)
+    ax = fig.subplots()
     for j in range(r.n_cycles):
         ax.plot(t, r.up[j] * um, ".", color="tab:red", ms=3, alpha=0.5)
         ax.plot(t, r.down[j] * um, ".", color="tab:blue", ms=3, alpha=0.5)

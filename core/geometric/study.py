@@ -42,11 +42,11 @@ class StudyResult:
         f = self.figures()
         lines = [f"Synthetic study on {self.machine.name}: {len(self.measurements.runs)} "
                  "simulated interferometer runs",
-                 f"  volumetric error: max {f['volumetric_max'] * 1e3:.2f} um, RMS "
-                 f"{f['volumetric_rms'] * 1e3:.2f} um",
+                 f"  volumetric error: max {f['volumetric_max'] * 1e3:.2f} µm, RMS "
+                 f"{f['volumetric_rms'] * 1e3:.2f} µm",
                  f"  first-order model minus exact: max {f['first_order_minus_exact_max'] * 1e6:.2f} nm",
                  f"  tables from the runs minus truth (volumetric): max "
-                 f"{f['tables_minus_truth_max'] * 1e3:.4f} um, RMS {f['tables_minus_truth_rms'] * 1e3:.4f} um"]
+                 f"{f['tables_minus_truth_max'] * 1e3:.4f} µm, RMS {f['tables_minus_truth_rms'] * 1e3:.4f} µm"]
         lines.append(self.compensation.summary().rstrip())
         for k, p in self.files.items():
             lines.append(f"  {k}: {p}")

@@ -103,6 +103,12 @@ class BuildResult:
     def geometric(self) -> GeometricErrors:
         return self.errors.geometric
 
+    def reversal(self) -> dict:
+        """{axis: ReversalTable}: the per-direction mean deviations of each positioning run,
+        which the (bidirectional-mean) tables leave out; see `mtcomp.geometric.reversal`."""
+        from .reversal import reversal_table
+        return {a: reversal_table(r) for a, r in self.iso.items()}
+
     def summary(self) -> str:
         g = self.geometric
         lines = ["Component error tables (tool relative to workpiece, ISO 230-1 names)"]
@@ -113,19 +119,20 @@ class BuildResult:
                 v = t.values.get(name)
                 if v is None:
                     continue
-                unit, scale = ("um", 1e3) if name[1] in _LIN else ("urad", 1e6)
+                unit, scale = ("µm", 1e3) if name[1] in _LIN else ("µrad", 1e6)
                 lines.append(f"    {name}: {v.min() * scale:9.3f} .. {v.max() * scale:9.3f} {unit}")
                 u = self.uncertainty.get(name)
                 if u is not None:
                     lines[-1] += f"   (1 sigma up to {np.max(u) * scale:.3f} {unit})"
             if ax in self.iso:
                 r = self.iso[ax]
-                lines.append(f"    ISO 230-2 of the positioning run: A = {r.A * 1e3:.3f} um, "
-                             f"B = {r.B * 1e3:.3f} um, R = {r.R * 1e3:.3f} um")
+                lines.append(f"    ISO 230-2 of the positioning run: A = {r.A * 1e3:.3f} µm, "
+                             f"B = {r.B * 1e3:.3f} µm (mean reversal {r.B_mean * 1e3:+.3f} µm, not in the "
+                             f"table: see 'mtcomp geometric reversal'), R = {r.R * 1e3:.3f} µm")
         for name, v in g.location.items():
             u = self.uncertainty.get(name)
             su = f" +- {u * 1e6:.3f}" if u is not None else ""
-            lines.append(f"  {name} = {v * 1e6:.3f}{su} urad ({self.squareness.get(name, 'given')})")
+            lines.append(f"  {name} = {v * 1e6:.3f}{su} µrad ({self.squareness.get(name, 'given')})")
         for n in self.notes:
             lines.append(f"  note: {n}")
         return "\n".join(lines) + "\n"
@@ -448,6 +455,9 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
     runs, seen = [], set()
     for k, r in enumerate(raw):
         f = f"run[{k}]"
+        if not isinstance(r, dict):
+            raise InputError(f"expected a [[run]] table (axis, component, file, ...), got {r!r:.40}", path,
+                             field=f)
         unknown = set(r) - {"axis", "component", "file", "offset", "square", "at", "mount"}
         if unknown:
             raise InputError(f"unknown keys {sorted(unknown)}", path, field=f)
@@ -462,10 +472,16 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
             raise InputError(f"second run of {comp}", path, field=f"{f}.component")
         seen.add(comp)
         file = r.get("file")
-        if not isinstance(file, str):
-            raise InputError("expected the run file name", path, field=f"{f}.file")
+        if not isinstance(file, str) or not file.strip():
+            raise InputError(f"expected the run file name, got {file!r}", path, field=f"{f}.file")
+        if not (path.parent / file).is_file():
+            what = "a directory" if (path.parent / file).is_dir() else "not found"
+            raise InputError(f"run file {file!r} is {what} (names are relative to the set's folder)", path,
+                             field=f"{f}.file")
         off = r.get("offset", [0.0, 0.0, 0.0])
         try:
+            if not isinstance(off, list) or any(isinstance(x, bool) for x in off):
+                raise TypeError
             off = tuple(float(x) for x in off)
         except (TypeError, ValueError):
             off = ()
@@ -476,7 +492,8 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
         if not isinstance(square, str):
             raise InputError("square must be a label string", path, field=f"{f}.square")
         at = r.get("at", {})
-        if not isinstance(at, dict) or not all(isinstance(v, (int, float)) for v in at.values()):
+        if not isinstance(at, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                               and np.isfinite(v) for v in at.values()):
             raise InputError("at must map axis names to positions in mm", path, field=f"{f}.at")
         mount = r.get("mount", "tool")
         if mount not in ("tool", "workpiece"):
@@ -486,7 +503,8 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
         runs.append(ComponentRun(ax, comp, run, off, square, {k: float(v) for k, v in at.items()},
                                  mount))
     loc = data.get("location", {})
-    if not isinstance(loc, dict) or not all(isinstance(v, (int, float)) for v in loc.values()):
+    if not isinstance(loc, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                            and np.isfinite(v) for v in loc.values()):
         raise InputError("location must map ISO names (e.g. EC0Y) to values in rad", path,
                          field="location")
     return MeasurementSet(machine, tuple(runs), {k: float(v) for k, v in loc.items()}, str(path))

@@ -76,9 +76,9 @@ class VolumetricMap:
     def summary(self) -> str:
         s = self.stats()
         lines = [f"Volumetric error of {self.machine} over {len(self.q)} points",
-                 f"  |e|: max {s['max'] * 1e3:.3f} um, RMS {s['rms'] * 1e3:.3f} um"]
+                 f"  |e|: max {s['max'] * 1e3:.3f} µm, RMS {s['rms'] * 1e3:.3f} µm"]
         for d in "xyz":
-            lines.append(f"  e{d}: max |.| {s['max_' + d] * 1e3:.3f} um, RMS {s['rms_' + d] * 1e3:.3f} um")
+            lines.append(f"  e{d}: max |.| {s['max_' + d] * 1e3:.3f} µm, RMS {s['rms_' + d] * 1e3:.3f} µm")
         if self.first is not None:
             lines.append(f"  first-order model vs exact: max {s['first_order_diff_max'] * 1e6:.3f} nm "
                          "(second-order terms)")
@@ -86,7 +86,7 @@ class VolumetricMap:
             lines.append(f"  paper 004 formulas (W under the tool) vs exact: max "
                          f"{s['paper_diff_max'] * 1e6:.3f} nm")
             lines.append(f"  paper 004 formulas with W = T = 0 vs exact: max "
-                         f"{s['paper_origin_diff_max'] * 1e3:.3f} um (the workpiece frame's "
+                         f"{s['paper_origin_diff_max'] * 1e3:.3f} µm (the workpiece frame's "
                          "rotation with the table is ignored)")
         return "\n".join(lines) + "\n"
 
@@ -142,9 +142,7 @@ def plot_map(vmap: VolumetricMap, path: str | os.PathLike, levels: int = 3,
              title: str | None = None) -> Path:
     """PNG of the volumetric error: |e| and the (ex, ey) arrows in XY planes at several Z levels,
     and the exact minus first-order difference; for 3-axis maps on a regular grid."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     q = vmap.q
     if q.shape[1] != 3:
@@ -160,8 +158,8 @@ def plot_map(vmap: VolumetricMap, path: str | os.PathLike, levels: int = 3,
     ks = np.unique(np.linspace(0, zs.size - 1, min(levels, zs.size)).round().astype(int))
     mag = np.linalg.norm(E, axis=-1)
     vmax = mag.max()
-    fig, axs = plt.subplots(1, len(ks) + 1, figsize=(4.0 * (len(ks) + 1) + 1.5, 3.8), dpi=110,
-                            layout="constrained")
+    fig = Figure(figsize=(4.0 * (len(ks) + 1) + 1.5, 3.8), dpi=110, layout="constrained")
+    axs = fig.subplots(1, len(ks) + 1)
     for ax, k in zip(axs, ks):
         im = ax.pcolormesh(xs, ys, mag[:, :, k].T, shading="gouraud", vmin=0, vmax=vmax,
                            cmap="viridis")

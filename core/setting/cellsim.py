@@ -13,7 +13,7 @@ the pyramid is the blank's, left from roughing (so a blank sitting higher than n
 narrower pyramid: dW = -2 dz / tan(beta) = -15 dz).  Width W_k is the length of face S_k's base
 edge (between its corners with the two neighbouring faces) on the real top face.
 
-Units: mm, deg; reports in um.
+Units: mm, deg; reports in µm.
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ from ..errors import ErrorSet, WorkpieceSetting
 __all__ = ["PAPER_TABLE1", "Pyramid", "RobotPlacement", "CellConfig", "finishing_commands",
            "measure_pyramid", "simulate_cell", "CellResult"]
 
-#: Paper 001, Table 1 (confocal microscope): widths um, slope angles deg; target 3450 um, 164.81 deg.
+#: Paper 001, Table 1 (confocal microscope): widths µm, slope angles deg; target 3450 µm, 164.81 deg.
 PAPER_TABLE1 = {"W1": 3449.5, "W2": 3450.3, "W3": 3451.4, "W4": 3448.4,
                 "S1&S2": 164.86, "S3&S4": 164.90}
 PAPER_TARGET = {"width": 3450.0, "angle": 164.81}
@@ -102,7 +102,7 @@ def _plane(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def measure_pyramid(points: np.ndarray, face: np.ndarray) -> dict:
-    """Widths W1..W4 (um), opposite slope angles (deg), centre offset (um) of a cut pyramid.
+    """Widths W1..W4 (µm), opposite slope angles (deg), centre offset (µm) of a cut pyramid.
 
     points: tool-edge positions in the real part frame (M, 3) mm, face: face index of each.
     Each face is the plane through its points; base edges are its lines on the top face z = 0.
@@ -134,7 +134,7 @@ class RobotPlacement:
 
     repeatability: ISO 9283 pose repeatability RP (mean + 3 s of the distance from the mean
     position), mm; for an isotropic normal scatter RP = 3.615 sigma per axis, so 0.030 mm gives
-    sigma = 8.3 um per axis.  rotation_sigma: scatter of each angle, deg.  offset (mm) and
+    sigma = 8.3 µm per axis.  rotation_sigma: scatter of each angle, deg.  offset (mm) and
     rotation (deg): systematic gripper offset and rotation (the part sits in the gripper off its
     taught position).
     """
@@ -164,7 +164,14 @@ class CellConfig:
     """Monte Carlo settings: machine, bowl plan, robot, probe noise (mm, 1 sigma along the
     approach), pyramid, NC transform mode, trials, seed; bowl_radius fixes the fitted bowl radius
     (a calibrated ball end mill) instead of fitting it; shared_radius fits one radius for all
-    bowls, else one per bowl."""
+    bowls, else one per bowl.
+
+    Bowl-making errors of the ordinary machine (mm): cutter_radius_error (real ball end mill
+    radius minus nominal, the same for every bowl), runout (radial run-out of the ball),
+    bowl_position_sigma (1 sigma per axis of each bowl's position, drawn per trial; z moves its
+    bottom against the top face).  reference: "bottom" (height from the bowls' bottom points,
+    default) or "centre" (fitted centres against nominal-radius design centres).
+    microscope_scale: relative scale error of the width measurement (0.001 = +0.1 %)."""
     machine: str = "robonano-a0ib"
     plan: object = None
     robot: RobotPlacement = field(default_factory=RobotPlacement)
@@ -175,12 +182,17 @@ class CellConfig:
     seed: int = 1
     bowl_radius: float | None = None
     shared_radius: bool = True
+    cutter_radius_error: float = 0.0
+    runout: float = 0.0
+    bowl_position_sigma: float = 0.0
+    reference: str = "bottom"
+    microscope_scale: float = 0.0
 
 
 @dataclass(frozen=True)
 class CellResult:
     """Per-trial figures: `compensated` and `uncompensated` dicts name -> (trials,) arrays
-    (W1..W4 um, S1&S2, S3&S4 deg, centre_x/y um); `pose_error` (trials, 6) estimate minus truth
+    (W1..W4 µm, S1&S2, S3&S4 deg, centre_x/y µm); `pose_error` (trials, 6) estimate minus truth
     (mm, deg); `config`."""
     compensated: dict
     uncompensated: dict
@@ -207,47 +219,46 @@ class CellResult:
         return rows
 
     def table(self) -> str:
-        """Markdown table beside paper 001's Table 1 (widths and centre in um, angles in deg)."""
+        """Markdown table beside paper 001's Table 1 (widths and centre in µm, angles in deg)."""
         cfg = self.config
         head = (f"Virtual cell, {len(self.pose_error)} trials (seed {cfg.seed}): robot RP "
-                f"{cfg.robot.repeatability * 1e3:g} um, rotation sd {cfg.robot.rotation_sigma:g} deg, "
+                f"{cfg.robot.repeatability * 1e3:g} µm, rotation sd {cfg.robot.rotation_sigma:g} deg, "
                 f"gripper offset {tuple(cfg.robot.offset)} mm, rotation {tuple(cfg.robot.rotation)} deg; "
-                f"probe noise {cfg.probe_sigma * 1e3:g} um; {cfg.mode} transform"
+                f"probe noise {cfg.probe_sigma * 1e3:g} µm; {cfg.mode} transform"
                 f"; bowl radius {self._radius_text()}.\n\n")
         lines = ["| quantity | target | paper 001 | compensated mean | sd | min | max | "
                  "uncompensated mean | sd |",
                  "|---|---|---|---|---|---|---|---|---|"]
         for n, tg, pp, cm, cs, cmin, cmax, um, us in self.table_rows():
             dec = 3 if n.startswith("S") else 2
-            unit = " deg" if n.startswith("S") else " um"
+            unit = " deg" if n.startswith("S") else " um"  # test_workpiece_cell (not ours) matches "W1 um"
             ps = "" if pp is None else f"{pp:g}"
             lines.append(f"| {n}{unit} | {tg:g} | {ps} | {cm:.{dec}f} | {cs:.{dec}f} | {cmin:.{dec}f} | "
                          f"{cmax:.{dec}f} | {um:.{dec}f} | {us:.{dec}f} |")
         e = self.pose_error
         sd = e.std(axis=0, ddof=1)
         foot = (f"\n\nPose estimate error (sd over trials): dx dy dz {sd[0] * 1e3:.3f} {sd[1] * 1e3:.3f} "
-                f"{sd[2] * 1e3:.3f} um, a b c {sd[3] * 3600:.2f} {sd[4] * 3600:.2f} {sd[5] * 3600:.2f} "
+                f"{sd[2] * 1e3:.3f} µm, a b c {sd[3] * 3600:.2f} {sd[4] * 3600:.2f} {sd[5] * 3600:.2f} "
                 "arcsec.")
         return head + "\n".join(lines) + foot + "\n"
 
     def plot(self, path) -> None:
         """PNG: width and angle distributions with and without compensation, paper values marked."""
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
         from .._io import save_figure
-        fig, ax = plt.subplots(1, 3, figsize=(13, 4))
+        fig = Figure(figsize=(13, 4))
+        ax = fig.subplots(1, 3)
         for k in range(4):
             ax[0].hist(self.compensated[f"W{k + 1}"], bins=30, histtype="step", label=f"W{k + 1}")
         for k in range(4):
             ax[0].axvline(PAPER_TABLE1[f"W{k + 1}"], color="k", ls=":", lw=1)
         ax[0].axvline(PAPER_TARGET["width"], color="r", lw=1)
-        ax[0].set(title="compensated widths (dotted: paper 001)", xlabel="width / um", ylabel="trials")
+        ax[0].set(title="compensated widths (dotted: paper 001)", xlabel="width / µm", ylabel="trials")
         ax[0].legend(fontsize=8)
         for k in range(4):
             ax[1].hist(self.uncompensated[f"W{k + 1}"], bins=30, histtype="step", label=f"W{k + 1}")
         ax[1].axvline(PAPER_TARGET["width"], color="r", lw=1)
-        ax[1].set(title="without compensation", xlabel="width / um")
+        ax[1].set(title="without compensation", xlabel="width / µm")
         ax[1].legend(fontsize=8)
         # angles between faces are invariant under a rigid displacement of the blank, so both
         # runs give the target exactly: the third panel shows where the pyramid lands instead
@@ -255,7 +266,7 @@ class CellResult:
                              (self.compensated, "compensated", "o")):
             ax[2].plot(res["centre_x"], res["centre_y"], mk, ms=3, alpha=0.6, label=lab)
         ang = ", ".join(f"{n} {self.compensated[n].mean():.3f}" for n in ("S1&S2", "S3&S4"))
-        ax[2].set(title="pyramid centre on the blank", xlabel="x / um", ylabel="y / um",
+        ax[2].set(title="pyramid centre on the blank", xlabel="x / µm", ylabel="y / µm",
                   aspect="equal")
         fig.suptitle(f"paper 001 pyramid, {len(self.pose_error)} trials; compensated slope angles "
                      f"{ang} deg (target {PAPER_TARGET['angle']:g})", fontsize=10)
@@ -280,18 +291,32 @@ def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResul
     rng = np.random.default_rng(config.seed)
     q_nom, face = finishing_commands(machine, config.pyramid)
     comp, unc, perr = [], [], []
+    if not config.bowl_position_sigma >= 0:
+        raise InputError(f"bowl position sigma must be >= 0 mm, got {config.bowl_position_sigma}",
+                         field="bowl_position_sigma")
+    if not (math.isfinite(config.microscope_scale) and abs(config.microscope_scale) < 0.1):
+        raise InputError(f"microscope scale error must be a small fraction, got {config.microscope_scale}",
+                         field="microscope_scale")
+    scale = 1.0 + config.microscope_scale
+
+    def measured(d):
+        return {k: (v * scale if k.startswith("W") else v) for k, v in d.items()}
+
     for i in range(config.trials):
         true = config.robot.sample(rng)
-        touches = virtual_probe(true, plan, config.probe_sigma, rng)
+        off = (rng.normal(0.0, config.bowl_position_sigma, (len(plan.bowls), 3))
+               if config.bowl_position_sigma > 0 else None)
+        touches = virtual_probe(true, plan, config.probe_sigma, rng, cutter_radius_error=config.cutter_radius_error,
+                                runout=config.runout, bowl_offsets=off)
         fit = fit_bowls(touches, plan.probe_radius, probe_sigma=config.probe_sigma or None,
                         bowl_radius=config.bowl_radius, shared_radius=config.shared_radius)
-        est = frame_from_bowls(fit, plan)
+        est = frame_from_bowls(fit, plan, reference=config.reference)
         perr.append(np.r_[est.pose.translation, est.pose.angles]
                     - np.r_[true.translation, true.angles])
         q_new = compensate_commands(machine, q_nom, est.pose, config.mode)
         real = ErrorSet(workpiece=true)
-        comp.append(measure_pyramid(forward(machine, q_new, real).p, face))
-        unc.append(measure_pyramid(forward(machine, q_nom, real).p, face))
+        comp.append(measured(measure_pyramid(forward(machine, q_new, real).p, face)))
+        unc.append(measured(measure_pyramid(forward(machine, q_nom, real).p, face)))
         if progress is not None:
             progress(i + 1, config.trials)
     keys = comp[0].keys()

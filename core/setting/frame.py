@@ -265,11 +265,11 @@ class WorkpieceSettingEstimate:
                f"{len(self.ids)} bowls)",
                "          value          1 sigma"]
         for k in range(3):
-            out.append(f" d{'xyz'[k]} {p[k] * 1e3:12.4f} um {sd[k] * 1e3:10.4f} um")
+            out.append(f" d{'xyz'[k]} {p[k] * 1e3:12.4f} µm {sd[k] * 1e3:10.4f} µm")
         for k in range(3):
             out.append(f" {'abc'[k]}  {p[3 + k] * 3600:12.4f} arcsec {sd[3 + k] * 3600:7.4f} arcsec "
                        f"({p[3 + k]:.7f} deg)")
-        out.append(" bowl  residual x y z (um)            chi2/dof")
+        out.append(" bowl  residual x y z (µm)            chi2/dof")
         for i, r, s, k in zip(self.ids, self.residuals, self.residual_stat, self.residual_dof):
             out.append(f" {i:4d} {r[0] * 1e3:9.4f} {r[1] * 1e3:9.4f} {r[2] * 1e3:9.4f}"
                        f"   {s:7.2f}/{k}")
@@ -319,7 +319,7 @@ def _disagreeing_bowls(m, d, covs, ids, stat, Sr, res, alarm) -> list[str]:
             c2, i, r = max(scores, key=lambda s: s[0])
             if c2 <= lim:
                 break
-            out.append(f"bowl {ids[i]} disagrees with the other bowls: {np.linalg.norm(r) * 1e3:.3f} um "
+            out.append(f"bowl {ids[i]} disagrees with the other bowls: {np.linalg.norm(r) * 1e3:.3f} µm "
                        f"from where they put it, {math.sqrt(c2):.1f} sigma (chi2 {c2:.1f} > {lim:.1f}, "
                        "3 dof): check the bowl (burr, chip, wrong id)")
             active.remove(i)
@@ -400,8 +400,8 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
     # pose; it is an input error, not a statistic
     worst = int(np.argmax(np.linalg.norm(res, axis=1)))
     if np.linalg.norm(res[worst]) > gross_limit:
-        raise InputError(f"bowl {ids[worst]} is {np.linalg.norm(res[worst]) * 1e3:.1f} um away from "
-                         f"where the other bowls put it (limit {gross_limit * 1e3:.0f} um): wrong "
+        raise InputError(f"bowl {ids[worst]} is {np.linalg.norm(res[worst]) * 1e3:.1f} µm away from "
+                         f"where the other bowls put it (limit {gross_limit * 1e3:.0f} µm): wrong "
                          "bowl id or plan?", file, field="bowl")
     stat = np.zeros(n)
     dof = np.zeros(n, int)
@@ -421,14 +421,27 @@ def frame_from_points(measured, design, centre_covs=None, ids=None, method: str 
                                     method=method, warnings=tuple(warnings), fit=fit)
 
 
+REFERENCES = ("bottom", "centre")
+
+
 def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
-                     file=None) -> WorkpieceSettingEstimate:
+                     file=None, reference: str = "bottom") -> WorkpieceSettingEstimate:
     """Workpiece setting from sphere fits (BowlFit) and the plan's design centres (BowlPlan).
+
+    reference: "bottom" (default): the height of each bowl from its bottom point (fitted centre
+    minus fitted radius along the blank's z), tilt and x, y from the centres
+    (`BowlFit.reference_points`), so a cutter radius or run-out error of the ball end mill that
+    cut the bowls does not read as a height error; the radius uncertainty is propagated.
+    "centre": the fitted centres against the design centres of the nominal radius (a cutter
+    radius error dR then reads as dz = dR).
 
     Uses the bowls present in both, in the plan's order (S1 = first plan bowl).  Bowls of the plan
     without touches are an error naming them: a frame silently built from other bowls than
     planned would hide a probing failure.
     """
+    if reference not in REFERENCES:
+        raise InputError(f"reference must be one of {', '.join(REFERENCES)}, got {reference!r}",
+                         field="reference")
     fitted = {f.bowl: f for f in fit.fits}
     missing = [b for b in plan.ids if b not in fitted]
     if missing:
@@ -443,4 +456,9 @@ def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
     order = [fit.ids.index(b) for b in ids]
     sel = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i in order])
     covs = fit.centre_cov_full[np.ix_(sel, sel)]
-    return frame_from_points(m, plan.centres, covs, ids, method, fit=fit, alarm=alarm, file=file)
+    est = frame_from_points(m, plan.centres, covs, ids, method, fit=fit, alarm=alarm, file=file)
+    if reference == "centre":
+        return est
+    up = est.R[:, 2]
+    pts, cov = fit.reference_points(plan.tool_radius, up, ids)
+    return frame_from_points(pts, plan.centres, cov, ids, method, fit=fit, alarm=alarm, file=file)

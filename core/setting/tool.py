@@ -134,6 +134,12 @@ def table1_distances(plan: Plan, cuts) -> dict[str, tuple[float, float]]:
     A: between the A = 0 and A = 180 copies of each groove (du from the grooves along v, dv from
     the grooves along u).  C: the gap where the triangle should close (start of its first side
     against the end of its last side)."""
+    return {k: (float(abs(a)), float(abs(b))) for k, (a, b) in table1_signed(plan, cuts).items()}
+
+
+def table1_signed(plan: Plan, cuts) -> dict[str, tuple[float, float]]:
+    """`table1_distances` with signs (A: A = 180 copy minus A = 0 copy; C: first side's start
+    minus last side's end), mm."""
     by = {c.groove.id: c for c in cuts}
     out = {}
     a = [g for g in plan.grooves if g.test == "A"]
@@ -147,19 +153,24 @@ def table1_distances(plan: Plan, cuts) -> dict[str, tuple[float, float]]:
                 continue
             d = np.subtract(by[g1.id].start, by[g0.id].start)
             if abs(g0.direction[0]) > abs(g0.direction[1]):   # along u: measures the v distance
-                dv = abs(d[1])
+                dv = d[1]
             else:
-                du = abs(d[0])
+                du = d[0]
         out["A"] = (float(du), float(dv))
     c = [g for g in plan.grooves if g.test == "C"]
     if len(c) >= 2:
         d = np.subtract(by[c[0].id].start, by[c[-1].id].end)
-        out["C"] = (float(abs(d[0])), float(abs(d[1])))
+        out["C"] = (float(d[0]), float(d[1]))
     return out
 
 
 # ---------------------------------------------------------------------------------------------
 # Measurements
+
+#: Accepted 1-sigma of a measured value, mm: below 1e-9 the weights overflow the fit, above 10 mm
+#: the value says nothing about a tool offset.
+SIGMA_RANGE = (1e-9, 10.0)
+
 
 @dataclass(frozen=True)
 class MicroscopeNoise:
@@ -194,8 +205,9 @@ class GroovingMeasurements:
     def __post_init__(self):
         for name in ("sigma_pos", "sigma_depth"):
             v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise InputError(f"expected a positive sigma in mm, got {v!r}", field=name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and SIGMA_RANGE[0] <= v <= SIGMA_RANGE[1]):
+                raise InputError(f"expected a sigma between {SIGMA_RANGE[0]:g} and {SIGMA_RANGE[1]:g} mm, got {v!r}",
+                                 field=name)
 
 
 def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = None, seed=None, *,
@@ -203,7 +215,7 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
                       frame_rotation: float = 0.0) -> GroovingMeasurements:
     """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
     (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
-    Gaussian noise of `noise` (default 1 um on positions and depths) from `seed`.  plan: default
+    Gaussian noise of `noise` (default 1 µm on positions and depths) from `seed`.  plan: default
     `make_plan(machine)`; compensation: ErrorSet the programs are compensated for.
 
     frame_offset: mm; each test is measured in a microscope frame whose origin is shifted by a
@@ -300,8 +312,11 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
             raise InputError(f"malformed number {s!r}: expected mm (or an empty cell)", path, n, col) from None
         if not np.isfinite(x):
             raise InputError(f"{s!r}: expected a finite number (leave the cell empty if not measured)", path, n, col)
-        if positive and x <= 0:
-            raise InputError(f"{s!r}: expected a positive sigma", path, n, col)
+        if positive and not SIGMA_RANGE[0] <= x <= SIGMA_RANGE[1]:
+            raise InputError(f"{s!r}: expected a sigma between {SIGMA_RANGE[0]:g} and {SIGMA_RANGE[1]:g} mm",
+                             path, n, col)
+        if abs(x) > 1e6:
+            raise InputError(f"{s!r}: expected at most 1e6 mm", path, n, col)
         return x
 
     for n, ln in lines[1:]:
@@ -350,35 +365,135 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
 # ---------------------------------------------------------------------------------------------
 # The paper's experiment, virtually
 
-#: Paper 000, Table 1: groove distances (du, dv) in um against the A and C axes, cut with the
+#: Paper 000, Table 1: groove distances (du, dv) in µm against the A and C axes, cut with the
 #: original and with the compensated NC data.
 PAPER_ORIGINAL = {"A": (490.04, 680.12), "C": (108.97, 852.81)}
 PAPER_COMPENSATED = {"A": (4.06, 2.97), "C": (0.74, 1.40)}
 
 
 def paper_offset() -> tuple[float, float, float]:
-    """A tool setting error (mm) that reproduces the A-axis distances of paper 000's Table 1
-    (490.04 and 680.12 um) with the default plan: |t_y| = du/2, |t_x| = dv/2.  The signs are
-    chosen so the C closing gap, (297.90, 662.03) um, comes nearest to the Table's (108.97,
-    852.81) um; with one tool offset both tests see the same t_x, t_y, so the Table's C values
-    cannot be matched too (docs/tool-setting.md).  t_z, which Table 1 does not give: 0.2 mm."""
+    """The tool setting error (mm) of the virtual reproduction of paper 000's Table 1: |t_y| =
+    du/2 and |t_x| = dv/2 of the A distances (490.04 and 680.12 µm), signs chosen as in
+    `paper_truth`.  t_z, which Table 1 does not give: 0.2 mm (assumed)."""
     return (0.68012 / 2, 0.49004 / 2, 0.2)
 
 
-def paper_experiment(machine="robonano-ui", offset=None, noise: MicroscopeNoise | None = None, seed=None,
-                     plan: Plan | None = None):
-    """One virtual run of paper 000's experiment: cut with the true offset, measure with noise,
-    estimate, cut again with compensated programs.  Returns (estimate, original distances,
-    compensated distances); distances as in `table1_distances` (mm)."""
+#: What the virtual reproduction of paper 000's Table 1 takes from the paper and what it assumes.
+PAPER_ASSUMPTIONS = (
+    "from the paper: the four original distances of Table 1 (A: 490.04, 680.12 µm; C: 108.97, 852.81 µm), "
+    "the test patterns (two grooves sharing a start at A = 0 and 180; a triangle at C = 0, 120, 240 deg), "
+    "a 90 deg V tool, 1 nm / 0.00001 deg resolution",
+    "assumed: the A distances come from the tool offset against the A axis and the C distances from the offset "
+    "against the C axis; the difference between the two is a C axis line off the A/B centre (EX0C, EY0C), solved so "
+    "that all four distances are met exactly (the paper gives no signs: the smallest C offset of the four sign "
+    "choices is taken)",
+    "assumed: t_z = 0.2 mm (Table 1 has no B result), EZ0A = 0, the groove lengths, layout and depth of cut of "
+    "mtcomp's default plan, a laser confocal microscope with 1 µm (1 sigma) noise on positions and depths and no "
+    "scale error, a perfectly rigid machine with no other geometric errors",
+    "not modelled: the V tool's nose radius, tool wear, burrs at the groove crossings, thermal drift between "
+    "the cuts, and the microscope's magnification error (a scale error s changes every distance by s times it)",
+)
+
+
+def paper_truth(machine="robonano-ui", plan: Plan | None = None):
+    """The hidden errors (ErrorSet, mm) of the virtual reproduction of paper 000's Table 1: the tool
+    offset `paper_offset()` and a C axis location error (EX0C, EY0C) solved so that the default
+    plan's four original groove distances equal the Table's exactly (see PAPER_ASSUMPTIONS)."""
+    from ..errors import ErrorSet, GeometricErrors, ToolSetting
     from ..machine import load_machine
     m = load_machine(machine)
     plan = plan or make_plan(m)
-    offset = paper_offset() if offset is None else offset
-    meas = simulate_grooving(m, offset, noise, seed, plan=plan)
-    est = estimate(m, meas)
-    before = table1_distances(plan, cut_grooves(m, plan, offset))
-    after = table1_distances(plan, cut_grooves(m, plan, offset, compensation=est.errors()))
+    t = ToolSetting(paper_offset())
+
+    def gap(cx, cy):
+        e = ErrorSet(tool=t, geometric=GeometricErrors(location={"EX0C": cx, "EY0C": cy}))
+        return np.array(table1_signed(plan, cut_grooves(m, plan, e))["C"])
+
+    g0 = gap(0.0, 0.0)
+    G = np.stack([gap(1.0, 0.0) - g0, gap(0.0, 1.0) - g0], axis=1)   # exact: the gap is affine in (EX0C, EY0C)
+    target = np.array(PAPER_ORIGINAL["C"]) * 1e-3
+    best = min((np.linalg.solve(G, np.array(sg) * target - g0) for sg in ((1, 1), (1, -1), (-1, 1), (-1, -1))),
+               key=np.linalg.norm)
+    loc = {"EX0C": float(np.round(best[0], 9)), "EY0C": float(np.round(best[1], 9))}
+    return ErrorSet(tool=t, geometric=GeometricErrors(location=loc))
+
+
+def paper_experiment(machine="robonano-ui", offset=None, noise: MicroscopeNoise | None = None, seed=None,
+                     plan: Plan | None = None, locations="auto"):
+    """One virtual run of paper 000's experiment: cut with the true errors (default `paper_truth`;
+    `offset` may be an ErrorSet, a ToolSetting or a (3,) offset), measure with noise, estimate the
+    tool offset and the observable rotary-axis location errors, cut again with compensated
+    programs.  Returns (estimate, original distances, compensated distances); distances as in
+    `table1_distances` (mm).  `paper_reproduction` adds the fitted model's distances."""
+    from ..machine import load_machine
+    m = load_machine(machine)
+    plan = plan or make_plan(m)
+    truth = paper_truth(m, plan) if offset is None else _errorset(offset)
+    meas = simulate_grooving(m, truth, noise, seed, plan=plan)
+    est = estimate(m, meas, locations=locations)
+    before = table1_distances(plan, cut_grooves(m, plan, truth))
+    after = table1_distances(plan, cut_grooves(m, plan, truth, compensation=est.errors()))
     return est, before, after
+
+
+@dataclass(frozen=True)
+class PaperReproduction:
+    """The virtual reproduction of paper 000's Table 1 (all distances mm).  truth: the hidden
+    ErrorSet; estimate: the fit; original: distances cut with the truth; fitted: the same
+    distances predicted by the fitted model alone; compensated: cut with the truth by programs
+    compensated for the fit; tool_only: compensated for a fit of the tool offset alone (the
+    method without location errors); assumptions: PAPER_ASSUMPTIONS."""
+    truth: object
+    estimate: object
+    original: dict
+    fitted: dict
+    compensated: dict
+    tool_only: dict
+    assumptions: tuple = PAPER_ASSUMPTIONS
+
+    def rows(self) -> list[tuple]:
+        """(label, original µm, paper µm, fitted model µm, compensated µm, paper µm, tool offset
+        only µm) per Table 1 distance."""
+        out = []
+        for ax in ("A", "C"):
+            for j, c in enumerate(("dx", "dy")):
+                out.append((f"against {ax}: {c}", self.original[ax][j] * 1e3, PAPER_ORIGINAL[ax][j],
+                            self.fitted[ax][j] * 1e3, self.compensated[ax][j] * 1e3, PAPER_COMPENSATED[ax][j],
+                            self.tool_only[ax][j] * 1e3))
+        return out
+
+    def summary(self) -> str:
+        lines = ["Paper 000, Table 1, reproduced virtually (µm):",
+                 f"  {'distance':<16}{'original':>10}{'paper':>10}{'fitted':>10}{'compens.':>10}{'paper':>8}"
+                 f"{'t only':>10}"]
+        for r in self.rows():
+            lines.append(f"  {r[0]:<16}{r[1]:10.2f}{r[2]:10.2f}{r[3]:10.2f}{r[4]:10.2f}{r[5]:8.2f}{r[6]:10.2f}")
+        lines.append("  (original: cut with the hidden errors; fitted: predicted by the fitted model; compens.: cut "
+                     "with programs compensated for the fit; t only: compensated for the tool offset alone)")
+        lines.append("Assumptions:")
+        lines += [f"  - {a}" for a in self.assumptions]
+        return "\n".join(lines)
+
+
+def paper_reproduction(machine="robonano-ui", seed=0, noise: MicroscopeNoise | None = None,
+                       plan: Plan | None = None) -> PaperReproduction:
+    """Paper 000's Table 1 from one fitted model: cut with `paper_truth`, measure with 1 µm noise,
+    fit tool offset and location errors, and report the four distances as cut, as the fitted
+    model predicts them, and after compensation (with the fit, and with a tool-offset-only fit)."""
+    from ..machine import load_machine
+    m = load_machine(machine)
+    plan = plan or make_plan(m)
+    noise = noise or MicroscopeNoise(0.001, 0.001)
+    truth = paper_truth(m, plan)
+    meas = simulate_grooving(m, truth, noise, seed, plan=plan)
+    est = estimate(m, meas)
+    est0 = estimate(m, meas, locations=())
+    return PaperReproduction(
+        truth, est,
+        table1_distances(plan, cut_grooves(m, plan, truth)),
+        table1_distances(plan, cut_grooves(m, plan, est.errors())),
+        table1_distances(plan, cut_grooves(m, plan, truth, compensation=est.errors())),
+        table1_distances(plan, cut_grooves(m, plan, truth, compensation=est0.errors())))
 
 
 from .tool_estimate import ToolSettingEstimate, estimate  # noqa: E402,F401  (public API)

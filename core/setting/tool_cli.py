@@ -21,6 +21,16 @@ def _tests(text: str) -> tuple[str, ...]:
     return t
 
 
+def _locations(text: str):
+    t = text.strip()
+    if t.lower() in ("auto", "none"):
+        return t.lower()
+    names = tuple(x.strip().upper() for x in t.split(",") if x.strip())
+    if not names or any(len(x) != 4 or x[0] != "E" or x[2] != "0" for x in names):
+        raise argparse.ArgumentTypeError(f"expected auto, none or names like EX0C,EY0C, got {text!r}")
+    return names
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "tool-setting", help="tool setting errors by grooving (paper 000): plan, simulate, estimate",
@@ -69,6 +79,9 @@ def register(subparsers) -> None:
     es.add_argument("--sigma-depth", type=float, default=0.001, help="depth sigma, mm, for rows without one")
     es.add_argument("--fit-rotation", action="store_true",
                     help="also fit a rotation of the microscope frame per test (not aligned to the face axes)")
+    es.add_argument("--locations", type=_locations, default="auto",
+                    help="rotary axis location errors to estimate with the tool offset: 'auto' (every one the "
+                         "plan makes observable, default), 'none', or names like EX0C,EY0C")
     es.add_argument("--known-errors", help="errors TOML with already known geometric errors to include in the model")
     es.add_argument("-o", "--output", help="errors TOML for 'mtcomp compensate'")
     es.add_argument("--report", help="text report")
@@ -89,8 +102,11 @@ def _plan(args) -> int:
         # a machine file, not a preset: record where it is so simulate/estimate find it
         from dataclasses import replace
         plan = replace(plan, machine=str(Path(args.machine).resolve()))
+    from .tool_model import observable_parameters
+    obs = observable_parameters(m, plan)
     files = write_plan(m, plan, args.outdir, png=not args.no_png)
     print(f"{len(plan.grooves)} grooves ({', '.join(plan.ids)}) for machine {m.name}")
+    print(obs.summary())
     for f in files:
         print(f"wrote {f}")
     return 0
@@ -141,7 +157,8 @@ def _estimate(args) -> int:
     if args.known_errors:
         from ..errors import load_errors
         known = load_errors(args.known_errors)
-    est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known)
+    est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known,
+                   locations=() if args.locations == "none" else args.locations)
     # Compute every output before writing any, so a failure leaves nothing behind.
     report = report_text(m, meas, est) if args.report else None
     progs = nc_programs(m, plan, compensation=est.errors(known)) if args.nc_dir else {}

@@ -18,9 +18,9 @@ import numpy as np
 
 from .._io import InputError
 from ..errors import rotation_matrix_xyz
+from .tool_model import COMPONENTS, against_axes, errors_from_parameters, observable_parameters, parameter_jacobian
 from .tool_plan import Plan, commands_for_points
 
-COMPONENTS = ("t_x", "t_y", "t_z")
 #: Warn when a component's 1-sigma exceeds this multiple of the coarsest measurement sigma: the
 #: geometry then amplifies the instrument noise more than tenfold.
 ILL_CONDITIONED_FACTOR = 10.0
@@ -172,7 +172,7 @@ class Design:
     """The linear measurement model: rows y = y0 + J t + N n + noise (mm)."""
     y: np.ndarray          # (M,) measured
     y0: np.ndarray         # (M,) predicted with t = 0 and no offsets
-    J: np.ndarray          # (M, 3) d y / d t
+    J: np.ndarray          # (M, P) d y / d parameters
     N: np.ndarray          # (M, K) nuisance indicator columns
     sigma: np.ndarray      # (M,) 1-sigma, mm
     labels: tuple          # (M,) "groove feature component"
@@ -182,19 +182,21 @@ class Design:
     comp: np.ndarray = None    # (M,) 0 = u, 1 = v, 2 = depth
     tests: tuple = ()          # (P,) test of each measured point
     Y0: np.ndarray = None      # (P,3) nominal (u, v, depth) of each point
-    JJ: np.ndarray = None      # (P,3,3) d(u, v, depth)/dt of each point
+    JJ: np.ndarray = None      # (P,3,n) d(u, v, depth)/d parameters of each point
+    names: tuple = COMPONENTS  # (n,) parameter names
 
 
-def _rows_for(machine, plan: Plan, items, known=None):
-    """Predicted values y0 (P,3) with t = 0 and Jacobians (P,3,3) [component, t index] of groove
-    points.  known: ErrorSet of errors already known (geometric, workpiece setting) that the
-    prediction includes; its tool setting is ignored (that is what is estimated)."""
-    from ..errors import ErrorSet, ToolSetting
-    from ..kinematics import forward
+def _rows_for(machine, plan: Plan, items, known=None, names=COMPONENTS):
+    """Predicted values y0 (P,3) with every parameter zero and Jacobians (P,3,n) [component,
+    parameter] of groove points for the parameters `names` (tool offset components and location
+    errors, mm; see tool_model).  known: ErrorSet of errors already known (geometric, workpiece
+    setting) that the prediction includes; its tool setting is ignored (that is what is estimated)."""
+    from ..errors import ErrorSet
     base = ErrorSet()
     if known is not None and not (known.geometric.is_zero and known.workpiece.is_zero):
         base = ErrorSet(workpiece=known.workpiece, geometric=known.geometric)
-    key = (machine, tuple(plan.grooves), tuple(plan.faces.items()), tuple(items))
+    names = tuple(names)
+    key = (machine, tuple(plan.grooves), tuple(plan.faces.items()), tuple(items), names)
     hit = _ROWS_CACHE.get(key) if base.is_zero else None
     if hit is not None:
         return hit
@@ -207,16 +209,10 @@ def _rows_for(machine, plan: Plan, items, known=None):
         bases.append(face.basis)
         origins.append(face.origin)
     q = commands_for_points(machine, np.array(pts), np.array(ang))
-    p0 = forward(machine, q, base).p
+    # Exact: the edge is affine in t and in the rotary axes' position location errors.
+    p0, dp = parameter_jacobian(machine, q, names, base)
     B = np.array(bases)
-    J = np.empty((len(items), 3, 3))
-    # Exact: the edge is rigidly attached to the last frame, so p is affine in t.
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = 1.0
-        dp = forward(machine, q, ErrorSet(tool=ToolSetting(tuple(e)), workpiece=base.workpiece,
-                                          geometric=base.geometric)).p - p0
-        J[:, :, k] = np.einsum("nij,nj->ni", B, dp)
+    J = np.einsum("nij,njk->nik", B, dp)
     y0 = np.einsum("nij,nj->ni", B, p0 - np.array(origins))
     out = (y0, J)
     for a in out:
@@ -232,15 +228,16 @@ def _rows_for(machine, plan: Plan, items, known=None):
 _ROWS_CACHE: dict = {}
 
 
-def build_design(machine, meas, known=None) -> Design:
-    """Stack every measured scalar (u, v, depth of each point) into the linear model."""
+def build_design(machine, meas, known=None, names=COMPONENTS) -> Design:
+    """Stack every measured scalar (u, v, depth of each point) into the linear model for the
+    parameters `names` (default: the tool offset only)."""
     from ..machine import load_machine
     m = load_machine(machine)
     plan = meas.plan
     items = [(p.groove, p.feature) for p in meas.points]
     if not items:
         raise InputError("no measured points", meas.source)
-    Y0, JJ = _rows_for(m, plan, items, known)
+    Y0, JJ = _rows_for(m, plan, items, known, names)
     y, y0, J, sig, labels, lines, nkeys, pidx, comp = [], [], [], [], [], [], [], [], []
     for k, p in enumerate(meas.points):
         g = plan.groove(p.groove)
@@ -257,13 +254,17 @@ def build_design(machine, meas, known=None) -> Design:
             nkeys.append(f"{g.test}:{name}")
             pidx.append(k)
             comp.append(c)
+    big = [k for k, v in enumerate(y) if abs(v) > 1e6]
+    if big:
+        raise InputError(f"measured value {y[big[0]]!r} mm ({labels[big[0]]}) is beyond 1e6 mm", meas.source,
+                         lines[big[0]])
     names = tuple(dict.fromkeys(nkeys))
     N = np.zeros((len(y), len(names)))
     for r, key in enumerate(nkeys):
         N[r, names.index(key)] = 1.0
     tests = tuple(plan.groove(p.groove).test for p in meas.points)
     return Design(np.array(y), np.array(y0), np.array(J), N, np.array(sig), tuple(labels), tuple(lines), names,
-                  np.array(pidx), np.array(comp), tests, Y0, JJ)
+                  np.array(pidx), np.array(comp), tests, Y0, JJ, tuple(names))
 
 
 def _model(d: Design, x: np.ndarray, rot_tests: tuple) -> tuple[np.ndarray, np.ndarray]:
@@ -273,11 +274,12 @@ def _model(d: Design, x: np.ndarray, rot_tests: tuple) -> tuple[np.ndarray, np.n
     microscope frame maps the true (u, v) to Rot(phi) (u, v) (then the offset is added); it is
     exact here and solved by Gauss-Newton."""
     K = d.N.shape[1]
-    t = x[:3]
-    F = d.y0 + d.J @ t + d.N @ x[3:3 + K]
+    P = d.J.shape[1]
+    t = x[:P]
+    F = d.y0 + d.J @ t + d.N @ x[P:P + K]
     A = np.hstack([d.J, d.N, np.zeros((d.y.size, len(rot_tests)))])
     for j, test in enumerate(rot_tests):
-        phi = x[3 + K + j]
+        phi = x[P + K + j]
         c, s_ = np.cos(phi), np.sin(phi)
         pts = np.array([k for k, tt in enumerate(d.tests) if tt == test])
         uv = d.Y0[pts, :2] + d.JJ[pts, :2] @ t                      # true (u, v) of the points
@@ -293,18 +295,24 @@ def _model(d: Design, x: np.ndarray, rot_tests: tuple) -> tuple[np.ndarray, np.n
                 continue
             cc = d.comp[r]
             F[r] += ruv[i, cc] - uv[i, cc]
-            A[r, :3] = rJ[i, cc]
-            A[r, 3 + K + j] = duv[i, cc]
+            A[r, :P] = rJ[i, cc]
+            A[r, P + K + j] = duv[i, cc]
     return F, A
 
 
 @dataclass(frozen=True)
 class ToolSettingEstimate:
-    """Result of `estimate`: the tool setting error with its covariance and the fit diagnostics.
+    """Result of `estimate`: the tool setting error and the rotary axes' location errors with
+    their covariance, the setting error against each rotary axis, and the fit diagnostics.
 
-    tool_setting: ToolSetting (mm, tool frame).  cov: (3,3) mm^2.  nuisance: per-test offsets of
-    the microscope origin / surface (mm).  residuals: (M,) mm, measured minus fitted, with labels;
-    chi2 and dof of the weighted fit.  warnings: ill-conditioning and misfit notes."""
+    tool_setting: ToolSetting (mm, tool frame).  cov: (3,3) mm^2 of t.  parameters, values,
+    param_cov: every estimated parameter (t_x, t_y, t_z, then location errors such as EX0C), mm,
+    and their joint covariance, mm^2.  location: {name: mm} of the estimated location errors
+    (increments over `known`).  against: {axis: (component names, values mm, cov mm^2)}, the edge
+    offset from each tested axis line in the tool frame (paper 000's "setting errors against A /
+    C").  unobservable: {name: reason} of candidate parameters the plan cannot separate (held at
+    their known value).  nuisance: per-test offsets of the microscope origin / surface (mm).
+    residuals: (M,) mm, measured minus fitted, with labels; chi2 and dof of the weighted fit."""
     tool_setting: object
     cov: np.ndarray
     nuisance: dict
@@ -318,6 +326,11 @@ class ToolSettingEstimate:
     closed: dict = field(default_factory=dict)
     source: str = ""
     nuisance_sigma: dict = field(default_factory=dict)
+    parameters: tuple = COMPONENTS
+    values: np.ndarray = None
+    param_cov: np.ndarray = None
+    against: dict = field(default_factory=dict)
+    unobservable: dict = field(default_factory=dict)
 
     @property
     def offset(self) -> np.ndarray:
@@ -327,31 +340,65 @@ class ToolSettingEstimate:
     def sigma(self) -> np.ndarray:
         return np.sqrt(np.diag(self.cov))
 
+    @property
+    def location(self) -> dict:
+        return {n: float(v) for n, v in zip(self.parameters, self._values) if n not in COMPONENTS}
+
+    @property
+    def location_sigma(self) -> dict:
+        s = np.sqrt(np.diag(self._param_cov))
+        return {n: float(v) for n, v in zip(self.parameters, s) if n not in COMPONENTS}
+
+    @property
+    def _values(self) -> np.ndarray:
+        return self.offset if self.values is None else np.asarray(self.values)
+
+    @property
+    def _param_cov(self) -> np.ndarray:
+        return self.cov if self.param_cov is None else np.asarray(self.param_cov)
+
     def mahalanobis2(self, true_offset) -> float:
         """Squared Mahalanobis distance of the estimate from a true offset (mm) under `cov`."""
         d = self.offset - np.asarray(true_offset, float)
         return float(d @ np.linalg.solve(self.cov, d))
 
+    def mahalanobis2_all(self, true_values) -> float:
+        """Squared Mahalanobis distance of every estimated parameter from true values (mm, in
+        the order of `parameters`) under `param_cov`."""
+        d = self._values - np.asarray(true_values, float)
+        return float(d @ np.linalg.solve(self._param_cov, d))
+
     def errors(self, known=None):
-        """An ErrorSet with this tool setting (for `retarget` and the errors TOML), plus the
-        geometric and workpiece setting errors of `known` if given."""
-        from ..errors import ErrorSet
-        if known is None:
-            return ErrorSet(tool=self.tool_setting)
-        return ErrorSet(tool=self.tool_setting, workpiece=known.workpiece, geometric=known.geometric)
+        """An ErrorSet with this tool setting and the estimated location errors (for `retarget`
+        and the errors TOML), on top of the geometric and workpiece setting errors of `known`."""
+        return errors_from_parameters(self.parameters, self._values, known)
 
     def summary(self) -> str:
         um = 1e3
-        lines = ["Tool setting error (edge minus rotation centre, tool frame), weighted least squares:"]
+        lines = ["Tool setting error (edge minus nominal rotation centre, tool frame), weighted least squares:"]
         for k, name in enumerate(COMPONENTS):
-            lines.append(f"  {name} = {self.offset[k] * um:+10.3f} um  +- {self.sigma[k] * um:.3f} um (1 sigma)")
+            lines.append(f"  {name} = {self.offset[k] * um:+10.3f} µm  ± {self.sigma[k] * um:.3f} µm (1σ)")
         corr = self.cov / np.outer(self.sigma, self.sigma)
         lines.append("  correlation: " + "; ".join(f"{COMPONENTS[i]}/{COMPONENTS[j]} {corr[i, j]:+.2f}"
                                                  for i, j in ((0, 1), (0, 2), (1, 2))))
+        loc, ls = self.location, self.location_sigma
+        if loc:
+            lines.append("Rotary axis location errors (ISO 230-1), estimated with it:")
+            for n, v in loc.items():
+                lines.append(f"  {n} = {v * um:+10.3f} µm  ± {ls[n] * um:.3f} µm (1σ)")
+        for n, why in self.unobservable.items():
+            lines.append(f"  {n} not estimated: {why}")
+        if self.against:
+            lines.append("Setting error against each rotary axis (edge minus axis line, tool frame; paper 000):")
+            for ax, (comp, val, cv) in self.against.items():
+                sg = np.sqrt(np.diag(cv))
+                lines.append(f"  against {ax}: " + ", ".join(
+                    f"{c} {v * um:+.3f} ± {s * um:.3f} µm" for c, v, s in zip(comp, val, sg))
+                    + f" (correlation {cv[0, 1] / (sg[0] * sg[1]):+.2f})")
         rms = np.sqrt(np.mean(self.residuals ** 2)) * um if self.residuals.size else float("nan")
         worst = int(np.argmax(np.abs(self.normalized))) if self.normalized.size else None
         lines.append(f"  fit: {self.residuals.size} values, chi2 = {self.chi2:.2f} on {self.dof} dof, "
-                     f"residual rms {rms:.3f} um")
+                     f"residual rms {rms:.3f} µm")
         if worst is not None:
             where = f" (line {self.lines[worst]})" if self.lines[worst] else ""
             lines.append(f"  largest normalised residual: {self.normalized[worst]:+.2f} at "
@@ -362,35 +409,78 @@ class ToolSettingEstimate:
                 f"{k[:-4]} test {self.nuisance[k] * 1e3:+.3f} +- {self.nuisance_sigma.get(k, np.nan) * 1e3:.3f} mrad"
                 for k in rots))
         if self.closed:
-            lines.append("  closed forms: " + "; ".join(
-                f"{k} ({', '.join(f'{x * um:+.2f}' for x in v)}) um" for k, v in self.closed.items()))
+            lines.append("  closed forms (tool offset only, no location errors): " + "; ".join(
+                f"{k} ({', '.join(f'{x * um:+.2f}' for x in v)}) µm" for k, v in self.closed.items()))
         for w in self.warnings:
             lines.append(f"  WARNING: {w}")
         return "\n".join(lines)
 
 
-def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, known=None) -> ToolSettingEstimate:
-    """Weighted least-squares tool setting error from a GroovingMeasurements (any grooves, any
-    angles), with covariance (known measurement sigmas, not rescaled by chi2), residuals,
-    closed-form estimates for comparison and warnings.  Raises InputError on singular geometry
-    (a component of t that the measured grooves cannot see).
+def _location_names(m, plan, locations, known) -> tuple[tuple, dict]:
+    """Location error names to estimate and the unobservable candidates with their reasons."""
+    from .tool_model import location_candidates
+    if locations is None or locations == () or locations == "none":
+        return (), {}
+    if locations == "auto":
+        obs = observable_parameters(m, plan, base=known)
+        return tuple(n for n in obs.estimated if n not in COMPONENTS), obs.unobservable
+    names = tuple(locations)
+    cand = location_candidates(m)
+    bad = [n for n in names if n not in cand]
+    if bad:
+        raise InputError(f"cannot estimate {', '.join(bad)}: the grooving model takes the position location "
+                         f"errors of the tool-side rotary axes, {', '.join(cand) or 'none on this machine'}",
+                         field="locations")
+    obs = observable_parameters(m, plan, candidates=names, base=known)
+    lost = [n for n in names if n not in obs.estimated]
+    if lost:
+        raise InputError("singular geometry: the plan does not separate " + "; ".join(
+            f"{n} ({obs.unobservable[n]})" for n in lost), field="locations")
+    return names, {}
 
+
+def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, known=None,
+             locations="auto") -> ToolSettingEstimate:
+    """Weighted least-squares tool setting error and rotary-axis location errors from a
+    GroovingMeasurements (any grooves, any angles), with covariance (known measurement sigmas,
+    not rescaled by chi2), residuals, the setting error against each tested axis, closed-form
+    estimates for comparison and warnings.  Raises InputError on singular geometry (a parameter
+    the measured grooves cannot see).
+
+    locations: "auto" (default) estimates every position location error of the tool-side rotary
+    axes that the plan makes observable (tool_model.observable_parameters; on robonano-ui with the
+    default plan EX0C, EY0C, EZ0A), () the tool offset only, or a tuple of names.
     fit_rotation: also estimate a rotation of the microscope frame per test (rad, in `nuisance`
     as "<test>:rot"), for sheets measured without aligning the microscope to the face axes.
     known: ErrorSet of already known geometric / workpiece setting errors, included in the
-    model (e.g. the location errors of the A and C axes from a prior calibration)."""
+    model (estimated location errors are increments over its values)."""
     from ..errors import ToolSetting
     from ..machine import load_machine
     from scipy import stats
     m = load_machine(machine)
-    d = build_design(m, meas, known)
+    locs, unobs = _location_names(m, meas.plan, locations, known)
+    names = COMPONENTS + locs
+    P = len(names)
+    d = build_design(m, meas, known, names)
     rot_tests = tuple(t for t in dict.fromkeys(d.tests)
                       if fit_rotation and f"{t}:u" in d.nuisance_names and f"{t}:v" in d.nuisance_names)
-    n_par = 3 + d.N.shape[1] + len(rot_tests)
+    n_par = P + d.N.shape[1] + len(rot_tests)
     if d.y.size < n_par:
-        raise InputError(f"{d.y.size} measured values cannot determine {n_par} unknowns (3 tool setting "
-                         f"components and {n_par - 3} per-test offsets/rotations): measure more grooves",
+        raise InputError(f"{d.y.size} measured values cannot determine {n_par} unknowns ({P} setting and "
+                         f"location parameters and {n_par - P} per-test offsets/rotations): measure more grooves",
                          meas.source)
+    try:
+        return _estimate(m, meas, d, names, locs, unobs, rot_tests, n_par, closed, known)
+    except np.linalg.LinAlgError as exc:
+        # SVD failure: values or weights outside what the geometry can take (huge or tiny)
+        raise InputError(f"the least-squares fit failed ({exc}): check the measured values and sigmas for "
+                         "extreme numbers", meas.source) from None
+
+
+def _estimate(m, meas, d, names, locs, unobs, rot_tests, n_par, closed, known):
+    from ..errors import ToolSetting
+    from scipy import stats
+    P = len(names)
     x = np.zeros(n_par)
     # Gauss-Newton; the model is linear without rotations, so one step is then exact.
     for it in range(30):
@@ -400,7 +490,7 @@ def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, kno
         scale[scale == 0] = 1.0
         U, s, Vt = np.linalg.svd(Aw / scale, full_matrices=False)
         if it == 0:
-            _check_singular(s, Vt, meas.source)
+            _check_singular(s, Vt, meas.source, names)
         dx = (Vt.T @ ((U.T @ ((d.y - F) / d.sigma)) / s)) / scale
         x = x + dx
         if not rot_tests or np.max(np.abs(dx)) < 1e-12:   # mm and rad
@@ -420,47 +510,53 @@ def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, kno
     dof = int(d.y.size - n_par)
     chi2 = float(norm @ norm)
     warnings = []
-    sig = np.sqrt(np.diag(cov))
+    sig = np.sqrt(np.diag(cov_full))[:P]
     floor = float(np.max(d.sigma))
-    for k, name in enumerate(COMPONENTS):
+    for k, name in enumerate(names):
         if sig[k] > ILL_CONDITIONED_FACTOR * floor:
             why = ""
             if name == "t_z":
                 why = (": depths carry t_z only to second order (1 - cos theta) at small B inclinations; "
                        "measure the lateral positions of the B grooves or add grooves at larger |B|")
-            warnings.append(f"ill-conditioned: {name} has sigma {sig[k] * 1e3:.2f} um, "
+            warnings.append(f"ill-conditioned: {name} has sigma {sig[k] * 1e3:.2f} µm, "
                             f"{sig[k] / floor:.0f}x the measurement noise{why}")
     if dof > 0 and stats.chi2.sf(chi2, dof) < 1e-3:
         worst = int(np.argmax(np.abs(norm)))
         where = f" line {d.lines[worst]}" if d.lines[worst] else ""
+        hint = "" if locs else "; rotary axis location errors not estimated (locations=()) can cause this"
         warnings.append(f"residuals exceed the stated noise (chi2 {chi2:.1f} on {dof} dof); check{where} "
-                        f"({d.labels[worst]}, {norm[worst]:+.1f} sigma) or the sigmas")
+                        f"({d.labels[worst]}, {norm[worst]:+.1f} sigma) or the sigmas{hint}")
     cf = {}
     if closed:
         try:
             cf = closed_forms(meas)
         except (ValueError, KeyError, np.linalg.LinAlgError):
             cf = {}
-    names = d.nuisance_names + tuple(f"{t_}:rot" for t_ in rot_tests)
-    nuis_sig = np.sqrt(np.diag(cov_full))[3:]
-    return ToolSettingEstimate(ToolSetting(tuple(t)), cov, dict(zip(names, x[3:])), res, norm,
+    nnames = d.nuisance_names + tuple(f"{t_}:rot" for t_ in rot_tests)
+    nuis_sig = np.sqrt(np.diag(cov_full))[P:]
+    pcov = cov_full[:P, :P]
+    try:
+        against = against_axes(m, meas.plan, names, x[:P], pcov, known)
+    except (ValueError, KeyError, np.linalg.LinAlgError):
+        against = {}
+    return ToolSettingEstimate(ToolSetting(tuple(t)), cov, dict(zip(nnames, x[P:])), res, norm,
                                d.labels, d.lines, chi2, dof, tuple(warnings), cf, meas.source,
-                               dict(zip(names, nuis_sig)))
+                               dict(zip(nnames, nuis_sig)), names, x[:P].copy(), pcov, against, unobs)
 
 
-def _check_singular(s, Vt, source):
+def _check_singular(s, Vt, source, names=COMPONENTS):
     tol = s[0] * 1e-9
     if s[-1] <= tol:
         null = Vt[s <= tol]
-        lost = [COMPONENTS[k] for k in range(3) if np.max(np.abs(null[:, k])) > 1e-3]
+        lost = [names[k] for k in range(len(names)) if np.max(np.abs(null[:, k])) > 1e-3]
         hint = ""
         if "t_z" in lost:
             hint = " (t_z needs B grooves at two or more inclinations, at least one non-zero)"
         elif lost:
-            hint = " (t_x and t_y need the A pattern at A = 0 and 180, or C grooves at two or more C angles)"
+            hint = (" (t_x and t_y need the A pattern at A = 0 and 180, or C grooves at two or more C angles; "
+                    "a location error needs the test of its axis)")
         what = ", ".join(lost) if lost else "the per-test offsets or rotations (too few points in a test)"
         raise InputError(f"singular geometry: the measured grooves do not determine {what}{hint}", source)
-
 
 # ---------------------------------------------------------------------------------------------
 # Which extra groove helps most
@@ -470,11 +566,11 @@ class GrooveSuggestion:
     """A candidate extra groove and the expected 1-sigma of t (mm) with it added."""
     groove: object
     sigma: np.ndarray
-    trace_reduction: float   # reduction of trace(cov) in um^2
+    trace_reduction: float   # reduction of trace(cov) in µm²
 
 
-def _information(machine, plan, items, sig_pos, sig_depth, nuis_names):
-    _, J = _rows_for(machine, plan, items)
+def _information(machine, plan, items, sig_pos, sig_depth, nuis_names, names=COMPONENTS):
+    _, J = _rows_for(machine, plan, items, names=names)
     rows = []
     for k, (gid, _f) in enumerate(items):
         g = plan.groove(gid)
@@ -488,17 +584,20 @@ def _information(machine, plan, items, sig_pos, sig_depth, nuis_names):
     return np.array(rows)
 
 
-def suggest_grooves(machine, meas, candidates=None, top: int = 3) -> list[GrooveSuggestion]:
+def suggest_grooves(machine, meas, candidates=None, top: int = 3, names=None) -> list[GrooveSuggestion]:
     """Rank candidate extra grooves by the expected reduction of trace(cov t), measured like the
-    others (start and end points, u, v and depth, default sigmas).  Candidates default to B
+    others (start and end points, u, v and depth, default sigmas), with the parameters `names`
+    estimated (default: those `estimate` takes by default, the observable ones).  Candidates default to B
     grooves at +-5 .. +-45 deg and C sides at 60, 180, 300 deg that the plan lacks."""
     from dataclasses import replace
     from ..machine import load_machine
     from .tool_plan import Groove
     m = load_machine(machine)
     plan = meas.plan
-    d = build_design(m, meas)
-    names = list(d.nuisance_names)
+    if names is None:
+        names = COMPONENTS + _location_names(m, plan, "auto", None)[0]
+    d = build_design(m, meas, names=names)
+    nuis = list(d.nuisance_names)
     A = np.hstack([d.J, d.N]) / d.sigma[:, None]
     info0 = A.T @ A
     if candidates is None:
@@ -526,7 +625,8 @@ def suggest_grooves(machine, meas, candidates=None, top: int = 3) -> list[Groove
     out = []
     for cand in candidates:
         p2 = Plan(plan.machine, plan.options, plan.grooves + (cand,), plan.faces)
-        rows = _information(m, p2, [(cand.id, "start"), (cand.id, "end")], meas.sigma_pos, meas.sigma_depth, names)
+        rows = _information(m, p2, [(cand.id, "start"), (cand.id, "end")], meas.sigma_pos, meas.sigma_depth, nuis,
+                            names)
         info = info0 + rows.T @ rows
         try:
             cov = np.linalg.inv(info)[:3, :3]
@@ -541,35 +641,41 @@ def suggest_grooves(machine, meas, candidates=None, top: int = 3) -> list[Groove
 # Compensation outputs and report
 
 def write_errors(est: ToolSettingEstimate, path, source: str = "", known=None) -> object:
-    """Write the errors TOML (docs/errors-format.md) that `mtcomp compensate` reads, with the
-    1-sigma recorded under [uncertainty]; `known` errors (see `estimate`) are written with it."""
+    """Write the errors TOML (docs/errors-format.md) that `mtcomp compensate` reads: the tool
+    setting and the estimated location errors (on top of `known`, see `estimate`), with the
+    1-sigma of every estimated parameter recorded under [uncertainty]."""
     from ..errors import save_errors
     meta = {"produced_by": "mtcomp tool-setting estimate", "method": "weighted least squares (paper 000 grooving)"}
     if source:
         meta["measurements"] = source
-    return save_errors(est.errors(known), path, uncertainty={"tool_setting.offset": [float(x) for x in est.sigma]},
-                       meta=meta)
+    if est.unobservable:
+        meta["not_estimated"] = "; ".join(f"{k}: {v}" for k, v in est.unobservable.items())
+    unc = {"tool_setting.offset": [float(x) for x in est.sigma]}
+    unc.update({f"geometric.location.{k}": v for k, v in est.location_sigma.items()})
+    return save_errors(est.errors(known), path, uncertainty=unc, meta=meta)
 
 
 def predicted_residuals(machine, plan: Plan, est: ToolSettingEstimate) -> dict:
     """1-sigma (mm) of the Table 1 distances after compensation, from the estimate's covariance:
-    the residual setting error t - t_hat ~ N(0, cov) moves the grooves linearly."""
+    the residual parameter error (x - x_hat ~ N(0, param_cov)) moves the grooves linearly."""
     from ..machine import load_machine
     m = load_machine(machine)
+    names = est.parameters
+    cov = est._param_cov
     out = {}
     a = [g for g in plan.grooves if g.test == "A"]
     angs = sorted({g.angles[0] for g in a})
     if len(angs) == 2:
         g0 = next(g for g in a if g.angles[0] == angs[0])
         g1 = next(g for g in a if g.angles[0] == angs[1] and g.start == g0.start)
-        _, J = _rows_for(m, plan, [(g0.id, "start"), (g1.id, "start")])
+        _, J = _rows_for(m, plan, [(g0.id, "start"), (g1.id, "start")], names=names)
         D = J[1, :2] - J[0, :2]
-        out["A"] = tuple(np.sqrt(np.diag(D @ est.cov @ D.T)))
+        out["A"] = tuple(np.sqrt(np.diag(D @ cov @ D.T)))
     c = [g for g in plan.grooves if g.test == "C"]
     if len(c) >= 2:
-        _, J = _rows_for(m, plan, [(c[0].id, "start"), (c[-1].id, "end")])
+        _, J = _rows_for(m, plan, [(c[0].id, "start"), (c[-1].id, "end")], names=names)
         D = J[0, :2] - J[1, :2]
-        out["C"] = tuple(np.sqrt(np.diag(D @ est.cov @ D.T)))
+        out["C"] = tuple(np.sqrt(np.diag(D @ cov @ D.T)))
     return out
 
 
@@ -582,49 +688,47 @@ def report_text(machine, meas, est: ToolSettingEstimate) -> str:
     if pr:
         lines.append("Predicted groove distances after compensation (1 sigma, from the covariance):")
         for k, (du, dv) in pr.items():
-            lines.append(f"  {k} test: du {du * 1e3:.3f} um, dv {dv * 1e3:.3f} um")
+            lines.append(f"  {k} test: du {du * 1e3:.3f} µm, dv {dv * 1e3:.3f} µm")
         lines.append("")
-    sug = suggest_grooves(machine, meas)
+    sug = suggest_grooves(machine, meas, names=est.parameters)
     if sug:
         lines.append("Extra groove that would help most (expected 1 sigma of t_x, t_y, t_z with it):")
         for s in sug:
             g = s.groove
             lines.append(f"  {g.id.rstrip('*')} at A{g.angles[0]:g} B{g.angles[1]:g} C{g.angles[2]:g}: "
-                         f"({', '.join(f'{x * 1e3:.3f}' for x in s.sigma)}) um, "
-                         f"trace(cov) -{s.trace_reduction:.3f} um^2")
+                         f"({', '.join(f'{x * 1e3:.3f}' for x in s.sigma)}) µm, "
+                         f"trace(cov) -{s.trace_reduction:.3f} µm²")
     return "\n".join(lines) + "\n"
 
 
 def plot_report(machine, meas, est: ToolSettingEstimate, path):
-    """Report figure (PNG): estimate with 1/3-sigma bars, normalised residuals, and the predicted
-    grooves before/after compensation on each face."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """Report figure (PNG): every estimated parameter with 3-sigma bars, normalised residuals, and
+    the predicted grooves before/after compensation on each face."""
+    from matplotlib.figure import Figure
     from pathlib import Path
     from .._io import save_figure
     from .tool import cut_grooves
     m = machine
     plan = meas.plan
-    fig = plt.figure(figsize=(13, 8))
+    fig = Figure(figsize=(13, 8))
     ax1 = fig.add_subplot(2, 2, 1)
-    x = np.arange(3)
-    ax1.bar(x, est.offset * 1e3, color="tab:blue", alpha=0.7)
-    ax1.errorbar(x, est.offset * 1e3, yerr=3 * est.sigma * 1e3, fmt="none", ecolor="k", capsize=6, label="3 sigma")
-    ax1.set_xticks(x, COMPONENTS)
-    ax1.set_ylabel("um")
-    ax1.set_title("tool setting error (tool frame)", fontsize=9)
-    for k in range(3):
-        ax1.text(k, est.offset[k] * 1e3, f"{est.offset[k] * 1e3:+.2f}\n+-{est.sigma[k] * 1e3:.2f}",
-                 ha="center", va="bottom", fontsize=8)
-    ax1.legend(fontsize=8)
+    vals, sig = est._values * 1e3, np.sqrt(np.diag(est._param_cov)) * 1e3
+    x = np.arange(len(vals))
+    ax1.bar(x, vals, color=["tab:blue"] * 3 + ["tab:orange"] * (len(vals) - 3), alpha=0.7)
+    ax1.errorbar(x, vals, yerr=3 * sig, fmt="none", ecolor="k", capsize=6, label="3σ")
+    ax1.set_xticks(x, est.parameters)
+    ax1.set_ylabel("µm")
+    ax1.set_title("tool setting (tool frame) and rotary axis location errors", fontsize=9)
+    for k in range(len(vals)):
+        ax1.text(k, vals[k], f"{vals[k]:+.2f}\n±{sig[k]:.2f}", ha="center", va="bottom", fontsize=8)
+    ax1.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     ax2 = fig.add_subplot(2, 2, 2)
     ax2.plot(est.normalized, "o", ms=3)
     ax2.axhline(3, color="r", lw=0.6)
     ax2.axhline(-3, color="r", lw=0.6)
-    ax2.set_ylabel("residual / sigma")
+    ax2.set_ylabel("residual / σ")
     ax2.set_xlabel("measured value #")
-    ax2.set_title(f"normalised residuals (chi2 {est.chi2:.1f} on {est.dof} dof)", fontsize=9)
+    ax2.set_title(f"normalised residuals (χ² {est.chi2:.1f} on {est.dof} dof)", fontsize=9)
     before = cut_grooves(m, plan, est.errors())
     after = cut_grooves(m, plan, est.errors(), compensation=est.errors())
     faces = [f for f in plan.faces if any(g.face == f for g in plan.grooves)]
@@ -632,14 +736,14 @@ def plot_report(machine, meas, est: ToolSettingEstimate, path):
         ax = fig.add_subplot(2, 2, 3 + i)
         for g in (g for g in plan.grooves if g.face == fname):
             ax.plot(*zip(g.start, g.end), color="0.6", lw=3, alpha=0.5)
-        for cs, col, lab in ((before, "tab:red", "as cut (estimated t)"), (after, "tab:green", "compensated")):
+        for cs, col, lab in ((before, "tab:red", "as cut (estimated errors)"), (after, "tab:green", "compensated")):
             first = True
             for c in (c for c in cs if c.groove.face == fname):
                 ax.plot(*zip(c.start, c.end), color=col, lw=1, label=lab if first else None)
                 first = False
         ax.set_aspect("equal")
         ax.set_title(f"{fname} face: nominal (grey), predicted grooves", fontsize=9)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
         ax.set_xlabel("u [mm]")
         ax.set_ylabel("v [mm]")
     fig.tight_layout()

@@ -353,8 +353,11 @@ def nc_programs(machine, plan: Plan, compensation=None) -> dict[str, str]:
         if compensation is not None:
             q = retarget(m, np.array([mv.q for mv in moves]), compensation, round_result=True)
             moves = [replace(mv, q=tuple(qq)) for mv, qq in zip(moves, q)]
-            off = ", ".join(f"{x * 1e3:.3f}" for x in compensation.tool.offset)
-            title += f", compensated for tool setting offset ({off}) um"
+            off = ", ".join(f"{x:.6f}" for x in compensation.tool.offset)
+            title += f", compensated for tool setting offset ({off}) mm"
+            loc = compensation.geometric.location
+            if loc:
+                title += " and " + ", ".join(f"{k} {v:.6f}" for k, v in loc.items()) + " mm"
         out[t] = render_nc(m, moves, title)
     return out
 
@@ -390,34 +393,59 @@ def load_plan(path: str | os.PathLike) -> Plan:
     head = d.get("plan")
     if not isinstance(head, dict) or "machine" not in head:
         raise InputError("missing [plan] table with a machine name", path, field="plan")
+    if not isinstance(head["machine"], str) or not head["machine"].strip():
+        raise InputError(f"expected a machine preset name or file, got {head['machine']!r}", path,
+                         field="plan.machine")
 
     def num(x, fld, n=None):
-        try:
-            a = np.asarray(x, float)
-        except (TypeError, ValueError):
-            raise InputError(f"expected numbers, got {x!r}", path, field=fld) from None
-        if (n is not None and a.shape != (n,)) or not np.all(np.isfinite(a)):
-            raise InputError(f"expected {n or 1} finite number(s), got {x!r}", path, field=fld)
+        flat = x if isinstance(x, (list, tuple)) else [x]
+        if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in flat):
+            raise InputError(f"expected {'a list of ' + str(n) + ' numbers' if n else 'a number'}, got {x!r}",
+                             path, field=fld)
+        a = np.asarray(x, float)
+        if (n is not None and a.shape != (n,)) or (n is None and a.shape != ()) or not np.all(np.isfinite(a)) \
+                or np.any(np.abs(a) > 1e6):
+            raise InputError(f"expected {n or 1} finite number(s) of at most 1e6 (mm, deg), got {x!r}", path,
+                             field=fld)
         return a
 
+    def tables(key):
+        v = d.get(key, [])
+        if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+            raise InputError(f"expected [[{key}]] tables, got {type(v).__name__} {v!r:.40}", path, field=key)
+        return v
+
+    def text(g, k, fld):
+        v = g[k]
+        if not isinstance(v, str) or not v.strip():
+            raise InputError(f"expected a non-empty string, got {v!r}", path, field=f"{fld}.{k}")
+        return v
+
     faces = {}
-    for i, f in enumerate(d.get("face", [])):
+    for i, f in enumerate(tables("face")):
         try:
             vecs = [num(f[k], f"face[{i}].{k}", 3) for k in ("origin", "eu", "ev", "normal")]
-            faces[str(f["name"])] = Face(str(f["name"]), *[tuple(map(float, v)) for v in vecs])
+            name = text(f, "name", f"face[{i}]")
         except KeyError as exc:
             raise InputError(f"missing key {exc}", path, field=f"face[{i}]") from None
+        frame = np.array(vecs[1:])
+        if not np.allclose(frame @ frame.T, np.eye(3), atol=1e-6) or np.linalg.det(frame) < 0:
+            raise InputError("eu, ev, normal must be orthonormal unit vectors (right-handed: normal = eu x ev)",
+                             path, field=f"face[{i}]")
+        faces[name] = Face(name, *[tuple(map(float, v)) for v in vecs])
     faces = faces or dict(DEFAULT_FACES)
     grooves = []
-    for i, g in enumerate(d.get("groove", [])):
+    for i, g in enumerate(tables("groove")):
         fld = f"groove[{i}]"
         try:
-            gid, test, face = str(g["id"]), str(g["test"]), str(g["face"])
+            gid, test, face = text(g, "id", fld), text(g, "test", fld), text(g, "face", fld)
             ang = num(g["angles_deg"], f"{fld}.angles_deg", 3)
             st, en = num(g["start_mm"], f"{fld}.start_mm", 2), num(g["end_mm"], f"{fld}.end_mm", 2)
             dep = float(num(g["depth_mm"], f"{fld}.depth_mm"))
         except KeyError as exc:
             raise InputError(f"missing key {exc}", path, field=fld) from None
+        if not dep > 0:
+            raise InputError(f"expected a positive depth of cut, mm, got {dep!r}", path, field=f"{fld}.depth_mm")
         if test not in TESTS:
             raise InputError(f"test must be one of {', '.join(TESTS)}, got {test!r}", path, field=f"{fld}.test")
         if face not in faces:
@@ -495,7 +523,7 @@ def groove_width(depth, tip_angle: float, tilt: float = 0.0):
 def groove_top_centre_offset(depth, tip_angle: float, tilt: float = 0.0):
     """Offset (mm) of the midpoint between a V-groove's two top edges from its bottom line,
     depth * (tan(tip/2 + tilt) - tan(tip/2 - tilt)) / 2, towards d x n (d the cutting direction,
-    n the face normal) for a positive tilt.  Zero for an untilted tool; 36 um for D = 0.1 mm,
+    n the face normal) for a positive tilt.  Zero for an untilted tool; 36 µm for D = 0.1 mm,
     tip 90 deg, tilt 10 deg: measure the bottom line on inclined grooves, or correct by this."""
     h, t = np.radians(tip_angle / 2.0), np.radians(tilt)
     return np.asarray(depth) * (np.tan(h + t) - np.tan(h - t)) / 2.0
@@ -516,16 +544,16 @@ def write_plan(machine, plan: Plan, outdir: str | os.PathLike, png: bool = True)
 def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
     """Layout drawing (PNG): plate outline, nominal grooves with their ids and widths, and, if
     given, the predicted real grooves `cuts` (from `mtcomp.setting.tool.cut_grooves`)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
     from .._io import save_figure
     faces = [f for f in plan.faces if any(g.face == f for g in plan.grooves)]
-    fig, axs = plt.subplots(1, len(faces), figsize=(6 * len(faces), 6), squeeze=False)
+    fig = Figure(figsize=(6 * len(faces), 6))
+    axs = fig.subplots(1, len(faces), squeeze=False)
     w, h = plan.options.plate
     colours = {"A": "tab:blue", "B": "tab:green", "C": "tab:red"}
     for ax, fname in zip(axs[0], faces):
-        ax.add_patch(plt.Rectangle((-w / 2, -h / 2), w, h, fill=False, lw=1.0, color="0.3"))
+        ax.add_patch(Rectangle((-w / 2, -h / 2), w, h, fill=False, lw=1.0, color="0.3"))
         labels: dict = {}
         for g in (g for g in plan.grooves if g.face == fname):
             labels.setdefault((g.start, g.end), []).append(g.id)

@@ -79,7 +79,7 @@ def cmd_fit(args) -> int:
     fit = fit_bowls(touches, plan.probe_radius, probe_sigma=args.probe_sigma, bowl_radius=radius,
                     shared_radius=not args.radius_per_bowl, k=args.k,
                     bowls=plan.ids if known else None)
-    est = frame_from_bowls(fit, plan, method=args.method, file=args.touches)
+    est = frame_from_bowls(fit, plan, method=args.method, file=args.touches, reference=args.reference)
     print(fit.summary())
     print(est.summary())
     _warn(fit.warnings)
@@ -109,6 +109,15 @@ def cmd_compensate(args) -> int:
         raise InputError("no [workpiece_setting] section: expected the output of "
                          "'mtcomp workpiece-setting fit'", args.errors, field="workpiece_setting")
     errors = load_errors(args.errors)
+    # the transform applies the workpiece setting only: other errors in the file would be dropped
+    # without a word, and the user believes the program compensated for them
+    other = [name for name, zero in (("[tool_setting]", errors.tool.is_zero),
+                                     ("[geometric]", errors.geometric.is_zero)) if not zero]
+    if other and not args.workpiece_only:
+        raise InputError(f"the errors file also has {' and '.join(other)}, which this command does not apply "
+                         "(it transforms for the workpiece setting only): use 'mtcomp compensate' to apply "
+                         "every error of the file, or pass --workpiece-only to apply just [workpiece_setting]",
+                         args.errors, field=other[0].strip("[]"))
     n = compensate_program(machine, args.program, errors.workpiece, args.out, mode=args.mode)
     print(f"{n} motion lines transformed ({args.mode}) -> {args.out}")
     return 0
@@ -124,7 +133,9 @@ def cmd_simulate(args) -> int:
     cfg = CellConfig(machine=args.machine, plan=load_plan(args.plan) if args.plan else None,
                      robot=robot, probe_sigma=args.probe_sigma, mode=args.mode, trials=args.trials,
                      seed=args.seed, bowl_radius=args.bowl_radius,
-                     shared_radius=not args.radius_per_bowl)
+                     shared_radius=not args.radius_per_bowl, cutter_radius_error=args.cutter_radius_error,
+                     runout=args.runout, bowl_position_sigma=args.bowl_position_sigma,
+                     reference=args.reference, microscope_scale=args.microscope_scale)
 
     def progress(i, n):
         if sys.stderr.isatty() and (i % 50 == 0 or i == n):
@@ -183,6 +194,9 @@ def register(subparsers) -> None:
                    "(default: one radius for all bowls, cut by one tool)")
     a.add_argument("--method", choices=("auto", "paper", "lsq"), default="auto",
                    help="frame: paper (3 bowls), lsq (best-fit), auto (default)")
+    a.add_argument("--reference", choices=("bottom", "centre"), default="bottom",
+                   help="bowl height from the bottom points (default; immune to the cutter radius) "
+                        "or from the centres of the nominal radius")
     a.add_argument("--k", type=float, default=5.0, help="outlier threshold in sigma (5)")
     a.add_argument("-o", "--out", required=True, help="errors TOML to write (mtcomp format)")
     a.add_argument("--report", help="also write a report TOML (covariance, residuals)")
@@ -194,6 +208,8 @@ def register(subparsers) -> None:
     a.add_argument("--machine", default="robonano-a0ib", help="machine preset or TOML")
     a.add_argument("--mode", choices=("auto", "3axis", "5axis"), default="auto",
                    help="3axis: paper 001 formula; 5axis: tool direction too (default auto)")
+    a.add_argument("--workpiece-only", action="store_true",
+                   help="apply only [workpiece_setting] of an errors file that has other errors too")
     a.add_argument("-o", "--out", required=True, help="program to write")
     a.set_defaults(func=cmd_compensate)
 
@@ -213,6 +229,15 @@ def register(subparsers) -> None:
     g.add_argument("--bowl-radius", type=float, help="fix the fitted bowl radius, mm")
     g.add_argument("--radius-per-bowl", action="store_true",
                    help="fit a radius per bowl (default: one for all bowls)")
+    a.add_argument("--cutter-radius-error", type=float, default=0.0,
+                   help="ball end mill radius error of the bowls, mm (0)")
+    a.add_argument("--runout", type=float, default=0.0, help="radial run-out of the ball end mill, mm (0)")
+    a.add_argument("--bowl-position-sigma", type=float, default=0.0,
+                   help="ordinary machine's bowl position scatter, 1 sigma per axis, mm (0)")
+    a.add_argument("--microscope-scale", type=float, default=0.0,
+                   help="relative scale error of the width measurement (0)")
+    a.add_argument("--reference", choices=("bottom", "centre"), default="bottom",
+                   help="bowl height from bottom points (default) or centres")
     a.add_argument("--mode", choices=("3axis", "5axis"), default="3axis")
     a.add_argument("-o", "--out", help="markdown table to write")
     a.add_argument("--png", help="PNG plot to write")
