@@ -170,8 +170,18 @@ class Context:
         return v
 
     def direction(self, key: str) -> np.ndarray:
+        """Direction of the last significant motion at each grid time, from the signal as
+        sampled in its file (an interpolant between samples can ring at starts and stops, and
+        a stop-and-measure grid does not see the motion between readings)."""
         if key not in self._dir:
-            self._dir[key] = direction_of_motion(self.values(key))
+            sig = self.al.signals[key]
+            if sig.native:
+                tn, vn = sig.native
+                dn = direction_of_motion(np.asarray(vn, float))
+                i = np.clip(np.searchsorted(tn, self.al.t, side="right") - 1, 0, len(tn) - 1)
+                self._dir[key] = dn[i]
+            else:
+                self._dir[key] = direction_of_motion(self.values(key))
         return self._dir[key]
 
 
