@@ -206,6 +206,41 @@ def _time_key(keys: list[str]) -> str | None:
     return alts[0] if len(alts) == 1 else None
 
 
+def _decimal_resolution(values: np.ndarray) -> float:
+    """Rounding step of values written with a fixed number of significant figures.
+
+    Loggers that write 3 significant figures (many PLC and cloud collectors) round each value
+    to a step that grows with its size (0.01 at 5.86, 1 at 198); the noise floor cannot be
+    below that rounding.  The number of significant figures is the 95th percentile over the
+    values of the digits each needs (trailing zeros make some values look shorter); the result
+    is the RMS over all values of their step.  Tiny for full-precision files.
+    """
+    v = np.abs(values[np.isfinite(values)])
+    nz = v[v != 0]
+    if len(nz) < 3:
+        return 0.0
+    if len(nz) > 20000:
+        nz = nz[:: len(nz) // 20000]
+    mag = np.floor(np.log10(nz))
+    digits = np.full(len(nz), 16.0)
+    todo = np.ones(len(nz), bool)
+    for d in range(1, 16):
+        step = 10.0 ** (mag[todo] - d + 1)
+        x = nz[todo] / step
+        ok = np.abs(x - np.round(x)) <= 1e-6 + 1e-14 * x
+        idx = np.flatnonzero(todo)[ok]
+        digits[idx] = d
+        todo[idx] = False
+        if not todo.any():
+            break
+    n_sig = float(np.percentile(digits, 95))
+    if n_sig >= 8:
+        return 0.0
+    vv = v[:: max(1, len(v) // 20000)]
+    steps = np.where(vv > 0, 10.0 ** (np.floor(np.log10(np.where(vv > 0, vv, 1.0))) - n_sig + 1), 0.0)
+    return float(np.sqrt(np.mean(steps ** 2)))
+
+
 def read_table(path: str | Path, role: str = "file", units: dict | None = None) -> Table:
     """Read one CSV file (header row; `t` column; numbers) into a :class:`Table`.
 
@@ -326,7 +361,7 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
             raise InputError(f"value {raw[r]:g} is out of range (|value| above {MAX_ABS:g} "
                              f"{cunit or 'units'}: a corrupt cell?)", path,
                              linenos[r] if linenos else None, field=hdr)
-        q = _quantum(raw)
+        q = max(_quantum(raw), _decimal_resolution(raw))
         columns[key] = Column(key, hdr, kind, cunit, v, q * abs(fac), src)
     if np.any(np.abs(t) > MAX_ABS):
         r = int(np.argmax(np.abs(t) > MAX_ABS))
