@@ -616,16 +616,20 @@ class TimeOffset(Candidate):
 
 
 class ServoLagDerivative(Candidate):
-    """Servo lag of a velocity (or acceleration) output through a logged commanded derivative.
+    """Servo lag of a velocity output, linearised through a logged commanded acceleration:
+    r = -tau a_cmd (tau linear; kv = 1/tau).
 
-    A first-order loop of time constant tau = 1/kv lags its command c by r = F_tau[c] - c,
-    which is -tau dc/dt to first order.  At a coarse logging rate the derivative of c from its
-    samples is poor; a commanded acceleration logged beside the commanded velocity is exact at
-    the sample times, so it is used as the regressor: r = -tau a_cmd (tau linear).
+    The first-order term of F_tau[c] - c.  Beside the filtered form (ServoLagHermite) because
+    real loggers sample command and actual a little apart within a cycle: the linear form uses
+    the logged acceleration only at the sample itself and degrades more gracefully then.
     """
 
     def __init__(self, output, derivative):
         super().__init__("servo_lag", (output,), (output, derivative), 1)
+
+    @property
+    def label(self) -> str:
+        return super().label + "(linear)"
 
     def build(self, ctx, eta):
         return None, [{self.outputs[0]: -ctx.values(self.inputs[1])}]
@@ -636,6 +640,51 @@ class ServoLagDerivative(Candidate):
         kv = 1.0 / tau if tau > 0 else float("inf")
         return ({"kv_per_s": kv, "tau_s": tau},
                 {"kv_per_s": s_tau / tau ** 2 if tau > 0 else float("nan"), "tau_s": s_tau})
+
+
+class ServoLagHermite(ServoLag):
+    """Servo lag of a velocity (or acceleration) output, using a logged commanded derivative.
+
+    A first-order loop of time constant tau = 1/kv lags its command c by r = F_tau[c] - c
+    (-tau dc/dt to first order).  At a coarse logging rate (10 Hz) c between its samples is
+    poorly known; with the commanded acceleration logged beside the commanded velocity the
+    command is a cubic Hermite curve through both (exact slopes at the samples), which is what
+    the lag filter runs on, on a grid fine against tau.
+    """
+
+    def __init__(self, output, derivative):
+        Candidate.__init__(self, "servo_lag", (output,), (output, derivative), 0)
+        self._herm = None
+
+    def _hermite(self, ctx):
+        if self._herm is None:
+            from scipy.interpolate import CubicHermiteSpline
+            al = ctx.al
+            tv, v = al.signals[self.outputs[0]].native
+            sd = al.signals[self.inputs[1]]
+            td, a = sd.native if sd.native else (al.t, sd.values)
+            a_v = np.interp(tv, td, a)
+            h = CubicHermiteSpline(tv, v, a_v, extrapolate=False)
+            self._herm = lambda x, _h=h, _a=tv[0], _b=tv[-1]: _h(np.clip(x, _a, _b))
+        return self._herm
+
+    def build(self, ctx, eta):
+        al = ctx.al
+        o = self.outputs[0]
+        tau = math.exp(-eta[0])
+        m = int(np.clip(math.ceil(al.dt / (tau / 8)), 4, max(4, 400_000 // al.n)))
+        h = al.dt / m
+        warm = int(min(max(al.t[0] - al.sim_span[0], 0.0), 20 * tau) / h)
+        k = np.arange(-warm, (al.n - 1) * m + 1)
+        tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
+        cf = self._hermite(ctx)(tf)
+        y = first_order(cf, h, tau)[warm::m] - al.sim[o]
+        return {o: y}, []
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        kv = math.exp(eta[0])
+        s = _se(cov_eta, 0)
+        return {"kv_per_s": kv, "tau_s": 1.0 / kv}, {"kv_per_s": kv * s, "tau_s": s / kv}
 
 
 class Friction(Candidate):
@@ -666,9 +715,32 @@ AT_REST = ("thermal_drift", "backlash", "periodic_pitch_error", "scale_error", "
 _DERIV = {"velocity": "acceleration", "angular_velocity": "angular_acceleration"}
 
 
+_ROLE_WORDS = {"v", "vel", "velo", "velocity", "spd", "speed", "feed", "feedrate", "a", "acc",
+               "accel", "acceleration", "cmd", "command", "commanded", "act", "actual", "set",
+               "nom", "meas", "measured", "des"}
+
+
+def _stem(key: str) -> str:
+    """A name without the words that say which derivative or which side it is:
+    `spd_axis` and `acc_axis` -> 'axis', `X1_CommandVelocity` -> 'x1'."""
+    from .data import _tokens
+    return "".join(w for w in _tokens(key) if w not in _ROLE_WORDS)
+
+
+def _pairs_with(sig_o, key_o: str, sig_d, key_d: str, n_rate_outs: int, n_derivs: int) -> bool:
+    """Is the derivative signal d the commanded derivative of output o?"""
+    if sig_o.letter is not None and sig_d.letter is not None:
+        return sig_o.letter == sig_d.letter
+    if _stem(key_o) and _stem(key_o) == _stem(key_d):
+        return True
+    return n_rate_outs == 1 and n_derivs == 1
+
+
 def candidates(al: Aligned) -> list[Candidate]:
     """Every effect the data could support, given the outputs' kinds and the available drivers."""
-    outs = [o for o in al.outputs if al.kinds[o] in ("length", "angle")]
+    # outputs of unknown kind (no unit, a name that says nothing) are treated as positions of
+    # an unnamed axis: the effects that need an axis letter do not apply to them
+    outs = [o for o in al.outputs if al.kinds[o] in ("length", "angle", "other")]
     rates = [o for o in al.outputs if al.kinds[o] in ("velocity", "angular_velocity",
                                                         "acceleration", "angular_acceleration")]
     moving = {o for o in outs + rates if np.ptp(al.sim[o]) > 0}
@@ -684,7 +756,7 @@ def candidates(al: Aligned) -> list[Candidate]:
             out.append(ThermalDrift(o, d))
         if o in moving:
             out += [Backlash(o), ServoLag(o), ScaleError(o)]
-            if al.kinds[o] == "length":
+            if al.kinds[o] in ("length", "other"):
                 pp = PeriodicPitch(o)
                 if pp.identifiable(Context(al, np.arange(0, al.n, max(1, al.n // 2000)))):
                     out.append(pp)
@@ -698,9 +770,12 @@ def candidates(al: Aligned) -> list[Candidate]:
             continue
         # servo lag through a logged commanded derivative of the same axis when there is one
         dk = _DERIV.get(al.kinds[o])
-        derivs = [k for k, s in sig.items() if dk and s.kind == dk and s.source == "sim"
-                  and np.ptp(s.values) > 0 and s.letter is not None and s.letter == sig[o].letter]
-        out += [ServoLagDerivative(o, d) for d in derivs] or [ServoLag(o)]
+        all_d = [k for k, s in sig.items() if dk and s.kind == dk and s.source == "sim"
+                 and np.ptp(s.values) > 0]
+        n_rate = sum(al.kinds[r] == al.kinds[o] for r in rates)
+        derivs = [k for k in all_d if _pairs_with(sig[o], o, sig[k], k, n_rate, len(all_d))]
+        out += ([c for d in derivs for c in (ServoLagDerivative(o, d), ServoLagHermite(o, d))]
+                or [ServoLag(o)])
         if al.kinds[o] in ("velocity", "angular_velocity"):
             out.append(Friction(o))
     lin_outs = {sig[o].letter: o for o in outs if al.kinds[o] == "length" and sig[o].letter in LIN_AXIS}
