@@ -26,8 +26,9 @@ def test_units_in_headers_are_converted(tmp_path):
     c = tab.columns
     assert c["x"].kind == "length" and c["x"].values.tolist() == pytest.approx([1.5, 2.5])
     assert c["b"].kind == "angle" and c["b"].values.tolist() == pytest.approx([90.0, 180.0])
-    assert c["t_spindle"].kind == "temperature" and c["t_spindle"].values.tolist() == pytest.approx([20.0, 21.0])
-    assert c["s"].kind == "speed"
+    # names are kept as written (case-sensitive)
+    assert c["T_spindle"].kind == "temperature" and c["T_spindle"].values.tolist() == pytest.approx([20.0, 21.0])
+    assert c["S"].kind == "speed"
     assert c["load"].kind == "other" and c["load"].unit == "%"
     assert c["y"].kind == "length" and c["y"].unit == "mm"  # no unit: the name says length
 
@@ -57,7 +58,7 @@ def test_quantisation_sets_the_noise_floor():
 
 
 BAD = {
-    "no_t": ("time,x\n0,1\n1,2\n2,3\n", "no time column `t`"),
+    "no_t": ("clock,x\n0,1\n1,2\n2,3\n", "no time column `t`"),
     "unsorted": ("t,x\n0,1\n1,2\n0.5,3\n2,4\n", "t must increase"),
     "nan": ("t,x\n0,1\n1,nan\n2,3\n", "expected a finite number"),
     "text": ("t,x\n0,1\n1,abc\n2,3\n", "expected a number"),

@@ -1,13 +1,15 @@
 """Put SIM and REC on one time grid, estimate the clock offset and the noise floor.
 
-The grid is the sample times of the more coarsely sampled file inside the common time span
-(uniform grids are kept as they are; a jittery one is replaced by a uniform grid of its median
-step), so the coarse file is never interpolated and its noise stays white.  The finer file is
-interpolated with a cubic spline: a linear one would add a(t)*dt^2/8 of interpolation error,
-about 60 nm at 500 mm/s^2 and 1 kHz, which is more than the noise of a good recording.
+The grid is REC's own sample times inside the common time span (a jittery clock is replaced by
+a uniform grid of its median step), so the recording is never interpolated and its noise stays
+white.  SIM, the smooth and noise-free side, is evaluated at those times with the interpolant
+that predicts SIM best by cross-validation on SIM itself (linear for piecewise-linear commands,
+cubic spline for smooth motion, held values for steps); the cross-validated error gives the
+interpolation error bound reported with the result.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,6 +53,11 @@ class Aligned:
     clock_offset: float = 0.0         # REC clock - SIM clock removed before the grid, s
     noise_floor: dict = field(default_factory=dict)  # output key -> sigma
     rates: dict = field(default_factory=dict)        # "sim"/"rec" -> median sample rate, Hz
+    at_rest: bool = False             # REC sampled only while SIM rests (stop-and-measure)
+    interp: dict = field(default_factory=dict)       # output -> (interpolant of SIM, error bound)
+    roles: dict = field(default_factory=dict)        # column -> (role, kind, unit, kind from)
+    notes: tuple = ()                 # what the alignment decided, in words
+    sim_native: dict = field(default_factory=dict)   # output -> (t, values) of SIM as sampled
 
     @property
     def n(self) -> int:
@@ -66,6 +73,59 @@ def _spline(t, y):
     def f(x, _cs=cs, _t0=t[0], _t1=t[-1]):
         return _cs(np.clip(x, _t0, _t1))
     return f
+
+
+def _linear(t, y):
+    return lambda x, _t=t, _y=y: np.interp(x, _t, _y)
+
+
+def _hold(t, y):
+    def f(x, _t=t, _y=y):
+        i = np.clip(np.searchsorted(_t, x, side="right") - 1, 0, len(_t) - 1)
+        return _y[i]
+    return f
+
+
+def _pchip(t, y):
+    from scipy.interpolate import PchipInterpolator
+    if len(t) < 3:
+        return _linear(t, y)
+    f = PchipInterpolator(t, y, extrapolate=False)
+    return lambda x, _f=f, _t0=t[0], _t1=t[-1]: _f(np.clip(x, _t0, _t1))
+
+
+INTERPOLANTS = {"linear": _linear, "cubic": _spline, "pchip": _pchip, "hold": _hold}
+# order of the error in the step h of each interpolant: halving the samples multiplies it by 2^p
+_ORDER = {"linear": 2, "cubic": 4, "pchip": 3, "hold": 1}
+
+
+def choose_interpolant(t: np.ndarray, y: np.ndarray, kinds=("linear", "cubic", "hold")):
+    """Interpolant that predicts a sampled signal best, by cross-validation on the signal itself.
+
+    Every other sample is predicted from the remaining ones (both halves in turn); the
+    interpolant with the smallest RMS prediction error wins.  The error at the full sampling
+    rate is that RMS divided by 2^p (p the order of the interpolant in the step), an estimate
+    of the interpolation error bound.  Returns (name, callable, error bound in y's unit).
+    """
+    n = len(t)
+    if n < 8 or np.ptp(y) == 0:
+        return "linear", _linear(t, y), 0.0
+    # at most about 40,000 points enter the test: a strided block keeps the local step
+    errs = {}
+    for name in kinds:
+        se, cnt = 0.0, 0
+        for par in (0, 1):
+            keep = np.arange(n) % 2 == par
+            tk, yk = t[keep], y[keep]
+            f = INTERPOLANTS[name](tk, yk)
+            m = ~keep
+            inside = m & (t > tk[0]) & (t < tk[-1])
+            d = f(t[inside]) - y[inside]
+            se += float(d @ d)
+            cnt += int(inside.sum())
+        errs[name] = math.sqrt(se / max(cnt, 1))
+    best = min(kinds, key=lambda k: (errs[k], list(kinds).index(k)))
+    return best, INTERPOLANTS[best](t, y), errs[best] / 2 ** _ORDER[best]
 
 
 def _uniform(t: np.ndarray) -> bool:
@@ -135,33 +195,94 @@ def _xcorr_offset(tc, sims, recs, max_lag_s):
 CLOCK_OFFSET_MIN = 0.1  # s
 
 
-def _refine_offset(sim, rec, outputs, sim_splines, offset0, step):
-    """Clock offset to a small fraction of a sample: least squares of REC(t) - SIM(t - offset)
-    near offset0 (scan, then Brent), outputs weighted by their noise."""
+def _lagged(sim_f, t0, t1, h, taus):
+    """First-order lags of a SIM signal on a fine grid: {tau: (grid, filtered)} (tau 0 = SIM)."""
+    from .effects import first_order
+    tg = np.arange(t0, t1 + 0.5 * h, h)
+    p = sim_f(tg)
+    return tg, {tau: (p if tau == 0 else first_order(p, h, tau)) for tau in taus}
+
+
+def _refine_offset(sim, rec, outputs, sim_f, offset0, step):
+    """Clock offset estimated jointly with a first-order lag per output.
+
+    A servo lag delays a moving axis by about 1/kv: an offset fitted alone takes the true clock
+    difference plus the lag, and the lag is then lost to the effects.  Here every trial offset
+    is scored with the best lag (0 .. 0.5 s, a grid then a parabola) of each output, the lag
+    filter running on a grid fine against both files' steps.  Returns (offset, cost at offset,
+    cost at zero offset), costs in noise-weighted squares.
+    """
     from scipy.optimize import minimize_scalar
-    keep = (rec.t - offset0 >= sim.t[0]) & (rec.t - offset0 <= sim.t[-1])
-    idx = np.flatnonzero(keep)[::max(1, int(np.count_nonzero(keep) // 20000))]
+    lo_t, hi_t = float(sim.t[0]), float(sim.t[-1])
+    keep = (rec.t - offset0 >= lo_t) & (rec.t - offset0 <= hi_t) & (rec.t >= lo_t) & (rec.t <= hi_t)
+    idx = np.flatnonzero(keep)[::max(1, int(np.count_nonzero(keep) // 8000))]
+    if len(idx) < 8:
+        return offset0, 0.0, np.inf
     t = rec.t[idx]
     ys = [rec.columns[k].values[idx] for k in outputs]
-    w = [1.0 / noise_sigma(y - sim_splines[k](t - offset0)) for k, y in zip(outputs, ys)]
+    w = [1.0 / noise_sigma(y - sim_f[k](t - offset0)) for k, y in zip(outputs, ys)]
+    h = max(min(float(np.median(np.diff(sim.t))), float(np.median(np.diff(rec.t)))) / 4,
+            (hi_t - lo_t) / 60000)
+    taus = np.concatenate([[0.0], np.geomspace(max(h, 1e-4), 0.5, 18)])
+    lag = {k: _lagged(sim_f[k], lo_t, hi_t, h, taus) for k in outputs}
 
-    def cost(tau):
-        return sum(float(np.sum(((y - sim_splines[k](t - tau)) * wk) ** 2))
-                   for k, y, wk in zip(outputs, ys, w))
-    # the correlation peak of slow, smooth moves can be off by several steps: scan a bracket
-    # first, then Brent around the best point of the scan
+    def cost(off):
+        total = 0.0
+        for k, y, wk in zip(outputs, ys, w):
+            tg, fl = lag[k]
+            x = np.clip(t - off, lo_t, hi_t)
+            total += min(float(np.sum(((y - np.interp(x, tg, f)) * wk) ** 2)) for f in fl.values())
+        return total
     half = max(5 * step, 0.05 * abs(offset0), 0.02)
     grid = offset0 + np.linspace(-half, half, 41)
-    best = int(np.argmin([cost(g) for g in grid]))
-    h = grid[1] - grid[0]
-    res = minimize_scalar(cost, bounds=(grid[best] - h, grid[best] + h), method="bounded",
-                          options={"xatol": 1e-7})
-    return float(res.x) if res.success else float(grid[best])
+    costs = [cost(g) for g in grid]
+    best = int(np.argmin(costs))
+    hstep = grid[1] - grid[0]
+    res = minimize_scalar(cost, bounds=(grid[best] - hstep, grid[best] + hstep), method="bounded",
+                          options={"xatol": 1e-6})
+    off = float(res.x) if res.success and res.fun <= costs[best] else float(grid[best])
+    return off, cost(off), cost(0.0)
 
 
-def align(sim: Table, rec: Table, clock_offset: float = 0.0) -> Aligned:
-    """Common grid, outputs, inputs and coarse clock offset of a SIM/REC pair."""
+def _at_rest_fraction(sim, outputs, t):
+    """Fraction of the times t at which every SIM output rests (stop-and-measure recordings)."""
+    still = np.ones(len(t), bool)
+    moving_any = False
+    for k in outputs:
+        c = sim.columns[k]
+        v = np.gradient(c.values, sim.t)
+        vmax = float(np.max(np.abs(v)))
+        if vmax == 0:
+            continue
+        moving_any = True
+        fast = np.abs(v) > 1e-3 * vmax
+        # a sample is at rest when SIM rests at it and at its neighbours in SIM's own samples
+        i = np.clip(np.searchsorted(sim.t, t), 1, len(sim.t) - 1)
+        still &= ~fast[i] & ~fast[i - 1]
+    return float(np.mean(still)) if moving_any else 0.0
+
+
+def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, inputs=None,
+          notes: tuple = ()) -> Aligned:
+    """Common grid, outputs, inputs and coarse clock offset of a SIM/REC pair.
+
+    outputs / inputs: column names to compare / to use as inputs only (default: the columns in
+    both files are outputs).  Names are case-sensitive.
+    """
+    from .data import MOTION_KINDS
     common = [k for k in sim.columns if k in rec.columns]
+    for opt, names in (("--output", outputs), ("--input", inputs)):
+        for k in names or ():
+            if k not in sim.columns and k not in rec.columns:
+                raise InputError(f"{opt} {k!r}: no such column (SIM has {', '.join(sim.columns)}; "
+                                 f"REC has {', '.join(rec.columns)})", field=opt)
+    if outputs:
+        for k in outputs:
+            if k not in common:
+                raise InputError(f"--output {k!r} must be a column of both SIM and REC", field="--output")
+        common = [k for k in common if k in outputs]
+    if inputs:
+        common = [k for k in common if k not in inputs]
     if not common:
         raise InputError(
             f"no output to compare: no column other than t is in both files "
@@ -172,7 +293,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0) -> Aligned:
         cs, cr = sim.columns[k], rec.columns[k]
         if cs.kind != cr.kind or cs.unit != cr.unit:
             raise InputError(f"column {k!r} is {cs.unit or cs.kind} in SIM but {cr.unit or cr.kind} in REC "
-                             "(expected the same quantity)", rec.path, 1, field=cr.header)
+                             "(expected the same quantity)", rec.path, None, field=cr.header)
         outputs.append(k)
     t0 = max(sim.t[0], rec.t[0])
     t1 = min(sim.t[-1], rec.t[-1])
@@ -184,57 +305,114 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0) -> Aligned:
     overlap = t1 - t0
     n_sim_in = np.count_nonzero((sim.t >= t0) & (sim.t <= t1))
     n_rec_in = np.count_nonzero((rec.t >= t0) & (rec.t <= t1))
-    if min(n_sim_in, n_rec_in) < 8:
+    if min(n_sim_in, n_rec_in) < 8 and clock_offset == 0.0:
         raise InputError(
             f"time spans overlap by {overlap:g} s only ({n_sim_in} SIM and {n_rec_in} REC samples): "
             "expected at least 8 samples of each in the common span", rec.path, field="t")
 
-    # outputs: cubic splines (smooth motion, interpolation error far below the noise); inputs:
-    # linear (spindle speed steps, logged temperatures: a cubic would ring at every step)
-    def interp(t, y, cubic):
-        return _spline(t, y) if cubic else (lambda x, _t=t, _y=y: np.interp(x, _t, _y))
-    sim_splines = {k: interp(sim.t, c.values, k in common) for k, c in sim.columns.items()}
-    rec_splines = {k: interp(rec.t, c.values, k in common) for k, c in rec.columns.items()}
+    # the grid is the coarser file's own times (its values are never interpolated, its noise
+    # stays white); the finer file is evaluated at them with the interpolant that predicts it
+    # best by cross-validation on itself (linear for piecewise-linear commands, splines for
+    # smooth motion, held values for steps), which also gives the interpolation error bound
+    rec_grid = dtr >= 0.999 * dts
+    interp = {}
+    sim_f, rec_f = {}, {}
+    for tab, fs, is_grid in ((sim, sim_f, not rec_grid), (rec, rec_f, rec_grid)):
+        for k, c in tab.columns.items():
+            motion = k in common or c.kind in MOTION_KINDS
+            kinds = ("linear", "cubic", "pchip", "hold") if motion else ("linear", "hold")
+            if tab is rec and k not in common:
+                kinds = ("linear",)  # REC inputs: logged temperatures and the like
+            name, f, bound = choose_interpolant(tab.t, c.values, kinds)
+            if tab is rec and k in common and bound > 0:
+                # the cross-validated error of a noisy signal includes its noise (the held-out
+                # sample's and, about half, its neighbours'): what is left is interpolation
+                sn = noise_sigma(c.values) * 2 ** _ORDER[name]
+                bound = math.sqrt(max((bound * 2 ** _ORDER[name]) ** 2 - 1.5 * sn ** 2, 0.0)) / 2 ** _ORDER[name]
+            fs[k] = f
+            if k in common and not is_grid:
+                interp[k] = (("SIM " if tab is sim else "REC ") + name, bound)
+            elif k in common:
+                interp.setdefault(k, ("none (grid)", 0.0))
+    # outputs always need a smooth evaluation of SIM at any time (lags, offsets)
+    for k in common:
+        if rec_grid is False and k not in interp:
+            interp[k] = ("none (grid)", 0.0)
 
-    # coarse offset: search up to a quarter of the overlap, on a grid of at most 2^15 points
+    # stop-and-measure: REC samples only where SIM rests (ISO 230-2 runs, probing, CMM). No
+    # clock can be aligned on motion that was not recorded, and only effects that act at rest
+    # are candidates.
+    rec_in = rec.t[(rec.t >= t0) & (rec.t <= t1)]
+    motion_outs = [k for k in outputs if sim.columns[k].kind in MOTION_KINDS]
+    at_rest = (clock_offset == 0.0 and len(motion_outs) > 0 and len(rec_in) >= 8
+               and _at_rest_fraction(sim, motion_outs, rec_in) >= 0.9)
+    notes = tuple(notes)
+    offset0 = 0.0
     max_lag = 0.25 * overlap
-    nc = int(min(2 ** 15, max(64, overlap / min(dts, dtr))))
-    tc = np.linspace(t0, t1, nc)
-    offset0, _ = _xcorr_offset(tc, [sim_splines[k](tc) for k in outputs],
-                               [rec_splines[k](tc) for k in outputs], max_lag)
-    if abs(offset0) < 0.5 * min(dts, dtr):
-        offset0 = 0.0
-    if abs(offset0) >= CLOCK_OFFSET_MIN and clock_offset == 0.0:
-        offset = _refine_offset(sim, rec, outputs, sim_splines, offset0, tc[1] - tc[0])
-        shifted = Table(rec.path, rec.t - offset, rec.columns)
-        return align(sim, shifted, clock_offset=offset)
+    if at_rest:
+        notes += ("REC holds readings at rest only (stop-and-measure): no clock alignment, "
+                  "only effects that act at rest are candidates",)
+    elif motion_outs:
+        # coarse offset: search up to a quarter of the overlap, on a grid of at most 2^15 points
+        nc = int(min(2 ** 15, max(64, overlap / min(dts, dtr))))
+        tc = np.linspace(t0, t1, nc)
+        offset0, _ = _xcorr_offset(tc, [sim_f[k](tc) for k in motion_outs],
+                                   [rec_f[k](tc) for k in motion_outs], max_lag)
+        if abs(offset0) < 0.5 * min(dts, dtr):
+            offset0 = 0.0
+        if abs(offset0) >= CLOCK_OFFSET_MIN and clock_offset == 0.0:
+            offset, c_off, c_zero = _refine_offset(sim, rec, motion_outs, sim_f, offset0,
+                                                   tc[1] - tc[0])
+            if c_off < c_zero:
+                shifted = Table(rec.path, rec.t - offset, rec.columns)
+                note = (f"clocks aligned: REC's clock runs {offset:+.6g} s from SIM's (estimated "
+                        "jointly with a first-order lag per output; it lowers the residual "
+                        f"{math.sqrt(c_zero / max(c_off, 1e-300)):.3g}x against no alignment)")
+                return align(sim, shifted, clock_offset=offset, outputs=outputs, inputs=inputs,
+                             notes=notes + (note,))
+            notes += (f"a clock offset of {offset:+.4g} s was tried and rejected: it does not "
+                      "lower the residual against no alignment",)
+            offset0 = 0.0
 
-    # grid: REC's own times when REC is the coarser (or equal) file, else SIM's
+    # grid: the coarser file's own times inside the common span (minus a margin for a
+    # remaining offset); REC's for a stop-and-measure recording
     margin = abs(offset0) + 2 * max(dts, dtr)
     ga, gb = t0 + (margin if offset0 > 0 else 0.0), t1 - (margin if offset0 < 0 else 0.0)
-    base = rec.t if dtr >= 0.999 * dts else sim.t
+    base = rec.t if (rec_grid or at_rest) else sim.t
     sel = (base >= ga) & (base <= gb)
     tg = base[sel]
     if len(tg) < 8:
         raise InputError(f"after aligning the clocks (REC lags SIM by {offset0:g} s) fewer than 8 "
                          "samples remain in the common span", rec.path, field="t")
-    if not _uniform(tg):
+    regular = _uniform(tg) or at_rest
+    if not regular:
         step = float(np.median(np.diff(tg)))
         tg = np.arange(tg[0], tg[-1] + 0.5 * step, step)
     dt = float((tg[-1] - tg[0]) / (len(tg) - 1))
-    rec_on = {k: (rec.columns[k].values[sel] if base is rec.t and len(tg) == np.count_nonzero(sel)
-                  else rec_splines[k](tg)) for k in rec.columns}
-    sim_on = {k: sim_splines[k](tg) for k in sim.columns}
+    on_rec = base is rec.t and regular
+    on_sim = base is sim.t and regular
+    rec_on = {k: (rec.columns[k].values[sel] if on_rec else rec_f[k](tg)) for k in rec.columns}
+    sim_on = {k: (sim.columns[k].values[sel] if on_sim else sim_f[k](tg)) for k in sim.columns}
+    if at_rest:
+        # readings at rest: SIM at the reading is the position it rests at (no interpolant
+        # between a move's samples can matter there)
+        for k in outputs:
+            sim_on[k] = _hold(sim.t, sim.columns[k].values)(tg)
+            interp[k] = ("SIM hold (at rest)", 0.0)
 
     signals = {}
+    roles = {}
     for k in outputs:
         c = sim.columns[k]
-        signals[k] = Signal(k, c.header, c.kind, c.unit, sim_on[k], "sim-output", _letter(k, c.kind))
+        signals[k] = Signal(k, c.header, c.kind, c.unit, sim_on[k], "sim-output", _letter(k, c.kind),
+                            (sim.t, c.values))
+        roles[k] = ("output", c.kind, c.unit, c.kind_from)
     for tab, on, src in ((sim, sim_on, "sim"), (rec, rec_on, "rec")):
         for k, c in tab.columns.items():
             if k in outputs or k in signals:
                 continue
             v = on[k]
+            roles[k] = ("input", c.kind, c.unit, c.kind_from)
             if c.kind == "other" and np.ptp(v) == 0:
                 continue
             signals[k] = Signal(k, c.header, c.kind, c.unit, v, src, _letter(k, c.kind),
@@ -245,11 +423,13 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0) -> Aligned:
         units={k: sim.columns[k].unit for k in outputs},
         kinds={k: sim.columns[k].kind for k in outputs},
         rec={k: rec_on[k] for k in outputs}, sim={k: sim_on[k] for k in outputs},
-        sim_spline={k: sim_splines[k] for k in outputs}, sim_span=(float(sim.t[0]), float(sim.t[-1])),
+        sim_spline={k: sim_f[k] for k in outputs}, sim_span=(float(sim.t[0]), float(sim.t[-1])),
         signals=signals, offset0=float(offset0), offset_range=float(max_lag),
         clock_offset=float(clock_offset),
         quantum={k: rec.columns[k].quantum for k in outputs},
-        rates={"sim": 1.0 / dts, "rec": 1.0 / dtr})
+        rates={"sim": 1.0 / dts, "rec": 1.0 / dtr}, at_rest=bool(at_rest), interp=interp,
+        roles=roles, notes=notes,
+        sim_native={k: (sim.t, sim.columns[k].values) for k in outputs})
     for k in outputs:
         al.noise_floor[k] = noise_sigma(al.rec[k] - al.sim[k], al.quantum[k])
     return al

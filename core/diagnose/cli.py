@@ -10,14 +10,22 @@ def register(subparsers) -> None:
         description="Align a simulation (SIM) and a recording (REC), find where they disagree, "
                     "name the physical effects the simulation left out (thermal_drift, backlash, "
                     "servo_lag, periodic_pitch_error, scale_error, squareness, straightness, "
-                    "pivot_offset, workpiece_setting, time_offset), fit them and show the fit "
-                    "improve on held-out data. Columns in both files are compared; all other "
-                    "columns are inputs. Units mm, deg, s, degC unless the header says, e.g. z[um].")
+                    "pivot_offset, workpiece_setting, time_offset, friction), fit them and show "
+                    "the fit improve on held-out data, or say that the mismatch is unexplained. "
+                    "Columns in both files are compared (names are case-sensitive); all other "
+                    "columns are inputs. Units mm, deg, s, degC, mm/s, mm/s^2 unless the header "
+                    "says, e.g. z[um], vx[mm/s].")
     p.add_argument("--sim", required=True, metavar="SIM.csv", help="simulated signals (CSV, column t in s)")
     p.add_argument("--rec", required=True, metavar="REC.csv", help="recorded signals (CSV, column t in s)")
     p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="plot recorded/simulated/corrected and residuals")
     p.add_argument("--report", metavar="OUT.md", help="write a Markdown report")
+    p.add_argument("--output", action="append", metavar="COL",
+                   help="compare only this column (repeatable; it must be in both files)")
+    p.add_argument("--input", action="append", metavar="COL",
+                   help="treat this column as an input even if both files have it (repeatable)")
+    p.add_argument("--unit", action="append", metavar="COL=UNIT",
+                   help="unit of a column whose header has none, e.g. --unit vx=mm/s (repeatable)")
     p.add_argument("--quiet", action="store_true", help="do not print the summary")
     p.set_defaults(func=run)
 
@@ -26,7 +34,15 @@ def run(args: argparse.Namespace) -> int:
     import os
     from .._io import atomic_write
     from .engine import diagnose
-    res = diagnose(args.sim, args.rec)
+    from .._io import InputError
+    units = {}
+    for item in args.unit or ():
+        col, sep, unit = item.partition("=")
+        if not sep or not col.strip() or not unit.strip():
+            raise InputError(f"--unit {item!r}: expected COL=UNIT, e.g. vx=mm/s", field="--unit")
+        units[col.strip()] = unit.strip()
+    res = diagnose(args.sim, args.rec, outputs=args.output, inputs=args.input, units=units,
+                   )
     if args.json:
         atomic_write(args.json, res.to_json() + "\n")
     if args.plot:

@@ -39,7 +39,8 @@ import numpy as np
 from .align import Aligned
 
 EFFECT_NAMES = ("thermal_drift", "backlash", "servo_lag", "periodic_pitch_error", "scale_error",
-                "squareness", "straightness", "pivot_offset", "workpiece_setting", "time_offset")
+                "squareness", "straightness", "pivot_offset", "workpiece_setting", "time_offset",
+                "friction")
 
 
 def first_order(u: np.ndarray, dt: float, tau: float) -> np.ndarray:
@@ -82,6 +83,20 @@ def direction_of_motion(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarra
     first = np.flatnonzero(s)[0]
     d[:first] = s[first]
     return d
+
+
+def visited_spacing(p: np.ndarray) -> float:
+    """Typical spacing of the positions a signal visits: the median gap between its distinct
+    values (1e-6 of the travel apart).  Dense motion gives a tiny spacing; a stop-and-measure
+    run the distance between its targets."""
+    p = np.asarray(p, float)
+    rng = float(np.ptp(p))
+    if rng == 0:
+        return 0.0
+    u = np.unique(np.round(p / (1e-6 * rng)))
+    if len(u) < 2:
+        return rng
+    return float(np.median(np.diff(u))) * 1e-6 * rng
 
 
 def legendre_cols(xi: np.ndarray, orders=(2, 3, 4)) -> list[np.ndarray]:
@@ -170,8 +185,18 @@ class Context:
         return v
 
     def direction(self, key: str) -> np.ndarray:
+        """Direction of the last significant motion at each grid time, from the signal as
+        sampled in its file (an interpolant between samples can ring at starts and stops, and
+        a stop-and-measure grid does not see the motion between readings)."""
         if key not in self._dir:
-            self._dir[key] = direction_of_motion(self.values(key))
+            sig = self.al.signals[key]
+            if sig.native:
+                tn, vn = sig.native
+                dn = direction_of_motion(np.asarray(vn, float))
+                i = np.clip(np.searchsorted(tn, self.al.t, side="right") - 1, 0, len(tn) - 1)
+                self._dir[key] = dn[i]
+            else:
+                self._dir[key] = direction_of_motion(self.values(key))
         return self._dir[key]
 
 
@@ -260,7 +285,9 @@ class ThermalDrift(Candidate):
 
     def bounds(self, ctx):
         lo = math.log(max(ctx.al.dt, 1e-3))
-        hi = math.log(max(10 * ctx.duration, 10 * ctx.al.dt))
+        # up to 3x the recording: a longer time constant makes the driver's response, the free
+        # initial transient and the offset nearly collinear, and they cancel at large amplitudes
+        hi = math.log(max(3 * ctx.duration, 10 * ctx.al.dt))
         return [lo], [hi]
 
     def build(self, ctx, eta):
@@ -379,9 +406,15 @@ class PeriodicPitch(Candidate):
     def bounds(self, ctx):
         p = ctx.values(self.outputs[0])
         rng = float(np.ptp(p))
-        lo = max(0.2, rng / 4000.0)
+        # identifiable leads only: at least twice the spacing of the positions that were
+        # visited (a shorter period aliases), and at most half the travel
+        lo = max(0.2, rng / 4000.0, 2.0 * visited_spacing(p))
         hi = max(rng / 2.0, 1.01 * lo)
         return [math.log(lo)], [math.log(hi)]
+
+    def identifiable(self, ctx) -> bool:
+        p = ctx.values(self.outputs[0])
+        return 2.0 * visited_spacing(p) < float(np.ptp(p)) / 2.0
 
     def build(self, ctx, eta):
         ph = 2 * np.pi * ctx.values(self.outputs[0]) / math.exp(eta[0])
@@ -582,10 +615,135 @@ class TimeOffset(Candidate):
         return {"offset_s": float(eta[0]) * dt}, {"offset_s": _se(cov_eta, 0) * dt}
 
 
+class ServoLagDerivative(Candidate):
+    """Servo lag of a velocity output, linearised through a logged commanded acceleration:
+    r = -tau a_cmd (tau linear; kv = 1/tau).
+
+    The first-order term of F_tau[c] - c.  Beside the filtered form (ServoLagHermite) because
+    real loggers sample command and actual a little apart within a cycle: the linear form uses
+    the logged acceleration only at the sample itself and degrades more gracefully then.
+    """
+
+    def __init__(self, output, derivative):
+        super().__init__("servo_lag", (output,), (output, derivative), 1)
+
+    @property
+    def label(self) -> str:
+        return super().label + "(linear)"
+
+    def build(self, ctx, eta):
+        return None, [{self.outputs[0]: -ctx.values(self.inputs[1])}]
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        tau = float(beta[0])
+        s_tau = _se(cov_beta, 0)
+        kv = 1.0 / tau if tau > 0 else float("inf")
+        return ({"kv_per_s": kv, "tau_s": tau},
+                {"kv_per_s": s_tau / tau ** 2 if tau > 0 else float("nan"), "tau_s": s_tau})
+
+
+class ServoLagHermite(ServoLag):
+    """Servo lag of a velocity (or acceleration) output, using a logged commanded derivative.
+
+    A first-order loop of time constant tau = 1/kv lags its command c by r = F_tau[c] - c
+    (-tau dc/dt to first order).  At a coarse logging rate (10 Hz) c between its samples is
+    poorly known; with the commanded acceleration logged beside the commanded velocity the
+    command is a cubic Hermite curve through both (exact slopes at the samples), which is what
+    the lag filter runs on, on a grid fine against tau.
+    """
+
+    def __init__(self, output, derivative):
+        Candidate.__init__(self, "servo_lag", (output,), (output, derivative), 0)
+        self._herm = None
+
+    def _hermite(self, ctx):
+        if self._herm is None:
+            from scipy.interpolate import CubicHermiteSpline
+            al = ctx.al
+            tv, v = al.signals[self.outputs[0]].native
+            sd = al.signals[self.inputs[1]]
+            td, a = sd.native if sd.native else (al.t, sd.values)
+            a_v = np.interp(tv, td, a)
+            h = CubicHermiteSpline(tv, v, a_v, extrapolate=False)
+            self._herm = lambda x, _h=h, _a=tv[0], _b=tv[-1]: _h(np.clip(x, _a, _b))
+        return self._herm
+
+    def build(self, ctx, eta):
+        al = ctx.al
+        o = self.outputs[0]
+        tau = math.exp(-eta[0])
+        m = int(np.clip(math.ceil(al.dt / (tau / 8)), 4, max(4, 400_000 // al.n)))
+        h = al.dt / m
+        warm = int(min(max(al.t[0] - al.sim_span[0], 0.0), 20 * tau) / h)
+        k = np.arange(-warm, (al.n - 1) * m + 1)
+        tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
+        cf = self._hermite(ctx)(tf)
+        y = first_order(cf, h, tau)[warm::m] - al.sim[o]
+        return {o: y}, []
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        kv = math.exp(eta[0])
+        s = _se(cov_eta, 0)
+        return {"kv_per_s": kv, "tau_s": 1.0 / kv}, {"kv_per_s": kv * s, "tau_s": s / kv}
+
+
+class Friction(Candidate):
+    """Coulomb + viscous friction seen on a velocity output: the drive loses a constant c
+    against the direction of motion and b per unit of velocity: r = -c sign(v) - b v.
+
+    sign(v) is smoothed over 2 % of the peak velocity (a Stribeck-like transition) so that
+    noise at rest does not switch it.
+    """
+    def __init__(self, output):
+        super().__init__("friction", (output,), (output,), 2)
+
+    def build(self, ctx, eta):
+        o = self.outputs[0]
+        v = ctx.values(o)
+        vs = 0.02 * float(np.max(np.abs(v))) or 1.0
+        return None, [{o: -np.tanh(v / vs)}, {o: -v}]
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        u = ctx.al.units[self.outputs[0]]
+        return ({f"coulomb_{u.replace('/', '_per_')}": float(beta[0]), "viscous": float(beta[1])},
+                {f"coulomb_{u.replace('/', '_per_')}": _se(cov_beta, 0), "viscous": _se(cov_beta, 1)})
+
+
+# effects that act on a machine at rest (the only candidates of a stop-and-measure recording)
+AT_REST = ("thermal_drift", "backlash", "periodic_pitch_error", "scale_error", "squareness",
+           "straightness", "pivot_offset", "workpiece_setting")
+_DERIV = {"velocity": "acceleration", "angular_velocity": "angular_acceleration"}
+
+
+_ROLE_WORDS = {"v", "vel", "velo", "velocity", "spd", "speed", "feed", "feedrate", "a", "acc",
+               "accel", "acceleration", "cmd", "command", "commanded", "act", "actual", "set",
+               "nom", "meas", "measured", "des"}
+
+
+def _stem(key: str) -> str:
+    """A name without the words that say which derivative or which side it is:
+    `spd_axis` and `acc_axis` -> 'axis', `X1_CommandVelocity` -> 'x1'."""
+    from .data import _tokens
+    return "".join(w for w in _tokens(key) if w not in _ROLE_WORDS)
+
+
+def _pairs_with(sig_o, key_o: str, sig_d, key_d: str, n_rate_outs: int, n_derivs: int) -> bool:
+    """Is the derivative signal d the commanded derivative of output o?"""
+    if sig_o.letter is not None and sig_d.letter is not None:
+        return sig_o.letter == sig_d.letter
+    if _stem(key_o) and _stem(key_o) == _stem(key_d):
+        return True
+    return n_rate_outs == 1 and n_derivs == 1
+
+
 def candidates(al: Aligned) -> list[Candidate]:
     """Every effect the data could support, given the outputs' kinds and the available drivers."""
-    outs = [o for o in al.outputs if al.kinds[o] in ("length", "angle")]
-    moving = {o for o in outs if np.ptp(al.sim[o]) > 0}
+    # outputs of unknown kind (no unit, a name that says nothing) are treated as positions of
+    # an unnamed axis: the effects that need an axis letter do not apply to them
+    outs = [o for o in al.outputs if al.kinds[o] in ("length", "angle", "other")]
+    rates = [o for o in al.outputs if al.kinds[o] in ("velocity", "angular_velocity",
+                                                        "acceleration", "angular_acceleration")]
+    moving = {o for o in outs + rates if np.ptp(al.sim[o]) > 0}
     sig = al.signals
     lin_drivers = [k for k, s in sig.items() if s.kind == "length" and np.ptp(s.values) > 0]
     ang_drivers = [k for k, s in sig.items() if s.kind == "angle" and np.ptp(s.values) > 0
@@ -598,13 +756,28 @@ def candidates(al: Aligned) -> list[Candidate]:
             out.append(ThermalDrift(o, d))
         if o in moving:
             out += [Backlash(o), ServoLag(o), ScaleError(o)]
-            if al.kinds[o] == "length":
-                out.append(PeriodicPitch(o))
+            if al.kinds[o] in ("length", "other"):
+                pp = PeriodicPitch(o)
+                if pp.identifiable(Context(al, np.arange(0, al.n, max(1, al.n // 2000)))):
+                    out.append(pp)
         if al.kinds[o] == "length":
             for d in lin_drivers:
-                if d == o or sig[d].letter == sig[o].letter:
+                if d == o or (sig[d].letter is not None and sig[d].letter == sig[o].letter):
                     continue
                 out += [Squareness(o, d), Straightness(o, d)]
+    for o in rates:
+        if o not in moving:
+            continue
+        # servo lag through a logged commanded derivative of the same axis when there is one
+        dk = _DERIV.get(al.kinds[o])
+        all_d = [k for k, s in sig.items() if dk and s.kind == dk and s.source == "sim"
+                 and np.ptp(s.values) > 0]
+        n_rate = sum(al.kinds[r] == al.kinds[o] for r in rates)
+        derivs = [k for k in all_d if _pairs_with(sig[o], o, sig[k], k, n_rate, len(all_d))]
+        out += ([c for d in derivs for c in (ServoLagDerivative(o, d), ServoLagHermite(o, d))]
+                or [ServoLag(o)])
+        if al.kinds[o] in ("velocity", "angular_velocity"):
+            out.append(Friction(o))
     lin_outs = {sig[o].letter: o for o in outs if al.kinds[o] == "length" and sig[o].letter in LIN_AXIS}
     for d in ang_drivers:
         ax = ROT_AXIS[sig[d].letter]
@@ -620,4 +793,6 @@ def candidates(al: Aligned) -> list[Candidate]:
             out.append(ws)
     if moving:
         out.append(TimeOffset(tuple(o for o in al.outputs if o in moving)))
+    if al.at_rest:
+        out = [c for c in out if c.name in AT_REST]
     return out

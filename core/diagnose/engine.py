@@ -16,7 +16,12 @@ from .select import Settings, cross_validate, fit, n_effective, select
 
 @dataclass(frozen=True)
 class EffectResult:
-    """One effect named by the diagnosis, with its fitted parameters (mm, deg, s, degC, rpm)."""
+    """One effect named by the diagnosis, with its fitted parameters (mm, deg, s, degC, rpm).
+
+    Frozen and self-describing so that it can be exported to a machine model: `params` and
+    `uncertainty` (one standard deviation) are keyed by names that carry their unit
+    (``backlash_mm``, ``kv_per_s``, ``tau_s``, ``angle_deg``; ``scale`` is dimensionless).
+    """
     name: str
     outputs: tuple
     inputs: tuple
@@ -52,11 +57,13 @@ class DiagnosisResult:
     alignment: dict
     conditions: dict
     log: tuple
-    t: np.ndarray = field(repr=False)
-    rec: dict = field(repr=False)
-    sim: dict = field(repr=False)
-    corrected: dict = field(repr=False)
-    heldout_corrected: dict = field(repr=False)
+    unexplained: tuple = ()  # per output whose residual stays > 3x its noise floor: dicts
+    notes: tuple = ()        # alignment and column decisions, in words
+    t: np.ndarray = field(repr=False, default=None)
+    rec: dict = field(repr=False, default=None)
+    sim: dict = field(repr=False, default=None)
+    corrected: dict = field(repr=False, default=None)
+    heldout_corrected: dict = field(repr=False, default=None)
 
     @property
     def names(self) -> list[str]:
@@ -68,7 +75,10 @@ class DiagnosisResult:
             "noise_floor": dict(self.noise_floor),
             "mismatch": [m.to_dict() for m in self.mismatch],
             "effects": [e.to_dict() for e in self.effects],
+            "unexplained": list(self.unexplained),
             "fit": self.fit,
+            "alignment": {k: v for k, v in self.alignment.items() if k not in ("sim", "rec")},
+            "notes": list(self.notes),
         })
 
     def to_json(self, indent: int = 2) -> str:
@@ -82,9 +92,10 @@ class DiagnosisResult:
         from .report import markdown
         return markdown(self, plot_name)
 
-    def plot(self, path) -> None:
+    def plot(self, path=None):
+        """The diagnosis figure (a matplotlib.figure.Figure); written as PNG when `path` is given."""
         from .report import plot
-        plot(self, path)
+        return plot(self, path)
 
 
 def _clean(x):
@@ -108,18 +119,25 @@ def _rms(a) -> float:
     return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
 
 
-def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> DiagnosisResult:
+# a residual above this many noise floors is not noise: it is reported as unexplained
+UNEXPLAINED_RATIO = 3.0
+
+
+def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
+             inputs=None, units=None) -> DiagnosisResult:
     """Diagnose a simulation against a recording.
 
     sim, rec: CSV paths, or mappings header -> 1-D array (dict, DataFrame-like) with a `t`
     column in s (headers may carry units, ``z[um]``).  Columns in both are the outputs compared;
-    all others are inputs the effects may use.  Raises mtcomp.InputError for unusable input.
+    all others are inputs the effects may use.  outputs / inputs: column names to compare /
+    to treat as inputs only; units: column name -> unit for columns whose header has none.
+    Names are case-sensitive.  Raises mtcomp.InputError for unusable input.
     """
     st = settings or Settings()
     say = progress or (lambda msg: None)
-    S = _data.load(sim, "SIM")
-    R = _data.load(rec, "REC")
-    al = _align.align(S, R)
+    S = _data.load(sim, "SIM", units)
+    R = _data.load(rec, "REC", units)
+    al = _align.align(S, R, outputs=outputs, inputs=inputs)
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
@@ -167,8 +185,10 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
     if final.cands:
         # held-out prediction: fold models fitted on the selection subset without the block,
         # evaluated on every sample of the block
+        # every parameter, the nonlinear ones (time constants, leads, widths) included, is
+        # refitted without the held-out block (bounded, from the full fit's values)
         folds = []
-        cross_validate(ctx_sel, final.cands, final.etas, st.folds, fits=folds)
+        cross_validate(ctx_sel, final.cands, final.etas, st.folds, fits=folds, max_nfev=10)
         starts = [f.extra["held"][0] for f in folds] + [np.inf]
         for i, f in enumerate(folds):
             inblk = (al.t >= starts[i]) & (al.t < starts[i + 1])
@@ -195,6 +215,19 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
         fitd["holdout_rms_before"][o] = _rms(before)
         fitd["holdout_rms_after"][o] = _rms(oof[sl] * sig[o])
     cond = {o: conditions(al, o, al.rec[o] - al.sim[o], sig[o]) for o in al.outputs}
+    unexplained = []
+    for o in al.outputs:
+        sl = ctx.slices[o]
+        after = final.resid[sl] * sig[o]
+        worst = max(fitd["rms_after"][o], fitd["holdout_rms_after"][o])
+        if worst > UNEXPLAINED_RATIO * floor[o]:
+            spans = locate(al, max_spans=3, resid={o: after}, only=(o,))
+            unexplained.append({
+                "output": o, "rms": fitd["rms_after"][o], "holdout_rms": fitd["holdout_rms_after"][o],
+                "noise_floor": floor[o], "ratio": worst / floor[o],
+                "where": [m.where for m in spans],
+                "correlates": conditions(al, o, after, floor[o]),
+                "interpolation_error": al.interp.get(o, ("", 0.0))[1]})
     # the recording-wide conditions of an output belong to the words of each of its spans
     mism = [Mismatch(m.output, m.t_start, m.t_end,
                      m.where + "".join(f"; overall: {c}" for c in cond[m.output]), m.rms)
@@ -204,12 +237,21 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None) -> Diagn
                  "clock_offset_uncertainty_s": clock_fine[1],
                  "coarse_offset_s": al.offset0,
                  "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
-                 "folds": st.folds, "quantum": dict(al.quantum),
+                 "folds": st.folds, "quantum": dict(al.quantum), "at_rest": al.at_rest,
+                 "interpolation": {o: v[0] for o, v in al.interp.items()},
+                 "interpolation_error": {o: v[1] for o, v in al.interp.items()},
+                 "columns": {k: {"role": r[0], "kind": r[1], "unit": r[2], "kind_from": r[3]}
+                             for k, r in al.roles.items()},
                  "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC")}
     return DiagnosisResult(
         outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
-        conditions=cond, log=tuple(log), t=al.t, rec=dict(al.rec), sim=dict(al.sim),
+        conditions=cond, log=tuple(log), unexplained=tuple(unexplained),
+        notes=tuple(al.notes) + tuple(
+            f"column {k!r} taken as {r[1]} ({r[2] or 'no unit'}) from its name: give the unit "
+            f"in the header (e.g. {k}[{r[2] or 'unit'}]) or with --unit {k}=UNIT"
+            for k, r in al.roles.items() if r[3] == "name" and r[1] != "other"),
+        t=al.t, rec=dict(al.rec), sim=dict(al.sim),
         corrected=corrected, heldout_corrected=held)
 
 

@@ -58,17 +58,32 @@ def spans(mask: np.ndarray, w: int) -> list[tuple[int, int]]:
 
 def _fmt(v: float, unit: str) -> str:
     if unit == "mm" and abs(v) < 0.1:
-        return f"{v * 1e3:.3g} um"
+        return f"{v * 1e3:.3g} µm"
+    if unit == "mm/s" and abs(v) < 0.1:
+        return f"{v * 1e3:.3g} µm/s"
     return f"{v:.4g} {unit}".strip()
+
+
+def _num(v: float, scale: float) -> str:
+    """A value for words: exactly 0 when it is below 1e-9 of the signal's scale (round-off)."""
+    if abs(v) <= 1e-9 * scale:
+        v = 0.0
+    return f"{v:.4g}"
 
 
 def describe(al: Aligned, a: int, b: int) -> str:
     """Words for the operating conditions of samples a:b against the whole recording."""
     parts = [f"t {al.t[a]:.3f}-{al.t[b - 1]:.3f} s"]
     moving, still = [], []
+    seen = set()
     for k, s in al.signals.items():
         if s.kind not in ("length", "angle") or np.ptp(s.values) == 0:
             continue
+        # one description per axis: an output `x` and an input `x_cmd` are the same motion
+        if s.letter is not None:
+            if s.letter in seen:
+                continue
+            seen.add(s.letter)
         v = np.gradient(s.values, al.dt)
         vs = v[a:b]
         thr = 1e-3 * np.max(np.abs(v))
@@ -85,7 +100,8 @@ def describe(al: Aligned, a: int, b: int) -> str:
         seg = s.values[a:b]
         full = np.ptp(s.values)
         if np.ptp(seg) < 0.5 * full:
-            parts.append(f"{k} in {seg.min():.4g}..{seg.max():.4g} {unit}".rstrip())
+            sc = float(np.max(np.abs(s.values)))
+            parts.append(f"{k} in {_num(seg.min(), sc)}..{_num(seg.max(), sc)} {unit}".rstrip())
     if moving:
         parts.insert(1, ", ".join(moving))
     if still:
@@ -98,17 +114,20 @@ def describe(al: Aligned, a: int, b: int) -> str:
         m = float(np.mean(seg))
         level = "high" if m > q75 else ("low" if m < q25 else None)
         if level:
-            parts.append(f"{k} {level} ({seg.min():.4g}..{seg.max():.4g} {s.unit})")
+            sc = float(np.max(np.abs(s.values)))
+            parts.append(f"{k} {level} ({_num(seg.min(), sc)}..{_num(seg.max(), sc)} {s.unit})".replace(" )", ")"))
     return "; ".join(parts)
 
 
-def locate(al: Aligned, max_spans: int = 8) -> list[Mismatch]:
-    """Spans per output where the residual stands out of the noise floor, largest RMS first."""
+def locate(al: Aligned, max_spans: int = 8, resid: dict | None = None,
+           only=None) -> list[Mismatch]:
+    """Spans per output where the residual (default REC - SIM) stands out of the noise floor,
+    largest first."""
     n = al.n
     w = int(np.clip(n // 200, 5, 400))
     out = []
-    for o in al.outputs:
-        r = al.rec[o] - al.sim[o]
+    for o in (only or al.outputs):
+        r = resid[o] if resid and o in resid else al.rec[o] - al.sim[o]
         sig = al.noise_floor[o]
         found = []
         for a, b in spans(flagged(r, sig, w), w):

@@ -1,4 +1,4 @@
-"""Text summary, Markdown report and PNG plot of a DiagnosisResult (um/urad/ppm for reading)."""
+"""Text summary, Markdown report and figure of a DiagnosisResult (µm/µrad/ppm for reading)."""
 from __future__ import annotations
 
 import math
@@ -15,6 +15,8 @@ SIGNATURE = {
     "pivot_offset": "error following (R(angle) - I) d of a rotary axis: tool edge off its centre",
     "workpiece_setting": "constant offset and small rotation of the workpiece frame",
     "time_offset": "every output lags the simulation by the same time (clock offset)",
+    "friction": "velocity lost against the direction of motion (Coulomb) and in proportion to it "
+                "(viscous)",
 }
 
 
@@ -25,24 +27,40 @@ def _val(v: float, key: str) -> str:
     if key.endswith("_mm") and abs(v) < 1e-3:
         return f"{v * 1e6:.4g} nm"
     if key.endswith("_mm") and abs(v) < 1.0:
-        return f"{v * 1e3:.4g} um"
+        return f"{v * 1e3:.4g} µm"
     if key.endswith("_deg") and key != "phase_deg" and abs(v) < 0.1:
-        return f"{math.radians(v) * 1e6:.4g} urad"
+        return f"{math.radians(v) * 1e6:.4g} µrad"
     if key == "scale":
         return f"{v * 1e6:.4g} ppm"
     if key.startswith("gain_mm_per"):
-        return f"{v * 1e3:.4g} um/{key.split('_per_', 1)[1]}"
-    if key.endswith("_s") and abs(v) < 1.0:
+        return f"{v * 1e3:.4g} µm/{key.split('_per_', 1)[1]}"
+    if key.endswith("_s") and not key.endswith("_per_s") and abs(v) < 1.0:
         return f"{v * 1e3:.4g} ms"
     return f"{v:.5g}"
 
 
 def _len(v: float, unit: str) -> str:
     if unit == "mm":
-        return f"{v * 1e6:.4g} nm" if abs(v) < 1e-3 else f"{v * 1e3:.4g} um"
+        return f"{v * 1e6:.4g} nm" if abs(v) < 1e-3 else f"{v * 1e3:.4g} µm"
     if unit == "deg":
-        return f"{math.radians(v) * 1e6:.4g} urad"
-    return f"{v:.4g} {unit}"
+        return f"{math.radians(v) * 1e6:.4g} µrad"
+    if unit == "mm/s" and abs(v) < 0.1:
+        return f"{v * 1e3:.4g} µm/s"
+    return f"{v:.4g} {unit}".strip()
+
+
+def _unexplained_lines(res, indent="  ") -> list:
+    out = []
+    for u in res.unexplained:
+        o, un = u["output"], res.units[u["output"]]
+        out.append(f"{indent}{o}: unexplained mismatch, residual RMS {_len(u['rms'], un)} (held out "
+                   f"{_len(u['holdout_rms'], un)}) = {u['ratio']:.3g}x its noise floor "
+                   f"{_len(u['noise_floor'], un)}")
+        for w in u["where"][:2]:
+            out.append(f"{indent}  where: {w}")
+        for c in u["correlates"]:
+            out.append(f"{indent}  {c}")
+    return out
 
 
 def _effect_line(e) -> str:
@@ -55,8 +73,8 @@ def summary_text(res) -> str:
     a = res.alignment
     lines = [f"diagnosis of {len(res.outputs)} output(s) over {a['samples']} samples "
              f"({a['t_start']:.3f}..{a['t_end']:.3f} s, step {a['grid_step_s'] * 1e3:.3g} ms)"]
-    if a.get("clock_offset_s"):
-        lines.append(f"  REC's clock aligned onto SIM's: REC time - {a['clock_offset_s']:.6g} s")
+    for n in res.notes:
+        lines.append(f"  note: {n}")
     for o in res.outputs:
         u = res.units[o]
         lines.append(f"  {o}: noise floor {_len(res.noise_floor[o], u)}, RMS "
@@ -64,11 +82,18 @@ def summary_text(res) -> str:
                      f"held out {_len(res.fit['holdout_rms_before'][o], u)} -> "
                      f"{_len(res.fit['holdout_rms_after'][o], u)}")
     if res.mismatch:
-        lines.append("where the residual stands out:")
-        for m in res.mismatch[:12]:
-            lines.append(f"  {m.output}: RMS {_len(m.rms, res.units[m.output])}; {m.where}")
+        lines.append("where the residual REC - SIM stands out (largest spans per output):")
+        per = {}
+        for m in res.mismatch:
+            per.setdefault(m.output, []).append(m)
+        for o, ms in per.items():
+            for m in ms[:3]:
+                w = m.where.split("; overall: ")[0]
+                lines.append(f"  {o}: RMS {_len(m.rms, res.units[o])}; {w}")
+            if len(ms) > 3:
+                lines.append(f"  {o}: {len(ms) - 3} more span(s) in the JSON/report")
     else:
-        lines.append("the residual is within the noise everywhere")
+        lines.append("the residual REC - SIM is within the noise everywhere")
     for o, cs in res.conditions.items():
         for c in cs:
             lines.append(f"  {c}")
@@ -76,8 +101,11 @@ def summary_text(res) -> str:
         lines.append("effects:")
         for e in res.effects:
             lines.append("  " + _effect_line(e))
-    else:
-        lines.append("effects: none (the residual is explained by noise)")
+    if res.unexplained:
+        lines.append("unexplained mismatch (more than 3x the noise floor after the effects; not noise):")
+        lines += _unexplained_lines(res)
+    elif not res.effects:
+        lines.append("effects: none (the residual is within 3x the noise floor)")
     return "\n".join(lines)
 
 
@@ -87,9 +115,11 @@ def markdown(res, plot_name: str | None = None) -> str:
            f"SIM `{a['sim']}` ({a['sim_rate_hz']:.4g} Hz) against REC `{a['rec']}` "
            f"({a['rec_rate_hz']:.4g} Hz): {a['samples']} common samples from {a['t_start']:.3f} "
            f"to {a['t_end']:.3f} s every {a['grid_step_s'] * 1e3:.4g} ms. "
-           f"Clock offset removed before the comparison (REC time minus SIM time, from the "
-           f"cross-correlation of the velocities): {a.get('clock_offset_s', 0.0):.6g} s; remaining "
-           f"coarse offset {a['coarse_offset_s'] * 1e3:.4g} ms (left to `time_offset`).", "",
+           f"Clock offset removed before the comparison (REC's clock minus SIM's): "
+           f"{a.get('clock_offset_s', 0.0):.6g} s; remaining coarse offset "
+           f"{a['coarse_offset_s'] * 1e3:.4g} ms (left to `time_offset`).", ""]
+    out += [f"- {n}" for n in res.notes] + ([""] if res.notes else [])
+    out += [
            "## Fit", "",
            "| output | noise floor | RMS before | RMS after | held-out before | held-out after |",
            "|---|---|---|---|---|---|"]
@@ -110,8 +140,15 @@ def markdown(res, plot_name: str | None = None) -> str:
             out.append(f"| {e.name} | {e.output} | {', '.join(e.inputs)} | {ps} | {ev} |")
         out += ["", "Signatures: " + "; ".join(f"**{e.name}**: {SIGNATURE.get(e.name, '')}"
                                                for e in res.effects) + "."]
+    elif not res.unexplained:
+        out.append("None: the residual is within 3x the noise floor.")
     else:
-        out.append("None: the residual is explained by noise.")
+        out.append("None of the library.")
+    if res.unexplained:
+        out += ["", "## Unexplained mismatch", "",
+                "The residual stays above 3x the noise floor: this is not noise, and no effect of "
+                "the library explains it.", ""]
+        out += ["- " + ln.strip() for ln in _unexplained_lines(res, "")]
     out += ["", "## Where the residual stands out", ""]
     if res.mismatch:
         out += ["| output | t start (s) | t end (s) | RMS | conditions |", "|---|---|---|---|---|"]
@@ -129,40 +166,49 @@ def markdown(res, plot_name: str | None = None) -> str:
     return "\n".join(out) + "\n"
 
 
-def plot(res, path) -> None:
-    """PNG: per output, recorded/simulated/corrected (top) and residuals before/after (bottom)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from .._io import save_figure
+def plot(res, path=None):
+    """Figure: per output, recorded/simulated/corrected (top) and residuals before and after
+    (bottom, µm / µrad), legends outside the data.  Returns the matplotlib.figure.Figure and
+    writes it as PNG when `path` is given (no pyplot state, the caller's backend untouched)."""
+    from matplotlib.figure import Figure
     outs = list(res.outputs)[:6]
-    fig, axes = plt.subplots(2 * len(outs), 1, figsize=(10, 3.2 * len(outs) + 0.5), sharex=True,
-                             squeeze=False)
+    fig = Figure(figsize=(11, 3.2 * len(outs) + 0.6))
+    axes = fig.subplots(2 * len(outs), 1, sharex=True, squeeze=False)
     t = res.t
     for i, o in enumerate(outs):
         u = res.units[o]
-        scale, ru = (1e3, "um") if u == "mm" else ((math.pi / 180 * 1e6, "urad") if u == "deg" else (1, u))
+        scale, ru = ((1e3, "µm") if u == "mm" else (math.pi / 180 * 1e6, "µrad") if u == "deg"
+                     else (1e3, "µm/s") if u == "mm/s" else (1.0, u))
         ax = axes[2 * i, 0]
         ax.plot(t, res.rec[o], lw=0.8, label="recorded")
         ax.plot(t, res.sim[o], lw=0.8, ls="--", label="simulated")
         ax.plot(t, res.corrected[o], lw=0.8, ls=":", label="simulated + effects")
-        ax.set_ylabel(f"{o} ({u})")
-        ax.legend(loc="upper right", fontsize=7)
+        ax.set_ylabel(f"{o} ({u})" if u else o)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
         ax = axes[2 * i + 1, 0]
         ax.plot(t, (res.rec[o] - res.sim[o]) * scale, lw=0.6, label="REC - SIM")
         ax.plot(t, (res.rec[o] - res.corrected[o]) * scale, lw=0.6, label="after (fitted)")
-        ax.plot(t, (res.rec[o] - res.heldout_corrected[o]) * scale, lw=0.6, alpha=0.7,
+        ax.plot(t, (res.rec[o] - res.heldout_corrected[o]) * scale, lw=0.6, ls="--", alpha=0.8,
                 label="after (held out)")
+        first = True
         for m in res.mismatch:
             if m.output == o:
-                ax.axvspan(m.t_start, m.t_end, color="0.85", zorder=0)
+                ax.axvspan(m.t_start, m.t_end, color="0.9", zorder=0,
+                           label="residual stands out" if first else None)
+                first = False
         n = res.noise_floor[o] * scale
-        ax.axhline(2 * n, color="k", lw=0.4, ls=":")
+        ax.axhline(2 * n, color="k", lw=0.4, ls=":", label="±2 noise floor")
         ax.axhline(-2 * n, color="k", lw=0.4, ls=":")
         ax.set_ylabel(f"residual {o} ({ru})")
-        ax.legend(loc="upper right", fontsize=7)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
     axes[-1, 0].set_xlabel("t (s)")
-    names = ", ".join(res.names) or "no effect (noise)"
+    names = ", ".join(res.names) or "no effect of the library"
+    if res.unexplained:
+        names += "; unexplained mismatch on " + ", ".join(u["output"] for u in res.unexplained)
     fig.suptitle(f"Diagnosis: {names}", fontsize=10)
-    fig.tight_layout()
-    save_figure(fig, path, dpi=110)
+    fig.tight_layout(rect=(0, 0, 0.86, 1))
+    if path is not None:
+        from .._io import atomic_path
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=110)
+    return fig

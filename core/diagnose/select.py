@@ -242,7 +242,8 @@ def _conflicts(c: Candidate, model: list) -> bool:
         if c.name == m.name and c.name in ("workpiece_setting", "time_offset"):
             return True
         if (c.name == m.name and c.outputs == m.outputs
-                and c.name in ("backlash", "servo_lag", "scale_error", "periodic_pitch_error")):
+                and c.name in ("backlash", "servo_lag", "scale_error", "periodic_pitch_error",
+                               "friction")):
             return True
         # squareness is nested in straightness of the same output along the same axis
         if ({c.name, m.name} == {"squareness", "straightness"} and c.outputs == m.outputs
