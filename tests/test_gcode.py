@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from mtcomp import InputError
 from mtcomp import gcode
-from mtcomp.gcode_format import format_counts, parse_decimals
+from mtcomp.gcode.textops import format_counts, parse_decimals
 
 ROOT = Path(__file__).resolve().parent.parent
 PROGRAMS = sorted((ROOT / "examples" / "programs").glob("*.nc"))

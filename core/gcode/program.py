@@ -1,0 +1,80 @@
+"""The parsed program: original text and per-block arrays."""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+@dataclass(frozen=True, eq=False)
+class Program:
+    """A parsed NC program: the original text and vectorised arrays of its motion blocks.
+
+    Per motion block (N rows, in program order): ``line`` 1-based source line, ``position``
+    (N, n_axes) absolute modal end position in mm/deg (inch data converted), ``motion`` 0-3 for
+    G0-G3 (-1: axis words before any motion code), ``plane`` 17/18/19, ``incremental`` (G91),
+    ``inch`` (block in G20, converted), ``feed`` modal F in mm/min or mm/rev (NaN before the first
+    F), ``present`` (N, n_axes) which axis words the block writes, ``ijk`` (N, 3) arc centre
+    offsets I J K in mm (0 where not written), ``ijk_present`` (N, 3), ``radius`` (N,) R word in
+    mm (NaN if none), ``start`` (n_axes,) the position assumed before the first block.
+    Arc blocks also have ``arc_centre`` (N, 3) and ``arc_sweep`` (N,) in rad (signed, positive
+    counter-clockwise seen from the plane normal; NaN for linear blocks).
+    """
+    filename: str
+    axes: tuple
+    text: str
+    data: bytes
+    line_start: np.ndarray
+    line_end: np.ndarray
+    # words (W): address letter (0..25), value, line index (0-based), letter and number span
+    w_letter: np.ndarray
+    w_value: np.ndarray
+    w_line: np.ndarray
+    w_pos: np.ndarray
+    w_end: np.ndarray
+    # motion blocks
+    line: np.ndarray
+    position: np.ndarray
+    start: np.ndarray
+    motion: np.ndarray
+    plane: np.ndarray
+    incremental: np.ndarray
+    inch: np.ndarray
+    feed: np.ndarray
+    present: np.ndarray
+    ijk: np.ndarray
+    ijk_present: np.ndarray
+    radius: np.ndarray
+    arc_centre: np.ndarray
+    arc_sweep: np.ndarray
+    # word indices per block and column (axes then I J K R), -1 if absent
+    col_word: np.ndarray
+    motion_word: np.ndarray          # (N,) index of the block's own G0-G3 word, -1 if modal
+    inch_g20_words: np.ndarray       # G20 words (replaced by G21 when converting)
+    inch_f_words: np.ndarray         # F words written in inch mode (converted)
+
+    @property
+    def n_axes(self) -> int:
+        return len(self.axes)
+
+    @property
+    def n_lines(self) -> int:
+        return len(self.line_start)
+
+    def __len__(self) -> int:
+        return len(self.line)
+
+    @property
+    def lines(self) -> list[str]:
+        """The original lines (split at LF only, as the line numbers count), with endings."""
+        return re.findall(r"[^\n]*\n|[^\n]+\Z", self.text)
+
+    @property
+    def is_arc(self) -> np.ndarray:
+        return (self.motion == 2) | (self.motion == 3)
+
+    def summary(self) -> str:
+        n_arc = int(self.is_arc.sum())
+        return (f"{self.filename}: {self.n_lines} lines, {len(self)} motion blocks "
+                f"({n_arc} arcs, {int(self.incremental.sum())} in G91), axes {' '.join(self.axes)}")
+
