@@ -122,11 +122,11 @@ def test_crlf_kept_and_words_changed():
 
 
 def test_insertion_in_canonical_order_and_style():
-    p = gcode.parse("N1 G90 G1 Z1. F10\nN2 Y2. C3.\n", axes=("C", "B", "X", "Y", "Z"))
+    p = gcode.parse("N1 G90 G1 Z1. F10\nN2 Y2. C3.\n", axes=("C", "B", "X", "Y", "Z"), start=[0] * 5)
     out = gcode.rewrite(p, shift([0.1, 0.2, 0.3, 0.4, 0.5]))
     assert out == ("N1 G90 G1 X0.300000 Y0.400000 Z1.500000 B0.20000 C0.10000 F10\n"
                    "N2 Y2.400000 C3.10000\n")
-    p = gcode.parse("G1X1.Y2.\nZ3.\n", axes=("X", "Y", "Z"))
+    p = gcode.parse("G1X1.Y2.\nZ3.\n", axes=("X", "Y", "Z"), start={"Z": 0})
     assert gcode.rewrite(p, lambda q: q + 0.5) == "G1X1.500000Y2.500000Z0.500000\nZ3.500000\n"
 
 
@@ -192,10 +192,10 @@ def test_hypothesis_round_trip(text):
 @given(programs(), st.lists(st.integers(-2000, 2000), min_size=5, max_size=5))
 def test_hypothesis_translation_reparses(text, d):
     """Output re-read gives exactly the transformed positions (at the resolution), G90 and G91."""
-    p = gcode.parse(text, axes=XYZBC)
+    p = gcode.parse(text, axes=XYZBC, start=np.zeros(5))
     d = np.array(d) * np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3])
     out = gcode.rewrite(p, shift(d))
-    q = gcode.parse(out, axes=XYZBC)
+    q = gcode.parse(out, axes=XYZBC, start=np.zeros(5))
     assert np.array_equal(q.line, p.line)
     res = np.array([1e-6, 1e-6, 1e-6, 1e-5, 1e-5])
     expect = np.rint((p.position + d) / res)
@@ -281,12 +281,12 @@ def test_half_circle_in_r_format_linearised_under_rotation():
 
 @pytest.mark.parametrize("tol", [1e-4, 1e-3])
 def test_arcs_linearised_under_tilt_stay_on_the_transformed_arc(tol):
-    p = gcode.parse(ARCS, axes=("X", "Y", "Z"))
+    p = gcode.parse(ARCS, axes=("X", "Y", "Z"), start=np.zeros(3))
     tf = rot_x(0.5)
     out = gcode.rewrite(p, tf, chordal_tol=tol)
     assert out.count("LINEARISED") == 5
     assert f"CHORDAL TOLERANCE {tol:.6f} MM" in out
-    q = gcode.parse(out, axes=("X", "Y", "Z"))
+    q = gcode.parse(out, axes=("X", "Y", "Z"), start=np.zeros(3))
     assert not q.is_arc.any()
     # every output point and every chord midpoint lies on a transformed block within tol:
     # measured in the untransformed frame (the tilt is a rotation)
@@ -502,7 +502,7 @@ def test_programs_without_motion(text):
 
 def test_lines_and_progress():
     text = "G1 X1.\r\n(A)\nY2."
-    p = gcode.parse(text, axes=XYZBC)
+    p = gcode.parse(text, axes=XYZBC, start=np.zeros(5))
     assert p.lines == ["G1 X1.\r\n", "(A)\n", "Y2."]
     seen = []
     out = gcode.rewrite(p, shift([0, 0, 0, 0, 0.5]), progress=lambda done, total: seen.append((done, total)))

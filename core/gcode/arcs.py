@@ -49,7 +49,14 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
     # axes other than the plane and its normal must not move during an arc
     other = np.ones((len(k), len(axes)), bool)
     other[r_, u] = other[r_, v] = other[r_, w] = False
-    moved = other & (np.abs(end - prev) > 1e-12)
+    nowhere = np.isnan(prev[r_, u]) | np.isnan(prev[r_, v])
+    if nowhere.any():
+        j = int(np.argmax(nowhere))
+        a = axes[u[j]] if np.isnan(prev[j, u[j]]) else axes[v[j]]
+        _fail(f"arc (G{motion[k[j]]}) from an unknown position: axis {a} has not been written "
+              "before this block; state the start position (--start) or move there first",
+              blines[k[j]], filename)
+    moved = other & ((np.abs(end - prev) > 1e-12) | (np.isnan(prev) != np.isnan(end)))
     if moved.any():
         j = int(np.argmax(moved.any(axis=1)))
         a = axes[int(np.argmax(moved[j]))]

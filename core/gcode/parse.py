@@ -26,8 +26,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
           convert_inch: bool = False, start=None, arc_tol: float = 1e-3) -> Program:
     """Read a Fanuc-style NC program (text) for a machine with the given axis letters.
 
-    ``start``: position of the axes before the first block (mapping letter -> value or a
-    sequence over ``axes``; default all zero, i.e. the program origin).  ``arc_tol`` (mm): largest
+    ``start``: position of the axes before the first block, where the user knows it (mapping
+    letter -> value, or a sequence over ``axes`` with NaN for unknown).  An axis the program
+    writes but ``start`` does not give is *unknown* until its first word: ``axis_known`` is
+    False there, blocks before that are not ``known`` and `rewrite` writes nothing for them
+    (``position`` holds 0 there only so that simulations have a number; do not compensate it).  An axis the
+    program never writes stays where it is; it is taken at 0 (the program origin, as a 3-axis
+    program assumes of the rotary axes of a 5-axis machine) and listed in ``idle_axes``.  ``arc_tol`` (mm): largest
     accepted difference between an arc's radius at its start and at its end.
     Raises ``InputError`` naming ``filename:line`` for anything it cannot read or would not
     transform correctly (docs/gcode.md lists the cases).
@@ -37,7 +42,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         if len(a) != 1 or a not in CANONICAL:
             raise ValueError(f"axis names must be single letters out of {CANONICAL}, got {a!r}")
     n_ax = len(axes)
-    start_vec = _start_vector(start, axes)
     data = text.encode("utf-8", "surrogateescape")
     b = np.frombuffer(data, np.uint8)
     nbytes = len(b)
@@ -279,6 +283,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     present = col_word[:, :n_ax] >= 0
 
     # -- absolute modal positions: last absolute value plus the increments since
+    start_vec = _start_vector(start, axes)
+    written = present.any(axis=0)
+    idle = np.isnan(start_vec) & ~written
+    start_vec[idle] = 0.0
+    idle_axes = tuple(a for a, i in zip(axes, idle) if i)
     position = np.empty((nblk, n_ax))
     for k in range(n_ax):
         v = vals[:, k]
@@ -302,6 +311,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, radius, is_arc,
                       blines, arc_tol, filename, arc_centre, arc_sweep)
 
+    axis_known = np.isfinite(position)
+    start_known = np.isfinite(start_vec)
+    position[~axis_known] = 0.0
+    start_vec = np.where(start_known, start_vec, 0.0)
     motion_word = mot_w[blines]
     g20 = uni_w[(uni_l == 20)]
     finch = fi[inch_line[wline[fi]]]
@@ -311,10 +324,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   incremental=incremental, inch=inch, feed=feed, present=present, ijk=ijk,
                   ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
                   arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
-                  inch_g20_words=g20, inch_f_words=finch)
+                  inch_g20_words=g20, inch_f_words=finch,
+                  axis_known=axis_known, start_known=start_known,
+                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
     for a in arrays.values():
         a.flags.writeable = False
-    return Program(filename=filename, axes=axes, text=text, data=data, **arrays)
+    return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes, **arrays)
 
 
 def _map_codes(vals, mapping):
@@ -327,16 +342,19 @@ def _map_codes(vals, mapping):
 def _start_vector(start, axes):
     n = len(axes)
     if start is None:
-        return np.zeros(n)
+        return np.full(n, np.nan)
     if isinstance(start, Mapping):
         unknown = set(k.upper() for k in start) - set(axes)
         if unknown:
             raise ValueError(f"start names axes {sorted(unknown)} not in {axes}")
         up = {k.upper(): float(v) for k, v in start.items()}
-        return np.array([up.get(a, 0.0) for a in axes])
-    v = np.asarray(start, float).reshape(-1)
-    if len(v) != n or not np.all(np.isfinite(v)):
-        raise ValueError(f"start must give {n} finite values")
+        v = np.array([up.get(a, np.nan) for a in axes])
+        if np.isinf(v).any():
+            raise ValueError("start values must be finite")
+        return v
+    v = np.array(start, float).reshape(-1)
+    if len(v) != n or np.isinf(v).any():
+        raise ValueError(f"start must give {n} values (finite, or NaN for unknown)")
     return v
 
 

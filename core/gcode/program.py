@@ -16,7 +16,11 @@ class Program:
     ``inch`` (block in G20, converted), ``feed`` modal F in mm/min or mm/rev (NaN before the first
     F), ``present`` (N, n_axes) which axis words the block writes, ``ijk`` (N, 3) arc centre
     offsets I J K in mm (0 where not written), ``ijk_present`` (N, 3), ``radius`` (N,) R word in
-    mm (NaN if none), ``start`` (n_axes,) the position assumed before the first block.
+    mm (NaN if none), ``start`` (n_axes,) the position before the first block.
+    ``axis_known`` (N, n_axes) / ``start_known`` (n_axes,): whether the program (or the user's
+    start) has fixed that axis by then; where not, ``position``/``start`` hold 0, a placeholder
+    for simulations that nothing is compensated from.  ``known`` (N,): every axis known.
+    ``idle_axes``: axes the program never writes, taken at 0.
     Arc blocks also have ``arc_centre`` (N, 3) and ``arc_sweep`` (N,) in rad (signed, positive
     counter-clockwise seen from the plane normal; NaN for linear blocks).
     """
@@ -52,6 +56,10 @@ class Program:
     motion_word: np.ndarray          # (N,) index of the block's own G0-G3 word, -1 if modal
     inch_g20_words: np.ndarray       # G20 words (replaced by G21 when converting)
     inch_f_words: np.ndarray         # F words written in inch mode (converted)
+    axis_known: np.ndarray           # (N, n_axes)
+    start_known: np.ndarray          # (n_axes,)
+    known: np.ndarray                # (N,) all axes known at the block's end
+    idle_axes: tuple = ()
 
     @property
     def n_axes(self) -> int:

@@ -6,7 +6,8 @@ from typing import Callable
 
 import numpy as np
 
-from .arcs import _arc_keep, _arc_params, _arc_samples, _linearisation_points, _Segments, _subset
+from .arcs import _arc_keep, _arc_params, _arc_samples, _n_samples, _linearisation_points, _Segments, _subset
+from .._io import InputError
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .program import Program
 from .textops import format_counts, splice
@@ -133,29 +134,77 @@ class _Ctx:
 
 
 def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
-            resolution=None, chordal_tol: float = 1e-4, progress=None) -> str:
+            resolution=None, chordal_tol: float = 1e-4, progress=None, unknown: str = "defer",
+            row_lines: list | None = None) -> str:
     """Rewrite the program's axis words for new commanded positions.
 
     ``transform(q)`` maps absolute commanded positions (M, n_axes) in mm/deg to new ones.  It is
-    called once with rows [start, block end points 1..N, arc samples] and a second time only if
-    some arcs must be linearised (with their segment points).
-    ``resolution``: per axis letter a resolution (power of ten, e.g. 1e-6) or a number of
-    decimals; default 1e-6 mm for X Y Z (U V W), 1e-5 deg for A B C.  ``chordal_tol`` (mm):
-    largest deviation of the output path from the transformed arcs.  ``progress(done, total)``
-    is called while the output is assembled (bytes).  Everything except the axis words of motion
-    blocks (and, for arcs, I J K R and linearisation) stays byte for byte; see docs/gcode.md.
+    called once with rows [end points of the known blocks, arc samples] and a second time only
+    if some arcs must be linearised (with their segment points).  If ``row_lines`` is a list,
+    the 1-based source line of every row is appended to it before each call (so a transform
+    that refuses a point can name the line).
+    ``resolution``: per axis letter a resolution (e.g. 1e-6, 5e-6) or a number of decimals;
+    default 1e-6 mm for X Y Z (U V W), 1e-5 deg for A B C.  ``chordal_tol`` (mm): largest
+    deviation of the output path from the transformed arcs.  ``progress(done, total)`` is
+    called while the output is assembled (bytes).
+    ``unknown``: what happens to motion blocks before every axis position is known
+    (``program.known``): ``"defer"`` passes them through unchanged and compensates from the
+    first block where the pose is known (that block gets words for every axis that must move);
+    ``"refuse"`` raises InputError naming the first such block.
+    Everything except the axis words of known motion blocks (and, for arcs, I J K R and
+    linearisation) stays byte for byte; see docs/gcode.md.
     """
-    return rewrite_with_lines(program, transform, resolution=resolution,
-                              chordal_tol=chordal_tol, progress=progress)[0]
+    return rewrite_with_lines(program, transform, resolution=resolution, chordal_tol=chordal_tol,
+                              progress=progress, unknown=unknown, row_lines=row_lines)[0]
+
+
+def _control_counts(program: Program, res: np.ndarray) -> np.ndarray:
+    """Where the control stands after each block, in counts of the axis resolution, as it
+    reads the words (each rounded to its input increment, G91 increments summed): (N + 1,
+    n_axes) float holding integers, row 0 the start, NaN where unknown."""
+    N, n = len(program), program.n_axes
+    cw, wv = np.asarray(program.col_word), np.asarray(program.w_value)
+    inc, inch = np.asarray(program.incremental), np.asarray(program.inch)
+    Cc = np.empty((N + 1, n))
+    Cc[0] = np.where(program.start_known, np.rint(np.asarray(program.start) / res), np.nan)
+    for k, a in enumerate(program.axes):
+        w = cw[:, k]
+        pres = w >= 0
+        v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
+        if a in LINEAR and inch.any():
+            v = v * np.where(inch, INCH, 1.0)
+        c = np.rint(v / res[k])
+        big = np.abs(c) > 2.0 ** 52
+        if big.any():
+            j = int(np.argmax(big))
+            raise InputError(f"axis word {a}{v[j]:g} is too large for the axis resolution "
+                             f"{res[k]:g} (more than 2**52 counts)", program.filename,
+                             int(program.line[j]))
+        incr = np.where(pres & inc, c, 0.0)
+        cum = np.cumsum(incr)
+        isabs = pres & ~inc
+        idx = np.where(isabs, np.arange(N), -1)
+        np.maximum.accumulate(idx, out=idx)
+        i0 = np.maximum(idx, 0)
+        Cc[1:, k] = np.where(idx >= 0, c[i0] - cum[i0], Cc[0, k]) + cum
+    Cc[1:][~np.asarray(program.axis_known)] = np.nan
+    return Cc
+
+
+def _unknown_axes(program: Program, k: int) -> str:
+    return " ".join(a for a, x in zip(program.axes, program.axis_known[k]) if not x)
 
 
 def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
-                       resolution=None, chordal_tol: float = 1e-4, progress=None):
+                       resolution=None, chordal_tol: float = 1e-4, progress=None,
+                       unknown: str = "defer", row_lines: list | None = None):
     """`rewrite`, also returning for every motion block the 1-based line of the output where
     the block ends (after a linearised arc: its last segment line), so that the output can be
     compared block by block with the input."""
     axes = program.axes
     n_ax = len(axes)
+    if unknown not in ("defer", "refuse"):
+        raise ValueError(f"unknown must be 'defer' or 'refuse', got {unknown!r}")
     dec = _decimals(resolution, axes)
     d_ax = np.array([dec[a] for a in axes])
     res = 10.0 ** -d_ax.astype(float)
@@ -164,24 +213,46 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     ctx = _Ctx(program)
     N = len(program)
     P = np.asarray(program.position)
-    ak = np.flatnonzero(program.is_arc)
+    line = np.asarray(program.line)
+    kn = np.asarray(program.known)
+    if unknown == "refuse" and not kn.all():
+        j = int(np.argmax(~kn))
+        raise InputError(f"position of {_unknown_axes(program, j)} not known at this block (the "
+                         "program has not written it yet): state the start position or let "
+                         "such blocks pass uncompensated", program.filename, int(line[j]))
+    kprev = np.concatenate([[bool(np.all(program.start_known))], kn[:-1]])
+    ak = np.flatnonzero(program.is_arc & kn)
+    first_arc = ak[~kprev[ak]]
+    if len(first_arc):
+        j = int(first_arc[0])
+        raise InputError(f"the first block where every axis position is known is an arc "
+                         f"(G{program.motion[j]}); its start ({_unknown_axes(program, j - 1) if j else ''} "
+                         "unknown) cannot be compensated: state the start position or move "
+                         "to the arc start first", program.filename, int(line[j]))
     geo = _arc_params(program, ak) if len(ak) else None
     if geo is not None:
         lin_res = max(res[geo.u.max()], res[geo.v.max()], res[geo.u.min()], res[geo.v.min()])
         if chordal_tol < 2 * lin_res:
             raise ValueError(f"chordal_tol {chordal_tol} mm is below twice the axis resolution")
     samp = _arc_samples(geo) if geo is not None else np.zeros((0, n_ax))
-    Q = np.vstack([program.start[None, :], P, samp])
+    kk = np.flatnonzero(kn)
+    nk = len(kk)
+    Q = np.vstack([P[kk], samp])
+    if row_lines is not None:
+        row_lines.append(np.concatenate([line[kk], np.repeat(line[ak], 4 * _n_samples(geo) - 1)
+                                         if geo is not None else np.zeros(0, np.int64)]))
     del samp
-    Qt = _call_transform(transform, Q)
+    Qt = _call_transform(transform, Q) if len(Q) else Q
     del Q
-    St = Qt[N + 1:].copy()                                        # arc samples
-    C = np.empty((N + 1, n_ax), np.int64)
-    for k in range(n_ax):
-        C[:, k] = np.rint(Qt[:N + 1, k] / res[k])
+    St = Qt[nk:].copy()                                           # arc samples
+    # new position = where the control reads the program + the rounded correction, so that a
+    # transform that changes nothing changes no count (G91 increments finer than the resolution
+    # included); rows not known stay where the program puts them
+    Cc = _control_counts(program, res)
+    Cc[1 + kk] += np.rint((Qt[:nk] - P[kk]) / res)
     del Qt
-    # row 0 becomes where the control really starts (untransformed): then prev = C[:-1]
-    C[0] = np.rint(program.start / res)
+    C = np.nan_to_num(Cc, nan=0.0).astype(np.int64)
+    del Cc
     prev, new = C[:N], C[1:]
 
     keep = np.ones(len(ak), bool)
@@ -195,6 +266,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     if len(lin):
         seg = _linearisation_points(_subset(geo, ~keep), n_ax, chordal_tol)
         if len(seg.points):
+            if row_lines is not None:
+                row_lines.append(np.repeat(line[lin], seg.count))
             seg.counts = np.rint(_call_transform(transform, seg.points) / res).astype(np.int64)
         else:
             seg.counts = np.zeros((0, n_ax), np.int64)
@@ -228,8 +301,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         differs = target != oc
         if force is not None:
             differs |= force
-        _column_edits(ctx, cw, k, a.encode(), int(d_ax[k]), np.flatnonzero(pres & differs),
-                      np.flatnonzero(~pres & (v != pv)), target)
+        _column_edits(ctx, cw, k, a.encode(), int(d_ax[k]), np.flatnonzero(pres & differs & kn),
+                      np.flatnonzero(~pres & (v != pv) & kn), target)
 
     if arc_cols is not None:
         a_rep, a_ins, a_counts, a_dec = arc_cols
