@@ -129,8 +129,9 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         raise InputError("this program was already compensated by mtcomp (provenance header); "
                          "compensating it again would apply the errors twice: use the original "
                          "program, or --force", filename, done)
+    res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
-                       convert_inch=convert_inch)
+                       convert_inch=convert_inch, resolution=res)
     n_blocks = len(prog)
     _travel_check(machine, prog, filename)
     hint = _three_axis_hint(machine, prog)
@@ -152,7 +153,6 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                 progress(min(s + CHUNK, len(q)), len(q))
         return out
 
-    res = {a.name: a.resolution for a in machine.axes}
     new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
                                                   unknown=unknown, row_lines=calls)
     added = 0
@@ -165,7 +165,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     P = np.asarray(prog.position)[kn]
     target = forward(machine, P)
     before = np.linalg.norm(forward(machine, P, errors).p - target.p, axis=1)
-    after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start,
+    after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start, resolution=res,
                              filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
     idx = np.searchsorted(after_prog.line, out_line[kn])

@@ -138,8 +138,11 @@ def test_number_format_follows_resolution():
     assert out == "G1 X1.123 B2.\n"
     out = gcode.rewrite(p, shift([0.123456789, 0, 0, 0, 0]), resolution={"X": 1e-4})
     assert out == "G1 X1.1235 B2.\n"
+    # a resolution that is not a power of ten (issue 15: 5e-6 crashed): multiples of it
+    out = gcode.rewrite(p, shift([0.123456789, 0, 0, 0, 0]), resolution={"X": 5e-6})
+    assert out == "G1 X1.123455 B2.\n"
     with pytest.raises(ValueError):
-        gcode.rewrite(p, shift([0, 0, 0, 0, 0]), resolution={"X": 2e-6})
+        gcode.rewrite(p, shift([0, 0, 0, 0, 0]), resolution={"X": 1e-6 / 3})
 
 
 _num = st.integers(-10**7, 10**7)

@@ -2,7 +2,6 @@
 transformed arc can stay an arc (and with which words), and linearisation points."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +34,7 @@ def _plane_cols(axes, plane):
 
 
 def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, radius, is_arc,
-                  blines, arc_tol, filename, arc_centre, arc_sweep):
+                  blines, arc_tol, filename, arc_centre, arc_sweep, res_ax=None):
     """Centre and signed sweep of every arc block; refuses arcs it cannot interpret."""
     k = np.flatnonzero(is_arc)
     cols, missing = _plane_cols(axes, plane[k])
@@ -75,7 +74,10 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
         _fail("arc with both R and I/J/K", blines[k[np.argmax(both)]], filename)
     cu = su + ijk[k, iu]
     cv = sv + ijk[k, iv]
-    same = (np.abs(eu - su) < 1e-9) & (np.abs(ev - sv) < 1e-9)
+    # the control reads every word at its resolution: an end equal to the start there is a
+    # full circle, whatever digits lie below the resolution
+    resu, resv = (res_ax[u], res_ax[v]) if res_ax is not None else (1e-9, 1e-9)
+    same = (np.rint(eu / resu) == np.rint(su / resu)) & (np.rint(ev / resv) == np.rint(sv / resv))
     if rfmt.any():
         R = radius[k]
         du, dv = eu - su, ev - sv
@@ -98,9 +100,11 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
         cv = np.where(rfmt, (sv + ev) / 2 + s * h * nv, cv)
     r0 = np.hypot(su - cu, sv - cv)
     r1 = np.hypot(eu - cu, ev - cv)
-    bad = r0 < 1e-9
+    bad = r0 < np.maximum(resu, resv)
     if bad.any():
-        _fail("arc with zero radius (I/J/K all zero)", blines[k[np.argmax(bad)]], filename)
+        j = int(np.argmax(bad))
+        _fail(f"arc radius {r0[j]:.3g} mm is below the axis resolution: the control cannot "
+              "run it as a circle", blines[k[j]], filename)
     bad = np.abs(r1 - r0) > arc_tol
     if bad.any():
         j = int(np.argmax(bad))
@@ -210,7 +214,7 @@ def _r_centre(su, sv, eu, ev, R, dirs):
     return (su + eu) / 2 + s * h * (-dv / dsafe), (sv + ev) / 2 + s * h * (du / dsafe)
 
 
-def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, dec, tol):
+def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02):
     """Decide per arc whether the transformed arc is still a circle the control can run with
     rounded words (every transformed sample within ``tol`` of the control's path), and with
     which I J K / R words: the programmed ones if they still fit (so a translation leaves them
@@ -248,7 +252,8 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, dec, tol):
         a0c = np.arctan2(sv - ccv, su - ccu)
         a1c = np.arctan2(ev - ccv, eu - ccu)
         swc = np.where(full_c, 2 * np.pi, np.mod(geo.dirs * (a1c - a0c), 2 * np.pi))
-        ok = base_ok & (np.abs(r1c - r0c) <= tol) & (swc > 0) & np.isfinite(ccu + ccv)
+        # a programmed radius difference (read as a spiral, as controls do) may remain
+        ok = base_ok & (np.abs(r1c - r0c) <= arc_tol + tol) & (swc > 0) & np.isfinite(ccu + ccv)
         cu_s, cv_s = ccu[rowS], ccv[rowS]
         f = np.mod(geo.dirs[rowS] * (np.arctan2(pv - cv_s, pu - cu_s) - a0c[rowS]), 2 * np.pi) \
             / np.where(swc[rowS] > 0, swc[rowS], 1.0)
@@ -313,10 +318,10 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, dec, tol):
     sel = keep & geo.rfmt
     a_counts[k[sel], 3] = Rc[sel]
     a_rep[k[sel], 3] = (Rc[sel] != R0[sel]) | inch[sel]
-    a_dec = np.array([dec.get("X", 6), dec.get("Y", 6), dec.get("Z", 6), 6])
+    a_fmt = [fm.get("X", (6, 1)), fm.get("Y", (6, 1)), fm.get("Z", (6, 1)), (6, 1)]
     if sel.any():
-        a_dec[3] = int(round(-math.log10(float(resu[sel][0]))))
-    return keep, (a_rep, a_ins, a_counts, a_dec)
+        a_fmt[3] = fm[program.axes[int(u[sel][0])]]
+    return keep, (a_rep, a_ins, a_counts, a_fmt)
 
 
 @dataclass

@@ -9,7 +9,7 @@ from .._io import InputError
 from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .codes import _CHAR_HINT, _G_DIST, _G_HARMLESS, _G_MOTION, _G_PLANE, _G_REFUSED, _G_UNITS, _G_WCS, _M_REFUSED
-from .program import Program
+from .program import Program, resolution_formats
 from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
 
@@ -23,7 +23,8 @@ def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
 
 
 def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<string>",
-          convert_inch: bool = False, start=None, arc_tol: float = 1e-3) -> Program:
+          convert_inch: bool = False, start=None, arc_tol: float | None = None,
+          resolution=None) -> Program:
     """Read a Fanuc-style NC program (text) for a machine with the given axis letters.
 
     ``start``: position of the axes before the first block, where the user knows it (mapping
@@ -33,7 +34,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     (``position`` holds 0 there only so that simulations have a number; do not compensate it).  An axis the
     program never writes stays where it is; it is taken at 0 (the program origin, as a 3-axis
     program assumes of the rotary axes of a 5-axis machine) and listed in ``idle_axes``.  ``arc_tol`` (mm): largest
-    accepted difference between an arc's radius at its start and at its end.
+    accepted difference between an arc's radius at its start and at its end (default 0.02 mm,
+    0.002 in in inch programs, in the style of LinuxCNC; an end point within it is read as a
+    spiral, as controls run it).  ``resolution`` (as for `rewrite`): the axis resolutions; an
+    arc whose end equals its start at the resolution is a full circle, and a radius below the
+    resolution is refused.
     Raises ``InputError`` naming ``filename:line`` for anything it cannot read or would not
     transform correctly (docs/gcode.md lists the cases).
     """
@@ -53,9 +58,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     def line_of(pos):
         return np.searchsorted(line_start, pos, side="right") - 1
 
-    # -- comments, % lines and block delete become blanks in a working copy
+    # -- comments, % lines and block delete become blanks in a working copy; so does a UTF-8
+    # byte-order mark (Windows editors write one)
     code = b.copy()
-    spans = _comment_spans(data, b)
+    bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    code[:bom] = 32
+    spans = _comment_spans(data, b, first=bom)
     if spans:
         if len(spans) < 1 << 18:                  # slice assignments: cheap per comment
             for s, e in spans:
@@ -85,7 +93,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
         _fail(f"unexpected character {ch!r}: {hint}", line_of(bad_at), filename)
     if len(rs) != len(lp) or np.any(rs != lp + 1):
-        _word_error(code, lp, rs, re_, line_of, filename)
+        # blanks between a letter and its number ("X 10") are read, on the same line
+        ok = len(rs) == len(lp) and bool(np.all(rs > lp)) and bool(np.all(rs[:-1] < lp[1:]))
+        if ok:
+            gap = np.flatnonzero(rs != lp + 1)
+            ok = bool(np.all(line_of(rs[gap]) == wline[gap]))
+        if not ok:
+            _word_error(code, lp, rs, re_, line_of, filename)
     wlet = ((code[lp] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
 
     # -- number syntax: sign only first, at most one point, at least one digit
@@ -101,6 +115,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
     value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
+    if not np.isfinite(value).all():
+        i = int(np.argmax(~np.isfinite(value)))
+        _fail(f"number in word {_word_text(data, lp[i], min(re_[i], lp[i] + 20))!r}... is too large",
+              wline[i], filename)
+    w_num = rs.astype(np.int32)
     # positions fit 32 bits (programs under 2 GB); free what is no longer needed
     if nbytes >= 2**31 - 1:
         raise InputError("programs of 2 GB and more are not supported", file=filename)
@@ -283,6 +302,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     present = col_word[:, :n_ax] >= 0
 
     # -- absolute modal positions: last absolute value plus the increments since
+    fm = resolution_formats(resolution, axes)
+    res_ax = np.array([fm[a][1] * 10.0 ** -fm[a][0] for a in axes])
+    if arc_tol is None:
+        arc_tol = 0.002 * INCH if inch.any() else 0.02
+    if not (arc_tol >= 0 and np.isfinite(arc_tol)):
+        raise ValueError(f"arc_tol must be a finite number >= 0, got {arc_tol}")
     start_vec = _start_vector(start, axes)
     written = present.any(axis=0)
     idle = np.isnan(start_vec) & ~written
@@ -309,7 +334,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     is_arc = (motion == 2) | (motion == 3)
     if is_arc.any():
         _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, radius, is_arc,
-                      blines, arc_tol, filename, arc_centre, arc_sweep)
+                      blines, arc_tol, filename, arc_centre, arc_sweep, res_ax)
 
     axis_known = np.isfinite(position)
     start_known = np.isfinite(start_vec)
@@ -319,7 +344,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     g20 = uni_w[(uni_l == 20)]
     finch = fi[inch_line[wline[fi]]]
     arrays = dict(line_start=line_start, line_end=line_end, w_letter=wlet, w_value=value,
-                  w_line=wline, w_pos=lp, w_end=re_, line=blines + 1, position=position,
+                  w_line=wline, w_pos=lp, w_num=w_num, w_end=re_, line=blines + 1, position=position,
                   start=start_vec, motion=motion.astype(np.int8), plane=plane.astype(np.int8),
                   incremental=incremental, inch=inch, feed=feed, present=present, ijk=ijk,
                   ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
@@ -329,7 +354,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
     for a in arrays.values():
         a.flags.writeable = False
-    return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes, **arrays)
+    return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
+                   arc_tol=float(arc_tol), **arrays)
 
 
 def _map_codes(vals, mapping):

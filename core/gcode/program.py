@@ -35,6 +35,7 @@ class Program:
     w_value: np.ndarray
     w_line: np.ndarray
     w_pos: np.ndarray
+    w_num: np.ndarray                # start of each word's number (after blanks)
     w_end: np.ndarray
     # motion blocks
     line: np.ndarray
@@ -60,6 +61,7 @@ class Program:
     start_known: np.ndarray          # (n_axes,)
     known: np.ndarray                # (N,) all axes known at the block's end
     idle_axes: tuple = ()
+    arc_tol: float = 0.02            # mm: accepted radius difference (start/end) of arcs
 
     @property
     def n_axes(self) -> int:
@@ -86,3 +88,34 @@ class Program:
         return (f"{self.filename}: {self.n_lines} lines, {len(self)} motion blocks "
                 f"({n_arc} arcs, {int(self.incremental.sum())} in G91), axes {' '.join(self.axes)}")
 
+
+
+def resolution_formats(resolution, axes) -> dict:
+    """Per axis letter (decimals, multiple): the axis resolution is ``multiple * 10**-decimals``
+    (1e-6 -> (6, 1), 5e-6 -> (6, 5), 0.0005 -> (4, 5)).  ``resolution``: mapping letter ->
+    resolution (mm or deg) or a number of decimals (int); default 1e-6 mm for linear axes,
+    1e-5 deg for rotary ones."""
+    out = {a: ((6 if a in "XYZUVW" else 5), 1) for a in axes}
+    if resolution is None:
+        return out
+    for a, r in dict(resolution).items():
+        a = a.upper()
+        if a not in out:
+            raise ValueError(f"resolution names axis {a!r}, not one of {axes}")
+        if isinstance(r, (int, np.integer)) and not isinstance(r, bool):
+            d, m = int(r), 1
+        else:
+            r = float(r)
+            if not (r > 0 and np.isfinite(r)):
+                raise ValueError(f"resolution of {a} must be a positive number, got {r}")
+            for d in range(0, 10):
+                m = round(r * 10 ** d)
+                if m >= 1 and abs(m * 10.0 ** -d - r) <= 1e-9 * r:
+                    break
+            else:
+                raise ValueError(f"resolution of {a} ({r:g}) is not a whole number of units of the "
+                                 "9th decimal")
+        if not 0 <= d <= 9:
+            raise ValueError(f"resolution of {a}: 0 to 9 decimals supported, got {d}")
+        out[a] = (d, int(m))
+    return out

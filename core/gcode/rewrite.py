@@ -1,7 +1,6 @@
 """Rewriting axis words for transformed positions, splicing edits into the original bytes."""
 from __future__ import annotations
 
-import math
 from typing import Callable
 
 import numpy as np
@@ -9,33 +8,9 @@ import numpy as np
 from .arcs import _arc_keep, _arc_params, _arc_samples, _n_samples, _linearisation_points, _Segments, _subset
 from .._io import InputError
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
-from .program import Program
+from .program import Program, resolution_formats
 from .textops import format_counts, splice
 from .tokens import _ascii
-
-
-def _decimals(resolution, axes) -> dict:
-    """Decimals per axis letter from resolutions (powers of ten) or decimals (int)."""
-    out = {a: (6 if a in LINEAR else 5) for a in axes}
-    if resolution is None:
-        return out
-    for a, r in dict(resolution).items():
-        a = a.upper()
-        if a not in out:
-            raise ValueError(f"resolution names axis {a!r}, not one of {axes}")
-        if isinstance(r, (int, np.integer)) and not isinstance(r, bool):
-            d = int(r)
-        else:
-            r = float(r)
-            if not (r > 0):
-                raise ValueError(f"resolution of {a} must be positive")
-            d = round(-math.log10(r))
-            if abs(10.0 ** -d - r) > 1e-9 * r:
-                raise ValueError(f"resolution of {a} must be a power of ten (got {r})")
-        if not 0 <= d <= 9:
-            raise ValueError(f"resolution of {a}: 0 to 9 decimals supported, got {d}")
-        out[a] = d
-    return out
 
 
 class _Edits:
@@ -94,6 +69,7 @@ class _Ctx:
         self.blines = np.asarray(program.line) - 1
         self._anch = None
         self._spaced = None
+        self._lower = None
         self.added_lines = {}            # block index -> lines inserted after it
 
     @property
@@ -117,6 +93,14 @@ class _Ctx:
             self._anch = (tail, last_end[self.blines], body)
         return self._anch
 
+    def letter(self, a: str) -> str:
+        """An address letter in the program's case (lower case programs get lower case)."""
+        if self._lower is None:
+            wl = np.asarray(self.p.w_pos)
+            ch = self.data[wl] if len(wl) else np.zeros(0, np.uint8)
+            self._lower = bool(np.count_nonzero(ch >= 97) * 2 > len(ch))
+        return a.lower() if self._lower else a
+
     @property
     def spaced(self):
         """Whether each block separates its words by blanks (style of inserted words)."""
@@ -129,7 +113,11 @@ class _Ctx:
             sp = ((before == 32) | (before == 9)) & ~first_in_line
             nsp = np.bincount(wl[sp], minlength=p.n_lines)
             nwords = np.bincount(wl, minlength=p.n_lines)
-            self._spaced = (nsp[self.blines] > 0) | (nwords[self.blines] <= 1)
+            # blocks of one word follow the program's majority
+            multi = nwords[self.blines] > 1
+            n_sp = np.count_nonzero(nsp[self.blines][multi] > 0)
+            default = n_sp * 2 >= np.count_nonzero(multi)
+            self._spaced = np.where(multi, nsp[self.blines] > 0, default)
         return self._spaced
 
 
@@ -205,9 +193,10 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     n_ax = len(axes)
     if unknown not in ("defer", "refuse"):
         raise ValueError(f"unknown must be 'defer' or 'refuse', got {unknown!r}")
-    dec = _decimals(resolution, axes)
-    d_ax = np.array([dec[a] for a in axes])
-    res = 10.0 ** -d_ax.astype(float)
+    fm = resolution_formats(resolution, axes)
+    d_ax = np.array([fm[a][0] for a in axes])
+    m_ax = np.array([fm[a][1] for a in axes])
+    res = m_ax * 10.0 ** -d_ax.astype(float)
     if not chordal_tol > 0:
         raise ValueError("chordal_tol must be positive")
     ctx = _Ctx(program)
@@ -258,7 +247,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     keep = np.ones(len(ak), bool)
     arc_cols = None
     if geo is not None:
-        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, dec, chordal_tol)
+        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, fm, chordal_tol, program.arc_tol)
     del St
     lin = ak[~keep]
     seg = None
@@ -301,28 +290,28 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         differs = target != oc
         if force is not None:
             differs |= force
-        _column_edits(ctx, cw, k, a.encode(), int(d_ax[k]), np.flatnonzero(pres & differs & kn),
+        _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn),
                       np.flatnonzero(~pres & (v != pv) & kn), target)
 
     if arc_cols is not None:
-        a_rep, a_ins, a_counts, a_dec = arc_cols
+        a_rep, a_ins, a_counts, a_fmt = arc_cols
         for j, letter in enumerate(ARC_WORDS):
-            _column_edits(ctx, cw, n_ax + j, letter.encode(), int(a_dec[j]),
+            _column_edits(ctx, cw, n_ax + j, ctx.letter(letter).encode(), a_fmt[j],
                           np.flatnonzero(a_rep[:, j]), np.flatnonzero(a_ins[:, j]), a_counts[:, j])
     if len(lin):
-        _linearise_edits(ctx, lin, seg, new, d_ax, chordal_tol)
+        _linearise_edits(ctx, lin, seg, new, d_ax, m_ax, chordal_tol)
     _restore_modal_arcs(ctx, lin)
 
     ed = ctx.edits
     if len(program.inch_g20_words):
         w = np.asarray(program.inch_g20_words)
         off, ln = ed.const(b"21")
-        ed.add(program.w_pos[w] + 1, program.w_end[w], _SUB_REPLACE, off, ln)
+        ed.add(program.w_num[w], program.w_end[w], _SUB_REPLACE, off, ln)
     if len(program.inch_f_words):
         w = np.asarray(program.inch_f_words)
         buf, off, ln = format_counts(np.rint(program.w_value[w] * INCH * 1e4).astype(np.int64), 4)
         base = ed.add_buffer(buf)
-        ed.add(program.w_pos[w] + 1, program.w_end[w], _SUB_REPLACE, base + off, ln)
+        ed.add(program.w_num[w], program.w_end[w], _SUB_REPLACE, base + off, ln)
     text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
     added = np.zeros(N, np.int64)
     for k, n_add in ctx.added_lines.items():
@@ -343,19 +332,20 @@ def _call_transform(transform, q):
     return out
 
 
-def _column_edits(ctx, cw, col, letter: bytes, decimals: int, rep_rows, ins_rows, counts):
+def _column_edits(ctx, cw, col, letter: bytes, fmt: tuple, rep_rows, ins_rows, counts):
     """Replace the number of word column ``col`` in blocks ``rep_rows`` and insert the word
     into blocks ``ins_rows``; ``counts`` (N,) in resolution units."""
     rows = np.concatenate([rep_rows, ins_rows])
     if not len(rows):
         return
     p = ctx.p
-    buf, off, ln = format_counts(counts[rows], decimals)
+    decimals, mult = fmt
+    buf, off, ln = format_counts(counts[rows] * mult, decimals)
     off = off + ctx.edits.add_buffer(buf)
     nr = len(rep_rows)
     if nr:
         w = cw[rep_rows, col]
-        ctx.edits.add(np.asarray(p.w_pos)[w] + 1, np.asarray(p.w_end)[w], _SUB_REPLACE, off[:nr], ln[:nr])
+        ctx.edits.add(np.asarray(p.w_num)[w], np.asarray(p.w_end)[w], _SUB_REPLACE, off[:nr], ln[:nr])
     if len(ins_rows):
         _insert_words(ctx, cw, ins_rows, col, letter, off[nr:], ln[nr:])
 
@@ -404,7 +394,7 @@ def _fmt(c: int, d: int) -> str:
     return "-" + s if c < 0 else s
 
 
-def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, tol):
+def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol):
     """Blocks of linearised arcs: G2/G3 -> G1, arc words out, a comment with the tolerance,
     and the remaining segment points as new lines after the block."""
     p, ed, data = ctx.p, ctx.edits, ctx.data
@@ -425,10 +415,11 @@ def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, tol):
         g = int(motion[k])
         w = mw[k]
         if w >= 0:
-            old = p.data[wpos[w] + 1:wend[w]]
-            pieces.append((wpos[w] + 1, wend[w], _SUB_REPLACE, b"01" if old in (b"02", b"03") else b"1"))
+            wn = int(p.w_num[w])
+            old = p.data[wn:wend[w]]
+            pieces.append((wn, wend[w], _SUB_REPLACE, b"01" if old in (b"02", b"03") else b"1"))
         else:
-            pieces.append((body[k], body[k], _SUB_G, ("G1" + sp).encode()))
+            pieces.append((body[k], body[k], _SUB_G, (ctx.letter("G") + "1" + sp).encode()))
         for c in range(4):
             wi = cw[k, n_ax + c]
             if wi >= 0:
@@ -456,7 +447,8 @@ def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, tol):
             if not diff.any():
                 continue
             vals = diff if inc[k] else ptc
-            words = [f"{axes[a]}{_fmt(vals[a], int(d_ax[a]))}" for a in range(n_ax) if diff[a]]
+            words = [f"{ctx.letter(axes[a])}{_fmt(vals[a] * int(m_ax[a]), int(d_ax[a]))}"
+                     for a in range(n_ax) if diff[a]]
             lines.append(sp.join(words))
             last = ptc
         if lines:
@@ -504,5 +496,5 @@ def _restore_modal_arcs(ctx, lin):
         for s in (True, False):
             sel = (motion[rows] == g) & (sp == s)
             if sel.any():
-                off, ln = ctx.edits.const(f"G{g}{' ' if s else ''}".encode())
+                off, ln = ctx.edits.const(f"{ctx.letter('G')}{g}{' ' if s else ''}".encode())
                 ctx.edits.add(body[rows[sel]], body[rows[sel]], _SUB_G, off, ln)

@@ -12,7 +12,7 @@ _PAREN_RE = re.compile(rb"\([^()\n]*\)")
 _LINE_REST_RE = re.compile(rb"[^\n]*")
 
 
-def _comment_spans(data: bytes, b: np.ndarray) -> list:
+def _comment_spans(data: bytes, b: np.ndarray, first: int = 0) -> list:
     """Byte spans of comments: ``( ... )`` on one line, ``;`` to the end of the line and lines
     starting with ``%``.  Candidates come from numpy; only they are looked at in Python."""
     cand = np.flatnonzero((b == 40) | (b == 59) | (b == 37))
@@ -30,7 +30,7 @@ def _comment_spans(data: bytes, b: np.ndarray) -> list:
         elif c == 59:
             end = _LINE_REST_RE.match(data, q).end()
         else:
-            if q > 0 and data[q - 1] != 10:
+            if q > first and data[q - 1] != 10:
                 continue                              # '%' not at a line start: reported
             end = _LINE_REST_RE.match(data, q).end()
         spans.append((q, end))
