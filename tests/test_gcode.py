@@ -377,17 +377,18 @@ def test_arc_in_g18_and_g19_kept_under_translation():
 INCH = "G20 G90 G1 X1. Y-0.5 F10.\nG91 X0.1\nG2 X1. Y0 I0.5 J0\n"
 
 
-def test_inch_refused_unless_converted():
-    with pytest.raises(InputError, match=r"^prog.nc:1: inch data \(G20\)"):
-        gcode.parse(INCH, axes=("X", "Y", "Z"), filename="prog.nc")
-    p = gcode.parse(INCH, axes=("X", "Y", "Z"), convert_inch=True)
+def test_inch_read_and_written_in_inch():
+    p = gcode.parse(INCH, axes=("X", "Y", "Z"), filename="prog.nc", start=np.zeros(3))
     assert np.allclose(p.position[0, :2], [25.4, -12.7])
     assert np.allclose(p.position[1, 0], 27.94)
     assert p.feed[0] == pytest.approx(254.0)
-    out = gcode.rewrite(p, lambda q: q)
-    assert out == "G21 G90 G1 X25.400000 Y-12.700000 F254.0000\nG91 X2.540000\nG2 X25.400000 Y0.000000 I12.700000 J0.000000\n"
-    q = gcode.parse(out, axes=("X", "Y", "Z"))
-    assert np.allclose(q.position, p.position, atol=1e-9)
+    assert gcode.rewrite(p, lambda q: q) == INCH          # no flag, no conversion
+    out = gcode.rewrite(p, shift([0.0254, 0, 0]))          # 0.001 in
+    assert out == "G20 G90 G1 X1.0010000 Y-0.5 F10.\nG91 X0.1\nG2 X1. Y0 I0.5 J0\n"   # G91: same increments
+    q = gcode.parse(out, axes=("X", "Y", "Z"), start=np.zeros(3))
+    assert np.allclose(q.position[:, 0], p.position[:, 0] + 0.0254, atol=1e-9)
+    with pytest.raises(InputError, match=r":3: the program switches between inch"):
+        gcode.parse("G20 G0 X1.\nG21\nX1.\n", axes=("X", "Y", "Z"))
 
 
 # ----------------------------------------------------------------------------------- refusals
@@ -398,7 +399,6 @@ REFUSALS = [
     ("G51 X0 Y0 P2\n", 1, "G51 scaling"),
     ("G10 L2 P1 X0\n", 1, None),
     ("G92 X0 Y0\n", 1, "G92"),
-    ("G28 X0\n", 1, "reference point"),
     ("G41 D1 X1.\n", 1, None),
     ("G5.1 Q1\n", 1, "unknown"),
     ("G1 X1.\nG12 X2.\n", 2, "unknown G code G12"),
@@ -411,7 +411,7 @@ REFUSALS = [
     ("G1 X1e5\n", 1, None),
     ("G1 X1.\nE5.\n", 2, "unknown address"),
     ("G1 A5.\n", 1, "axis word A"),
-    ("#100=1.\n", 1, "custom macro"),
+    ("#100=1.\n", 1, "macro variables (#)"),
     ("G1 X[1+2]\n", 1, "macro expressions"),
     ("G1 X1. (open comment\n", 1, "unbalanced"),
     ("G1 X1. ((nested))\n", 1, "unbalanced"),
@@ -428,7 +428,12 @@ REFUSALS = [
     ("G1 X1. Y0\nG2 X-1. Y0 I-1. J0 K1.\n", 2, "does not belong to plane"),
     ("G1 X1.\nI5.\n", 2, "outside G2/G3"),
     ("G4 X1. Y2.\n", 1, "dwell"),
-    ("G93 G1 X1. F2.\n", 1, "inverse time"),
+    ("G1 X1.\nM97 P100\n", 2, "M97 calls a local subprogram"),
+    ("G1 X1.\nM99\n", 2, "M99"),
+    ("M71\n", 1, "M71"),
+    ("G65 P9010 A1.\n", 1, "G65 macro call"),
+    ("o100 sub\nG1 X1.\no100 endsub\n", 1, "o-word program flow"),
+    ("G50 X30. Z20.\n", 1, "G50 with axis words"),
     ("G1 X1. R2. I1.\nG3 X1. Y1. R1. I1.\n", 1, "outside G2/G3"),
 ]
 

@@ -34,7 +34,8 @@ def _plane_cols(axes, plane):
 
 
 def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, radius, is_arc,
-                  blines, arc_tol, filename, arc_centre, arc_sweep, res_ax=None):
+                  blines, arc_tol, filename, arc_centre, arc_sweep, res_ax=None, ijk_absolute=None,
+                  offset=None):
     """Centre and signed sweep of every arc block; refuses arcs it cannot interpret."""
     k = np.flatnonzero(is_arc)
     cols, missing = _plane_cols(axes, plane[k])
@@ -74,6 +75,11 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
         _fail("arc with both R and I/J/K", blines[k[np.argmax(both)]], filename)
     cu = su + ijk[k, iu]
     cv = sv + ijk[k, iv]
+    if ijk_absolute is not None and ijk_absolute[k].any():
+        # G90.1: I J K are the centre in program coordinates
+        ab = ijk_absolute[k]
+        cu = np.where(ab, ijk[k, iu] + offset[k, u], cu)
+        cv = np.where(ab, ijk[k, iv] + offset[k, v], cv)
     # the control reads every word at its resolution: an end equal to the start there is a
     # full circle, whatever digits lie below the resolution
     resu, resv = (res_ax[u], res_ax[v]) if res_ax is not None else (1e-9, 1e-9)
@@ -214,7 +220,7 @@ def _r_centre(su, sv, eu, ev, R, dirs):
     return (su + eu) / 2 + s * h * (-dv / dsafe), (sv + ev) / 2 + s * h * (du / dsafe)
 
 
-def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02):
+def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02, offc=None):
     """Decide per arc whether the transformed arc is still a circle the control can run with
     rounded words (every transformed sample within ``tol`` of the control's path), and with
     which I J K / R words: the programmed ones if they still fit (so a translation leaves them
@@ -269,7 +275,13 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02):
     I0u = np.rint(np.asarray(program.ijk)[k, geo.iu] / resu).astype(np.int64)
     I0v = np.rint(np.asarray(program.ijk)[k, geo.iv] / resv).astype(np.int64)
     R0 = np.rint(np.nan_to_num(np.asarray(program.radius)[k]) / resu).astype(np.int64)
-    c1u, c1v = su + I0u * resu, sv + I0v * resv
+    # I J K are offsets from the start (G91.1), or the centre itself (G90.1, in the frame of
+    # the block's work offset)
+    ab = np.asarray(program.ijk_absolute)[k]
+    ou = offc[k, u] * resu if offc is not None else 0.0
+    ov = offc[k, v] * resv if offc is not None else 0.0
+    bu, bv = np.where(ab, ou, su), np.where(ab, ov, sv)
+    c1u, c1v = bu + I0u * resu, bv + I0v * resv
     if geo.rfmt.any():
         ru, rv = _r_centre(su, sv, eu, ev, R0 * resu, geo.dirs)
         c1u, c1v = np.where(geo.rfmt, ru, c1u), np.where(geo.rfmt, rv, c1v)
@@ -283,9 +295,9 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02):
                            np.where(geo.full, qc[r_, u], eu), np.where(geo.full, qc[r_, v], ev))
     fu, fv = np.nan_to_num(fu, nan=np.inf), np.nan_to_num(fv, nan=np.inf)
     with np.errstate(invalid="ignore", over="ignore"):
-        I1u = np.rint(np.where(np.isfinite(fu), (fu - su) / resu, 0)).astype(np.int64)
-        I1v = np.rint(np.where(np.isfinite(fv), (fv - sv) / resv, 0)).astype(np.int64)
-    c2u, c2v = np.where(np.isfinite(fu), su + I1u * resu, np.inf), np.where(np.isfinite(fv), sv + I1v * resv, np.inf)
+        I1u = np.rint(np.where(np.isfinite(fu), (fu - bu) / resu, 0)).astype(np.int64)
+        I1v = np.rint(np.where(np.isfinite(fv), (fv - bv) / resv, 0)).astype(np.int64)
+    c2u, c2v = np.where(np.isfinite(fu), bu + I1u * resu, np.inf), np.where(np.isfinite(fv), bv + I1v * resv, np.inf)
     R1 = R0.copy()
     if geo.rfmt.any():
         rfit = np.hypot(su - fu, sv - fv)
@@ -307,17 +319,16 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02):
     a_rep = np.zeros((N, 4), bool)
     a_ins = np.zeros((N, 4), bool)
     cw = np.asarray(program.col_word)
-    inch = np.asarray(program.inch)[k]
     for idx_c, cnt, orig in ((geo.iu, Iu, I0u), (geo.iv, Iv, I0v)):
         sel = keep & ~geo.rfmt
         rows, cols = k[sel], idx_c[sel]
         a_counts[rows, cols] = cnt[sel]
         pres = cw[rows, n_ax + cols] >= 0
-        a_rep[rows, cols] = pres & ((cnt[sel] != orig[sel]) | inch[sel])
+        a_rep[rows, cols] = pres & (cnt[sel] != orig[sel])
         a_ins[rows, cols] = ~pres & (cnt[sel] != 0)
     sel = keep & geo.rfmt
     a_counts[k[sel], 3] = Rc[sel]
-    a_rep[k[sel], 3] = (Rc[sel] != R0[sel]) | inch[sel]
+    a_rep[k[sel], 3] = Rc[sel] != R0[sel]
     a_fmt = [fm.get("X", (6, 1)), fm.get("Y", (6, 1)), fm.get("Z", (6, 1)), (6, 1)]
     if sel.any():
         a_fmt[3] = fm[program.axes[int(u[sel][0])]]

@@ -8,7 +8,8 @@ import numpy as np
 from .._io import InputError
 from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
-from .codes import _CHAR_HINT, _G_DIST, _G_HARMLESS, _G_MOTION, _G_PLANE, _G_REFUSED, _G_UNITS, _G_WCS, _M_REFUSED
+from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
+                    _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
 from .program import Program, resolution_formats
 from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
@@ -24,7 +25,7 @@ def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
 
 def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<string>",
           convert_inch: bool = False, start=None, arc_tol: float | None = None,
-          resolution=None) -> Program:
+          resolution=None, tool_lengths=None, work_offsets=None) -> Program:
     """Read a Fanuc-style NC program (text) for a machine with the given axis letters.
 
     ``start``: position of the axes before the first block, where the user knows it (mapping
@@ -43,6 +44,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     transform correctly (docs/gcode.md lists the cases).
     """
     axes = tuple(str(a).upper() for a in axes)
+    notes: list[str] = []
     for a in axes:
         if len(a) != 1 or a not in CANONICAL:
             raise ValueError(f"axis names must be single letters out of {CANONICAL}, got {a!r}")
@@ -142,27 +144,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     gi = np.flatnonzero(wlet == G)
     g10 = np.rint(value[gi] * 10).astype(np.int64)
     nonint = np.abs(value[gi] * 10 - g10) > 1e-6
-    cat = np.full(len(gi), -1, np.int64)   # 0 motion 1 dwell 2 plane 3 units 4 dist 5 wcs 6 harmless
+    # 0 motion 1 dwell 2 plane 3 units 4 dist 5 wcs 6 harmless 7 arc centre mode 8 tool length
+    # 9 axis words that are not moves 10 feed mode
+    cat = np.full(len(gi), -1, np.int64)
+    tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
+              (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_HARMLESS, 6)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
-        if u in _G_MOTION:
-            c = 0
-        elif u == 40:
-            c = 1
-        elif u in _G_PLANE:
-            c = 2
-        elif u in _G_UNITS:
-            c = 3
-        elif u in _G_DIST:
-            c = 4
-        elif u in _G_WCS:
-            c = 5
-        elif u in _G_HARMLESS:
-            c = 6
-        else:
-            c = -1
-        cat[sel] = c
+        cat[sel] = next((c for table, c in tables if u in table), -1)
     badg = (cat < 0) | nonint
     if badg.any():
         j = int(np.argmax(badg))
@@ -174,7 +164,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     gline = wline[gi]
 
     # -- letters
-    allowed = set("GMNOFSTPIJKR") | set(axes)
+    # H tool length offset number, D cutter compensation number, Q peck/shift amounts: values
+    # that move nothing by themselves (the codes that use them are followed or refused)
+    allowed = set("GMNOFSTPIJKRHDQ") | set(axes)
     if "X" not in axes:
         allowed.add("X")                     # G4 X dwell time
     known = np.zeros(26, bool)
@@ -209,16 +201,23 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     uni_l, uni_w = per_line(3, _G_UNITS, "unit (G20 G21)")
     dis_l, _ = per_line(4, _G_DIST, "distance mode (G90 G91)")
     wcs_l, _ = per_line(5, _G_WCS, "work coordinate system")
+    acm_l, _ = per_line(7, _G_ARC_DIST, "arc centre mode (G90.1 G91.1)")
+    tool_l, _ = per_line(8, _G_TOOL, "tool length (G43 G44 G49)")
+    nonmove_l, _ = per_line(9, _G_NONMOVE, "non-modal positioning (G28 G30 G52 G53)")
+    feedm_l, _ = per_line(10, _G_FEED, "feed mode (G93 G94 G95)")
     dwell_line = np.zeros(n_lines, bool)
     dwell_line[gline[cat == 1]] = True
-    wcs_set = wcs_l >= 0
-    if wcs_set.any():
-        vals = np.unique(wcs_l[wcs_set])
-        if len(vals) > 1:
-            first = wcs_l[wcs_set][0]
-            ln = int(np.flatnonzero(wcs_set & (wcs_l != first))[0])
-            _fail(f"the program switches from G{first} to G{wcs_l[ln]}: the compensation is "
-                  "defined in one workpiece frame", ln, filename)
+    g50_line = np.zeros(n_lines, bool)
+    g50_line[gline[g10 == 500]] = True
+    # per-line word values of P and H (NaN where absent)
+    def letter_value(c):
+        out = np.full(n_lines, np.nan)
+        i = np.flatnonzero(wlet == _ascii(c))
+        out[wline[i]] = value[i]
+        return out
+    p_line, h_line = letter_value("P"), letter_value("H")
+    offsets_line, wcs_keys = _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets,
+                                      tool_lengths, n_lines, filename, notes)
 
     # -- M codes
     mi = np.flatnonzero(wlet == M)
@@ -230,10 +229,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- modal state per line
     inch_line = _ffill(uni_l == 20, uni_l >= 0, False)
-    if inch_line.any() and not convert_inch:
-        ln = int(np.flatnonzero(uni_l == 20)[0])
-        _fail("inch data (G20): mtcomp works in mm; convert it with convert_inch=True "
-              "(output is then written in G21)", ln, filename)
     incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
     plane_line = _ffill(pla_l, pla_l >= 0, 17)
     mode_line = _ffill(mot_l, mot_l >= 0, -1)
@@ -257,6 +252,39 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if dwell_x.any():
         wcol = np.where(dwell_x, np.int8(-1), wcol)
     del dwell_x
+    # axis words of G28 G30 G52 G53 G50.1 are not moves; after G28 G30 G53 the axes they name
+    # are somewhere the program does not say (machine coordinates, reference point)
+    nm_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & (nonmove_l[wline] >= 0))
+    g50_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & g50_line[wline])
+    if len(g50_w):
+        _fail("G50 with axis words sets the coordinate system (lathe controls) or scaling: "
+              "not supported", wline[g50_w[0]], filename)
+    reset_lines = np.zeros(0, np.int64)
+    reset_cols = np.zeros(0, np.int64)
+    shift_l = None
+    if len(nm_w):
+        code_w = nonmove_l[wline[nm_w]]
+        rs_ = np.isin(code_w, (28, 30, 53))
+        reset_lines, reset_cols = wline[nm_w[rs_]].astype(np.int64), wcol[nm_w[rs_]].astype(np.int64)
+        for c in sorted(set(code_w.tolist())):
+            ln = wline[nm_w[code_w == c]]
+            notes.append(f"G{c if c != 501 else '50.1'} on line(s) "
+                         f"{', '.join(str(x + 1) for x in np.unique(ln)[:5])}"
+                         + (" ..." if len(np.unique(ln)) > 5 else "")
+                         + (": passed through uncompensated; the axes it names are unknown "
+                            "until written again" if c in (28, 30, 53) else
+                            ": its axis words are not moves" if c == 501 else
+                            ": local shift applied to later positions"))
+        g52 = nm_w[code_w == 52]
+        if len(g52):
+            shift_l = np.full((n_lines, n_ax), np.nan)
+            shift_l[wline[g52], wcol[g52]] = value[g52] * np.where(inch_line[wline[g52]] &
+                                                                  np.isin(wcol[g52], [k for k, a in enumerate(axes) if a in LINEAR]), INCH, 1.0)
+        wcol = np.where((nonmove_l[wline] >= 0) & (wcol < n_ax), np.int8(-1), wcol)
+    if shift_l is not None:
+        for k in range(n_ax):
+            col = shift_l[:, k]
+            offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
     axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
     arc_w = np.flatnonzero(wcol >= n_ax)
     if len(axis_w):
@@ -288,6 +316,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     del cw, wcol
 
     motion = mode_line[blines]
+    if inch_line[blines].any() and not inch_line[blines].all():
+        j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
+        _fail("the program switches between inch (G20) and mm (G21) data between motion "
+              "blocks: not supported", blines[j], filename)
+    ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
+    inverse_time = _ffill(feedm_l == 93, feedm_l >= 0, False)[blines]
     plane = plane_line[blines]
     incremental = incr_line[blines]
     inch = inch_line[blines]
@@ -310,20 +344,27 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         raise ValueError(f"arc_tol must be a finite number >= 0, got {arc_tol}")
     start_vec = _start_vector(start, axes)
     written = present.any(axis=0)
+    written |= np.isin(np.arange(n_ax), reset_cols)
     idle = np.isnan(start_vec) & ~written
     start_vec[idle] = 0.0
     idle_axes = tuple(a for a, i in zip(axes, idle) if i)
-    position = np.empty((nblk, n_ax))
-    for k in range(n_ax):
-        v = vals[:, k]
-        pres = present[:, k]
-        inc = np.where(pres & incremental, v, 0.0)
-        cum = np.cumsum(inc)
-        isabs = pres & ~incremental
-        idx = np.where(isabs, np.arange(nblk), -1)
-        np.maximum.accumulate(idx, out=idx)
-        base = np.where(idx >= 0, v[np.maximum(idx, 0)] - cum[np.maximum(idx, 0)], start_vec[k])
-        position[:, k] = base + cum
+    offset = offsets_line[blines] if offsets_line.any() else np.zeros((nblk, n_ax))
+    if len(reset_lines):
+        # rows of G28/G30/G53 lines join the blocks: an absolute "word" NaN for the axes named
+        ev = np.union1d(blines, reset_lines)
+        is_blk = np.isin(ev, blines)
+        rows_b = np.flatnonzero(is_blk)
+        vals_e = np.full((len(ev), n_ax), np.nan)
+        pres_e = np.zeros((len(ev), n_ax), bool)
+        incr_e = np.zeros(len(ev), bool)
+        off_e = np.zeros((len(ev), n_ax))
+        vals_e[rows_b], pres_e[rows_b] = vals[:, :n_ax], present
+        incr_e[rows_b], off_e[rows_b] = incremental, offset
+        r_ev = np.searchsorted(ev, reset_lines)
+        pres_e[r_ev, reset_cols] = True
+        position = _absolute(vals_e, pres_e, incr_e, off_e, start_vec)[rows_b]
+    else:
+        position = _absolute(vals[:, :n_ax], present, incremental, offset, start_vec)
 
     ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
@@ -334,7 +375,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     is_arc = (motion == 2) | (motion == 3)
     if is_arc.any():
         _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, radius, is_arc,
-                      blines, arc_tol, filename, arc_centre, arc_sweep, res_ax)
+                      blines, arc_tol, filename, arc_centre, arc_sweep, res_ax,
+                      ijk_absolute=ijk_absolute, offset=offset)
 
     axis_known = np.isfinite(position)
     start_known = np.isfinite(start_vec)
@@ -350,12 +392,94 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
                   arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
                   inch_g20_words=g20, inch_f_words=finch,
-                  axis_known=axis_known, start_known=start_known,
+                  axis_known=axis_known, start_known=start_known, offset=offset,
+                  ijk_absolute=ijk_absolute, inverse_time=inverse_time,
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
     for a in arrays.values():
         a.flags.writeable = False
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
-                   arc_tol=float(arc_tol), **arrays)
+                   arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+
+
+def _absolute(vals, present, incremental, offset, start_vec):
+    """Absolute positions (rows, n_axes): an absolute word is its value plus the row's offset
+    (work offset, local shift, tool length); an increment adds to the position before; an axis
+    not written stays.  An absolute NaN makes the axis unknown until its next absolute word."""
+    n, n_ax = present.shape
+    position = np.empty((n, n_ax))
+    for k in range(n_ax):
+        pres = present[:, k]
+        v = np.where(pres, vals[:, k], 0.0)
+        isabs = pres & ~incremental
+        inc = np.where(pres & incremental, v, 0.0)
+        cum = np.cumsum(inc)
+        a = v + offset[:, k]
+        idx = np.where(isabs | (pres & np.isnan(vals[:, k])), np.arange(n), -1)
+        np.maximum.accumulate(idx, out=idx)
+        i0 = np.maximum(idx, 0)
+        base = np.where(idx >= 0, np.where(np.isnan(vals[i0, k]), np.nan, a[i0]) - cum[i0], start_vec[k])
+        position[:, k] = base + cum
+    return position
+
+
+def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_lines, filename,
+             notes):
+    """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
+    (the first work offset the program selects, tool length not applied): work offset minus
+    the reference one, plus +/- the tool length along Z for G43/G44.  Unknown tool lengths are
+    taken as 0 and noted; switching work offsets needs their values."""
+    n_ax = len(axes)
+    off = np.zeros((n_lines, n_ax))
+    # -- work offsets
+    wset = wcs_l >= 0
+    pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
+    keys = wcs_l * 1000 + np.where(wcs_l == 541, pnum, 0)
+    if wset.any():
+        used = list(dict.fromkeys(keys[wset].tolist()))
+        name = lambda key: f"G54.1 P{key % 1000}" if key // 1000 == 541 else f"G{key // 1000}"  # noqa: E731
+        if len(used) > 1:
+            table = {}
+            for key, vec in dict(work_offsets or {}).items():
+                table[str(key).upper().replace(" ", "")] = vec
+            missing = [name(k) for k in used if name(k).replace(" ", "") not in table]
+            if missing:
+                ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
+                _fail(f"the program switches from {name(used[0])} to {name(keys[ln])}: give the "
+                      f"work offsets ({', '.join(name(k) for k in used)}) to compensate in one "
+                      "workpiece frame", ln, filename)
+            vec = {k: _axis_vector(table[name(k).replace(" ", "")], axes) for k in used}
+            ref = vec[used[0]]
+            cur = _ffill(keys, wset, used[0])
+            for k in used[1:]:
+                off[cur == k] += vec[k] - ref
+    # -- tool length (G43 +, G44 -, G49 cancel) along Z
+    tset = tool_l >= 0
+    if tset.any():
+        hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
+        mode = _ffill(tool_l, tset, 49)
+        active = mode != 49
+        hs = np.unique(hmodal[active & ~np.isnan(hmodal)]).astype(int).tolist()
+        lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
+        unknown = [h for h in hs if h not in lengths and h != 0]
+        if unknown:
+            notes.append(f"tool length offsets H{', H'.join(map(str, unknown))} not given: taken as "
+                         "0 mm (the compensation then evaluates the errors at the programmed tool "
+                         "tip position; give the tool lengths where errors depend on Z)")
+        if "Z" in axes and lengths:
+            L = np.array([lengths.get(int(h), 0.0) if np.isfinite(h) else 0.0 for h in hmodal])
+            sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
+            off[:, axes.index("Z")] += sign * L
+    return off, None
+
+
+def _axis_vector(vec, axes):
+    if isinstance(vec, Mapping):
+        up = {str(k).upper(): float(v) for k, v in vec.items()}
+        return np.array([up.get(a, 0.0) for a in axes])
+    v = np.asarray(vec, float).reshape(-1)
+    if len(v) != len(axes) or not np.isfinite(v).all():
+        raise ValueError(f"offset vectors need {len(axes)} finite values ({' '.join(axes)})")
+    return v
 
 
 def _map_codes(vals, mapping):

@@ -60,8 +60,12 @@ class Program:
     axis_known: np.ndarray           # (N, n_axes)
     start_known: np.ndarray          # (n_axes,)
     known: np.ndarray                # (N,) all axes known at the block's end
+    offset: np.ndarray               # (N, n_axes) program coordinates -> reference frame
+    ijk_absolute: np.ndarray         # (N,) G90.1: I J K are the arc centre
+    inverse_time: np.ndarray         # (N,) G93: F is an inverse time
     idle_axes: tuple = ()
     arc_tol: float = 0.02            # mm: accepted radius difference (start/end) of arcs
+    notes: tuple = ()                # what was read with an assumption or passed uncompensated
 
     @property
     def n_axes(self) -> int:

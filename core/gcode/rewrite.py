@@ -146,7 +146,7 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                               progress=progress, unknown=unknown, row_lines=row_lines)[0]
 
 
-def _control_counts(program: Program, res: np.ndarray) -> np.ndarray:
+def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
     """Where the control stands after each block, in counts of the axis resolution, as it
     reads the words (each rounded to its input increment, G91 increments summed): (N + 1,
     n_axes) float holding integers, row 0 the start, NaN where unknown."""
@@ -171,6 +171,8 @@ def _control_counts(program: Program, res: np.ndarray) -> np.ndarray:
         incr = np.where(pres & inc, c, 0.0)
         cum = np.cumsum(incr)
         isabs = pres & ~inc
+        if offc is not None:
+            c = c + offc[:, k]                    # absolute words are in the block's frame
         idx = np.where(isabs, np.arange(N), -1)
         np.maximum.accumulate(idx, out=idx)
         i0 = np.maximum(idx, 0)
@@ -194,9 +196,15 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     if unknown not in ("defer", "refuse"):
         raise ValueError(f"unknown must be 'defer' or 'refuse', got {unknown!r}")
     fm = resolution_formats(resolution, axes)
+    inch_prog = bool(np.asarray(program.inch).any())
+    if inch_prog:
+        # an inch program is written in inch, one decimal more than the mm resolution has
+        fm = {a: ((d + 1, 1) if a in LINEAR else (d, m)) for a, (d, m) in fm.items()}
     d_ax = np.array([fm[a][0] for a in axes])
     m_ax = np.array([fm[a][1] for a in axes])
     res = m_ax * 10.0 ** -d_ax.astype(float)
+    if inch_prog:
+        res = np.where([a in LINEAR for a in axes], res * INCH, res)
     if not chordal_tol > 0:
         raise ValueError("chordal_tol must be positive")
     ctx = _Ctx(program)
@@ -237,7 +245,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     # new position = where the control reads the program + the rounded correction, so that a
     # transform that changes nothing changes no count (G91 increments finer than the resolution
     # included); rows not known stay where the program puts them
-    Cc = _control_counts(program, res)
+    off = np.asarray(program.offset)
+    offc = np.rint(off / res).astype(np.int64) if off.any() else None
+    Cc = _control_counts(program, res, offc)
     Cc[1 + kk] += np.rint((Qt[:nk] - P[kk]) / res)
     del Qt
     C = np.nan_to_num(Cc, nan=0.0).astype(np.int64)
@@ -247,7 +257,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     keep = np.ones(len(ak), bool)
     arc_cols = None
     if geo is not None:
-        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, fm, chordal_tol, program.arc_tol)
+        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, fm, chordal_tol, program.arc_tol, offc)
     del St
     lin = ak[~keep]
     seg = None
@@ -270,26 +280,20 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         cw = cw.copy()
         cw[lin, n_ax:] = -1          # removed arc words are no anchors for inserted words
     wv = np.asarray(program.w_value)
-    inch = np.asarray(program.inch)
-    any_inch = bool(inch.any())
     for k, a in enumerate(axes):
         v = new[:, k]
         if inner_rows is not None:
             v = v.copy()
             v[inner_rows] = inner_pts[:, k]
         pv = prev[:, k]
-        target = np.where(inc, v - pv, v)
+        target = np.where(inc, v - pv, v if offc is None else v - offc[:, k])
         wk = cw[:, k]
         pres = wk >= 0
         ov = wv[np.maximum(wk, 0)]
-        force = None
-        if any_inch and a in LINEAR:
-            ov = ov * np.where(inch, INCH, 1.0)
-            force = inch
+        if inch_prog and a in LINEAR:
+            ov = ov * INCH
         oc = np.rint(ov / res[k]).astype(np.int64)
         differs = target != oc
-        if force is not None:
-            differs |= force
         _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn),
                       np.flatnonzero(~pres & (v != pv) & kn), target)
 
@@ -299,19 +303,15 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
             _column_edits(ctx, cw, n_ax + j, ctx.letter(letter).encode(), a_fmt[j],
                           np.flatnonzero(a_rep[:, j]), np.flatnonzero(a_ins[:, j]), a_counts[:, j])
     if len(lin):
-        _linearise_edits(ctx, lin, seg, new, d_ax, m_ax, chordal_tol)
+        inv = np.asarray(program.inverse_time)[lin]
+        if inv.any():
+            raise InputError("this arc must be linearised under the transform, but the block is "
+                             "in G93 inverse time feed: its segments would need new F words",
+                             program.filename, int(line[lin[np.argmax(inv)]]))
+        _linearise_edits(ctx, lin, seg, new, d_ax, m_ax, chordal_tol, offc)
     _restore_modal_arcs(ctx, lin)
 
     ed = ctx.edits
-    if len(program.inch_g20_words):
-        w = np.asarray(program.inch_g20_words)
-        off, ln = ed.const(b"21")
-        ed.add(program.w_num[w], program.w_end[w], _SUB_REPLACE, off, ln)
-    if len(program.inch_f_words):
-        w = np.asarray(program.inch_f_words)
-        buf, off, ln = format_counts(np.rint(program.w_value[w] * INCH * 1e4).astype(np.int64), 4)
-        base = ed.add_buffer(buf)
-        ed.add(program.w_num[w], program.w_end[w], _SUB_REPLACE, base + off, ln)
     text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
     added = np.zeros(N, np.int64)
     for k, n_add in ctx.added_lines.items():
@@ -394,7 +394,7 @@ def _fmt(c: int, d: int) -> str:
     return "-" + s if c < 0 else s
 
 
-def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol):
+def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol, offc=None):
     """Blocks of linearised arcs: G2/G3 -> G1, arc words out, a comment with the tolerance,
     and the remaining segment points as new lines after the block."""
     p, ed, data = ctx.p, ctx.edits, ctx.data
@@ -446,7 +446,7 @@ def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol):
             diff = ptc - last
             if not diff.any():
                 continue
-            vals = diff if inc[k] else ptc
+            vals = diff if inc[k] else (ptc if offc is None else ptc - offc[k])
             words = [f"{ctx.letter(axes[a])}{_fmt(vals[a] * int(m_ax[a]), int(d_ax[a]))}"
                      for a in range(n_ax) if diff[a]]
             lines.append(sp.join(words))

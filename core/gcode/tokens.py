@@ -7,6 +7,7 @@ import re
 import numpy as np
 
 from .._io import InputError
+from .codes import O_WORDS
 
 _PAREN_RE = re.compile(rb"\([^()\n]*\)")
 _LINE_REST_RE = re.compile(rb"[^\n]*")
@@ -64,6 +65,9 @@ def _word_error(code, lp, rs, re_, line_of, filename):
         word = bytes(code[p1:e]).decode("latin-1")
         if len(word) > 1:
             what = f"unknown word {word!r}: expected an address letter followed by a number"
+            if word.lower() in O_WORDS:
+                what = (f"LinuxCNC o-word program flow ({word!r}) is not supported: mtcomp reads "
+                        "straight-line code; expand subroutines and loops first")
         else:
             what = f"address {word} without a number"
         _fail(what, line_of(p1), filename)
