@@ -147,8 +147,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                 i = s + getattr(exc, "index", 0)
                 line = int(lines[i]) if 0 <= i < len(lines) else None
                 is_end = line is not None and i < int(np.count_nonzero(prog.known))
-                where = "" if is_end else "an interior point of the arc ending here: "
-                raise InputError(f"cannot compensate {where}{exc}{hint}", filename, line) from None
+                where = "" if is_end else " an interior point of the arc ending here"
+                raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
             if progress:
                 progress(min(s + CHUNK, len(q)), len(q))
         return out
