@@ -2,7 +2,11 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
+import math
+import re
 import sys
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -15,69 +19,210 @@ from .machine import list_presets, load_machine
 from .progress import Progress
 
 CHUNK = 200_000
+#: Default chordal tolerance for linearised arcs (mm), raised to twice the coarsest linear axis
+#: resolution on machines where 0.1 µm cannot be represented.
+CHORDAL_TOL = 1e-4
+_LOCATION_RE = re.compile(r"^E[XYZABC]0([A-Z])$")
+
+
+def default_chordal_tol(machine) -> float:
+    """0.1 µm, or twice the coarsest linear axis resolution if that is larger (mm)."""
+    res = [a.resolution for a in machine.axes if a.kind == "linear"] or [0.0]
+    return max(CHORDAL_TOL, 2 * max(res))
+
+
+def _check_chordal_tol(machine, tol):
+    if tol is None:
+        return default_chordal_tol(machine)
+    tol = float(tol)
+    if not (math.isfinite(tol) and tol > 0):
+        raise InputError(f"chordal tolerance must be a positive number of µm, got {tol * 1e3:g}",
+                         field="--chordal-tol")
+    res = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
+    if tol < 2 * res:
+        raise InputError(f"chordal tolerance {tol * 1e3:g} µm is below twice the linear axis "
+                         f"resolution of {machine.name} ({res * 1e3:g} µm); use at least "
+                         f"{2 * res * 1e3:g} µm", field="--chordal-tol")
+    return tol
+
+
+def check_errors_for_machine(errors: ErrorSet, machine, file=None) -> None:
+    """Refuse errors that name axes the machine does not have (a table for U, EX0U, EC0W):
+    they would otherwise be ignored silently."""
+    names = set(machine.axis_names)
+    for axis in errors.geometric.tables:
+        if axis not in names:
+            raise InputError(f"error table for axis {axis}, but {machine.name} has axes "
+                             f"{' '.join(machine.axis_names)}", file, field=f"geometric.tables.{axis}")
+    for key, value in errors.geometric.location.items():
+        m = _LOCATION_RE.match(key)
+        if m and m.group(1) not in names:
+            raise InputError(f"location error {key} of axis {m.group(1)}, but {machine.name} has "
+                             f"axes {' '.join(machine.axis_names)}", file, field=f"geometric.location.{key}")
+
+
+def parse_start(spec: str | None, machine) -> dict | None:
+    """``X=1.5,Y=0,Z=50`` -> {"X": 1.5, ...} (mm, deg); axes must be the machine's."""
+    if spec is None:
+        return None
+    out = {}
+    for part in spec.replace(" ", "").split(","):
+        if not part:
+            continue
+        name, eq, val = part.partition("=")
+        name = name.upper()
+        try:
+            v = float(val)
+        except ValueError:
+            v = math.nan
+        if not eq or name not in machine.axis_names or not math.isfinite(v):
+            raise InputError(f"expected AXIS=value with an axis of {machine.name} "
+                             f"({' '.join(machine.axis_names)}) and a finite number, got {part!r}",
+                             field="--start")
+        out[name] = v
+    return out
+
+
+def _travel_check(machine, prog, filename):
+    """Programmed positions outside an axis' travel: the control would refuse them too."""
+    P = np.asarray(prog.position)
+    for k, ax in enumerate(machine.axes):
+        lo, hi = ax.limits
+        tol = 0.5 * ax.resolution
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(((P[:, k] < lo - tol) | (P[:, k] > hi + tol)) & prog.axis_known[:, k])
+        if len(bad):
+            j = int(bad[0])
+            raise InputError(f"{ax.name} {P[j, k]:g} is outside the travel [{lo:g}, {hi:g}] of axis "
+                             f"{ax.name} on {machine.name}", filename, int(prog.line[j]))
+
+
+def _three_axis_hint(machine, prog) -> str:
+    rot = [machine.axis_names[i] for i in machine.rotary_indices]
+    if rot and not np.asarray(prog.present)[:, list(machine.rotary_indices)].any():
+        return (f"; the program does not move {' '.join(rot)}: for a 3-axis program, "
+                "`mtcomp workpiece-setting compensate --mode 3axis` corrects the setting "
+                "errors with X Y Z only")
+    return ""
 
 
 def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = "<string>",
-                       chordal_tol: float = 1e-4, convert_inch: bool = False, progress=None):
+                       chordal_tol: float | None = None, start=None, unknown: str = "defer",
+                       provenance: list | None = None, force: bool = False, progress=None,
+                       convert_inch: bool = False):
     """Rewrite an NC program written for the ideal machine so that the real machine with
-    `errors` cuts what the program meant.  Returns (new_text, report dict with max/RMS tool-edge
-    errors in mm before and after, from the forward model)."""
+    `errors` cuts what the program meant.
+
+    chordal_tol (mm): tolerance for arcs that must be linearised (default 0.1 µm, at least twice
+    the linear resolution).  start: known axis positions before the first block ({"X": ..}).
+    unknown: "defer" (blocks before every axis position is known pass uncompensated) or
+    "refuse".  provenance: (key, value) items for the header comment (None: no header).
+    force: compensate a program that carries mtcomp's provenance header anyway.
+    Returns (new_text, report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
+    errors in mm before and after over the compensated blocks, from the forward model)."""
     from . import gcode
+    from .gcode.provenance import compensated_line, header_lines, insert_header
 
-    prog = gcode.parse(text, axes=machine.axis_names, filename=filename, convert_inch=convert_inch)
+    tol = _check_chordal_tol(machine, chordal_tol)
+    check_errors_for_machine(errors, machine)
+    done = compensated_line(text)
+    if done is not None and not force:
+        raise InputError("this program was already compensated by mtcomp (provenance header); "
+                         "compensating it again would apply the errors twice: use the original "
+                         "program, or --force", filename, done)
+    res = {a.name: a.resolution for a in machine.axes}
+    prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
+                       convert_inch=convert_inch, resolution=res)
     n_blocks = len(prog)
-
-    calls = [0]
+    _travel_check(machine, prog, filename)
+    hint = _three_axis_hint(machine, prog)
+    calls = []
 
     def transform(q):
-        # gcode.rewrite calls this with [start, block ends 1..N, arc samples] first and, when
-        # arcs are linearised, a second time with segment points only.
-        first = calls[0] == 0
-        calls[0] += 1
+        lines = calls[-1]
         out = np.empty_like(q)
         for s in range(0, len(q), CHUNK):
             try:
                 out[s:s + CHUNK] = retarget(machine, q[s:s + CHUNK], errors)
             except (LimitError, ConvergenceError, TableRangeError) as exc:
-                i = s + exc.index
-                if first and 1 <= i <= n_blocks:
-                    raise InputError(f"cannot compensate: {exc}", filename, int(prog.line[i - 1])) from None
-                where = "an interior point of an arc" if first else "an interior point of a linearised arc"
-                raise InputError(f"cannot compensate {where}: {exc}", filename) from None
+                i = s + getattr(exc, "index", 0)
+                line = int(lines[i]) if 0 <= i < len(lines) else None
+                is_end = line is not None and i < int(np.count_nonzero(prog.known))
+                where = "" if is_end else " an interior point of the arc ending here"
+                raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
             if progress:
                 progress(min(s + CHUNK, len(q)), len(q))
         return out
 
-    res = {a.name: a.resolution for a in machine.axes}
-    new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=chordal_tol)
+    new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
+                                                  unknown=unknown, row_lines=calls)
+    added = 0
+    if provenance is not None:
+        new_text, at, added = insert_header(new_text, header_lines(provenance))
+        out_line = np.where(out_line > at, out_line + added, out_line)
     # Check the result as the machine will run it: re-read the written program (rounded
     # numbers, linearised arcs) and put it through the forward model with the errors.
-    target = forward(machine, prog.position)
-    before = np.linalg.norm(forward(machine, prog.position, errors).p - target.p, axis=1)
-    after_prog = gcode.parse(new_text, axes=machine.axis_names, filename=filename)
+    kn = np.asarray(prog.known)
+    P = np.asarray(prog.position)[kn]
+    target = forward(machine, P)
+    before = np.linalg.norm(forward(machine, P, errors).p - target.p, axis=1)
+    after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start, resolution=res,
+                             filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
-    idx = np.searchsorted(after_prog.line, out_line)
+    idx = np.searchsorted(after_prog.line, out_line[kn])
     after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
-    report = {"blocks": n_blocks, "lines": prog.n_lines,
+    report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
+              "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after)}
     return new_text, report
 
 
+def _sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
 def _cmd_compensate(args) -> int:
+    from . import __version__
+    from .gcode import read_program
     machine = load_machine(args.machine)
     errors = load_errors(args.errors, machine=machine)
     src = Path(args.program)
-    from .gcode import read_program
     text = read_program(src)  # keeps CR LF byte for byte
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
-    new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=args.chordal_tol * 1e-3,
-                                       convert_inch=args.inch, progress=Progress("compensating", args.progress))
+    if out.is_dir():
+        raise InputError("the output is a directory; give a file name", str(out), field="-o")
+    tol = None if args.chordal_tol is None else args.chordal_tol * 1e-3
+    start = parse_start(args.start, machine)
+    options = [f"unknown-start {args.unknown}"]
+    if tol is not None:
+        options.append(f"chordal-tol {args.chordal_tol:g} um")
+    if start:
+        options.append("start " + ",".join(f"{k}={v:g}" for k, v in start.items()))
+    if args.force:
+        options.append("force")
+    provenance = [("VERSION", f"mtcomp {__version__}"),
+                  ("ERRORS", f"{Path(args.errors).name} SHA256 {_sha256(args.errors)}"),
+                  ("MACHINE", machine.name),
+                  ("DATE", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")),
+                  ("SOURCE", src.name), ("OPTIONS", "; ".join(options))]
+    new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=tol,
+                                       start=start, unknown=args.unknown, provenance=provenance,
+                                       force=args.force, progress=Progress("compensating", args.progress))
     atomic_write(out, new_text)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
-    print(f"tool-edge error before compensation: max {rep['before_max'] * 1e3:10.3f} um   "
-          f"RMS {rep['before_rms'] * 1e3:10.3f} um")
+    if rep["deferred"]:
+        print(f"{rep['deferred']} blocks before every axis position is known passed uncompensated "
+              "(give --start to compensate them)")
+    if rep["idle_axes"]:
+        print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}")
+    print(f"tool-edge error before compensation: max {rep['before_max'] * 1e3:10.3f} µm   "
+          f"RMS {rep['before_rms'] * 1e3:10.3f} µm")
     print(f"tool-edge error after  compensation: max {rep['after_max'] * 1e6:10.3f} nm   "
           f"RMS {rep['after_rms'] * 1e6:10.3f} nm")
     return 0
@@ -99,16 +244,24 @@ def _cmd_machines(args) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compensate", help="rewrite an NC program for setting and geometric errors",
-                       description="Rewrite a Fanuc-style NC program so that the real machine with the "
-                                   "given errors cuts what the program meant; prints the tool-edge error "
-                                   "before and after (forward model).")
+                       description="Rewrite an NC program so that the real machine with the given "
+                                   "errors cuts what the program meant; prints the tool-edge error "
+                                   "before and after (forward model). The output starts with a "
+                                   "provenance comment; such a program is not compensated again.")
     p.add_argument("program", help="NC program (G-code)")
     p.add_argument("--machine", "-m", required=True, help=f"preset ({', '.join(list_presets())}) or TOML file")
     p.add_argument("--errors", "-e", required=True, help="errors TOML (docs/errors-format.md)")
     p.add_argument("-o", "--output", help="output program (default: PROGRAM_comp.nc)")
-    p.add_argument("--chordal-tol", type=positive_float, default=0.1, metavar="UM",
-                   help="chordal tolerance for linearised arcs in um (default 0.1)")
-    p.add_argument("--inch", action="store_true", help="accept G20 (inch) data and convert it to mm")
+    p.add_argument("--chordal-tol", type=positive_float, default=None, metavar="UM",
+                   help="chordal tolerance for linearised arcs in µm (default 0.1, at least twice "
+                        "the linear axis resolution)")
+    p.add_argument("--start", metavar="X=..,Y=..",
+                   help="axis positions before the first block (mm, deg), where known")
+    p.add_argument("--unknown", choices=("defer", "refuse"), default="defer",
+                   help="blocks before every axis position is known: pass them uncompensated "
+                        "(defer, default) or refuse the program naming the line")
+    p.add_argument("--force", action="store_true",
+                   help="compensate a program that mtcomp has already compensated")
     p.add_argument("--progress", action="store_true", default=None, help="show a progress bar")
     p.set_defaults(func=_cmd_compensate)
 

@@ -152,11 +152,13 @@ def compensate_text(machine, text: str, pose: WorkpieceSetting, *, mode: str = "
     """
     from .. import gcode
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename)
-    q_all = np.vstack([np.asarray(prog.start, float)[None], np.asarray(prog.position, float)])
+    # blocks before every axis position is known pass uncompensated (gcode.rewrite)
+    known = np.asarray(prog.known)
+    q_all = np.asarray(prog.position, float)[known]
     if mode == "auto":
         mode = "3axis" if is_three_axis(machine, q_all) else "5axis"
     # validate every block with its line number before any text is produced
-    compensate_commands(machine, q_all[1:], pose, mode, lines=prog.line, source=filename)
+    compensate_commands(machine, q_all, pose, mode, lines=np.asarray(prog.line)[known], source=filename)
     res = {a.name: a.resolution for a in machine.axes}
     new = gcode.rewrite(prog, lambda q: compensate_commands(machine, q, pose, mode, source=filename),
                         resolution=res, chordal_tol=chordal_tol)

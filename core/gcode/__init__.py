@@ -1,0 +1,19 @@
+"""NC programs (Fanuc-style and the dialects CAM systems write): read, then rewrite axis words.
+
+`parse` reads a whole program into numpy arrays (one row per motion block: absolute modal end
+position over the machine's axes in mm/deg, motion mode, plane, feed, arc data, source line);
+`rewrite` maps every commanded position through a vectorised ``transform`` and splices new axis
+words into the original text, leaving every other byte alone.  `write` gives the text back.
+
+Modules: ``tokens`` (comments and words), ``codes`` (which G/M codes are followed, passed or
+refused), ``parse`` (modal state, positions), ``arcs`` (circle geometry, keep or linearise),
+``rewrite`` (new words spliced into the bytes), ``textops`` (vectorised number parsing and
+formatting).  What is read, what is refused and why is described in docs/gcode.md.
+"""
+from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
+from .parse import parse, read_program, write
+from .program import Program
+from .rewrite import rewrite, rewrite_with_lines
+
+__all__ = ["ARC_WORDS", "CANONICAL", "INCH", "LINEAR", "Program", "parse", "read_program",
+           "rewrite", "rewrite_with_lines", "write"]

@@ -1,0 +1,549 @@
+"""Reading a program into per-block arrays (modal state, absolute positions, arcs)."""
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from .._io import InputError
+from .arcs import _arc_geometry
+from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
+from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
+                    _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
+from .program import Program, resolution_formats
+from .textops import parse_decimals
+from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
+
+
+def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
+    """Forward fill: the last set value at or before each index (``default`` before any)."""
+    idx = np.where(isset, np.arange(len(values)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    out = values[np.maximum(idx, 0)]
+    return np.where(idx >= 0, out, default)
+
+
+def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<string>",
+          convert_inch: bool = False, start=None, arc_tol: float | None = None,
+          resolution=None, tool_lengths=None, work_offsets=None) -> Program:
+    """Read a Fanuc-style NC program (text) for a machine with the given axis letters.
+
+    ``start``: position of the axes before the first block, where the user knows it (mapping
+    letter -> value, or a sequence over ``axes`` with NaN for unknown).  An axis the program
+    writes but ``start`` does not give is *unknown* until its first word: ``axis_known`` is
+    False there, blocks before that are not ``known`` and `rewrite` writes nothing for them
+    (``position`` holds 0 there only so that simulations have a number; do not compensate it).  An axis the
+    program never writes stays where it is; it is taken at 0 (the program origin, as a 3-axis
+    program assumes of the rotary axes of a 5-axis machine) and listed in ``idle_axes``.  ``arc_tol`` (mm): largest
+    accepted difference between an arc's radius at its start and at its end (default 0.02 mm,
+    0.002 in in inch programs, in the style of LinuxCNC; an end point within it is read as a
+    spiral, as controls run it).  ``resolution`` (as for `rewrite`): the axis resolutions; an
+    arc whose end equals its start at the resolution is a full circle, and a radius below the
+    resolution is refused.
+    Raises ``InputError`` naming ``filename:line`` for anything it cannot read or would not
+    transform correctly (docs/gcode.md lists the cases).
+    """
+    axes = tuple(str(a).upper() for a in axes)
+    notes: list[str] = []
+    for a in axes:
+        if len(a) != 1 or a not in CANONICAL:
+            raise ValueError(f"axis names must be single letters out of {CANONICAL}, got {a!r}")
+    n_ax = len(axes)
+    data = text.encode("utf-8", "surrogateescape")
+    b = np.frombuffer(data, np.uint8)
+    nbytes = len(b)
+    nl = np.flatnonzero(b == 10)
+    line_start = np.concatenate(([0], nl + 1)).astype(np.int64)
+    line_end = np.concatenate((nl, [nbytes])).astype(np.int64)
+    n_lines = len(line_start)
+
+    def line_of(pos):
+        return np.searchsorted(line_start, pos, side="right") - 1
+
+    # -- comments, % lines and block delete become blanks in a working copy; so does a UTF-8
+    # byte-order mark (Windows editors write one)
+    code = b.copy()
+    bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    code[:bom] = 32
+    spans = _comment_spans(data, b, first=bom)
+    if spans:
+        if len(spans) < 1 << 18:                  # slice assignments: cheap per comment
+            for s, e in spans:
+                code[s:e] = 32
+        else:
+            sp = np.asarray(spans, np.int64)
+            mark = np.zeros(nbytes + 1, np.int8)
+            np.add.at(mark, sp[:, 0], 1)
+            np.add.at(mark, sp[:, 1], -1)
+            code[np.cumsum(mark[:-1], dtype=np.int8).view(bool)] = 32
+    bd_lines = np.zeros(0, np.int64)
+    slash = np.flatnonzero(code == 47)
+    if len(slash):
+        # block delete: '/' as the first non-blank character of a line
+        ls = line_start[line_of(slash)]
+        bd = [int(q) for q, l0 in zip(slash, ls) if not bytes(code[l0:q]).strip(b" \t")]
+        if bd:
+            bd = np.asarray(bd, np.int64)
+            code[bd] = 32
+            bd_lines = line_of(bd)
+
+    # -- character classes and words: a letter immediately followed by a run of number
+    # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at = _tokenise(code, line_start)
+    if bad_at >= 0:
+        ch = data[bad_at:bad_at + 1].decode("latin-1")
+        hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
+        _fail(f"unexpected character {ch!r}: {hint}", line_of(bad_at), filename)
+    if len(rs) != len(lp) or np.any(rs != lp + 1):
+        # blanks between a letter and its number ("X 10") are read, on the same line
+        ok = len(rs) == len(lp) and bool(np.all(rs > lp)) and bool(np.all(rs[:-1] < lp[1:]))
+        if ok:
+            gap = np.flatnonzero(rs != lp + 1)
+            ok = bool(np.all(line_of(rs[gap]) == wline[gap]))
+        if not ok:
+            _word_error(code, lp, rs, re_, line_of, filename)
+    wlet = ((code[lp] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
+
+    # -- number syntax: sign only first, at most one point, at least one digit
+    if sign_at >= 0:
+        i = int(np.searchsorted(rs, sign_at, side="right") - 1)
+        _fail(f"malformed number {_word_text(data, lp[i], re_[i])!r}: a sign may only "
+              "lead the number", wline[i], filename)
+    first_ch = code[rs]
+    ndig = (re_ - rs) - (dot_of_run >= 0) - ((first_ch == 43) | (first_ch == 45))
+    badnum = twodots | (ndig < 1)
+    if badnum.any():
+        i = int(np.argmax(badnum))
+        _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
+              "digits with at most one decimal point", wline[i], filename)
+    value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
+    if not np.isfinite(value).all():
+        i = int(np.argmax(~np.isfinite(value)))
+        _fail(f"number in word {_word_text(data, lp[i], min(re_[i], lp[i] + 20))!r}... is too large",
+              wline[i], filename)
+    w_num = rs.astype(np.int32)
+    # positions fit 32 bits (programs under 2 GB); free what is no longer needed
+    if nbytes >= 2**31 - 1:
+        raise InputError("programs of 2 GB and more are not supported", file=filename)
+    lp, re_ = lp.astype(np.int32), re_.astype(np.int32)
+    del code, rs, dot_of_run, twodots, first_ch, ndig, badnum
+
+    G, M = _ascii("G"), _ascii("M")
+    # -- duplicate addresses in one block (G and M may repeat)
+    # stable radix sort by letter keeps each letter's words in line order: a repeated letter in
+    # a block shows as two neighbours with the same letter and line
+    order = np.argsort(wlet, kind="stable")
+    sl, sw = wlet[order], wline[order]
+    dup = (sl[1:] == sl[:-1]) & (sw[1:] == sw[:-1]) & (sl[1:] != G) & (sl[1:] != M)
+    if dup.any():
+        j = int(np.argmax(dup)) + 1
+        _fail(f"address {chr(65 + int(sl[j]))} appears twice in one block", int(sw[j]), filename)
+    del order, sl, sw, dup
+
+    # -- G codes
+    gi = np.flatnonzero(wlet == G)
+    g10 = np.rint(value[gi] * 10).astype(np.int64)
+    nonint = np.abs(value[gi] * 10 - g10) > 1e-6
+    # 0 motion 1 dwell 2 plane 3 units 4 dist 5 wcs 6 harmless 7 arc centre mode 8 tool length
+    # 9 axis words that are not moves 10 feed mode
+    cat = np.full(len(gi), -1, np.int64)
+    tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
+              (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_HARMLESS, 6)]
+    for u in np.unique(g10):
+        sel = g10 == u
+        u = int(u)
+        cat[sel] = next((c for table, c in tables if u in table), -1)
+    badg = (cat < 0) | nonint
+    if badg.any():
+        j = int(np.argmax(badg))
+        word = _word_text(data, lp[gi[j]], re_[gi[j]])
+        reason = _G_REFUSED.get(int(g10[j])) if not nonint[j] else None
+        what = (f"{word}: {reason}; refusing rather than guessing" if reason else
+                f"unknown G code {word}: it may affect motion; refusing rather than guessing")
+        _fail(what, wline[gi[j]], filename)
+    gline = wline[gi]
+
+    # -- letters
+    # H tool length offset number, D cutter compensation number, Q peck/shift amounts: values
+    # that move nothing by themselves (the codes that use them are followed or refused)
+    allowed = set("GMNOFSTPIJKRHDQ") | set(axes)
+    if "X" not in axes:
+        allowed.add("X")                     # G4 X dwell time
+    known = np.zeros(26, bool)
+    known[[_ascii(c) for c in allowed]] = True
+    badlet = ~known[wlet]
+    if badlet.any():
+        i = int(np.argmax(badlet))
+        c = chr(65 + wlet[i])
+        if c in CANONICAL:
+            what = f"axis word {c} but the machine has axes {' '.join(axes)}"
+        else:
+            what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P, " \
+                   f"axes {' '.join(axes)}, arc words I J K R)"
+        _fail(what, wline[i], filename)
+
+
+    def per_line(catid, mapping, label):
+        sel = cat == catid
+        lines_, vals, words = gline[sel], g10[sel], gi[sel]
+        cnt = np.bincount(lines_, minlength=n_lines)
+        if np.any(cnt > 1):
+            ln = int(np.argmax(cnt > 1))
+            _fail(f"two {label} G codes in one block", ln, filename)
+        out = np.full(n_lines, -1, np.int64)
+        wout = np.full(n_lines, -1, np.int64)
+        out[lines_] = _map_codes(vals, mapping)
+        wout[lines_] = words
+        return out, wout
+
+    mot_l, mot_w = per_line(0, _G_MOTION, "motion (G0 G1 G2 G3)")
+    pla_l, _ = per_line(2, _G_PLANE, "plane (G17 G18 G19)")
+    uni_l, uni_w = per_line(3, _G_UNITS, "unit (G20 G21)")
+    dis_l, _ = per_line(4, _G_DIST, "distance mode (G90 G91)")
+    wcs_l, _ = per_line(5, _G_WCS, "work coordinate system")
+    acm_l, _ = per_line(7, _G_ARC_DIST, "arc centre mode (G90.1 G91.1)")
+    tool_l, _ = per_line(8, _G_TOOL, "tool length (G43 G44 G49)")
+    nonmove_l, _ = per_line(9, _G_NONMOVE, "non-modal positioning (G28 G30 G52 G53)")
+    feedm_l, _ = per_line(10, _G_FEED, "feed mode (G93 G94 G95)")
+    dwell_line = np.zeros(n_lines, bool)
+    dwell_line[gline[cat == 1]] = True
+    g50_line = np.zeros(n_lines, bool)
+    g50_line[gline[g10 == 500]] = True
+    # per-line word values of P and H (NaN where absent)
+    def letter_value(c):
+        out = np.full(n_lines, np.nan)
+        i = np.flatnonzero(wlet == _ascii(c))
+        out[wline[i]] = value[i]
+        return out
+    p_line, h_line = letter_value("P"), letter_value("H")
+    offsets_line, wcs_keys = _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets,
+                                      tool_lengths, n_lines, filename, notes)
+
+    # -- M codes
+    mi = np.flatnonzero(wlet == M)
+    if len(mi):
+        mref = np.isin(np.rint(value[mi]).astype(np.int64), list(_M_REFUSED))
+        if mref.any():
+            j = mi[int(np.argmax(mref))]
+            _fail(_M_REFUSED[int(round(value[j]))] + "; refusing rather than guessing", wline[j], filename)
+
+    # -- modal state per line
+    inch_line = _ffill(uni_l == 20, uni_l >= 0, False)
+    incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
+    plane_line = _ffill(pla_l, pla_l >= 0, 17)
+    mode_line = _ffill(mot_l, mot_l >= 0, -1)
+
+    # -- feed (modal), converted in inch blocks
+    fi = np.flatnonzero(wlet == _ascii("F"))
+    fval = np.full(n_lines, np.nan)
+    fval[wline[fi]] = value[fi] * np.where(inch_line[wline[fi]], INCH, 1.0)
+    fset = np.zeros(n_lines, bool)
+    fset[wline[fi]] = True
+    feed_line = _ffill(fval, fset, np.nan)
+
+    # -- axis and arc words -> block columns
+    cols = list(axes) + list(ARC_WORDS)
+    col_of_letter = np.full(26, -1, np.int8)
+    for k, c in enumerate(cols):
+        col_of_letter[_ascii(c)] = k
+    wcol = col_of_letter[wlet]
+    # X in a dwell block is the dwell time, not an axis
+    dwell_x = (wlet == _ascii("X")) & dwell_line[wline]
+    if dwell_x.any():
+        wcol = np.where(dwell_x, np.int8(-1), wcol)
+    del dwell_x
+    # axis words of G28 G30 G52 G53 G50.1 are not moves; after G28 G30 G53 the axes they name
+    # are somewhere the program does not say (machine coordinates, reference point)
+    nm_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & (nonmove_l[wline] >= 0))
+    g50_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & g50_line[wline])
+    if len(g50_w):
+        _fail("G50 with axis words sets the coordinate system (lathe controls) or scaling: "
+              "not supported", wline[g50_w[0]], filename)
+    reset_lines = np.zeros(0, np.int64)
+    reset_cols = np.zeros(0, np.int64)
+    shift_l = None
+    if len(nm_w):
+        code_w = nonmove_l[wline[nm_w]]
+        rs_ = np.isin(code_w, (28, 30, 53))
+        reset_lines, reset_cols = wline[nm_w[rs_]].astype(np.int64), wcol[nm_w[rs_]].astype(np.int64)
+        for c in sorted(set(code_w.tolist())):
+            ln = wline[nm_w[code_w == c]]
+            notes.append(f"G{c if c != 501 else '50.1'} on line(s) "
+                         f"{', '.join(str(x + 1) for x in np.unique(ln)[:5])}"
+                         + (" ..." if len(np.unique(ln)) > 5 else "")
+                         + (": passed through uncompensated; the axes it names are unknown "
+                            "until written again" if c in (28, 30, 53) else
+                            ": its axis words are not moves" if c == 501 else
+                            ": local shift applied to later positions"))
+        g52 = nm_w[code_w == 52]
+        if len(g52):
+            shift_l = np.full((n_lines, n_ax), np.nan)
+            shift_l[wline[g52], wcol[g52]] = value[g52] * np.where(inch_line[wline[g52]] &
+                                                                  np.isin(wcol[g52], [k for k, a in enumerate(axes) if a in LINEAR]), INCH, 1.0)
+        wcol = np.where((nonmove_l[wline] >= 0) & (wcol < n_ax), np.int8(-1), wcol)
+    if shift_l is not None:
+        for k in range(n_ax):
+            col = shift_l[:, k]
+            offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
+    axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
+    arc_w = np.flatnonzero(wcol >= n_ax)
+    if len(axis_w):
+        dw = dwell_line[wline[axis_w]]
+        if dw.any():
+            _fail("axis word in a G4 dwell block", wline[axis_w[np.argmax(dw)]], filename)
+    has_motion = np.zeros(n_lines, bool)
+    has_motion[wline[axis_w]] = True
+    has_arcw = np.zeros(n_lines, bool)
+    has_arcw[wline[arc_w]] = True
+    if len(arc_w):
+        notarc = ~np.isin(mode_line[wline[arc_w]], (2, 3))
+        if notarc.any():
+            j = arc_w[np.argmax(notarc)]
+            _fail(f"arc word {chr(65 + wlet[j])} outside G2/G3", wline[j], filename)
+    block = has_motion | (has_arcw & np.isin(mode_line, (2, 3)))
+    if len(bd_lines):
+        bdl = bd_lines[block[bd_lines] | (np.bincount(gline, minlength=n_lines)[bd_lines] > 0)]
+        if len(bdl):
+            _fail("block delete '/' on a block with motion or G codes: the position after it "
+                  "would depend on the operator's switch", bdl[0], filename)
+    blines = np.flatnonzero(block)
+    nblk = len(blines)
+    blk_of_line = np.full(n_lines, -1, np.int64)
+    blk_of_line[blines] = np.arange(nblk)
+    col_word = np.full((nblk, n_ax + 4), -1, np.int32)
+    cw = np.flatnonzero(wcol >= 0)
+    col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
+    del cw, wcol
+
+    motion = mode_line[blines]
+    if inch_line[blines].any() and not inch_line[blines].all():
+        j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
+        _fail("the program switches between inch (G20) and mm (G21) data between motion "
+              "blocks: not supported", blines[j], filename)
+    ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
+    inverse_time = _ffill(feedm_l == 93, feedm_l >= 0, False)[blines]
+    plane = plane_line[blines]
+    incremental = incr_line[blines]
+    inch = inch_line[blines]
+    feed = feed_line[blines]
+    vals = value[np.maximum(col_word, 0)]
+    vals[col_word < 0] = np.nan
+    if inch.any():
+        lin_scale = np.where(inch, INCH, 1.0)
+        for k, c in enumerate(cols):
+            if c in LINEAR or c in ARC_WORDS:
+                vals[:, k] *= lin_scale
+    present = col_word[:, :n_ax] >= 0
+
+    # -- absolute modal positions: last absolute value plus the increments since
+    fm = resolution_formats(resolution, axes)
+    res_ax = np.array([fm[a][1] * 10.0 ** -fm[a][0] for a in axes])
+    if arc_tol is None:
+        arc_tol = 0.002 * INCH if inch.any() else 0.02
+    if not (arc_tol >= 0 and np.isfinite(arc_tol)):
+        raise ValueError(f"arc_tol must be a finite number >= 0, got {arc_tol}")
+    start_vec = _start_vector(start, axes)
+    written = present.any(axis=0)
+    written |= np.isin(np.arange(n_ax), reset_cols)
+    idle = np.isnan(start_vec) & ~written
+    start_vec[idle] = 0.0
+    idle_axes = tuple(a for a, i in zip(axes, idle) if i)
+    offset = offsets_line[blines] if offsets_line.any() else np.zeros((nblk, n_ax))
+    if len(reset_lines):
+        # rows of G28/G30/G53 lines join the blocks: an absolute "word" NaN for the axes named
+        ev = np.union1d(blines, reset_lines)
+        is_blk = np.isin(ev, blines)
+        rows_b = np.flatnonzero(is_blk)
+        vals_e = np.full((len(ev), n_ax), np.nan)
+        pres_e = np.zeros((len(ev), n_ax), bool)
+        incr_e = np.zeros(len(ev), bool)
+        off_e = np.zeros((len(ev), n_ax))
+        vals_e[rows_b], pres_e[rows_b] = vals[:, :n_ax], present
+        incr_e[rows_b], off_e[rows_b] = incremental, offset
+        r_ev = np.searchsorted(ev, reset_lines)
+        pres_e[r_ev, reset_cols] = True
+        position = _absolute(vals_e, pres_e, incr_e, off_e, start_vec)[rows_b]
+    else:
+        position = _absolute(vals[:, :n_ax], present, incremental, offset, start_vec)
+
+    ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
+    ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
+    radius = vals[:, n_ax + 3].copy()
+    del vals
+    arc_centre = np.full((nblk, 3), np.nan)
+    arc_sweep = np.full(nblk, np.nan)
+    is_arc = (motion == 2) | (motion == 3)
+    if is_arc.any():
+        _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, radius, is_arc,
+                      blines, arc_tol, filename, arc_centre, arc_sweep, res_ax,
+                      ijk_absolute=ijk_absolute, offset=offset)
+
+    axis_known = np.isfinite(position)
+    start_known = np.isfinite(start_vec)
+    position[~axis_known] = 0.0
+    start_vec = np.where(start_known, start_vec, 0.0)
+    motion_word = mot_w[blines]
+    g20 = uni_w[(uni_l == 20)]
+    finch = fi[inch_line[wline[fi]]]
+    arrays = dict(line_start=line_start, line_end=line_end, w_letter=wlet, w_value=value,
+                  w_line=wline, w_pos=lp, w_num=w_num, w_end=re_, line=blines + 1, position=position,
+                  start=start_vec, motion=motion.astype(np.int8), plane=plane.astype(np.int8),
+                  incremental=incremental, inch=inch, feed=feed, present=present, ijk=ijk,
+                  ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
+                  arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
+                  inch_g20_words=g20, inch_f_words=finch,
+                  axis_known=axis_known, start_known=start_known, offset=offset,
+                  ijk_absolute=ijk_absolute, inverse_time=inverse_time,
+                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
+    for a in arrays.values():
+        a.flags.writeable = False
+    return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
+                   arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+
+
+def _absolute(vals, present, incremental, offset, start_vec):
+    """Absolute positions (rows, n_axes): an absolute word is its value plus the row's offset
+    (work offset, local shift, tool length); an increment adds to the position before; an axis
+    not written stays.  An absolute NaN makes the axis unknown until its next absolute word."""
+    n, n_ax = present.shape
+    position = np.empty((n, n_ax))
+    for k in range(n_ax):
+        pres = present[:, k]
+        v = np.where(pres, vals[:, k], 0.0)
+        isabs = pres & ~incremental
+        inc = np.where(pres & incremental, v, 0.0)
+        cum = np.cumsum(inc)
+        a = v + offset[:, k]
+        idx = np.where(isabs | (pres & np.isnan(vals[:, k])), np.arange(n), -1)
+        np.maximum.accumulate(idx, out=idx)
+        i0 = np.maximum(idx, 0)
+        base = np.where(idx >= 0, np.where(np.isnan(vals[i0, k]), np.nan, a[i0]) - cum[i0], start_vec[k])
+        position[:, k] = base + cum
+    return position
+
+
+def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_lines, filename,
+             notes):
+    """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
+    (the first work offset the program selects, tool length not applied): work offset minus
+    the reference one, plus +/- the tool length along Z for G43/G44.  Unknown tool lengths are
+    taken as 0 and noted; switching work offsets needs their values."""
+    n_ax = len(axes)
+    off = np.zeros((n_lines, n_ax))
+    # -- work offsets
+    wset = wcs_l >= 0
+    pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
+    keys = wcs_l * 1000 + np.where(wcs_l == 541, pnum, 0)
+    if wset.any():
+        used = list(dict.fromkeys(keys[wset].tolist()))
+        name = lambda key: f"G54.1 P{key % 1000}" if key // 1000 == 541 else f"G{key // 1000}"  # noqa: E731
+        if len(used) > 1:
+            table = {}
+            for key, vec in dict(work_offsets or {}).items():
+                table[str(key).upper().replace(" ", "")] = vec
+            missing = [name(k) for k in used if name(k).replace(" ", "") not in table]
+            if missing:
+                ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
+                _fail(f"the program switches from {name(used[0])} to {name(keys[ln])}: give the "
+                      f"work offsets ({', '.join(name(k) for k in used)}) to compensate in one "
+                      "workpiece frame", ln, filename)
+            vec = {k: _axis_vector(table[name(k).replace(" ", "")], axes) for k in used}
+            ref = vec[used[0]]
+            cur = _ffill(keys, wset, used[0])
+            for k in used[1:]:
+                off[cur == k] += vec[k] - ref
+    # -- tool length (G43 +, G44 -, G49 cancel) along Z
+    tset = tool_l >= 0
+    if tset.any():
+        hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
+        mode = _ffill(tool_l, tset, 49)
+        active = mode != 49
+        hs = np.unique(hmodal[active & ~np.isnan(hmodal)]).astype(int).tolist()
+        lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
+        unknown = [h for h in hs if h not in lengths and h != 0]
+        if unknown:
+            notes.append(f"tool length offsets H{', H'.join(map(str, unknown))} not given: taken as "
+                         "0 mm (the compensation then evaluates the errors at the programmed tool "
+                         "tip position; give the tool lengths where errors depend on Z)")
+        if "Z" in axes and lengths:
+            L = np.array([lengths.get(int(h), 0.0) if np.isfinite(h) else 0.0 for h in hmodal])
+            sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
+            off[:, axes.index("Z")] += sign * L
+    return off, None
+
+
+def _axis_vector(vec, axes):
+    if isinstance(vec, Mapping):
+        up = {str(k).upper(): float(v) for k, v in vec.items()}
+        return np.array([up.get(a, 0.0) for a in axes])
+    v = np.asarray(vec, float).reshape(-1)
+    if len(v) != len(axes) or not np.isfinite(v).all():
+        raise ValueError(f"offset vectors need {len(axes)} finite values ({' '.join(axes)})")
+    return v
+
+
+def _map_codes(vals, mapping):
+    out = np.empty(len(vals), np.int64)
+    for u in np.unique(vals):
+        out[vals == u] = mapping[int(u)]
+    return out
+
+
+def _start_vector(start, axes):
+    n = len(axes)
+    if start is None:
+        return np.full(n, np.nan)
+    if isinstance(start, Mapping):
+        unknown = set(k.upper() for k in start) - set(axes)
+        if unknown:
+            raise ValueError(f"start names axes {sorted(unknown)} not in {axes}")
+        up = {k.upper(): float(v) for k, v in start.items()}
+        v = np.array([up.get(a, np.nan) for a in axes])
+        if np.isinf(v).any():
+            raise ValueError("start values must be finite")
+        return v
+    v = np.array(start, float).reshape(-1)
+    if len(v) != n or np.isinf(v).any():
+        raise ValueError(f"start must give {n} values (finite, or NaN for unknown)")
+    return v
+
+
+
+def write(program: Program) -> str:
+    """The program's text, exactly as read."""
+    return program.text
+
+
+#: Largest program read (bytes); positions are 32-bit internally.
+MAX_PROGRAM_BYTES = 2**31 - 2
+
+
+def read_program(path) -> str:
+    """The text of an NC program file, line endings untouched (CR LF stays CR LF, which
+    ``Path.read_text`` would turn into LF).  A missing, binary or endless file (a device such
+    as /dev/zero, a NUL byte) is an InputError naming it; nothing beyond 2 GB is read."""
+    chunks, size = [], 0
+    try:
+        with open(path, "rb") as fh:
+            while True:
+                chunk = fh.read(1 << 22)
+                if not chunk:
+                    break
+                nul = chunk.find(b"\0")
+                if nul >= 0:
+                    raise InputError(f"not a text file (NUL byte at byte {size + nul})", path)
+                size += len(chunk)
+                if size > MAX_PROGRAM_BYTES:
+                    raise InputError("programs of 2 GB and more are not supported", path)
+                chunks.append(chunk)
+    except FileNotFoundError:
+        raise InputError("NC program not found", path) from None
+    except IsADirectoryError:
+        raise InputError("NC program is a directory", path) from None
+    except PermissionError:
+        raise InputError("NC program cannot be read (permission denied)", path) from None
+    data = b"".join(chunks)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", path) from None

@@ -1,0 +1,76 @@
+"""Provenance of a compensated program: a header comment that says what it was compensated
+with, and the test that refuses to compensate such a program a second time."""
+from __future__ import annotations
+
+import re
+
+#: First header line; its presence marks a program mtcomp has compensated.
+MARKER = "MTCOMP COMPENSATED PROGRAM"
+_MARK_RE = re.compile(r"MTCOMP COMPENSATED PROGRAM", re.IGNORECASE)
+_PROGRAM_NUMBER_RE = re.compile(r"\s*[Oo]\d|\s*:\d")
+
+
+def compensated_line(text: str) -> int | None:
+    """1-based line of the provenance marker if the program was written by mtcomp compensate."""
+    m = _MARK_RE.search(text)
+    return None if m is None else text.count("\n", 0, m.start()) + 1
+
+
+def header_lines(items: list[tuple[str, str]]) -> list[str]:
+    """Header text lines (without comment delimiters): the marker, then ``KEY value`` items.
+    Parentheses in values become brackets (a comment cannot contain them)."""
+    out = [f"{MARKER}: DO NOT COMPENSATE AGAIN"]
+    for key, value in items:
+        out.append(f"{key} {value}".replace("(", "[").replace(")", "]").replace("\n", " "))
+    return out
+
+
+def insert_header(text: str, lines: list[str]) -> tuple[str, int, int]:
+    """Insert ``lines`` as comments near the top of the program: after a leading ``%`` line and
+    after the program number line (``O1234``), where controls expect those, in the program's
+    comment style (``( )``, or ``;`` when the program writes only ``;`` comments) and line
+    ending.  Returns (new text, 0-based line index where the header starts, lines added)."""
+    semicolon = ";" in text and "(" not in text
+    first = text.split("\n", 1)[0]
+    eol = "\r\n" if first.endswith("\r") else "\n"
+    comments = [f"; {ln}" if semicolon else f"({ln})" for ln in lines]
+    src = re.findall(r"[^\n]*\n|[^\n]+\Z", text)          # LF-terminated lines, as counted
+    at = 0
+    while at < len(src) and not src[at].strip():
+        at += 1
+    if at < len(src) and src[at].strip().startswith("%"):
+        at += 1
+    if at < len(src) and _PROGRAM_NUMBER_RE.match(src[at]):
+        at += 1
+    if at == 0:
+        block = "".join(c + eol for c in comments)
+        return block + text, 0, len(comments)
+    prev = src[at - 1]
+    lead = "" if prev.endswith("\n") else eol
+    block = lead + "".join(c + eol for c in comments)
+    before = "".join(src[:at])
+    return before + block + "".join(src[at:]), at, len(comments)
+
+
+_HEADER_LINE_RE = re.compile(r"^(\(|; )([A-Z0-9]+ |MTCOMP COMPENSATED PROGRAM)[^\n]*\n", re.MULTILINE)
+
+
+def strip_header(text: str) -> str:
+    """The program without mtcomp's provenance header (to compare a compensated program with
+    its source, or to compensate the source again)."""
+    at = compensated_line(text)
+    if at is None:
+        return text
+    start = 0
+    for _ in range(at - 1):
+        start = text.index("\n", start) + 1
+    end = start
+    while True:
+        m = _HEADER_LINE_RE.match(text, end)
+        if m is None or (end > start and m.group(2).strip() not in _KEYS):
+            break
+        end = m.end()
+    return text[:start] + text[end:]
+
+
+_KEYS = {"VERSION", "ERRORS", "MACHINE", "DATE", "SOURCE", "OPTIONS"}

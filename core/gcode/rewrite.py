@@ -1,0 +1,500 @@
+"""Rewriting axis words for transformed positions, splicing edits into the original bytes."""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from .arcs import _arc_keep, _arc_params, _arc_samples, _n_samples, _linearisation_points, _Segments, _subset
+from .._io import InputError
+from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
+from .program import Program, resolution_formats
+from .textops import format_counts, splice
+from .tokens import _ascii
+
+
+class _Edits:
+    """Collects edits (replace orig[pos:stop] by text) as arrays of pieces of a text buffer."""
+
+    def __init__(self):
+        self.pos, self.stop, self.sub, self.off, self.len = [], [], [], [], []
+        self.bufs, self.size = [], 0
+
+    def add_buffer(self, buf: np.ndarray) -> int:
+        base = self.size
+        self.bufs.append(buf)
+        self.size += len(buf)
+        return base
+
+    def add(self, pos, stop, sub, off, length):
+        # 32-bit positions and offsets (texts under 2 GB) keep millions of edits small
+        shape = np.shape(pos)
+        self.pos.append(np.asarray(pos, np.int32).ravel())
+        self.stop.append(np.broadcast_to(np.asarray(stop, np.int32), shape).ravel())
+        self.sub.append(np.broadcast_to(np.asarray(sub, np.int16), shape).ravel())
+        self.off.append(np.broadcast_to(np.asarray(off, np.int32), shape).ravel())
+        self.len.append(np.broadcast_to(np.asarray(length, np.int32), shape).ravel())
+
+    def const(self, text: bytes) -> tuple[int, int]:
+        return self.add_buffer(np.frombuffer(text, np.uint8)), len(text)
+
+    def apply(self, orig: np.ndarray, progress=None) -> bytes:
+        if not self.pos:
+            return orig.tobytes()
+        def cat(parts):
+            out = np.concatenate(parts)
+            parts.clear()                     # free the pieces as soon as they are joined
+            return out
+        src = cat(self.bufs) if self.bufs else np.zeros(0, np.uint8)
+        return splice(orig, cat(self.pos), cat(self.stop), cat(self.sub), src, cat(self.off),
+                      cat(self.len), progress=progress)
+
+
+# sub-order of edits at one position: G words, inserted words in canonical order, the
+# linearisation comment, inserted lines, then replacements and removals
+_SUB_G = 0
+_SUB_INSERT = 100
+_SUB_COMMENT = 500
+_SUB_LINES = 600
+_SUB_REPLACE = 1000
+
+
+class _Ctx:
+    """What the rewriting steps share: program, its bytes, edits and per-block anchors."""
+
+    def __init__(self, program: Program):
+        self.p = program
+        self.data = np.frombuffer(program.data, np.uint8)
+        self.edits = _Edits()
+        self.blines = np.asarray(program.line) - 1
+        self._anch = None
+        self._spaced = None
+        self._lower = None
+        self.added_lines = {}            # block index -> lines inserted after it
+
+    @property
+    def anchors(self):
+        """Per block: first F S T M P word position, end of the last word, first word that is
+        not N or O (-1 where none)."""
+        if self._anch is None:
+            p = self.p
+            wl, wlet = np.asarray(p.w_line), np.asarray(p.w_letter)
+            wpos, wend = np.asarray(p.w_pos), np.asarray(p.w_end)
+
+            def first_pos(mask):
+                out = np.full(p.n_lines, -1, np.int64)
+                uniq, idx = np.unique(wl[mask], return_index=True)
+                out[uniq] = wpos[mask][idx]
+                return out[self.blines]
+            tail = first_pos(np.isin(wlet, [_ascii(c) for c in "FSTMP"]))
+            body = first_pos(~np.isin(wlet, [_ascii(c) for c in "NO"]))
+            last_end = np.full(p.n_lines, -1, np.int64)
+            last_end[wl] = wend                      # the last word of a line wins
+            self._anch = (tail, last_end[self.blines], body)
+        return self._anch
+
+    def letter(self, a: str) -> str:
+        """An address letter in the program's case (lower case programs get lower case)."""
+        if self._lower is None:
+            wl = np.asarray(self.p.w_pos)
+            ch = self.data[wl] if len(wl) else np.zeros(0, np.uint8)
+            self._lower = bool(np.count_nonzero(ch >= 97) * 2 > len(ch))
+        return a.lower() if self._lower else a
+
+    @property
+    def spaced(self):
+        """Whether each block separates its words by blanks (style of inserted words)."""
+        if self._spaced is None:
+            p = self.p
+            wl, wp = np.asarray(p.w_line), np.asarray(p.w_pos)
+            first_in_line = np.ones(len(wl), bool)
+            first_in_line[1:] = wl[1:] != wl[:-1]
+            before = self.data[np.maximum(wp - 1, 0)]
+            sp = ((before == 32) | (before == 9)) & ~first_in_line
+            nsp = np.bincount(wl[sp], minlength=p.n_lines)
+            nwords = np.bincount(wl, minlength=p.n_lines)
+            # blocks of one word follow the program's majority
+            multi = nwords[self.blines] > 1
+            n_sp = np.count_nonzero(nsp[self.blines][multi] > 0)
+            default = n_sp * 2 >= np.count_nonzero(multi)
+            self._spaced = np.where(multi, nsp[self.blines] > 0, default)
+        return self._spaced
+
+
+def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
+            resolution=None, chordal_tol: float = 1e-4, progress=None, unknown: str = "defer",
+            row_lines: list | None = None) -> str:
+    """Rewrite the program's axis words for new commanded positions.
+
+    ``transform(q)`` maps absolute commanded positions (M, n_axes) in mm/deg to new ones.  It is
+    called once with rows [end points of the known blocks, arc samples] and a second time only
+    if some arcs must be linearised (with their segment points).  If ``row_lines`` is a list,
+    the 1-based source line of every row is appended to it before each call (so a transform
+    that refuses a point can name the line).
+    ``resolution``: per axis letter a resolution (e.g. 1e-6, 5e-6) or a number of decimals;
+    default 1e-6 mm for X Y Z (U V W), 1e-5 deg for A B C.  ``chordal_tol`` (mm): largest
+    deviation of the output path from the transformed arcs.  ``progress(done, total)`` is
+    called while the output is assembled (bytes).
+    ``unknown``: what happens to motion blocks before every axis position is known
+    (``program.known``): ``"defer"`` passes them through unchanged and compensates from the
+    first block where the pose is known (that block gets words for every axis that must move);
+    ``"refuse"`` raises InputError naming the first such block.
+    Everything except the axis words of known motion blocks (and, for arcs, I J K R and
+    linearisation) stays byte for byte; see docs/gcode.md.
+    """
+    return rewrite_with_lines(program, transform, resolution=resolution, chordal_tol=chordal_tol,
+                              progress=progress, unknown=unknown, row_lines=row_lines)[0]
+
+
+def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
+    """Where the control stands after each block, in counts of the axis resolution, as it
+    reads the words (each rounded to its input increment, G91 increments summed): (N + 1,
+    n_axes) float holding integers, row 0 the start, NaN where unknown."""
+    N, n = len(program), program.n_axes
+    cw, wv = np.asarray(program.col_word), np.asarray(program.w_value)
+    inc, inch = np.asarray(program.incremental), np.asarray(program.inch)
+    Cc = np.empty((N + 1, n))
+    Cc[0] = np.where(program.start_known, np.rint(np.asarray(program.start) / res), np.nan)
+    for k, a in enumerate(program.axes):
+        w = cw[:, k]
+        pres = w >= 0
+        v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
+        if a in LINEAR and inch.any():
+            v = v * np.where(inch, INCH, 1.0)
+        c = np.rint(v / res[k])
+        big = np.abs(c) > 2.0 ** 52
+        if big.any():
+            j = int(np.argmax(big))
+            raise InputError(f"axis word {a}{v[j]:g} is too large for the axis resolution "
+                             f"{res[k]:g} (more than 2**52 counts)", program.filename,
+                             int(program.line[j]))
+        incr = np.where(pres & inc, c, 0.0)
+        cum = np.cumsum(incr)
+        isabs = pres & ~inc
+        if offc is not None:
+            c = c + offc[:, k]                    # absolute words are in the block's frame
+        idx = np.where(isabs, np.arange(N), -1)
+        np.maximum.accumulate(idx, out=idx)
+        i0 = np.maximum(idx, 0)
+        Cc[1:, k] = np.where(idx >= 0, c[i0] - cum[i0], Cc[0, k]) + cum
+    Cc[1:][~np.asarray(program.axis_known)] = np.nan
+    return Cc
+
+
+def _unknown_axes(program: Program, k: int) -> str:
+    return " ".join(a for a, x in zip(program.axes, program.axis_known[k]) if not x)
+
+
+def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
+                       resolution=None, chordal_tol: float = 1e-4, progress=None,
+                       unknown: str = "defer", row_lines: list | None = None):
+    """`rewrite`, also returning for every motion block the 1-based line of the output where
+    the block ends (after a linearised arc: its last segment line), so that the output can be
+    compared block by block with the input."""
+    axes = program.axes
+    n_ax = len(axes)
+    if unknown not in ("defer", "refuse"):
+        raise ValueError(f"unknown must be 'defer' or 'refuse', got {unknown!r}")
+    fm = resolution_formats(resolution, axes)
+    inch_prog = bool(np.asarray(program.inch).any())
+    if inch_prog:
+        # an inch program is written in inch, one decimal more than the mm resolution has
+        fm = {a: ((d + 1, 1) if a in LINEAR else (d, m)) for a, (d, m) in fm.items()}
+    d_ax = np.array([fm[a][0] for a in axes])
+    m_ax = np.array([fm[a][1] for a in axes])
+    res = m_ax * 10.0 ** -d_ax.astype(float)
+    if inch_prog:
+        res = np.where([a in LINEAR for a in axes], res * INCH, res)
+    if not chordal_tol > 0:
+        raise ValueError("chordal_tol must be positive")
+    ctx = _Ctx(program)
+    N = len(program)
+    P = np.asarray(program.position)
+    line = np.asarray(program.line)
+    kn = np.asarray(program.known)
+    if unknown == "refuse" and not kn.all():
+        j = int(np.argmax(~kn))
+        raise InputError(f"position of {_unknown_axes(program, j)} not known at this block (the "
+                         "program has not written it yet): state the start position or let "
+                         "such blocks pass uncompensated", program.filename, int(line[j]))
+    kprev = np.concatenate([[bool(np.all(program.start_known))], kn[:-1]])
+    ak = np.flatnonzero(program.is_arc & kn)
+    first_arc = ak[~kprev[ak]]
+    if len(first_arc):
+        j = int(first_arc[0])
+        raise InputError(f"the first block where every axis position is known is an arc "
+                         f"(G{program.motion[j]}); its start ({_unknown_axes(program, j - 1) if j else ''} "
+                         "unknown) cannot be compensated: state the start position or move "
+                         "to the arc start first", program.filename, int(line[j]))
+    geo = _arc_params(program, ak) if len(ak) else None
+    if geo is not None:
+        lin_res = max(res[geo.u.max()], res[geo.v.max()], res[geo.u.min()], res[geo.v.min()])
+        if chordal_tol < 2 * lin_res:
+            raise ValueError(f"chordal_tol {chordal_tol} mm is below twice the axis resolution")
+    samp = _arc_samples(geo) if geo is not None else np.zeros((0, n_ax))
+    kk = np.flatnonzero(kn)
+    nk = len(kk)
+    Q = np.vstack([P[kk], samp])
+    if row_lines is not None:
+        row_lines.append(np.concatenate([line[kk], np.repeat(line[ak], 4 * _n_samples(geo) - 1)
+                                         if geo is not None else np.zeros(0, np.int64)]))
+    del samp
+    Qt = _call_transform(transform, Q) if len(Q) else Q
+    del Q
+    St = Qt[nk:].copy()                                           # arc samples
+    # new position = where the control reads the program + the rounded correction, so that a
+    # transform that changes nothing changes no count (G91 increments finer than the resolution
+    # included); rows not known stay where the program puts them
+    off = np.asarray(program.offset)
+    offc = np.rint(off / res).astype(np.int64) if off.any() else None
+    Cc = _control_counts(program, res, offc)
+    Cc[1 + kk] += np.rint((Qt[:nk] - P[kk]) / res)
+    del Qt
+    C = np.nan_to_num(Cc, nan=0.0).astype(np.int64)
+    del Cc
+    prev, new = C[:N], C[1:]
+
+    keep = np.ones(len(ak), bool)
+    arc_cols = None
+    if geo is not None:
+        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, fm, chordal_tol, program.arc_tol, offc)
+    del St
+    lin = ak[~keep]
+    seg = None
+    inner_rows = inner_pts = None
+    if len(lin):
+        seg = _linearisation_points(_subset(geo, ~keep), n_ax, chordal_tol)
+        if len(seg.points):
+            if row_lines is not None:
+                row_lines.append(np.repeat(line[lin], seg.count))
+            seg.counts = np.rint(_call_transform(transform, seg.points) / res).astype(np.int64)
+        else:
+            seg.counts = np.zeros((0, n_ax), np.int64)
+        inner = seg.count > 0
+        # the block itself goes to its first segment point; later points become new lines
+        inner_rows, inner_pts = lin[inner], seg.counts[seg.first[inner]]
+
+    inc = np.asarray(program.incremental)
+    cw = np.asarray(program.col_word)
+    if len(lin):
+        cw = cw.copy()
+        cw[lin, n_ax:] = -1          # removed arc words are no anchors for inserted words
+    wv = np.asarray(program.w_value)
+    for k, a in enumerate(axes):
+        v = new[:, k]
+        if inner_rows is not None:
+            v = v.copy()
+            v[inner_rows] = inner_pts[:, k]
+        pv = prev[:, k]
+        target = np.where(inc, v - pv, v if offc is None else v - offc[:, k])
+        wk = cw[:, k]
+        pres = wk >= 0
+        ov = wv[np.maximum(wk, 0)]
+        if inch_prog and a in LINEAR:
+            ov = ov * INCH
+        oc = np.rint(ov / res[k]).astype(np.int64)
+        differs = target != oc
+        _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn),
+                      np.flatnonzero(~pres & (v != pv) & kn), target)
+
+    if arc_cols is not None:
+        a_rep, a_ins, a_counts, a_fmt = arc_cols
+        for j, letter in enumerate(ARC_WORDS):
+            _column_edits(ctx, cw, n_ax + j, ctx.letter(letter).encode(), a_fmt[j],
+                          np.flatnonzero(a_rep[:, j]), np.flatnonzero(a_ins[:, j]), a_counts[:, j])
+    if len(lin):
+        inv = np.asarray(program.inverse_time)[lin]
+        if inv.any():
+            raise InputError("this arc must be linearised under the transform, but the block is "
+                             "in G93 inverse time feed: its segments would need new F words",
+                             program.filename, int(line[lin[np.argmax(inv)]]))
+        _linearise_edits(ctx, lin, seg, new, d_ax, m_ax, chordal_tol, offc)
+    _restore_modal_arcs(ctx, lin)
+
+    ed = ctx.edits
+    text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
+    added = np.zeros(N, np.int64)
+    for k, n_add in ctx.added_lines.items():
+        added[k] = n_add
+    out_line = np.asarray(program.line) + np.cumsum(added)
+    return text, out_line
+
+
+def _call_transform(transform, q):
+    q = np.ascontiguousarray(q, dtype=float)
+    out = np.asarray(transform(q.copy()), dtype=float)
+    if out.shape != q.shape:
+        raise ValueError(f"transform returned shape {out.shape}, expected {q.shape}")
+    fin = np.isfinite(out).all(axis=1)
+    if not fin.all():
+        i = int(np.argmax(~fin))
+        raise ValueError(f"transform returned a non-finite value for point {i}: {q[i]}")
+    return out
+
+
+def _column_edits(ctx, cw, col, letter: bytes, fmt: tuple, rep_rows, ins_rows, counts):
+    """Replace the number of word column ``col`` in blocks ``rep_rows`` and insert the word
+    into blocks ``ins_rows``; ``counts`` (N,) in resolution units."""
+    rows = np.concatenate([rep_rows, ins_rows])
+    if not len(rows):
+        return
+    p = ctx.p
+    decimals, mult = fmt
+    buf, off, ln = format_counts(counts[rows] * mult, decimals)
+    off = off + ctx.edits.add_buffer(buf)
+    nr = len(rep_rows)
+    if nr:
+        w = cw[rep_rows, col]
+        ctx.edits.add(np.asarray(p.w_num)[w], np.asarray(p.w_end)[w], _SUB_REPLACE, off[:nr], ln[:nr])
+    if len(ins_rows):
+        _insert_words(ctx, cw, ins_rows, col, letter, off[nr:], ln[nr:])
+
+
+def _insert_words(ctx, cw, rows, gcol, letter: bytes, off, ln):
+    """Insert word ``letter``+number into blocks ``rows`` at its canonical place: before the
+    next present axis/arc word, else after the previous one, else before the first F S T M P
+    word, else after the last word of the block."""
+    p = ctx.p
+    wpos, wend = np.asarray(p.w_pos), np.asarray(p.w_end)
+    # columns in canonical word order (X Y Z U V W A B C, then I J K R), whatever the machine's
+    # chain order of the axes is
+    n_ax = len(p.axes)
+    perm = sorted(range(n_ax), key=lambda c: CANONICAL.index(p.axes[c])) + list(range(n_ax, n_ax + 4))
+    allc = cw[rows][:, perm]
+    gcol_sorted = perm.index(gcol)
+    m = len(rows)
+    r_ = np.arange(m)
+    after, before = allc[:, gcol_sorted + 1:], allc[:, :gcol_sorted]
+    has_next = (after >= 0).any(axis=1) if after.shape[1] else np.zeros(m, bool)
+    nxt = after[r_, np.argmax(after >= 0, axis=1)] if after.shape[1] else np.full(m, -1)
+    has_prev = (before >= 0).any(axis=1) if before.shape[1] else np.zeros(m, bool)
+    rev = before[:, ::-1]
+    prv = rev[r_, np.argmax(rev >= 0, axis=1)] if before.shape[1] else np.full(m, -1)
+    tail, last_end, _ = ctx.anchors
+    ft, le = tail[rows], last_end[rows]
+    mode = np.where(has_next, 0, np.where(has_prev, 1, np.where(ft >= 0, 2, 3)))
+    pos = np.select([mode == 0, mode == 1, mode == 2],
+                    [wpos[np.maximum(nxt, 0)], wend[np.maximum(prv, 0)], ft], le)
+    spl = ctx.spaced[rows].astype(np.int64)
+    sp_off, _ = ctx.edits.const(b" ")
+    let_off, _ = ctx.edits.const(letter)
+    sub = _SUB_INSERT + 3 * gcol_sorted
+    lead = (mode == 1) | (mode == 3)             # after a word: " X1.0"; before one: "X1.0 "
+    ed = ctx.edits
+    ed.add(pos[lead], pos[lead], sub, sp_off, spl[lead])
+    ed.add(pos, pos, sub + 1, let_off, 1)
+    ed.add(pos, pos, sub + 2, off, ln)
+    ed.add(pos[~lead], pos[~lead], sub + 2, sp_off, spl[~lead])   # stable: after the number
+
+
+
+def _fmt(c: int, d: int) -> str:
+    s = str(abs(int(c))).rjust(d + 1, "0")
+    s = f"{s[:len(s) - d]}.{s[len(s) - d:]}"
+    return "-" + s if c < 0 else s
+
+
+def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol, offc=None):
+    """Blocks of linearised arcs: G2/G3 -> G1, arc words out, a comment with the tolerance,
+    and the remaining segment points as new lines after the block."""
+    p, ed, data = ctx.p, ctx.edits, ctx.data
+    axes = p.axes
+    wpos, wend = np.asarray(p.w_pos), np.asarray(p.w_end)
+    n_ax = len(axes)
+    _, last_end, body = ctx.anchors
+    spaced = ctx.spaced
+    mw = np.asarray(p.motion_word)
+    inc = np.asarray(p.incremental)
+    motion = np.asarray(p.motion)
+    cw = np.asarray(p.col_word)
+    line_start, line_end = np.asarray(p.line_start), np.asarray(p.line_end)
+    dtol = max(int(d_ax[axes.index(a)]) for a in "XYZ" if a in axes)
+    pieces = []                      # (pos, stop, sub, bytes)
+    for j, k in enumerate(lin):
+        sp = " " if spaced[k] else ""
+        g = int(motion[k])
+        w = mw[k]
+        if w >= 0:
+            wn = int(p.w_num[w])
+            old = p.data[wn:wend[w]]
+            pieces.append((wn, wend[w], _SUB_REPLACE, b"01" if old in (b"02", b"03") else b"1"))
+        else:
+            pieces.append((body[k], body[k], _SUB_G, (ctx.letter("G") + "1" + sp).encode()))
+        for c in range(4):
+            wi = cw[k, n_ax + c]
+            if wi >= 0:
+                s = wpos[wi]
+                ls = line_start[p.w_line[wi]]
+                if s - 1 >= ls and data[s - 1] in (32, 9):
+                    s -= 1
+                pieces.append((s, wend[wi], _SUB_REPLACE, b""))
+        pieces.append((last_end[k], last_end[k], _SUB_COMMENT,
+                       f"{sp}(G{g} LINEARISED, CHORDAL TOLERANCE {tol:.{dtol}f} MM)".encode()))
+        # later segment points as new lines
+        le = line_end[p.line[k] - 1]
+        eol = "\n"
+        if le > line_start[p.line[k] - 1] and data[le - 1] == 13:
+            le -= 1
+            eol = "\r\n"
+        n_in = seg.count[j]
+        pts = [seg.counts[seg.first[j] + i] for i in range(n_in)] + [new[k]]
+        last = pts[0] if n_in > 0 else None
+        if last is None:
+            continue
+        lines = []
+        for ptc in pts[1:]:
+            diff = ptc - last
+            if not diff.any():
+                continue
+            vals = diff if inc[k] else (ptc if offc is None else ptc - offc[k])
+            words = [f"{ctx.letter(axes[a])}{_fmt(vals[a] * int(m_ax[a]), int(d_ax[a]))}"
+                     for a in range(n_ax) if diff[a]]
+            lines.append(sp.join(words))
+            last = ptc
+        if lines:
+            pieces.append((le, le, _SUB_LINES, "".join(eol + ln for ln in lines).encode()))
+            ctx.added_lines[k] = len(lines)
+    if pieces:
+        buf = b"".join(pc[3] for pc in pieces)
+        base = ed.add_buffer(np.frombuffer(buf, np.uint8))
+        lens = np.array([len(pc[3]) for pc in pieces], np.int64)
+        offs = base + np.cumsum(lens) - lens
+        ed.add(np.array([pc[0] for pc in pieces]), np.array([pc[1] for pc in pieces]),
+               np.array([pc[2] for pc in pieces]), offs, lens)
+
+
+def _restore_modal_arcs(ctx, lin):
+    """An arc block that relies on a modal G2/G3 after a linearised arc (now G1) gets its
+    G2/G3 word written out."""
+    p = ctx.p
+    motion = np.asarray(p.motion)
+    mw = np.asarray(p.motion_word)
+    if not len(lin):
+        return
+    modal_arc = np.flatnonzero(((motion == 2) | (motion == 3)) & (mw < 0))
+    if not len(modal_arc):
+        return
+    linflag = np.zeros(len(p), bool)
+    linflag[lin] = True
+    modal_arc = modal_arc[~linflag[modal_arc]]
+    # lines with an explicit motion word
+    wl, wlet, wv = np.asarray(p.w_line), np.asarray(p.w_letter), np.asarray(p.w_value)
+    gm = (wlet == _ascii("G")) & np.isin(wv, (0, 1, 2, 3))
+    glines = np.unique(wl[gm])
+    blines = ctx.blines
+    bl = blines[modal_arc]
+    set_line = glines[np.maximum(np.searchsorted(glines, bl, side="right") - 1, 0)]
+    lo = np.searchsorted(blines, set_line, side="left")
+    cum = np.concatenate([[0], np.cumsum(linflag)])
+    need = cum[modal_arc] - cum[lo] > 0
+    rows = modal_arc[need]
+    if not len(rows):
+        return
+    _, _, body = ctx.anchors
+    sp = ctx.spaced[rows]
+    for g in (2, 3):
+        for s in (True, False):
+            sel = (motion[rows] == g) & (sp == s)
+            if sel.any():
+                off, ln = ctx.edits.const(f"{ctx.letter('G')}{g}{' ' if s else ''}".encode())
+                ctx.edits.add(body[rows[sel]], body[rows[sel]], _SUB_G, off, ln)

@@ -1,0 +1,138 @@
+"""`mtcomp compensate` on NC programs: provenance, no double compensation, clean errors for the
+NC parts of issues 14 and 15."""
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import sys
+
+import pytest
+
+from mtcomp import InputError, gcode
+from mtcomp.commands import compensate_program
+from mtcomp.errors import ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting, save_errors
+from mtcomp.gcode.provenance import insert_header, strip_header
+from mtcomp.machine import load_machine
+
+PROGRAM = "%\nO0042 (TEST)\nG21 G90 G17\nG0 X0 Y0 Z5.\nG1 Z0 F200\nG2 X10. Y0 I5. J0\nG0 Z5.\nM30\n%\n"
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "mtcomp", *map(str, args)], capture_output=True,
+                          text=True, timeout=120)
+
+
+@pytest.fixture
+def files(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    err = save_errors(ErrorSet(ToolSetting((0.002, -0.001, 0.0005))), tmp_path / "e.toml")
+    return prog, err
+
+
+def test_provenance_header_and_refusal_to_compensate_again(files, tmp_path):
+    prog, err = files
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out)
+    assert r.returncode == 0, r.stderr
+    text = out.read_text()
+    lines = text.splitlines()
+    # after % and the program number, as controls expect them first
+    assert lines[:2] == ["%", "O0042 (TEST)"]
+    assert lines[2].startswith("(MTCOMP COMPENSATED PROGRAM")
+    head = "\n".join(lines[2:9])
+    sha = hashlib.sha256(err.read_bytes()).hexdigest()
+    for item in ("(VERSION mtcomp ", f"(ERRORS e.toml SHA256 {sha})", "(MACHINE vmc-moving-column)",
+                 "(DATE 20", "(SOURCE p.nc)", "(OPTIONS "):
+        assert item in head, head
+    assert strip_header(text).splitlines()[:3] == PROGRAM.splitlines()[:3]
+    again = tmp_path / "o2.nc"
+    r = run("compensate", out, "-m", "vmc-moving-column", "-e", err, "-o", again)
+    assert r.returncode == 2 and "already compensated by mtcomp" in r.stderr
+    assert f"{out}:3:" in r.stderr and not again.exists()
+    r = run("compensate", out, "-m", "vmc-moving-column", "-e", err, "-o", again, "--force")
+    assert r.returncode == 0, r.stderr
+
+
+def test_zero_errors_byte_exact_apart_from_the_header(files, tmp_path):
+    prog, _ = files
+    err = tmp_path / "zero.toml"
+    err.write_text("")
+    out = tmp_path / "o.nc"
+    assert run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out).returncode == 0
+    assert strip_header(out.read_text()) == PROGRAM
+
+
+def test_header_in_semicolon_programs_and_crlf():
+    text, at, n = insert_header("; siemens\r\nG0 X1\r\n", ["MTCOMP COMPENSATED PROGRAM: X", "MACHINE m"])
+    assert text == "; MTCOMP COMPENSATED PROGRAM: X\r\n; MACHINE m\r\n; siemens\r\nG0 X1\r\n"
+    assert strip_header(text) == "; siemens\r\nG0 X1\r\n"
+
+
+def test_arcs_on_a_machine_with_coarse_resolution_do_not_traceback(files, tmp_path):
+    prog, err = files
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out)
+    assert r.returncode == 0 and "Traceback" not in r.stderr
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--chordal-tol", "0.1")
+    assert r.returncode == 2 and "below twice the linear axis resolution" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("tol", ["0", "-1", "nan", "inf"])
+def test_bad_chordal_tolerance_is_one_line(files, tmp_path, tol):
+    prog, err = files
+    r = run("compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", tmp_path / "o.nc", f"--chordal-tol={tol}")
+    assert r.returncode == 2 and "--chordal-tol" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_outside_travel_names_the_block_not_convergence():
+    m = load_machine("robonano-a0ib")
+    with pytest.raises(InputError, match=r"^p.nc:2: X 400 is outside the travel \[-140, 140\]"):
+        compensate_program("G90 G0 X0 Y0 Z5.\nG1 X400. F100\n", m, ErrorSet(), filename="p.nc")
+
+
+def test_failed_5axis_solution_of_a_3axis_program_hints_at_3axis_mode():
+    m = load_machine("robonano-a0ib")
+    e = ErrorSet(workpiece=WorkpieceSetting((0, 0, 0), (0.03, 0, 0)))
+    with pytest.raises(InputError, match=r"^p.nc:2: cannot compensate: .*--mode 3axis"):
+        compensate_program("G90 G0 X0 Y0 Z5.\nG1 X120. F100\n", m, e, filename="p.nc")
+
+
+def test_arc_interior_errors_carry_the_line():
+    m = load_machine("robonano-a0ib")
+    e = ErrorSet(workpiece=WorkpieceSetting((0, 0.1, 0), (0, 0, 0)))
+    text = "G90 G0 X-10. Y30. Z0 B0 C0\nG1 X-10. Y35.\nG2 X10. Y35. I10. J-5.\n"
+    with pytest.raises(InputError, match=r"^p.nc:3: cannot compensate an interior point of the arc"):
+        compensate_program(text, m, e, filename="p.nc")
+
+
+@pytest.mark.parametrize("key", ["EX0U", "EC0W"])
+def test_errors_for_axes_the_machine_lacks_are_refused(key):
+    m = load_machine("robonano-a0ib")
+    e = ErrorSet(geometric=GeometricErrors(location={key: 1e-3}))
+    with pytest.raises(InputError, match=f"location error {key} of axis {key[-1]}"):
+        compensate_program(PROGRAM, m, e)
+
+
+def test_dev_zero_as_program_is_a_clean_error(tmp_path):
+    with pytest.raises(InputError, match="not a text file"):
+        gcode.read_program("/dev/zero")
+    r = run("compensate", "/dev/zero", "-m", "robonano-a0ib", "-e", tmp_path / "none.toml")
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+
+
+def test_start_option_on_the_cli(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G0 X10. Y10.\nG0 Z5.\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0))), tmp_path / "e.toml")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out)
+    assert r.returncode == 0 and "1 blocks before every axis position is known" in r.stdout
+    assert "G90 G0 X10. Y10.\n" in out.read_text()
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--start", "Z=50")
+    assert r.returncode == 0 and "G90 G0 X10. Y10.\n" not in out.read_text()
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--unknown", "refuse")
+    assert r.returncode == 2 and f"{prog}:1: position of Z not known" in r.stderr
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--start", "Q=1")
+    assert r.returncode == 2 and "--start" in r.stderr

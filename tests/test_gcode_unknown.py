@@ -1,0 +1,90 @@
+"""Never invent a position: axes not yet written are unknown, and nothing is written for them
+until the program (or the user's --start) fixes them (issue 20)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mtcomp import InputError, gcode
+from mtcomp.commands import compensate_program
+from mtcomp.errors import ErrorSet, ToolSetting
+from mtcomp.machine import load_machine
+
+XYZ = ("X", "Y", "Z")
+REPRO = "G90 G0 X10 Y10\nG0 Z5\nG1 Z-1 F100\n"
+
+
+def shift(d):
+    d = np.asarray(d, float)
+    return lambda q: q + d
+
+
+def test_issue_reproducer_first_block_gets_no_invented_z():
+    p = gcode.parse(REPRO, axes=XYZ)
+    assert list(p.known) == [False, True, True]
+    assert list(p.axis_known[0]) == [True, True, False]
+    out = gcode.rewrite(p, shift([-0.01, 0.005, -0.002]))
+    lines = out.splitlines()
+    assert lines[0] == "G90 G0 X10 Y10"            # deferred: passed through untouched
+    # the first block where the pose is known brings every axis onto the compensated path
+    assert lines[1] == "G0 X9.990000 Y10.005000 Z4.998000"
+    assert lines[2] == "G1 Z-1.002000 F100"
+
+
+def test_issue_reproducer_through_compensate_with_a_tool_offset():
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.01, -0.005, 0.002)))
+    out, rep = compensate_program(REPRO, m, e)
+    first = out.splitlines()[0]
+    assert first == "G90 G0 X10 Y10" and "Z" not in first
+    assert rep["deferred"] == 1
+    assert "X" in out.splitlines()[1] and "Y" in out.splitlines()[1]
+
+
+def test_refuse_names_the_first_block_with_an_unknown_axis():
+    p = gcode.parse("%\nO1\n" + REPRO, axes=XYZ, filename="p.nc")
+    with pytest.raises(InputError, match=r"p.nc:3: position of Z not known"):
+        gcode.rewrite(p, shift([0.1, 0, 0]), unknown="refuse")
+    m = load_machine("vmc-moving-column")
+    with pytest.raises(InputError, match=r"p.nc:3"):
+        compensate_program("%\nO1\n" + REPRO, m, ErrorSet(ToolSetting((0.01, 0, 0))),
+                           filename="p.nc", unknown="refuse")
+
+
+def test_stated_start_makes_the_first_block_known():
+    p = gcode.parse(REPRO, axes=XYZ, start={"Z": 50})
+    assert p.known.all()
+    out = gcode.rewrite(p, shift([0, 0, 0.5]), unknown="refuse")
+    assert out.splitlines()[0] == "G90 G0 X10 Y10 Z50.500000"
+
+
+def test_incremental_moves_from_an_unknown_position_stay_unknown():
+    p = gcode.parse("G91 G0 X1. Y1. Z1.\nG90 X5.\nY5. Z5.\nX6.\n", axes=XYZ)
+    assert list(p.known) == [False, False, True, True]
+    out = gcode.rewrite(p, shift([0.001, 0.002, 0.003]))
+    assert out.splitlines()[:2] == ["G91 G0 X1. Y1. Z1.", "G90 X5."]
+    assert out.splitlines()[2] == "X5.001000 Y5.002000 Z5.003000"
+
+
+def test_arc_from_an_unknown_position_is_refused():
+    with pytest.raises(InputError, match=r":2: arc \(G2\) from an unknown position: axis Y"):
+        gcode.parse("G90 G0 X10\nG2 X0 Y10 I-10 J0\n", axes=XYZ)
+
+
+def test_first_known_block_being_an_arc_is_refused():
+    p = gcode.parse("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n", axes=XYZ)
+    with pytest.raises(InputError, match=r":2: the first block where every axis position is known is an arc"):
+        gcode.rewrite(p, shift([0.1, 0, 0]))
+    # with a known identity nothing changes and nothing is refused... once the start is given
+    p = gcode.parse("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n", axes=XYZ, start={"Z": 0})
+    assert gcode.rewrite(p, lambda q: q) == "G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n"
+
+
+def test_axes_never_written_are_idle_at_zero_and_listed():
+    p = gcode.parse("G0 X1 Y2 Z3\n", axes=("C", "B", "X", "Y", "Z"))
+    assert p.idle_axes == ("C", "B") and p.known.all()
+
+
+def test_identity_with_unknown_axes_is_byte_exact():
+    text = "G0 X1.5 (a)\nG0 Y2\nG91 Z-1\nG90 G1 X2 Z0.25 F100\n"
+    assert gcode.rewrite(gcode.parse(text, axes=XYZ), lambda q: q) == text
