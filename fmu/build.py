@@ -466,10 +466,12 @@ def _zip(folder: Path, out: Path) -> Path:
     return out
 
 
-def _start_values(variables: list[Var]) -> str:
-    """resources/start.txt: the parameters' start values, read by the C code at instantiation so
-    its defaults are the modelDescription's start values."""
-    lines = ["# parameter start values (same as modelDescription.xml): kind value-reference value"]
+def _start_values(variables: list[Var], guid: str) -> str:
+    """resources/start.txt: the FMU's GUID and the parameters' start values, read by the C code
+    at instantiation so its defaults are the modelDescription's start values and an importer
+    passing another FMU's GUID is refused."""
+    lines = ["# GUID of modelDescription.xml, then parameter start values: kind value-reference value",
+             f"guid {guid}"]
     for v in variables:
         if v.causality != "parameter" or v.start is None:
             continue
@@ -503,9 +505,9 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
             hi = math.inf if v.max is None else v.max
             if v.type != "String" and v.start is not None and not lo <= v.start <= hi:
                 raise MtcompError(f"{v.name} = {v.start!r} is outside [{v.min}, {v.max}], the range the FMU accepts")
-        (root / "resources" / "start.txt").write_text(_start_values(variables), encoding="utf-8")
-        sources = _copy_sources(kind, root / "sources", fmi_version)
         guid = _guid(kind, identifier, str(fmi_version), machine_resource_text(machine), repr(variables))
+        (root / "resources" / "start.txt").write_text(_start_values(variables, guid), encoding="utf-8")
+        sources = _copy_sources(kind, root / "sources", fmi_version)
         if fmi_version == 2:
             md = write_model_description(model_name=f"{title} ({machine.name})", identifier=identifier,
                                          description=summary, variables=variables, sources=sources, guid=guid)

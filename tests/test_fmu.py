@@ -479,6 +479,7 @@ def test_machine_fmu_reproduces_core_forward_model(built):
         got = []
         for k in range(len(q)):
             r.fmu.setReal(cin, list(q[k]))
+            r.fmu.doStep(k * 1e-3, 1e-3)   # an ideal servo is at the command by the end of the step
             got.append(r.fmu.getReal(r.refs(["tool.x", "tool.y", "tool.z", "tool_direction.x",
                                               "tool_direction.y", "tool_direction.z"])))
     finally:
