@@ -449,7 +449,10 @@ def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
         out = unzipdir / "binaries" / platform / f"{ident}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
         out.parent.mkdir(parents=True, exist_ok=True)
         cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", "-I", str(unzipdir / "sources"), *files, "-o", str(out), "-lm"]
-        run = subprocess.run(cmd, capture_output=True, text=True)
+        try:
+            run = subprocess.run(cmd, capture_output=True, text=True)
+        except OSError as exc:
+            raise FmuBuildError(f"cannot run the C compiler {cc}: {exc}") from None
         if run.returncode:
             raise FmuBuildError(f"compiling the FMU failed:\n{run.stderr[-3000:]}")
         return
@@ -635,6 +638,9 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
         if compile_binary:
             if windows is None:
                 windows = shutil.which(WIN64_CC) is not None
+            elif windows and shutil.which(WIN64_CC) is None:
+                raise FmuBuildError(f"{WIN64_CC} not found: install mingw-w64 (Debian: gcc-mingw-w64-x86-64) "
+                                    "for win64 binaries")
             files = C_SOURCES[kind] if fmi_version == 2 else ("fmi3_base.c",) + C_SOURCES[kind]
             _binaries(root, identifier, files, fmi_version, compiler, windows)
         return _zip(root, out_path)
