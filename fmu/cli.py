@@ -47,7 +47,7 @@ def _ssp(args) -> int:
     with tempfile.TemporaryDirectory(prefix="mtcomp-ssp-") as td:
         c = build_compensator_fmu(args.machine, Path(td) / "compensator.fmu", ident, compiler=args.compiler)
         m = build_machine_fmu(args.machine, Path(td) / "machine.fmu", true, _dynamics(args), compiler=args.compiler)
-        out = write_ssp(args.output, c, m)
+        out = write_ssp(args.output, c, m, layout=args.layout)
     print(f"wrote {out}")
     return 0
 
@@ -103,6 +103,9 @@ def register(subparsers) -> None:
     s.add_argument("--errors", help="true errors of the machine (errors TOML)")
     s.add_argument("--compensate", help="errors the compensator corrects (default: the true ones)")
     s.add_argument("-o", "--output", required=True, help="SSP file to write")
+    s.add_argument("--layout", choices=("components", "system"), default="components",
+                   help="components: for fmpy, libcosim and ecos (default); system: open inputs and machine "
+                        "outputs as system connectors, for fmucontainer and fmpy (docs/fmu.md)")
     s.add_argument("--compiler", choices=("cmake", "cc"), default="cmake")
     _dyn_args(s)
     s.set_defaults(func=_ssp)
