@@ -31,7 +31,7 @@ from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 
 __all__ = ["build_compensator_fmu", "build_machine_fmu", "MachineDynamics", "Var", "write_model_description",
-           "machine_resource_text", "C_SOURCES", "FmuBuildError", "cache_dir"]
+           "machine_resource_text", "C_SOURCES", "FmuBuildError", "cache_dir", "build_passthrough_fmu"]
 
 # Value references: must match fmu/c/common.h, compensator.c and machine.c.
 VR_CMD, VR_TOOL, VR_WP_T, VR_WP_A, VR_LOC = 0, 20, 23, 26, 40
@@ -47,6 +47,7 @@ MAX_TOOL_OFFSET, MAX_WP_TRANSLATION, MAX_WP_ANGLE, MAX_LOC_LINEAR, MAX_LOC_ANGLE
 C_SOURCES = {
     "compensator": ("fmi2_base.c", "common.c", "mtk.c", "compensator.c"),
     "machine": ("fmi2_base.c", "common.c", "mtk.c", "machine.c"),
+    "passthrough": ("fmi2_base.c", "mtk.c", "passthrough.c"),   # the do-nothing benchmark baseline
 }
 C_HEADERS = ("model.h", "common.h", "mtk.h")
 FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
@@ -609,14 +610,15 @@ def _guid(*parts: str) -> str:
 
 def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: str, title: str, summary: str,
            extra_vars, compile_binary: bool, compiler: str, fmi_version: int = 2,
-           windows: bool | None = None) -> Path:
+           windows: bool | None = None, with_parameters: bool = True) -> Path:
     if fmi_version not in (2, 3):
         raise MtcompError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
     out_path = Path(out_path)
     with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-") as td:
         root = Path(td) / "fmu"
         tables_spec = _resources(machine, errors, root / "resources")
-        variables = _common_vars(machine) + extra_vars + _param_vars(machine, errors, tables_spec)
+        variables = _common_vars(machine) + extra_vars + (_param_vars(machine, errors, tables_spec)
+                                                          if with_parameters else [])
         for v in variables:   # the C code refuses these values; refuse to build such an FMU
             lo = -math.inf if v.min is None else v.min
             hi = math.inf if v.max is None else v.max
@@ -683,6 +685,20 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
                "machine would have put it.")
     return _build("compensator", machine, errors, out_path, identifier, "mtcomp compensator", summary, extra,
                   compile_binary, compiler, fmi_version, windows)
+
+
+def build_passthrough_fmu(machine: Machine | str, out_path, *, identifier: str = "mtcomp_passthrough",
+                          compiler: str = "cmake", windows: bool | None = None) -> Path:
+    """Build the do-nothing FMU: the compensator's inputs and outputs, outputs = inputs, the same
+    FMI wrapper and no kinematics (the baseline of benchmarks/bench_fmu.py)."""
+    machine = load_machine(machine)
+    feed = tuple(f"command.{a.name}" for a in machine.axes)
+    extra = [Var(f"compensated.{a.name}", VR_OUT + i, "output", f"Copy of command.{a.name}, "
+                 + _axis_unit(machine, i)[0], unit=_axis_unit(machine, i)[0], depends_on=(feed[i],))
+             for i, a in enumerate(machine.axes)]
+    summary = "Do-nothing FMU with the compensator's interface (outputs = inputs): a benchmark baseline."
+    return _build("passthrough", machine, ErrorSet(), out_path, identifier, "mtcomp passthrough", summary, extra,
+                  True, compiler, 2, windows, with_parameters=False)
 
 
 def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None,

@@ -352,3 +352,13 @@ def test_binaries_are_cached_by_source_hash(tmp_path, monkeypatch):
     monkeypatch.setenv("MTCOMP_CACHE_DIR", "off")
     build_compensator_fmu("vmc-moving-column", tmp_path / "c.fmu", compiler="cc", windows=False)
     assert ncalls() == 3
+
+
+def test_do_nothing_fmu_copies_its_inputs(tmp_path):
+    """The benchmark's baseline: the compensator's interface, outputs = inputs, validates clean."""
+    from mtcomp.fmu.build import build_passthrough_fmu
+    path = build_passthrough_fmu("robonano-a0ib", tmp_path / "nothing.fmu", compiler="cc", windows=False)
+    assert validate_fmu(str(path)) == []
+    res = fmpy.simulate_fmu(str(path), stop_time=0.002, output_interval=1e-3,
+                            start_values={"command.X": 3.25, "command.B": -7.5})
+    assert res["compensated.X"][-1] == 3.25 and res["compensated.B"][-1] == -7.5 and res["compensated.Y"][-1] == 0.0
