@@ -14,10 +14,12 @@ import html
 import math
 import os
 import shutil
+import sys
 import tempfile
 import uuid
 import zipfile
 from dataclasses import dataclass
+from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 from xml.etree import ElementTree as ET
@@ -29,7 +31,7 @@ from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 
 __all__ = ["build_compensator_fmu", "build_machine_fmu", "MachineDynamics", "Var", "write_model_description",
-           "machine_resource_text", "C_SOURCES", "FmuBuildError"]
+           "machine_resource_text", "C_SOURCES", "FmuBuildError", "cache_dir", "build_passthrough_fmu"]
 
 # Value references: must match fmu/c/common.h, compensator.c and machine.c.
 VR_CMD, VR_TOOL, VR_WP_T, VR_WP_A, VR_LOC = 0, 20, 23, 26, 40
@@ -45,6 +47,7 @@ MAX_TOOL_OFFSET, MAX_WP_TRANSLATION, MAX_WP_ANGLE, MAX_LOC_LINEAR, MAX_LOC_ANGLE
 C_SOURCES = {
     "compensator": ("fmi2_base.c", "common.c", "mtk.c", "compensator.c"),
     "machine": ("fmi2_base.c", "common.c", "mtk.c", "machine.c"),
+    "passthrough": ("fmi2_base.c", "mtk.c", "passthrough.c"),   # the do-nothing benchmark baseline
 }
 C_HEADERS = ("model.h", "common.h", "mtk.h")
 FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
@@ -70,6 +73,7 @@ class Var:
     display_unit: str | None = None
     min: float | None = None
     max: float | None = None
+    depends_on: tuple[str, ...] | None = None   # outputs: inputs with direct feed-through (None: all)
 
     @property
     def effective_variability(self) -> str:
@@ -182,7 +186,11 @@ def write_model_description(*, model_name: str, identifier: str, description: st
     outs = [v for v in variables if v.causality == "output"]
     o = ET.SubElement(ms, "Outputs")
     for v in outs:
-        ET.SubElement(o, "Unknown", {"index": str(index[v.name])})
+        attrs = {"index": str(index[v.name])}
+        if v.depends_on is not None:   # "" = no direct feed-through from any input
+            attrs["dependencies"] = " ".join(str(index[d]) for d in v.depends_on)
+            attrs["dependenciesKind"] = " ".join("dependent" for _ in v.depends_on)
+        ET.SubElement(o, "Unknown", attrs)
     iu = ET.SubElement(ms, "InitialUnknowns")
     for v in outs:
         ET.SubElement(iu, "Unknown", {"index": str(index[v.name])})
@@ -234,8 +242,13 @@ def write_model_description3(*, model_name: str, identifier: str, description: s
             ET.SubElement(el, "Start", {"value": str(start)})
     ms = ET.SubElement(root, "ModelStructure")
     outs = [v for v in variables if v.causality == "output"]
+    by_name = {v.name: v for v in variables}
     for v in outs:
-        ET.SubElement(ms, "Output", {"valueReference": str(VR3_OFFSET[v.type] + v.vr)})
+        attrs = {"valueReference": str(VR3_OFFSET[v.type] + v.vr)}
+        if v.depends_on is not None:
+            attrs["dependencies"] = " ".join(str(VR3_OFFSET[by_name[d].type] + by_name[d].vr) for d in v.depends_on)
+            attrs["dependenciesKind"] = " ".join("dependent" for _ in v.depends_on)
+        ET.SubElement(ms, "Output", attrs)
     for v in outs:
         ET.SubElement(ms, "InitialUnknown", {"valueReference": str(VR3_OFFSET[v.type] + v.vr)})
     ET.indent(root)
@@ -327,7 +340,7 @@ def _param_vars(machine: Machine, errors: ErrorSet, tables_spec: str) -> list[Va
 class MachineDynamics:
     """Start values of the machine FMU's dynamic parameters.
 
-    kv: servo gain per axis in 1/s (0: ideal servo, the axis is where it is commanded);
+    kv: servo gain per axis in 1/s (0: ideal servo, at the command by the end of each step);
     backlash per axis in mm or deg; thermal time constant (s), gain (K per 1/min of spindle
     speed), ambient (degC) and drift of the tool edge in the tool frame (mm/K); noise: standard
     deviation (mm) of the tool edge measurement with its seed.
@@ -437,7 +450,10 @@ def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
         out = unzipdir / "binaries" / platform / f"{ident}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
         out.parent.mkdir(parents=True, exist_ok=True)
         cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", "-I", str(unzipdir / "sources"), *files, "-o", str(out), "-lm"]
-        run = subprocess.run(cmd, capture_output=True, text=True)
+        try:
+            run = subprocess.run(cmd, capture_output=True, text=True)
+        except OSError as exc:
+            raise FmuBuildError(f"cannot run the C compiler {cc}: {exc}") from None
         if run.returncode:
             raise FmuBuildError(f"compiling the FMU failed:\n{run.stderr[-3000:]}")
         return
@@ -457,6 +473,107 @@ def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
                                     f"{run.stderr[-3000:]}")
 
 
+WIN64_CC = "x86_64-w64-mingw32-gcc"
+
+
+def _compile_win64(root: Path, identifier: str, files: tuple[str, ...], fmi_version: int) -> None:
+    """Cross-compile the win64 DLL with mingw-w64 (Debian gcc-mingw-w64-x86-64): the same
+    sources, libgcc linked statically so the DLL imports only KERNEL32 and msvcrt."""
+    import subprocess
+    cc = shutil.which(WIN64_CC)
+    if cc is None:
+        raise FmuBuildError(f"{WIN64_CC} not found: install mingw-w64 (Debian: gcc-mingw-w64-x86-64) for win64 binaries")
+    plat = "win64" if fmi_version == 2 else "x86_64-windows"
+    out = root / "binaries" / plat / f"{identifier}.dll"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    src = root / "sources"
+    cmd = [cc, "-shared", "-O2", "-std=c99", "-I", str(src), *(str(src / f) for f in files), "-o", str(out),
+           "-static-libgcc", "-Wl,--no-insert-timestamp"]
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    if run.returncode:
+        raise FmuBuildError(f"cross-compiling the win64 binary failed:\n{run.stderr[-3000:]}")
+
+
+def cache_dir() -> Path | None:
+    """Folder of the compiled-binary cache: $MTCOMP_CACHE_DIR, else $XDG_CACHE_HOME/mtcomp or
+    ~/.cache/mtcomp; MTCOMP_CACHE_DIR=off disables the cache."""
+    env = os.environ.get("MTCOMP_CACHE_DIR")
+    if env is not None:
+        return None if env.strip().lower() in ("", "off", "0", "none") else Path(env) / "fmu-binaries"
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "mtcomp" / "fmu-binaries"
+
+
+def _binaries_key(root: Path, identifier: str, compiler: str, windows: bool) -> str:
+    """Hash of everything that determines the binaries: the archive's sources (the C files,
+    headers and build description; the machine, errors and GUID live in resources/ and the
+    modelDescription, not in the binary), the identifier, the compiler route and targets."""
+    import platform as _pf
+    h = hashlib.sha256()
+    for f in sorted((root / "sources").rglob("*")):
+        if f.is_file():
+            h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    for part in (identifier, compiler, f"win64={windows}", sys.platform, _pf.machine(),
+                 os.environ.get("CC", ""), str(shutil.which(WIN64_CC) if windows else "")):
+        h.update(part.encode() + b"\0")
+    return h.hexdigest()[:32]
+
+
+def _binaries(root: Path, identifier: str, files: tuple[str, ...], fmi_version: int, compiler: str,
+              windows: bool) -> None:
+    """binaries/ of the archive: from the cache when the same sources were compiled before
+    (a co-simulation builds the same two FMUs for every run), else compiled and cached."""
+    cache = cache_dir()
+    key = _binaries_key(root, identifier, compiler, windows)
+    hit = cache / key / "binaries" if cache else None
+    if hit is not None and hit.is_dir():
+        shutil.copytree(hit, root / "binaries", dirs_exist_ok=True)
+        return
+    _compile(root, compiler)
+    if windows:
+        _compile_win64(root, identifier, files, fmi_version)
+    if cache is None:
+        return
+    try:   # publish atomically: a half-copied entry is never seen under its key
+        cache.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{key}-", dir=cache))
+        shutil.copytree(root / "binaries", tmp / "binaries")
+        try:
+            os.replace(tmp, cache / key)
+        except OSError:   # another process cached the same key first
+            shutil.rmtree(tmp, ignore_errors=True)
+    except OSError:
+        pass   # a read-only or full cache folder only costs the next build its compile
+
+
+def _model_png(kind: str, machine: Machine) -> bytes:
+    """model.png: the FMU's icon (a block with its name and axes), drawn with a matplotlib
+    Figure (no pyplot, the caller's backend untouched)."""
+    return _icon(kind, machine.name, tuple(machine.axis_names))
+
+
+@lru_cache(maxsize=32)
+def _icon(kind: str, name: str, axes: tuple[str, ...]) -> bytes:
+    import io
+    from matplotlib.figure import Figure
+    from matplotlib.patches import FancyBboxPatch
+    fig = Figure(figsize=(2.0, 2.0), dpi=100)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.set_axis_off()
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    colour = "#1f5fa0" if kind == "compensator" else "#2e7d32"
+    ax.add_patch(FancyBboxPatch((0.08, 0.08), 0.84, 0.84, boxstyle="round,pad=0.0,rounding_size=0.08",
+                                facecolor=colour, edgecolor="none"))
+    ax.text(0.5, 0.74, "mtcomp", color="white", ha="center", va="center", fontsize=15, weight="bold")
+    ax.text(0.5, 0.54, kind, color="white", ha="center", va="center", fontsize=12)
+    ax.text(0.5, 0.34, " ".join(axes), color="white", ha="center", va="center", fontsize=12, family="monospace")
+    ax.text(0.5, 0.18, name, color="#dde8f5", ha="center", va="center", fontsize=7)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", transparent=True)
+    return buf.getvalue()
+
+
 def _zip(folder: Path, out: Path) -> Path:
     with atomic_path(out) as tmp:
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
@@ -466,10 +583,12 @@ def _zip(folder: Path, out: Path) -> Path:
     return out
 
 
-def _start_values(variables: list[Var]) -> str:
-    """resources/start.txt: the parameters' start values, read by the C code at instantiation so
-    its defaults are the modelDescription's start values."""
-    lines = ["# parameter start values (same as modelDescription.xml): kind value-reference value"]
+def _start_values(variables: list[Var], guid: str) -> str:
+    """resources/start.txt: the FMU's GUID and the parameters' start values, read by the C code
+    at instantiation so its defaults are the modelDescription's start values and an importer
+    passing another FMU's GUID is refused."""
+    lines = ["# GUID of modelDescription.xml, then parameter start values: kind value-reference value",
+             f"guid {guid}"]
     for v in variables:
         if v.causality != "parameter" or v.start is None:
             continue
@@ -490,22 +609,24 @@ def _guid(*parts: str) -> str:
 
 
 def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: str, title: str, summary: str,
-           extra_vars, compile_binary: bool, compiler: str, fmi_version: int = 2) -> Path:
+           extra_vars, compile_binary: bool, compiler: str, fmi_version: int = 2,
+           windows: bool | None = None, with_parameters: bool = True) -> Path:
     if fmi_version not in (2, 3):
         raise MtcompError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
     out_path = Path(out_path)
     with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-") as td:
         root = Path(td) / "fmu"
         tables_spec = _resources(machine, errors, root / "resources")
-        variables = _common_vars(machine) + extra_vars + _param_vars(machine, errors, tables_spec)
+        variables = _common_vars(machine) + extra_vars + (_param_vars(machine, errors, tables_spec)
+                                                          if with_parameters else [])
         for v in variables:   # the C code refuses these values; refuse to build such an FMU
             lo = -math.inf if v.min is None else v.min
             hi = math.inf if v.max is None else v.max
             if v.type != "String" and v.start is not None and not lo <= v.start <= hi:
                 raise MtcompError(f"{v.name} = {v.start!r} is outside [{v.min}, {v.max}], the range the FMU accepts")
-        (root / "resources" / "start.txt").write_text(_start_values(variables), encoding="utf-8")
-        sources = _copy_sources(kind, root / "sources", fmi_version)
         guid = _guid(kind, identifier, str(fmi_version), machine_resource_text(machine), repr(variables))
+        (root / "resources" / "start.txt").write_text(_start_values(variables, guid), encoding="utf-8")
+        sources = _copy_sources(kind, root / "sources", fmi_version)
         if fmi_version == 2:
             md = write_model_description(model_name=f"{title} ({machine.name})", identifier=identifier,
                                          description=summary, variables=variables, sources=sources, guid=guid)
@@ -515,35 +636,47 @@ def _build(kind: str, machine: Machine, errors: ErrorSet, out_path, identifier: 
             (root / "sources" / "buildDescription.xml").write_bytes(write_build_description(identifier, sources))
         (root / "modelDescription.xml").write_bytes(md)
         _documentation(root / "documentation", f"{title}: {machine.name}", summary, variables, machine, fmi_version)
+        (root / "model.png").write_bytes(_model_png(kind, machine))
         if compile_binary:
-            _compile(root, compiler)
+            if windows is None:
+                windows = shutil.which(WIN64_CC) is not None
+            elif windows and shutil.which(WIN64_CC) is None:
+                raise FmuBuildError(f"{WIN64_CC} not found: install mingw-w64 (Debian: gcc-mingw-w64-x86-64) "
+                                    "for win64 binaries")
+            files = C_SOURCES[kind] if fmi_version == 2 else ("fmi3_base.c",) + C_SOURCES[kind]
+            _binaries(root, identifier, files, fmi_version, compiler, windows)
         return _zip(root, out_path)
 
 
 def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None, *,
                           identifier: str = "mtcomp_compensator", compile_binary: bool = True,
-                          compiler: str = "cmake", fmi_version: int = 2) -> Path:
+                          compiler: str = "cmake", fmi_version: int = 2, windows: bool | None = None) -> Path:
     """Build the compensator FMU for `machine` (preset name, TOML path or Machine).
 
     Inputs `command.<AXIS>` (programmed commands), outputs `compensated.<AXIS>` = mtcomp.kinematics
     .retarget of the inputs under the errors; `errors` gives the start values of the setting and
     location parameters and the geometric tables stored as resources.  fmi_version 2 (default) or 3
-    (FMI 3.0 Co-Simulation from the same sources).  Returns the path written.
+    (FMI 3.0 Co-Simulation from the same sources).  windows: also cross-compile a win64 binary
+    with mingw-w64 (None: when `x86_64-w64-mingw32-gcc` is installed).  Compiled binaries are
+    cached by source hash (`cache_dir()`).  Returns the path written.
     """
     machine = load_machine(machine)
     errors = errors or ErrorSet()
     extra = []
-    for i, a in enumerate(machine.axes):
+    feed = tuple(f"command.{a.name}" for a in machine.axes)   # an algebraic block: every output
+    for i, a in enumerate(machine.axes):                      # depends directly on every command
         unit, _ = _axis_unit(machine, i)
         extra.append(Var(f"compensated.{a.name}", VR_OUT + i, "output",
-                         f"Compensated command of axis {a.name} for the real machine, {unit}", unit=unit))
+                         f"Compensated command of axis {a.name} for the real machine, {unit}", unit=unit,
+                         depends_on=feed))
     extra += [
         Var("residual", VR_RESIDUAL, "output", "Largest residual of the compensation (position, mm; orientation "
-            "scaled by 100 mm/rad)", unit="mm", display_unit="nm"),
+            "scaled by 100 mm/rad)", unit="mm", display_unit="nm", depends_on=feed),
         Var("iterations", IVR_ITERS, "output", "Gauss-Newton iterations used at the last evaluation",
-            type="Integer", variability="discrete"),
-        Var("tolerance", VR_TOL, "parameter", "Step tolerance of the compensation iteration, mm or deg",
-            variability="tunable", start=1e-10, unit="mm", min=1e-15, max=1e-3),
+            type="Integer", variability="discrete", depends_on=feed),
+        Var("tolerance", VR_TOL, "parameter", "Convergence tolerance of the compensation iteration: it stops when "
+            "no axis moves by more than this in one iteration (mm; a rotary axis step in deg is compared with "
+            "the same number)", variability="tunable", start=1e-10, unit="mm", min=1e-15, max=1e-3),
         Var("max_iterations", IVR_MAXIT, "parameter", "Iteration limit of the compensation", type="Integer",
             variability="tunable", start=60, min=1, max=1000),
     ]
@@ -551,13 +684,27 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
                "real tool edge (with tool setting, workpiece setting and geometric errors) where the ideal "
                "machine would have put it.")
     return _build("compensator", machine, errors, out_path, identifier, "mtcomp compensator", summary, extra,
-                  compile_binary, compiler, fmi_version)
+                  compile_binary, compiler, fmi_version, windows)
+
+
+def build_passthrough_fmu(machine: Machine | str, out_path, *, identifier: str = "mtcomp_passthrough",
+                          compiler: str = "cmake", windows: bool | None = None) -> Path:
+    """Build the do-nothing FMU: the compensator's inputs and outputs, outputs = inputs, the same
+    FMI wrapper and no kinematics (the baseline of benchmarks/bench_fmu.py)."""
+    machine = load_machine(machine)
+    feed = tuple(f"command.{a.name}" for a in machine.axes)
+    extra = [Var(f"compensated.{a.name}", VR_OUT + i, "output", f"Copy of command.{a.name}, "
+                 + _axis_unit(machine, i)[0], unit=_axis_unit(machine, i)[0], depends_on=(feed[i],))
+             for i, a in enumerate(machine.axes)]
+    summary = "Do-nothing FMU with the compensator's interface (outputs = inputs): a benchmark baseline."
+    return _build("passthrough", machine, ErrorSet(), out_path, identifier, "mtcomp passthrough", summary, extra,
+                  True, compiler, 2, windows, with_parameters=False)
 
 
 def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None = None,
                       dynamics: MachineDynamics | None = None, *, identifier: str = "mtcomp_machine",
                       compile_binary: bool = True, compiler: str = "cmake",
-                      fmi_version: int = 2) -> Path:
+                      fmi_version: int = 2, windows: bool | None = None) -> Path:
     """Build the virtual machine FMU (native C): axis commands and spindle speed in; real tool edge
     position and direction in the real workpiece frame, actual axis positions and temperature out.
     `errors` are the machine's true errors (start values and table resources), `dynamics` the
@@ -573,18 +720,22 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     for k, c in enumerate(_XYZ):
         extra.append(Var(f"tool.{c}", VR_P + k, "output",
                          f"{c} of the real tool edge in the real workpiece frame (with sensor noise)",
-                         unit="mm", display_unit="um"))
+                         unit="mm", display_unit="um", depends_on=()))
     for k, c in enumerate(_XYZ):
         extra.append(Var(f"tool_direction.{c}", VR_V + k, "output",
-                         f"{c} of the tool axis direction (unit vector from the edge into the holder)", unit="1"))
-    extra.append(Var("temperature", VR_TEMP, "output", "Machine temperature driving the thermal drift", unit="degC"))
+                         f"{c} of the tool axis direction (unit vector from the edge into the holder)", unit="1",
+                         depends_on=()))
+    extra.append(Var("temperature", VR_TEMP, "output", "Machine temperature driving the thermal drift", unit="degC",
+                     depends_on=()))
     for i, a in enumerate(machine.axes):
         unit, disp = _axis_unit(machine, i)
         extra.append(Var(f"actual.{a.name}", VR_ACT + i, "output",
-                         f"Actual position of axis {a.name} after servo lag and backlash, {unit}", unit=unit))
+                         f"Actual position of axis {a.name} after servo lag and backlash, {unit}", unit=unit,
+                         depends_on=()))
     for i, a in enumerate(machine.axes):
         extra.append(Var(f"servo.kv.{a.name}", VR_KV + i, "parameter",
-                         f"Position loop gain of axis {a.name} (first-order servo); 0 = ideal servo",
+                         f"Position loop gain of axis {a.name} (first-order servo); 0 = ideal servo "
+                         "(at the command by the end of each step)",
                          start=kv[i], unit="1/s", min=0.0, max=1e4))
     for i, a in enumerate(machine.axes):
         unit, disp = _axis_unit(machine, i)
@@ -611,4 +762,4 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     summary = ("Virtual multi-axis machine tool with tool setting, workpiece setting and geometric errors, first-order "
                "servos, backlash, thermal drift and sensor noise; the same forward model as mtcomp.kinematics.")
     return _build("machine", machine, errors, out_path, identifier, "mtcomp machine", summary, extra, compile_binary,
-                  compiler, fmi_version)
+                  compiler, fmi_version, windows)

@@ -47,7 +47,7 @@ def _ssp(args) -> int:
     with tempfile.TemporaryDirectory(prefix="mtcomp-ssp-") as td:
         c = build_compensator_fmu(args.machine, Path(td) / "compensator.fmu", ident, compiler=args.compiler)
         m = build_machine_fmu(args.machine, Path(td) / "machine.fmu", true, _dynamics(args), compiler=args.compiler)
-        out = write_ssp(args.output, c, m)
+        out = write_ssp(args.output, c, m, layout=args.layout)
     print(f"wrote {out}")
     return 0
 
@@ -58,15 +58,20 @@ def _cosim(args) -> int:
     prog = Path(args.program)
     if not prog.is_file():
         raise InputError("NC program not found", prog)
+    from ..progress import Progress
     true = _errors(args.errors)
     ident = _errors(args.compensate) if args.compensate else None
-    res = cosimulate(prog, args.machine, true, ident, step=args.step, dynamics=_dynamics(args),
-                     rapid=args.rapid, spindle_speed=args.spindle_speed, compiler=args.compiler)
     prefix = Path(args.out) if args.out else Path(prog.stem + ".cosim")
-    csv_path = res.to_csv(prefix.with_name(prefix.name + ".csv"))
+    if prefix.is_dir() or not prefix.parent.is_dir():
+        raise InputError("output prefix must name a file in an existing folder", field="--out")
+    res = cosimulate(prog, args.machine, true, ident, step=args.step, dynamics=_dynamics(args),
+                     rapid=args.rapid, spindle_speed=args.spindle_speed, compiler=args.compiler,
+                     progress=Progress("cosim (without, then with compensation)"))
+    csv_path = res.to_csv(prefix.with_name(prefix.name + ".csv"), full=args.full_csv)
     png_path = res.plot(prefix.with_name(prefix.name + ".png"))
     print(res.summary())
-    print(f"wrote {csv_path} and {png_path}")
+    rows = "every step" if args.full_csv else f"every {res.default_stride()}. step; --full-csv for all"
+    print(f"wrote {csv_path} ({rows}) and {png_path}")
     return 0
 
 
@@ -98,6 +103,9 @@ def register(subparsers) -> None:
     s.add_argument("--errors", help="true errors of the machine (errors TOML)")
     s.add_argument("--compensate", help="errors the compensator corrects (default: the true ones)")
     s.add_argument("-o", "--output", required=True, help="SSP file to write")
+    s.add_argument("--layout", choices=("components", "system"), default="components",
+                   help="components: for fmpy, libcosim and ecos (default); system: open inputs and machine "
+                        "outputs as system connectors, for fmucontainer and fmpy (docs/fmu.md)")
     s.add_argument("--compiler", choices=("cmake", "cc"), default="cmake")
     _dyn_args(s)
     s.set_defaults(func=_ssp)
@@ -115,6 +123,8 @@ def register(subparsers) -> None:
     c.add_argument("--rapid", type=float, default=3000.0, help="G0 rate in mm/min (default 3000)")
     c.add_argument("--spindle-speed", type=float, default=0.0, help="spindle speed in 1/min (thermal drift)")
     c.add_argument("--out", help="output prefix (default: PROGRAM.cosim): writes PREFIX.csv and PREFIX.png")
+    c.add_argument("--full-csv", action="store_true",
+                   help="write every step to the CSV (default: decimated to at most 10 000 rows)")
     c.add_argument("--compiler", choices=("cmake", "cc"), default="cmake")
     _dyn_args(c)
     c.set_defaults(func=_cosim)

@@ -3,7 +3,7 @@
 `interpolate_program` turns an NC program into axis commands sampled at the communication step,
 honouring the feed rate (G1/G2/G3 at F, G0 at a rapid rate); `cosimulate` runs the chain twice,
 once without and once with the compensator, and returns a `CosimResult` with the signals, the
-tool-edge errors and a plot.  Units: mm, deg, s; errors reported in um.
+tool-edge errors and a figure.  Units: mm, deg, s; errors reported in µm.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._io import InputError, MtcompError, atomic_write, save_figure
+from .._io import InputError, MtcompError, atomic_write
 from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 from . import build as _b
@@ -25,14 +25,15 @@ _PLANES = {17: ("X", "Y", "Z"), 18: ("Z", "X", "Y"), 19: ("Y", "Z", "X")}
 
 
 def interpolate_program(program, machine: Machine, step: float, *, rapid: float = 3000.0,
-                        dwell: float = 0.0, max_arc_step_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                        dwell: float = 0.0, max_arc_step_deg: float = 1.0, with_rapid: bool = False):
     """Sample an NC program at the communication step.
 
     program: path of an NC file, its text (anything with a line break), or a parsed
     `mtcomp.gcode.Program`.  Linear and
     circular blocks run at their feed F (mm/min; a block moving only rotary axes at F deg/min,
     mixed moves at F along sqrt(sum of squared axis moves), the usual control convention), G0 at
-    `rapid` (mm/min).  Returns (t (K,) s, q (K, n_axes) mm/deg) with t = 0, step, 2 step, ...
+    `rapid` (mm/min).  Returns (t (K,) s, q (K, n_axes) mm/deg) with t = 0, step, 2 step, ...;
+    with_rapid=True adds a (K,) bool array, True where the sample lies on a G0 move.
     """
     from .. import gcode
     if not (step > 0 and np.isfinite(step)):
@@ -54,6 +55,7 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
     ix = {a: k for k, a in enumerate(machine.axis_names)}
     points = [np.asarray(prog.start, float)]
     times = [0.0]
+    rapids = [False]
     prev = np.asarray(prog.start, float)
     for b in range(len(prog)):
         end = prog.position[b]
@@ -86,6 +88,7 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
             if length > 0:
                 times.append(times[-1] + length / rate * 60.0)
                 points.append(pnt)
+                rapids.append(motion == 0)
             last = pnt
         prev = end
     t_nodes = np.asarray(times)
@@ -96,7 +99,11 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
     q = np.empty((k, n))
     for j in range(n):
         q[:, j] = np.interp(t, t_nodes, q_nodes[:, j])
-    return t, q
+    if not with_rapid:
+        return t, q
+    # a sample between nodes j-1 and j lies on the move that ends at node j
+    j = np.minimum(np.searchsorted(t_nodes, t, side="left"), len(t_nodes) - 1)
+    return t, q, np.asarray(rapids)[j]
 
 
 class FmuRunner:
@@ -146,6 +153,19 @@ class FmuRunner:
         if strs:
             self.fmu.setString(self.refs(strs), [str(x) for x in strs.values()])
 
+    def raw(self):
+        """(component, fmi2SetReal, fmi2GetReal, fmi2DoStep): the FMU's own C functions, for a
+        loop that passes preallocated ctypes arrays (fmpy's methods build new arrays and check
+        the status in Python on every call); the caller checks the returned status."""
+        import ctypes
+        dll = self.fmu.dll
+        vr_p, real_p = ctypes.POINTER(ctypes.c_uint), ctypes.POINTER(ctypes.c_double)
+        set_real, get_real, do_step = dll.fmi2SetReal, dll.fmi2GetReal, dll.fmi2DoStep
+        set_real.argtypes = get_real.argtypes = [ctypes.c_void_p, vr_p, ctypes.c_size_t, real_p]
+        do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+        set_real.restype = get_real.restype = do_step.restype = ctypes.c_int
+        return self.fmu.component, set_real, get_real, do_step
+
     def close(self) -> None:
         try:
             self.fmu.terminate()
@@ -155,15 +175,35 @@ class FmuRunner:
             shutil.rmtree(self.unzipdir, ignore_errors=True)
 
 
+def _stats(e: np.ndarray) -> tuple[float, float]:
+    """(max, RMS) of an error magnitude array; (nan, nan) when empty."""
+    if e.size == 0:
+        return float("nan"), float("nan")
+    return float(np.max(e)), float(np.sqrt(np.mean(e ** 2)))
+
+
+def _um(x_mm: float) -> str:
+    """A length given in mm, printed in µm (nm when below 0.1 µm) with 3 significant digits."""
+    if not np.isfinite(x_mm):
+        return "n/a"
+    um = x_mm * 1e3
+    if abs(um) < 0.1:
+        return f"{um * 1e3:.3g} nm"
+    return f"{um:.3g} µm" if abs(um) < 1000 else f"{um:.0f} µm"
+
+
 @dataclass(frozen=True)
 class CosimResult:
     """Signals of one co-simulation (K samples at the communication step).
 
-    t (K,) s; q_programmed, q_compensated, q_actual (K, n) mm/deg (q_actual: axis positions of
-    the compensated run after servo and backlash); target (K, 3) mm: ideal tool edge;
+    t (K,) s: time at which the command row was given; the machine's outputs are read at the end
+    of that step (t + step), as the machine FMU has no direct feed-through.
+    q_programmed, q_compensated, q_actual (K, n) mm/deg (q_actual: axis positions of the
+    compensated run after servo and backlash); target (K, 3) mm: ideal tool edge;
     p_uncompensated, p_compensated (K, 3) mm: real tool edge in the real workpiece frame;
     p_lag (K, 3) mm: the part of the compensated error due to the axes not being where they
-    were commanded (servo lag, backlash), from the core model.
+    were commanded (servo lag, backlash), from the core model; rapid (K,) bool: True on G0
+    moves (reported apart: a rapid's error does not mark the part).
     """
     machine: str
     axes: tuple
@@ -177,6 +217,11 @@ class CosimResult:
     p_lag: np.ndarray
     step: float
     notes: dict = field(default_factory=dict)
+    rapid: np.ndarray | None = None
+
+    @property
+    def is_rapid(self) -> np.ndarray:
+        return np.zeros(len(self.t), bool) if self.rapid is None else np.asarray(self.rapid, bool)
 
     @property
     def error_uncompensated(self) -> np.ndarray:
@@ -191,127 +236,196 @@ class CosimResult:
     def error_lag(self) -> np.ndarray:
         return np.linalg.norm(self.p_lag, axis=1)
 
-    @staticmethod
-    def _stats(e: np.ndarray) -> tuple[float, float]:
-        return float(np.max(e)), float(np.sqrt(np.mean(e ** 2)))
+    @property
+    def error_remaining(self) -> np.ndarray:
+        """Compensated error minus its servo lag / backlash part, mm (K,)."""
+        return np.linalg.norm((self.p_compensated - self.target) - self.p_lag, axis=1)
+
+    def _cut(self, e: np.ndarray) -> np.ndarray:
+        return e[~self.is_rapid]
 
     @property
     def max_uncompensated(self) -> float:
-        return self._stats(self.error_uncompensated)[0]
+        """Largest tool edge error without compensation while cutting (G0 rapids excluded), mm."""
+        return _stats(self._cut(self.error_uncompensated))[0]
 
     @property
     def rms_uncompensated(self) -> float:
-        return self._stats(self.error_uncompensated)[1]
+        return _stats(self._cut(self.error_uncompensated))[1]
 
     @property
     def max_compensated(self) -> float:
-        return self._stats(self.error_compensated)[0]
+        """Largest tool edge error with compensation while cutting (G0 rapids excluded), mm."""
+        return _stats(self._cut(self.error_compensated))[0]
 
     @property
     def rms_compensated(self) -> float:
-        return self._stats(self.error_compensated)[1]
+        return _stats(self._cut(self.error_compensated))[1]
 
     def summary(self) -> str:
-        u, c = self._stats(self.error_uncompensated), self._stats(self.error_compensated)
-        lag = self._stats(self.error_lag)
-        res = (self.p_compensated - self.target) - self.p_lag
-        rmax = float(np.max(np.linalg.norm(res, axis=1)))
-        return (f"co-simulation of {self.machine}: {len(self.t)} steps of {self.step:g} s "
-                f"({self.t[-1]:.3f} s)\n"
-                f"  tool edge error without compensation: max {u[0] * 1e3:.3f} um, RMS {u[1] * 1e3:.3f} um\n"
-                f"  tool edge error with compensation:    max {c[0] * 1e3:.4f} um, RMS {c[1] * 1e3:.4f} um\n"
-                f"  of which servo lag / backlash:        max {lag[0] * 1e3:.4f} um, RMS {lag[1] * 1e3:.4f} um\n"
-                f"  compensated error minus lag part:     max {rmax * 1e3:.4f} um")
+        rapid = self.is_rapid
+        lines = [f"co-simulation of {self.machine}: {len(self.t)} steps of {self.step:g} s "
+                 f"({self.t[-1] + self.step:.3f} s; {int(np.sum(~rapid))} cutting, {int(np.sum(rapid))} on G0 rapids)"]
+        for label, mask in (("cutting", ~rapid), ("G0 rapids", rapid)):
+            if not mask.any():
+                continue
+            lines.append(f"  {label}:")
+            for name, e in (("without compensation", self.error_uncompensated),
+                            ("with compensation", self.error_compensated),
+                            ("of which servo lag / backlash", self.error_lag),
+                            ("compensated minus lag part", self.error_remaining)):
+                mx, rms = _stats(e[mask])
+                lines.append(f"    tool edge error {name + ':':<31} max {_um(mx)}, RMS {_um(rms)}")
+        return "\n".join(lines)
 
-    def to_csv(self, path) -> Path:
-        """All signals, one row per step (docs/fmu.md lists the columns)."""
+    def default_stride(self, max_rows: int = 10_000) -> int:
+        """Row stride of the default (decimated) CSV: at most `max_rows` rows."""
+        return max(1, int(np.ceil(len(self.t) / max_rows)))
+
+    def to_csv(self, path, *, full: bool = False, stride: int | None = None) -> Path:
+        """The signals as CSV (docs/fmu.md lists the columns): by default every
+        `default_stride()`-th step (at most 10 000 rows), every step with full=True."""
+        k = 1 if full else int(stride or self.default_stride())
+        if k < 1:
+            raise InputError(f"CSV row stride must be >= 1, got {k}", field="stride")
         cols = ["t"]
         cols += [f"programmed.{a}" for a in self.axes] + [f"compensated.{a}" for a in self.axes]
         cols += [f"actual.{a}" for a in self.axes]
         for name in ("target", "uncompensated", "compensated", "lag"):
             cols += [f"{name}.{c}" for c in "xyz"]
-        cols += ["error_uncompensated_um", "error_compensated_um", "error_lag_um"]
+        cols += ["rapid", "error_uncompensated_um", "error_compensated_um", "error_lag_um"]
+        sl = slice(None, None, k)
         data = np.column_stack([self.t, self.q_programmed, self.q_compensated, self.q_actual, self.target,
-                                self.p_uncompensated, self.p_compensated, self.p_lag,
-                                self.error_uncompensated * 1e3, self.error_compensated * 1e3, self.error_lag * 1e3])
+                                self.p_uncompensated, self.p_compensated, self.p_lag, self.is_rapid.astype(float),
+                                self.error_uncompensated * 1e3, self.error_compensated * 1e3,
+                                self.error_lag * 1e3])[sl]
         import io
         buf = io.StringIO()
-        buf.write("# mtcomp co-simulation: mm, deg, s; errors in um\n")
+        buf.write(f"# mtcomp co-simulation: mm, deg, s; errors in µm; every {k}. of {len(self.t)} steps "
+                  f"of {self.step:g} s\n")
         np.savetxt(buf, data, delimiter=",", header=",".join(cols), comments="", fmt="%.12g")
         return atomic_write(path, buf.getvalue())
 
-    def plot(self, path) -> Path:
-        """PNG of the tool edge error over time (um): without and with compensation, and the
-        part of the compensated error that is servo lag / backlash."""
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-        a1.plot(self.t, self.error_uncompensated * 1e3, color="tab:red", label="without compensation")
-        a1.plot(self.t, self.error_compensated * 1e3, color="tab:blue", label="with compensation")
-        a1.set_ylabel("tool edge error (um)")
+    def figure(self):
+        """matplotlib Figure (no pyplot, no backend change) of the tool edge error over time, µm:
+        with and without compensation (G0 rapids shaded), and the compensated error beside its
+        servo lag / backlash part."""
+        from matplotlib.figure import Figure
+        fig = Figure(figsize=(9, 6), layout="constrained")
+        a1, a2 = fig.subplots(2, 1, sharex=True)
+        t = self.t + self.step
+        rapid = self.is_rapid
+        for ax in (a1, a2):
+            if rapid.any():   # shade the rapids: their error is not on the part
+                edges = np.flatnonzero(np.diff(np.r_[0, rapid.astype(int), 0]))
+                for lo, hi in zip(edges[::2], edges[1::2]):
+                    ax.axvspan(t[lo], t[hi - 1], color="0.9", lw=0,
+                               label="G0 rapid" if lo == edges[0] else None)
+            ax.grid(True, alpha=0.3)
+        a1.plot(t, self.error_uncompensated * 1e3, color="tab:red", label="without compensation")
+        a1.plot(t, self.error_compensated * 1e3, color="tab:blue", label="with compensation")
+        a1.set_ylabel("tool edge error (µm)")
         a1.set_title(f"{self.machine}: tool edge error in the workpiece frame")
-        a1.legend(loc="best")
-        a1.grid(True, alpha=0.3)
-        a2.plot(self.t, self.error_compensated * 1e3, color="tab:blue", label="with compensation")
-        a2.plot(self.t, self.error_lag * 1e3, color="k", ls="--", lw=1, label="servo lag / backlash part")
-        res = np.linalg.norm((self.p_compensated - self.target) - self.p_lag, axis=1)
-        a2.plot(self.t, res * 1e3, color="tab:green", lw=1, label="remaining (compensated - lag)")
+        a1.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+        a2.plot(t, self.error_compensated * 1e3, color="tab:blue", label="with compensation")
+        a2.plot(t, self.error_lag * 1e3, color="k", ls="--", lw=1, label="servo lag / backlash part")
+        a2.plot(t, self.error_remaining * 1e3, color="tab:green", lw=1, label="remaining (compensated - lag)")
         a2.set_xlabel("time (s)")
-        a2.set_ylabel("error (um)")
-        a2.legend(loc="best")
-        a2.grid(True, alpha=0.3)
-        fig.tight_layout()
-        save_figure(fig, path, dpi=110)
+        a2.set_ylabel("error (µm)")
+        a2.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+        return fig
+
+    def plot(self, path=None, *, dpi: int = 110):
+        """Write the figure of `figure()` as PNG to `path` (atomically) and return the path;
+        without a path return the Figure."""
+        from .._io import atomic_path
+        fig = self.figure()
+        if path is None:
+            return fig
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=dpi)
         return Path(path)
 
 
-def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed: float):
-    """One run; comp_path None: the machine gets the programmed commands."""
+class CosimFailed(MtcompError):
+    """An FMU refused a call during the co-simulation (its log message is in the text)."""
+
+
+def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed: float,
+         progress=None):
+    """One run; comp_path None: the machine gets the programmed commands.
+
+    Per step k: set the compensator's inputs to q[k], read its outputs, give them to the machine,
+    step both from t_k to t_k + step, then read the machine (no feed-through: its outputs are
+    its state at t_k + step).  The loop calls the FMUs' C functions with preallocated ctypes
+    arrays (numpy views on them), so a step costs a few ctypes calls and no Python lists."""
+    import ctypes
     names = machine.axis_names
     logs: list = []
-    mach = FmuRunner(mach_path, "machine", logs)
-    comp = FmuRunner(comp_path, "compensator", logs) if comp_path else None
+    K, n = q.shape
+    qc = np.empty_like(q)
+    p = np.empty((K, 3))
+    act = np.empty_like(q)
+    mach = comp = None
+
+    def refs(runner, names_):
+        return (ctypes.c_uint * len(names_))(*runner.refs(names_))
+
+    def fail(what, k):
+        msgs = "; ".join(m for s, _, m in logs if s >= 3)
+        raise CosimFailed(f"co-simulation failed at step {k} (t = {k * step:g} s): {what}"
+                          + (f" (FMU log: {msgs})" if msgs else ""))
+
     try:
-        cin = mach.refs([f"command.{a}" for a in names])
-        outs = mach.refs(["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names])
-        cmp_in = comp.refs([f"command.{a}" for a in names]) if comp else None
-        cmp_out = comp.refs([f"compensated.{a}" for a in names]) if comp else None
-        K, n = q.shape
-        qc = np.empty_like(q)
-        p = np.empty((K, 3))
-        act = np.empty_like(q)
+        mach = FmuRunner(mach_path, "machine", logs)
+        comp = FmuRunner(comp_path, "compensator", logs) if comp_path else None
+        m_in = refs(mach, [f"command.{a}" for a in names])
+        m_out = refs(mach, ["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names])
+        c_in = refs(comp, [f"command.{a}" for a in names]) if comp else None
+        c_out = refs(comp, [f"compensated.{a}" for a in names]) if comp else None
+        cmd_buf = (ctypes.c_double * n)()           # programmed commands
+        cmp_buf = (ctypes.c_double * n)()           # compensated commands = machine inputs
+        out_buf = (ctypes.c_double * (3 + n))()
+        cmd, cmp_, out = (np.ctypeslib.as_array(b) for b in (cmd_buf, cmp_buf, out_buf))
         for f in (mach, comp):
             if f:
                 f.fmu.enterInitializationMode()
         if comp:
-            comp.fmu.setReal(cmp_in, list(q[0]))
+            comp.fmu.setReal(list(c_in), list(q[0]))
             comp.fmu.exitInitializationMode()
-        first = comp.fmu.getReal(cmp_out) if comp else list(q[0])
-        mach.fmu.setReal(cin, first)
+        first = comp.fmu.getReal(list(c_out)) if comp else list(q[0])
+        mach.fmu.setReal(list(m_in), first)
         mach.set({"spindle_speed": spindle_speed})
         mach.fmu.exitInitializationMode()
-        t = 0.0
+        mc, m_set, m_get, m_step = mach.raw()
+        if comp:
+            cc, c_set, c_get, c_step = comp.raw()
+        report = max(1, K // 200)
         for k in range(K):
+            t = k * step
             if comp:
-                comp.fmu.setReal(cmp_in, list(q[k]))
-                cmd = comp.fmu.getReal(cmp_out)
+                cmd[:] = q[k]
+                if c_set(cc, c_in, n, cmd_buf) > 1 or c_get(cc, c_out, n, cmp_buf) > 1:
+                    fail("compensator", k)
             else:
-                cmd = list(q[k])
-            qc[k] = cmd
-            mach.fmu.setReal(cin, cmd)
-            o = mach.fmu.getReal(outs)
-            p[k] = o[:3]
-            act[k] = o[3:]
-            if k + 1 < K:
-                if comp:
-                    comp.fmu.doStep(t, step)
-                mach.fmu.doStep(t, step)
-                t = (k + 1) * step
+                cmp_[:] = q[k]
+            qc[k] = cmp_
+            if m_set(mc, m_in, n, cmp_buf) > 1:
+                fail("machine command", k)
+            if comp and c_step(cc, t, step, 1) > 1:
+                fail("compensator step", k)
+            if m_step(mc, t, step, 1) > 1 or m_get(mc, m_out, 3 + n, out_buf) > 1:
+                fail("machine step", k)
+            p[k] = out[:3]
+            act[k] = out[3:]
+            if progress is not None and (k % report == 0 or k == K - 1):
+                progress(k + 1, K)
         return qc, p, act
+    except CosimFailed:
+        raise
     except Exception as exc:
         msgs = "; ".join(m for s, _, m in logs if s >= 3)
-        raise MtcompError(f"co-simulation failed: {exc}" + (f" (FMU log: {msgs})" if msgs else "")) from None
+        raise CosimFailed(f"co-simulation failed: {exc}" + (f" (FMU log: {msgs})" if msgs else "")) from None
     finally:
         for f in (comp, mach):
             if f:
@@ -320,14 +434,16 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
 
 def cosimulate(program, machine, true_errors: ErrorSet, identified_errors: ErrorSet | None = None, *,
                step: float = 1e-3, dynamics: _b.MachineDynamics | None = None, rapid: float = 3000.0,
-               spindle_speed: float = 0.0, workdir=None, compiler: str = "cmake") -> CosimResult:
+               spindle_speed: float = 0.0, workdir=None, compiler: str = "cmake", progress=None) -> CosimResult:
     """Run NC -> compensator FMU -> machine FMU and, for comparison, NC -> machine FMU.
 
     program: NC file path or text (interpolated at `step` s honouring the feed), or an array of
-    axis commands (K, n_axes) already sampled at `step`.  true_errors: the machine's errors (the
-    machine FMU); identified_errors: what the compensator believes (default: the true ones).
-    dynamics: servo/backlash/thermal/noise of the machine FMU (default: ideal).  The FMUs are
-    built into `workdir` (default: a temporary folder) with `compiler` ("cmake" or "cc").
+    axis commands (K, n_axes) already sampled at `step` (no rapids then).  true_errors: the
+    machine's errors (the machine FMU); identified_errors: what the compensator believes
+    (default: the true ones).  dynamics: servo/backlash/thermal/noise of the machine FMU
+    (default: ideal).  The FMUs are built into `workdir` (default: a temporary folder) with
+    `compiler` ("cmake" or "cc"); compiled binaries come from the cache (mtcomp.fmu.build).
+    progress: optional callable (done, total) over both runs.
     """
     from ..kinematics import forward
     machine = load_machine(machine)
@@ -337,9 +453,17 @@ def cosimulate(program, machine, true_errors: ErrorSet, identified_errors: Error
         if q.ndim != 2 or q.shape[1] != machine.n_axes or len(q) < 2:
             raise InputError(f"axis command array must have shape (K >= 2, {machine.n_axes}), got {q.shape}",
                              field="program")
+        if not np.isfinite(q).all():
+            raise InputError("axis command array must be finite", field="program")
         t = np.arange(len(q)) * step
+        is_rapid = np.zeros(len(q), bool)
     else:
-        t, q = interpolate_program(program, machine, step, rapid=rapid)
+        t, q, is_rapid = interpolate_program(program, machine, step, rapid=rapid, with_rapid=True)
+    K = len(q)
+
+    def part(offset):
+        return None if progress is None else (lambda done, total: progress(offset + done, 2 * total))
+
     tmp = None
     if workdir is None:
         tmp = tempfile.TemporaryDirectory(prefix="mtcomp-cosim-")
@@ -348,8 +472,8 @@ def cosimulate(program, machine, true_errors: ErrorSet, identified_errors: Error
     try:
         mach_path = _b.build_machine_fmu(machine, workdir / "machine.fmu", true_errors, dynamics, compiler=compiler)
         comp_path = _b.build_compensator_fmu(machine, workdir / "compensator.fmu", identified, compiler=compiler)
-        _, p_unc, _ = _run(machine, q, step, mach_path, None, spindle_speed)
-        qc, p_cmp, act = _run(machine, q, step, mach_path, comp_path, spindle_speed)
+        _, p_unc, _ = _run(machine, q, step, mach_path, None, spindle_speed, part(0))
+        qc, p_cmp, act = _run(machine, q, step, mach_path, comp_path, spindle_speed, part(K))
     finally:
         if tmp is not None:
             tmp.cleanup()
@@ -357,4 +481,5 @@ def cosimulate(program, machine, true_errors: ErrorSet, identified_errors: Error
     # Error due to the axes not being where commanded: real machine at the actual positions
     # minus real machine at the commanded ones (the core model, thermal drift excluded).
     p_lag = forward(machine, act, true_errors, strict=False).p - forward(machine, qc, true_errors, strict=False).p
-    return CosimResult(machine.name, machine.axis_names, t, q, qc, act, target, p_unc, p_cmp, p_lag, step)
+    return CosimResult(machine.name, machine.axis_names, t, q, qc, act, target, p_unc, p_cmp, p_lag, step,
+                       rapid=is_rapid)

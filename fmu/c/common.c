@@ -1,4 +1,8 @@
 /* Parameters and resources shared by the compensator and the machine FMU (see common.h). */
+#if !defined(_WIN32) && !defined(_POSIX_C_SOURCE)
+#define _POSIX_C_SOURCE 200809L   /* newlocale/uselocale: per-thread C numbers while parsing */
+#endif
+#include <locale.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -6,7 +10,51 @@
 
 #include "common.h"
 
+#if defined(__APPLE__)
+#include <xlocale.h>
+#endif
+
 static const char COMP[] = "XYZABC";
+
+/* Resources are written with '.' as the decimal point, whatever the locale of the importing
+ * process: a host that called setlocale(LC_ALL, "") in a comma-decimal locale would otherwise
+ * read "0.35" as 0 through strtod/sscanf (here and in mtk.c).  The parsing runs with the C
+ * numeric conventions of this thread only, and the host's locale is restored afterwards. */
+typedef struct {
+#if defined(_WIN32)
+    int per_thread;
+    char saved[128];
+#else
+    locale_t c, old;
+#endif
+} numeric_scope;
+
+static void c_numbers_begin(numeric_scope *sc)
+{
+#if defined(_WIN32)
+    const char *cur;
+    sc->per_thread = _configthreadlocale(_ENABLE_PER_THREAD_LOCALE);
+    cur = setlocale(LC_NUMERIC, NULL);
+    snprintf(sc->saved, sizeof sc->saved, "%s", cur ? cur : "C");
+    setlocale(LC_NUMERIC, "C");
+#else
+    sc->c = newlocale(LC_NUMERIC_MASK, "C", (locale_t)0);
+    sc->old = sc->c ? uselocale(sc->c) : (locale_t)0;
+#endif
+}
+
+static void c_numbers_end(numeric_scope *sc)
+{
+#if defined(_WIN32)
+    setlocale(LC_NUMERIC, sc->saved);
+    _configthreadlocale(sc->per_thread);
+#else
+    if (sc->c) {
+        uselocale(sc->old);
+        freelocale(sc->c);
+    }
+#endif
+}
 
 int common_real_kind(unsigned vr, int n_axes)
 {
@@ -30,34 +78,40 @@ void common_vr_name(unsigned vr, const mtk_model *m, char *buf, size_t cap)
 
 fmi2Status check_range(Instance *inst, const char *what, double value, double lo, double hi)
 {
+    if (value >= lo && value <= hi) return fmi2OK;   /* false for NaN */
     if (isnan(value)) {
         inst_log(inst, fmi2Error, "logStatusError", "%s: NaN is not a valid value", what);
         return fmi2Error;
     }
-    if (!(value >= lo && value <= hi)) {
-        inst_log(inst, fmi2Error, "logStatusError", "%s = %g is out of range [%g, %g]", what, value, lo, hi);
-        return fmi2Error;
-    }
-    return fmi2OK;
+    inst_log(inst, fmi2Error, "logStatusError", "%s = %g is out of range [%g, %g]", what, value, lo, hi);
+    return fmi2Error;
+}
+
+/* The check of one value by reference; the variable's name is formatted only for the message
+ * of a rejected value (fmi2SetReal runs this for every value it stores). */
+static fmi2Status check_vr(Instance *inst, unsigned vr, double value, double lo, double hi)
+{
+    char name[96];
+    if (value >= lo && value <= hi) return fmi2OK;
+    common_vr_name(vr, inst->kin, name, sizeof name);
+    return check_range(inst, name, value, lo, hi);
 }
 
 fmi2Status common_check_real(Instance *inst, unsigned vr, double value)
 {
-    char name[96];
-    common_vr_name(vr, inst->kin, name, sizeof name);
     if (vr < VR_CMD + MTK_MAX_AXES) {
-        if (!isfinite(value)) {
-            inst_log(inst, fmi2Error, "logStatusError", "%s = %g: axis commands must be finite", name, value);
-            return fmi2Error;
-        }
-        return fmi2OK;
+        char name[96];
+        if (isfinite(value)) return fmi2OK;
+        common_vr_name(vr, inst->kin, name, sizeof name);
+        inst_log(inst, fmi2Error, "logStatusError", "%s = %g: axis commands must be finite", name, value);
+        return fmi2Error;
     }
-    if (vr >= VR_TOOL && vr < VR_TOOL + 3) return check_range(inst, name, value, -MAX_TOOL_OFFSET, MAX_TOOL_OFFSET);
-    if (vr >= VR_WP_T && vr < VR_WP_T + 3) return check_range(inst, name, value, -MAX_WP_TRANSLATION, MAX_WP_TRANSLATION);
-    if (vr >= VR_WP_A && vr < VR_WP_A + 3) return check_range(inst, name, value, -MAX_WP_ANGLE, MAX_WP_ANGLE);
+    if (vr >= VR_TOOL && vr < VR_TOOL + 3) return check_vr(inst, vr, value, -MAX_TOOL_OFFSET, MAX_TOOL_OFFSET);
+    if (vr >= VR_WP_T && vr < VR_WP_T + 3) return check_vr(inst, vr, value, -MAX_WP_TRANSLATION, MAX_WP_TRANSLATION);
+    if (vr >= VR_WP_A && vr < VR_WP_A + 3) return check_vr(inst, vr, value, -MAX_WP_ANGLE, MAX_WP_ANGLE);
     if (vr >= VR_LOC && vr < VR_LOC_END) {
-        if ((vr - VR_LOC) % 6 < 3) return check_range(inst, name, value, -MAX_LOC_LINEAR, MAX_LOC_LINEAR);
-        return check_range(inst, name, value, -MAX_LOC_ANGLE, MAX_LOC_ANGLE);
+        if ((vr - VR_LOC) % 6 < 3) return check_vr(inst, vr, value, -MAX_LOC_LINEAR, MAX_LOC_LINEAR);
+        return check_vr(inst, vr, value, -MAX_LOC_ANGLE, MAX_LOC_ANGLE);
     }
     return fmi2OK;
 }
@@ -65,6 +119,8 @@ fmi2Status common_check_real(Instance *inst, unsigned vr, double value)
 static fmi2Status load_machine(Instance *inst)
 {
     char path[sizeof inst->resources + 64], err[MTK_ERRLEN];
+    numeric_scope sc;
+    int rc;
     mtk_free(inst->kin);
     inst->kin = NULL;
     if (!inst->resources[0]) {
@@ -73,7 +129,10 @@ static fmi2Status load_machine(Instance *inst)
         return fmi2Error;
     }
     snprintf(path, sizeof path, "%s%s", inst->resources, MACHINE_RESOURCE);
-    if (mtk_load_machine(path, &inst->kin, err) != MTK_OK) {
+    c_numbers_begin(&sc);
+    rc = mtk_load_machine(path, &inst->kin, err);
+    c_numbers_end(&sc);
+    if (rc != MTK_OK) {
         inst_log(inst, fmi2Error, "logError", "%s", err);
         return fmi2Error;
     }
@@ -94,15 +153,23 @@ void common_defaults(Instance *inst)
 void common_start_values(Instance *inst)
 {
     char path[sizeof inst->resources + 64], line[MODEL_SLEN + 64];
+    numeric_scope sc;
     FILE *f;
+    inst->guid[0] = 0;
     if (!inst->resources[0]) return;
     snprintf(path, sizeof path, "%s%s", inst->resources, START_RESOURCE);
     f = fopen(path, "r");
     if (!f) return;
+    c_numbers_begin(&sc);
     while (fgets(line, sizeof line, f)) {
         char kind;
         unsigned vr;
         int used = 0;
+        if (strncmp(line, "guid ", 5) == 0) {        /* the GUID of the modelDescription */
+            snprintf(inst->guid, sizeof inst->guid, "%s", line + 5);
+            inst->guid[strcspn(inst->guid, "\r\n")] = 0;
+            continue;
+        }
         if (line[0] == '#' || sscanf(line, " %c %u %n", &kind, &vr, &used) < 2) continue;
         if (kind == 'r' && vr < MODEL_NR) inst->st.r[vr] = strtod(line + used, NULL);
         else if (kind == 'i' && vr < MODEL_NI) inst->st.i[vr] = atoi(line + used);
@@ -112,12 +179,15 @@ void common_start_values(Instance *inst)
             snprintf(inst->st.s[vr], MODEL_SLEN, "%s", v);
         }
     }
+    c_numbers_end(&sc);
     fclose(f);
 }
 
 fmi2Status common_load(Instance *inst)
 {
     char spec[MODEL_SLEN], err[MTK_ERRLEN], *item, *save = NULL;
+    numeric_scope sc;
+    int rc;
     if (load_machine(inst) != fmi2OK) return fmi2Error;
     strcpy(spec, inst->st.s[SVR_TABLES]);
     for (item = mtk_tok(spec, ";", &save); item; item = mtk_tok(NULL, ";", &save)) {
@@ -136,7 +206,10 @@ fmi2Status common_load(Instance *inst)
             return fmi2Error;
         }
         snprintf(path, sizeof path, "%s%s", inst->resources, colon + 1);
-        if (mtk_load_table(inst->kin, item, path, err) != MTK_OK) {
+        c_numbers_begin(&sc);
+        rc = mtk_load_table(inst->kin, item, path, err);
+        c_numbers_end(&sc);
+        if (rc != MTK_OK) {
             inst_log(inst, fmi2Error, "logError", "geometric_tables: %s", err);
             return fmi2Error;
         }

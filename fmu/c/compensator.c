@@ -15,7 +15,7 @@
 #define IVR_MAXIT 0       /* iteration limit */
 #define IVR_ITERS 1       /* iterations used at the last evaluation */
 
-const uint32_t MODEL_MAGIC = 0x6d74630au;  /* "mtc" + layout version 10 */
+const uint32_t MODEL_MAGIC = 0x6d74630bu;  /* "mtc" + layout version 11 */
 
 static int n_axes(const Instance *inst) { return inst->kin ? inst->kin->n_axes : 0; }
 

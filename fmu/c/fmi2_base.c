@@ -17,6 +17,7 @@
 #define UNUSED(x) (void)(x)
 
 static fmi2Status check_parameters(Instance *inst);
+static int state_is_valid(Instance *inst, const ModelState *st);
 
 void inst_log(Instance *inst, fmi2Status status, const char *category, const char *fmt, ...)
 {
@@ -91,7 +92,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2Boolean visible, fmi2Boolean loggingOn)
 {
     Instance *inst;
-    UNUSED(fmuGUID);
     UNUSED(visible);
     if (fmuType != fmi2CoSimulation) return NULL;  /* Co-Simulation only */
     inst = (Instance *)calloc(1, sizeof(Instance));
@@ -105,6 +105,17 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     inst->st.size = (uint32_t)sizeof(ModelState);
     inst->st.mode = MODE_INSTANTIATED;
     model_defaults(inst);
+    /* The importer passes the GUID of the modelDescription.xml it read; the resources carry the
+     * GUID of the build they belong to.  A mismatch means parts of two different FMUs. */
+    if (inst->guid[0] && (!fmuGUID || strcmp(fmuGUID, inst->guid) != 0)) {
+        inst_log(inst, fmi2Error, "logError",
+                 "fmuGUID '%s' is not the GUID of this FMU ('%s'): modelDescription.xml and resources "
+                 "come from different builds", fmuGUID ? fmuGUID : "(none)", inst->guid);
+        mtk_free(inst->kin);
+        free(inst);
+        return NULL;
+    }
+    snprintf(inst->st.guid, sizeof inst->st.guid, "%s", fmuGUID ? fmuGUID : "");
     inst->st.dirty = 1;
     inst_log(inst, fmi2OK, "logAll", "instantiated, resources at '%s'", inst->resources);
     return inst;
@@ -129,6 +140,10 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     if (!inst) return fmi2Error;
     if (inst->st.mode != MODE_INSTANTIATED) {
         inst_log(inst, fmi2Error, "logStatusError", "fmi2SetupExperiment is only allowed after fmi2Instantiate");
+        return fmi2Error;
+    }
+    if (!isfinite(startTime)) {
+        inst_log(inst, fmi2Error, "logStatusError", "start time must be finite, got %g", startTime);
         return fmi2Error;
     }
     inst->st.time = startTime;
@@ -178,10 +193,13 @@ fmi2Status fmi2Terminate(fmi2Component c)
 fmi2Status fmi2Reset(fmi2Component c)
 {
     Instance *inst = (Instance *)c;
+    char guid[MODEL_GUIDLEN];
     if (!inst) return fmi2Error;
     mtk_free(inst->kin);
     inst->kin = NULL;
+    memcpy(guid, inst->st.guid, sizeof guid);
     memset(&inst->st, 0, sizeof inst->st);
+    memcpy(inst->st.guid, guid, sizeof guid);
     inst->st.magic = MODEL_MAGIC;
     inst->st.size = (uint32_t)sizeof(ModelState);
     inst->st.mode = MODE_INSTANTIATED;
@@ -373,10 +391,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate state)
     Instance *inst = (Instance *)c;
     const ModelState *src = (const ModelState *)state;
     if (!inst || !src) return fmi2Error;
-    if (src->magic != MODEL_MAGIC || src->size != sizeof(ModelState)) {
-        inst_log(inst, fmi2Error, "logStatusError", "FMU state belongs to another model or build");
-        return fmi2Error;
-    }
+    if (!state_is_valid(inst, src)) return fmi2Error;
     /* The kinematic model loaded from the resources is not part of the state: a state taken
      * before initialisation cannot be applied to an initialised instance and vice versa. */
     if ((src->mode == MODE_STEP) != (inst->st.mode == MODE_STEP) || (src->mode == MODE_STEP && !inst->kin)) {
@@ -421,12 +436,53 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate state, fmi2Byte b
     return fmi2OK;
 }
 
-static int state_is_sane(const ModelState *st)
+/* A state from outside (de-serialized bytes, or a state handed back by the importer) is used
+ * only if it belongs to this FMU (magic, size, GUID) and every value in it is one the FMU
+ * would have accepted through its setters: a valid mode, terminated String values, finite
+ * numbers, parameters and inputs within their ranges.  Logs what is wrong. */
+static int state_is_valid(Instance *inst, const ModelState *st)
 {
+    unsigned vr;
     int k;
-    if (st->mode < MODE_INSTANTIATED || st->mode > MODE_ERROR) return 0;
+    if (st->magic != MODEL_MAGIC || st->size != sizeof(ModelState)) {
+        inst_log(inst, fmi2Error, "logStatusError", "FMU state belongs to another model or build");
+        return 0;
+    }
+    if (!memchr(st->guid, 0, MODEL_GUIDLEN) || strcmp(st->guid, inst->st.guid) != 0) {
+        inst_log(inst, fmi2Error, "logStatusError", "FMU state was taken from another FMU (GUID '%.*s', this FMU '%s')",
+                 MODEL_GUIDLEN - 1, st->guid, inst->st.guid);
+        return 0;
+    }
+    if (st->mode < MODE_INSTANTIATED || st->mode > MODE_ERROR) {
+        inst_log(inst, fmi2Error, "logStatusError", "FMU state is corrupt: unknown mode %d", st->mode);
+        return 0;
+    }
     for (k = 0; k < MODEL_NS; k++)
-        if (!memchr(st->s[k], 0, MODEL_SLEN)) return 0;
+        if (!memchr(st->s[k], 0, MODEL_SLEN)) {
+            inst_log(inst, fmi2Error, "logStatusError", "FMU state is corrupt: String value %d is not terminated", k);
+            return 0;
+        }
+    if (!isfinite(st->time)) {
+        inst_log(inst, fmi2Error, "logStatusError", "FMU state is corrupt: time is not finite");
+        return 0;
+    }
+    for (k = 0; k < MODEL_NX; k++)
+        if (!isfinite(st->x[k])) {
+            inst_log(inst, fmi2Error, "logStatusError", "FMU state is corrupt: internal state %d is not finite", k);
+            return 0;
+        }
+    for (vr = 0; vr < MODEL_NR; vr++) {
+        int kind = model_real_kind(inst, vr);
+        if (kind == VAR_NONE) continue;
+        if (kind != VAR_OUTPUT && model_check_real(inst, vr, st->r[vr]) != fmi2OK) {
+            inst_log(inst, fmi2Error, "logStatusError", "FMU state refused: value reference %u out of range", vr);
+            return 0;
+        }
+        if (!isfinite(st->r[vr])) {
+            inst_log(inst, fmi2Error, "logStatusError", "FMU state is corrupt: output %u is not finite", vr);
+            return 0;
+        }
+    }
     return 1;
 }
 
@@ -441,16 +497,8 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size
         return fmi2Error;
     }
     memcpy(&tmp, bytes, sizeof tmp);
-    if (tmp.magic != MODEL_MAGIC || tmp.size != sizeof(ModelState)) {
-        inst_log(inst, fmi2Error, "logStatusError", "serialized FMU state belongs to another model or build");
-        return fmi2Error;
-    }
-    /* The bytes come from outside: a state that would later make the FMU read past a String
-     * variable or run in an unknown mode is refused here rather than trusted. */
-    if (!state_is_sane(&tmp)) {
-        inst_log(inst, fmi2Error, "logStatusError", "serialized FMU state is corrupt (mode or String values)");
-        return fmi2Error;
-    }
+    /* The bytes come from outside: checked here, and again when the state is set. */
+    if (!state_is_valid(inst, &tmp)) return fmi2Error;
     if (!*state) *state = malloc(sizeof(ModelState));
     if (!*state) return fmi2Error;
     memcpy(*state, &tmp, sizeof tmp);
@@ -498,6 +546,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
     }
     if (!(communicationStepSize > 0.0) || !isfinite(communicationStepSize)) {
         inst_log(inst, fmi2Error, "logStatusError", "communication step size must be positive and finite");
+        return fmi2Error;
+    }
+    if (!isfinite(currentCommunicationPoint)) {
+        inst_log(inst, fmi2Error, "logStatusError", "communication point must be finite, got %g",
+                 currentCommunicationPoint);
         return fmi2Error;
     }
     if (fabs(currentCommunicationPoint - inst->st.time) > 1e-9 * (1.0 + fabs(inst->st.time))) {

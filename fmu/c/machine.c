@@ -3,7 +3,7 @@
  * Axis commands in; the real tool edge position and tool direction in the real workpiece frame
  * out (the same forward model as mtcomp.kinematics.forward), plus the actual axis positions and
  * the machine temperature.  Per axis: a first-order servo (velocity gain kv, 1/s; kv = 0 is an
- * ideal servo that follows the command at once) followed by backlash (a play of the given width
+ * ideal servo that reaches the command by the end of the step) followed by backlash (a play of the given width
  * centred on the servo position).  A first-order thermal model driven by the spindle speed input
  * moves the tool edge by drift * (T - T_ambient) in the tool frame.  Gaussian sensor noise with
  * a seed is added to the tool edge output.  docs/fmu.md lists the variables.
@@ -34,7 +34,7 @@
 #define X_TEMP 20         /* temperature */
 #define X_NOISE 21        /* 21..23 current noise sample, mm */
 
-const uint32_t MODEL_MAGIC = 0x6d746d0au;  /* "mtm" + layout version 10 */
+const uint32_t MODEL_MAGIC = 0x6d746d0bu;  /* "mtm" + layout version 11 */
 
 static int n_axes(const Instance *inst) { return inst->kin ? inst->kin->n_axes : 0; }
 
@@ -72,18 +72,22 @@ int model_string_kind(const Instance *inst, unsigned vr)
     return vr == SVR_TABLES ? VAR_PARAM_FIXED : VAR_NONE;
 }
 
-fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
+/* Range check of a per-axis parameter; its name is formatted only for a rejected value. */
+static fmi2Status check_axis_param(Instance *inst, const char *what, int axis, double value, double lo, double hi)
 {
     char name[64];
+    if (value >= lo && value <= hi) return fmi2OK;
+    snprintf(name, sizeof name, "%s.%c", what, inst->kin ? inst->kin->axis_name[axis] : '?');
+    return check_range(inst, name, value, lo, hi);
+}
+
+fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
+{
     if (vr == VR_SPINDLE) return check_range(inst, "spindle_speed", value, 0.0, 1e6);
-    if (vr >= VR_KV && vr < VR_KV + MTK_MAX_AXES) {
-        snprintf(name, sizeof name, "servo.kv.%c", inst->kin ? inst->kin->axis_name[vr - VR_KV] : '?');
-        return check_range(inst, name, value, 0.0, 1e4);
-    }
-    if (vr >= VR_BACKLASH && vr < VR_BACKLASH + MTK_MAX_AXES) {
-        snprintf(name, sizeof name, "backlash.%c", inst->kin ? inst->kin->axis_name[vr - VR_BACKLASH] : '?');
-        return check_range(inst, name, value, 0.0, 1.0);
-    }
+    if (vr >= VR_KV && vr < VR_KV + MTK_MAX_AXES)
+        return check_axis_param(inst, "servo.kv", (int)(vr - VR_KV), value, 0.0, 1e4);
+    if (vr >= VR_BACKLASH && vr < VR_BACKLASH + MTK_MAX_AXES)
+        return check_axis_param(inst, "backlash", (int)(vr - VR_BACKLASH), value, 0.0, 1.0);
     if (vr == VR_TAU) return check_range(inst, "thermal.time_constant", value, 1e-3, 1e6);
     if (vr == VR_GAIN) return check_range(inst, "thermal.gain", value, 0.0, 1.0);
     if (vr == VR_AMBIENT) return check_range(inst, "thermal.ambient", value, -50.0, 100.0);
@@ -133,9 +137,21 @@ static double play(double in, double out, double b)
     return out;
 }
 
-static double servo_now(const Instance *inst, int i)
+/* The machine refuses to move an axis beyond its travel, as a control's software limits do
+ * (half a resolution step of tolerance, like mtcomp.kinematics.check_limits). */
+static fmi2Status check_travel(Instance *inst)
 {
-    return inst->st.r[VR_KV + i] > 0.0 ? inst->st.x[X_SERVO + i] : inst->st.r[VR_CMD + i];
+    const mtk_model *m = inst->kin;
+    int i;
+    for (i = 0; i < m->n_axes; i++) {
+        double c = inst->st.r[VR_CMD + i];
+        if (c < m->lo[i] - m->slack[i] || c > m->hi[i] + m->slack[i]) {
+            inst_log(inst, fmi2Error, "logError", "t = %g s: command.%c = %.6f %s is outside the travel [%g, %g]",
+                     inst->st.time, m->axis_name[i], c, m->rotary[i] ? "deg" : "mm", m->lo[i], m->hi[i]);
+            return fmi2Error;
+        }
+    }
+    return fmi2OK;
 }
 
 fmi2Status model_update(Instance *inst)
@@ -145,8 +161,10 @@ fmi2Status model_update(Instance *inst)
     char err[MTK_ERRLEN];
     int i, k, n = n_axes(inst);
     if (!inst->kin) return fmi2Error;
+    /* Outputs are functions of the states only (no direct feed-through from the commands:
+     * ModelStructure declares no dependencies), so a master sees no algebraic loop. */
     for (i = 0; i < n; i++) {
-        q[i] = play(servo_now(inst, i), inst->st.x[X_PLAY + i], inst->st.r[VR_BACKLASH + i]);
+        q[i] = play(inst->st.x[X_SERVO + i], inst->st.x[X_PLAY + i], inst->st.r[VR_BACKLASH + i]);
         inst->st.r[VR_ACT + i] = q[i];
     }
     common_errors(inst, &e);
@@ -170,6 +188,7 @@ fmi2Status model_exit_init(Instance *inst)
     int i, n;
     uint64_t seed;
     if (common_load(inst) != fmi2OK) return fmi2Error;
+    if (check_travel(inst) != fmi2OK) return fmi2Error;
     n = n_axes(inst);
     /* Start at rest at the commanded position, at ambient temperature. */
     for (i = 0; i < n; i++) {
@@ -189,9 +208,10 @@ fmi2Status model_do_step(Instance *inst, double t, double h)
     int i, n = n_axes(inst);
     double target;
     (void)t;
+    if (check_travel(inst) != fmi2OK) return fmi2Error;
     for (i = 0; i < n; i++) {
         double kv = inst->st.r[VR_KV + i], b = inst->st.r[VR_BACKLASH + i];
-        double start = servo_now(inst, i), end;
+        double start = inst->st.x[X_SERVO + i], end;
         /* The first-order response to a held command is monotonic within the step, so the
          * play operator applied at both ends of the step is exact. */
         inst->st.x[X_PLAY + i] = play(start, inst->st.x[X_PLAY + i], b);

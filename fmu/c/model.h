@@ -20,6 +20,7 @@
 #define MODEL_NS 4        /* String value references 0..3 */
 #define MODEL_SLEN 512    /* capacity of one String variable, bytes */
 #define MODEL_NX 64       /* model-internal states (servo, backlash, temperature ...) */
+#define MODEL_GUIDLEN 64  /* capacity of the GUID text, bytes */
 
 /* What an importer may do with a value reference (FMI 2.0 causality/variability rules). */
 enum { VAR_NONE = 0, VAR_PARAM_FIXED, VAR_PARAM_TUNABLE, VAR_INPUT, VAR_OUTPUT };
@@ -29,6 +30,8 @@ enum { MODE_INSTANTIATED = 0, MODE_INIT, MODE_STEP, MODE_TERMINATED, MODE_ERROR 
 typedef struct {
     uint32_t magic;            /* identifies a serialized state of this model and layout */
     uint32_t size;
+    char guid[MODEL_GUIDLEN];  /* GUID of the FMU the state was taken from: states of another
+                                * build (another machine, other errors) are refused */
     int mode;
     double time;
     double r[MODEL_NR];
@@ -43,6 +46,7 @@ typedef struct Instance {
     ModelState st;
     char name[128];
     char resources[2048];      /* resource directory as a plain path, with trailing '/' */
+    char guid[MODEL_GUIDLEN];  /* this FMU's GUID as written in resources/start.txt ("": unknown) */
     const fmi2CallbackFunctions *cb;
     int logging;
     mtk_model *kin;            /* loaded at exit of initialisation, read-only afterwards */
