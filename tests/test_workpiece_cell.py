@@ -75,10 +75,11 @@ def test_cell_monte_carlo_figures_and_outputs(tmp_path):
         assert abs(mean - 3450) < 4 * sd / math.sqrt(40)
         assert sd < usd / 3                                    # compensation shrinks the scatter
     # width scatter follows the height uncertainty: sd(W) = 2 sd(dz) / tan(beta) to first order
-    # (the tilts add a few per cent at most)
+    # (the tilts add up to about a tenth now that the height comes from the bowls' bottom points
+    # and its own error is small)
     sd_dz = res.pose_error[:, 2].std(ddof=1) * 1e3
     for k in range(1, 5):
-        assert rows[f"W{k}"][4] == pytest.approx(2 * sd_dz / math.tan(Pyramid().beta), rel=0.05)
+        assert rows[f"W{k}"][4] == pytest.approx(2 * sd_dz / math.tan(Pyramid().beta), rel=0.12)
     text = res.table()
     assert "| W1 um | 3450 | 3449.5 |" in text and "| S3&S4 deg | 164.81 | 164.9 |" in text
     res.plot(tmp_path / "cell.png")
