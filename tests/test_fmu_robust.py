@@ -66,6 +66,24 @@ def _initialised(path, name, logs, q=(0.0, 10.0, 0.0, 0.0, 0.0)):
     return r
 
 
+def _callbacks(logs):
+    """fmpy callbacks logging into `logs`. Not fmpy's defaults: those log through one process-wide
+    proxy that points at the logger of whichever fmpy.simulate_fmu call ran last, freed by then
+    (a segmentation fault when this module runs after test_fmu.py)."""
+    from fmpy import calloc, free
+    from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(lambda env, inst, status, cat, msg: logs.append((status, msg)))
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    _KEEP.append(cb)   # alive as long as any instance may log through it
+    return cb
+
+
+_KEEP: list = []
+
+
 def _errors(logs):
     return [m for s, _, m in logs if s >= 3]
 
@@ -94,10 +112,11 @@ def test_setup_experiment_refuses_a_non_finite_start_time(fmus):
     logs = []
     s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmus["comp5"])),
                   modelIdentifier=md.coSimulation.modelIdentifier, instanceName="start")
-    s.instantiate(loggingOn=False)
+    s.instantiate(loggingOn=False, callbacks=_callbacks(logs))
     try:
         with pytest.raises(FMICallException):
             s.setupExperiment(startTime=float("nan"))
+        assert logs and logs[-1][0] == 3   # fmi2Error, with a message
     finally:
         s.freeInstance()
 
@@ -113,10 +132,10 @@ def test_instantiation_with_another_fmus_guid_is_refused(fmus):
     bad = FMU2Slave(guid=other, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
                     instanceName="wrong-guid")
     with pytest.raises(Exception, match="[Ii]nstantiat"):
-        bad.instantiate(loggingOn=False)
+        bad.instantiate(loggingOn=False, callbacks=_callbacks([]))
     good = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
                      instanceName="right-guid")
-    good.instantiate(loggingOn=False)
+    good.instantiate(loggingOn=False, callbacks=_callbacks([]))
     good.freeInstance()
 
 
