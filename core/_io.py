@@ -202,5 +202,18 @@ def locate_field(exc: "InputError", text: str) -> "InputError":
 
 
 def dump_toml(data: dict) -> str:
+    """TOML text of `data`; arrays of numbers or short strings on one line (`[0.0, 0.0, 1.0]`),
+    as people write them, where tomli_w puts every element on a line of its own."""
+    import re
     import tomli_w
-    return tomli_w.dumps(data)
+    text = tomli_w.dumps(data)
+
+    def inline(m):
+        items = [ln.strip()[:-1] for ln in m.group(2).split("\n") if ln.strip()]
+        one = f"{m.group(1)}[{', '.join(items)}]"
+        return one if len(one) - one.rfind("\n") <= 100 else m.group(0)
+    # an array whose element lines hold no brackets, braces or quotes-with-commas: scalars only
+    short = re.sub(r"(= |^ +)\[\n((?: +[^\[\]{}\n\"']+,\n)+) *\]", inline, text, flags=re.M)
+    if short != text and parse_toml(short) != parse_toml(text):  # never change a value
+        return text
+    return short

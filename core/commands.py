@@ -54,7 +54,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     # numbers, linearised arcs) and put it through the forward model with the errors.
     target = forward(machine, prog.position)
     before = np.linalg.norm(forward(machine, prog.position, errors).p - target.p, axis=1)
-    after_prog = gcode.parse(new_text, axes=machine.axis_names, filename=filename)
+    # (an error here is in the program mtcomp wrote, not in the input: say so)
+    after_prog = gcode.parse(new_text, axes=machine.axis_names, filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
     idx = np.searchsorted(after_prog.line, out_line)
     after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)

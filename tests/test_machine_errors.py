@@ -256,3 +256,13 @@ def test_check_for_machine_library_call():
     assert check_for_machine(ok, m) is ok
     with pytest.raises(InputError, match="EX0C of axis C"):
         check_for_machine(ErrorSet(geometric=GeometricErrors(location={"EX0C": 1e-3})), m)
+
+
+@pytest.mark.timeout(60)
+def test_column_check_does_not_backtrack(tmp_path):
+    """A bad cell after many long numbers is found at once (an ambiguous number pattern over the
+    whole column took 11 s for 5 rows, and doubled per row)."""
+    f = tmp_path / "t.csv"
+    f.write_text("position,EXX\n" + "".join(f"{i},12345678901234567890\n" for i in range(60)) + "99,x\n")
+    with pytest.raises(InputError, match=r"t\.csv:62 \[EXX\]: expected a number, got 'x'"):
+        AxisErrorTable.from_csv(f)
