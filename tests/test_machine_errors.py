@@ -266,3 +266,17 @@ def test_column_check_does_not_backtrack(tmp_path):
     f.write_text("position,EXX\n" + "".join(f"{i},12345678901234567890\n" for i in range(60)) + "99,x\n")
     with pytest.raises(InputError, match=r"t\.csv:62 \[EXX\]: expected a number, got 'x'"):
         AxisErrorTable.from_csv(f)
+
+
+def test_documented_errors_example_loads(tmp_path):
+    """The TOML example of docs/errors-format.md is a working file once its two tables exist."""
+    import re
+    from pathlib import Path
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "errors-format.md").read_text()
+    toml = re.search(r"```toml\n(.*?)```", doc, re.S).group(1)
+    (tmp_path / "e.toml").write_text(toml)
+    for ax in "XY":
+        (tmp_path / f"vmc_{ax}.csv").write_text(f"position,E{ax}{ax}\n-300,0.001\n300,-0.001\n")
+    e = load_errors(tmp_path / "e.toml")
+    assert e.tool.offset == (0.245, -0.340, 0.120) and set(e.geometric.tables) == {"X", "Y"}
+    assert e.geometric.location["EC0Y"] == 12e-6
