@@ -226,6 +226,7 @@ def test_table_header_units_are_converted(tmp_path):
     (lambda d: d["machine"].update(name=3), "machine.name", "expected a string"),
     (lambda d: d["machine"].update(tool_axis=[0, 0, 0]), "machine.tool_axis", "non-zero"),
     (lambda d: d.update(axes=[]), "axes", "unknown key"),
+    (lambda d: d["machine"].update(tool_piont=[0, 0, 1]), "machine.tool_piont", "did you mean 'tool_point'"),
     (lambda d: d.update(axis={"name": "X"}), "axis", "at least one"),
 ])
 def test_machine_reproducers(tmp_path, mutate, field, msg):
