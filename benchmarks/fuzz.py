@@ -273,7 +273,7 @@ def changed_block(src: Path, out: Path) -> str:
         if i >= len(b) or b[i] != line:
             words = re.findall(r"([A-Z])([-+.\d]+)", line.upper())
             shape = " ".join(a + (v if a == "G" else "") for a, v in words) or line[:30]
-            return f"'{shape}' (line {i + 1})"
+            return f"'{shape}' blocks"
     return "(lines added)"
 
 
