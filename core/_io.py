@@ -131,6 +131,19 @@ def load_toml(path: str | os.PathLike, *, what: str = "file") -> dict:
     return parse_toml(read_text(Path(path), what=what), path)
 
 
+def load_toml_as(path: str | os.PathLike, build, *, what: str = "file"):
+    """Read a TOML file and build an object from it with ``build(data, path)``; an InputError
+    of `build` that names a field but no line gets the field's line in the file.  The one way
+    for a reader of a set-up file to report ``file:line [field]: what was expected``."""
+    text = read_text(Path(path), what=what)
+    try:
+        return build(parse_toml(text, path), path)
+    except InputError as exc:
+        if exc.file is not None and str(exc.file) != str(path):
+            raise  # about another file (a table the TOML names): already located
+        raise locate_field(InputError(exc.what, path, exc.line, exc.field), text) from None
+
+
 def parse_toml(text: str, path: str | os.PathLike = "<string>") -> dict:
     """Parse TOML text; a syntax error becomes an InputError naming `path` and the line."""
     try:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import InputError, locate_field, parse_toml, read_text
+from ._io import InputError, load_toml_as, parse_toml
 from .validate import check_keys, number, string, table, vector
 
 AXIS_NAMES = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
@@ -232,8 +232,4 @@ def load_machine(spec: str | os.PathLike | Machine) -> Machine:
     path = Path(spec_s)
     if not path.exists():
         raise InputError(f"no such machine file or preset (presets: {', '.join(list_presets())})", spec_s)
-    text = read_text(path, what="machine file")
-    try:
-        return machine_from_dict(parse_toml(text, path), path)
-    except InputError as exc:
-        raise locate_field(exc, text) from None
+    return load_toml_as(path, machine_from_dict, what="machine file")
