@@ -18,7 +18,6 @@ from ._io import InputError
 MAX_MAGNITUDE = 1e9
 
 
-
 def _describe(value) -> str:
     if isinstance(value, bool):  # as TOML writes it
         return "true" if value else "false"
