@@ -41,10 +41,13 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 SMALL5 = ("O0001 (fuzz seed)\nG21 G90 G17\nN10 G0 X0 Y0 Z5. B0 C0\nN20 G1 Z0 F200\n"
           "N30 X5.0 Y2 C30.5 ; cut\nN40 G2 X7. Y2. I1. J-2.\nN50 G1 Y-3.25 B20\nN60 G0 Z5.\nM30\n")
+# arcs the issue found read wrongly: a full circle, a 3-decimal arc, small G91 increments
+ARCS = ("O0002 (fuzz seed: arcs)\nG21 G90 G17\nG0 X0 Y0 Z1. B0 C0\nG1 X1. Y0 F100\nG2 X1. Y0 I-1. J0\n"
+        "G1 X10. Y0\nG3 X5.403 Y8.415 I-10. J0\nG2 X6.5 Y8. R1.5\nG91 G1 X0.001 Y-0.002\nG90 G0 Z5.\nM30\n")
 POSE = "0.05,-0.03,0.02,0.1,-0.2,0.3"
 HOSTILE = ["nan", "inf", "-inf", "1e308", "1e400", "-0", "0", "-1", "", "true", '"x"', "[]", "{}",
            "99999999999999999999", "1e-320", "5e-6", "0.0000004", "1" * 320, "abc", "1,5", "\u0661",
-           "9.3e12", "-1e12", "2147483648", "1e-9"]
+           "9.3e12", "-1e12", "2147483648", "1e-9", "-0.0000004", "0.000001", "10.000001"]
 NUM_RE = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
@@ -105,6 +108,7 @@ def make_seeds(s: Path) -> dict:
     shutil.copy(ROOT / "examples/programs/groove5x.nc", s / "groove5x.nc")
     shutil.copy(ROOT / "examples/errors/setting-example.toml", s / "setting.toml")
     (s / "small5.nc").write_text(SMALL5)
+    (s / "arcs.nc").write_text(ARCS)
     (s / "zero.toml").write_text("# no errors\n")
     tab = AxisErrorTable("X", [-150.0, 0.0, 150.0], {"EXX": [0.001, 0.0, -0.002], "EBX": [2e-6, 0.0, 1e-6]})
     save_errors(ErrorSet(geometric=GeometricErrors({"X": tab}, {"EC0Y": 1e-5, "EB0Z": -8e-6})), s / "geo.toml")
@@ -133,8 +137,8 @@ def make_seeds(s: Path) -> dict:
     (s / "journal.jsonl").write_text("".join(json.dumps({"n": i + 1, "t": 1.0 + i, **r}) + "\n"
                                              for i, r in enumerate(recs)))
     return {
-        # name: (seed file, file name in the input folder, command line, extra files to place beside)
-        "nc-program": (s / "small5.nc", "p.nc",
+        # name: (seed file or files, file name in the input folder, command line, extra files to place beside)
+        "nc-program": ([s / "small5.nc", s / "arcs.nc", s / "groove5x.nc"], "p.nc",
                        ["compensate", "{f}", "-m", "robonano-a0ib", "-e", "{s}/zero.toml", "-o", "{o}/out.nc"], []),
         "errors-toml": (s / "setting.toml", "e.toml",
                         ["compensate", "{s}/small5.nc", "-m", "robonano-a0ib", "-e", "{f}", "-o", "{o}/out.nc"],
@@ -261,6 +265,18 @@ def journal_main(path: str) -> int:
     return 0
 
 
+def changed_block(src: Path, out: Path) -> str:
+    """The shape of the first input block the identity rewrite changed, e.g. 'G3 X Y I J'."""
+    a = src.read_text(errors="replace").split("\n")
+    b = out.read_text(errors="replace").split("\n") if out.exists() else []
+    for i, line in enumerate(a):
+        if i >= len(b) or b[i] != line:
+            words = re.findall(r"([A-Z])([-+.\d]+)", line.upper())
+            shape = " ".join(a + (v if a == "G" else "") for a, v in words) or line[:30]
+            return f"'{shape}' blocks"
+    return "(lines added)"
+
+
 def signature(err: str, status: str, code: int) -> str:
     """A short key that groups failures of one cause."""
     if status == "hang":
@@ -296,14 +312,15 @@ def campaign(per_surface: int, seed: int, timeout: float, surfaces: list[str] | 
         table = make_seeds(s)
         pool = []
         for name, (f, *_rest) in table.items():
-            if f is not None:
-                pool += [ln for ln in f.read_text(errors="replace").split("\n") if ln.strip()][:40]
+            for x in (f if isinstance(f, list) else [f] if f is not None else []):
+                pool += [ln for ln in x.read_text(errors="replace").split("\n") if ln.strip()][:40]
         results = {}
         for name, (seed_file, fname, argv_t, extras) in table.items():
             if surfaces and name not in surfaces:
                 continue
             rng = random.Random(f"{seed}:{name}")
-            base = seed_file.read_text() if seed_file is not None else ""
+            seeds = seed_file if isinstance(seed_file, list) else [seed_file] if seed_file is not None else []
+            bases = [x.read_text() for x in seeds]
             counts = dict(tried=0, accepted=0, refused=0, tracebacks=0, hangs=0, half_written=0,
                           silent_wrong=0, cpu=0.0)
             kinds: dict[str, dict] = {}
@@ -317,7 +334,7 @@ def campaign(per_surface: int, seed: int, timeout: float, surfaces: list[str] | 
                     argv = list(rng.choice(COMMANDS)) + [rng.choice(OPTION_TOKENS) for _ in range(rng.randint(0, 8))]
                     text = None
                 else:
-                    text = mutate(base, rng, pool)
+                    text = mutate(rng.choice(bases), rng, pool)
                     (d / fname).write_bytes(text.encode("utf-8", "surrogatepass"))
                     argv = list(argv_t)
                 argv = [a.replace("{f}", str(d / (fname or ""))).replace("{o}", str(o)).replace("{s}", str(s))
@@ -346,7 +363,7 @@ def campaign(per_surface: int, seed: int, timeout: float, surfaces: list[str] | 
                     outp = o / "out.nc"
                     if not outp.exists() or outp.read_bytes() != (d / fname).read_bytes():
                         counts["silent_wrong"] += 1
-                        bad = bad or "identity changed the program"
+                        bad = bad or f"identity changed {changed_block(d / fname, outp)}"
                 if bad:
                     k = kinds.setdefault(bad, {"count": 0, "example": None})
                     k["count"] += 1

@@ -135,6 +135,19 @@ def load_toml(path: str | os.PathLike, *, what: str = "file") -> dict:
     return parse_toml(read_text(Path(path), what=what), path)
 
 
+def load_toml_as(path: str | os.PathLike, build, *, what: str = "file"):
+    """Read a TOML file and build an object from it with ``build(data, path)``; an InputError
+    of `build` that names a field but no line gets the field's line in the file.  The one way
+    for a reader of a set-up file to report ``file:line [field]: what was expected``."""
+    text = read_text(Path(path), what=what)
+    try:
+        return build(parse_toml(text, path), path)
+    except InputError as exc:
+        if exc.file is not None and str(exc.file) != str(path):
+            raise  # about another file (a table the TOML names): already located
+        raise locate_field(InputError(exc.what, path, exc.line, exc.field), text) from None
+
+
 def parse_toml(text: str, path: str | os.PathLike = "<string>") -> dict:
     """Parse TOML text; a syntax error becomes an InputError naming `path` and the line."""
     try:
@@ -206,5 +219,18 @@ def locate_field(exc: "InputError", text: str) -> "InputError":
 
 
 def dump_toml(data: dict) -> str:
+    """TOML text of `data`; arrays of numbers or short strings on one line (`[0.0, 0.0, 1.0]`),
+    as people write them, where tomli_w puts every element on a line of its own."""
+    import re
     import tomli_w
-    return tomli_w.dumps(data)
+    text = tomli_w.dumps(data)
+
+    def inline(m):
+        items = [ln.strip()[:-1] for ln in m.group(2).split("\n") if ln.strip()]
+        one = f"{m.group(1)}[{', '.join(items)}]"
+        return one if len(one) - one.rfind("\n") <= 100 else m.group(0)
+    # an array whose element lines hold no brackets, braces or quotes-with-commas: scalars only
+    short = re.sub(r"(= |^ +)\[\n((?: +[^\[\]{}\n\"']+,\n)+) *\]", inline, text, flags=re.M)
+    if short != text and parse_toml(short) != parse_toml(text):  # never change a value
+        return text
+    return short

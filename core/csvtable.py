@@ -48,7 +48,9 @@ UNITS: dict[str, tuple[str, float, float]] = {
 # enough below float overflow that sums, squares and least squares stay finite.
 MAX_ABS = 1e12
 
-_NUMBER = r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"  # ASCII digits only
+# ASCII digits only.  Unambiguous on purpose (a digit run cannot be split two ways): the whole
+# column is matched by one expression, and an ambiguous one backtracks exponentially.
+_NUMBER = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
 _NUMBER_RE = re.compile(_NUMBER)
 _HEADER_RE = re.compile(r"^(?P<name>[^\[\(]*?)\s*(?:[\[\(]\s*(?P<unit>[^\]\)]*?)\s*[\]\)])?$")
 

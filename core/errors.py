@@ -16,7 +16,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from ._io import InputError, MtcompError, atomic_write, dump_toml, locate_field, parse_toml, read_text
+from ._io import InputError, MtcompError, atomic_write, dump_toml, load_toml_as
 from .csvtable import read_csv
 from .validate import check_keys, number, string, table, vector
 
@@ -376,17 +376,14 @@ def load_errors(path: str | os.PathLike, machine=None) -> ErrorSet:
     With a machine (a Machine or anything `load_machine` takes), errors of axes it does not
     have are refused (`check_for_machine`)."""
     path = Path(path)
-    text = read_text(path, what="errors file")
-    try:
-        errors = errors_from_dict(parse_toml(text, path), path, path.parent)
-        if machine is not None:
-            from .machine import load_machine
-            check_for_machine(errors, load_machine(machine), path)
-        return errors
-    except InputError as exc:
-        if exc.file is not None and str(exc.file) != str(path):
-            raise  # an error in a table CSV names its own file and line
-        raise locate_field(InputError(exc.what, path, exc.line, exc.field), text) from None
+    if machine is not None:
+        from .machine import load_machine
+        machine = load_machine(machine)
+
+    def build(data, file):
+        errors = errors_from_dict(data, file, path.parent)
+        return errors if machine is None else check_for_machine(errors, machine, file)
+    return load_toml_as(path, build, what="errors file")
 
 
 def save_errors(errors: ErrorSet, path: str | os.PathLike, *, uncertainty: dict | None = None,

@@ -8,6 +8,7 @@ listed order.  Lengths in mm, angles in deg.  File format: docs/machine-format.m
 """
 from __future__ import annotations
 
+import difflib
 import math
 import os
 from dataclasses import dataclass, field
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import InputError, locate_field, parse_toml, read_text
+from ._io import InputError, load_toml_as, parse_toml
 from .validate import check_keys, number, string, table, vector
 
 AXIS_NAMES = ("X", "Y", "Z", "U", "V", "W", "A", "B", "C")
@@ -204,7 +205,13 @@ def machine_from_dict(data: dict, file: str | os.PathLike = "<dict>") -> Machine
         axes.append(Axis(an, kind, side, direction, location, (lo, hi), res))
     tool_point = _vec3(head.get("tool_point", [0.0, 0.0, 0.0]), file, "machine.tool_point")
     tool_axis = _vec3(head.get("tool_axis", [0.0, 0.0, 1.0]), file, "machine.tool_axis", unit=True)
-    extra = {k: v for k, v in head.items() if k not in ("name", "description", "sources", "tool_point", "tool_axis")}
+    known = ("name", "description", "sources", "tool_point", "tool_axis")
+    extra = {k: v for k, v in head.items() if k not in known}
+    for k in extra:  # metadata keys are free, but a misspelt tool_point must not fall back to the default
+        close = difflib.get_close_matches(k, known, n=1, cutoff=0.75)
+        if close:
+            raise InputError(f"unknown key {k!r}: did you mean {close[0]!r}? (other keys are kept as "
+                             f"metadata, but not ones this close to a known key)", file, field=f"machine.{k}")
     return Machine(name, tuple(axes), tool_point, tool_axis, description, sources, extra)
 
 
@@ -225,8 +232,4 @@ def load_machine(spec: str | os.PathLike | Machine) -> Machine:
     path = Path(spec_s)
     if not path.exists():
         raise InputError(f"no such machine file or preset (presets: {', '.join(list_presets())})", spec_s)
-    text = read_text(path, what="machine file")
-    try:
-        return machine_from_dict(parse_toml(text, path), path)
-    except InputError as exc:
-        raise locate_field(exc, text) from None
+    return load_toml_as(path, machine_from_dict, what="machine file")

@@ -9,7 +9,6 @@ of value its field means and nothing that merely converts (``"1"``, ``true``, ``
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping
 
 from ._io import InputError
@@ -17,8 +16,6 @@ from ._io import InputError
 # Largest magnitude any length or angle of a set-up file may have (mm or deg): far beyond any
 # machine, far below where float arithmetic or the controller's integer counts overflow.
 MAX_MAGNITUDE = 1e9
-
-_Source = "str | os.PathLike | None"
 
 
 def _describe(value) -> str:

@@ -249,3 +249,11 @@ def test_machine_resolution_not_a_power_of_ten(setup, tmp_path):
     rc, _, e = main_inproc(["compensate", prog, "-m", mf, "-e", err, "-o", tmp_path / "o.nc"])
     line = _one_line_error(rc, e)
     assert "[axis[2].resolution]" in line and "power of ten" in line
+
+
+def test_machines_prints_arrays_on_one_line():
+    rc, out, _ = main_inproc(["machines", "robonano-a0ib"])
+    assert rc == 0
+    assert "direction = [0.0, 0.0, 1.0]" in out and "limits = [-360.0, 360.0]" in out
+    from mtcomp._io import parse_toml
+    assert parse_toml(out) == load_machine("robonano-a0ib").to_dict()

@@ -226,6 +226,7 @@ def test_table_header_units_are_converted(tmp_path):
     (lambda d: d["machine"].update(name=3), "machine.name", "expected a string"),
     (lambda d: d["machine"].update(tool_axis=[0, 0, 0]), "machine.tool_axis", "non-zero"),
     (lambda d: d.update(axes=[]), "axes", "unknown key"),
+    (lambda d: d["machine"].update(tool_piont=[0, 0, 1]), "machine.tool_piont", "did you mean 'tool_point'"),
     (lambda d: d.update(axis={"name": "X"}), "axis", "at least one"),
 ])
 def test_machine_reproducers(tmp_path, mutate, field, msg):
@@ -256,3 +257,27 @@ def test_check_for_machine_library_call():
     assert check_for_machine(ok, m) is ok
     with pytest.raises(InputError, match="EX0C of axis C"):
         check_for_machine(ErrorSet(geometric=GeometricErrors(location={"EX0C": 1e-3})), m)
+
+
+@pytest.mark.timeout(60)
+def test_column_check_does_not_backtrack(tmp_path):
+    """A bad cell after many long numbers is found at once (an ambiguous number pattern over the
+    whole column took 11 s for 5 rows, and doubled per row)."""
+    f = tmp_path / "t.csv"
+    f.write_text("position,EXX\n" + "".join(f"{i},12345678901234567890\n" for i in range(60)) + "99,x\n")
+    with pytest.raises(InputError, match=r"t\.csv:62 \[EXX\]: expected a number, got 'x'"):
+        AxisErrorTable.from_csv(f)
+
+
+def test_documented_errors_example_loads(tmp_path):
+    """The TOML example of docs/errors-format.md is a working file once its two tables exist."""
+    import re
+    from pathlib import Path
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "errors-format.md").read_text()
+    toml = re.search(r"```toml\n(.*?)```", doc, re.S).group(1)
+    (tmp_path / "e.toml").write_text(toml)
+    for ax in "XY":
+        (tmp_path / f"vmc_{ax}.csv").write_text(f"position,E{ax}{ax}\n-300,0.001\n300,-0.001\n")
+    e = load_errors(tmp_path / "e.toml")
+    assert e.tool.offset == (0.245, -0.340, 0.120) and set(e.geometric.tables) == {"X", "Y"}
+    assert e.geometric.location["EC0Y"] == 12e-6
