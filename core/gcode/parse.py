@@ -407,18 +407,20 @@ def _absolute(vals, present, incremental, offset, start_vec):
     not written stays.  An absolute NaN makes the axis unknown until its next absolute word."""
     n, n_ax = present.shape
     position = np.empty((n, n_ax))
+    rows = np.arange(n)
+    use_off = bool(offset.any())
     for k in range(n_ax):
         pres = present[:, k]
-        v = np.where(pres, vals[:, k], 0.0)
-        isabs = pres & ~incremental
+        v = vals[:, k]
         inc = np.where(pres & incremental, v, 0.0)
         cum = np.cumsum(inc)
-        a = v + offset[:, k]
-        idx = np.where(isabs | (pres & np.isnan(vals[:, k])), np.arange(n), -1)
+        idx = np.where(pres & ~incremental, rows, -1)
         np.maximum.accumulate(idx, out=idx)
         i0 = np.maximum(idx, 0)
-        base = np.where(idx >= 0, np.where(np.isnan(vals[i0, k]), np.nan, a[i0]) - cum[i0], start_vec[k])
-        position[:, k] = base + cum
+        a = v[i0] - cum[i0]
+        if use_off:
+            a += offset[i0, k]
+        position[:, k] = np.where(idx >= 0, a, start_vec[k]) + cum
     return position
 
 
