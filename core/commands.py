@@ -168,7 +168,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start, resolution=res,
                              filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
-    idx = np.searchsorted(after_prog.line, out_line[kn])
+    idx = np.searchsorted(after_prog.line, out_line[kn], side="right") - 1
     after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),

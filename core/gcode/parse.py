@@ -8,7 +8,7 @@ import numpy as np
 from .._io import InputError
 from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
-from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
+from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
                     _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
 from .program import Program, resolution_formats
 from .textops import parse_decimals
@@ -148,7 +148,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # 9 axis words that are not moves 10 feed mode
     cat = np.full(len(gi), -1, np.int64)
     tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
-              (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_HARMLESS, 6)]
+              (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_CYCLE, 11),
+              (_G_HARMLESS, 6)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
@@ -232,6 +233,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
     plane_line = _ffill(pla_l, pla_l >= 0, 17)
     mode_line = _ffill(mot_l, mot_l >= 0, -1)
+    # canned cycles: set by G73..G89, cancelled by G80 or a G0-G3 code (the G0/G1 mode from
+    # before the cycle then continues, as on Fanuc controls)
+    cyc_l, cyc_w = per_line(11, _G_CYCLE, "canned cycle")
+    both = (cyc_l >= 0) & (mot_l >= 0)
+    if both.any():
+        _fail("a motion code and a canned cycle in one block", int(np.argmax(both)), filename)
+    ev = np.full(n_lines, -1, np.int64)
+    ev[mot_l >= 0] = 0
+    ev[gline[g10 == 800]] = 0
+    ev[cyc_l >= 0] = cyc_l[cyc_l >= 0]
+    cycle_line = _ffill(ev, ev >= 0, 0)
+    rl = np.full(n_lines, -1, np.int64)
+    rl[gline[g10 == 980]] = 98
+    rl[gline[g10 == 990]] = 99
+    retract_line = _ffill(rl, rl >= 0, 98)
+    mode_line = np.where(cycle_line > 0, cycle_line, mode_line)
 
     # -- feed (modal), converted in inch blocks
     fi = np.flatnonzero(wlet == _ascii("F"))
@@ -285,6 +302,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         for k in range(n_ax):
             col = shift_l[:, k]
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
+    # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
+    cyc_zw = np.full(n_lines, -1, np.int64)
+    cyc_rw = np.full(n_lines, -1, np.int64)
+    if (cycle_line > 0).any():
+        in_cyc = cycle_line[wline] > 0
+        if "Z" not in axes:
+            _fail("canned cycle on a machine without Z", int(np.argmax(cycle_line > 0)), filename)
+        zc = axes.index("Z")
+        zi = np.flatnonzero(in_cyc & (wcol == zc))
+        ri = np.flatnonzero(in_cyc & (wlet == _ascii("R")))
+        ki = np.flatnonzero(in_cyc & ((wlet == _ascii("K")) | (wlet == _ascii("L"))))
+        if len(ki):
+            _fail(f"repeat count {chr(65 + wlet[ki[0]])} in a canned cycle: not supported",
+                  wline[ki[0]], filename)
+        cyc_zw[wline[zi]], cyc_rw[wline[ri]] = zi, ri
+        wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
     axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
     arc_w = np.flatnonzero(wcol >= n_ax)
     if len(axis_w):
@@ -300,7 +333,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         if notarc.any():
             j = arc_w[np.argmax(notarc)]
             _fail(f"arc word {chr(65 + wlet[j])} outside G2/G3", wline[j], filename)
-    block = has_motion | (has_arcw & np.isin(mode_line, (2, 3)))
+    block = has_motion | (has_arcw & np.isin(mode_line, (2, 3))) | (cyc_zw >= 0) | (cyc_rw >= 0)
     if len(bd_lines):
         bdl = bd_lines[block[bd_lines] | (np.bincount(gline, minlength=n_lines)[bd_lines] > 0)]
         if len(bdl):
@@ -366,6 +399,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     else:
         position = _absolute(vals[:, :n_ax], present, incremental, offset, start_vec)
 
+    cycle = cycle_line[blines]
+    cyc_data = None
+    if (cycle > 0).any():
+        g80n = np.cumsum(np.isin(np.arange(n_lines), gline[g10 == 800]))[blines]
+        cut = np.r_[True, np.diff(g80n) > 0]          # a G80 between two blocks ends a run
+        position, cyc_data = _cycles(axes, blines, cycle, cut, retract_line[blines], cyc_zw[blines],
+                                     cyc_rw[blines], value, inch, incremental, vals[:, :n_ax],
+                                     present, offset, start_vec, position, filename)
     ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
     radius = vals[:, n_ax + 3].copy()
@@ -393,7 +434,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
                   inch_g20_words=g20, inch_f_words=finch,
                   axis_known=axis_known, start_known=start_known, offset=offset,
-                  ijk_absolute=ijk_absolute, inverse_time=inverse_time,
+                  ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
+                  cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
     for a in arrays.values():
         a.flags.writeable = False
@@ -422,6 +464,54 @@ def _absolute(vals, present, incremental, offset, start_vec):
             a += offset[i0, k]
         position[:, k] = np.where(idx >= 0, a, start_vec[k]) + cum
     return position
+
+
+def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental, vals, present, offset,
+            start_vec, position, filename):
+    """Canned cycle blocks: per block the initial level, R level and depth (reference frame,
+    mm; NaN where unknown) and the block's end Z (initial level for G98, R level for G99).
+    Runs of holes are taken in order, since each run's initial level is where the last left Z.
+    Returns (positions with the cycles' end Z, (N, 6) array: initial, R, depth, R word, Z word,
+    retract)."""
+    zk = axes.index("Z")
+    n = len(blines)
+    data = np.full((n, 6), np.nan)
+    cb = np.flatnonzero(cycle > 0)
+    starts = cb[(cb == 0) | (cycle[np.maximum(cb - 1, 0)] == 0) | cut[cb]]
+    scale = np.where(inch, 25.4, 1.0)
+    zvals = np.where(present[:, zk], vals[:, zk], np.nan)
+    zpres = present[:, zk].copy()
+    zinc = incremental.copy()
+    for s in starts:
+        e = s
+        while e + 1 < n and cycle[e + 1] > 0 and not cut[e + 1]:
+            e += 1
+        zinit = position[s - 1, zk] if s > 0 else start_vec[zk]
+        r_word = z_word = np.nan
+        for j in range(s, e + 1):
+            if rw[j] >= 0:
+                r_word = value[rw[j]] * scale[j]
+            if zw[j] >= 0:
+                z_word = value[zw[j]] * scale[j]
+            if np.isnan(r_word) or np.isnan(z_word):
+                _fail(f"canned cycle G{cycle[j]} without {'an R level' if np.isnan(r_word) else 'a depth Z'}",
+                      blines[j], filename)
+            if incremental[j]:                     # R from the initial level, Z from R
+                r_lvl = zinit + r_word
+                depth = r_lvl + z_word
+            else:
+                r_lvl = r_word + offset[j, zk]
+                depth = z_word + offset[j, zk]
+            end = zinit if retract[j] == 98 else r_lvl
+            data[j] = (zinit, r_lvl, depth, r_word, z_word, retract[j])
+            # the block's Z: an absolute "word" at its end level (NaN stays unknown)
+            zvals[j] = end - offset[j, zk]
+            zpres[j] = True
+            zinc[j] = False
+        col = _absolute(zvals[:, None], zpres[:, None], zinc, offset[:, zk:zk + 1],
+                        start_vec[zk:zk + 1])[:, 0]
+        position[:, zk] = col
+    return position, data
 
 
 def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_lines, filename,
