@@ -123,7 +123,7 @@ class _Ctx:
 
 def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
             resolution=None, chordal_tol: float = 1e-4, progress=None, unknown: str = "defer",
-            row_lines: list | None = None) -> str:
+            row_lines: list | None = None, info: dict | None = None) -> str:
     """Rewrite the program's axis words for new commanded positions.
 
     ``transform(q)`` maps absolute commanded positions (M, n_axes) in mm/deg to new ones.  It is
@@ -143,7 +143,7 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
     linearisation) stays byte for byte; see docs/gcode.md.
     """
     return rewrite_with_lines(program, transform, resolution=resolution, chordal_tol=chordal_tol,
-                              progress=progress, unknown=unknown, row_lines=row_lines)[0]
+                              progress=progress, unknown=unknown, row_lines=row_lines, info=info)[0]
 
 
 def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
@@ -187,10 +187,13 @@ def _unknown_axes(program: Program, k: int) -> str:
 
 def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                        resolution=None, chordal_tol: float = 1e-4, progress=None,
-                       unknown: str = "defer", row_lines: list | None = None):
+                       unknown: str = "defer", row_lines: list | None = None,
+                       info: dict | None = None):
     """`rewrite`, also returning for every motion block the 1-based line of the output where
     the block ends (after a linearised arc: its last segment line), so that the output can be
-    compared block by block with the input."""
+    compared block by block with the input.  ``info``, if a dict, receives what was done:
+    ``deferred`` blocks, ``linearised`` arcs, canned cycle holes ``cycles_kept`` and
+    ``cycles_expanded``."""
     axes = program.axes
     n_ax = len(axes)
     if unknown not in ("defer", "refuse"):
@@ -230,7 +233,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     if geo is not None:
         lin_res = max(res[geo.u.max()], res[geo.v.max()], res[geo.u.min()], res[geo.v.min()])
         if chordal_tol < 2 * lin_res:
-            raise ValueError(f"chordal_tol {chordal_tol} mm is below twice the axis resolution")
+            raise InputError(f"chordal tolerance {chordal_tol * 1e3:g} µm is below twice the axis "
+                             f"resolution ({lin_res * 1e3:g} µm): arcs could not be written within it",
+                             program.filename, field="chordal_tol")
     samp = _arc_samples(geo) if geo is not None else np.zeros((0, n_ax))
     kk = np.flatnonzero(kn)
     nk = len(kk)
@@ -325,6 +330,10 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         _linearise_edits(ctx, lin, seg, new, d_ax, m_ax, chordal_tol, offc)
     _restore_modal_arcs(ctx, lin)
 
+    if info is not None:
+        rep = getattr(ctx, "cycle_report", {"kept": 0, "expanded": 0})
+        info.update(deferred=int(N - kn.sum()), linearised=int(len(lin)),
+                    cycles_kept=rep["kept"], cycles_expanded=rep["expanded"])
     ed = ctx.edits
     text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
     added = np.zeros(N, np.int64)
