@@ -216,7 +216,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         out_line = np.where(out_line > at, out_line + added, out_line)
     # Check the result as the machine will run it: re-read the written program (rounded
     # numbers, linearised arcs) and put it through the forward model with the errors.
-    kn = np.asarray(prog.known)
+    kn = np.asarray(info["compensated"])
     P = np.asarray(prog.position)[kn]
     target = forward(machine, P)
     before = np.linalg.norm(forward(machine, P, errors).p - target.p, axis=1)

@@ -75,3 +75,14 @@ def test_cycle_refusals():
         gcode.parse("G90 G0 X0 Y0 Z10.\nG81 X5. Z-3.\n", axes=XYZ)
     with pytest.raises(InputError, match=r":2: repeat count K"):
         gcode.parse("G90 G0 X0 Y0 Z10.\nG81 X5. Z-3. R1. K3\n", axes=XYZ)
+
+
+def test_cycle_run_starting_before_the_pose_is_known_is_left_as_written():
+    # found by the fuzz test: the G98 return level was set by a block that passed uncompensated
+    text = "G90 G0 Z1. Y0.5\nG99 G81 Z-0.05 R0.1 F8.\nX1.5\nG98 X0.5\nG80\nG0 Z2.\n"
+    p = gcode.parse(text, axes=XYZ)
+    info = {}
+    out = gcode.rewrite(p, lambda q: q + [0.01, 0.02, 0.03], info=info)
+    assert out.splitlines()[:5] == text.splitlines()[:5]
+    assert out.splitlines()[5] == "G0 X0.510000 Y0.520000 Z2.030000"
+    assert info["deferred"] == 4 and not info["compensated"][:4].any()

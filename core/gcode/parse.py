@@ -471,11 +471,11 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
     """Canned cycle blocks: per block the initial level, R level and depth (reference frame,
     mm; NaN where unknown) and the block's end Z (initial level for G98, R level for G99).
     Runs of holes are taken in order, since each run's initial level is where the last left Z.
-    Returns (positions with the cycles' end Z, (N, 6) array: initial, R, depth, R word, Z word,
-    retract)."""
+    Returns (positions with the cycles' end Z, (N, 7) array: initial, R, depth, R word, Z word,
+    retract, first block of the run)."""
     zk = axes.index("Z")
     n = len(blines)
-    data = np.full((n, 6), np.nan)
+    data = np.full((n, 7), np.nan)
     cb = np.flatnonzero(cycle > 0)
     starts = cb[(cb == 0) | (cycle[np.maximum(cb - 1, 0)] == 0) | cut[cb]]
     scale = np.where(inch, 25.4, 1.0)
@@ -503,7 +503,7 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
                 r_lvl = r_word + offset[j, zk]
                 depth = z_word + offset[j, zk]
             end = zinit if retract[j] == 98 else r_lvl
-            data[j] = (zinit, r_lvl, depth, r_word, z_word, retract[j])
+            data[j] = (zinit, r_lvl, depth, r_word, z_word, retract[j], s)
             # the block's Z: an absolute "word" at its end level (NaN stays unknown)
             zvals[j] = end - offset[j, zk]
             zpres[j] = True

@@ -221,6 +221,16 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                          "program has not written it yet): state the start position or let "
                          "such blocks pass uncompensated", program.filename, int(line[j]))
     kprev = np.concatenate([[bool(np.all(program.start_known))], kn[:-1]])
+    cyc = np.asarray(program.cycle)
+    if cyc.any():
+        # a cycle run starting where the pose is not yet known is left as it is: its initial
+        # level (the G98 return, the first hole's arrival) was set uncompensated
+        cb0 = np.flatnonzero(cyc > 0)
+        first = np.asarray(program.cycle_data)[cb0, 6].astype(np.int64)
+        late = ~kprev[first]
+        if late.any():
+            kn = kn.copy()
+            kn[cb0[late]] = False
     ak = np.flatnonzero(program.is_arc & kn)
     first_arc = ak[~kprev[ak]]
     if len(first_arc):
@@ -332,7 +342,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
 
     if info is not None:
         rep = getattr(ctx, "cycle_report", {"kept": 0, "expanded": 0})
-        info.update(deferred=int(N - kn.sum()), linearised=int(len(lin)),
+        info.update(deferred=int(N - kn.sum()), linearised=int(len(lin)), compensated=kn,
                     cycles_kept=rep["kept"], cycles_expanded=rep["expanded"])
     ed = ctx.edits
     text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
@@ -604,7 +614,9 @@ def _cycle_shift(ctx, p, rows, dzc, rz, fmt, letter_z, letter_r, inc_):
             if w >= 0:
                 if want != int(np.rint(wv[w] * scale / rz)):
                     _replace_number(ctx, w, want, fmt)
-            elif modal.get(col) != want:
+            elif modal.get(col, int(np.rint(val / rz))) != want:
+                # the modal value in the control: the last one written in this run, or the
+                # program's own where it came from a block left as it was
                 _insert_text(ctx, last_end[k], b" " + letter + _number(want, fmt))
             modal[col] = want
 
