@@ -33,7 +33,8 @@ _G_HARMLESS = {
     640: "cutting mode", 670: "macro modal call cancel", 690: "coordinate rotation cancel",
     800: "canned cycle cancel", 970: "constant spindle speed", 980: "cycle return to initial level",
     990: "cycle return to R level", 1030: "block look-ahead limit (Haas)",
-    1870: "smoothness/accuracy setting (Haas)", 940: "feed per minute",
+    1870: "smoothness/accuracy setting (Haas)", 921: "G92 offsets cancel",
+    922: "G92 offsets cancel (parameters kept)", 940: "feed per minute",
 }
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {

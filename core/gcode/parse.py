@@ -174,12 +174,17 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     known[[_ascii(c) for c in allowed]] = True
     badlet = ~known[wlet]
     if badlet.any():
+        # E is the tolerance of Haas G187 (smoothness), nowhere else
+        g187 = np.zeros(n_lines, bool)
+        g187[gline[g10 == 1870]] = True
+        badlet &= ~((wlet == _ascii("E")) & g187[wline])
+    if badlet.any():
         i = int(np.argmax(badlet))
         c = chr(65 + wlet[i])
         if c in CANONICAL:
             what = f"axis word {c} but the machine has axes {' '.join(axes)}"
         else:
-            what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P, " \
+            what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P H D Q, " \
                    f"axes {' '.join(axes)}, arc words I J K R)"
         _fail(what, wline[i], filename)
 
