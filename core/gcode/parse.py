@@ -270,14 +270,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         col_of_letter[_ascii(c)] = k
     wcol = col_of_letter[wlet]
     # X in a dwell block is the dwell time, not an axis
-    dwell_x = (wlet == _ascii("X")) & dwell_line[wline]
-    if dwell_x.any():
+    if dwell_line.any():
+        dwell_x = (wlet == _ascii("X")) & dwell_line[wline]
         wcol = np.where(dwell_x, np.int8(-1), wcol)
-    del dwell_x
+        del dwell_x
     # axis words of G28 G30 G52 G53 G50.1 are not moves; after G28 G30 G53 the axes they name
     # are somewhere the program does not say (machine coordinates, reference point)
-    nm_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & (nonmove_l[wline] >= 0))
-    g50_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & g50_line[wline])
+    any_nm = bool((nonmove_l >= 0).any())
+    nm_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & (nonmove_l[wline] >= 0)) if any_nm else []
+    g50_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & g50_line[wline]) if g50_line.any() else []
     if len(g50_w):
         _fail("G50 with axis words sets the coordinate system (lathe controls) or scaling: "
               "not supported", wline[g50_w[0]], filename)
@@ -325,7 +326,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
     axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
     arc_w = np.flatnonzero(wcol >= n_ax)
-    if len(axis_w):
+    if len(axis_w) and dwell_line.any():
         dw = dwell_line[wline[axis_w]]
         if dw.any():
             _fail("axis word in a G4 dwell block", wline[axis_w[np.argmax(dw)]], filename)
