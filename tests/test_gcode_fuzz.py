@@ -69,3 +69,26 @@ _code = st.sampled_from(["G0", "G1", "G00", "G01", "G90", "G91", "G17", "G20", "
 def test_generated_blocks(blocks, sep, eol):
     text = eol.join(sep.join(b) for b in blocks) + eol
     _check(text)
+
+
+@seed(7)
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.tuples(st.floats(0.05, 50), st.floats(-np.pi, np.pi), st.floats(-2 * np.pi, 2 * np.pi),
+                          st.sampled_from([2, 3, 4]), st.booleans()), min_size=1, max_size=6))
+def test_generated_arcs_as_cam_systems_round_them(arcs):
+    """Arcs written with 2 to 4 decimals (end points off the circle by the rounding), I J K or R:
+    accepted ones are kept byte for byte and move exactly under a translation."""
+    x, y = 0.0, 0.0
+    lines = ["G90 G17 G1 X0 Y0 Z0 B0 C0 F100"]
+    for r, a0, sweep, dec, use_r in arcs:
+        cx, cy = x - r * np.cos(a0), y - r * np.sin(a0)
+        ex, ey = cx + r * np.cos(a0 + sweep), cy + r * np.sin(a0 + sweep)
+        g = "G3" if sweep > 0 else "G2"
+        f = f"{{:.{dec}f}}".format
+        if use_r and 1e-3 < abs(sweep) < 2 * np.pi - 1e-3:
+            rr = r if abs(sweep) <= np.pi else -r
+            lines.append(f"{g} X{f(ex)} Y{f(ey)} R{f(rr)}")
+        else:
+            lines.append(f"{g} X{f(ex)} Y{f(ey)} I{f(cx - x)} J{f(cy - y)}")
+        x, y = float(f(ex)), float(f(ey))
+    _check("\n".join(lines) + "\n")
