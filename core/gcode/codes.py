@@ -22,10 +22,11 @@ _G_TOOL = {430: 43, 440: 44, 490: 49}
 _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10)}}
 #: feed mode: G93 inverse time, G94 per minute, G95 per revolution
 _G_FEED = {930: 93, 940: 94, 950: 95}
-#: codes whose axis words are not moves: G52 local shift (values), G53 machine coordinates, G28
+#: codes whose axis words are not moves: G92 (the current position gets these coordinates),
+#: G52 local shift (values), G53 machine coordinates, G28
 #: and G30 (via an intermediate point to a reference point), G50.1 (axes named to cancel
 #: mirroring); after G53/G28/G30 the axes named are at a place the program does not know
-_G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501}
+_G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501, 920: 92}
 _G_HARMLESS = {
     40: "dwell", 90: "exact stop (one block)", 150: "polar coordinates cancel",
     400: "cutter compensation cancel",
@@ -50,7 +51,6 @@ _G_REFUSED = {
     511: "G51.1 mirror image changes the commanded positions in the control",
     680: "G68 coordinate rotation changes the commanded positions in the control",
     682: "G68.2 tilted working plane transforms the axis words in the control",
-    920: "G92 sets the coordinate system from the program, which shifts later positions",
     650: "G65 macro call: the macro's motion is not straight-line code in this file",
     660: "G66 modal macro call: the macro's motion is not straight-line code in this file",
     960: "G96 constant surface speed depends on the commanded position",

@@ -285,6 +285,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     reset_lines = np.zeros(0, np.int64)
     reset_cols = np.zeros(0, np.int64)
     shift_l = None
+    g92_w = np.zeros(0, np.int64)
     if len(nm_w):
         code_w = nonmove_l[wline[nm_w]]
         rs_ = np.isin(code_w, (28, 30, 53))
@@ -297,12 +298,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                          + (": passed through uncompensated; the axes it names are unknown "
                             "until written again" if c in (28, 30, 53) else
                             ": its axis words are not moves" if c == 501 else
+                            ": the coordinates of the current position set (later positions "
+                            "shifted; unknown where the position is)" if c == 92 else
                             ": local shift applied to later positions"))
+        g92_w = nm_w[code_w == 92]
         g52 = nm_w[code_w == 52]
         if len(g52):
             shift_l = np.full((n_lines, n_ax), np.nan)
             shift_l[wline[g52], wcol[g52]] = value[g52] * np.where(inch_line[wline[g52]] &
                                                                   np.isin(wcol[g52], [k for k, a in enumerate(axes) if a in LINEAR]), INCH, 1.0)
+        wcol_all = wcol.copy()
         wcol = np.where((nonmove_l[wline] >= 0) & (wcol < n_ax), np.int8(-1), wcol)
     if shift_l is not None:
         for k in range(n_ax):
@@ -388,22 +393,35 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     start_vec[idle] = 0.0
     idle_axes = tuple(a for a, i in zip(axes, idle) if i)
     offset = offsets_line[blines] if offsets_line.any() else np.zeros((nblk, n_ax))
-    if len(reset_lines):
-        # rows of G28/G30/G53 lines join the blocks: an absolute "word" NaN for the axes named
-        ev = np.union1d(blines, reset_lines)
-        is_blk = np.isin(ev, blines)
-        rows_b = np.flatnonzero(is_blk)
-        vals_e = np.full((len(ev), n_ax), np.nan)
-        pres_e = np.zeros((len(ev), n_ax), bool)
-        incr_e = np.zeros(len(ev), bool)
-        off_e = np.zeros((len(ev), n_ax))
-        vals_e[rows_b], pres_e[rows_b] = vals[:, :n_ax], present
-        incr_e[rows_b], off_e[rows_b] = incremental, offset
-        r_ev = np.searchsorted(ev, reset_lines)
-        pres_e[r_ev, reset_cols] = True
-        position = _absolute(vals_e, pres_e, incr_e, off_e, start_vec)[rows_b]
-    else:
-        position = _absolute(vals[:, :n_ax], present, incremental, offset, start_vec)
+    position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present, incremental,
+                          offset, start_vec)
+    cancel92 = gline[np.isin(g10, (921, 922))]
+    if len(g92_w):
+        # G92 in program order: the current position (reference frame) gets the words'
+        # coordinates, which shifts every later absolute word; G92.1/.2 cancel
+        lin_ = np.array([a in LINEAR for a in axes])
+        events = sorted(set(wline[g92_w].tolist()) | set(cancel92.tolist()))
+        g92 = np.zeros(n_ax)
+        base_off = offsets_line.copy()
+        for L in events:
+            delta = np.zeros(n_ax)
+            if L in set(cancel92.tolist()):
+                offsets_line[L:] = base_off[L:]
+                g92 = np.zeros(n_ax)
+            else:
+                j = int(np.searchsorted(blines, L)) - 1
+                cur = position[j] if j >= 0 else start_vec
+                sel = g92_w[wline[g92_w] == L]
+                for w in sel:
+                    k = int(wcol_all[w])
+                    v = value[w] * (INCH if inch_line[L] and lin_[k] else 1.0)
+                    new92 = cur[k] - (offsets_line[L, k] - g92[k]) - v
+                    delta[k] = new92 - g92[k]
+                    g92[k] = new92
+            offsets_line[L:] += delta
+            offset = offsets_line[blines]
+            position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present,
+                                  incremental, offset, start_vec)
 
     cycle = cycle_line[blines]
     cyc_data = None
@@ -439,7 +457,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
                   arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
                   inch_g20_words=g20, inch_f_words=finch,
-                  axis_known=axis_known, start_known=start_known, offset=offset,
+                  axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
@@ -447,6 +465,24 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         a.flags.writeable = False
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+
+
+def _positions(blines, reset_lines, reset_cols, vals, present, incremental, offset, start_vec):
+    """Absolute positions of the blocks; the rows of G28/G30/G53 lines join them as absolute
+    "words" NaN for the axes they name (unknown until written again)."""
+    n_ax = present.shape[1]
+    if not len(reset_lines):
+        return _absolute(vals, present, incremental, offset, start_vec)
+    ev = np.union1d(blines, reset_lines)
+    rows_b = np.flatnonzero(np.isin(ev, blines))
+    vals_e = np.full((len(ev), n_ax), np.nan)
+    pres_e = np.zeros((len(ev), n_ax), bool)
+    incr_e = np.zeros(len(ev), bool)
+    off_e = np.zeros((len(ev), n_ax))
+    vals_e[rows_b], pres_e[rows_b] = vals, present
+    incr_e[rows_b], off_e[rows_b] = incremental, offset
+    pres_e[np.searchsorted(ev, reset_lines), reset_cols] = True
+    return _absolute(vals_e, pres_e, incr_e, off_e, start_vec)[rows_b]
 
 
 def _absolute(vals, present, incremental, offset, start_vec):
