@@ -161,7 +161,8 @@ def _three_axis_hint(machine, prog) -> str:
 def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = "<string>",
                        chordal_tol: float | None = None, start=None, unknown: str = "defer",
                        provenance: list | None = None, force: bool = False, progress=None,
-                       convert_inch: bool = False, tool_lengths=None, work_offsets=None):
+                       convert_inch: bool = False, tool_lengths=None, work_offsets=None,
+                       arc_tol: float | None = None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -185,7 +186,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
                        convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
-                       work_offsets=work_offsets)
+                       work_offsets=work_offsets, arc_tol=arc_tol)
     n_blocks = len(prog)
     _travel_check(machine, prog, filename)
     hint = _three_axis_hint(machine, prog)
@@ -221,7 +222,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     target = forward(machine, P)
     before = np.linalg.norm(forward(machine, P, errors).p - target.p, axis=1)
     after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start, resolution=res,
-                             tool_lengths=tool_lengths, work_offsets=work_offsets,
+                             tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
                              filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
     idx = np.searchsorted(after_prog.line, out_line[kn], side="right") - 1
@@ -255,6 +256,11 @@ def _cmd_compensate(args) -> int:
     if out.is_dir():
         raise InputError("the output is a directory; give a file name", str(out), field="-o")
     tol = None if args.chordal_tol is None else args.chordal_tol * 1e-3
+    arc_tol = None
+    if args.arc_tol is not None:
+        if not (math.isfinite(args.arc_tol) and args.arc_tol >= 0):
+            raise InputError(f"expected a finite number of µm >= 0, got {args.arc_tol}", field="--arc-tol")
+        arc_tol = args.arc_tol * 1e-3
     start = parse_start(args.start, machine)
     tools = parse_tool_lengths(args.tool_lengths)
     offsets = load_work_offsets(args.work_offsets, machine)
@@ -264,7 +270,9 @@ def _cmd_compensate(args) -> int:
     if offsets:
         options.append(f"work offsets {Path(args.work_offsets).name}")
     if tol is not None:
-        options.append(f"chordal-tol {args.chordal_tol:g} um")
+        options.append(f"chordal-tol {tol:g} mm")          # ASCII: controls read the comment
+    if arc_tol is not None:
+        options.append(f"arc-tol {arc_tol:g} mm")
     if start:
         options.append("start " + ",".join(f"{k}={v:g}" for k, v in start.items()))
     if args.force:
@@ -277,7 +285,7 @@ def _cmd_compensate(args) -> int:
     new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=tol,
                                        start=start, unknown=args.unknown, provenance=provenance,
                                        force=args.force, progress=Progress("compensating", args.progress),
-                                       tool_lengths=tools, work_offsets=offsets)
+                                       tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol)
     atomic_write(out, new_text)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
     if rep["deferred"]:
@@ -326,6 +334,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chordal-tol", type=float, default=None, metavar="UM",
                    help="chordal tolerance for linearised arcs in µm (default 0.1, at least twice "
                         "the linear axis resolution)")
+    p.add_argument("--arc-tol", type=float, default=None, metavar="UM",
+                   help="largest accepted difference of an arc's radius at its start and end, in "
+                        "µm (default 20, 50.8 in inch programs, as LinuxCNC); within it the arc is "
+                        "read as a spiral, as controls run it")
     p.add_argument("--start", metavar="X=..,Y=..",
                    help="axis positions before the first block (mm, deg), where known")
     p.add_argument("--unknown", choices=("defer", "refuse"), default="defer",

@@ -158,3 +158,17 @@ def test_tool_lengths_and_work_offsets_on_the_cli(tmp_path):
     r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out,
             "--work-offsets", wo, "--tool-lengths", "H1=abc")
     assert r.returncode == 2 and "--tool-lengths" in r.stderr
+
+
+def test_arc_tolerance_option(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G1 X10. Y0 Z0 F100\nG3 X0 Y10.05 I-10. J0\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0))), tmp_path / "e.toml")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out)
+    assert r.returncode == 2 and ":2: arc end point is not on the circle" in r.stderr
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--arc-tol", "60")
+    assert r.returncode == 0, r.stderr
+    assert "(OPTIONS unknown-start defer; arc-tol 0.06 mm)" in out.read_text()
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--arc-tol", "nan")
+    assert r.returncode == 2 and "--arc-tol" in r.stderr
