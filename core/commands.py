@@ -83,6 +83,59 @@ def parse_start(spec: str | None, machine) -> dict | None:
     return out
 
 
+def parse_tool_lengths(spec: str | None) -> dict | None:
+    """Tool lengths per H number (mm): ``1=50.2,2=75`` or a CSV file with lines ``H,length_mm``
+    (a header line and ``#`` comments allowed)."""
+    if spec is None:
+        return None
+    import os
+    items, where = [], "--tool-lengths"
+    if os.path.exists(spec):
+        from ._io import read_text
+        for n, ln in enumerate(read_text(spec, what="tool length table").splitlines(), start=1):
+            ln = ln.split("#")[0].strip()
+            if not ln or (n == 1 and not ln[0].isdigit()):
+                continue
+            items.append((ln.replace(";", ","), (spec, n)))
+    else:
+        items = [(part, (None, None)) for part in spec.split(",") if part.strip()]
+        items = [(it.replace("=", ","), w) for it, w in items]
+    out = {}
+    for text, (file, line) in items:
+        h, _, v = text.partition(",")
+        try:
+            hn, val = int(h.strip().lstrip("Hh")), float(v)
+        except ValueError:
+            hn, val = -1, math.nan
+        if hn < 0 or not math.isfinite(val):
+            raise InputError(f"expected H number and tool length in mm (1=50.2 or a CSV line 1,50.2), "
+                             f"got {text!r}", file, line, field=None if file else where)
+        out[hn] = val
+    return out
+
+
+def load_work_offsets(path: str | None, machine) -> dict | None:
+    """Work offsets from a TOML file: one table per offset (``[G54]``, ``["G54.1 P2"]``) with
+    axis letters -> mm/deg."""
+    if path is None:
+        return None
+    from ._io import load_toml
+    data = load_toml(path)
+    out = {}
+    for key, vec in data.items():
+        name = str(key).upper()
+        if not isinstance(vec, dict) or not re.fullmatch(r"G5[4-9]|G54\.1 ?P\d+", name):
+            raise InputError("expected tables named G54..G59 or \"G54.1 P<n>\" with axis letters",
+                             path, field=str(key))
+        for a, v in vec.items():
+            if a.upper() not in machine.axis_names or isinstance(v, bool) or not isinstance(v, (int, float)) \
+                    or not math.isfinite(v):
+                raise InputError(f"expected an axis of {machine.name} and a finite number", path,
+                                 field=f"{key}.{a}")
+        out[name] = {a.upper(): float(v) for a, v in vec.items()}
+    return out
+
+
 def _travel_check(machine, prog, filename):
     """Programmed positions outside an axis' travel: the control would refuse them too."""
     P = np.asarray(prog.position)
@@ -109,7 +162,8 @@ def _three_axis_hint(machine, prog) -> str:
 def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = "<string>",
                        chordal_tol: float | None = None, start=None, unknown: str = "defer",
                        provenance: list | None = None, force: bool = False, progress=None,
-                       convert_inch: bool = False):
+                       convert_inch: bool = False, tool_lengths=None, work_offsets=None,
+                       arc_tol: float | None = None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -132,7 +186,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                          "program, or --force", filename, done)
     res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
-                       convert_inch=convert_inch, resolution=res)
+                       convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
+                       work_offsets=work_offsets, arc_tol=arc_tol)
     n_blocks = len(prog)
     _travel_check(machine, prog, filename)
     hint = _three_axis_hint(machine, prog)
@@ -154,26 +209,30 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                 progress(min(s + CHUNK, len(q)), len(q))
         return out
 
+    info = {}
     new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
-                                                  unknown=unknown, row_lines=calls)
+                                                  unknown=unknown, row_lines=calls, info=info)
     added = 0
     if provenance is not None:
         new_text, at, added = insert_header(new_text, header_lines(provenance))
         out_line = np.where(out_line > at, out_line + added, out_line)
     # Check the result as the machine will run it: re-read the written program (rounded
     # numbers, linearised arcs) and put it through the forward model with the errors.
-    kn = np.asarray(prog.known)
+    kn = np.asarray(info["compensated"])
     P = np.asarray(prog.position)[kn]
     target = forward(machine, P)
     before = np.linalg.norm(forward(machine, P, errors).p - target.p, axis=1)
     after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start, resolution=res,
+                             tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
                              filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
-    idx = np.searchsorted(after_prog.line, out_line[kn])
+    idx = np.searchsorted(after_prog.line, out_line[kn], side="right") - 1
     after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
               "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
+              "notes": prog.notes, "linearised": info["linearised"],
+              "cycles_kept": info["cycles_kept"], "cycles_expanded": info["cycles_expanded"],
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after)}
     return new_text, report
@@ -198,10 +257,23 @@ def _cmd_compensate(args) -> int:
     if out.is_dir():
         raise InputError("the output is a directory; give a file name", str(out), field="-o")
     tol = None if args.chordal_tol is None else args.chordal_tol * 1e-3
+    arc_tol = None
+    if args.arc_tol is not None:
+        if not (math.isfinite(args.arc_tol) and args.arc_tol >= 0):
+            raise InputError(f"expected a finite number of µm >= 0, got {args.arc_tol}", field="--arc-tol")
+        arc_tol = args.arc_tol * 1e-3
     start = parse_start(args.start, machine)
+    tools = parse_tool_lengths(args.tool_lengths)
+    offsets = load_work_offsets(args.work_offsets, machine)
     options = [f"unknown-start {args.unknown}"]
+    if tools:
+        options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items()))
+    if offsets:
+        options.append(f"work offsets {Path(args.work_offsets).name}")
     if tol is not None:
-        options.append(f"chordal-tol {args.chordal_tol:g} um")
+        options.append(f"chordal-tol {tol:g} mm")          # ASCII: controls read the comment
+    if arc_tol is not None:
+        options.append(f"arc-tol {arc_tol:g} mm")
     if start:
         options.append("start " + ",".join(f"{k}={v:g}" for k, v in start.items()))
     if args.force:
@@ -213,7 +285,8 @@ def _cmd_compensate(args) -> int:
                   ("SOURCE", src.name), ("OPTIONS", "; ".join(options))]
     new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=tol,
                                        start=start, unknown=args.unknown, provenance=provenance,
-                                       force=args.force, progress=Progress("compensating", args.progress))
+                                       force=args.force, progress=Progress("compensating", args.progress),
+                                       tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol)
     atomic_write(out, new_text)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
     if rep["deferred"]:
@@ -221,6 +294,13 @@ def _cmd_compensate(args) -> int:
               "(give --start to compensate them)")
     if rep["idle_axes"]:
         print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}")
+    for note in rep["notes"]:
+        print(f"note: {note}")
+    if rep["linearised"]:
+        print(f"{rep['linearised']} arcs written as lines (chordal tolerance {rep['chordal_tol'] * 1e3:g} µm)")
+    if rep["cycles_kept"] or rep["cycles_expanded"]:
+        print(f"canned cycle holes: {rep['cycles_kept']} kept (rigid shift: positions and R/Z levels "
+              f"compensated), {rep['cycles_expanded']} written out as moves")
     print(f"tool-edge error before compensation: max {rep['before_max'] * 1e3:10.3f} µm   "
           f"RMS {rep['before_rms'] * 1e3:10.3f} µm")
     print(f"tool-edge error after  compensation: max {rep['after_max'] * 1e6:10.3f} nm   "
@@ -255,11 +335,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chordal-tol", type=positive_float, default=None, metavar="UM",
                    help="chordal tolerance for linearised arcs in µm (default 0.1, at least twice "
                         "the linear axis resolution)")
+    p.add_argument("--arc-tol", type=float, default=None, metavar="UM",
+                   help="largest accepted difference of an arc's radius at its start and end, in "
+                        "µm (default 20, 50.8 in inch programs, as LinuxCNC); within it the arc is "
+                        "read as a spiral, as controls run it")
     p.add_argument("--start", metavar="X=..,Y=..",
                    help="axis positions before the first block (mm, deg), where known")
     p.add_argument("--unknown", choices=("defer", "refuse"), default="defer",
                    help="blocks before every axis position is known: pass them uncompensated "
                         "(defer, default) or refuse the program naming the line")
+    p.add_argument("--tool-lengths", metavar="H=MM,..|CSV",
+                   help="tool lengths for G43/G44 H: 1=50.2,2=75 or a CSV file of lines H,length_mm "
+                        "(default: taken as 0 and noted)")
+    p.add_argument("--work-offsets", metavar="TOML",
+                   help="work offsets ([G54], [G55], [\"G54.1 P1\"] tables of axis = mm) for "
+                        "programs that switch between them")
     p.add_argument("--force", action="store_true",
                    help="compensate a program that mtcomp has already compensated")
     p.add_argument("--progress", action="store_true", default=None, help="show a progress bar")

@@ -398,7 +398,6 @@ REFUSALS = [
     ("G1 X1.\n\nG43.4 H1\n", 3, "G43.4"),
     ("G51 X0 Y0 P2\n", 1, "G51 scaling"),
     ("G10 L2 P1 X0\n", 1, None),
-    ("G92 X0 Y0\n", 1, "G92"),
     ("G41 D1 X1.\n", 1, None),
     ("G5.1 Q1\n", 1, "unknown"),
     ("G1 X1.\nG12 X2.\n", 2, "unknown G code G12"),

@@ -136,3 +136,39 @@ def test_start_option_on_the_cli(tmp_path):
     assert r.returncode == 2 and f"{prog}:1: position of Z not known" in r.stderr
     r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--start", "Q=1")
     assert r.returncode == 2 and "--start" in r.stderr
+
+
+def test_tool_lengths_and_work_offsets_on_the_cli(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text("G54 G90 G0 X0 Y0 Z-50.\nG43 H1 Z-100.\nG55 X0\nG81 X5. Y5. Z-101. R-98. F50\nG80\nM30\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0.001))), tmp_path / "e.toml")
+    wo = tmp_path / "wo.toml"
+    wo.write_text('[G54]\nX = 0.0\n[G55]\nX = 100.0\nY = -20.0\n')
+    tl = tmp_path / "tools.csv"
+    tl.write_text("H,length_mm\n1,80.5\n")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out)
+    assert r.returncode == 2 and "give the work offsets (G54, G55)" in r.stderr
+    for tools in (tl, "1=80.5"):
+        r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out,
+                "--work-offsets", wo, "--tool-lengths", tools)
+        assert r.returncode == 0, r.stderr
+        assert "canned cycle holes: 1 kept" in r.stdout
+        assert "(OPTIONS " in out.read_text() and "H1=80.5" in out.read_text()
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out,
+            "--work-offsets", wo, "--tool-lengths", "H1=abc")
+    assert r.returncode == 2 and "--tool-lengths" in r.stderr
+
+
+def test_arc_tolerance_option(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G1 X10. Y0 Z0 F100\nG3 X0 Y10.05 I-10. J0\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0))), tmp_path / "e.toml")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out)
+    assert r.returncode == 2 and ":2: arc end point is not on the circle" in r.stderr
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--arc-tol", "60")
+    assert r.returncode == 0, r.stderr
+    assert "(OPTIONS unknown-start defer; arc-tol 0.06 mm)" in out.read_text()
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--arc-tol", "nan")
+    assert r.returncode == 2 and "--arc-tol" in r.stderr

@@ -26,6 +26,7 @@ def interpret(text):
     axis or None where the program has not fixed it, motion, arc centre in the plane or None)."""
     pos = dict.fromkeys(AXES)
     mode, absolute, inch, plane, centre_abs = None, True, False, 17, False
+    cycle, retract, zinit, r_word, z_word = 0, 98, None, None, None
     blocks = []
     for n, raw in enumerate(text.split("\n"), start=1):
         line = raw.lstrip("\ufeff")
@@ -35,8 +36,16 @@ def interpret(text):
         words = [(w[0].upper(), float(w[1])) for w in _WORD.findall(line)]
         g = [v for a, v in words if a == "G"]
         for v in g:
+            if v in (73, 74, 76) or 81 <= v <= 89:
+                if not cycle:
+                    zinit = pos["Z"]
+                cycle = int(v)
+            elif v == 80:
+                cycle = 0
+            elif v in (98, 99):
+                retract = int(v)
             if v in (0, 1, 2, 3):
-                mode = int(v)
+                mode, cycle = int(v), 0
             elif v in (90, 91):
                 absolute = v == 90
             elif v in (20, 70):
@@ -58,6 +67,17 @@ def interpret(text):
         if not ax and not (arcw and mode in (2, 3)):
             continue
         s = 25.4 if inch else 1.0
+        if cycle:
+            # a hole: X Y as usual; Z is the depth, R the R level; the tool ends at the
+            # initial level (G98) or at R (G99)
+            r_word = arcw.get("R", r_word)
+            z_word = ax.pop("Z", z_word)
+            for a, v in ax.items():
+                pos[a] = v * s if absolute else (None if pos[a] is None else pos[a] + v * s)
+            r_lvl = r_word * s if absolute else (None if zinit is None else zinit + r_word * s)
+            pos["Z"] = zinit if retract == 98 else r_lvl
+            blocks.append((n, dict(pos), cycle, None))
+            continue
         start = dict(pos)
         for a, v in ax.items():
             if absolute:

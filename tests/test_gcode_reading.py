@@ -99,3 +99,9 @@ def test_resolution_not_a_power_of_ten_in_parse_and_rewrite():
     p = gcode.parse(text, axes=XYZ, resolution={"X": 5e-6, "Y": 5e-6})
     assert p.arc_sweep[1] == pytest.approx(-2 * np.pi)
     assert gcode.rewrite(p, lambda q: q.copy(), resolution={"X": 5e-6, "Y": 5e-6}) == text
+
+
+def test_spiral_ending_at_the_start_angle_is_refused():
+    # found by the fuzz test: a zero sweep read from an end point 0.01 mm outside the start
+    with pytest.raises(InputError, match=r":2: arc end point at the start angle"):
+        gcode.parse("G90 G1 X12. Y0 Z-1.\nG2 X12.01 Y0 Z-2. I-12. J0\n", axes=XYZ)

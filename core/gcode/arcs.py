@@ -120,6 +120,12 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
     a1 = np.arctan2(ev - cv, eu - cu)
     sweep = dirs * np.mod(dirs * (a1 - a0), 2 * np.pi)
     sweep = np.where(same & ~rfmt, dirs * 2 * np.pi, sweep)
+    bad = np.abs(sweep) * np.maximum(r0, r1) < np.maximum(resu, resv)
+    if bad.any():
+        j = int(np.argmax(bad))
+        _fail("arc end point at the start angle but not at the start point (a spiral of no or "
+              "a full turn): ambiguous, controls differ; write a full circle and a line",
+              blines[k[j]], filename)
     centre = np.empty((len(k), 3))
     centre[r_, iu] = cu
     centre[r_, iv] = cv

@@ -8,7 +8,7 @@ import numpy as np
 from .._io import InputError
 from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
-from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
+from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
                     _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
 from .program import Program, resolution_formats
 from .textops import parse_decimals
@@ -148,7 +148,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # 9 axis words that are not moves 10 feed mode
     cat = np.full(len(gi), -1, np.int64)
     tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
-              (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_HARMLESS, 6)]
+              (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_CYCLE, 11),
+              (_G_HARMLESS, 6)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
@@ -173,12 +174,17 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     known[[_ascii(c) for c in allowed]] = True
     badlet = ~known[wlet]
     if badlet.any():
+        # E is the tolerance of Haas G187 (smoothness), nowhere else
+        g187 = np.zeros(n_lines, bool)
+        g187[gline[g10 == 1870]] = True
+        badlet &= ~((wlet == _ascii("E")) & g187[wline])
+    if badlet.any():
         i = int(np.argmax(badlet))
         c = chr(65 + wlet[i])
         if c in CANONICAL:
             what = f"axis word {c} but the machine has axes {' '.join(axes)}"
         else:
-            what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P, " \
+            what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P H D Q, " \
                    f"axes {' '.join(axes)}, arc words I J K R)"
         _fail(what, wline[i], filename)
 
@@ -232,6 +238,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
     plane_line = _ffill(pla_l, pla_l >= 0, 17)
     mode_line = _ffill(mot_l, mot_l >= 0, -1)
+    # canned cycles: set by G73..G89, cancelled by G80 or a G0-G3 code (the G0/G1 mode from
+    # before the cycle then continues, as on Fanuc controls)
+    cyc_l, cyc_w = per_line(11, _G_CYCLE, "canned cycle")
+    both = (cyc_l >= 0) & (mot_l >= 0)
+    if both.any():
+        _fail("a motion code and a canned cycle in one block", int(np.argmax(both)), filename)
+    ev = np.full(n_lines, -1, np.int64)
+    ev[mot_l >= 0] = 0
+    ev[gline[g10 == 800]] = 0
+    ev[cyc_l >= 0] = cyc_l[cyc_l >= 0]
+    cycle_line = _ffill(ev, ev >= 0, 0)
+    rl = np.full(n_lines, -1, np.int64)
+    rl[gline[g10 == 980]] = 98
+    rl[gline[g10 == 990]] = 99
+    retract_line = _ffill(rl, rl >= 0, 98)
+    mode_line = np.where(cycle_line > 0, cycle_line, mode_line)
 
     # -- feed (modal), converted in inch blocks
     fi = np.flatnonzero(wlet == _ascii("F"))
@@ -248,20 +270,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         col_of_letter[_ascii(c)] = k
     wcol = col_of_letter[wlet]
     # X in a dwell block is the dwell time, not an axis
-    dwell_x = (wlet == _ascii("X")) & dwell_line[wline]
-    if dwell_x.any():
+    if dwell_line.any():
+        dwell_x = (wlet == _ascii("X")) & dwell_line[wline]
         wcol = np.where(dwell_x, np.int8(-1), wcol)
-    del dwell_x
+        del dwell_x
     # axis words of G28 G30 G52 G53 G50.1 are not moves; after G28 G30 G53 the axes they name
     # are somewhere the program does not say (machine coordinates, reference point)
-    nm_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & (nonmove_l[wline] >= 0))
-    g50_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & g50_line[wline])
+    any_nm = bool((nonmove_l >= 0).any())
+    nm_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & (nonmove_l[wline] >= 0)) if any_nm else []
+    g50_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax) & g50_line[wline]) if g50_line.any() else []
     if len(g50_w):
         _fail("G50 with axis words sets the coordinate system (lathe controls) or scaling: "
               "not supported", wline[g50_w[0]], filename)
     reset_lines = np.zeros(0, np.int64)
     reset_cols = np.zeros(0, np.int64)
     shift_l = None
+    g92_w = np.zeros(0, np.int64)
     if len(nm_w):
         code_w = nonmove_l[wline[nm_w]]
         rs_ = np.isin(code_w, (28, 30, 53))
@@ -274,20 +298,40 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                          + (": passed through uncompensated; the axes it names are unknown "
                             "until written again" if c in (28, 30, 53) else
                             ": its axis words are not moves" if c == 501 else
+                            ": the coordinates of the current position set (later positions "
+                            "shifted; unknown where the position is)" if c == 92 else
                             ": local shift applied to later positions"))
+        g92_w = nm_w[code_w == 92]
         g52 = nm_w[code_w == 52]
         if len(g52):
             shift_l = np.full((n_lines, n_ax), np.nan)
             shift_l[wline[g52], wcol[g52]] = value[g52] * np.where(inch_line[wline[g52]] &
                                                                   np.isin(wcol[g52], [k for k, a in enumerate(axes) if a in LINEAR]), INCH, 1.0)
+        wcol_all = wcol.copy()
         wcol = np.where((nonmove_l[wline] >= 0) & (wcol < n_ax), np.int8(-1), wcol)
     if shift_l is not None:
         for k in range(n_ax):
             col = shift_l[:, k]
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
+    # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
+    cyc_zw = np.full(n_lines, -1, np.int64)
+    cyc_rw = np.full(n_lines, -1, np.int64)
+    if (cycle_line > 0).any():
+        in_cyc = cycle_line[wline] > 0
+        if "Z" not in axes:
+            _fail("canned cycle on a machine without Z", int(np.argmax(cycle_line > 0)), filename)
+        zc = axes.index("Z")
+        zi = np.flatnonzero(in_cyc & (wcol == zc))
+        ri = np.flatnonzero(in_cyc & (wlet == _ascii("R")))
+        ki = np.flatnonzero(in_cyc & ((wlet == _ascii("K")) | (wlet == _ascii("L"))))
+        if len(ki):
+            _fail(f"repeat count {chr(65 + wlet[ki[0]])} in a canned cycle: not supported",
+                  wline[ki[0]], filename)
+        cyc_zw[wline[zi]], cyc_rw[wline[ri]] = zi, ri
+        wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
     axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
     arc_w = np.flatnonzero(wcol >= n_ax)
-    if len(axis_w):
+    if len(axis_w) and dwell_line.any():
         dw = dwell_line[wline[axis_w]]
         if dw.any():
             _fail("axis word in a G4 dwell block", wline[axis_w[np.argmax(dw)]], filename)
@@ -300,7 +344,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         if notarc.any():
             j = arc_w[np.argmax(notarc)]
             _fail(f"arc word {chr(65 + wlet[j])} outside G2/G3", wline[j], filename)
-    block = has_motion | (has_arcw & np.isin(mode_line, (2, 3)))
+    block = has_motion | (has_arcw & np.isin(mode_line, (2, 3))) | (cyc_zw >= 0) | (cyc_rw >= 0)
     if len(bd_lines):
         bdl = bd_lines[block[bd_lines] | (np.bincount(gline, minlength=n_lines)[bd_lines] > 0)]
         if len(bdl):
@@ -349,23 +393,44 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     start_vec[idle] = 0.0
     idle_axes = tuple(a for a, i in zip(axes, idle) if i)
     offset = offsets_line[blines] if offsets_line.any() else np.zeros((nblk, n_ax))
-    if len(reset_lines):
-        # rows of G28/G30/G53 lines join the blocks: an absolute "word" NaN for the axes named
-        ev = np.union1d(blines, reset_lines)
-        is_blk = np.isin(ev, blines)
-        rows_b = np.flatnonzero(is_blk)
-        vals_e = np.full((len(ev), n_ax), np.nan)
-        pres_e = np.zeros((len(ev), n_ax), bool)
-        incr_e = np.zeros(len(ev), bool)
-        off_e = np.zeros((len(ev), n_ax))
-        vals_e[rows_b], pres_e[rows_b] = vals[:, :n_ax], present
-        incr_e[rows_b], off_e[rows_b] = incremental, offset
-        r_ev = np.searchsorted(ev, reset_lines)
-        pres_e[r_ev, reset_cols] = True
-        position = _absolute(vals_e, pres_e, incr_e, off_e, start_vec)[rows_b]
-    else:
-        position = _absolute(vals[:, :n_ax], present, incremental, offset, start_vec)
+    position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present, incremental,
+                          offset, start_vec)
+    cancel92 = gline[np.isin(g10, (921, 922))]
+    if len(g92_w):
+        # G92 in program order: the current position (reference frame) gets the words'
+        # coordinates, which shifts every later absolute word; G92.1/.2 cancel
+        lin_ = np.array([a in LINEAR for a in axes])
+        events = sorted(set(wline[g92_w].tolist()) | set(cancel92.tolist()))
+        g92 = np.zeros(n_ax)
+        base_off = offsets_line.copy()
+        for L in events:
+            delta = np.zeros(n_ax)
+            if L in set(cancel92.tolist()):
+                offsets_line[L:] = base_off[L:]
+                g92 = np.zeros(n_ax)
+            else:
+                j = int(np.searchsorted(blines, L)) - 1
+                cur = position[j] if j >= 0 else start_vec
+                sel = g92_w[wline[g92_w] == L]
+                for w in sel:
+                    k = int(wcol_all[w])
+                    v = value[w] * (INCH if inch_line[L] and lin_[k] else 1.0)
+                    new92 = cur[k] - (offsets_line[L, k] - g92[k]) - v
+                    delta[k] = new92 - g92[k]
+                    g92[k] = new92
+            offsets_line[L:] += delta
+            offset = offsets_line[blines]
+            position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present,
+                                  incremental, offset, start_vec)
 
+    cycle = cycle_line[blines]
+    cyc_data = None
+    if (cycle > 0).any():
+        g80n = np.cumsum(np.isin(np.arange(n_lines), gline[g10 == 800]))[blines]
+        cut = np.r_[True, np.diff(g80n) > 0]          # a G80 between two blocks ends a run
+        position, cyc_data = _cycles(axes, blines, cycle, cut, retract_line[blines], cyc_zw[blines],
+                                     cyc_rw[blines], value, inch, incremental, vals[:, :n_ax],
+                                     present, offset, start_vec, position, filename)
     ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
     radius = vals[:, n_ax + 3].copy()
@@ -392,13 +457,32 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
                   arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
                   inch_g20_words=g20, inch_f_words=finch,
-                  axis_known=axis_known, start_known=start_known, offset=offset,
-                  ijk_absolute=ijk_absolute, inverse_time=inverse_time,
+                  axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
+                  ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
+                  cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
     for a in arrays.values():
         a.flags.writeable = False
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+
+
+def _positions(blines, reset_lines, reset_cols, vals, present, incremental, offset, start_vec):
+    """Absolute positions of the blocks; the rows of G28/G30/G53 lines join them as absolute
+    "words" NaN for the axes they name (unknown until written again)."""
+    n_ax = present.shape[1]
+    if not len(reset_lines):
+        return _absolute(vals, present, incremental, offset, start_vec)
+    ev = np.union1d(blines, reset_lines)
+    rows_b = np.flatnonzero(np.isin(ev, blines))
+    vals_e = np.full((len(ev), n_ax), np.nan)
+    pres_e = np.zeros((len(ev), n_ax), bool)
+    incr_e = np.zeros(len(ev), bool)
+    off_e = np.zeros((len(ev), n_ax))
+    vals_e[rows_b], pres_e[rows_b] = vals, present
+    incr_e[rows_b], off_e[rows_b] = incremental, offset
+    pres_e[np.searchsorted(ev, reset_lines), reset_cols] = True
+    return _absolute(vals_e, pres_e, incr_e, off_e, start_vec)[rows_b]
 
 
 def _absolute(vals, present, incremental, offset, start_vec):
@@ -407,19 +491,69 @@ def _absolute(vals, present, incremental, offset, start_vec):
     not written stays.  An absolute NaN makes the axis unknown until its next absolute word."""
     n, n_ax = present.shape
     position = np.empty((n, n_ax))
+    rows = np.arange(n)
+    use_off = bool(offset.any())
     for k in range(n_ax):
         pres = present[:, k]
-        v = np.where(pres, vals[:, k], 0.0)
-        isabs = pres & ~incremental
+        v = vals[:, k]
         inc = np.where(pres & incremental, v, 0.0)
         cum = np.cumsum(inc)
-        a = v + offset[:, k]
-        idx = np.where(isabs | (pres & np.isnan(vals[:, k])), np.arange(n), -1)
+        idx = np.where(pres & ~incremental, rows, -1)
         np.maximum.accumulate(idx, out=idx)
         i0 = np.maximum(idx, 0)
-        base = np.where(idx >= 0, np.where(np.isnan(vals[i0, k]), np.nan, a[i0]) - cum[i0], start_vec[k])
-        position[:, k] = base + cum
+        a = v[i0] - cum[i0]
+        if use_off:
+            a += offset[i0, k]
+        position[:, k] = np.where(idx >= 0, a, start_vec[k]) + cum
     return position
+
+
+def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental, vals, present, offset,
+            start_vec, position, filename):
+    """Canned cycle blocks: per block the initial level, R level and depth (reference frame,
+    mm; NaN where unknown) and the block's end Z (initial level for G98, R level for G99).
+    Runs of holes are taken in order, since each run's initial level is where the last left Z.
+    Returns (positions with the cycles' end Z, (N, 7) array: initial, R, depth, R word, Z word,
+    retract, first block of the run)."""
+    zk = axes.index("Z")
+    n = len(blines)
+    data = np.full((n, 7), np.nan)
+    cb = np.flatnonzero(cycle > 0)
+    starts = cb[(cb == 0) | (cycle[np.maximum(cb - 1, 0)] == 0) | cut[cb]]
+    scale = np.where(inch, 25.4, 1.0)
+    zvals = np.where(present[:, zk], vals[:, zk], np.nan)
+    zpres = present[:, zk].copy()
+    zinc = incremental.copy()
+    for s in starts:
+        e = s
+        while e + 1 < n and cycle[e + 1] > 0 and not cut[e + 1]:
+            e += 1
+        zinit = position[s - 1, zk] if s > 0 else start_vec[zk]
+        r_word = z_word = np.nan
+        for j in range(s, e + 1):
+            if rw[j] >= 0:
+                r_word = value[rw[j]] * scale[j]
+            if zw[j] >= 0:
+                z_word = value[zw[j]] * scale[j]
+            if np.isnan(r_word) or np.isnan(z_word):
+                _fail(f"canned cycle G{cycle[j]} without {'an R level' if np.isnan(r_word) else 'a depth Z'}",
+                      blines[j], filename)
+            if incremental[j]:                     # R from the initial level, Z from R
+                r_lvl = zinit + r_word
+                depth = r_lvl + z_word
+            else:
+                r_lvl = r_word + offset[j, zk]
+                depth = z_word + offset[j, zk]
+            end = zinit if retract[j] == 98 else r_lvl
+            data[j] = (zinit, r_lvl, depth, r_word, z_word, retract[j], s)
+            # the block's Z: an absolute "word" at its end level (NaN stays unknown)
+            zvals[j] = end - offset[j, zk]
+            zpres[j] = True
+            zinc[j] = False
+        col = _absolute(zvals[:, None], zpres[:, None], zinc, offset[:, zk:zk + 1],
+                        start_vec[zk:zk + 1])[:, 0]
+        position[:, zk] = col
+    return position, data
 
 
 def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_lines, filename,

@@ -63,6 +63,10 @@ class Program:
     offset: np.ndarray               # (N, n_axes) program coordinates -> reference frame
     ijk_absolute: np.ndarray         # (N,) G90.1: I J K are the arc centre
     inverse_time: np.ndarray         # (N,) G93: F is an inverse time
+    cycle: np.ndarray                # (N,) canned cycle code (73..89), 0 for other blocks
+    cycle_data: np.ndarray           # (N, 7) cycles: initial level, R level, depth (mm,
+                                     # reference frame), R and Z word values, G98/G99, first
+                                     # block of the run
     idle_axes: tuple = ()
     arc_tol: float = 0.02            # mm: accepted radius difference (start/end) of arcs
     notes: tuple = ()                # what was read with an assumption or passed uncompensated

@@ -123,7 +123,7 @@ class _Ctx:
 
 def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
             resolution=None, chordal_tol: float = 1e-4, progress=None, unknown: str = "defer",
-            row_lines: list | None = None) -> str:
+            row_lines: list | None = None, info: dict | None = None) -> str:
     """Rewrite the program's axis words for new commanded positions.
 
     ``transform(q)`` maps absolute commanded positions (M, n_axes) in mm/deg to new ones.  It is
@@ -143,7 +143,7 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
     linearisation) stays byte for byte; see docs/gcode.md.
     """
     return rewrite_with_lines(program, transform, resolution=resolution, chordal_tol=chordal_tol,
-                              progress=progress, unknown=unknown, row_lines=row_lines)[0]
+                              progress=progress, unknown=unknown, row_lines=row_lines, info=info)[0]
 
 
 def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
@@ -187,10 +187,13 @@ def _unknown_axes(program: Program, k: int) -> str:
 
 def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                        resolution=None, chordal_tol: float = 1e-4, progress=None,
-                       unknown: str = "defer", row_lines: list | None = None):
+                       unknown: str = "defer", row_lines: list | None = None,
+                       info: dict | None = None):
     """`rewrite`, also returning for every motion block the 1-based line of the output where
     the block ends (after a linearised arc: its last segment line), so that the output can be
-    compared block by block with the input."""
+    compared block by block with the input.  ``info``, if a dict, receives what was done:
+    ``deferred`` blocks, ``linearised`` arcs, canned cycle holes ``cycles_kept`` and
+    ``cycles_expanded``."""
     axes = program.axes
     n_ax = len(axes)
     if unknown not in ("defer", "refuse"):
@@ -218,6 +221,16 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                          "program has not written it yet): state the start position or let "
                          "such blocks pass uncompensated", program.filename, int(line[j]))
     kprev = np.concatenate([[bool(np.all(program.start_known))], kn[:-1]])
+    cyc = np.asarray(program.cycle)
+    if cyc.any():
+        # a cycle run starting where the pose is not yet known is left as it is: its initial
+        # level (the G98 return, the first hole's arrival) was set uncompensated
+        cb0 = np.flatnonzero(cyc > 0)
+        first = np.asarray(program.cycle_data)[cb0, 6].astype(np.int64)
+        late = ~kprev[first]
+        if late.any():
+            kn = kn.copy()
+            kn[cb0[late]] = False
     ak = np.flatnonzero(program.is_arc & kn)
     first_arc = ak[~kprev[ak]]
     if len(first_arc):
@@ -230,29 +243,45 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     if geo is not None:
         lin_res = max(res[geo.u.max()], res[geo.v.max()], res[geo.u.min()], res[geo.v.min()])
         if chordal_tol < 2 * lin_res:
-            raise ValueError(f"chordal_tol {chordal_tol} mm is below twice the axis resolution")
+            raise InputError(f"chordal tolerance {chordal_tol * 1e3:g} µm is below twice the axis "
+                             f"resolution ({lin_res * 1e3:g} µm): arcs could not be written within it",
+                             program.filename, field="chordal_tol")
     samp = _arc_samples(geo) if geo is not None else np.zeros((0, n_ax))
     kk = np.flatnonzero(kn)
     nk = len(kk)
-    Q = np.vstack([P[kk], samp])
+    cb, cyc_pts = _cycle_points(program, kn)
+    Q = np.vstack([P[kk], samp, cyc_pts])
     if row_lines is not None:
         row_lines.append(np.concatenate([line[kk], np.repeat(line[ak], 4 * _n_samples(geo) - 1)
-                                         if geo is not None else np.zeros(0, np.int64)]))
+                                         if geo is not None else np.zeros(0, np.int64),
+                                         np.repeat(line[cb], 3)]))
+    ns = len(samp)
     del samp
     Qt = _call_transform(transform, Q) if len(Q) else Q
+    St = Qt[nk:nk + ns].copy()                                    # arc samples
+    cyc_delta = np.rint((Qt[nk + ns:] - Q[nk + ns:]) / res)     # cycle points: A, R, bottom
     del Q
-    St = Qt[nk:].copy()                                           # arc samples
     # new position = where the control reads the program + the rounded correction, so that a
     # transform that changes nothing changes no count (G91 increments finer than the resolution
     # included); rows not known stay where the program puts them
     off = np.asarray(program.offset)
     offc = np.rint(off / res).astype(np.int64) if off.any() else None
     Cc = _control_counts(program, res, offc)
-    Cc[1 + kk] += np.rint((Qt[:nk] - P[kk]) / res)
+    dK = np.rint((Qt[:nk] - P[kk]) / res)
+    Cc[1 + kk] += dK
     del Qt
     C = np.nan_to_num(Cc, nan=0.0).astype(np.int64)
     del Cc
     prev, new = C[:N], C[1:]
+    no_z = np.zeros(N, bool)
+    kn_edit = kn
+    if len(cb):
+        no_z[cb] = True                           # a cycle's Z word is its depth
+        dE = dK[np.searchsorted(kk, cb)].astype(np.int64)
+        expanded = _cycle_edits(ctx, program, cb, cyc_delta, dE, new, res, fm,
+                                inc_=np.asarray(program.incremental))
+        kn_edit = kn.copy()
+        kn_edit[expanded] = False                 # written out as new lines instead
 
     keep = np.ones(len(ak), bool)
     arc_cols = None
@@ -294,8 +323,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
             ov = ov * INCH
         oc = np.rint(ov / res[k]).astype(np.int64)
         differs = target != oc
-        _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn),
-                      np.flatnonzero(~pres & (v != pv) & kn), target)
+        _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn_edit),
+                      np.flatnonzero(~pres & (v != pv) & kn_edit & ~(no_z & (a == "Z"))), target)
 
     if arc_cols is not None:
         a_rep, a_ins, a_counts, a_fmt = arc_cols
@@ -311,6 +340,10 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         _linearise_edits(ctx, lin, seg, new, d_ax, m_ax, chordal_tol, offc)
     _restore_modal_arcs(ctx, lin)
 
+    if info is not None:
+        rep = getattr(ctx, "cycle_report", {"kept": 0, "expanded": 0})
+        info.update(deferred=int(N - kn.sum()), linearised=int(len(lin)), compensated=kn,
+                    cycles_kept=rep["kept"], cycles_expanded=rep["expanded"])
     ed = ctx.edits
     text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
     added = np.zeros(N, np.int64)
@@ -498,3 +531,191 @@ def _restore_modal_arcs(ctx, lin):
             if sel.any():
                 off, ln = ctx.edits.const(f"{ctx.letter('G')}{g}{' ' if s else ''}".encode())
                 ctx.edits.add(body[rows[sel]], body[rows[sel]], _SUB_G, off, ln)
+
+
+# ---------------------------------------------------------------------------------------------
+# canned cycles
+
+#: cycles that can be written out as moves: (feed out instead of rapid, dwell at the bottom)
+_EXPANDABLE = {81: (False, False), 82: (False, True), 85: (True, False), 89: (True, True)}
+
+
+def _cycle_points(program: Program, kn):
+    """Known cycle blocks and their points to transform: the hole at the level the tool
+    arrives at (A), the R level and the bottom, 3 rows per block."""
+    cyc = np.asarray(program.cycle)
+    cb = np.flatnonzero((cyc > 0) & kn)
+    n_ax = program.n_axes
+    if not len(cb):
+        return cb, np.zeros((0, n_ax))
+    zk = program.axes.index("Z")
+    P = np.asarray(program.position)
+    data = np.asarray(program.cycle_data)
+    pts = np.repeat(P[cb], 3, axis=0)
+    za = np.where(cb > 0, P[np.maximum(cb - 1, 0), zk], data[cb, 0])
+    za = np.where(np.isfinite(za) & kn[np.maximum(cb - 1, 0)], za, data[cb, 1])
+    pts[0::3, zk] = za
+    pts[1::3, zk] = data[cb, 1]
+    pts[2::3, zk] = data[cb, 2]
+    return cb, pts
+
+
+def _cycle_edits(ctx, program, cb, delta, dE, new, res, fm, inc_):
+    """Canned cycles under the transform.  Where the correction is the same at the hole's
+    levels (a rigid shift there) the cycle stays: X Y as for any block, R and the depth Z shifted
+    by the correction (G90) or kept (G91, relative).  Elsewhere the holes of the run are written
+    out as moves (G81 G82 G85 G89) or refused (tapping, boring, peck cycles).  What was done is
+    recorded in ``ctx.cycle_report``."""
+    p = ctx.p
+    zk = p.axes.index("Z")
+    data = np.asarray(p.cycle_data)
+    cyc = np.asarray(p.cycle)
+    d = delta.reshape(len(cb), 3, -1)
+    rigid = np.all(d == dE[:, None, :], axis=(1, 2))
+    # runs: consecutive cycle blocks (G80 or another block ends a run)
+    run_id = np.cumsum(np.r_[True, (np.diff(cb) > 1) | (data[cb[1:], 0] != data[cb[:-1], 0])])
+    report = ctx.cycle_report = {"kept": 0, "expanded": 0}
+    expanded = []
+    letter_z, letter_r = ctx.letter("Z").encode(), ctx.letter("R").encode()
+    dz, mz = fm["Z"]
+    for r in np.unique(run_id):
+        sel = np.flatnonzero(run_id == r)
+        rows = cb[sel]
+        if rigid[sel].all():
+            report["kept"] += len(rows)
+            _cycle_shift(ctx, p, rows, dE[sel, zk], res[zk], (dz, mz), letter_z, letter_r, inc_)
+            continue
+        code = int(cyc[rows[0]])
+        if any(int(cyc[k]) not in _EXPANDABLE for k in rows):
+            bad = next(k for k in rows if int(cyc[k]) not in _EXPANDABLE)
+            raise InputError(f"canned cycle G{int(cyc[bad])}: the correction is not the same at the "
+                             "hole's levels (not a rigid shift), and this cycle (tapping, boring or "
+                             "pecking) cannot be written out as moves without the control's "
+                             "parameters", p.filename, int(p.line[bad]))
+        report["expanded"] += len(rows)
+        expanded.extend(rows.tolist())
+        _cycle_expand(ctx, p, rows, sel, d, new, res, fm, code)
+    return np.asarray(expanded, np.int64)
+
+
+def _cycle_shift(ctx, p, rows, dzc, rz, fmt, letter_z, letter_r, inc_):
+    """Rigid case: R and depth words shifted by the Z correction in G90 (inserted where the
+    block relies on the modal value and the correction changed)."""
+    wv = np.asarray(p.w_value)
+    data = np.asarray(p.cycle_data)
+    cz, cr = _cycle_words(p, rows)
+    scale = 25.4 if np.asarray(p.inch).any() else 1.0
+    modal = {}
+    _, last_end, _ = ctx.anchors
+    for i, k in enumerate(rows):
+        for w, col, letter, val in ((cr[i], 3, letter_r, data[k, 3]), (cz[i], 4, letter_z, data[k, 4])):
+            # G90: shifted by the correction; G91 (relative to the initial or R level): as written
+            want = int(np.rint(val / rz) + (0 if inc_[k] else dzc[i]))
+            if w >= 0:
+                if want != int(np.rint(wv[w] * scale / rz)):
+                    _replace_number(ctx, w, want, fmt)
+            elif modal.get(col, int(np.rint(val / rz))) != want:
+                # the modal value in the control: the last one written in this run, or the
+                # program's own where it came from a block left as it was
+                _insert_text(ctx, last_end[k], b" " + letter + _number(want, fmt))
+            modal[col] = want
+
+
+def _cycle_words(p, rows):
+    """Word indices of the cycle's Z (depth) and R words per block (-1 where absent)."""
+    wl, wlet = np.asarray(p.w_line), np.asarray(p.w_letter)
+    lines = np.asarray(p.line)[rows] - 1
+    out_z, out_r = np.full(len(rows), -1), np.full(len(rows), -1)
+    for i, ln in enumerate(lines):
+        lo, hi = np.searchsorted(wl, ln), np.searchsorted(wl, ln, side="right")
+        for w in range(lo, hi):
+            if wlet[w] == 25:
+                out_z[i] = w
+            elif wlet[w] == 17:
+                out_r[i] = w
+    return out_z, out_r
+
+
+def _number(count: int, fmt) -> bytes:
+    d, m = fmt
+    buf, off, ln = format_counts(np.array([count * m]), d)
+    return buf[off[0]:off[0] + ln[0]].tobytes()
+
+
+def _replace_number(ctx, w, count, fmt):
+    t = _number(count, fmt)
+    off, ln = ctx.edits.const(t)
+    ctx.edits.add([int(ctx.p.w_num[w])], [int(ctx.p.w_end[w])], _SUB_REPLACE, off, ln)
+
+
+def _insert_text(ctx, pos, text: bytes, sub=_SUB_COMMENT - 1):
+    off, ln = ctx.edits.const(text)
+    ctx.edits.add([int(pos)], [int(pos)], sub, off, ln)
+
+
+def _cycle_expand(ctx, p, rows, sel, d, new, res, fm, code):
+    """Write the holes of a run out as moves: the cycle's words come out of each block, and
+    after it lines G0 to the hole, G0 to R, G1 to the bottom (G4 dwell), out to R (G0, or G1
+    for G85 G89) and, for G98, G0 to the initial level; all compensated points."""
+    P = np.asarray(p.position)
+    data = np.asarray(p.cycle_data)
+    wl, wlet = np.asarray(p.w_line), np.asarray(p.w_letter)
+    wv = np.asarray(p.w_value)
+    axes = p.axes
+    zk = axes.index("Z")
+    n_ax = len(axes)
+    spaced = ctx.spaced
+    _, last_end, _ = ctx.anchors
+    line_start, line_end = np.asarray(p.line_start), np.asarray(p.line_end)
+    data_b = ctx.data
+    inch = 25.4 if np.asarray(p.inch).any() else 1.0
+    feed = np.asarray(p.feed)
+    pre_mode = int(np.asarray(p.motion)[rows[0] - 1]) if rows[0] > 0 else -1
+    for i, k in enumerate(rows):
+        ln = int(p.line[k]) - 1
+        lo, hi = np.searchsorted(wl, ln), np.searchsorted(wl, ln, side="right")
+        dwell = b""
+        for w in range(lo, hi):
+            c = chr(65 + int(wlet[w]))
+            gcyc = c == "G" and int(round(wv[w] * 10)) in range(730, 900)
+            if c in "XYZRPF" or c in axes or gcyc:
+                if c == "P":
+                    dwell = bytes(data_b[p.w_pos[w]:p.w_end[w]])
+                s0 = int(p.w_pos[w])
+                if s0 - 1 >= line_start[ln] and data_b[s0 - 1] in (32, 9):
+                    s0 -= 1
+                ctx.edits.add([s0], [int(p.w_end[w])], _SUB_REPLACE, 0, 0)
+        sp = " " if spaced[k] else ""
+        j = sel[i]
+        pts = np.repeat(P[k][None], 3, axis=0)
+        pts[:, zk] = [P[k - 1, zk] if k > 0 and np.isfinite(P[k - 1, zk]) else data[k, 1], data[k, 1], data[k, 2]]
+        cnt = np.rint(pts / res).astype(np.int64) + d[j].astype(np.int64)
+        end = new[k]
+        feed_out, has_dwell = _EXPANDABLE[int(p.cycle[k])]
+
+        def words(c):
+            return sp.join(ctx.letter(axes[a]) + _number(int(c[a]), fm[axes[a]]).decode()
+                           for a in range(n_ax))
+        g = lambda n: ctx.letter("G") + str(n)  # noqa: E731
+        f = f"{sp}{ctx.letter('F')}{feed[k] / inch:g}" if np.isfinite(feed[k]) else ""
+        out = [f"{g(90)}{sp}{g(0)}{sp}{words(cnt[0])}", f"{g(0)}{sp}{words(cnt[1])}",
+               f"{g(1)}{sp}{words(cnt[2])}{f}"]
+        if has_dwell and dwell:
+            out.append(f"{g(4)}{sp}{dwell.decode()}")
+        out.append(f"{g(1 if feed_out else 0)}{sp}{words(cnt[1])}")
+        if data[k, 5] == 98:
+            out.append(f"{g(0)}{sp}{words(end)}")
+        if np.asarray(p.incremental)[k]:
+            out.append(g(91))
+        if i == len(rows) - 1 and pre_mode in (0, 1):
+            out.append(g(pre_mode))
+        if i == 0:
+            _insert_text(ctx, last_end[k], f"{sp}(G{code} WRITTEN OUT AS MOVES: THE CORRECTION IS NOT "
+                         "A RIGID SHIFT AT THE HOLES)".encode())
+        le = int(line_end[ln])
+        eol = "\n"
+        if le > line_start[ln] and data_b[le - 1] == 13:
+            le -= 1
+            eol = "\r\n"
+        _insert_text(ctx, le, "".join(eol + o for o in out).encode(), sub=_SUB_LINES)
+        ctx.added_lines[k] = ctx.added_lines.get(k, 0) + len(out)
