@@ -138,6 +138,7 @@ void mtk_free(mtk_model *m)
             free(m->table[i]);
         }
     }
+    free(m->cache);
     free(m);
 }
 
@@ -1135,12 +1136,30 @@ static void make_target(const prep_t *Pi, const double *q, target_t *tg)
     mat_vec(tg->R, Pi->m->tool_axis, tg->v);
 }
 
+/* mtk_retarget's state per model: the prepared error set and the path's last correction. */
+typedef struct {
+    int valid;
+    mtk_errors e;
+    mtk_table *tables[MTK_MAX_AXES];
+    prep_t P, Pr, Pi;
+    int have_prev, warm;
+    double corr[MTK_MAX_AXES];
+} retarget_cache;
+
+static int same_errors(const mtk_errors *a, const mtk_errors *b)
+{
+    return !memcmp(a->tool, b->tool, sizeof a->tool) && !memcmp(a->wp_t, b->wp_t, sizeof a->wp_t) &&
+           !memcmp(a->wp_a, b->wp_a, sizeof a->wp_a) && !memcmp(a->loc, b->loc, sizeof a->loc) &&
+           a->use_tables == b->use_tables;
+}
+
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual_out, char *err)
 {
-    int n = m->n_axes, i, it = 0, rc, bad = -1, held, singular = 0;
+    int n = m->n_axes, i, k, it = 0, rc, bad = -1, held, singular = 0;
     double res = 0.0, res0 = 0.0;
     char msg[MTK_ERRLEN];
+    retarget_cache local, *c = (retarget_cache *)m->cache;
     if (iters) *iters = 0;
     if (residual_out) *residual_out = 0.0;
     for (i = 0; i < n; i++) {
@@ -1152,41 +1171,65 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
     }
     if (!e || errors_zero(m, e)) {
         memcpy(q, q_prog, n * sizeof(double));
-    } else {
-        prep_t P, Pr, Pi;
-        mtk_errors rigid;
-        target_t tg;
-        opt_t o;
-        prepare(m, e, 1, &P);
-        if (!(P.closed && closed_form(&P, q_prog, q))) {
-            rigid_errors(e, &rigid);
-            prepare(m, &rigid, 0, &Pr);
-            prepare(m, NULL, 0, &Pi);
-            make_target(&Pi, q_prog, &tg);
-            o.tol = tol;
-            o.max_iter = max_iter;
-            o.pole_tol = MTK_POLE_TOL;
-            int how;
-            rc = solve_pose(&P, &Pr, &tg, q_prog, q_prog, 0, &o, q, &it, &res, &res0, &singular, &bad, &held, &how);
-            if (iters) *iters = it;
-            if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
-            if (rc == MTK_E_RANGE) {
-                range_message(m, bad, q[bad], err);
-                return rc;
-            }
-            if (rc == MTK_E_CONVERGE) {
-                if (singular && res0 == INFINITY)
-                    snprintf(msg, sizeof msg, "compensation did not converge: singular Jacobian (kinematic "
-                             "singularity)");
-                else
-                    snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may "
-                             "be unreachable or at a kinematic singularity", res0);
-                seterr(err, msg);
-                return rc;
-            }
-            if (rc) return rc;
+        goto limits;
+    }
+    if (!c) {
+        c = (retarget_cache *)calloc(1, sizeof *c);
+        ((mtk_model *)m)->cache = c;       /* the model's own scratch state */
+        if (!c) {
+            memset(&local, 0, sizeof local);
+            c = &local;
         }
     }
+    if (!c->valid || !same_errors(&c->e, e) || memcmp(c->tables, m->table, sizeof c->tables)) {
+        mtk_errors rigid;
+        c->e = *e;
+        memcpy(c->tables, m->table, sizeof c->tables);
+        prepare(m, e, 1, &c->P);
+        rigid_errors(e, &rigid);
+        prepare(m, &rigid, 0, &c->Pr);
+        prepare(m, NULL, 0, &c->Pi);
+        c->have_prev = 0;
+        c->valid = 1;
+    }
+    if (!(c->P.closed && closed_form(&c->P, q_prog, q))) {
+        target_t tg;
+        opt_t o;
+        double start[MTK_MAX_AXES];
+        int how = HOW_SEED;
+        make_target(&c->Pi, q_prog, &tg);
+        o.tol = tol;
+        o.max_iter = max_iter;
+        o.pole_tol = MTK_POLE_TOL;
+        memcpy(start, q_prog, n * sizeof(double));
+        if (c->have_prev)
+            for (k = 0; k < n; k++) start[k] += c->corr[k];
+        rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, &o, q, &it, &res, &res0,
+                        &singular, &bad, &held, &how);
+        if (iters) *iters = it;
+        if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
+        c->have_prev = rc == MTK_OK;
+        if (rc == MTK_OK) {
+            for (k = 0; k < n; k++) c->corr[k] = q[k] - q_prog[k];
+            c->warm = how != HOW_SEED;
+        }
+        if (rc == MTK_E_RANGE) {
+            range_message(m, bad, q[bad], err);
+            return rc;
+        }
+        if (rc == MTK_E_CONVERGE) {
+            if (singular && res0 == INFINITY)
+                snprintf(msg, sizeof msg, "compensation did not converge: singular Jacobian (kinematic "
+                         "singularity)");
+            else
+                snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may "
+                         "be unreachable or at a kinematic singularity", res0);
+            seterr(err, msg);
+            return rc;
+        }
+        if (rc) return rc;
+    }
+limits:
     i = limits(m, q);
     if (i >= 0) {
         snprintf(msg, sizeof msg, "axis %c would have to move to %.6f, outside its travel [%g, %g]",

@@ -36,6 +36,8 @@ typedef struct {
     double tool_point[3];
     double tool_axis[3];
     mtk_table *table[MTK_MAX_AXES];   /* NULL: no component errors for that axis */
+    void *cache;                      /* mtk_retarget's prepared error set and last correction
+                                       * (one caller per model at a time; freed by mtk_free) */
 } mtk_model;
 
 /* Setting and location errors: the parameters of an FMU, may change between calls. */
@@ -62,9 +64,12 @@ int mtk_axis_index(const mtk_model *m, char axis_name);
 int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double R[9], char *err);
 
 /* Commands q (n_axes) that put the real tool edge at the ideal pose of q_prog under the errors e
- * (mtcomp.kinematics.retarget with check=True).  max_iter bounds each attempt (the one from
+ * (mtcomp.kinematics.retarget with check=True).  Successive calls are taken as a path: each
+ * starts from the previous call's correction (warm start) while the errors stay the same; the
+ * constants of the error set are prepared once.  max_iter bounds each attempt (the one from
  * q_prog and every restart); iters receives the iterations of all attempts together, residual
- * the largest residual component (mm; orientation scaled by 100 mm/rad).  Both may be NULL. */
+ * the largest residual component (mm; orientation scaled by 100 mm/rad; with a pole axis held:
+ * position only).  Both may be NULL. */
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual, char *err);
 
