@@ -183,3 +183,21 @@ def test_a_fresh_install_with_gcc_builds_the_kernel(tmp_path):
                           "--target", str(tmp_path / "site"), str(root)], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     assert (tmp_path / "site" / "mtcomp" / _kernel.library_name(_kernel.source_hash())).is_file()
+
+
+def test_batches_split_over_the_cores_give_the_sequential_result(monkeypatch):
+    """Long batches run in chunks on threads; each chunk takes up the path from RUN_IN poses
+    before its start, so the result is the sequential one (here across a pole region)."""
+    m = load_machine("robonano-a0ib")
+    E = ErrorSet(ToolSetting((0.1, -0.05, 0.2)), WorkpieceSetting((0.01, 0.02, 0.0), (0.02, -0.01, 0.3)))
+    n = _kernel.PARALLEL_MIN + 5000
+    q = _tilted_blank_program(n)
+    q[:, 1] = np.where(np.arange(n) % 7000 < 3500, 0.0, 15.0)  # B = 0 (pole) and tilted stretches
+    monkeypatch.setenv("MTCOMP_THREADS", "1")
+    seq = retarget(m, q, E, backend="c")
+    fwd_seq = forward(m, q, E, backend="c")
+    monkeypatch.setenv("MTCOMP_THREADS", "3")
+    par = retarget(m, q, E, backend="c")
+    fwd_par = forward(m, q, E, backend="c")
+    assert np.max(np.abs(par - seq)) <= 1e-9
+    assert np.array_equal(fwd_par.p, fwd_seq.p) and np.array_equal(fwd_par.R, fwd_seq.R)

@@ -942,7 +942,7 @@ enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
 
 /* Commands q for one target (mtcomp.kinematics.compensate for one point).  At a pole (checked
  * at `start`: q0, or q0 plus the previous pose's correction along a path) the pole axis is held
- * and the result kept if the tool direction is then within pole_tol; else the exact solution
+ * at its programmed value and the result kept if the tool direction is then within pole_tol; else the exact solution
  * from start if warm (the previous pose on the branch nearest its program: a warm start costs
  * one iteration less and keeps the path's branch), from q0, from start, then from rotary seeds
  * about q0 (least rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0)
@@ -964,9 +964,15 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     if (o->pole_tol > 0.0 && P->mode >= 2) {
         int hold = pole_axis(Pr, J0, o->pole_tol);
         if (hold >= 0) {
+            /* the pole axis keeps its programmed value (not the path's: a pole stretch does not
+             * depend on what came before it) */
             int freeze[MTK_MAX_AXES] = {0};
+            double hs[MTK_MAX_AXES];
+            memcpy(hs, start, n * sizeof(double));
+            hs[hold] = q0[hold];
             freeze[hold] = 1;
-            rc = iterate(P, Pr, tg, WO_HELD, freeze, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, differs ? NULL : J0, qt, o->tol, o->max_iter, iters, r,
+                         &sing);
             if (rc) return rc;
             if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
                 *held = hold;
