@@ -6,7 +6,8 @@ for, in order, next to this module (built at install time by setup.py), then in 
 keyed by the hash of the source (`~/.cache/mtcomp/kernel/<hash>/`, or $MTCOMP_CACHE_DIR), and
 compiled there on first use with the C compiler ($CC, cc or gcc).  Without a compiler the
 library uses its numpy reference implementation (mtcomp.kinematics) and says so once on stderr.
-MTCOMP_KERNEL=numpy forces the numpy implementation.
+MTCOMP_KERNEL=numpy forces the numpy implementation.  Batches of at least PARALLEL_MIN poses are
+split over the cores (MTCOMP_THREADS, default: the CPUs this process may use).
 
 ctypes rather than a C extension: the kernel must build with nothing but gcc (no Python headers),
 and ctypes releases the GIL during the call.
