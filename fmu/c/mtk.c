@@ -408,6 +408,8 @@ typedef struct {
     int wp;                           /* workpiece pose differs from identity */
     double RwT[9], tw[3], Rw[9];
     int closed;                       /* closed form of retarget applies (rigid, no rotation) */
+    int lin_first;                    /* the three linear axes precede every rotary axis ... */
+    double Ainv[9];                   /* ... so the closed form's matrix is constant: its inverse */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
@@ -503,6 +505,30 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
         int nlin = 0, rotated = e && (e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0);
         for (i = 0; i < m->n_axes; i++) nlin += !m->rotary[i];
         P->closed = e && !any_geo && nlin == 3 && !(P->nrot && rotated);
+        if (P->closed) {
+            /* linear axes first: columns = their nominal directions, inverted once here */
+            int seen_rot = 0, ok = 1, c = 0, r;
+            double A[9], det;
+            for (i = 0; i < m->n_axes; i++) {
+                if (m->rotary[i]) seen_rot = 1;
+                else if (seen_rot) ok = 0;
+                else { for (r = 0; r < 3; r++) A[3 * r + c] = m->dir[i][r]; c++; }
+            }
+            det = A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6])
+                  + A[2] * (A[3] * A[7] - A[4] * A[6]);
+            if (ok && det != 0.0 && P->nrot > 0) {  /* (3-axis: the workpiece rotation term) */
+                P->lin_first = 1;
+                P->Ainv[0] = (A[4] * A[8] - A[5] * A[7]) / det;
+                P->Ainv[1] = (A[2] * A[7] - A[1] * A[8]) / det;
+                P->Ainv[2] = (A[1] * A[5] - A[2] * A[4]) / det;
+                P->Ainv[3] = (A[5] * A[6] - A[3] * A[8]) / det;
+                P->Ainv[4] = (A[0] * A[8] - A[2] * A[6]) / det;
+                P->Ainv[5] = (A[2] * A[3] - A[0] * A[5]) / det;
+                P->Ainv[6] = (A[3] * A[7] - A[4] * A[6]) / det;
+                P->Ainv[7] = (A[1] * A[6] - A[0] * A[7]) / det;
+                P->Ainv[8] = (A[0] * A[4] - A[1] * A[3]) / det;
+            }
+        }
     }
 }
 
@@ -1076,6 +1102,31 @@ static int closed_form(const prep_t *P, const double *q, double *out)
     const mtk_model *m = P->m;
     double R[9], A[3][3], rhs[3], t[3], Rt[3], det, x[3];
     int i, k, nc = 0, lin[3], ident = 1;
+    if (P->lin_first) {
+        /* R t by turning the vector t through the rotary axes from the tool end (Rodrigues on a
+         * vector); the matrix of the linear axes is constant */
+        for (k = 0; k < 3; k++) Rt[k] = P->tp[k] - m->tool_point[k];
+        for (i = P->n - 1; i >= 0; i--) {
+            if (m->rotary[i]) {
+                const double *u = m->dir[i];
+                double sn, cs, ux[3], ud;
+                sn = sin(q[i] * DEG);
+                cs = cos(q[i] * DEG);
+                ux[0] = u[1] * Rt[2] - u[2] * Rt[1];
+                ux[1] = u[2] * Rt[0] - u[0] * Rt[2];
+                ux[2] = u[0] * Rt[1] - u[1] * Rt[0];
+                ud = (u[0] * Rt[0] + u[1] * Rt[1] + u[2] * Rt[2]) * (1.0 - cs);
+                for (k = 0; k < 3; k++) Rt[k] = Rt[k] * cs + ux[k] * sn + u[k] * ud;
+            } else {
+                lin[2 - nc++] = i;
+            }
+        }
+        for (k = 0; k < 3; k++) rhs[k] = P->tw[k] - Rt[k];
+        mat_vec(P->Ainv, rhs, x);
+        memcpy(out, q, P->n * sizeof(double));
+        for (k = 0; k < 3; k++) out[lin[k]] += x[k];
+        return 1;
+    }
     eye(R);
     for (i = 0; i < P->n; i++) {
         if (m->rotary[i]) {
