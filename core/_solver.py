@@ -147,7 +147,9 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
                 scale[todo] *= 0.5
             stepped = np.max(np.abs(qn - qa[L]), axis=1)
             fin = (stepped < tol) | (nn <= 1e-12)
-            slow = (nn > 0.1 * nr[L]) & ~fin  # contraction too weak: re-linearise these
+            # contraction too weak: re-linearise these (not with a held axis: the least-squares
+            # residual does not vanish, convergence is judged by the step alone)
+            slow = (nn > 0.1 * nr[L]) & ~fin & (free is None)
             qa[L], r[L], nr[L] = qn, rn, nn
             done[L[fin]] = True
             live = L[~fin & ~slow]

@@ -882,7 +882,9 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             }
             for (i = 0; i < n; i++)
                 if (fabs(qn[i] - q[i]) > stepped) stepped = fabs(qn[i] - q[i]);
-            slow |= (nn > 0.1 * nr) && (nn > 1e-12);
+            /* contraction too weak: re-linearise (not with a held axis: the least-squares
+             * residual does not vanish, convergence is judged by the step alone) */
+            slow |= !freeze && (nn > 0.1 * nr) && (nn > 1e-12);
             done |= (stepped < tol) || (nn <= 1e-12);
             memcpy(q, qn, n * sizeof(double));
             memcpy(r, rn, rows * sizeof(double));
@@ -997,7 +999,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(hs, start, n * sizeof(double));
             hs[hold] = q0[hold];
             freeze[hold] = 1;
-            rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, differs ? NULL : J0, qt, o->tol, o->max_iter, iters, r,
+            rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, J0, qt, o->tol, o->max_iter, iters, r,
                          &sing);
             if (rc) return rc;
             if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
