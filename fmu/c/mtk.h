@@ -1,13 +1,17 @@
-/* mtk: the mtcomp kinematic kernel in C.
+/* mtk: the mtcomp kinematic kernel in C, the one implementation of the exact model's hot loop.
  *
- * Mirrors mtcomp.kinematics (docs/model.md): a serial chain of linear and rotary axes from the
- * workpiece to the tool, each contributing
+ * The FMUs compile it, and the library (mtcomp.kinematics through mtcomp._kernel, ctypes) calls
+ * its batch entries as a plain shared library; mtcomp._solver is the numpy reference it mirrors
+ * (docs/model.md): a serial chain of linear and rotary axes from the workpiece to the tool, each
+ * contributing
  *     G_i(q) = L_i N_i(q) L_i^-1 . T(loc_i) D_i(q) T(-loc_i),
- * tool setting offset at the end of the chain and the workpiece setting pose at its start;
- * `mtk_retarget` is the same chord Gauss-Newton iteration as mtcomp.kinematics.compensate,
- * with the same restarts from rotary seeds where the iteration from the commands fails.
+ * tool setting offset at the end of the chain and the workpiece setting pose at its start.
+ * Compensation: closed form for rigid errors without rotation, else chord Gauss-Newton with the
+ * analytic rigid Jacobian, the pole axis held within the pole tolerance, a warm start from the
+ * previous pose along a path, restarts from rotary seeds where the iteration fails.
  * Units: mm and deg for commands and setting errors, rad for geometric error angles.
- * The machine comes from a resource file written at FMU build time (docs/fmu.md).
+ * For the FMUs the machine comes from a resource file written at build time (docs/fmu.md); the
+ * library builds it in memory (mtk_model_new).
  */
 #ifndef MTCOMP_MTK_H
 #define MTCOMP_MTK_H
