@@ -104,8 +104,11 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
     q = q0.copy()
     active = np.arange(n)
     res = lambda qq, idx, err: _residual(machine, qq, err, _sub(target, idx), mode, wo=wo)  # noqa: E731
-    it = 0
-    while active.size and it < max_iter:
+    its = np.zeros(n, dtype=int)  # iterations per point (a point's budget does not depend on the batch)
+    while active.size:
+        active = active[its[active] < max_iter]
+        if not active.size:
+            break
         qa = q[active]
         # Chord Jacobian (of the rigid model) at the current iterate of the still active points.
         J = _rigid_jacobian(machine, qa, rigid, _sub(target, active), mode, wo)
@@ -119,7 +122,7 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
         done = np.zeros(active.size, bool)
         live = np.arange(active.size)  # points still iterating on this Jacobian
         for _ in range(8):
-            it += 1
+            its[active[live]] += 1
             L = live
             # Damped least squares (lam): no component along a null direction of the Jacobian,
             # so where the orientation leaves an axis free it keeps the seed's value, and no
@@ -147,9 +150,10 @@ def _solve(machine: Machine, target: Pose, errors, q0: np.ndarray, tol: float, m
                 scale[todo] *= 0.5
             stepped = np.max(np.abs(qn - qa[L]), axis=1)
             fin = (stepped < tol) | (nn <= 1e-12)
-            # contraction too weak: re-linearise these (not with a held axis: the least-squares
-            # residual does not vanish, convergence is judged by the step alone)
-            slow = (nn > 0.1 * nr[L]) & ~fin & (free is None)
+            # contraction too weak: re-linearise these (with a held axis every step: the
+            # least-squares residual does not vanish, and only the Jacobian at the iterate leads
+            # to the least-squares point rather than to one biased by a stale Jacobian)
+            slow = (nn > 0.1 * nr[L]) & ~fin
             qa[L], r[L], nr[L] = qn, rn, nn
             done[L[fin]] = True
             live = L[~fin & ~slow]

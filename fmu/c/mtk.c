@@ -883,9 +883,10 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             }
             for (i = 0; i < n; i++)
                 if (fabs(qn[i] - q[i]) > stepped) stepped = fabs(qn[i] - q[i]);
-            /* contraction too weak: re-linearise (not with a held axis: the least-squares
-             * residual does not vanish, convergence is judged by the step alone) */
-            slow |= !freeze && (nn > 0.1 * nr) && (nn > 1e-12);
+            /* contraction too weak: re-linearise (with a held axis every step: the least-squares
+             * residual does not vanish, and only the Jacobian at the iterate leads to the
+             * least-squares point rather than to one biased by a stale Jacobian) */
+            slow |= (nn > 0.1 * nr) && (nn > 1e-12);
             done |= (stepped < tol) || (nn <= 1e-12);
             memcpy(q, qn, n * sizeof(double));
             memcpy(r, rn, rows * sizeof(double));
