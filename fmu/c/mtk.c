@@ -822,7 +822,13 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
     return solve(n, Acopy, K, rows);
 }
 
-/* The Gauss-Newton iteration of mtcomp.kinematics._solve for one point, started at `seed` and
+/* With a held axis, rotary axes within this (deg) of where the Jacobian was taken do not make it
+ * stale (its orientation rows depend on the rotary angles alone): the bias of the least-squares point it
+ * leaves is below 1e-10 deg for the orientation residuals the pole tolerance admits (a warm start
+ * along a path moves less). */
+#define HELD_STALE 1e-7
+
+/* The Gauss-Newton iteration of mtcomp._solver._solve for one point, started at `seed` and
  * damped least-squares steps; frozen axes (freeze[k] != 0, may be NULL) keep the seed's
  * value.  Leaves the iterate in q and its residual rows (tables held at their ends) in r; adds
  * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0: the
@@ -832,7 +838,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                    double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], nr;
+    double K[MTK_MAX_AXES * 6], nr, qlin[MTK_MAX_AXES];
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     rc = residual(P, q, tg, r, wo, 0, NULL);
@@ -840,6 +846,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     nr = norm(r, rows);
     while (!done && it < max_iter) {
         int inner, slow = 0;
+        memcpy(qlin, q, n * sizeof(double));
         if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, &rc)) {
             *iters += it;
             if (rc) return rc;
@@ -848,7 +855,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
         }
         for (inner = 0; inner < 8; inner++) {
             double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0,
-                   smax = 0.0;
+                   smax = 0.0, rstep = 0.0;
             int bt;
             it++;
             for (i = 0; i < n; i++) {
@@ -881,12 +888,14 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                 }
                 scale *= 0.5;
             }
-            for (i = 0; i < n; i++)
+            for (i = 0; i < n; i++) {
                 if (fabs(qn[i] - q[i]) > stepped) stepped = fabs(qn[i] - q[i]);
+                if (P->m->rotary[i] && fabs(qn[i] - qlin[i]) > rstep) rstep = fabs(qn[i] - qlin[i]);
+            }
             /* contraction too weak: re-linearise (with a held axis every step: the least-squares
              * residual does not vanish, and only the Jacobian at the iterate leads to the
              * least-squares point rather than to one biased by a stale Jacobian) */
-            slow |= (nn > 0.1 * nr) && (nn > 1e-12);
+            slow |= (nn > 0.1 * nr) && (nn > 1e-12) && !(freeze && rstep < HELD_STALE);
             done |= (stepped < tol) || (nn <= 1e-12);
             memcpy(q, qn, n * sizeof(double));
             memcpy(r, rn, rows * sizeof(double));
