@@ -992,7 +992,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
 {
     int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
     int tables = 0;
-    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], wacc = ORIENTATION_SCALE;
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES];
     const double *Jq0 = differs ? NULL : J0;
     *held = -1;
     *singular = 0;
@@ -1016,7 +1016,6 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
                 *held = hold;
                 *how = HOW_HELD;
-                wacc = WO_HELD;
                 goto accept;
             }
         }
@@ -1092,11 +1091,17 @@ accept:
     memcpy(q, qt, n * sizeof(double));
     memcpy(racc, r, rows * sizeof(double));
 strict:
-    /* Strict evaluation: a converged command outside an error table's range is an error (without
-     * tables the iteration's residual is the strict one). */
+    /* Strict check: a converged command outside an error table's range is an error.  Inside the
+     * ranges the iteration's residual (tables held at their ends) is the strict one, so the
+     * ranges are checked directly, in chain order as the strict forward model would. */
     if (tables) {
-        rc = residual(P, q, tg, racc, wacc, 1, bad);
-        if (rc) return rc;
+        for (k = 0; k < n; k++) {
+            const mtk_table *t = P->tab[k];
+            if (t && !(q[k] >= t->pos[0] - 1e-12 && q[k] <= t->pos[t->n - 1] + 1e-12)) {
+                *bad = k;
+                return MTK_E_RANGE;
+            }
+        }
     }
     *res = maxabs(racc, *held >= 0 ? 3 : rows);
     if (!(*res < CONVERGED)) {
