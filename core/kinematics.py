@@ -264,7 +264,7 @@ def _raise_kernel_failures(machine: Machine, errors, q, res, status, info) -> No
 
 
 def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q0=None, *,
-               tol: float = 1e-10, max_iter: int = 60, pole_tolerance: float = None,
+               tol: float = 1e-10, max_iter: int = 60, pole_tolerance: float | None = None,
                continuation: bool = True, max_swing: float | None = None,
                backend: str | None = None) -> np.ndarray:
     """Axis commands (N, n_axes) in mm and deg that put the real tool edge at target.p and the
@@ -272,24 +272,26 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
     orientation with 3), under `errors`.
 
     q0 seeds the iteration (usually the programmed commands, in path order).  Gauss-Newton with
-    a chord Jacobian: the analytic one of the rigid (setting-error) model,
-    since the geometric tables change it by their slopes only (1e-4 at most), so each step
-    contracts the error by about that factor.  Points that do not contract (large workpiece
-    rotations near a singularity) get their Jacobian re-taken at the current iterate, i.e. full
-    Newton.  A tiny pull toward q0 picks the programmed rotary angles where the tool direction
-    leaves them free.
+    a chord Jacobian, the analytic one of the rigid (setting-error) model: the geometric tables
+    change it by their slopes only (1e-3 at most), so each step contracts the error by about
+    that factor.  Points that do not contract (large workpiece rotations near a singularity)
+    get their Jacobian re-taken at the current iterate, i.e. full Newton.  Steps are damped
+    least squares without components along null directions: where the tool direction leaves
+    a rotary axis free it keeps q0's value.  docs/model.md gives the details.
 
     Poles (pole_tolerance, deg; default POLE_TOLERANCE, 0 disables): where a rotary axis' effect
     on the orientation lies within the tolerance of what the other rotary axes do (C at B = 0 on
     a B-C table, A and C at B = 90 on an A-B-C head), that axis keeps its programmed value, the
     others meet the orientation in least squares and the position exactly, as controls hold
     the pole axis; this is kept if the orientation is then within pole_tolerance, so a small
-    blank tilt never turns C by tens of degrees.  Otherwise the exact solution: from q0 and,
-    where that fails, from rotary seeds offset by +-90 and 180 deg (one axis, then pairs),
-    keeping the smallest rotary change.  Points that fail from every seed raise ConvergenceError.
+    blank tilt never turns C by tens of degrees.  Otherwise the exact solution: from q0 (along a
+    path first or then from the previous point's correction, see continuation) and, where that
+    fails, from rotary seeds offset by +-90 and 180 deg (one axis, then pairs), keeping the
+    smallest rotary change.  Points that fail from every seed raise ConvergenceError.
 
     continuation: the compiled kernel starts each point from the previous point's correction
-    (warm start: fewer iterations, and a path keeps the rotary branch it is on).
+    (warm start: fewer iterations, and a path keeps the rotary branch it is on); the numpy
+    reference solves every point from q0 (both agree wherever the solution is unique).
     max_swing (deg, None: no bound): SwingError at the first point whose rotary correction
     changes by more than this from the previous point's.
     backend: None (compiled kernel where available, else numpy), "c" or "numpy" (reference).
