@@ -409,6 +409,7 @@ typedef struct {
     int wp;                           /* workpiece pose differs from identity */
     double RwT[9], tw[3], Rw[9];
     int closed;                       /* closed form of retarget applies (rigid, no rotation) */
+    int geo;                          /* tables or location errors (else the rigid model itself) */
     int lin_first;                    /* the three linear axes precede every rotary axis ... */
     double Ainv[9];                   /* ... so the closed form's matrix is constant: its inverse */
 } prep_t;
@@ -506,6 +507,7 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
         int nlin = 0, rotated = e && (e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0);
         for (i = 0; i < m->n_axes; i++) nlin += !m->rotary[i];
         P->closed = e && !any_geo && nlin == 3 && !(P->nrot && rotated);
+        P->geo = any_geo;
         if (P->closed) {
             /* linear axes first: columns = their nominal directions, inverted once here */
             int seen_rot = 0, ok = 1, c = 0, r;
@@ -711,7 +713,7 @@ static double norm(const double *r, int rows)
  * centre c_w = R_pre c + t_pre along w, dp = w x (p - c_w) and dR = [w]x R (per rad), all in
  * the nominal workpiece frame and then turned into the real one by Rw^T.  The rigid model has
  * no tables and no location errors (prepare with geo = 0). */
-static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J)
+static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J, double *r0)
 {
     const mtk_model *m = Pr->m;
     double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
@@ -744,6 +746,25 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     mat_vec(R, Pr->tp, p);
     for (k = 0; k < 3; k++) p[k] += t[k];
     mat_vec(R, m->tool_axis, v);
+    if (r0) {
+        /* the residual of this (rigid) model at q from the same pass: the caller's model is the
+         * rigid one (no tables, no location errors) */
+        double pr[3], d[3], Rr[9];
+        for (k = 0; k < 3; k++) d[k] = p[k] - Pr->tw[k];
+        mat_vec(Pr->RwT, d, pr);
+        for (k = 0; k < 3; k++) r0[k] = pr[k] - tg->p[k];
+        if (Pr->mode == 2) {
+            double vr[3];
+            mat_vec(Pr->RwT, v, vr);
+            for (k = 0; k < 3; k++) r0[3 + k] = wo * (vr[k] - tg->v[k]);
+        } else if (Pr->mode == 3) {
+            const double *T = tg->R;
+            mat_mul(Pr->RwT, R, Rr);
+            r0[3] = wo * 0.5 * ((T[2] * Rr[1] + T[5] * Rr[4] + T[8] * Rr[7]) - (T[1] * Rr[2] + T[4] * Rr[5] + T[7] * Rr[8]));
+            r0[4] = wo * 0.5 * ((T[0] * Rr[2] + T[3] * Rr[5] + T[6] * Rr[8]) - (T[2] * Rr[0] + T[5] * Rr[3] + T[8] * Rr[6]));
+            r0[5] = wo * 0.5 * ((T[1] * Rr[0] + T[4] * Rr[3] + T[7] * Rr[6]) - (T[0] * Rr[1] + T[3] * Rr[4] + T[6] * Rr[7]));
+        }
+    }
     for (i = 0; i < n; i++) {
         double w[3], dp[3], dpr[3], dv[3];
         mat_vec(Rpre[i], Pr->ueff[i], w);
@@ -803,7 +824,7 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
         for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
         *rc = MTK_OK;
     } else {
-        *rc = jacobian(Pr, q, tg, wo, J);
+        *rc = jacobian(Pr, q, tg, wo, J, NULL);
         if (*rc) return 0;
     }
     if (freeze)
@@ -831,18 +852,22 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
 /* The Gauss-Newton iteration of mtcomp._solver._solve for one point, started at `seed` and
  * damped least-squares steps; frozen axes (freeze[k] != 0, may be NULL) keep the seed's
  * value.  Leaves the iterate in q and its residual rows (tables held at their ends) in r; adds
- * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0: the
- * rigid Jacobian at seed if already known (NULL: taken here). */
+ * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0, r0: the
+ * rigid Jacobian and the residual at seed if already known (NULL: evaluated here). */
 static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
-                   const double *seed, const double *J0, double *q, double tol, int max_iter, int *iters,
-                   double *r, int *singular)
+                   const double *seed, const double *J0, const double *r0, double *q, double tol, int max_iter,
+                   int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
     double K[MTK_MAX_AXES * 6], nr, qlin[MTK_MAX_AXES];
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
-    rc = residual(P, q, tg, r, wo, 0, NULL);
-    if (rc) return rc;
+    if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
+        for (k = 0; k < rows; k++) r[k] = k < 3 ? r0[k] : r0[k] * (wo / ORIENTATION_SCALE);
+    } else {
+        rc = residual(P, q, tg, r, wo, 0, NULL);
+        if (rc) return rc;
+    }
     nr = norm(r, rows);
     while (!done && it < max_iter) {
         int inner, slow = 0;
@@ -992,14 +1017,16 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
 {
     int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
     int tables = 0;
-    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES];
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], r0s[6];
+    const double *rs;
     const double *Jq0 = differs ? NULL : J0;
     *held = -1;
     *singular = 0;
     *res0 = INFINITY;
     for (k = 0; k < n; k++) tables |= P->tab[k] != NULL;
-    rc = jacobian(Pr, start, tg, ORIENTATION_SCALE, J0);
+    rc = jacobian(Pr, start, tg, ORIENTATION_SCALE, J0, P->geo ? NULL : r0s);
     if (rc) return rc;
+    rs = P->geo ? NULL : r0s;   /* the residual at start, from the Jacobian's pass (rigid errors) */
     if (o->pole_tol > 0.0 && P->mode >= 2) {
         int hold = pole_axis(Pr, J0, o->pole_tol);
         if (hold >= 0) {
@@ -1010,8 +1037,8 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(hs, start, n * sizeof(double));
             hs[hold] = q0[hold];
             freeze[hold] = 1;
-            rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, J0, qt, o->tol, o->max_iter, iters, r,
-                         &sing);
+            rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, J0, hs[hold] == start[hold] ? rs : NULL, qt, o->tol,
+                         o->max_iter, iters, r, &sing);
             if (rc) return rc;
             if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
                 *held = hold;
@@ -1021,14 +1048,14 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
         }
     }
     if (differs && warm) {
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED) {
             *how = HOW_WARM;
             goto accept;
         }
     }
-    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, Jq0, qt, o->tol, o->max_iter, iters, r, &sing);
+    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, Jq0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
@@ -1038,7 +1065,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     }
     if (differs && !warm) {
         /* continuation: the previous pose's correction keeps the branch the path is on */
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED) {
             *how = HOW_WARM;
@@ -1070,7 +1097,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(seed, q0, n * sizeof(double));
             seed[sa[s]] += va[s];
             if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             et = sing ? INFINITY : maxabs(r, rows);
             for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
