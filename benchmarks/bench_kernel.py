@@ -72,7 +72,7 @@ def main(argv=None):
     rows = []  # (case, machine, C CPU rate, C wall rate, numpy CPU rate, numpy wall rate, max |C - numpy|)
 
     def case(label, mname, fn_c, fn_n, n_c, n_n, compare=True):
-        cc, cw, qc = timed(fn_c)
+        cc, cw, qc = timed(fn_c, repeat=3)
         nc, nw, qn = timed(fn_n, repeat=1)
         diff = float(np.max(np.abs(qc[:n_n] - qn))) if compare else float("nan")
         rows.append((label, mname, n_c / cc, n_c / cw, n_n / nc, n_n / nw, diff))

@@ -6,7 +6,8 @@ for, in order, next to this module (built at install time by setup.py), then in 
 keyed by the hash of the source (`~/.cache/mtcomp/kernel/<hash>/`, or $MTCOMP_CACHE_DIR), and
 compiled there on first use with the C compiler ($CC, cc or gcc).  Without a compiler the
 library uses its numpy reference implementation (mtcomp.kinematics) and says so once on stderr.
-MTCOMP_KERNEL=numpy forces the numpy implementation.
+MTCOMP_KERNEL=numpy forces the numpy implementation.  Batches of at least PARALLEL_MIN poses are
+split over the cores (MTCOMP_THREADS, default: the CPUs this process may use).
 
 ctypes rather than a C extension: the kernel must build with nothing but gcc (no Python headers),
 and ctypes releases the GIL during the call.
@@ -246,22 +247,60 @@ def c_errors(machine, errors) -> _Errors:
 
 # ------------------------------------------------------------------------------------ batch calls
 
+#: Batches at least this long are split over the cores (ctypes releases the GIL during a call).
+PARALLEL_MIN = 20_000
+#: Poses solved again before a chunk boundary so that a chunk starts with the path's state (the
+#: previous pose's correction) as the sequential call would; their results are discarded.
+RUN_IN = 16
+
+
+def threads() -> int:
+    env = os.environ.get("MTCOMP_THREADS")
+    if env:
+        return max(1, int(env))
+    try:
+        return max(1, min(len(os.sched_getaffinity(0)), 8))
+    except AttributeError:  # not on Linux
+        return max(1, min(os.cpu_count() or 1, 8))
+
+
+def _chunks(n: int) -> list[tuple[int, int]]:
+    k = threads() if n >= PARALLEL_MIN else 1
+    edges = np.linspace(0, n, k + 1).astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def _run(parts, fn):
+    if len(parts) == 1:
+        return [fn(*parts[0])]
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(len(parts)) as ex:
+        return list(ex.map(lambda ab: fn(*ab), parts))
+
+
 def forward(lib, machine, q: np.ndarray, errors, strict: bool):
     """(p (N,3), R (N,3,3), first bad index or -1)."""
     q = np.ascontiguousarray(q, dtype=float)
     n = q.shape[0]
     p = np.empty((n, 3))
     R = np.empty((n, 3, 3))
-    bad_axis = ctypes.c_int(-1)
     m = model(lib, machine, errors)
-    bad = lib.mtk_forward_batch(m.ptr, ctypes.byref(c_errors(machine, errors)), n, _p(q), _p(p), _p(R),
-                                int(strict), ctypes.byref(bad_axis))
-    return p, R, int(bad)
+    e = c_errors(machine, errors)
+
+    def part(a, b):
+        bad_axis = ctypes.c_int(-1)
+        bad = lib.mtk_forward_batch(m.ptr, ctypes.byref(e), b - a, _p(q[a:]), _p(p[a:]), _p(R[a:]), int(strict),
+                                    ctypes.byref(bad_axis))
+        return -1 if bad < 0 else a + int(bad)
+
+    bads = [b for b in _run(_chunks(n), part) if b >= 0]
+    return p, R, (min(bads) if bads else -1)
 
 
 def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_iter: int,
           pole_tolerance: float, continuation: bool):
-    """retarget (target None: the ideal poses of q0) or compensate in C.
+    """retarget (target None: the ideal poses of q0) or compensate in C, split over the cores
+    (each chunk after the first re-solves RUN_IN poses before its start to take up the path).
     Returns (q, residual (N,), status (N,), info (N,))."""
     q0 = np.ascontiguousarray(q0, dtype=float)
     n = q0.shape[0]
@@ -271,12 +310,23 @@ def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_
     info = np.empty(n, dtype=np.intc)
     opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)))
     m = model(lib, machine, errors)
-    e = ctypes.byref(c_errors(machine, errors))
-    si, ii = status.ctypes.data_as(_I), info.ctypes.data_as(_I)
-    if target is None:
-        lib.mtk_retarget_batch(m.ptr, e, n, _p(q0), _p(q), ctypes.byref(opt), _p(res), si, ii)
-    else:
+    e = c_errors(machine, errors)
+    if target is not None:
         tp = np.ascontiguousarray(target.p, dtype=float)
         tR = np.ascontiguousarray(target.R, dtype=float)
-        lib.mtk_compensate_batch(m.ptr, e, n, _p(tp), _p(tR), _p(q0), _p(q), ctypes.byref(opt), _p(res), si, ii)
+
+    def part(a, b):
+        a0 = max(0, a - RUN_IN) if continuation else a
+        k = b - a0
+        qq, rr = np.empty((k, q0.shape[1])), np.empty(k)
+        ss, ii = np.empty(k, dtype=np.intc), np.empty(k, dtype=np.intc)
+        args = (_p(qq), ctypes.byref(opt), _p(rr), ss.ctypes.data_as(_I), ii.ctypes.data_as(_I))
+        if target is None:
+            lib.mtk_retarget_batch(m.ptr, ctypes.byref(e), k, _p(q0[a0:]), *args)
+        else:
+            lib.mtk_compensate_batch(m.ptr, ctypes.byref(e), k, _p(tp[a0:]), _p(tR[a0:]), _p(q0[a0:]), *args)
+        s = a - a0
+        q[a:b], res[a:b], status[a:b], info[a:b] = qq[s:], rr[s:], ss[s:], ii[s:]
+
+    _run(_chunks(n), part)
     return q, res, status, info

@@ -170,7 +170,7 @@ def test_first_order_model_differs_to_second_order(rng):
 @pytest.mark.parametrize("name", PRESETS)
 def test_rigid_closed_form_equals_iteration(name, rng):
     """The closed form for rigid setting errors and the general Gauss-Newton agree."""
-    from mtcomp.kinematics import _retarget_rigid
+    from mtcomp._solver import retarget_rigid as _retarget_rigid
     m = load_machine(name)
     E = ErrorSet(ToolSetting(tuple(rng.uniform(-1, 1, 3))),
                  WorkpieceSetting(tuple(rng.uniform(-1, 1, 3)), (0.3, -0.2, 0.5) if m.n_rotary == 0 else (0, 0, 0)))

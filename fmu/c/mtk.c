@@ -1,8 +1,9 @@
 /* mtk: the mtcomp kinematic kernel in C (see mtk.h and docs/model.md, docs/fmu.md).
  *
- * Written by hand because it must run inside an FMU without Python: it is a line-by-line port
- * of mtcomp.kinematics (forward, compensate, retarget) and of the error-table CSV reader of
- * mtcomp.errors, and the test suite checks it against them on random poses.
+ * Written by hand because it must run inside an FMU without Python and as the library's compiled
+ * hot loop (no Python headers, loaded through ctypes): the forward model, the compensation and the
+ * error-table CSV reader of mtcomp.errors; the tests hold it to the numpy reference
+ * (mtcomp.kinematics, mtcomp._solver) to 1e-9 mm on every preset and error kind.
  */
 #include <ctype.h>
 #include <math.h>
@@ -138,6 +139,7 @@ void mtk_free(mtk_model *m)
             free(m->table[i]);
         }
     }
+    free(m->cache);
     free(m);
 }
 
@@ -407,6 +409,9 @@ typedef struct {
     int wp;                           /* workpiece pose differs from identity */
     double RwT[9], tw[3], Rw[9];
     int closed;                       /* closed form of retarget applies (rigid, no rotation) */
+    int geo;                          /* tables or location errors (else the rigid model itself) */
+    int lin_first;                    /* the three linear axes precede every rotary axis ... */
+    double Ainv[9];                   /* ... so the closed form's matrix is constant: its inverse */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
@@ -502,6 +507,31 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
         int nlin = 0, rotated = e && (e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0);
         for (i = 0; i < m->n_axes; i++) nlin += !m->rotary[i];
         P->closed = e && !any_geo && nlin == 3 && !(P->nrot && rotated);
+        P->geo = any_geo;
+        if (P->closed) {
+            /* linear axes first: columns = their nominal directions, inverted once here */
+            int seen_rot = 0, ok = 1, c = 0, r;
+            double A[9], det;
+            for (i = 0; i < m->n_axes; i++) {
+                if (m->rotary[i]) seen_rot = 1;
+                else if (seen_rot) ok = 0;
+                else { for (r = 0; r < 3; r++) A[3 * r + c] = m->dir[i][r]; c++; }
+            }
+            det = A[0] * (A[4] * A[8] - A[5] * A[7]) - A[1] * (A[3] * A[8] - A[5] * A[6])
+                  + A[2] * (A[3] * A[7] - A[4] * A[6]);
+            if (ok && det != 0.0 && P->nrot > 0) {  /* (3-axis: the workpiece rotation term) */
+                P->lin_first = 1;
+                P->Ainv[0] = (A[4] * A[8] - A[5] * A[7]) / det;
+                P->Ainv[1] = (A[2] * A[7] - A[1] * A[8]) / det;
+                P->Ainv[2] = (A[1] * A[5] - A[2] * A[4]) / det;
+                P->Ainv[3] = (A[5] * A[6] - A[3] * A[8]) / det;
+                P->Ainv[4] = (A[0] * A[8] - A[2] * A[6]) / det;
+                P->Ainv[5] = (A[2] * A[3] - A[0] * A[5]) / det;
+                P->Ainv[6] = (A[3] * A[7] - A[4] * A[6]) / det;
+                P->Ainv[7] = (A[1] * A[6] - A[0] * A[7]) / det;
+                P->Ainv[8] = (A[0] * A[4] - A[1] * A[3]) / det;
+            }
+        }
     }
 }
 
@@ -683,7 +713,7 @@ static double norm(const double *r, int rows)
  * centre c_w = R_pre c + t_pre along w, dp = w x (p - c_w) and dR = [w]x R (per rad), all in
  * the nominal workpiece frame and then turned into the real one by Rw^T.  The rigid model has
  * no tables and no location errors (prepare with geo = 0). */
-static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J)
+static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J, double *r0)
 {
     const mtk_model *m = Pr->m;
     double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
@@ -716,6 +746,25 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     mat_vec(R, Pr->tp, p);
     for (k = 0; k < 3; k++) p[k] += t[k];
     mat_vec(R, m->tool_axis, v);
+    if (r0) {
+        /* the residual of this (rigid) model at q from the same pass: the caller's model is the
+         * rigid one (no tables, no location errors) */
+        double pr[3], d[3], Rr[9];
+        for (k = 0; k < 3; k++) d[k] = p[k] - Pr->tw[k];
+        mat_vec(Pr->RwT, d, pr);
+        for (k = 0; k < 3; k++) r0[k] = pr[k] - tg->p[k];
+        if (Pr->mode == 2) {
+            double vr[3];
+            mat_vec(Pr->RwT, v, vr);
+            for (k = 0; k < 3; k++) r0[3 + k] = wo * (vr[k] - tg->v[k]);
+        } else if (Pr->mode == 3) {
+            const double *T = tg->R;
+            mat_mul(Pr->RwT, R, Rr);
+            r0[3] = wo * 0.5 * ((T[2] * Rr[1] + T[5] * Rr[4] + T[8] * Rr[7]) - (T[1] * Rr[2] + T[4] * Rr[5] + T[7] * Rr[8]));
+            r0[4] = wo * 0.5 * ((T[0] * Rr[2] + T[3] * Rr[5] + T[6] * Rr[8]) - (T[2] * Rr[0] + T[5] * Rr[3] + T[8] * Rr[6]));
+            r0[5] = wo * 0.5 * ((T[1] * Rr[0] + T[4] * Rr[3] + T[7] * Rr[6]) - (T[0] * Rr[1] + T[3] * Rr[4] + T[6] * Rr[7]));
+        }
+    }
     for (i = 0; i < n; i++) {
         double w[3], dp[3], dpr[3], dv[3];
         mat_vec(Rpre[i], Pr->ueff[i], w);
@@ -775,7 +824,7 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
         for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
         *rc = MTK_OK;
     } else {
-        *rc = jacobian(Pr, q, tg, wo, J);
+        *rc = jacobian(Pr, q, tg, wo, J, NULL);
         if (*rc) return 0;
     }
     if (freeze)
@@ -794,24 +843,35 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
     return solve(n, Acopy, K, rows);
 }
 
-/* The Gauss-Newton iteration of mtcomp.kinematics._solve for one point, started at `seed` and
+/* With a held axis, rotary axes within this (deg) of where the Jacobian was taken do not make it
+ * stale (its orientation rows depend on the rotary angles alone): the bias of the least-squares point it
+ * leaves is below 1e-10 deg for the orientation residuals the pole tolerance admits (a warm start
+ * along a path moves less). */
+#define HELD_STALE 1e-7
+
+/* The Gauss-Newton iteration of mtcomp._solver._solve for one point, started at `seed` and
  * damped least-squares steps; frozen axes (freeze[k] != 0, may be NULL) keep the seed's
  * value.  Leaves the iterate in q and its residual rows (tables held at their ends) in r; adds
- * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0: the
- * rigid Jacobian at seed if already known (NULL: taken here). */
+ * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0, r0: the
+ * rigid Jacobian and the residual at seed if already known (NULL: evaluated here). */
 static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
-                   const double *seed, const double *J0, double *q, double tol, int max_iter, int *iters,
-                   double *r, int *singular)
+                   const double *seed, const double *J0, const double *r0, double *q, double tol, int max_iter,
+                   int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], nr;
+    double K[MTK_MAX_AXES * 6], nr, qlin[MTK_MAX_AXES];
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
-    rc = residual(P, q, tg, r, wo, 0, NULL);
-    if (rc) return rc;
+    if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
+        for (k = 0; k < rows; k++) r[k] = k < 3 ? r0[k] : r0[k] * (wo / ORIENTATION_SCALE);
+    } else {
+        rc = residual(P, q, tg, r, wo, 0, NULL);
+        if (rc) return rc;
+    }
     nr = norm(r, rows);
     while (!done && it < max_iter) {
         int inner, slow = 0;
+        memcpy(qlin, q, n * sizeof(double));
         if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, &rc)) {
             *iters += it;
             if (rc) return rc;
@@ -820,7 +880,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
         }
         for (inner = 0; inner < 8; inner++) {
             double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0,
-                   smax = 0.0;
+                   smax = 0.0, rstep = 0.0;
             int bt;
             it++;
             for (i = 0; i < n; i++) {
@@ -853,9 +913,14 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                 }
                 scale *= 0.5;
             }
-            for (i = 0; i < n; i++)
+            for (i = 0; i < n; i++) {
                 if (fabs(qn[i] - q[i]) > stepped) stepped = fabs(qn[i] - q[i]);
-            slow |= (nn > 0.1 * nr) && (nn > 1e-12);
+                if (P->m->rotary[i] && fabs(qn[i] - qlin[i]) > rstep) rstep = fabs(qn[i] - qlin[i]);
+            }
+            /* contraction too weak: re-linearise (with a held axis every step: the least-squares
+             * residual does not vanish, and only the Jacobian at the iterate leads to the
+             * least-squares point rather than to one biased by a stale Jacobian) */
+            slow |= (nn > 0.1 * nr) && (nn > 1e-12) && !(freeze && rstep < HELD_STALE);
             done |= (stepped < tol) || (nn <= 1e-12);
             memcpy(q, qn, n * sizeof(double));
             memcpy(r, rn, rows * sizeof(double));
@@ -941,7 +1006,7 @@ enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
 
 /* Commands q for one target (mtcomp.kinematics.compensate for one point).  At a pole (checked
  * at `start`: q0, or q0 plus the previous pose's correction along a path) the pole axis is held
- * and the result kept if the tool direction is then within pole_tol; else the exact solution
+ * at its programmed value and the result kept if the tool direction is then within pole_tol; else the exact solution
  * from start if warm (the previous pose on the branch nearest its program: a warm start costs
  * one iteration less and keeps the path's branch), from q0, from start, then from rotary seeds
  * about q0 (least rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0)
@@ -952,38 +1017,45 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
 {
     int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
     int tables = 0;
-    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], wacc = ORIENTATION_SCALE;
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], r0s[6];
+    const double *rs;
     const double *Jq0 = differs ? NULL : J0;
     *held = -1;
     *singular = 0;
     *res0 = INFINITY;
     for (k = 0; k < n; k++) tables |= P->tab[k] != NULL;
-    rc = jacobian(Pr, start, tg, ORIENTATION_SCALE, J0);
+    rc = jacobian(Pr, start, tg, ORIENTATION_SCALE, J0, P->geo ? NULL : r0s);
     if (rc) return rc;
+    rs = P->geo ? NULL : r0s;   /* the residual at start, from the Jacobian's pass (rigid errors) */
     if (o->pole_tol > 0.0 && P->mode >= 2) {
         int hold = pole_axis(Pr, J0, o->pole_tol);
         if (hold >= 0) {
+            /* the pole axis keeps its programmed value (not the path's: a pole stretch does not
+             * depend on what came before it) */
             int freeze[MTK_MAX_AXES] = {0};
+            double hs[MTK_MAX_AXES];
+            memcpy(hs, start, n * sizeof(double));
+            hs[hold] = q0[hold];
             freeze[hold] = 1;
-            rc = iterate(P, Pr, tg, WO_HELD, freeze, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, J0, hs[hold] == start[hold] ? rs : NULL, qt, o->tol,
+                         o->max_iter, iters, r, &sing);
             if (rc) return rc;
             if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
                 *held = hold;
                 *how = HOW_HELD;
-                wacc = WO_HELD;
                 goto accept;
             }
         }
     }
     if (differs && warm) {
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED) {
             *how = HOW_WARM;
             goto accept;
         }
     }
-    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, Jq0, qt, o->tol, o->max_iter, iters, r, &sing);
+    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, Jq0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
@@ -993,7 +1065,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     }
     if (differs && !warm) {
         /* continuation: the previous pose's correction keeps the branch the path is on */
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED) {
             *how = HOW_WARM;
@@ -1025,7 +1097,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(seed, q0, n * sizeof(double));
             seed[sa[s]] += va[s];
             if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             et = sing ? INFINITY : maxabs(r, rows);
             for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
@@ -1046,11 +1118,17 @@ accept:
     memcpy(q, qt, n * sizeof(double));
     memcpy(racc, r, rows * sizeof(double));
 strict:
-    /* Strict evaluation: a converged command outside an error table's range is an error (without
-     * tables the iteration's residual is the strict one). */
+    /* Strict check: a converged command outside an error table's range is an error.  Inside the
+     * ranges the iteration's residual (tables held at their ends) is the strict one, so the
+     * ranges are checked directly, in chain order as the strict forward model would. */
     if (tables) {
-        rc = residual(P, q, tg, racc, wacc, 1, bad);
-        if (rc) return rc;
+        for (k = 0; k < n; k++) {
+            const mtk_table *t = P->tab[k];
+            if (t && !(q[k] >= t->pos[0] - 1e-12 && q[k] <= t->pos[t->n - 1] + 1e-12)) {
+                *bad = k;
+                return MTK_E_RANGE;
+            }
+        }
     }
     *res = maxabs(racc, *held >= 0 ? 3 : rows);
     if (!(*res < CONVERGED)) {
@@ -1069,6 +1147,31 @@ static int closed_form(const prep_t *P, const double *q, double *out)
     const mtk_model *m = P->m;
     double R[9], A[3][3], rhs[3], t[3], Rt[3], det, x[3];
     int i, k, nc = 0, lin[3], ident = 1;
+    if (P->lin_first) {
+        /* R t by turning the vector t through the rotary axes from the tool end (Rodrigues on a
+         * vector); the matrix of the linear axes is constant */
+        for (k = 0; k < 3; k++) Rt[k] = P->tp[k] - m->tool_point[k];
+        for (i = P->n - 1; i >= 0; i--) {
+            if (m->rotary[i]) {
+                const double *u = m->dir[i];
+                double sn, cs, ux[3], ud;
+                sn = sin(q[i] * DEG);
+                cs = cos(q[i] * DEG);
+                ux[0] = u[1] * Rt[2] - u[2] * Rt[1];
+                ux[1] = u[2] * Rt[0] - u[0] * Rt[2];
+                ux[2] = u[0] * Rt[1] - u[1] * Rt[0];
+                ud = (u[0] * Rt[0] + u[1] * Rt[1] + u[2] * Rt[2]) * (1.0 - cs);
+                for (k = 0; k < 3; k++) Rt[k] = Rt[k] * cs + ux[k] * sn + u[k] * ud;
+            } else {
+                lin[2 - nc++] = i;
+            }
+        }
+        for (k = 0; k < 3; k++) rhs[k] = P->tw[k] - Rt[k];
+        mat_vec(P->Ainv, rhs, x);
+        memcpy(out, q, P->n * sizeof(double));
+        for (k = 0; k < 3; k++) out[lin[k]] += x[k];
+        return 1;
+    }
     eye(R);
     for (i = 0; i < P->n; i++) {
         if (m->rotary[i]) {
@@ -1135,12 +1238,30 @@ static void make_target(const prep_t *Pi, const double *q, target_t *tg)
     mat_vec(tg->R, Pi->m->tool_axis, tg->v);
 }
 
+/* mtk_retarget's state per model: the prepared error set and the path's last correction. */
+typedef struct {
+    int valid;
+    mtk_errors e;
+    mtk_table *tables[MTK_MAX_AXES];
+    prep_t P, Pr, Pi;
+    int have_prev, warm;
+    double corr[MTK_MAX_AXES];
+} retarget_cache;
+
+static int same_errors(const mtk_errors *a, const mtk_errors *b)
+{
+    return !memcmp(a->tool, b->tool, sizeof a->tool) && !memcmp(a->wp_t, b->wp_t, sizeof a->wp_t) &&
+           !memcmp(a->wp_a, b->wp_a, sizeof a->wp_a) && !memcmp(a->loc, b->loc, sizeof a->loc) &&
+           a->use_tables == b->use_tables;
+}
+
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual_out, char *err)
 {
-    int n = m->n_axes, i, it = 0, rc, bad = -1, held, singular = 0;
+    int n = m->n_axes, i, k, it = 0, rc, bad = -1, held, singular = 0;
     double res = 0.0, res0 = 0.0;
     char msg[MTK_ERRLEN];
+    retarget_cache local, *c = (retarget_cache *)m->cache;
     if (iters) *iters = 0;
     if (residual_out) *residual_out = 0.0;
     for (i = 0; i < n; i++) {
@@ -1152,41 +1273,65 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
     }
     if (!e || errors_zero(m, e)) {
         memcpy(q, q_prog, n * sizeof(double));
-    } else {
-        prep_t P, Pr, Pi;
-        mtk_errors rigid;
-        target_t tg;
-        opt_t o;
-        prepare(m, e, 1, &P);
-        if (!(P.closed && closed_form(&P, q_prog, q))) {
-            rigid_errors(e, &rigid);
-            prepare(m, &rigid, 0, &Pr);
-            prepare(m, NULL, 0, &Pi);
-            make_target(&Pi, q_prog, &tg);
-            o.tol = tol;
-            o.max_iter = max_iter;
-            o.pole_tol = MTK_POLE_TOL;
-            int how;
-            rc = solve_pose(&P, &Pr, &tg, q_prog, q_prog, 0, &o, q, &it, &res, &res0, &singular, &bad, &held, &how);
-            if (iters) *iters = it;
-            if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
-            if (rc == MTK_E_RANGE) {
-                range_message(m, bad, q[bad], err);
-                return rc;
-            }
-            if (rc == MTK_E_CONVERGE) {
-                if (singular && res0 == INFINITY)
-                    snprintf(msg, sizeof msg, "compensation did not converge: singular Jacobian (kinematic "
-                             "singularity)");
-                else
-                    snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may "
-                             "be unreachable or at a kinematic singularity", res0);
-                seterr(err, msg);
-                return rc;
-            }
-            if (rc) return rc;
+        goto limits;
+    }
+    if (!c) {
+        c = (retarget_cache *)calloc(1, sizeof *c);
+        ((mtk_model *)m)->cache = c;       /* the model's own scratch state */
+        if (!c) {
+            memset(&local, 0, sizeof local);
+            c = &local;
         }
     }
+    if (!c->valid || !same_errors(&c->e, e) || memcmp(c->tables, m->table, sizeof c->tables)) {
+        mtk_errors rigid;
+        c->e = *e;
+        memcpy(c->tables, m->table, sizeof c->tables);
+        prepare(m, e, 1, &c->P);
+        rigid_errors(e, &rigid);
+        prepare(m, &rigid, 0, &c->Pr);
+        prepare(m, NULL, 0, &c->Pi);
+        c->have_prev = 0;
+        c->valid = 1;
+    }
+    if (!(c->P.closed && closed_form(&c->P, q_prog, q))) {
+        target_t tg;
+        opt_t o;
+        double start[MTK_MAX_AXES];
+        int how = HOW_SEED;
+        make_target(&c->Pi, q_prog, &tg);
+        o.tol = tol;
+        o.max_iter = max_iter;
+        o.pole_tol = MTK_POLE_TOL;
+        memcpy(start, q_prog, n * sizeof(double));
+        if (c->have_prev)
+            for (k = 0; k < n; k++) start[k] += c->corr[k];
+        rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, &o, q, &it, &res, &res0,
+                        &singular, &bad, &held, &how);
+        if (iters) *iters = it;
+        if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
+        c->have_prev = rc == MTK_OK;
+        if (rc == MTK_OK) {
+            for (k = 0; k < n; k++) c->corr[k] = q[k] - q_prog[k];
+            c->warm = how != HOW_SEED;
+        }
+        if (rc == MTK_E_RANGE) {
+            range_message(m, bad, q[bad], err);
+            return rc;
+        }
+        if (rc == MTK_E_CONVERGE) {
+            if (singular && res0 == INFINITY)
+                snprintf(msg, sizeof msg, "compensation did not converge: singular Jacobian (kinematic "
+                         "singularity)");
+            else
+                snprintf(msg, sizeof msg, "compensation did not converge (residual %.3g); the target may "
+                         "be unreachable or at a kinematic singularity", res0);
+            seterr(err, msg);
+            return rc;
+        }
+        if (rc) return rc;
+    }
+limits:
     i = limits(m, q);
     if (i >= 0) {
         snprintf(msg, sizeof msg, "axis %c would have to move to %.6f, outside its travel [%g, %g]",

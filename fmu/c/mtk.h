@@ -1,13 +1,17 @@
-/* mtk: the mtcomp kinematic kernel in C.
+/* mtk: the mtcomp kinematic kernel in C, the one implementation of the exact model's hot loop.
  *
- * Mirrors mtcomp.kinematics (docs/model.md): a serial chain of linear and rotary axes from the
- * workpiece to the tool, each contributing
+ * The FMUs compile it, and the library (mtcomp.kinematics through mtcomp._kernel, ctypes) calls
+ * its batch entries as a plain shared library; mtcomp._solver is the numpy reference it mirrors
+ * (docs/model.md): a serial chain of linear and rotary axes from the workpiece to the tool, each
+ * contributing
  *     G_i(q) = L_i N_i(q) L_i^-1 . T(loc_i) D_i(q) T(-loc_i),
- * tool setting offset at the end of the chain and the workpiece setting pose at its start;
- * `mtk_retarget` is the same chord Gauss-Newton iteration as mtcomp.kinematics.compensate,
- * with the same restarts from rotary seeds where the iteration from the commands fails.
+ * tool setting offset at the end of the chain and the workpiece setting pose at its start.
+ * Compensation: closed form for rigid errors without rotation, else chord Gauss-Newton with the
+ * analytic rigid Jacobian, the pole axis held within the pole tolerance, a warm start from the
+ * previous pose along a path, restarts from rotary seeds where the iteration fails.
  * Units: mm and deg for commands and setting errors, rad for geometric error angles.
- * The machine comes from a resource file written at FMU build time (docs/fmu.md).
+ * For the FMUs the machine comes from a resource file written at build time (docs/fmu.md); the
+ * library builds it in memory (mtk_model_new).
  */
 #ifndef MTCOMP_MTK_H
 #define MTCOMP_MTK_H
@@ -36,6 +40,8 @@ typedef struct {
     double tool_point[3];
     double tool_axis[3];
     mtk_table *table[MTK_MAX_AXES];   /* NULL: no component errors for that axis */
+    void *cache;                      /* mtk_retarget's prepared error set and last correction
+                                       * (one caller per model at a time; freed by mtk_free) */
 } mtk_model;
 
 /* Setting and location errors: the parameters of an FMU, may change between calls. */
@@ -62,9 +68,12 @@ int mtk_axis_index(const mtk_model *m, char axis_name);
 int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double p[3], double R[9], char *err);
 
 /* Commands q (n_axes) that put the real tool edge at the ideal pose of q_prog under the errors e
- * (mtcomp.kinematics.retarget with check=True).  max_iter bounds each attempt (the one from
+ * (mtcomp.kinematics.retarget with check=True).  Successive calls are taken as a path: each
+ * starts from the previous call's correction (warm start) while the errors stay the same; the
+ * constants of the error set are prepared once.  max_iter bounds each attempt (the one from
  * q_prog and every restart); iters receives the iterations of all attempts together, residual
- * the largest residual component (mm; orientation scaled by 100 mm/rad).  Both may be NULL. */
+ * the largest residual component (mm; orientation scaled by 100 mm/rad; with a pole axis held:
+ * position only).  Both may be NULL. */
 int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, double *q,
                  double tol, int max_iter, int *iters, double *residual, char *err);
 
