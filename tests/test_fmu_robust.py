@@ -362,3 +362,160 @@ def test_do_nothing_fmu_copies_its_inputs(tmp_path):
     res = fmpy.simulate_fmu(str(path), stop_time=0.002, output_interval=1e-3,
                             start_values={"command.X": 3.25, "command.B": -7.5})
     assert res["compensated.X"][-1] == 3.25 and res["compensated.B"][-1] == -7.5 and res["compensated.Y"][-1] == 0.0
+
+
+# ---------------------------------------------------------------------------------------- fuzzing
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+
+FUZZ = settings(max_examples=80, deadline=None, derandomize=True, database=None,
+                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+ANY_FLOAT = st.one_of(st.floats(width=64), st.sampled_from([0.0, -0.0, 1e-300, 1e300, 49.99, 50.0, 50.0001,
+                                                            30.0, 1000.0, float("nan"), float("inf")]))
+
+
+@pytest.fixture(scope="module")
+def comp_md(fmus):
+    md = read_model_description(str(fmus["comp5"]))
+    return md, fmpy.extract(str(fmus["comp5"]))
+
+
+def _slave(md, unzipped, logs):
+    """An instance whose log messages are collected; a message that is not UTF-8 is recorded as
+    a failure (the FMU must not echo raw bytes from a corrupt state into its log)."""
+    from fmpy import calloc, free
+    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+    def logger(env, instance, status, category, message):
+        try:
+            logs.append(message.decode("utf-8"))
+        except UnicodeDecodeError:
+            logs.append(None)
+
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(logger)
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    s = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="fuzz")
+    s.instantiate(loggingOn=False, callbacks=cb)
+    s._keep_callbacks = cb
+    return s
+
+
+@FUZZ
+@given(vr=st.integers(0, 300), value=ANY_FLOAT)
+def test_fuzz_set_real_stores_only_what_it_accepts(comp_md, vr, value):
+    """Any Real value reference, any double: either refused with the old value kept, or stored
+    exactly and within the declared range; never a crash."""
+    md, unzipped = comp_md
+    var = {v.valueReference: v for v in md.modelVariables if v.type == "Real"}.get(vr)
+    s = _slave(md, unzipped, [])
+    try:
+        old = s.getReal([vr])[0] if var is not None else None
+        try:
+            s.setReal([vr], [value])
+            accepted = True
+        except FMICallException:
+            accepted = False
+        if var is None or var.causality == "output":
+            assert not accepted
+            return
+        if accepted:
+            assert s.getReal([vr])[0] == value
+            assert np.isfinite(value)
+            lo = -np.inf if var.min is None else float(var.min)
+            hi = np.inf if var.max is None else float(var.max)
+            assert lo <= value <= hi, (var.name, value)
+        else:
+            got = s.getReal([vr])[0]
+            assert got == old or (np.isnan(got) and np.isnan(old))
+            assert not (np.isfinite(value) and (var.min is None or float(var.min) <= value)
+                        and (var.max is None or value <= float(var.max)))
+    finally:
+        s.freeInstance()
+
+
+@FUZZ
+@given(t=ANY_FLOAT, h=ANY_FLOAT)
+def test_fuzz_do_step_accepts_only_the_current_time_and_a_finite_positive_step(comp_md, t, h):
+    md, unzipped = comp_md
+    s = _slave(md, unzipped, [])
+    try:
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.setReal([0, 1, 2, 3, 4], [0.0, 10.0, 0.0, 0.0, 0.0])
+        s.exitInitializationMode()
+        s.doStep(0.0, 1e-3)                     # the FMU is at t = 1 ms
+        valid = np.isfinite(t) and np.isfinite(h) and h > 0 and abs(t - 1e-3) <= 1e-9 * (1 + 1e-3)
+        try:
+            s.doStep(t, h)
+            accepted = True
+        except FMICallException:
+            accepted = False
+        assert accepted == valid, (t, h)
+        now = t + h if accepted else 1e-3
+        s.doStep(now, 1e-3)                     # still usable, at the expected time
+        assert np.isfinite(s.getReal([12])[0])
+    finally:
+        s.freeInstance()
+
+
+@pytest.fixture(scope="module")
+def valid_state(comp_md):
+    md, unzipped = comp_md
+    s = _slave(md, unzipped, [])
+    try:
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.setReal([0, 1, 2, 3, 4], [5.0, 10.0, 3.0, -2.0, 1.0])
+        s.exitInitializationMode()
+        s.doStep(0.0, 1e-3)
+        st_ = s.getFMUstate()
+        blob = bytes(s.serializeFMUstate(st_))
+        s.freeFMUstate(st_)
+        return blob
+    finally:
+        s.freeInstance()
+
+
+@FUZZ
+@given(edits=st.lists(st.tuples(st.integers(0, 10**9), st.integers(0, 255)), min_size=1, max_size=8))
+def test_fuzz_corrupted_states_are_refused_or_harmless(comp_md, valid_state, edits):
+    """Random byte edits of a serialized state: refused, or a state whose parameters are all
+    within their declared ranges and that steps to finite outputs (or an error); never a crash."""
+    md, unzipped = comp_md
+    blob = bytearray(valid_state)
+    for pos, byte in edits:
+        blob[pos % len(blob)] = byte
+    logs = []
+    s = _slave(md, unzipped, logs)
+    try:
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.setReal([0, 1, 2, 3, 4], [5.0, 10.0, 3.0, -2.0, 1.0])
+        s.exitInitializationMode()
+        try:
+            st_ = s.deSerializeFMUstate(bytes(blob))
+        except FMICallException:
+            return
+        try:
+            s.setFMUstate(st_)
+        except FMICallException:
+            return
+        finally:
+            s.freeFMUstate(st_)
+        for v in md.modelVariables:
+            if v.type == "Real" and v.causality == "parameter":
+                x = s.getReal([v.valueReference])[0]
+                assert float(v.min) <= x <= float(v.max), (v.name, x)
+        try:
+            out = s.getReal([10, 11, 12, 13, 14])
+            assert np.isfinite(out).all()
+        except FMICallException:
+            pass
+    finally:
+        s.freeInstance()
+        assert None not in logs, "a log message that is not UTF-8"

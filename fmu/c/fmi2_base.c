@@ -449,8 +449,12 @@ static int state_is_valid(Instance *inst, const ModelState *st)
         return 0;
     }
     if (!memchr(st->guid, 0, MODEL_GUIDLEN) || strcmp(st->guid, inst->st.guid) != 0) {
-        inst_log(inst, fmi2Error, "logStatusError", "FMU state was taken from another FMU (GUID '%.*s', this FMU '%s')",
-                 MODEL_GUIDLEN - 1, st->guid, inst->st.guid);
+        char shown[MODEL_GUIDLEN];   /* the bytes come from outside: log printable ASCII only */
+        for (k = 0; k < MODEL_GUIDLEN - 1 && st->guid[k]; k++)
+            shown[k] = (st->guid[k] >= 32 && st->guid[k] < 127) ? st->guid[k] : '?';
+        shown[k] = 0;
+        inst_log(inst, fmi2Error, "logStatusError", "FMU state was taken from another FMU (GUID '%s', this FMU '%s')",
+                 shown, inst->st.guid);
         return 0;
     }
     if (st->mode < MODE_INSTANTIATED || st->mode > MODE_ERROR) {
