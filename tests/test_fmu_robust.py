@@ -519,3 +519,18 @@ def test_fuzz_corrupted_states_are_refused_or_harmless(comp_md, valid_state, edi
     finally:
         s.freeInstance()
         assert None not in logs, "a log message that is not UTF-8"
+
+
+def test_fmu_manipulation_toolbox_check_finds_nothing(fmus):
+    """`fmutool -check` (conformity and semantic checks of FMI 2.0 and 3.0) on every FMU here."""
+    import importlib.util
+    if importlib.util.find_spec("fmu_manipulation_toolbox") is None:
+        pytest.skip("fmu-manipulation-toolbox not installed")
+    for name, path in fmus.items():
+        run = subprocess.run([sys.executable, "-c", "import sys; from fmu_manipulation_toolbox.cli.fmutool import "
+                              "fmutool; sys.exit(fmutool())", "-input", str(path), "-check"],
+                             capture_output=True, text=True, timeout=120)
+        out = run.stdout + run.stderr
+        assert run.returncode == 0, out[-2000:]
+        assert "seems to be compliant with FMI" in out and "No semantic error" in out, (name, out[-2000:])
+        assert "ERROR" not in out and "WARNING" not in out, (name, out[-2000:])

@@ -141,3 +141,28 @@ def test_unknown_layout_or_axis_is_refused(ssps, tmp_path):
     with pytest.raises(InputError, match="no axis 'Q'"):
         write_ssp(tmp_path / "x.ssp", d / "compensator.fmu", d / "machine.fmu", commands={"Q": 1.0})
     assert not (tmp_path / "x.ssp").exists()
+
+
+def test_cli_writes_either_layout_and_cosim_csv_rows(tmp_path, capsys):
+    from mtcomp.cli import main
+    from mtcomp.errors import save_errors
+    errs = tmp_path / "true.toml"
+    save_errors(SETTING, errs)
+    for layout in ("components", "system"):
+        out = tmp_path / f"{layout}.ssp"
+        assert main(["fmu", "ssp", "--machine", "robonano-a0ib", "--errors", str(errs), "-o", str(out),
+                     "--compiler", "cc", "--layout", layout]) == 0
+        root = ET.fromstring(zipfile.ZipFile(out).read("SystemStructure.ssd"))
+        assert bool(root.findall("ssd:System/ssd:Connectors/ssd:Connector", SSD_NS)) == (layout == "system")
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G0 X0 Y0 Z0 B10 C0\nG1 X2 B12 C10 F600\nG0 X0\n")
+    args = ["cosim", str(prog), "--machine", "robonano-a0ib", "--errors", str(errs), "--step", "0.01",
+            "--compiler", "cc"]
+    assert main(args + ["--out", str(tmp_path / "run"), "--full-csv"]) == 0
+    text = capsys.readouterr().out
+    assert "cutting:" in text and "G0 rapids:" in text and "every step" in text
+    rows = (tmp_path / "run.csv").read_text().splitlines()
+    assert "every 1. of" in rows[0] and rows[1].startswith("t,")
+    # an output prefix in a folder that does not exist: one clear error, nothing written
+    assert main(args + ["--out", str(tmp_path / "no" / "such" / "run")]) == 2
+    assert not (tmp_path / "no").exists()
