@@ -534,3 +534,17 @@ def test_fmu_manipulation_toolbox_check_finds_nothing(fmus):
         assert run.returncode == 0, out[-2000:]
         assert "seems to be compliant with FMI" in out and "No semantic error" in out, (name, out[-2000:])
         assert "ERROR" not in out and "WARNING" not in out, (name, out[-2000:])
+
+
+@pytest.mark.parametrize("value", [0, -5, 1001, 2**31 - 1])
+def test_out_of_range_max_iterations_is_refused_when_set(fmus, value):
+    logs = []
+    r = FmuRunner(fmus["comp5"], "maxit", logs)
+    try:
+        with pytest.raises(FMICallException):
+            r.set({"max_iterations": value})
+        assert any(f"max_iterations = {value} is out of range" in m for m in _errors(logs)), logs
+        r.set({"max_iterations": 7})
+        assert r.fmu.getInteger([r.vr["max_iterations"]]) == [7]
+    finally:
+        r.close()
