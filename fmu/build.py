@@ -482,7 +482,8 @@ def _compile_win64(root: Path, identifier: str, files: tuple[str, ...], fmi_vers
     import subprocess
     cc = shutil.which(WIN64_CC)
     if cc is None:
-        raise FmuBuildError(f"{WIN64_CC} not found: install mingw-w64 (Debian: gcc-mingw-w64-x86-64) for win64 binaries")
+        raise FmuBuildError(f"{WIN64_CC} not found: install mingw-w64 (Debian: gcc-mingw-w64-x86-64) "
+                            "for win64 binaries")
     plat = "win64" if fmi_version == 2 else "x86_64-windows"
     out = root / "binaries" / plat / f"{identifier}.dll"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -70,6 +70,32 @@ def _errors(logs):
     return [m for s, _, m in logs if s >= 3]
 
 
+def _slave(md, unzipped, logs, guid=None):
+    """An instance whose log messages are collected; a message that is not UTF-8 is recorded as
+    a failure (the FMU must not echo raw bytes from a corrupt state into its log).  Never fmpy's
+    default callbacks: they forward to whatever Python logger fmpy registered last, which may be
+    gone (a crash in fmpy, not in the FMU)."""
+    from fmpy import calloc, free
+    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+    def logger(env, instance, status, category, message):
+        try:
+            logs.append(message.decode("utf-8"))
+        except UnicodeDecodeError:
+            logs.append(None)
+
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(logger)
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    s = FMU2Slave(guid=guid or md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="fuzz")
+    s.instantiate(loggingOn=False, callbacks=cb)
+    s._keep_callbacks = cb
+    return s
+
+
 # ---------------------------------------------------------------------------------------- times
 
 @pytest.mark.parametrize("t,h", [(float("nan"), 1e-3), (float("inf"), 1e-3), (0.0, float("nan")),
@@ -89,15 +115,13 @@ def test_do_step_refuses_non_finite_times_and_steps(fmus, t, h):
 
 
 def test_setup_experiment_refuses_a_non_finite_start_time(fmus):
-    from fmpy.fmi2 import FMU2Slave
     md = read_model_description(str(fmus["comp5"]))
     logs = []
-    s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmus["comp5"])),
-                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="start")
-    s.instantiate(loggingOn=False)
+    s = _slave(md, fmpy.extract(str(fmus["comp5"])), logs)
     try:
         with pytest.raises(FMICallException):
             s.setupExperiment(startTime=float("nan"))
+        assert any("start time must be finite" in m for m in logs), logs
     finally:
         s.freeInstance()
 
@@ -105,19 +129,15 @@ def test_setup_experiment_refuses_a_non_finite_start_time(fmus):
 # ---------------------------------------------------------------------------------------- GUID and state
 
 def test_instantiation_with_another_fmus_guid_is_refused(fmus):
-    from fmpy.fmi2 import FMU2Slave
     md = read_model_description(str(fmus["comp5"]))
     other = read_model_description(str(fmus["comp3"])).guid
     assert other != md.guid
     unzipped = fmpy.extract(str(fmus["comp5"]))
-    bad = FMU2Slave(guid=other, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="wrong-guid")
+    logs = []
     with pytest.raises(Exception, match="[Ii]nstantiat"):
-        bad.instantiate(loggingOn=False)
-    good = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
-                     instanceName="right-guid")
-    good.instantiate(loggingOn=False)
-    good.freeInstance()
+        _slave(md, unzipped, logs, guid=other)
+    assert any("is not the GUID of this FMU" in m and other in m for m in logs), logs
+    _slave(md, unzipped, []).freeInstance()
 
 
 def test_state_of_the_3_axis_compensator_is_refused_by_the_5_axis_one(fmus):
@@ -379,30 +399,6 @@ ANY_FLOAT = st.one_of(st.floats(width=64), st.sampled_from([0.0, -0.0, 1e-300, 1
 def comp_md(fmus):
     md = read_model_description(str(fmus["comp5"]))
     return md, fmpy.extract(str(fmus["comp5"]))
-
-
-def _slave(md, unzipped, logs):
-    """An instance whose log messages are collected; a message that is not UTF-8 is recorded as
-    a failure (the FMU must not echo raw bytes from a corrupt state into its log)."""
-    from fmpy import calloc, free
-    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-
-    def logger(env, instance, status, category, message):
-        try:
-            logs.append(message.decode("utf-8"))
-        except UnicodeDecodeError:
-            logs.append(None)
-
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(logger)
-    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    s = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
-                  instanceName="fuzz")
-    s.instantiate(loggingOn=False, callbacks=cb)
-    s._keep_callbacks = cb
-    return s
 
 
 @FUZZ

@@ -497,7 +497,8 @@ static int state_is_valid(Instance *inst, const ModelState *st)
     for (vr = 0; vr < MODEL_NI; vr++) {
         int kind = model_int_kind(inst, vr);
         if (kind != VAR_NONE && kind != VAR_OUTPUT && model_check_int(inst, vr, st->i[vr]) != fmi2OK) {
-            inst_log(inst, fmi2Error, "logStatusError", "FMU state refused: Integer value reference %u out of range", vr);
+            inst_log(inst, fmi2Error, "logStatusError",
+                     "FMU state refused: Integer value reference %u out of range", vr);
             return 0;
         }
     }
