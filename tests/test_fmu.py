@@ -43,12 +43,17 @@ def live_fmpy_logger():
     from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
     from fmpy.logging import addLoggerProxy
     if not hasattr(fmpy, "_mtcomp_test_logger"):
+        fmpy._mtcomp_test_logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, message: None)
+
+    def arm():   # a fresh struct each time: the proxy replaces the struct's logger by itself
         cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, message: None)
-        fmpy._mtcomp_test_logger = cb
-    addLoggerProxy(byref(fmpy._mtcomp_test_logger))
+        cb.logger = fmpy._mtcomp_test_logger
+        addLoggerProxy(byref(cb))
+        fmpy._mtcomp_test_callbacks = cb
+
+    arm()
     yield
-    addLoggerProxy(byref(fmpy._mtcomp_test_logger))
+    arm()
 
 # A 5-axis program for the B-C table machine: simultaneous moves of X Y Z B C, an arc, a rapid.
 PROGRAM_5AX = """%

@@ -45,12 +45,17 @@ def live_fmpy_logger():
     from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
     from fmpy.logging import addLoggerProxy
     if not hasattr(fmpy, "_mtcomp_test_logger"):
+        fmpy._mtcomp_test_logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, message: None)
+
+    def arm():   # a fresh struct each time: the proxy replaces the struct's logger by itself
         cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, message: None)
-        fmpy._mtcomp_test_logger = cb
-    addLoggerProxy(byref(fmpy._mtcomp_test_logger))
+        cb.logger = fmpy._mtcomp_test_logger
+        addLoggerProxy(byref(cb))
+        fmpy._mtcomp_test_callbacks = cb
+
+    arm()
     yield
-    addLoggerProxy(byref(fmpy._mtcomp_test_logger))
+    arm()
 
 
 @pytest.fixture(scope="module", autouse=True)
