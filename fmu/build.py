@@ -673,7 +673,8 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
     extra += [
         Var("residual", VR_RESIDUAL, "output", "Largest residual of the compensation (position, mm; orientation "
             "scaled by 100 mm/rad)", unit="mm", display_unit="nm", depends_on=feed),
-        Var("iterations", IVR_ITERS, "output", "Gauss-Newton iterations used at the last evaluation",
+        Var("iterations", IVR_ITERS, "output", "Gauss-Newton iterations used at the last evaluation, summed "
+            "over the restarts from rotary seeds",
             type="Integer", variability="discrete", depends_on=feed),
         Var("tolerance", VR_TOL, "parameter", "Convergence tolerance of the compensation iteration: it stops when "
             "no axis moves by more than this in one iteration (mm; a rotary axis step in deg is compared with "

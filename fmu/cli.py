@@ -29,11 +29,13 @@ def _errors(path):
 def _build(args) -> int:
     from .build import build_compensator_fmu, build_machine_fmu
     errors = _errors(args.errors)
+    windows = {"auto": None, "yes": True, "no": False}[args.win64]
     if args.kind == "compensator":
-        out = build_compensator_fmu(args.machine, args.output, errors, compiler=args.compiler, fmi_version=args.fmi)
+        out = build_compensator_fmu(args.machine, args.output, errors, compiler=args.compiler, fmi_version=args.fmi,
+                                    windows=windows)
     else:
         out = build_machine_fmu(args.machine, args.output, errors, _dynamics(args), compiler=args.compiler,
-                                fmi_version=args.fmi)
+                                fmi_version=args.fmi, windows=windows)
     print(f"wrote {out}")
     return 0
 
@@ -96,6 +98,9 @@ def register(subparsers) -> None:
     b.add_argument("--compiler", choices=("cmake", "cc"), default="cmake",
                    help="cmake: fmpy's CMake build (default); cc: one direct gcc call")
     b.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2.0)")
+    b.add_argument("--win64", choices=("auto", "yes", "no"), default="auto",
+                   help="also cross-compile a win64 binary with mingw-w64 (auto: when x86_64-w64-mingw32-gcc "
+                        "is installed; yes: required)")
     _dyn_args(b)
     b.set_defaults(func=_build)
     s = fsub.add_parser("ssp", help="SSP file wiring a compensator FMU to a machine FMU")

@@ -545,7 +545,8 @@ def test_fmu_manipulation_toolbox_check_finds_nothing(fmus):
     import importlib.util
     if importlib.util.find_spec("fmu_manipulation_toolbox") is None:
         pytest.skip("fmu-manipulation-toolbox not installed")
-    for name, path in fmus.items():
+    for name in ("comp5", "machine", "comp5_fmi3"):   # feed-through, none, and FMI 3.0
+        path = fmus[name]
         run = subprocess.run([sys.executable, "-c", "import sys; from fmu_manipulation_toolbox.cli.fmutool import "
                               "fmutool; sys.exit(fmutool())", "-input", str(path), "-check"],
                              capture_output=True, text=True, timeout=120)
@@ -567,3 +568,15 @@ def test_out_of_range_max_iterations_is_refused_when_set(fmus, value):
         assert r.fmu.getInteger([r.vr["max_iterations"]]) == [7]
     finally:
         r.close()
+
+
+def test_cli_win64_option(tmp_path, monkeypatch):
+    from mtcomp.cli import main
+    out = tmp_path / "c.fmu"
+    assert main(["fmu", "build", "compensator", "--machine", "vmc-moving-column", "-o", str(out),
+                 "--compiler", "cc", "--win64", "no"]) == 0
+    assert not [n for n in zipfile.ZipFile(out).namelist() if n.endswith(".dll")]
+    monkeypatch.setenv("PATH", str(tmp_path))          # no cross compiler to be found
+    assert main(["fmu", "build", "compensator", "--machine", "vmc-moving-column", "-o", str(tmp_path / "w.fmu"),
+                 "--compiler", "cc", "--win64", "yes"]) == 2
+    assert not (tmp_path / "w.fmu").exists()
