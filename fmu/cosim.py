@@ -275,12 +275,12 @@ class CosimResult:
             if not mask.any():
                 continue
             lines.append(f"  {label}:")
-            for name, e in (("without compensation", self.error_uncompensated),
-                            ("with compensation", self.error_compensated),
-                            ("of which servo lag / backlash", self.error_lag),
-                            ("compensated minus lag part", self.error_remaining)):
+            for name, e in (("tool edge error without compensation", self.error_uncompensated),
+                            ("tool edge error with compensation", self.error_compensated),
+                            ("  of which servo lag / backlash", self.error_lag),
+                            ("  remaining (with compensation - lag)", self.error_remaining)):
                 mx, rms = _stats(e[mask])
-                lines.append(f"    tool edge error {name + ':':<31} max {_um(mx)}, RMS {_um(rms)}")
+                lines.append(f"    {name + ':':<39} max {_um(mx)}, RMS {_um(rms)}")
         return "\n".join(lines)
 
     def default_stride(self, max_rows: int = 10_000) -> int:
