@@ -580,3 +580,29 @@ def test_cli_win64_option(tmp_path, monkeypatch):
     assert main(["fmu", "build", "compensator", "--machine", "vmc-moving-column", "-o", str(tmp_path / "w.fmu"),
                  "--compiler", "cc", "--win64", "yes"]) == 2
     assert not (tmp_path / "w.fmu").exists()
+
+
+def test_fmi3_instantiation_token_is_checked(fmus):
+    from fmpy.fmi3 import FMU3Slave
+    path = fmus["comp5_fmi3"]
+    md = read_model_description(str(path))
+    unzipped = fmpy.extract(str(path))
+    logs = []
+
+    def make(token):
+        s = FMU3Slave(guid=token, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="token")
+        s.instantiate(logMessage=lambda env, status, cat, msg: logs.append(msg.decode()))
+        return s
+
+    with pytest.raises(Exception):
+        make("{00000000-0000-0000-0000-000000000000}")
+    assert any("is not the GUID of this FMU" in m for m in logs), logs
+    s = make(md.guid)
+    try:
+        s.enterInitializationMode(startTime=0.0)
+        s.exitInitializationMode()
+        with pytest.raises(FMICallException):
+            s.doStep(float("nan"), 1e-3)
+    finally:
+        s.freeInstance()
