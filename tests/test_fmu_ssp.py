@@ -174,9 +174,14 @@ def test_cli_writes_either_layout_and_cosim_csv_rows(tmp_path, capsys):
     for layout in ("components", "system"):
         out = tmp_path / f"{layout}.ssp"
         assert main(["fmu", "ssp", "--machine", "robonano-a0ib", "--errors", str(errs), "-o", str(out),
-                     "--compiler", "cc", "--layout", layout]) == 0
+                     "--compiler", "cc", "--layout", layout, "--commands", "C=20,B=10,X=5"]) == 0
         root = ET.fromstring(zipfile.ZipFile(out).read("SystemStructure.ssd"))
         assert bool(root.findall("ssd:System/ssd:Connectors/ssd:Connector", SSD_NS)) == (layout == "system")
+        ssv = "{http://ssp-standard.org/SSP1/SystemStructureParameterValues}"
+        assert {p.get("name") for p in root.iter(f"{ssv}Parameter")} == {"command.C", "command.B", "command.X"}
+    assert main(["fmu", "ssp", "--machine", "robonano-a0ib", "-o", str(tmp_path / "bad.ssp"),
+                 "--commands", "C=twenty"]) == 2
+    assert not (tmp_path / "bad.ssp").exists()
     prog = tmp_path / "p.nc"
     prog.write_text("G90 G0 X0 Y0 Z0 B10 C0\nG1 X2 B12 C10 F600\nG0 X0\n")
     args = ["cosim", str(prog), "--machine", "robonano-a0ib", "--errors", str(errs), "--step", "0.01",
