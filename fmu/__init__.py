@@ -2,15 +2,16 @@
 co-simulation with fmpy as the master (docs/fmu.md).
 
 The entry points are imported on first use, so `import mtcomp.fmu` stays light:
-`build_compensator_fmu`, `build_machine_fmu`, `MachineDynamics` (mtcomp.fmu.build),
-`cosimulate`, `interpolate_program`, `CosimResult` (mtcomp.fmu.cosim), `write_ssp`
+`build_compensator_fmu`, `build_machine_fmu`, `build_passthrough_fmu`, `MachineDynamics`
+(mtcomp.fmu.build), `cosimulate`, `interpolate_program`, `CosimResult`, `CosimFailed` (mtcomp.fmu.cosim), `write_ssp`
 (mtcomp.fmu.ssp), `build_python_compensator_fmu` (mtcomp.fmu.pyfmu).
 """
 from importlib import import_module
 
 _ENTRY_POINTS = {
     "build_compensator_fmu": "build", "build_machine_fmu": "build", "MachineDynamics": "build",
-    "cosimulate": "cosim", "interpolate_program": "cosim", "CosimResult": "cosim",
+    "build_passthrough_fmu": "build", "cosimulate": "cosim", "interpolate_program": "cosim",
+    "CosimResult": "cosim", "CosimFailed": "cosim",
     "write_ssp": "ssp", "build_python_compensator_fmu": "pyfmu",
 }
 

@@ -482,7 +482,8 @@ def _compile_win64(root: Path, identifier: str, files: tuple[str, ...], fmi_vers
     import subprocess
     cc = shutil.which(WIN64_CC)
     if cc is None:
-        raise FmuBuildError(f"{WIN64_CC} not found: install mingw-w64 (Debian: gcc-mingw-w64-x86-64) for win64 binaries")
+        raise FmuBuildError(f"{WIN64_CC} not found: install mingw-w64 (Debian: gcc-mingw-w64-x86-64) "
+                            "for win64 binaries")
     plat = "win64" if fmi_version == 2 else "x86_64-windows"
     out = root / "binaries" / plat / f"{identifier}.dll"
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -672,7 +673,8 @@ def build_compensator_fmu(machine: Machine | str, out_path, errors: ErrorSet | N
     extra += [
         Var("residual", VR_RESIDUAL, "output", "Largest residual of the compensation (position, mm; orientation "
             "scaled by 100 mm/rad)", unit="mm", display_unit="nm", depends_on=feed),
-        Var("iterations", IVR_ITERS, "output", "Gauss-Newton iterations used at the last evaluation",
+        Var("iterations", IVR_ITERS, "output", "Gauss-Newton iterations used at the last evaluation, summed "
+            "over the restarts from rotary seeds",
             type="Integer", variability="discrete", depends_on=feed),
         Var("tolerance", VR_TOL, "parameter", "Convergence tolerance of the compensation iteration: it stops when "
             "no axis moves by more than this in one iteration (mm; a rotary axis step in deg is compared with "

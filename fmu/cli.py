@@ -29,25 +29,45 @@ def _errors(path):
 def _build(args) -> int:
     from .build import build_compensator_fmu, build_machine_fmu
     errors = _errors(args.errors)
+    windows = {"auto": None, "yes": True, "no": False}[args.win64]
     if args.kind == "compensator":
-        out = build_compensator_fmu(args.machine, args.output, errors, compiler=args.compiler, fmi_version=args.fmi)
+        out = build_compensator_fmu(args.machine, args.output, errors, compiler=args.compiler, fmi_version=args.fmi,
+                                    windows=windows)
     else:
         out = build_machine_fmu(args.machine, args.output, errors, _dynamics(args), compiler=args.compiler,
-                                fmi_version=args.fmi)
+                                fmi_version=args.fmi, windows=windows)
     print(f"wrote {out}")
     return 0
+
+
+def _commands(text: str | None) -> dict | None:
+    """--commands "C=20,B=10,X=5" -> {"C": 20.0, "B": 10.0, "X": 5.0}."""
+    from .._io import InputError
+    if not text:
+        return None
+    out = {}
+    for item in text.split(","):
+        axis, eq, value = item.partition("=")
+        try:
+            out[axis.strip()] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq or not axis.strip():
+            raise InputError(f"expected AXIS=VALUE items separated by commas, got {item!r}", field="--commands")
+    return out
 
 
 def _ssp(args) -> int:
     import tempfile
     from .build import build_compensator_fmu, build_machine_fmu
     from .ssp import write_ssp
+    commands = _commands(args.commands)
     true = _errors(args.errors)
     ident = _errors(args.compensate) if args.compensate else true
     with tempfile.TemporaryDirectory(prefix="mtcomp-ssp-") as td:
         c = build_compensator_fmu(args.machine, Path(td) / "compensator.fmu", ident, compiler=args.compiler)
         m = build_machine_fmu(args.machine, Path(td) / "machine.fmu", true, _dynamics(args), compiler=args.compiler)
-        out = write_ssp(args.output, c, m, layout=args.layout)
+        out = write_ssp(args.output, c, m, layout=args.layout, commands=commands)
     print(f"wrote {out}")
     return 0
 
@@ -96,6 +116,9 @@ def register(subparsers) -> None:
     b.add_argument("--compiler", choices=("cmake", "cc"), default="cmake",
                    help="cmake: fmpy's CMake build (default); cc: one direct gcc call")
     b.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2.0)")
+    b.add_argument("--win64", choices=("auto", "yes", "no"), default="auto",
+                   help="also cross-compile a win64 binary with mingw-w64 (auto: when x86_64-w64-mingw32-gcc "
+                        "is installed; yes: required)")
     _dyn_args(b)
     b.set_defaults(func=_build)
     s = fsub.add_parser("ssp", help="SSP file wiring a compensator FMU to a machine FMU")
@@ -103,6 +126,8 @@ def register(subparsers) -> None:
     s.add_argument("--errors", help="true errors of the machine (errors TOML)")
     s.add_argument("--compensate", help="errors the compensator corrects (default: the true ones)")
     s.add_argument("-o", "--output", required=True, help="SSP file to write")
+    s.add_argument("--commands", help="start values of the compensator's commands, e.g. C=20,B=10,X=5 "
+                                      "(mm, deg; parameter set 'commands')")
     s.add_argument("--layout", choices=("components", "system"), default="components",
                    help="components: for fmpy, libcosim and ecos (default); system: open inputs and machine "
                         "outputs as system connectors, for fmucontainer and fmpy (docs/fmu.md)")

@@ -154,17 +154,22 @@ class FmuRunner:
             self.fmu.setString(self.refs(strs), [str(x) for x in strs.values()])
 
     def raw(self):
-        """(component, fmi2SetReal, fmi2GetReal, fmi2DoStep): the FMU's own C functions, for a
-        loop that passes preallocated ctypes arrays (fmpy's methods build new arrays and check
-        the status in Python on every call); the caller checks the returned status."""
+        """(component, fmi2SetReal, fmi2GetReal, fmi2DoStep): the FMU's own C functions with
+        every pointer argument typed as a plain address, for a loop that passes the addresses of
+        preallocated arrays (numpy rows or ctypes arrays) instead of building new ctypes arrays
+        and checking the status in Python as fmpy's methods do on every call.  The caller checks
+        the returned status.  Function objects of their own: fmpy's stay as they are."""
         import ctypes
+        c_int, vp = ctypes.c_int, ctypes.c_void_p
+        values = ctypes.CFUNCTYPE(c_int, vp, vp, ctypes.c_size_t, vp)
+        step = ctypes.CFUNCTYPE(c_int, vp, ctypes.c_double, ctypes.c_double, c_int)
         dll = self.fmu.dll
-        vr_p, real_p = ctypes.POINTER(ctypes.c_uint), ctypes.POINTER(ctypes.c_double)
-        set_real, get_real, do_step = dll.fmi2SetReal, dll.fmi2GetReal, dll.fmi2DoStep
-        set_real.argtypes = get_real.argtypes = [ctypes.c_void_p, vr_p, ctypes.c_size_t, real_p]
-        do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
-        set_real.restype = get_real.restype = do_step.restype = ctypes.c_int
-        return self.fmu.component, set_real, get_real, do_step
+
+        def address(name):
+            return ctypes.cast(getattr(dll, name), vp).value
+
+        return (self.fmu.component.value if hasattr(self.fmu.component, "value") else self.fmu.component,
+                values(address("fmi2SetReal")), values(address("fmi2GetReal")), step(address("fmi2DoStep")))
 
     def close(self) -> None:
         try:
@@ -270,12 +275,12 @@ class CosimResult:
             if not mask.any():
                 continue
             lines.append(f"  {label}:")
-            for name, e in (("without compensation", self.error_uncompensated),
-                            ("with compensation", self.error_compensated),
-                            ("of which servo lag / backlash", self.error_lag),
-                            ("compensated minus lag part", self.error_remaining)):
+            for name, e in (("tool edge error without compensation", self.error_uncompensated),
+                            ("tool edge error with compensation", self.error_compensated),
+                            ("  of which servo lag / backlash", self.error_lag),
+                            ("  remaining (with compensation - lag)", self.error_remaining)):
                 mx, rms = _stats(e[mask])
-                lines.append(f"    tool edge error {name + ':':<31} max {_um(mx)}, RMS {_um(rms)}")
+                lines.append(f"    {name + ':':<39} max {_um(mx)}, RMS {_um(rms)}")
         return "\n".join(lines)
 
     def default_stride(self, max_rows: int = 10_000) -> int:
@@ -357,15 +362,15 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
 
     Per step k: set the compensator's inputs to q[k], read its outputs, give them to the machine,
     step both from t_k to t_k + step, then read the machine (no feed-through: its outputs are
-    its state at t_k + step).  The loop calls the FMUs' C functions with preallocated ctypes
-    arrays (numpy views on them), so a step costs a few ctypes calls and no Python lists."""
+    its state at t_k + step).  The loop calls the FMUs' C functions with the addresses of the
+    rows of preallocated numpy arrays, so a step costs six ctypes calls and no Python lists."""
     import ctypes
     names = machine.axis_names
     logs: list = []
     K, n = q.shape
-    qc = np.empty_like(q)
+    qc = np.empty((K, n))
     p = np.empty((K, 3))
-    act = np.empty_like(q)
+    act = np.empty((K, n))
     mach = comp = None
 
     def refs(runner, names_):
@@ -383,10 +388,6 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
         m_out = refs(mach, ["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names])
         c_in = refs(comp, [f"command.{a}" for a in names]) if comp else None
         c_out = refs(comp, [f"compensated.{a}" for a in names]) if comp else None
-        cmd_buf = (ctypes.c_double * n)()           # programmed commands
-        cmp_buf = (ctypes.c_double * n)()           # compensated commands = machine inputs
-        out_buf = (ctypes.c_double * (3 + n))()
-        cmd, cmp_, out = (np.ctypeslib.as_array(b) for b in (cmd_buf, cmp_buf, out_buf))
         for f in (mach, comp):
             if f:
                 f.fmu.enterInitializationMode()
@@ -397,29 +398,34 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
         mach.fmu.setReal(list(m_in), first)
         mach.set({"spindle_speed": spindle_speed})
         mach.fmu.exitInitializationMode()
+        # The FMUs read and write the rows of these C-contiguous arrays in place: no copies.
+        qin = np.ascontiguousarray(q, dtype=np.float64)
+        if comp is None:
+            qc[:] = qin
+        out = np.empty((K, 3 + n))
+        row, orow = n * 8, (3 + n) * 8
+        a_q, a_qc, a_out = qin.ctypes.data, qc.ctypes.data, out.ctypes.data
+        a_min, a_mout = ctypes.addressof(m_in), ctypes.addressof(m_out)
         mc, m_set, m_get, m_step = mach.raw()
         if comp:
             cc, c_set, c_get, c_step = comp.raw()
+            a_cin, a_cout = ctypes.addressof(c_in), ctypes.addressof(c_out)
         report = max(1, K // 200)
         for k in range(K):
             t = k * step
             if comp:
-                cmd[:] = q[k]
-                if c_set(cc, c_in, n, cmd_buf) > 1 or c_get(cc, c_out, n, cmp_buf) > 1:
+                if c_set(cc, a_cin, n, a_q + k * row) > 1 or c_get(cc, a_cout, n, a_qc + k * row) > 1:
                     fail("compensator", k)
-            else:
-                cmp_[:] = q[k]
-            qc[k] = cmp_
-            if m_set(mc, m_in, n, cmp_buf) > 1:
+            if m_set(mc, a_min, n, a_qc + k * row) > 1:
                 fail("machine command", k)
             if comp and c_step(cc, t, step, 1) > 1:
                 fail("compensator step", k)
-            if m_step(mc, t, step, 1) > 1 or m_get(mc, m_out, 3 + n, out_buf) > 1:
+            if m_step(mc, t, step, 1) > 1 or m_get(mc, a_mout, 3 + n, a_out + k * orow) > 1:
                 fail("machine step", k)
-            p[k] = out[:3]
-            act[k] = out[3:]
             if progress is not None and (k % report == 0 or k == K - 1):
                 progress(k + 1, K)
+        p[:] = out[:, :3]
+        act[:] = out[:, 3:]
         return qc, p, act
     except CosimFailed:
         raise

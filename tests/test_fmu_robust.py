@@ -33,6 +33,29 @@ SETTING = ErrorSet(ToolSetting((0.35, -0.20, 0.15)), WorkpieceSetting((0.10, -0.
 HAVE_MINGW = shutil.which(WIN64_CC) is not None
 
 
+@pytest.fixture(autouse=True)
+def live_fmpy_logger():
+    """fmpy's default callbacks go through a C proxy to the Python logger registered last, by
+    any `simulate_fmu(logger=...)`; that logger dies when the call returns, and the next FMU that
+    logs through the defaults crashes the process (fmpy 0.3.32).  Point the proxy at a logger that
+    lives as long as the process, before and after every test here."""
+    from ctypes import byref
+    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+    from fmpy.logging import addLoggerProxy
+    if not hasattr(fmpy, "_mtcomp_test_logger"):
+        fmpy._mtcomp_test_logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, message: None)
+
+    def arm():   # a fresh struct each time: the proxy replaces the struct's logger by itself
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmpy._mtcomp_test_logger
+        addLoggerProxy(byref(cb))
+        fmpy._mtcomp_test_callbacks = cb
+
+    arm()
+    yield
+    arm()
+
+
 @pytest.fixture(scope="module", autouse=True)
 def binary_cache(tmp_path_factory):
     """A binary cache for this module only (each source set compiled once, here)."""
@@ -66,26 +89,34 @@ def _initialised(path, name, logs, q=(0.0, 10.0, 0.0, 0.0, 0.0)):
     return r
 
 
-def _callbacks(logs):
-    """fmpy callbacks logging into `logs`. Not fmpy's defaults: those log through one process-wide
-    proxy that points at the logger of whichever fmpy.simulate_fmu call ran last, freed by then
-    (a segmentation fault when this module runs after test_fmu.py)."""
-    from fmpy import calloc, free
-    from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(lambda env, inst, status, cat, msg: logs.append((status, msg)))
-    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-    _KEEP.append(cb)   # alive as long as any instance may log through it
-    return cb
-
-
-_KEEP: list = []
-
-
 def _errors(logs):
     return [m for s, _, m in logs if s >= 3]
+
+
+def _slave(md, unzipped, logs, guid=None):
+    """An instance whose log messages are collected; a message that is not UTF-8 is recorded as
+    a failure (the FMU must not echo raw bytes from a corrupt state into its log).  Never fmpy's
+    default callbacks: they forward to whatever Python logger fmpy registered last, which may be
+    gone (a crash in fmpy, not in the FMU)."""
+    from fmpy import calloc, free
+    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+    def logger(env, instance, status, category, message):
+        try:
+            logs.append(message.decode("utf-8"))
+        except UnicodeDecodeError:
+            logs.append(None)
+
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(logger)
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    s = FMU2Slave(guid=guid or md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="fuzz")
+    s.instantiate(loggingOn=False, callbacks=cb)
+    s._keep_callbacks = cb
+    return s
 
 
 # ---------------------------------------------------------------------------------------- times
@@ -107,16 +138,13 @@ def test_do_step_refuses_non_finite_times_and_steps(fmus, t, h):
 
 
 def test_setup_experiment_refuses_a_non_finite_start_time(fmus):
-    from fmpy.fmi2 import FMU2Slave
     md = read_model_description(str(fmus["comp5"]))
     logs = []
-    s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(fmus["comp5"])),
-                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="start")
-    s.instantiate(loggingOn=False, callbacks=_callbacks(logs))
+    s = _slave(md, fmpy.extract(str(fmus["comp5"])), logs)
     try:
         with pytest.raises(FMICallException):
             s.setupExperiment(startTime=float("nan"))
-        assert logs and logs[-1][0] == 3   # fmi2Error, with a message
+        assert any("start time must be finite" in m for m in logs), logs
     finally:
         s.freeInstance()
 
@@ -124,19 +152,15 @@ def test_setup_experiment_refuses_a_non_finite_start_time(fmus):
 # ---------------------------------------------------------------------------------------- GUID and state
 
 def test_instantiation_with_another_fmus_guid_is_refused(fmus):
-    from fmpy.fmi2 import FMU2Slave
     md = read_model_description(str(fmus["comp5"]))
     other = read_model_description(str(fmus["comp3"])).guid
     assert other != md.guid
     unzipped = fmpy.extract(str(fmus["comp5"]))
-    bad = FMU2Slave(guid=other, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="wrong-guid")
+    logs = []
     with pytest.raises(Exception, match="[Ii]nstantiat"):
-        bad.instantiate(loggingOn=False, callbacks=_callbacks([]))
-    good = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
-                     instanceName="right-guid")
-    good.instantiate(loggingOn=False, callbacks=_callbacks([]))
-    good.freeInstance()
+        _slave(md, unzipped, logs, guid=other)
+    assert any("is not the GUID of this FMU" in m and other in m for m in logs), logs
+    _slave(md, unzipped, []).freeInstance()
 
 
 def test_state_of_the_3_axis_compensator_is_refused_by_the_5_axis_one(fmus):
@@ -381,3 +405,204 @@ def test_do_nothing_fmu_copies_its_inputs(tmp_path):
     res = fmpy.simulate_fmu(str(path), stop_time=0.002, output_interval=1e-3,
                             start_values={"command.X": 3.25, "command.B": -7.5})
     assert res["compensated.X"][-1] == 3.25 and res["compensated.B"][-1] == -7.5 and res["compensated.Y"][-1] == 0.0
+
+
+# ---------------------------------------------------------------------------------------- fuzzing
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+
+FUZZ = settings(max_examples=80, deadline=None, derandomize=True, database=None,
+                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+ANY_FLOAT = st.one_of(st.floats(width=64), st.sampled_from([0.0, -0.0, 1e-300, 1e300, 49.99, 50.0, 50.0001,
+                                                            30.0, 1000.0, float("nan"), float("inf")]))
+
+
+@pytest.fixture(scope="module")
+def comp_md(fmus):
+    md = read_model_description(str(fmus["comp5"]))
+    return md, fmpy.extract(str(fmus["comp5"]))
+
+
+@FUZZ
+@given(vr=st.integers(0, 300), value=ANY_FLOAT)
+def test_fuzz_set_real_stores_only_what_it_accepts(comp_md, vr, value):
+    """Any Real value reference, any double: either refused with the old value kept, or stored
+    exactly and within the declared range; never a crash."""
+    md, unzipped = comp_md
+    var = {v.valueReference: v for v in md.modelVariables if v.type == "Real"}.get(vr)
+    s = _slave(md, unzipped, [])
+    try:
+        old = s.getReal([vr])[0] if var is not None else None
+        try:
+            s.setReal([vr], [value])
+            accepted = True
+        except FMICallException:
+            accepted = False
+        if var is None or var.causality == "output":
+            assert not accepted
+            return
+        if accepted:
+            assert s.getReal([vr])[0] == value
+            assert np.isfinite(value)
+            lo = -np.inf if var.min is None else float(var.min)
+            hi = np.inf if var.max is None else float(var.max)
+            assert lo <= value <= hi, (var.name, value)
+        else:
+            got = s.getReal([vr])[0]
+            assert got == old or (np.isnan(got) and np.isnan(old))
+            assert not (np.isfinite(value) and (var.min is None or float(var.min) <= value)
+                        and (var.max is None or value <= float(var.max)))
+    finally:
+        s.freeInstance()
+
+
+@FUZZ
+@given(t=ANY_FLOAT, h=ANY_FLOAT)
+def test_fuzz_do_step_accepts_only_the_current_time_and_a_finite_positive_step(comp_md, t, h):
+    md, unzipped = comp_md
+    s = _slave(md, unzipped, [])
+    try:
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.setReal([0, 1, 2, 3, 4], [0.0, 10.0, 0.0, 0.0, 0.0])
+        s.exitInitializationMode()
+        s.doStep(0.0, 1e-3)                     # the FMU is at t = 1 ms
+        valid = np.isfinite(t) and np.isfinite(h) and h > 0 and abs(t - 1e-3) <= 1e-9 * (1 + 1e-3)
+        try:
+            s.doStep(t, h)
+            accepted = True
+        except FMICallException:
+            accepted = False
+        assert accepted == valid, (t, h)
+        now = t + h if accepted else 1e-3
+        s.doStep(now, 1e-3)                     # still usable, at the expected time
+        assert np.isfinite(s.getReal([12])[0])
+    finally:
+        s.freeInstance()
+
+
+@pytest.fixture(scope="module")
+def valid_state(comp_md):
+    md, unzipped = comp_md
+    s = _slave(md, unzipped, [])
+    try:
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.setReal([0, 1, 2, 3, 4], [5.0, 10.0, 3.0, -2.0, 1.0])
+        s.exitInitializationMode()
+        s.doStep(0.0, 1e-3)
+        st_ = s.getFMUstate()
+        blob = bytes(s.serializeFMUstate(st_))
+        s.freeFMUstate(st_)
+        return blob
+    finally:
+        s.freeInstance()
+
+
+@FUZZ
+@given(edits=st.lists(st.tuples(st.integers(0, 10**9), st.integers(0, 255)), min_size=1, max_size=8))
+def test_fuzz_corrupted_states_are_refused_or_harmless(comp_md, valid_state, edits):
+    """Random byte edits of a serialized state: refused, or a state whose parameters are all
+    within their declared ranges and that steps to finite outputs (or an error); never a crash."""
+    md, unzipped = comp_md
+    blob = bytearray(valid_state)
+    for pos, byte in edits:
+        blob[pos % len(blob)] = byte
+    logs = []
+    s = _slave(md, unzipped, logs)
+    try:
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        s.setReal([0, 1, 2, 3, 4], [5.0, 10.0, 3.0, -2.0, 1.0])
+        s.exitInitializationMode()
+        try:
+            st_ = s.deSerializeFMUstate(bytes(blob))
+        except FMICallException:
+            return
+        try:
+            s.setFMUstate(st_)
+        except FMICallException:
+            return
+        finally:
+            s.freeFMUstate(st_)
+        for v in md.modelVariables:
+            if v.type == "Real" and v.causality == "parameter":
+                x = s.getReal([v.valueReference])[0]
+                assert float(v.min) <= x <= float(v.max), (v.name, x)
+        try:
+            out = s.getReal([10, 11, 12, 13, 14])
+            assert np.isfinite(out).all()
+        except FMICallException:
+            pass
+    finally:
+        s.freeInstance()
+        assert None not in logs, "a log message that is not UTF-8"
+
+
+def test_fmu_manipulation_toolbox_check_finds_nothing(fmus):
+    """`fmutool -check` (conformity and semantic checks of FMI 2.0 and 3.0) on every FMU here."""
+    import importlib.util
+    if importlib.util.find_spec("fmu_manipulation_toolbox") is None:
+        pytest.skip("fmu-manipulation-toolbox not installed")
+    for name in ("comp5", "machine", "comp5_fmi3"):   # feed-through, none, and FMI 3.0
+        path = fmus[name]
+        run = subprocess.run([sys.executable, "-c", "import sys; from fmu_manipulation_toolbox.cli.fmutool import "
+                              "fmutool; sys.exit(fmutool())", "-input", str(path), "-check"],
+                             capture_output=True, text=True, timeout=120)
+        out = run.stdout + run.stderr
+        assert run.returncode == 0, out[-2000:]
+        assert "seems to be compliant with FMI" in out and "No semantic error" in out, (name, out[-2000:])
+        assert "ERROR" not in out and "WARNING" not in out, (name, out[-2000:])
+
+
+@pytest.mark.parametrize("value", [0, -5, 1001, 2**31 - 1])
+def test_out_of_range_max_iterations_is_refused_when_set(fmus, value):
+    logs = []
+    r = FmuRunner(fmus["comp5"], "maxit", logs)
+    try:
+        with pytest.raises(FMICallException):
+            r.set({"max_iterations": value})
+        assert any(f"max_iterations = {value} is out of range" in m for m in _errors(logs)), logs
+        r.set({"max_iterations": 7})
+        assert r.fmu.getInteger([r.vr["max_iterations"]]) == [7]
+    finally:
+        r.close()
+
+
+def test_cli_win64_option(tmp_path, monkeypatch):
+    from mtcomp.cli import main
+    out = tmp_path / "c.fmu"
+    assert main(["fmu", "build", "compensator", "--machine", "vmc-moving-column", "-o", str(out),
+                 "--compiler", "cc", "--win64", "no"]) == 0
+    assert not [n for n in zipfile.ZipFile(out).namelist() if n.endswith(".dll")]
+    monkeypatch.setenv("PATH", str(tmp_path))          # no cross compiler to be found
+    assert main(["fmu", "build", "compensator", "--machine", "vmc-moving-column", "-o", str(tmp_path / "w.fmu"),
+                 "--compiler", "cc", "--win64", "yes"]) == 2
+    assert not (tmp_path / "w.fmu").exists()
+
+
+def test_fmi3_instantiation_token_is_checked(fmus):
+    from fmpy.fmi3 import FMU3Slave
+    path = fmus["comp5_fmi3"]
+    md = read_model_description(str(path))
+    unzipped = fmpy.extract(str(path))
+    logs = []
+
+    def make(token):
+        s = FMU3Slave(guid=token, unzipDirectory=unzipped, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="token")
+        s.instantiate(logMessage=lambda env, status, cat, msg: logs.append(msg.decode()))
+        return s
+
+    with pytest.raises(Exception):
+        make("{00000000-0000-0000-0000-000000000000}")
+    assert any("is not the GUID of this FMU" in m for m in logs), logs
+    s = make(md.guid)
+    try:
+        s.enterInitializationMode(startTime=0.0)
+        s.exitInitializationMode()
+        with pytest.raises(FMICallException):
+            s.doStep(float("nan"), 1e-3)
+    finally:
+        s.freeInstance()

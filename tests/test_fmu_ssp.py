@@ -35,6 +35,29 @@ SSD_NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
           "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon"}
 
 
+@pytest.fixture(autouse=True)
+def live_fmpy_logger():
+    """fmpy's default callbacks go through a C proxy to the Python logger registered last, by
+    any `simulate_fmu(logger=...)`; that logger dies when the call returns, and the next FMU that
+    logs through the defaults crashes the process (fmpy 0.3.32).  Point the proxy at a logger that
+    lives as long as the process, before and after every test here."""
+    from ctypes import byref
+    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+    from fmpy.logging import addLoggerProxy
+    if not hasattr(fmpy, "_mtcomp_test_logger"):
+        fmpy._mtcomp_test_logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, message: None)
+
+    def arm():   # a fresh struct each time: the proxy replaces the struct's logger by itself
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmpy._mtcomp_test_logger
+        addLoggerProxy(byref(cb))
+        fmpy._mtcomp_test_callbacks = cb
+
+    arm()
+    yield
+    arm()
+
+
 @pytest.fixture(scope="module", autouse=True)
 def binary_cache(tmp_path_factory):
     old = os.environ.get("MTCOMP_CACHE_DIR")
@@ -141,3 +164,33 @@ def test_unknown_layout_or_axis_is_refused(ssps, tmp_path):
     with pytest.raises(InputError, match="no axis 'Q'"):
         write_ssp(tmp_path / "x.ssp", d / "compensator.fmu", d / "machine.fmu", commands={"Q": 1.0})
     assert not (tmp_path / "x.ssp").exists()
+
+
+def test_cli_writes_either_layout_and_cosim_csv_rows(tmp_path, capsys):
+    from mtcomp.cli import main
+    from mtcomp.errors import save_errors
+    errs = tmp_path / "true.toml"
+    save_errors(SETTING, errs)
+    for layout in ("components", "system"):
+        out = tmp_path / f"{layout}.ssp"
+        assert main(["fmu", "ssp", "--machine", "robonano-a0ib", "--errors", str(errs), "-o", str(out),
+                     "--compiler", "cc", "--layout", layout, "--commands", "C=20,B=10,X=5"]) == 0
+        root = ET.fromstring(zipfile.ZipFile(out).read("SystemStructure.ssd"))
+        assert bool(root.findall("ssd:System/ssd:Connectors/ssd:Connector", SSD_NS)) == (layout == "system")
+        ssv = "{http://ssp-standard.org/SSP1/SystemStructureParameterValues}"
+        assert {p.get("name") for p in root.iter(f"{ssv}Parameter")} == {"command.C", "command.B", "command.X"}
+    assert main(["fmu", "ssp", "--machine", "robonano-a0ib", "-o", str(tmp_path / "bad.ssp"),
+                 "--commands", "C=twenty"]) == 2
+    assert not (tmp_path / "bad.ssp").exists()
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G0 X0 Y0 Z0 B10 C0\nG1 X2 B12 C10 F600\nG0 X0\n")
+    args = ["cosim", str(prog), "--machine", "robonano-a0ib", "--errors", str(errs), "--step", "0.01",
+            "--compiler", "cc"]
+    assert main(args + ["--out", str(tmp_path / "run"), "--full-csv"]) == 0
+    text = capsys.readouterr().out
+    assert "cutting:" in text and "G0 rapids:" in text and "every step" in text
+    rows = (tmp_path / "run.csv").read_text().splitlines()
+    assert "every 1. of" in rows[0] and rows[1].startswith("t,")
+    # an output prefix in a folder that does not exist: one clear error, nothing written
+    assert main(args + ["--out", str(tmp_path / "no" / "such" / "run")]) == 2
+    assert not (tmp_path / "no").exists()

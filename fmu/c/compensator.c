@@ -56,6 +56,15 @@ fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
     return common_check_real(inst, vr, value);
 }
 
+fmi2Status model_check_int(Instance *inst, unsigned vr, int value)
+{
+    if (vr == IVR_MAXIT && (value < 1 || value > 1000)) {
+        inst_log(inst, fmi2Error, "logStatusError", "max_iterations = %d is out of range [1, 1000]", value);
+        return fmi2Error;
+    }
+    return fmi2OK;
+}
+
 fmi2Status model_update(Instance *inst)
 {
     mtk_errors e;

@@ -221,6 +221,12 @@ static fmi2Status check_parameters(Instance *inst)
             model_check_real(inst, vr, inst->st.r[vr]) != fmi2OK)
             return fmi2Error;
     }
+    for (vr = 0; vr < MODEL_NI; vr++) {
+        int kind = model_int_kind(inst, vr);
+        if ((kind == VAR_PARAM_FIXED || kind == VAR_PARAM_TUNABLE) &&
+            model_check_int(inst, vr, inst->st.i[vr]) != fmi2OK)
+            return fmi2Error;
+    }
     return fmi2OK;
 }
 
@@ -337,6 +343,7 @@ fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
     for (k = 0; k < nvr; k++) {
         int kind = vr[k] < MODEL_NI ? model_int_kind(inst, vr[k]) : VAR_NONE;
         if (!may_set(inst, kind, "Integer", vr[k])) return fmi2Error;
+        if (model_check_int(inst, vr[k], value[k]) != fmi2OK) return fmi2Error;
         inst->st.i[vr[k]] = value[k];
         inst->st.dirty = 1;
     }
@@ -449,8 +456,12 @@ static int state_is_valid(Instance *inst, const ModelState *st)
         return 0;
     }
     if (!memchr(st->guid, 0, MODEL_GUIDLEN) || strcmp(st->guid, inst->st.guid) != 0) {
-        inst_log(inst, fmi2Error, "logStatusError", "FMU state was taken from another FMU (GUID '%.*s', this FMU '%s')",
-                 MODEL_GUIDLEN - 1, st->guid, inst->st.guid);
+        char shown[MODEL_GUIDLEN];   /* the bytes come from outside: log printable ASCII only */
+        for (k = 0; k < MODEL_GUIDLEN - 1 && st->guid[k]; k++)
+            shown[k] = (st->guid[k] >= 32 && st->guid[k] < 127) ? st->guid[k] : '?';
+        shown[k] = 0;
+        inst_log(inst, fmi2Error, "logStatusError", "FMU state was taken from another FMU (GUID '%s', this FMU '%s')",
+                 shown, inst->st.guid);
         return 0;
     }
     if (st->mode < MODE_INSTANTIATED || st->mode > MODE_ERROR) {
@@ -480,6 +491,14 @@ static int state_is_valid(Instance *inst, const ModelState *st)
         }
         if (!isfinite(st->r[vr])) {
             inst_log(inst, fmi2Error, "logStatusError", "FMU state is corrupt: output %u is not finite", vr);
+            return 0;
+        }
+    }
+    for (vr = 0; vr < MODEL_NI; vr++) {
+        int kind = model_int_kind(inst, vr);
+        if (kind != VAR_NONE && kind != VAR_OUTPUT && model_check_int(inst, vr, st->i[vr]) != fmi2OK) {
+            inst_log(inst, fmi2Error, "logStatusError",
+                     "FMU state refused: Integer value reference %u out of range", vr);
             return 0;
         }
     }

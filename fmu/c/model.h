@@ -63,6 +63,8 @@ int model_int_kind(const Instance *inst, unsigned vr);
 int model_string_kind(const Instance *inst, unsigned vr);
 /* Validate a real value before it is stored (NaN, range); returns fmi2OK or fmi2Error. */
 fmi2Status model_check_real(Instance *inst, unsigned vr, double value);
+/* Validate an integer value before it is stored (range); returns fmi2OK or fmi2Error. */
+fmi2Status model_check_int(Instance *inst, unsigned vr, int value);
 /* Load resources, validate all parameters and compute initial outputs. */
 fmi2Status model_exit_init(Instance *inst);
 /* Recompute the outputs that depend directly on inputs (called when outputs are read). */

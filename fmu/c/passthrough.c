@@ -34,6 +34,12 @@ fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
     return fmi2OK;
 }
 
+fmi2Status model_check_int(Instance *inst, unsigned vr, int value)
+{
+    (void)inst; (void)vr; (void)value;
+    return fmi2OK;
+}
+
 fmi2Status model_update(Instance *inst)
 {
     memcpy(inst->st.r + VR_OUT, inst->st.r + VR_CMD, MTK_MAX_AXES * sizeof(double));
