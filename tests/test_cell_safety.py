@@ -557,3 +557,27 @@ def test_binding_beyond_loopback_warns(tmp_path, capsys):
     assert "writes are accepted only from 127.0.0.1/32, ::1/128 (give the PLC's address with " \
            "--allow)" in err
     assert "cannot listen on 192.0.2.1" in err
+
+
+def test_restart_rechecks_a_presented_go(serve, tmp_path):
+    """A GO waiting for its ACK is published again by a restart: if its program was edited while
+    mtcomp was down, it comes back as a no-go (journaled as `revoke`), also after a second
+    restart."""
+    nc = nc_dir(tmp_path / "nc")
+    bs = serve(VirtualCell(nc_dir=str(nc)))
+    mb = RawModbus(bs.port)
+    assert mb.command(1, 1) is None
+    wait_for(lambda: bs.call(lambda c: c.state.name) == "READY", what="READY")
+    mb.close()
+    assert bs.call(lambda c: c.image.get("go")) == 1
+    bs.restart()
+    assert bs.call(lambda c: (c.image.get("go"), c.image.get("nogo"))) == (1, 0)  # intact
+    with open(nc / "O1100.nc", "a") as fh:
+        fh.write("G00 Z-5.\n")
+    for _ in range(2):
+        bs.restart()
+        assert bs.call(lambda c: (c.state.name, c.image.get("go"), c.image.get("nogo"),
+                                  c.image.get("result_seq"))) == ("READY", 0, NoGo.NOT_VERIFIED, 1)
+    recs = read_records(bs.journal)[0]
+    assert [r["ev"] for r in recs].count("revoke") == 1
+    assert "changed" in [r for r in recs if r["ev"] == "revoke"][0]["why"]
