@@ -581,3 +581,13 @@ def test_restart_rechecks_a_presented_go(serve, tmp_path):
     recs = read_records(bs.journal)[0]
     assert [r["ev"] for r in recs].count("revoke") == 1
     assert "changed" in [r for r in recs if r["ev"] == "revoke"][0]["why"]
+
+
+def test_a_copy_of_a_cell_program_under_another_number_is_not_replaced(serve, tmp_path):
+    nc = nc_dir(tmp_path / "nc", (100, 200))
+    bs = serve(VirtualCell(nc_dir=str(nc)))
+    assert one_cycle(bs).results[0].go
+    copy = (nc / "O1100.nc").read_bytes()
+    (nc / "O1200.nc").write_bytes(copy)             # someone's copy: intact marker, O1100's
+    assert one_cycle(bs, part=2, program=200).faults == [(2, Fault.PROGRAM_EXISTS)]
+    assert (nc / "O1200.nc").read_bytes() == copy

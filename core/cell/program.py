@@ -260,7 +260,7 @@ def write_program(machine, source: Path, target: Path, pose, *, source_id: int, 
         raise CellFault(Fault.PROGRAM_FAILED,
                         f"{source} is itself a compensated program (the cell wrote it for part "
                         f"{mark.part_id}): compensate the part program, not its output")
-    _check_replaceable(target)
+    _check_replaceable(target, out_id)
     try:
         new, n_src = compensate_text(machine, text, pose, filename=str(source), mode=mode)
     except MtcompError as exc:
@@ -286,7 +286,7 @@ def write_program(machine, source: Path, target: Path, pose, *, source_id: int, 
         blocks = verify_program_bytes(on_disk, machine, name=target.name, out_id=out_id,
                                       part_id=part_id, job_no=job_no, min_blocks=n_src,
                                       extra_check=extra_check, path=tmp)
-        _place(tmp, target)
+        _place(tmp, target, out_id)
     finally:
         try:
             tmp.unlink()
@@ -297,28 +297,30 @@ def write_program(machine, source: Path, target: Path, pose, *, source_id: int, 
                        blocks, machine.name, machine)
 
 
-def _check_replaceable(target: Path) -> None:
+def _check_replaceable(target: Path, out_id: int) -> None:
+    """Absent, or the cell's own intact program of this number (not a copy of another)."""
     if target.is_dir():
         raise CellFault(Fault.PROGRAM_EXISTS, f"{target} is a directory")
-    if target.exists() and owned_by_cell(target) is None:
+    mark = owned_by_cell(target) if target.exists() else None
+    if target.exists() and (mark is None or mark.program_id != out_id):
         raise CellFault(Fault.PROGRAM_EXISTS,
                         f"{target} exists and was not written by the mtcomp cell (or was edited "
                         f"since): it is never overwritten; move it or choose another program "
                         f"range")
 
 
-def _place(tmp: Path, target: Path) -> None:
+def _place(tmp: Path, target: Path, out_id: int) -> None:
     """Give the verified file its name: link (fails if a file appeared) when the target is
     absent, rename over it only when it is the cell's own."""
     try:
         if target.exists():
-            _check_replaceable(target)
+            _check_replaceable(target, out_id)
             os.replace(tmp, target)
         else:
             try:
                 os.link(tmp, target)
             except FileExistsError:
-                _check_replaceable(target)
+                _check_replaceable(target, out_id)
                 os.replace(tmp, target)
         dfd = os.open(target.parent, os.O_RDONLY)
         try:
