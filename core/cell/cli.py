@@ -183,6 +183,9 @@ def _serve(args) -> int:
                                  field="--port") from None
             print(f"mtcomp cell: serving on {args.host}:{server.port}, journal {args.journal}",
                   flush=True)
+        if not args.measure and not args.nc_dir:
+            print("mtcomp cell: no --nc-dir: no compensated programs are written, so every "
+                  "result is a NO-GO (nogo bit NO_PROGRAM)", flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
