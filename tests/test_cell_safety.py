@@ -591,3 +591,13 @@ def test_a_copy_of_a_cell_program_under_another_number_is_not_replaced(serve, tm
     (nc / "O1200.nc").write_bytes(copy)             # someone's copy: intact marker, O1100's
     assert one_cycle(bs, part=2, program=200).faults == [(2, Fault.PROGRAM_EXISTS)]
     assert (nc / "O1200.nc").read_bytes() == copy
+
+
+def test_marker_after_a_long_first_line_and_only_near_the_top():
+    head = "%\nO0100 (" + "X" * 6000 + ")\n"
+    data = cp._with_marker(head + "G00 X0\nM30\n", 1100, 100, 1, 1)
+    assert cp.read_marker(data) == cp.Marker(1100, 100, 1, 1)
+    rest = b"".join(b"G01 X%d\n" % i for i in range(10))
+    mark = b"(MTCOMP-CELL O1100 FROM O0100 PART 1 JOB 1 BODY %s)\n" % cp._body_hash(rest).encode()
+    assert cp.read_marker(mark + rest) == cp.Marker(1100, 100, 1, 1)
+    assert cp.read_marker(rest + mark) is None        # a valid marker deep in a file: not ours

@@ -13,6 +13,12 @@ before its Modbus write is answered; a repeated ``command_seq`` is a no-op, so a
 response simply writes the same command again. Every result gets a ``result_seq`` and is
 journaled before it appears in the registers; it stays presented (also across restarts) until
 the PLC acknowledges exactly that ``result_seq``.
+
+No GO without a program: a result is a GO only if the step returned the program it wrote
+(`program.write_program`) and the cycle, reading the file again right before publishing (and at
+every restart while the result waits for its ACK), finds it intact, for this blank and job, and
+within the travel; otherwise ``nogo`` says why. Program numbers come from the cycle's offset and
+range (never wrapped); an ACK counts only from the connection that read the result.
 """
 from __future__ import annotations
 

@@ -112,7 +112,13 @@ def _body_hash(body: bytes) -> str:
 def read_marker(data: bytes) -> Marker | None:
     """The cell's marker of a program file's bytes, or None if there is none or the rest of the
     file no longer matches it (edited since the cell wrote it)."""
-    m = _MARK.search(data, 0, 4096)
+    end = 0
+    for _ in range(4):  # the marker follows at most "%", the program number and one blank line
+        k = data.find(b"\n", end)
+        end = len(data) if k < 0 else k + 1
+        if k < 0:
+            break
+    m = _MARK.search(data, 0, end)
     if m is None or (m.start() and data[m.start() - 1:m.start()] != b"\n"):
         return None
     body = data[:m.start()] + data[m.end():]
