@@ -601,3 +601,13 @@ def test_marker_after_a_long_first_line_and_only_near_the_top():
     mark = b"(MTCOMP-CELL O1100 FROM O0100 PART 1 JOB 1 BODY %s)\n" % cp._body_hash(rest).encode()
     assert cp.read_marker(mark + rest) == cp.Marker(1100, 100, 1, 1)
     assert cp.read_marker(rest + mark) is None        # a valid marker deep in a file: not ours
+
+
+@pytest.mark.parametrize("text", ["O0100\r\nG00 X0\r\nM30\r\n", "%\n\nO0100 (A)\nG00 X0\n",
+                                  "G00 X0\rG01 X1\nM30", "O0100", ""])
+def test_marker_round_trip_on_odd_layouts(text):
+    data = cp._with_marker(text, 1100, 100, 3, 4)
+    assert cp.read_marker(data) == cp.Marker(1100, 100, 3, 4)
+    assert b"O0100" not in data.replace(b"FROM O0100", b"")
+    if "\r\n" in text:
+        assert b"BODY " in data and data.count(b"\r\n") == text.count("\r\n") + 1

@@ -131,7 +131,7 @@ def _with_marker(text: str, out_id: int, src_id: int, part_id: int, job_no: int)
     """Renumber the program word (O0100 -> O1100: a control that takes the number from the file
     must not load it over the part program) and insert the marker line after it."""
     data = text.encode("utf-8", "surrogateescape")
-    lines = data.splitlines(keepends=True)
+    lines = re.findall(rb"[^\n]*\n|[^\n]+\Z", data)   # LF only, as read_marker counts
     at = 0
     for i, ln in enumerate(lines[:3]):
         s = ln.strip()
