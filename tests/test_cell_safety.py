@@ -611,3 +611,26 @@ def test_marker_round_trip_on_odd_layouts(text):
     assert b"O0100" not in data.replace(b"FROM O0100", b"")
     if "\r\n" in text:
         assert b"BODY " in data and data.count(b"\r\n") == text.count("\r\n") + 1
+
+
+def refuse_everything(machine, path, text):
+    """A --program-check for the test below (a later gouge check would sit here)."""
+    raise InputError("gouge at line 4 (test check)")
+
+
+def test_cli_program_check_plugs_into_the_step_and_the_cycle(tmp_path):
+    import argparse
+    from mtcomp.cell.cli import build, register
+    ap = argparse.ArgumentParser()
+    register(ap.add_subparsers(dest="command"))
+    nc = nc_dir(tmp_path / "nc")
+    args = ap.parse_args(["cell", "serve", "--journal", "j", "--nc-dir", str(nc),
+                          "--program-check", "test_cell_safety:refuse_everything"])
+    step, cfg = build(args)
+    assert step.program_check is refuse_everything and cfg.program_check is refuse_everything
+    with pytest.raises(cp.CellFault, match="gouge at line 4") as e:
+        step(Job(1, 5, 100, out_program_id=1100))
+    assert e.value.code == Fault.PROGRAM_FAILED and not (nc / "O1100.nc").exists()
+    args = ap.parse_args(["cell", "serve", "--journal", "j", "--program-check", "nomodule:x"])
+    with pytest.raises(InputError, match=r"\[--program-check\]"):
+        build(args)
