@@ -9,12 +9,13 @@ import struct
 import zlib
 
 import pytest
+from hypothesis import given, settings, strategies as st
 from test_cell_modbus import PART_PROGRAM, RawModbus, nc_dir, results_in, run_plc, wait_for
 
 from mtcomp import InputError
 from mtcomp.cell import program as cp
 from mtcomp.cell.cycle import CellConfig, Job
-from mtcomp.cell.journal import Journal, read_records
+from mtcomp.cell.journal import EVENTS as EVENT_NAMES, Journal, read_records
 from mtcomp.cell.registers import FIELDS, CommandStatus, Fault, NoGo
 from mtcomp.cell.server import BackgroundServer, is_loopback_host
 from mtcomp.cell.virtual import VirtualCell
@@ -634,3 +635,90 @@ def test_cli_program_check_plugs_into_the_step_and_the_cycle(tmp_path):
     args = ap.parse_args(["cell", "serve", "--journal", "j", "--program-check", "nomodule:x"])
     with pytest.raises(InputError, match=r"\[--program-check\]"):
         build(args)
+
+
+# -- properties ----------------------------------------------------------------------------------
+def _valid_journal(path):
+    with Journal.open(path, fsync=False) as j:
+        j.append("reset", cmd_seq=1, status=0)
+        j.append("start", cmd_seq=2, status=0,
+                 job={"job_no": 1, "part_id": 3, "program_id": 100, "out_program_id": 1100})
+    return path.read_bytes()
+
+
+def _check_tail(tmp, tail: bytes):
+    p = tmp / "j.jsonl"
+    good = _valid_journal(p) if not p.exists() else p.read_bytes()
+    p.write_bytes(good + tail)
+    try:
+        recs, keep = read_records(p)
+    except InputError:
+        assert b"\n" in tail, "only a complete line may be refused"
+        return
+    if keep is not None:          # cut: exactly the unterminated remainder after good records
+        assert b"\n" not in (good + tail)[keep:] and keep >= len(good)
+    assert [r["n"] for r in recs] == list(range(1, len(recs) + 1))
+    from mtcomp.cell.journal import replay
+    replay(recs)                  # whatever was accepted replays without an exception
+
+
+@settings(max_examples=100, deadline=None)
+@given(tail=st.one_of(
+    st.binary(max_size=80),
+    st.lists(st.dictionaries(st.sampled_from(["n", "t", "ev", "cmd_seq", "job", "result_seq",
+                                              "pose", "sigma", "go", "code", "program_id",
+                                              "state", "status", "command", "nogo"]),
+                             st.one_of(st.integers(-2, 5), st.booleans(), st.text(max_size=3),
+                                       st.none(), st.lists(st.floats(), max_size=7),
+                                       st.sampled_from(EVENT_NAMES)), max_size=8),
+             max_size=3).map(lambda recs: b"".join(__import__("json").dumps(r).encode() + b"\n"
+                                                   for r in recs))))
+def test_journal_reader_property(tail):
+    """Anything after a valid journal is read, cut (only an unterminated tail) or refused with an
+    InputError; nothing else ever comes out, and what is accepted replays."""
+    import tempfile
+    from pathlib import Path
+    with tempfile.TemporaryDirectory() as tmp:
+        _check_tail(Path(tmp), tail)
+
+
+def test_random_frames_never_hurt_the_server(serve):
+    """300 random PDUs (any function code, random bodies) over loopback: every answer is a
+    well-formed frame, no traceback is logged, and the server keeps serving."""
+    import random
+    import socket
+    rng = random.Random(5)
+    bs = serve(VirtualCell())
+    answered = 0
+    s = None
+    for _ in range(300):
+        if s is None:
+            s = socket.create_connection(("127.0.0.1", bs.port), timeout=2)
+        fc = rng.choice([rng.randrange(256), 3, 4, 6, 16, 23, 8, 43])
+        body = bytes(rng.randrange(256) for _ in range(rng.randrange(0, 12)))
+        tid = rng.randrange(65536)
+        s.sendall(struct.pack(">HHHB", tid, 0, len(body) + 2, 1) + bytes([fc]) + body)
+        try:
+            head = s.recv(7)
+            if len(head) < 7:
+                raise ConnectionError
+            rtid, proto, length, unit = struct.unpack(">HHHB", head)
+            rest = b""
+            while len(rest) < length - 1:
+                chunk = s.recv(length - 1 - len(rest))
+                if not chunk:
+                    raise ConnectionError
+                rest += chunk
+            assert (rtid, proto, unit) == (tid, 0, 1) and rest
+            answered += 1
+        except (socket.timeout, ConnectionError):
+            s.close()
+            s = None
+    if s is not None:
+        s.close()
+    assert answered > 100
+    mb = RawModbus(bs.port)
+    try:
+        assert mb.read(FIELDS["map_version"].address, 1) == [2]
+    finally:
+        mb.close()
