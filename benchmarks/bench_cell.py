@@ -8,7 +8,7 @@ A. Acceptance: N load cycles (default 1000) of the PLC simulator against `mtcomp
 B. Handshake: the same two processes with a measurement step that takes no time (probing
    excluded), back-to-back polling; cycles/s and the latency of a result write (from the step
    returning in the server to the PLC reading it), with the journal fsync'ed (the product) and,
-   as the baseline, without fsync; plus the bare Modbus round trip (write + read of 9 and 38
+   as the baseline, without fsync; plus the bare Modbus round trip (write + read of 9 and 41
    registers) as the floor.
 C. Fuzzed cell runs (`--fuzz N`, also run by tests/test_cell_safety.py with a small N): N load
    cycles over loopback, each with a random program situation: part program present, missing,
@@ -170,6 +170,7 @@ def handshake(n_cycles: int, fsync: bool, workdir: Path):
 def round_trip(n: int, workdir: Path):
     import numpy as np
     from pymodbus.client import AsyncModbusTcpClient
+    from mtcomp.cell.registers import OUT_BLOCK
     port = _free_port()
     srv = ServerProcess(workdir / "rt.jsonl", port, ["--measure", "bench_cell:instant"]).start()
 
@@ -180,7 +181,8 @@ def round_trip(n: int, workdir: Path):
         for _ in range(n):
             t = time.perf_counter()
             await c.write_registers(0, [0] * 9, device_id=1)
-            await c.read_holding_registers(16, count=38, device_id=1)
+            await c.read_holding_registers(OUT_BLOCK[0], count=OUT_BLOCK[1] - OUT_BLOCK[0],
+                                           device_id=1)
             ts.append(time.perf_counter() - t)
         c.close()
         return np.array(ts)
@@ -432,6 +434,7 @@ def main(argv=None) -> int:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # dropped connections are the test
     sys.path.insert(0, str(HERE))
     from _report import machine_line, update_section
+    from mtcomp.cell.registers import OUT_BLOCK
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -489,7 +492,7 @@ Modbus requests and three journal records.
 
 Result write latency: from the measurement step returning in the server to the PLC's first read
 that shows the result (journal append + fsync, register update, PLC poll). Floor: one bare Modbus
-write (9 registers) + read (38 registers) round trip takes {rt[0] * us:.0f} µs p50,
+write (9 registers) + read ({OUT_BLOCK[1] - OUT_BLOCK[0]} registers) round trip takes {rt[0] * us:.0f} µs p50,
 {rt[1] * us:.0f} µs p99; one journal record written and fsync'ed {ja[0] * us:.0f} µs p50,
 {ja[1] * us:.0f} µs p99.
 """

@@ -497,6 +497,7 @@ def _serve_process(journal, port, probe_time):
         p.kill()          # never leave a server behind when it did not come up
         p.wait(10)
         raise
+    p.log = log
     return p
 
 
@@ -512,6 +513,7 @@ def test_killed_process_resumes_from_the_journal(tmp_path):
         mb.close()
         p.send_signal(signal.SIGKILL)
         p.wait(10)
+        assert "no --nc-dir: no compensated programs are written" in p.log.read_text()
         p = _serve_process(journal, port, 0.0)
         mb = RawModbus(port)
         out = wait_for(lambda: (o := mb.outputs())["state"] == 3 and o, 20, "READY")

@@ -9,12 +9,13 @@ import struct
 import zlib
 
 import pytest
+from hypothesis import given, settings, strategies as st
 from test_cell_modbus import PART_PROGRAM, RawModbus, nc_dir, results_in, run_plc, wait_for
 
 from mtcomp import InputError
 from mtcomp.cell import program as cp
 from mtcomp.cell.cycle import CellConfig, Job
-from mtcomp.cell.journal import Journal, read_records
+from mtcomp.cell.journal import EVENTS as EVENT_NAMES, Journal, read_records
 from mtcomp.cell.registers import FIELDS, CommandStatus, Fault, NoGo
 from mtcomp.cell.server import BackgroundServer, is_loopback_host
 from mtcomp.cell.virtual import VirtualCell
@@ -557,3 +558,167 @@ def test_binding_beyond_loopback_warns(tmp_path, capsys):
     assert "writes are accepted only from 127.0.0.1/32, ::1/128 (give the PLC's address with " \
            "--allow)" in err
     assert "cannot listen on 192.0.2.1" in err
+
+
+def test_restart_rechecks_a_presented_go(serve, tmp_path):
+    """A GO waiting for its ACK is published again by a restart: if its program was edited while
+    mtcomp was down, it comes back as a no-go (journaled as `revoke`), also after a second
+    restart."""
+    nc = nc_dir(tmp_path / "nc")
+    bs = serve(VirtualCell(nc_dir=str(nc)))
+    mb = RawModbus(bs.port)
+    assert mb.command(1, 1) is None
+    wait_for(lambda: bs.call(lambda c: c.state.name) == "READY", what="READY")
+    mb.close()
+    assert bs.call(lambda c: c.image.get("go")) == 1
+    bs.restart()
+    assert bs.call(lambda c: (c.image.get("go"), c.image.get("nogo"))) == (1, 0)  # intact
+    with open(nc / "O1100.nc", "a") as fh:
+        fh.write("G00 Z-5.\n")
+    for _ in range(2):
+        bs.restart()
+        assert bs.call(lambda c: (c.state.name, c.image.get("go"), c.image.get("nogo"),
+                                  c.image.get("result_seq"))) == ("READY", 0, NoGo.NOT_VERIFIED, 1)
+    recs = read_records(bs.journal)[0]
+    assert [r["ev"] for r in recs].count("revoke") == 1
+    assert "changed" in [r for r in recs if r["ev"] == "revoke"][0]["why"]
+
+
+def test_a_copy_of_a_cell_program_under_another_number_is_not_replaced(serve, tmp_path):
+    nc = nc_dir(tmp_path / "nc", (100, 200))
+    bs = serve(VirtualCell(nc_dir=str(nc)))
+    assert one_cycle(bs).results[0].go
+    copy = (nc / "O1100.nc").read_bytes()
+    (nc / "O1200.nc").write_bytes(copy)             # someone's copy: intact marker, O1100's
+    assert one_cycle(bs, part=2, program=200).faults == [(2, Fault.PROGRAM_EXISTS)]
+    assert (nc / "O1200.nc").read_bytes() == copy
+
+
+def test_marker_after_a_long_first_line_and_only_near_the_top():
+    head = "%\nO0100 (" + "X" * 6000 + ")\n"
+    data = cp._with_marker(head + "G00 X0\nM30\n", 1100, 100, 1, 1)
+    assert cp.read_marker(data) == cp.Marker(1100, 100, 1, 1)
+    rest = b"".join(b"G01 X%d\n" % i for i in range(10))
+    mark = b"(MTCOMP-CELL O1100 FROM O0100 PART 1 JOB 1 BODY %s)\n" % cp._body_hash(rest).encode()
+    assert cp.read_marker(mark + rest) == cp.Marker(1100, 100, 1, 1)
+    assert cp.read_marker(rest + mark) is None        # a valid marker deep in a file: not ours
+
+
+@pytest.mark.parametrize("text", ["O0100\r\nG00 X0\r\nM30\r\n", "%\n\nO0100 (A)\nG00 X0\n",
+                                  "G00 X0\rG01 X1\nM30", "O0100", ""])
+def test_marker_round_trip_on_odd_layouts(text):
+    data = cp._with_marker(text, 1100, 100, 3, 4)
+    assert cp.read_marker(data) == cp.Marker(1100, 100, 3, 4)
+    assert b"O0100" not in data.replace(b"FROM O0100", b"")
+    if "\r\n" in text:
+        assert b"BODY " in data and data.count(b"\r\n") == text.count("\r\n") + 1
+
+
+def refuse_everything(machine, path, text):
+    """A --program-check for the test below (a later gouge check would sit here)."""
+    raise InputError("gouge at line 4 (test check)")
+
+
+def test_cli_program_check_plugs_into_the_step_and_the_cycle(tmp_path):
+    import argparse
+    from mtcomp.cell.cli import build, register
+    ap = argparse.ArgumentParser()
+    register(ap.add_subparsers(dest="command"))
+    nc = nc_dir(tmp_path / "nc")
+    args = ap.parse_args(["cell", "serve", "--journal", "j", "--nc-dir", str(nc),
+                          "--program-check", "test_cell_safety:refuse_everything"])
+    step, cfg = build(args)
+    assert step.program_check is refuse_everything and cfg.program_check is refuse_everything
+    with pytest.raises(cp.CellFault, match="gouge at line 4") as e:
+        step(Job(1, 5, 100, out_program_id=1100))
+    assert e.value.code == Fault.PROGRAM_FAILED and not (nc / "O1100.nc").exists()
+    args = ap.parse_args(["cell", "serve", "--journal", "j", "--program-check", "nomodule:x"])
+    with pytest.raises(InputError, match=r"\[--program-check\]"):
+        build(args)
+
+
+# -- properties ----------------------------------------------------------------------------------
+def _valid_journal(path):
+    with Journal.open(path, fsync=False) as j:
+        j.append("reset", cmd_seq=1, status=0)
+        j.append("start", cmd_seq=2, status=0,
+                 job={"job_no": 1, "part_id": 3, "program_id": 100, "out_program_id": 1100})
+    return path.read_bytes()
+
+
+def _check_tail(tmp, tail: bytes):
+    p = tmp / "j.jsonl"
+    good = _valid_journal(p) if not p.exists() else p.read_bytes()
+    p.write_bytes(good + tail)
+    try:
+        recs, keep = read_records(p)
+    except InputError:
+        assert b"\n" in tail, "only a complete line may be refused"
+        return
+    if keep is not None:          # cut: exactly the unterminated remainder after good records
+        assert b"\n" not in (good + tail)[keep:] and keep >= len(good)
+    assert [r["n"] for r in recs] == list(range(1, len(recs) + 1))
+    from mtcomp.cell.journal import replay
+    replay(recs)                  # whatever was accepted replays without an exception
+
+
+@settings(max_examples=100, deadline=None)
+@given(tail=st.one_of(
+    st.binary(max_size=80),
+    st.lists(st.dictionaries(st.sampled_from(["n", "t", "ev", "cmd_seq", "job", "result_seq",
+                                              "pose", "sigma", "go", "code", "program_id",
+                                              "state", "status", "command", "nogo"]),
+                             st.one_of(st.integers(-2, 5), st.booleans(), st.text(max_size=3),
+                                       st.none(), st.lists(st.floats(), max_size=7),
+                                       st.sampled_from(EVENT_NAMES)), max_size=8),
+             max_size=3).map(lambda recs: b"".join(__import__("json").dumps(r).encode() + b"\n"
+                                                   for r in recs))))
+def test_journal_reader_property(tail):
+    """Anything after a valid journal is read, cut (only an unterminated tail) or refused with an
+    InputError; nothing else ever comes out, and what is accepted replays."""
+    import tempfile
+    from pathlib import Path
+    with tempfile.TemporaryDirectory() as tmp:
+        _check_tail(Path(tmp), tail)
+
+
+def test_random_frames_never_hurt_the_server(serve):
+    """300 random PDUs (any function code, random bodies) over loopback: every answer is a
+    well-formed frame, no traceback is logged, and the server keeps serving."""
+    import random
+    import socket
+    rng = random.Random(5)
+    bs = serve(VirtualCell())
+    answered = 0
+    s = None
+    for _ in range(300):
+        if s is None:
+            s = socket.create_connection(("127.0.0.1", bs.port), timeout=2)
+        fc = rng.choice([rng.randrange(256), 3, 4, 6, 16, 23, 8, 43])
+        body = bytes(rng.randrange(256) for _ in range(rng.randrange(0, 12)))
+        tid = rng.randrange(65536)
+        s.sendall(struct.pack(">HHHB", tid, 0, len(body) + 2, 1) + bytes([fc]) + body)
+        try:
+            head = s.recv(7)
+            if len(head) < 7:
+                raise ConnectionError
+            rtid, proto, length, unit = struct.unpack(">HHHB", head)
+            rest = b""
+            while len(rest) < length - 1:
+                chunk = s.recv(length - 1 - len(rest))
+                if not chunk:
+                    raise ConnectionError
+                rest += chunk
+            assert (rtid, proto, unit) == (tid, 0, 1) and rest
+            answered += 1
+        except (socket.timeout, ConnectionError):
+            s.close()
+            s = None
+    if s is not None:
+        s.close()
+    assert answered > 100
+    mb = RawModbus(bs.port)
+    try:
+        assert mb.read(FIELDS["map_version"].address, 1) == [2]
+    finally:
+        mb.close()

@@ -78,6 +78,9 @@ def _cycle_options(s) -> None:
     s.add_argument("--program-range", default="1000-7999", metavar="LOW-HIGH",
                    help="numbers the compensated programs may take (default 1000-7999); a "
                         "START whose number falls outside is refused, never wrapped")
+    s.add_argument("--program-check", metavar="MODULE:CALLABLE",
+                   help="extra verification of every compensated program: "
+                        "check(machine, path, text), raising to refuse it")
     s.add_argument("--machine", default="robonano-a0ib",
                    help="machine preset or TOML for the NC transform")
     s.add_argument("--measure-timeout", type=float, default=300.0,
@@ -89,16 +92,16 @@ def _cycle_options(s) -> None:
     s.add_argument("--no-fsync", action="store_true", help=argparse.SUPPRESS)
 
 
-def _load_measure(spec: str):
+def _load_measure(spec: str, option: str = "--measure"):
     mod, _, name = spec.partition(":")
     if not mod or not name:
-        raise InputError(f"expected MODULE:CALLABLE, got {spec!r}", field="--measure")
+        raise InputError(f"expected MODULE:CALLABLE, got {spec!r}", field=option)
     try:
         fn = getattr(importlib.import_module(mod), name)
     except (ImportError, AttributeError) as exc:
-        raise InputError(f"cannot load {spec}: {exc}", field="--measure") from None
+        raise InputError(f"cannot load {spec}: {exc}", field=option) from None
     if not callable(fn):
-        raise InputError(f"{spec} is not callable", field="--measure")
+        raise InputError(f"{spec} is not callable", field=option)
     return fn
 
 
@@ -114,15 +117,41 @@ def _program_range(text: str) -> tuple[int, int]:
     return rng
 
 
+def build(args):
+    """The measurement step and the cycle configuration the options describe."""
+    from .cycle import CellConfig
+    from .virtual import VirtualCell
+    check = _load_measure(args.program_check, "--program-check") if args.program_check else None
+    if args.measure:
+        measure = _load_measure(args.measure)
+    elif args.probe_inbox:
+        if not args.plan:
+            raise InputError("--probe-inbox needs --plan (the bowl plan TOML)", field="--plan")
+        from .virtual import ProbeFileCell
+        measure = ProbeFileCell(args.probe_inbox, args.plan, probe_sigma_mm=args.probe_sigma,
+                                wait_s=args.measure_timeout, nc_dir=args.nc_dir,
+                                out_dir=args.out_dir, machine=args.machine, program_check=check)
+    else:
+        measure = VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
+                              out_dir=args.out_dir, machine=args.machine, program_check=check)
+    try:
+        cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
+                         limit_mm=args.limit_mm, limit_deg=args.limit_deg,
+                         fsync=not args.no_fsync, program_offset=args.program_offset,
+                         program_range=_program_range(args.program_range), program_check=check)
+    except ValueError as exc:
+        raise InputError(str(exc), field="--program-range") from None
+    return measure, cfg
+
+
 def _serve(args) -> int:
     import asyncio
     import logging
     import signal
     import sys
     from pathlib import Path
-    from .cycle import CellConfig, Cycle
+    from .cycle import Cycle
     from .server import LOOPBACK, CellServer, is_loopback_host, parse_allow
-    from .virtual import VirtualCell
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     port = args.plc_port if args.cell_command == "client" else args.port
@@ -143,25 +172,7 @@ def _serve(args) -> int:
                   f"{', '.join(map(str, parse_allow(allow)))}"
                   + ("" if args.allow else " (give the PLC's address with --allow)"),
                   file=sys.stderr, flush=True)
-    if args.measure:
-        measure = _load_measure(args.measure)
-    elif args.probe_inbox:
-        if not args.plan:
-            raise InputError("--probe-inbox needs --plan (the bowl plan TOML)", field="--plan")
-        from .virtual import ProbeFileCell
-        measure = ProbeFileCell(args.probe_inbox, args.plan, probe_sigma_mm=args.probe_sigma,
-                                wait_s=args.measure_timeout, nc_dir=args.nc_dir,
-                                out_dir=args.out_dir, machine=args.machine)
-    else:
-        measure = VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
-                              out_dir=args.out_dir, machine=args.machine)
-    try:
-        cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
-                         limit_mm=args.limit_mm, limit_deg=args.limit_deg,
-                         fsync=not args.no_fsync, program_offset=args.program_offset,
-                         program_range=_program_range(args.program_range))
-    except ValueError as exc:
-        raise InputError(str(exc), field="--program-range") from None
+    measure, cfg = build(args)
 
     async def main():
         try:
@@ -183,6 +194,9 @@ def _serve(args) -> int:
                                  field="--port") from None
             print(f"mtcomp cell: serving on {args.host}:{server.port}, journal {args.journal}",
                   flush=True)
+        if not args.measure and not args.nc_dir:
+            print("mtcomp cell: no --nc-dir: no compensated programs are written, so every "
+                  "result is a NO-GO (nogo bit NO_PROGRAM)", flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):

@@ -13,6 +13,12 @@ before its Modbus write is answered; a repeated ``command_seq`` is a no-op, so a
 response simply writes the same command again. Every result gets a ``result_seq`` and is
 journaled before it appears in the registers; it stays presented (also across restarts) until
 the PLC acknowledges exactly that ``result_seq``.
+
+No GO without a program: a result is a GO only if the step returned the program it wrote
+(`program.write_program`) and the cycle, reading the file again right before publishing (and at
+every restart while the result waits for its ACK), finds it intact, for this blank and job, and
+within the travel; otherwise ``nogo`` says why. Program numbers come from the cycle's offset and
+range (never wrapped); an ACK counts only from the connection that read the result.
 """
 from __future__ import annotations
 
@@ -148,6 +154,13 @@ class Cycle:
         img.set("cmd_seq_echo", rec.cmd_seq)
         img.set("cmd_status", rec.cmd_status)
         img.set("job_no", rec.job_no)
+        revoke = None
+        if rec.state == "ready" and rec.result.get("go") and rec.result.get("program"):
+            revoke = self._recheck_journaled(rec.result)
+            if revoke is not None:
+                rec.result = {**rec.result, "go": False,
+                              "nogo": rec.result.get("nogo", 0) | NoGo.NOT_VERIFIED}
+                rec.last_result = rec.result
         if rec.last_result is not None:
             self._show_result(rec.last_result)
         if rec.state == "busy":
@@ -162,11 +175,27 @@ class Cycle:
             self.journal.append("boot", state=rec.state,
                                 resume=rec.job["job_no"] if rec.state == "busy" else None,
                                 result_seq=rec.result_seq)
+            if revoke is not None:
+                log.error("cell: result %d: its program failed the check at restart, NO-GO: %s",
+                          rec.result["result_seq"], revoke)
+                self.journal.append("revoke", result_seq=rec.result["result_seq"],
+                                    nogo=int(NoGo.NOT_VERIFIED), why=revoke)
         except BaseException:
             self.journal.close()
             raise
         log.info("cell: journal %s replayed (%d records): %s", self.journal.path,
                  len(self.journal.records), rec.state)
+
+    def _recheck_journaled(self, result: dict) -> str | None:
+        """A presented GO is published again at every restart: check its program again."""
+        p = result["program"]
+        try:
+            info = ProgramInfo(p["path"], p["program_id"], p["source_id"], p["part_id"],
+                               p["job_no"], p["sha256"], p["crc32"], p["size"], p["blocks"],
+                               p["machine"])
+        except (KeyError, TypeError) as exc:
+            return f"journaled program record incomplete ({exc})"
+        return recheck(info, extra_check=self.config.program_check)
 
     # -- life cycle -------------------------------------------------------------------------
     async def start(self) -> None:

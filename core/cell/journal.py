@@ -24,7 +24,8 @@ from .._io import InputError, MtcompError
 
 log = logging.getLogger("mtcomp.cell")
 
-EVENTS = ("boot", "command", "start", "phase", "result", "ack", "fault", "reset", "abort")
+EVENTS = ("boot", "command", "start", "phase", "result", "ack", "fault", "reset", "abort",
+          "revoke")
 
 
 class Journal:
@@ -162,6 +163,7 @@ _SCHEMA = {
     "fault": {"code": _INT},
     "reset": {"cmd_seq": _INT},
     "abort": {"cmd_seq": _INT},
+    "revoke": {"result_seq": _INT, "nogo": _INT},
 }
 
 
@@ -219,6 +221,12 @@ def replay(records: list[dict]) -> Recovered:
             r.state, r.result, r.last_result = "ready", rec, rec
             r.result_seq = max(r.result_seq, rec["result_seq"])
             r.results.append(rec)
+        elif ev == "revoke":  # a presented GO whose program failed its check at a restart
+            def revoked(res):
+                if res is None or res["result_seq"] != rec["result_seq"]:
+                    return res
+                return {**res, "go": False, "nogo": res.get("nogo", 0) | rec["nogo"]}
+            r.result, r.last_result = revoked(r.result), revoked(r.last_result)
         elif ev == "ack":
             r.acked.add(rec["result_seq"])
             r.state, r.result, r.job = "idle", None, None

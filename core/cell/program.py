@@ -112,7 +112,13 @@ def _body_hash(body: bytes) -> str:
 def read_marker(data: bytes) -> Marker | None:
     """The cell's marker of a program file's bytes, or None if there is none or the rest of the
     file no longer matches it (edited since the cell wrote it)."""
-    m = _MARK.search(data, 0, 4096)
+    end = 0
+    for _ in range(4):  # the marker follows at most "%", the program number and one blank line
+        k = data.find(b"\n", end)
+        end = len(data) if k < 0 else k + 1
+        if k < 0:
+            break
+    m = _MARK.search(data, 0, end)
     if m is None or (m.start() and data[m.start() - 1:m.start()] != b"\n"):
         return None
     body = data[:m.start()] + data[m.end():]
@@ -125,7 +131,7 @@ def _with_marker(text: str, out_id: int, src_id: int, part_id: int, job_no: int)
     """Renumber the program word (O0100 -> O1100: a control that takes the number from the file
     must not load it over the part program) and insert the marker line after it."""
     data = text.encode("utf-8", "surrogateescape")
-    lines = data.splitlines(keepends=True)
+    lines = re.findall(rb"[^\n]*\n|[^\n]+\Z", data)   # LF only, as read_marker counts
     at = 0
     for i, ln in enumerate(lines[:3]):
         s = ln.strip()
@@ -260,7 +266,7 @@ def write_program(machine, source: Path, target: Path, pose, *, source_id: int, 
         raise CellFault(Fault.PROGRAM_FAILED,
                         f"{source} is itself a compensated program (the cell wrote it for part "
                         f"{mark.part_id}): compensate the part program, not its output")
-    _check_replaceable(target)
+    _check_replaceable(target, out_id)
     try:
         new, n_src = compensate_text(machine, text, pose, filename=str(source), mode=mode)
     except MtcompError as exc:
@@ -286,7 +292,7 @@ def write_program(machine, source: Path, target: Path, pose, *, source_id: int, 
         blocks = verify_program_bytes(on_disk, machine, name=target.name, out_id=out_id,
                                       part_id=part_id, job_no=job_no, min_blocks=n_src,
                                       extra_check=extra_check, path=tmp)
-        _place(tmp, target)
+        _place(tmp, target, out_id)
     finally:
         try:
             tmp.unlink()
@@ -297,28 +303,30 @@ def write_program(machine, source: Path, target: Path, pose, *, source_id: int, 
                        blocks, machine.name, machine)
 
 
-def _check_replaceable(target: Path) -> None:
+def _check_replaceable(target: Path, out_id: int) -> None:
+    """Absent, or the cell's own intact program of this number (not a copy of another)."""
     if target.is_dir():
         raise CellFault(Fault.PROGRAM_EXISTS, f"{target} is a directory")
-    if target.exists() and owned_by_cell(target) is None:
+    mark = owned_by_cell(target) if target.exists() else None
+    if target.exists() and (mark is None or mark.program_id != out_id):
         raise CellFault(Fault.PROGRAM_EXISTS,
                         f"{target} exists and was not written by the mtcomp cell (or was edited "
                         f"since): it is never overwritten; move it or choose another program "
                         f"range")
 
 
-def _place(tmp: Path, target: Path) -> None:
+def _place(tmp: Path, target: Path, out_id: int) -> None:
     """Give the verified file its name: link (fails if a file appeared) when the target is
     absent, rename over it only when it is the cell's own."""
     try:
         if target.exists():
-            _check_replaceable(target)
+            _check_replaceable(target, out_id)
             os.replace(tmp, target)
         else:
             try:
                 os.link(tmp, target)
             except FileExistsError:
-                _check_replaceable(target)
+                _check_replaceable(target, out_id)
                 os.replace(tmp, target)
         dfd = os.open(target.parent, os.O_RDONLY)
         try:
