@@ -126,6 +126,8 @@ def test_cad_toolpath_groove_plate_is_safe_and_faces_the_feed(tmp_path, capsys):
     assert main(["cad", "toolpath", "groove-plate", "-o", str(nc), "--clearance", "0.3"]) == 0
     out = capsys.readouterr().out
     assert "passed" in out and "off by 0.000000 deg" not in out and "WARNING" not in out
+    assert main(["cad", "toolpath", "groove-plate", "--tcp", "-o", str(tmp_path / "t.nc")]) == 0
+    assert "passed" in capsys.readouterr().out
     m = load_machine("robonano-a0ib")
     res = verify_program(m, nc.read_text(), stock=PLATE, clearance=0.3)
     assert res.ok and res.min_clearance >= 0.3
@@ -139,3 +141,22 @@ def test_cad_toolpath_groove_plate_is_safe_and_faces_the_feed(tmp_path, capsys):
     # C follows the pass directions: A pattern (+x, +y), C triangle (three sides), B grooves (+y)
     starts = np.nonzero(tp.motion == T.RAPID)[0]
     assert np.ptp(q[starts, m.index("C")]) >= 120.0
+
+
+def test_tcp_program_moves_the_tool_point_straight():
+    """G43.4: X Y Z are the tool point in the workpiece frame and the control keeps it on the
+    straight line while B turns; the same words as machine axes swing the tool instead."""
+    from mtcomp.verify import tcp_to_axes
+    m = load_machine("robonano-a0ib")
+    body = "G00 C0. B0. X-5. Y0. Z1.\nG00 B30. X5. Z1.\n"
+    tcp = verify_program(m, "G21 G90\nG43.4 H1\n" + body + "G49\nM30\n", stock=PLATE,
+                         clearance=0.2)
+    assert tcp.min_clearance == pytest.approx(1.0, abs=tcp.step / 2)
+    axes = verify_program(m, "G21 G90\n" + body + "M30\n", stock=PLATE, clearance=0.2,
+                          raise_on_violation=False)
+    assert abs(axes.min_clearance - 1.0) > 0.5
+    w = np.array([[0.0, 30.0, 5.0, 0.0, 1.0], [10.0, -20.0, -3.0, 2.0, 0.5]])
+    q = tcp_to_axes(m, w)
+    assert np.allclose(forward(m, q).p, w[:, 2:], atol=1e-12) and np.array_equal(q[:, :2], w[:, :2])
+    with pytest.raises(ValueError, match="G43.4 section"):
+        verify_program(m, "G21 G90\nG00 X1. Y1. Z5.\nG43.4 H1\n" + body + "G49\nM30\n", stock=PLATE)
