@@ -144,15 +144,21 @@ def cmd_toolpath(args) -> int:
     from ..machine import load_machine
     from . import check as C, post as P, toolpath as T
     from .._io import atomic_write
+    from ..progress import StageLog
+    log = StageLog(f"cad toolpath {args.kind}")
     machine = load_machine(args.machine)
     errors = load_errors(args.errors) if args.errors else None
     t0 = time.perf_counter()
+    log("toolpath")
     path = _toolpath(args)
     t1 = time.perf_counter()
+    log(f"machine axes of {len(path)} poses")
     q = T.to_axes(machine, path, errors)
     from ..verify import parse_stock, verify_program
     stock = parse_stock(args.stock) if args.stock else default_stock(args)
+    log("safe rapid links")
     linked, q_linked = T.link_safely(machine, path, q, stock, args.clearance, errors=errors)
+    log("post-processor")
     t2 = time.perf_counter()
     def template(value):
         return value.replace("\\n", "\n") if value is not None else None
@@ -177,10 +183,14 @@ def cmd_toolpath(args) -> int:
     if args.part:
         from ..verify import ShapeStock
         part = ShapeStock.from_step(args.part)
-    ver = verify_program(machine, text, filename=str(args.out), stock=stock, part=part,
-                         clearance=args.clearance, errors=errors,
-                         tool_radius=path.tool.radius if path.tool.kind != "vtool" else 0.0,
-                         raise_on_violation=not args.warn_only)
+    log("verification")
+    try:
+        ver = verify_program(machine, text, filename=str(args.out), stock=stock, part=part,
+                             clearance=args.clearance, errors=errors,
+                             tool_radius=path.tool.radius if path.tool.kind != "vtool" else 0.0,
+                             raise_on_violation=not args.warn_only)
+    finally:
+        log.done()
     print("  " + ver.summary().replace("\n", "\n  "))
     if path.tool.kind == "vtool":
         rk = np.abs(T.rake_error(machine, path, q, errors))
