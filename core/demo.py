@@ -457,8 +457,8 @@ def _report(out: Path, r: dict, quick: bool, times: dict) -> Path:
     t = r["tool"]
     s = Section("2. Tool setting errors by grooving (paper 000), virtual experiment")
     s.text("Machine: robonano-ui (X Y Z A B C, the rotary axes carry the tool). Error sources in this "
-           "stage: the hidden tool setting offset (paper 000's, perturbed by 10 µm per component) and "
-           "1 µm microscope noise on groove positions and depths; no geometric errors.")
+           "stage: the hidden tool setting offset (paper 000's, perturbed by a random 10 µm, 1σ, per "
+           "component) and 1 µm (1σ) microscope noise on groove positions and depths; no geometric errors.")
     s.table(["component", "hidden truth (µm)", "estimate (µm)", "1σ (µm)", "(estimate − truth) / 1σ"],
             [[c, t["truth"][i] * 1e3, t["estimate"][i] * 1e3, t["sigma"][i] * 1e3,
               (t["estimate"][i] - t["truth"][i]) / t["sigma"][i]] for i, c in enumerate("xyz")])
@@ -484,7 +484,8 @@ def _report(out: Path, r: dict, quick: bool, times: dict) -> Path:
     c = r["cell"]
     s = Section("3. Robot loading cell over Modbus TCP (paper 001)")
     s.text("Machine: robonano-a0ib (C and B tables carry the workpiece, X Y Z move the tool). Error "
-           "sources: the blank's placement by the robot (hidden 6-dof pose) and 0.5 µm probe noise; "
+           "sources: the blank's placement by the robot (hidden 6-dof pose) and 0.5 µm (1σ) probe "
+           "noise; "
            "the machine itself is error-free in this stage.")
     names = ["dx (µm)", "dy (µm)", "dz (µm)", "a (″)", "b (″)", "c (″)"]
     scale = np.array([1e3, 1e3, 1e3, 3600, 3600, 3600])
@@ -524,7 +525,7 @@ def _report(out: Path, r: dict, quick: bool, times: dict) -> Path:
     s.text("Differences from the paper: the widths move 15 times the height error of the blank "
            f"(dW = 2 dz / tan β); this run's probed dz is off by {dz:+.2f} µm, so the compensated widths "
            f"sit {np.mean(p['comp'].widths * 1e3 - 3450):+.1f} µm from the target, where the paper's "
-           "scatter ±1.6 µm; the slope angles are invariant under a rigid displacement of the blank, "
+           "lie within ±1.6 µm of it; the slope angles are invariant under a rigid displacement of the blank, "
            "so they stay at 164.81° here, and the paper's 0.05-0.09° come from error sources this "
            "stage leaves out (machine geometry, tool wear).")
     png = out / "pyramid.png"
@@ -534,7 +535,7 @@ def _report(out: Path, r: dict, quick: bool, times: dict) -> Path:
     dg = r["diagnose"]
     res = dg["res"]
     s = Section("6. Diagnosis of a recording against its simulation")
-    s.text("Machine: vmc-moving-column (3 axes). Error sources: a concealed backlash on X and 20 nm "
+    s.text("Machine: vmc-moving-column (3 axes). Error sources: a concealed backlash on X and 20 nm (1σ) "
            "noise in the \"recording\" (a co-simulation with machine dynamics, its own clock, 2.5 ms "
            "samples), none in the simulation.")
     named = [e.name for e in res.effects]
