@@ -10,6 +10,7 @@ the figures and the report are in ``demo_report``):
    with and without compensation.
 5. The machined pyramid's widths and angles beside paper 001's Table 1.
 6. The diagnosis names an effect the simulation left out of a co-simulated "recording".
+7. The programs the demo wrote are verified through the machine model (mtcomp.verify).
 """
 from __future__ import annotations
 

@@ -160,3 +160,22 @@ def test_tcp_program_moves_the_tool_point_straight():
     assert np.allclose(forward(m, q).p, w[:, 2:], atol=1e-12) and np.array_equal(q[:, :2], w[:, :2])
     with pytest.raises(ValueError, match="G43.4 section"):
         verify_program(m, "G21 G90\nG00 X1. Y1. Z5.\nG43.4 H1\n" + body + "G49\nM30\n", stock=PLATE)
+
+
+def test_safe_links_without_stock_and_when_nothing_fits():
+    from mtcomp._io import MtcompError
+    from mtcomp.cad_plugin import toolpath as T
+    m = load_machine("robonano-a0ib")
+    tp = T.groove_plate_passes()
+    q = T.to_axes(m, tp)
+    # No stock known: every rotary link retracts to 1 mm below the top of Z's travel (60 mm).
+    linked, ql = T.link_safely(m, tp, q, stock=None)
+    z = m.index("Z")
+    turns = np.nonzero(np.any(np.abs(np.diff(ql[:, :2], axis=0)) > 0, axis=1))[0] + 1
+    # C: -90 -> 0 -> 150 -> -90 -> 30 -> 0 (A pattern, C triangle, B grooves), B: 0 -> 30 -> -30
+    assert turns.size == 7 and np.all(ql[turns, z] == 59.0)
+    assert len(linked) == len(ql) == len(tp) + 3 * turns.size
+    # Material up to 100 mm over the table: no retract height within the travel keeps clear.
+    tower = Box((-50, -50, -3), (50, 50, 100))
+    with pytest.raises(MtcompError, match=r"pose \d+: no retract height within the travel of Z"):
+        T.link_safely(m, tp, q, stock=tower)
