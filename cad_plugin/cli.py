@@ -275,10 +275,18 @@ def cmd_verify(args) -> int:
     part = ShapeStock.from_step(args.part) if args.part else None
     errors = load_errors(args.errors) if args.errors else None
     text = read_text(args.program, what="NC program")
+    rates = None
+    if args.rapid_rates:
+        try:
+            rates = {k.strip().upper(): float(v) for k, v in
+                     (item.split("=") for item in args.rapid_rates.split(","))}
+        except ValueError:
+            raise InputError("expected A=RATE,... with numbers", field="--rapid-rates") from None
     try:
         res = verify_program(machine, text, filename=str(args.program), stock=stock, part=part,
                              clearance=args.clearance, tolerance=args.tolerance, errors=errors,
-                             tool_radius=args.tool_radius, step=args.step, raise_on_violation=False)
+                             tool_radius=args.tool_radius, step=args.step, raise_on_violation=False,
+                             rapid_rates=rates)
     except VerifyError as exc:  # not raised with raise_on_violation=False; kept for clarity
         res = exc.result
     print(res.summary(max_listed=20))
@@ -368,6 +376,9 @@ def register(subparsers) -> None:
     v.add_argument("--errors", help="errors TOML of the real machine (default: nominal)")
     v.add_argument("--step", type=float, default=0.005, help="largest sample spacing, mm")
     v.add_argument("--warn-only", action="store_true", help="report failures, exit 0")
+    v.add_argument("--rapid-rates", metavar="A=RATE,...",
+                   help="dog-leg rapids: each axis at its own rate (mm/min, deg/min), e.g. "
+                        "X=10000,Y=10000,Z=5000,B=3600,C=3600; default: linear rapids")
     v.set_defaults(func=cmd_verify)
 
 

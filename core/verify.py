@@ -229,9 +229,16 @@ def _tool_points(machine, q: np.ndarray, errors, tool_radius: float, tcp: bool =
     return pose.p + tool_radius * pose.v if tool_radius else pose.p
 
 
-def _interpolate(qa, qb, frac, arc=None):
+def _interpolate(qa, qb, frac, arc=None, rates=None):
     """Axis positions at fractions `frac` (M,) between block ends qa, qb (M, n): linear, or for
-    arcs (centre (M, 2), sweep (M,), plane columns (M, 2)) on the circle."""
+    arcs (centre (M, 2), sweep (M,), plane columns (M, 2)) on the circle.  rates (n,): every axis
+    runs at its own rate and stops when it arrives (dog-leg rapids); frac is then the fraction
+    of the block's time, the time of its slowest axis."""
+    if rates is not None:
+        t_axis = np.abs(qb - qa) / rates
+        t_block = t_axis.max(axis=1, keepdims=True)
+        f = np.where(t_axis > 0, np.minimum(1.0, frac[:, None] * t_block / np.where(t_axis > 0, t_axis, 1.0)), 1.0)
+        return qa + f * (qb - qa)
     q = qa + frac[:, None] * (qb - qa)
     if arc is not None:
         centre, sweep, cols, is_arc = arc
@@ -250,7 +257,8 @@ def _interpolate(qa, qb, frac, arc=None):
 
 
 def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
-          step: float = 0.005, arcs=None, max_rounds: int = 12, tcp: bool = False):
+          step: float = 0.005, arcs=None, max_rounds: int = 12, tcp: bool = False,
+          rapid_rates=None):
     """Samples of the tool along the moves into `blocks` (indices i >= 1: the move q[i-1] -> q[i]).
 
     Returns (points (M,3) mm, owner (M,) block index, spacing (B,) largest distance between
@@ -258,7 +266,9 @@ def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
     that spacing is <= step, so every point of the swept path is within step/2 of a sample.
     arcs: optional (centre (N,2), sweep (N,), plane columns (N,2), is_arc (N,)) per block.
     tcp: q are tool-centre-point words (G43.4): the control moves the tool point straight and
-    the rotary axes linearly, i.e. linearly in these words, and its kinematics gives the axes."""
+    the rotary axes linearly, i.e. linearly in these words, and its kinematics gives the axes.
+    rapid_rates (n_axes,) mm/min and deg/min: the blocks are dog-leg rapids, each axis at its own
+    rate (a control with non-linear rapid traverse, Fanuc LRP = 0); None: linear."""
     blocks = np.asarray(blocks, int)
     q = np.asarray(q, float)
     if blocks.size == 0:
@@ -277,7 +287,9 @@ def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
         frac = (np.arange(owner.size) - start) / np.repeat(n, n + 1)
         b = blocks[owner]
         sub = None if arcs is None else (arcs[0][b], arcs[1][b], arcs[2][b], arcs[3][b])
-        pts = _tool_points(machine, _interpolate(q[b - 1], q[b], frac, sub), errors, tool_radius, tcp)
+        qs = _interpolate(q[b - 1], q[b], frac, sub,
+                          None if rapid_rates is None else np.asarray(rapid_rates, float))
+        pts = _tool_points(machine, qs, errors, tool_radius, tcp)
         gap = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         gap[np.cumsum(n + 1)[:-1] - 1] = 0.0  # across two blocks
         spacing = np.zeros(len(blocks))
@@ -374,7 +386,8 @@ class VerifyResult:
 def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, part=None,
                     tolerance: float = 5e-4, tool_radius: float = 0.0, errors=None,
                     step: float = 0.005, lines=None, texts=None, arcs=None, name: str = "program",
-                    raise_on_violation: bool = True, tcp: bool = False) -> VerifyResult:
+                    raise_on_violation: bool = True, tcp: bool = False,
+                    rapid_rates=None) -> VerifyResult:
     """Verify axis commands q (N, n_axes) mm/deg with per-block motion codes (N,) (0 rapid,
     1 feed, 2 probe, 3 feed on an arc).
 
@@ -383,7 +396,9 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
     tool_radius: ball radius, mm (0: a point tool); errors: ErrorSet of the real machine (None:
     nominal); lines/texts: source line numbers and texts for the messages.  Raises VerifyError
     naming the first failing block (all are in ``.result``) unless raise_on_violation is False.
-    tcp: q are G43.4 tool-centre-point words (see :func:`sweep`).
+    tcp: q are G43.4 tool-centre-point words (see :func:`sweep`).  rapid_rates: {axis letter:
+    rate} (mm/min, deg/min) of a control with dog-leg rapids (each axis at its own rate); None:
+    rapids interpolated linearly (LRP = 1).
     """
     if stock is None and part is None:
         raise InputError("nothing to verify against: give a stock and/or a part", field="stock")
@@ -409,9 +424,19 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
         return out
 
     idx = np.arange(1, len(q))
+    rates = None
+    if rapid_rates is not None:
+        if tcp:
+            raise InputError("dog-leg rapids and G43.4 output do not go together", field="rapid_rates")
+        missing = [a for a in machine.axis_names if a not in rapid_rates]
+        if missing or any(not float(v) > 0 for v in rapid_rates.values()):
+            raise InputError(f"rapid rates > 0 needed for every axis; missing {missing}",
+                             field="rapid_rates")
+        rates = np.array([float(rapid_rates[a]) for a in machine.axis_names])
     if stock is not None:
         rb = idx[motion[1:] == RAPID]
-        pts, owner, _ = sweep(machine, q, rb, errors, tool_radius, step, arcs, tcp=tcp)
+        pts, owner, _ = sweep(machine, q, rb, errors, tool_radius, step, arcs, tcp=tcp,
+                              rapid_rates=rates)
         if motion.size and motion[0] == RAPID:  # end point of the first move
             pts = np.vstack([_tool_points(machine, q[:1], errors, tool_radius, tcp), pts])
             owner = np.concatenate([[0], owner])

@@ -179,3 +179,25 @@ def test_safe_links_without_stock_and_when_nothing_fits():
     tower = Box((-50, -50, -3), (50, 50, 100))
     with pytest.raises(MtcompError, match=r"pose \d+: no retract height within the travel of Z"):
         T.link_safely(m, tp, q, stock=tower)
+
+
+def test_dogleg_rapids_follow_each_axis_at_its_own_rate():
+    """With non-linear rapids every axis runs at its rate and stops on arrival: Z reaches its
+    end first and X carries the tool on at that height."""
+    m = load_machine("vmc-moving-column")
+    text = "G21 G90\nG00 X0. Y0. Z5.\nG00 X10. Z1.\nM30\n"
+    block = Box((4.5, -1.0, -10.0), (5.5, 1.0, 2.0))      # 2 mm high, at x 4.5 .. 5.5
+    lin = verify_program(m, text, stock=block, clearance=0.5)
+    # straight in X-Z, z = 5 - 0.4 x: nearest to the block's corner (5.5, 2), 0.8 mm above it,
+    # at the line's normal distance 0.8 / sqrt(1 + 0.4^2)
+    assert lin.min_clearance == pytest.approx(0.8 / math.sqrt(1.16), abs=lin.step / 2)
+    rates = {"X": 10000.0, "Y": 10000.0, "Z": 10000.0}
+    with pytest.raises(VerifyError, match="line 3"):
+        verify_program(m, text, stock=block, clearance=0.5, rapid_rates=rates)
+    res = verify_program(m, text, stock=block, clearance=0.5, rapid_rates=rates,
+                         raise_on_violation=False)
+    # z = 1 through the block: deepest at x = 5, 0.5 mm from its side faces
+    assert res.min_clearance == pytest.approx(-0.5, abs=res.step / 2)
+    # Z at a tenth of X's rate: Z arrives last, the path stays high until x = 10.
+    slow_z = dict(rates, Z=1000.0)
+    assert verify_program(m, text, stock=block, clearance=0.5, rapid_rates=slow_z).ok
