@@ -144,15 +144,21 @@ def cmd_toolpath(args) -> int:
     from ..machine import load_machine
     from . import check as C, post as P, toolpath as T
     from .._io import atomic_write
+    from ..progress import StageLog
+    log = StageLog(f"cad toolpath {args.kind}")
     machine = load_machine(args.machine)
     errors = load_errors(args.errors) if args.errors else None
     t0 = time.perf_counter()
+    log("toolpath")
     path = _toolpath(args)
     t1 = time.perf_counter()
+    log(f"machine axes of {len(path)} poses")
     q = T.to_axes(machine, path, errors)
     from ..verify import parse_stock, verify_program
     stock = parse_stock(args.stock) if args.stock else default_stock(args)
+    log("safe rapid links")
     linked, q_linked = T.link_safely(machine, path, q, stock, args.clearance, errors=errors)
+    log("post-processor")
     t2 = time.perf_counter()
     def template(value):
         return value.replace("\\n", "\n") if value is not None else None
@@ -177,10 +183,14 @@ def cmd_toolpath(args) -> int:
     if args.part:
         from ..verify import ShapeStock
         part = ShapeStock.from_step(args.part)
-    ver = verify_program(machine, text, filename=str(args.out), stock=stock, part=part,
-                         clearance=args.clearance, errors=errors,
-                         tool_radius=path.tool.radius if path.tool.kind != "vtool" else 0.0,
-                         raise_on_violation=not args.warn_only)
+    log("verification")
+    try:
+        ver = verify_program(machine, text, filename=str(args.out), stock=stock, part=part,
+                             clearance=args.clearance, errors=errors,
+                             tool_radius=path.tool.radius if path.tool.kind != "vtool" else 0.0,
+                             raise_on_violation=not args.warn_only)
+    finally:
+        log.done()
     print("  " + ver.summary().replace("\n", "\n  "))
     if path.tool.kind == "vtool":
         rk = np.abs(T.rake_error(machine, path, q, errors))
@@ -265,10 +275,18 @@ def cmd_verify(args) -> int:
     part = ShapeStock.from_step(args.part) if args.part else None
     errors = load_errors(args.errors) if args.errors else None
     text = read_text(args.program, what="NC program")
+    rates = None
+    if args.rapid_rates:
+        try:
+            rates = {k.strip().upper(): float(v) for k, v in
+                     (item.split("=") for item in args.rapid_rates.split(","))}
+        except ValueError:
+            raise InputError("expected A=RATE,... with numbers", field="--rapid-rates") from None
     try:
         res = verify_program(machine, text, filename=str(args.program), stock=stock, part=part,
                              clearance=args.clearance, tolerance=args.tolerance, errors=errors,
-                             tool_radius=args.tool_radius, step=args.step, raise_on_violation=False)
+                             tool_radius=args.tool_radius, step=args.step, raise_on_violation=False,
+                             rapid_rates=rates)
     except VerifyError as exc:  # not raised with raise_on_violation=False; kept for clarity
         res = exc.result
     print(res.summary(max_listed=20))
@@ -358,6 +376,9 @@ def register(subparsers) -> None:
     v.add_argument("--errors", help="errors TOML of the real machine (default: nominal)")
     v.add_argument("--step", type=float, default=0.005, help="largest sample spacing, mm")
     v.add_argument("--warn-only", action="store_true", help="report failures, exit 0")
+    v.add_argument("--rapid-rates", metavar="A=RATE,...",
+                   help="dog-leg rapids: each axis at its own rate (mm/min, deg/min), e.g. "
+                        "X=10000,Y=10000,Z=5000,B=3600,C=3600; default: linear rapids")
     v.set_defaults(func=cmd_verify)
 
 

@@ -420,9 +420,11 @@ def pyramid_finishing(width: float = 3.45, angle: float = 164.81, tool: Tool | N
 
 
 # --------------------------------------------------------------------------- machine axes
-def _rotary_seed(machine, R_target: np.ndarray) -> np.ndarray:
+def _rotary_seed(machine, R_target: np.ndarray, full: bool = False) -> np.ndarray:
     """Rotary angles (deg) whose nominal orientation is closest to R_target (3,3) on a 30 deg
-    grid over the rotary axes' travel; the kinematics' solver refines them."""
+    grid over the rotary axes' travel; the kinematics' solver refines them.  full: compare the
+    whole tool frame even where the machine sets only the tool direction (a non-rotational
+    tool: of the branches that reach the direction, the one nearest the rake orientation)."""
     from ..kinematics import forward
     rot = list(machine.rotary_indices)
     grids = []
@@ -434,7 +436,7 @@ def _rotary_seed(machine, R_target: np.ndarray) -> np.ndarray:
     q = np.zeros((len(mesh), machine.n_axes))
     q[:, rot] = mesh
     pose = forward(machine, q)
-    if machine.n_rotary >= 3:
+    if machine.n_rotary >= 3 or full:
         err = np.linalg.norm(pose.R - R_target[None], axis=(1, 2))
     else:
         err = np.linalg.norm(pose.v - (R_target @ np.asarray(machine.tool_axis))[None], axis=1)
@@ -486,7 +488,7 @@ def to_axes(machine, path: Toolpath, errors=None) -> np.ndarray:
         # Anchor: solve one point exactly from a grid seed, use it for the following points
         # until the orientation has turned by more than about 12 deg.
         qa = np.zeros((1, machine.n_axes))
-        qa[0, rot] = _rotary_seed(machine, R[a])
+        qa[0, rot] = _rotary_seed(machine, R[a], full=path.tool.kind == "vtool")
         qa = _pinv_solve(machine, qa, path.p[a:a + 1])
         qa = compensate(machine, Pose(path.p[a:a + 1], R[a:a + 1], machine.tool_axis), None, qa)
         d = np.linalg.norm(R[a:] - R[a], axis=(1, 2))

@@ -27,3 +27,28 @@ class Progress:
         if done >= total:
             self.stream.write("\n")
         self.stream.flush()
+
+
+class StageLog:
+    """Names the stage a command is in while it works (one line, overwritten), so a command that
+    takes tens of seconds is not silent; on stderr only when it is a terminal (or asked)."""
+
+    def __init__(self, label: str, enabled: bool | None = None, stream=None):
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.enabled = self.stream.isatty() if enabled is None else enabled
+        self._t0 = time.monotonic()
+        self._width = 0
+
+    def __call__(self, stage: str) -> None:
+        if not self.enabled:
+            return
+        text = f"{self.label}: {stage} ... ({time.monotonic() - self._t0:.0f} s)"
+        self.stream.write("\r" + text.ljust(self._width))
+        self._width = len(text)
+        self.stream.flush()
+
+    def done(self) -> None:
+        if self.enabled and self._width:
+            self.stream.write("\r" + " " * self._width + "\r")
+            self.stream.flush()

@@ -198,15 +198,47 @@ def parse_stock(spec: str):
 
 
 # ---------------------------------------------------------------------------------- sampling
-def _tool_points(machine, q: np.ndarray, errors, tool_radius: float) -> np.ndarray:
+def tcp_to_axes(machine, w: np.ndarray) -> np.ndarray:
+    """Axis commands (N, n) for tool-centre-point words w (N, n): the linear columns hold the
+    tool point X Y Z in the workpiece frame, the rotary columns the rotary angles, as a G43.4
+    control reads them with its nominal kinematics.  The linear axes translate the tool point
+    along their (rotated) directions, so one least-squares step is exact."""
     from .kinematics import forward
+    w = np.asarray(w, float)
+    lin = [i for i, a in enumerate(machine.axes) if not a.is_rotary]
+    xyz = ["XYZ".index(machine.axes[i].name) for i in lin]
+    q = w.copy()
+    q[:, lin] = 0.0
+    p0 = forward(machine, q).p
+    J = np.empty((len(w), 3, len(lin)))
+    for k, i in enumerate(lin):
+        dq = q.copy()
+        dq[:, i] = 1.0
+        J[:, :, k] = forward(machine, dq).p - p0
+    target = np.zeros((len(w), 3))
+    target[:, xyz] = w[:, lin]
+    q[:, lin] = np.einsum("nij,nj->ni", np.linalg.pinv(J), target - p0)
+    return q
+
+
+def _tool_points(machine, q: np.ndarray, errors, tool_radius: float, tcp: bool = False) -> np.ndarray:
+    from .kinematics import forward
+    if tcp:
+        q = tcp_to_axes(machine, q)
     pose = forward(machine, q, errors, strict=False)
     return pose.p + tool_radius * pose.v if tool_radius else pose.p
 
 
-def _interpolate(qa, qb, frac, arc=None):
+def _interpolate(qa, qb, frac, arc=None, rates=None):
     """Axis positions at fractions `frac` (M,) between block ends qa, qb (M, n): linear, or for
-    arcs (centre (M, 2), sweep (M,), plane columns (M, 2)) on the circle."""
+    arcs (centre (M, 2), sweep (M,), plane columns (M, 2)) on the circle.  rates (n,): every axis
+    runs at its own rate and stops when it arrives (dog-leg rapids); frac is then the fraction
+    of the block's time, the time of its slowest axis."""
+    if rates is not None:
+        t_axis = np.abs(qb - qa) / rates
+        t_block = t_axis.max(axis=1, keepdims=True)
+        f = np.where(t_axis > 0, np.minimum(1.0, frac[:, None] * t_block / np.where(t_axis > 0, t_axis, 1.0)), 1.0)
+        return qa + f * (qb - qa)
     q = qa + frac[:, None] * (qb - qa)
     if arc is not None:
         centre, sweep, cols, is_arc = arc
@@ -225,18 +257,23 @@ def _interpolate(qa, qb, frac, arc=None):
 
 
 def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
-          step: float = 0.005, arcs=None, max_rounds: int = 12):
+          step: float = 0.005, arcs=None, max_rounds: int = 12, tcp: bool = False,
+          rapid_rates=None):
     """Samples of the tool along the moves into `blocks` (indices i >= 1: the move q[i-1] -> q[i]).
 
     Returns (points (M,3) mm, owner (M,) block index, spacing (B,) largest distance between
     consecutive samples of each block, mm).  The number of samples of each block doubles until
     that spacing is <= step, so every point of the swept path is within step/2 of a sample.
-    arcs: optional (centre (N,2), sweep (N,), plane columns (N,2), is_arc (N,)) per block."""
+    arcs: optional (centre (N,2), sweep (N,), plane columns (N,2), is_arc (N,)) per block.
+    tcp: q are tool-centre-point words (G43.4): the control moves the tool point straight and
+    the rotary axes linearly, i.e. linearly in these words, and its kinematics gives the axes.
+    rapid_rates (n_axes,) mm/min and deg/min: the blocks are dog-leg rapids, each axis at its own
+    rate (a control with non-linear rapid traverse, Fanuc LRP = 0); None: linear."""
     blocks = np.asarray(blocks, int)
     q = np.asarray(q, float)
     if blocks.size == 0:
         return np.zeros((0, 3)), np.zeros(0, int), np.zeros(0)
-    ends = _tool_points(machine, q, errors, tool_radius)
+    ends = _tool_points(machine, q, errors, tool_radius, tcp)
     n = np.maximum(1, np.ceil(np.linalg.norm(ends[blocks] - ends[blocks - 1], axis=1) / step)).astype(int)
     rot = list(machine.rotary_indices)
     if rot:  # rotary blocks: start from 8 samples per degree turned, refined below
@@ -250,7 +287,9 @@ def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
         frac = (np.arange(owner.size) - start) / np.repeat(n, n + 1)
         b = blocks[owner]
         sub = None if arcs is None else (arcs[0][b], arcs[1][b], arcs[2][b], arcs[3][b])
-        pts = _tool_points(machine, _interpolate(q[b - 1], q[b], frac, sub), errors, tool_radius)
+        qs = _interpolate(q[b - 1], q[b], frac, sub,
+                          None if rapid_rates is None else np.asarray(rapid_rates, float))
+        pts = _tool_points(machine, qs, errors, tool_radius, tcp)
         gap = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         gap[np.cumsum(n + 1)[:-1] - 1] = 0.0  # across two blocks
         spacing = np.zeros(len(blocks))
@@ -347,7 +386,8 @@ class VerifyResult:
 def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, part=None,
                     tolerance: float = 5e-4, tool_radius: float = 0.0, errors=None,
                     step: float = 0.005, lines=None, texts=None, arcs=None, name: str = "program",
-                    raise_on_violation: bool = True) -> VerifyResult:
+                    raise_on_violation: bool = True, tcp: bool = False,
+                    rapid_rates=None) -> VerifyResult:
     """Verify axis commands q (N, n_axes) mm/deg with per-block motion codes (N,) (0 rapid,
     1 feed, 2 probe, 3 feed on an arc).
 
@@ -356,6 +396,9 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
     tool_radius: ball radius, mm (0: a point tool); errors: ErrorSet of the real machine (None:
     nominal); lines/texts: source line numbers and texts for the messages.  Raises VerifyError
     naming the first failing block (all are in ``.result``) unless raise_on_violation is False.
+    tcp: q are G43.4 tool-centre-point words (see :func:`sweep`).  rapid_rates: {axis letter:
+    rate} (mm/min, deg/min) of a control with dog-leg rapids (each axis at its own rate); None:
+    rapids interpolated linearly (LRP = 1).
     """
     if stock is None and part is None:
         raise InputError("nothing to verify against: give a stock and/or a part", field="stock")
@@ -381,11 +424,21 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
         return out
 
     idx = np.arange(1, len(q))
+    rates = None
+    if rapid_rates is not None:
+        if tcp:
+            raise InputError("dog-leg rapids and G43.4 output do not go together", field="rapid_rates")
+        missing = [a for a in machine.axis_names if a not in rapid_rates]
+        if missing or any(not float(v) > 0 for v in rapid_rates.values()):
+            raise InputError(f"rapid rates > 0 needed for every axis; missing {missing}",
+                             field="rapid_rates")
+        rates = np.array([float(rapid_rates[a]) for a in machine.axis_names])
     if stock is not None:
         rb = idx[motion[1:] == RAPID]
-        pts, owner, _ = sweep(machine, q, rb, errors, tool_radius, step, arcs)
+        pts, owner, _ = sweep(machine, q, rb, errors, tool_radius, step, arcs, tcp=tcp,
+                              rapid_rates=rates)
         if motion.size and motion[0] == RAPID:  # end point of the first move
-            pts = np.vstack([_tool_points(machine, q[:1], errors, tool_radius), pts])
+            pts = np.vstack([_tool_points(machine, q[:1], errors, tool_radius, tcp), pts])
             owner = np.concatenate([[0], owner])
         n_samples += len(pts)
         if len(pts):
@@ -395,7 +448,7 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
             violations += worst_per_block(pts, owner, dist, dist - step / 2 < clearance, "rapid")
     if part is not None:
         fb = idx[(motion[1:] == FEED) | (motion[1:] == 3)]
-        pts, owner, _ = sweep(machine, q, fb, errors, tool_radius, step, arcs)
+        pts, owner, _ = sweep(machine, q, fb, errors, tool_radius, step, arcs, tcp=tcp)
         n_samples += len(pts)
         if len(pts):
             dist = part.distance(pts) - tool_radius
@@ -423,28 +476,46 @@ _DROP_WORDS = re.compile(r"\bG(?:43(?:\.0)?\s*H\d+|49|93|94)\b(?![.\d])", re.IGN
 _G31 = re.compile(r"\bG31\b(?![.\d])", re.IGNORECASE)
 
 
-def _prepare(text: str) -> tuple[str, set]:
-    """Program text the motion reader accepts, same line numbering; the lines with G31."""
+_TCP_ON = re.compile(r"\bG43\.4\s*(?:H\d+)?", re.IGNORECASE)
+_TCP_OFF = re.compile(r"\bG49\b(?![.\d])", re.IGNORECASE)
+
+
+def _prepare(text: str) -> tuple[str, set, tuple]:
+    """Program text the motion reader accepts, same line numbering; the lines with G31; the
+    (first, last) lines of G43.4 tool-centre-point mode (None if the program has none)."""
     out, probe_lines = [], set()
+    tcp_on = tcp_off = None
     for k, line in enumerate(text.split("\n"), 1):
         code = re.sub(r"\([^()]*\)", lambda m: " " * len(m.group()), line)
         if _MACRO_LINE.match(code):
             out.append("")
             continue
+        if _TCP_ON.search(code):
+            tcp_on = tcp_on or k
+            code = _TCP_ON.sub("", code)
+        if tcp_on and tcp_off is None and _TCP_OFF.search(code):
+            tcp_off = k
         if _G31.search(code):
             probe_lines.add(k)
             code = _G31.sub("G01", code)
         code = _DROP_WORDS.sub("", code)
         out.append(code)
-    return "\n".join(out), probe_lines
+    return "\n".join(out), probe_lines, (None if tcp_on is None else (tcp_on, tcp_off))
 
 
 def program_commands(machine, text: str, filename: str = "<string>"):
-    """Axis commands (N, n_axes), motion codes (N,), source lines (N,), line texts and arc data
-    of an NC program, read through :func:`mtcomp.gcode.parse`."""
+    """Axis words (N, n_axes), motion codes (N,), source lines (N,), line texts, arc data and
+    whether the words are G43.4 tool-centre-point words, read through :func:`mtcomp.gcode.parse`."""
     from . import gcode
-    clean, probe_lines = _prepare(text)
+    clean, probe_lines, tcp = _prepare(text)
     prog = gcode.parse(clean, axes=machine.axis_names, filename=filename)
+    if tcp is not None:
+        on, off = tcp
+        inside = (prog.line > on) & ((prog.line < off) if off else True)
+        if not inside.all():
+            k = int(np.nonzero(~inside)[0][0])
+            raise InputError("motion outside the G43.4 section of a tool-centre-point program: "
+                             "verify reads a program in one mode", filename, int(prog.line[k]))
     motion = np.asarray(prog.motion, int).copy()
     motion[motion < 0] = RAPID  # axis words before any motion code: the control's power-on G00
     motion[(motion == 2) | (motion == 3)] = 3
@@ -471,11 +542,12 @@ def program_commands(machine, text: str, filename: str = "<string>"):
         centre = np.take_along_axis(centre3, np.array([[{"X": 0, "Y": 1, "Z": 2}.get(
             machine.axis_names[c], 0) for c in row] for row in cols]), axis=1)
         arcs = (centre, np.nan_to_num(np.asarray(prog.arc_sweep, float)), cols, motion == 3)
-    return prog.position, motion, np.asarray(prog.line, int), texts, arcs
+    return prog.position, motion, np.asarray(prog.line, int), texts, arcs, tcp is not None
 
 
 def verify_program(machine, text: str, *, filename: str = "<string>", **kw) -> VerifyResult:
-    """Read an NC program (text) for `machine` and :func:`verify_commands` it (same keywords)."""
-    q, motion, lines, texts, arcs = program_commands(machine, text, filename)
+    """Read an NC program (text) for `machine` and :func:`verify_commands` it (same keywords).
+    A G43.4 program is read as tool-centre-point words (see :func:`sweep`)."""
+    q, motion, lines, texts, arcs, tcp = program_commands(machine, text, filename)
     kw.setdefault("name", filename)
-    return verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, **kw)
+    return verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, tcp=tcp, **kw)

@@ -115,3 +115,19 @@ def test_outputs_into_missing_folders_or_onto_folders_are_refused(tmp_path, caps
     assert main(["cad", "toolpath", "groove-plate", "-o", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.count("error:") == 2
+
+
+def test_stage_log_names_the_stage_and_clears_its_line():
+    import io
+    from mtcomp.progress import StageLog
+    buf = io.StringIO()
+    log = StageLog("cad toolpath pyramid", enabled=True, stream=buf)
+    log("machine axes of 88704 poses")
+    log("post")
+    log.done()
+    text = buf.getvalue()
+    assert "\rcad toolpath pyramid: machine axes of 88704 poses ... (0 s)" in text
+    assert text.endswith("\r") and "post ..." in text
+    quiet = io.StringIO()
+    StageLog("x", stream=quiet)("stage")   # not a terminal: nothing
+    assert quiet.getvalue() == ""

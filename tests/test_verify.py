@@ -126,6 +126,8 @@ def test_cad_toolpath_groove_plate_is_safe_and_faces_the_feed(tmp_path, capsys):
     assert main(["cad", "toolpath", "groove-plate", "-o", str(nc), "--clearance", "0.3"]) == 0
     out = capsys.readouterr().out
     assert "passed" in out and "off by 0.000000 deg" not in out and "WARNING" not in out
+    assert main(["cad", "toolpath", "groove-plate", "--tcp", "-o", str(tmp_path / "t.nc")]) == 0
+    assert "passed" in capsys.readouterr().out
     m = load_machine("robonano-a0ib")
     res = verify_program(m, nc.read_text(), stock=PLATE, clearance=0.3)
     assert res.ok and res.min_clearance >= 0.3
@@ -139,3 +141,63 @@ def test_cad_toolpath_groove_plate_is_safe_and_faces_the_feed(tmp_path, capsys):
     # C follows the pass directions: A pattern (+x, +y), C triangle (three sides), B grooves (+y)
     starts = np.nonzero(tp.motion == T.RAPID)[0]
     assert np.ptp(q[starts, m.index("C")]) >= 120.0
+
+
+def test_tcp_program_moves_the_tool_point_straight():
+    """G43.4: X Y Z are the tool point in the workpiece frame and the control keeps it on the
+    straight line while B turns; the same words as machine axes swing the tool instead."""
+    from mtcomp.verify import tcp_to_axes
+    m = load_machine("robonano-a0ib")
+    body = "G00 C0. B0. X-5. Y0. Z1.\nG00 B30. X5. Z1.\n"
+    tcp = verify_program(m, "G21 G90\nG43.4 H1\n" + body + "G49\nM30\n", stock=PLATE,
+                         clearance=0.2)
+    assert tcp.min_clearance == pytest.approx(1.0, abs=tcp.step / 2)
+    axes = verify_program(m, "G21 G90\n" + body + "M30\n", stock=PLATE, clearance=0.2,
+                          raise_on_violation=False)
+    assert abs(axes.min_clearance - 1.0) > 0.5
+    w = np.array([[0.0, 30.0, 5.0, 0.0, 1.0], [10.0, -20.0, -3.0, 2.0, 0.5]])
+    q = tcp_to_axes(m, w)
+    assert np.allclose(forward(m, q).p, w[:, 2:], atol=1e-12) and np.array_equal(q[:, :2], w[:, :2])
+    with pytest.raises(ValueError, match="G43.4 section"):
+        verify_program(m, "G21 G90\nG00 X1. Y1. Z5.\nG43.4 H1\n" + body + "G49\nM30\n", stock=PLATE)
+
+
+def test_safe_links_without_stock_and_when_nothing_fits():
+    from mtcomp._io import MtcompError
+    from mtcomp.cad_plugin import toolpath as T
+    m = load_machine("robonano-a0ib")
+    tp = T.groove_plate_passes()
+    q = T.to_axes(m, tp)
+    # No stock known: every rotary link retracts to 1 mm below the top of Z's travel (60 mm).
+    linked, ql = T.link_safely(m, tp, q, stock=None)
+    z = m.index("Z")
+    turns = np.nonzero(np.any(np.abs(np.diff(ql[:, :2], axis=0)) > 0, axis=1))[0] + 1
+    # C: -90 -> 0 -> 150 -> -90 -> 30 -> 0 (A pattern, C triangle, B grooves), B: 0 -> 30 -> -30
+    assert turns.size == 7 and np.all(ql[turns, z] == 59.0)
+    assert len(linked) == len(ql) == len(tp) + 3 * turns.size
+    # Material up to 100 mm over the table: no retract height within the travel keeps clear.
+    tower = Box((-50, -50, -3), (50, 50, 100))
+    with pytest.raises(MtcompError, match=r"pose \d+: no retract height within the travel of Z"):
+        T.link_safely(m, tp, q, stock=tower)
+
+
+def test_dogleg_rapids_follow_each_axis_at_its_own_rate():
+    """With non-linear rapids every axis runs at its rate and stops on arrival: Z reaches its
+    end first and X carries the tool on at that height."""
+    m = load_machine("vmc-moving-column")
+    text = "G21 G90\nG00 X0. Y0. Z5.\nG00 X10. Z1.\nM30\n"
+    block = Box((4.5, -1.0, -10.0), (5.5, 1.0, 2.0))      # 2 mm high, at x 4.5 .. 5.5
+    lin = verify_program(m, text, stock=block, clearance=0.5)
+    # straight in X-Z, z = 5 - 0.4 x: nearest to the block's corner (5.5, 2), 0.8 mm above it,
+    # at the line's normal distance 0.8 / sqrt(1 + 0.4^2)
+    assert lin.min_clearance == pytest.approx(0.8 / math.sqrt(1.16), abs=lin.step / 2)
+    rates = {"X": 10000.0, "Y": 10000.0, "Z": 10000.0}
+    with pytest.raises(VerifyError, match="line 3"):
+        verify_program(m, text, stock=block, clearance=0.5, rapid_rates=rates)
+    res = verify_program(m, text, stock=block, clearance=0.5, rapid_rates=rates,
+                         raise_on_violation=False)
+    # z = 1 through the block: deepest at x = 5, 0.5 mm from its side faces
+    assert res.min_clearance == pytest.approx(-0.5, abs=res.step / 2)
+    # Z at a tenth of X's rate: Z arrives last, the path stays high until x = 10.
+    slow_z = dict(rates, Z=1000.0)
+    assert verify_program(m, text, stock=block, clearance=0.5, rapid_rates=slow_z).ok
