@@ -344,3 +344,17 @@ def test_bad_plan_fields_are_input_errors(edit, field):
     with pytest.raises(InputError) as exc:
         plan_from_dict(d, file="plan.toml")
     assert exc.value.field == field
+
+
+def test_paper_001_reproduction_states_its_assumptions_and_bowl_errors_widen_the_widths():
+    from mtcomp.setting.cellsim import CellConfig, PAPER_ASSUMPTIONS, paper_reproduction, simulate_cell
+    r = paper_reproduction(trials=8, seed=4)
+    assert all(a in r["text"] for a in PAPER_ASSUMPTIONS)
+    assert "from the paper" in r["text"] and "assumed" in r["text"] and "not modelled" in r["text"]
+    sd = [np.mean([r[k].compensated[f"W{i}"].std(ddof=1) for i in range(1, 5)]) for k in ("ideal", "bowl_errors")]
+    assert sd[1] > 2 * sd[0]
+    # a microscope scale error scales the measured widths, nothing else
+    a = simulate_cell(CellConfig(trials=3, seed=2))
+    b = simulate_cell(CellConfig(trials=3, seed=2, microscope_scale=0.001))
+    np.testing.assert_allclose(b.compensated["W1"], a.compensated["W1"] * 1.001, rtol=1e-12)
+    np.testing.assert_allclose(b.compensated["S1&S2"], a.compensated["S1&S2"], rtol=1e-12)
