@@ -233,3 +233,12 @@ def test_fit_with_extreme_sigmas_is_an_input_error(work, tmp_path):
     pts[0] = type(pts[0])(pts[0].groove, pts[0].feature, 1e200, 1e200, 1e200)
     with pytest.raises(InputError):
         te.estimate(load_machine("robonano-ui"), GroovingMeasurements(plan, tuple(pts), 0.001, 0.001))
+
+
+def test_plan_refuses_location_errors_its_tests_cannot_see(tmp_path, capsys):
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "ab"), "--tests", "A,B", "--no-png",
+                 "--locations", "EX0C"]) != 0
+    err = capsys.readouterr().err
+    assert "EX0C" in err and "no groove of the plan moves with it" in err
+    assert not (tmp_path / "ab").exists()
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "abc"), "--no-png", "--locations", "EX0C,EY0C,EZ0A"]) == 0

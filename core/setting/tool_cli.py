@@ -51,6 +51,10 @@ def register(subparsers) -> None:
     pl.add_argument("--feed", type=float, default=50.0, help="cutting feed, mm/min (default 50)")
     pl.add_argument("--plunge-feed", type=float, default=5.0, help="plunge feed, mm/min (default 5)")
     pl.add_argument("--tip-angle", type=float, default=90.0, help="V tool included angle, deg (default 90)")
+    pl.add_argument("--locations", type=_locations, default="auto",
+                    help="rotary axis location errors the plan must make observable besides the tool offset: "
+                         "'auto' (report which are, default), 'none', or names like EX0C,EY0C (refused with the "
+                         "reason if the tests cannot see them)")
     pl.add_argument("--no-png", action="store_true", help="skip the layout drawing")
     pl.set_defaults(func=_plan)
 
@@ -103,6 +107,9 @@ def _plan(args) -> int:
         from dataclasses import replace
         plan = replace(plan, machine=str(Path(args.machine).resolve()))
     from .tool_model import observable_parameters
+    if args.locations not in ("auto", "none"):
+        from .tool_estimate import _location_names
+        _location_names(m, plan, args.locations, None)        # InputError naming what cannot be seen, and why
     obs = observable_parameters(m, plan)
     files = write_plan(m, plan, args.outdir, png=not args.no_png)
     print(f"{len(plan.grooves)} grooves ({', '.join(plan.ids)}) for machine {m.name}")
