@@ -69,3 +69,21 @@ def test_bad_rotary_inputs():
         estimate_rotary(M, plan, np.zeros((2, 3)))
     with pytest.raises(InputError, match="location errors of axis C"):
         estimate_rotary(M, plan, np.zeros((3, 3)), names=("EX0B",))
+
+
+def test_rotary_cli_round_trip(tmp_path, capsys):
+    from mtcomp.cli import main
+    from mtcomp.errors import load_errors
+    plan = plan_sphere(M, "C")
+    _, vals, truth = _truth("C", np.random.default_rng(11))
+    r = simulate_readings(M, plan, truth, 0.0, sphere=np.array(plan.sphere) + [0.1, 0.05, -0.02])
+    p = tmp_path / "c.csv"
+    p.write_text("# sphere centres\nangle_deg,x,y,z\n" + "".join(
+        f"{a!r},{float(x)!r},{float(y)!r},{float(z)!r}\n" for a, (x, y, z) in zip(plan.angles, r)))
+    assert main(["geometric", "rotary", str(p), "--axis", "C", "-o", str(tmp_path / "e.toml")]) == 0
+    assert "EX0C" in capsys.readouterr().out
+    loc = load_errors(tmp_path / "e.toml").geometric.location
+    np.testing.assert_allclose([loc[n] for n in ("EX0C", "EY0C", "EA0C", "EB0C")], vals, atol=1e-8)
+    p.write_text("angle_deg,x,y,z\n0,1,2,3\n0,1,2,3\n90,1,2,nan\n")
+    assert main(["geometric", "rotary", str(p), "--axis", "C"]) != 0
+    assert main(["geometric", "rotary", str(p), "--axis", "X"]) != 0

@@ -23,7 +23,7 @@ import numpy as np
 from .._io import InputError
 
 __all__ = ["SpherePlan", "plan_sphere", "default_parameters", "centre_readings", "simulate_readings",
-           "RotaryEstimate", "estimate_rotary"]
+           "RotaryEstimate", "estimate_rotary", "read_readings_csv", "sphere_from_readings"]
 
 _LIN = "XYZ"
 _ANG = "ABC"
@@ -226,3 +226,56 @@ def estimate_rotary(machine, plan: SpherePlan, readings, sigma: float = 0.0005, 
     res = (y.ravel() - f).reshape(-1, 3)
     chi2 = float(np.sum(res ** 2) / sigma ** 2)
     return RotaryEstimate(plan.axis, names, x[3:].copy(), cov[3:, 3:], x[:3].copy(), res, chi2, int(y.size - n_par))
+
+
+def read_readings_csv(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read sphere-centre readings: CSV with columns angle_deg,x,y,z ('#' comments), one row per
+    angle of the tested axis, linear axis readings in mm.  Returns (angles (K,), readings (K, 3));
+    errors name the file, line and column."""
+    import csv
+    from pathlib import Path
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except (FileNotFoundError, IsADirectoryError):
+        raise InputError("readings file not found", path) from None
+    rows = [(n, ln) for n, ln in enumerate(text.splitlines(), 1) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not rows:
+        raise InputError("empty readings file: expected a header angle_deg,x,y,z and one row per angle", path)
+    header = [c.strip().lower() for c in next(csv.reader([rows[0][1]]))]
+    cols = ("angle_deg", "x", "y", "z")
+    missing = [c for c in cols if c not in header]
+    if missing:
+        raise InputError(f"header lacks {', '.join(missing)}; expected angle_deg,x,y,z", path, rows[0][0])
+    ang, val = [], []
+    for n, ln in rows[1:]:
+        cells = [c.strip() for c in next(csv.reader([ln]))]
+        if len(cells) != len(header):
+            raise InputError(f"expected {len(header)} values, got {len(cells)}", path, n)
+        rec = []
+        for c in cols:
+            s = cells[header.index(c)]
+            try:
+                v = float(s)
+            except ValueError:
+                raise InputError(f"expected a number, got {s!r}", path, n, c) from None
+            if not np.isfinite(v) or abs(v) > 1e5:
+                raise InputError(f"expected a finite number of at most 1e5, got {s!r}", path, n, c)
+            rec.append(v)
+        if any(abs(rec[0] - a) < 1e-9 for a in ang):
+            raise InputError(f"angle {rec[0]:g} deg appears twice", path, n, "angle_deg")
+        ang.append(rec[0])
+        val.append(rec[1:])
+    if len(ang) < 3:
+        raise InputError(f"{len(ang)} angles: at least 3 are needed to see a circle", path)
+    return np.array(ang), np.array(val)
+
+
+def sphere_from_readings(machine, axis: str, angles, readings, fixed: dict | None = None) -> np.ndarray:
+    """Start value of the sphere centre (workpiece frame, mm): the ideal machine's tool point at
+    each reading, turned back to the axis at 0, averaged."""
+    from ..kinematics import forward
+    plan = SpherePlan(axis, tuple(float(a) for a in angles), (0.0, 0.0, 0.0), dict(fixed or {}))
+    q = _commands(machine, plan)
+    q[:, [machine.index(a) for a in _LIN]] = readings
+    return forward(machine, q).p.mean(axis=0)
