@@ -242,3 +242,36 @@ def test_plan_refuses_location_errors_its_tests_cannot_see(tmp_path, capsys):
     assert "EX0C" in err and "no groove of the plan moves with it" in err
     assert not (tmp_path / "ab").exists()
     assert main(["tool-setting", "plan", "-o", str(tmp_path / "abc"), "--no-png", "--locations", "EX0C,EY0C,EZ0A"]) == 0
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_LITERALS = ['"x"', '""', "true", "inf", "-inf", "nan", "0", "-1", "1e300", "[]", "[1, 2]", "[[1, 2, 3]]",
+             '{a = 1}', '["C"]', "9223372036854775807", "[0.0, 0.0, 1.0]", "[1.0, 0.0]", "0.5"]
+
+
+@settings(max_examples=250, deadline=None, derandomize=True)
+@given(line=st.integers(0, 400), literal=st.sampled_from(_LITERALS))
+def test_plan_mutations_are_accepted_or_input_errors(work, tmp_path_factory, line, literal):
+    """Any value of plan.toml replaced by any TOML literal: a plan or an InputError, never a traceback."""
+    from mtcomp import InputError, MtcompError
+    from mtcomp.machine import load_machine
+    from mtcomp.setting.tool_model import observable_parameters
+    from mtcomp.setting.tool_plan import load_plan
+    lines = (work / "plan.toml").read_text().splitlines()
+    assign = [k for k, ln in enumerate(lines) if " = " in ln]
+    k = assign[line % len(assign)]
+    key = lines[k].split(" = ")[0]
+    lines[k] = f"{key} = {literal}"
+    # a multi-line array that started here would leave its items behind: drop them
+    while k + 1 < len(lines) and lines[k + 1].startswith("    "):
+        del lines[k + 1]
+    if k + 1 < len(lines) and lines[k + 1].strip() == "]":
+        del lines[k + 1]
+    p = tmp_path_factory.mktemp("fuzz") / "plan.toml"
+    p.write_text("\n".join(lines) + "\n")
+    try:
+        plan = load_plan(p)
+        observable_parameters(load_machine("robonano-ui"), plan)
+    except (InputError, MtcompError):
+        pass

@@ -358,3 +358,37 @@ def test_paper_001_reproduction_states_its_assumptions_and_bowl_errors_widen_the
     b = simulate_cell(CellConfig(trials=3, seed=2, microscope_scale=0.001))
     np.testing.assert_allclose(b.compensated["W1"], a.compensated["W1"] * 1.001, rtol=1e-12)
     np.testing.assert_allclose(b.compensated["S1&S2"], a.compensated["S1&S2"], rtol=1e-12)
+
+
+# ------------------------------------------------------------------ issue 15: property tests
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_TOML_VALUES = st.one_of(
+    st.integers(-2 ** 70, 2 ** 70), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=4),
+    st.booleans(), st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=4),
+    st.lists(st.lists(st.floats(-2.0, 2.0), max_size=4), max_size=3),
+    st.lists(st.dictionaries(st.sampled_from(["id", "x", "y", "z"]), st.one_of(st.integers(-5, 5), st.floats())),
+             max_size=3),
+    st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
+_PLAN_KEYS = ["blank", "tool_radius", "depth", "probe_radius", "clearance", "overtravel", "safe_z", "keepout_radius",
+              "spindle_speed", "plunge_feed", "probe_feed", "bowls", "directions", "bowls.0.id", "bowls.1.x",
+              "bowls.2.y", "directions.0", "directions.1.2"]
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(key=st.sampled_from(_PLAN_KEYS), value=_TOML_VALUES)
+def test_bowl_plan_mutations_are_accepted_or_input_errors(key, value):
+    """Any value anywhere in a bowl plan: either a valid plan or an InputError, never a traceback."""
+    from mtcomp.setting.bowls import plan_from_dict, plan_to_dict
+    d = plan_to_dict(plan_bowls(3))
+    *path, last = key.split(".")
+    node = d
+    for p in path:
+        node = node[int(p)] if p.isdigit() else node[p]
+    node[int(last) if last.isdigit() else last] = value
+    try:
+        plan = plan_from_dict(d, file="plan.toml")
+    except InputError:
+        return
+    assert np.all(np.isfinite(plan.centres)) and np.allclose(np.linalg.norm(plan.dirs, axis=1), 1.0, atol=1e-6)
