@@ -254,12 +254,12 @@ class CellResult:
             ax[0].axvline(PAPER_TABLE1[f"W{k + 1}"], color="k", ls=":", lw=1)
         ax[0].axvline(PAPER_TARGET["width"], color="r", lw=1)
         ax[0].set(title="compensated widths (dotted: paper 001)", xlabel="width / µm", ylabel="trials")
-        ax[0].legend(fontsize=8)
+        ax[0].legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=4)
         for k in range(4):
             ax[1].hist(self.uncompensated[f"W{k + 1}"], bins=30, histtype="step", label=f"W{k + 1}")
         ax[1].axvline(PAPER_TARGET["width"], color="r", lw=1)
         ax[1].set(title="without compensation", xlabel="width / µm")
-        ax[1].legend(fontsize=8)
+        ax[1].legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=4)
         # angles between faces are invariant under a rigid displacement of the blank, so both
         # runs give the target exactly: the third panel shows where the pyramid lands instead
         for res, lab, mk in ((self.uncompensated, "without compensation", "x"),
@@ -270,7 +270,7 @@ class CellResult:
                   aspect="equal")
         fig.suptitle(f"paper 001 pyramid, {len(self.pose_error)} trials; compensated slope angles "
                      f"{ang} deg (target {PAPER_TARGET['angle']:g})", fontsize=10)
-        ax[2].legend(fontsize=8)
+        ax[2].legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
         fig.tight_layout()
         save_figure(fig, path, dpi=110)
 
