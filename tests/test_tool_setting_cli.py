@@ -275,3 +275,18 @@ def test_plan_mutations_are_accepted_or_input_errors(work, tmp_path_factory, lin
         observable_parameters(load_machine("robonano-ui"), plan)
     except (InputError, MtcompError):
         pass
+
+
+def test_simulate_with_a_c_axis_offset_and_estimate_it_back(work, tmp_path, capsys):
+    """The paper-000 case from the command line: a C axis off the centre is estimated with t."""
+    csv_path = tmp_path / "m.csv"
+    assert main(["tool-setting", "simulate", "--plan", str(work / "plan.toml"), "--offset", "0.34006", "0.24502",
+                 "0.2", "--location", "EX0C=0.03939,EY0C=-0.14993", "--seed", "3", "-o", str(csv_path)]) == 0
+    assert main(["tool-setting", "estimate", str(csv_path), "--plan", str(work / "plan.toml"),
+                 "-o", str(tmp_path / "e.toml")]) == 0
+    loc = load_errors(tmp_path / "e.toml").geometric.location
+    unc = load_toml(tmp_path / "e.toml")["uncertainty"]
+    assert abs(loc["EX0C"] - 0.03939) < 4 * unc["geometric.location.EX0C"]
+    assert abs(loc["EY0C"] + 0.14993) < 4 * unc["geometric.location.EY0C"]
+    assert main(["tool-setting", "simulate", "--plan", str(work / "plan.toml"), "--offset", "0", "0", "0",
+                 "--location", "EZ0C=0.1", "-o", str(tmp_path / "x.csv")]) != 0

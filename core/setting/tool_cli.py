@@ -31,6 +31,22 @@ def _locations(text: str):
     return names
 
 
+def _location_values(text: str) -> dict:
+    out = {}
+    for item in (x.strip() for x in text.split(",") if x.strip()):
+        name, _, val = item.partition("=")
+        name = name.strip().upper()
+        try:
+            v = float(val)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected NAME=mm like EX0C=0.039, got {item!r}") from None
+        if len(name) != 4 or name[0] != "E" or name[2] != "0" or name[1] not in "XYZ" or not abs(v) < 10.0:
+            raise argparse.ArgumentTypeError(f"expected a position location error like EX0C=0.039 (mm, |v| < 10), "
+                                             f"got {item!r}")
+        out[name] = v
+    return out
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "tool-setting", help="tool setting errors by grooving (paper 000): plan, simulate, estimate",
@@ -63,6 +79,8 @@ def register(subparsers) -> None:
     si.add_argument("--machine", help="preset or TOML (default: the plan's machine)")
     si.add_argument("--offset", type=float, nargs=3, required=True, metavar=("TX", "TY", "TZ"),
                     help="true tool setting error, mm, tool frame")
+    si.add_argument("--location", type=_location_values, default={},
+                    help="true rotary axis location errors, mm, e.g. EX0C=0.039,EY0C=-0.150 (default none)")
     si.add_argument("--sigma-pos", type=float, default=0.001, help="microscope position noise, mm (default 0.001)")
     si.add_argument("--sigma-depth", type=float, default=0.001, help="microscope depth noise, mm (default 0.001)")
     si.add_argument("--seed", type=int, default=None)
@@ -134,15 +152,23 @@ def _simulate(args) -> int:
         if not getattr(args, name) >= 0:
             raise InputError(f"expected a sigma >= 0 mm, got {getattr(args, name)}", field=name.replace("_", "-"))
     comp = load_errors(args.compensation) if args.compensation else None
-    meas = simulate_grooving(m, tuple(args.offset), MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
+    from ..errors import ErrorSet, GeometricErrors, ToolSetting
+    from .tool_model import location_candidates
+    bad = [k for k in args.location if k not in location_candidates(m)]
+    if bad:
+        raise InputError(f"{', '.join(bad)} moves no groove: expected some of {', '.join(location_candidates(m))}",
+                         field="location")
+    truth = ErrorSet(tool=ToolSetting(tuple(args.offset)), geometric=GeometricErrors(location=args.location))
+    meas = simulate_grooving(m, truth, MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
                              plan=plan, compensation=comp, frame_offset=args.frame_offset,
                              frame_rotation=args.frame_rotation)
-    text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, sigma pos {args.sigma_pos} mm, "
+    text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, location {args.location} mm, "
+                                  f"sigma pos {args.sigma_pos} mm, "
                                   f"depth {args.sigma_depth} mm, seed {args.seed}")
     atomic_write(args.output, text)
     print(f"wrote {args.output} ({len(meas.points)} points)")
     if args.png:
-        plot_layout(plan, args.png, cuts=cut_grooves(m, plan, tuple(args.offset), comp),
+        plot_layout(plan, args.png, cuts=cut_grooves(m, plan, truth, comp),
                     title=f"predicted grooves (black) for offset {tuple(args.offset)} mm")
         print(f"wrote {args.png}")
     return 0
