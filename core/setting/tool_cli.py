@@ -88,6 +88,8 @@ def register(subparsers) -> None:
                     help="random microscope origin per test, uniform in +-this, mm (default 0)")
     si.add_argument("--frame-rotation", type=float, default=0.0,
                     help="random microscope frame rotation per test, uniform in +-this, deg (default 0)")
+    si.add_argument("--frame-scale", type=float, default=0.0,
+                    help="microscope scale (magnification) error of the u, v readings, relative (default 0)")
     si.add_argument("--compensation", help="errors TOML the programs are compensated for (cut compensated grooves)")
     si.add_argument("-o", "--output", required=True, help="filled measurement sheet (CSV)")
     si.add_argument("--png", help="layout with the predicted grooves")
@@ -101,6 +103,8 @@ def register(subparsers) -> None:
     es.add_argument("--sigma-depth", type=float, default=0.001, help="depth sigma, mm, for rows without one")
     es.add_argument("--fit-rotation", action="store_true",
                     help="also fit a rotation of the microscope frame per test (not aligned to the face axes)")
+    es.add_argument("--fit-scale", action="store_true",
+                    help="also fit a scale (magnification) error of the microscope per test")
     es.add_argument("--locations", type=_locations, default="auto",
                     help="rotary axis location errors to estimate with the tool offset: 'auto' (every one the "
                          "plan makes observable, default), 'none', or names like EX0C,EY0C")
@@ -161,7 +165,7 @@ def _simulate(args) -> int:
     truth = ErrorSet(tool=ToolSetting(tuple(args.offset)), geometric=GeometricErrors(location=args.location))
     meas = simulate_grooving(m, truth, MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
                              plan=plan, compensation=comp, frame_offset=args.frame_offset,
-                             frame_rotation=args.frame_rotation)
+                             frame_rotation=args.frame_rotation, frame_scale=args.frame_scale)
     text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, location {args.location} mm, "
                                   f"sigma pos {args.sigma_pos} mm, "
                                   f"depth {args.sigma_depth} mm, seed {args.seed}")
@@ -190,7 +194,7 @@ def _estimate(args) -> int:
     if args.known_errors:
         from ..errors import load_errors
         known = load_errors(args.known_errors)
-    est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known,
+    est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known, fit_scale=args.fit_scale,
                    locations=() if args.locations == "none" else args.locations)
     # Compute every output before writing any, so a failure leaves nothing behind.
     report = report_text(m, meas, est) if args.report else None
