@@ -171,7 +171,9 @@ class CellConfig:
     bowl_position_sigma (1 sigma per axis of each bowl's position, drawn per trial; z moves its
     bottom against the top face).  reference: "bottom" (height from the bowls' bottom points,
     default) or "centre" (fitted centres against nominal-radius design centres).
-    microscope_scale: relative scale error of the width measurement (0.001 = +0.1 %)."""
+    microscope_scale: relative scale error of the width measurement (0.001 = +0.1 %).
+    runout_known: the run-out is measured (e.g. with a dial gauge on the ball) and passed to the
+    frame fit, which removes its bias on the bowls' bottoms."""
     machine: str = "robonano-a0ib"
     plan: object = None
     robot: RobotPlacement = field(default_factory=RobotPlacement)
@@ -187,6 +189,7 @@ class CellConfig:
     bowl_position_sigma: float = 0.0
     reference: str = "bottom"
     microscope_scale: float = 0.0
+    runout_known: bool = False
 
 
 @dataclass(frozen=True)
@@ -310,7 +313,8 @@ def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResul
                                 runout=config.runout, bowl_offsets=off)
         fit = fit_bowls(touches, plan.probe_radius, probe_sigma=config.probe_sigma or None,
                         bowl_radius=config.bowl_radius, shared_radius=config.shared_radius)
-        est = frame_from_bowls(fit, plan, reference=config.reference)
+        est = frame_from_bowls(fit, plan, reference=config.reference,
+                               runout=config.runout if config.runout_known else 0.0)
         perr.append(np.r_[est.pose.translation, est.pose.angles]
                     - np.r_[true.translation, true.angles])
         q_new = compensate_commands(machine, q_nom, est.pose, config.mode)
