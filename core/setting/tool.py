@@ -398,7 +398,8 @@ PAPER_ASSUMPTIONS = (
     "mtcomp's default plan, a laser confocal microscope with 1 µm (1 sigma) noise on positions and depths and no "
     "scale error, a perfectly rigid machine with no other geometric errors",
     "not modelled: the V tool's nose radius, tool wear, burrs at the groove crossings, thermal drift between "
-    "the cuts, and the microscope's magnification error (a scale error s changes every distance by s times it)",
+    "the cuts; the microscope's magnification error is left out of this reproduction (a scale error s changes "
+    "every distance by s times it; `estimate(..., fit_scale=True)` fits it per test)",
 )
 
 
