@@ -101,5 +101,78 @@ def main() -> None:
     print(text)
 
 
+def _axis(x_cmd, direction, rng, lost, sigma):
+    """Simulated linear axis: pitch error, lost motion by direction of approach, reading noise (mm)."""
+    pitch = 0.006 * np.sin(2 * np.pi * x_cmd / 700.0) + 2e-5 * x_cmd
+    return x_cmd + pitch - np.asarray(direction) * lost / 2 + rng.normal(0.0, sigma, np.shape(x_cmd))
+
+
+def reversal_and_rotary(n_points: int = 100_000, n_rotary: int = 200) -> str:
+    """Backlash compensated by direction of approach; rotary-table location errors from a sphere."""
+    from mtcomp.errors import ErrorSet, GeometricErrors
+    from mtcomp.geometric import iso230_2, rotary
+    from mtcomp.geometric.reversal import reversal_table
+    um = 1e3
+    rng = np.random.default_rng(2302)
+    lost, sigma, n = 0.004, 0.0003, 5
+    target = np.linspace(0.0, 400.0, 21)
+    up = np.array([_axis(target, +1, rng, lost, sigma) - target for _ in range(n)])
+    dn = np.array([_axis(target, -1, rng, lost, sigma) - target for _ in range(n)])
+    tab = reversal_table(iso230_2.evaluate(iso230_2.PositioningRun(target, up, dn, axis="X")))
+    x = rng.uniform(0.0, 400.0, n_points)
+    d = rng.choice([-1, 1], n_points)
+    rows = ["| compensation | mean error ↑ [µm] | mean error ↓ [µm] | RMS [µm] | max [µm] | CPU for "
+            f"{n_points} commands [ms] |", "|---|---|---|---|---|---|"]
+    for mode in ("none", "mean", "backlash", "bidirectional"):
+        t0 = time.process_time()
+        xc = x if mode == "none" else tab.compensate(x, d, mode)
+        cpu = (time.process_time() - t0) * 1e3
+        e = _axis(xc, d, rng, lost, sigma) - x
+        rows.append(f"| {mode} | {e[d > 0].mean() * um:+.3f} | {e[d < 0].mean() * um:+.3f} | "
+                    f"{np.sqrt(np.mean(e ** 2)) * um:.3f} | {np.max(np.abs(e)) * um:.3f} | {cpu:.1f} |")
+    m = load_machine("robonano-a0ib")
+    inside, d2 = [], []
+    t0, w0 = time.process_time(), time.perf_counter()
+    for k in range(n_rotary):
+        axis = "C" if k % 2 else "B"
+        plan = rotary.plan_sphere(m, axis)
+        names = rotary.default_parameters(m, axis)
+        vals = np.r_[rng.uniform(-0.01, 0.01, 2), rng.uniform(-100e-6, 100e-6, 2)]
+        truth = ErrorSet(geometric=GeometricErrors(location=dict(zip(names, vals))))
+        est = rotary.estimate_rotary(m, plan, rotary.simulate_readings(m, plan, truth, 0.0005, seed=k), 0.0005)
+        dv = est.values - vals
+        inside.append(np.all(np.abs(dv) <= 3 * est.sigma))
+        d2.append(dv @ np.linalg.solve(est.cov, dv))
+    cpu, wall = time.process_time() - t0, time.perf_counter() - w0
+    text = f"""## Reversal and rotary axes (`benchmarks/bench_geometric.py reversal`)
+
+**Backlash by direction of approach.** Simulated axis: 6 µm pitch error, {lost * um:g} µm lost
+motion, {sigma * um:g} µm reading noise; ISO 230-2 run of {n} cycles at {target.size} targets; then
+{n_points} commands at random positions from random directions. Measured reversal: B =
+{tab.B * um:.3f} µm, B̄ = {tab.B_mean * um:+.3f} µm, backlash parameter {tab.backlash * um:.3f} µm.
+Baseline in the same run: no compensation, and the bidirectional mean (what the component tables
+hold).
+
+{chr(10).join(rows)}
+
+Within the noise: the reading noise alone is {sigma * um:g} µm RMS; the table's own uncertainty
+adds about sigma·sqrt(2/n).
+
+**Rotary tables (ISO 230-7), robonano-a0ib.** {n_rotary} seeded trials alternating B and C: sphere
+40 mm from the axis probed at 8 angles, 0.5 µm per reading, positions up to 10 µm and tilts up
+to 100 µrad injected. All four parameters within 3σ in {np.mean(inside) * 100:.1f} % of the trials,
+mean squared Mahalanobis distance {np.mean(d2):.2f} (4 expected). CPU {cpu / n_rotary * 1e3:.0f} ms,
+wall {wall / n_rotary * 1e3:.0f} ms per estimate.
+
+{machine_line()}
+"""
+    update_section("geometric_reversal_rotary", text)
+    print(text)
+    return text
+
+
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) > 1 and sys.argv[1] == "reversal":
+        reversal_and_rotary()
+    else:
+        main()

@@ -464,3 +464,21 @@ def test_known_axis_location_errors_are_included(plan):
     # compensating tool offset and location errors together leaves no groove distance
     after = table1_distances(plan, cut_grooves(M, plan, true, compensation=aware.errors(ErrorSet(geometric=geo))))
     assert max(max(v) for v in after.values()) < 3e-6
+
+
+def test_microscope_scale_error_is_seen_and_estimated(plan):
+    """Issue 17: a microscope magnification error of 0.3 % biases the fit (misfit warning); with
+    fit_scale it is estimated per test and t, EX0C, EY0C come back within 3 sigma."""
+    from mtcomp.errors import GeometricErrors
+    truth = ErrorSet(tool=ToolSetting((0.34, 0.245, 0.2)), geometric=GeometricErrors(location={"EX0C": 0.04}))
+    meas = simulate_grooving(M, truth, MicroscopeNoise(0.0005, 0.0005), 5, plan=plan, frame_scale=0.003)
+    plain = te.estimate(M, meas)
+    assert any("residuals exceed" in w for w in plain.warnings)
+    est = te.estimate(M, meas, fit_scale=True)
+    assert not est.warnings
+    for t in ("A", "B", "C"):
+        k, sk = est.nuisance[f"{t}:scale"], est.nuisance_sigma[f"{t}:scale"]
+        assert abs(k - 0.003) < 3 * sk and sk < 0.001
+    true = np.array([0.34, 0.245, 0.2, 0.04, 0.0, 0.0])
+    assert np.all(np.abs(est.values - true) <= 3 * np.sqrt(np.diag(est.param_cov)))
+    assert "ppm" in est.summary()

@@ -234,3 +234,60 @@ def test_fit_with_extreme_sigmas_is_an_input_error(work, tmp_path):
     pts[0] = type(pts[0])(pts[0].groove, pts[0].feature, 1e200, 1e200, 1e200)
     with pytest.raises(InputError):
         te.estimate(load_machine("robonano-ui"), GroovingMeasurements(plan, tuple(pts), 0.001, 0.001))
+
+
+def test_plan_refuses_location_errors_its_tests_cannot_see(tmp_path, capsys):
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "ab"), "--tests", "A,B", "--no-png",
+                 "--locations", "EX0C"]) != 0
+    err = capsys.readouterr().err
+    assert "EX0C" in err and "no groove of the plan moves with it" in err
+    assert not (tmp_path / "ab").exists()
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "abc"), "--no-png", "--locations", "EX0C,EY0C,EZ0A"]) == 0
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_LITERALS = ['"x"', '""', "true", "inf", "-inf", "nan", "0", "-1", "1e300", "[]", "[1, 2]", "[[1, 2, 3]]",
+             '{a = 1}', '["C"]', "9223372036854775807", "[0.0, 0.0, 1.0]", "[1.0, 0.0]", "0.5"]
+
+
+@settings(max_examples=250, deadline=None, derandomize=True)
+@given(line=st.integers(0, 400), literal=st.sampled_from(_LITERALS))
+def test_plan_mutations_are_accepted_or_input_errors(work, tmp_path_factory, line, literal):
+    """Any value of plan.toml replaced by any TOML literal: a plan or an InputError, never a traceback."""
+    from mtcomp import InputError, MtcompError
+    from mtcomp.machine import load_machine
+    from mtcomp.setting.tool_model import observable_parameters
+    from mtcomp.setting.tool_plan import load_plan
+    lines = (work / "plan.toml").read_text().splitlines()
+    assign = [k for k, ln in enumerate(lines) if " = " in ln]
+    k = assign[line % len(assign)]
+    key = lines[k].split(" = ")[0]
+    lines[k] = f"{key} = {literal}"
+    # a multi-line array that started here would leave its items behind: drop them
+    while k + 1 < len(lines) and lines[k + 1].startswith("    "):
+        del lines[k + 1]
+    if k + 1 < len(lines) and lines[k + 1].strip() == "]":
+        del lines[k + 1]
+    p = tmp_path_factory.mktemp("fuzz") / "plan.toml"
+    p.write_text("\n".join(lines) + "\n")
+    try:
+        plan = load_plan(p)
+        observable_parameters(load_machine("robonano-ui"), plan)
+    except (InputError, MtcompError):
+        pass
+
+
+def test_simulate_with_a_c_axis_offset_and_estimate_it_back(work, tmp_path, capsys):
+    """The paper-000 case from the command line: a C axis off the centre is estimated with t."""
+    csv_path = tmp_path / "m.csv"
+    assert main(["tool-setting", "simulate", "--plan", str(work / "plan.toml"), "--offset", "0.34006", "0.24502",
+                 "0.2", "--location", "EX0C=0.03939,EY0C=-0.14993", "--seed", "3", "-o", str(csv_path)]) == 0
+    assert main(["tool-setting", "estimate", str(csv_path), "--plan", str(work / "plan.toml"),
+                 "-o", str(tmp_path / "e.toml")]) == 0
+    loc = load_errors(tmp_path / "e.toml").geometric.location
+    unc = load_toml(tmp_path / "e.toml")["uncertainty"]
+    assert abs(loc["EX0C"] - 0.03939) < 4 * unc["geometric.location.EX0C"]
+    assert abs(loc["EY0C"] + 0.14993) < 4 * unc["geometric.location.EY0C"]
+    assert main(["tool-setting", "simulate", "--plan", str(work / "plan.toml"), "--offset", "0", "0", "0",
+                 "--location", "EZ0C=0.1", "-o", str(tmp_path / "x.csv")]) != 0

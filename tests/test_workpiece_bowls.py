@@ -344,3 +344,73 @@ def test_bad_plan_fields_are_input_errors(edit, field):
     with pytest.raises(InputError) as exc:
         plan_from_dict(d, file="plan.toml")
     assert exc.value.field == field
+
+
+def test_paper_001_reproduction_states_its_assumptions_and_bowl_errors_widen_the_widths():
+    from mtcomp.setting.cellsim import CellConfig, PAPER_ASSUMPTIONS, paper_reproduction, simulate_cell
+    r = paper_reproduction(trials=8, seed=4)
+    assert all(a in r["text"] for a in PAPER_ASSUMPTIONS)
+    assert "from the paper" in r["text"] and "assumed" in r["text"] and "not modelled" in r["text"]
+    sd = [np.mean([r[k].compensated[f"W{i}"].std(ddof=1) for i in range(1, 5)]) for k in ("ideal", "bowl_errors")]
+    assert sd[1] > 2 * sd[0]
+    # a microscope scale error scales the measured widths, nothing else
+    a = simulate_cell(CellConfig(trials=3, seed=2))
+    b = simulate_cell(CellConfig(trials=3, seed=2, microscope_scale=0.001))
+    np.testing.assert_allclose(b.compensated["W1"], a.compensated["W1"] * 1.001, rtol=1e-12)
+    np.testing.assert_allclose(b.compensated["S1&S2"], a.compensated["S1&S2"], rtol=1e-12)
+
+
+# ------------------------------------------------------------------ issue 15: property tests
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_TOML_VALUES = st.one_of(
+    st.integers(-2 ** 70, 2 ** 70), st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=4),
+    st.booleans(), st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=4),
+    st.lists(st.lists(st.floats(-2.0, 2.0), max_size=4), max_size=3),
+    st.lists(st.dictionaries(st.sampled_from(["id", "x", "y", "z"]), st.one_of(st.integers(-5, 5), st.floats())),
+             max_size=3),
+    st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
+_PLAN_KEYS = ["blank", "tool_radius", "depth", "probe_radius", "clearance", "overtravel", "safe_z", "keepout_radius",
+              "spindle_speed", "plunge_feed", "probe_feed", "bowls", "directions", "bowls.0.id", "bowls.1.x",
+              "bowls.2.y", "directions.0", "directions.1.2"]
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(key=st.sampled_from(_PLAN_KEYS), value=_TOML_VALUES)
+def test_bowl_plan_mutations_are_accepted_or_input_errors(key, value):
+    """Any value anywhere in a bowl plan: either a valid plan or an InputError, never a traceback."""
+    from mtcomp.setting.bowls import plan_from_dict, plan_to_dict
+    d = plan_to_dict(plan_bowls(3))
+    *path, last = key.split(".")
+    node = d
+    for p in path:
+        node = node[int(p)] if p.isdigit() else node[p]
+    node[int(last) if last.isdigit() else last] = value
+    try:
+        plan = plan_from_dict(d, file="plan.toml")
+    except InputError:
+        return
+    assert np.all(np.isfinite(plan.centres)) and np.allclose(np.linalg.norm(plan.dirs, axis=1), 1.0, atol=1e-6)
+
+
+def test_known_runout_is_taken_out_of_the_bottom_points():
+    """A measured run-out passed to the frame fit removes its bias: 2 µm run-out then changes the
+    compensated widths by < 0.5 µm (without it: several µm)."""
+    from mtcomp.setting.cellsim import CellConfig, simulate_cell
+    from mtcomp.setting.frame import frame_from_bowls
+    plan = plan_bowls(3)
+    for shared in (True, False):
+        t = virtual_probe(POSE, plan, 0.0, 0, runout=0.002)
+        fit = fit_bowls(t, plan.probe_radius, probe_sigma=0.0005, shared_radius=shared)
+        est = frame_from_bowls(fit, plan, runout=0.002)
+        np.testing.assert_allclose(est.pose.translation, POSE.translation, atol=2e-6)
+        raw = frame_from_bowls(fit, plan)
+        assert abs(raw.pose.translation[2] - POSE.translation[2]) > 2e-4
+    w = {}
+    for known in (False, True):
+        for e in (0.0, 0.002):
+            r = simulate_cell(CellConfig(trials=3, seed=5, runout=e, runout_known=known))
+            w[known, e] = np.array([r.compensated[f"W{k}"] for k in range(1, 5)])
+    assert np.max(np.abs(w[True, 0.002] - w[True, 0.0])) < 0.5
+    assert np.min(np.abs(w[False, 0.002] - w[False, 0.0])) > 3.0

@@ -34,6 +34,15 @@ def register(subparsers) -> None:
                                                           "<axis>_pitch_bidirectional.csv (detection units)")
     s.set_defaults(func=_reversal)
 
+    s = sub.add_parser("rotary", help="location errors of a rotary table (ISO 230-7) from a sphere probed at "
+                                      "several angles")
+    s.add_argument("readings", help="CSV angle_deg,x,y,z: sphere centre readings (linear axes, mm) per angle")
+    s.add_argument("--axis", required=True, help="the tested rotary axis (workpiece side)")
+    s.add_argument("--machine", default="robonano-a0ib", help="machine preset or TOML (default robonano-a0ib)")
+    s.add_argument("--sigma", type=float, default=0.0005, help="1 sigma of a reading, mm (default 0.0005)")
+    s.add_argument("-o", "--output", help="errors TOML with the estimated location errors")
+    s.set_defaults(func=_rotary)
+
     s = sub.add_parser("build", help="component error tables from a measurement set")
     s.add_argument("set", help="measurement set TOML (runs, set-up offsets)")
     s.add_argument("--machine", help="machine preset or TOML (default: the set's machine)")
@@ -95,6 +104,26 @@ def _reversal(args: argparse.Namespace) -> int:
     for p, b in zip(table.position, table.reversal_i):
         print(f"  {p:10.3f} mm  B_i = {b * um:+8.3f} µm")
     print("written: " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def _rotary(args: argparse.Namespace) -> int:
+    from ..errors import ErrorSet, save_errors
+    from ..machine import load_machine
+    from . import rotary
+    m = load_machine(args.machine)
+    if args.axis not in m.axis_names or not m.axis(args.axis).is_rotary or m.axis(args.axis).side != "workpiece":
+        raise InputError(f"expected a rotary axis of the workpiece side of {m.name}, got {args.axis!r}", field="--axis")
+    angles, readings = rotary.read_readings_csv(args.readings)
+    sphere = rotary.sphere_from_readings(m, args.axis, angles, readings)
+    plan = rotary.SpherePlan(args.axis, tuple(float(a) for a in angles), tuple(float(v) for v in sphere))
+    est = rotary.estimate_rotary(m, plan, readings, sigma=args.sigma)
+    print(est.summary())
+    if args.output:
+        unc = {f"geometric.location.{n}": float(s) for n, s in zip(est.names, est.sigma)}
+        save_errors(est.errors(ErrorSet()), args.output, uncertainty=unc,
+                    meta={"produced_by": "mtcomp geometric rotary", "readings": str(args.readings)})
+        print(f"written: {args.output}")
     return 0
 
 

@@ -359,7 +359,7 @@ def plot(result: Iso2302Result, path: str | os.PathLike, title: str | None = Non
     text = "\n".join(f"{k} = {getattr(result, k) * um:.2f} µm" for k in ("A", "R", "E", "M", "B"))
     ax.text(0.01, 0.98, text, transform=ax.transAxes, va="top", ha="left", fontsize=9,
             family="monospace", bbox=dict(facecolor="white", alpha=0.8, edgecolor="0.7"))
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8)
     ax.grid(True, lw=0.3)
     fig.tight_layout()
     save_figure(fig, path)

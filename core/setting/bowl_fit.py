@@ -22,7 +22,8 @@ class SphereFit:
     cov: covariance of (cx, cy, cz, rho) mm^2 (rho = probe-centre sphere radius; 3x3 when the
     radius was fixed, padded with zeros); residuals (m,) radial distances of all touches from the
     fitted sphere, mm (rejected ones included); used (m,) bool; rejected: source lines/indices of
-    rejected touches; sigma: probe noise used for cov, mm; lines: source lines of the touches."""
+    rejected touches; sigma: probe noise used for cov, mm; lines: source lines of the touches;
+    directions: (k, 3) unit vectors from the fitted centre to the touches used."""
     bowl: int
     centre: np.ndarray
     radius: float
@@ -32,6 +33,7 @@ class SphereFit:
     sigma: float
     lines: np.ndarray
     fixed_radius: bool = False
+    directions: np.ndarray | None = None
 
     @property
     def centre_cov(self) -> np.ndarray:
@@ -61,7 +63,38 @@ class BowlFit:
     shared_cov: np.ndarray | None = None
     shared_cov_rho: np.ndarray | None = None
 
-    def reference_points(self, design_radius: float, up, ids=None) -> tuple[np.ndarray, np.ndarray]:
+    def runout_shift(self, runout: float, up) -> dict:
+        """{bowl: (3,) mm}: how far a known radial run-out `runout` (mm) of the ball end mill moves
+        each fitted bottom point (centre - radius * up).  The cavity wall lies `runout sin(phi)`
+        further out at polar angle phi from the bottom; the fit's linear response to that at the
+        touches used (the same design as the fit: free, shared or fixed radius) gives the shift
+        (exact to first order in run-out / radius)."""
+        up = np.asarray(up, float) / np.linalg.norm(up)
+        fits = list(self.fits)
+        shared = self.shared_cov_rho is not None
+        fixed = fits[0].fixed_radius
+        rows, rhs = [], []
+        n = len(fits)
+        for k, f in enumerate(fits):
+            d = f.directions
+            if d is None:
+                raise InputError("the fit carries no touch directions (refit with this version)", field="runout")
+            sin_phi = np.sqrt(np.clip(1.0 - (d @ -up) ** 2, 0.0, None))
+            for dj, sj in zip(d, sin_phi):
+                r = np.zeros(3 * n + (0 if fixed else (1 if shared else n)))
+                r[3 * k:3 * k + 3] = dj               # radial distance grows by d . dc ...
+                if not fixed:
+                    r[3 * n + (0 if shared else k)] = 1.0   # ... and by d rho
+                rows.append(r)
+                rhs.append(runout * sj)
+        sol, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
+        out = {}
+        for k, f in enumerate(fits):
+            drho = 0.0 if fixed else sol[3 * n + (0 if shared else k)]
+            out[f.bowl] = sol[3 * k:3 * k + 3] - drho * up
+        return out
+
+    def reference_points(self, design_radius: float, up, ids=None, runout: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Material reference points of the bowls and their (3n, 3n) covariance, mm, mm^2.
 
         The bottom of a bowl is where the cutter tip was, fixed in the material; its centre is
@@ -71,15 +104,17 @@ class BowlFit:
         in the machine frame) raised by the design radius: the point the plan's design centre
         (`BowlPlan.centres`, nominal radius) stands for.  Height comes from the bottom, tilt and
         x, y from the centres.  `up` from a first frame fit (centres alone give the tilt right:
-        a radius error moves every centre alike)."""
+        a radius error moves every centre alike).  runout: a known radial run-out (mm) of the
+        cutter that made the bowls, whose bias on the fitted bottoms is removed (`runout_shift`)."""
         up = np.asarray(up, float) / np.linalg.norm(up)
         ids = self.ids if ids is None else tuple(ids)
         by = {f.bowl: k for k, f in enumerate(self.fits)}
         n = len(ids)
         pts = np.empty((n, 3))
+        shift = self.runout_shift(runout, up) if runout else {}
         for i, b in enumerate(ids):
             f = self.fits[by[b]]
-            pts[i] = f.centre - (f.radius - design_radius) * up
+            pts[i] = f.centre - (f.radius - design_radius) * up - shift.get(b, 0.0)
         if self.shared_cov_rho is not None:
             N = len(self.fits)
             A = np.zeros((3 * n, 3 * N + 1))
@@ -379,9 +414,11 @@ def fit_bowls(touches: Touches, probe_radius: float, *, probe_sigma: float | Non
             cov = _cov(Ju, sigma)
         if fixed_rho is not None:
             cov = np.pad(cov, ((0, 1), (0, 1)))
+        dvec = touches.points[touches.of(bid)][used] - c
         fits.append(SphereFit(bowl=bid, centre=c, radius=rho + probe_radius, cov=cov,
                               residuals=resid, used=used, sigma=sigma, lines=lines,
-                              fixed_radius=fixed_rho is not None))
+                              fixed_radius=fixed_rho is not None,
+                              directions=dvec / np.linalg.norm(dvec, axis=1)[:, None]))
     if full is not None:
         n3 = 3 * len(done)
         return BowlFit(fits=tuple(fits), probe_radius=float(probe_radius), sigma=sigma,

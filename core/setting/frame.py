@@ -425,7 +425,7 @@ REFERENCES = ("bottom", "centre")
 
 
 def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
-                     file=None, reference: str = "bottom") -> WorkpieceSettingEstimate:
+                     file=None, reference: str = "bottom", runout: float = 0.0) -> WorkpieceSettingEstimate:
     """Workpiece setting from sphere fits (BowlFit) and the plan's design centres (BowlPlan).
 
     reference: "bottom" (default): the height of each bowl from its bottom point (fitted centre
@@ -433,7 +433,8 @@ def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
     (`BowlFit.reference_points`), so a cutter radius or run-out error of the ball end mill that
     cut the bowls does not read as a height error; the radius uncertainty is propagated.
     "centre": the fitted centres against the design centres of the nominal radius (a cutter
-    radius error dR then reads as dz = dR).
+    radius error dR then reads as dz = dR).  runout: known radial run-out (mm) of the ball end
+    mill that cut the bowls; its small bias on the fitted bottoms is removed (reference "bottom").
 
     Uses the bowls present in both, in the plan's order (S1 = first plan bowl).  Bowls of the plan
     without touches are an error naming them: a frame silently built from other bowls than
@@ -460,5 +461,8 @@ def frame_from_bowls(fit, plan, method: str = "auto", alarm: float = 0.999,
     if reference == "centre":
         return est
     up = est.R[:, 2]
-    pts, cov = fit.reference_points(plan.tool_radius, up, ids)
+    if not (np.isfinite(runout) and 0 <= runout < 0.1 * plan.tool_radius):
+        raise InputError(f"run-out must be >= 0 mm and small against the bowl radius, got {runout!r}", file,
+                         field="runout")
+    pts, cov = fit.reference_points(plan.tool_radius, up, ids, runout=runout)
     return frame_from_points(pts, plan.centres, cov, ids, method, fit=fit, alarm=alarm, file=file)

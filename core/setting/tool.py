@@ -212,7 +212,7 @@ class GroovingMeasurements:
 
 def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = None, seed=None, *,
                       plan: Plan | None = None, compensation=None, frame_offset: float = 0.0,
-                      frame_rotation: float = 0.0) -> GroovingMeasurements:
+                      frame_rotation: float = 0.0, frame_scale: float = 0.0) -> GroovingMeasurements:
     """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
     (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
     Gaussian noise of `noise` (default 1 µm on positions and depths) from `seed`.  plan: default
@@ -221,12 +221,18 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
     frame_offset: mm; each test is measured in a microscope frame whose origin is shifted by a
     uniform random (u, v) in +-frame_offset (the estimator must not depend on it), and turned by
     a uniform random angle in +-frame_rotation deg (about the face origin; `estimate(...,
-    fit_rotation=True)` removes it).
+    fit_rotation=True)` removes it).  frame_scale: relative scale error of the microscope's (u, v)
+    readings (magnification), the same for every test (`estimate(..., fit_scale=True)` removes it).
     Raises MtcompError if a groove would not be cut (depth <= 0): increase the depth of cut."""
     from ..machine import load_machine
     m = load_machine(machine)
     plan = plan or make_plan(m)
     noise = noise or MicroscopeNoise()
+    for name, v, lim in (("frame_offset", frame_offset, 10.0), ("frame_rotation", frame_rotation, 45.0),
+                         ("frame_scale", frame_scale, 0.1)):
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and abs(v) <= lim):
+            raise InputError(f"expected a finite {name.replace('_', ' ')} of at most {lim:g} in size, got {v!r}",
+                             field=name.replace("_", "-"))
     rng = np.random.default_rng(seed)
     cuts = {c.groove.id: c for c in cut_grooves(m, plan, tool_setting, compensation)}
     uncut = [c.groove.id for c in cuts.values() if not c.cut]
@@ -242,7 +248,8 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
     for gid, feat in plan.features():
         c = cuts[gid]
         test = c.groove.test
-        u, v = turn[test] @ np.asarray(c.point(feat)) + origin[test] + rng.normal(0.0, noise.position, 2)
+        u, v = ((1.0 + frame_scale) * (turn[test] @ np.asarray(c.point(feat))) + origin[test]
+                + rng.normal(0.0, noise.position, 2))
         d = c.depth + rng.normal(0.0, noise.depth)
         pts.append(PointMeasurement(gid, feat, float(u), float(v), float(d)))
     # Noise-free synthesis still needs finite weights: use the machine's resolution scale.
@@ -391,7 +398,8 @@ PAPER_ASSUMPTIONS = (
     "mtcomp's default plan, a laser confocal microscope with 1 µm (1 sigma) noise on positions and depths and no "
     "scale error, a perfectly rigid machine with no other geometric errors",
     "not modelled: the V tool's nose radius, tool wear, burrs at the groove crossings, thermal drift between "
-    "the cuts, and the microscope's magnification error (a scale error s changes every distance by s times it)",
+    "the cuts; the microscope's magnification error is left out of this reproduction (a scale error s changes "
+    "every distance by s times it; `estimate(..., fit_scale=True)` fits it per test)",
 )
 
 

@@ -31,6 +31,22 @@ def _locations(text: str):
     return names
 
 
+def _location_values(text: str) -> dict:
+    out = {}
+    for item in (x.strip() for x in text.split(",") if x.strip()):
+        name, _, val = item.partition("=")
+        name = name.strip().upper()
+        try:
+            v = float(val)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected NAME=mm like EX0C=0.039, got {item!r}") from None
+        if len(name) != 4 or name[0] != "E" or name[2] != "0" or name[1] not in "XYZ" or not abs(v) < 10.0:
+            raise argparse.ArgumentTypeError(f"expected a position location error like EX0C=0.039 (mm, |v| < 10), "
+                                             f"got {item!r}")
+        out[name] = v
+    return out
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "tool-setting", help="tool setting errors by grooving (paper 000): plan, simulate, estimate",
@@ -51,6 +67,10 @@ def register(subparsers) -> None:
     pl.add_argument("--feed", type=float, default=50.0, help="cutting feed, mm/min (default 50)")
     pl.add_argument("--plunge-feed", type=float, default=5.0, help="plunge feed, mm/min (default 5)")
     pl.add_argument("--tip-angle", type=float, default=90.0, help="V tool included angle, deg (default 90)")
+    pl.add_argument("--locations", type=_locations, default="auto",
+                    help="rotary axis location errors the plan must make observable besides the tool offset: "
+                         "'auto' (report which are, default), 'none', or names like EX0C,EY0C (refused with the "
+                         "reason if the tests cannot see them)")
     pl.add_argument("--no-png", action="store_true", help="skip the layout drawing")
     pl.set_defaults(func=_plan)
 
@@ -59,6 +79,8 @@ def register(subparsers) -> None:
     si.add_argument("--machine", help="preset or TOML (default: the plan's machine)")
     si.add_argument("--offset", type=float, nargs=3, required=True, metavar=("TX", "TY", "TZ"),
                     help="true tool setting error, mm, tool frame")
+    si.add_argument("--location", type=_location_values, default={},
+                    help="true rotary axis location errors, mm, e.g. EX0C=0.039,EY0C=-0.150 (default none)")
     si.add_argument("--sigma-pos", type=float, default=0.001, help="microscope position noise, mm (default 0.001)")
     si.add_argument("--sigma-depth", type=float, default=0.001, help="microscope depth noise, mm (default 0.001)")
     si.add_argument("--seed", type=int, default=None)
@@ -66,6 +88,8 @@ def register(subparsers) -> None:
                     help="random microscope origin per test, uniform in +-this, mm (default 0)")
     si.add_argument("--frame-rotation", type=float, default=0.0,
                     help="random microscope frame rotation per test, uniform in +-this, deg (default 0)")
+    si.add_argument("--frame-scale", type=float, default=0.0,
+                    help="microscope scale (magnification) error of the u, v readings, relative (default 0)")
     si.add_argument("--compensation", help="errors TOML the programs are compensated for (cut compensated grooves)")
     si.add_argument("-o", "--output", required=True, help="filled measurement sheet (CSV)")
     si.add_argument("--png", help="layout with the predicted grooves")
@@ -79,6 +103,8 @@ def register(subparsers) -> None:
     es.add_argument("--sigma-depth", type=float, default=0.001, help="depth sigma, mm, for rows without one")
     es.add_argument("--fit-rotation", action="store_true",
                     help="also fit a rotation of the microscope frame per test (not aligned to the face axes)")
+    es.add_argument("--fit-scale", action="store_true",
+                    help="also fit a scale (magnification) error of the microscope per test")
     es.add_argument("--locations", type=_locations, default="auto",
                     help="rotary axis location errors to estimate with the tool offset: 'auto' (every one the "
                          "plan makes observable, default), 'none', or names like EX0C,EY0C")
@@ -103,6 +129,9 @@ def _plan(args) -> int:
         from dataclasses import replace
         plan = replace(plan, machine=str(Path(args.machine).resolve()))
     from .tool_model import observable_parameters
+    if args.locations not in ("auto", "none"):
+        from .tool_estimate import _location_names
+        _location_names(m, plan, args.locations, None)        # InputError naming what cannot be seen, and why
     obs = observable_parameters(m, plan)
     files = write_plan(m, plan, args.outdir, png=not args.no_png)
     print(f"{len(plan.grooves)} grooves ({', '.join(plan.ids)}) for machine {m.name}")
@@ -127,15 +156,23 @@ def _simulate(args) -> int:
         if not getattr(args, name) >= 0:
             raise InputError(f"expected a sigma >= 0 mm, got {getattr(args, name)}", field=name.replace("_", "-"))
     comp = load_errors(args.compensation) if args.compensation else None
-    meas = simulate_grooving(m, tuple(args.offset), MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
+    from ..errors import ErrorSet, GeometricErrors, ToolSetting
+    from .tool_model import location_candidates
+    bad = [k for k in args.location if k not in location_candidates(m)]
+    if bad:
+        raise InputError(f"{', '.join(bad)} moves no groove: expected some of {', '.join(location_candidates(m))}",
+                         field="location")
+    truth = ErrorSet(tool=ToolSetting(tuple(args.offset)), geometric=GeometricErrors(location=args.location))
+    meas = simulate_grooving(m, truth, MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
                              plan=plan, compensation=comp, frame_offset=args.frame_offset,
-                             frame_rotation=args.frame_rotation)
-    text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, sigma pos {args.sigma_pos} mm, "
+                             frame_rotation=args.frame_rotation, frame_scale=args.frame_scale)
+    text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, location {args.location} mm, "
+                                  f"sigma pos {args.sigma_pos} mm, "
                                   f"depth {args.sigma_depth} mm, seed {args.seed}")
     atomic_write(args.output, text)
     print(f"wrote {args.output} ({len(meas.points)} points)")
     if args.png:
-        plot_layout(plan, args.png, cuts=cut_grooves(m, plan, tuple(args.offset), comp),
+        plot_layout(plan, args.png, cuts=cut_grooves(m, plan, truth, comp),
                     title=f"predicted grooves (black) for offset {tuple(args.offset)} mm")
         print(f"wrote {args.png}")
     return 0
@@ -157,7 +194,7 @@ def _estimate(args) -> int:
     if args.known_errors:
         from ..errors import load_errors
         known = load_errors(args.known_errors)
-    est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known,
+    est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known, fit_scale=args.fit_scale,
                    locations=() if args.locations == "none" else args.locations)
     # Compute every output before writing any, so a failure leaves nothing behind.
     report = report_text(m, meas, est) if args.report else None

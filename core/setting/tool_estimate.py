@@ -267,36 +267,43 @@ def build_design(machine, meas, known=None, names=COMPONENTS) -> Design:
                   np.array(pidx), np.array(comp), tests, Y0, JJ, tuple(names))
 
 
-def _model(d: Design, x: np.ndarray, rot_tests: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """Model values F (M,) and Jacobian A (M, n_par) at parameters x = [t, offsets, rotations].
+def _model(d: Design, x: np.ndarray, extra: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Model values F (M,) and Jacobian A (M, n_par) at parameters x = [t, offsets, frame terms].
 
-    Without rotations the model is linear: F = y0 + [J N] x.  A rotation phi (rad) of a test's
-    microscope frame maps the true (u, v) to Rot(phi) (u, v) (then the offset is added); it is
-    exact here and solved by Gauss-Newton."""
+    Without frame terms the model is linear: F = y0 + [J N] x.  extra: (test, "rot" | "scale")
+    per further column: a rotation phi (rad) of the test's microscope frame and / or a scale
+    error k of its (u, v) readings (magnification) map the true (u, v) to (1 + k) Rot(phi) (u, v)
+    (then the offset is added); exact here and solved by Gauss-Newton."""
     K = d.N.shape[1]
     P = d.J.shape[1]
     t = x[:P]
     F = d.y0 + d.J @ t + d.N @ x[P:P + K]
-    A = np.hstack([d.J, d.N, np.zeros((d.y.size, len(rot_tests)))])
-    for j, test in enumerate(rot_tests):
-        phi = x[P + K + j]
+    A = np.hstack([d.J, d.N, np.zeros((d.y.size, len(extra)))])
+    col = {e: P + K + j for j, e in enumerate(extra)}
+    for test in dict.fromkeys(tt for tt, _ in extra):
+        jr, js = col.get((test, "rot")), col.get((test, "scale"))
+        phi = x[jr] if jr is not None else 0.0
+        k = x[js] if js is not None else 0.0
         c, s_ = np.cos(phi), np.sin(phi)
-        pts = np.array([k for k, tt in enumerate(d.tests) if tt == test])
+        pts = np.array([n for n, tt in enumerate(d.tests) if tt == test])
         uv = d.Y0[pts, :2] + d.JJ[pts, :2] @ t                      # true (u, v) of the points
-        Juv = d.JJ[pts, :2]                                         # (p, 2, 3)
+        Juv = d.JJ[pts, :2]                                         # (p, 2, n)
         rot = np.array([[c, -s_], [s_, c]])
         drot = np.array([[-s_, -c], [c, -s_]])
         ruv, duv = uv @ rot.T, uv @ drot.T
         rJ = np.einsum("ij,pjk->pik", rot, Juv)
-        where = {int(k): i for i, k in enumerate(pts)}
+        where = {int(n): i for i, n in enumerate(pts)}
         for r in np.nonzero(d.comp < 2)[0]:
             i = where.get(int(d.point[r]))
             if i is None:
                 continue
             cc = d.comp[r]
-            F[r] += ruv[i, cc] - uv[i, cc]
-            A[r, :P] = rJ[i, cc]
-            A[r, P + K + j] = duv[i, cc]
+            F[r] += (1 + k) * ruv[i, cc] - uv[i, cc]
+            A[r, :P] = (1 + k) * rJ[i, cc]
+            if jr is not None:
+                A[r, jr] = (1 + k) * duv[i, cc]
+            if js is not None:
+                A[r, js] = ruv[i, cc]
     return F, A
 
 
@@ -403,6 +410,11 @@ class ToolSettingEstimate:
             where = f" (line {self.lines[worst]})" if self.lines[worst] else ""
             lines.append(f"  largest normalised residual: {self.normalized[worst]:+.2f} at "
                          f"{self.labels[worst]}{where}")
+        scales = [k for k in self.nuisance if k.endswith(":scale")]
+        if scales:
+            lines.append("  microscope scale error: " + "; ".join(
+                f"{k[:-6]} test {self.nuisance[k] * 1e6:+.0f} ± {self.nuisance_sigma.get(k, np.nan) * 1e6:.0f} ppm"
+                for k in scales))
         rots = [k for k in self.nuisance if k.endswith(":rot")]
         if rots:
             lines.append("  microscope frame rotation: " + "; ".join(
@@ -440,7 +452,7 @@ def _location_names(m, plan, locations, known) -> tuple[tuple, dict]:
 
 
 def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, known=None,
-             locations="auto") -> ToolSettingEstimate:
+             locations="auto", fit_scale: bool = False) -> ToolSettingEstimate:
     """Weighted least-squares tool setting error and rotary-axis location errors from a
     GroovingMeasurements (any grooves, any angles), with covariance (known measurement sigmas,
     not rescaled by chi2), residuals, the setting error against each tested axis, closed-form
@@ -452,6 +464,9 @@ def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, kno
     default plan EX0C, EY0C, EZ0A), () the tool offset only, or a tuple of names.
     fit_rotation: also estimate a rotation of the microscope frame per test (rad, in `nuisance`
     as "<test>:rot"), for sheets measured without aligning the microscope to the face axes.
+    fit_scale: also estimate a scale error of the microscope's (u, v) readings per test
+    (magnification, in `nuisance` as "<test>:scale", relative), seen from the programmed groove
+    lengths and spacings; it costs precision on t (mostly t_z, from the B grooves' positions).
     known: ErrorSet of already known geometric / workpiece setting errors, included in the
     model (estimated location errors are increments over its values)."""
     from ..errors import ToolSetting
@@ -462,8 +477,10 @@ def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, kno
     names = COMPONENTS + locs
     P = len(names)
     d = build_design(m, meas, known, names)
-    rot_tests = tuple(t for t in dict.fromkeys(d.tests)
-                      if fit_rotation and f"{t}:u" in d.nuisance_names and f"{t}:v" in d.nuisance_names)
+    frame_tests = tuple(t for t in dict.fromkeys(d.tests)
+                        if f"{t}:u" in d.nuisance_names and f"{t}:v" in d.nuisance_names)
+    rot_tests = tuple((t, "rot") for t in frame_tests if fit_rotation)
+    rot_tests += tuple((t, "scale") for t in frame_tests if fit_scale)
     n_par = P + d.N.shape[1] + len(rot_tests)
     if d.y.size < n_par:
         raise InputError(f"{d.y.size} measured values cannot determine {n_par} unknowns ({P} setting and "
@@ -496,7 +513,7 @@ def _estimate(m, meas, d, names, locs, unobs, rot_tests, n_par, closed, known):
         if not rot_tests or np.max(np.abs(dx)) < 1e-12:   # mm and rad
             break
     else:
-        raise InputError("the fit with microscope frame rotations did not converge", meas.source)
+        raise InputError("the fit with microscope frame rotations / scales did not converge", meas.source)
     fit, A = _model(d, x, rot_tests)
     Aw = A / d.sigma[:, None]
     scale = np.linalg.norm(Aw, axis=0)
@@ -532,7 +549,7 @@ def _estimate(m, meas, d, names, locs, unobs, rot_tests, n_par, closed, known):
             cf = closed_forms(meas)
         except (ValueError, KeyError, np.linalg.LinAlgError):
             cf = {}
-    nnames = d.nuisance_names + tuple(f"{t_}:rot" for t_ in rot_tests)
+    nnames = d.nuisance_names + tuple(f"{t_}:{kind}" for t_, kind in rot_tests)
     nuis_sig = np.sqrt(np.diag(cov_full))[P:]
     pcov = cov_full[:P, :P]
     try:

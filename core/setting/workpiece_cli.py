@@ -79,7 +79,8 @@ def cmd_fit(args) -> int:
     fit = fit_bowls(touches, plan.probe_radius, probe_sigma=args.probe_sigma, bowl_radius=radius,
                     shared_radius=not args.radius_per_bowl, k=args.k,
                     bowls=plan.ids if known else None)
-    est = frame_from_bowls(fit, plan, method=args.method, file=args.touches, reference=args.reference)
+    est = frame_from_bowls(fit, plan, method=args.method, file=args.touches, reference=args.reference,
+                           runout=args.runout)
     print(fit.summary())
     print(est.summary())
     _warn(fit.warnings)
@@ -197,6 +198,9 @@ def register(subparsers) -> None:
     a.add_argument("--reference", choices=("bottom", "centre"), default="bottom",
                    help="bowl height from the bottom points (default; immune to the cutter radius) "
                         "or from the centres of the nominal radius")
+    a.add_argument("--runout", type=float, default=0.0,
+                   help="measured radial run-out of the ball end mill that cut the bowls, mm (0): its bias "
+                        "on the bowls' bottom points is removed")
     a.add_argument("--k", type=float, default=5.0, help="outlier threshold in sigma (5)")
     a.add_argument("-o", "--out", required=True, help="errors TOML to write (mtcomp format)")
     a.add_argument("--report", help="also write a report TOML (covariance, residuals)")
