@@ -15,6 +15,8 @@ SIGNATURE = {
     "pivot_offset": "error following (R(angle) - I) d of a rotary axis: tool edge off its centre",
     "workpiece_setting": "constant offset and small rotation of the workpiece frame",
     "time_offset": "every output lags the simulation by the same time (clock offset)",
+    "quadrant_glitch": "spike against the new direction after every reversal of the axis "
+                       "(friction flips, the loop rebuilds the torque)",
     "friction": "velocity lost against the direction of motion (Coulomb) and in proportion to it "
                 "(viscous)",
 }
@@ -65,7 +67,7 @@ def _unexplained_lines(res, indent="  ") -> list:
 
 def _effect_line(e) -> str:
     ps = ", ".join(f"{k} = {_val(v, k)} +/- {_val(e.uncertainty.get(k), k)}"
-                   for k, v in e.params.items() if not k.startswith("range_"))
+                   for k, v in e.params.items() if not k.startswith(("range_", "initial_state")))
     return f"{e.name} on {e.output} (from {', '.join(e.inputs)}): {ps}"
 
 
