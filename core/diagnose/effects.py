@@ -942,7 +942,9 @@ def candidates(al: Aligned) -> list[Candidate]:
     if moving:
         out.append(TimeOffset(tuple(o for o in al.outputs if o in moving)))
         lags = [c for c in out if type(c) is ServoLag]
-        if len(lags) >= 2:
+        # after a clock alignment the remaining common offset and the axes' lags are entangled
+        # (the correlation peak held both): the lags of all axes are then tried as one group
+        if len(lags) >= 2 and al.clock_offset:
             out.append(Group(lags))
     if al.at_rest:
         out = [c for c in out if c.name in AT_REST]

@@ -148,7 +148,9 @@ def conditions(al: Aligned, o: str, r: np.ndarray, sigma: float) -> list[str]:
     out = []
     s = al.signals.get(o)
     if s is not None and np.ptp(s.values) > 0:
-        v = np.gradient(s.values, al.dt)
+        # the direction of motion: the derivative of a position, the sign of a velocity
+        v = (s.values if s.kind in ("velocity", "angular_velocity")
+             else np.gradient(s.values, al.dt))
         thr = 1e-3 * np.max(np.abs(v))
         groups = {"moving +": v > thr, "moving -": v < -thr, "at rest": np.abs(v) <= thr}
         means = {g: (float(np.mean(r[m])), int(m.sum())) for g, m in groups.items() if m.sum() > 10}

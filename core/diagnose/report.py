@@ -180,7 +180,7 @@ def plot(res, path=None):
     for i, o in enumerate(outs):
         u = res.units[o]
         scale, ru = ((1e3, "µm") if u == "mm" else (math.pi / 180 * 1e6, "µrad") if u == "deg"
-                     else (1e3, "µm/s") if u == "mm/s" else (1.0, u))
+                     else (1.0, u))
         ax = axes[2 * i, 0]
         ax.plot(t, res.rec[o], lw=0.8, label="recorded")
         ax.plot(t, res.sim[o], lw=0.8, ls="--", label="simulated")
@@ -204,7 +204,11 @@ def plot(res, path=None):
         ax.set_ylabel(f"residual {o} ({ru})")
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
     axes[-1, 0].set_xlabel("t (s)")
-    names = ", ".join(res.names) or "no effect of the library"
+    per = {}
+    for e in res.effects:
+        per.setdefault(e.name, []).extend(e.outputs)
+    names = ", ".join(f"{n} ({', '.join(dict.fromkeys(o))})" for n, o in per.items()) or \
+        "no effect of the library"
     if res.unexplained:
         names += "; unexplained mismatch on " + ", ".join(u["output"] for u in res.unexplained)
     fig.suptitle(f"Diagnosis: {names}", fontsize=10)
