@@ -112,7 +112,10 @@ def run_case(spec):
     affected = sorted({o for _, outs, _ in case.truth for o in outs}) or list(res.outputs)
     ratio = max(res.fit["holdout_rms_after"][o] / res.noise_floor[o] for o in affected)
     red = [res.fit["holdout_rms_after"][o] / res.fit["holdout_rms_before"][o] for o in affected]
-    return {"effects": sorted(effects), "named": named, "seed": seed, "cond": cond,
+    worst = max(max(res.fit["holdout_rms_after"][o], res.fit["rms_after"][o]) / res.noise_floor[o]
+                for o in res.outputs)
+    silent = not res.effects and not res.unexplained and worst > 3.0
+    return {"silent": bool(silent), "effects": sorted(effects), "named": named, "seed": seed, "cond": cond,
             "ok": named == sorted(effects), "recovery": rec, "ratio": float(ratio),
             "reduction": float(max(red)), "seconds": dt, "n": res.alignment["samples"],
             "log": list(res.log)}
@@ -174,7 +177,9 @@ def markdown(results, tim, wall_total, quick) -> str:
              f"95th pct {np.percentile(ratios, 95):.2f}, max {ratios.max():.2f}; "
              f"{np.mean(ratios <= 1.5) * 100:.1f} % <= 1.5 | <= 1.5 |",
              f"| held-out RMS after / before (baseline REC - SIM) | median "
-             f"{np.median([r['reduction'] for r in eff]):.4f} | |"]
+             f"{np.median([r['reduction'] for r in eff]):.4f} | |",
+             f"| cases answered 'nothing' with a residual > 3x the noise floor | "
+             f"{sum(r['silent'] for r in results)} | 0 |"]
     if tim:
         lines.append(f"| {tim['samples']} samples, {tim['inputs']} input columns (CSV read to "
                      f"result) | {min(tim['wall']):.2f} s wall (best of {len(tim['wall'])}; "

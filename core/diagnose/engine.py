@@ -10,7 +10,7 @@ import numpy as np
 from . import align as _align
 from . import data as _data
 from .effects import Context, candidates
-from .locate import Mismatch, conditions, locate
+from .locate import Mismatch, conditions, empirical_dependence, locate
 from .select import Settings, cross_validate, fit, n_effective, select
 
 
@@ -241,6 +241,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                 "noise_floor": floor[o], "ratio": worst / floor[o],
                 "where": [m.where for m in spans],
                 "correlates": conditions(al, o, after, floor[o]),
+                "empirical": empirical_dependence(al, o, oof[sl] * sig[o]),
                 "interpolation_error": al.interp.get(o, ("", 0.0))[1]})
     # the recording-wide conditions of an output belong to the words of each of its spans
     mism = [Mismatch(m.output, m.t_start, m.t_end,

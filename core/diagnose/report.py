@@ -62,6 +62,11 @@ def _unexplained_lines(res, indent="  ") -> list:
             out.append(f"{indent}  where: {w}")
         for c in u["correlates"]:
             out.append(f"{indent}  {c}")
+        emp = u.get("empirical")
+        if emp:
+            out.append(f"{indent}  empirical dependence on {emp['signal']} (not a known physical "
+                       f"effect): a smooth function of it lowers the held-out RMS "
+                       f"{_len(emp['heldout_rms_before'], un)} -> {_len(emp['heldout_rms_after'], un)}")
     return out
 
 

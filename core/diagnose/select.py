@@ -23,7 +23,7 @@ class Settings:
     """Thresholds of the selection; defaults are tuned on benchmarks/diagnose_suite.py."""
     max_effects: int = 4
     bic_threshold: float = 10.0      # required BIC decrease ("very strong" evidence)
-    cv_min_gain: float = 0.01        # required relative decrease of the held-out error
+    cv_min_gain: float = 0.05        # required relative decrease of the held-out error (material)
     min_effect_snr: float = 0.5      # effect RMS / noise floor below which it is noise
     folds: int = 5
     fit_rows: int = 6000             # samples per output used for selection (all for the final fit)
