@@ -8,8 +8,9 @@ library or with synth (they are not tuned on):
 - jerk-limited (S-curve) moves, piecewise-linear corner paths, stop-and-measure runs;
 - outputs named `carriage`, `q2`, `ELEV`, `spd_axis`, `stage` (positions in µm, joint angles,
   velocities), 100-400 samples in some, 1 µm counts in some;
-- effects outside the library (friction spikes at reversals, a joint hunting around a constant
-  set point), which must be answered with "unexplained mismatch", not with a wrong name.
+- friction at reversals simulated as stick-slip (the library's quadrant_glitch has another
+  shape), and an effect outside the library (a joint hunting around a constant set point),
+  which must be answered with "unexplained mismatch", not with a wrong name.
 
 Each case states what an honest answer is: the set of library effects to name, or
 "unexplained" (no effect named, or the named ones leave the output flagged unexplained).
@@ -61,11 +62,15 @@ def s_curve_path(rng, t, lo, hi, vmax, amax, jmax, dwell=(0.3, 1.5)):
 
 
 def corner_path(rng, t, lo, hi, feed, n_corners):
-    """Piecewise-linear path at constant feed with sharp corners (G1 blocks, no smoothing)."""
+    """Piecewise-linear path at constant feed with sharp corners (G1 blocks, no smoothing) and
+    an exact stop of 0.2-1 s at every corner (without stops a backlash and a delay are the same
+    sign flip with the direction of motion, and no diagnosis can tell them apart)."""
     knots_t = [t[0]]
     knots_p = [rng.uniform(lo, hi)]
     while knots_t[-1] < t[-1]:
         q = rng.uniform(lo, hi)
+        knots_t.append(knots_t[-1] + rng.uniform(0.2, 1.0))
+        knots_p.append(knots_p[-1])
         knots_t.append(knots_t[-1] + abs(q - knots_p[-1]) / feed + 1e-3)
         knots_p.append(q)
     return np.interp(t, knots_t, knots_p)
@@ -207,23 +212,29 @@ def case(kind: str, seed: int) -> dict:
         return {"sim": {"t": ts, "carriage": sample(t, cmd, ts)},
                 "rec": {"t": tr, "carriage": sample(t, play(cmd, b), tr) + rng.normal(0, noise, len(tr))},
                 "expect": {"backlash"}, "truth": {"backlash_mm": b}}
-    if kind == "friction_spikes":
-        # outside the library: a decaying spike after every reversal (quadrant glitch)
+    if kind == "friction_stick_slip":
+        # friction at reversals simulated as stick-slip: after every reversal the slide stays
+        # stuck for 20-60 ms while the command moves away, then slips back with a 30 ms decay
+        # (a different shape from the library's quadrant_glitch, which must still name it)
         T = rng.uniform(15, 25)
         t = np.arange(0, T, FINE)
         cmd = 50 + 30 * np.sin(2 * np.pi * t / rng.uniform(2.0, 4.0))
         v = np.gradient(cmd, FINE)
         rev = np.flatnonzero(np.diff(np.sign(v)) != 0)
         err = np.zeros_like(t)
-        amp = rng.uniform(8e-3, 15e-3)
+        stick = rng.uniform(0.02, 0.06)
+        ks = int(stick / FINE)
         for i in rev:
-            k = np.arange(i, min(len(t), i + int(0.3 / FINE)))
-            err[k] += -np.sign(v[min(i + 1, len(v) - 1)]) * amp * (t[k] - t[i]) / 0.02 * np.exp(1 - (t[k] - t[i]) / 0.02)
+            a = np.arange(i, min(len(t), i + ks))
+            err[a] = cmd[i] - cmd[a]
+            if i + ks < len(t):
+                b = np.arange(i + ks, min(len(t), i + ks + int(0.4 / FINE)))
+                err[b] = (cmd[i] - cmd[i + ks]) * np.exp(-(t[b] - t[i + ks]) / 0.03)
         ts = np.arange(0, T, 1 / 200)
         tr = np.arange(0.1, T - 0.1, 1 / 200)
         return {"sim": {"t": ts, "stage": sample(t, cmd, ts)},
                 "rec": {"t": tr, "stage": sample(t, cmd + err, tr) + rng.normal(0, noise, len(tr))},
-                "expect": "unexplained"}
+                "expect": {"quadrant_glitch"}}
     if kind == "joint_hunting":
         # outside the library: a tendon joint hunting (limit cycle) around a constant set point
         T = rng.uniform(10, 20)
@@ -248,7 +259,7 @@ def case(kind: str, seed: int) -> dict:
 
 
 KINDS = ("joint_servo_lag", "velocity_servo_lag", "backlash_um_counts", "stop_and_measure",
-         "thermal_spindle_steps", "clock_and_lag", "corners_sim_coarse", "friction_spikes",
+         "thermal_spindle_steps", "clock_and_lag", "corners_sim_coarse", "friction_stick_slip",
          "joint_hunting", "null_fine")
 
 

@@ -129,3 +129,31 @@ def test_plot_returns_a_figure_without_touching_the_backend(tmp_path):
     assert matplotlib.get_backend() == before
     labels = [ax.get_ylabel() for ax in fig.axes]
     assert any("µm" in s for s in labels) and not any("(um)" in s for s in labels)
+
+
+def test_empirical_dependence_is_reported_as_not_a_known_effect():
+    # an error growing with the square of the speed (even in v: no lag, backlash or friction of
+    # the library has that form) is unexplained, and the dependence on dx/dt is reported
+    case = synth.make_case([], seed=6, duration=20.0)
+    rec = dict(case.rec)
+    t = rec["t"]
+    v = np.gradient(np.interp(t, case.sim["t"], case.sim["x"]), t)
+    rec["x"] = rec["x"] + 4e-6 * v ** 2
+    res = diagnose(case.sim, rec)
+    un = {u["output"]: u for u in res.unexplained}
+    assert "x" in un, res.summary()
+    emp = un["x"]["empirical"]
+    assert emp is not None and emp["signal"] == "dx/dt" and emp["reduction"] > 0.5
+    assert "not a known physical effect" in res.summary()
+
+
+def test_text_fixes_spindle_temperature_near_zero_and_clock_sign():
+    from mtcomp.diagnose.data import kind_from_name
+    from mtcomp.diagnose.locate import _num
+    assert kind_from_name("spindle_temp") == "temperature"
+    assert _num(-3.854e-157, 10.0) == "0"
+    case = synth.make_case([("time_offset", {"offset_s": -0.25})], seed=8, duration=15.0,
+                           rec_start=0.5)
+    text = diagnose(case.sim, case.rec).summary()
+    assert "- -" not in text and "e-15" not in text
+    assert "clocks aligned: REC's clock runs -0.25" in text

@@ -223,25 +223,54 @@ def _refine_offset(sim, rec, outputs, sim_f, offset0, step):
     w = [1.0 / noise_sigma(y - sim_f[k](t - offset0)) for k, y in zip(outputs, ys)]
     h = max(min(float(np.median(np.diff(sim.t))), float(np.median(np.diff(rec.t)))) / 4,
             (hi_t - lo_t) / 60000)
-    taus = np.concatenate([[0.0], np.geomspace(max(h, 1e-4), 0.5, 18)])
+    taus = np.concatenate([[0.0], np.geomspace(max(h, 1e-4), 0.5, 36)])
     lag = {k: _lagged(sim_f[k], lo_t, hi_t, h, taus) for k in outputs}
 
+    def grid_costs(x, k, y, wk):
+        tg, fl = lag[k]
+        return np.array([float(np.sum(((y - np.interp(x, tg, f)) * wk) ** 2)) for f in fl.values()])
+
     def cost(off):
+        # per output the least cost over the grid of lags (the scan)
+        x = np.clip(t - off, lo_t, hi_t)
+        return sum(float(grid_costs(x, k, y, wk).min()) for k, y, wk in zip(outputs, ys, w))
+
+    def cost_fine(off):
+        # per output the least cost over a continuous lag (bounded scalar search between the
+        # neighbours of the best grid lag): a grid minimum alone is bumpy in the offset, and
+        # the offset would take up the lag's rounding
+        from .effects import first_order
+        x = np.clip(t - off, lo_t, hi_t)
         total = 0.0
         for k, y, wk in zip(outputs, ys, w):
+            c = grid_costs(x, k, y, wk)
+            i = int(np.argmin(c))
             tg, fl = lag[k]
-            x = np.clip(t - off, lo_t, hi_t)
-            total += min(float(np.sum(((y - np.interp(x, tg, f)) * wk) ** 2)) for f in fl.values())
+            p0 = fl[taus[0]]
+            # the bracket reaches down to (almost) no lag when the best grid lag is the
+            # smallest: a lag of one fine step and a shorter offset are nearly the same curve
+            lo_l = math.log(taus[i - 1] if i >= 2 else taus[1] * 1e-3)
+            hi_l = math.log(taus[min(i + 1, len(taus) - 1)])
+
+            def ck(lt, _x=x, _y=y, _wk=wk, _tg=tg, _p0=p0):
+                f = first_order(_p0, h, math.exp(lt))
+                return float(np.sum(((_y - np.interp(_x, _tg, f)) * _wk) ** 2))
+            r = minimize_scalar(ck, bounds=(lo_l, hi_l), method="bounded", options={"xatol": 2e-3})
+            total += min(float(r.fun), float(c[i]), float(c[0]))
         return total
-    half = max(5 * step, 0.05 * abs(offset0), 0.02)
-    grid = offset0 + np.linspace(-half, half, 41)
+
+    # the correlation peak includes the lags (REC late by clock + lag): the scan reaches
+    # 0.15 s before it, and past it for slow, smooth moves whose peak is broad
+    half = max(5 * step, 0.05 * abs(offset0), 0.15)
+    grid = offset0 + np.linspace(-half, half, 121)
     costs = [cost(g) for g in grid]
     best = int(np.argmin(costs))
     hstep = grid[1] - grid[0]
-    res = minimize_scalar(cost, bounds=(grid[best] - hstep, grid[best] + hstep), method="bounded",
-                          options={"xatol": 1e-6})
-    off = float(res.x) if res.success and res.fun <= costs[best] else float(grid[best])
-    return off, cost(off), cost(0.0)
+    # the scan's lag grid is coarse: its best offset can be a step or two off the profile's
+    res = minimize_scalar(cost_fine, bounds=(grid[best] - 4 * hstep, grid[best] + 4 * hstep),
+                          method="bounded", options={"xatol": 1e-5})
+    off = float(res.x) if res.success else float(grid[best])
+    return off, cost_fine(off), cost_fine(0.0)
 
 
 def _at_rest_fraction(sim, outputs, t):
@@ -343,7 +372,8 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     # clock can be aligned on motion that was not recorded, and only effects that act at rest
     # are candidates.
     rec_in = rec.t[(rec.t >= t0) & (rec.t <= t1)]
-    motion_outs = [k for k in outputs if sim.columns[k].kind in MOTION_KINDS]
+    # outputs of unknown kind are taken as positions of an unnamed axis (as by the effects)
+    motion_outs = [k for k in outputs if sim.columns[k].kind in MOTION_KINDS + ("other",)]
     at_rest = (clock_offset == 0.0 and len(motion_outs) > 0 and len(rec_in) >= 8
                and _at_rest_fraction(sim, motion_outs, rec_in) >= 0.9)
     notes = tuple(notes)
@@ -367,7 +397,8 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                 shifted = Table(rec.path, rec.t - offset, rec.columns)
                 note = (f"clocks aligned: REC's clock runs {offset:+.6g} s from SIM's (estimated "
                         "jointly with a first-order lag per output; it lowers the residual "
-                        f"{math.sqrt(c_zero / max(c_off, 1e-300)):.3g}x against no alignment)")
+                        + (f"{math.sqrt(c_zero / c_off):.3g}x" if c_off > 0 and c_zero / c_off < 1e6
+                         else "to the noise") + " against no alignment)")
                 return align(sim, shifted, clock_offset=offset, outputs=outputs, inputs=inputs,
                              notes=notes + (note,))
             notes += (f"a clock offset of {offset:+.4g} s was tried and rejected: it does not "

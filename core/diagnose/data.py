@@ -87,8 +87,10 @@ def kind_from_name(key: str) -> str:
     if any(w in _VEL_WORDS for w in words) or re.match(r"^v_?[xyzabc]\d?$", low):
         if "spindle" not in words and (has_axis or re.match(r"^v_?[xyzabc]", low)):
             return _DERIVED["angle" if re.match(r"^v_?[abc]", low) else base][0]
-    if _SPEED.match(low):
+    if _SPEED.match(low) and not (_axis_in_words(words) and not {"speed", "rpm", "n"} & set(words)):
         return "speed"
+    if _axis_in_words(words) in tuple("xyz") and len(words) <= 3:
+        return "length"
     if _LINEAR.match(low):
         return "length"
     if _ROTARY.match(low) or _JOINT.match(low):

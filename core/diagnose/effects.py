@@ -40,7 +40,7 @@ from .align import Aligned
 
 EFFECT_NAMES = ("thermal_drift", "backlash", "servo_lag", "periodic_pitch_error", "scale_error",
                 "squareness", "straightness", "pivot_offset", "workpiece_setting", "time_offset",
-                "friction")
+                "friction", "quadrant_glitch")
 
 
 def first_order(u: np.ndarray, dt: float, tau: float) -> np.ndarray:
@@ -332,7 +332,21 @@ class Backlash(Candidate):
     nl_names = ("log_b",)
 
     def __init__(self, output):
-        super().__init__("backlash", (output,), (output,), 0)
+        # one linear column: the state of the play before the axis first moves is unknown (a
+        # machine switched on mid-gap); it is free until the first motion takes the play up
+        super().__init__("backlash", (output,), (output,), 1)
+
+    def _before_first(self, ctx):
+        if not hasattr(self, "_first"):
+            al = ctx.al
+            sig = al.signals[self.outputs[0]]
+            tn, vn = sig.native if sig.native else (al.t, sig.values)
+            vn = np.asarray(vn, float)
+            dv = np.abs(np.diff(vn))
+            mv = np.flatnonzero(dv > 1e-3 * (dv.max() if len(dv) and dv.max() > 0 else 1.0))
+            t_first = tn[mv[0]] if len(mv) else np.inf
+            self._first = (al.t <= t_first).astype(float)
+        return self._first
 
     def bounds(self, ctx):
         span = float(np.ptp(ctx.values(self.outputs[0])))
@@ -340,7 +354,26 @@ class Backlash(Candidate):
 
     def build(self, ctx, eta):
         o = self.outputs[0]
-        return {o: backlash_play(ctx.values(o), math.exp(eta[0]), ctx.direction(o))}, []
+        b = math.exp(eta[0])
+        sig = ctx.al.signals[o]
+        first = [{o: self._before_first(ctx)}]
+        if not sig.native or len(sig.native[0]) == ctx.al.n:
+            return {o: backlash_play(ctx.values(o), b, ctx.direction(o))}, first
+        # a grid coarser than SIM: the reversal positions come from SIM as sampled (on a 10 Hz
+        # grid the sample before a reversal can be far from where the axis turned)
+        if not hasattr(self, "_prev"):
+            tn, vn = sig.native
+            vn = np.asarray(vn, float)
+            dn = direction_of_motion(vn)
+            ch = np.flatnonzero(dn[1:] != dn[:-1]) + 1
+            k = np.searchsorted(tn[ch], ctx.al.t, side="right") - 1 if len(ch) else np.full(ctx.al.n, -1)
+            self._prev = (np.where(k >= 0, vn[ch[np.clip(k, 0, None)] - 1] if len(ch) else 0.0, np.nan),
+                          ctx.direction(o), float(dn[0]))
+        p_rev, d, d0 = self._prev
+        h = 0.5 * b
+        r = np.clip(d * h - (ctx.values(o) - p_rev), -h, h)
+        r = np.where(np.isnan(p_rev), -d0 * h, r)
+        return {o: r}, first
 
     def coarse(self, ctx, resid, rows):
         # the linear (instant-reversal) approximation gives b directly
@@ -355,7 +388,8 @@ class Backlash(Candidate):
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         u = ctx.al.units[self.outputs[0]]
         b = math.exp(eta[0])
-        return {f"backlash_{u}": b}, {f"backlash_{u}": b * _se(cov_eta, 0)}
+        return ({f"backlash_{u}": b, f"initial_state_{u}": float(beta[0]) if len(beta) else 0.0},
+                {f"backlash_{u}": b * _se(cov_eta, 0), f"initial_state_{u}": _se(cov_beta, 0)})
 
 
 class ServoLag(Candidate):
@@ -709,6 +743,116 @@ class Friction(Candidate):
                 {f"coulomb_{u.replace('/', '_per_')}": _se(cov_beta, 0), "viscous": _se(cov_beta, 1)})
 
 
+class QuadrantGlitch(Candidate):
+    """Friction at velocity reversals (quadrant glitch) on a position output.
+
+    When an axis reverses, Coulomb friction flips sign and the velocity loop needs time to
+    rebuild the torque: the axis sticks while the command moves away, then catches up.  The
+    error is a spike against the new direction after every reversal,
+    r = -A d_new s exp(1 - s), s = (t - t_rev)/tau (peak A at tau after the reversal).
+    A in mm (linear), tau in s (nonlinear, 2 grid steps .. 1 s).
+    """
+    nl_names = ("log_tau",)
+
+    def __init__(self, output):
+        super().__init__("quadrant_glitch", (output,), (output,), 1)
+        self._rev = None
+
+    def _reversals(self, ctx):
+        if self._rev is None:
+            al = ctx.al
+            sig = al.signals[self.outputs[0]]
+            tn, vn = sig.native if sig.native else (al.t, sig.values)
+            dn = direction_of_motion(np.asarray(vn, float))
+            ch = np.flatnonzero(dn[1:] != dn[:-1]) + 1
+            t_rev = 0.5 * (tn[ch - 1] + tn[ch]) if len(ch) else np.zeros(0)
+            k = np.searchsorted(t_rev, al.t, side="right") - 1
+            since = np.where(k >= 0, al.t - t_rev[np.clip(k, 0, None)] if len(t_rev) else np.inf, np.inf)
+            self._rev = (since, ctx.direction(self.outputs[0]), len(ch))
+        return self._rev
+
+    def bounds(self, ctx):
+        return [math.log(2 * ctx.al.dt)], [math.log(max(1.0, 4 * ctx.al.dt))]
+
+    def build(self, ctx, eta):
+        since, d, _ = self._reversals(ctx)
+        s = since / math.exp(eta[0])
+        shape = np.where(np.isfinite(s), s * np.exp(1.0 - np.minimum(s, 700.0)), 0.0)
+        return None, [{self.outputs[0]: -d * shape}]
+
+    def coarse(self, ctx, resid, rows):
+        lo, hi = self.bounds(ctx)
+        return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 16))
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        u = ctx.al.units[self.outputs[0]] or "mm"
+        tau = math.exp(eta[0])
+        return ({f"peak_{u}": float(beta[0]), "tau_s": tau},
+                {f"peak_{u}": _se(cov_beta, 0), "tau_s": tau * _se(cov_eta, 0)})
+
+
+class Group(Candidate):
+    """The same effect on several outputs at once, each with its own parameters (e.g. a servo
+    lag on every axis).  Tried beside the single-output candidates because one effect common
+    to all outputs (a time offset) can explain to first order what each output's own effect
+    explains, and a greedy step adding one output's effect at a time cannot leave it."""
+
+    def __init__(self, members):
+        m0 = members[0]
+        super().__init__(m0.name, tuple(o for m in members for o in m.outputs),
+                         tuple(dict.fromkeys(i for m in members for i in m.inputs)),
+                         sum(m.n_lin for m in members))
+        self.members = list(members)
+
+    @property
+    def label(self) -> str:
+        return "+".join(m.label for m in self.members)
+
+    def n_params(self) -> int:
+        return sum(m.n_params() for m in self.members)
+
+    @property
+    def nl_names(self):
+        return tuple(n for m in self.members for n in m.nl_names)
+
+    def split_eta(self, eta):
+        out, i = [], 0
+        for m in self.members:
+            k = len(m.nl_names)
+            out.append(np.asarray(eta[i:i + k]))
+            i += k
+        return out
+
+    def split_beta(self, beta):
+        out, i = [], 0
+        for m in self.members:
+            out.append(np.asarray(beta[i:i + m.n_lin]))
+            i += m.n_lin
+        return out
+
+    def bounds(self, ctx):
+        lo, hi = [], []
+        for m in self.members:
+            a, b = m.bounds(ctx)
+            lo += list(a)
+            hi += list(b)
+        return lo, hi
+
+    def build(self, ctx, eta):
+        fixed, cols = None, []
+        for m, e in zip(self.members, self.split_eta(eta)):
+            f, c = m.build(ctx, e)
+            if f is not None:
+                fixed = dict(fixed or {})
+                for k, v in f.items():
+                    fixed[k] = fixed.get(k, 0.0) + v
+            cols += c
+        return fixed, cols
+
+    def coarse(self, ctx, resid, rows):
+        return np.concatenate([np.atleast_1d(m.coarse(ctx, resid, rows)) for m in self.members])
+
+
 # effects that act on a machine at rest (the only candidates of a stop-and-measure recording)
 AT_REST = ("thermal_drift", "backlash", "periodic_pitch_error", "scale_error", "squareness",
            "straightness", "pivot_offset", "workpiece_setting")
@@ -756,6 +900,10 @@ def candidates(al: Aligned) -> list[Candidate]:
             out.append(ThermalDrift(o, d))
         if o in moving:
             out += [Backlash(o), ServoLag(o), ScaleError(o)]
+            if not al.at_rest:
+                qg = QuadrantGlitch(o)
+                if qg._reversals(Context(al, np.arange(0, al.n, max(1, al.n // 2000))))[2] >= 2:
+                    out.append(qg)
             if al.kinds[o] in ("length", "other"):
                 pp = PeriodicPitch(o)
                 if pp.identifiable(Context(al, np.arange(0, al.n, max(1, al.n // 2000)))):
@@ -793,6 +941,11 @@ def candidates(al: Aligned) -> list[Candidate]:
             out.append(ws)
     if moving:
         out.append(TimeOffset(tuple(o for o in al.outputs if o in moving)))
+        lags = [c for c in out if type(c) is ServoLag]
+        # after a clock alignment the remaining common offset and the axes' lags are entangled
+        # (the correlation peak held both): the lags of all axes are then tried as one group
+        if len(lags) >= 2 and al.clock_offset:
+            out.append(Group(lags))
     if al.at_rest:
         out = [c for c in out if c.name in AT_REST]
     return out

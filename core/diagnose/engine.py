@@ -10,7 +10,7 @@ import numpy as np
 from . import align as _align
 from . import data as _data
 from .effects import Context, candidates
-from .locate import Mismatch, conditions, locate
+from .locate import Mismatch, conditions, empirical_dependence, locate
 from .select import Settings, cross_validate, fit, n_effective, select
 
 
@@ -169,6 +169,19 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         cb = cov_beta_all[ib:ib + nb, ib:ib + nb] if cov_beta_all is not None and nb else np.zeros((0, 0))
         ie += ne
         ib += nb
+        if hasattr(c, "members"):
+            # a group reports one effect per output, each with its own parameters
+            je = jb = 0
+            for m, em, bm in zip(c.members, c.split_eta(eta), c.split_beta(beta)):
+                cem = ce[je:je + len(em), je:je + len(em)] if ce.size else np.zeros((0, 0))
+                cbm = cb[jb:jb + len(bm), jb:jb + len(bm)] if cb.size else np.zeros((0, 0))
+                je += len(em)
+                jb += len(bm)
+                params, unc = m.physical(ctx, em, bm, cem, cbm)
+                rms = {o: _rms(contrib[ctx.slices[o]] * ctx.sigma[o]) for o in m.outputs}
+                effects.append(EffectResult(m.name, tuple(m.outputs), tuple(m.inputs), params,
+                                            unc, evidence.get(c.label, {}), rms))
+            continue
         params, unc = c.physical(ctx, eta, beta, ce, cb)
         rms = {o: _rms(contrib[ctx.slices[o]] * ctx.sigma[o]) for o in c.outputs}
         if c.name == "time_offset" and al.clock_offset:
@@ -188,7 +201,8 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         # every parameter, the nonlinear ones (time constants, leads, widths) included, is
         # refitted without the held-out block (bounded, from the full fit's values)
         folds = []
-        cross_validate(ctx_sel, final.cands, final.etas, st.folds, fits=folds, max_nfev=10)
+        cross_validate(ctx_sel, final.cands, final.etas, st.folds, fits=folds, max_nfev=10,
+                       betas=final.betas)
         starts = [f.extra["held"][0] for f in folds] + [np.inf]
         for i, f in enumerate(folds):
             inblk = (al.t >= starts[i]) & (al.t < starts[i + 1])
@@ -227,6 +241,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                 "noise_floor": floor[o], "ratio": worst / floor[o],
                 "where": [m.where for m in spans],
                 "correlates": conditions(al, o, after, floor[o]),
+                "empirical": empirical_dependence(al, o, oof[sl] * sig[o]),
                 "interpolation_error": al.interp.get(o, ("", 0.0))[1]})
     # the recording-wide conditions of an output belong to the words of each of its spans
     mism = [Mismatch(m.output, m.t_start, m.t_end,

@@ -15,6 +15,8 @@ SIGNATURE = {
     "pivot_offset": "error following (R(angle) - I) d of a rotary axis: tool edge off its centre",
     "workpiece_setting": "constant offset and small rotation of the workpiece frame",
     "time_offset": "every output lags the simulation by the same time (clock offset)",
+    "quadrant_glitch": "spike against the new direction after every reversal of the axis "
+                       "(friction flips, the loop rebuilds the torque)",
     "friction": "velocity lost against the direction of motion (Coulomb) and in proportion to it "
                 "(viscous)",
 }
@@ -60,12 +62,17 @@ def _unexplained_lines(res, indent="  ") -> list:
             out.append(f"{indent}  where: {w}")
         for c in u["correlates"]:
             out.append(f"{indent}  {c}")
+        emp = u.get("empirical")
+        if emp:
+            out.append(f"{indent}  empirical dependence on {emp['signal']} (not a known physical "
+                       f"effect): a smooth function of it lowers the held-out RMS "
+                       f"{_len(emp['heldout_rms_before'], un)} -> {_len(emp['heldout_rms_after'], un)}")
     return out
 
 
 def _effect_line(e) -> str:
     ps = ", ".join(f"{k} = {_val(v, k)} +/- {_val(e.uncertainty.get(k), k)}"
-                   for k, v in e.params.items() if not k.startswith("range_"))
+                   for k, v in e.params.items() if not k.startswith(("range_", "initial_state")))
     return f"{e.name} on {e.output} (from {', '.join(e.inputs)}): {ps}"
 
 
@@ -178,7 +185,7 @@ def plot(res, path=None):
     for i, o in enumerate(outs):
         u = res.units[o]
         scale, ru = ((1e3, "µm") if u == "mm" else (math.pi / 180 * 1e6, "µrad") if u == "deg"
-                     else (1e3, "µm/s") if u == "mm/s" else (1.0, u))
+                     else (1.0, u))
         ax = axes[2 * i, 0]
         ax.plot(t, res.rec[o], lw=0.8, label="recorded")
         ax.plot(t, res.sim[o], lw=0.8, ls="--", label="simulated")
@@ -202,7 +209,11 @@ def plot(res, path=None):
         ax.set_ylabel(f"residual {o} ({ru})")
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
     axes[-1, 0].set_xlabel("t (s)")
-    names = ", ".join(res.names) or "no effect of the library"
+    per = {}
+    for e in res.effects:
+        per.setdefault(e.name, []).extend(e.outputs)
+    names = ", ".join(f"{n} ({', '.join(dict.fromkeys(o))})" for n, o in per.items()) or \
+        "no effect of the library"
     if res.unexplained:
         names += "; unexplained mismatch on " + ", ".join(u["output"] for u in res.unexplained)
     fig.suptitle(f"Diagnosis: {names}", fontsize=10)
