@@ -9,7 +9,7 @@ import struct
 import zlib
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import example, given, settings, strategies as st
 from test_cell_modbus import PART_PROGRAM, RawModbus, nc_dir, results_in, run_plc, wait_for
 
 from mtcomp import InputError
@@ -662,7 +662,7 @@ def _check_tail(tmp, tail: bytes):
     replay(recs)                  # whatever was accepted replays without an exception
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=100, deadline=None, derandomize=True)
 @given(tail=st.one_of(
     st.binary(max_size=80),
     st.lists(st.dictionaries(st.sampled_from(["n", "t", "ev", "cmd_seq", "job", "result_seq",
@@ -673,6 +673,7 @@ def _check_tail(tmp, tail: bytes):
                                        st.sampled_from(EVENT_NAMES)), max_size=8),
              max_size=3).map(lambda recs: b"".join(__import__("json").dumps(r).encode() + b"\n"
                                                    for r in recs))))
+@example(tail=b'{"n":1,"ev":[]}\n')   # an unhashable event name: a TypeError once (found in CI)
 def test_journal_reader_property(tail):
     """Anything after a valid journal is read, cut (only an unterminated tail) or refused with an
     InputError; nothing else ever comes out, and what is accepted replays."""

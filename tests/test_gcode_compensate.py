@@ -92,11 +92,17 @@ def test_outside_travel_names_the_block_not_convergence():
         compensate_program("G90 G0 X0 Y0 Z5.\nG1 X400. F100\n", m, ErrorSet(), filename="p.nc")
 
 
-def test_failed_5axis_solution_of_a_3axis_program_hints_at_3axis_mode():
+def test_3axis_program_on_a_tilted_blank_keeps_the_rotary_axes():
+    """Once refused ("did not converge", then a hint at --mode 3axis), and before that solved with
+    C swinging to about 34 deg: at the B-C pole the kernel keeps C as programmed, the linear axes
+    take the position, and no rotary word is written."""
     m = load_machine("robonano-a0ib")
     e = ErrorSet(workpiece=WorkpieceSetting((0, 0, 0), (0.03, 0, 0)))
-    with pytest.raises(InputError, match=r"^p.nc:2: cannot compensate: .*--mode 3axis"):
-        compensate_program("G90 G0 X0 Y0 Z5.\nG1 X120. F100\n", m, e, filename="p.nc")
+    text, rep = compensate_program("G90 G0 X0 Y0 Z5.\nG1 X120. F100\n", m, e, filename="p.nc")
+    assert "B" not in text and "C" not in text
+    # the tilt about X moves the point by z * 0.03 deg in Y: -2.618 µm at z = 5 mm
+    assert "Y-0.002618" in text.splitlines()[0]
+    assert rep["after_max"] < 1e-6 < 2e-3 < rep["before_max"]
 
 
 def test_arc_interior_errors_carry_the_line():

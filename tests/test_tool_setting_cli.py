@@ -176,7 +176,7 @@ def _edited_plan(work, tmp_path, section, old, new):
     ("[[groove]]", 'depth_mm = 0.1', 'depth_mm = "0.1"', "groove[0].depth_mm"),
     ("[[face]]", 'name = "top"', 'name = {a = 1}', "face[0].name"),
     ("[[face]]", 'origin = [', 'origin = [[1], ', "face[0].origin"),
-    ("[[face]]", 'ev = [\n    0.0,\n    1.0,', 'ev = [\n    1.0,\n    0.0,', "face[0]"),
+    ("[[face]]", 'ev = [0.0, 1.0, 0.0]', 'ev = [1.0, 0.0, 0.0]', "face[0]"),
     ("[plan]", 'machine = "robonano-ui"', 'machine = 7', "plan.machine"),
 ])
 def test_plan_with_wrong_types_is_refused(work, tmp_path, section, old, new, field):

@@ -178,7 +178,7 @@ def check_record(rec, path, lineno: int) -> None:
     if not _is_int(rec.get("n")) or rec["n"] < 1:
         raise InputError("missing or not a positive integer", path, lineno, "n")
     ev = rec.get("ev")
-    if ev not in _SCHEMA:
+    if not isinstance(ev, str) or ev not in _SCHEMA:   # a list or object is unhashable
         raise InputError(f"unknown event {ev!r}, expected one of {', '.join(EVENTS)}", path,
                          lineno, "ev")
     if not isinstance(rec.get("t"), str):
