@@ -163,7 +163,8 @@ def test_without_a_compiler_the_numpy_kernel_runs_with_a_one_line_notice(tmp_pat
             "ErrorSet, ToolSetting; from mtcomp.kinematics import retarget; from mtcomp import _kernel; "
             "m = load_machine('robonano-a0ib'); q = np.zeros((3, 5)); "
             "print(retarget(m, q, ErrorSet(ToolSetting((0.1, 0, 0))))[0, 2], _kernel.available())")
-    env = dict(os.environ, CC=str(tmp_path / "no-such-cc"), MTCOMP_CACHE_DIR=str(tmp_path / "cache"))
+    env = dict(os.environ, CC=str(tmp_path / "no-such-cc"), MTCOMP_CACHE_DIR=str(tmp_path / "cache"),
+               MTCOMP_KERNEL="cache")  # also where the install built the library
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout.split() == ["-0.1", "False"]
