@@ -228,3 +228,15 @@ def test_c_and_numpy_agree_at_poles_and_restarts(name):
             assert out[0] == out[1]
         else:
             assert np.max(np.abs(out[0] - out[1])) <= 1e-9
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_a_command_that_is_not_a_number_is_named(backend):
+    from mtcomp._io import InputError
+    m = load_machine("robonano-a0ib")
+    q = np.zeros((3, 5))
+    q[1, 2] = np.nan
+    with pytest.raises(InputError, match="point 1: the X command is nan"):
+        retarget(m, q, ErrorSet(ToolSetting((0.1, 0, 0))), backend=backend)
+    with pytest.raises(InputError, match="point 1"):
+        compensate(m, forward(m, np.zeros((3, 5))), ErrorSet(ToolSetting((0.1, 0, 0))), q, backend=backend)
