@@ -6,7 +6,8 @@ for, in order, next to this module (built at install time by setup.py), then in 
 keyed by the hash of the source (`~/.cache/mtcomp/kernel/<hash>/`, or $MTCOMP_CACHE_DIR), and
 compiled there on first use with the C compiler ($CC, cc or gcc).  Without a compiler the
 library uses its numpy reference implementation (mtcomp.kinematics) and says so once on stderr.
-MTCOMP_KERNEL=numpy forces the numpy implementation.  Batches of at least PARALLEL_MIN poses are
+MTCOMP_KERNEL=numpy forces the numpy implementation, MTCOMP_KERNEL=cache ignores the library
+installed with the package (only the per-user cache, built on first use).  Batches of at least PARALLEL_MIN poses are
 split over the cores (MTCOMP_THREADS, default: the CPUs this process may use).
 
 ctypes rather than a C extension: the kernel must build with nothing but gcc (no Python headers),
@@ -153,10 +154,10 @@ def load(quiet: bool = False) -> ctypes.CDLL | None:
         name = library_name(digest)
         candidates = [Path(__file__).resolve().parent / name, cache_dir() / digest / name]
         if os.environ.get("MTCOMP_KERNEL", "").lower() == "cache":
-            candidates[0] = candidates[1]   # ignore the library built at install (tests, rebuilds)
+            candidates = candidates[1:]  # as without the install-time build
         path = next((p for p in candidates if p.is_file()), None)
         if path is None:
-            path = compile_library(candidates[1], src)
+            path = compile_library(cache_dir() / digest / name, src)
         lib = _bind(ctypes.CDLL(str(path)))
         _state["path"] = path
     except (OSError, RuntimeError) as exc:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._io import MtcompError
+from ._io import InputError, MtcompError
 from .errors import ErrorSet
 from .machine import Machine
 
@@ -181,6 +181,15 @@ def chain(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = Tr
     return R, t
 
 
+def _finite_commands(machine: Machine, q: np.ndarray) -> None:
+    """InputError naming the first point and axis whose command is not a finite number."""
+    bad = np.argwhere(~np.isfinite(q))
+    if bad.size:
+        i, k = bad[0]
+        raise InputError(f"point {i}: the {machine.axes[k].name} command is {q[i, k]}, not a finite number",
+                         field=machine.axes[k].name)
+
+
 def _backend(backend: str | None):
     """The compiled kernel (ctypes library) or None for the numpy reference implementation."""
     if backend == "numpy":
@@ -301,6 +310,7 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
     q0 = _as_commands(machine, q0)
     if len(target) != len(q0):
         raise ValueError(f"target has {len(target)} poses, q0 has {len(q0)}")
+    _finite_commands(machine, q0)
     pole_tolerance = POLE_TOLERANCE if pole_tolerance is None else float(pole_tolerance)
     lib = _backend(backend)
     if lib is not None:
@@ -341,6 +351,7 @@ def retarget(machine: Machine, q_programmed, errors: ErrorSet | None, *, round_r
     if errors is None or errors.is_zero:
         q = q_programmed.copy()
     else:
+        _finite_commands(machine, q_programmed)
         pole_tolerance = POLE_TOLERANCE if pole_tolerance is None else float(pole_tolerance)
         lib = _backend(backend)
         if lib is not None:

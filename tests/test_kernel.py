@@ -163,10 +163,8 @@ def test_without_a_compiler_the_numpy_kernel_runs_with_a_one_line_notice(tmp_pat
             "ErrorSet, ToolSetting; from mtcomp.kinematics import retarget; from mtcomp import _kernel; "
             "m = load_machine('robonano-a0ib'); q = np.zeros((3, 5)); "
             "print(retarget(m, q, ErrorSet(ToolSetting((0.1, 0, 0))))[0, 2], _kernel.available())")
-    # MTCOMP_KERNEL=cache: look past a library a non-editable install built, as a machine whose
-    # install found no compiler would have none
     env = dict(os.environ, CC=str(tmp_path / "no-such-cc"), MTCOMP_CACHE_DIR=str(tmp_path / "cache"),
-               MTCOMP_KERNEL="cache")
+               MTCOMP_KERNEL="cache")  # also where the install built the library
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout.split() == ["-0.1", "False"]
@@ -176,16 +174,17 @@ def test_without_a_compiler_the_numpy_kernel_runs_with_a_one_line_notice(tmp_pat
 
 @pytest.mark.slow
 def test_a_fresh_install_with_gcc_builds_the_kernel(tmp_path):
-    """A non-editable install (setup.py's build hook) puts the library the loader looks for
-    next to mtcomp._kernel."""
+    """The install's build step (setup.py's build_py hook, what pip runs for a non-editable
+    install) puts the library the loader looks for next to mtcomp._kernel."""
     from pathlib import Path
     root = Path(__file__).resolve().parent.parent
     if not (root / "setup.py").is_file():
         pytest.skip("not a source checkout")
-    run = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",
-                          "--target", str(tmp_path / "site"), str(root)], capture_output=True, text=True, timeout=300)
+    run = subprocess.run([sys.executable, "setup.py", "-q", "build_py", "--build-lib", str(tmp_path / "lib")],
+                         cwd=root, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
-    assert (tmp_path / "site" / "mtcomp" / _kernel.library_name(_kernel.source_hash())).is_file()
+    assert (tmp_path / "lib" / "mtcomp" / _kernel.library_name(_kernel.source_hash())).is_file()
+    assert (tmp_path / "lib" / "mtcomp" / "_kernel.py").is_file()
 
 
 def test_batches_split_over_the_cores_give_the_sequential_result(monkeypatch):
@@ -229,3 +228,15 @@ def test_c_and_numpy_agree_at_poles_and_restarts(name):
             assert out[0] == out[1]
         else:
             assert np.max(np.abs(out[0] - out[1])) <= 1e-9
+
+
+@pytest.mark.parametrize("backend", ["c", "numpy"])
+def test_a_command_that_is_not_a_number_is_named(backend):
+    from mtcomp._io import InputError
+    m = load_machine("robonano-a0ib")
+    q = np.zeros((3, 5))
+    q[1, 2] = np.nan
+    with pytest.raises(InputError, match="point 1: the X command is nan"):
+        retarget(m, q, ErrorSet(ToolSetting((0.1, 0, 0))), backend=backend)
+    with pytest.raises(InputError, match="point 1"):
+        compensate(m, forward(m, np.zeros((3, 5))), ErrorSet(ToolSetting((0.1, 0, 0))), q, backend=backend)

@@ -1001,6 +1001,20 @@ typedef struct {
 /* Rotary offsets (deg) of the restart seeds, as mtcomp.kinematics._SEED_OFFSETS. */
 static const double SEED_OFFSETS[3] = {90.0, -90.0, 180.0};
 
+/* The commands within every axis' travel and error table: a branch taken over from the previous
+ * pose is kept only there (else the pose is solved afresh, as without a path). */
+static int in_ranges(const prep_t *P, const double *q)
+{
+    const mtk_model *m = P->m;
+    int k;
+    for (k = 0; k < P->n; k++) {
+        const mtk_table *t = P->tab[k];
+        if (q[k] < m->lo[k] - m->slack[k] || q[k] > m->hi[k] + m->slack[k]) return 0;
+        if (t && !(q[k] >= t->pos[0] - 1e-12 && q[k] <= t->pos[t->n - 1] + 1e-12)) return 0;
+    }
+    return 1;
+}
+
 /* How a pose was solved (solve_pose's *how) */
 enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
 
@@ -1030,27 +1044,33 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     if (o->pole_tol > 0.0 && P->mode >= 2) {
         int hold = pole_axis(Pr, J0, o->pole_tol);
         if (hold >= 0) {
-            /* the pole axis keeps its programmed value (not the path's: a pole stretch does not
-             * depend on what came before it) */
-            int freeze[MTK_MAX_AXES] = {0};
-            double hs[MTK_MAX_AXES];
-            memcpy(hs, start, n * sizeof(double));
-            hs[hold] = q0[hold];
+            /* The pole axis keeps its programmed value (not the path's: a pole stretch does not
+             * depend on what came before it); the others start from `start`, and again from q0
+             * if that lands outside a travel or table. */
+            int freeze[MTK_MAX_AXES] = {0}, attempt;
             freeze[hold] = 1;
-            rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, J0, hs[hold] == start[hold] ? rs : NULL, qt, o->tol,
-                         o->max_iter, iters, r, &sing);
-            if (rc) return rc;
-            if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG) {
-                *held = hold;
-                *how = HOW_HELD;
-                goto accept;
+            for (attempt = 0; attempt < (differs ? 2 : 1); attempt++) {
+                double hs[MTK_MAX_AXES];
+                int same;
+                memcpy(hs, attempt ? q0 : start, n * sizeof(double));
+                hs[hold] = q0[hold];
+                same = !memcmp(hs, start, n * sizeof(double));  /* else J0, rs were taken elsewhere */
+                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same ? J0 : NULL, same ? rs : NULL, qt, o->tol,
+                             o->max_iter, iters, r, &sing);
+                if (rc) return rc;
+                if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG
+                    && (attempt || !differs || in_ranges(P, qt))) {
+                    *held = hold;
+                    *how = HOW_HELD;
+                    goto accept;
+                }
             }
         }
     }
     if (differs && warm) {
         rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
-        if (!sing && maxabs(r, rows) < CONVERGED) {
+        if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
             goto accept;
         }
@@ -1067,7 +1087,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
         /* continuation: the previous pose's correction keeps the branch the path is on */
         rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
-        if (!sing && maxabs(r, rows) < CONVERGED) {
+        if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
             goto accept;
         }
