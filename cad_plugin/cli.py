@@ -145,7 +145,7 @@ def cmd_toolpath(args) -> int:
     from . import check as C, post as P, toolpath as T
     from .._io import atomic_write
     machine = load_machine(args.machine)
-    errors = load_errors(args.errors) if args.errors else None
+    errors = load_errors(args.errors, machine=machine) if args.errors else None
     t0 = time.perf_counter()
     path = _toolpath(args)
     t1 = time.perf_counter()
@@ -263,7 +263,7 @@ def cmd_verify(args) -> int:
         raise InputError("give --stock and/or --part", field="--stock")
     stock = parse_stock(args.stock) if args.stock else None
     part = ShapeStock.from_step(args.part) if args.part else None
-    errors = load_errors(args.errors) if args.errors else None
+    errors = load_errors(args.errors, machine=machine) if args.errors else None
     text = read_text(args.program, what="NC program")
     try:
         res = verify_program(machine, text, filename=str(args.program), stock=stock, part=part,

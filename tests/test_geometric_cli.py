@@ -111,3 +111,20 @@ def test_machine_with_rotary_axes_is_refused_naming_the_option(tmp_path, capsys,
     assert "[--machine]: machine robonano-ui has axes X Y Z A B C" in capsys.readouterr().out
     assert not list(tmp_path.iterdir())
 
+
+
+@pytest.mark.parametrize("which", ["map", "table", "table-truth"])
+def test_errors_of_axes_the_machine_lacks_are_refused(tmp_path, capsys, which):
+    # vmc-moving-column has X Y Z: an A table error or EX0A used to be dropped without a word
+    ok = tmp_path / "ok.toml"
+    ok.write_text("[geometric.location]\nEC0Y = 1e-5\n")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[geometric.location]\nEC0Y = 1e-5\nEX0A = 1e-5\n")
+    out = tmp_path / "out"
+    argv = {"map": ["geometric", "map", str(bad), "-o", str(out), "--step", "200"],
+            "table": ["geometric", "table", str(bad), "-o", str(out)],
+            "table-truth": ["geometric", "table", str(ok), "--truth", str(bad), "-o", str(out)]}[which]
+    assert run(argv) == 2
+    msg = capsys.readouterr().out
+    assert "location error EX0A of axis A" in msg and "bad.toml" in msg
+    assert not out.exists() and not list(tmp_path.glob("out*"))

@@ -234,3 +234,21 @@ def test_fit_with_extreme_sigmas_is_an_input_error(work, tmp_path):
     pts[0] = type(pts[0])(pts[0].groove, pts[0].feature, 1e200, 1e200, 1e200)
     with pytest.raises(InputError):
         te.estimate(load_machine("robonano-ui"), GroovingMeasurements(plan, tuple(pts), 0.001, 0.001))
+
+
+@pytest.mark.parametrize("cmd", ["simulate", "estimate"])
+def test_errors_of_axes_the_machine_lacks_are_refused(work, tmp_path, capsys, cmd):
+    # robonano-ui has X Y Z A B C: a W location error was ignored by the grooving model
+    err = tmp_path / "e.toml"
+    err.write_text("[geometric.location]\nEC0W = 1e-5\n")
+    out = tmp_path / "o.csv"
+    if cmd == "simulate":
+        argv = ["tool-setting", "simulate", "--plan", str(work / "plan.toml"), "--offset", "0.3", "0.2",
+                "0.2", "-o", str(out), "--compensation", str(err)]
+    else:
+        argv = ["tool-setting", "estimate", str(work / "measured.csv"), "-o", str(tmp_path / "x.toml"),
+                "--known-errors", str(err)]
+    assert main(argv) != 0
+    msg = capsys.readouterr().err
+    assert "location error EC0W of axis W" in msg and "e.toml" in msg
+    assert not out.exists() and not (tmp_path / "x.toml").exists()

@@ -132,3 +132,19 @@ def test_compensate_refuses_to_drop_the_tool_setting_of_the_errors_file(tmp_path
     assert main(["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out),
                  "--workpiece-only"]) == 0
     assert out.exists()
+
+
+def test_compensate_refuses_errors_of_axes_the_machine_lacks(tmp_path, capsys):
+    # an EX0U on a machine without U was ignored: the program came out compensated for the
+    # workpiece setting only, with exit 0, even with --workpiece-only
+    err = tmp_path / "e.toml"
+    err.write_text("[workpiece_setting]\ntranslation = [0.01, 0, 0]\nangles = [0, 0, 0]\n"
+                   "[geometric.location]\nEX0U = 0.001\n")
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    out = tmp_path / "o.nc"
+    rc = main(["workpiece-setting", "compensate", str(prog), "--errors", str(err), "--workpiece-only",
+               "-o", str(out)])
+    msg = capsys.readouterr().err
+    assert rc != 0 and not out.exists()
+    assert "location error EX0U of axis U" in msg and "robonano-a0ib" in msg and "e.toml" in msg

@@ -124,9 +124,11 @@ def _linear_machine(spec, three: bool = True):
     return m
 
 
-def _load_errors(path):
+def _load_errors(path, machine):
+    """The errors file, refused when it holds errors of axes `machine` lacks (they would be
+    ignored without a word)."""
     from ..errors import load_errors
-    return load_errors(path)
+    return load_errors(path, machine=machine)
 
 
 def _map(args: argparse.Namespace) -> int:
@@ -135,7 +137,7 @@ def _map(args: argparse.Namespace) -> int:
     if args.step <= 0:
         raise InputError("must be positive", field="--step")
     machine = _linear_machine(args.machine)
-    errors = _load_errors(args.errors)
+    errors = _load_errors(args.errors, machine)
     vmap = volumetric.error_map(machine, errors, step=args.step)
     stem = Path(args.output)
     volumetric.plot_map(vmap, stem.with_name(stem.name + ".png"))
@@ -152,8 +154,8 @@ def _table(args: argparse.Namespace) -> int:
     if args.lattice_step <= 0:
         raise InputError("must be positive", field="--lattice-step")
     machine = _linear_machine(args.machine)
-    model = _load_errors(args.errors)
-    truth = _load_errors(args.truth) if args.truth else model
+    model = _load_errors(args.errors, machine)
+    truth = _load_errors(args.truth, machine) if args.truth else model
     out = Path(args.output)
     # Everything is computed before the first file is written, so bad input leaves no output.
     program = _rewrite_program(args, model) if args.program else None

@@ -126,7 +126,7 @@ def _simulate(args) -> int:
     for name in ("sigma_pos", "sigma_depth"):
         if not getattr(args, name) >= 0:
             raise InputError(f"expected a sigma >= 0 mm, got {getattr(args, name)}", field=name.replace("_", "-"))
-    comp = load_errors(args.compensation) if args.compensation else None
+    comp = load_errors(args.compensation, machine=m) if args.compensation else None
     meas = simulate_grooving(m, tuple(args.offset), MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
                              plan=plan, compensation=comp, frame_offset=args.frame_offset,
                              frame_rotation=args.frame_rotation)
@@ -156,7 +156,7 @@ def _estimate(args) -> int:
     known = None
     if args.known_errors:
         from ..errors import load_errors
-        known = load_errors(args.known_errors)
+        known = load_errors(args.known_errors, machine=m)
     est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known,
                    locations=() if args.locations == "none" else args.locations)
     # Compute every output before writing any, so a failure leaves nothing behind.

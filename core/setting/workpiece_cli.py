@@ -108,7 +108,7 @@ def cmd_compensate(args) -> int:
     if "workpiece_setting" not in load_toml(args.errors):
         raise InputError("no [workpiece_setting] section: expected the output of "
                          "'mtcomp workpiece-setting fit'", args.errors, field="workpiece_setting")
-    errors = load_errors(args.errors)
+    errors = load_errors(args.errors, machine=machine)
     # the transform applies the workpiece setting only: other errors in the file would be dropped
     # without a word, and the user believes the program compensated for them
     other = [name for name, zero in (("[tool_setting]", errors.tool.is_zero),
