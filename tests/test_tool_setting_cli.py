@@ -100,8 +100,10 @@ def _set(i, **kw):
 
 @pytest.mark.parametrize("edit,message,line", [
     (_set(3, groove="B+20"), "unknown groove id 'B+20'", 5),
-    (_set(4, u_mm="nan"), "expected a finite number", 6),
-    (_set(5, v_mm="1.2.3"), "malformed number", 7),
+    (_set(4, u_mm="nan"), "[u_mm]: expected a number, got 'nan'", 6),
+    (_set(5, v_mm="1.2.3"), "[v_mm]: expected a number, got '1.2.3'", 7),
+    (_set(5, v_mm="1_0"), "[v_mm]: expected a number, got '1_0'", 7),     # float() read 10
+    (_set(5, depth_mm="0x10"), "[depth_mm]: expected a number", 7),
     (_set(14, b_deg="15"), "inconsistent angles", 16),
     (_set(0, feature="middle"), "unknown feature", 2),
     (lambda rows: rows + [dict(rows[2])], "measured twice", 20),
@@ -227,7 +229,7 @@ def test_fit_with_extreme_sigmas_is_an_input_error(work, tmp_path):
     cells[10] = "1e200"
     big[1] = ",".join(cells)
     p.write_text("\n".join(big) + "\n")
-    with pytest.raises(InputError, match="at most 1e6"):
+    with pytest.raises(InputError, match=r"\[u_mm\]: '1e200' is out of range"):
         read_measurements(p, plan)
     # a numerically impossible fit is an InputError, not a LinAlgError
     pts = list(meas.points)
