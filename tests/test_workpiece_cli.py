@@ -215,3 +215,19 @@ def test_compensate_stock_and_clearance_options(tmp_path, capsys):
     assert main(base + ["--clearance", "nan"]) != 0
     assert main(base + ["--no-verify"]) == 0 and out.exists()
     assert "not verified" in capsys.readouterr().err
+
+
+def test_plan_programs_are_verified_on_the_blank(tmp_path, capsys):
+    # issue 14: both programs the plan emits pass the verification on the plan's blank; the
+    # roughing program's way back into a peck is a feed (a rapid there went into the raw blank)
+    _planned(tmp_path)
+    text = capsys.readouterr().out
+    assert text.count("  passed") == 2 and "verify roughing program" in text
+    assert "min rapid clearance 500 µm at line 10" in text          # G00 Z0.5 over the blank
+    rough = (tmp_path / "plan-roughing.nc").read_text()
+    assert "G00 Z-0.45" not in rough and "G01 Z-0.45 F" in rough
+    # a larger clearance than the programs keep: an error naming the block, nothing written
+    out = tmp_path / "p2.toml"
+    assert main(["workpiece-setting", "plan", "-o", str(out), "--clearance", "0.6"]) != 0
+    assert "roughing program: line 10 (G00 Z0.5)" in capsys.readouterr().err
+    assert not list(tmp_path.glob("p2*"))

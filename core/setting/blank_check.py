@@ -60,3 +60,36 @@ class BlankCheck:
         if self.results is not None:
             self.results.append(res)
         return res
+
+
+@dataclass(frozen=True)
+class Inflated:
+    """`stock` grown by `radius` mm: a ball tool of that radius *centred* on the programmed point
+    (a probing program programs the probe centre) is a point tool against it."""
+    stock: object
+    radius: float
+
+    def distance(self, pts):
+        return self.stock.distance(pts) - self.radius
+
+    def describe(self) -> str:
+        return f"{self.stock.describe()} (for a probe ball R{self.radius:g} about the programmed point)"
+
+
+def verify_plan_programs(plan, roughing: str, probing: str, *, clearance: float = DEFAULT_CLEARANCE,
+                         roughing_machine="vmc-moving-column", probing_machine="robonano-a0ib",
+                         raise_on_violation: bool = True):
+    """Verify the two programs of a bowl plan on its nominal blank: the roughing program (ball end
+    mill of `plan.tool_radius`, tip programmed) on the ordinary machining centre, the probing
+    program (probe ball of `plan.probe_radius`, centre programmed; G31 moves are not checked) on
+    the ultraprecision machine.  Rapids keep `clearance` mm, retracts out of the cut excepted.
+    Returns (roughing result, probing result)."""
+    from ..machine import load_machine
+    from ..verify import verify_program
+    stock = plan_stock(plan)
+    kw = dict(clearance=clearance, retracts=True, raise_on_violation=raise_on_violation)
+    rough = verify_program(load_machine(roughing_machine), roughing, filename="roughing program",
+                           stock=stock, tool_radius=plan.tool_radius, **kw)
+    probe = verify_program(load_machine(probing_machine), probing, filename="probing program",
+                           stock=Inflated(stock, plan.probe_radius), **kw)
+    return rough, probe

@@ -34,6 +34,8 @@ def _warn(lines):
 def cmd_plan(args) -> int:
     from .._io import atomic_write, dump_toml
     from .bowls import plan_bowls, plan_to_dict, probing_program, roughing_program
+    if not args.clearance >= 0:
+        raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
     plan = plan_bowls(args.bowls, blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
                       depth=args.depth, probe_radius=args.probe_radius, touches=args.touches,
                       positions=_positions(args.positions) if args.positions else None)
@@ -47,11 +49,16 @@ def cmd_plan(args) -> int:
     # all texts first, then the files: an error leaves nothing behind
     texts = [(out, dump_toml(plan_to_dict(plan))), (rough, roughing_program(plan)),
              (probe, probing_program(plan, aim=aim))]
+    # both programs verified on the blank before anything is written (issue 14)
+    from .blank_check import verify_plan_programs
+    checks = verify_plan_programs(plan, texts[1][1], texts[2][1], clearance=args.clearance)
     for path, text in texts:
         atomic_write(path, text)
     print(f"{len(plan.bowls)} bowls R{plan.tool_radius:g} depth {plan.depth:g} mm, "
           f"{len(plan.directions)} touches each with probe R{plan.probe_radius:g}: "
           f"{out}, {rough}, {probe}")
+    for res in checks:
+        print(res.summary())
     return 0
 
 
@@ -221,6 +228,8 @@ def register(subparsers) -> None:
     a.add_argument("--probing", help="probing program (default <plan>-probing.nc)")
     a.add_argument("--aim", help="errors TOML of a coarse first probing: place the probing "
                    "moves on the blank where it was found (second pass)")
+    a.add_argument("--clearance", type=float, default=0.2,
+                   help="the programs are verified on the blank: rapids keep this clearance, mm (0.2)")
     a.set_defaults(func=cmd_plan)
 
     a = sub.add_parser("probe", help="virtual probing of a blank at a given pose (touches CSV)")
