@@ -254,3 +254,35 @@ def test_errors_of_axes_the_machine_lacks_are_refused(work, tmp_path, capsys, cm
     msg = capsys.readouterr().err
     assert "location error EC0W of axis W" in msg and "e.toml" in msg
     assert not out.exists() and not (tmp_path / "x.toml").exists()
+
+
+def test_face_plate_distance_is_exact():
+    from mtcomp.setting.tool_plan import DEFAULT_FACES
+    from mtcomp.setting.tool_verify import FacePlate
+    side = FacePlate(DEFAULT_FACES["side"], (20.0, 20.0), 5.0)       # normal +X, u along Y, v along Z
+    pts = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 15.0, 0], [3.0, 14.0, 0], [-3.0, 0, 9.5]])
+    np.testing.assert_allclose(side.distance(pts), [1.0, -1.0, 5.0, 5.0, -0.5], atol=1e-15)
+
+
+def test_grooving_programs_are_verified_on_their_plates(work, tmp_path, capsys):
+    # issue 14 item 1: the programs 'plan' and 'estimate --nc-dir' emit pass the verification
+    # (the approach stops 0.5 mm over the face); a larger clearance is an error, nothing written
+    d = tmp_path / "p"
+    d.mkdir()
+    assert main(["tool-setting", "plan", "-o", str(d), "--no-png"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("  passed") == 3 and out.count("min rapid clearance 500 µm") == 3
+    assert "plate under the side face" in out and "plate under the top face" in out
+    e = tmp_path / "e"
+    e.mkdir()
+    assert main(["tool-setting", "plan", "-o", str(e), "--no-png", "--clearance", "0.6"]) != 0
+    assert "tool_setting_A.nc: line 6" in capsys.readouterr().err and not list(e.iterdir())
+    nc = tmp_path / "nc"
+    nc.mkdir()
+    argv = ["tool-setting", "estimate", str(work / "measured.csv"), "--nc-dir", str(nc)]
+    assert main(argv + ["--clearance", "0.6"]) != 0 and not list(nc.iterdir())
+    capsys.readouterr()
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count("  passed") == 3 and out.count("min rapid clearance 500 µm") == 3
+    assert len(list(nc.glob("*_compensated.nc"))) == 3
