@@ -128,3 +128,24 @@ def test_errors_of_axes_the_machine_lacks_are_refused(tmp_path, capsys, which):
     msg = capsys.readouterr().out
     assert "location error EX0A of axis A" in msg and "bad.toml" in msg
     assert not out.exists() and not list(tmp_path.glob("out*"))
+
+
+def test_table_program_is_verified_against_the_stock(tmp_path, capsys):
+    # issue 14: the rewritten program is verified on the machine with the errors (the real one)
+    err = tmp_path / "e.toml"
+    err.write_text("[geometric.location]\nEC0Y = 1e-4\nEA0Z = 2e-4\n")
+    prog = tmp_path / "part.nc"
+    good = "G90 G0 X0 Y0 Z50.\nG0 X100. Y100.\nG0 Z0.3\nG1 Z-0.1 F100\nG1 X120.\nG0 Z50.\n"
+    prog.write_text(good + "G0 X-100. Z-5.\n")
+    out = tmp_path / "comp"
+    argv = ["geometric", "table", str(err), "--program", str(prog), "--lattice-step", "200",
+            "--stock", "box:-200,-200,-100,200,200,0", "-o", str(out)]
+    assert run(argv) == 2
+    assert "part_comp.nc: line 7 (G0 X-99.99" in capsys.readouterr().out and not out.exists()
+    prog.write_text(good)
+    assert run(argv) == 0
+    text = capsys.readouterr().out
+    assert "passed" in text and "1 rapid(s) start closer" in text
+    assert "min rapid clearance 300 µm at line 3" in text      # the 0.3 mm approach, errors compensated
+    assert run(argv[:-4] + ["-o", str(tmp_path / "c2")]) == 0
+    assert "not verified against a stock" in capsys.readouterr().out
