@@ -147,7 +147,7 @@ def cmd_toolpath(args) -> int:
     from ..progress import StageLog
     log = StageLog(f"cad toolpath {args.kind}")
     machine = load_machine(args.machine)
-    errors = load_errors(args.errors) if args.errors else None
+    errors = load_errors(args.errors, machine=machine) if args.errors else None
     t0 = time.perf_counter()
     log("toolpath")
     path = _toolpath(args)
@@ -273,7 +273,7 @@ def cmd_verify(args) -> int:
         raise InputError("give --stock and/or --part", field="--stock")
     stock = parse_stock(args.stock) if args.stock else None
     part = ShapeStock.from_step(args.part) if args.part else None
-    errors = load_errors(args.errors) if args.errors else None
+    errors = load_errors(args.errors, machine=machine) if args.errors else None
     text = read_text(args.program, what="NC program")
     rates = None
     if args.rapid_rates:

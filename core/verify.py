@@ -354,6 +354,7 @@ class VerifyResult:
     violations: tuple = field(default_factory=tuple)
     stock: str = ""
     part: str = ""
+    retracts: int = 0
 
     @property
     def ok(self) -> bool:
@@ -367,6 +368,9 @@ class VerifyResult:
             mc = ("no rapid move" if not math.isfinite(self.min_clearance) else
                   f"min rapid clearance {_um(self.min_clearance)} at line {self.min_clearance_line}")
             lines.append(f"  stock {self.stock}: {mc} (required {_um(self.clearance)})")
+            if self.retracts:
+                lines.append(f"  {self.retracts} rapid(s) start closer than that and move straight away "
+                             "(retracts from the cut; not counted in the min)")
         if self.part:
             mp = ("no feed move" if not math.isfinite(self.min_part) else
                   f"feed moves reach {_um(-self.min_part)} into it" if self.min_part < 0 else
@@ -387,7 +391,7 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
                     tolerance: float = 5e-4, tool_radius: float = 0.0, errors=None,
                     step: float = 0.005, lines=None, texts=None, arcs=None, name: str = "program",
                     raise_on_violation: bool = True, tcp: bool = False,
-                    rapid_rates=None) -> VerifyResult:
+                    rapid_rates=None, retracts: bool = False) -> VerifyResult:
     """Verify axis commands q (N, n_axes) mm/deg with per-block motion codes (N,) (0 rapid,
     1 feed, 2 probe, 3 feed on an arc).
 
@@ -399,6 +403,12 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
     tcp: q are G43.4 tool-centre-point words (see :func:`sweep`).  rapid_rates: {axis letter:
     rate} (mm/min, deg/min) of a control with dog-leg rapids (each axis at its own rate); None:
     rapids interpolated linearly (LRP = 1).
+
+    retracts: accept a rapid that starts closer to the stock than `clearance` (at the end of a
+    cut, against the raw stock) if it moves away from the stock until it has the clearance: the
+    signed distance grows by at least half the tool's travel between neighbouring samples (within
+    60 deg of the surface normal), and never falls below the clearance afterwards.  Such blocks
+    are counted in ``result.retracts`` and left out of the min clearance.
     """
     if stock is None and part is None:
         raise InputError("nothing to verify against: give a stock and/or a part", field="stock")
@@ -412,6 +422,7 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
     violations = []
     n_samples = 0
     min_c, min_c_line, min_p = math.inf, 0, math.inf
+    n_retracts = 0
 
     def worst_per_block(pts, owner, dist, bad_mask, kind):
         out = []
@@ -443,9 +454,20 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
         n_samples += len(pts)
         if len(pts):
             dist = stock.distance(pts) - tool_radius
-            k = int(np.argmin(dist))
-            min_c, min_c_line = float(dist[k]), int(lines[owner[k]])
-            violations += worst_per_block(pts, owner, dist, dist - step / 2 < clearance, "rapid")
+            bad = dist - step / 2 < clearance
+            counted = np.ones(len(dist), bool)
+            if retracts:
+                for b in np.unique(owner[bad]):
+                    sel = np.nonzero(owner == b)[0]
+                    if b == 0 or len(sel) < 2 or not _departs(pts[sel], dist[sel], clearance, step):
+                        continue
+                    bad[sel] = False
+                    counted[sel] = False
+                    n_retracts += 1
+            if counted.any():
+                k = int(np.flatnonzero(counted)[np.argmin(dist[counted])])
+                min_c, min_c_line = float(dist[k]), int(lines[owner[k]])
+            violations += worst_per_block(pts, owner, dist, bad, "rapid")
     if part is not None:
         fb = idx[(motion[1:] == FEED) | (motion[1:] == 3)]
         pts, owner, _ = sweep(machine, q, fb, errors, tool_radius, step, arcs, tcp=tcp)
@@ -457,12 +479,27 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
     violations.sort(key=lambda v: v.block)
     res = VerifyResult(name, len(q), n_samples, step, clearance, tolerance, min_c, min_c_line, min_p,
                        tuple(violations), stock.describe() if stock is not None else "",
-                       part.describe() if part is not None else "")
+                       part.describe() if part is not None else "", n_retracts)
     if violations and raise_on_violation:
         raise VerifyError(f"{name}: " + violations[0].describe(clearance, tolerance)
                           + (f" (and {len(violations) - 1} more blocks)" if len(violations) > 1 else ""),
                           res)
     return res
+
+
+def _departs(pts: np.ndarray, dist: np.ndarray, clearance: float, step: float) -> bool:
+    """True if the samples of one rapid (in order) start within the clearance and move away from
+    the stock: the distance grows by >= half the travel per sample until it reaches the
+    clearance, and stays at or above it (to step/2) after that."""
+    if dist[0] - step / 2 >= clearance:
+        return False                       # it came closer later: an ordinary violation
+    travel = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    rise = np.diff(dist)
+    short = dist - step / 2 < clearance
+    if np.any(short[:-1] & (rise < 0.5 * travel - 1e-12)):
+        return False
+    reached = np.nonzero(~short)[0]
+    return not reached.size or not short[reached[0]:].any()
 
 
 # ---------------------------------------------------------------------------------- programs

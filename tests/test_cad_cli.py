@@ -131,3 +131,23 @@ def test_stage_log_names_the_stage_and_clears_its_line():
     quiet = io.StringIO()
     StageLog("x", stream=quiet)("stage")   # not a terminal: nothing
     assert quiet.getvalue() == ""
+
+
+@pytest.mark.parametrize("cmd", ["toolpath", "verify"])
+def test_errors_of_axes_the_machine_lacks_are_refused(tmp_path, capsys, cmd):
+    # a U table error on robonano-a0ib (C B X Y Z) was ignored: the program came out as if
+    # compensated for it
+    err = tmp_path / "e.toml"
+    err.write_text("[geometric.location]\nEX0U = 0.001\n")
+    out = tmp_path / "g.nc"
+    if cmd == "toolpath":
+        argv = ["cad", "toolpath", "groove-plate", "-o", str(out), "--errors", str(err)]
+    else:
+        out.write_text("G90 G00 X0 Y0 Z5. B0 C0\nM30\n")
+        argv = ["verify", str(out), "-m", "robonano-a0ib", "--stock", "plane:0",
+                "--errors", str(err)]
+    assert main(argv) != 0
+    msg = capsys.readouterr().err
+    assert "location error EX0U of axis U" in msg and "e.toml" in msg
+    if cmd == "toolpath":
+        assert not out.exists()

@@ -278,3 +278,36 @@ def test_cycle_restart_is_transparent_and_results_go_out_once(ops):
         assert res == list(range(1, len(res) + 1))
         assert len(acks) == len(set(acks)) and set(acks) <= set(res)
         assert replay(recs).state in ("idle", "ready", "fault")
+
+
+def test_virtual_cell_verifies_the_program_on_the_measured_blank(tmp_path):
+    """Issue 14 item 3: no GO for a program that has not passed the verification on this blank.
+    A rapid into the blank (the plan's 20 x 20 x 5 mm box, top at z = 0) is a PROGRAM_FAILED
+    fault naming the line, and no file is written; the clearance of a good program is in the
+    result (the 2 mm of the first rapid, the 0.1 mm cut's rapid retract does not count)."""
+    from mtcomp.cell.program import CellFault
+    from mtcomp.cell.registers import Fault
+    good = "O0100\nG90 G21 G54\nG00 X0 Y0 Z2.\nG01 Z-0.1 F100.\nG01 X1. Y0.5\nG00 Z3.\nM30\n"
+    (tmp_path / "O0100.nc").write_text(good.replace("G00 Z3.\n", "G00 Z3.\nG00 X5. Z-0.5\n"))
+    with pytest.raises(CellFault, match=r"O1100.nc: .*line 8 \(G00 X.*enters the stock") as exc:
+        VirtualCell(nc_dir=str(tmp_path))(Job(1, 5, 100))
+    assert exc.value.code == Fault.PROGRAM_FAILED and not (tmp_path / "O1100.nc").exists()
+    # the check can be left out (clearance None), and a custom check still runs beside it
+    res = VirtualCell(nc_dir=str(tmp_path), clearance=None)(Job(2, 5, 100))
+    assert res.program is not None and "min_clearance_mm" not in res.info
+    (tmp_path / "O1100.nc").unlink()
+    (tmp_path / "O0100.nc").write_text(good)
+    seen = []
+    res = VirtualCell(nc_dir=str(tmp_path), program_check=lambda m, p, t: seen.append(t))(Job(3, 5, 100))
+    assert res.info["min_clearance_mm"] == pytest.approx(2.0, abs=2e-3) and res.info["retracts"] == 1
+    assert len(seen) == 1 and "MTCOMP-CELL O1100" in seen[0]
+
+
+@pytest.mark.parametrize("opt, value, field", [("--program-check", "no_such_module_x:check", "--program-check"),
+                                               ("--program-check", "json", "--program-check"),
+                                               ("--clearance", "-1", "--clearance")])
+def test_serve_refuses_a_bad_program_check_or_clearance(tmp_path, capsys, opt, value, field):
+    from mtcomp.cli import main
+    rc = main(["cell", "serve", "--journal", str(tmp_path / "j.jsonl"), "--port", "0", opt, value])
+    assert rc != 0 and field in capsys.readouterr().err
+    assert not (tmp_path / "j.jsonl").exists()

@@ -111,3 +111,41 @@ def test_machine_with_rotary_axes_is_refused_naming_the_option(tmp_path, capsys,
     assert "[--machine]: machine robonano-ui has axes X Y Z A B C" in capsys.readouterr().out
     assert not list(tmp_path.iterdir())
 
+
+
+@pytest.mark.parametrize("which", ["map", "table", "table-truth"])
+def test_errors_of_axes_the_machine_lacks_are_refused(tmp_path, capsys, which):
+    # vmc-moving-column has X Y Z: an A table error or EX0A used to be dropped without a word
+    ok = tmp_path / "ok.toml"
+    ok.write_text("[geometric.location]\nEC0Y = 1e-5\n")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[geometric.location]\nEC0Y = 1e-5\nEX0A = 1e-5\n")
+    out = tmp_path / "out"
+    argv = {"map": ["geometric", "map", str(bad), "-o", str(out), "--step", "200"],
+            "table": ["geometric", "table", str(bad), "-o", str(out)],
+            "table-truth": ["geometric", "table", str(ok), "--truth", str(bad), "-o", str(out)]}[which]
+    assert run(argv) == 2
+    msg = capsys.readouterr().out
+    assert "location error EX0A of axis A" in msg and "bad.toml" in msg
+    assert not out.exists() and not list(tmp_path.glob("out*"))
+
+
+def test_table_program_is_verified_against_the_stock(tmp_path, capsys):
+    # issue 14: the rewritten program is verified on the machine with the errors (the real one)
+    err = tmp_path / "e.toml"
+    err.write_text("[geometric.location]\nEC0Y = 1e-4\nEA0Z = 2e-4\n")
+    prog = tmp_path / "part.nc"
+    good = "G90 G0 X0 Y0 Z50.\nG0 X100. Y100.\nG0 Z0.3\nG1 Z-0.1 F100\nG1 X120.\nG0 Z50.\n"
+    prog.write_text(good + "G0 X-100. Z-5.\n")
+    out = tmp_path / "comp"
+    argv = ["geometric", "table", str(err), "--program", str(prog), "--lattice-step", "200",
+            "--stock", "box:-200,-200,-100,200,200,0", "-o", str(out)]
+    assert run(argv) == 2
+    assert "part_comp.nc: line 7 (G0 X-99.99" in capsys.readouterr().out and not out.exists()
+    prog.write_text(good)
+    assert run(argv) == 0
+    text = capsys.readouterr().out
+    assert "passed" in text and "1 rapid(s) start closer" in text
+    assert "min rapid clearance 300 µm at line 3" in text      # the 0.3 mm approach, errors compensated
+    assert run(argv[:-4] + ["-o", str(tmp_path / "c2")]) == 0
+    assert "not verified against a stock" in capsys.readouterr().out

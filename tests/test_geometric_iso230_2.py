@@ -116,7 +116,7 @@ def test_non_monotonic_targets_name_the_line(tmp_path):
 def test_binary_file_is_an_input_error(tmp_path):
     p = tmp_path / "run.bin"
     p.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff\xfe")
-    with pytest.raises(InputError, match=r"run.bin:1: header lacks column"):
+    with pytest.raises(InputError, match=r"run.bin(:1: header lacks column|: not a text file)"):
         iso.read_run_csv(p)
 
 
@@ -167,3 +167,35 @@ def test_figure_relations_hold_for_any_run(n, m, seed, k):
     b = iso.evaluate(iso.PositioningRun(t, k * up, k * dn))
     for key, v in a.figures().items():
         assert getattr(b, key) == pytest.approx(k * v, rel=1e-9, abs=1e-15)
+
+
+@pytest.mark.parametrize("cell, col, match", [
+    ("1_00.0", 0, r"\[target\]: expected a number, got '1_00.0'"),     # float() read it as 100
+    ("1e300", 3, r"\[deviation\]: '1e300' is out of range"),           # overflowed the figures
+])
+def test_run_cells_go_through_the_shared_reader(tmp_path, cell, col, match):
+    lines = _write_hand_csv(tmp_path / "x.csv").read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("100.0,1,+,"))
+    c = lines[k].split(",")
+    c[col] = cell
+    lines[k] = ",".join(c)
+    p = tmp_path / "bad.csv"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=rf"bad.csv:{k + 1} " + match):
+        iso.read_run_csv(p)
+
+
+def test_run_header_units_are_converted(tmp_path):
+    # a laser interferometer export in µm: the old reader refused the header
+    lines = _write_hand_csv(tmp_path / "x.csv").read_text().splitlines()
+    h = next(i for i, ln in enumerate(lines) if ln.startswith("target"))
+    lines[h] = "Target [mm],cycle,direction,Deviation [µm]"
+    for i in range(h + 1, len(lines)):
+        c = lines[i].split(",")
+        c[3] = repr(float(c[3]) * 1e3)
+        lines[i] = ",".join(c)
+    (tmp_path / "um.csv").write_text("\n".join(lines) + "\n")
+    run = iso.read_run_csv(tmp_path / "um.csv")
+    np.testing.assert_allclose(run.up, UP, atol=1e-15)
+    np.testing.assert_allclose(run.down, DOWN, atol=1e-15)
+    np.testing.assert_array_equal(run.target, TARGET)

@@ -239,3 +239,47 @@ def test_table_mounted_optics_as_in_paper_004(vmc, truth, grid, truth_map):
                                  for r in ms.runs))
     with pytest.raises(InputError, match="EYY: a workpiece-mounted optic moves only with a"):
         tables.build_tables(vmc, bad)
+
+
+def _lattice_lines(tmp_path, vmc, clean):
+    lat = ct.lattice_table(vmc, clean.errors, 200.0)
+    lines = lat.to_csv().splitlines()
+    return lat, lines, next(i for i, ln in enumerate(lines) if ln.startswith("0,0,1,"))
+
+
+@pytest.mark.parametrize("mutate, match", [
+    # the old reader took float("nan") and kept the last of two positions of a node silently
+    (lambda c: c.__setitem__(3, "nan"), r"\[X\]: expected a number, got 'nan'"),
+    (lambda c: c.__setitem__(3, "1e400"), r"\[X\]: .*out of range"),
+    (lambda c: c.__setitem__(3, str(float(c[3]) + 0.5)), r"\[X\]: node i = 0 is at .* on line \d+, here at"),
+    (lambda c: c.__setitem__(2, "0"), r"\[i\]: node \(0, 0, 0\) appears twice \(also line \d+\)"),
+    (lambda c: c.__setitem__(2, "-1"), r"\[k\]: expected an integer in \[0, 1000000\], got -1"),
+    (lambda c: c.__setitem__(2, "1.0"), r"\[k\]: expected an integer, got '1.0'"),
+    (lambda c: c.append("0"), r"expected 9 values \(one per column\), got 10"),
+])
+def test_lattice_reader_names_line_and_column(tmp_path, vmc, clean, mutate, match):
+    _, lines, k = _lattice_lines(tmp_path, vmc, clean)
+    cells = lines[k].split(",")
+    mutate(cells)
+    lines[k] = ",".join(cells)
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=rf"bad.csv:{k + 1}:? " + match):
+        ct.LatticeTable.from_csv(tmp_path / "bad.csv")
+
+
+def test_lattice_reader_takes_spaces_quotes_and_units(tmp_path, vmc, clean):
+    # the old reader split on bare commas: "i, j, k" or a quoted cell was a bad header/number
+    lat, lines, k = _lattice_lines(tmp_path, vmc, clean)
+    h = next(i for i, ln in enumerate(lines) if ln.startswith("i,"))
+    a = lat.axes
+    lines[h] = ", ".join(["i", "j", "k", *a, f"d{a[0]} [um]", f"d{a[1]}", f"d{a[2]}"])
+    rows = []
+    for ln in lines[h + 1:]:
+        c = ln.split(",")
+        c[6] = repr(float(c[6]) * 1e3)
+        rows.append(",".join(f'"{x}"' if i == 3 else x for i, x in enumerate(c)))
+    (tmp_path / "l.csv").write_text("\n".join(lines[:h + 1] + rows) + "\n")
+    back = ct.LatticeTable.from_csv(tmp_path / "l.csv")
+    np.testing.assert_allclose(back.correction, lat.correction, rtol=1e-12, atol=1e-18)
+    for x, y in zip(back.nodes, lat.nodes):
+        np.testing.assert_array_equal(x, y)

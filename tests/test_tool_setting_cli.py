@@ -100,8 +100,10 @@ def _set(i, **kw):
 
 @pytest.mark.parametrize("edit,message,line", [
     (_set(3, groove="B+20"), "unknown groove id 'B+20'", 5),
-    (_set(4, u_mm="nan"), "expected a finite number", 6),
-    (_set(5, v_mm="1.2.3"), "malformed number", 7),
+    (_set(4, u_mm="nan"), "[u_mm]: expected a number, got 'nan'", 6),
+    (_set(5, v_mm="1.2.3"), "[v_mm]: expected a number, got '1.2.3'", 7),
+    (_set(5, v_mm="1_0"), "[v_mm]: expected a number, got '1_0'", 7),     # float() read 10
+    (_set(5, depth_mm="0x10"), "[depth_mm]: expected a number", 7),
     (_set(14, b_deg="15"), "inconsistent angles", 16),
     (_set(0, feature="middle"), "unknown feature", 2),
     (lambda rows: rows + [dict(rows[2])], "measured twice", 20),
@@ -227,7 +229,7 @@ def test_fit_with_extreme_sigmas_is_an_input_error(work, tmp_path):
     cells[10] = "1e200"
     big[1] = ",".join(cells)
     p.write_text("\n".join(big) + "\n")
-    with pytest.raises(InputError, match="at most 1e6"):
+    with pytest.raises(InputError, match=r"\[u_mm\]: '1e200' is out of range"):
         read_measurements(p, plan)
     # a numerically impossible fit is an InputError, not a LinAlgError
     pts = list(meas.points)
@@ -291,3 +293,53 @@ def test_simulate_with_a_c_axis_offset_and_estimate_it_back(work, tmp_path, caps
     assert abs(loc["EY0C"] + 0.14993) < 4 * unc["geometric.location.EY0C"]
     assert main(["tool-setting", "simulate", "--plan", str(work / "plan.toml"), "--offset", "0", "0", "0",
                  "--location", "EZ0C=0.1", "-o", str(tmp_path / "x.csv")]) != 0
+
+
+@pytest.mark.parametrize("cmd", ["simulate", "estimate"])
+def test_errors_of_axes_the_machine_lacks_are_refused(work, tmp_path, capsys, cmd):
+    # robonano-ui has X Y Z A B C: a W location error was ignored by the grooving model
+    err = tmp_path / "e.toml"
+    err.write_text("[geometric.location]\nEC0W = 1e-5\n")
+    out = tmp_path / "o.csv"
+    if cmd == "simulate":
+        argv = ["tool-setting", "simulate", "--plan", str(work / "plan.toml"), "--offset", "0.3", "0.2",
+                "0.2", "-o", str(out), "--compensation", str(err)]
+    else:
+        argv = ["tool-setting", "estimate", str(work / "measured.csv"), "-o", str(tmp_path / "x.toml"),
+                "--known-errors", str(err)]
+    assert main(argv) != 0
+    msg = capsys.readouterr().err
+    assert "location error EC0W of axis W" in msg and "e.toml" in msg
+    assert not out.exists() and not (tmp_path / "x.toml").exists()
+
+
+def test_face_plate_distance_is_exact():
+    from mtcomp.setting.tool_plan import DEFAULT_FACES
+    from mtcomp.setting.tool_verify import FacePlate
+    side = FacePlate(DEFAULT_FACES["side"], (20.0, 20.0), 5.0)       # normal +X, u along Y, v along Z
+    pts = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 15.0, 0], [3.0, 14.0, 0], [-3.0, 0, 9.5]])
+    np.testing.assert_allclose(side.distance(pts), [1.0, -1.0, 5.0, 5.0, -0.5], atol=1e-15)
+
+
+def test_grooving_programs_are_verified_on_their_plates(work, tmp_path, capsys):
+    # issue 14 item 1: the programs 'plan' and 'estimate --nc-dir' emit pass the verification
+    # (the approach stops 0.5 mm over the face); a larger clearance is an error, nothing written
+    d = tmp_path / "p"
+    d.mkdir()
+    assert main(["tool-setting", "plan", "-o", str(d), "--no-png"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("  passed") == 3 and out.count("min rapid clearance 500 µm") == 3
+    assert "plate under the side face" in out and "plate under the top face" in out
+    e = tmp_path / "e"
+    e.mkdir()
+    assert main(["tool-setting", "plan", "-o", str(e), "--no-png", "--clearance", "0.6"]) != 0
+    assert "tool_setting_A.nc: line 6" in capsys.readouterr().err and not list(e.iterdir())
+    nc = tmp_path / "nc"
+    nc.mkdir()
+    argv = ["tool-setting", "estimate", str(work / "measured.csv"), "--nc-dir", str(nc)]
+    assert main(argv + ["--clearance", "0.6"]) != 0 and not list(nc.iterdir())
+    capsys.readouterr()
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count("  passed") == 3 and out.count("min rapid clearance 500 µm") == 3
+    assert len(list(nc.glob("*_compensated.nc"))) == 3

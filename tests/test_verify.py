@@ -201,3 +201,30 @@ def test_dogleg_rapids_follow_each_axis_at_its_own_rate():
     # Z at a tenth of X's rate: Z arrives last, the path stays high until x = 10.
     slow_z = dict(rates, Z=1000.0)
     assert verify_program(m, text, stock=block, clearance=0.5, rapid_rates=slow_z).ok
+
+
+# -- retracts: a rapid that starts at the end of a cut and moves straight away ---------------
+RETRACT = "G90 G00 X1. Y2. Z5. B0 C0\nG01 Z-0.05 F100.\nG01 X3.\nG00 Z5.\n"
+
+
+def test_retract_from_the_cut_passes_only_when_asked_and_is_left_out_of_the_min():
+    m = load_machine("robonano-a0ib")
+    with pytest.raises(VerifyError, match=r"line 4 \(G00 Z5.\): rapid move: the tool enters the stock"):
+        verify_program(m, RETRACT, stock=PLATE, clearance=0.2)
+    res = verify_program(m, RETRACT, stock=PLATE, clearance=0.2, retracts=True)
+    assert res.ok and res.retracts == 1
+    assert res.min_clearance == pytest.approx(5.0) and res.min_clearance_line == 1
+    assert "1 rapid(s) start closer" in res.summary()
+
+
+@pytest.mark.parametrize("tail, line", [
+    ("G00 X5.\n", 4),                   # sideways through the blank at the cut's depth
+    ("G00 Z0.1\nG00 X5.\n", 5),          # a retract to 0.1 mm, then sideways that close
+    ("G00 Z5.\nG00 Z0.1\n", 5),         # a rapid down to 0.1 mm after the retract
+    ("G00 X6. Z0.5\n", 4),              # away, but at 76 deg from the normal: slides along the surface
+])
+def test_what_is_not_a_retract_still_fails(tail, line):
+    m = load_machine("robonano-a0ib")
+    text = RETRACT.rsplit("G00", 1)[0] + tail
+    with pytest.raises(VerifyError, match=f"line {line} "):
+        verify_program(m, text, stock=PLATE, clearance=0.2, retracts=True)

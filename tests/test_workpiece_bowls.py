@@ -224,8 +224,41 @@ def test_touches_csv_round_trip_and_errors(tmp_path):
     with pytest.raises(InputError, match="missing ax,ay,az"):
         read_touches(path)
     path.write_bytes(b"\xff\xfe\x00b\x00o\x00w\x00l\x00\n")     # UTF-16, not a touches CSV
-    with pytest.raises(InputError, match=r"t.csv:1: header must contain"):
+    with pytest.raises(InputError, match=r"t.csv(:1: header must contain|: not a text file)"):
         read_touches(path)
+
+
+@pytest.mark.parametrize("cell, match", [
+    ("1_0", r"t.csv:4 \[x\]: expected a number, got '1_0'"),      # float() read it as 10
+    ("1e300", r"t.csv:4 \[x\]: '1e300' is out of range"),         # overflowed the fit
+    ("nan", r"t.csv:4 \[x\]: expected a number, got 'nan'"),
+])
+def test_touches_cells_are_checked_by_the_shared_reader(tmp_path, cell, match):
+    t = virtual_probe(POSE, plan_bowls(3), 0.0, 1)
+    path = tmp_path / "t.csv"
+    write_touches(t, path)
+    lines = path.read_text().splitlines()
+    c = lines[3].split(",")
+    c[1] = cell
+    lines[3] = ",".join(c)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=match):
+        read_touches(path)
+
+
+def test_touches_header_units_and_order(tmp_path):
+    # the format takes columns in any order and case; units in the header are converted
+    t = virtual_probe(POSE, plan_bowls(3), 0.0, 1)
+    rows = ["AX,ay,az,X [um],y,z,Bowl,note"]
+    rows += [",".join([*(repr(float(v)) for v in a), repr(float(p[0]) * 1e3), repr(float(p[1])),
+                       repr(float(p[2])), str(int(b)), '"a, b"'])
+             for b, p, a in zip(t.bowl, t.points, t.approach)]
+    (tmp_path / "u.csv").write_text("\n".join(rows) + "\n")
+    back = read_touches(tmp_path / "u.csv")
+    np.testing.assert_array_equal(back.bowl, t.bowl)
+    np.testing.assert_allclose(back.points, t.points, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(back.approach, t.approach, atol=1e-12)
+    assert back.lines[0] == 2
 
 
 def test_shared_radius_fit_is_exact_and_cuts_the_tilt_uncertainty():

@@ -132,3 +132,102 @@ def test_compensate_refuses_to_drop_the_tool_setting_of_the_errors_file(tmp_path
     assert main(["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out),
                  "--workpiece-only"]) == 0
     assert out.exists()
+
+
+def test_compensate_refuses_errors_of_axes_the_machine_lacks(tmp_path, capsys):
+    # an EX0U on a machine without U was ignored: the program came out compensated for the
+    # workpiece setting only, with exit 0, even with --workpiece-only
+    err = tmp_path / "e.toml"
+    err.write_text("[workpiece_setting]\ntranslation = [0.01, 0, 0]\nangles = [0, 0, 0]\n"
+                   "[geometric.location]\nEX0U = 0.001\n")
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    out = tmp_path / "o.nc"
+    rc = main(["workpiece-setting", "compensate", str(prog), "--errors", str(err), "--workpiece-only",
+               "-o", str(out)])
+    msg = capsys.readouterr().err
+    assert rc != 0 and not out.exists()
+    assert "location error EX0U of axis U" in msg and "robonano-a0ib" in msg and "e.toml" in msg
+
+
+def _fitted(tmp_path, pose=POSE):
+    """Plan, virtual probing at `pose` and fit: (plan path, errors path)."""
+    plan = _planned(tmp_path)
+    touches = tmp_path / "touches.csv"
+    assert main(["workpiece-setting", "probe", str(plan), "--pose", pose, "-o", str(touches)]) == 0
+    errors = tmp_path / "errors.toml"
+    assert main(["workpiece-setting", "fit", str(plan), str(touches), "-o", str(errors)]) == 0
+    return plan, errors
+
+
+def _um(text, what):
+    import re
+    m = re.search(what + r" (-?[\d.]+) µm", text)
+    assert m, text
+    return float(m.group(1))
+
+
+def test_compensated_program_is_verified_on_the_blank_of_the_fit(tmp_path, capsys):
+    # issue 14 item 1: the emitted program is verified; a rapid through the blank is an error
+    # naming the block, and nothing is written unless --warn-only
+    _, errors = _fitted(tmp_path, "0.05,-0.03,0.1,0.02,-0.03,0.2")
+    capsys.readouterr()
+    prog = tmp_path / "p.nc"
+    prog.write_text("%\nO0100\nG21 G90 G17\nG00 X-5. Y-5. Z0.3\nG00 X5. Y4.\nG01 Z-0.1 F100.\n"
+                    "G01 X-4.\nG00 Z2.\nG00 X0 Y0\nG00 Z-0.5\nM30\n%\n")
+    out = tmp_path / "o.nc"
+    argv = ["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out)]
+    assert main(argv) != 0 and not out.exists()
+    err = capsys.readouterr().err
+    assert "1 block(s) fail" in err and "line 10 (G00 X" in err and "enters the stock" in err
+    assert main(argv + ["--warn-only"]) == 0 and out.exists()
+    text = capsys.readouterr().out
+    assert "plan.toml (plan of the fit)" in text and "FAIL" in text
+    # without the bad rapid it passes; the clearance of the compensated program on the real
+    # blank is the one the program was written with (0.3 mm), to the command rounding; the
+    # rapid back out of the cut (line 8) is a retract
+    prog.write_text(prog.read_text().replace("G00 Z-0.5\n", ""))
+    out.unlink()
+    assert main(argv) == 0 and out.exists()
+    text = capsys.readouterr().out
+    assert "passed" in text and "1 rapid(s) start closer" in text
+    assert abs(_um(text, "min rapid clearance") - 300.0) < 0.05, text
+    # the uncompensated program on the same blank has another clearance: the check is not vacuous
+    from mtcomp.errors import load_errors as le
+    from mtcomp.setting.blank_check import plan_stock, verify_on_blank
+    from mtcomp.setting.bowls import load_plan
+    res = verify_on_blank(load_machine("robonano-a0ib"), prog.read_text(), le(errors).workpiece,
+                          plan_stock(load_plan(tmp_path / "plan.toml")), raise_on_violation=False)
+    assert abs(res.min_clearance * 1e3 - 300.0) > 50
+
+
+def test_compensate_stock_and_clearance_options(tmp_path, capsys):
+    _, errors = _fitted(tmp_path)
+    prog = tmp_path / "p.nc"
+    prog.write_text("G21 G90\nG00 X0 Y0 Z0.3\nG00 X3.\nM30\n")
+    out = tmp_path / "o.nc"
+    base = ["workpiece-setting", "compensate", str(prog), "--errors", str(errors), "-o", str(out)]
+    capsys.readouterr()
+    assert main(base + ["--clearance", "0.5"]) != 0 and not out.exists()
+    assert "2 block(s) fail" in capsys.readouterr().err     # both rapids are 0.3 mm over it
+    # a taller stock given by hand: the rapid passes 0.3 - 0.2 mm over it, below 0.2
+    assert main(base + ["--stock", "box:-10,-10,-5,10,10,0.2"]) != 0
+    assert main(base + ["--clearance", "nan"]) != 0
+    assert main(base + ["--no-verify"]) == 0 and out.exists()
+    assert "not verified" in capsys.readouterr().err
+
+
+def test_plan_programs_are_verified_on_the_blank(tmp_path, capsys):
+    # issue 14: both programs the plan emits pass the verification on the plan's blank; the
+    # roughing program's way back into a peck is a feed (a rapid there went into the raw blank)
+    _planned(tmp_path)
+    text = capsys.readouterr().out
+    assert text.count("  passed") == 2 and "verify roughing program" in text
+    assert "min rapid clearance 500 µm at line 10" in text          # G00 Z0.5 over the blank
+    rough = (tmp_path / "plan-roughing.nc").read_text()
+    assert "G00 Z-0.45" not in rough and "G01 Z-0.45 F" in rough
+    # a larger clearance than the programs keep: an error naming the block, nothing written
+    out = tmp_path / "p2.toml"
+    assert main(["workpiece-setting", "plan", "-o", str(out), "--clearance", "0.6"]) != 0
+    assert "roughing program: line 10 (G00 Z0.5)" in capsys.readouterr().err
+    assert not list(tmp_path.glob("p2*"))

@@ -73,14 +73,17 @@ def _cycle_options(s) -> None:
     s.add_argument("--nc-dir", help="directory of part programs O0100.nc (O + 4 digits) to "
                                     "compensate (default: no program written, always NO-GO)")
     s.add_argument("--out-dir", help="where compensated programs go (default --nc-dir)")
+    s.add_argument("--clearance", type=float, default=0.2,
+                   help="compensated programs are verified on the plan's blank at the measured pose: "
+                        "rapids keep this clearance from it, mm (default 0.2)")
+    s.add_argument("--program-check", metavar="MODULE:CALLABLE",
+                   help="further check of every compensated program, check(machine, path, text); "
+                        "raise an MtcompError to refuse it")
     s.add_argument("--program-offset", type=int, default=1000,
                    help="compensated program number = program_id + this (default 1000)")
     s.add_argument("--program-range", default="1000-7999", metavar="LOW-HIGH",
                    help="numbers the compensated programs may take (default 1000-7999); a "
                         "START whose number falls outside is refused, never wrapped")
-    s.add_argument("--program-check", metavar="MODULE:CALLABLE",
-                   help="extra verification of every compensated program: "
-                        "check(machine, path, text), raising to refuse it")
     s.add_argument("--machine", default="robonano-a0ib",
                    help="machine preset or TOML for the NC transform")
     s.add_argument("--measure-timeout", type=float, default=300.0,
@@ -92,16 +95,16 @@ def _cycle_options(s) -> None:
     s.add_argument("--no-fsync", action="store_true", help=argparse.SUPPRESS)
 
 
-def _load_measure(spec: str, option: str = "--measure"):
+def _load_measure(spec: str, field: str = "--measure"):
     mod, _, name = spec.partition(":")
     if not mod or not name:
-        raise InputError(f"expected MODULE:CALLABLE, got {spec!r}", field=option)
+        raise InputError(f"expected MODULE:CALLABLE, got {spec!r}", field=field)
     try:
         fn = getattr(importlib.import_module(mod), name)
     except (ImportError, AttributeError) as exc:
-        raise InputError(f"cannot load {spec}: {exc}", field=option) from None
+        raise InputError(f"cannot load {spec}: {exc}", field=field) from None
     if not callable(fn):
-        raise InputError(f"{spec} is not callable", field=option)
+        raise InputError(f"{spec} is not callable", field=field)
     return fn
 
 
@@ -121,6 +124,8 @@ def build(args):
     """The measurement step and the cycle configuration the options describe."""
     from .cycle import CellConfig
     from .virtual import VirtualCell
+    if not args.clearance >= 0:
+        raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
     check = _load_measure(args.program_check, "--program-check") if args.program_check else None
     if args.measure:
         measure = _load_measure(args.measure)
@@ -130,10 +135,12 @@ def build(args):
         from .virtual import ProbeFileCell
         measure = ProbeFileCell(args.probe_inbox, args.plan, probe_sigma_mm=args.probe_sigma,
                                 wait_s=args.measure_timeout, nc_dir=args.nc_dir,
-                                out_dir=args.out_dir, machine=args.machine, program_check=check)
+                                out_dir=args.out_dir, machine=args.machine, program_check=check,
+                                clearance=args.clearance)
     else:
         measure = VirtualCell(seed=args.seed, probe_time_s=args.probe_time, nc_dir=args.nc_dir,
-                              out_dir=args.out_dir, machine=args.machine, program_check=check)
+                              out_dir=args.out_dir, machine=args.machine, program_check=check,
+                              clearance=args.clearance)
     try:
         cfg = CellConfig(word_order=args.word_order, measure_timeout_s=args.measure_timeout,
                          limit_mm=args.limit_mm, limit_deg=args.limit_deg,

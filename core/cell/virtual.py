@@ -49,8 +49,10 @@ class VirtualCell:
     With `nc_dir` set, the part program ``O<program_id:04d>.nc`` (O0100.nc) is read from it
     and the program compensated for the measured blank is written as ``O<job.out_program_id:04d>
     .nc`` (O1100.nc) to `out_dir` (default `nc_dir`), for `machine` (a preset name or TOML path),
-    and verified (`program.write_program`; `program_check` adds a check). Without `nc_dir` no
-    program is written and the result is a no-go.
+    and verified (`program.write_program`), on the plan's blank at the measured pose with
+    rapids `clearance` mm off it (None: no blank verification; `setting.blank_check`);
+    `program_check(machine, path, text)` adds a check. Without `nc_dir` no program is written
+    and the result is a no-go.
     """
     seed: int = 0
     robot: object = None
@@ -61,6 +63,7 @@ class VirtualCell:
     out_dir: str | None = None
     machine: str = "robonano-a0ib"
     program_check: object = None
+    clearance: float | None = 0.2
 
     def __call__(self, job: Job) -> CellResult:
         from ..errors import WorkpieceSetting
@@ -77,13 +80,19 @@ class VirtualCell:
         if job.on_phase is not None:
             job.on_phase("computing")
         return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.nc_dir,
-                                   self.out_dir, self.machine, self.program_check)
+                                   self.out_dir, self.machine, self.program_check, self.clearance)
 
 
 def result_from_touches(job: Job, touches, plan, probe_sigma_mm, nc_dir=None, out_dir=None,
-                        machine="robonano-a0ib", program_check=None) -> CellResult:
+                        machine="robonano-a0ib", program_check=None,
+                        clearance: float | None = 0.2) -> CellResult:
     """Bowl fit, paper-001 frame and (with `nc_dir`) the compensated, verified program: the part
-    of the step shared by the virtual cell and the real machine (`ProbeFileCell`)."""
+    of the step shared by the virtual cell and the real machine (`ProbeFileCell`).
+
+    The program is verified on the plan's blank at the measured pose (every block, rapids
+    included, through the machine model with that workpiece setting; rapids keep `clearance` mm
+    from the blank, retracts from the cut excepted: `setting.blank_check`), then by
+    `program_check` if given.  clearance None leaves out the blank verification."""
     from ..setting.workpiece import fit_bowls, frame_from_bowls
     from .program import CellFault, program_file_name, target_number, write_program
     from .registers import Fault
@@ -100,13 +109,24 @@ def result_from_touches(job: Job, touches, plan, probe_sigma_mm, nc_dir=None, ou
     written = None
     if nc_dir is not None:
         from ..machine import load_machine
+        checks, results = [], []
+        if clearance is not None:
+            from ..setting.blank_check import BlankCheck, plan_stock
+            checks.append(BlankCheck(est.pose, plan_stock(plan), clearance, results=results))
+        if program_check is not None:
+            checks.append(program_check)
         written = write_program(load_machine(machine),
                                 Path(nc_dir) / program_file_name(job.program_id),
                                 Path(out_dir or nc_dir) / program_file_name(prog), est.pose,
                                 source_id=job.program_id, out_id=prog, part_id=job.part_id,
-                                job_no=job.job_no, extra_check=program_check)
+                                job_no=job.job_no, extra_check=_all_of(checks) if checks else None)
         info["blocks"] = written.blocks
         info["program_file"] = Path(written.path).name
+        if results:
+            res = results[-1]
+            info["min_clearance_mm"] = res.min_clearance if np.isfinite(res.min_clearance) else None
+            info["clearance_mm"] = res.clearance
+            info["retracts"] = res.retracts
     return CellResult(tuple(float(v) for v in est.params), tuple(float(v) for v in est.std),
                       prog, not est.warnings, info, written)
 
@@ -134,6 +154,7 @@ class ProbeFileCell:
     out_dir: str | None = None
     machine: str = "robonano-a0ib"
     program_check: object = None
+    clearance: float | None = 0.2
 
     def __call__(self, job: Job) -> CellResult:
         import os
@@ -158,7 +179,14 @@ class ProbeFileCell:
         if job.on_phase is not None:
             job.on_phase("computing")
         return result_from_touches(job, touches, plan, self.probe_sigma_mm, self.nc_dir,
-                                   self.out_dir, self.machine, self.program_check)
+                                   self.out_dir, self.machine, self.program_check, self.clearance)
+
+
+def _all_of(checks):
+    def check(machine, path, text):
+        for c in checks:
+            c(machine, path, text)
+    return check
 
 
 _PLAN = {}

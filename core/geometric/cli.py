@@ -66,6 +66,10 @@ def register(subparsers) -> None:
                                    "interpolation error)")
     s.add_argument("--program", help="also rewrite this NC program with corrected commands "
                                      "(written to DIR/<name>_comp<suffix>)")
+    s.add_argument("--stock", help="verify the rewritten program against this stock on the machine with "
+                                   "--truth (or the model): box:x0,y0,z0,x1,y1,z1 (mm), plane:Z or a STEP file")
+    s.add_argument("--clearance", type=float, default=0.2,
+                   help="with --stock: clearance every rapid keeps from it, mm (0.2)")
     s.add_argument("-o", "--output", required=True, help="output directory")
     s.set_defaults(func=_table)
 
@@ -153,9 +157,11 @@ def _linear_machine(spec, three: bool = True):
     return m
 
 
-def _load_errors(path):
+def _load_errors(path, machine):
+    """The errors file, refused when it holds errors of axes `machine` lacks (they would be
+    ignored without a word)."""
     from ..errors import load_errors
-    return load_errors(path)
+    return load_errors(path, machine=machine)
 
 
 def _map(args: argparse.Namespace) -> int:
@@ -164,7 +170,7 @@ def _map(args: argparse.Namespace) -> int:
     if args.step <= 0:
         raise InputError("must be positive", field="--step")
     machine = _linear_machine(args.machine)
-    errors = _load_errors(args.errors)
+    errors = _load_errors(args.errors, machine)
     vmap = volumetric.error_map(machine, errors, step=args.step)
     stem = Path(args.output)
     volumetric.plot_map(vmap, stem.with_name(stem.name + ".png"))
@@ -181,11 +187,22 @@ def _table(args: argparse.Namespace) -> int:
     if args.lattice_step <= 0:
         raise InputError("must be positive", field="--lattice-step")
     machine = _linear_machine(args.machine)
-    model = _load_errors(args.errors)
-    truth = _load_errors(args.truth) if args.truth else model
+    model = _load_errors(args.errors, machine)
+    truth = _load_errors(args.truth, machine) if args.truth else model
     out = Path(args.output)
     # Everything is computed before the first file is written, so bad input leaves no output.
+    if args.stock and not args.program:
+        raise InputError("--stock verifies the program of --program: give one", field="--stock")
+    if not args.clearance >= 0:
+        raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
     program = _rewrite_program(args, model) if args.program else None
+    check = None
+    if program is not None and args.stock:
+        # the corrected program as the real machine runs it (issue 14: every emitted program is
+        # verified), before anything is written
+        from ..verify import parse_stock, verify_program
+        check = verify_program(machine, program[1], filename=program[0], stock=parse_stock(args.stock),
+                               clearance=args.clearance, errors=truth, retracts=True)
     lat = comptables.lattice_table(machine, model, args.lattice_step)
     rep = comptables.compensation_report(machine, truth, model, lat)
     atomic_write(out / "lattice.csv", lat.to_csv())
@@ -197,6 +214,8 @@ def _table(args: argparse.Namespace) -> int:
         name, text, msg = program
         written.append(atomic_write(out / name, text))
         print(msg + f" -> {out / name}")
+        print(check.summary() if check is not None else
+              "  not verified against a stock (give --stock)")
     print("written: " + ", ".join(str(f) for f in written))
     return 0
 

@@ -106,45 +106,51 @@ class LatticeTable:
 
     @classmethod
     def from_csv(cls, path: str | os.PathLike) -> "LatticeTable":
-        """Read a lattice written by `to_csv` (nodes from the rows, any regular grid)."""
-        path = Path(path)
-        try:
-            lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-        except FileNotFoundError:
-            raise InputError("file not found", path) from None
-        rows = [(n, ln) for n, ln in enumerate(lines, 1) if ln.strip() and not ln.startswith("#")]
-        if len(rows) < 2:
-            raise InputError("empty lattice table", path)
-        hdr = rows[0][1].split(",")
-        if len(hdr) != 9 or hdr[:3] != ["i", "j", "k"]:
-            raise InputError("header must be i,j,k,<3 axes>,d<3 axes>", path, rows[0][0])
-        axes = tuple(hdr[3:6])
-        data = []
-        for n, ln in rows[1:]:
-            cells = ln.split(",")
-            if len(cells) != 9:
-                raise InputError(f"expected 9 values, got {len(cells)}", path, n)
-            vals = []
-            for name, x in zip(hdr, cells):
-                try:
-                    vals.append(float(x))
-                except ValueError:
-                    raise InputError(f"expected a number, got {x.strip()!r}", path, n, field=name.strip()) from None
-            data.append(vals)
-        d = np.array(data)
-        idx = d[:, :3].astype(int)
-        shape = tuple(idx.max(axis=0) + 1)
-        if np.prod(shape) != len(d):
-            raise InputError(f"incomplete lattice: {len(d)} rows for {shape} nodes", path)
-        corr = np.full(shape + (3,), np.nan)
-        corr[idx[:, 0], idx[:, 1], idx[:, 2]] = d[:, 6:9]
+        """Read a lattice written by `to_csv` (nodes from the rows, any regular grid; format in
+        docs/geometric.md, read by `mtcomp.csvtable`).  Every node appears once; all rows of one
+        node index give the same position, and positions grow with the index.  Errors name the
+        file, line and column."""
+        from ..csvtable import read_csv
+        tab = read_csv(path, what="lattice table", min_rows=1)
+        names = tab.names
+        if len(names) != 9 or names[:3] != ("i", "j", "k") or names[6:] != tuple(f"d{a}" for a in names[3:6]):
+            raise tab.error("header must be i,j,k,<3 axes>,d<3 axes> (e.g. i,j,k,X,Y,Z,dX,dY,dZ), got "
+                            + ",".join(c.header for c in tab.columns))
+        axes = names[3:6]
+        idx = np.column_stack([[tab.integer(r, c, lo=0, hi=10**6) for r in range(len(tab))]
+                               for c in ("i", "j", "k")])
+        pos = np.column_stack([tab.numbers(a, unit="mm") for a in axes])
+        corr_rows = np.column_stack([tab.numbers(f"d{a}", unit="mm") for a in axes])
+        shape = tuple(int(v) for v in idx.max(axis=0) + 1)
+        if int(np.prod(shape)) != len(tab):
+            raise InputError(f"incomplete lattice: {len(tab)} rows for {' x '.join(map(str, shape))} = "
+                             f"{int(np.prod(shape))} nodes (i, j, k from 0)", tab.source)
+        flat = np.ravel_multi_index(idx.T, shape)
+        order = np.argsort(flat, kind="stable")
+        rep = np.nonzero(np.diff(flat[order]) == 0)[0]
+        if rep.size:
+            r = int(order[rep[0] + 1])
+            raise tab.error(f"node ({', '.join(map(str, idx[r]))}) appears twice (also line "
+                            f"{tab.lines[int(order[rep[0]])]})", r, "i")
+        corr = np.empty(shape + (3,))
+        corr[idx[:, 0], idx[:, 1], idx[:, 2]] = corr_rows
         nodes = []
-        for c in range(3):
-            pos = np.full(shape[c], np.nan)
-            pos[idx[:, c]] = d[:, 3 + c]
-            nodes.append(pos)
-        if np.isnan(corr).any():
-            raise InputError("lattice rows repeat a node and miss another", path)
+        for c, a in enumerate(axes):
+            node = np.full(shape[c], np.nan)
+            first = np.full(shape[c], -1)
+            for r in range(len(tab)):   # every row of one index must agree on its position
+                i = idx[r, c]
+                if first[i] < 0:
+                    node[i], first[i] = pos[r, c], r
+                elif abs(pos[r, c] - node[i]) > 1e-9 * max(1.0, abs(node[i])):
+                    raise tab.error(f"node {names[c]} = {i} is at {node[i]!r} mm on line "
+                                    f"{tab.lines[first[i]]}, here at {pos[r, c]!r} mm", r, tab.columns[3 + c].header)
+            if np.any(np.diff(node) <= 0):
+                i = int(np.argmax(np.diff(node) <= 0)) + 1
+                raise tab.error(f"{a} nodes must grow with {names[c]}: {names[c]} = {i} is at {node[i]!r} mm, "
+                                f"{names[c]} = {i - 1} at {node[i - 1]!r} mm", int(first[i]),
+                                tab.columns[3 + c].header)
+            nodes.append(node)
         return cls(axes, tuple(nodes), corr)
 
 

@@ -206,57 +206,37 @@ def _direction(text: str) -> int | None:
     return None
 
 
-def read_run_csv(path: str | os.PathLike, axis: str = "") -> PositioningRun:
+def read_run_csv(path: str | os.PathLike, axis: str = "", unit: str = "mm") -> PositioningRun:
     """Read a positioning run CSV (columns target, cycle, direction, deviation; mm).
 
     Rows of one cycle and direction must appear in the order the targets were approached
     (increasing for the positive direction, decreasing for the negative one); lines starting
-    with ``#`` are comments.  Errors name the file, line and field.
+    with ``#`` are comments (read by `mtcomp.csvtable`, docs/csv-format.md: units in the header
+    such as ``deviation [um]`` are converted to `unit`: "mm", or "rad" for the angular runs of a
+    measurement set).  Errors name the file, line and field.
     """
+    from ..csvtable import read_csv
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig", errors="replace")  # bad bytes fail as cells
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
-    rows = [(k + 1, line) for k, line in enumerate(text.splitlines())
-            if line.strip() and not line.lstrip().startswith("#")]
-    if not rows:
-        raise InputError("empty run: expected a header 'target,cycle,direction,deviation' and "
-                         "data rows", path)
-    hdr_line, hdr = rows[0]
-    header = [h.strip().lower() for h in next(csv.reader([hdr]))]
-    missing = [c for c in _COLUMNS if c not in header]
+    tab = read_csv(path, what="positioning run", case_sensitive=False)
+    missing = [c for c in _COLUMNS if not tab.has(c)]
     if missing:
-        raise InputError(f"header lacks column(s) {', '.join(missing)}; expected "
-                         f"'target,cycle,direction,deviation'", path, hdr_line)
-    col = {c: header.index(c) for c in _COLUMNS}
+        raise tab.error(f"header lacks column(s) {', '.join(missing)}; expected "
+                        f"'target,cycle,direction,deviation'")
+    if not len(tab):
+        raise InputError("no data rows after the header", path, tab.header_line)
+    # numbers checked column by column (plain, finite, units from the header converted to mm)
+    targets = tab.numbers("target", unit="mm", max_abs=1e6)
+    devs = tab.numbers("deviation", unit=unit, max_abs=1e3)
+    dcol = tab.col("direction").header
     # (direction, cycle) -> list of (target, deviation, line) in file order
     runs: dict[tuple[int, int], list[tuple[float, float, int]]] = {}
-    for lineno, line in rows[1:]:
-        cells = next(csv.reader([line]))
-        if len(cells) < len(header):
-            raise InputError(f"expected {len(header)} fields, got {len(cells)}", path, lineno)
-        try:
-            target = float(cells[col["target"]])
-        except ValueError:
-            raise InputError(f"target must be a number in mm, got {cells[col['target']]!r}",
-                             path, lineno, "target") from None
-        try:
-            cycle = int(cells[col["cycle"]])
-        except ValueError:
-            raise InputError(f"cycle must be an integer, got {cells[col['cycle']]!r}",
-                             path, lineno, "cycle") from None
-        d = _direction(cells[col["direction"]])
+    for r, lineno in enumerate(tab.lines):
+        target, dev = float(targets[r]), float(devs[r])
+        cycle = tab.integer(r, "cycle", lo=0, hi=10**6)
+        d = _direction(tab.cell(r, "direction"))
         if d is None:
             raise InputError(f"direction must be '+' or '-' (or up/down), got "
-                             f"{cells[col['direction']]!r}", path, lineno, "direction")
-        try:
-            dev = float(cells[col["deviation"]])
-        except ValueError:
-            raise InputError(f"deviation must be a number in mm, got {cells[col['deviation']]!r}",
-                             path, lineno, "deviation") from None
-        if not (np.isfinite(target) and np.isfinite(dev)):
-            raise InputError("target and deviation must be finite", path, lineno)
+                             f"{tab.cell(r, 'direction')!r}", path, lineno, dcol)
         seq = runs.setdefault((d, cycle), [])
         if seq:
             prev = seq[-1][0]

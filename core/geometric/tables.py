@@ -499,7 +499,9 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
         if mount not in ("tool", "workpiece"):
             raise InputError(f"mount must be 'tool' or 'workpiece', got {mount!r}", path,
                              field=f"{f}.mount")
-        run = iso230_2.read_run_csv(path.parent / file, axis=ax)
+        # angular components (EAX, EBX, ...) are in rad, the others in mm
+        run = iso230_2.read_run_csv(path.parent / file, axis=ax,
+                                    unit="rad" if comp[1] in "ABC" else "mm")
         runs.append(ComponentRun(ax, comp, run, off, square, {k: float(v) for k, v in at.items()},
                                  mount))
     loc = data.get("location", {})

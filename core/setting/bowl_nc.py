@@ -26,7 +26,9 @@ def roughing_program(plan: BowlPlan, peck: float = 0.5) -> str:
     """3-axis program for the ordinary machining centre that plunges every bowl with the ball end mill.
 
     Programmed point: the ball end mill's tip (tool length measured to the tip), so the tip goes to
-    z = -depth.  Plunging in pecks of `peck` mm with a full retract clears chips.
+    z = -depth.  Plunging in pecks of `peck` mm with a full retract clears chips.  The way back
+    down into the hole is a feed move: a rapid would pass the verification against the raw blank
+    (`setting.blank_check.verify_plan_programs`) only by knowing what the peck has cut.
     """
     R, h = plan.tool_radius, plan.depth
     out = ["%", "O0001 (MTCOMP BOWLS ROUGHING)",
@@ -43,7 +45,7 @@ def roughing_program(plan: BowlPlan, peck: float = 0.5) -> str:
             out.append(f"G01 Z{_ax(z)} F{_f(plan.plunge_feed)}")
             if z > -h + 1e-9:
                 out.append("G00 Z0.5")
-                out.append(f"G00 Z{_ax(z + 0.05)}")
+                out.append(f"G01 Z{_ax(z + 0.05)} F{_f(plan.plunge_feed)}")
         out.append("G04 P500")
         out.append(f"G00 Z{_ax(plan.safe_z)}")
     out += ["M05", "M30", "%"]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,50 +51,22 @@ def write_touches(t: Touches, path) -> Path:
 
 
 def read_touches(path) -> Touches:
-    """Read a touches CSV (columns bowl,x,y,z,ax,ay,az; '#' comments); errors name file and line."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")  # bad bytes fail as cells
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
-    rows, header = [], None
-    for lineno, line in enumerate(text.splitlines(), 1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        cells = [c.strip() for c in next(csv.reader([s]))]
-        if header is None:
-            header = [c.lower() for c in cells]
-            missing = [c for c in TOUCH_COLUMNS if c not in header]
-            if missing:
-                raise InputError(f"header must contain columns {','.join(TOUCH_COLUMNS)}; missing "
-                                 f"{','.join(missing)}", path, lineno)
-            continue
-        if len(cells) != len(header):
-            raise InputError(f"expected {len(header)} values, got {len(cells)}", path, lineno)
-        rec = dict(zip(header, cells))
-        try:
-            bid = int(rec["bowl"])
-        except ValueError:
-            raise InputError(f"bowl id must be an integer, got {rec['bowl']!r}", path, lineno,
-                             "bowl") from None
-        vals = []
-        for c in TOUCH_COLUMNS[1:]:
-            try:
-                v = float(rec[c])
-            except ValueError:
-                raise InputError(f"expected a number, got {rec[c]!r}", path, lineno, c) from None
-            if not math.isfinite(v):
-                raise InputError(f"expected a finite number, got {rec[c]!r}", path, lineno, c)
-            vals.append(v)
-        a = np.array(vals[3:])
-        na = np.linalg.norm(a)
-        if na < 1e-9:
-            raise InputError("approach vector is zero", path, lineno, "ax")
-        rows.append((bid, vals[:3], a / na, lineno))
-    if not rows:
-        raise InputError("no touches in file", path)
-    return Touches(bowl=np.array([r[0] for r in rows], int),
-                   points=np.array([r[1] for r in rows], float),
-                   approach=np.array([r[2] for r in rows], float),
-                   lines=np.array([r[3] for r in rows], int), source=str(path))
+    """Read a touches CSV (columns bowl,x,y,z,ax,ay,az in any order and case, more columns
+    ignored; '#' comments; x y z in mm or with a unit in the header, docs/csv-format.md) with
+    `mtcomp.csvtable`; errors name file, line and column."""
+    from ..csvtable import read_csv
+    tab = read_csv(path, what="touches", case_sensitive=False)
+    missing = [c for c in TOUCH_COLUMNS if not tab.has(c)]
+    if missing:
+        raise tab.error(f"header must contain columns {','.join(TOUCH_COLUMNS)}; missing {','.join(missing)}")
+    if not len(tab):
+        raise InputError("no touches in file", tab.source)
+    bowl = np.array([tab.integer(r, "bowl") for r in range(len(tab))], int)
+    # 1e6 mm: far beyond any machine, and squares stay finite in the sphere fit
+    points = np.column_stack([tab.numbers(c, unit="mm", max_abs=1e6) for c in ("x", "y", "z")])
+    a = np.column_stack([tab.numbers(c, max_abs=1e6) for c in ("ax", "ay", "az")])
+    na = np.linalg.norm(a, axis=1)
+    if np.any(na < 1e-9):
+        raise tab.error("approach vector is zero", int(np.argmax(na < 1e-9)), tab.col("ax").header)
+    return Touches(bowl=bowl, points=points, approach=a / na[:, None],
+                   lines=np.array(tab.lines, int), source=str(path))

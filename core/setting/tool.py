@@ -287,68 +287,51 @@ def read_measurements(path: str | os.PathLike, plan: Plan, sigma_pos: float = 0.
                       sigma_depth: float = 0.001) -> GroovingMeasurements:
     """Read and validate a filled measurement sheet against its plan.
 
-    Every problem is an InputError naming the file, the line and the column: unknown groove ids
-    or features, angles that differ from the plan's, non-finite numbers, duplicate points, and
+    Read by `mtcomp.csvtable` (docs/csv-format.md).  Every problem is an InputError naming the
+    file, the line and the column: unknown groove ids or features, angles that differ from the
+    plan's, numbers that are not plain finite decimals of at most 1e6 mm, duplicate points, and
     grooves of the plan without any measured value."""
+    from ..csvtable import read_csv
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")  # bad bytes fail as cells
-    except FileNotFoundError:
-        raise InputError("measurement file not found", path) from None
-    lines = [(n, ln) for n, ln in enumerate(text.splitlines(), 1) if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        raise InputError("empty measurement file", path)
-    hline, header = lines[0]
-    cols = [c.strip() for c in next(csv.reader([header]))]
-    missing = [c for c in _REQUIRED if c not in cols]
+    # short rows are padded: a sheet filled in a spreadsheet often drops trailing empty cells
+    tab = read_csv(path, what="measurement", pad=True)
+    missing = [c for c in _REQUIRED if not tab.has(c)]
     if missing:
-        raise InputError(f"missing columns {missing}; expected at least {', '.join(_REQUIRED)}", path, hline)
-    idx = {c: i for i, c in enumerate(cols)}
+        raise tab.error(f"missing columns {missing}; expected at least {', '.join(_REQUIRED)}")
     ids = plan.ids
     pts, seen = [], {}
 
-    def number(cells, col, n, positive=False):
-        if col not in idx:
+    def number(r, col, positive=False):
+        """The cell in mm (NaN if empty, None without the column): a plain finite number of at
+        most 1e6 mm (docs/csv-format.md)."""
+        if not tab.has(col):
             return None
-        s = cells[idx[col]].strip()
-        if s == "":
-            return np.nan
-        try:
-            x = float(s)
-        except ValueError:
-            raise InputError(f"malformed number {s!r}: expected mm (or an empty cell)", path, n, col) from None
-        if not np.isfinite(x):
-            raise InputError(f"{s!r}: expected a finite number (leave the cell empty if not measured)", path, n, col)
-        if positive and not SIGMA_RANGE[0] <= x <= SIGMA_RANGE[1]:
-            raise InputError(f"{s!r}: expected a sigma between {SIGMA_RANGE[0]:g} and {SIGMA_RANGE[1]:g} mm",
-                             path, n, col)
-        if abs(x) > 1e6:
-            raise InputError(f"{s!r}: expected at most 1e6 mm", path, n, col)
+        x = tab.number(r, col, unit="mm", max_abs=1e6, empty=np.nan)
+        if positive and not np.isnan(x) and not SIGMA_RANGE[0] <= x <= SIGMA_RANGE[1]:
+            raise tab.error(f"{tab.cell(r, col)!r}: expected a sigma between {SIGMA_RANGE[0]:g} and "
+                            f"{SIGMA_RANGE[1]:g} mm", r, col)
         return x
 
-    for n, ln in lines[1:]:
-        cells = [c.strip() for c in next(csv.reader([ln]))]
-        if len(cells) < len(cols):
-            cells += [""] * (len(cols) - len(cells))
-        gid, feat = cells[idx["groove"]], cells[idx["feature"]]
+    for r, n in enumerate(tab.lines):
+        gid, feat = tab.cell(r, "groove"), tab.cell(r, "feature")
         if gid not in ids:
             raise InputError(f"unknown groove id {gid!r}; the plan has {', '.join(ids)}", path, n, "groove")
         if feat not in FEATURES:
             raise InputError(f"unknown feature {feat!r}; expected {' or '.join(FEATURES)}", path, n, "feature")
         g = plan.groove(gid)
         for k, col in enumerate(("a_deg", "b_deg", "c_deg")):
-            a = number(cells, col, n)
+            a = tab.number(r, col, unit="deg", max_abs=1e6, empty=np.nan) if tab.has(col) else None
             if a is not None and not np.isnan(a) and abs(a - g.angles[k]) > 1e-6:
                 raise InputError(f"inconsistent angles: {col} = {a:g} but the plan cuts groove {gid} at "
                                  f"{'ABC'[k]} = {g.angles[k]:g} deg", path, n, col)
-        if "test" in idx and cells[idx["test"]] and cells[idx["test"]] != g.test:
-            raise InputError(f"groove {gid} belongs to test {g.test}, not {cells[idx['test']]!r}", path, n, "test")
+        if tab.has("test") and tab.cell(r, "test") and tab.cell(r, "test") != g.test:
+            raise InputError(f"groove {gid} belongs to test {g.test}, not {tab.cell(r, 'test')!r}", path, n, "test")
         key = (gid, feat)
         if key in seen:
             raise InputError(f"{gid} {feat} measured twice (first on line {seen[key]})", path, n, "groove")
         seen[key] = n
-        u, v, d = (number(cells, c, n) for c in ("u_mm", "v_mm", "depth_mm"))
-        sp, sd = number(cells, "sigma_pos_mm", n, True), number(cells, "sigma_depth_mm", n, True)
+        u, v, d = (number(r, c) for c in ("u_mm", "v_mm", "depth_mm"))
+        sp, sd = number(r, "sigma_pos_mm", True), number(r, "sigma_depth_mm", True)
         sp = None if sp is None or np.isnan(sp) else sp
         sd = None if sd is None or np.isnan(sd) else sd
         if np.isnan(u) != np.isnan(v):

@@ -72,6 +72,8 @@ def register(subparsers) -> None:
                          "'auto' (report which are, default), 'none', or names like EX0C,EY0C (refused with the "
                          "reason if the tests cannot see them)")
     pl.add_argument("--no-png", action="store_true", help="skip the layout drawing")
+    pl.add_argument("--clearance", type=float, default=0.2,
+                    help="the programs are verified on their plates: rapids keep this clearance, mm (0.2)")
     pl.set_defaults(func=_plan)
 
     si = sub.add_parser("simulate", help="virtual grooving: predicted grooves and synthetic measurements")
@@ -113,6 +115,8 @@ def register(subparsers) -> None:
     es.add_argument("--report", help="text report")
     es.add_argument("--png", help="report figure")
     es.add_argument("--nc-dir", help="write compensated grooving programs here")
+    es.add_argument("--clearance", type=float, default=0.2,
+                    help="compensated programs are verified on their plates: rapids keep this clearance, mm (0.2)")
     es.set_defaults(func=_estimate)
 
 
@@ -133,9 +137,15 @@ def _plan(args) -> int:
         from .tool_estimate import _location_names
         _location_names(m, plan, args.locations, None)        # InputError naming what cannot be seen, and why
     obs = observable_parameters(m, plan)
-    files = write_plan(m, plan, args.outdir, png=not args.no_png)
+    if not args.clearance >= 0:
+        raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
+    checks = {}
+    files = write_plan(m, plan, args.outdir, png=not args.no_png, clearance=args.clearance,
+                       report=checks.update)
     print(f"{len(plan.grooves)} grooves ({', '.join(plan.ids)}) for machine {m.name}")
     print(obs.summary())
+    for res in checks.values():
+        print(res.summary())
     for f in files:
         print(f"wrote {f}")
     return 0
@@ -155,7 +165,7 @@ def _simulate(args) -> int:
     for name in ("sigma_pos", "sigma_depth"):
         if not getattr(args, name) >= 0:
             raise InputError(f"expected a sigma >= 0 mm, got {getattr(args, name)}", field=name.replace("_", "-"))
-    comp = load_errors(args.compensation) if args.compensation else None
+    comp = load_errors(args.compensation, machine=m) if args.compensation else None
     from ..errors import ErrorSet, GeometricErrors, ToolSetting
     from .tool_model import location_candidates
     bad = [k for k in args.location if k not in location_candidates(m)]
@@ -189,22 +199,29 @@ def _estimate(args) -> int:
         raise InputError("plan not found (give --plan)", plan_path)
     plan = load_plan(plan_path)
     m = _machine_for(args, plan)
+    if not args.clearance >= 0:
+        raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
     meas = read_measurements(meas_path, plan, args.sigma_pos, args.sigma_depth)
     known = None
     if args.known_errors:
         from ..errors import load_errors
-        known = load_errors(args.known_errors)
+        known = load_errors(args.known_errors, machine=m)
     est = estimate(m, meas, fit_rotation=args.fit_rotation, known=known, fit_scale=args.fit_scale,
                    locations=() if args.locations == "none" else args.locations)
     # Compute every output before writing any, so a failure leaves nothing behind.
     report = report_text(m, meas, est) if args.report else None
     progs = nc_programs(m, plan, compensation=est.errors(known)) if args.nc_dir else {}
+    # the compensated programs verified on the machine with the estimated errors (the real one)
+    from .tool_verify import verify_grooving
+    checks = verify_grooving(m, plan, progs, est.errors(known), clearance=args.clearance) if progs else {}
     print(est.summary())
     written = []
     if args.output:
         written.append(write_errors(est, args.output, source=meas_path.name, known=known))
     if report is not None:
         written.append(atomic_write(args.report, report))
+    for res in checks.values():
+        print(res.summary())
     for t, txt in progs.items():
         written.append(atomic_write(Path(args.nc_dir) / f"tool_setting_{t}_compensated.nc", txt))
     if args.png:

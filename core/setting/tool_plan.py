@@ -529,10 +529,20 @@ def groove_top_centre_offset(depth, tip_angle: float, tilt: float = 0.0):
     return np.asarray(depth) * (np.tan(h + t) - np.tan(h - t)) / 2.0
 
 
-def write_plan(machine, plan: Plan, outdir: str | os.PathLike, png: bool = True) -> list[Path]:
-    """Write plan.toml, one NC program per test (tool_setting_<T>.nc), measurements.csv and layout.png."""
+def write_plan(machine, plan: Plan, outdir: str | os.PathLike, png: bool = True,
+               clearance: float = 0.2, report=None) -> list[Path]:
+    """Write plan.toml, one NC program per test (tool_setting_<T>.nc), measurements.csv and layout.png.
+
+    The programs are verified on their plates first (`tool_verify.verify_grooving`, rapids
+    `clearance` mm off): a violation raises VerifyError and nothing is written.  `report(results)`
+    gets the {test: VerifyResult}."""
+    from ..machine import load_machine
+    from .tool_verify import verify_grooving
     outdir = Path(outdir)
     progs = nc_programs(machine, plan)
+    results = verify_grooving(load_machine(machine), plan, progs, clearance=clearance)
+    if report is not None:
+        report(results)
     files = {"plan.toml": plan_to_toml(plan), "measurements.csv": sheet_template(plan)}
     files.update({f"tool_setting_{t}.nc": txt for t, txt in progs.items()})
     written = [atomic_write(outdir / name, txt) for name, txt in files.items()]

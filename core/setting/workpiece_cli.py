@@ -34,6 +34,8 @@ def _warn(lines):
 def cmd_plan(args) -> int:
     from .._io import atomic_write, dump_toml
     from .bowls import plan_bowls, plan_to_dict, probing_program, roughing_program
+    if not args.clearance >= 0:
+        raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
     plan = plan_bowls(args.bowls, blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
                       depth=args.depth, probe_radius=args.probe_radius, touches=args.touches,
                       positions=_positions(args.positions) if args.positions else None)
@@ -47,11 +49,16 @@ def cmd_plan(args) -> int:
     # all texts first, then the files: an error leaves nothing behind
     texts = [(out, dump_toml(plan_to_dict(plan))), (rough, roughing_program(plan)),
              (probe, probing_program(plan, aim=aim))]
+    # both programs verified on the blank before anything is written (issue 14)
+    from .blank_check import verify_plan_programs
+    checks = verify_plan_programs(plan, texts[1][1], texts[2][1], clearance=args.clearance)
     for path, text in texts:
         atomic_write(path, text)
     print(f"{len(plan.bowls)} bowls R{plan.tool_radius:g} depth {plan.depth:g} mm, "
           f"{len(plan.directions)} touches each with probe R{plan.probe_radius:g}: "
           f"{out}, {rough}, {probe}")
+    for res in checks:
+        print(res.summary())
     return 0
 
 
@@ -101,15 +108,24 @@ def cmd_fit(args) -> int:
 
 def cmd_compensate(args) -> int:
     from .._io import load_toml
+    from .. import gcode
+    from .._io import atomic_write
     from ..errors import load_errors
     from ..machine import load_machine
-    from .workpiece import compensate_program
+    from ..verify import VerifyError
+    from .blank_check import verify_on_blank
+    from .workpiece import compensate_text
+    if not (args.clearance >= 0 and args.tool_radius >= 0):
+        raise InputError("expected a clearance and a tool radius >= 0 mm",
+                         field="--clearance" if not args.clearance >= 0 else "--tool-radius")
+    if args.no_verify and (args.plan or args.stock):
+        raise InputError("--no-verify with --plan or --stock: choose one", field="--no-verify")
     machine = load_machine(args.machine)
     # an errors file without the section would read as a zero pose and copy the program unchanged
     if "workpiece_setting" not in load_toml(args.errors):
         raise InputError("no [workpiece_setting] section: expected the output of "
                          "'mtcomp workpiece-setting fit'", args.errors, field="workpiece_setting")
-    errors = load_errors(args.errors)
+    errors = load_errors(args.errors, machine=machine)
     # the transform applies the workpiece setting only: other errors in the file would be dropped
     # without a word, and the user believes the program compensated for them
     other = [name for name, zero in (("[tool_setting]", errors.tool.is_zero),
@@ -119,9 +135,50 @@ def cmd_compensate(args) -> int:
                          "(it transforms for the workpiece setting only): use 'mtcomp compensate' to apply "
                          "every error of the file, or pass --workpiece-only to apply just [workpiece_setting]",
                          args.errors, field=other[0].strip("[]"))
-    n = compensate_program(machine, args.program, errors.workpiece, args.out, mode=args.mode)
-    print(f"{n} motion lines transformed ({args.mode}) -> {args.out}")
+    stock, source = _blank(args)
+    text = gcode.read_program(args.program)
+    new, n = compensate_text(machine, text, errors.workpiece, mode=args.mode, filename=str(args.program))
+    print(f"{n} motion lines transformed ({args.mode})")
+    if stock is not None:
+        # verified as the control runs it, on the blank where it really is (the measured pose),
+        # before the file exists: a failing program is never written unless asked
+        res = verify_on_blank(machine, new, errors.workpiece, stock, clearance=args.clearance,
+                              tool_radius=args.tool_radius, filename=str(args.out),
+                              raise_on_violation=False)
+        print(f"blank from {source}, at the measured pose:")
+        print("  " + res.summary().replace("\n", "\n  "))
+        if not res.ok and not args.warn_only:
+            raise VerifyError(f"{len(res.violations)} block(s) fail the verification, nothing written; "
+                              f"first: {res.violations[0].describe(res.clearance, res.tolerance)} "
+                              "(--warn-only writes it anyway)", res)
+    else:
+        _warn(["program not verified: give --plan (the blank of a bowl plan) or --stock"])
+    atomic_write(args.out, new)
+    print(f"wrote {args.out}")
     return 0
+
+
+def _blank(args):
+    """The stock to verify against and where it comes from: --stock, --plan, or the plan named
+    in the errors file's [meta] by 'mtcomp workpiece-setting fit' (found as written or next to
+    the errors file); (None, None) without any."""
+    from .._io import load_toml
+    from ..verify import parse_stock
+    from .blank_check import plan_stock
+    from .bowls import load_plan
+    if args.stock:
+        return parse_stock(args.stock), args.stock
+    if args.plan:
+        return plan_stock(load_plan(args.plan)), args.plan
+    if args.no_verify:
+        return None, None
+    meta = load_toml(args.errors).get("meta", {})
+    named = meta.get("plan") if isinstance(meta, dict) else None
+    if isinstance(named, str) and named:
+        for cand in (Path(named), Path(args.errors).parent / Path(named).name):
+            if cand.is_file():
+                return plan_stock(load_plan(cand)), f"{cand} (plan of the fit)"
+    return None, None
 
 
 def cmd_simulate(args) -> int:
@@ -172,6 +229,8 @@ def register(subparsers) -> None:
     a.add_argument("--probing", help="probing program (default <plan>-probing.nc)")
     a.add_argument("--aim", help="errors TOML of a coarse first probing: place the probing "
                    "moves on the blank where it was found (second pass)")
+    a.add_argument("--clearance", type=float, default=0.2,
+                   help="the programs are verified on the blank: rapids keep this clearance, mm (0.2)")
     a.set_defaults(func=cmd_plan)
 
     a = sub.add_parser("probe", help="virtual probing of a blank at a given pose (touches CSV)")
@@ -214,6 +273,17 @@ def register(subparsers) -> None:
                    help="3axis: paper 001 formula; 5axis: tool direction too (default auto)")
     a.add_argument("--workpiece-only", action="store_true",
                    help="apply only [workpiece_setting] of an errors file that has other errors too")
+    a.add_argument("--plan", help="bowl plan TOML: verify the program against its blank (default: the "
+                   "plan named in the errors file by 'workpiece-setting fit', if found)")
+    a.add_argument("--stock", help="verify against this stock instead: box:x0,y0,z0,x1,y1,z1 (mm, blank "
+                   "frame), plane:Z or a STEP file")
+    a.add_argument("--clearance", type=float, default=0.2,
+                   help="clearance every rapid keeps from the blank, mm (0.2)")
+    a.add_argument("--tool-radius", type=float, default=0.0,
+                   help="ball radius of the tool for the verification, mm (0: point tool)")
+    a.add_argument("--warn-only", action="store_true",
+                   help="write the program even if the verification fails (prints the failures)")
+    a.add_argument("--no-verify", action="store_true", help="do not look for the plan of the fit")
     a.add_argument("-o", "--out", required=True, help="program to write")
     a.set_defaults(func=cmd_compensate)
 
