@@ -157,3 +157,11 @@ def test_text_fixes_spindle_temperature_near_zero_and_clock_sign():
     text = diagnose(case.sim, case.rec).summary()
     assert "- -" not in text and "e-15" not in text
     assert "clocks aligned: REC's clock runs -0.25" in text
+
+
+def test_one_velocity_output_chosen_by_option_is_not_taken_for_stop_and_measure():
+    # constant-velocity stretches are not rest: with --output vz alone the lag is still named
+    res = diagnose(HERE / "sim.csv", HERE / "rec.csv", outputs=["vz"])
+    assert not res.alignment["at_rest"]
+    assert res.names == ["servo_lag"], res.summary()
+    assert res.alignment["columns"]["vx"]["role"] == "input"

@@ -273,13 +273,23 @@ def _refine_offset(sim, rec, outputs, sim_f, offset0, step):
     return off, cost_fine(off), cost_fine(0.0)
 
 
-def _at_rest_fraction(sim, outputs, t):
-    """Fraction of the times t at which every SIM output rests (stop-and-measure recordings)."""
-    still = np.ones(len(t), bool)
+def _stop_and_measure(sim, outputs, t) -> bool:
+    """Are the times t (REC's samples) taken only while SIM rests, though SIM moves often?
+
+    Stop-and-measure: at least 90 % of the readings fall where every SIM output rests, and the
+    readings taken in motion are fewer than a fifth of the share of time SIM spends moving (an
+    axis that simply rests most of the time, recorded at a steady rate, is not one).
+    """
+    still_t = np.ones(len(t), bool)
+    still_sim = np.ones(len(sim.t), bool)
     moving_any = False
     for k in outputs:
         c = sim.columns[k]
-        v = np.gradient(c.values, sim.t)
+        if c.kind in ("acceleration", "angular_acceleration"):
+            continue
+        # the speed: the derivative of a position, a velocity itself
+        v = (c.values if c.kind in ("velocity", "angular_velocity")
+             else np.gradient(c.values, sim.t))
         vmax = float(np.max(np.abs(v)))
         if vmax == 0:
             continue
@@ -287,8 +297,14 @@ def _at_rest_fraction(sim, outputs, t):
         fast = np.abs(v) > 1e-3 * vmax
         # a sample is at rest when SIM rests at it and at its neighbours in SIM's own samples
         i = np.clip(np.searchsorted(sim.t, t), 1, len(sim.t) - 1)
-        still &= ~fast[i] & ~fast[i - 1]
-    return float(np.mean(still)) if moving_any else 0.0
+        still_t &= ~fast[i] & ~fast[i - 1]
+        still_sim &= ~fast
+    if not moving_any:
+        return False
+    w = np.gradient(sim.t)  # time each SIM sample stands for
+    moving_time = float(np.sum(w[~still_sim]) / np.sum(w))
+    moving_reads = 1.0 - float(np.mean(still_t))
+    return moving_reads <= 0.1 and moving_reads < 0.2 * moving_time
 
 
 def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, inputs=None,
@@ -375,7 +391,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     # outputs of unknown kind are taken as positions of an unnamed axis (as by the effects)
     motion_outs = [k for k in outputs if sim.columns[k].kind in MOTION_KINDS + ("other",)]
     at_rest = (clock_offset == 0.0 and len(motion_outs) > 0 and len(rec_in) >= 8
-               and _at_rest_fraction(sim, motion_outs, rec_in) >= 0.9)
+               and _stop_and_measure(sim, motion_outs, rec_in))
     notes = tuple(notes)
     offset0 = 0.0
     max_lag = 0.25 * overlap
