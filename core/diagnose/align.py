@@ -230,47 +230,55 @@ def _refine_offset(sim, rec, outputs, sim_f, offset0, step):
         tg, fl = lag[k]
         return np.array([float(np.sum(((y - np.interp(x, tg, f)) * wk) ** 2)) for f in fl.values()])
 
-    def cost(off):
-        # per output the least cost over the grid of lags (the scan)
+    def cost_k(off, j):
+        # one output: the least cost over the grid of lags (the scan)
         x = np.clip(t - off, lo_t, hi_t)
-        return sum(float(grid_costs(x, k, y, wk).min()) for k, y, wk in zip(outputs, ys, w))
+        return float(grid_costs(x, outputs[j], ys[j], w[j]).min())
 
-    def cost_fine(off):
-        # per output the least cost over a continuous lag (bounded scalar search between the
+    def fine_k(off, j):
+        # one output: the least cost over a continuous lag (bounded scalar search between the
         # neighbours of the best grid lag): a grid minimum alone is bumpy in the offset, and
         # the offset would take up the lag's rounding
         from .effects import first_order
+        k, y, wk = outputs[j], ys[j], w[j]
         x = np.clip(t - off, lo_t, hi_t)
-        total = 0.0
-        for k, y, wk in zip(outputs, ys, w):
-            c = grid_costs(x, k, y, wk)
-            i = int(np.argmin(c))
-            tg, fl = lag[k]
-            p0 = fl[taus[0]]
-            # the bracket reaches down to (almost) no lag when the best grid lag is the
-            # smallest: a lag of one fine step and a shorter offset are nearly the same curve
-            lo_l = math.log(taus[i - 1] if i >= 2 else taus[1] * 1e-3)
-            hi_l = math.log(taus[min(i + 1, len(taus) - 1)])
+        c = grid_costs(x, k, y, wk)
+        i = int(np.argmin(c))
+        tg, fl = lag[k]
+        p0 = fl[taus[0]]
+        # the bracket reaches down to (almost) no lag when the best grid lag is the smallest:
+        # a lag of one fine step and a shorter offset are nearly the same curve
+        lo_l = math.log(taus[i - 1] if i >= 2 else taus[1] * 1e-3)
+        hi_l = math.log(taus[min(i + 1, len(taus) - 1)])
 
-            def ck(lt, _x=x, _y=y, _wk=wk, _tg=tg, _p0=p0):
-                f = first_order(_p0, h, math.exp(lt))
-                return float(np.sum(((_y - np.interp(_x, _tg, f)) * _wk) ** 2))
-            r = minimize_scalar(ck, bounds=(lo_l, hi_l), method="bounded", options={"xatol": 2e-3})
-            total += min(float(r.fun), float(c[i]), float(c[0]))
-        return total
+        def ck(lt):
+            f = first_order(p0, h, math.exp(lt))
+            return float(np.sum(((y - np.interp(x, tg, f)) * wk) ** 2))
+        r = minimize_scalar(ck, bounds=(lo_l, hi_l), method="bounded", options={"xatol": 2e-3})
+        return min(float(r.fun), float(c[i]), float(c[0]))
 
     # the correlation peak includes the lags (REC late by clock + lag): the scan reaches
     # 0.15 s before it, and past it for slow, smooth moves whose peak is broad
     half = max(5 * step, 0.05 * abs(offset0), 0.15)
     grid = offset0 + np.linspace(-half, half, 121)
-    costs = [cost(g) for g in grid]
-    best = int(np.argmin(costs))
     hstep = grid[1] - grid[0]
-    # the scan's lag grid is coarse: its best offset can be a step or two off the profile's
-    res = minimize_scalar(cost_fine, bounds=(grid[best] - 4 * hstep, grid[best] + 4 * hstep),
-                          method="bounded", options={"xatol": 1e-5})
-    off = float(res.x) if res.success else float(grid[best])
-    return off, cost_fine(off), cost_fine(0.0)
+    # each output's own offset (scan, then Brent on the continuous-lag profile: the scan's lag
+    # grid is coarse, its best offset can be a step or two off), then a weighted mean: an
+    # output the lag model fits badly (a backlash, friction) says little about the clock and
+    # weighs by its poor fit
+    offs, wts = [], []
+    for j in range(len(outputs)):
+        costs = [cost_k(g, j) for g in grid]
+        best = int(np.argmin(costs))
+        res = minimize_scalar(lambda o, _j=j: fine_k(o, _j),
+                              bounds=(grid[best] - 4 * hstep, grid[best] + 4 * hstep),
+                              method="bounded", options={"xatol": 1e-5})
+        o_j = float(res.x) if res.success else float(grid[best])
+        offs.append(o_j)
+        wts.append(len(t) / max(fine_k(o_j, j), 1e-12 * len(t)))
+    off = float(np.average(offs, weights=wts))
+    total = lambda o: sum(fine_k(o, j) for j in range(len(outputs)))  # noqa: E731
+    return off, total(off), total(0.0)
 
 
 def _stop_and_measure(sim, outputs, t) -> bool:
