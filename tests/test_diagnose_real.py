@@ -157,3 +157,40 @@ def test_text_fixes_spindle_temperature_near_zero_and_clock_sign():
     text = diagnose(case.sim, case.rec).summary()
     assert "- -" not in text and "e-15" not in text
     assert "clocks aligned: REC's clock runs -0.25" in text
+
+
+def test_one_velocity_output_chosen_by_option_is_not_taken_for_stop_and_measure():
+    # constant-velocity stretches are not rest: with --output vz alone the lag is still named
+    res = diagnose(HERE / "sim.csv", HERE / "rec.csv", outputs=["vz"])
+    assert not res.alignment["at_rest"]
+    assert res.names == ["servo_lag"], res.summary()
+    assert res.alignment["columns"]["vx"]["role"] == "input"
+
+
+def test_clock_offset_with_backlash_names_no_lag():
+    # the demo's recording: a backlash on x, REC on a clock 0.25 s apart, no servo lag. A
+    # backlash looks like a lag to the clock alignment; it must neither bias the clock nor be
+    # explained by lags on every axis.
+    rng = np.random.default_rng(0)
+    pts = [np.zeros(3)]
+    for _ in range(6):
+        pts.append(np.clip(pts[-1] + rng.uniform(-15, 15, 3), [-50, -50, -40], [50, 50, 0]))
+    q = []
+    for a, b in zip(pts[:-1], pts[1:]):
+        s = np.linspace(0, 1, int(np.linalg.norm(b - a) / 10.0 / 1e-3) + 2)[:, None]
+        q.append(a + (3 * s ** 2 - 2 * s ** 3) * (b - a))
+        q.append(np.repeat(b[None], int(rng.integers(100, 400)), axis=0))
+    q = np.vstack(q)
+    t = np.arange(len(q)) * 1e-3
+    real = q + rng.normal(0, 2e-5, q.shape)
+    cur, h = q[0, 0], 0.002
+    for k in range(len(t)):  # play operator of 4 µm on x, stepped sample by sample
+        cur = min(max(cur, q[k, 0] - h), q[k, 0] + h)
+        real[k, 0] = cur + rng.normal(0, 2e-5)
+    tr = np.arange(0.25, t[-1] - 0.1, 2.5e-3)
+    sim = {"t": t, "x": q[:, 0], "y": q[:, 1], "z": q[:, 2]}
+    rec = {"t": tr - 0.25, **{f"{c}[um]": np.interp(tr, t, real[:, j]) * 1e3 for j, c in enumerate("xyz")}}
+    res = diagnose(sim, rec)
+    assert res.names == ["backlash"], res.summary()
+    assert res.alignment["clock_offset_s"] == pytest.approx(-0.25, abs=2e-4)
+    assert res.effects[0].params["backlash_mm"] == pytest.approx(4e-3, rel=0.02)

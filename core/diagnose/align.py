@@ -230,56 +230,74 @@ def _refine_offset(sim, rec, outputs, sim_f, offset0, step):
         tg, fl = lag[k]
         return np.array([float(np.sum(((y - np.interp(x, tg, f)) * wk) ** 2)) for f in fl.values()])
 
-    def cost(off):
-        # per output the least cost over the grid of lags (the scan)
+    def cost_k(off, j):
+        # one output: the least cost over the grid of lags (the scan)
         x = np.clip(t - off, lo_t, hi_t)
-        return sum(float(grid_costs(x, k, y, wk).min()) for k, y, wk in zip(outputs, ys, w))
+        return float(grid_costs(x, outputs[j], ys[j], w[j]).min())
 
-    def cost_fine(off):
-        # per output the least cost over a continuous lag (bounded scalar search between the
+    def fine_k(off, j):
+        # one output: the least cost over a continuous lag (bounded scalar search between the
         # neighbours of the best grid lag): a grid minimum alone is bumpy in the offset, and
         # the offset would take up the lag's rounding
         from .effects import first_order
+        k, y, wk = outputs[j], ys[j], w[j]
         x = np.clip(t - off, lo_t, hi_t)
-        total = 0.0
-        for k, y, wk in zip(outputs, ys, w):
-            c = grid_costs(x, k, y, wk)
-            i = int(np.argmin(c))
-            tg, fl = lag[k]
-            p0 = fl[taus[0]]
-            # the bracket reaches down to (almost) no lag when the best grid lag is the
-            # smallest: a lag of one fine step and a shorter offset are nearly the same curve
-            lo_l = math.log(taus[i - 1] if i >= 2 else taus[1] * 1e-3)
-            hi_l = math.log(taus[min(i + 1, len(taus) - 1)])
+        c = grid_costs(x, k, y, wk)
+        i = int(np.argmin(c))
+        tg, fl = lag[k]
+        p0 = fl[taus[0]]
+        # the bracket reaches down to (almost) no lag when the best grid lag is the smallest:
+        # a lag of one fine step and a shorter offset are nearly the same curve
+        lo_l = math.log(taus[i - 1] if i >= 2 else taus[1] * 1e-3)
+        hi_l = math.log(taus[min(i + 1, len(taus) - 1)])
 
-            def ck(lt, _x=x, _y=y, _wk=wk, _tg=tg, _p0=p0):
-                f = first_order(_p0, h, math.exp(lt))
-                return float(np.sum(((_y - np.interp(_x, _tg, f)) * _wk) ** 2))
-            r = minimize_scalar(ck, bounds=(lo_l, hi_l), method="bounded", options={"xatol": 2e-3})
-            total += min(float(r.fun), float(c[i]), float(c[0]))
-        return total
+        def ck(lt):
+            f = first_order(p0, h, math.exp(lt))
+            return float(np.sum(((y - np.interp(x, tg, f)) * wk) ** 2))
+        r = minimize_scalar(ck, bounds=(lo_l, hi_l), method="bounded", options={"xatol": 2e-3})
+        return min(float(r.fun), float(c[i]), float(c[0]))
 
     # the correlation peak includes the lags (REC late by clock + lag): the scan reaches
     # 0.15 s before it, and past it for slow, smooth moves whose peak is broad
     half = max(5 * step, 0.05 * abs(offset0), 0.15)
     grid = offset0 + np.linspace(-half, half, 121)
-    costs = [cost(g) for g in grid]
-    best = int(np.argmin(costs))
     hstep = grid[1] - grid[0]
-    # the scan's lag grid is coarse: its best offset can be a step or two off the profile's
-    res = minimize_scalar(cost_fine, bounds=(grid[best] - 4 * hstep, grid[best] + 4 * hstep),
-                          method="bounded", options={"xatol": 1e-5})
-    off = float(res.x) if res.success else float(grid[best])
-    return off, cost_fine(off), cost_fine(0.0)
+    # each output's own offset (scan, then Brent on the continuous-lag profile: the scan's lag
+    # grid is coarse, its best offset can be a step or two off), then a weighted mean: an
+    # output the lag model fits badly (a backlash, friction) says little about the clock and
+    # weighs by its poor fit
+    offs, wts = [], []
+    for j in range(len(outputs)):
+        costs = [cost_k(g, j) for g in grid]
+        best = int(np.argmin(costs))
+        res = minimize_scalar(lambda o, _j=j: fine_k(o, _j),
+                              bounds=(grid[best] - 4 * hstep, grid[best] + 4 * hstep),
+                              method="bounded", options={"xatol": 1e-5})
+        o_j = float(res.x) if res.success else float(grid[best])
+        offs.append(o_j)
+        wts.append(len(t) / max(fine_k(o_j, j), 1e-12 * len(t)))
+    off = float(np.average(offs, weights=wts))
+    total = lambda o: sum(fine_k(o, j) for j in range(len(outputs)))  # noqa: E731
+    return off, total(off), total(0.0)
 
 
-def _at_rest_fraction(sim, outputs, t):
-    """Fraction of the times t at which every SIM output rests (stop-and-measure recordings)."""
-    still = np.ones(len(t), bool)
+def _stop_and_measure(sim, outputs, t) -> bool:
+    """Are the times t (REC's samples) taken only while SIM rests, though SIM moves often?
+
+    Stop-and-measure: at least 90 % of the readings fall where every SIM output rests, and the
+    readings taken in motion are fewer than a fifth of the share of time SIM spends moving (an
+    axis that simply rests most of the time, recorded at a steady rate, is not one).
+    """
+    still_t = np.ones(len(t), bool)
+    still_sim = np.ones(len(sim.t), bool)
     moving_any = False
     for k in outputs:
         c = sim.columns[k]
-        v = np.gradient(c.values, sim.t)
+        if c.kind in ("acceleration", "angular_acceleration"):
+            continue
+        # the speed: the derivative of a position, a velocity itself
+        v = (c.values if c.kind in ("velocity", "angular_velocity")
+             else np.gradient(c.values, sim.t))
         vmax = float(np.max(np.abs(v)))
         if vmax == 0:
             continue
@@ -287,8 +305,14 @@ def _at_rest_fraction(sim, outputs, t):
         fast = np.abs(v) > 1e-3 * vmax
         # a sample is at rest when SIM rests at it and at its neighbours in SIM's own samples
         i = np.clip(np.searchsorted(sim.t, t), 1, len(sim.t) - 1)
-        still &= ~fast[i] & ~fast[i - 1]
-    return float(np.mean(still)) if moving_any else 0.0
+        still_t &= ~fast[i] & ~fast[i - 1]
+        still_sim &= ~fast
+    if not moving_any:
+        return False
+    w = np.gradient(sim.t)  # time each SIM sample stands for
+    moving_time = float(np.sum(w[~still_sim]) / np.sum(w))
+    moving_reads = 1.0 - float(np.mean(still_t))
+    return moving_reads <= 0.1 and moving_reads < 0.2 * moving_time
 
 
 def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, inputs=None,
@@ -375,7 +399,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     # outputs of unknown kind are taken as positions of an unnamed axis (as by the effects)
     motion_outs = [k for k in outputs if sim.columns[k].kind in MOTION_KINDS + ("other",)]
     at_rest = (clock_offset == 0.0 and len(motion_outs) > 0 and len(rec_in) >= 8
-               and _at_rest_fraction(sim, motion_outs, rec_in) >= 0.9)
+               and _stop_and_measure(sim, motion_outs, rec_in))
     notes = tuple(notes)
     offset0 = 0.0
     max_lag = 0.25 * overlap

@@ -402,6 +402,10 @@ class ServoLag(Candidate):
         # up to 20 per grid step, or 5x SIM's rate when the recording is sparse (the lag is
         # resolved through SIM, which is dense)
         hi = max(20.0 / ctx.al.dt, 5.0 * ctx.al.rates["sim"], 1.0)
+        if type(self) is ServoLag:
+            # identifiable: a lag shorter than half of the finer file's sample step cannot be
+            # told from a pure delay (time_offset), which then has to explain it
+            hi = min(hi, 2.0 * max(ctx.al.rates["sim"], ctx.al.rates["rec"]))
         return [math.log(max(0.5, 1.0 / ctx.duration))], [math.log(hi)]
 
     def build(self, ctx, eta):

@@ -275,7 +275,7 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
     log = []
     model, etas = [], []
     cur = fit(ctx, [], [])
-    cv_cur, _ = cross_validate(ctx, [], [], st.folds)
+    cv_cur, oof_cur = cross_validate(ctx, [], [], st.folds)
     srows = _screen_rows(ctx, st.screen_rows)
     evidence = {}
     coarse_cache = {}
@@ -353,9 +353,17 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             if snr < st.min_effect_snr:
                 log.append(f"step {step + 1}: {c.label} rejected: RMS {snr:.2f} x noise")
                 continue
-            cv_new, _ = cross_validate(ctx, m_new, f.etas, st.folds)
+            cv_new, oof_new = cross_validate(ctx, m_new, f.etas, st.folds)
             gain = 1.0 - cv_new / cv_cur
-            if gain < st.cv_min_gain:
+            # materiality on the effect's own outputs (one output with a tiny noise floor must
+            # not make every other output's effects look immaterial), and no loss overall
+            own = np.zeros(ctx.N, bool)
+            for o in c.outputs:
+                own[ctx.slices[o]] = True
+            sse_cur_own = float(oof_cur[own] @ oof_cur[own])
+            gain_own = 1.0 - float(oof_new[own] @ oof_new[own]) / sse_cur_own if sse_cur_own > 0 else 0.0
+            if gain_own < st.cv_min_gain or gain <= 0:
+                gain = min(gain, gain_own)
                 log.append(f"step {step + 1}: {c.label} rejected: held-out error "
                            f"{-100 * gain:+.1f} %")
                 continue
@@ -367,7 +375,7 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             evidence[c.label] = {"delta_bic": round(float(dbic), 2),
                                  "heldout_error_reduction": round(float(gain), 4),
                                  "snr": round(snr, 2), "n_effective": round(float(neff), 1)}
-            model, etas, cur, cv_cur = m_new, list(f.etas), f, cv_new
+            model, etas, cur, cv_cur, oof_cur = m_new, list(f.etas), f, cv_new, oof_new
             accepted = True
             if progress:
                 progress(f"{what} {c.label}")
