@@ -19,7 +19,6 @@ benchmarks/diagnose_suite.py, which reports it beside the in-family suite.
 """
 from __future__ import annotations
 
-import math
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor

@@ -207,10 +207,11 @@ def _refine_offset(sim, rec, outputs, sim_f, offset0, step):
     """Clock offset estimated jointly with a first-order lag per output.
 
     A servo lag delays a moving axis by about 1/kv: an offset fitted alone takes the true clock
-    difference plus the lag, and the lag is then lost to the effects.  Here every trial offset
-    is scored with the best lag (0 .. 0.5 s, a grid then a parabola) of each output, the lag
-    filter running on a grid fine against both files' steps.  Returns (offset, cost at offset,
-    cost at zero offset), costs in noise-weighted squares.
+    difference plus the lag, and the lag is then lost to the effects.  Here each output's
+    offset is scored with its best lag (0 .. 0.5 s: a grid, then a bounded scalar search), the
+    lag filter running on a grid fine against both files' steps; the outputs' offsets are
+    averaged with weights inverse to their misfit.  Returns (offset, cost at offset, cost at
+    zero offset), costs in noise-weighted squares.
     """
     from scipy.optimize import minimize_scalar
     lo_t, hi_t = float(sim.t[0]), float(sim.t[-1])
