@@ -1,0 +1,291 @@
+"""Co-simulate the machine FMU with a base and an updated model; compare both with a recording.
+
+`simulate` runs NC program -> machine FMU (no compensator in the loop: what the machine does
+with the programmed commands) and returns the tool edge signals; `write_signals` writes them as
+the SIM/REC CSV `mtcomp diagnose` reads, with a provenance sidecar (``<csv>.provenance.toml``:
+program, machine, errors, dynamics, step) from which `resimulate` rebuilds the same run with the
+fitted parameters.  `resimulate` reports RMS of REC - SIM and REC - updated SIM per output on all
+samples and on held-out time blocks, with a figure.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._io import InputError, atomic_write, dump_toml, parse_toml, read_text
+from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting, load_errors
+from ..machine import load_machine
+
+OUTPUTS = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Tool edge signals of one run: t (K,) s, p (K, 3) mm (x, y, z in the real workpiece frame,
+    read at the end of each step), q (K, n) programmed axis commands (mm, deg)."""
+    t: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    axes: tuple
+
+
+def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *, step: float = 1e-3,
+             spindle_speed: float = 0.0, workdir=None, compiler: str = "cmake") -> Signals:
+    """Run the NC program (path, text, or (K, n) command array) through the machine FMU built
+    with `errors` and `dynamics` (mtcomp.fmu.build.MachineDynamics) at `step` s; the machine
+    gets the programmed commands (the uncompensated run of mtcomp.fmu.cosim.cosimulate)."""
+    from ..fmu.cosim import cosimulate
+    machine = load_machine(machine)
+    errors = errors or ErrorSet()
+    res = cosimulate(program, machine, errors, ErrorSet(), step=step, dynamics=dynamics,
+                     spindle_speed=spindle_speed, workdir=workdir, compiler=compiler)
+    return Signals(res.t, res.p_uncompensated, res.q_programmed, tuple(res.axes))
+
+
+def signals_csv(sig: Signals, machine) -> str:
+    """CSV text: t (s), x, y, z (mm); the programmed angles of rotary axes (deg, lower-case
+    letters) as inputs for the diagnosis (pivot offsets follow them)."""
+    machine = load_machine(machine)
+    cols = ["t"] + list(OUTPUTS)
+    data = [sig.t] + [sig.p[:, k] for k in range(3)]
+    for i, ax in enumerate(machine.axes):
+        if ax.is_rotary:
+            cols.append(ax.name.lower())
+            data.append(sig.q[:, i])
+    arr = np.column_stack(data)
+    lines = [",".join(cols)] + [",".join(repr(float(v)) for v in row) for row in arr]
+    return "\n".join(lines) + "\n"
+
+
+def _rel(path, base: Path) -> str:
+    import os
+    return os.path.relpath(os.path.abspath(path), os.path.abspath(base))
+
+
+def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None, dynamics=None,
+                  step: float, spindle_speed: float = 0.0) -> Path:
+    """Write the signals CSV and its provenance sidecar `<path>.provenance.toml` (paths in it
+    relative to its folder; the dynamics inline)."""
+    path = Path(path)
+    machine = load_machine(machine)
+    atomic_write(path, signals_csv(sig, machine))
+    prov: dict = {"machine": machine.name, "step_s": float(step), "spindle_speed_rpm": float(spindle_speed)}
+    if program is not None and Path(str(program)).is_file():
+        prov["program"] = _rel(program, path.parent)
+    if errors_path is not None:
+        prov["errors"] = _rel(errors_path, path.parent)
+    if dynamics is not None:
+        d = asdict(dynamics)
+        prov["dynamics"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+    atomic_write(provenance_path(path), "# provenance of a simulated signal file (docs/model-loop.md)\n"
+                 + dump_toml({"simulation": prov}))
+    return path
+
+
+def provenance_path(csv_path) -> Path:
+    p = Path(csv_path)
+    return p.with_name(p.name + ".provenance.toml")
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """How a SIM file was made: program path, machine, errors (ErrorSet), dynamics
+    (MachineDynamics), step (s), spindle speed (1/min)."""
+    program: Path | None
+    machine: object
+    errors: ErrorSet
+    dynamics: object
+    step: float
+    spindle_speed: float
+
+
+def read_provenance(csv_path) -> Provenance:
+    from ..fmu.build import MachineDynamics
+    path = provenance_path(csv_path)
+    if not path.is_file():
+        raise InputError(f"no provenance sidecar {path.name} next to the simulation file: give --program, "
+                         "--machine, --step (and --errors, --dynamics) instead", csv_path)
+    d = parse_toml(read_text(path, what="provenance file"), path).get("simulation")
+    if not isinstance(d, dict) or "machine" not in d or "step_s" not in d:
+        raise InputError("expected a table [simulation] with machine and step_s", path, field="simulation")
+    machine = load_machine(d["machine"])
+    errors = load_errors(path.parent / d["errors"], machine=machine) if "errors" in d else ErrorSet()
+    dyn = MachineDynamics(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get("dynamics", {}).items()})
+    prog = path.parent / d["program"] if "program" in d else None
+    return Provenance(prog, machine, errors, dyn, float(d["step_s"]), float(d.get("spindle_speed_rpm", 0.0)))
+
+
+def read_recording(path) -> tuple:
+    """(t (K,) s, {output: (K,) mm}) of a CSV with t and x/y/z columns (units from the header)."""
+    from ..csvtable import read_csv
+    tab = read_csv(path, what="recording", required=("t",))
+    t = tab.numbers("t", unit="s")
+    out = {}
+    for o in OUTPUTS:
+        try:
+            out[o] = tab.numbers(o, unit="mm")
+        except (InputError, KeyError):
+            continue
+    if not out:
+        raise InputError("expected tool edge columns x, y and/or z", path)
+    return t, out
+
+
+# ---------------------------------------------------------------- composition with a base model
+
+def combine_errors(base: ErrorSet, fitted: ErrorSet, machine) -> ErrorSet:
+    """The base errors plus the fitted ones (the diagnosis fits what the base lacked): setting
+    offsets and angles add (small angles), location errors add, tables add on the fitted table's
+    grid (the base table must cover it)."""
+    tool = np.add(base.tool.offset, fitted.tool.offset)
+    tr = np.add(base.workpiece.translation, fitted.workpiece.translation)
+    ang = np.add(base.workpiece.angles, fitted.workpiece.angles)
+    loc = dict(base.geometric.location)
+    for k, v in fitted.geometric.location.items():
+        loc[k] = loc.get(k, 0.0) + v
+    tables = dict(base.geometric.tables)
+    for ax, t in fitted.geometric.tables.items():
+        if ax in tables:
+            b = tables[ax]
+            vals = {k: np.asarray(v, float).copy() for k, v in t.values.items()}
+            for k, v in b.values.items():
+                add = np.interp(t.position, b.position, np.asarray(v, float))
+                vals[k] = vals.get(k, 0.0) + add
+            tables[ax] = AxisErrorTable(ax, t.position, vals, source="base + diagnosis")
+        else:
+            tables[ax] = t
+    return ErrorSet(ToolSetting(tuple(tool)), WorkpieceSetting(tuple(tr), tuple(ang)), GeometricErrors(tables, loc))
+
+
+# ---------------------------------------------------------------- re-simulation
+
+@dataclass(frozen=True)
+class ResimResult:
+    """REC against the original and the updated model.
+
+    t (K,) s on REC's clock; rec, sim, updated: {output: (K,) mm}; blocks: the time blocks
+    ((t0, t1) s); rms: {"before"|"after": {output: mm}} over all samples; heldout_rms: the same
+    over the held-out samples (t >= heldout_from s, or all when None); block_rms:
+    {"before"|"after": {output: [mm per block]}}."""
+    t: np.ndarray
+    rec: dict
+    sim: dict
+    updated: dict
+    rms: dict
+    heldout_rms: dict
+    block_rms: dict
+    blocks: tuple
+    heldout_from: float | None
+    noise_floor: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        lines = ["re-simulation with the diagnosed model: RMS of REC - model"
+                 + (f" (held out: t >= {self.heldout_from:g} s)" if self.heldout_from is not None else "")]
+        for o in self.rec:
+            nf = self.noise_floor.get(o)
+            nfs = f", noise floor {_um(nf)}" if nf else ""
+            lines.append(f"  {o}: original {_um(self.rms['before'][o])} -> updated {_um(self.rms['after'][o])}; "
+                         f"held out {_um(self.heldout_rms['before'][o])} -> {_um(self.heldout_rms['after'][o])}"
+                         + nfs)
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {"rms": self.rms, "heldout_rms": self.heldout_rms, "block_rms": self.block_rms,
+                "blocks": [list(b) for b in self.blocks], "heldout_from": self.heldout_from,
+                "noise_floor": self.noise_floor}
+
+    def figure(self):
+        """REC - original model and REC - updated model per output over time, in µm (a
+        matplotlib.figure.Figure; held-out span shaded)."""
+        from matplotlib.figure import Figure
+        outs = list(self.rec)
+        fig = Figure(figsize=(9, 2.2 * len(outs) + 0.6), layout="constrained")
+        axs = fig.subplots(len(outs), 1, sharex=True, squeeze=False)[:, 0]
+        for ax, o in zip(axs, outs):
+            ax.plot(self.t, (self.rec[o] - self.sim[o]) * 1e3, lw=0.7, color="tab:red", label="REC - original model")
+            ax.plot(self.t, (self.rec[o] - self.updated[o]) * 1e3, lw=0.7, color="tab:blue",
+                    label="REC - updated model")
+            if self.heldout_from is not None:
+                ax.axvspan(self.heldout_from, self.t[-1], color="0.9", zorder=0, label="held out")
+            ax.set_ylabel(f"{o} error [µm]")
+        axs[-1].set_xlabel("t [s]")
+        axs[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+        return fig
+
+    def plot(self, path):
+        from .._io import atomic_path
+        fig = self.figure()
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+        return fig
+
+
+def _um(x) -> str:
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    return f"{x * 1e6:.3g} nm" if abs(x) < 1e-4 else f"{x * 1e3:.3g} µm"
+
+
+def _rms(a) -> float:
+    a = np.asarray(a, float)
+    return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
+
+
+def compare(t_rec, rec: dict, sim: Signals, updated: Signals, *, heldout_from: float | None = None,
+            n_blocks: int = 5, noise_floor: dict | None = None) -> ResimResult:
+    """Interpolate both models onto REC's times (REC is assumed on the simulation's clock) and
+    report the RMS of REC - model per output."""
+    t_rec = np.asarray(t_rec, float)
+    keep = (t_rec >= sim.t[0]) & (t_rec <= sim.t[-1])
+    if keep.sum() < 2:
+        raise InputError("the recording and the simulation do not overlap in time", field="t")
+    t = t_rec[keep]
+    r = {o: np.asarray(v, float)[keep] for o, v in rec.items()}
+    s = {o: np.interp(t, sim.t, sim.p[:, OUTPUTS.index(o)]) for o in r}
+    u = {o: np.interp(t, updated.t, updated.p[:, OUTPUTS.index(o)]) for o in r}
+    edges = np.linspace(t[0], t[-1], n_blocks + 1)
+    blocks = tuple((float(a), float(b)) for a, b in zip(edges[:-1], edges[1:]))
+    held = np.ones(len(t), bool) if heldout_from is None else t >= heldout_from
+    rms = {"before": {o: _rms(r[o] - s[o]) for o in r}, "after": {o: _rms(r[o] - u[o]) for o in r}}
+    hrms = {"before": {o: _rms((r[o] - s[o])[held]) for o in r},
+            "after": {o: _rms((r[o] - u[o])[held]) for o in r}}
+    idx = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, n_blocks - 1)
+    brms = {k: {o: [_rms((r[o] - m[o])[idx == b]) for b in range(n_blocks)] for o in r}
+            for k, m in (("before", s), ("after", u))}
+    return ResimResult(t, r, s, u, rms, hrms, brms, blocks, heldout_from, dict(noise_floor or {}))
+
+
+def resimulate(model, rec, *, program, machine, errors: ErrorSet | None = None, dynamics=None,
+               step: float, spindle_speed: float = 0.0, heldout_from: float | None = None,
+               combine: bool = True, workdir=None, compiler: str = "cmake", noise_floor: dict | None = None):
+    """Rebuild the machine FMU with the fitted parameters and re-run the co-simulation.
+
+    model: a ModelExport or the folder `mtcomp model export` wrote.  rec: REC CSV path or
+    (t, {output: values}).  program/machine/errors/dynamics/step: what made the original SIM
+    (errors and dynamics the base model).  The recording's sensor noise is not re-simulated:
+    both runs use the base dynamics with noise 0.  Returns (ResimResult, original Signals,
+    updated Signals)."""
+    from dataclasses import replace
+
+    from ..fmu.build import MachineDynamics
+    from .dynamics import apply_dynamics, load_dynamics
+    machine = load_machine(machine)
+    base_err = errors or ErrorSet()
+    base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
+    if hasattr(model, "dynamics_values"):
+        fit_err, fit_dyn = model.errors, model.dynamics_values
+    else:
+        d = Path(model)
+        fit_err = load_errors(d / "errors.toml", machine=machine)
+        fit_dyn = load_dynamics(d / "dynamics.toml", machine)
+    new_err = combine_errors(base_err, fit_err, machine) if combine else fit_err
+    new_dyn = apply_dynamics(base_dyn, fit_dyn, machine, combine=combine)
+    t_rec, rec_v = read_recording(rec) if isinstance(rec, (str, Path)) else rec
+    kw = dict(step=step, spindle_speed=spindle_speed, compiler=compiler)
+    sim = simulate(program, machine, base_err, base_dyn, workdir=None if workdir is None else Path(workdir) / "base", **kw)
+    upd = simulate(program, machine, new_err, new_dyn,
+                   workdir=None if workdir is None else Path(workdir) / "updated", **kw)
+    return compare(t_rec, rec_v, sim, upd, heldout_from=heldout_from, noise_floor=noise_floor), sim, upd
