@@ -65,6 +65,16 @@ class ModelExport:
     params: tuple            # every scalar Param (dynamics, location, setting)
     step: float | None
     files: dict = field(default_factory=dict)
+    machine_obj: object = field(default=None, repr=False, compare=False)
+
+    def subset(self, keep) -> "ModelExport":
+        """The export restricted to the mapped effects at indices `keep` (files not rewritten);
+        the others are listed as unmapped with the reason "dropped by the re-simulation"."""
+        keep = set(keep)
+        mapped = tuple(m for i, m in enumerate(self.mapped) if i in keep)
+        dropped = tuple(({"name": m.effect, "output": m.output}, "dropped: the re-simulation fits the training "
+                         "samples as well without it") for i, m in enumerate(self.mapped) if i not in keep)
+        return _assemble(mapped, self.unmapped + dropped, self.machine_obj, self.step)
 
     @property
     def dynamics_values(self) -> dict:
@@ -202,28 +212,43 @@ def export_model(diagnosis, machine, outdir=None, *, step: float | None = None,
     (s), which the FMU's discrete servo needs to reproduce the fitted kv."""
     machine = load_machine(machine)
     mapped, unmapped = map_diagnosis(diagnosis, machine, step)
+    ex = _assemble(mapped, unmapped, machine, step)
+    if outdir is not None:
+        ex = write_export(ex, outdir, check_names=check_names)
+    return ex
+
+
+def _assemble(mapped, unmapped, machine, step) -> ModelExport:
     params = tuple(p for m in mapped for p in m.params)
     dyn = tuple(p for p in params if any(p.name.startswith(k) for k in PREFIXES))
     other = tuple(p for p in params if p not in dyn)
     errors = build_errors(other, _tables(mapped, machine))
+    return ModelExport(machine.name, tuple(mapped), tuple(unmapped), errors, dyn, params, step, {}, machine)
+
+
+def write_export(ex: ModelExport, outdir, *, check_names: bool = True) -> ModelExport:
+    """Write the files of an export into `outdir` (created); returns it with `files` set."""
+    from dataclasses import replace
+    machine, mapped, unmapped, step = ex.machine_obj, ex.mapped, ex.unmapped, ex.step
+    params, dyn, errors = ex.params, ex.dynamics, ex.errors
+    other = tuple(p for p in params if p not in dyn)
     files = {}
-    if outdir is not None:
-        out = Path(outdir)
-        if not out.is_dir():
-            out.mkdir(parents=True)
-        names = machine_parameter_names(machine) if check_names else None
-        ssv = ssv_text(params, names)
-        unc = {p.name: p.sigma for p in other if p.sigma is not None and math.isfinite(p.sigma)}
-        for m in mapped:
-            for t in m.tables:
-                unc.update({f"{t.axis}.{t.component}.{k}": v for k, v in t.sigma.items()
-                            if v is not None and math.isfinite(v)})
-        files["errors"] = save_errors(errors, out / "errors.toml", uncertainty=unc or None,
-                                      meta={"source": "mtcomp model export", "machine": machine.name})
-        files["dynamics"] = save_dynamics(out / "dynamics.toml", dyn, step)
-        files["ssv"] = atomic_write(out / "machine.ssv", ssv)
-        files["manifest"] = atomic_write(out / "model.toml", _manifest(machine, mapped, unmapped, step))
-    return ModelExport(machine.name, mapped, unmapped, errors, dyn, params, step, files)
+    out = Path(outdir)
+    if not out.is_dir():
+        out.mkdir(parents=True)
+    names = machine_parameter_names(machine) if check_names else None
+    ssv = ssv_text(params, names)
+    unc = {p.name: p.sigma for p in other if p.sigma is not None and math.isfinite(p.sigma)}
+    for m in mapped:
+        for t in m.tables:
+            unc.update({f"{t.axis}.{t.component}.{k}": v for k, v in t.sigma.items()
+                        if v is not None and math.isfinite(v)})
+    files["errors"] = save_errors(errors, out / "errors.toml", uncertainty=unc or None,
+                                  meta={"source": "mtcomp model export", "machine": machine.name})
+    files["dynamics"] = save_dynamics(out / "dynamics.toml", dyn, step)
+    files["ssv"] = atomic_write(out / "machine.ssv", ssv)
+    files["manifest"] = atomic_write(out / "model.toml", _manifest(machine, mapped, unmapped, step))
+    return replace(ex, files=files)
 
 
 def _manifest(machine, mapped, unmapped, step) -> str:

@@ -258,6 +258,66 @@ def compare(t_rec, rec: dict, sim: Signals, updated: Signals, *, heldout_from: f
     return ResimResult(t, r, s, u, rms, hrms, brms, blocks, heldout_from, dict(noise_floor or {}))
 
 
+def _updated_model(model, machine, base_err, base_dyn, combine):
+    from .dynamics import apply_dynamics, load_dynamics
+    if hasattr(model, "dynamics_values"):
+        fit_err, fit_dyn = model.errors, model.dynamics_values
+    else:
+        d = Path(model)
+        fit_err = load_errors(d / "errors.toml", machine=machine)
+        fit_dyn = load_dynamics(d / "dynamics.toml", machine)
+    new_err = combine_errors(base_err, fit_err, machine) if combine else fit_err
+    return new_err, apply_dynamics(base_dyn, fit_dyn, machine, combine=combine)
+
+
+def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
+          spindle_speed: float = 0.0, train_until: float | None = None, noise_floor: dict | None = None,
+          compiler: str = "cmake", log: list | None = None):
+    """Backward elimination through the machine model itself: drop each exported effect (last
+    first) whose removal does not raise the training error of the re-simulation (samples with
+    t < train_until; all when None), sum over outputs of mean square / noise floor^2.
+
+    Why: the diagnosis fits its own effect models to REC - SIM; where they differ from the
+    machine model's physics (e.g. the FMU's servo holds the command over each step), it can add
+    small compensating effects (a scale or pitch error riding on a servo lag) that the machine
+    model, which now has the real physics, does not need and is hurt by.  Returns the pruned
+    ModelExport; `log` (a list) receives one line per decision."""
+    from dataclasses import replace
+
+    from ..fmu.build import MachineDynamics
+    machine = load_machine(machine)
+    base_err = errors or ErrorSet()
+    base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
+    t_rec = np.asarray(t_rec, float)
+    nf = dict(noise_floor or {})
+
+    def score(model):
+        e, d = _updated_model(model, machine, base_err, base_dyn, True)
+        sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, compiler=compiler)
+        keep = (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
+        if train_until is not None:
+            keep &= t_rec < train_until
+        tot = 0.0
+        for o, v in rec.items():
+            m = np.interp(t_rec[keep], sig.t, sig.p[:, OUTPUTS.index(o)])
+            tot += float(np.mean((np.asarray(v, float)[keep] - m) ** 2)) / (nf.get(o) or 1.0) ** 2
+        return tot
+
+    keep = list(range(len(ex.mapped)))
+    current = score(ex)
+    for i in reversed(range(len(ex.mapped))):
+        trial = [k for k in keep if k != i]
+        sc = score(ex.subset(trial))
+        m = ex.mapped[i]
+        if sc <= current:
+            keep, current = trial, sc
+            if log is not None:
+                log.append(f"dropped {m.effect} on {m.output}: training error {sc:.4g} without it (was higher with it)")
+        elif log is not None:
+            log.append(f"kept {m.effect} on {m.output}: training error rises to {sc:.4g} without it (from {current:.4g})")
+    return ex.subset(keep) if len(keep) < len(ex.mapped) else ex
+
+
 def resimulate(model, rec, *, program, machine, errors: ErrorSet | None = None, dynamics=None,
                step: float, spindle_speed: float = 0.0, heldout_from: float | None = None,
                combine: bool = True, workdir=None, compiler: str = "cmake", noise_floor: dict | None = None):
@@ -271,18 +331,10 @@ def resimulate(model, rec, *, program, machine, errors: ErrorSet | None = None, 
     from dataclasses import replace
 
     from ..fmu.build import MachineDynamics
-    from .dynamics import apply_dynamics, load_dynamics
     machine = load_machine(machine)
     base_err = errors or ErrorSet()
     base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
-    if hasattr(model, "dynamics_values"):
-        fit_err, fit_dyn = model.errors, model.dynamics_values
-    else:
-        d = Path(model)
-        fit_err = load_errors(d / "errors.toml", machine=machine)
-        fit_dyn = load_dynamics(d / "dynamics.toml", machine)
-    new_err = combine_errors(base_err, fit_err, machine) if combine else fit_err
-    new_dyn = apply_dynamics(base_dyn, fit_dyn, machine, combine=combine)
+    new_err, new_dyn = _updated_model(model, machine, base_err, base_dyn, combine)
     t_rec, rec_v = read_recording(rec) if isinstance(rec, (str, Path)) else rec
     kw = dict(step=step, spindle_speed=spindle_speed, compiler=compiler)
     sim = simulate(program, machine, base_err, base_dyn, workdir=None if workdir is None else Path(workdir) / "base", **kw)
