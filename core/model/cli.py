@@ -55,6 +55,11 @@ def register(subparsers) -> None:
     r.add_argument("--step", type=float, metavar="S")
     r.add_argument("--heldout-from", type=float, metavar="T",
                    help="samples from T s on were not given to the diagnosis: report them apart")
+    r.add_argument("--diagnosis", metavar="DIAG.json",
+                   help="the diagnosis the model came from: its noise floors weigh the outputs; needed by --prune")
+    r.add_argument("--prune", action="store_true",
+                   help="drop exported effects the re-simulation does not need on the training samples "
+                        "(t < --heldout-from) and rewrite the model folder with the rest")
     r.add_argument("--plot", metavar="OUT.png")
     r.add_argument("--json", metavar="OUT.json")
     r.set_defaults(func=run_resimulate)
@@ -113,8 +118,24 @@ def run_resimulate(args: argparse.Namespace) -> int:
         errors = load_errors(args.errors, machine=machine) if args.errors else None
     if program is None:
         raise InputError("the provenance names no program: give --program", field="--program")
-    res, _, _ = resimulate(args.model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,
-                           step=step, spindle_speed=spindle, heldout_from=args.heldout_from)
+    model, noise = args.model, None
+    if args.diagnosis:
+        from .export import read_diagnosis
+        noise = read_diagnosis(args.diagnosis).get("noise_floor")
+    if args.prune:
+        from .export import export_model, write_export
+        from .simulate import prune, read_recording
+        if not args.diagnosis:
+            raise InputError("--prune needs --diagnosis DIAG.json", field="--prune")
+        t_rec, rec = read_recording(args.rec)
+        log: list = []
+        ex = prune(export_model(args.diagnosis, machine, None, step=step), t_rec, rec, program=program,
+                   machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
+                   train_until=args.heldout_from, noise_floor=noise, log=log)
+        model = write_export(ex, args.model)
+        print("\n".join(log))
+    res, _, _ = resimulate(model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,
+                           step=step, spindle_speed=spindle, heldout_from=args.heldout_from, noise_floor=noise)
     if args.json:
         atomic_write(args.json, json.dumps(res.to_dict(), indent=2) + "\n")
     if args.plot:

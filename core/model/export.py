@@ -237,6 +237,9 @@ def write_export(ex: ModelExport, outdir, *, check_names: bool = True) -> ModelE
     if not out.is_dir():
         out.mkdir(parents=True)
     names = machine_parameter_names(machine) if check_names else None
+    for old in out.glob("errors_*.csv"):     # tables of an earlier export of this folder
+        if old.stem[len("errors_"):] not in errors.geometric.tables:
+            old.unlink()
     ssv = ssv_text(params, names)
     unc = {p.name: p.sigma for p in other if p.sigma is not None and math.isfinite(p.sigma)}
     for m in mapped:
@@ -260,8 +263,8 @@ def _manifest(machine, mapped, unmapped, step) -> str:
             d["notes"] = list(m.notes)
         eff.append(d)
     for e, why in unmapped:
-        eff.append({"name": str(e.get("name")), "output": str(e.get("output", "")), "status": "no home",
-                    "reason": why})
+        eff.append({"name": str(e.get("name")), "output": str(e.get("output", "")),
+                    "status": "dropped" if why.startswith("dropped") else "no home", "reason": why})
     data = {"machine": machine.name, "files": {"errors": "errors.toml", "dynamics": "dynamics.toml",
                                                "ssp_parameter_set": "machine.ssv"}}
     if step:

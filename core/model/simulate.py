@@ -198,21 +198,24 @@ class ResimResult:
                 "noise_floor": self.noise_floor}
 
     def figure(self):
-        """REC - original model and REC - updated model per output over time, in µm (a
-        matplotlib.figure.Figure; held-out span shaded)."""
+        """REC - original model (left) and REC - updated model (right) per output over time, in
+        µm, each with its own scale and its held-out RMS (a matplotlib.figure.Figure; the
+        held-out span shaded)."""
         from matplotlib.figure import Figure
         outs = list(self.rec)
-        fig = Figure(figsize=(9, 2.2 * len(outs) + 0.6), layout="constrained")
-        axs = fig.subplots(len(outs), 1, sharex=True, squeeze=False)[:, 0]
-        for ax, o in zip(axs, outs):
-            ax.plot(self.t, (self.rec[o] - self.sim[o]) * 1e3, lw=0.7, color="tab:red", label="REC - original model")
-            ax.plot(self.t, (self.rec[o] - self.updated[o]) * 1e3, lw=0.7, color="tab:blue",
-                    label="REC - updated model")
-            if self.heldout_from is not None:
-                ax.axvspan(self.heldout_from, self.t[-1], color="0.9", zorder=0, label="held out")
-            ax.set_ylabel(f"{o} error [µm]")
-        axs[-1].set_xlabel("t [s]")
-        axs[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+        fig = Figure(figsize=(11, 2.1 * len(outs) + 0.8), layout="constrained")
+        axs = fig.subplots(len(outs), 2, sharex=True, squeeze=False)
+        for row, o in enumerate(outs):
+            for col, (key, model, color, what) in enumerate((("before", self.sim, "tab:red", "original model"),
+                                                             ("after", self.updated, "tab:blue", "updated model"))):
+                ax = axs[row, col]
+                ax.plot(self.t, (self.rec[o] - model[o]) * 1e3, lw=0.6, color=color)
+                if self.heldout_from is not None:
+                    ax.axvspan(self.heldout_from, self.t[-1], color="0.9", zorder=0)
+                ax.set_title(f"{o}: REC - {what}, held-out RMS {_um(self.heldout_rms[key][o])}", fontsize=9)
+                ax.set_ylabel(f"{o} error [µm]")
+        for ax in axs[-1]:
+            ax.set_xlabel("t [s]" + ("  (shaded: held out)" if self.heldout_from is not None else ""))
         return fig
 
     def plot(self, path):
