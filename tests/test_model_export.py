@@ -156,3 +156,20 @@ def test_cli_export_and_bad_input(tmp_path):
     assert r.returncode != 0 and "effects" in r.stderr and "Traceback" not in r.stderr
     with pytest.raises(InputError):
         export_model(str(diag), VMC)
+
+
+def test_exported_errors_drive_compensate(tmp_path):
+    """The exported errors.toml is what `mtcomp compensate --errors` takes: a squareness and a
+    scale error diagnosed on the VMC compensate a program (by hand: X100 Y150 becomes X99.9928)."""
+    effects = [_effect("squareness", "x", ["y"], {"angle_deg": 2e-3}),
+               _effect("scale_error", "x", ["x"], {"scale": 2e-5})]
+    export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3)
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G1 F600\nX0 Y0 Z0\nX100 Y150\nX-100 Y-150\n")
+    out = tmp_path / "pc.nc"
+    r = subprocess.run([sys.executable, "-m", "mtcomp", "compensate", str(prog), "--machine", "vmc-moving-column",
+                        "--errors", str(tmp_path / "m" / "errors.toml"), "-o", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    # x error at (100, 150): scale 2e-5 * 100 + squareness radians(2e-3) * 150 = 7.24 µm, commanded away
+    assert "X99.9928 Y150" in out.read_text()

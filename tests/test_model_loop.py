@@ -4,9 +4,6 @@ the co-simulation with it, and check that the re-simulation matches the recordin
 on time the diagnosis never saw, with the parameter recovered within its reported 3 sigma."""
 from __future__ import annotations
 
-import math
-
-import numpy as np
 import pytest
 
 pytest.importorskip("fmpy")
@@ -14,10 +11,9 @@ pytest.importorskip("fmpy")
 from mtcomp.diagnose import diagnose  # noqa: E402
 from mtcomp.errors import ErrorSet, GeometricErrors  # noqa: E402
 from mtcomp.fmu.build import MachineDynamics  # noqa: E402
-from mtcomp.machine import load_machine  # noqa: E402
-from mtcomp.model.dynamics import apply_dynamics  # noqa: E402
 from mtcomp.model.export import export_model  # noqa: E402
-from mtcomp.model.simulate import combine_errors, compare, prune, signals_csv, simulate  # noqa: E402
+from mtcomp.model.loop import close_loop  # noqa: E402
+from mtcomp.model.simulate import simulate  # noqa: E402
 
 M = "vmc-moving-column"
 STEP = 2e-3
@@ -42,23 +38,10 @@ def nominal():
 def _loop(tmp_path, nominal, errors=None, dynamics=None, *, program=PROGRAM, step=STEP, outputs=None,
           do_prune=False):
     rec = simulate(program, M, errors, dynamics, step=step, compiler="cc")
-    n_train = int(TRAIN * len(rec.t))
-    sim_csv, rec_csv = tmp_path / "sim.csv", tmp_path / "rec.csv"
-    sim_csv.write_text(signals_csv(nominal, M))
-    lines = signals_csv(rec, M).splitlines()
-    rec_csv.write_text("\n".join(lines[:1 + n_train]) + "\n")       # header + training rows only
-    diag = diagnose(str(sim_csv), str(rec_csv), outputs=outputs)
-    ex = export_model(diag, M, tmp_path / "model", step=step)
-    if do_prune:   # selection through the machine model, on the training samples only
-        ex = prune(ex, rec.t, {o: rec.p[:, k] for k, o in enumerate("xyz")}, program=program, machine=M, step=step,
-                   train_until=float(rec.t[n_train]), noise_floor=diag.noise_floor, compiler="cc")
-    # re-simulate through the FMU with the exported parameters (noise-free), compare on held-out time
-    m_err = combine_errors(ErrorSet(), ex.errors, load_machine(M))
-    m_dyn = apply_dynamics(MachineDynamics(), ex.dynamics_values, load_machine(M))
-    upd = simulate(program, M, m_err, m_dyn, step=step, compiler="cc")
-    rec_out = {o: rec.p[:, k] for k, o in enumerate("xyz")}
-    res = compare(rec.t, rec_out, nominal, upd, heldout_from=float(rec.t[n_train]))
-    return diag, ex, res
+    lr = close_loop(rec, nominal, program=program, machine=M, step=step, train=TRAIN, outputs=outputs,
+                    do_prune=do_prune, workdir=tmp_path, compiler="cc")
+    export_model(lr.diagnosis, M, tmp_path / "model", step=step)      # the files, as `mtcomp model export`
+    return lr.diagnosis, lr.export, lr.result
 
 
 def _assert_matches_noise(res):
