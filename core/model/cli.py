@@ -31,6 +31,12 @@ def register(subparsers) -> None:
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=run_export)
 
+    b = sub.add_parser("ssp", help="bind the exported .ssv to the machine component of an SSP archive")
+    b.add_argument("ssp", metavar="CELL.ssp", help="written by `mtcomp fmu ssp`")
+    b.add_argument("ssv", metavar="MODEL/machine.ssv")
+    b.add_argument("-o", "--output", required=True, metavar="OUT.ssp")
+    b.set_defaults(func=run_ssp)
+
     s = sub.add_parser("simulate", help="NC program -> machine FMU -> tool edge CSV with a provenance sidecar")
     s.add_argument("program", metavar="PROGRAM.nc")
     s.add_argument("--machine", required=True, metavar="PRESET|machine.toml")
@@ -79,6 +85,13 @@ def run_export(args: argparse.Namespace) -> int:
     ex = export_model(args.diagnosis, machine, args.outdir, step=step)
     if not args.quiet:
         print(ex.summary())
+    return 0
+
+
+def run_ssp(args: argparse.Namespace) -> int:
+    from .ssp import bind_parameter_set
+    bind_parameter_set(args.ssp, args.ssv, args.output)
+    print(f"wrote {args.output}: {args.ssv} bound to the machine component")
     return 0
 
 
