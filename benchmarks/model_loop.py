@@ -11,7 +11,6 @@ Writes its table into docs/model-loop.md (section model-loop) and docs/benchmark
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path

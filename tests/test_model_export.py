@@ -173,3 +173,22 @@ def test_exported_errors_drive_compensate(tmp_path):
     assert r.returncode == 0, r.stderr
     # x error at (100, 150): scale 2e-5 * 100 + squareness radians(2e-3) * 150 = 7.24 µm, commanded away
     assert "X99.9928 Y150" in out.read_text()
+
+
+def test_bad_dynamics_and_missing_provenance_are_named(tmp_path):
+    from mtcomp.model.simulate import read_provenance
+    bad = tmp_path / "dyn.toml"
+    bad.write_text('[parameters]\n"servo.kv.Q" = 30.0\n')
+    with pytest.raises(InputError, match="axis Q"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"backlash.X" = -0.001\n')
+    with pytest.raises(InputError, match=">= 0"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"friction.X" = 1.0\n')
+    with pytest.raises(InputError, match="unknown dynamics parameter"):
+        load_dynamics(bad, VMC)
+    with pytest.raises(InputError, match="provenance"):
+        read_provenance(tmp_path / "nothing.csv")
+    # a leading (negative) backlash has no home in the FMU's play: listed, not exported
+    ex = export_model({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": -0.001})]}, VMC)
+    assert not ex.mapped and "negative" in ex.unmapped[0][1]

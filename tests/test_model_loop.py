@@ -8,7 +8,6 @@ import pytest
 
 pytest.importorskip("fmpy")
 
-from mtcomp.diagnose import diagnose  # noqa: E402
 from mtcomp.errors import ErrorSet, GeometricErrors  # noqa: E402
 from mtcomp.fmu.build import MachineDynamics  # noqa: E402
 from mtcomp.model.export import export_model  # noqa: E402

@@ -20,7 +20,7 @@ from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting, Wor
 from ..machine import Machine, load_machine
 from .axes import NoHome
 from .dynamics import PREFIXES, save_dynamics
-from .mapping import Mapped, map_effect
+from .mapping import map_effect
 
 SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
