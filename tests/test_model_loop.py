@@ -136,3 +136,20 @@ def test_cli_loop_with_provenance_sidecar(tmp_path):
     assert res["heldout_rms"]["before"]["x"] > 20 * NOISE
     assert res["heldout_rms"]["after"]["x"] <= 1.5 * NOISE
     assert (tmp_path / "rs.png").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_servo_kv_loop_all_outputs_prune_and_refine(tmp_path, nominal_servo):
+    """The same servo lag with every output diagnosed: the diagnosis names a common latency (no
+    home), a compensating servo lag on y and a small squareness besides the lag on x, with kv
+    biased by the latency.  Pruning through the model drops the stand-ins, refitting kv through
+    the model (least squares of REC - re-simulation on the training samples) removes the bias."""
+    kv = 40.0
+    rec = simulate(SERVO_PROGRAM, M, None, MachineDynamics(kv=(kv, 0.0, 0.0), noise=NOISE, seed=7),
+                   step=SERVO_STEP, compiler="cc")
+    lr = close_loop(rec, nominal_servo, program=SERVO_PROGRAM, machine=M, step=SERVO_STEP, train=TRAIN,
+                    do_prune=True, do_refine=True, workdir=tmp_path, compiler="cc")
+    assert [m.effect for m in lr.export.mapped] == ["servo_lag"]
+    p = {q.name: q for q in lr.export.params}["servo.kv.X"]
+    assert abs(p.value - kv) <= 3 * p.sigma + 1e-4 * kv, (p.value, p.sigma)
+    _assert_matches_noise(lr.result)

@@ -66,6 +66,9 @@ def register(subparsers) -> None:
     r.add_argument("--prune", action="store_true",
                    help="drop exported effects the re-simulation does not need on the training samples "
                         "(t < --heldout-from) and rewrite the model folder with the rest")
+    r.add_argument("--refine", action="store_true",
+                   help="refit the exported scalars (kv, backlash, location, setting) through the machine model on "
+                        "the training samples (needs --diagnosis; a co-simulation per evaluation: slow)")
     r.add_argument("--plot", metavar="OUT.png")
     r.add_argument("--json", metavar="OUT.json")
     r.set_defaults(func=run_resimulate)
@@ -135,16 +138,20 @@ def run_resimulate(args: argparse.Namespace) -> int:
     if args.diagnosis:
         from .export import read_diagnosis
         noise = read_diagnosis(args.diagnosis).get("noise_floor")
-    if args.prune:
+    if args.prune or args.refine:
         from .export import export_model, write_export
-        from .simulate import prune, read_recording
+        from .simulate import prune, read_recording, refine
         if not args.diagnosis:
-            raise InputError("--prune needs --diagnosis DIAG.json", field="--prune")
+            raise InputError("--prune and --refine need --diagnosis DIAG.json", field="--diagnosis")
         t_rec, rec = read_recording(args.rec)
         log: list = []
-        ex = prune(export_model(args.diagnosis, machine, None, step=step), t_rec, rec, program=program,
-                   machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
-                   train_until=args.heldout_from, noise_floor=noise, log=log)
+        kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
+                  train_until=args.heldout_from, noise_floor=noise, log=log)
+        ex = export_model(args.diagnosis, machine, None, step=step)
+        if args.prune:
+            ex = prune(ex, t_rec, rec, **kw)
+        if args.refine:
+            ex = refine(ex, t_rec, rec, stride=4, **kw)
         model = write_export(ex, args.model)
         print("\n".join(log))
     res, _, _ = resimulate(model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,

@@ -76,6 +76,15 @@ class ModelExport:
                          "samples as well without it") for i, m in enumerate(self.mapped) if i not in keep)
         return _assemble(mapped, self.unmapped + dropped, self.machine_obj, self.step)
 
+    def with_values(self, values: dict, sigmas: dict | None = None) -> "ModelExport":
+        """The export with some scalar parameters replaced ({name: value}, optional {name: sigma})."""
+        from dataclasses import replace as _r
+        sigmas = sigmas or {}
+        mapped = tuple(_r(m, params=tuple(_r(p, value=float(values.get(p.name, p.value)),
+                                             sigma=sigmas.get(p.name, p.sigma)) for p in m.params))
+                       for m in self.mapped)
+        return _assemble(mapped, self.unmapped, self.machine_obj, self.step)
+
     @property
     def dynamics_values(self) -> dict:
         return {p.name: p.value for p in self.dynamics}

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..machine import load_machine
-from .simulate import OUTPUTS, Signals, compare, prune, signals_csv, simulate
+from .simulate import OUTPUTS, Signals, compare, prune, signals_csv, simulate  # noqa: F401
 
 
 @dataclass(frozen=True)
@@ -24,11 +24,12 @@ class LoopResult:
 
 
 def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None, dynamics=None, step: float,
-               train: float = 0.6, outputs=None, do_prune: bool = True, workdir=None,
-               compiler: str = "cmake") -> LoopResult:
+               train: float = 0.6, outputs=None, do_prune: bool = True, do_refine: bool = False,
+               refine_stride: int = 4, workdir=None, compiler: str = "cmake") -> LoopResult:
     """Diagnose REC against the nominal SIM on the first `train` fraction of the samples, export
-    the effects into the model, prune them through the model on the same samples, re-simulate
-    and compare on the rest (held out).  errors/dynamics: the nominal model's."""
+    the effects into the model, prune them through the model on the same samples (and with
+    do_refine refit their scalars through it, every `refine_stride`-th training sample),
+    re-simulate and compare on the rest (held out).  errors/dynamics: the nominal model's."""
     from ..diagnose import diagnose
     from .export import export_model
     machine = load_machine(machine)
@@ -47,6 +48,11 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
         if do_prune and ex.mapped:
             ex = prune(ex, rec.t, rec_out, program=program, machine=machine, errors=errors, dynamics=dynamics,
                        step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler, log=log)
+        if do_refine and ex.params:
+            from .simulate import refine
+            ex = refine(ex, rec.t, rec_out, program=program, machine=machine, errors=errors, dynamics=dynamics,
+                        step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler,
+                        stride=refine_stride, log=log)
         from dataclasses import replace
 
         from ..errors import ErrorSet

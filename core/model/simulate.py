@@ -273,6 +273,81 @@ def _updated_model(model, machine, base_err, base_dyn, combine):
     return new_err, apply_dynamics(base_dyn, fit_dyn, machine, combine=combine)
 
 
+def _training_residual(model, t_rec, rec, keep_t, *, program, machine, base_err, base_dyn, step, spindle_speed,
+                       nf, compiler):
+    """Stacked (REC - re-simulation) / noise floor on the training samples."""
+    e, d = _updated_model(model, machine, base_err, base_dyn, True)
+    sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, compiler=compiler)
+    keep = keep_t & (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
+    parts = []
+    for o, v in rec.items():
+        m = np.interp(t_rec[keep], sig.t, sig.p[:, OUTPUTS.index(o)])
+        parts.append((np.asarray(v, float)[keep] - m) / (nf.get(o) or 1.0))
+    return np.concatenate(parts)
+
+
+def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
+           spindle_speed: float = 0.0, train_until: float | None = None, noise_floor: dict | None = None,
+           compiler: str = "cmake", stride: int = 1, log: list | None = None):
+    """Refit the exported scalar parameters (kv, backlash, location and setting errors) through
+    the machine model itself: nonlinear least squares of REC - re-simulation on the training
+    samples (t < train_until), each evaluation a co-simulation of the FMU, started from the
+    diagnosis' values and scaled by their sigmas.  Tables keep the diagnosis' values.
+
+    Why: the diagnosis fits its own effect models; where they differ from the FMU's physics
+    (a servo lag seen with a latency the model has no home for) its values are biased for the
+    model.  The refitted sigmas are the least-squares covariance scaled by the residual
+    variance.  stride: use every n-th training sample (speed)."""
+    from dataclasses import replace
+
+    from scipy.optimize import least_squares
+
+    from ..fmu.build import MachineDynamics
+    machine = load_machine(machine)
+    params = [p for p in ex.params]
+    if not params:
+        return ex
+    base_err = errors or ErrorSet()
+    base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
+    t_rec = np.asarray(t_rec, float)
+    keep_t = np.zeros(len(t_rec), bool)
+    keep_t[::max(1, int(stride))] = True
+    if train_until is not None:
+        keep_t &= t_rec < train_until
+    nf = dict(noise_floor or {})
+    x0 = np.array([p.value for p in params])
+    scale = np.array([p.sigma if p.sigma and math.isfinite(p.sigma) and p.sigma > 0 else max(abs(p.value), 1e-9) * 1e-3
+                      for p in params])
+    lo = np.array([0.0 if (p.name.startswith("servo.kv.") or p.name.startswith("backlash.")) else -np.inf
+                   for p in params])
+
+    def model_at(z):
+        return ex.with_values({p.name: float(v) for p, v in zip(params, x0 + z * scale)})
+
+    def fun(z):
+        return _training_residual(model_at(z), t_rec, rec, keep_t, program=program, machine=machine,
+                                  base_err=base_err, base_dyn=base_dyn, step=step, spindle_speed=spindle_speed,
+                                  nf=nf, compiler=compiler)
+    zlo = np.where(np.isfinite(lo), (lo - x0) / scale, -np.inf)
+    sol = least_squares(fun, np.zeros(len(params)), bounds=(zlo, np.inf), diff_step=1e-3, x_scale=1.0,
+                        max_nfev=20 * (len(params) + 1))
+    J = sol.jac
+    dof = max(1, len(sol.fun) - len(params))
+    s2 = float(sol.fun @ sol.fun) / dof
+    try:
+        cov = np.linalg.inv(J.T @ J) * s2
+        sig = np.sqrt(np.clip(np.diag(cov), 0, None)) * scale
+    except np.linalg.LinAlgError:
+        sig = np.full(len(params), np.nan)
+    vals = x0 + sol.x * scale
+    out = ex.with_values({p.name: float(v) for p, v in zip(params, vals)},
+                         {p.name: float(s) for p, s in zip(params, sig)})
+    if log is not None:
+        for p, v, s in zip(params, vals, sig):
+            log.append(f"refined {p.name}: {p.value:.6g} -> {v:.6g} +/- {s:.2g} {p.unit}")
+    return out
+
+
 def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
           spindle_speed: float = 0.0, train_until: float | None = None, noise_floor: dict | None = None,
           compiler: str = "cmake", log: list | None = None):
