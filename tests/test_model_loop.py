@@ -4,6 +4,7 @@ the co-simulation with it, and check that the re-simulation matches the recordin
 on time the diagnosis never saw, with the parameter recovered within its reported 3 sigma."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 pytest.importorskip("fmpy")
@@ -153,3 +154,31 @@ def test_servo_kv_loop_all_outputs_prune_and_refine(tmp_path, nominal_servo):
     p = {q.name: q for q in lr.export.params}["servo.kv.X"]
     assert abs(p.value - kv) <= 3 * p.sigma + 1e-4 * kv, (p.value, p.sigma)
     _assert_matches_noise(lr.result)
+
+
+def _x_table(fn):
+    from mtcomp.errors import AxisErrorTable
+    q = np.linspace(-300.0, 300.0, 24001)
+    return AxisErrorTable("X", q, {"EXX": fn(q)})
+
+
+@pytest.mark.parametrize("case", ["scale_error", "periodic_pitch_error", "workpiece_setting"])
+def test_geometric_and_setting_loops(tmp_path, nominal, case):
+    """More effects with a home, each injected as the model's own parameter: a positioning table
+    (scale, pitch) and the workpiece setting."""
+    from mtcomp.errors import WorkpieceSetting
+    if case == "scale_error":
+        err, name, truth = ErrorSet(geometric=GeometricErrors({"X": _x_table(lambda q: 15e-6 * q)}, {})), None, None
+    elif case == "periodic_pitch_error":
+        err = ErrorSet(geometric=GeometricErrors({"X": _x_table(lambda q: 3e-4 * np.sin(2 * np.pi * q / 4.0 + 0.5))}, {}))
+        name, truth = None, None
+    else:
+        err = ErrorSet(workpiece=WorkpieceSetting((0.004, -0.003, 0.002), (0.0, 0.0, 5e-3)))
+        name, truth = "workpiece_setting.translation.x", 0.004
+    diag, ex, res = _loop(tmp_path, nominal, errors=err, dynamics=MachineDynamics(noise=NOISE, seed=8))
+    assert diag.names == [case]
+    if name:
+        p = {q.name: q for q in ex.params}[name]
+        assert abs(p.value - truth) <= 3 * p.sigma, (p.value, p.sigma)
+    assert max(res.heldout_rms["before"].values()) > 5 * NOISE
+    _assert_matches_noise(res)
