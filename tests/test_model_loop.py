@@ -182,3 +182,22 @@ def test_geometric_and_setting_loops(tmp_path, nominal, case):
         assert abs(p.value - truth) <= 3 * p.sigma, (p.value, p.sigma)
     assert max(res.heldout_rms["before"].values()) > 5 * NOISE
     _assert_matches_noise(res)
+
+
+def test_pivot_offset_loop_on_a_rotary_table(tmp_path):
+    """A C-table centre off by (-3, 2) µm (EX0C, EY0C) on robonano-a0ib: diagnosed as a pivot
+    offset from the programmed C angle, exported as the same location errors, re-simulated."""
+    m = "robonano-a0ib"
+    prog = "G90 G1 F3000\nC0 B0 X10 Y0 Z0\nC90 X20 Y5\nC-90 X-10 Y-5\nC45 X5 Y3\nC-30 X0 Y0\n"
+    nom = simulate(prog, m, None, None, step=STEP, compiler="cc")
+    truth = {"EX0C": -0.003, "EY0C": 0.002}
+    rec = simulate(prog, m, ErrorSet(geometric=GeometricErrors({}, truth)), MachineDynamics(noise=NOISE, seed=3),
+                   step=STEP, compiler="cc")
+    lr = close_loop(rec, nom, program=prog, machine=m, step=STEP, train=TRAIN, workdir=tmp_path, compiler="cc")
+    assert lr.diagnosis.names == ["pivot_offset"]
+    got = {q.name: q for q in lr.export.params}
+    for k, v in truth.items():
+        p = got[f"location.{k}"]
+        assert abs(p.value - v) <= 3 * p.sigma, (k, p.value, p.sigma)
+    assert lr.result.heldout_rms["before"]["y"] > 20 * NOISE
+    _assert_matches_noise(lr.result)

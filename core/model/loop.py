@@ -40,7 +40,9 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
         (wd / "sim.csv").write_text(signals_csv(nominal, machine))
         lines = signals_csv(rec, machine).splitlines()
         (wd / "rec.csv").write_text("\n".join(lines[:1 + n_train]) + "\n")
-        diag = diagnose(str(wd / "sim.csv"), str(wd / "rec.csv"), outputs=outputs)
+        # the programmed angles are in both files (signals_csv): inputs of the effects, not outputs
+        angles = [a.name.lower() for a in machine.axes if a.is_rotary]
+        diag = diagnose(str(wd / "sim.csv"), str(wd / "rec.csv"), outputs=outputs, inputs=angles or None)
         ex = export_model(diag, machine, None, step=step)
         t_split = float(rec.t[n_train])
         rec_out = {o: rec.p[:, k] for k, o in enumerate(OUTPUTS)}
