@@ -51,3 +51,37 @@ def test_bound_ssv_is_applied_by_libcosim(tmp_path):
     assert bl == pytest.approx(0.002, abs=1e-15) and ec0y == pytest.approx(-g, rel=1e-12)
     # the uncompensated machine (the compensator knows no errors) shows the squareness at Y = 10
     assert x == pytest.approx(5.0 + g * 10.0, abs=1e-9)
+
+
+def test_bound_ssv_reads_and_runs_in_fmpy(tmp_path):
+    """fmpy reads the bound parameter set from the SSD (annotations included) and, handed it as
+    simulate_ssp's parameter set (fmpy does not apply SSD bindings itself, docs/fmu.md), runs the
+    machine with the diagnosed squareness."""
+    from fmpy.ssp.simulation import simulate_ssp
+    from fmpy.ssp.ssd import read_ssd
+
+    from mtcomp.fmu.build import build_compensator_fmu, build_machine_fmu
+    from mtcomp.fmu.ssp import write_ssp
+    from mtcomp.model.export import export_model
+    from mtcomp.model.ssp import bind_parameter_set
+    M = "vmc-moving-column"
+    export_model({"effects": [{"name": "squareness", "output": "x", "inputs": ["y"], "params": {"angle_deg": 2e-3},
+                               "uncertainty": {"angle_deg": 1e-5}}]}, M, tmp_path / "model", step=1e-3)
+    c = build_compensator_fmu(M, tmp_path / "c.fmu", compiler="cc")
+    m = build_machine_fmu(M, tmp_path / "m.fmu", compiler="cc")
+    write_ssp(tmp_path / "cell.ssp", c, m, commands={"X": 5.0, "Y": 10.0})
+    bind_parameter_set(tmp_path / "cell.ssp", tmp_path / "model" / "machine.ssv", tmp_path / "cell2.ssp")
+    ssd = read_ssd(str(tmp_path / "cell2.ssp"))
+
+    class Param:
+        def __init__(self, name, value):
+            self.name, self.value = name, value
+
+    class ParamSet:
+        parameters = [Param(f"{el.name}.{p.name}", p.value) for el in ssd.system.elements
+                      for b in el.parameterBindings for pv in b.parameterValues for p in pv.parameters]
+
+    names = {p.name for p in ParamSet.parameters}
+    assert "machine.location.EC0Y" in names
+    res = simulate_ssp(str(tmp_path / "cell2.ssp"), stop_time=0.005, step_size=1e-3, parameter_set=ParamSet())
+    assert res["machine.tool.x"][-1] == pytest.approx(5.0 + math.radians(2e-3) * 10.0, abs=1e-9)
