@@ -192,3 +192,14 @@ def test_bad_dynamics_and_missing_provenance_are_named(tmp_path):
     # a leading (negative) backlash has no home in the FMU's play: listed, not exported
     ex = export_model({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": -0.001})]}, VMC)
     assert not ex.mapped and "negative" in ex.unmapped[0][1]
+
+
+def test_output_names_with_prefixes_and_suffixes():
+    from mtcomp.model.axes import NoHome, coordinate_letter
+    assert [coordinate_letter(n) for n in ("x", "tool.y", "z_act", "pos_x", "y1", "x[um]")] == list("xyzxyx")
+    for bad in ("temp", "xy", "spindle"):
+        with pytest.raises(NoHome):
+            coordinate_letter(bad)
+    ex = export_model({"effects": [_effect("squareness", "tool.x", ["tool.y"], {"angle_deg": 1e-3}),
+                                   _effect("backlash", "y_act", ["y_act"], {"backlash_mm": 1e-3})]}, VMC)
+    assert {p.name for p in ex.params} == {"location.EC0Y", "backlash.Y"}

@@ -85,3 +85,19 @@ def test_bound_ssv_reads_and_runs_in_fmpy(tmp_path):
     assert "machine.location.EC0Y" in names
     res = simulate_ssp(str(tmp_path / "cell2.ssp"), stop_time=0.005, step_size=1e-3, parameter_set=ParamSet())
     assert res["machine.tool.x"][-1] == pytest.approx(5.0 + math.radians(2e-3) * 10.0, abs=1e-9)
+
+
+def test_ssp_bad_inputs_name_the_file(tmp_path):
+    from mtcomp._io import InputError
+    from mtcomp.model.ssp import bind_parameter_set
+    notzip, notxml = tmp_path / "a.ssp", tmp_path / "b.ssv"
+    notzip.write_text("t,x\n0,1\n")
+    notxml.write_text("t,x\n")
+    with pytest.raises(InputError, match="b.ssv"):
+        bind_parameter_set(notzip, notxml, tmp_path / "o.ssp")
+    ssv = tmp_path / "p.ssv"
+    ssv.write_text('<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
+                   'version="1.0" name="x"><ssv:Parameters/></ssv:ParameterSet>')
+    with pytest.raises(InputError, match="a.ssp"):
+        bind_parameter_set(notzip, ssv, tmp_path / "o.ssp")
+    assert not (tmp_path / "o.ssp").exists()

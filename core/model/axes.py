@@ -39,11 +39,21 @@ class LinearAxisOf:
         return self.sign * np.asarray(q, float) + self.offset
 
 
+def coordinate_letter(name: str) -> str:
+    """'x', 'y' or 'z' of an output name as the diagnosis writes it: x, tool.x, x_act, pos_z,
+    y1 (a unit in brackets is ignored); NoHome when the name holds no one coordinate."""
+    import re
+    n = re.sub(r"[\[(].*$", "", str(name)).strip().lower()
+    toks = [t for t in re.split(r"[^a-z]+", n) if t in ("x", "y", "z")]
+    if len(toks) == 1:
+        return toks[0]
+    raise NoHome(f"output {name!r} is not a tool edge coordinate (x, y, z)")
+
+
 def linear_axis(machine: Machine, output: str) -> LinearAxisOf:
-    """The linear axis that moves the tool along output `output` ('x', 'y' or 'z')."""
-    o = output.strip().lower()
-    if o not in XYZ:
-        raise NoHome(f"output {output!r} is not a tool edge coordinate (x, y, z)")
+    """The linear axis that moves the tool along output `output` (x, y or z; also tool.x,
+    x_act, pos_z)."""
+    o = coordinate_letter(output)
     k = XYZ.index(o)
     for ax in machine.axes:
         if ax.is_rotary:
@@ -56,8 +66,11 @@ def linear_axis(machine: Machine, output: str) -> LinearAxisOf:
 
 
 def rotary_axis(machine: Machine, letter: str):
-    """(index, Axis) of rotary axis `letter` (A, B, C), or NoHome."""
-    L = letter.strip().upper()
+    """(index, Axis) of rotary axis `letter` (A, B, C; also c_cmd, b1), or NoHome."""
+    import re
+    toks = [t for t in re.split(r"[^a-z]+", re.sub(r"[\[(].*$", "", str(letter)).strip().lower())
+            if t in ("a", "b", "c")]
+    L = toks[0].upper() if len(toks) == 1 else str(letter).strip().upper()
     for i, ax in enumerate(machine.axes):
         if ax.name == L and ax.is_rotary:
             return i, ax

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 
-def _floats(s: str) -> tuple | float:
+def axis_values(s: str) -> tuple | float:
     from .._io import InputError
     try:
         v = tuple(float(x) for x in s.split(","))
@@ -41,8 +41,8 @@ def register(subparsers) -> None:
     s.add_argument("program", metavar="PROGRAM.nc")
     s.add_argument("--machine", required=True, metavar="PRESET|machine.toml")
     s.add_argument("--errors", metavar="E.toml", help="the machine's errors")
-    s.add_argument("--kv", type=_floats, default=0.0, help="servo gain 1/s, one value or one per axis (0: ideal)")
-    s.add_argument("--backlash", type=_floats, default=0.0, help="backlash mm/deg, one value or one per axis")
+    s.add_argument("--kv", type=axis_values, default=0.0, help="servo gain 1/s, one value or one per axis (0: ideal)")
+    s.add_argument("--backlash", type=axis_values, default=0.0, help="backlash mm/deg, one value or one per axis")
     s.add_argument("--noise", type=float, default=0.0, metavar="NM", help="sensor noise sigma in nm")
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--step", type=float, default=1e-3, metavar="S")

@@ -190,7 +190,10 @@ def ssv_text(params, names: set | None = None, *, name: str = "diagnosed") -> by
 
 def read_ssv(path) -> dict:
     """{parameter name: value} of a .ssv parameter set (Real values)."""
-    root = ET.parse(str(path)).getroot()
+    try:
+        root = ET.parse(str(path)).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InputError(f"not a readable XML parameter set ({exc})", path) from None
     out = {}
     for p in root.iter(f"{{{SSV}}}Parameter"):
         r = p.find(f"{{{SSV}}}Real")

@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 
 from ..machine import Machine
-from .axes import XYZ, NoHome, linear_axis, rotary_axis
+from .axes import XYZ, NoHome, coordinate_letter, linear_axis, rotary_axis
 
 
 @dataclass(frozen=True)
@@ -101,7 +101,7 @@ def map_backlash(e: dict, machine: Machine, step: float | None) -> Mapped:
 def map_scale_error(e: dict, machine: Machine, step: float | None) -> Mapped:
     """r = s p on output o -> positioning error E{O}{AXIS}(q) = s (sign q + offset), a table
     over the axis travel (linear: two rows)."""
-    o = _one_output(e)
+    o = coordinate_letter(_one_output(e))
     ax = linear_axis(machine, o)
     s = _p(e, "scale")
     _travel(ax)
@@ -113,7 +113,7 @@ def map_scale_error(e: dict, machine: Machine, step: float | None) -> Mapped:
 def map_periodic_pitch_error(e: dict, machine: Machine, step: float | None) -> Mapped:
     """r = A sin(2 pi p/L) + B cos(2 pi p/L) -> positioning table E{O}{AXIS}, 64 rows per lead
     (linear interpolation of a sine at 64 points per period errs by at most 0.12 % of A)."""
-    o = _one_output(e)
+    o = coordinate_letter(_one_output(e))
     ax = linear_axis(machine, o)
     _travel(ax)
     lead = _p(e, "lead_mm")
@@ -134,8 +134,8 @@ def map_straightness(e: dict, machine: Machine, step: float | None) -> Mapped:
     """r_o = sum c_k P_k(xi) along axis j -> straightness table E{O}{J}(q_J) over the fitted
     range; outside it the profile is continued with its end values' polynomial (noted)."""
     from numpy.polynomial import legendre
-    o = _one_output(e)
-    j = _driver(e)
+    o = coordinate_letter(_one_output(e))
+    j = coordinate_letter(_driver(e))
     ax = linear_axis(machine, j)
     _travel(ax)
     coef = [float(e["params"].get(f"P{k}_mm", 0.0)) for k in range(5)]
@@ -154,8 +154,8 @@ def map_squareness(e: dict, machine: Machine, step: float | None) -> Mapped:
     """r_o = g p_j (g rad) -> tilt of axis J about the third coordinate k: ISO 230-1 location
     error E{K}0{J} = g / ((e_k x e_j) . e_o); e.g. r_x = g y gives EC0Y = -g (Y tilted towards -X
     for g > 0), r_y = g x gives EC0X = g.  The axis' own sense cancels out."""
-    o = _one_output(e)
-    j = _driver(e)
+    o = coordinate_letter(_one_output(e))
+    j = coordinate_letter(_driver(e))
     ax = linear_axis(machine, j)
     linear_axis(machine, o)
     if o == j:

@@ -107,7 +107,7 @@ def read_provenance(csv_path) -> Provenance:
     path = provenance_path(csv_path)
     if not path.is_file():
         raise InputError(f"no provenance sidecar {path.name} next to the simulation file: give --program, "
-                         "--machine, --step (and --errors, --dynamics) instead", csv_path)
+                         "--machine, --step (and --errors) instead", csv_path)
     d = parse_toml(read_text(path, what="provenance file"), path).get("simulation")
     if not isinstance(d, dict) or "machine" not in d or "step_s" not in d:
         raise InputError("expected a table [simulation] with machine and step_s", path, field="simulation")

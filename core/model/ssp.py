@@ -23,14 +23,23 @@ def bind_parameter_set(ssp_in, ssv_path, ssp_out, *, component: str = "machine")
     """Write `ssp_out`: `ssp_in` with the parameter set of `ssv_path` bound to `component`."""
     for prefix, ns in (("ssd", SSD), ("ssc", SSC), ("ssv", SSV)):
         ET.register_namespace(prefix, ns)
-    ssv_root = ET.parse(str(ssv_path)).getroot()
+    try:
+        ssv_root = ET.parse(str(ssv_path)).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InputError(f"not a readable XML parameter set ({exc})", ssv_path) from None
     if ssv_root.tag != f"{{{SSV}}}ParameterSet":
-        raise InputError("expected an SSP 1.0 ParameterSet", ssv_path)
-    with zipfile.ZipFile(ssp_in) as zf:
-        entries = {n: zf.read(n) for n in zf.namelist()}
+        raise InputError("expected an SSP 1.0 ssv:ParameterSet", ssv_path)
+    try:
+        with zipfile.ZipFile(ssp_in) as zf:
+            entries = {n: zf.read(n) for n in zf.namelist()}
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise InputError(f"not an SSP archive (zip): {exc}", ssp_in) from None
     if "SystemStructure.ssd" not in entries:
         raise InputError("no SystemStructure.ssd in the SSP archive", ssp_in)
-    root = ET.fromstring(entries["SystemStructure.ssd"])
+    try:
+        root = ET.fromstring(entries["SystemStructure.ssd"])
+    except ET.ParseError as exc:
+        raise InputError(f"SystemStructure.ssd is not valid XML ({exc})", ssp_in) from None
     comp = next((c for c in root.iter(f"{{{SSD}}}Component") if c.get("name") == component), None)
     if comp is None:
         raise InputError(f"the SSP has no component {component!r}", ssp_in)
