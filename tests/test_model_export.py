@@ -203,3 +203,27 @@ def test_output_names_with_prefixes_and_suffixes():
     ex = export_model({"effects": [_effect("squareness", "tool.x", ["tool.y"], {"angle_deg": 1e-3}),
                                    _effect("backlash", "y_act", ["y_act"], {"backlash_mm": 1e-3})]}, VMC)
     assert {p.name for p in ex.params} == {"location.EC0Y", "backlash.Y"}
+
+
+def test_provenance_round_trip_with_a_machine_file(tmp_path):
+    """The sidecar keeps a machine TOML as a path (relative to itself), the program and the
+    dynamics; read_provenance gives them back."""
+    import shutil
+    from pathlib import Path
+
+    import mtcomp.presets
+    from mtcomp.fmu.build import MachineDynamics
+    from mtcomp.model.simulate import Signals, read_provenance, write_signals
+    mfile = tmp_path / "mine.toml"
+    shutil.copy(Path(mtcomp.presets.__file__).parent / "vmc-moving-column.toml", mfile)
+    (tmp_path / "p.nc").write_text("G1 X1\n")
+    sig = Signals(np.array([0.0, 0.1]), np.zeros((2, 3)), np.zeros((2, 3)), ("X", "Y", "Z"))
+    out = tmp_path / "sub"
+    out.mkdir()
+    dyn = MachineDynamics(kv=(30.0, 0.0, 0.0), backlash=0.001, noise=2e-5, seed=4)
+    write_signals(out / "sim.csv", sig, str(mfile), program=tmp_path / "p.nc", dynamics=dyn, step=1e-3)
+    prov = read_provenance(out / "sim.csv")
+    assert prov.machine.axis_names == ("X", "Y", "Z") and prov.step == 1e-3
+    assert prov.program.resolve() == (tmp_path / "p.nc").resolve()
+    assert prov.dynamics == dyn
+    assert 'machine = "../mine.toml"' in (out / "sim.csv.provenance.toml").read_text()

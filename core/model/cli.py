@@ -107,7 +107,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     errors = load_errors(args.errors, machine=m) if args.errors else None
     dyn = MachineDynamics(kv=args.kv, backlash=args.backlash, noise=args.noise * 1e-6, seed=args.seed)
     sig = simulate(args.program, m, errors, dyn, step=args.step, spindle_speed=args.spindle_speed)
-    write_signals(args.output, sig, m, program=args.program, errors_path=args.errors, dynamics=dyn,
+    write_signals(args.output, sig, args.machine, program=args.program, errors_path=args.errors, dynamics=dyn,
                   step=args.step, spindle_speed=args.spindle_speed)
     print(f"wrote {args.output} ({len(sig.t)} samples) and its provenance sidecar")
     return 0

@@ -68,11 +68,15 @@ def _rel(path, base: Path) -> str:
 def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None, dynamics=None,
                   step: float, spindle_speed: float = 0.0) -> Path:
     """Write the signals CSV and its provenance sidecar `<path>.provenance.toml` (paths in it
-    relative to its folder; the dynamics inline)."""
+    relative to its folder; the dynamics inline).  machine: preset name, machine TOML path (kept
+    as a path) or Machine (kept by name: give the path to keep a machine file)."""
     path = Path(path)
+    spec = machine
     machine = load_machine(machine)
     atomic_write(path, signals_csv(sig, machine))
-    prov: dict = {"machine": machine.name, "step_s": float(step), "spindle_speed_rpm": float(spindle_speed)}
+    is_file = isinstance(spec, (str, Path)) and Path(spec).is_file()
+    prov: dict = {"machine": _rel(spec, path.parent) if is_file else machine.name, "step_s": float(step),
+                  "spindle_speed_rpm": float(spindle_speed)}
     if program is not None and Path(str(program)).is_file():
         prov["program"] = _rel(program, path.parent)
     if errors_path is not None:
@@ -111,7 +115,8 @@ def read_provenance(csv_path) -> Provenance:
     d = parse_toml(read_text(path, what="provenance file"), path).get("simulation")
     if not isinstance(d, dict) or "machine" not in d or "step_s" not in d:
         raise InputError("expected a table [simulation] with machine and step_s", path, field="simulation")
-    machine = load_machine(d["machine"])
+    mpath = path.parent / str(d["machine"])
+    machine = load_machine(mpath if mpath.is_file() else d["machine"])
     errors = load_errors(path.parent / d["errors"], machine=machine) if "errors" in d else ErrorSet()
     dyn = MachineDynamics(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get("dynamics", {}).items()})
     prog = path.parent / d["program"] if "program" in d else None
