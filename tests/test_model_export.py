@@ -227,3 +227,11 @@ def test_provenance_round_trip_with_a_machine_file(tmp_path):
     assert prov.program.resolve() == (tmp_path / "p.nc").resolve()
     assert prov.dynamics == dyn
     assert 'machine = "../mine.toml"' in (out / "sim.csv.provenance.toml").read_text()
+
+
+def test_package_exports():
+    import mtcomp.model as mm
+    from mtcomp.model import ModelExport, ResimResult, close_loop, export_model, load_dynamics, resimulate  # noqa: F401
+    assert mm.export_model is export_model
+    with pytest.raises(AttributeError):
+        mm.nothing_here  # noqa: B018

@@ -11,17 +11,16 @@ effect -> model parameters), export (the files), dynamics (the dynamics TOML), s
 """
 from __future__ import annotations
 
-__all__ = ["export_model", "ModelExport", "simulate", "resimulate", "ResimResult", "load_dynamics"]
+__all__ = ["export_model", "ModelExport", "resimulate", "ResimResult", "close_loop", "load_dynamics"]
+
+# name -> submodule; the functions load on first use (numpy, scipy, fmpy stay unloaded until then).
+# `simulate` is a submodule, so the function of that name is imported from it explicitly.
+_WHERE = {"export_model": "export", "ModelExport": "export", "resimulate": "simulate",
+          "ResimResult": "simulate", "close_loop": "loop", "load_dynamics": "dynamics"}
 
 
 def __getattr__(name):
-    if name in ("export_model", "ModelExport"):
-        from . import export
-        return getattr(export, name)
-    if name in ("simulate", "resimulate", "ResimResult"):
-        from . import simulate
-        return getattr(simulate, name)
-    if name == "load_dynamics":
-        from .dynamics import load_dynamics
-        return load_dynamics
+    import importlib
+    if name in _WHERE:
+        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
     raise AttributeError(f"module 'mtcomp.model' has no attribute {name!r}")
