@@ -26,6 +26,7 @@ COMMAND_MODULES = [
     "mtcomp.cad_plugin.cli",      # cad features|toolpath
     "mtcomp.cell.cli",            # cell serve|plc-sim
     "mtcomp.diagnose.cli",        # diagnose
+    "mtcomp.model.cli",           # model export|simulate|resimulate
     "mtcomp.demo",                # demo
 ]
 

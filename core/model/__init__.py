@@ -1,0 +1,26 @@
+"""mtcomp.model: close the loop from a diagnosis back into the machine model.
+
+``export_model(diagnosis, machine, outdir)`` writes the fitted effects of `mtcomp diagnose
+--json` in the model's own formats (errors TOML and tables, machine dynamics TOML, SSP
+parameter set); ``simulate`` / ``resimulate`` run the machine FMU with the base and the updated
+parameters and compare both with the recording.  docs/model-loop.md.
+
+Submodules: axes (which machine axis an output follows), mapping (one function per effect:
+effect -> model parameters), export (the files), dynamics (the dynamics TOML), simulate
+(co-simulation, provenance sidecar, re-simulation and its figure), cli.
+"""
+from __future__ import annotations
+
+__all__ = ["export_model", "ModelExport", "resimulate", "ResimResult", "close_loop", "load_dynamics"]
+
+# name -> submodule; the functions load on first use (numpy, scipy, fmpy stay unloaded until then).
+# `simulate` is a submodule, so the function of that name is imported from it explicitly.
+_WHERE = {"export_model": "export", "ModelExport": "export", "resimulate": "simulate",
+          "ResimResult": "simulate", "close_loop": "loop", "load_dynamics": "dynamics"}
+
+
+def __getattr__(name):
+    import importlib
+    if name in _WHERE:
+        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    raise AttributeError(f"module 'mtcomp.model' has no attribute {name!r}")

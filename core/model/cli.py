@@ -1,0 +1,164 @@
+"""`mtcomp model export|simulate|resimulate`: the diagnosed physics back into the machine model."""
+from __future__ import annotations
+
+import argparse
+
+
+def axis_values(s: str) -> tuple | float:
+    from .._io import InputError
+    try:
+        v = tuple(float(x) for x in s.split(","))
+    except ValueError:
+        raise InputError(f"expected a number or comma-separated numbers per axis, got {s!r}") from None
+    return v[0] if len(v) == 1 else v
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("model", help="write diagnosed effects into the machine model and re-simulate",
+                              description="Close the loop of `mtcomp diagnose`: export the fitted effects in the "
+                                          "machine model's formats, simulate the machine FMU, re-simulate with the "
+                                          "fitted parameters (docs/model-loop.md).")
+    sub = p.add_subparsers(dest="model_command", metavar="SUBCOMMAND", required=True)
+
+    e = sub.add_parser("export", help="diagnosis JSON -> errors TOML, dynamics TOML, SSP parameter set")
+    e.add_argument("diagnosis", metavar="DIAG.json", help="output of `mtcomp diagnose --json`")
+    e.add_argument("-o", "--outdir", required=True, metavar="OUTDIR", help="folder to write the model files into")
+    e.add_argument("--machine", metavar="PRESET|machine.toml",
+                   help="machine (default: from the SIM file's provenance sidecar given with --sim)")
+    e.add_argument("--sim", metavar="SIM.csv", help="the simulation the diagnosis compared with (reads its "
+                   "provenance sidecar for machine and step)")
+    e.add_argument("--step", type=float, metavar="S", help="co-simulation communication step (s)")
+    e.add_argument("--quiet", action="store_true")
+    e.set_defaults(func=run_export)
+
+    b = sub.add_parser("ssp", help="bind the exported .ssv to the machine component of an SSP archive")
+    b.add_argument("ssp", metavar="CELL.ssp", help="written by `mtcomp fmu ssp`")
+    b.add_argument("ssv", metavar="MODEL/machine.ssv")
+    b.add_argument("-o", "--output", required=True, metavar="OUT.ssp")
+    b.set_defaults(func=run_ssp)
+
+    s = sub.add_parser("simulate", help="NC program -> machine FMU -> tool edge CSV with a provenance sidecar")
+    s.add_argument("program", metavar="PROGRAM.nc")
+    s.add_argument("--machine", required=True, metavar="PRESET|machine.toml")
+    s.add_argument("--errors", metavar="E.toml", help="the machine's errors")
+    s.add_argument("--kv", type=axis_values, default=0.0, help="servo gain 1/s, one value or one per axis (0: ideal)")
+    s.add_argument("--backlash", type=axis_values, default=0.0, help="backlash mm/deg, one value or one per axis")
+    s.add_argument("--noise", type=float, default=0.0, metavar="NM", help="sensor noise sigma in nm")
+    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--step", type=float, default=1e-3, metavar="S")
+    s.add_argument("--spindle-speed", type=float, default=0.0, metavar="RPM")
+    s.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    s.set_defaults(func=run_simulate)
+
+    r = sub.add_parser("resimulate", help="re-run the co-simulation with the exported model; compare with REC")
+    r.add_argument("model", metavar="OUTDIR", help="folder written by `mtcomp model export`")
+    r.add_argument("--rec", required=True, metavar="REC.csv", help="the recording (t, x, y, z)")
+    r.add_argument("--sim", metavar="SIM.csv", help="the original simulation; its provenance sidecar gives "
+                   "program, machine, errors, dynamics and step")
+    r.add_argument("--program", metavar="PROGRAM.nc")
+    r.add_argument("--machine", metavar="PRESET|machine.toml")
+    r.add_argument("--errors", metavar="E.toml", help="the base model's errors")
+    r.add_argument("--step", type=float, metavar="S")
+    r.add_argument("--heldout-from", type=float, metavar="T",
+                   help="samples from T s on were not given to the diagnosis: report them apart")
+    r.add_argument("--diagnosis", metavar="DIAG.json",
+                   help="the diagnosis the model came from: its noise floors weigh the outputs; needed by --prune")
+    r.add_argument("--prune", action="store_true",
+                   help="drop exported effects the re-simulation does not need on the training samples "
+                        "(t < --heldout-from) and rewrite the model folder with the rest")
+    r.add_argument("--refine", action="store_true",
+                   help="refit the exported scalars (kv, backlash, location, setting) through the machine model on "
+                        "the training samples (needs --diagnosis; a co-simulation per evaluation: slow)")
+    r.add_argument("--plot", metavar="OUT.png")
+    r.add_argument("--json", metavar="OUT.json")
+    r.set_defaults(func=run_resimulate)
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from .._io import InputError
+    from .export import export_model
+    from .simulate import read_provenance
+    machine, step = args.machine, args.step
+    if args.sim:
+        prov = read_provenance(args.sim)
+        machine = machine or prov.machine
+        step = step if step is not None else prov.step
+    if machine is None:
+        raise InputError("give --machine (or --sim with a provenance sidecar)", field="--machine")
+    ex = export_model(args.diagnosis, machine, args.outdir, step=step)
+    if not args.quiet:
+        print(ex.summary())
+    return 0
+
+
+def run_ssp(args: argparse.Namespace) -> int:
+    from .ssp import bind_parameter_set
+    bind_parameter_set(args.ssp, args.ssv, args.output)
+    print(f"wrote {args.output}: {args.ssv} bound to the machine component")
+    return 0
+
+
+def run_simulate(args: argparse.Namespace) -> int:
+    from ..errors import load_errors
+    from ..fmu.build import MachineDynamics
+    from ..machine import load_machine
+    from .simulate import simulate, write_signals
+    m = load_machine(args.machine)
+    errors = load_errors(args.errors, machine=m) if args.errors else None
+    dyn = MachineDynamics(kv=args.kv, backlash=args.backlash, noise=args.noise * 1e-6, seed=args.seed)
+    sig = simulate(args.program, m, errors, dyn, step=args.step, spindle_speed=args.spindle_speed)
+    write_signals(args.output, sig, args.machine, program=args.program, errors_path=args.errors, dynamics=dyn,
+                  step=args.step, spindle_speed=args.spindle_speed)
+    print(f"wrote {args.output} ({len(sig.t)} samples) and its provenance sidecar")
+    return 0
+
+
+def run_resimulate(args: argparse.Namespace) -> int:
+    import json
+
+    from .._io import InputError, atomic_write
+    from ..errors import load_errors
+    from ..machine import load_machine
+    from .simulate import read_provenance, resimulate
+    if args.sim:
+        prov = read_provenance(args.sim)
+        program = args.program or prov.program
+        machine = load_machine(args.machine) if args.machine else prov.machine
+        errors = load_errors(args.errors, machine=machine) if args.errors else prov.errors
+        dyn, step, spindle = prov.dynamics, args.step or prov.step, prov.spindle_speed
+    else:
+        if not (args.program and args.machine and args.step):
+            raise InputError("give --sim SIM.csv with its provenance sidecar, or --program, --machine and --step",
+                             field="--sim")
+        program, machine, step, spindle, dyn = args.program, load_machine(args.machine), args.step, 0.0, None
+        errors = load_errors(args.errors, machine=machine) if args.errors else None
+    if program is None:
+        raise InputError("the provenance names no program: give --program", field="--program")
+    model, noise = args.model, None
+    if args.diagnosis:
+        from .export import read_diagnosis
+        noise = read_diagnosis(args.diagnosis).get("noise_floor")
+    if args.prune or args.refine:
+        from .export import export_model, write_export
+        from .simulate import prune, read_recording, refine
+        if not args.diagnosis:
+            raise InputError("--prune and --refine need --diagnosis DIAG.json", field="--diagnosis")
+        t_rec, rec = read_recording(args.rec)
+        log: list = []
+        kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
+                  train_until=args.heldout_from, noise_floor=noise, log=log)
+        ex = export_model(args.diagnosis, machine, None, step=step)
+        if args.prune:
+            ex = prune(ex, t_rec, rec, **kw)
+        if args.refine:
+            ex = refine(ex, t_rec, rec, stride=4, **kw)
+        model = write_export(ex, args.model)
+        print("\n".join(log))
+    res, _, _ = resimulate(model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,
+                           step=step, spindle_speed=spindle, heldout_from=args.heldout_from, noise_floor=noise)
+    if args.json:
+        atomic_write(args.json, json.dumps(res.to_dict(), indent=2) + "\n")
+    if args.plot:
+        res.plot(args.plot)
+    print(res.summary())
+    return 0

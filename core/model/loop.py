@@ -1,0 +1,70 @@
+"""The whole loop in one call: recording -> diagnosis -> model export -> (prune) -> re-simulation.
+
+Used by the tests and benchmarks/model_loop.py; the CLI runs the same steps one command each.
+"""
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..machine import load_machine
+from .simulate import OUTPUTS, Signals, compare, prune, signals_csv, simulate  # noqa: F401
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    """diagnosis (DiagnosisResult), export (ModelExport, after pruning), result (ResimResult on
+    the held-out samples), train_until (s): the diagnosis saw only t < train_until."""
+    diagnosis: object
+    export: object
+    result: object
+    train_until: float
+    prune_log: tuple = ()
+
+
+def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None, dynamics=None, step: float,
+               train: float = 0.6, outputs=None, do_prune: bool = True, do_refine: bool = False,
+               refine_stride: int = 4, workdir=None, compiler: str = "cmake") -> LoopResult:
+    """Diagnose REC against the nominal SIM on the first `train` fraction of the samples, export
+    the effects into the model, prune them through the model on the same samples (and with
+    do_refine refit their scalars through it, every `refine_stride`-th training sample),
+    re-simulate and compare on the rest (held out).  errors/dynamics: the nominal model's."""
+    from ..diagnose import diagnose
+    from .export import export_model
+    machine = load_machine(machine)
+    tmp = tempfile.TemporaryDirectory(prefix="mtcomp-loop-") if workdir is None else None
+    wd = Path(tmp.name if tmp else workdir)
+    try:
+        n_train = int(train * len(rec.t))
+        (wd / "sim.csv").write_text(signals_csv(nominal, machine))
+        lines = signals_csv(rec, machine).splitlines()
+        (wd / "rec.csv").write_text("\n".join(lines[:1 + n_train]) + "\n")
+        # the programmed angles are in both files (signals_csv): inputs of the effects, not outputs
+        angles = [a.name.lower() for a in machine.axes if a.is_rotary]
+        diag = diagnose(str(wd / "sim.csv"), str(wd / "rec.csv"), outputs=outputs, inputs=angles or None)
+        ex = export_model(diag, machine, None, step=step)
+        t_split = float(rec.t[n_train])
+        rec_out = {o: rec.p[:, k] for k, o in enumerate(OUTPUTS)}
+        log: list = []
+        if do_prune and ex.mapped:
+            ex = prune(ex, rec.t, rec_out, program=program, machine=machine, errors=errors, dynamics=dynamics,
+                       step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler, log=log)
+        if do_refine and ex.params:
+            from .simulate import refine
+            ex = refine(ex, rec.t, rec_out, program=program, machine=machine, errors=errors, dynamics=dynamics,
+                        step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler,
+                        stride=refine_stride, log=log)
+        from dataclasses import replace
+
+        from ..errors import ErrorSet
+        from ..fmu.build import MachineDynamics
+        from .simulate import _updated_model
+        base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
+        e, d = _updated_model(ex, machine, errors or ErrorSet(), base_dyn, True)
+        upd = simulate(program, machine, e, d, step=step, compiler=compiler)
+        res = compare(rec.t, rec_out, nominal, upd, heldout_from=t_split, noise_floor=diag.noise_floor)
+        return LoopResult(diag, ex, res, t_split, tuple(log))
+    finally:
+        if tmp:
+            tmp.cleanup()

@@ -1,0 +1,250 @@
+"""Effect -> model parameters: one small function per effect of the diagnosis.
+
+Each function reads one effect of the diagnosis JSON (``{"name", "output", "inputs",
+"params", "uncertainty"}``, docs/diagnose.md) and returns what it becomes in the machine model:
+`Param` items named like the machine FMU's parameters (``servo.kv.X``, ``backlash.X``,
+``location.EC0Y``, ``workpiece_setting.translation.x``) and `Table` items (ISO 230-1
+component error functions of one axis, written as CSV tables).  An effect the model cannot
+carry raises `NoHome` with the reason; the export lists it, it is never dropped silently.
+When the diagnosis JSON changes, only the function of the effect concerned changes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..machine import Machine
+from .axes import XYZ, NoHome, coordinate_letter, linear_axis, rotary_axis
+
+
+@dataclass(frozen=True)
+class Param:
+    """One scalar of the model: `name` is the machine FMU parameter name (also the key in the
+    files), value and sigma (one standard deviation, None if unknown) in `unit`."""
+    name: str
+    value: float
+    sigma: float | None
+    unit: str
+
+
+@dataclass(frozen=True)
+class Table:
+    """An ISO 230-1 component error of one axis as a function of its position: component
+    (e.g. EXX, EYX) of `axis`, fn(q mm) -> mm, sampled at most `spacing` mm apart; `sigma`
+    describes its uncertainty in words (a function has no single sigma)."""
+    axis: str
+    component: str
+    fn: Callable
+    spacing: float
+    sigma: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Mapped:
+    """What one effect became: its parameters and tables, and notes (approximations)."""
+    effect: str
+    output: str
+    params: tuple = ()
+    tables: tuple = ()
+    notes: tuple = ()
+
+
+def _p(e: dict, key: str) -> float:
+    try:
+        return float(e["params"][key])
+    except (KeyError, TypeError, ValueError):
+        raise NoHome(f"{e.get('name')}: parameter {key!r} missing in the diagnosis") from None
+
+
+def _s(e: dict, key: str):
+    v = (e.get("uncertainty") or {}).get(key)
+    return None if v is None else float(v)
+
+
+def _one_output(e: dict) -> str:
+    outs = str(e.get("output", "")).split(",")
+    if len(outs) != 1:
+        raise NoHome(f"{e['name']} on {e.get('output')}: expected one output")
+    return outs[0]
+
+
+def map_servo_lag(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """kv (1/s) of the continuous first-order lag the diagnosis fits -> servo.kv.<AXIS>.
+
+    The machine FMU's servo is exact first order for a command held over each communication
+    step h; its steady following error at speed v is v h / (exp(kv h) - 1), not v/kv, so the
+    continuous kv_c maps to kv = ln(1 + kv_c h)/h (derived by equating the following errors)."""
+    ax = linear_axis(machine, _one_output(e))
+    kv_c, s = _p(e, "kv_per_s"), _s(e, "kv_per_s")
+    notes = ()
+    if step and step > 0:
+        kv = math.log1p(kv_c * step) / step
+        s = None if s is None else s / (1.0 + kv_c * step)    # d kv / d kv_c
+    else:
+        kv, notes = kv_c, ("no communication step given: kv is the continuous one",)
+    return Mapped("servo_lag", e["output"], (Param(f"servo.kv.{ax.axis}", kv, s, "1/s"),), notes=notes)
+
+
+def map_backlash(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """Play width b (positive: the axis lags behind the command) -> backlash.<AXIS>."""
+    ax = linear_axis(machine, _one_output(e))
+    b = _p(e, "backlash_mm")
+    if b < 0:
+        raise NoHome(f"backlash on {e['output']} is negative ({b:g} mm: the axis leads the command); "
+                     "the machine FMU's play only lags")
+    return Mapped("backlash", e["output"], (Param(f"backlash.{ax.axis}", b, _s(e, "backlash_mm"), "mm"),))
+
+
+def map_scale_error(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """r = s p on output o -> positioning error E{O}{AXIS}(q) = s (sign q + offset), a table
+    over the axis travel (linear: two rows)."""
+    o = coordinate_letter(_one_output(e))
+    ax = linear_axis(machine, o)
+    s = _p(e, "scale")
+    _travel(ax)
+    return Mapped("scale_error", e["output"],
+                  tables=(Table(ax.axis, f"E{o.upper()}{ax.axis}", lambda q, s=s, ax=ax: s * ax.coordinate(q),
+                                math.inf, {"scale": _s(e, "scale")}),))
+
+
+def map_periodic_pitch_error(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """r = A sin(2 pi p/L) + B cos(2 pi p/L) -> positioning table E{O}{AXIS}, 64 rows per lead
+    (linear interpolation of a sine at 64 points per period errs by at most 0.12 % of A)."""
+    o = coordinate_letter(_one_output(e))
+    ax = linear_axis(machine, o)
+    _travel(ax)
+    lead = _p(e, "lead_mm")
+    amp_key = next((k for k in e["params"] if k.startswith("amplitude_")), "amplitude_mm")
+    amp, ph = _p(e, amp_key), math.radians(_p(e, "phase_deg"))
+    a, b = amp * math.cos(ph), amp * math.sin(ph)   # phase = atan2(B, A)
+
+    def fn(q):
+        w = 2 * math.pi * ax.coordinate(q) / lead
+        return a * np.sin(w) + b * np.cos(w)
+    return Mapped("periodic_pitch_error", e["output"],
+                  tables=(Table(ax.axis, f"E{o.upper()}{ax.axis}", fn, lead / 64,
+                                {"lead_mm": _s(e, "lead_mm"), "amplitude_mm": _s(e, amp_key),
+                                 "phase_deg": _s(e, "phase_deg")}),))
+
+
+def map_straightness(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """r_o = sum c_k P_k(xi) along axis j -> straightness table E{O}{J}(q_J) over the fitted
+    range; outside it the profile is continued with its end values' polynomial (noted)."""
+    from numpy.polynomial import legendre
+    o = coordinate_letter(_one_output(e))
+    j = coordinate_letter(_driver(e))
+    ax = linear_axis(machine, j)
+    _travel(ax)
+    coef = [float(e["params"].get(f"P{k}_mm", 0.0)) for k in range(5)]
+    lo, hi = _p(e, "range_lo_mm"), _p(e, "range_hi_mm")
+
+    def fn(q):
+        xi = (2 * ax.coordinate(q) - (lo + hi)) / max(hi - lo, 1e-12)
+        return legendre.legval(xi, coef)
+    return Mapped("straightness", e["output"],
+                  tables=(Table(ax.axis, f"E{o.upper()}{ax.axis}", fn, max(hi - lo, 1.0) / 200,
+                                {k: _s(e, k) for k in e["params"] if k.startswith("P")}),),
+                  notes=(f"fitted over {j} = {lo:g}..{hi:g} mm; the table extrapolates the polynomial beyond",))
+
+
+def map_squareness(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """r_o = g p_j (g rad) -> tilt of axis J about the third coordinate k: ISO 230-1 location
+    error E{K}0{J} = g / ((e_k x e_j) . e_o); e.g. r_x = g y gives EC0Y = -g (Y tilted towards -X
+    for g > 0), r_y = g x gives EC0X = g.  The axis' own sense cancels out."""
+    o = coordinate_letter(_one_output(e))
+    j = coordinate_letter(_driver(e))
+    ax = linear_axis(machine, j)
+    linear_axis(machine, o)
+    if o == j:
+        raise NoHome("squareness of an output with itself")
+    io, ij = XYZ.index(o), XYZ.index(j)
+    ik = 3 - io - ij
+    cross = float(np.cross(np.eye(3)[ik], np.eye(3)[ij])[io])   # +-1
+    g = math.radians(_p(e, "angle_deg"))
+    s = _s(e, "angle_deg")
+    name = f"E{'ABC'[ik]}0{ax.axis}"
+    return Mapped("squareness", e["output"],
+                  (Param(f"location.{name}", g / cross, None if s is None else math.radians(s), "rad"),))
+
+
+def map_pivot_offset(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """r = (R(theta) - I) d about rotary axis K -> centre offset of K: ISO 230-7 location errors
+    E{X,Y,Z}0K = -d.  A centre moved by d0 maps a point p to R (p - c - d0) + c + d0, i.e. adds
+    (I - R) d0, zero at theta = 0 as the diagnosed effect.  Exact when K is the first rotary axis
+    of the chain (its rotation acts in the workpiece frame) and turns about +X, +Y or +Z."""
+    driver = _driver(e)
+    i, ax = rotary_axis(machine, driver)
+    k = "ABC".index(ax.name) if ax.name in "ABC" else None
+    u = np.asarray(ax.direction, float)
+    if k is None or abs(u[k] - 1.0) > 1e-9:
+        raise NoHome(f"pivot offset about {ax.name}: the axis does not turn about +{'XYZ'[k] if k is not None else '?'}")
+    if any(a.is_rotary for a in machine.axes[:i]):
+        raise NoHome(f"pivot offset about {ax.name}: another rotary axis precedes it in the chain")
+    params = []
+    for c in "xyz":
+        key = f"d{c}_mm"
+        if key in e["params"]:
+            s = _s(e, key)
+            params.append(Param(f"location.E{c.upper()}0{ax.name}", -_p(e, key), s, "mm"))
+    return Mapped("pivot_offset", e["output"], tuple(params))
+
+
+def map_workpiece_setting(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """Translation T (mm) and small angles w (deg) -> workpiece_setting.translation/angle, the
+    diagnosis follows mtcomp.errors.WorkpieceSetting (x_nominal = R x_real + T)."""
+    params = []
+    for c in "xyz":
+        if f"t{c}_mm" in e["params"]:
+            params.append(Param(f"workpiece_setting.translation.{c}", _p(e, f"t{c}_mm"), _s(e, f"t{c}_mm"), "mm"))
+    for c, a in zip("xyz", "abc"):
+        if f"r{c}_deg" in e["params"]:
+            params.append(Param(f"workpiece_setting.angle.{a}", _p(e, f"r{c}_deg"), _s(e, f"r{c}_deg"), "deg"))
+    return Mapped("workpiece_setting", e["output"], tuple(params),
+                  notes=("angles combine as R = Rz(c) Ry(b) Rx(a): equal to the diagnosed small rotation to "
+                         "first order",) if any(p.name.startswith("workpiece_setting.angle") for p in params) else ())
+
+
+def _no_home(reason: str):
+    def f(e, machine, step):
+        raise NoHome(reason)
+    f.__doc__ = reason
+    return f
+
+
+MAPPERS = {
+    "servo_lag": map_servo_lag,
+    "backlash": map_backlash,
+    "scale_error": map_scale_error,
+    "periodic_pitch_error": map_periodic_pitch_error,
+    "straightness": map_straightness,
+    "squareness": map_squareness,
+    "pivot_offset": map_pivot_offset,
+    "workpiece_setting": map_workpiece_setting,
+    "thermal_drift": _no_home("the machine FMU's thermal model is driven by its spindle speed input only, "
+                              "without the unknown initial state and reference the diagnosis fits"),
+    "time_offset": _no_home("the machine model has no transport delay"),
+    "friction": _no_home("the machine model has no friction"),
+}
+
+
+def map_effect(e: dict, machine: Machine, step: float | None = None) -> Mapped:
+    """The model parameters of one diagnosed effect (a dict of the diagnosis JSON), or NoHome."""
+    f = MAPPERS.get(e.get("name"))
+    if f is None:
+        raise NoHome(f"effect {e.get('name')!r} is not known to the model export")
+    return f(e, machine, step)
+
+
+def _driver(e: dict) -> str:
+    ins = list(e.get("inputs") or ())
+    if len(ins) != 1:
+        raise NoHome(f"{e['name']}: expected one driver input, got {ins}")
+    return str(ins[0]).strip().lower()
+
+
+def _travel(ax) -> None:
+    if not (math.isfinite(ax.lo) and math.isfinite(ax.hi)) or abs(ax.lo) > 1e5 or abs(ax.hi) > 1e5:
+        raise NoHome(f"axis {ax.axis} has no finite travel to lay a table over")

@@ -1,0 +1,426 @@
+"""Co-simulate the machine FMU with a base and an updated model; compare both with a recording.
+
+`simulate` runs NC program -> machine FMU (no compensator in the loop: what the machine does
+with the programmed commands) and returns the tool edge signals; `write_signals` writes them as
+the SIM/REC CSV `mtcomp diagnose` reads, with a provenance sidecar (``<csv>.provenance.toml``:
+program, machine, errors, dynamics, step) from which `resimulate` rebuilds the same run with the
+fitted parameters.  `resimulate` reports RMS of REC - SIM and REC - updated SIM per output on all
+samples and on held-out time blocks, with a figure.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._io import InputError, atomic_write, dump_toml, parse_toml, read_text
+from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting, load_errors
+from ..machine import load_machine
+
+OUTPUTS = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Tool edge signals of one run: t (K,) s, p (K, 3) mm (x, y, z in the real workpiece frame,
+    read at the end of each step), q (K, n) programmed axis commands (mm, deg)."""
+    t: np.ndarray
+    p: np.ndarray
+    q: np.ndarray
+    axes: tuple
+
+
+def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *, step: float = 1e-3,
+             spindle_speed: float = 0.0, workdir=None, compiler: str = "cmake") -> Signals:
+    """Run the NC program (path, text, or (K, n) command array) through the machine FMU built
+    with `errors` and `dynamics` (mtcomp.fmu.build.MachineDynamics) at `step` s; the machine
+    gets the programmed commands (the uncompensated run of mtcomp.fmu.cosim.cosimulate)."""
+    from ..fmu.cosim import cosimulate
+    machine = load_machine(machine)
+    errors = errors or ErrorSet()
+    res = cosimulate(program, machine, errors, ErrorSet(), step=step, dynamics=dynamics,
+                     spindle_speed=spindle_speed, workdir=workdir, compiler=compiler)
+    return Signals(res.t, res.p_uncompensated, res.q_programmed, tuple(res.axes))
+
+
+def signals_csv(sig: Signals, machine) -> str:
+    """CSV text: t (s), x, y, z (mm); the programmed angles of rotary axes (deg, lower-case
+    letters) as inputs for the diagnosis (pivot offsets follow them)."""
+    machine = load_machine(machine)
+    cols = ["t"] + list(OUTPUTS)
+    data = [sig.t] + [sig.p[:, k] for k in range(3)]
+    for i, ax in enumerate(machine.axes):
+        if ax.is_rotary:
+            cols.append(ax.name.lower())
+            data.append(sig.q[:, i])
+    arr = np.column_stack(data)
+    lines = [",".join(cols)] + [",".join(repr(float(v)) for v in row) for row in arr]
+    return "\n".join(lines) + "\n"
+
+
+def _rel(path, base: Path) -> str:
+    import os
+    return os.path.relpath(os.path.abspath(path), os.path.abspath(base))
+
+
+def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None, dynamics=None,
+                  step: float, spindle_speed: float = 0.0) -> Path:
+    """Write the signals CSV and its provenance sidecar `<path>.provenance.toml` (paths in it
+    relative to its folder; the dynamics inline).  machine: preset name, machine TOML path (kept
+    as a path) or Machine (kept by name: give the path to keep a machine file)."""
+    path = Path(path)
+    spec = machine
+    machine = load_machine(machine)
+    atomic_write(path, signals_csv(sig, machine))
+    is_file = isinstance(spec, (str, Path)) and Path(spec).is_file()
+    prov: dict = {"machine": _rel(spec, path.parent) if is_file else machine.name, "step_s": float(step),
+                  "spindle_speed_rpm": float(spindle_speed)}
+    if program is not None and Path(str(program)).is_file():
+        prov["program"] = _rel(program, path.parent)
+    if errors_path is not None:
+        prov["errors"] = _rel(errors_path, path.parent)
+    if dynamics is not None:
+        d = asdict(dynamics)
+        prov["dynamics"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+    atomic_write(provenance_path(path), "# provenance of a simulated signal file (docs/model-loop.md)\n"
+                 + dump_toml({"simulation": prov}))
+    return path
+
+
+def provenance_path(csv_path) -> Path:
+    p = Path(csv_path)
+    return p.with_name(p.name + ".provenance.toml")
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """How a SIM file was made: program path, machine, errors (ErrorSet), dynamics
+    (MachineDynamics), step (s), spindle speed (1/min)."""
+    program: Path | None
+    machine: object
+    errors: ErrorSet
+    dynamics: object
+    step: float
+    spindle_speed: float
+
+
+def read_provenance(csv_path) -> Provenance:
+    from ..fmu.build import MachineDynamics
+    path = provenance_path(csv_path)
+    if not path.is_file():
+        raise InputError(f"no provenance sidecar {path.name} next to the simulation file: give --program, "
+                         "--machine, --step (and --errors) instead", csv_path)
+    d = parse_toml(read_text(path, what="provenance file"), path).get("simulation")
+    if not isinstance(d, dict) or "machine" not in d or "step_s" not in d:
+        raise InputError("expected a table [simulation] with machine and step_s", path, field="simulation")
+    mpath = path.parent / str(d["machine"])
+    machine = load_machine(mpath if mpath.is_file() else d["machine"])
+    errors = load_errors(path.parent / d["errors"], machine=machine) if "errors" in d else ErrorSet()
+    dyn = MachineDynamics(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get("dynamics", {}).items()})
+    prog = path.parent / d["program"] if "program" in d else None
+    return Provenance(prog, machine, errors, dyn, float(d["step_s"]), float(d.get("spindle_speed_rpm", 0.0)))
+
+
+def read_recording(path) -> tuple:
+    """(t (K,) s, {output: (K,) mm}) of a CSV with t and x/y/z columns (units from the header)."""
+    from ..csvtable import read_csv
+    tab = read_csv(path, what="recording", required=("t",))
+    t = tab.numbers("t", unit="s")
+    out = {}
+    for o in OUTPUTS:
+        try:
+            out[o] = tab.numbers(o, unit="mm")
+        except (InputError, KeyError):
+            continue
+    if not out:
+        raise InputError("expected tool edge columns x, y and/or z", path)
+    return t, out
+
+
+# ---------------------------------------------------------------- composition with a base model
+
+def combine_errors(base: ErrorSet, fitted: ErrorSet, machine) -> ErrorSet:
+    """The base errors plus the fitted ones (the diagnosis fits what the base lacked): setting
+    offsets and angles add (small angles), location errors add, tables add on the fitted table's
+    grid (the base table must cover it)."""
+    tool = np.add(base.tool.offset, fitted.tool.offset)
+    tr = np.add(base.workpiece.translation, fitted.workpiece.translation)
+    ang = np.add(base.workpiece.angles, fitted.workpiece.angles)
+    loc = dict(base.geometric.location)
+    for k, v in fitted.geometric.location.items():
+        loc[k] = loc.get(k, 0.0) + v
+    tables = dict(base.geometric.tables)
+    for ax, t in fitted.geometric.tables.items():
+        if ax in tables:
+            b = tables[ax]
+            vals = {k: np.asarray(v, float).copy() for k, v in t.values.items()}
+            for k, v in b.values.items():
+                add = np.interp(t.position, b.position, np.asarray(v, float))
+                vals[k] = vals.get(k, 0.0) + add
+            tables[ax] = AxisErrorTable(ax, t.position, vals, source="base + diagnosis")
+        else:
+            tables[ax] = t
+    return ErrorSet(ToolSetting(tuple(tool)), WorkpieceSetting(tuple(tr), tuple(ang)), GeometricErrors(tables, loc))
+
+
+# ---------------------------------------------------------------- re-simulation
+
+@dataclass(frozen=True)
+class ResimResult:
+    """REC against the original and the updated model.
+
+    t (K,) s on REC's clock; rec, sim, updated: {output: (K,) mm}; blocks: the time blocks
+    ((t0, t1) s); rms: {"before"|"after": {output: mm}} over all samples; heldout_rms: the same
+    over the held-out samples (t >= heldout_from s, or all when None); block_rms:
+    {"before"|"after": {output: [mm per block]}}."""
+    t: np.ndarray
+    rec: dict
+    sim: dict
+    updated: dict
+    rms: dict
+    heldout_rms: dict
+    block_rms: dict
+    blocks: tuple
+    heldout_from: float | None
+    noise_floor: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        lines = ["re-simulation with the diagnosed model: RMS of REC - model"
+                 + (f" (held out: t >= {self.heldout_from:g} s)" if self.heldout_from is not None else "")]
+        for o in self.rec:
+            nf = self.noise_floor.get(o)
+            nfs = f", noise floor {_um(nf)}" if nf else ""
+            lines.append(f"  {o}: original {_um(self.rms['before'][o])} -> updated {_um(self.rms['after'][o])}; "
+                         f"held out {_um(self.heldout_rms['before'][o])} -> {_um(self.heldout_rms['after'][o])}"
+                         + nfs)
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        return {"rms": self.rms, "heldout_rms": self.heldout_rms, "block_rms": self.block_rms,
+                "blocks": [list(b) for b in self.blocks], "heldout_from": self.heldout_from,
+                "noise_floor": self.noise_floor}
+
+    def figure(self):
+        """REC - original model (left) and REC - updated model (right) per output over time, in
+        µm, each with its own scale and its held-out RMS (a matplotlib.figure.Figure; the
+        held-out span shaded)."""
+        from matplotlib.figure import Figure
+        outs = list(self.rec)
+        fig = Figure(figsize=(11, 2.1 * len(outs) + 0.8), layout="constrained")
+        axs = fig.subplots(len(outs), 2, sharex=True, squeeze=False)
+        for row, o in enumerate(outs):
+            for col, (key, model, color, what) in enumerate((("before", self.sim, "tab:red", "original model"),
+                                                             ("after", self.updated, "tab:blue", "updated model"))):
+                ax = axs[row, col]
+                ax.plot(self.t, (self.rec[o] - model[o]) * 1e3, lw=0.6, color=color)
+                if self.heldout_from is not None:
+                    ax.axvspan(self.heldout_from, self.t[-1], color="0.9", zorder=0)
+                ax.set_title(f"{o}: REC - {what}, held-out RMS {_um(self.heldout_rms[key][o])}", fontsize=9)
+                ax.set_ylabel(f"{o} error [µm]")
+        for ax in axs[-1]:
+            ax.set_xlabel("t [s]" + ("  (shaded: held out)" if self.heldout_from is not None else ""))
+        return fig
+
+    def plot(self, path):
+        from .._io import atomic_path
+        fig = self.figure()
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+        return fig
+
+
+def _um(x) -> str:
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    return f"{x * 1e6:.3g} nm" if abs(x) < 1e-4 else f"{x * 1e3:.3g} µm"
+
+
+def _rms(a) -> float:
+    a = np.asarray(a, float)
+    return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
+
+
+def compare(t_rec, rec: dict, sim: Signals, updated: Signals, *, heldout_from: float | None = None,
+            n_blocks: int = 5, noise_floor: dict | None = None) -> ResimResult:
+    """Interpolate both models onto REC's times (REC is assumed on the simulation's clock) and
+    report the RMS of REC - model per output."""
+    t_rec = np.asarray(t_rec, float)
+    keep = (t_rec >= sim.t[0]) & (t_rec <= sim.t[-1])
+    if keep.sum() < 2:
+        raise InputError("the recording and the simulation do not overlap in time", field="t")
+    t = t_rec[keep]
+    r = {o: np.asarray(v, float)[keep] for o, v in rec.items()}
+    s = {o: np.interp(t, sim.t, sim.p[:, OUTPUTS.index(o)]) for o in r}
+    u = {o: np.interp(t, updated.t, updated.p[:, OUTPUTS.index(o)]) for o in r}
+    edges = np.linspace(t[0], t[-1], n_blocks + 1)
+    blocks = tuple((float(a), float(b)) for a, b in zip(edges[:-1], edges[1:]))
+    held = np.ones(len(t), bool) if heldout_from is None else t >= heldout_from
+    rms = {"before": {o: _rms(r[o] - s[o]) for o in r}, "after": {o: _rms(r[o] - u[o]) for o in r}}
+    hrms = {"before": {o: _rms((r[o] - s[o])[held]) for o in r},
+            "after": {o: _rms((r[o] - u[o])[held]) for o in r}}
+    idx = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, n_blocks - 1)
+    brms = {k: {o: [_rms((r[o] - m[o])[idx == b]) for b in range(n_blocks)] for o in r}
+            for k, m in (("before", s), ("after", u))}
+    return ResimResult(t, r, s, u, rms, hrms, brms, blocks, heldout_from, dict(noise_floor or {}))
+
+
+def _updated_model(model, machine, base_err, base_dyn, combine):
+    from .dynamics import apply_dynamics, load_dynamics
+    if hasattr(model, "dynamics_values"):
+        fit_err, fit_dyn = model.errors, model.dynamics_values
+    else:
+        d = Path(model)
+        fit_err = load_errors(d / "errors.toml", machine=machine)
+        fit_dyn = load_dynamics(d / "dynamics.toml", machine)
+    new_err = combine_errors(base_err, fit_err, machine) if combine else fit_err
+    return new_err, apply_dynamics(base_dyn, fit_dyn, machine, combine=combine)
+
+
+def _training_residual(model, t_rec, rec, keep_t, *, program, machine, base_err, base_dyn, step, spindle_speed,
+                       nf, compiler):
+    """Stacked (REC - re-simulation) / noise floor on the training samples."""
+    e, d = _updated_model(model, machine, base_err, base_dyn, True)
+    sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, compiler=compiler)
+    keep = keep_t & (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
+    parts = []
+    for o, v in rec.items():
+        m = np.interp(t_rec[keep], sig.t, sig.p[:, OUTPUTS.index(o)])
+        parts.append((np.asarray(v, float)[keep] - m) / (nf.get(o) or 1.0))
+    return np.concatenate(parts)
+
+
+def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
+           spindle_speed: float = 0.0, train_until: float | None = None, noise_floor: dict | None = None,
+           compiler: str = "cmake", stride: int = 1, log: list | None = None):
+    """Refit the exported scalar parameters (kv, backlash, location and setting errors) through
+    the machine model itself: nonlinear least squares of REC - re-simulation on the training
+    samples (t < train_until), each evaluation a co-simulation of the FMU, started from the
+    diagnosis' values and scaled by their sigmas.  Tables keep the diagnosis' values.
+
+    Why: the diagnosis fits its own effect models; where they differ from the FMU's physics
+    (a servo lag seen with a latency the model has no home for) its values are biased for the
+    model.  The refitted sigmas are the least-squares covariance scaled by the residual
+    variance.  stride: use every n-th training sample (speed)."""
+    from dataclasses import replace
+
+    from scipy.optimize import least_squares
+
+    from ..fmu.build import MachineDynamics
+    machine = load_machine(machine)
+    params = [p for p in ex.params]
+    if not params:
+        return ex
+    base_err = errors or ErrorSet()
+    base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
+    t_rec = np.asarray(t_rec, float)
+    keep_t = np.zeros(len(t_rec), bool)
+    keep_t[::max(1, int(stride))] = True
+    if train_until is not None:
+        keep_t &= t_rec < train_until
+    nf = dict(noise_floor or {})
+    x0 = np.array([p.value for p in params])
+    scale = np.array([p.sigma if p.sigma and math.isfinite(p.sigma) and p.sigma > 0 else max(abs(p.value), 1e-9) * 1e-3
+                      for p in params])
+    lo = np.array([0.0 if (p.name.startswith("servo.kv.") or p.name.startswith("backlash.")) else -np.inf
+                   for p in params])
+
+    def model_at(z):
+        return ex.with_values({p.name: float(v) for p, v in zip(params, x0 + z * scale)})
+
+    def fun(z):
+        return _training_residual(model_at(z), t_rec, rec, keep_t, program=program, machine=machine,
+                                  base_err=base_err, base_dyn=base_dyn, step=step, spindle_speed=spindle_speed,
+                                  nf=nf, compiler=compiler)
+    zlo = np.where(np.isfinite(lo), (lo - x0) / scale, -np.inf)
+    sol = least_squares(fun, np.zeros(len(params)), bounds=(zlo, np.inf), diff_step=1e-3, x_scale=1.0,
+                        max_nfev=20 * (len(params) + 1))
+    J = sol.jac
+    dof = max(1, len(sol.fun) - len(params))
+    s2 = float(sol.fun @ sol.fun) / dof
+    try:
+        cov = np.linalg.inv(J.T @ J) * s2
+        sig = np.sqrt(np.clip(np.diag(cov), 0, None)) * scale
+    except np.linalg.LinAlgError:
+        sig = np.full(len(params), np.nan)
+    vals = x0 + sol.x * scale
+    out = ex.with_values({p.name: float(v) for p, v in zip(params, vals)},
+                         {p.name: float(s) for p, s in zip(params, sig)})
+    if log is not None:
+        for p, v, s in zip(params, vals, sig):
+            log.append(f"refined {p.name}: {p.value:.6g} -> {v:.6g} +/- {s:.2g} {p.unit}")
+    return out
+
+
+def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
+          spindle_speed: float = 0.0, train_until: float | None = None, noise_floor: dict | None = None,
+          compiler: str = "cmake", log: list | None = None):
+    """Backward elimination through the machine model itself: drop each exported effect (last
+    first) whose removal does not raise the training error of the re-simulation (samples with
+    t < train_until; all when None), sum over outputs of mean square / noise floor^2.
+
+    Why: the diagnosis fits its own effect models to REC - SIM; where they differ from the
+    machine model's physics (e.g. the FMU's servo holds the command over each step), it can add
+    small compensating effects (a scale or pitch error riding on a servo lag) that the machine
+    model, which now has the real physics, does not need and is hurt by.  Returns the pruned
+    ModelExport; `log` (a list) receives one line per decision."""
+    from dataclasses import replace
+
+    from ..fmu.build import MachineDynamics
+    machine = load_machine(machine)
+    base_err = errors or ErrorSet()
+    base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
+    t_rec = np.asarray(t_rec, float)
+    nf = dict(noise_floor or {})
+
+    def score(model):
+        e, d = _updated_model(model, machine, base_err, base_dyn, True)
+        sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, compiler=compiler)
+        keep = (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
+        if train_until is not None:
+            keep &= t_rec < train_until
+        tot = 0.0
+        for o, v in rec.items():
+            m = np.interp(t_rec[keep], sig.t, sig.p[:, OUTPUTS.index(o)])
+            tot += float(np.mean((np.asarray(v, float)[keep] - m) ** 2)) / (nf.get(o) or 1.0) ** 2
+        return tot
+
+    keep = list(range(len(ex.mapped)))
+    current = score(ex)
+    for i in reversed(range(len(ex.mapped))):
+        trial = [k for k in keep if k != i]
+        sc = score(ex.subset(trial))
+        m = ex.mapped[i]
+        if sc <= current:
+            keep, current = trial, sc
+            if log is not None:
+                log.append(f"dropped {m.effect} on {m.output}: training error {sc:.4g} without it (was higher with it)")
+        elif log is not None:
+            log.append(f"kept {m.effect} on {m.output}: training error rises to {sc:.4g} without it (from {current:.4g})")
+    return ex.subset(keep) if len(keep) < len(ex.mapped) else ex
+
+
+def resimulate(model, rec, *, program, machine, errors: ErrorSet | None = None, dynamics=None,
+               step: float, spindle_speed: float = 0.0, heldout_from: float | None = None,
+               combine: bool = True, workdir=None, compiler: str = "cmake", noise_floor: dict | None = None):
+    """Rebuild the machine FMU with the fitted parameters and re-run the co-simulation.
+
+    model: a ModelExport or the folder `mtcomp model export` wrote.  rec: REC CSV path or
+    (t, {output: values}).  program/machine/errors/dynamics/step: what made the original SIM
+    (errors and dynamics the base model).  The recording's sensor noise is not re-simulated:
+    both runs use the base dynamics with noise 0.  Returns (ResimResult, original Signals,
+    updated Signals)."""
+    from dataclasses import replace
+
+    from ..fmu.build import MachineDynamics
+    machine = load_machine(machine)
+    base_err = errors or ErrorSet()
+    base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
+    new_err, new_dyn = _updated_model(model, machine, base_err, base_dyn, combine)
+    t_rec, rec_v = read_recording(rec) if isinstance(rec, (str, Path)) else rec
+    kw = dict(step=step, spindle_speed=spindle_speed, compiler=compiler)
+    sim = simulate(program, machine, base_err, base_dyn, workdir=None if workdir is None else Path(workdir) / "base", **kw)
+    upd = simulate(program, machine, new_err, new_dyn,
+                   workdir=None if workdir is None else Path(workdir) / "updated", **kw)
+    return compare(t_rec, rec_v, sim, upd, heldout_from=heldout_from, noise_floor=noise_floor), sim, upd

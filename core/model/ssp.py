@@ -1,0 +1,64 @@
+"""Bind the exported parameter set (.ssv) to the machine component of an SSP archive.
+
+`mtcomp fmu ssp` (mtcomp.fmu.ssp.write_ssp) writes the compensator + machine system; this adds
+the diagnosed parameters to it: the .ssv goes into the archive as `resources/<name>.ssv` and
+its parameter set is bound inline to the `machine` component (an `ssd:ParameterBinding` with
+`ssd:ParameterValues`, the form the importers checked in docs/fmu.md apply), so an SSP importer
+runs the updated machine.
+"""
+from __future__ import annotations
+
+import zipfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+from .._io import InputError, atomic_path
+
+SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
+SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
+SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
+
+
+def bind_parameter_set(ssp_in, ssv_path, ssp_out, *, component: str = "machine") -> Path:
+    """Write `ssp_out`: `ssp_in` with the parameter set of `ssv_path` bound to `component`."""
+    for prefix, ns in (("ssd", SSD), ("ssc", SSC), ("ssv", SSV)):
+        ET.register_namespace(prefix, ns)
+    try:
+        ssv_root = ET.parse(str(ssv_path)).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InputError(f"not a readable XML parameter set ({exc})", ssv_path) from None
+    if ssv_root.tag != f"{{{SSV}}}ParameterSet":
+        raise InputError("expected an SSP 1.0 ssv:ParameterSet", ssv_path)
+    try:
+        with zipfile.ZipFile(ssp_in) as zf:
+            entries = {n: zf.read(n) for n in zf.namelist()}
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise InputError(f"not an SSP archive (zip): {exc}", ssp_in) from None
+    if "SystemStructure.ssd" not in entries:
+        raise InputError("no SystemStructure.ssd in the SSP archive", ssp_in)
+    try:
+        root = ET.fromstring(entries["SystemStructure.ssd"])
+    except ET.ParseError as exc:
+        raise InputError(f"SystemStructure.ssd is not valid XML ({exc})", ssp_in) from None
+    comp = next((c for c in root.iter(f"{{{SSD}}}Component") if c.get("name") == component), None)
+    if comp is None:
+        raise InputError(f"the SSP has no component {component!r}", ssp_in)
+    pbs = comp.find(f"{{{SSD}}}ParameterBindings")
+    if pbs is None:
+        pbs = ET.Element(f"{{{SSD}}}ParameterBindings")
+        # schema order: Connectors, ElementGeometry, ParameterBindings, ...
+        after = [i for i, ch in enumerate(comp) if ch.tag in (f"{{{SSD}}}Connectors", f"{{{SSD}}}ElementGeometry")]
+        comp.insert(after[-1] + 1 if after else 0, pbs)
+    pb = ET.SubElement(pbs, f"{{{SSD}}}ParameterBinding")
+    pv = ET.SubElement(pb, f"{{{SSD}}}ParameterValues")
+    pv.append(ssv_root)
+    ET.indent(root)
+    entries["SystemStructure.ssd"] = (b'<?xml version="1.0" encoding="UTF-8"?>\n'
+                                      + ET.tostring(root, encoding="utf-8"))
+    entries[f"resources/{Path(ssv_path).name}"] = Path(ssv_path).read_bytes()
+    out = Path(ssp_out)
+    with atomic_path(out) as tmp:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+            for n, data in entries.items():
+                zf.writestr(n, data)
+    return out

@@ -1,0 +1,237 @@
+"""mtcomp model export: each effect of the diagnosis JSON mapped onto the machine model is
+checked against the effect's own signature through the core kinematics (an independent model),
+and the files it writes load where they are meant to go."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mtcomp._io import InputError
+from mtcomp.errors import load_errors
+from mtcomp.kinematics import forward
+from mtcomp.machine import load_machine
+from mtcomp.model.dynamics import load_dynamics
+from mtcomp.model.export import export_model, read_ssv
+
+VMC = load_machine("vmc-moving-column")
+
+
+def _effect(name, output, inputs, params, unc=None):
+    return {"name": name, "output": output, "inputs": inputs, "params": params,
+            "uncertainty": unc or {k: 1e-9 for k in params}, "evidence": {}}
+
+
+def _residual(machine, effects, q):
+    ex = export_model({"effects": effects}, machine)
+    assert not ex.unmapped, ex.unmapped
+    return forward(machine, q, ex.errors).p - forward(machine, q).p, forward(machine, q).p, ex
+
+
+def _poses(machine, n=200, seed=0):
+    rng = np.random.default_rng(seed)
+    lo = np.array([a.limits[0] for a in machine.axes])
+    hi = np.array([a.limits[1] for a in machine.axes])
+    return lo + (hi - lo) * rng.random((n, machine.n_axes))
+
+
+def test_squareness_signs_follow_the_signature():
+    q = _poses(VMC)
+    for out, drv, g_deg in (("x", "y", 1e-3), ("y", "x", -2e-3), ("z", "x", 1.5e-3), ("x", "z", 1e-3)):
+        r, p, ex = _residual(VMC, [_effect("squareness", out, [drv], {"angle_deg": g_deg})], q)
+        o, j = "xyz".index(out), "xyz".index(drv)
+        expect = math.radians(g_deg) * p[:, j]
+        assert np.allclose(r[:, o], expect, atol=1e-9 + 1e-6 * np.abs(expect).max()), (out, drv)
+        others = [k for k in range(3) if k != o]
+        assert np.abs(r[:, others]).max() <= math.radians(g_deg) ** 2 * np.abs(p).max() + 1e-12  # 2nd order
+
+
+def test_scale_pitch_straightness_tables():
+    q = _poses(VMC, seed=1)
+    s = 12e-6
+    r, p, _ = _residual(VMC, [_effect("scale_error", "y", ["y"], {"scale": s})], q)
+    assert np.allclose(r[:, 1], s * p[:, 1], atol=1e-10)
+    lead, amp, ph = 5.0, 2e-4, 30.0
+    r, p, ex = _residual(VMC, [_effect("periodic_pitch_error", "x", ["x"],
+                                       {"lead_mm": lead, "amplitude_mm": amp, "phase_deg": ph})], q)
+    a, b = amp * math.cos(math.radians(ph)), amp * math.sin(math.radians(ph))
+    w = 2 * math.pi * p[:, 0] / lead
+    assert np.allclose(r[:, 0], a * np.sin(w) + b * np.cos(w), atol=2e-3 * amp)   # 64 rows per lead
+    coef = {"P0_mm": 1e-4, "P1_mm": -2e-4, "P2_mm": 3e-4, "P3_mm": 0.0, "P4_mm": 5e-5}
+    r, p, _ = _residual(VMC, [_effect("straightness", "z", ["x"], dict(coef, range_lo_mm=-300.0, range_hi_mm=300.0))], q)
+    from numpy.polynomial import legendre
+    assert np.allclose(r[:, 2], legendre.legval(p[:, 0] / 300.0, list(coef.values())), atol=5e-7)
+
+
+def test_workpiece_setting_and_pivot_offset():
+    q = _poses(VMC, seed=2)
+    par = {"tx_mm": 0.01, "ty_mm": -0.02, "tz_mm": 0.005, "rz_deg": 2e-3}
+    r, p, _ = _residual(VMC, [_effect("workpiece_setting", "x,y,z", ["x", "y", "z"], par)], q)
+    w = np.array([0.0, 0.0, math.radians(2e-3)])
+    expect = -(np.array([0.01, -0.02, 0.005]) + np.cross(w, p))
+    assert np.allclose(r, expect, atol=1.5 * w[2] * 0.023 + 1e-12)   # second order: w x T
+    m = load_machine("robonano-a0ib")
+    qr = _poses(m, seed=3)
+    qr[:, 1] = 0.0                                     # B at zero: the effect is about C alone
+    r, p, ex = _residual(m, [_effect("pivot_offset", "x,y", ["c"], {"dx_mm": 0.003, "dy_mm": -0.002})], qr)
+    th = np.radians(qr[:, 0])
+    d = np.array([0.003, -0.002])
+    ex_x = (np.cos(th) - 1) * d[0] - np.sin(th) * d[1]
+    ex_y = np.sin(th) * d[0] + (np.cos(th) - 1) * d[1]
+    assert np.allclose(r[:, 0], ex_x, atol=1e-9) and np.allclose(r[:, 1], ex_y, atol=1e-9)
+
+
+def test_no_home_effects_are_listed_not_dropped(tmp_path):
+    effects = [_effect("backlash", "x", ["x"], {"backlash_mm": 0.002}),
+               _effect("time_offset", "x,y", ["t"], {"offset_s": 1e-3}),
+               _effect("thermal_drift", "z", ["spindle"], {"gain_mm_per_rpm": 1e-7, "tau_s": 600.0}),
+               _effect("friction", "vx", ["vx"], {"coulomb_mm_per_s": 0.1}),
+               _effect("pivot_offset", "x,z", ["b"], {"dx_mm": 0.001})]       # no rotary axis on the VMC
+    ex = export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3)
+    assert [m.effect for m in ex.mapped] == ["backlash"]
+    assert [e["name"] for e, _ in ex.unmapped] == ["time_offset", "thermal_drift", "friction", "pivot_offset"]
+    manifest = (tmp_path / "m" / "model.toml").read_text()
+    for name in ("time_offset", "thermal_drift", "friction", "pivot_offset"):
+        assert f'name = "{name}"' in manifest
+    assert manifest.count('status = "no home"') == 4
+    assert "NOT IN THE MODEL" in ex.summary()
+
+
+def test_files_load_where_they_go(tmp_path):
+    effects = [_effect("backlash", "x", ["x"], {"backlash_mm": 0.002}, {"backlash_mm": 1e-6}),
+               _effect("servo_lag", "y", ["y"], {"kv_per_s": 30.0}, {"kv_per_s": 0.01}),
+               _effect("squareness", "x", ["y"], {"angle_deg": 1e-3}, {"angle_deg": 1e-5}),
+               _effect("scale_error", "x", ["x"], {"scale": 1e-5}, {"scale": 1e-7})]
+    ex = export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3)
+    errors = load_errors(tmp_path / "m" / "errors.toml", machine=VMC)       # what `compensate --errors` reads
+    assert errors.geometric.location["EC0Y"] == pytest.approx(-math.radians(1e-3))
+    assert set(errors.geometric.tables) == {"X"}
+    dyn = load_dynamics(tmp_path / "m" / "dynamics.toml", VMC)
+    assert dyn["backlash.X"] == 0.002
+    assert dyn["servo.kv.Y"] == pytest.approx(math.log1p(30.0 * 1e-3) / 1e-3)
+    ssv = read_ssv(tmp_path / "m" / "machine.ssv")
+    assert ssv == {p.name: pytest.approx(p.value) for p in ex.params}
+    assert set(ssv) == {"backlash.X", "servo.kv.Y", "location.EC0Y"}
+    text = (tmp_path / "m" / "machine.ssv").read_text()
+    assert 'xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues"' in text
+    assert "org.mtcomp.uncertainty" in text
+    toml = (tmp_path / "m" / "errors.toml").read_text()
+    assert "[uncertainty]" in toml and "X.EXX.scale" in toml
+
+
+def test_ssv_parameters_apply_in_the_fmu(tmp_path):
+    """The .ssv names are the machine FMU's parameter names: set them into a built FMU through
+    fmpy and read them back."""
+    pytest.importorskip("fmpy")
+    from fmpy import simulate_fmu
+
+    from mtcomp.fmu.build import build_machine_fmu
+    ex = export_model({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": 0.002}),
+                                   _effect("squareness", "x", ["y"], {"angle_deg": 1e-3})]},
+                      VMC, tmp_path / "m", step=1e-3)
+    fmu = build_machine_fmu(VMC, tmp_path / "machine.fmu", compiler="cc")
+    vals = read_ssv(tmp_path / "m" / "machine.ssv")
+    res = simulate_fmu(str(fmu), stop_time=0.01, step_size=1e-3, start_values=vals,
+                       output=["actual.X"], fmi_type="CoSimulation")
+    assert len(res) > 1
+    from fmpy import read_model_description
+    names = {v.name for v in read_model_description(str(fmu)).modelVariables}
+    assert set(vals) <= names
+
+
+def test_cli_export_and_bad_input(tmp_path):
+    diag = tmp_path / "d.json"
+    diag.write_text(json.dumps({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": 0.002})]}))
+    cmd = [sys.executable, "-m", "mtcomp", "model", "export", str(diag), "--machine", "vmc-moving-column",
+           "--step", "0.001", "-o", str(tmp_path / "out")]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "backlash.X" in r.stdout and (tmp_path / "out" / "machine.ssv").is_file()
+    diag.write_text('{"effects": 3}')
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode != 0 and "effects" in r.stderr and "Traceback" not in r.stderr
+    with pytest.raises(InputError):
+        export_model(str(diag), VMC)
+
+
+def test_exported_errors_drive_compensate(tmp_path):
+    """The exported errors.toml is what `mtcomp compensate --errors` takes: a squareness and a
+    scale error diagnosed on the VMC compensate a program (by hand: X100 Y150 becomes X99.9928)."""
+    effects = [_effect("squareness", "x", ["y"], {"angle_deg": 2e-3}),
+               _effect("scale_error", "x", ["x"], {"scale": 2e-5})]
+    export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3)
+    prog = tmp_path / "p.nc"
+    prog.write_text("G90 G1 F600\nX0 Y0 Z0\nX100 Y150\nX-100 Y-150\n")
+    out = tmp_path / "pc.nc"
+    r = subprocess.run([sys.executable, "-m", "mtcomp", "compensate", str(prog), "--machine", "vmc-moving-column",
+                        "--errors", str(tmp_path / "m" / "errors.toml"), "-o", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    # x error at (100, 150): scale 2e-5 * 100 + squareness radians(2e-3) * 150 = 7.24 µm, commanded away
+    assert "X99.9928 Y150" in out.read_text()
+
+
+def test_bad_dynamics_and_missing_provenance_are_named(tmp_path):
+    from mtcomp.model.simulate import read_provenance
+    bad = tmp_path / "dyn.toml"
+    bad.write_text('[parameters]\n"servo.kv.Q" = 30.0\n')
+    with pytest.raises(InputError, match="axis Q"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"backlash.X" = -0.001\n')
+    with pytest.raises(InputError, match=">= 0"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"friction.X" = 1.0\n')
+    with pytest.raises(InputError, match="unknown dynamics parameter"):
+        load_dynamics(bad, VMC)
+    with pytest.raises(InputError, match="provenance"):
+        read_provenance(tmp_path / "nothing.csv")
+    # a leading (negative) backlash has no home in the FMU's play: listed, not exported
+    ex = export_model({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": -0.001})]}, VMC)
+    assert not ex.mapped and "negative" in ex.unmapped[0][1]
+
+
+def test_output_names_with_prefixes_and_suffixes():
+    from mtcomp.model.axes import NoHome, coordinate_letter
+    assert [coordinate_letter(n) for n in ("x", "tool.y", "z_act", "pos_x", "y1", "x[um]")] == list("xyzxyx")
+    for bad in ("temp", "xy", "spindle"):
+        with pytest.raises(NoHome):
+            coordinate_letter(bad)
+    ex = export_model({"effects": [_effect("squareness", "tool.x", ["tool.y"], {"angle_deg": 1e-3}),
+                                   _effect("backlash", "y_act", ["y_act"], {"backlash_mm": 1e-3})]}, VMC)
+    assert {p.name for p in ex.params} == {"location.EC0Y", "backlash.Y"}
+
+
+def test_provenance_round_trip_with_a_machine_file(tmp_path):
+    """The sidecar keeps a machine TOML as a path (relative to itself), the program and the
+    dynamics; read_provenance gives them back."""
+    import shutil
+    from pathlib import Path
+
+    import mtcomp.presets
+    from mtcomp.fmu.build import MachineDynamics
+    from mtcomp.model.simulate import Signals, read_provenance, write_signals
+    mfile = tmp_path / "mine.toml"
+    shutil.copy(Path(mtcomp.presets.__file__).parent / "vmc-moving-column.toml", mfile)
+    (tmp_path / "p.nc").write_text("G1 X1\n")
+    sig = Signals(np.array([0.0, 0.1]), np.zeros((2, 3)), np.zeros((2, 3)), ("X", "Y", "Z"))
+    out = tmp_path / "sub"
+    out.mkdir()
+    dyn = MachineDynamics(kv=(30.0, 0.0, 0.0), backlash=0.001, noise=2e-5, seed=4)
+    write_signals(out / "sim.csv", sig, str(mfile), program=tmp_path / "p.nc", dynamics=dyn, step=1e-3)
+    prov = read_provenance(out / "sim.csv")
+    assert prov.machine.axis_names == ("X", "Y", "Z") and prov.step == 1e-3
+    assert prov.program.resolve() == (tmp_path / "p.nc").resolve()
+    assert prov.dynamics == dyn
+    assert 'machine = "../mine.toml"' in (out / "sim.csv.provenance.toml").read_text()
+
+
+def test_package_exports():
+    import mtcomp.model as mm
+    from mtcomp.model import ModelExport, ResimResult, close_loop, export_model, load_dynamics, resimulate  # noqa: F401
+    assert mm.export_model is export_model
+    with pytest.raises(AttributeError):
+        mm.nothing_here  # noqa: B018

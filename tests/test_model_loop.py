@@ -1,0 +1,203 @@
+"""The closed loop: inject an effect into the machine FMU, co-simulate it as the recording (with
+noise), diagnose it against the nominal model, export the fitted effect into the model, re-run
+the co-simulation with it, and check that the re-simulation matches the recording to the noise
+on time the diagnosis never saw, with the parameter recovered within its reported 3 sigma."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fmpy")
+
+from mtcomp.errors import ErrorSet, GeometricErrors  # noqa: E402
+from mtcomp.fmu.build import MachineDynamics  # noqa: E402
+from mtcomp.model.export import export_model  # noqa: E402
+from mtcomp.model.loop import close_loop  # noqa: E402
+from mtcomp.model.simulate import simulate  # noqa: E402
+
+M = "vmc-moving-column"
+STEP = 2e-3
+NOISE = 2e-5          # mm (20 nm)
+# zig-zag in X and Y: reversals for backlash, both axes for squareness
+PROGRAM = """G90 G1 F1200
+X0 Y0 Z0
+X20 Y5
+X-20 Y-10
+X15 Y10
+X-15 Y-5
+X0 Y0
+"""
+TRAIN = 0.6           # the diagnosis sees the first 60 % of the recording; the rest is held out
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    return simulate(PROGRAM, M, None, None, step=STEP, compiler="cc")
+
+
+def _loop(tmp_path, nominal, errors=None, dynamics=None, *, program=PROGRAM, step=STEP, outputs=None,
+          do_prune=False):
+    rec = simulate(program, M, errors, dynamics, step=step, compiler="cc")
+    lr = close_loop(rec, nominal, program=program, machine=M, step=step, train=TRAIN, outputs=outputs,
+                    do_prune=do_prune, workdir=tmp_path, compiler="cc")
+    export_model(lr.diagnosis, M, tmp_path / "model", step=step)      # the files, as `mtcomp model export`
+    return lr.diagnosis, lr.export, lr.result
+
+
+def _assert_matches_noise(res):
+    for o in "xyz":
+        assert res.heldout_rms["after"][o] <= 1.5 * NOISE, (o, res.summary())
+
+
+def _within_3sigma(value, sigma, truth):
+    assert sigma is not None and sigma > 0
+    assert abs(value - truth) <= 3 * sigma, (value, sigma, truth)
+
+
+def test_backlash_loop(tmp_path, nominal):
+    b = 0.003
+    diag, ex, res = _loop(tmp_path, nominal, dynamics=MachineDynamics(backlash=(b, 0.0, 0.0), noise=NOISE, seed=5))
+    assert diag.names == ["backlash"]
+    p = {q.name: q for q in ex.params}["backlash.X"]
+    _within_3sigma(p.value, p.sigma, b)
+    assert res.heldout_rms["before"]["x"] > 20 * NOISE
+    _assert_matches_noise(res)
+    assert (tmp_path / "model" / "machine.ssv").is_file()
+
+
+def test_squareness_loop(tmp_path, nominal):
+    ec0y = 20e-6    # rad: Y tilted about Z
+    diag, ex, res = _loop(tmp_path, nominal, errors=ErrorSet(geometric=GeometricErrors({}, {"EC0Y": ec0y})),
+                          dynamics=MachineDynamics(noise=NOISE, seed=6))
+    assert diag.names == ["squareness"]
+    p = {q.name: q for q in ex.params}["location.EC0Y"]
+    _within_3sigma(p.value, p.sigma, ec0y)
+    assert res.heldout_rms["before"]["x"] > 3 * NOISE
+    _assert_matches_noise(res)
+
+
+SERVO_PROGRAM = PROGRAM.replace("F1200", "F600")
+SERVO_STEP = 1e-3
+
+
+@pytest.fixture(scope="module")
+def nominal_servo():
+    return simulate(SERVO_PROGRAM, M, None, None, step=SERVO_STEP, compiler="cc")
+
+
+def test_servo_kv_loop(tmp_path, nominal_servo):
+    """kv = 40 1/s on X only.  The diagnosis fits a continuous first-order lag; the export maps it
+    onto the FMU's servo, which holds the command over each step (kv = ln(1 + kv_c h)/h).  The two
+    agree in steady state exactly and in the transients to O((kv h)^2), hence the 1e-4 relative
+    allowance beside the 3 sigma.  Only x is diagnosed: the held command makes the lagging axis
+    lead by h/2 on its own, which the diagnosis (time_offset acts on all outputs) otherwise takes
+    as a common latency plus a compensating servo lag on y (docs/model-loop.md, Limits).  The
+    diagnosis also adds a small scale and pitch error standing in for that discretisation; the
+    selection through the machine model (`prune`, on the training samples) drops them."""
+    kv = 40.0
+    diag, ex, res = _loop(tmp_path, nominal_servo, dynamics=MachineDynamics(kv=(kv, 0.0, 0.0), noise=NOISE, seed=7),
+                          program=SERVO_PROGRAM, step=SERVO_STEP, outputs=["x"], do_prune=True)
+    assert "servo_lag" in diag.names
+    p = {q.name: q for q in ex.params}["servo.kv.X"]
+    assert p.sigma is not None and abs(p.value - kv) <= 3 * p.sigma + 1e-4 * kv, (p.value, p.sigma)
+    assert res.heldout_rms["before"]["x"] > 1000 * NOISE
+    _assert_matches_noise(res)
+
+
+def test_cli_loop_with_provenance_sidecar(tmp_path):
+    """The loop as a user runs it: simulate SIM and REC (sidecars), diagnose a truncated REC,
+    export with --sim, resimulate with --sim --prune --heldout-from; the model folder, the figure
+    and the JSON come out and the held-out RMS of x drops to the noise."""
+    import json
+    import subprocess
+    import sys
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    mt = [sys.executable, "-m", "mtcomp"]
+
+    def run(*a):
+        r = subprocess.run(mt + [str(x) for x in a], capture_output=True, text=True, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+    run("model", "simulate", prog, "--machine", M, "--step", STEP, "-o", "sim.csv")
+    run("model", "simulate", prog, "--machine", M, "--step", STEP, "--backlash", "0.003,0,0", "--noise", 20,
+        "--seed", 9, "-o", "rec.csv")
+    assert (tmp_path / "sim.csv.provenance.toml").is_file()
+    lines = (tmp_path / "rec.csv").read_text().splitlines()
+    n = int(0.6 * (len(lines) - 1))
+    (tmp_path / "train.csv").write_text("\n".join(lines[:1 + n]) + "\n")
+    t_split = float(lines[1 + n].split(",")[0])
+    run("diagnose", "--sim", "sim.csv", "--rec", "train.csv", "--json", "d.json", "--quiet")
+    out = run("model", "export", "d.json", "--sim", "sim.csv", "-o", "model")
+    assert "backlash.X" in out
+    out = run("model", "resimulate", "model", "--rec", "rec.csv", "--sim", "sim.csv", "--diagnosis", "d.json",
+              "--prune", "--heldout-from", t_split, "--plot", "rs.png", "--json", "rs.json")
+    assert "kept backlash on x" in out
+    res = json.loads((tmp_path / "rs.json").read_text())
+    assert res["heldout_rms"]["before"]["x"] > 20 * NOISE
+    assert res["heldout_rms"]["after"]["x"] <= 1.5 * NOISE
+    assert (tmp_path / "rs.png").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_servo_kv_loop_all_outputs_prune_and_refine(tmp_path, nominal_servo):
+    """The same servo lag with every output diagnosed: the diagnosis names a common latency (no
+    home), a compensating servo lag on y and a small squareness besides the lag on x, with kv
+    biased by the latency.  Pruning through the model drops the stand-ins, refitting kv through
+    the model (least squares of REC - re-simulation on the training samples) removes the bias."""
+    kv = 40.0
+    rec = simulate(SERVO_PROGRAM, M, None, MachineDynamics(kv=(kv, 0.0, 0.0), noise=NOISE, seed=7),
+                   step=SERVO_STEP, compiler="cc")
+    lr = close_loop(rec, nominal_servo, program=SERVO_PROGRAM, machine=M, step=SERVO_STEP, train=TRAIN,
+                    do_prune=True, do_refine=True, workdir=tmp_path, compiler="cc")
+    assert [m.effect for m in lr.export.mapped] == ["servo_lag"]
+    p = {q.name: q for q in lr.export.params}["servo.kv.X"]
+    assert abs(p.value - kv) <= 3 * p.sigma + 1e-4 * kv, (p.value, p.sigma)
+    _assert_matches_noise(lr.result)
+
+
+def _x_table(fn):
+    from mtcomp.errors import AxisErrorTable
+    q = np.linspace(-300.0, 300.0, 24001)
+    return AxisErrorTable("X", q, {"EXX": fn(q)})
+
+
+@pytest.mark.parametrize("case", ["scale_error", "periodic_pitch_error", "workpiece_setting"])
+def test_geometric_and_setting_loops(tmp_path, nominal, case):
+    """More effects with a home, each injected as the model's own parameter: a positioning table
+    (scale, pitch) and the workpiece setting."""
+    from mtcomp.errors import WorkpieceSetting
+    if case == "scale_error":
+        err, name, truth = ErrorSet(geometric=GeometricErrors({"X": _x_table(lambda q: 15e-6 * q)}, {})), None, None
+    elif case == "periodic_pitch_error":
+        err = ErrorSet(geometric=GeometricErrors({"X": _x_table(lambda q: 3e-4 * np.sin(2 * np.pi * q / 4.0 + 0.5))}, {}))
+        name, truth = None, None
+    else:
+        err = ErrorSet(workpiece=WorkpieceSetting((0.004, -0.003, 0.002), (0.0, 0.0, 5e-3)))
+        name, truth = "workpiece_setting.translation.x", 0.004
+    diag, ex, res = _loop(tmp_path, nominal, errors=err, dynamics=MachineDynamics(noise=NOISE, seed=8))
+    assert diag.names == [case]
+    if name:
+        p = {q.name: q for q in ex.params}[name]
+        assert abs(p.value - truth) <= 3 * p.sigma, (p.value, p.sigma)
+    assert max(res.heldout_rms["before"].values()) > 5 * NOISE
+    _assert_matches_noise(res)
+
+
+def test_pivot_offset_loop_on_a_rotary_table(tmp_path):
+    """A C-table centre off by (-3, 2) µm (EX0C, EY0C) on robonano-a0ib: diagnosed as a pivot
+    offset from the programmed C angle, exported as the same location errors, re-simulated."""
+    m = "robonano-a0ib"
+    prog = "G90 G1 F3000\nC0 B0 X10 Y0 Z0\nC90 X20 Y5\nC-90 X-10 Y-5\nC45 X5 Y3\nC-30 X0 Y0\n"
+    nom = simulate(prog, m, None, None, step=STEP, compiler="cc")
+    truth = {"EX0C": -0.003, "EY0C": 0.002}
+    rec = simulate(prog, m, ErrorSet(geometric=GeometricErrors({}, truth)), MachineDynamics(noise=NOISE, seed=3),
+                   step=STEP, compiler="cc")
+    lr = close_loop(rec, nom, program=prog, machine=m, step=STEP, train=TRAIN, workdir=tmp_path, compiler="cc")
+    assert lr.diagnosis.names == ["pivot_offset"]
+    got = {q.name: q for q in lr.export.params}
+    for k, v in truth.items():
+        p = got[f"location.{k}"]
+        assert abs(p.value - v) <= 3 * p.sigma, (k, p.value, p.sigma)
+    assert lr.result.heldout_rms["before"]["y"] > 20 * NOISE
+    _assert_matches_noise(lr.result)
