@@ -216,18 +216,21 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     if provenance is not None:
         new_text, at, added = insert_header(new_text, header_lines(provenance))
         out_line = np.where(out_line > at, out_line + added, out_line)
-    # Check the result as the machine will run it: re-read the written program (rounded
-    # numbers, linearised arcs) and put it through the forward model with the errors.
+    # Check the result as the machine will run it: the emitted positions (rounded numbers, the
+    # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
-    P = np.asarray(prog.position)[kn]
-    target = forward(machine, P)
-    before = np.linalg.norm(forward(machine, P, errors).p - target.p, axis=1)
-    after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start, resolution=res,
-                             tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
-                             filename=f"{filename} (compensated output)")
-    # the output block that ends each input block (linearised arcs add lines after their block)
-    idx = np.searchsorted(after_prog.line, out_line[kn], side="right") - 1
-    after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)
+    kk = np.flatnonzero(kn)
+    P = np.asarray(prog.position)
+    emitted = emitted_positions(prog, info, new_text, filename=filename, start=start, res=res,
+                                tool_lengths=tool_lengths, work_offsets=work_offsets,
+                                arc_tol=arc_tol, out_line=out_line)
+    before = np.empty(len(kk))
+    after = np.empty(len(kk))
+    for s in range(0, len(kk), CHUNK):
+        rows = kk[s:s + CHUNK]
+        target = forward(machine, P[rows]).p
+        before[s:s + CHUNK] = np.linalg.norm(forward(machine, P[rows], errors).p - target, axis=1)
+        after[s:s + CHUNK] = np.linalg.norm(forward(machine, emitted[rows], errors).p - target, axis=1)
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
               "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
@@ -236,6 +239,23 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after)}
     return new_text, report
+
+
+def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
+                      tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
+    """End position of every motion block of the rewritten program (N, n_axes; mm, deg), as
+    the control reads it back.  Taken from the values `rewrite` emitted (counts times the
+    resolution: the same numbers the written words hold, to float rounding); programs with
+    canned cycles, whose holes may be written out as new lines, are read back instead."""
+    if not np.asarray(prog.cycle).any():
+        return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
+    from . import gcode
+    after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
+                             tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
+                             filename=f"{filename} (compensated output)")
+    # the output block that ends each input block (linearised arcs add lines after their block)
+    idx = np.searchsorted(after_prog.line, out_line, side="right") - 1
+    return np.asarray(after_prog.position)[idx]
 
 
 def _sha256(path) -> str:
