@@ -6,6 +6,7 @@ from typing import Mapping
 import numpy as np
 
 from .._io import InputError
+from . import _ctok
 from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
@@ -89,7 +90,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- character classes and words: a letter immediately followed by a run of number
     # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
-    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at = _tokenise(code, line_start)
+    tok = _ctok.tokenise(code)               # compiled one-pass tokenizer, where built
+    if tok is None:
+        tok = _tokenise(code, line_start) + (None,)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value = tok
+    del tok
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
         hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
@@ -116,7 +121,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         i = int(np.argmax(badnum))
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
-    value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
+    if value is None:
+        value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
     if not np.isfinite(value).all():
         i = int(np.argmax(~np.isfinite(value)))
         _fail(f"number in word {_word_text(data, lp[i], min(re_[i], lp[i] + 20))!r}... is too large",

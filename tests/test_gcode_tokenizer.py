@@ -1,0 +1,115 @@
+"""The compiled one-pass tokenizer (core/gcode/_tok.c) against the numpy tokenizer it stands in
+for: the same program arrays to the bit and the same error messages, on the corpus, on mutated
+corpus programs and on generated blocks (issue 16 item 4, issue 20)."""
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, seed, settings
+from hypothesis import strategies as st
+
+from mtcomp import InputError, gcode
+from mtcomp.gcode import _ctok
+from mtcomp.gcode.textops import parse_decimals
+from mtcomp.gcode.tokens import _tokenise
+
+AXES = ("X", "Y", "Z", "B", "C")
+CORPUS_FILES = sorted((Path(__file__).parent / "data" / "nc").iterdir())
+CORPUS = [gcode.read_program(p) for p in CORPUS_FILES]
+ALPHABET = "GXYZBCIJKRFNMSTPHQ0123456789.-+ ()%;/#[]=\n\r\t\ufeffgxyz\u00e9"
+
+pytestmark = pytest.mark.skipif(_ctok.load() is None, reason="no C compiler: numpy tokenizer only")
+
+
+def _parse(text, python: bool, monkeypatch):
+    if python:
+        monkeypatch.setenv("MTCOMP_TOKENIZER", "python")
+    else:
+        monkeypatch.delenv("MTCOMP_TOKENIZER", raising=False)
+    try:
+        return gcode.parse(text, axes=AXES, filename="p.nc")
+    except InputError as exc:
+        return str(exc)
+
+
+def _same(text, monkeypatch):
+    a, b = _parse(text, False, monkeypatch), _parse(text, True, monkeypatch)
+    if isinstance(a, str) or isinstance(b, str):
+        assert a == b
+        return a
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape, f.name
+            if x.dtype.kind == "f":
+                assert np.array_equal(x.view(np.int64 if x.itemsize == 8 else np.int32),
+                                      y.view(np.int64 if y.itemsize == 8 else np.int32)), f.name
+            else:
+                assert np.array_equal(x, y), f.name
+        else:
+            assert x == y, f.name
+    return a
+
+
+@pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
+def test_corpus_same_program_arrays(i, monkeypatch):
+    assert not isinstance(_same(CORPUS[i], monkeypatch), str)
+
+
+def test_tokens_and_values_bit_for_bit_with_long_and_odd_numbers():
+    text = ("G1 X123456789.123456789 Y-0.000000000000001 Z+12. B.5 C-0\n"
+            "X1e5 Y1..2 Z-+1 B99999999999999999999999 C0.1234567890123456789\n"
+            "X12-3 N5- G-.\n").encode()
+    code = np.frombuffer(text, np.uint8).copy()
+    ls = np.concatenate(([0], np.flatnonzero(code == 10) + 1))
+    c = _ctok.tokenise(code)
+    p = _tokenise(code, ls)
+    for k in range(6):
+        assert np.array_equal(c[k], p[k]), k
+    assert c[6:8] == p[6:8] and c[6] >= 0
+    # values of the runs that are numbers (the caller refuses the others before using them)
+    good = [i for i in range(len(c[1])) if re.fullmatch(rb"[+-]?(\d+\.?\d*|\.\d+)", text[c[1][i]:c[2][i]])]
+    ref = parse_decimals(code, p[1][good], p[2][good], p[3][good])
+    assert np.array_equal(c[8][good].view(np.int64), ref.view(np.int64))
+    assert c[8][good][1] == float("123456789.123456789") and np.signbit(c[8][good][5])
+
+
+@seed(16)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.sampled_from(range(len(CORPUS))), st.lists(
+    st.tuples(st.integers(0, 10_000), st.sampled_from(["ins", "del", "rep"]), st.sampled_from(ALPHABET)),
+    min_size=1, max_size=4))
+def test_mutated_corpus_programs_same_result(i, edits):
+    text = CORPUS[i]
+    for pos, kind, ch in edits:
+        pos %= len(text) + 1
+        if kind == "ins":
+            text = text[:pos] + ch + text[pos:]
+        elif kind == "del":
+            text = text[:pos] + text[pos + 1:]
+        else:
+            text = text[:pos] + ch + text[pos + 1:]
+    with pytest.MonkeyPatch.context() as mp:
+        _same(text, mp)
+
+
+_num = st.one_of(st.integers(-10**12, 10**12).map(str),
+                 st.decimals(-999, 999, places=3, allow_nan=False).map(lambda d: f"{d}"),
+                 st.floats(-1e6, 1e6).map(lambda v: f"{v:.12f}"),
+                 st.integers(0, 99).map(lambda v: f"{v}."), st.integers(0, 999).map(lambda v: f".{v}"),
+                 st.text("0123456789.-+", min_size=1, max_size=20))
+_word = st.tuples(st.sampled_from("XYZBCxyzGFI"), st.sampled_from(["", " "]), _num).map("".join)
+
+
+@seed(17)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.lists(st.one_of(_word, st.sampled_from(["G1", "G91", "(c)", "; x", "/", "%"])),
+                         min_size=1, max_size=6), min_size=1, max_size=10),
+       st.sampled_from(["\n", "\r\n"]))
+def test_generated_blocks_same_result(blocks, eol):
+    with pytest.MonkeyPatch.context() as mp:
+        _same(eol.join(" ".join(b) for b in blocks) + eol, mp)
