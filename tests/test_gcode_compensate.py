@@ -221,3 +221,12 @@ def test_verification_from_emitted_values_five_axes_arcs_and_increments():
     fast, back, _ = _emitted_vs_reread(text, m, e)
     np.testing.assert_allclose(fast, back, rtol=0, atol=1e-12)
     assert np.abs(fast - back).max() < 1e-12 and len(fast) == 8
+
+
+def test_provenance_marker_found_at_the_top_in_any_case_and_further_down():
+    from mtcomp.gcode.provenance import compensated_line
+    body = "G1 X1. Y2.\n" * 20000                         # over 64 kB
+    assert compensated_line("%\n(Mtcomp Compensated Program: x)\n" + body) == 2
+    assert compensated_line(body + "(mtcomp compensated program)\n") == 20001
+    assert compensated_line(body + "(MTCOMP COMPENSATED PROGRAM: DO NOT)\n") == 20001
+    assert compensated_line(body) is None

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-CFLAGS = ("-O2", "-std=c99", "-fPIC", "-shared")
+CFLAGS = ("-O3", "-std=c99", "-fPIC", "-shared")
 _SRC = Path(__file__).resolve().parent / "_tok.c"
 _SUFFIX = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
 _lib = None
@@ -74,7 +74,7 @@ def load():
 
 
 def tokenise(code: np.ndarray):
-    """Same as ``tokens._tokenise`` (letter positions, run starts and ends, point of each run,
+    """Same as ``tokens._tokenise`` (int32 instead of int64 positions: letter positions, run starts and ends, point of each run,
     runs with two points, line of each letter, sign_at, bad_at) plus the value of every run
     (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks).
     None if the compiled tokenizer is not available."""
@@ -87,9 +87,11 @@ def tokenise(code: np.ndarray):
     ptr = code.ctypes.data
     lib.mtc_count(ptr, n, ctypes.byref(nl), ctypes.byref(nr))
     L, R = nl.value, nr.value
-    lp = np.empty(L, np.int64)
+    if n >= 2**31 - 1:
+        return None                          # int32 positions; parse refuses such programs
+    lp = np.empty(L, np.int32)
     wline = np.empty(L, np.int32)
-    rs, re_, dot = np.empty(R, np.int64), np.empty(R, np.int64), np.empty(R, np.int64)
+    rs, re_, dot = np.empty(R, np.int32), np.empty(R, np.int32), np.empty(R, np.int32)
     two = np.zeros(R, bool)
     value = np.empty(R, np.float64)
     sign_at, bad_at = ctypes.c_int64(), ctypes.c_int64()

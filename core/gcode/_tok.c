@@ -64,9 +64,10 @@ static double number(const uint8_t *c, int64_t s, int64_t e, int64_t dot)
 /* Letters (position, 0-based line), number runs [start, end) with the position of their point
  * (-1: none; the last one if several), whether they hold more than one point, and their value;
  * *sign_at: first '+'/'-' preceded by a number character (-1: none); *bad_at: first byte that is
- * no letter, number character or blank (-1: none).  Arrays sized by mtc_count. */
-void mtc_tokenise(const uint8_t *c, int64_t n, int64_t *lp, int32_t *wline, int64_t *rs,
-                  int64_t *re, int64_t *dot, uint8_t *two, double *value, int64_t *sign_at,
+ * no letter, number character or blank (-1: none).  Arrays sized by mtc_count; positions are
+ * int32 (the caller refuses programs of 2 GB and more). */
+void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int32_t *rs,
+                  int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
                   int64_t *bad_at)
 {
     int64_t nl = 0, nr = -1, line = 0;
@@ -77,7 +78,7 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int64_t *lp, int32_t *wline, int6
         if (is_num(ch)) {
             if (!in_run) {
                 nr++;
-                rs[nr] = i;
+                rs[nr] = (int32_t)i;
                 dot[nr] = -1;
                 two[nr] = 0;
                 in_run = 1;
@@ -86,17 +87,17 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int64_t *lp, int32_t *wline, int6
             }
             if (ch == '.') {
                 if (dot[nr] >= 0) two[nr] = 1;
-                dot[nr] = i;
+                dot[nr] = (int32_t)i;
             }
             continue;
         }
         if (in_run) {
-            re[nr] = i;
+            re[nr] = (int32_t)i;
             value[nr] = number(c, rs[nr], i, dot[nr]);
             in_run = 0;
         }
         if (is_letter(ch)) {
-            lp[nl] = i;
+            lp[nl] = (int32_t)i;
             wline[nl] = (int32_t)line;
             nl++;
         } else if (ch == '\n') {
@@ -106,7 +107,7 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int64_t *lp, int32_t *wline, int6
         }
     }
     if (in_run) {
-        re[nr] = n;
+        re[nr] = (int32_t)n;
         value[nr] = number(c, rs[nr], n, dot[nr]);
     }
     *sign_at = sg;
