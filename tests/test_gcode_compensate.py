@@ -230,3 +230,61 @@ def test_provenance_marker_found_at_the_top_in_any_case_and_further_down():
     assert compensated_line(body + "(mtcomp compensated program)\n") == 20001
     assert compensated_line(body + "(MTCOMP COMPENSATED PROGRAM: DO NOT)\n") == 20001
     assert compensated_line(body) is None
+
+
+# -- verification of what compensate writes (issue 14 item 1)
+CUT = "%\nO0042 (TEST)\nG21 G90 G17\nG0 X0 Y0 Z5.\nG0 Z1.\nG1 Z-0.5 F200\nG1 X10.\nG0 X20. Z0.05\nG0 Z5.\nM30\n%\n"
+SAFE = CUT.replace("G0 X20. Z0.05", "G1 Z1.\nG0 X20.")     # retract at feed (the stock is not cut away)
+STOCK = "box:-5,-5,-10,30,5,0"
+
+
+def test_compensate_refuses_a_rapid_into_the_stock_naming_the_block(files, tmp_path):
+    prog, err = files
+    prog.write_text(CUT)
+    out = tmp_path / "out.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--stock", STOCK,
+            "--clearance", "0.1")
+    assert r.returncode != 0 and not out.exists()
+    msg = r.stderr.strip()
+    assert len(msg.splitlines()) == 1 and "Traceback" not in msg
+    # the first failing block is the rapid from the cut at Z-0.5 out through the stock
+    assert "rapid move: the tool enters the stock at -500 µm" in msg and "(G0 X20.0000 Z0.0500)" not in msg
+    assert "G0 X19.998" in msg and "and 1 more blocks" in msg
+
+
+def test_compensate_warn_only_writes_and_reports(files, tmp_path):
+    prog, err = files
+    prog.write_text(CUT)
+    out = tmp_path / "out.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--stock", STOCK,
+            "--clearance", "0.1", "--warn-only")
+    assert r.returncode == 0 and out.exists()
+    assert "2 block(s) FAIL" in r.stdout and "min rapid clearance -500 µm" in r.stdout
+    assert "warning: 2 block(s) fail the verification" in r.stderr
+
+
+def test_compensate_reports_min_clearance_of_a_safe_program(files, tmp_path):
+    prog, err = files
+    prog.write_text(SAFE)
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", tmp_path / "o.nc",
+            "--stock", STOCK, "--clearance", "0.5")
+    assert r.returncode == 0, r.stderr
+    # rapids down to Z1 over the stock top at Z0: the compensated program keeps 1 mm on the
+    # machine with the errors (the tool offset is undone)
+    assert "min rapid clearance 1000 µm" in r.stdout and "passed" in r.stdout
+
+
+def test_compensate_program_verification_in_the_library():
+    from mtcomp.verify import Box, VerifyError
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.0, 0.0, -0.3)))      # tool 0.3 mm longer than nominal
+    box = Box((-5, -5, -10), (30, 5, 0))
+    # nominally 0.2 mm over the stock: compensated, the real machine keeps those 0.2 mm
+    text = SAFE.replace("Z1.", "Z0.2")
+    _, rep = compensate_program(text, m, e, stock=box, clearance=0.1)
+    assert abs(rep["verify"].min_clearance - 0.2) < 1e-6
+    # a program that rapids across the stock at 0.05 mm fails, naming its line
+    with pytest.raises(VerifyError, match=r"line 8 \(G0 X20\.0* Z0\.35"):
+        compensate_program(CUT, m, e, stock=box, clearance=0.1)
+    _, rep = compensate_program(CUT, m, e, stock=box, clearance=0.1, warn_only=True)
+    assert [v.line for v in rep["verify"].violations] == [8, 9]
