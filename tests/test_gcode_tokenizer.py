@@ -113,3 +113,20 @@ _word = st.tuples(st.sampled_from("XYZBCxyzGFI"), st.sampled_from(["", " "]), _n
 def test_generated_blocks_same_result(blocks, eol):
     with pytest.MonkeyPatch.context() as mp:
         _same(eol.join(" ".join(b) for b in blocks) + eol, mp)
+
+
+@pytest.mark.parametrize("text", [
+    "(a)G1 X1(b) ; c (d)\n%x\n G1 (unclosed\n((nested) X2)\n; (\n(a\n)\n%\n",
+    "\ufeff%\nG1 X1 % not a line start\n(x(y)z)\n(;)X3;(\n",
+    "", "(", ";", "%", "G1 X1 (no newline at the end)"])
+def test_comment_blanking_same_spans(text):
+    from mtcomp.gcode.tokens import _comment_spans
+    data = text.encode("utf-8")
+    b = np.frombuffer(data, np.uint8)
+    bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    ref = b.copy()
+    for s, e in _comment_spans(data, b, first=bom):
+        ref[s:e] = 32
+    got = b.copy()
+    assert _ctok.blank_comments(b, got, bom)
+    assert got.tobytes() == ref.tobytes()

@@ -69,8 +69,21 @@ def load():
     lib.mtc_count.restype = None
     lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 9
     lib.mtc_tokenise.restype = None
+    lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
+    lib.mtc_blank_comments.restype = i64
     _lib = lib
     return lib
+
+
+def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
+    """Blank the comments of the program bytes `b` in `code` (its copy, C-contiguous uint8),
+    as ``tokens._comment_spans`` finds them.  False if the compiled tokenizer is not available
+    (nothing done)."""
+    lib = load()
+    if lib is None or not code.flags.c_contiguous:
+        return False
+    lib.mtc_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
+    return True
 
 
 def tokenise(code: np.ndarray):

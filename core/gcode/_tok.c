@@ -113,3 +113,34 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
     *sign_at = sg;
     *bad_at = bad;
 }
+
+/* Comments become blanks in `code` (a copy of `d`): "( ... )" closed on its line without a
+ * nested '(' (an unclosed one stays, to be reported), ';' to the end of the line, and lines
+ * starting with '%' (`first`: where the first line starts, after a byte-order mark).  The same
+ * spans as tokens._comment_spans.  Returns the number of comments. */
+int64_t mtc_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int64_t first)
+{
+    int64_t i = 0, count = 0;
+    while (i < n) {
+        uint8_t ch = d[i];
+        if (ch == '(') {
+            int64_t j = i + 1;
+            while (j < n && d[j] != ')' && d[j] != '(' && d[j] != '\n') j++;
+            if (j < n && d[j] == ')') {
+                memset(code + i, 32, (size_t)(j + 1 - i));
+                count++;
+                i = j + 1;
+                continue;
+            }
+        } else if (ch == ';' || (ch == '%' && (i <= first || d[i - 1] == '\n'))) {
+            int64_t j = i;
+            while (j < n && d[j] != '\n') j++;
+            memset(code + i, 32, (size_t)(j - i));
+            count++;
+            i = j;
+            continue;
+        }
+        i++;
+    }
+    return count;
+}

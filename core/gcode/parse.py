@@ -66,7 +66,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     code = b.copy()
     bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
     code[:bom] = 32
-    spans = _comment_spans(data, b, first=bom)
+    spans = [] if _ctok.blank_comments(b, code, bom) else _comment_spans(data, b, first=bom)
     if spans:
         if len(spans) < 1 << 18:                  # slice assignments: cheap per comment
             for s, e in spans:
