@@ -127,11 +127,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         i = int(np.argmax(~np.isfinite(value)))
         _fail(f"number in word {_word_text(data, lp[i], min(re_[i], lp[i] + 20))!r}... is too large",
               wline[i], filename)
-    w_num = rs.astype(np.int32)
+    w_num = rs.astype(np.int32, copy=False)
     # positions fit 32 bits (programs under 2 GB); free what is no longer needed
     if nbytes >= 2**31 - 1:
         raise InputError("programs of 2 GB and more are not supported", file=filename)
-    lp, re_ = lp.astype(np.int32), re_.astype(np.int32)
+    lp, re_ = lp.astype(np.int32, copy=False), re_.astype(np.int32, copy=False)
     del code, rs, dot_of_run, twodots, first_ch, ndig, badnum
 
     G, M = _ascii("G"), _ascii("M")
