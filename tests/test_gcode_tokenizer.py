@@ -130,3 +130,13 @@ def test_comment_blanking_same_spans(text):
     got = b.copy()
     assert _ctok.blank_comments(b, got, bom)
     assert got.tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("text", ["G1 X1 Y2 Y3\nX1 X2\n", "X1 X2\nG1 Y1 Y2\n", "G1 G90 M3 M8 X1\nB1 b2\n",
+                                  "x1 X2\n", "G1 X1\nY1 Z1\nZ2 Z3 Y4 Y5\n"])
+def test_duplicate_address_same_message(text, monkeypatch):
+    msg = _same(text, monkeypatch)
+    if "G90 M3 M8 X1" in text:
+        assert msg.endswith("address B appears twice in one block")
+    else:
+        assert "appears twice in one block" in msg

@@ -67,7 +67,7 @@ def load():
     vp, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.mtc_count.argtypes = [vp, i64, vp, vp]
     lib.mtc_count.restype = None
-    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 9
+    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 10
     lib.mtc_tokenise.restype = None
     lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_blank_comments.restype = i64
@@ -89,7 +89,8 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
 def tokenise(code: np.ndarray):
     """Same as ``tokens._tokenise`` (int32 instead of int64 positions: letter positions, run starts and ends, point of each run,
     runs with two points, line of each letter, sign_at, bad_at) plus the value of every run
-    (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks).
+    (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks)
+    and per letter A-Z the first 0-based line where it appears twice (-1: none).
     None if the compiled tokenizer is not available."""
     lib = load()
     if lib is None:
@@ -108,7 +109,8 @@ def tokenise(code: np.ndarray):
     two = np.zeros(R, bool)
     value = np.empty(R, np.float64)
     sign_at, bad_at = ctypes.c_int64(), ctypes.c_int64()
+    dup = np.empty(26, np.int32)
     lib.mtc_tokenise(ptr, n, lp.ctypes.data, wline.ctypes.data, rs.ctypes.data, re_.ctypes.data,
                      dot.ctypes.data, two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
-                     ctypes.byref(bad_at))
-    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value
+                     ctypes.byref(bad_at), dup.ctypes.data)
+    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup

@@ -64,13 +64,16 @@ static double number(const uint8_t *c, int64_t s, int64_t e, int64_t dot)
 /* Letters (position, 0-based line), number runs [start, end) with the position of their point
  * (-1: none; the last one if several), whether they hold more than one point, and their value;
  * *sign_at: first '+'/'-' preceded by a number character (-1: none); *bad_at: first byte that is
- * no letter, number character or blank (-1: none).  Arrays sized by mtc_count; positions are
+ * no letter, number character or blank (-1: none); dup_line[26]: per letter a-z the first
+ * 0-based line where it appears twice (-1: none).  Arrays sized by mtc_count; positions are
  * int32 (the caller refuses programs of 2 GB and more). */
 void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int32_t *rs,
                   int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
-                  int64_t *bad_at)
+                  int64_t *bad_at, int32_t *dup_line)
 {
     int64_t nl = 0, nr = -1, line = 0;
+    uint32_t seen = 0;                  /* letters of the current line */
+    for (int k = 0; k < 26; k++) dup_line[k] = -1;
     int64_t sg = -1, bad = -1;
     int in_run = 0;
     for (int64_t i = 0; i < n; i++) {
@@ -97,11 +100,15 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
             in_run = 0;
         }
         if (is_letter(ch)) {
+            uint32_t bit = 1u << ((ch | 32) - 97);
+            if ((seen & bit) && dup_line[(ch | 32) - 97] < 0) dup_line[(ch | 32) - 97] = (int32_t)line;
+            seen |= bit;
             lp[nl] = (int32_t)i;
             wline[nl] = (int32_t)line;
             nl++;
         } else if (ch == '\n') {
             line++;
+            seen = 0;
         } else if (bad < 0 && !is_blank(ch)) {
             bad = i;
         }

@@ -92,8 +92,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
     tok = _ctok.tokenise(code)               # compiled one-pass tokenizer, where built
     if tok is None:
-        tok = _tokenise(code, line_start) + (None,)
-    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value = tok
+        tok = _tokenise(code, line_start) + (None, None)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line = tok
     del tok
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
@@ -138,13 +138,21 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # -- duplicate addresses in one block (G and M may repeat)
     # stable radix sort by letter keeps each letter's words in line order: a repeated letter in
     # a block shows as two neighbours with the same letter and line
-    order = np.argsort(wlet, kind="stable")
-    sl, sw = wlet[order], wline[order]
-    dup = (sl[1:] == sl[:-1]) & (sw[1:] == sw[:-1]) & (sl[1:] != G) & (sl[1:] != M)
-    if dup.any():
-        j = int(np.argmax(dup)) + 1
-        _fail(f"address {chr(65 + int(sl[j]))} appears twice in one block", int(sw[j]), filename)
-    del order, sl, sw, dup
+    if dup_line is not None:
+        # the compiled tokenizer found, per letter, the first line with it twice: the same
+        # answer as the sort below (the smallest letter, its first such line)
+        dup_line[[G, M]] = -1
+        if (dup_line >= 0).any():
+            j = int(np.argmax(dup_line >= 0))
+            _fail(f"address {chr(65 + j)} appears twice in one block", int(dup_line[j]), filename)
+    else:
+        order = np.argsort(wlet, kind="stable")
+        sl, sw = wlet[order], wline[order]
+        dup = (sl[1:] == sl[:-1]) & (sw[1:] == sw[:-1]) & (sl[1:] != G) & (sl[1:] != M)
+        if dup.any():
+            j = int(np.argmax(dup)) + 1
+            _fail(f"address {chr(65 + int(sl[j]))} appears twice in one block", int(sw[j]), filename)
+        del order, sl, sw, dup
 
     # -- G codes
     gi = np.flatnonzero(wlet == G)
