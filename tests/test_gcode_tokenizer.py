@@ -153,3 +153,33 @@ def test_without_a_compiler_the_numpy_tokenizer_reads_the_program(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
     assert r.returncode == 0, r.stderr
     assert r.stdout.split("\n")[0] == "True [[1.5, -2.0, 3.0]]"
+
+
+@seed(18)
+@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.binary(min_size=0, max_size=3000), st.lists(
+    st.tuples(st.integers(0, 3000), st.integers(0, 4), st.integers(0, 3), st.binary(max_size=6)),
+    min_size=1, max_size=400))
+def test_splice_same_bytes(orig, raw):
+    """Many edits (so that splice takes its gather branch): compiled and numpy give the same."""
+    from mtcomp.gcode.textops import splice
+    o = np.frombuffer(orig, np.uint8)
+    # non-overlapping removals: sort the starts, clip each range before the next start
+    raw = sorted((min(p, len(orig)), w, s, t) for p, w, s, t in raw)
+    pos, stop, sub, off, ln, src = [], [], [], [], [], b""
+    for k, (p, w, s, t) in enumerate(raw):
+        nxt = raw[k + 1][0] if k + 1 < len(raw) else len(orig)
+        pos.append(p)
+        stop.append(min(p + w, nxt) if w else p)
+        sub.append(s)
+        off.append(len(src))
+        ln.append(len(t))
+        src += t
+    args = (o, np.array(pos), np.array(stop), np.array(sub), np.frombuffer(src, np.uint8),
+            np.array(off), np.array(ln))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("MTCOMP_TOKENIZER", raising=False)
+        a = splice(*args)
+        mp.setenv("MTCOMP_TOKENIZER", "python")
+        b = splice(*args)
+    assert a == b

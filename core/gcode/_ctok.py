@@ -69,6 +69,8 @@ def load():
     lib.mtc_count.restype = None
     lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 10
     lib.mtc_tokenise.restype = None
+    lib.mtc_splice.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64, vp]
+    lib.mtc_splice.restype = None
     lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_blank_comments.restype = i64
     _lib = lib
@@ -114,3 +116,17 @@ def tokenise(code: np.ndarray):
                      dot.ctypes.data, two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
                      ctypes.byref(bad_at), dup.ctypes.data)
     return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup
+
+
+def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total: int):
+    """The bytes of `orig` with the edits applied (int64 arrays sorted by position, removed
+    ranges not overlapping; ``total`` the result's size), or None without the library."""
+    lib = load()
+    if lib is None:
+        return None
+    orig, src = np.ascontiguousarray(orig, np.uint8), np.ascontiguousarray(src, np.uint8)
+    arrs = [np.ascontiguousarray(a, np.int64) for a in (pos, stop, src_off, src_len)]
+    out = np.empty(total, np.uint8)
+    lib.mtc_splice(orig.ctypes.data, len(orig), src.ctypes.data, *(a.ctypes.data for a in arrs),
+                   len(arrs[0]), out.ctypes.data)
+    return out

@@ -1,10 +1,11 @@
-/* One-pass tokenizer for NC programs: the compiled twin of mtcomp.gcode.tokens._tokenise plus
- * mtcomp.gcode.textops.parse_decimals (the Python code is the reference and the fallback; the
- * parity tests hold the two to the same bytes and the same float bits).
+/* Compiled text helpers of mtcomp.gcode: a one-pass tokenizer (the twin of
+ * tokens._tokenise, tokens._comment_spans and textops.parse_decimals) and the byte splice of
+ * textops.splice.  The Python code is the reference and the fallback; the parity tests hold
+ * the two to the same bytes and the same float bits.
  *
- * Input: the program bytes with comments, '%' lines and block-delete slashes already blanked.
- * Written by hand because no library tokenises a byte buffer into address words in one pass.
- * Plain C99, no Python headers: loaded through ctypes.
+ * Input of the tokenizer: the program bytes with comments, '%' lines and block-delete slashes
+ * already blanked.  Written by hand because no library tokenises a byte buffer into address
+ * words in one pass.  Plain C99, no Python headers: loaded through ctypes.
  */
 #include <stdint.h>
 #include <stdlib.h>
@@ -150,4 +151,27 @@ int64_t mtc_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int64_t f
         i++;
     }
     return count;
+}
+
+/* Splice: out = orig with the m edits applied (sorted by position, removed ranges not
+ * overlapping, checked by the caller): before edit i the original bytes up to pos[i], then
+ * src[src_off[i] : src_off[i] + src_len[i]]; orig[pos[i]:stop[i]] is dropped.  `out` holds
+ * the exact result size.  The compiled twin of the gather in textops.splice. */
+void mtc_splice(const uint8_t *orig, int64_t n_orig, const uint8_t *src, const int64_t *pos,
+                const int64_t *stop, const int64_t *src_off, const int64_t *src_len, int64_t m,
+                uint8_t *out)
+{
+    int64_t prev = 0, o = 0;
+    for (int64_t i = 0; i < m; i++) {
+        if (pos[i] > prev) {
+            memcpy(out + o, orig + prev, (size_t)(pos[i] - prev));
+            o += pos[i] - prev;
+        }
+        if (src_len[i] > 0) {
+            memcpy(out + o, src + src_off[i], (size_t)src_len[i]);
+            o += src_len[i];
+        }
+        if (stop[i] > prev) prev = stop[i];
+    }
+    if (n_orig > prev) memcpy(out + o, orig + prev, (size_t)(n_orig - prev));
 }

@@ -172,6 +172,13 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
         if progress is not None:
             progress(len(res), len(res))
         return res
+    total = n_orig - int((stop - pos).sum()) + int(src_len.sum())
+    from ._ctok import splice as c_splice
+    res = c_splice(out, src, pos, stop, src_off, src_len, total)
+    if res is not None:                       # compiled: one pass of memcpy
+        if progress is not None:
+            progress(total, total)
+        return res.tobytes()
     buf = np.concatenate([out, src])
     p_off = np.empty(npieces, np.int64)
     p_len = np.empty(npieces, np.int64)
