@@ -297,3 +297,30 @@ def test_tool_centre_point_programs_are_refused_naming_the_line(word):
     text = f"G90 G0 X0 Y0 Z5. B10. C0\n{word}\nG1 X1. B12. F100\n"
     with pytest.raises(InputError, match=r"^p.nc:2: [Gg]43\.[45]: G43\.[45] tool centre point"):
         compensate_program(text, m, ErrorSet(ToolSetting((0.002, 0, 0))), filename="p.nc")
+
+
+def _insert_header_by_lines(text, lines):
+    """Reference: the header placement on the program split into all its lines."""
+    import re
+    semicolon = ";" in text and "(" not in text
+    eol = "\r\n" if text.split("\n", 1)[0].endswith("\r") else "\n"
+    comments = [f"; {ln}" if semicolon else f"({ln})" for ln in lines]
+    src = re.findall(r"[^\n]*\n|[^\n]+\Z", text)
+    at = 0
+    while at < len(src) and not src[at].strip():
+        at += 1
+    if at < len(src) and src[at].strip().startswith("%"):
+        at += 1
+    if at < len(src) and re.match(r"\s*[Oo]\d|\s*:\d", src[at]):
+        at += 1
+    if at == 0:
+        return "".join(c + eol for c in comments) + text, 0, len(comments)
+    lead = "" if src[at - 1].endswith("\n") else eol
+    return "".join(src[:at]) + lead + "".join(c + eol for c in comments) + "".join(src[at:]), at, len(comments)
+
+
+@pytest.mark.parametrize("text", ["", "%", "%\n", "\n\n%\nO1\nG1 X1\n", "O1", "%\nO0042", "  \n%\r\n:1\r\nG0\r\n",
+                                  "G1 X1\n%\n", "\n\n", "%\n%\n", "(c)\n", "%\n\nO1\n"])
+def test_insert_header_reads_only_the_top_lines_same_placement(text):
+    lines = ["MTCOMP COMPENSATED PROGRAM: X", "MACHINE m"]
+    assert insert_header(text, lines) == _insert_header_by_lines(text, lines)

@@ -46,22 +46,28 @@ def insert_header(text: str, lines: list[str]) -> tuple[str, int, int]:
     first = text.split("\n", 1)[0]
     eol = "\r\n" if first.endswith("\r") else "\n"
     comments = [f"; {ln}" if semicolon else f"({ln})" for ln in lines]
-    src = re.findall(r"[^\n]*\n|[^\n]+\Z", text)          # LF-terminated lines, as counted
-    at = 0
-    while at < len(src) and not src[at].strip():
+    # only the first lines are looked at: no split of a whole (possibly huge) program
+    n = len(text)
+
+    def line(cut):                                     # the LF-terminated line at `cut`
+        j = text.find("\n", cut)
+        return text[cut:] if j < 0 else text[cut:j + 1]
+    at = cut = 0
+    while cut < n and not line(cut).strip():
+        cut += len(line(cut))
         at += 1
-    if at < len(src) and src[at].strip().startswith("%"):
+    if cut < n and line(cut).strip().startswith("%"):
+        cut += len(line(cut))
         at += 1
-    if at < len(src) and _PROGRAM_NUMBER_RE.match(src[at]):
+    if cut < n and _PROGRAM_NUMBER_RE.match(line(cut)):
+        cut += len(line(cut))
         at += 1
     if at == 0:
         block = "".join(c + eol for c in comments)
         return block + text, 0, len(comments)
-    prev = src[at - 1]
-    lead = "" if prev.endswith("\n") else eol
+    lead = "" if text[cut - 1] == "\n" else eol
     block = lead + "".join(c + eol for c in comments)
-    before = "".join(src[:at])
-    return before + block + "".join(src[at:]), at, len(comments)
+    return text[:cut] + block + text[cut:], at, len(comments)
 
 
 _HEADER_LINE_RE = re.compile(r"^(\(|; )([A-Z0-9]+ |MTCOMP COMPENSATED PROGRAM)[^\n]*\n", re.MULTILINE)
