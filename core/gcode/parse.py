@@ -384,6 +384,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     incremental = incr_line[blines]
     inch = inch_line[blines]
     feed = feed_line[blines]
+    # the per-line state is in the block arrays now: free it before the positions (peak memory)
+    del (mot_l, pla_l, dis_l, wcs_l, acm_l, tool_l, nonmove_l, feedm_l, dwell_line, g50_line,
+         p_line, h_line, incr_line, plane_line, mode_line, cyc_l, cyc_w, ev, rl, fval, fset,
+         feed_line, blk_of_line, block, has_motion, has_arcw, gi, cat)
     vals = value[np.maximum(col_word, 0)]
     vals[col_word < 0] = np.nan
     if inch.any():
