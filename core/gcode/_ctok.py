@@ -120,13 +120,16 @@ def tokenise(code: np.ndarray):
 
 def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total: int):
     """The bytes of `orig` with the edits applied (int64 arrays sorted by position, removed
-    ranges not overlapping; ``total`` the result's size), or None without the library."""
+    ranges not overlapping; ``total`` the result's size) as a bytearray, or None without the
+    library."""
     lib = load()
     if lib is None:
         return None
     orig, src = np.ascontiguousarray(orig, np.uint8), np.ascontiguousarray(src, np.uint8)
     arrs = [np.ascontiguousarray(a, np.int64) for a in (pos, stop, src_off, src_len)]
-    out = np.empty(total, np.uint8)
+    ba = bytearray(total)                    # written in place: no copy into bytes after
+    out = np.frombuffer(ba, np.uint8) if total else np.zeros(1, np.uint8)
     lib.mtc_splice(orig.ctypes.data, len(orig), src.ctypes.data, *(a.ctypes.data for a in arrs),
                    len(arrs[0]), out.ctypes.data)
-    return out
+    del out
+    return ba
