@@ -163,7 +163,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                        chordal_tol: float | None = None, start=None, unknown: str = "defer",
                        provenance: list | None = None, force: bool = False, progress=None,
                        convert_inch: bool = False, tool_lengths=None, work_offsets=None,
-                       arc_tol: float | None = None):
+                       arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
+                       tolerance: float = 5e-4, warn_only: bool = False):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -172,8 +173,16 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     unknown: "defer" (blocks before every axis position is known pass uncompensated) or
     "refuse".  provenance: (key, value) items for the header comment (None: no header).
     force: compensate a program that carries mtcomp's provenance header anyway.
+    stock / part (objects of mtcomp.verify: Box, HalfSpace, ShapeStock; workpiece frame, mm):
+    the written program is run through the forward model with the errors (rapids included, axes
+    interpolated as the control does, docs/verify.md) and its rapids must keep ``clearance``
+    (mm) from the stock, its feeds stay within ``tolerance`` (mm) of the part; a violation
+    raises VerifyError naming the block, unless ``warn_only`` (then it is in the report).
+    Every emitted end position is checked against the travel of its axis (arcs: their interior
+    points are solved for and checked by the compensation itself).
     Returns (new_text, report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
-    errors in mm before and after over the compensated blocks, from the forward model)."""
+    errors in mm before and after over the compensated blocks, from the forward model,
+    ``verify``: the VerifyResult or None)."""
     from . import gcode
     from .gcode.provenance import compensated_line, header_lines, insert_header
 
@@ -216,26 +225,127 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     if provenance is not None:
         new_text, at, added = insert_header(new_text, header_lines(provenance))
         out_line = np.where(out_line > at, out_line + added, out_line)
-    # Check the result as the machine will run it: re-read the written program (rounded
-    # numbers, linearised arcs) and put it through the forward model with the errors.
+    # Check the result as the machine will run it: the emitted positions (rounded numbers, the
+    # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
-    P = np.asarray(prog.position)[kn]
-    target = forward(machine, P)
-    before = np.linalg.norm(forward(machine, P, errors).p - target.p, axis=1)
-    after_prog = gcode.parse(new_text, axes=machine.axis_names, start=start, resolution=res,
-                             tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
-                             filename=f"{filename} (compensated output)")
-    # the output block that ends each input block (linearised arcs add lines after their block)
-    idx = np.searchsorted(after_prog.line, out_line[kn], side="right") - 1
-    after = np.linalg.norm(forward(machine, after_prog.position[idx], errors).p - target.p, axis=1)
+    kk = np.flatnonzero(kn)
+    P = np.asarray(prog.position)
+    emitted = emitted_positions(prog, info, new_text, filename=filename, start=start, res=res,
+                                tool_lengths=tool_lengths, work_offsets=work_offsets,
+                                arc_tol=arc_tol, out_line=out_line)
+    _travel_check_emitted(machine, emitted, kn, prog, filename)
+    verified = None
+    if stock is not None or part is not None:
+        verified = verify_output(machine, new_text, errors, filename=filename, stock=stock,
+                                 part=part, clearance=clearance, tolerance=tolerance,
+                                 warn_only=warn_only, start=start, resolution=res,
+                                 tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
+    before = np.empty(len(kk))
+    after = np.empty(len(kk))
+    for s in range(0, len(kk), CHUNK):
+        rows = kk[s:s + CHUNK]
+        target = forward(machine, P[rows]).p
+        before[s:s + CHUNK] = np.linalg.norm(forward(machine, P[rows], errors).p - target, axis=1)
+        after[s:s + CHUNK] = np.linalg.norm(forward(machine, emitted[rows], errors).p - target, axis=1)
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
               "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
               "notes": prog.notes, "linearised": info["linearised"],
               "cycles_kept": info["cycles_kept"], "cycles_expanded": info["cycles_expanded"],
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
-              "after_max": float(after.max(initial=0)), "after_rms": rms(after)}
+              "after_max": float(after.max(initial=0)), "after_rms": rms(after),
+              "verify": verified}
     return new_text, report
+
+
+def _travel_check_emitted(machine, emitted, kn, prog, filename):
+    """The written end positions inside the travel (compensation can push a block that was
+    just inside its axis' travel out of it)."""
+    for k, ax in enumerate(machine.axes):
+        lo, hi = ax.limits
+        tol = 0.5 * ax.resolution
+        bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
+        if len(bad):
+            j = int(bad[0])
+            raise InputError(f"the compensated {ax.name} {emitted[j, k]:g} is outside the travel "
+                             f"[{lo:g}, {hi:g}] of axis {ax.name} on {machine.name}", filename,
+                             int(prog.line[j]))
+
+
+def verify_output(machine, text, errors, *, filename="<string>", stock=None, part=None,
+                  clearance=0.2, tolerance=5e-4, warn_only=False, **parse_kw):
+    """Run the written program `text` through the forward model with `errors` (the real
+    machine) and check it against stock (rapids, ``clearance``) and part (feeds, ``tolerance``)
+    with mtcomp.verify, block by block.  Blocks where the program has not fixed every axis yet
+    (deferred) are not checked; canned cycle blocks and the moves into them neither (their holes
+    go into the stock by design).  Returns the VerifyResult; raises VerifyError naming the first
+    failing block unless warn_only."""
+    from dataclasses import replace
+
+    from . import gcode
+    from .verify import FEED, PROBE, RAPID, VerifyError, verify_commands
+    back = gcode.parse(text, axes=machine.axis_names, filename=f"{filename} (compensated output)",
+                       **parse_kw)
+    motion = np.asarray(back.motion, int).copy()
+    motion[motion < 0] = RAPID
+    motion[motion == 1] = FEED
+    motion[(motion == 2) | (motion == 3)] = 3
+    motion[np.asarray(back.cycle) > 0] = PROBE         # not checked
+    cols = np.zeros((len(back), 2), int)
+    xyz = {"X": 0, "Y": 1, "Z": 2}
+    cidx = np.zeros((len(back), 2), int)
+    for k, pl in enumerate(np.asarray(back.plane)):
+        pair = {17: "XY", 18: "ZX", 19: "YZ"}[int(pl)]
+        cols[k] = [machine.axis_names.index(a) if a in machine.axis_names else 0 for a in pair]
+        cidx[k] = [xyz[a] for a in pair]
+    centre = np.take_along_axis(np.asarray(back.arc_centre, float), cidx, axis=1)
+    arcs_all = (centre, np.nan_to_num(np.asarray(back.arc_sweep, float)), cols, motion == 3)
+    src = text.split("\n")
+    lines = np.asarray(back.line, int)
+    kn = np.asarray(back.known)
+    # runs of consecutive blocks with every axis known
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], kn.astype(np.int8), [0]])))
+    results = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        sl = slice(int(a), int(b))
+        res = verify_commands(machine, back.position[sl], motion[sl], stock=stock, part=part,
+                              clearance=clearance, tolerance=tolerance, errors=errors,
+                              lines=lines[sl], texts=[src[ln - 1] if 0 < ln <= len(src) else ""
+                                                      for ln in lines[sl]],
+                              arcs=tuple(x[sl] for x in arcs_all), name=filename,
+                              raise_on_violation=False)
+        results.append(res)
+    if not results:
+        return None
+    best = min(results, key=lambda r: r.min_clearance)
+    out = replace(best, n_blocks=sum(r.n_blocks for r in results),
+                  n_samples=sum(r.n_samples for r in results),
+                  min_part=min(r.min_part for r in results),
+                  violations=tuple(v for r in results for v in r.violations))
+    if out.violations and not warn_only:
+        v = out.violations
+        raise VerifyError(f"{filename}: the compensated program fails the verification (lines "
+                          "of the written program): "
+                          + v[0].describe(clearance, tolerance)
+                          + (f" (and {len(v) - 1} more blocks)" if len(v) > 1 else ""), out)
+    return out
+
+
+def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
+                      tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
+    """End position of every motion block of the rewritten program (N, n_axes; mm, deg), as
+    the control reads it back.  Taken from the values `rewrite` emitted (counts times the
+    resolution: the same numbers the written words hold, to float rounding); programs with
+    canned cycles, whose holes may be written out as new lines, are read back instead."""
+    if not np.asarray(prog.cycle).any():
+        return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
+    from . import gcode
+    after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
+                             tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
+                             filename=f"{filename} (compensated output)")
+    # the output block that ends each input block (linearised arcs add lines after their block)
+    idx = np.searchsorted(after_prog.line, out_line, side="right") - 1
+    return np.asarray(after_prog.position)[idx]
 
 
 def _sha256(path) -> str:
@@ -283,10 +393,22 @@ def _cmd_compensate(args) -> int:
                   ("MACHINE", machine.name),
                   ("DATE", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")),
                   ("SOURCE", src.name), ("OPTIONS", "; ".join(options))]
+    stock = part = None
+    if args.stock or args.part:
+        from .verify import ShapeStock, parse_stock
+        stock = parse_stock(args.stock) if args.stock else None
+        part = ShapeStock.from_step(args.part) if args.part else None
+        if not (math.isfinite(args.clearance) and args.clearance >= 0):
+            raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
+        if not (math.isfinite(args.tolerance) and args.tolerance >= 0):
+            raise InputError(f"expected a tolerance >= 0 mm, got {args.tolerance}", field="--tolerance")
+        options.append(f"verified clearance {args.clearance:g} mm" + (" warn-only" if args.warn_only else ""))
     new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=tol,
                                        start=start, unknown=args.unknown, provenance=provenance,
                                        force=args.force, progress=Progress("compensating", args.progress),
-                                       tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol)
+                                       tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol,
+                                       stock=stock, part=part, clearance=args.clearance,
+                                       tolerance=args.tolerance, warn_only=args.warn_only)
     atomic_write(out, new_text)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
     if rep["deferred"]:
@@ -305,6 +427,14 @@ def _cmd_compensate(args) -> int:
           f"RMS {rep['before_rms'] * 1e3:10.3f} µm")
     print(f"tool-edge error after  compensation: max {rep['after_max'] * 1e6:10.3f} nm   "
           f"RMS {rep['after_rms'] * 1e6:10.3f} nm")
+    ver = rep["verify"]
+    if ver is not None:
+        print(ver.summary(max_listed=20).replace("verify ", "verification of the output, ", 1))
+        if ver.violations:
+            print(f"warning: {len(ver.violations)} block(s) fail the verification (--warn-only): "
+                  "the program was written anyway", file=sys.stderr)
+    elif stock is not None or part is not None:
+        print("verification: no block with every axis position known, nothing checked")
     return 0
 
 
@@ -352,6 +482,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "programs that switch between them")
     p.add_argument("--force", action="store_true",
                    help="compensate a program that mtcomp has already compensated")
+    p.add_argument("--stock", help="verify the output against this stock (workpiece frame): "
+                                   "box:x0,y0,z0,x1,y1,z1 (mm), plane:Z or a STEP file; rapids "
+                                   "must keep --clearance from it")
+    p.add_argument("--part", help="STEP of the finished part: feed moves of the output must not "
+                                  "gouge it by more than --tolerance")
+    p.add_argument("--clearance", type=float, default=0.2, help="rapid clearance, mm (default 0.2)")
+    p.add_argument("--tolerance", type=float, default=5e-4,
+                   help="allowed depth of feed moves into the part, mm (default 0.0005)")
+    p.add_argument("--warn-only", action="store_true",
+                   help="write the program even if the verification fails (report the blocks)")
     p.add_argument("--progress", action="store_true", default=None, help="show a progress bar")
     p.set_defaults(func=_cmd_compensate)
 

@@ -5,7 +5,9 @@ from __future__ import annotations
 import hashlib
 import subprocess
 import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mtcomp import InputError, gcode
@@ -178,3 +180,153 @@ def test_arc_tolerance_option(tmp_path):
     assert "(OPTIONS unknown-start defer; arc-tol 0.06 mm)" in out.read_text()
     r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--arc-tol", "nan")
     assert r.returncode == 2 and "--arc-tol" in r.stderr
+
+
+def _emitted_vs_reread(text, machine, errors, chordal_tol=None, **kw):
+    """The positions `compensate` verifies (taken from the emitted values) against the written
+    program read back by the parser, block by block."""
+    from mtcomp.commands import emitted_positions
+    res = {a.name: a.resolution for a in machine.axes}
+    prog = gcode.parse(text, axes=machine.axis_names, resolution=res, **kw)
+    info = {}
+    new_text, out_line = gcode.rewrite_with_lines(
+        prog, lambda q: __import__("mtcomp.kinematics").kinematics.retarget(machine, q, errors),
+        resolution=res, chordal_tol=chordal_tol or max(1e-4, 2 * max(res.values())), info=info)
+    kn = np.asarray(info["compensated"])
+    back = gcode.parse(new_text, axes=machine.axis_names, resolution=res, **kw)
+    fast = emitted_positions(prog, info, new_text, res=res, out_line=out_line, **kw)[kn]
+    idx = np.searchsorted(back.line, out_line, side="right") - 1
+    return fast, np.asarray(back.position)[idx][kn], np.asarray(prog.incremental)[kn]
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).parent / "data" / "nc").iterdir()),
+                         ids=lambda p: p.name)
+def test_verification_from_emitted_values_equals_reading_the_output_back(path):
+    m = load_machine("vmc-moving-column")
+    # a rigid shift, so that canned cycles are kept (those programs are read back)
+    e = ErrorSet(ToolSetting((0.012, -0.004, 0.020)), WorkpieceSetting((0.010, 0.005, -0.003), (0, 0, 0)))
+    text = gcode.read_program(path)
+    fast, back, inc = _emitted_vs_reread(text, m, e, start={"X": 0, "Y": 0, "Z": 50}, chordal_tol=1e-3)
+    assert len(fast) > 5
+    # the same numbers to float rounding; except that the control rounds G91 increments finer
+    # than the resolution one by one (as the emitted counts do) where the parser sums them
+    # unrounded (linuxcnc.ngc): at most one count apart there
+    res = 1e-4                                  # vmc-moving-column's resolution
+    d = np.abs(fast - back).max(axis=1)
+    after_inc = np.maximum.accumulate(inc)         # carried into later blocks
+    assert ((d < 1e-12) | after_inc).all() and np.mean(d < 1e-12) > 0.5, d
+    np.testing.assert_allclose(fast, back, rtol=0, atol=res)
+
+
+def test_verification_from_emitted_values_five_axes_arcs_and_increments():
+    # linearised arcs (the last segment ends the block), G91 sections, 5-axis rotary words
+    m = load_machine("robonano-a0ib")
+    e = ErrorSet(ToolSetting((0.012, -0.004, 0.020)), WorkpieceSetting((0.01, 0.005, -0.003), (0.02, 0.0, 0.01)))
+    text = ("G90 G0 X0 Y0 Z10. B10. C0\nG1 Z0.5 F100\nX1. Y2. B12. C30.\nG3 X5. Y2. I2. J0\n"
+            "G91 G1 X0.01 Y-0.002\nX0.001 Z-0.0005 C1.\nG90 G2 X1. Y2. R2.\nG1 X-3. Y4. Z1. B-10. C-90.\nM30\n")
+    fast, back, _ = _emitted_vs_reread(text, m, e)
+    np.testing.assert_allclose(fast, back, rtol=0, atol=1e-12)
+    assert np.abs(fast - back).max() < 1e-12 and len(fast) == 8
+
+
+def test_provenance_marker_found_at_the_top_in_any_case_and_further_down():
+    from mtcomp.gcode.provenance import compensated_line
+    body = "G1 X1. Y2.\n" * 20000                         # over 64 kB
+    assert compensated_line("%\n(Mtcomp Compensated Program: x)\n" + body) == 2
+    assert compensated_line(body + "(mtcomp compensated program)\n") == 20001
+    assert compensated_line(body + "(MTCOMP COMPENSATED PROGRAM: DO NOT)\n") == 20001
+    assert compensated_line(body) is None
+
+
+# -- verification of what compensate writes (issue 14 item 1)
+CUT = "%\nO0042 (TEST)\nG21 G90 G17\nG0 X0 Y0 Z5.\nG0 Z1.\nG1 Z-0.5 F200\nG1 X10.\nG0 X20. Z0.05\nG0 Z5.\nM30\n%\n"
+SAFE = CUT.replace("G0 X20. Z0.05", "G1 Z1.\nG0 X20.")     # retract at feed (the stock is not cut away)
+STOCK = "box:-5,-5,-10,30,5,0"
+
+
+def test_compensate_refuses_a_rapid_into_the_stock_naming_the_block(files, tmp_path):
+    prog, err = files
+    prog.write_text(CUT)
+    out = tmp_path / "out.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--stock", STOCK,
+            "--clearance", "0.1")
+    assert r.returncode != 0 and not out.exists()
+    msg = r.stderr.strip()
+    assert len(msg.splitlines()) == 1 and "Traceback" not in msg
+    # the first failing block is the rapid from the cut at Z-0.5 out through the stock
+    assert "rapid move: the tool enters the stock at -500 µm" in msg and "(G0 X20.0000 Z0.0500)" not in msg
+    assert "G0 X19.998" in msg and "and 1 more blocks" in msg
+
+
+def test_compensate_warn_only_writes_and_reports(files, tmp_path):
+    prog, err = files
+    prog.write_text(CUT)
+    out = tmp_path / "out.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--stock", STOCK,
+            "--clearance", "0.1", "--warn-only")
+    assert r.returncode == 0 and out.exists()
+    assert "2 block(s) FAIL" in r.stdout and "min rapid clearance -500 µm" in r.stdout
+    assert "warning: 2 block(s) fail the verification" in r.stderr
+
+
+def test_compensate_reports_min_clearance_of_a_safe_program(files, tmp_path):
+    prog, err = files
+    prog.write_text(SAFE)
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", tmp_path / "o.nc",
+            "--stock", STOCK, "--clearance", "0.5")
+    assert r.returncode == 0, r.stderr
+    # rapids down to Z1 over the stock top at Z0: the compensated program keeps 1 mm on the
+    # machine with the errors (the tool offset is undone)
+    assert "min rapid clearance 1000 µm" in r.stdout and "passed" in r.stdout
+
+
+def test_compensate_program_verification_in_the_library():
+    from mtcomp.verify import Box, VerifyError
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.0, 0.0, -0.3)))      # tool 0.3 mm longer than nominal
+    box = Box((-5, -5, -10), (30, 5, 0))
+    # nominally 0.2 mm over the stock: compensated, the real machine keeps those 0.2 mm
+    text = SAFE.replace("Z1.", "Z0.2")
+    _, rep = compensate_program(text, m, e, stock=box, clearance=0.1)
+    assert abs(rep["verify"].min_clearance - 0.2) < 1e-6
+    # a program that rapids across the stock at 0.05 mm fails, naming its line
+    with pytest.raises(VerifyError, match=r"line 8 \(G0 X20\.0* Z0\.35"):
+        compensate_program(CUT, m, e, stock=box, clearance=0.1)
+    _, rep = compensate_program(CUT, m, e, stock=box, clearance=0.1, warn_only=True)
+    assert [v.line for v in rep["verify"].violations] == [8, 9]
+
+
+@pytest.mark.parametrize("word", ["G43.4 H1", "G43.5 H1", "g43.4"])
+def test_tool_centre_point_programs_are_refused_naming_the_line(word):
+    # documented limit (docs/gcode.md): TCP words are tool-tip coordinates, not axis positions
+    m = load_machine("robonano-a0ib")
+    text = f"G90 G0 X0 Y0 Z5. B10. C0\n{word}\nG1 X1. B12. F100\n"
+    with pytest.raises(InputError, match=r"^p.nc:2: [Gg]43\.[45]: G43\.[45] tool centre point"):
+        compensate_program(text, m, ErrorSet(ToolSetting((0.002, 0, 0))), filename="p.nc")
+
+
+def _insert_header_by_lines(text, lines):
+    """Reference: the header placement on the program split into all its lines."""
+    import re
+    semicolon = ";" in text and "(" not in text
+    eol = "\r\n" if text.split("\n", 1)[0].endswith("\r") else "\n"
+    comments = [f"; {ln}" if semicolon else f"({ln})" for ln in lines]
+    src = re.findall(r"[^\n]*\n|[^\n]+\Z", text)
+    at = 0
+    while at < len(src) and not src[at].strip():
+        at += 1
+    if at < len(src) and src[at].strip().startswith("%"):
+        at += 1
+    if at < len(src) and re.match(r"\s*[Oo]\d|\s*:\d", src[at]):
+        at += 1
+    if at == 0:
+        return "".join(c + eol for c in comments) + text, 0, len(comments)
+    lead = "" if src[at - 1].endswith("\n") else eol
+    return "".join(src[:at]) + lead + "".join(c + eol for c in comments) + "".join(src[at:]), at, len(comments)
+
+
+@pytest.mark.parametrize("text", ["", "%", "%\n", "\n\n%\nO1\nG1 X1\n", "O1", "%\nO0042", "  \n%\r\n:1\r\nG0\r\n",
+                                  "G1 X1\n%\n", "\n\n", "%\n%\n", "(c)\n", "%\n\nO1\n"])
+def test_insert_header_reads_only_the_top_lines_same_placement(text):
+    lines = ["MTCOMP COMPENSATED PROGRAM: X", "MACHINE m"]
+    assert insert_header(text, lines) == _insert_header_by_lines(text, lines)

@@ -6,6 +6,7 @@ from typing import Mapping
 import numpy as np
 
 from .._io import InputError
+from . import _ctok
 from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
@@ -65,7 +66,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     code = b.copy()
     bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
     code[:bom] = 32
-    spans = _comment_spans(data, b, first=bom)
+    spans = [] if _ctok.blank_comments(b, code, bom) else _comment_spans(data, b, first=bom)
     if spans:
         if len(spans) < 1 << 18:                  # slice assignments: cheap per comment
             for s, e in spans:
@@ -89,7 +90,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- character classes and words: a letter immediately followed by a run of number
     # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
-    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at = _tokenise(code, line_start)
+    tok = _ctok.tokenise(code)               # compiled one-pass tokenizer, where built
+    if tok is None:
+        tok = _tokenise(code, line_start) + (None, None)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line = tok
+    del tok
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
         hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
@@ -116,29 +121,38 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         i = int(np.argmax(badnum))
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
-    value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
+    if value is None:
+        value = parse_decimals(code, rs, re_, dot_of_run, first=first_ch)
     if not np.isfinite(value).all():
         i = int(np.argmax(~np.isfinite(value)))
         _fail(f"number in word {_word_text(data, lp[i], min(re_[i], lp[i] + 20))!r}... is too large",
               wline[i], filename)
-    w_num = rs.astype(np.int32)
+    w_num = rs.astype(np.int32, copy=False)
     # positions fit 32 bits (programs under 2 GB); free what is no longer needed
     if nbytes >= 2**31 - 1:
         raise InputError("programs of 2 GB and more are not supported", file=filename)
-    lp, re_ = lp.astype(np.int32), re_.astype(np.int32)
+    lp, re_ = lp.astype(np.int32, copy=False), re_.astype(np.int32, copy=False)
     del code, rs, dot_of_run, twodots, first_ch, ndig, badnum
 
     G, M = _ascii("G"), _ascii("M")
     # -- duplicate addresses in one block (G and M may repeat)
     # stable radix sort by letter keeps each letter's words in line order: a repeated letter in
     # a block shows as two neighbours with the same letter and line
-    order = np.argsort(wlet, kind="stable")
-    sl, sw = wlet[order], wline[order]
-    dup = (sl[1:] == sl[:-1]) & (sw[1:] == sw[:-1]) & (sl[1:] != G) & (sl[1:] != M)
-    if dup.any():
-        j = int(np.argmax(dup)) + 1
-        _fail(f"address {chr(65 + int(sl[j]))} appears twice in one block", int(sw[j]), filename)
-    del order, sl, sw, dup
+    if dup_line is not None:
+        # the compiled tokenizer found, per letter, the first line with it twice: the same
+        # answer as the sort below (the smallest letter, its first such line)
+        dup_line[[G, M]] = -1
+        if (dup_line >= 0).any():
+            j = int(np.argmax(dup_line >= 0))
+            _fail(f"address {chr(65 + j)} appears twice in one block", int(dup_line[j]), filename)
+    else:
+        order = np.argsort(wlet, kind="stable")
+        sl, sw = wlet[order], wline[order]
+        dup = (sl[1:] == sl[:-1]) & (sw[1:] == sw[:-1]) & (sl[1:] != G) & (sl[1:] != M)
+        if dup.any():
+            j = int(np.argmax(dup)) + 1
+            _fail(f"address {chr(65 + int(sl[j]))} appears twice in one block", int(sw[j]), filename)
+        del order, sl, sw, dup
 
     # -- G codes
     gi = np.flatnonzero(wlet == G)
@@ -370,6 +384,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     incremental = incr_line[blines]
     inch = inch_line[blines]
     feed = feed_line[blines]
+    # the per-line state is in the block arrays now: free it before the positions (peak memory)
+    del (mot_l, pla_l, dis_l, wcs_l, acm_l, tool_l, nonmove_l, feedm_l, dwell_line, g50_line,
+         p_line, h_line, incr_line, plane_line, mode_line, cyc_l, cyc_w, ev, rl, fval, fset,
+         feed_line, blk_of_line, block, has_motion, has_arcw, gi, cat)
     vals = value[np.maximum(col_word, 0)]
     vals[col_word < 0] = np.nan
     if inch.any():

@@ -7,13 +7,25 @@ import re
 #: First header line; its presence marks a program mtcomp has compensated.
 MARKER = "MTCOMP COMPENSATED PROGRAM"
 _MARK_RE = re.compile(r"MTCOMP COMPENSATED PROGRAM", re.IGNORECASE)
+_HEAD = 1 << 16
 _PROGRAM_NUMBER_RE = re.compile(r"\s*[Oo]\d|\s*:\d")
 
 
 def compensated_line(text: str) -> int | None:
     """1-based line of the provenance marker if the program was written by mtcomp compensate."""
-    m = _MARK_RE.search(text)
-    return None if m is None else text.count("\n", 0, m.start()) + 1
+    # mtcomp writes the header at the top: any case there; further down (a header pasted into
+    # a longer program) the marker as written or all lower case, found by plain substring
+    # search (a case-insensitive regex over a 40 MB program costs a third of a second)
+    m = _MARK_RE.search(text, 0, _HEAD)
+    if m is not None:
+        at = m.start()
+    else:
+        hits = [i for i in (text.find(MARKER, max(0, _HEAD - len(MARKER))),
+                            text.find(MARKER.lower(), max(0, _HEAD - len(MARKER)))) if i >= 0]
+        if not hits:
+            return None
+        at = min(hits)
+    return text.count("\n", 0, at) + 1
 
 
 def header_lines(items: list[tuple[str, str]]) -> list[str]:
@@ -34,22 +46,28 @@ def insert_header(text: str, lines: list[str]) -> tuple[str, int, int]:
     first = text.split("\n", 1)[0]
     eol = "\r\n" if first.endswith("\r") else "\n"
     comments = [f"; {ln}" if semicolon else f"({ln})" for ln in lines]
-    src = re.findall(r"[^\n]*\n|[^\n]+\Z", text)          # LF-terminated lines, as counted
-    at = 0
-    while at < len(src) and not src[at].strip():
+    # only the first lines are looked at: no split of a whole (possibly huge) program
+    n = len(text)
+
+    def line(cut):                                     # the LF-terminated line at `cut`
+        j = text.find("\n", cut)
+        return text[cut:] if j < 0 else text[cut:j + 1]
+    at = cut = 0
+    while cut < n and not line(cut).strip():
+        cut += len(line(cut))
         at += 1
-    if at < len(src) and src[at].strip().startswith("%"):
+    if cut < n and line(cut).strip().startswith("%"):
+        cut += len(line(cut))
         at += 1
-    if at < len(src) and _PROGRAM_NUMBER_RE.match(src[at]):
+    if cut < n and _PROGRAM_NUMBER_RE.match(line(cut)):
+        cut += len(line(cut))
         at += 1
     if at == 0:
         block = "".join(c + eol for c in comments)
         return block + text, 0, len(comments)
-    prev = src[at - 1]
-    lead = "" if prev.endswith("\n") else eol
+    lead = "" if text[cut - 1] == "\n" else eol
     block = lead + "".join(c + eol for c in comments)
-    before = "".join(src[:at])
-    return before + block + "".join(src[at:]), at, len(comments)
+    return text[:cut] + block + text[cut:], at, len(comments)
 
 
 _HEADER_LINE_RE = re.compile(r"^(\(|; )([A-Z0-9]+ |MTCOMP COMPENSATED PROGRAM)[^\n]*\n", re.MULTILINE)

@@ -342,8 +342,12 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
 
     if info is not None:
         rep = getattr(ctx, "cycle_report", {"kept": 0, "expanded": 0})
+        # the emitted end position of every block (counts of ``resolution``, reference frame):
+        # what the control reads back from the written words (a linearised arc's last segment
+        # ends at its end point); the caller can verify from these without re-reading the text
         info.update(deferred=int(N - kn.sum()), linearised=int(len(lin)), compensated=kn,
-                    cycles_kept=rep["kept"], cycles_expanded=rep["expanded"])
+                    cycles_kept=rep["kept"], cycles_expanded=rep["expanded"],
+                    emitted=new, emitted_resolution=res)
     ed = ctx.edits
     text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
     added = np.zeros(N, np.int64)

@@ -116,8 +116,8 @@ def format_counts(counts: np.ndarray, decimals: int) -> tuple[np.ndarray, np.nda
 
 def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
            src: np.ndarray, src_off: np.ndarray, src_len: np.ndarray,
-           chunk_bytes: int = 1 << 24, progress=None) -> bytes:
-    """Apply edits to a byte buffer.
+           chunk_bytes: int = 1 << 24, progress=None) -> bytes | bytearray:
+    """Apply edits to a byte buffer (bytes, or a bytearray from the compiled splice).
 
     Edit i removes ``orig[pos[i]:stop[i]]`` (nothing if equal) and puts ``src[src_off[i]:
     src_off[i] + src_len[i]]`` there.  Edits at one position are applied in ``sub`` order (then
@@ -172,6 +172,13 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
         if progress is not None:
             progress(len(res), len(res))
         return res
+    total = n_orig - int((stop - pos).sum()) + int(src_len.sum())
+    from ._ctok import splice as c_splice
+    res = c_splice(out, src, pos, stop, src_off, src_len, total)
+    if res is not None:                       # compiled: one pass of memcpy
+        if progress is not None:
+            progress(total, total)
+        return res                            # a bytearray (bytes-like, no extra copy)
     buf = np.concatenate([out, src])
     p_off = np.empty(npieces, np.int64)
     p_len = np.empty(npieces, np.int64)

@@ -1,0 +1,177 @@
+/* Compiled text helpers of mtcomp.gcode: a one-pass tokenizer (the twin of
+ * tokens._tokenise, tokens._comment_spans and textops.parse_decimals) and the byte splice of
+ * textops.splice.  The Python code is the reference and the fallback; the parity tests hold
+ * the two to the same bytes and the same float bits.
+ *
+ * Input of the tokenizer: the program bytes with comments, '%' lines and block-delete slashes
+ * already blanked.  Written by hand because no library tokenises a byte buffer into address
+ * words in one pass.  Plain C99, no Python headers: loaded through ctypes.
+ */
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+static inline int is_letter(uint8_t c) { return (uint8_t)((c | 32) - 97) < 26; }
+/* + - . and digits (43..57 without ',' and '/') */
+static inline int is_num(uint8_t c) { return (uint8_t)(c - 43) < 15 && c != 44 && c != 47; }
+static inline int is_blank(uint8_t c) { return c == 32 || (uint8_t)(c - 9) < 5; }
+
+static const double POW10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
+                                 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+
+/* Number of letters and of maximal runs of number characters. */
+void mtc_count(const uint8_t *c, int64_t n, int64_t *n_letters, int64_t *n_runs)
+{
+    int64_t nl = 0, nr = 0;
+    int prev = 0;
+    for (int64_t i = 0; i < n; i++) {
+        uint8_t ch = c[i];
+        int num = is_num(ch);
+        nl += is_letter(ch);
+        nr += num & !prev;
+        prev = num;
+    }
+    *n_letters = nl;
+    *n_runs = nr;
+}
+
+/* Value of the number text c[s:e] (validated or not: garbage in, some finite or NaN value out;
+ * the caller validates before using it).  Correctly rounded: an exact integer mantissa of at
+ * most 15 digits divided once by an exact power of ten, as parse_decimals does; longer numbers
+ * through strtod (correctly rounded in glibc and musl, as Python's float()). */
+static double number(const uint8_t *c, int64_t s, int64_t e, int64_t dot)
+{
+    int neg = c[s] == '-';
+    int64_t i0 = s + (c[s] == '-' || c[s] == '+');
+    int64_t iend = dot >= 0 ? dot : e;
+    int64_t ilen = iend - i0, flen = dot >= 0 ? e - dot - 1 : 0;
+    if (ilen <= 8 && flen <= 8 && ilen + flen <= 15) {
+        uint64_t m = 0;
+        for (int64_t k = i0; k < iend; k++) m = m * 10 + (uint64_t)(c[k] - '0');
+        for (int64_t k = iend + 1; k < e; k++) m = m * 10 + (uint64_t)(c[k] - '0');
+        double v = (double)m / POW10[flen];
+        return neg ? -v : v;
+    }
+    char small[64];
+    char *buf = (e - s < 63) ? small : (char *)malloc((size_t)(e - s + 1));
+    if (!buf) return 0.0 / 0.0;
+    memcpy(buf, c + s, (size_t)(e - s));
+    buf[e - s] = 0;
+    double v = strtod(buf, NULL);
+    if (buf != small) free(buf);
+    return v;
+}
+
+/* Letters (position, 0-based line), number runs [start, end) with the position of their point
+ * (-1: none; the last one if several), whether they hold more than one point, and their value;
+ * *sign_at: first '+'/'-' preceded by a number character (-1: none); *bad_at: first byte that is
+ * no letter, number character or blank (-1: none); dup_line[26]: per letter a-z the first
+ * 0-based line where it appears twice (-1: none).  Arrays sized by mtc_count; positions are
+ * int32 (the caller refuses programs of 2 GB and more). */
+void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int32_t *rs,
+                  int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
+                  int64_t *bad_at, int32_t *dup_line)
+{
+    int64_t nl = 0, nr = -1, line = 0;
+    uint32_t seen = 0;                  /* letters of the current line */
+    for (int k = 0; k < 26; k++) dup_line[k] = -1;
+    int64_t sg = -1, bad = -1;
+    int in_run = 0;
+    for (int64_t i = 0; i < n; i++) {
+        uint8_t ch = c[i];
+        if (is_num(ch)) {
+            if (!in_run) {
+                nr++;
+                rs[nr] = (int32_t)i;
+                dot[nr] = -1;
+                two[nr] = 0;
+                in_run = 1;
+            } else if ((ch == '-' || ch == '+') && sg < 0) {
+                sg = i;
+            }
+            if (ch == '.') {
+                if (dot[nr] >= 0) two[nr] = 1;
+                dot[nr] = (int32_t)i;
+            }
+            continue;
+        }
+        if (in_run) {
+            re[nr] = (int32_t)i;
+            value[nr] = number(c, rs[nr], i, dot[nr]);
+            in_run = 0;
+        }
+        if (is_letter(ch)) {
+            uint32_t bit = 1u << ((ch | 32) - 97);
+            if ((seen & bit) && dup_line[(ch | 32) - 97] < 0) dup_line[(ch | 32) - 97] = (int32_t)line;
+            seen |= bit;
+            lp[nl] = (int32_t)i;
+            wline[nl] = (int32_t)line;
+            nl++;
+        } else if (ch == '\n') {
+            line++;
+            seen = 0;
+        } else if (bad < 0 && !is_blank(ch)) {
+            bad = i;
+        }
+    }
+    if (in_run) {
+        re[nr] = (int32_t)n;
+        value[nr] = number(c, rs[nr], n, dot[nr]);
+    }
+    *sign_at = sg;
+    *bad_at = bad;
+}
+
+/* Comments become blanks in `code` (a copy of `d`): "( ... )" closed on its line without a
+ * nested '(' (an unclosed one stays, to be reported), ';' to the end of the line, and lines
+ * starting with '%' (`first`: where the first line starts, after a byte-order mark).  The same
+ * spans as tokens._comment_spans.  Returns the number of comments. */
+int64_t mtc_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int64_t first)
+{
+    int64_t i = 0, count = 0;
+    while (i < n) {
+        uint8_t ch = d[i];
+        if (ch == '(') {
+            int64_t j = i + 1;
+            while (j < n && d[j] != ')' && d[j] != '(' && d[j] != '\n') j++;
+            if (j < n && d[j] == ')') {
+                memset(code + i, 32, (size_t)(j + 1 - i));
+                count++;
+                i = j + 1;
+                continue;
+            }
+        } else if (ch == ';' || (ch == '%' && (i <= first || d[i - 1] == '\n'))) {
+            int64_t j = i;
+            while (j < n && d[j] != '\n') j++;
+            memset(code + i, 32, (size_t)(j - i));
+            count++;
+            i = j;
+            continue;
+        }
+        i++;
+    }
+    return count;
+}
+
+/* Splice: out = orig with the m edits applied (sorted by position, removed ranges not
+ * overlapping, checked by the caller): before edit i the original bytes up to pos[i], then
+ * src[src_off[i] : src_off[i] + src_len[i]]; orig[pos[i]:stop[i]] is dropped.  `out` holds
+ * the exact result size.  The compiled twin of the gather in textops.splice. */
+void mtc_splice(const uint8_t *orig, int64_t n_orig, const uint8_t *src, const int64_t *pos,
+                const int64_t *stop, const int64_t *src_off, const int64_t *src_len, int64_t m,
+                uint8_t *out)
+{
+    int64_t prev = 0, o = 0;
+    for (int64_t i = 0; i < m; i++) {
+        if (pos[i] > prev) {
+            memcpy(out + o, orig + prev, (size_t)(pos[i] - prev));
+            o += pos[i] - prev;
+        }
+        if (src_len[i] > 0) {
+            memcpy(out + o, src + src_off[i], (size_t)src_len[i]);
+            o += src_len[i];
+        }
+        if (stop[i] > prev) prev = stop[i];
+    }
+    if (n_orig > prev) memcpy(out + o, orig + prev, (size_t)(n_orig - prev));
+}

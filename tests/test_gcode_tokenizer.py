@@ -1,0 +1,185 @@
+"""The compiled one-pass tokenizer (core/gcode/_tok.c) against the numpy tokenizer it stands in
+for: the same program arrays to the bit and the same error messages, on the corpus, on mutated
+corpus programs and on generated blocks (issue 16 item 4, issue 20)."""
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, seed, settings
+from hypothesis import strategies as st
+
+from mtcomp import InputError, gcode
+from mtcomp.gcode import _ctok
+from mtcomp.gcode.textops import parse_decimals
+from mtcomp.gcode.tokens import _tokenise
+
+AXES = ("X", "Y", "Z", "B", "C")
+CORPUS_FILES = sorted((Path(__file__).parent / "data" / "nc").iterdir())
+CORPUS = [gcode.read_program(p) for p in CORPUS_FILES]
+ALPHABET = "GXYZBCIJKRFNMSTPHQ0123456789.-+ ()%;/#[]=\n\r\t\ufeffgxyz\u00e9"
+
+pytestmark = pytest.mark.skipif(_ctok.load() is None, reason="no C compiler: numpy tokenizer only")
+
+
+def _parse(text, python: bool, monkeypatch):
+    if python:
+        monkeypatch.setenv("MTCOMP_TOKENIZER", "python")
+    else:
+        monkeypatch.delenv("MTCOMP_TOKENIZER", raising=False)
+    try:
+        return gcode.parse(text, axes=AXES, filename="p.nc")
+    except InputError as exc:
+        return str(exc)
+
+
+def _same(text, monkeypatch):
+    a, b = _parse(text, False, monkeypatch), _parse(text, True, monkeypatch)
+    if isinstance(a, str) or isinstance(b, str):
+        assert a == b
+        return a
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray):
+            assert x.dtype == y.dtype and x.shape == y.shape, f.name
+            if x.dtype.kind == "f":
+                assert np.array_equal(x.view(np.int64 if x.itemsize == 8 else np.int32),
+                                      y.view(np.int64 if y.itemsize == 8 else np.int32)), f.name
+            else:
+                assert np.array_equal(x, y), f.name
+        else:
+            assert x == y, f.name
+    return a
+
+
+@pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
+def test_corpus_same_program_arrays(i, monkeypatch):
+    assert not isinstance(_same(CORPUS[i], monkeypatch), str)
+
+
+def test_tokens_and_values_bit_for_bit_with_long_and_odd_numbers():
+    text = ("G1 X123456789.123456789 Y-0.000000000000001 Z+12. B.5 C-0\n"
+            "X1e5 Y1..2 Z-+1 B99999999999999999999999 C0.1234567890123456789\n"
+            "X12-3 N5- G-.\n").encode()
+    code = np.frombuffer(text, np.uint8).copy()
+    ls = np.concatenate(([0], np.flatnonzero(code == 10) + 1))
+    c = _ctok.tokenise(code)
+    p = _tokenise(code, ls)
+    for k in range(6):
+        assert np.array_equal(c[k], p[k]), k
+    assert c[6:8] == p[6:8] and c[6] >= 0
+    # values of the runs that are numbers (the caller refuses the others before using them)
+    good = [i for i in range(len(c[1])) if re.fullmatch(rb"[+-]?(\d+\.?\d*|\.\d+)", text[c[1][i]:c[2][i]])]
+    ref = parse_decimals(code, p[1][good], p[2][good], p[3][good])
+    assert np.array_equal(c[8][good].view(np.int64), ref.view(np.int64))
+    assert c[8][good][1] == float("123456789.123456789") and np.signbit(c[8][good][5])
+
+
+@seed(16)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.sampled_from(range(len(CORPUS))), st.lists(
+    st.tuples(st.integers(0, 10_000), st.sampled_from(["ins", "del", "rep"]), st.sampled_from(ALPHABET)),
+    min_size=1, max_size=4))
+def test_mutated_corpus_programs_same_result(i, edits):
+    text = CORPUS[i]
+    for pos, kind, ch in edits:
+        pos %= len(text) + 1
+        if kind == "ins":
+            text = text[:pos] + ch + text[pos:]
+        elif kind == "del":
+            text = text[:pos] + text[pos + 1:]
+        else:
+            text = text[:pos] + ch + text[pos + 1:]
+    with pytest.MonkeyPatch.context() as mp:
+        _same(text, mp)
+
+
+_num = st.one_of(st.integers(-10**12, 10**12).map(str),
+                 st.decimals(-999, 999, places=3, allow_nan=False).map(lambda d: f"{d}"),
+                 st.floats(-1e6, 1e6).map(lambda v: f"{v:.12f}"),
+                 st.integers(0, 99).map(lambda v: f"{v}."), st.integers(0, 999).map(lambda v: f".{v}"),
+                 st.text("0123456789.-+", min_size=1, max_size=20))
+_word = st.tuples(st.sampled_from("XYZBCxyzGFI"), st.sampled_from(["", " "]), _num).map("".join)
+
+
+@seed(17)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.lists(st.one_of(_word, st.sampled_from(["G1", "G91", "(c)", "; x", "/", "%"])),
+                         min_size=1, max_size=6), min_size=1, max_size=10),
+       st.sampled_from(["\n", "\r\n"]))
+def test_generated_blocks_same_result(blocks, eol):
+    with pytest.MonkeyPatch.context() as mp:
+        _same(eol.join(" ".join(b) for b in blocks) + eol, mp)
+
+
+@pytest.mark.parametrize("text", [
+    "(a)G1 X1(b) ; c (d)\n%x\n G1 (unclosed\n((nested) X2)\n; (\n(a\n)\n%\n",
+    "\ufeff%\nG1 X1 % not a line start\n(x(y)z)\n(;)X3;(\n",
+    "", "(", ";", "%", "G1 X1 (no newline at the end)"])
+def test_comment_blanking_same_spans(text):
+    from mtcomp.gcode.tokens import _comment_spans
+    data = text.encode("utf-8")
+    b = np.frombuffer(data, np.uint8)
+    bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    ref = b.copy()
+    for s, e in _comment_spans(data, b, first=bom):
+        ref[s:e] = 32
+    got = b.copy()
+    assert _ctok.blank_comments(b, got, bom)
+    assert got.tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize("text", ["G1 X1 Y2 Y3\nX1 X2\n", "X1 X2\nG1 Y1 Y2\n", "G1 G90 M3 M8 X1\nB1 b2\n",
+                                  "x1 X2\n", "G1 X1\nY1 Z1\nZ2 Z3 Y4 Y5\n"])
+def test_duplicate_address_same_message(text, monkeypatch):
+    msg = _same(text, monkeypatch)
+    if "G90 M3 M8 X1" in text:
+        assert msg.endswith("address B appears twice in one block")
+    else:
+        assert "appears twice in one block" in msg
+
+
+def test_without_a_compiler_the_numpy_tokenizer_reads_the_program(tmp_path):
+    import subprocess
+    import sys
+    code = ("from mtcomp import gcode; from mtcomp.gcode import _ctok; "
+            "p = gcode.parse('G1 X1.5 Y-2 (c) Z3\\n', axes=('X', 'Y', 'Z')); "
+            "print(_ctok.load() is None, p.position.tolist())")
+    env = {**__import__("os").environ, "MTCOMP_CACHE_DIR": str(tmp_path), "CC": str(tmp_path / "no-cc")}
+    env.pop("MTCOMP_TOKENIZER", None)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split("\n")[0] == "True [[1.5, -2.0, 3.0]]"
+
+
+@seed(18)
+@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.binary(min_size=0, max_size=3000), st.lists(
+    st.tuples(st.integers(0, 3000), st.integers(0, 4), st.integers(0, 3), st.binary(max_size=6)),
+    min_size=1, max_size=400))
+def test_splice_same_bytes(orig, raw):
+    """Many edits (so that splice takes its gather branch): compiled and numpy give the same."""
+    from mtcomp.gcode.textops import splice
+    o = np.frombuffer(orig, np.uint8)
+    # non-overlapping removals: sort the starts, clip each range before the next start
+    raw = sorted((min(p, len(orig)), w, s, t) for p, w, s, t in raw)
+    pos, stop, sub, off, ln, src = [], [], [], [], [], b""
+    for k, (p, w, s, t) in enumerate(raw):
+        nxt = raw[k + 1][0] if k + 1 < len(raw) else len(orig)
+        pos.append(p)
+        stop.append(min(p + w, nxt) if w else p)
+        sub.append(s)
+        off.append(len(src))
+        ln.append(len(t))
+        src += t
+    args = (o, np.array(pos), np.array(stop), np.array(sub), np.frombuffer(src, np.uint8),
+            np.array(off), np.array(ln))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("MTCOMP_TOKENIZER", raising=False)
+        a = splice(*args)
+        mp.setenv("MTCOMP_TOKENIZER", "python")
+        b = splice(*args)
+    assert a == b
