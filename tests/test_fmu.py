@@ -33,27 +33,7 @@ from mtcomp.machine import load_machine  # noqa: E402
 PRESETS = ("robonano-ui", "robonano-a0ib", "vmc-moving-column")
 
 
-@pytest.fixture(autouse=True)
-def live_fmpy_logger():
-    """fmpy's default callbacks go through a C proxy to the Python logger registered last, by
-    any `simulate_fmu(logger=...)`; that logger dies when the call returns, and the next FMU that
-    logs through the defaults crashes the process (fmpy 0.3.32).  Point the proxy at a logger that
-    lives as long as the process, before and after every test here."""
-    from ctypes import byref
-    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-    from fmpy.logging import addLoggerProxy
-    if not hasattr(fmpy, "_mtcomp_test_logger"):
-        fmpy._mtcomp_test_logger = fmi2CallbackLoggerTYPE(lambda env, name, status, category, message: None)
-
-    def arm():   # a fresh struct each time: the proxy replaces the struct's logger by itself
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmpy._mtcomp_test_logger
-        addLoggerProxy(byref(cb))
-        fmpy._mtcomp_test_callbacks = cb
-
-    arm()
-    yield
-    arm()
+from _fmpy import binary_cache, live_fmpy_logger  # noqa: E402,F401 (autouse fixtures of the FMU tests)
 
 # A 5-axis program for the B-C table machine: simultaneous moves of X Y Z B C, an arc, a rapid.
 PROGRAM_5AX = """%
@@ -86,20 +66,7 @@ def random_errors(machine, rng) -> ErrorSet:
                     GeometricErrors(tables, loc))
 
 
-@pytest.fixture(scope="session", autouse=True)
-def binary_cache(tmp_path_factory):
-    """A compiled-binary cache of this session only: each distinct source set is compiled once
-    here (so the compilers are really exercised) and reused by the other builds."""
-    old = os.environ.get("MTCOMP_CACHE_DIR")
-    os.environ["MTCOMP_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))
-    yield Path(os.environ["MTCOMP_CACHE_DIR"])
-    if old is None:
-        os.environ.pop("MTCOMP_CACHE_DIR", None)
-    else:
-        os.environ["MTCOMP_CACHE_DIR"] = old
-
-
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def built(tmp_path_factory, binary_cache):
     """Compensators for every preset (random errors), machine FMUs; one built through CMake."""
     d = tmp_path_factory.mktemp("fmus")

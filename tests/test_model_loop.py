@@ -130,6 +130,11 @@ def test_cli_loop_with_provenance_sidecar(tmp_path):
     run("diagnose", "--sim", "sim.csv", "--rec", "train.csv", "--json", "d.json", "--quiet")
     out = run("model", "export", "d.json", "--sim", "sim.csv", "-o", "model")
     assert "backlash.X" in out
+    # the same in one step: diagnose --model writes what export writes from the JSON
+    out = run("diagnose", "--sim", "sim.csv", "--rec", "train.csv", "--model", "model2")
+    assert "backlash.X" in out
+    for name in ("dynamics.toml", "machine.ssv", "model.toml"):
+        assert (tmp_path / "model2" / name).read_text() == (tmp_path / "model" / name).read_text()
     out = run("model", "resimulate", "model", "--rec", "rec.csv", "--sim", "sim.csv", "--diagnosis", "d.json",
               "--prune", "--heldout-from", t_split, "--plot", "rs.png", "--json", "rs.json")
     assert "kept backlash on x" in out

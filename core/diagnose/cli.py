@@ -26,6 +26,13 @@ def register(subparsers) -> None:
                    help="treat this column as an input even if both files have it (repeatable)")
     p.add_argument("--unit", action="append", metavar="COL=UNIT",
                    help="unit of a column whose header has none, e.g. --unit vx=mm/s (repeatable)")
+    p.add_argument("--model", metavar="OUTDIR",
+                   help="also write the fitted effects in the machine model's formats (errors TOML, "
+                        "machine dynamics, SSP parameter set) into OUTDIR, as `mtcomp model export` "
+                        "does (docs/model-loop.md)")
+    p.add_argument("--machine", metavar="PRESET|machine.toml",
+                   help="machine of the model written by --model (default: from SIM's provenance "
+                        "sidecar, written by `mtcomp model simulate`)")
     p.add_argument("--quiet", action="store_true", help="do not print the summary")
     p.set_defaults(func=run)
 
@@ -41,8 +48,17 @@ def run(args: argparse.Namespace) -> int:
         if not sep or not col.strip() or not unit.strip():
             raise InputError(f"--unit {item!r}: expected COL=UNIT, e.g. vx=mm/s", field="--unit")
         units[col.strip()] = unit.strip()
-    res = diagnose(args.sim, args.rec, outputs=args.output, inputs=args.input, units=units,
-                   )
+    machine = step = None
+    if args.model:   # resolve the machine before the (long) diagnosis, so a missing one fails fast
+        from ..model.simulate import provenance_path, read_provenance
+        machine = args.machine
+        if provenance_path(args.sim).is_file():
+            prov = read_provenance(args.sim)
+            machine, step = machine or prov.machine, prov.step
+        if machine is None:
+            raise InputError("--model needs the machine: give --machine (SIM has no provenance "
+                             "sidecar)", field="--machine")
+    res = diagnose(args.sim, args.rec, outputs=args.output, inputs=args.input, units=units)
     if args.json:
         atomic_write(args.json, res.to_json() + "\n")
     if args.plot:
@@ -53,6 +69,11 @@ def run(args: argparse.Namespace) -> int:
             plot_name = os.path.relpath(os.path.abspath(args.plot),
                                         os.path.dirname(os.path.abspath(args.report)))
         atomic_write(args.report, res.report(plot_name))
+    if args.model:
+        from ..model.export import export_model
+        ex = export_model(res, machine, args.model, step=step)
     if not args.quiet:
         print(res.summary())
+        if args.model:
+            print(ex.summary())
     return 0
