@@ -55,3 +55,13 @@ def test_packaging_metadata():
                for r in meta["build-system"]["requires"])  # SPDX expressions need setuptools >= 77
     assert "py.typed" in meta["tool"]["setuptools"]["package-data"]["mtcomp"]
     assert (ROOT / "core" / "py.typed").exists()
+
+
+def test_readme_python_example_runs(monkeypatch):
+    """The README's API example runs as printed (it once used an undefined `q_programmed`), from
+    the checkout's root where its relative paths point."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    m = re.search(r"```python\n(.*?)```", text, re.S)
+    assert m, "README.md has no python example"
+    monkeypatch.chdir(ROOT)
+    exec(compile(m.group(1), "README.md", "exec"), {})
