@@ -483,7 +483,7 @@ def load_measurement_set(path: str | os.PathLike) -> MeasurementSet:
             if not isinstance(off, list) or any(isinstance(x, bool) for x in off):
                 raise TypeError
             off = tuple(float(x) for x in off)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):   # OverflowError: an integer beyond float range
             off = ()
         if len(off) != 3 or not np.all(np.isfinite(off)):
             raise InputError(f"offset must be 3 numbers in mm, got {r.get('offset')!r}", path,

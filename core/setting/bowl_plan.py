@@ -239,7 +239,11 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
                        for r in raw_dirs)):
         raise InputError(f"expected a list of [x, y, z] unit vectors, got {raw_dirs!r:.60}", file,
                          field="directions")
-    dirs = np.asarray(raw_dirs, float)
+    try:
+        dirs = np.asarray(raw_dirs, float)
+    except OverflowError:   # an integer beyond float range (TOML integers are unbounded)
+        raise InputError("expected unit vectors, got a number beyond float range", file,
+                         field="directions") from None
     norms = np.linalg.norm(dirs, axis=1)
     if np.any(np.abs(norms - 1) > 1e-6):
         raise InputError("every direction must be a unit vector", file, field="directions")

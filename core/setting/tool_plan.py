@@ -402,7 +402,10 @@ def load_plan(path: str | os.PathLike) -> Plan:
         if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in flat):
             raise InputError(f"expected {'a list of ' + str(n) + ' numbers' if n else 'a number'}, got {x!r}",
                              path, field=fld)
-        a = np.asarray(x, float)
+        try:
+            a = np.asarray(x, float)
+        except OverflowError:   # an integer beyond float range (TOML integers are unbounded)
+            a = np.full(np.shape(x), np.inf)
         if (n is not None and a.shape != (n,)) or (n is None and a.shape != ()) or not np.all(np.isfinite(a)) \
                 or np.any(np.abs(a) > 1e6):
             raise InputError(f"expected {n or 1} finite number(s) of at most 1e6 (mm, deg), got {x!r}", path,

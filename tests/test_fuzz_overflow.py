@@ -1,0 +1,49 @@
+"""Integers beyond float range in the plan and measurement-set TOML files (TOML integers are
+unbounded): each is an InputError naming the file, never an OverflowError traceback.  The three
+reproducers are what benchmarks/fuzz.py found (300 inputs per surface, seed 7)."""
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from mtcomp._io import InputError
+from mtcomp.cli import main
+
+HUGE = "1" * 400
+
+
+def _mutate(path, pattern):
+    """Replace the first number after `pattern` in the file by a 400-digit integer."""
+    text = path.read_text()
+    new, n = re.subn(pattern + r"(\s*)-?[0-9.]+(e-?[0-9]+)?", lambda m: m.group(0)[:m.end(1) - m.start(0)] + HUGE,
+                     text, count=1)
+    assert n == 1, pattern
+    path.write_text(new)
+
+
+def test_tool_setting_plan(tmp_path):
+    from mtcomp.setting.tool_plan import load_plan
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "tp"), "--no-png"]) == 0
+    plan = tmp_path / "tp" / "plan.toml"
+    _mutate(plan, r"eu = \[")
+    with pytest.raises(InputError, match="plan.toml"):
+        load_plan(plan)
+
+
+def test_workpiece_plan(tmp_path):
+    from mtcomp.setting.bowl_plan import load_plan
+    plan = tmp_path / "wp.toml"
+    assert main(["workpiece-setting", "plan", "-o", str(plan)]) == 0
+    _mutate(plan, r"directions = \[\s*\[")
+    with pytest.raises(InputError, match=r"wp.toml \[directions\]"):
+        load_plan(plan)
+
+
+def test_geometric_measurement_set(tmp_path):
+    from mtcomp.geometric.tables import load_measurement_set
+    s = tmp_path / "set.toml"
+    assert main(["geometric", "simulate", "-o", str(s)]) == 0
+    _mutate(s, r"offset = \[")
+    with pytest.raises(InputError, match=r"set.toml \[run\[0\]\.offset\]"):
+        load_measurement_set(s)
