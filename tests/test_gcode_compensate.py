@@ -319,10 +319,9 @@ def _insert_header_by_lines(text, lines):
         at += 1
     if at < len(src) and re.match(r"\s*[Oo]\d|\s*:\d", src[at]):
         at += 1
-    if at == 0:
-        return "".join(c + eol for c in comments) + text, 0, len(comments)
-    lead = "" if src[at - 1].endswith("\n") else eol
-    return "".join(src[:at]) + lead + "".join(c + eol for c in comments) + "".join(src[at:]), at, len(comments)
+    if at and not src[at - 1].endswith("\n"):   # the program ends there: the header goes before
+        at -= 1
+    return "".join(src[:at]) + "".join(c + eol for c in comments) + "".join(src[at:]), at, len(comments)
 
 
 @pytest.mark.parametrize("text", ["", "%", "%\n", "\n\n%\nO1\nG1 X1\n", "O1", "%\nO0042", "  \n%\r\n:1\r\nG0\r\n",
@@ -330,3 +329,15 @@ def _insert_header_by_lines(text, lines):
 def test_insert_header_reads_only_the_top_lines_same_placement(text):
     lines = ["MTCOMP COMPENSATED PROGRAM: X", "MACHINE m"]
     assert insert_header(text, lines) == _insert_header_by_lines(text, lines)
+
+
+@pytest.mark.parametrize("text", ["O0001", "%\nO0001", "%\r\nO0001", "\n\nO12", "G0 X1.", "O0001\n",
+                                  "%\nO0001\nG0 X1.\n"])
+def test_provenance_header_strips_back_to_the_program_byte_for_byte(text):
+    """A program ending on its % or O line without a line break got one added under the header
+    (found by benchmarks/fuzz.py, seed 11: 'O0001' came back as 'O0001\\n')."""
+    from mtcomp.gcode.provenance import compensated_line, insert_header, strip_header
+    new, at, added = insert_header(text, ["MTCOMP COMPENSATED PROGRAM: DO NOT COMPENSATE AGAIN",
+                                          "VERSION mtcomp test", "DATE 2026-01-01T00:00:00Z"])
+    assert added == 3 and compensated_line(new) is not None
+    assert strip_header(new) == text

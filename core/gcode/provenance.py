@@ -52,21 +52,25 @@ def insert_header(text: str, lines: list[str]) -> tuple[str, int, int]:
     def line(cut):                                     # the LF-terminated line at `cut`
         j = text.find("\n", cut)
         return text[cut:] if j < 0 else text[cut:j + 1]
-    at = cut = 0
+    at = cut = last = 0
     while cut < n and not line(cut).strip():
-        cut += len(line(cut))
+        last = len(line(cut))
+        cut += last
         at += 1
     if cut < n and line(cut).strip().startswith("%"):
-        cut += len(line(cut))
+        last = len(line(cut))
+        cut += last
         at += 1
     if cut < n and _PROGRAM_NUMBER_RE.match(line(cut)):
-        cut += len(line(cut))
+        last = len(line(cut))
+        cut += last
         at += 1
-    if at == 0:
-        block = "".join(c + eol for c in comments)
-        return block + text, 0, len(comments)
-    lead = "" if text[cut - 1] == "\n" else eol
-    block = lead + "".join(c + eol for c in comments)
+    if at and text[cut - 1] != "\n":
+        # the program ends on that line without a line break: the header goes before it, so
+        # that strip_header gives the program back byte for byte (no line break is added)
+        cut -= last
+        at -= 1
+    block = "".join(c + eol for c in comments)
     return text[:cut] + block + text[cut:], at, len(comments)
 
 
