@@ -186,8 +186,10 @@ def _emitted_vs_reread(text, machine, errors, chordal_tol=None, **kw):
     """The positions `compensate` verifies (taken from the emitted values) against the written
     program read back by the parser, block by block."""
     from mtcomp.commands import emitted_positions
+    from mtcomp.gcode import flow
     res = {a.name: a.resolution for a in machine.axes}
-    prog = gcode.parse(text, axes=machine.axis_names, resolution=res, **kw)
+    fl = flow.expand(text)                       # subprograms: the blocks as they run
+    prog = gcode.parse(fl.expanded if fl else text, axes=machine.axis_names, resolution=res, **kw)
     info = {}
     new_text, out_line = gcode.rewrite_with_lines(
         prog, lambda q: __import__("mtcomp.kinematics").kinematics.retarget(machine, q, errors),
