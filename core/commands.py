@@ -207,6 +207,10 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                        convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
                        work_offsets=work_offsets, arc_tol=arc_tol)
     n_blocks = len(prog)
+    if chordal_tol is None and np.asarray(prog.inch).any():
+        # inch programs are written one decimal finer in inch: 2.54 times the mm resolution
+        res_lin = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
+        tol = max(tol, 2 * 2.54 * res_lin)
     _travel_check(machine, prog, filename)
     hint = _three_axis_hint(machine, prog)
     calls = []

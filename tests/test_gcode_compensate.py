@@ -332,3 +332,12 @@ def _insert_header_by_lines(text, lines):
 def test_insert_header_reads_only_the_top_lines_same_placement(text):
     lines = ["MTCOMP COMPENSATED PROGRAM: X", "MACHINE m"]
     assert insert_header(text, lines) == _insert_header_by_lines(text, lines)
+
+
+def test_inch_arcs_with_the_default_chordal_tolerance():
+    # inch words are written one decimal finer (0.254 µm on a 0.1 µm machine): the default
+    # tolerance follows, rather than refusing every inch program with arcs
+    m = load_machine("vmc-moving-column")
+    text = "G20 G90 G0 X0 Y0 Z1.\nG1 Z0 F10.\nG2 X1. Y0 I0.5 J0\nG0 Z1.\n"
+    out, rep = compensate_program(text, m, ErrorSet(geometric=GeometricErrors(location={"EB0Z": 2e-4})))
+    assert rep["after_max"] < 1e-4 and out.startswith("G20")

@@ -123,3 +123,26 @@ def test_notes_name_source_lines_not_expansion_lines():
     t = "G90 G0 X0 Y0 Z5.\nM98 P100 L3\nG28 G91 Z0.\nM30\nO100\nG91 G0 X1.\nG90\nM99\n"
     _, rep = compensate_program(t, m, ErrorSet(ToolSetting((0.001, 0, 0))))
     assert any(n.startswith("G28 on line(s) 3:") for n in rep["notes"]), rep["notes"]
+
+
+def test_cli_follows_subprograms_and_says_so(tmp_path):
+    import subprocess
+    import sys
+
+    from mtcomp.errors import save_errors
+    err = save_errors(ErrorSet(ToolSetting((0.002, -0.001, 0.0005))), tmp_path / "e.toml")
+    out = tmp_path / "o.nc"
+    r = subprocess.run([sys.executable, "-m", "mtcomp", "compensate", str(NC / "haas_local_sub.nc"),
+                        "-m", "vmc-moving-column", "-e", str(err), "-o", str(out),
+                        "--start", "X=0,Y=0,Z=50"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "each subprogram compensated once" in r.stdout
+    text = out.read_text()
+    assert "M97 P100 L3" in text and "(MTCOMP COMPENSATED PROGRAM" in text
+    assert flow.expand(text, "o").calls == 4
+    bad = tmp_path / "b.nc"
+    bad.write_text("G0 X1.\nM98 P9\nM30\n")
+    r = subprocess.run([sys.executable, "-m", "mtcomp", "compensate", str(bad), "-m",
+                        "vmc-moving-column", "-e", str(err)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and f"{bad}:2: M98 P9: program O9 is not in this file" in r.stderr
+    assert "Traceback" not in r.stderr
