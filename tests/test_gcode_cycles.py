@@ -156,3 +156,8 @@ def test_corpus_pecks_under_a_squareness_are_written_out_and_checked(name):
     assert rep["cycles_expanded"] > 0 and rep["cycles_kept"] == 0
     assert rep["after_max"] < 1e-4 < rep["before_max"]
     assert not gcode.parse(out, axes=m.axis_names).cycle.any()
+
+
+def test_haas_variable_peck_words_are_refused_by_name():
+    with pytest.raises(InputError, match=r":2: I word in canned cycle G83 \(Haas variable peck"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG99 G83 X5. Z-9. R2. I2. J0.5 F100\nG80\n", axes=XYZ)
