@@ -146,3 +146,28 @@ def test_cli_follows_subprograms_and_says_so(tmp_path):
                         "vmc-moving-column", "-e", str(err)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and f"{bad}:2: M98 P9: program O9 is not in this file" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_hole_pattern_subprogram_under_two_cycles():
+    # a common Fanuc pattern: the cycle is set in the main program, the hole positions are a
+    # subprogram run once per tool
+    t = ("G90 G0 X0 Y0 Z20.\nG99 G81 Z-3. R2. F100\nM98 P500\nG80\nG0 Z20.\n"
+         "G98 G83 Z-12. R2. Q4. F80\nM98 P500\nG80\nG0 Z20.\nM30\nO500\nX5. Y5.\nX10.\nY10.\nM99\n")
+    fl = flow.expand(t, "t")
+    p = gcode.parse(fl.expanded, axes=AXES)
+    # the cycle block itself drills at the current position (X0 Y0), as Fanuc and Haas do
+    assert p.cycle.tolist().count(81) == 4 and p.cycle.tolist().count(83) == 4
+    mode, out = flow.fold(fl, gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003]))
+    assert mode == "once" and "G99 G81 Z-2.997000 R2.003000 F100" in out
+    assert "\nX5.001000 Y5.002000\n" in out
+    tilt = lambda q: q + 1e-3 * q[:, [2, 2, 2]] * [1, 0, 0]   # noqa: E731
+    info = {}
+    mode, out = flow.fold(fl, gcode.rewrite(p, tilt, info=info))
+    assert mode == "expanded" and info["cycles_expanded"] == 8
+    o = gcode.parse(out, axes=AXES)
+    assert not o.cycle.any() and flow.expand(out) is None
+    # the pecks of the second run reach the bottom once per hole (the first where the first
+    # run left the tool), X compensated there
+    deep = o.position[o.position[:, 2] < -11.9]
+    assert np.allclose(deep[:, 0], np.array([10, 5, 10, 10]) - 0.012)
+    assert np.allclose(deep[:, 1], [10, 5, 5, 10]) and np.allclose(deep[:, 2], -12.0)
