@@ -16,6 +16,7 @@ Fanuc/Haas program flow.
 """
 from __future__ import annotations
 
+import bisect
 import re
 from dataclasses import dataclass
 
@@ -83,24 +84,41 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
     if not has_flow(text):
         return None
     lines = _lines(text)
-    info = [_words(ln) for ln in lines]
-    mcodes = [{v for a, v, _, _ in w if a == "M"} for w in info]
-    if not any(m & {97.0, 98.0, 99.0} for m in mcodes):
+    # only lines with an M or O word matter for the flow (N labels are looked up when an M97
+    # needs one): read the words of those alone
+    starts = np.cumsum([0] + [len(ln) for ln in lines[:-1]])
+
+    def lines_with(pattern):
+        hits = np.fromiter((m.start() for m in re.finditer(pattern, text)), np.int64)
+        return np.unique(np.searchsorted(starts, hits, side="right") - 1).tolist()
+
+    cand = lines_with(r"[MmOo]")
+    info = dict.fromkeys(range(len(lines)), ())
+    info.update((i, _words(lines[i])) for i in cand)
+    mcodes = dict.fromkeys(range(len(lines)), frozenset())
+    mcodes.update((i, {v for a, v, _, _ in info[i] if a == "M"}) for i in cand)
+    if not any(mcodes[i] & {97.0, 98.0, 99.0} for i in cand):
         return None
+    flow_at = [i for i in cand if mcodes[i] & {97.0, 98.0, 99.0, 30.0, 2.0}]
 
     def fail(what, i):
         raise InputError(what, file=filename, line=int(i) + 1)
 
     if "\x02" in text:
         fail("control character 0x02 in the program", text[:text.index("\x02")].count("\n"))
-    o_at, n_at = {}, {}
-    for i, w in enumerate(info):
-        for a, v, _, _ in w:
+    o_at = {}
+    for i in cand:
+        for a, v, _, _ in info[i]:
             if a == "O":
                 o_at.setdefault(v, i)
-            elif a == "N":
-                n_at.setdefault(v, i)
-    ends = [i for i, m in enumerate(mcodes) if m & {30.0, 2.0}]
+
+    def n_line(n):
+        """The first line with the block number N<n> (None if none)."""
+        for i in lines_with(r"[Nn][ \t]*[+]?0*" + re.escape(f"{n:g}") + r"(?![0-9])"):
+            if any(a == "N" and v == n for a, v, _, _ in _words(lines[i])):
+                return i
+        return None
+    ends = [i for i in flow_at if mcodes[i] & {30.0, 2.0}]
     if ends:
         main_end = ends[0]
     else:
@@ -138,9 +156,10 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
             fail(f"repeat count {count:g} of M{m:.0f}: a whole number >= 1 expected", i)
         n = p[0]
         if m == 97.0:
-            if n not in n_at:
+            t = n_line(n)
+            if t is None:
                 fail(f"M97 P{n:g}: no block N{n:g} in this program", i)
-            return n_at[n], int(count), f"N{n:g}", False
+            return t, int(count), f"N{n:g}", False
         if n not in o_at and n > 9999 and n == int(n) and (n % 10000) in o_at and not rep:
             count, n = n // 10000, n % 10000             # Fanuc: P<repeats><4-digit program>
         if n not in o_at:
@@ -158,6 +177,24 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
                     fail(f"subprogram {stack[-1]} has no M99 (return)", entry)
                 return
             w, m = info[i], mcodes[i]
+            if not (stack and i == entry) and not m & {97.0, 98.0, 99.0, 30.0, 2.0}:
+                # plain lines up to the next flow line (or the main program's end): in bulk
+                k = bisect.bisect_left(flow_at, i)
+                end = flow_at[k] if k < len(flow_at) else len(lines)
+                if not stack:
+                    end = min(end, main_end + 1)
+                if end == len(lines) and not lines[-1].endswith("\n"):
+                    end -= 1
+                if end > i:
+                    out.extend(lines[i:end])
+                    origin.extend(range(i, end))
+                    caller.extend([call] * (end - i))
+                    added.extend([False] * (end - i))
+                    if len(out) > MAX_LINES:
+                        fail(f"the expanded program exceeds {MAX_LINES} lines: calls not "
+                             "followed", call)
+                    i = end
+                    continue
             if m & {97.0, 98.0}:
                 t, count, name, is_o = call_target(i, w)
                 if name in stack:
