@@ -171,3 +171,16 @@ def test_hole_pattern_subprogram_under_two_cycles():
     deep = o.position[o.position[:, 2] < -11.9]
     assert np.allclose(deep[:, 0], np.array([10, 5, 10, 10]) - 0.012)
     assert np.allclose(deep[:, 1], [10, 5, 5, 10]) and np.allclose(deep[:, 2], -12.0)
+
+
+@pytest.mark.parametrize("eol, last", [("\r\n", "\r\n"), ("\n", ""), ("\r\n", "")])
+def test_crlf_and_no_final_newline_fold_byte_exact(eol, last):
+    text = SUB.replace("\n", eol)
+    text = text[:-len(eol)] + last                      # the M99 line may end the file bare
+    fl = flow.expand(text, "s.nc")
+    assert fl.expanded.count("\n") == len(fl.origin)
+    p = gcode.parse(fl.expanded, axes=AXES)
+    assert flow.fold(fl, gcode.rewrite(p, lambda q: q.copy())) == ("once", text)
+    mode, out = flow.fold(fl, gcode.rewrite(p, lambda q: q + [0.01, 0, 0]))
+    assert mode == "once" and out.endswith("M99" + last)
+    assert out.count("\r\n") == (text.count("\r\n"))        # no line ending changed
