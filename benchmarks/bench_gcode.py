@@ -291,6 +291,17 @@ def main(argv=None) -> int:
     say(f"  numpy tokenizer: {c_parse_np:.2f} s cpu ({w_parse_np:.2f} s wall)")
     shift = np.where(np.array([a in "XYZ" for a in axes]), 0.0123, 0.0)
 
+    say("subprogram expansion (the program as the body of a called subprogram) ...")
+    from mtcomp.gcode import flow
+    body = re.sub(r"(?m)^M30\r?$", "", text)          # the generated program's end
+    ftext = ("G90\nM98 P9001\nM30\nO9001\n" + body + ("" if body.endswith("\n") else "\n")
+             + "M99\n")
+    del body
+    fl, w_fl, c_fl = timed(flow.expand, ftext)
+    assert len(fl.origin) == ftext.count("\n")
+    del fl, ftext
+    say(f"  {c_fl:.2f} s cpu ({w_fl:.2f} s wall)")
+
     say("rewrite, translation transform (G-code work only) ...")
     out_t, w_rw, c_rw = timed(gcode.rewrite, prog, lambda q: q + shift)
     say(f"  {c_rw:.2f} s cpu ({w_rw:.2f} s wall)")
@@ -384,6 +395,7 @@ the run, so wall clock is inflated by other processes).
 |---|---|---|
 | parse, compiled tokenizer (best of 3 runs, interleaved with the next row) | {c_parse:.2f} s ({w_parse:.2f} s) | {rate(n, c_parse)} lines/s |
 | parse, numpy tokenizer (`MTCOMP_TOKENIZER=python`, the fallback; best of 3) | {c_parse_np:.2f} s ({w_parse_np:.2f} s) | {rate(n, c_parse_np)} lines/s |
+| subprogram expansion (`gcode.flow.expand`: the program as the body of a subprogram called once) | {c_fl:.2f} s ({w_fl:.2f} s) | {rate(n, c_fl)} lines/s |
 | rewrite, translation (G-code work only) | {c_rw:.2f} s ({w_rw:.2f} s) | {rate(n, c_rw)} lines/s |
 | rewrite, identity (byte-exact check) | {c_id:.2f} s ({w_id:.2f} s) | {rate(n, c_id)} lines/s |
 | retarget kernel, setting errors (closed form) | {c_ks:.2f} s ({w_ks:.2f} s) | {rate(len(pts), c_ks)} points/s |

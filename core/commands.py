@@ -184,6 +184,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     errors in mm before and after over the compensated blocks, from the forward model,
     ``verify``: the VerifyResult or None)."""
     from . import gcode
+    from .gcode import flow
     from .gcode.provenance import compensated_line, header_lines, insert_header
 
     tol = _check_chordal_tol(machine, chordal_tol)
@@ -193,11 +194,23 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         raise InputError("this program was already compensated by mtcomp (provenance header); "
                          "compensating it again would apply the errors twice: use the original "
                          "program, or --force", filename, done)
+    fl = flow.expand(text, filename)
+    if fl is not None:
+        return _compensate_flow(fl, machine, errors, filename=filename, chordal_tol=chordal_tol,
+                                start=start, unknown=unknown, provenance=provenance,
+                                progress=progress, convert_inch=convert_inch,
+                                tool_lengths=tool_lengths, work_offsets=work_offsets,
+                                arc_tol=arc_tol, stock=stock, part=part, clearance=clearance,
+                                tolerance=tolerance, warn_only=warn_only)
     res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
                        convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
                        work_offsets=work_offsets, arc_tol=arc_tol)
     n_blocks = len(prog)
+    if chordal_tol is None and np.asarray(prog.inch).any():
+        # inch programs are written one decimal finer in inch: 2.54 times the mm resolution
+        res_lin = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
+        tol = max(tol, 2 * 2.54 * res_lin)
     _travel_check(machine, prog, filename)
     hint = _three_axis_hint(machine, prog)
     calls = []
@@ -254,8 +267,35 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
               "cycles_kept": info["cycles_kept"], "cycles_expanded": info["cycles_expanded"],
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
-              "verify": verified}
+              "verify": verified, "flow": None}
     return new_text, report
+
+
+def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
+    """`compensate_program` of a program with subprogram calls: the expansion (the blocks in
+    the order they run) is compensated and checked, then folded back: subprograms compensated
+    once where every run of each block came out the same, else the calls written out."""
+    from .gcode import flow
+    from .gcode.provenance import header_lines, insert_header
+    try:
+        new, report = compensate_program(fl.expanded, machine, errors, filename=filename,
+                                         provenance=None, force=True, **kw)
+    except InputError as exc:
+        raise flow.remap_error(fl, exc, filename) from None
+    mode, new = flow.fold(fl, new)
+    note = (f"subprograms: {fl.calls} run(s) followed; each subprogram compensated once (the "
+            "correction is the same on every run)" if mode == "once" else
+            f"subprograms: {fl.calls} run(s) followed and written out as the blocks they run "
+            "(the correction differs between runs); the calls are left as comments")
+    src_line = lambda m: ", ".join(dict.fromkeys(  # noqa: E731
+        str(int(fl.origin[int(x) - 1]) + 1) for x in m.group(1).split(", ")))
+    notes = tuple(re.sub(r"(?<=line\(s\) )(\d+(?:, \d+)*)", src_line, n) for n in report["notes"])
+    report = dict(report, notes=notes + (note,), flow=mode,
+                  lines=len(flow._lines(fl.text)))
+    if provenance is not None:
+        new, _, added = insert_header(new, header_lines(provenance))
+        report["header_lines"] = added
+    return new, report
 
 
 def _travel_check_emitted(machine, emitted, kn, prog, filename):

@@ -186,8 +186,10 @@ def _emitted_vs_reread(text, machine, errors, chordal_tol=None, **kw):
     """The positions `compensate` verifies (taken from the emitted values) against the written
     program read back by the parser, block by block."""
     from mtcomp.commands import emitted_positions
+    from mtcomp.gcode import flow
     res = {a.name: a.resolution for a in machine.axes}
-    prog = gcode.parse(text, axes=machine.axis_names, resolution=res, **kw)
+    fl = flow.expand(text)                       # subprograms: the blocks as they run
+    prog = gcode.parse(fl.expanded if fl else text, axes=machine.axis_names, resolution=res, **kw)
     info = {}
     new_text, out_line = gcode.rewrite_with_lines(
         prog, lambda q: __import__("mtcomp.kinematics").kinematics.retarget(machine, q, errors),
@@ -341,3 +343,12 @@ def test_provenance_header_strips_back_to_the_program_byte_for_byte(text):
                                           "VERSION mtcomp test", "DATE 2026-01-01T00:00:00Z"])
     assert added == 3 and compensated_line(new) is not None
     assert strip_header(new) == text
+
+
+def test_inch_arcs_with_the_default_chordal_tolerance():
+    # inch words are written one decimal finer (0.254 µm on a 0.1 µm machine): the default
+    # tolerance follows, rather than refusing every inch program with arcs
+    m = load_machine("vmc-moving-column")
+    text = "G20 G90 G0 X0 Y0 Z1.\nG1 Z0 F10.\nG2 X1. Y0 I0.5 J0\nG0 Z1.\n"
+    out, rep = compensate_program(text, m, ErrorSet(geometric=GeometricErrors(location={"EB0Z": 2e-4})))
+    assert rep["after_max"] < 1e-4 and out.startswith("G20")

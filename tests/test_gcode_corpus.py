@@ -13,12 +13,55 @@ import numpy as np
 import pytest
 
 from mtcomp import gcode
+from mtcomp.gcode import flow
 
 CORPUS = sorted((Path(__file__).parent / "data" / "nc").iterdir())
 AXES = ("X", "Y", "Z")
 SHIFT = np.array([0.0123, -0.0071, 0.0042])
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _PLANES = {17: ("X", "Y", "I", "J"), 18: ("Z", "X", "K", "I"), 19: ("Y", "Z", "J", "K")}
+
+
+def _execution_order(text):
+    """(line number, text) in the order the control runs the lines.  Fanuc ``M98 P<n>``
+    (repeats ``L``/``K``, or an 8-digit P: 3 digits of repeats, 4 of program number) runs
+    ``O<n>`` up to its ``M99``; Haas ``M97 P<n>`` (repeats ``L``) runs from block ``N<n>`` up
+    to ``M99``; both after the calling block's own words.  With calls, the main program ends at
+    M30/M02 (the subprograms follow it); without, every line is read as before."""
+    lines = text.split("\n")
+    code = [re.sub(r"\([^)]*\)", " ", ln).split(";")[0] for ln in lines]
+    words = [[(w[0].upper(), float(w[1])) for w in _WORD.findall(c)] for c in code]
+    called = any(a == "M" and v in (97, 98) for w in words for a, v in w)
+    if not called:
+        return list(enumerate(lines, start=1))
+    label = {}
+    for i, w in enumerate(words):
+        for a, v in w:
+            if a in "ON":
+                label.setdefault((a, v), i)
+    order = []
+
+    def run(i, depth):
+        assert depth < 10
+        while i < len(lines):
+            w = dict(words[i])
+            ms = {v for a, v in words[i] if a == "M"}
+            if ms & {97, 98}:
+                # the block without its call words, then the called lines
+                order.append((i + 1, re.sub(r"[MmPpLlKk]\s*[-+]?[\d.]+", " ", code[i])))
+                prog, reps = w["P"], w.get("L", w.get("K", 1))
+                if 98 in ms and ("O", prog) not in label:
+                    reps, prog = divmod(prog, 10000)
+                for _ in range(int(reps)):
+                    run(label[("N" if 97 in ms else "O", prog)], depth + 1)
+            else:
+                order.append((i + 1, lines[i]))
+                if 99 in ms or (depth == 0 and ms & {2, 30}):
+                    return
+            i += 1
+
+    run(0, 0)
+    return order
 
 
 def interpret(text):
@@ -28,7 +71,7 @@ def interpret(text):
     mode, absolute, inch, plane, centre_abs = None, True, False, 17, False
     cycle, retract, zinit, r_word, z_word = 0, 98, None, None, None
     blocks = []
-    for n, raw in enumerate(text.split("\n"), start=1):
+    for n, raw in _execution_order(text):
         line = raw.lstrip("\ufeff")
         line = re.sub(r"\([^)]*\)", " ", line).split(";")[0]
         if line.strip().startswith("%"):
@@ -101,8 +144,26 @@ def interpret(text):
     return blocks
 
 
-def _check_against_interpreter(p, blocks):
-    assert [b[0] for b in blocks] == list(p.line)
+def _read(text, **kw):
+    """The program as mtcomp reads it: parsed, subprogram calls expanded first; the source
+    line of each block; the flow (None without calls)."""
+    fl = flow.expand(text)
+    p = gcode.parse(fl.expanded if fl else text, axes=AXES, **kw)
+    lines = fl.origin[p.line - 1] + 1 if fl else np.asarray(p.line)
+    return p, lines, fl
+
+
+def _rewrite(text, transform):
+    p, lines, fl = _read(text)
+    out = gcode.rewrite(p, transform)
+    if fl:
+        mode, out = flow.fold(fl, out)
+        assert mode == "once"                 # a rigid shift: every subprogram compensated once
+    return out
+
+
+def _check_against_interpreter(p, blocks, lines=None):
+    assert [b[0] for b in blocks] == list(p.line if lines is None else lines)
     for j, (n, pos, mode, centre) in enumerate(blocks):
         for k, a in enumerate(AXES):
             assert p.axis_known[j, k] == (pos[a] is not None), (n, a)
@@ -116,22 +177,22 @@ def _check_against_interpreter(p, blocks):
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
 def test_corpus_program_read_as_the_interpreter_reads_it(path):
     text = gcode.read_program(path)
-    p = gcode.parse(text, axes=AXES, filename=str(path))
+    p, lines, _ = _read(text, filename=str(path))
     assert len(p) >= 5
-    _check_against_interpreter(p, interpret(text))
+    _check_against_interpreter(p, interpret(text), lines)
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
 def test_corpus_identity_is_byte_exact(path):
     text = gcode.read_program(path)
-    assert gcode.rewrite(gcode.parse(text, axes=AXES), lambda q: q.copy()) == text
+    assert _rewrite(text, lambda q: q.copy()) == text
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
 def test_corpus_translation_moves_every_known_block_exactly(path):
     text = gcode.read_program(path)
-    p = gcode.parse(text, axes=AXES)
-    out = gcode.rewrite(p, lambda q: q + SHIFT)
+    p, lines, _ = _read(text)
+    out = _rewrite(text, lambda q: q + SHIFT)
     before, after = interpret(text), interpret(out)
     assert [b[0] for b in after] == [b[0] for b in before]        # no line added or lost
     inch = bool(p.inch.any())
@@ -147,9 +208,8 @@ def test_corpus_translation_moves_every_known_block_exactly(path):
             u, v_ = (AXES.index(c) for c in _PLANES[int(p.plane[j])][:2])
             assert np.allclose(np.subtract(c1, c0), SHIFT[[u, v_]], atol=2 * tol), n
     # the output reads back, and is itself an identity fixed point
-    q = gcode.parse(out, axes=AXES)
-    assert gcode.rewrite(q, lambda x: x.copy()) == out
+    assert _rewrite(out, lambda x: x.copy()) == out
     # nothing invented: a deferred block keeps every byte
     lines_in, lines_out = text.split("\n"), out.split("\n")
     for j in np.flatnonzero(~p.known):
-        assert lines_out[p.line[j] - 1] == lines_in[p.line[j] - 1]
+        assert lines_out[lines[j] - 1] == lines_in[lines[j] - 1]

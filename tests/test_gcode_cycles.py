@@ -60,7 +60,7 @@ def test_not_rigid_is_written_out_as_moves_and_said():
     assert lines[-1] == len(out.splitlines())
 
 
-@pytest.mark.parametrize("code", ["G84", "G83 Q1.", "G76 Q0.1"])
+@pytest.mark.parametrize("code", ["G84", "G74", "G86", "G76 Q0.1"])
 def test_cycles_needing_control_parameters_are_refused_when_not_rigid(code):
     text = f"G90 G0 X0 Y0 Z10.\nG99 {code} X5. Y5. Z-3. R2. F100\nG80\n"
     p = gcode.parse(text, axes=XYZ)
@@ -86,3 +86,78 @@ def test_cycle_run_starting_before_the_pose_is_known_is_left_as_written():
     assert out.splitlines()[:5] == text.splitlines()[:5]
     assert out.splitlines()[5] == "G0 X0.510000 Y0.520000 Z2.030000"
     assert info["deferred"] == 4 and not info["compensated"][:4].any()
+
+
+def _pecks(code, r, bottom, q, c):
+    """Programmed Z levels a control passes below R in one pecking hole (written from the
+    cycle's description: G83 back to R after each peck and rapid down to c above the last
+    depth; G73 retracts by c), with the mode (0 rapid, 1 feed)."""
+    out, depth = [], r
+    while depth > bottom + 1e-12:
+        nxt = max(depth - q, bottom)
+        if depth != r:
+            out.append((0, depth + c))
+        out.append((1, nxt))
+        if code == 83 and nxt > bottom:
+            out.append((0, r))
+        depth = nxt
+    return out
+
+
+@pytest.mark.parametrize("code, q", [(83, 1.5), (73, 2.0), (83, 10.0), (73, 0.4)])
+def test_pecking_cycles_not_rigid_are_written_out_peck_by_peck(code, q):
+    from mtcomp.gcode.rewrite import PECK_CLEARANCE
+    text = f"G90 G0 X0 Y0 Z10.\nG99 G{code} X5. Y5. Z-3. R2. Q{q} F100\nX10.\nG80\nG0 X0\n"
+    p = gcode.parse(text, axes=XYZ)
+    info = {}
+    out = gcode.rewrite(p, tilt, info=info)
+    assert info["cycles_expanded"] == 2 and f"(G{code} WRITTEN OUT AS MOVES" in out
+    assert "Q" not in out.replace("Q" + str(q), "")              # no peck word left
+    o = gcode.parse(out, axes=XYZ)
+    assert not o.cycle.any()
+    c = min(PECK_CLEARANCE, q / 2)
+    want = []
+    for x, arrive in ((5.0, 10.0), (10.0, 2.0)):
+        want += [(0, x, arrive), (0, x, 2.0)]
+        want += [(m, x, z) for m, z in _pecks(code, 2.0, -3.0, q, c)]
+        want += [(0, x, 2.0)]                                     # G99: out to R
+    got = o.position[1:1 + len(want)]
+    pts = tilt(np.array([[x, 5.0, z] for _, x, z in want]))
+    assert np.allclose(got, pts, atol=1e-6)
+    assert o.motion[1:1 + len(want)].tolist() == [m for m, _, _ in want]
+    # after the run the program goes on where it expects the tool
+    assert np.allclose(o.position[-1], tilt(np.array([[0, 5, 2.0]]))[0], atol=1e-6)
+    # a rigid shift keeps the cycle as written, Q untouched
+    kept = gcode.rewrite(p, lambda v: v + [0.001, 0, 0.002])
+    assert f"G99 G{code} X5.001000 Y5. Z-2.998000 R2.002000 Q{q} F100" in kept
+
+
+@pytest.mark.parametrize("words, match", [("", "without a peck depth Q"),
+                                          ("Q0.00001", "more than 10000")])
+def test_pecking_cycles_that_cannot_be_written_out_are_refused(words, match):
+    text = f"G90 G0 X0 Y0 Z10.\nG99 G83 X5. Y5. Z-3. R2. {words} F100\nG80\n"
+    with pytest.raises(InputError, match=f":2: canned cycle G83.*{match}"):
+        gcode.rewrite(gcode.parse(text, axes=XYZ), tilt)
+
+
+@pytest.mark.parametrize("name", ["haas_drill.nc", "fanuc_peck.nc"])
+def test_corpus_pecks_under_a_squareness_are_written_out_and_checked(name):
+    # a squareness of Z to X: the X correction changes down the hole, so no cycle is rigid;
+    # compensate checks the emitted positions through the forward model block by block
+    from pathlib import Path
+
+    from mtcomp.commands import compensate_program
+    from mtcomp.errors import ErrorSet, GeometricErrors
+    from mtcomp.machine import load_machine
+    text = gcode.read_program(Path(__file__).parent / "data" / "nc" / name)
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(geometric=GeometricErrors(location={"EB0Z": 2e-4}))
+    out, rep = compensate_program(text, m, e, start={"X": 0, "Y": 0, "Z": 50}, chordal_tol=1e-3)
+    assert rep["cycles_expanded"] > 0 and rep["cycles_kept"] == 0
+    assert rep["after_max"] < 1e-4 < rep["before_max"]
+    assert not gcode.parse(out, axes=m.axis_names).cycle.any()
+
+
+def test_haas_variable_peck_words_are_refused_by_name():
+    with pytest.raises(InputError, match=r":2: I word in canned cycle G83 \(Haas variable peck"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG99 G83 X5. Z-9. R2. I2. J0.5 F100\nG80\n", axes=XYZ)

@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, seed, settings
 from hypothesis import strategies as st
 
 from mtcomp import InputError, gcode
+from mtcomp.gcode import flow
 
 AXES = ("X", "Y", "Z", "B", "C")
 CORPUS = [gcode.read_program(p) for p in sorted((Path(__file__).parent / "data" / "nc").iterdir())]
@@ -20,11 +21,20 @@ SHIFT = np.array([0.0123, -0.0071, 0.0042, 0.001, -0.002])
 def _check(text):
     """Accepted programs: identity exact, translation re-read exactly (known blocks)."""
     try:
-        p = gcode.parse(text, axes=AXES)
+        fl = flow.expand(text)                 # subprogram calls: the blocks as they run
+        p = gcode.parse(fl.expanded if fl else text, axes=AXES)
         ident = gcode.rewrite(p, lambda q: q.copy())
         out = gcode.rewrite(p, lambda q: q + SHIFT)
     except InputError:
         return
+    if fl:
+        assert flow.fold(fl, ident) == ("once", text)
+        mode, folded = flow.fold(fl, out)
+        if mode == "once":                     # runs as the rewritten expansion
+            assert flow.expand(folded).expanded == out
+        else:
+            assert flow.expand(folded) is None
+        ident = text
     assert ident == text
     q = gcode.parse(out, axes=AXES)
     assert len(q) >= len(p)

@@ -56,9 +56,12 @@ _G_REFUSED = {
     960: "G96 constant surface speed depends on the commanded position",
 }
 _M_REFUSED = {
-    98: "M98 calls a subprogram (program flow is not followed)",
-    97: "M97 calls a local subprogram (program flow is not followed)",
-    99: "M99 returns from a subprogram or jumps (program flow is not followed)",
+    98: "M98 calls a subprogram: expand the program first (gcode.flow.expand; mtcomp "
+        "compensate does)",
+    97: "M97 calls a local subprogram: expand the program first (gcode.flow.expand; mtcomp "
+        "compensate does)",
+    99: "M99 returns from a subprogram or jumps: expand the program first (gcode.flow.expand; "
+        "mtcomp compensate does)",
     70: "M70 (a control-specific program-flow or macro code) is not followed",
     71: "M71 (a control-specific program-flow or macro code) is not followed",
     72: "M72 (a control-specific program-flow or macro code) is not followed",

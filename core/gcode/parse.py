@@ -357,6 +357,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         notarc = ~np.isin(mode_line[wline[arc_w]], (2, 3))
         if notarc.any():
             j = arc_w[np.argmax(notarc)]
+            if cycle_line[wline[j]] > 0:
+                _fail(f"{chr(65 + wlet[j])} word in canned cycle G{cycle_line[wline[j]]} (Haas "
+                      "variable peck I J K, boring shift I J): not supported", wline[j], filename)
             _fail(f"arc word {chr(65 + wlet[j])} outside G2/G3", wline[j], filename)
     block = has_motion | (has_arcw & np.isin(mode_line, (2, 3))) | (cyc_zw >= 0) | (cyc_rw >= 0)
     if len(bd_lines):

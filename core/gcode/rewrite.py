@@ -541,7 +541,38 @@ def _restore_modal_arcs(ctx, lin):
 # canned cycles
 
 #: cycles that can be written out as moves: (feed out instead of rapid, dwell at the bottom)
-_EXPANDABLE = {81: (False, False), 82: (False, True), 85: (True, False), 89: (True, True)}
+_EXPANDABLE = {81: (False, False), 82: (False, True), 85: (True, False), 89: (True, True),
+               73: (False, True), 83: (False, True)}
+#: pecking cycles written out: the G73 chip-breaking retract and the G83 re-approach above the
+#: last depth (mm), which controls take from a parameter (Fanuc 5114/5115, Haas setting 22) the
+#: program does not carry; at most half the peck Q so that a retract never reaches the last
+#: depth minus Q and a re-approach always stops in the hole already drilled
+PECK_CLEARANCE = 0.5
+#: most pecks written out for one hole
+MAX_PECKS = 10000
+
+
+def _peck_levels(r_lvl, bottom, q, code, *, filename, line):
+    """The moves of one pecking hole below the R level (mm, reference frame) as (rapid?, Z):
+    G83 back to R after each peck and rapid down to the clearance above the last depth, G73 a
+    short retract of the clearance; each peck Q deeper until the bottom."""
+    if not (np.isfinite(q) and q > 0):
+        raise InputError(f"canned cycle G{code} without a peck depth Q > 0: cannot be written out "
+                         "as moves", filename, line)
+    n = int(np.ceil((r_lvl - bottom) / q - 1e-9))
+    if n > MAX_PECKS:
+        raise InputError(f"canned cycle G{code}: {n} pecks of Q{q:g} mm in one hole: more than "
+                         f"{MAX_PECKS} written out", filename, line)
+    c = min(PECK_CLEARANCE, q / 2)
+    levels = [max(r_lvl - (i + 1) * q, bottom) for i in range(max(n, 1))]
+    moves = []
+    for i, z in enumerate(levels):
+        if i:
+            moves.append((True, levels[i - 1] + c))       # G83: down to the clearance; G73: up
+        moves.append((False, z))
+        if code == 83 and i < len(levels) - 1:
+            moves.append((True, r_lvl))
+    return moves
 
 
 def _cycle_points(program: Program, kn):
@@ -675,6 +706,7 @@ def _cycle_expand(ctx, p, rows, sel, d, new, res, fm, code):
     inch = 25.4 if np.asarray(p.inch).any() else 1.0
     feed = np.asarray(p.feed)
     pre_mode = int(np.asarray(p.motion)[rows[0] - 1]) if rows[0] > 0 else -1
+    q_modal = np.nan
     for i, k in enumerate(rows):
         ln = int(p.line[k]) - 1
         lo, hi = np.searchsorted(wl, ln), np.searchsorted(wl, ln, side="right")
@@ -682,7 +714,9 @@ def _cycle_expand(ctx, p, rows, sel, d, new, res, fm, code):
         for w in range(lo, hi):
             c = chr(65 + int(wlet[w]))
             gcyc = c == "G" and int(round(wv[w] * 10)) in range(730, 900)
-            if c in "XYZRPF" or c in axes or gcyc:
+            if c in "XYZRPFQ" or c in axes or gcyc:
+                if c == "Q":
+                    q_modal = float(wv[w]) * inch       # Q is modal in the cycle
                 if c == "P":
                     dwell = bytes(data_b[p.w_pos[w]:p.w_end[w]])
                 s0 = int(p.w_pos[w])
@@ -702,8 +736,22 @@ def _cycle_expand(ctx, p, rows, sel, d, new, res, fm, code):
                            for a in range(n_ax))
         g = lambda n: ctx.letter("G") + str(n)  # noqa: E731
         f = f"{sp}{ctx.letter('F')}{feed[k] / inch:g}" if np.isfinite(feed[k]) else ""
-        out = [f"{g(90)}{sp}{g(0)}{sp}{words(cnt[0])}", f"{g(0)}{sp}{words(cnt[1])}",
-               f"{g(1)}{sp}{words(cnt[2])}{f}"]
+        out = [f"{g(90)}{sp}{g(0)}{sp}{words(cnt[0])}", f"{g(0)}{sp}{words(cnt[1])}"]
+        code_k = int(p.cycle[k])
+        if code_k in (73, 83):
+            # pecks: points on the compensated line from R to the bottom, at the fraction of
+            # the programmed depth (the straight feed of a G81 passes the same points)
+            r_lvl, bottom = data[k, 1], data[k, 2]
+            last = ""
+            for rapid, z in _peck_levels(r_lvl, bottom, q_modal, code_k, filename=p.filename,
+                                         line=ln + 1):
+                t = (r_lvl - z) / (r_lvl - bottom) if r_lvl != bottom else 1.0
+                c_z = np.rint(cnt[1] + t * (cnt[2] - cnt[1])).astype(np.int64)
+                mode_ = g(0) if rapid else g(1)
+                out.append(f"{mode_}{sp}{words(c_z)}" + ("" if rapid or last == "f" else f))
+                last = "f" if not rapid else last
+        else:
+            out.append(f"{g(1)}{sp}{words(cnt[2])}{f}")
         if has_dwell and dwell:
             out.append(f"{g(4)}{sp}{dwell.decode()}")
         out.append(f"{g(1 if feed_out else 0)}{sp}{words(cnt[1])}")

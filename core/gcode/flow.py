@@ -1,0 +1,266 @@
+"""Program flow: subprogram calls followed by expanding them into the order a control runs them.
+
+Fanuc ``M98 P<n>`` calls the program ``O<n>`` (in a file sent to the control: an O-numbered
+block after the main program's M30/M02, ending in ``M99``); Haas ``M97 P<n>`` calls the local
+subprogram starting at the block numbered ``N<n>`` of the same program, also ending in ``M99``.
+Both take a fixed repeat count ``L`` (or ``K``); Fanuc's 8-digit ``P`` (``P30100``: 3 times
+``O0100``) is read too.  A call block's own motion runs before the call, as on the controls.
+
+`expand` writes the program as it runs (main program with each call replaced by the called
+blocks; the flow words inside comments so that the reader passes them) with the source line of
+every line; `fold` takes the rewritten expansion back to the file's structure when every run of
+each subprogram block was rewritten to the same text (the errors are a rigid shift along the
+calls: the subprogram body is compensated once), or else returns the expansion itself, calls
+written out (docs/gcode.md, "Subprograms").  This is hand-written: no maintained library reads
+Fanuc/Haas program flow.
+"""
+from __future__ import annotations
+
+import bisect
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._io import InputError
+
+#: nesting levels followed (Fanuc allows 4 on older and 10 on newer controls)
+MAX_DEPTH = 10
+#: largest expansion (lines) written
+MAX_LINES = 5_000_000
+
+_HAS_FLOW = re.compile(r"[Mm][ \t]*0*9[789](?![0-9.])")
+_WORD = re.compile(r"([A-Za-z])[ \t]*([-+]?(?:\d+\.?\d*|\.\d+))")
+_COMMENT = re.compile(r"\([^)]*\)")
+_MARK = "(\x02"
+_MARKED = re.compile(r"\(\x02([^)]*)\)")
+
+
+@dataclass(frozen=True, eq=False)
+class Flow:
+    """A program with subprogram calls, expanded.  ``expanded``: the text in the order it runs
+    (flow words in marker comments); ``origin`` (n,) 0-based source line of each expanded line;
+    ``caller`` (n,) 0-based line of the outermost call that ran it (-1 in the main program);
+    ``added_nl`` (n,) whether a line ending was added (the file's last line has none);
+    ``calls`` the number of subprogram runs."""
+    text: str
+    expanded: str
+    origin: np.ndarray
+    caller: np.ndarray
+    added_nl: np.ndarray
+    calls: int
+    trailer: str
+
+
+def _lines(text):
+    return re.findall(r"[^\n]*\n|[^\n]+\Z", text)
+
+
+def _words(line):
+    code = _COMMENT.sub(lambda m: " " * len(m.group()), line)
+    i = code.find(";")
+    if i >= 0:
+        code = code[:i]
+    return [(m.group(1).upper(), float(m.group(2)), m.start(), m.end()) for m in _WORD.finditer(code)]
+
+
+def _mark(line, spans):
+    for s, e in sorted(spans, reverse=True):
+        line = line[:s] + _MARK + line[s:e] + ")" + line[e:]
+    return line
+
+
+def has_flow(text: str) -> bool:
+    """Whether the text has M97/M98/M99 words (possibly only in comments: a quick test)."""
+    return _HAS_FLOW.search(text) is not None
+
+
+def expand(text: str, filename: str = "<string>") -> Flow | None:
+    """The program as it runs, calls expanded; None when it has no M97/M98/M99 block.
+    Raises InputError naming the line for flow it does not follow: M99 in the main program
+    (a jump to its start), M99 P (return to a block number), a called program or block number
+    not in the file, a call without P, a repeat count 0 or not whole, recursion, nesting deeper
+    than MAX_DEPTH, M30/M02 inside a subprogram, a subprogram without M99."""
+    if not has_flow(text):
+        return None
+    lines = _lines(text)
+    # only lines with an M or O word matter for the flow (N labels are looked up when an M97
+    # needs one): read the words of those alone
+    starts = np.cumsum([0] + [len(ln) for ln in lines[:-1]])
+
+    def lines_with(pattern):
+        hits = np.fromiter((m.start() for m in re.finditer(pattern, text)), np.int64)
+        return np.unique(np.searchsorted(starts, hits, side="right") - 1).tolist()
+
+    cand = lines_with(r"[MmOo]")
+    info = dict.fromkeys(range(len(lines)), ())
+    info.update((i, _words(lines[i])) for i in cand)
+    mcodes = dict.fromkeys(range(len(lines)), frozenset())
+    mcodes.update((i, {v for a, v, _, _ in info[i] if a == "M"}) for i in cand)
+    if not any(mcodes[i] & {97.0, 98.0, 99.0} for i in cand):
+        return None
+    flow_at = [i for i in cand if mcodes[i] & {97.0, 98.0, 99.0, 30.0, 2.0}]
+
+    def fail(what, i):
+        raise InputError(what, file=filename, line=int(i) + 1)
+
+    if "\x02" in text:
+        fail("control character 0x02 in the program", text[:text.index("\x02")].count("\n"))
+    o_at = {}
+    for i in cand:
+        for a, v, _, _ in info[i]:
+            if a == "O":
+                o_at.setdefault(v, i)
+
+    def n_line(n):
+        """The first line with the block number N<n> (None if none)."""
+        for i in lines_with(r"[Nn][ \t]*[+]?0*" + re.escape(f"{n:g}") + r"(?![0-9])"):
+            if any(a == "N" and v == n for a, v, _, _ in _words(lines[i])):
+                return i
+        return None
+    ends = [i for i in flow_at if mcodes[i] & {30.0, 2.0}]
+    if ends:
+        main_end = ends[0]
+    else:
+        first_o = min(o_at.values(), default=-1)
+        later = [i for i in o_at.values() if i > max(first_o, 0)]
+        main_end = (min(later) - 1) if later else len(lines) - 1
+    nl = "\r\n" if "\r\n" in text else "\n"
+    out, origin, caller, added = [], [], [], []
+    n_calls = 0
+
+    def emit(i, line, call):
+        if not line.endswith("\n"):
+            line += nl
+            added.append(True)
+        else:
+            added.append(False)
+        out.append(line)
+        origin.append(i)
+        caller.append(call)
+        if len(out) > MAX_LINES:
+            fail(f"the expanded program exceeds {MAX_LINES} lines: calls not followed", call)
+
+    def call_target(i, w):
+        m = 97.0 if 97.0 in mcodes[i] else 98.0
+        if 97.0 in mcodes[i] and 98.0 in mcodes[i]:
+            fail("M97 and M98 in one block", i)
+        if {v for a, v, _, _ in w if a == "G"} & {4.0, 54.1, 65.0, 66.0}:
+            fail(f"M{m:.0f} in a block with G4/G54.1/G65/G66, whose P is not a program number", i)
+        p = [v for a, v, _, _ in w if a == "P"]
+        if not p:
+            fail(f"M{m:.0f} without P (the subprogram to call)", i)
+        rep = [v for a, v, _, _ in w if a in "LK"]
+        count = rep[0] if rep else 1.0
+        if count != int(count) or count < 1:
+            fail(f"repeat count {count:g} of M{m:.0f}: a whole number >= 1 expected", i)
+        n = p[0]
+        if m == 97.0:
+            t = n_line(n)
+            if t is None:
+                fail(f"M97 P{n:g}: no block N{n:g} in this program", i)
+            return t, int(count), f"N{n:g}", False
+        if n not in o_at and n > 9999 and n == int(n) and (n % 10000) in o_at and not rep:
+            count, n = n // 10000, n % 10000             # Fanuc: P<repeats><4-digit program>
+        if n not in o_at:
+            fail(f"M98 P{n:g}: program O{n:g} is not in this file (subprograms in other files "
+                 "are not followed)", i)
+        if o_at[n] <= main_end:
+            fail(f"M98 P{n:g} calls the main program (recursion)", i)
+        return o_at[n], int(count), f"O{n:g}", True
+
+    def run(i, stack, call):
+        entry = i
+        while True:
+            if i >= len(lines) or (not stack and i > main_end):
+                if stack:
+                    fail(f"subprogram {stack[-1]} has no M99 (return)", entry)
+                return
+            w, m = info[i], mcodes[i]
+            if not (stack and i == entry) and not m & {97.0, 98.0, 99.0, 30.0, 2.0}:
+                # plain lines up to the next flow line (or the main program's end): in bulk
+                k = bisect.bisect_left(flow_at, i)
+                end = flow_at[k] if k < len(flow_at) else len(lines)
+                if not stack:
+                    end = min(end, main_end + 1)
+                if end == len(lines) and not lines[-1].endswith("\n"):
+                    end -= 1
+                if end > i:
+                    out.extend(lines[i:end])
+                    origin.extend(range(i, end))
+                    caller.extend([call] * (end - i))
+                    added.extend([False] * (end - i))
+                    if len(out) > MAX_LINES:
+                        fail(f"the expanded program exceeds {MAX_LINES} lines: calls not "
+                             "followed", call)
+                    i = end
+                    continue
+            if m & {97.0, 98.0}:
+                t, count, name, is_o = call_target(i, w)
+                if name in stack:
+                    fail(f"subprogram {name} calls itself (recursion is not followed)", i)
+                if len(stack) >= MAX_DEPTH:
+                    fail(f"subprograms nested deeper than {MAX_DEPTH} levels", i)
+                spans = [(s, e) for a, v, s, e in w if (a == "M" and v in (97.0, 98.0)) or a in "PLK"]
+                emit(i, _mark(lines[i], spans), call)
+                nonlocal n_calls
+                for _ in range(count):
+                    n_calls += 1
+                    run(t, stack + [name], i if call < 0 else call)
+            elif 99.0 in m:
+                if not stack:
+                    fail("M99 in the main program returns to its start (an endless loop): "
+                         "not followed", i)
+                if any(a == "P" for a, _, _, _ in w):
+                    fail("M99 P (return to a block number of the caller) is not followed", i)
+                spans = [(s, e) for a, v, s, e in w if a == "M" and v == 99.0]
+                emit(i, _mark(lines[i], spans), call)
+                return
+            else:
+                if stack and m & {30.0, 2.0}:
+                    fail("M30/M02 inside a subprogram is not followed", i)
+                line = lines[i]
+                if stack and i == entry:
+                    line = _mark(line, [(s, e) for a, v, s, e in w if a == "O"])
+                emit(i, line, call)
+            i += 1
+
+    run(0, [], -1)
+    trailer = lines[-1] if lines and lines[-1].strip() == "%" and main_end < len(lines) - 1 else ""
+    return Flow(text=text, expanded="".join(out), origin=np.asarray(origin, np.int64),
+                caller=np.asarray(caller, np.int64), added_nl=np.asarray(added, bool),
+                calls=n_calls, trailer=trailer)
+
+
+def fold(flow: Flow, new_expanded: str) -> tuple[str, str]:
+    """The rewritten expansion in the file's structure: ("once", text) when every run of every
+    source line was rewritten to the same text (subprograms compensated once, calls kept);
+    else ("expanded", text): the expansion with the calls written out, the flow words left as
+    comments and the subprogram definitions dropped."""
+    new = _lines(new_expanded)
+    if len(new) == len(flow.origin):
+        src = _lines(flow.text)
+        nl_len = 2 if "\r\n" in flow.text else 1
+        got: dict[int, str] = {}
+        same = True
+        for j, ln in enumerate(new):
+            ln = _MARKED.sub(r"\1", ln)
+            if flow.added_nl[j]:
+                ln = ln[:-nl_len]
+            if got.setdefault(int(flow.origin[j]), ln) != ln:
+                same = False
+                break
+        if same:
+            return "once", "".join(got.get(i, s) for i, s in enumerate(src))
+    return "expanded", new_expanded.replace(_MARK, "(") + flow.trailer
+
+
+def remap_error(flow: Flow, exc: InputError, filename) -> InputError:
+    """An InputError about a line of the expansion, about the source line instead."""
+    if exc.line is None or str(exc.file) != str(filename) or not 1 <= exc.line <= len(flow.origin):
+        return exc
+    j = exc.line - 1
+    what = exc.what
+    if flow.caller[j] >= 0:
+        what += f" (in a subprogram run by the call on line {int(flow.caller[j]) + 1})"
+    return InputError(what, file=exc.file, line=int(flow.origin[j]) + 1, field=exc.field)
