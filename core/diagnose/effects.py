@@ -803,9 +803,10 @@ class StickSlip(QuadrantGlitch):
     away; the drive winds up until the command has left the reversal point by the breakaway
     distance delta (static friction over the drive's stiffness), then the slide slips and
     catches up with time constant tau.  With D = |p_cmd(t) - p_cmd(t_rev)|:
-    r = -A d_new D while D < delta (stuck: the error grows with the command's own motion,
-    parabolic from a smooth reversal), then r = -A d_new delta exp(-(t - t_b)/tau), t_b the
-    breakaway.  A (linear) is 1 for a slide that does not move at all while stuck.  The spike
+    r = -d_new D while D < delta (stuck: the slide does not move, the error grows with the
+    command's own motion, parabolic from a smooth reversal), then
+    r = -d_new delta exp(-(t - t_b)/tau), t_b the breakaway.  No free amplitude: a slide that
+    moved while "stuck" would not be stick-slip, and a free one could take any sign.  The spike
     form (QuadrantGlitch) has a fixed shape in time; this one follows the command.
     delta in the output's unit, tau in s (both nonlinear).
     """
@@ -813,6 +814,7 @@ class StickSlip(QuadrantGlitch):
 
     def __init__(self, output):
         super().__init__(output)
+        self.n_lin = 0
         self._prev = None
 
     @property
@@ -867,7 +869,7 @@ class StickSlip(QuadrantGlitch):
                 f = (delta - D[seg[b - 1]]) / (D[seg[b]] - D[seg[b - 1]])
                 tb = t[seg[b - 1]] + f * (t[seg[b]] - t[seg[b - 1]])
             shape[seg[b:]] = delta * np.exp(-np.minimum((t[seg[b:]] - tb) / tau, 700.0))
-        return None, [{self.outputs[0]: -d * shape}]
+        return {self.outputs[0]: -d * shape}, []
 
     def coarse(self, ctx, resid, rows):
         lo, hi = self.bounds(ctx)
@@ -878,9 +880,8 @@ class StickSlip(QuadrantGlitch):
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         u = ctx.al.units[self.outputs[0]] or "mm"
         delta, tau = math.exp(eta[0]), math.exp(eta[1])
-        return ({f"breakaway_{u}": delta, "tau_s": tau, "stick_fraction": float(beta[0])},
-                {f"breakaway_{u}": delta * _se(cov_eta, 0), "tau_s": tau * _se(cov_eta, 1),
-                 "stick_fraction": _se(cov_beta, 0)})
+        return ({f"breakaway_{u}": delta, "tau_s": tau},
+                {f"breakaway_{u}": delta * _se(cov_eta, 0), "tau_s": tau * _se(cov_eta, 1)})
 
 
 class Group(Candidate):
@@ -1034,9 +1035,11 @@ def candidates(al: Aligned) -> list[Candidate]:
     if moving:
         out.append(TimeOffset(tuple(o for o in al.outputs if o in moving)))
         lags = [c for c in out if type(c) is ServoLag]
-        # after a clock alignment the remaining common offset and the axes' lags are entangled
-        # (the correlation peak held both): the lags of all axes are then tried as one group
-        if len(lags) >= 2 and al.clock_offset:
+        # the common offset and the axes' lags are entangled (the correlation peak that starts
+        # the offset holds both, and a delay and a lag agree to first order): one lag added to
+        # a shared offset cannot improve the fit while the other axes still need the offset as
+        # it is, so the lags of all axes are also tried as one group
+        if len(lags) >= 2:
             out.append(Group(lags))
     if al.at_rest:
         out = [c for c in out if c.name in AT_REST]
