@@ -300,8 +300,10 @@ def markdown(results) -> str:
     lib = [r for r in results if r["expect"] not in ("unexplained", [])]
     out_lib = [r for r in results if r["expect"] == "unexplained"]
     null = [r for r in results if r["expect"] == []]
+    seeds = sorted({r["seed"] for r in results})
     lines = [f"Out-of-family cases (`benchmarks/diagnose_outfamily.py`, not tuned on): "
-             f"{len(results)} recordings from physics simulated at 10 kHz and sampled twice.", "",
+             f"{len(results)} recordings from physics simulated at 10 kHz and sampled twice "
+             f"(seed 500 + 37 s + i for repetition s and family i: seeds {seeds[0]}..{seeds[-1]}).", "",
              "| family | cases | honest answer | held-out RMS / noise (median) |", "|---|---|---|---|"]
     for k in KINDS:
         rs = [r for r in results if r["kind"] == k]

@@ -157,13 +157,14 @@ def confusion(results):
     return labels, M
 
 
-def markdown(results, tim, wall_total, quick) -> str:
+def markdown(results, tim, wall_total, quick, ood_seeds=None) -> str:
     eff = [r for r in results if r["effects"]]
     null = [r for r in results if not r["effects"]]
     ok_eff = sum(r["ok"] for r in eff)
     ok_null = sum(r["ok"] for r in null)
     ratios = np.array([r["ratio"] for r in eff])
-    lines = [f"Run of `benchmarks/diagnose_suite.py{' --quick' if quick else ''}`: "
+    lines = [f"Run of `benchmarks/diagnose_suite.py{' --quick' if quick else ''}"
+             f"{f' --ood-seeds {ood_seeds}' if ood_seeds else ''}`: "
              f"{len(eff)} cases with one or two concealed effects, {len(null)} null cases; "
              f"{wall_total:.0f} s in all. Noise 20 nm; SIM 200-1000 Hz, REC 10-1000 Hz on a "
              "clock starting up to 2 s apart; 3-5 temperatures and 1-4 auxiliary columns logged; "
@@ -260,7 +261,7 @@ def main(argv=None) -> int:
     print("timing 45k samples ...", flush=True)
     tim = timing(1 if args.quick else 3)
     print(f"  wall {tim['wall']}, cpu {tim['cpu']}, named {tim['named']}")
-    md = markdown(results, tim, wall_total + sum(tim["wall"]), args.quick)
+    md = markdown(results, tim, wall_total + sum(tim["wall"]), args.quick, args.ood_seeds)
     print(md)
     import diagnose_outfamily as ood
     print("out-of-family cases ...", flush=True)

@@ -41,6 +41,10 @@ def markdown(results) -> str:
         for o in res.outputs:
             lag = [e for e in res.effects if e.name == "servo_lag" and o in e.outputs]
             other = [e.name for e in res.effects if e.name != "servo_lag" and o in e.outputs]
+            lat = res.alignment["clock_offset_s"]
+            if lat:
+                # a delay common to all lagging axes is reported as latency in the alignment
+                other.append(f"latency {lat * 1e3:.2f} ± {res.alignment['clock_offset_uncertainty_s'] * 1e3:.2f} ms")
             un = [u for u in res.unexplained if u["output"] == o]
             f = res.fit
             lines.append(

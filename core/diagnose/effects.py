@@ -795,6 +795,95 @@ class QuadrantGlitch(Candidate):
                 {f"peak_{u}": _se(cov_beta, 0), "tau_s": tau * _se(cov_eta, 0)})
 
 
+class StickSlip(QuadrantGlitch):
+    """Stick-slip at velocity reversals on a position output: the other form of the quadrant
+    glitch (same effect name, label suffix "(stick-slip)").
+
+    After a reversal static friction holds the slide where it stopped while the command moves
+    away; the drive winds up until the command has left the reversal point by the breakaway
+    distance delta (static friction over the drive's stiffness), then the slide slips and
+    catches up with time constant tau.  With D = |p_cmd(t) - p_cmd(t_rev)|:
+    r = -d_new D while D < delta (stuck: the slide does not move, the error grows with the
+    command's own motion, parabolic from a smooth reversal), then
+    r = -d_new delta exp(-(t - t_b)/tau), t_b the breakaway.  No free amplitude: a slide that
+    moved while "stuck" would not be stick-slip, and a free one could take any sign.  The spike
+    form (QuadrantGlitch) has a fixed shape in time; this one follows the command.
+    delta in the output's unit, tau in s (both nonlinear).
+    """
+    nl_names = ("log_breakaway", "log_tau")
+
+    def __init__(self, output):
+        super().__init__(output)
+        self.n_lin = 0
+        self._prev = None
+
+    @property
+    def label(self) -> str:
+        return super().label + "(stick-slip)"
+
+    def _segments(self, ctx):
+        if self._prev is None:
+            al = ctx.al
+            o = self.outputs[0]
+            sig = al.signals[o]
+            tn, vn = sig.native if sig.native else (al.t, sig.values)
+            dn = direction_of_motion(np.asarray(vn, float))
+            ch = np.flatnonzero(dn[1:] != dn[:-1]) + 1
+            t_rev = 0.5 * (tn[ch - 1] + tn[ch]) if len(ch) else np.zeros(0)
+            k = np.searchsorted(t_rev, al.t, side="right") - 1
+            # the reversal point is the command's extremum between the two native samples
+            # (the midpoint can miss it by half a sample, and D grows quadratically from it)
+            p_rev = np.zeros(len(t_rev))
+            for j, c in enumerate(ch):
+                tt = np.linspace(tn[max(c - 2, 0)], tn[min(c + 1, len(tn) - 1)], 64)
+                pp = al.sim_spline[o](tt)
+                p_rev[j] = pp.min() if dn[c] > 0 else pp.max()
+            D = np.where(k >= 0, np.abs(al.sim[o] - p_rev[np.clip(k, 0, None)]) if len(t_rev) else 0.0, 0.0)
+            self._prev = (k, D, len(t_rev))
+        return self._prev
+
+    def bounds(self, ctx):
+        span = float(np.ptp(ctx.al.sim[self.outputs[0]])) or 1.0
+        return ([math.log(1e-5 * span), math.log(ctx.al.dt / 2)],
+                [math.log(0.2 * span), math.log(max(1.0, 4 * ctx.al.dt))])
+
+    def build(self, ctx, eta):
+        k, D, nrev = self._segments(ctx)
+        d = ctx.direction(self.outputs[0])
+        delta, tau = math.exp(eta[0]), math.exp(eta[1])
+        t = ctx.al.t
+        shape = np.zeros_like(D)
+        for j in range(nrev):
+            seg = np.flatnonzero(k == j)
+            if not len(seg):
+                continue
+            broken = np.flatnonzero(D[seg] >= delta)
+            if not len(broken):
+                shape[seg] = D[seg]
+                continue
+            b = broken[0]
+            shape[seg[:b]] = D[seg[:b]]
+            # the breakaway instant, between two samples: where D crosses delta
+            tb = t[seg[b]]
+            if b > 0 and D[seg[b]] > D[seg[b - 1]]:
+                f = (delta - D[seg[b - 1]]) / (D[seg[b]] - D[seg[b - 1]])
+                tb = t[seg[b - 1]] + f * (t[seg[b]] - t[seg[b - 1]])
+            shape[seg[b:]] = delta * np.exp(-np.minimum((t[seg[b:]] - tb) / tau, 700.0))
+        return {self.outputs[0]: -d * shape}, []
+
+    def coarse(self, ctx, resid, rows):
+        lo, hi = self.bounds(ctx)
+        grid = [np.array([a, b]) for a in np.linspace(lo[0], hi[0], 14)
+                for b in np.linspace(lo[1], hi[1], 6)]
+        return self._grid_best(ctx, resid, rows, grid)
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        u = ctx.al.units[self.outputs[0]] or "mm"
+        delta, tau = math.exp(eta[0]), math.exp(eta[1])
+        return ({f"breakaway_{u}": delta, "tau_s": tau},
+                {f"breakaway_{u}": delta * _se(cov_eta, 0), "tau_s": tau * _se(cov_eta, 1)})
+
+
 class Group(Candidate):
     """The same effect on several outputs at once, each with its own parameters (e.g. a servo
     lag on every axis).  Tried beside the single-output candidates because one effect common
@@ -907,7 +996,7 @@ def candidates(al: Aligned) -> list[Candidate]:
             if not al.at_rest:
                 qg = QuadrantGlitch(o)
                 if qg._reversals(Context(al, np.arange(0, al.n, max(1, al.n // 2000))))[2] >= 2:
-                    out.append(qg)
+                    out += [qg, StickSlip(o)]
             if al.kinds[o] in ("length", "other"):
                 pp = PeriodicPitch(o)
                 if pp.identifiable(Context(al, np.arange(0, al.n, max(1, al.n // 2000)))):
@@ -946,9 +1035,11 @@ def candidates(al: Aligned) -> list[Candidate]:
     if moving:
         out.append(TimeOffset(tuple(o for o in al.outputs if o in moving)))
         lags = [c for c in out if type(c) is ServoLag]
-        # after a clock alignment the remaining common offset and the axes' lags are entangled
-        # (the correlation peak held both): the lags of all axes are then tried as one group
-        if len(lags) >= 2 and al.clock_offset:
+        # the common offset and the axes' lags are entangled (the correlation peak that starts
+        # the offset holds both, and a delay and a lag agree to first order): one lag added to
+        # a shared offset cannot improve the fit while the other axes still need the offset as
+        # it is, so the lags of all axes are also tried as one group
+        if len(lags) >= 2:
             out.append(Group(lags))
     if al.at_rest:
         out = [c for c in out if c.name in AT_REST]

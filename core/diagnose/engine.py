@@ -11,7 +11,7 @@ from . import align as _align
 from . import data as _data
 from .effects import Context, candidates
 from .locate import Mismatch, conditions, empirical_dependence, locate
-from .select import Settings, cross_validate, fit, n_effective, select
+from .select import Settings, cross_validate, fit, model_columns, n_effective, select
 
 
 @dataclass(frozen=True)
@@ -162,6 +162,10 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     cov_beta_all = final.gram_inv * s2 * infl if final.gram_inv is not None else None
     effects = []
     clock_fine = (0.0, 0.0)
+    latency_note = ()
+    # outputs that carry a servo lag in the final model (a group holds one per output)
+    lagged = {o for c in final.cands for m in getattr(c, "members", [c])
+              if m.name == "servo_lag" for o in m.outputs}
     ie = ib = 0
     for c, eta, beta, contrib in zip(final.cands, final.etas, final.betas, final.contrib):
         ne, nb = len(eta), len(beta)
@@ -184,10 +188,19 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
             continue
         params, unc = c.physical(ctx, eta, beta, ce, cb)
         rms = {o: _rms(contrib[ctx.slices[o]] * ctx.sigma[o]) for o in c.outputs}
-        if c.name == "time_offset" and al.clock_offset:
+        if c.name == "time_offset" and (al.clock_offset or set(c.outputs) <= lagged):
             # the clocks were aligned: what is left of the offset refines that alignment (a
-            # latency on top of another clock start cannot be told from it)
+            # latency on top of another clock start cannot be told from it).  Likewise a common
+            # delay of outputs that all lag: a transport delay and a first-order lag agree to
+            # first order (-(delay + tau) * rate), and a delay common to every lagging output
+            # cannot be attributed to the clocks, the logger or the drives from the data; it is
+            # timing of the recording, not a further effect of the machine
             clock_fine = (params["offset_s"], unc["offset_s"])
+            if not al.clock_offset:
+                latency_note = (f"a common delay of {params['offset_s'] * 1e3:.3g} ms "
+                                f"(+/- {unc['offset_s'] * 1e3:.2g} ms) beside the servo lags is kept "
+                                f"in the alignment: logger or loop latency, not separable from "
+                                f"the lags or from a clock offset",)
             continue
         effects.append(EffectResult(c.name, tuple(c.outputs), tuple(c.inputs), params, unc,
                                     evidence.get(c.label, {}), rms))
@@ -207,8 +220,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         for i, f in enumerate(folds):
             inblk = (al.t >= starts[i]) & (al.t < starts[i + 1])
             pred = np.zeros(ctx.N)
-            for c, eta, beta in zip(f.cands, f.etas, f.betas):
-                fx, B = c.columns(ctx, eta)
+            for (fx, B), beta in zip(model_columns(ctx, f.cands, f.etas), f.betas):
                 pred += (fx if fx is not None else 0.0) + (B @ beta if B.shape[1] else 0.0)
             m = np.tile(inblk, len(al.outputs))
             oof[m] = ctx.z0[m] - pred[m]
@@ -262,7 +274,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
         conditions=cond, log=tuple(log), unexplained=tuple(unexplained),
-        notes=tuple(al.notes) + tuple(
+        notes=tuple(al.notes) + latency_note + tuple(
             f"column {k!r} taken as {r[1]} ({r[2] or 'no unit'}) from its name: give the unit "
             f"in the header (e.g. {k}[{r[2] or 'unit'}]) or with --unit {k}=UNIT"
             for k, r in al.roles.items() if r[3] == "name" and r[1] != "other"),

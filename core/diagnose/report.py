@@ -16,7 +16,9 @@ SIGNATURE = {
     "workpiece_setting": "constant offset and small rotation of the workpiece frame",
     "time_offset": "every output lags the simulation by the same time (clock offset)",
     "quadrant_glitch": "spike against the new direction after every reversal of the axis "
-                       "(friction flips, the loop rebuilds the torque)",
+                       "(friction flips, the loop rebuilds the torque); in its stick-slip form "
+                       "the slide stays at the reversal point until the command has left it by "
+                       "the breakaway distance, then slips back with time constant tau",
     "friction": "velocity lost against the direction of motion (Coulomb) and in proportion to it "
                 "(viscous)",
 }

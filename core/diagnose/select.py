@@ -50,11 +50,44 @@ class Fit:
         return sum(c.n_params() for c in self.cands)
 
 
+def _shift(ctx: Context, v: np.ndarray, tau: float) -> np.ndarray:
+    """A stacked (whitened) vector or matrix of columns, each output's part taken tau s
+    earlier (linear between the rows; held at the ends)."""
+    out = np.array(v, dtype=float, copy=True)
+    for sl in ctx.slices.values():
+        if out.ndim == 1:
+            out[sl] = np.interp(ctx.t - tau, ctx.t, v[sl])
+        else:
+            for j in range(out.shape[1]):
+                out[sl, j] = np.interp(ctx.t - tau, ctx.t, v[sl, j])
+    return out
+
+
+def model_columns(ctx: Context, cands, etas) -> list:
+    """(fixed, B) of every candidate with a time offset applied to the whole model.
+
+    A recording that is late by tau shows the machine's response late by tau, lags and the
+    other effects included: rec(t) = sim(t - tau) + e(t - tau).  Adding the offset's own term
+    sim(t - tau) - sim(t) to e(t) instead leaves the cross term -tau de/dt (for a servo lag
+    tau * T * acceleration), which is many noise floors on a fast axis."""
+    tau = 0.0
+    for c, e in zip(cands, etas):
+        if c.name == "time_offset" and len(e):
+            tau = float(e[0]) * ctx.al.dt
+    out = []
+    for c, e in zip(cands, etas):
+        f, B = c.columns(ctx, e)
+        if tau and c.name != "time_offset":
+            f = _shift(ctx, f, tau) if f is not None else None
+            B = _shift(ctx, B, tau) if B.shape[1] else B
+        out.append((f, B))
+    return out
+
+
 def _assemble(ctx: Context, cands, etas):
     F = np.zeros(ctx.N)
     Bs, sizes = [], []
-    for c, e in zip(cands, etas):
-        f, B = c.columns(ctx, e)
+    for f, B in model_columns(ctx, cands, etas):
         if f is not None:
             F = F + f
         Bs.append(B)
@@ -133,8 +166,7 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
         dead = ~np.any(take(B) != 0, axis=0)
         beta = np.where(dead, beta_default, beta)
     pred_parts, betas, i = [], [], 0
-    for c, e, m in zip(cands, etas, sizes):
-        f, Bc = c.columns(ctx, e)
+    for (f, Bc), m in zip(model_columns(ctx, cands, etas), sizes):
         b = beta[i:i + m]
         part = (f if f is not None else 0.0) + (Bc @ b if m else 0.0)
         pred_parts.append(np.broadcast_to(part, (ctx.N,)).copy() if np.isscalar(part) else part)
@@ -294,22 +326,30 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
                 continue
             swap = conf[0] if conf else None
             base = r_s if swap is None else r_s + cur.contrib[swap]
+            offs = []
             if c.name == "servo_lag" and swap is None:
                 # a time offset chosen earlier may hold what this lag explains (they agree to
-                # first order): screen the lag on the residual without it, so the joint fit
-                # below gets the chance to share the delay between the two
+                # first order): screen the lag on the residual without it, jointly with the
+                # offset refitted, so that the two share the delay (alone, a lag cannot take
+                # over the offset's part of the delay on the outputs it does not lag)
                 for j, m in enumerate(model):
                     if m.name == "time_offset" and j != swap:
                         base = base + cur.contrib[j]
+                        offs.append(j)
             eta0 = c.coarse(ctx, base, srows)
-            f1 = fit(ctx, [c], [eta0], srows, max_nfev=15, target=base)
-            coarse_cache[c.label] = f1.etas[0]
+            if offs:
+                f1 = fit(ctx, [model[j] for j in offs] + [c], [etas[j] for j in offs] + [eta0],
+                         srows, max_nfev=15, target=base)
+                coarse_cache[c.label] = f1.etas[-1]
+            else:
+                f1 = fit(ctx, [c], [eta0], srows, max_nfev=15, target=base)
+                coarse_cache[c.label] = f1.etas[0]
             dk = c.n_params() - (model[swap].n_params() if swap is not None else 0)
             rss1 = f1.rss
             if base is not r_s and swap is None:
                 # outside the candidate's outputs the residual stays what it is now
                 mine = np.zeros(ctx.N, bool)
-                for o in c.outputs:
+                for o in set(c.outputs).union(*(model[j].outputs for j in offs)):
                     mine[ctx.slices[o]] = True
                 rm, ro = srows & mine, srows & ~mine
                 rss1 = float(f1.resid[rm] @ f1.resid[rm]) + float(r_s[ro] @ r_s[ro])
