@@ -211,3 +211,18 @@ def test_cli_compensate_switches_and_bad_input(tmp_path):
     r = _cli(tmp_path, "model", "compensate", "p.nc", "--model", "nope", "--machine", M, "-o", "x.nc")
     assert r.returncode != 0 and "nope" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.nc").exists()
+
+
+def test_simulate_is_cosimulates_uncompensated_run():
+    """mtcomp.model.simulate.simulate runs only the machine: the same signals as the
+    uncompensated run of mtcomp.fmu.cosim.cosimulate."""
+    pytest.importorskip("fmpy")
+    from mtcomp.fmu.build import MachineDynamics
+    from mtcomp.fmu.cosim import cosimulate
+    from mtcomp.model.simulate import simulate
+    dyn = MachineDynamics(kv=KV, backlash=BACKLASH, noise=2e-5, seed=3)
+    prog = PROGRAM.replace("F300", "F3000")
+    sig = simulate(prog, M, TRUE_ERRORS, dyn, step=STEP, compiler="cc")
+    ref = cosimulate(prog, M, TRUE_ERRORS, ErrorSet(), step=STEP, dynamics=dyn, compiler="cc")
+    assert np.array_equal(sig.t, ref.t) and np.array_equal(sig.q, ref.q_programmed)
+    assert np.array_equal(sig.p, ref.p_uncompensated)

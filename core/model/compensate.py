@@ -57,8 +57,7 @@ def read_model(outdir, machine) -> tuple:
     if not d.is_dir():
         raise InputError("expected a model folder written by `mtcomp model export`", d)
     errors = load_errors(d / "errors.toml", machine=machine) if (d / "errors.toml").is_file() else ErrorSet()
-    n = machine.n_axes
-    bl, kv, step = [0.0] * n, [0.0] * n, 1e-3
+    params, step = {}, 1e-3
     if (d / "dynamics.toml").is_file():
         params = load_dynamics(d / "dynamics.toml", machine)
         data = parse_toml(read_text(d / "dynamics.toml", what="dynamics file"), d / "dynamics.toml")
@@ -66,12 +65,21 @@ def read_model(outdir, machine) -> tuple:
         if isinstance(s, bool) or not isinstance(s, (int, float)) or not (math.isfinite(s) and s > 0):
             raise InputError(f"expected a step in s > 0, got {s!r}", d / "dynamics.toml", field="step_s")
         step = float(s)
-        for k, v in params.items():
-            if k.startswith("servo.kv."):
-                kv[machine.axis_names.index(k[len("servo.kv."):])] = v
-            else:
-                bl[machine.axis_names.index(k[len("backlash."):])] = v
-    return errors, ModelDynamics(tuple(bl), tuple(kv), step)
+    return errors, model_dynamics(params, machine, step)
+
+
+def model_dynamics(params: dict, machine, step: float) -> ModelDynamics:
+    """ModelDynamics of {FMU parameter name: value} (servo.kv.<AXIS>, backlash.<AXIS>; the
+    dynamics.toml keys, `ModelExport.dynamics_values`)."""
+    machine = load_machine(machine)
+    n = machine.n_axes
+    bl, kv = [0.0] * n, [0.0] * n
+    for k, v in params.items():
+        if k.startswith("servo.kv."):
+            kv[machine.axis_names.index(k[len("servo.kv."):])] = float(v)
+        elif k.startswith("backlash."):
+            bl[machine.axis_names.index(k[len("backlash."):])] = float(v)
+    return ModelDynamics(tuple(bl), tuple(kv), float(step))
 
 
 def backlash_offsets(w: np.ndarray, backlash, *, eps: float = 0.0) -> np.ndarray:
