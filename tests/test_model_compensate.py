@@ -205,6 +205,13 @@ def test_cli_compensate_switches_and_bad_input(tmp_path):
     same, _ = compensate_with_model(PROGRAM, M, errors, dyn, filename="p.nc")
     body = lambda s: [ln for ln in s.splitlines() if not ln.startswith("(")]  # noqa: E731
     assert body(same) == body(text)
+    # --cosim: the part error on the model's machine, switch by switch (the model is the truth here)
+    r = _cli(tmp_path, *base, "--cosim", "-o", "all2.nc")
+    assert r.returncode == 0, r.stderr
+    pe = {ln.split()[1]: (float(ln.split()[3]), float(ln.split()[6])) for ln in r.stdout.splitlines()
+          if ln.strip().startswith("compensation ")}
+    assert list(pe) == ["none", "geometric", "+backlash", "+servo"]
+    assert pe["none"][1] > pe["geometric"][1] > pe["+backlash"][1] > 10 * pe["+servo"][1]
     # compensating a compensated program again is refused; a missing model folder is one line
     r = _cli(tmp_path, "model", "compensate", "all.nc", "--model", "model", "--machine", M, "-o", "x.nc")
     assert r.returncode != 0 and "already compensated" in r.stderr and "Traceback" not in r.stderr

@@ -180,6 +180,9 @@ def register_compensate(sub) -> None:
     c.add_argument("--no-servo", action="store_true", help="no servo-lag feed-forward")
     c.add_argument("--rapid", type=float, default=3000.0, metavar="MM_PER_MIN",
                    help="the G0 rate of the control, for the sampling (default 3000)")
+    c.add_argument("--cosim", action="store_true",
+                   help="co-simulate the machine the model describes (machine FMU) with the program uncompensated, "
+                        "compensated for the geometric errors only, + backlash, + servo: print the part errors")
     c.add_argument("-o", "--output", required=True, metavar="OUT.nc")
     c.set_defaults(func=run_compensate)
 
@@ -208,4 +211,10 @@ def run_compensate(args: argparse.Namespace) -> int:
                                      filename=str(src), provenance=prov)
     atomic_write(args.output, new)
     print(f"{src} -> {args.output}: {rep.summary()}")
+    if args.cosim:
+        from .compensate import compare_compensations
+        pe = compare_compensations(text, m, errors, dyn, rapid=args.rapid, filename=str(src))
+        print("part error (distance of the tool edge from the programmed path, feed moves) on the model's machine:")
+        for k, v in pe.items():
+            print(f"  compensation {k:<10} max {v['max'] * 1e3:9.4f} µm   RMS {v['rms'] * 1e3:9.4f} µm")
     return 0

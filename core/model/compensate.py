@@ -290,3 +290,23 @@ def part_error(program, signals, machine, *, rapid: float = 3000.0, fine: int = 
     e = distance_to_path(signals.p[sel], path)
     return {"max": float(e.max(initial=0.0)), "rms": float(np.sqrt(np.mean(e ** 2))) if e.size else 0.0,
             "e": e, "t": t[sel]}
+
+
+def compare_compensations(text: str, machine, errors: ErrorSet, dynamics: ModelDynamics, *,
+                          rapid: float = 3000.0, compiler: str = "cmake", filename: str = "<string>") -> dict:
+    """Co-simulate the program on the machine the model describes (errors, dynamics; no noise)
+    uncompensated, compensated for the geometric errors only, + backlash, + servo feed-forward;
+    returns {"none"|"geometric"|"+backlash"|"+servo": part_error dict (max, rms in mm)}."""
+    from ..fmu.build import MachineDynamics
+    from .simulate import simulate
+    machine = load_machine(machine)
+    dyn = MachineDynamics(kv=tuple(dynamics.kv), backlash=tuple(dynamics.backlash))
+    out = {}
+    for name, kw in (("none", None), ("geometric", dict(backlash=False, servo=False)),
+                     ("+backlash", dict(servo=False)), ("+servo", {})):
+        prog = text if kw is None else compensate_with_model(text, machine, errors, dynamics, rapid=rapid,
+                                                             filename=filename, **kw)[0]
+        sig = simulate(prog, machine, errors, dyn, step=dynamics.step, compiler=compiler)
+        pe = part_error(text, sig, machine, rapid=rapid)
+        out[name] = {"max": pe["max"], "rms": pe["rms"]}
+    return out
