@@ -190,6 +190,12 @@ class CompensationReport:
         return f"compensated: {what}; {self.blocks} blocks{tail}"
 
 
+def _no_errors(e: ErrorSet) -> bool:
+    """True for an ErrorSet that changes nothing (a model folder without geometric effects)."""
+    return (not e.geometric.tables and not any(e.geometric.location.values()) and not np.any(e.tool.offset)
+            and not np.any(e.workpiece.translation) and not np.any(e.workpiece.angles))
+
+
 def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dynamics: ModelDynamics | None = None,
                           *, geometric: bool = True, backlash: bool = True, servo: bool = True,
                           rapid: float = 3000.0, filename: str = "<string>", provenance=None) -> tuple:
@@ -213,7 +219,7 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
                          "program", filename, done)
     sampled = bl is not None or kv is not None
     rep_geo: dict = {}
-    geo = bool(geometric and errors is not None)
+    geo = bool(geometric and errors is not None and not _no_errors(errors))
     if geo:
         text, rep_geo = compensate_program(text, machine, errors, filename=filename,
                                            provenance=None if sampled else list(provenance or []))
@@ -275,20 +281,25 @@ def distance_to_path(points: np.ndarray, path: np.ndarray) -> np.ndarray:
 
 def part_error(program, signals, machine, *, rapid: float = 3000.0, fine: int = 4) -> dict:
     """Part error of a co-simulated run of `program` (signals: mtcomp.model.simulate.Signals of
-    the program or of a compensated version of it, same timing): the distance of the tool edge
-    from the programmed path over the feed samples.  Returns {"max", "rms"} in mm and the
-    per-sample errors ("e", with "t")."""
+    the program or of a compensated version of it, same timing) over the feed moves, both ways
+    (a Hausdorff distance): the distance of each tool edge sample from the programmed path, and
+    of each point of the programmed path from the tool edge's path (this one sees ends and
+    reversal points the tool does not reach, which lie on the path).  Returns {"max", "rms"}
+    in mm over both, and the per-sample distances of the first ("e", with "t")."""
     machine = load_machine(machine)
     step = float(signals.t[1] - signals.t[0])
     # the path the program means: arcs as 0.02 deg chords (sagitta 1.5e-8 of the radius; the
     # interpolator runs them as 1 deg chords, sagitta 3.8e-5 r, an error of the run)
     _, path, _ = programmed_path(program, machine, step / fine, rapid=rapid, arc_step_deg=0.02)
-    t, _, feed = programmed_path(program, machine, step, rapid=rapid)
+    t, cmd, feed = programmed_path(program, machine, step, rapid=rapid)
     k = min(len(t), len(signals.t))
-    # sample k reads the machine at t_k + step, after the command of t_k (mtcomp.fmu.cosim)
     sel = np.flatnonzero(feed[:k])
     e = distance_to_path(signals.p[sel], path)
-    return {"max": float(e.max(initial=0.0)), "rms": float(np.sqrt(np.mean(e ** 2))) if e.size else 0.0,
+    # back: the programmed points the control commands (one per step: a corner between two
+    # samples is cut by the interpolation period itself, compensated or not)
+    back = distance_to_path(cmd[sel], signals.p[:k]) if sel.size > 1 else np.zeros(0)
+    both = np.concatenate([e, back])
+    return {"max": float(both.max(initial=0.0)), "rms": float(np.sqrt(np.mean(both ** 2))) if both.size else 0.0,
             "e": e, "t": t[sel]}
 
 
