@@ -214,7 +214,9 @@ def run_compensate(args: argparse.Namespace) -> int:
     if args.cosim:
         from .compensate import compare_compensations
         pe = compare_compensations(text, m, errors, dyn, rapid=args.rapid, filename=str(src))
-        print("part error on the model's machine (tool edge vs programmed path both ways, feed moves):")
+        print("part error on the model's machine (distance of the tool edge from the programmed path, feed "
+              "moves; reach: of the programmed points from the tool edge's path):")
         for k, v in pe.items():
-            print(f"  compensation {k:<10} max {v['max'] * 1e3:9.4f} µm   RMS {v['rms'] * 1e3:9.4f} µm")
+            print(f"  compensation {k:<10} max {v['max'] * 1e3:9.4f} µm   RMS {v['rms'] * 1e3:9.4f} µm   "
+                  f"reach {v['reach'] * 1e3:9.4f} µm")
     return 0

@@ -153,7 +153,7 @@ def run_story(out, *, quick: bool = False, seed: int = 7, step: float = 2e-3, co
             (out / f"part-{name.strip('+')}.nc").write_text(text)
         sig = simulate(text, MACHINE, true_err, true_dyn, step=step, compiler=compiler)
         pe = part_error(program, sig, MACHINE)
-        part[name] = {"max": pe["max"], "rms": pe["rms"]}
+        part[name] = {"max": pe["max"], "rms": pe["rms"], "reach": pe["reach"]}
     story = Story(truth, lr, rec, nominal, updated, part, out, program)
     atomic_write(out / "story.json", json.dumps(story.to_dict(), indent=2) + "\n")
     return story
