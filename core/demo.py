@@ -10,7 +10,9 @@ the figures and the report are in ``demo_report``):
    with and without compensation.
 5. The machined pyramid's widths and angles beside paper 001's Table 1.
 6. The diagnosis names an effect the simulation left out of a co-simulated "recording".
-7. The programs the demo wrote are verified through the machine model (mtcomp.verify).
+7. The loop closed (mtcomp.model.story): the diagnosed effects go into the machine model, its
+   re-simulation matches the recording, and the program compensated with them is co-simulated.
+8. The programs the demo wrote are verified through the machine model (mtcomp.verify).
 """
 from __future__ import annotations
 
@@ -239,6 +241,16 @@ def stage_diagnose(out: Path, seed: int, quick: bool) -> dict:
     return {"res": res, "png": png, "truth": {"name": "backlash", "axis": "X", "value_mm": backlash}}
 
 
+# --------------------------------------------------------------------------- stage 7: the loop closed
+def stage_model_loop(out: Path, seed: int, quick: bool) -> dict:
+    from .model.story import run_story
+    from .demo_report import plot_model_loop
+    story = run_story(out / "model-loop", quick=quick, seed=seed)
+    png = out / "model-loop" / "model_loop.png"
+    plot_model_loop(story, png)
+    return {"story": story, "png": png}
+
+
 def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, stream=None) -> dict:
     """Run every stage, write `out/report.html`; returns the stage results."""
     out = Path(out)
@@ -249,7 +261,7 @@ def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, str
         from ._io import InputError
         raise InputError(f"folder {out.parent} does not exist", field="--out")
     out.mkdir(exist_ok=True)
-    st = _Stages(8, stream)
+    st = _Stages(9, stream)
     r = {}
     r["cad"] = st.run("CAD: bowl blank and pyramid (CadQuery, STEP)", stage_cad, out)
     r["tool"] = st.run("tool setting: virtual grooving, estimate with uncertainty", stage_tool_setting, out, seed)
@@ -257,6 +269,8 @@ def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, str
     r["cosim"] = st.run("co-simulation: compensator FMU -> machine FMU (fmpy)", stage_cosim, out, r["cell"], quick)
     r["pyramid"] = st.run("pyramid widths and angles vs paper 001 Table 1", stage_pyramid, out, r["cell"])
     r["diagnose"] = st.run("diagnosis: a recording with a concealed effect", stage_diagnose, out, seed, quick)
+    r["loop"] = st.run("closing the loop: diagnosed model, compensated program", stage_model_loop, out, seed,
+                       quick)
     r["verify"] = st.run("verify the programs the demo wrote", stage_verify, r["cell"])
     r["report"] = st.run("report", write_report, out, r, quick, st.times)
     render_summary_png(r, out / "summary.png", sum(st.times.values()))

@@ -12,8 +12,8 @@ def test_demo_quick(tmp_path):
     r = subprocess.run([sys.executable, "-m", "mtcomp", "demo", "--quick", "--out", str(out)],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
-    for k in range(1, 9):
-        assert f"[{k}/8]" in r.stdout
+    for k in range(1, 10):
+        assert f"[{k}/9]" in r.stdout
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4 and "<script" not in html
     # The report opens with the summary table: hidden truth, measured, before/after, paper.
@@ -37,6 +37,17 @@ def test_demo_quick(tmp_path):
     # The co-simulation: compensation removes most of the placement error.
     data = np.genfromtxt(out / "cosim.csv", delimiter=",", names=True, skip_header=1)
     assert data["error_compensated_um"].max() < 0.2 * data["error_uncompensated_um"].max()
+    # The loop closed: the updated model re-simulates the recording to about the noise on held-out
+    # time, its parameters are the hidden ones, and every compensation switch lowers the part error.
+    story = json.loads((out / "model-loop" / "story.json").read_text())
+    assert story["heldout_rms"]["before"]["x"] > 1000 * story["noise"]
+    assert story["heldout_rms"]["after"]["x"] < 1.5 * story["noise"]
+    for k, v in story["truth"].items():
+        assert abs(story["fitted"][k][0] - v) <= 0.01 * v, k
+    rms = [story["part_error"][k]["rms"] for k in ("none", "geometric", "+backlash", "+servo")]
+    assert all(b < a for a, b in zip(rms[:-1], rms[1:])), rms
+    assert story["part_error"]["+servo"]["max"] < 0.01 * story["part_error"]["geometric"]["max"]
+    assert "7. Closing the loop" in html and "7 loop closed" in summary
     # The compensated program the cell wrote exists and differs from the nominal one.
     assert (out / "nc" / "O1100.nc").read_text() != (out / "nc" / "O0100.nc").read_text()
 

@@ -1,4 +1,4 @@
-"""`mtcomp model export|simulate|resimulate`: the diagnosed physics back into the machine model."""
+"""`mtcomp model export|simulate|resimulate|ssp|compensate`: the diagnosed physics back into the machine model."""
 from __future__ import annotations
 
 import argparse
@@ -72,6 +72,8 @@ def register(subparsers) -> None:
     r.add_argument("--plot", metavar="OUT.png")
     r.add_argument("--json", metavar="OUT.json")
     r.set_defaults(func=run_resimulate)
+
+    register_compensate(sub)
 
 
 def run_export(args: argparse.Namespace) -> int:
@@ -161,4 +163,60 @@ def run_resimulate(args: argparse.Namespace) -> int:
     if args.plot:
         res.plot(args.plot)
     print(res.summary())
+    return 0
+
+
+def register_compensate(sub) -> None:
+    c = sub.add_parser("compensate", help="compensate an NC program with the model: geometric errors, backlash, "
+                       "servo lag (each switchable)")
+    c.add_argument("program", metavar="PROGRAM.nc")
+    c.add_argument("--model", required=True, metavar="OUTDIR", help="folder written by `mtcomp model export` "
+                   "(errors.toml, dynamics.toml)")
+    c.add_argument("--machine", required=True, metavar="PRESET|machine.toml")
+    c.add_argument("--errors", metavar="E.toml", help="the machine's known errors, added to the model's "
+                   "(the diagnosis fitted what they lacked)")
+    c.add_argument("--no-geometric", action="store_true", help="leave the geometric and setting errors out")
+    c.add_argument("--no-backlash", action="store_true", help="no reversal compensation")
+    c.add_argument("--no-servo", action="store_true", help="no servo-lag feed-forward")
+    c.add_argument("--rapid", type=float, default=3000.0, metavar="MM_PER_MIN",
+                   help="the G0 rate of the control, for the sampling (default 3000)")
+    c.add_argument("--cosim", action="store_true",
+                   help="co-simulate the machine the model describes (machine FMU) with the program uncompensated, "
+                        "compensated for the geometric errors only, + backlash, + servo: print the part errors")
+    c.add_argument("-o", "--output", required=True, metavar="OUT.nc")
+    c.set_defaults(func=run_compensate)
+
+
+def run_compensate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .. import __version__
+    from .._io import InputError, atomic_write, read_text
+    from ..errors import load_errors
+    from ..machine import load_machine
+    from .compensate import compensate_with_model, read_model
+    from .simulate import combine_errors
+    m = load_machine(args.machine)
+    errors, dyn = read_model(args.model, m)
+    if args.errors:
+        errors = combine_errors(load_errors(args.errors, machine=m), errors, m)
+    if not (args.rapid > 0 and args.rapid < float("inf")):
+        raise InputError(f"expected a rapid rate > 0 mm/min, got {args.rapid}", field="--rapid")
+    src = Path(args.program)
+    text = read_text(src, what="NC program")
+    prov = [("VERSION", f"mtcomp {__version__}"), ("MACHINE", m.name), ("SOURCE", src.name),
+            ("MODEL", Path(args.model).name)]
+    new, rep = compensate_with_model(text, m, None if args.no_geometric else errors, dyn,
+                                     backlash=not args.no_backlash, servo=not args.no_servo, rapid=args.rapid,
+                                     filename=str(src), provenance=prov)
+    atomic_write(args.output, new)
+    print(f"{src} -> {args.output}: {rep.summary()}")
+    if args.cosim:
+        from .compensate import compare_compensations
+        pe = compare_compensations(text, m, errors, dyn, rapid=args.rapid, filename=str(src))
+        print("part error on the model's machine (distance of the tool edge from the programmed path, feed "
+              "moves; reach: of the programmed points from the tool edge's path):")
+        for k, v in pe.items():
+            print(f"  compensation {k:<10} max {v['max'] * 1e3:9.4f} µm   RMS {v['rms'] * 1e3:9.4f} µm   "
+                  f"reach {v['reach'] * 1e3:9.4f} µm")
     return 0

@@ -37,12 +37,28 @@ def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *,
     """Run the NC program (path, text, or (K, n) command array) through the machine FMU built
     with `errors` and `dynamics` (mtcomp.fmu.build.MachineDynamics) at `step` s; the machine
     gets the programmed commands (the uncompensated run of mtcomp.fmu.cosim.cosimulate)."""
-    from ..fmu.cosim import cosimulate
+    import tempfile
+
+    from ..fmu.build import build_machine_fmu
+    from ..fmu.cosim import _run, interpolate_program
     machine = load_machine(machine)
     errors = errors or ErrorSet()
-    res = cosimulate(program, machine, errors, ErrorSet(), step=step, dynamics=dynamics,
-                     spindle_speed=spindle_speed, workdir=workdir, compiler=compiler)
-    return Signals(res.t, res.p_uncompensated, res.q_programmed, tuple(res.axes))
+    # the machine-only run of mtcomp.fmu.cosim.cosimulate (its uncompensated run, the same
+    # stepping loop): cosimulate would also run the compensated loop, half the time of each of
+    # the many re-simulations of prune, refine and the compensation co-simulations
+    if isinstance(program, np.ndarray) or (isinstance(program, (list, tuple)) and np.ndim(program) == 2):
+        q = np.asarray(program, dtype=float)
+        if q.ndim != 2 or q.shape[1] != machine.n_axes or len(q) < 2 or not np.isfinite(q).all():
+            raise InputError(f"axis command array must be finite with shape (K >= 2, {machine.n_axes}), "
+                             f"got {q.shape}", field="program")
+        t = np.arange(len(q)) * step
+    else:
+        t, q = interpolate_program(program, machine, step)
+    with tempfile.TemporaryDirectory(prefix="mtcomp-sim-") as tmp:
+        wd = Path(workdir) if workdir is not None else Path(tmp)
+        mach = build_machine_fmu(machine, wd / "machine.fmu", errors, dynamics, compiler=compiler)
+        _, p, _ = _run(machine, q, step, mach, None, spindle_speed)
+    return Signals(t, p, q, tuple(machine.axis_names))
 
 
 def signals_csv(sig: Signals, machine) -> str:
