@@ -109,7 +109,7 @@ class _Errors(ctypes.Structure):
 class _Options(ctypes.Structure):
     """mtk_options of mtk.h"""
     _fields_ = [("tol", ctypes.c_double), ("max_iter", ctypes.c_int), ("pole_tol", ctypes.c_double),
-                ("continuation", ctypes.c_int)]
+                ("continuation", ctypes.c_int), ("run_in", ctypes.c_long)]
 
 
 _D = ctypes.POINTER(ctypes.c_double)
@@ -311,7 +311,6 @@ def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_
     res = np.empty(n)
     status = np.empty(n, dtype=np.intc)
     info = np.empty(n, dtype=np.intc)
-    opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)))
     m = model(lib, machine, errors)
     e = c_errors(machine, errors)
     if target is not None:
@@ -319,17 +318,16 @@ def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_
         tR = np.ascontiguousarray(target.R, dtype=float)
 
     def part(a, b):
+        # the run-in poses before a chunk are solved to take up the path, not written: every
+        # chunk writes straight into its own rows of the results (no temporaries, no copies)
         a0 = max(0, a - RUN_IN) if continuation else a
-        k = b - a0
-        qq, rr = np.empty((k, q0.shape[1])), np.empty(k)
-        ss, ii = np.empty(k, dtype=np.intc), np.empty(k, dtype=np.intc)
-        args = (_p(qq), ctypes.byref(opt), _p(rr), ss.ctypes.data_as(_I), ii.ctypes.data_as(_I))
+        opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)), a - a0)
+        args = (_p(q[a:]), ctypes.byref(opt), _p(res[a:]), status[a:].ctypes.data_as(_I),
+                info[a:].ctypes.data_as(_I))
         if target is None:
-            lib.mtk_retarget_batch(m.ptr, ctypes.byref(e), k, _p(q0[a0:]), *args)
+            lib.mtk_retarget_batch(m.ptr, ctypes.byref(e), b - a0, _p(q0[a0:]), *args)
         else:
-            lib.mtk_compensate_batch(m.ptr, ctypes.byref(e), k, _p(tp[a0:]), _p(tR[a0:]), _p(q0[a0:]), *args)
-        s = a - a0
-        q[a:b], res[a:b], status[a:b], info[a:b] = qq[s:], rr[s:], ss[s:], ii[s:]
+            lib.mtk_compensate_batch(m.ptr, ctypes.byref(e), b - a0, _p(tp[a0:]), _p(tR[a0:]), _p(q0[a0:]), *args)
 
     _run(_chunks(n), part)
     return q, res, status, info

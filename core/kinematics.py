@@ -259,6 +259,8 @@ def _check_swing(machine: Machine, q: np.ndarray, q0: np.ndarray, max_swing: flo
 def _raise_kernel_failures(machine: Machine, errors, q, res, status, info) -> None:
     from . import _kernel
     from .errors import TableRangeError
+    if not status.any():  # the usual case: one pass, no index arrays
+        return
     bad = np.nonzero(status == _kernel.E_CONVERGE)[0]
     if bad.size:
         raise ConvergenceError(int(bad[0]), float(res[bad[0]]))

@@ -1596,14 +1596,25 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     so.tol = o->tol;
     so.max_iter = o->max_iter;
     so.pole_tol = o->pole_tol;
+    long skip = o->run_in > 0 ? (o->run_in < n ? o->run_in : n) : 0;
+    double q_in[MTK_MAX_AXES], res_in;
+    int status_in, info_in;
     for (i = 0; i < n; i++) {
         const double *qa = q0 + i * nax;
-        double *qo = q + i * nax, start[MTK_MAX_AXES], r0 = 0.0;
+        double *qo, start[MTK_MAX_AXES], r0 = 0.0, *resi;
+        int *statusi, *infoi;
         target_t tg;
         int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
-        status[i] = MTK_OK;
-        info[i] = -1;
-        res[i] = 0.0;
+        if (i < skip) {
+            if (!o->continuation || (!p_t && P.closed)) continue;   /* nothing to take up */
+            qo = q_in; resi = &res_in; statusi = &status_in; infoi = &info_in;
+        } else {
+            qo = q + (i - skip) * nax; resi = res + (i - skip); statusi = status + (i - skip);
+            infoi = info + (i - skip);
+        }
+        *statusi = MTK_OK;
+        *infoi = -1;
+        *resi = 0.0;
         if (!p_t && P.closed) {
             if (closed_form(&P, qa, qo)) continue;
         }
@@ -1617,19 +1628,19 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         memcpy(start, qa, nax * sizeof(double));
         if (o->continuation && have_prev)
             for (k = 0; k < nax; k++) start[k] += corr[k];
-        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, &res[i], &r0, &sing, &bad,
+        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, resi, &r0, &sing, &bad,
                         &held, &how);
         if (rc == MTK_OK) {
-            info[i] = held;
+            *infoi = held;
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
             warm = how != HOW_SEED;
         } else {
-            status[i] = rc;
-            info[i] = bad;
-            if (rc == MTK_E_CONVERGE) res[i] = r0;
+            *statusi = rc;
+            *infoi = bad;
+            if (rc == MTK_E_CONVERGE) *resi = r0;
             have_prev = 0;
-            failed++;
+            failed += i >= skip;
         }
     }
     return failed;

@@ -90,6 +90,8 @@ typedef struct {
     int max_iter;        /* iterations per attempt */
     double pole_tol;     /* deg; 0: no pole handling */
     int continuation;    /* start each pose from the previous pose's correction */
+    long run_in;         /* the first run_in poses only take up the path (continuation): solved, not
+                          * written; q, res, status and info hold the poses after them */
 } mtk_options;
 
 mtk_model *mtk_model_new(int n_axes, const char *axis_names, const int *rotary, const int *tool_side,
