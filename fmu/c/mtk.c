@@ -960,10 +960,10 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
 /* K = A^-1 J^T with A = J^T J + lambda I, the columns of frozen axes zeroed.
  * Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     const double *J0, double *K, int *rc)
+                     const double *J0, double *K, double *J, int *rc)
 {
     int n = Pr->n, rows = Pr->rows, i, j, k;
-    double J[6 * MTK_MAX_AXES], A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
+    double A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
     if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
         memcpy(J, J0, (size_t)rows * n * sizeof(double));
         for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
@@ -988,6 +988,30 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
     return solve(n, Acopy, K, rows);
 }
 
+/* Largest steps (deg, mm) over which the model is linear to below 1e-11 mm: the rotation about a
+ * rotary axis deviates from its tangent by L th^2 / 2 (1e-11 mm at 500 mm for 1e-5 deg), a linear
+ * step couples with it and with the tables' µrad angles by products below 1e-11 mm. */
+#define LINEAR_ROTARY 1e-5
+#define LINEAR_LINEAR 1e-4
+
+/* The step from q to q - step is within those bounds and crosses no table knot (the tables are
+ * linear within an interval). */
+static int linear_exact(const prep_t *P, const double *q, const double *step)
+{
+    int i;
+    for (i = 0; i < P->n; i++) {
+        const mtk_table *t = P->tab[i];
+        double qn = q[i] - step[i];
+        if (fabs(step[i]) > (P->m->rotary[i] ? LINEAR_ROTARY : LINEAR_LINEAR)) return 0;
+        if (t) {
+            int lo = P->hint[i];
+            if (!(q[i] > t->pos[0] && q[i] < t->pos[t->n - 1])) return 0;
+            if (!(t->pos[lo] <= q[i] && q[i] < t->pos[lo + 1] && t->pos[lo] <= qn && qn < t->pos[lo + 1])) return 0;
+        }
+    }
+    return 1;
+}
+
 /* With a held axis, rotary axes within this (deg) of where the Jacobian was taken do not make it
  * stale (its orientation rows depend on the rotary angles alone): the bias of the least-squares point it
  * leaves is below 1e-10 deg for the orientation residuals the pole tolerance admits (a warm start
@@ -1004,7 +1028,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                    int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], nr, qlin[MTK_MAX_AXES];
+    double K[MTK_MAX_AXES * 6], J[6 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
@@ -1017,7 +1041,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     while (!done && it < max_iter) {
         int inner, slow = 0;
         memcpy(qlin, q, n * sizeof(double));
-        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, J, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
@@ -1044,6 +1068,21 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
             memcpy(qn, q, n * sizeof(double));
             memcpy(rn, r, rows * sizeof(double));
+            if (smax >= tol && (Pr == P || !P->geo) && !freeze && inner == 0 && linear_exact(P, q, step)) {
+                /* Newton step on the full model's Jacobian so small that the model is linear
+                 * over it to below 1e-11 mm: the residual after it is the linear prediction, no
+                 * evaluation (a warm start along a path ends here) */
+                for (i = 0; i < n; i++) qn[i] = q[i] - step[i];
+                for (k = 0; k < rows; k++) {
+                    double sk = r[k];
+                    for (i = 0; i < n; i++) sk -= J[k * n + i] * step[i];
+                    rn[k] = sk;
+                }
+                memcpy(q, qn, n * sizeof(double));
+                memcpy(r, rn, rows * sizeof(double));
+                done = 1;
+                break;
+            }
             for (bt = 0; bt < (smax >= tol ? 30 : 0); bt++) {
                 double qt[MTK_MAX_AXES], rt[6], nt;
                 for (i = 0; i < n; i++) qt[i] = q[i] - scale * step[i];
