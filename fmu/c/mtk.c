@@ -977,10 +977,11 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
             if (freeze[k])
                 for (j = 0; j < rows; j++) J[j * n + k] = 0.0;
     for (i = 0; i < n; i++)
-        for (j = 0; j < n; j++) {
+        for (j = i; j < n; j++) {   /* symmetric: the upper triangle, mirrored */
             double s = 0.0;
             for (k = 0; k < rows; k++) s += J[k * n + i] * J[k * n + j];
             A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
+            A[j * n + i] = A[i * n + j];
         }
     for (i = 0; i < n; i++)
         for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
