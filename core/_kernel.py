@@ -273,12 +273,19 @@ def _chunks(n: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
+_pool = None
+
+
 def _run(parts, fn):
+    # one pool for the process (the kernel releases the GIL through ctypes): starting threads on
+    # every call cost more CPU time than a closed-form batch of 200,000 poses takes per core
+    global _pool
     if len(parts) == 1:
         return [fn(*parts[0])]
     from concurrent.futures import ThreadPoolExecutor
-    with ThreadPoolExecutor(len(parts)) as ex:
-        return list(ex.map(lambda ab: fn(*ab), parts))
+    if _pool is None or _pool._max_workers < len(parts):
+        _pool = ThreadPoolExecutor(len(parts), thread_name_prefix="mtk")
+    return list(_pool.map(lambda ab: fn(*ab), parts))
 
 
 def forward(lib, machine, q: np.ndarray, errors, strict: bool):
