@@ -5,6 +5,11 @@
  * error-table CSV reader of mtcomp.errors; the tests hold it to the numpy reference
  * (mtcomp.kinematics, mtcomp._solver) to 1e-9 mm on every preset and error kind.
  */
+/* The FMUs compile this file with -O2 and errno-setting maths: the hot loop wants -O3 and sqrt
+ * inlined (the library build passes both; finite inputs are checked before they get here). */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize("O3", "no-math-errno")
+#endif
 #include <ctype.h>
 #include <math.h>
 #include <stdio.h>
@@ -675,7 +680,13 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
 }
 
 /* Solve A X = B for X (n x n, n x k), partial pivoting; 0 if singular. A and B are destroyed. */
-static int solve(int n, double *A, double *B, int k)
+#if defined(__GNUC__)
+#define MTK_INLINE static inline __attribute__((always_inline))
+#else
+#define MTK_INLINE static inline
+#endif
+
+MTK_INLINE int solve(int n, double *A, double *B, int k)
 {
     int i, j, c, r;
     for (c = 0; c < n; c++) {
@@ -957,12 +968,29 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     return MTK_OK;
 }
 
+/* K = A^-1 J^T with A = J^T J + lambda I (A, Acopy: scratch). */
+MTK_INLINE int normal_solve(int n, int rows, const double *J, double *A, double *Acopy, double *K)
+{
+    int i, j, k;
+    for (i = 0; i < n; i++)
+        for (j = i; j < n; j++) {   /* symmetric: the upper triangle, mirrored */
+            double s = 0.0;
+            for (k = 0; k < rows; k++) s += J[k * n + i] * J[k * n + j];
+            A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
+            A[j * n + i] = A[i * n + j];
+        }
+    for (i = 0; i < n; i++)
+        for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
+    memcpy(Acopy, A, (size_t)n * n * sizeof(double));
+    return solve(n, Acopy, K, rows);
+}
+
 /* K = A^-1 J^T with A = J^T J + lambda I, the columns of frozen axes zeroed.
  * Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
                      const double *J0, double *K, double *J, int *rc)
 {
-    int n = Pr->n, rows = Pr->rows, i, j, k;
+    int n = Pr->n, rows = Pr->rows, j, k;
     double A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
     if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
         memcpy(J, J0, (size_t)rows * n * sizeof(double));
@@ -976,17 +1004,12 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
         for (k = 0; k < n; k++)
             if (freeze[k])
                 for (j = 0; j < rows; j++) J[j * n + k] = 0.0;
-    for (i = 0; i < n; i++)
-        for (j = i; j < n; j++) {   /* symmetric: the upper triangle, mirrored */
-            double s = 0.0;
-            for (k = 0; k < rows; k++) s += J[k * n + i] * J[k * n + j];
-            A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
-            A[j * n + i] = A[i * n + j];
-        }
-    for (i = 0; i < n; i++)
-        for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
-    memcpy(Acopy, A, (size_t)n * n * sizeof(double));
-    return solve(n, Acopy, K, rows);
+    /* the usual shapes with constant sizes (unrolled by the compiler; the same arithmetic) */
+    if (n == 5 && rows == 6) return normal_solve(5, 6, J, A, Acopy, K);
+    if (n == 3 && rows == 3) return normal_solve(3, 3, J, A, Acopy, K);
+    if (n == 6 && rows == 6) return normal_solve(6, 6, J, A, Acopy, K);
+    if (n == 4 && rows == 6) return normal_solve(4, 6, J, A, Acopy, K);
+    return normal_solve(n, rows, J, A, Acopy, K);
 }
 
 /* Largest steps (deg, mm) over which the model is linear to below 1e-11 mm: the rotation about a
