@@ -109,7 +109,7 @@ class _Errors(ctypes.Structure):
 class _Options(ctypes.Structure):
     """mtk_options of mtk.h"""
     _fields_ = [("tol", ctypes.c_double), ("max_iter", ctypes.c_int), ("pole_tol", ctypes.c_double),
-                ("continuation", ctypes.c_int)]
+                ("continuation", ctypes.c_int), ("run_in", ctypes.c_long)]
 
 
 _D = ctypes.POINTER(ctypes.c_double)
@@ -273,12 +273,19 @@ def _chunks(n: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
+_pool = None
+
+
 def _run(parts, fn):
+    # one pool for the process (the kernel releases the GIL through ctypes): starting threads on
+    # every call cost more CPU time than a closed-form batch of 200,000 poses takes per core
+    global _pool
     if len(parts) == 1:
         return [fn(*parts[0])]
     from concurrent.futures import ThreadPoolExecutor
-    with ThreadPoolExecutor(len(parts)) as ex:
-        return list(ex.map(lambda ab: fn(*ab), parts))
+    if _pool is None or _pool._max_workers < len(parts):
+        _pool = ThreadPoolExecutor(len(parts), thread_name_prefix="mtk")
+    return list(_pool.map(lambda ab: fn(*ab), parts))
 
 
 def forward(lib, machine, q: np.ndarray, errors, strict: bool):
@@ -311,7 +318,6 @@ def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_
     res = np.empty(n)
     status = np.empty(n, dtype=np.intc)
     info = np.empty(n, dtype=np.intc)
-    opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)))
     m = model(lib, machine, errors)
     e = c_errors(machine, errors)
     if target is not None:
@@ -319,17 +325,16 @@ def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_
         tR = np.ascontiguousarray(target.R, dtype=float)
 
     def part(a, b):
+        # the run-in poses before a chunk are solved to take up the path, not written: every
+        # chunk writes straight into its own rows of the results (no temporaries, no copies)
         a0 = max(0, a - RUN_IN) if continuation else a
-        k = b - a0
-        qq, rr = np.empty((k, q0.shape[1])), np.empty(k)
-        ss, ii = np.empty(k, dtype=np.intc), np.empty(k, dtype=np.intc)
-        args = (_p(qq), ctypes.byref(opt), _p(rr), ss.ctypes.data_as(_I), ii.ctypes.data_as(_I))
+        opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)), a - a0)
+        args = (_p(q[a:]), ctypes.byref(opt), _p(res[a:]), status[a:].ctypes.data_as(_I),
+                info[a:].ctypes.data_as(_I))
         if target is None:
-            lib.mtk_retarget_batch(m.ptr, ctypes.byref(e), k, _p(q0[a0:]), *args)
+            lib.mtk_retarget_batch(m.ptr, ctypes.byref(e), b - a0, _p(q0[a0:]), *args)
         else:
-            lib.mtk_compensate_batch(m.ptr, ctypes.byref(e), k, _p(tp[a0:]), _p(tR[a0:]), _p(q0[a0:]), *args)
-        s = a - a0
-        q[a:b], res[a:b], status[a:b], info[a:b] = qq[s:], rr[s:], ss[s:], ii[s:]
+            lib.mtk_compensate_batch(m.ptr, ctypes.byref(e), b - a0, _p(tp[a0:]), _p(tR[a0:]), _p(q0[a0:]), *args)
 
     _run(_chunks(n), part)
     return q, res, status, info

@@ -259,6 +259,8 @@ def _check_swing(machine: Machine, q: np.ndarray, q0: np.ndarray, max_swing: flo
 def _raise_kernel_failures(machine: Machine, errors, q, res, status, info) -> None:
     from . import _kernel
     from .errors import TableRangeError
+    if not status.any():  # the usual case: one pass, no index arrays
+        return
     bad = np.nonzero(status == _kernel.E_CONVERGE)[0]
     if bad.size:
         raise ConvergenceError(int(bad[0]), float(res[bad[0]]))
@@ -286,7 +288,9 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
     that factor.  Points that do not contract (large workpiece rotations near a singularity)
     get their Jacobian re-taken at the current iterate, i.e. full Newton.  Steps are damped
     least squares without components along null directions: where the tool direction leaves
-    a rotary axis free it keeps q0's value.  docs/model.md gives the details.
+    a rotary axis free it keeps q0's value.  The compiled kernel uses the full model's analytic
+    Jacobian (table slopes in it) where there are tables or location errors; the results agree
+    to 1e-9.  docs/model.md gives the details.
 
     Poles (pole_tolerance, deg; default POLE_TOLERANCE, 0 disables): where a rotary axis' effect
     on the orientation lies within the tolerance of what the other rotary axes do (C at B = 0 on

@@ -5,6 +5,11 @@
  * error-table CSV reader of mtcomp.errors; the tests hold it to the numpy reference
  * (mtcomp.kinematics, mtcomp._solver) to 1e-9 mm on every preset and error kind.
  */
+/* The FMUs compile this file with -O2 and errno-setting maths: the hot loop wants -O3 and sqrt
+ * inlined (the library build passes both; finite inputs are checked before they get here). */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize("O3", "no-math-errno")
+#endif
 #include <ctype.h>
 #include <math.h>
 #include <stdio.h>
@@ -356,36 +361,52 @@ bad:
     return MTK_E_FORMAT;
 }
 
-/* Component errors at q: d (mm), e (rad).  strict: MTK_E_RANGE outside the table (1e-12
- * tolerance); otherwise the end values are held (intermediate iterates of the compensation). */
-static int table_eval(const mtk_table *t, double q, double d[3], double e[3], int strict)
+/* Interval [lo, lo + 1] of the table holding q (pos[0] < q < pos[n-1]), starting from *hint:
+ * the iterates of one pose and the poses of a path stay in or next to the same interval. */
+static inline int table_interval(const mtk_table *t, double q, int *hint)
 {
-    int lo = 0, hi = t->n - 1, k;
-    double f;
-    if (isnan(q)) {
-        if (strict) return MTK_E_RANGE;
-        for (k = 0; k < 3; k++) d[k] = e[k] = NAN;
-        return MTK_OK;
-    }
-    if (strict && !(q >= t->pos[0] - 1e-12 && q <= t->pos[t->n - 1] + 1e-12)) return MTK_E_RANGE;
-    if (q <= t->pos[0]) {
-        for (k = 0; k < 3; k++) { d[k] = t->val[k]; e[k] = t->val[3 + k]; }
-        return MTK_OK;
-    }
-    if (q >= t->pos[t->n - 1]) {
-        const double *v = t->val + 6 * (t->n - 1);
-        for (k = 0; k < 3; k++) { d[k] = v[k]; e[k] = v[3 + k]; }
-        return MTK_OK;
-    }
+    int lo = *hint, hi;
+    if (lo >= 0 && lo < t->n - 1 && t->pos[lo] <= q && q < t->pos[lo + 1]) return lo;
+    lo = 0;
+    hi = t->n - 1;
     while (hi - lo > 1) {
         int mid = (lo + hi) / 2;
         if (t->pos[mid] <= q) lo = mid; else hi = mid;
     }
+    *hint = lo;
+    return lo;
+}
+
+/* Component errors at q: d (mm), e (rad), and their slopes dd, de per mm or deg (may be NULL).
+ * strict: MTK_E_RANGE outside the table (1e-12 tolerance); otherwise the end values are held
+ * (intermediate iterates of the compensation; slope 0). */
+static inline int table_eval_hint(const mtk_table *t, double q, double d[3], double e[3], double *dd, double *de,
+                                  int strict, int *hint)
+{
+    int lo, k;
+    double f, inv;
+    if (isnan(q)) {
+        if (strict) return MTK_E_RANGE;
+        for (k = 0; k < 3; k++) d[k] = e[k] = NAN;
+        if (dd) for (k = 0; k < 3; k++) dd[k] = de[k] = 0.0;
+        return MTK_OK;
+    }
+    if (strict && !(q >= t->pos[0] - 1e-12 && q <= t->pos[t->n - 1] + 1e-12)) return MTK_E_RANGE;
+    if (q <= t->pos[0] || q >= t->pos[t->n - 1]) {
+        const double *v = q <= t->pos[0] ? t->val : t->val + 6 * (t->n - 1);
+        for (k = 0; k < 3; k++) { d[k] = v[k]; e[k] = v[3 + k]; }
+        if (dd) for (k = 0; k < 3; k++) dd[k] = de[k] = 0.0;
+        return MTK_OK;
+    }
+    lo = table_interval(t, q, hint);
     f = q - t->pos[lo];
-    for (k = 0; k < 6; k++) {
-        double v0 = t->val[6 * lo + k], v1 = t->val[6 * hi + k];
-        double x = (v1 - v0) / (t->pos[hi] - t->pos[lo]) * f + v0;
-        if (k < 3) d[k] = x; else e[k - 3] = x;
+    inv = 1.0 / (t->pos[lo + 1] - t->pos[lo]);
+    for (k = 0; k < 3; k++) {
+        double s = (t->val[6 * lo + 6 + k] - t->val[6 * lo + k]) * inv;
+        double se = (t->val[6 * lo + 9 + k] - t->val[6 * lo + 3 + k]) * inv;
+        d[k] = s * f + t->val[6 * lo + k];
+        e[k] = se * f + t->val[6 * lo + 3 + k];
+        if (dd) { dd[k] = s; de[k] = se; }
     }
     return MTK_OK;
 }
@@ -405,6 +426,7 @@ typedef struct {
     double c[MTK_MAX_AXES][3];        /* rotary centre with its location offset, mm */
     double zero[MTK_MAX_AXES];        /* zero-position error of a rotary axis, rad */
     const mtk_table *tab[MTK_MAX_AXES];
+    int hint[MTK_MAX_AXES];           /* last table interval per axis (table_interval) */
     double tp[3];                     /* tool point + tool setting offset, mm */
     int wp;                           /* workpiece pose differs from identity */
     double RwT[9], tw[3], Rw[9];
@@ -416,7 +438,7 @@ typedef struct {
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
  * µrad angles of error tables; truncation below 1e-24), sin/cos above. */
-static void rotvec_fast(const double w[3], double R[9])
+static inline void rotvec_fast(const double w[3], double R[9])
 {
     double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], a, b;
     if (t2 < 1e-6) {
@@ -557,7 +579,7 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
         if (P->tab[i]) {
             double d[3], ang[3], Re[9], te[3], tmp[3];
             const double *loc = m->loc[i];
-            if (table_eval(P->tab[i], q[i], d, ang, strict) != MTK_OK) {
+            if (table_eval_hint(P->tab[i], q[i], d, ang, NULL, NULL, strict, (int *)&P->hint[i]) != MTK_OK) {
                 if (bad) *bad = i;
                 return MTK_E_RANGE;
             }
@@ -658,7 +680,13 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
 }
 
 /* Solve A X = B for X (n x n, n x k), partial pivoting; 0 if singular. A and B are destroyed. */
-static int solve(int n, double *A, double *B, int k)
+#if defined(__GNUC__)
+#define MTK_INLINE static inline __attribute__((always_inline))
+#else
+#define MTK_INLINE static inline
+#endif
+
+MTK_INLINE int solve(int n, double *A, double *B, int k)
 {
     int i, j, c, r;
     for (c = 0; c < n; c++) {
@@ -707,6 +735,133 @@ static double norm(const double *r, int rows)
     return sqrt(s);
 }
 
+static inline void cross(const double a[3], const double b[3], double c[3])
+{
+    double c0 = a[1] * b[2] - a[2] * b[1], c1 = a[2] * b[0] - a[0] * b[2], c2 = a[0] * b[1] - a[1] * b[0];
+    c[0] = c0; c[1] = c1; c[2] = c2;
+}
+
+/* Jacobian of the full model (location errors and the tables' slopes) and its residual at q
+ * (tables held at their ends), in one pass: each axis' motion G_i(q_i) is a rigid motion whose
+ * derivative is a twist (w_i, v_i) in the frame before it, dG_i G_i^-1 = ([w_i]x, v_i): a rotary
+ * axis turns about the line through its centre c, (u, c x u) per rad; a linear axis moves along
+ * u, (0, u); an error motion E = (Re, te) with te = loc + d - Re loc has, to first order in its
+ * µrad angles e, the twist (e', d' - e' x (loc + d)).  Products compose by the adjoint,
+ * tw(A B) = tw(A) + (Ra w_b, Ra v_b + ta x Ra w_b).  With (Rpre, tpre) the chain before axis i,
+ * the column is dp = W x (p - tpre) + Rpre v_i, dR = [W]x R, W = Rpre w_i.  (Written by hand:
+ * the kernel's own model; the numpy reference takes finite differences.) */
+static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0)
+{
+    const mtk_model *m = P->m;
+    double W[MTK_MAX_AXES][3], V[MTK_MAX_AXES][3], T[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
+    int n = P->n, i, k;
+    eye(R);
+    for (i = 0; i < n; i++) {
+        double Rg[9], tg3[3], w[3], vv[3];
+        if (m->rotary[i]) {
+            const double *c = P->c[i];
+            axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            for (k = 0; k < 3; k++) {
+                tg3[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
+                w[k] = P->ueff[i][k] * DEG;
+            }
+            cross(c, w, vv);
+        } else {
+            eye(Rg);
+            for (k = 0; k < 3; k++) {
+                tg3[k] = q[i] * P->ueff[i][k];
+                w[k] = 0.0;
+                vv[k] = P->ueff[i][k];
+            }
+        }
+        if (P->tab[i]) {
+            double d[3], ang[3], dd[3], de[3], Re[9], te[3], we[3], ve[3], lp[3], a[3], b[3], x[3];
+            const double *loc = m->loc[i];
+            table_eval_hint(P->tab[i], q[i], d, ang, dd, de, 0, (int *)&P->hint[i]);
+            rotvec_fast(ang, Re);
+            for (k = 0; k < 3; k++) {
+                te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+                lp[k] = loc[k] + d[k];
+                we[k] = de[k];
+            }
+            cross(de, lp, x);
+            for (k = 0; k < 3; k++) ve[k] = dd[k] - x[k];
+            if (m->tool_side[i] == m->rotary[i]) {      /* E . N */
+                mat_vec(Re, w, a);
+                mat_vec(Re, vv, b);
+                cross(te, a, x);
+                for (k = 0; k < 3; k++) { w[k] = we[k] + a[k]; vv[k] = ve[k] + b[k] + x[k]; }
+                mat_vec(Re, tg3, b);
+                for (k = 0; k < 3; k++) tg3[k] = b[k] + te[k];
+                mat_mul(Re, Rg, Rg);
+            } else {                                     /* N . E */
+                mat_vec(Rg, we, a);
+                mat_vec(Rg, ve, b);
+                cross(tg3, a, x);
+                for (k = 0; k < 3; k++) { w[k] += a[k]; vv[k] += b[k] + x[k]; }
+                mat_vec(Rg, te, b);
+                for (k = 0; k < 3; k++) tg3[k] += b[k];
+                mat_mul(Rg, Re, Rg);
+            }
+        }
+        mat_vec(R, w, W[i]);
+        mat_vec(R, vv, V[i]);
+        memcpy(T[i], t, sizeof t);
+        {
+            double tmp[3];
+            mat_vec(R, tg3, tmp);
+            for (k = 0; k < 3; k++) t[k] += tmp[k];
+            mat_mul(R, Rg, R);
+        }
+    }
+    mat_vec(R, P->tp, p);
+    for (k = 0; k < 3; k++) p[k] += t[k];
+    mat_vec(R, m->tool_axis, v);
+    if (r0) {
+        double pr[3], d[3], Rr[9];
+        for (k = 0; k < 3; k++) d[k] = p[k] - P->tw[k];
+        mat_vec(P->RwT, d, pr);
+        for (k = 0; k < 3; k++) r0[k] = pr[k] - tg->p[k];
+        if (P->mode == 2) {
+            double vr[3];
+            mat_vec(P->RwT, v, vr);
+            for (k = 0; k < 3; k++) r0[3 + k] = wo * (vr[k] - tg->v[k]);
+        } else if (P->mode == 3) {
+            const double *Tt = tg->R;
+            mat_mul(P->RwT, R, Rr);
+            r0[3] = wo * 0.5 * ((Tt[2] * Rr[1] + Tt[5] * Rr[4] + Tt[8] * Rr[7]) - (Tt[1] * Rr[2] + Tt[4] * Rr[5] + Tt[7] * Rr[8]));
+            r0[4] = wo * 0.5 * ((Tt[0] * Rr[2] + Tt[3] * Rr[5] + Tt[6] * Rr[8]) - (Tt[2] * Rr[0] + Tt[5] * Rr[3] + Tt[8] * Rr[6]));
+            r0[5] = wo * 0.5 * ((Tt[1] * Rr[0] + Tt[4] * Rr[3] + Tt[7] * Rr[6]) - (Tt[0] * Rr[1] + Tt[3] * Rr[4] + Tt[6] * Rr[7]));
+        }
+    }
+    for (i = 0; i < n; i++) {
+        double dp[3], dpr[3], dv[3], d[3], *w = W[i];
+        for (k = 0; k < 3; k++) d[k] = p[k] - T[i][k];
+        cross(w, d, dp);
+        for (k = 0; k < 3; k++) dp[k] += V[i][k];
+        mat_vec(P->RwT, dp, dpr);
+        for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
+        if (P->mode == 2) {
+            double c[3];
+            cross(w, v, c);
+            mat_vec(P->RwT, c, dv);
+            for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
+        } else if (P->mode == 3) {
+            double Wx[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
+            int r, c;
+            mat_mul(Wx, R, dR);
+            mat_mul(P->RwT, dR, dR);
+            for (r = 0; r < 3; r++)
+                for (c = 0; c < 3; c++)
+                    dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
+            J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
+            J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
+            J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
+        }
+    }
+    return MTK_OK;
+}
+
 /* Jacobian J (rows x n, row-major, per mm or deg) of the rigid model's residual at q, analytic
  * (mtcomp.kinematics._rigid_jacobian): a linear axis moves the tool along its direction as the
  * axes before it turn it, w = R_pre u; a rotary axis turns the tool about the line through its
@@ -718,6 +873,7 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     const mtk_model *m = Pr->m;
     double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
     int n = Pr->n, i, k, ident = 1;
+    if (Pr->geo) return jacobian_full(Pr, q, tg, wo, J, r0);  /* the full model (see solve_pose) */
     eye(R);
     for (i = 0; i < n; i++) {
         memcpy(Rpre[i], R, sizeof R);
@@ -812,13 +968,30 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     return MTK_OK;
 }
 
+/* K = A^-1 J^T with A = J^T J + lambda I (A, Acopy: scratch). */
+MTK_INLINE int normal_solve(int n, int rows, const double *J, double *A, double *Acopy, double *K)
+{
+    int i, j, k;
+    for (i = 0; i < n; i++)
+        for (j = i; j < n; j++) {   /* symmetric: the upper triangle, mirrored */
+            double s = 0.0;
+            for (k = 0; k < rows; k++) s += J[k * n + i] * J[k * n + j];
+            A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
+            A[j * n + i] = A[i * n + j];
+        }
+    for (i = 0; i < n; i++)
+        for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
+    memcpy(Acopy, A, (size_t)n * n * sizeof(double));
+    return solve(n, Acopy, K, rows);
+}
+
 /* K = A^-1 J^T with A = J^T J + lambda I, the columns of frozen axes zeroed.
  * Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     const double *J0, double *K, int *rc)
+                     const double *J0, double *K, double *J, int *rc)
 {
-    int n = Pr->n, rows = Pr->rows, i, j, k;
-    double J[6 * MTK_MAX_AXES], A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
+    int n = Pr->n, rows = Pr->rows, j, k;
+    double A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
     if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
         memcpy(J, J0, (size_t)rows * n * sizeof(double));
         for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
@@ -831,16 +1004,36 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
         for (k = 0; k < n; k++)
             if (freeze[k])
                 for (j = 0; j < rows; j++) J[j * n + k] = 0.0;
-    for (i = 0; i < n; i++)
-        for (j = 0; j < n; j++) {
-            double s = 0.0;
-            for (k = 0; k < rows; k++) s += J[k * n + i] * J[k * n + j];
-            A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
+    /* the usual shapes with constant sizes (unrolled by the compiler; the same arithmetic) */
+    if (n == 5 && rows == 6) return normal_solve(5, 6, J, A, Acopy, K);
+    if (n == 3 && rows == 3) return normal_solve(3, 3, J, A, Acopy, K);
+    if (n == 6 && rows == 6) return normal_solve(6, 6, J, A, Acopy, K);
+    if (n == 4 && rows == 6) return normal_solve(4, 6, J, A, Acopy, K);
+    return normal_solve(n, rows, J, A, Acopy, K);
+}
+
+/* Largest steps (deg, mm) over which the model is linear to below 1e-11 mm: the rotation about a
+ * rotary axis deviates from its tangent by L th^2 / 2 (1e-11 mm at 500 mm for 1e-5 deg), a linear
+ * step couples with it and with the tables' µrad angles by products below 1e-11 mm. */
+#define LINEAR_ROTARY 1e-5
+#define LINEAR_LINEAR 1e-4
+
+/* The step from q to q - step is within those bounds and crosses no table knot (the tables are
+ * linear within an interval). */
+static int linear_exact(const prep_t *P, const double *q, const double *step)
+{
+    int i;
+    for (i = 0; i < P->n; i++) {
+        const mtk_table *t = P->tab[i];
+        double qn = q[i] - step[i];
+        if (fabs(step[i]) > (P->m->rotary[i] ? LINEAR_ROTARY : LINEAR_LINEAR)) return 0;
+        if (t) {
+            int lo = P->hint[i];
+            if (!(q[i] > t->pos[0] && q[i] < t->pos[t->n - 1])) return 0;
+            if (!(t->pos[lo] <= q[i] && q[i] < t->pos[lo + 1] && t->pos[lo] <= qn && qn < t->pos[lo + 1])) return 0;
         }
-    for (i = 0; i < n; i++)
-        for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
-    memcpy(Acopy, A, (size_t)n * n * sizeof(double));
-    return solve(n, Acopy, K, rows);
+    }
+    return 1;
 }
 
 /* With a held axis, rotary axes within this (deg) of where the Jacobian was taken do not make it
@@ -859,7 +1052,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                    int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], nr, qlin[MTK_MAX_AXES];
+    double K[MTK_MAX_AXES * 6], J[6 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
@@ -872,7 +1065,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     while (!done && it < max_iter) {
         int inner, slow = 0;
         memcpy(qlin, q, n * sizeof(double));
-        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, J, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
@@ -899,6 +1092,21 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
             memcpy(qn, q, n * sizeof(double));
             memcpy(rn, r, rows * sizeof(double));
+            if (smax >= tol && (Pr == P || !P->geo) && !freeze && inner == 0 && linear_exact(P, q, step)) {
+                /* Newton step on the full model's Jacobian so small that the model is linear
+                 * over it to below 1e-11 mm: the residual after it is the linear prediction, no
+                 * evaluation (a warm start along a path ends here) */
+                for (i = 0; i < n; i++) qn[i] = q[i] - step[i];
+                for (k = 0; k < rows; k++) {
+                    double sk = r[k];
+                    for (i = 0; i < n; i++) sk -= J[k * n + i] * step[i];
+                    rn[k] = sk;
+                }
+                memcpy(q, qn, n * sizeof(double));
+                memcpy(r, rn, rows * sizeof(double));
+                done = 1;
+                break;
+            }
             for (bt = 0; bt < (smax >= tol ? 30 : 0); bt++) {
                 double qt[MTK_MAX_AXES], rt[6], nt;
                 for (i = 0; i < n; i++) qt[i] = q[i] - scale * step[i];
@@ -1034,15 +1242,21 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], r0s[6];
     const double *rs;
     const double *Jq0 = differs ? NULL : J0;
+    const prep_t *Pj;
     *held = -1;
     *singular = 0;
     *res0 = INFINITY;
     for (k = 0; k < n; k++) tables |= P->tab[k] != NULL;
-    rc = jacobian(Pr, start, tg, ORIENTATION_SCALE, J0, P->geo ? NULL : r0s);
+    /* With tables or location errors the Jacobian is the full model's (their slopes in it: Newton
+     * steps rather than a chord contracting by the tables' slopes); either pass also gives the
+     * residual at start.  With an axis held the rigid Jacobian stays (the least-squares point
+     * the reference defines, mtcomp._solver). */
+    Pj = P->geo ? P : Pr;
+    rc = jacobian(Pj, start, tg, ORIENTATION_SCALE, J0, r0s);
     if (rc) return rc;
-    rs = P->geo ? NULL : r0s;   /* the residual at start, from the Jacobian's pass (rigid errors) */
+    rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
-        int hold = pole_axis(Pr, J0, o->pole_tol);
+        int hold = pole_axis(Pj, J0, o->pole_tol);
         if (hold >= 0) {
             /* The pole axis keeps its programmed value (not the path's: a pole stretch does not
              * depend on what came before it); the others start from `start`, and again from q0
@@ -1055,7 +1269,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
                 memcpy(hs, attempt ? q0 : start, n * sizeof(double));
                 hs[hold] = q0[hold];
                 same = !memcmp(hs, start, n * sizeof(double));  /* else J0, rs were taken elsewhere */
-                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same ? J0 : NULL, same ? rs : NULL, qt, o->tol,
+                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same && Pj == Pr ? J0 : NULL, same ? rs : NULL, qt, o->tol,
                              o->max_iter, iters, r, &sing);
                 if (rc) return rc;
                 if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG
@@ -1068,14 +1282,14 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
         }
     }
     if (differs && warm) {
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
             goto accept;
         }
     }
-    rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, q0, Jq0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
+    rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, q0, Jq0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
@@ -1085,7 +1299,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     }
     if (differs && !warm) {
         /* continuation: the previous pose's correction keeps the branch the path is on */
-        rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
@@ -1117,7 +1331,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(seed, q0, n * sizeof(double));
             seed[sa[s]] += va[s];
             if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(P, Pr, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             et = sing ? INFINITY : maxabs(r, rows);
             for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
@@ -1445,14 +1659,25 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     so.tol = o->tol;
     so.max_iter = o->max_iter;
     so.pole_tol = o->pole_tol;
+    long skip = o->run_in > 0 ? (o->run_in < n ? o->run_in : n) : 0;
+    double q_in[MTK_MAX_AXES], res_in;
+    int status_in, info_in;
     for (i = 0; i < n; i++) {
         const double *qa = q0 + i * nax;
-        double *qo = q + i * nax, start[MTK_MAX_AXES], r0 = 0.0;
+        double *qo, start[MTK_MAX_AXES], r0 = 0.0, *resi;
+        int *statusi, *infoi;
         target_t tg;
         int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
-        status[i] = MTK_OK;
-        info[i] = -1;
-        res[i] = 0.0;
+        if (i < skip) {
+            if (!o->continuation || (!p_t && P.closed)) continue;   /* nothing to take up */
+            qo = q_in; resi = &res_in; statusi = &status_in; infoi = &info_in;
+        } else {
+            qo = q + (i - skip) * nax; resi = res + (i - skip); statusi = status + (i - skip);
+            infoi = info + (i - skip);
+        }
+        *statusi = MTK_OK;
+        *infoi = -1;
+        *resi = 0.0;
         if (!p_t && P.closed) {
             if (closed_form(&P, qa, qo)) continue;
         }
@@ -1466,19 +1691,19 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         memcpy(start, qa, nax * sizeof(double));
         if (o->continuation && have_prev)
             for (k = 0; k < nax; k++) start[k] += corr[k];
-        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, &res[i], &r0, &sing, &bad,
+        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, resi, &r0, &sing, &bad,
                         &held, &how);
         if (rc == MTK_OK) {
-            info[i] = held;
+            *infoi = held;
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
             warm = how != HOW_SEED;
         } else {
-            status[i] = rc;
-            info[i] = bad;
-            if (rc == MTK_E_CONVERGE) res[i] = r0;
+            *statusi = rc;
+            *infoi = bad;
+            if (rc == MTK_E_CONVERGE) *resi = r0;
             have_prev = 0;
-            failed++;
+            failed += i >= skip;
         }
     }
     return failed;

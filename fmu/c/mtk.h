@@ -6,8 +6,9 @@
  * contributing
  *     G_i(q) = L_i N_i(q) L_i^-1 . T(loc_i) D_i(q) T(-loc_i),
  * tool setting offset at the end of the chain and the workpiece setting pose at its start.
- * Compensation: closed form for rigid errors without rotation, else chord Gauss-Newton with the
- * analytic rigid Jacobian, the pole axis held within the pole tolerance, a warm start from the
+ * Compensation: closed form for rigid errors without rotation, else Gauss-Newton with the
+ * analytic Jacobian (of the full model with tables or location errors, else of the rigid one;
+ * the rigid one with an axis held), the pole axis held within the pole tolerance, a warm start from the
  * previous pose along a path, restarts from rotary seeds where the iteration fails.
  * Units: mm and deg for commands and setting errors, rad for geometric error angles.
  * For the FMUs the machine comes from a resource file written at build time (docs/fmu.md); the
@@ -90,6 +91,8 @@ typedef struct {
     int max_iter;        /* iterations per attempt */
     double pole_tol;     /* deg; 0: no pole handling */
     int continuation;    /* start each pose from the previous pose's correction */
+    long run_in;         /* the first run_in poses only take up the path (continuation): solved, not
+                          * written; q, res, status and info hold the poses after them */
 } mtk_options;
 
 mtk_model *mtk_model_new(int n_axes, const char *axis_names, const int *rotary, const int *tool_side,
