@@ -750,6 +750,30 @@ static inline void cross(const double a[3], const double b[3], double c[3])
  * tw(A B) = tw(A) + (Ra w_b, Ra v_b + ta x Ra w_b).  With (Rpre, tpre) the chain before axis i,
  * the column is dp = W x (p - tpre) + Rpre v_i, dR = [W]x R, W = Rpre w_i.  (Written by hand:
  * the kernel's own model; the numpy reference takes finite differences.) */
+/* Residual of the pose (p, R, v) in the workpiece frame against the target: position rows, then
+ * (weighted by wo) the tool-vector rows (mode 2) or the orientation rows (mode 3, the skew part of
+ * T^T R as a small rotation vector).  Shared by both Jacobian passes. */
+static inline void pose_residual(const prep_t *P, const double p[3], const double R[9], const double v[3],
+                                 const target_t *tg, double wo, double *r0)
+{
+    double pr[3], d[3], Rr[9];
+    int k;
+    for (k = 0; k < 3; k++) d[k] = p[k] - P->tw[k];
+    mat_vec(P->RwT, d, pr);
+    for (k = 0; k < 3; k++) r0[k] = pr[k] - tg->p[k];
+    if (P->mode == 2) {
+        double vr[3];
+        mat_vec(P->RwT, v, vr);
+        for (k = 0; k < 3; k++) r0[3 + k] = wo * (vr[k] - tg->v[k]);
+    } else if (P->mode == 3) {
+        const double *T = tg->R;
+        mat_mul(P->RwT, R, Rr);
+        r0[3] = wo * 0.5 * ((T[2] * Rr[1] + T[5] * Rr[4] + T[8] * Rr[7]) - (T[1] * Rr[2] + T[4] * Rr[5] + T[7] * Rr[8]));
+        r0[4] = wo * 0.5 * ((T[0] * Rr[2] + T[3] * Rr[5] + T[6] * Rr[8]) - (T[2] * Rr[0] + T[5] * Rr[3] + T[8] * Rr[6]));
+        r0[5] = wo * 0.5 * ((T[1] * Rr[0] + T[4] * Rr[3] + T[7] * Rr[6]) - (T[0] * Rr[1] + T[3] * Rr[4] + T[6] * Rr[7]));
+    }
+}
+
 static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0)
 {
     const mtk_model *m = P->m;
@@ -817,23 +841,7 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
     mat_vec(R, P->tp, p);
     for (k = 0; k < 3; k++) p[k] += t[k];
     mat_vec(R, m->tool_axis, v);
-    if (r0) {
-        double pr[3], d[3], Rr[9];
-        for (k = 0; k < 3; k++) d[k] = p[k] - P->tw[k];
-        mat_vec(P->RwT, d, pr);
-        for (k = 0; k < 3; k++) r0[k] = pr[k] - tg->p[k];
-        if (P->mode == 2) {
-            double vr[3];
-            mat_vec(P->RwT, v, vr);
-            for (k = 0; k < 3; k++) r0[3 + k] = wo * (vr[k] - tg->v[k]);
-        } else if (P->mode == 3) {
-            const double *Tt = tg->R;
-            mat_mul(P->RwT, R, Rr);
-            r0[3] = wo * 0.5 * ((Tt[2] * Rr[1] + Tt[5] * Rr[4] + Tt[8] * Rr[7]) - (Tt[1] * Rr[2] + Tt[4] * Rr[5] + Tt[7] * Rr[8]));
-            r0[4] = wo * 0.5 * ((Tt[0] * Rr[2] + Tt[3] * Rr[5] + Tt[6] * Rr[8]) - (Tt[2] * Rr[0] + Tt[5] * Rr[3] + Tt[8] * Rr[6]));
-            r0[5] = wo * 0.5 * ((Tt[1] * Rr[0] + Tt[4] * Rr[3] + Tt[7] * Rr[6]) - (Tt[0] * Rr[1] + Tt[3] * Rr[4] + Tt[6] * Rr[7]));
-        }
-    }
+    if (r0) pose_residual(P, p, R, v, tg, wo, r0);
     for (i = 0; i < n; i++) {
         double dp[3], dpr[3], dv[3], d[3], *w = W[i];
         for (k = 0; k < 3; k++) d[k] = p[k] - T[i][k];
@@ -902,25 +910,9 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     mat_vec(R, Pr->tp, p);
     for (k = 0; k < 3; k++) p[k] += t[k];
     mat_vec(R, m->tool_axis, v);
-    if (r0) {
-        /* the residual of this (rigid) model at q from the same pass: the caller's model is the
-         * rigid one (no tables, no location errors) */
-        double pr[3], d[3], Rr[9];
-        for (k = 0; k < 3; k++) d[k] = p[k] - Pr->tw[k];
-        mat_vec(Pr->RwT, d, pr);
-        for (k = 0; k < 3; k++) r0[k] = pr[k] - tg->p[k];
-        if (Pr->mode == 2) {
-            double vr[3];
-            mat_vec(Pr->RwT, v, vr);
-            for (k = 0; k < 3; k++) r0[3 + k] = wo * (vr[k] - tg->v[k]);
-        } else if (Pr->mode == 3) {
-            const double *T = tg->R;
-            mat_mul(Pr->RwT, R, Rr);
-            r0[3] = wo * 0.5 * ((T[2] * Rr[1] + T[5] * Rr[4] + T[8] * Rr[7]) - (T[1] * Rr[2] + T[4] * Rr[5] + T[7] * Rr[8]));
-            r0[4] = wo * 0.5 * ((T[0] * Rr[2] + T[3] * Rr[5] + T[6] * Rr[8]) - (T[2] * Rr[0] + T[5] * Rr[3] + T[8] * Rr[6]));
-            r0[5] = wo * 0.5 * ((T[1] * Rr[0] + T[4] * Rr[3] + T[7] * Rr[6]) - (T[0] * Rr[1] + T[3] * Rr[4] + T[6] * Rr[7]));
-        }
-    }
+    if (r0) /* the residual of this (rigid) model at q from the same pass: the caller's model is
+             * the rigid one (no tables, no location errors) */
+        pose_residual(Pr, p, R, v, tg, wo, r0);
     for (i = 0; i < n; i++) {
         double w[3], dp[3], dpr[3], dv[3];
         mat_vec(Rpre[i], Pr->ueff[i], w);
