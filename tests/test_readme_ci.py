@@ -65,3 +65,19 @@ def test_readme_python_example_runs(monkeypatch):
     assert m, "README.md has no python example"
     monkeypatch.chdir(ROOT)
     exec(compile(m.group(1), "README.md", "exec"), {})
+
+
+def test_library_never_switches_the_matplotlib_backend():
+    """Issue 19: ten library plot functions called matplotlib.use("Agg") and drew through pyplot,
+    which switched a notebook's backend.  Plots are matplotlib.figure.Figure objects now; the
+    runtime checks are in test_demo, test_diagnose_real and test_fmu_cosim, and this guard keeps
+    every module of the package free of backend switching and pyplot state."""
+    offenders = []
+    for folder in ("core", "fmu", "cad_plugin"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                code = line.split("#", 1)[0]
+                if re.search(r"matplotlib\.use\(|import matplotlib\.pyplot|from matplotlib import pyplot|plt\.(figure|subplots)\(",
+                             code):
+                    offenders.append(f"{path.relative_to(ROOT)}:{n}: {line.strip()}")
+    assert not offenders, "\n".join(offenders)
