@@ -774,6 +774,33 @@ static inline void pose_residual(const prep_t *P, const double p[3], const doubl
     }
 }
 
+/* Column i of the orientation rows of the Jacobian for an axis turning about w (workpiece-side
+ * direction in the machine frame): the tool vector's rate w x v (mode 2), or the small rotation
+ * of T^T Rw^T [w]x R, half the vee of its antisymmetric part (mode 3).  Shared by both passes. */
+static inline void orientation_column(const prep_t *P, const double w[3], const double R[9],
+                                      const double v[3], const target_t *tg, double wo, double *J,
+                                      int n, int i)
+{
+    int k;
+    if (P->mode == 2) {
+        double c[3], dv[3];
+        cross(w, v, c);
+        mat_vec(P->RwT, c, dv);
+        for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
+    } else if (P->mode == 3) {
+        double W[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
+        int r, c;
+        mat_mul(W, R, dR);
+        mat_mul(P->RwT, dR, dR);
+        for (r = 0; r < 3; r++)
+            for (c = 0; c < 3; c++)
+                dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
+        J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
+        J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
+        J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
+    }
+}
+
 static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0)
 {
     const mtk_model *m = P->m;
@@ -843,29 +870,13 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
     mat_vec(R, m->tool_axis, v);
     if (r0) pose_residual(P, p, R, v, tg, wo, r0);
     for (i = 0; i < n; i++) {
-        double dp[3], dpr[3], dv[3], d[3], *w = W[i];
+        double dp[3], dpr[3], d[3], *w = W[i];
         for (k = 0; k < 3; k++) d[k] = p[k] - T[i][k];
         cross(w, d, dp);
         for (k = 0; k < 3; k++) dp[k] += V[i][k];
         mat_vec(P->RwT, dp, dpr);
         for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
-        if (P->mode == 2) {
-            double c[3];
-            cross(w, v, c);
-            mat_vec(P->RwT, c, dv);
-            for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
-        } else if (P->mode == 3) {
-            double Wx[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
-            int r, c;
-            mat_mul(Wx, R, dR);
-            mat_mul(P->RwT, dR, dR);
-            for (r = 0; r < 3; r++)
-                for (c = 0; c < 3; c++)
-                    dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
-            J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
-            J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
-            J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
-        }
+        orientation_column(P, w, R, v, tg, wo, J, n, i);
     }
     return MTK_OK;
 }
@@ -914,7 +925,7 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
              * the rigid one (no tables, no location errors) */
         pose_residual(Pr, p, R, v, tg, wo, r0);
     for (i = 0; i < n; i++) {
-        double w[3], dp[3], dpr[3], dv[3];
+        double w[3], dp[3], dpr[3];
         mat_vec(Rpre[i], Pr->ueff[i], w);
         if (!m->rotary[i]) {
             mat_vec(Pr->RwT, w, dpr);
@@ -936,26 +947,7 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
             mat_vec(Pr->RwT, dp, dpr);
             for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
         }
-        if (Pr->mode == 2) {
-            double c[3];
-            c[0] = w[1] * v[2] - w[2] * v[1];
-            c[1] = w[2] * v[0] - w[0] * v[2];
-            c[2] = w[0] * v[1] - w[1] * v[0];
-            mat_vec(Pr->RwT, c, dv);
-            for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
-        } else if (Pr->mode == 3) {
-            /* dM = T^T Rw^T [w]x R; rows: half the vee of its antisymmetric part */
-            double W[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
-            int r, c;
-            mat_mul(W, R, dR);
-            mat_mul(Pr->RwT, dR, dR);
-            for (r = 0; r < 3; r++)
-                for (c = 0; c < 3; c++)
-                    dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
-            J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
-            J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
-            J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
-        }
+        orientation_column(Pr, w, R, v, tg, wo, J, n, i);
     }
     return MTK_OK;
 }
