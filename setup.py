@@ -13,7 +13,7 @@ from setuptools import setup
 from setuptools.command.build_py import build_py
 
 # Must match core/_kernel.py (CFLAGS, source_hash, library_name); tests/test_kernel.py checks it.
-CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared")
+CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
 SRC = Path(__file__).resolve().parent / "fmu" / "c"
 
 

@@ -7,8 +7,9 @@ keyed by the hash of the source (`~/.cache/mtcomp/kernel/<hash>/`, or $MTCOMP_CA
 compiled there on first use with the C compiler ($CC, cc or gcc).  Without a compiler the
 library uses its numpy reference implementation (mtcomp.kinematics) and says so once on stderr.
 MTCOMP_KERNEL=numpy forces the numpy implementation, MTCOMP_KERNEL=cache ignores the library
-installed with the package (only the per-user cache, built on first use).  Batches of at least PARALLEL_MIN poses are
-split over the cores (MTCOMP_THREADS, default: the CPUs this process may use).
+installed with the package (only the per-user cache, built on first use).  A batch runs in chunks
+of about CHUNK poses on min(cores, chunks) threads started in C (MTCOMP_THREADS, default: the CPUs
+this process may use); the chunks do not depend on the number of threads, so neither do the results.
 
 ctypes rather than a C extension: the kernel must build with nothing but gcc (no Python headers),
 and ctypes releases the GIL during the call.
@@ -30,7 +31,7 @@ import numpy as np
 MAX_AXES = 9
 #: Return codes of mtk.h
 OK, E_RANGE, E_LIMIT, E_CONVERGE = 0, 3, 4, 5
-CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared")
+CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
 
 _SUFFIX = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
 
@@ -132,6 +133,14 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.mtk_compensate_batch.restype = c_long
     lib.mtk_compensate_batch.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D,
                                          ctypes.POINTER(_Options), _D, _I, _I]
+    lib.mtk_forward_batch_mt.restype = c_long
+    lib.mtk_forward_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, ctypes.c_int, _I,
+                                         ctypes.c_int]
+    lib.mtk_compensate_batch_mt.restype = c_long
+    lib.mtk_compensate_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D,
+                                            ctypes.POINTER(_Options), _D, _I, _I, ctypes.c_int]
+    lib.mtk_threads.restype = ctypes.c_int
+    lib.mtk_threads.argtypes = [c_long, ctypes.c_int]
     return lib
 
 
@@ -250,42 +259,21 @@ def c_errors(machine, errors) -> _Errors:
 
 # ------------------------------------------------------------------------------------ batch calls
 
-#: Batches at least this long are split over the cores (ctypes releases the GIL during a call).
-PARALLEL_MIN = 20_000
-#: Poses solved again before a chunk boundary so that a chunk starts with the path's state (the
-#: previous pose's correction) as the sequential call would; their results are discarded.
+#: Poses per chunk of a batch (mtk.h MTK_CHUNK) and poses solved again before a chunk so that it
+#: starts with the path's state, the previous pose's correction (MTK_RUN_IN).
+CHUNK = 4096
 RUN_IN = 16
 
 
 def threads() -> int:
+    """Threads a long batch runs on: $MTCOMP_THREADS, else the CPUs this process may use."""
     env = os.environ.get("MTCOMP_THREADS")
     if env:
         return max(1, int(env))
     try:
-        return max(1, min(len(os.sched_getaffinity(0)), 8))
+        return max(1, min(len(os.sched_getaffinity(0)), 64))
     except AttributeError:  # not on Linux
-        return max(1, min(os.cpu_count() or 1, 8))
-
-
-def _chunks(n: int) -> list[tuple[int, int]]:
-    k = threads() if n >= PARALLEL_MIN else 1
-    edges = np.linspace(0, n, k + 1).astype(int)
-    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:]) if b > a]
-
-
-_pool = None
-
-
-def _run(parts, fn):
-    # one pool for the process (the kernel releases the GIL through ctypes): starting threads on
-    # every call cost more CPU time than a closed-form batch of 200,000 poses takes per core
-    global _pool
-    if len(parts) == 1:
-        return [fn(*parts[0])]
-    from concurrent.futures import ThreadPoolExecutor
-    if _pool is None or _pool._max_workers < len(parts):
-        _pool = ThreadPoolExecutor(len(parts), thread_name_prefix="mtk")
-    return list(_pool.map(lambda ab: fn(*ab), parts))
+        return max(1, min(os.cpu_count() or 1, 64))
 
 
 def forward(lib, machine, q: np.ndarray, errors, strict: bool):
@@ -296,21 +284,15 @@ def forward(lib, machine, q: np.ndarray, errors, strict: bool):
     R = np.empty((n, 3, 3))
     m = model(lib, machine, errors)
     e = c_errors(machine, errors)
-
-    def part(a, b):
-        bad_axis = ctypes.c_int(-1)
-        bad = lib.mtk_forward_batch(m.ptr, ctypes.byref(e), b - a, _p(q[a:]), _p(p[a:]), _p(R[a:]), int(strict),
-                                    ctypes.byref(bad_axis))
-        return -1 if bad < 0 else a + int(bad)
-
-    bads = [b for b in _run(_chunks(n), part) if b >= 0]
-    return p, R, (min(bads) if bads else -1)
+    bad_axis = ctypes.c_int(-1)
+    bad = lib.mtk_forward_batch_mt(m.ptr, ctypes.byref(e), n, _p(q), _p(p), _p(R), int(strict),
+                                   ctypes.byref(bad_axis), threads())
+    return p, R, int(bad) if bad >= 0 else -1
 
 
 def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_iter: int,
           pole_tolerance: float, continuation: bool):
-    """retarget (target None: the ideal poses of q0) or compensate in C, split over the cores
-    (each chunk after the first re-solves RUN_IN poses before its start to take up the path).
+    """retarget (target None: the ideal poses of q0) or compensate in C, in chunks on threads.
     Returns (q, residual (N,), status (N,), info (N,))."""
     q0 = np.ascontiguousarray(q0, dtype=float)
     n = q0.shape[0]
@@ -320,21 +302,13 @@ def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_
     info = np.empty(n, dtype=np.intc)
     m = model(lib, machine, errors)
     e = c_errors(machine, errors)
+    opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)), 0)
     if target is not None:
         tp = np.ascontiguousarray(target.p, dtype=float)
         tR = np.ascontiguousarray(target.R, dtype=float)
-
-    def part(a, b):
-        # the run-in poses before a chunk are solved to take up the path, not written: every
-        # chunk writes straight into its own rows of the results (no temporaries, no copies)
-        a0 = max(0, a - RUN_IN) if continuation else a
-        opt = _Options(float(tol), int(max_iter), float(pole_tolerance), int(bool(continuation)), a - a0)
-        args = (_p(q[a:]), ctypes.byref(opt), _p(res[a:]), status[a:].ctypes.data_as(_I),
-                info[a:].ctypes.data_as(_I))
-        if target is None:
-            lib.mtk_retarget_batch(m.ptr, ctypes.byref(e), b - a0, _p(q0[a0:]), *args)
-        else:
-            lib.mtk_compensate_batch(m.ptr, ctypes.byref(e), b - a0, _p(tp[a0:]), _p(tR[a0:]), _p(q0[a0:]), *args)
-
-    _run(_chunks(n), part)
+        pt, pR = _p(tp), _p(tR)
+    else:
+        pt = pR = None
+    lib.mtk_compensate_batch_mt(m.ptr, ctypes.byref(e), n, pt, pR, _p(q0), _p(q), ctypes.byref(opt), _p(res),
+                                status.ctypes.data_as(_I), info.ctypes.data_as(_I), threads())
     return q, res, status, info

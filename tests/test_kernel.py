@@ -183,22 +183,52 @@ def test_a_fresh_install_with_gcc_builds_the_kernel():
     assert (here / _kernel.library_name(_kernel.source_hash())).is_file()
 
 
-def test_batches_split_over_the_cores_give_the_sequential_result(monkeypatch):
-    """Long batches run in chunks on threads; each chunk takes up the path from RUN_IN poses
-    before its start, so the result is the sequential one (here across a pole region)."""
+def test_batches_on_threads_are_bit_identical_to_one_thread(monkeypatch):
+    """Long batches run in chunks on threads started in C; the chunks do not depend on the number
+    of threads (each takes up the path from RUN_IN poses before its start), so one thread and
+    several give the same bits, here across pole regions, with tables and without; and the
+    chunked result is the unchunked sequential one to the solver's tolerance."""
     m = load_machine("robonano-a0ib")
+    rng = np.random.default_rng(5)
     E = ErrorSet(ToolSetting((0.1, -0.05, 0.2)), WorkpieceSetting((0.01, 0.02, 0.0), (0.02, -0.01, 0.3)))
-    n = _kernel.PARALLEL_MIN + 5000
+    n = 3 * _kernel.CHUNK + 1234
     q = _tilted_blank_program(n)
     q[:, 1] = np.where(np.arange(n) % 7000 < 3500, 0.0, 15.0)  # B = 0 (pole) and tilted stretches
-    monkeypatch.setenv("MTCOMP_THREADS", "1")
-    seq = retarget(m, q, E, backend="c")
-    fwd_seq = forward(m, q, E, backend="c")
-    monkeypatch.setenv("MTCOMP_THREADS", "3")
-    par = retarget(m, q, E, backend="c")
-    fwd_par = forward(m, q, E, backend="c")
-    assert np.max(np.abs(par - seq)) <= 1e-9
-    assert np.array_equal(fwd_par.p, fwd_seq.p) and np.array_equal(fwd_par.R, fwd_seq.R)
+    qr = random_commands(m, n, rng, span=0.3)
+    Eg = random_errors(m, rng, wp_angle=0.05)
+    out = {}
+    for t in ("1", "2", "5"):
+        monkeypatch.setenv("MTCOMP_THREADS", t)
+        out[t] = (retarget(m, q, E, backend="c"), forward(m, qr, Eg, backend="c"),
+                  retarget(m, qr, Eg, backend="c", check=False), retarget(m, qr, RIGID_A0IB, backend="c"))
+    for t in ("2", "5"):
+        a, b = out["1"], out[t]
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[2], b[2]) and np.array_equal(a[3], b[3])
+        assert np.array_equal(a[1].p, b[1].p) and np.array_equal(a[1].R, b[1].R)
+    lib = _kernel.load()
+    assert lib.mtk_threads(n, 2) == 2 and lib.mtk_threads(_kernel.CHUNK, 2) == 1 and lib.mtk_threads(n, 9) == 4
+    # the chunk boundaries (run-in) against one uninterrupted sequential pass
+    seq = _sequential_retarget(lib, m, q, E)
+    assert np.max(np.abs(out["1"][0] - seq)) <= 1e-9
+
+
+RIGID_A0IB = ErrorSet(ToolSetting((0.35, -0.2, 0.15)), WorkpieceSetting((0.03, -0.02, 0.01)))
+
+
+def _sequential_retarget(lib, machine, q, errors):
+    """The kernel's single-pass batch entry (no chunks) on the whole program."""
+    import ctypes
+    q = np.ascontiguousarray(q, dtype=float)
+    n = q.shape[0]
+    out, res = np.empty_like(q), np.empty(n)
+    status, info = np.empty(n, dtype=np.intc), np.empty(n, dtype=np.intc)
+    mm = _kernel.model(lib, machine, errors)
+    e = _kernel.c_errors(machine, errors)
+    opt = _kernel._Options(1e-10, 60, 0.2, 1, 0)
+    lib.mtk_retarget_batch(mm.ptr, ctypes.byref(e), n, _kernel._p(q), _kernel._p(out), ctypes.byref(opt),
+                           _kernel._p(res), status.ctypes.data_as(_kernel._I), info.ctypes.data_as(_kernel._I))
+    assert not status.any()
+    return out
 
 
 @pytest.mark.parametrize("name", ["robonano-ui", "robonano-a0ib"])

@@ -10,6 +10,12 @@
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC optimize("O3", "no-math-errno")
 #endif
+#ifdef MTK_THREADS
+#define _GNU_SOURCE   /* sched_getaffinity */
+#include <pthread.h>
+#include <sched.h>
+#include <unistd.h>
+#endif
 #include <ctype.h>
 #include <math.h>
 #include <stdio.h>
@@ -1703,4 +1709,143 @@ long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const
                           const double *q0, double *q, const mtk_options *o, double *res, int *status, int *info)
 {
     return batch(m, e, n, p_t, R_t, q0, q, o, res, status, info);
+}
+
+/* ---------------------------------------------------------------- batches on threads */
+
+typedef struct {
+    const mtk_model *m;
+    const mtk_errors *e;
+    long n, nchunks;
+    int fwd, strict;
+    const double *q0, *p_t, *R_t;
+    double *p, *R, *q, *res;
+    const mtk_options *o;
+    int *status, *info;
+    long next;                 /* next chunk to take (atomic) */
+} mt_job;
+
+typedef struct {
+    mt_job *job;
+    long failed, bad;          /* solve: failed poses; forward: first bad pose (-1: none) */
+    int bad_axis;
+} mt_worker;
+
+static long chunk_edge(const mt_job *j, long k)
+{
+    return (long)((long long)k * j->n / j->nchunks);
+}
+
+static long take_chunk(mt_job *j)
+{
+#if defined(MTK_THREADS) && defined(__GNUC__)
+    return __atomic_fetch_add(&j->next, 1, __ATOMIC_RELAXED);
+#else
+    return j->next++;
+#endif
+}
+
+static void *mt_work(void *arg)
+{
+    mt_worker *w = (mt_worker *)arg;
+    mt_job *j = w->job;
+    int nax = j->m->n_axes;
+    long k;
+    while ((k = take_chunk(j)) < j->nchunks) {
+        long a = chunk_edge(j, k), b = chunk_edge(j, k + 1);
+        if (b <= a) continue;
+        if (j->fwd) {
+            int ax = -1;
+            long bad = mtk_forward_batch(j->m, j->e, b - a, j->q0 + a * nax, j->p + 3 * a, j->R + 9 * a,
+                                         j->strict, &ax);
+            if (bad >= 0 && (w->bad < 0 || a + bad < w->bad)) { w->bad = a + bad; w->bad_axis = ax; }
+        } else {
+            /* the run-in poses before the chunk take up the path (as the sequential call had it) */
+            long a0 = j->o->continuation ? (a > MTK_RUN_IN ? a - MTK_RUN_IN : 0) : a;
+            mtk_options o = *j->o;
+            o.run_in = a - a0;
+            w->failed += batch(j->m, j->e, b - a0, j->p_t ? j->p_t + 3 * a0 : NULL, j->R_t ? j->R_t + 9 * a0 : NULL,
+                               j->q0 + a0 * nax, j->q + a * nax, &o, j->res + a, j->status + a, j->info + a);
+        }
+    }
+    return NULL;
+}
+
+int mtk_threads(long n, int threads)
+{
+    long nchunks = (n + MTK_CHUNK - 1) / MTK_CHUNK;
+#ifdef MTK_THREADS
+    if (threads <= 0) {
+        const char *env = getenv("MTCOMP_THREADS");
+        threads = env ? atoi(env) : 0;
+        if (threads <= 0) {
+            cpu_set_t set;
+            threads = sched_getaffinity(0, sizeof set, &set) == 0 ? CPU_COUNT(&set)
+                                                                 : (int)sysconf(_SC_NPROCESSORS_ONLN);
+        }
+    }
+    if (threads > 64) threads = 64;
+#else
+    threads = 1;
+#endif
+    if (threads > nchunks) threads = (int)nchunks;
+    return threads < 1 ? 1 : threads;
+}
+
+static long run_job(mt_job *j, int threads, int *bad_axis)
+{
+    mt_worker w[64];
+    long out = 0, bad = -1;
+    int t, nt;
+    j->nchunks = (j->n + MTK_CHUNK - 1) / MTK_CHUNK;
+    if (j->nchunks < 1) j->nchunks = 1;
+    j->next = 0;
+    nt = mtk_threads(j->n, threads);
+    for (t = 0; t < nt; t++) { w[t].job = j; w[t].failed = 0; w[t].bad = -1; w[t].bad_axis = -1; }
+#ifdef MTK_THREADS
+    {
+        pthread_t th[64];
+        int started[64] = {0};
+        for (t = 1; t < nt; t++) started[t] = pthread_create(&th[t], NULL, mt_work, &w[t]) == 0;
+        mt_work(&w[0]);   /* the calling thread works too; chunks a failed thread would take stay with it */
+        for (t = 1; t < nt; t++)
+            if (started[t]) pthread_join(th[t], NULL);
+    }
+#else
+    mt_work(&w[0]);
+#endif
+    for (t = 0; t < nt; t++) {
+        out += w[t].failed;
+        if (w[t].bad >= 0 && (bad < 0 || w[t].bad < bad)) {
+            bad = w[t].bad;
+            if (bad_axis) *bad_axis = w[t].bad_axis;
+        }
+    }
+    return j->fwd ? bad : out;
+}
+
+long mtk_forward_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *q, double *p, double *R,
+                          int strict, int *bad_axis, int threads)
+{
+    mt_job j;
+    memset(&j, 0, sizeof j);
+    j.m = m; j.e = e; j.n = n; j.fwd = 1; j.strict = strict; j.q0 = q; j.p = p; j.R = R;
+    return run_job(&j, threads, bad_axis);
+}
+
+long mtk_retarget_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, double *q,
+                           const mtk_options *o, double *res, int *status, int *info, int threads)
+{
+    return mtk_compensate_batch_mt(m, e, n, NULL, NULL, q_prog, q, o, res, status, info, threads);
+}
+
+long mtk_compensate_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *p_t,
+                             const double *R_t, const double *q0, double *q, const mtk_options *o, double *res,
+                             int *status, int *info, int threads)
+{
+    mt_job j;
+    memset(&j, 0, sizeof j);
+    j.m = m; j.e = e; j.n = n; j.p_t = p_t; j.R_t = R_t; j.q0 = q0; j.q = q; j.o = o;
+    j.res = res; j.status = status; j.info = info;
+    return run_job(&j, threads, NULL);
 }

@@ -110,6 +110,24 @@ long mtk_retarget_batch(const mtk_model *m, const mtk_errors *e, long n, const d
 long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const double *p_t, const double *R_t,
                           const double *q0, double *q, const mtk_options *o, double *res, int *status, int *info);
 
+/* The same three batches split into chunks of about MTK_CHUNK poses solved on `threads` threads
+ * (<= 0: $MTCOMP_THREADS, else the CPUs this process may use; never more than the chunks).  The
+ * chunks do not depend on the number of threads: with continuation each chunk after the first
+ * takes up the path from the MTK_RUN_IN poses before it (solved, not written), so one thread and
+ * many give bit-identical results.  Without MTK_THREADS at compile time (the FMUs) the chunks run
+ * in the calling thread.  o->run_in is ignored. */
+#define MTK_CHUNK 4096
+#define MTK_RUN_IN 16
+long mtk_forward_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *q, double *p, double *R,
+                          int strict, int *bad_axis, int threads);
+long mtk_retarget_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, double *q,
+                           const mtk_options *o, double *res, int *status, int *info, int threads);
+long mtk_compensate_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *p_t,
+                             const double *R_t, const double *q0, double *q, const mtk_options *o, double *res,
+                             int *status, int *info, int threads);
+/* Threads a batch of n poses runs on (threads as above). */
+int mtk_threads(long n, int threads);
+
 /* Portable strtok_r: next token of s (or of *save when s is NULL) delimited by any of delim. */
 char *mtk_tok(char *s, const char *delim, char **save);
 
