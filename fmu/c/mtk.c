@@ -440,6 +440,10 @@ typedef struct {
     int geo;                          /* tables or location errors (else the rigid model itself) */
     int lin_first;                    /* the three linear axes precede every rotary axis ... */
     double Ainv[9];                   /* ... so the closed form's matrix is constant: its inverse */
+    int closed_rot;                   /* rigid errors with a workpiece rotation, two or three rotary
+                                       * axes: closed_rotation applies */
+    double c12;                       /* u1 . u2 of the first two rotary axes */
+    double b3[3];                     /* a unit vector normal to the third rotary axis (mode 3) */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
@@ -536,6 +540,20 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
         for (i = 0; i < m->n_axes; i++) nlin += !m->rotary[i];
         P->closed = e && !any_geo && nlin == 3 && !(P->nrot && rotated);
         P->geo = any_geo;
+        if (e && !any_geo && nlin == 3 && rotated && (P->nrot == 2 || P->nrot == 3)) {
+            const double *u1 = m->dir[P->rot_idx[0]], *u2 = m->dir[P->rot_idx[1]];
+            P->c12 = u1[0] * u2[0] + u1[1] * u2[1] + u1[2] * u2[2];
+            P->closed_rot = 1 - P->c12 * P->c12 > 1e-6;   /* the first two rotary axes not parallel */
+            if (P->nrot == 3) {
+                const double *u3 = m->dir[P->rot_idx[2]];
+                double ref[3] = {1, 0, 0}, d, nb;
+                if (fabs(u3[0]) > 0.9) { ref[0] = 0; ref[1] = 1; }
+                d = ref[0] * u3[0] + ref[1] * u3[1] + ref[2] * u3[2];
+                for (k = 0; k < 3; k++) P->b3[k] = ref[k] - d * u3[k];
+                nb = sqrt(P->b3[0] * P->b3[0] + P->b3[1] * P->b3[1] + P->b3[2] * P->b3[2]);
+                for (k = 0; k < 3; k++) P->b3[k] /= nb;
+            }
+        }
         if (P->closed) {
             /* linear axes first: columns = their nominal directions, inverted once here */
             int seen_rot = 0, ok = 1, c = 0, r;
@@ -1439,6 +1457,211 @@ static int closed_form(const prep_t *P, const double *q, double *out)
     return 1;
 }
 
+static inline double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* Rotation about the unit vector u that takes a to b, both seen in the plane normal to u
+ * (Paden-Kahan subproblem 1; a and b need not be normalised): its angle in deg, and its sine and
+ * cosine in *sn, *cs (the rigid chain at the solution is built from them, no sin/cos again). */
+static inline double turn_angle(const double u[3], const double a[3], const double b[3], double *sn, double *cs)
+{
+    double ap[3], bp[3], x[3], ua = dot3(u, a), ub = dot3(u, b), y, c, r;
+    int k;
+    for (k = 0; k < 3; k++) { ap[k] = a[k] - ua * u[k]; bp[k] = b[k] - ub * u[k]; }
+    cross(ap, bp, x);
+    y = dot3(u, x);
+    c = dot3(ap, bp);
+    r = sqrt(y * y + c * c);
+    *sn = y / r;
+    *cs = c / r;
+    return atan2(y, c) / DEG;
+}
+
+/* th + 360 k nearest ref (th within 540 deg of ref: atan2's range and the travels). */
+static inline double near_turn(double th, double ref)
+{
+    double d = th - ref;
+    while (d > 180.0) d -= 360.0;
+    while (d < -180.0) d += 360.0;
+    return ref + d;
+}
+
+/* Apply the rotation about unit u by the angle with sine sn and cosine cs to x (Rodrigues). */
+static inline void turn(const double u[3], double sn, double cs, const double x[3], double y[3])
+{
+    double ux[3], ud = dot3(u, x) * (1.0 - cs);
+    int k;
+    cross(u, x, ux);
+    for (k = 0; k < 3; k++) y[k] = x[k] * cs + ux[k] * sn + u[k] * ud;
+}
+
+/* The rotary axes' columns of the orientation rows (rotation rates w_i in the machine frame, for
+ * the tool direction v: w_i x v) are this far (sine) from depending on each other at the angles
+ * th (deg) before a pose is taken as regular: five times the pole tolerance, so that no pose the
+ * iteration would solve with an axis held (mtk pole_axis at the start) gets here. */
+#define CLOSED_POLE_MARGIN 5.0
+
+/* Largest change of a rotary axis (deg) the closed form takes: beyond it the iteration from the
+ * start might settle on another solution, and it is left to decide. */
+#define CLOSED_MAX_TURN 10.0
+
+/* Closed form of retarget/compensate for rigid setting errors with a workpiece rotation on a
+ * machine with two or three rotary axes (P->closed_rot): the rigid model's orientation depends
+ * on the rotary angles alone, R = R(u1, th1) R(u2, th2) [R(u3, th3)], and its tool position is
+ * affine in the three linear axes once those angles are fixed.
+ *   Orientation: the real tool frame Rw^T R must equal the target's R_t, so R = Rw R_t (mode 3)
+ * or R a = Rw R_t a = v for the tool direction a (mode 2).  Both reduce to R(u1, th1) R(u2, th2) a
+ * = v (mode 3: a = u3, v = Rw R_t u3), solved as Paden-Kahan subproblem 2: x = R(u2, th2) a =
+ * R(u1, -th1) v lies on both cones u2.x = u2.a, u1.x = u1.v with |x| = 1, so x = al u1 + be u2 +
+ * ga u1 x u2 with
+ *     al = (u1.v - c u2.a) / (1 - c^2),  be = (u2.a - c u1.v) / (1 - c^2),  c = u1.u2,
+ *     ga^2 = (1 - al^2 - be^2 - 2 al be c) / (1 - c^2),
+ * two solutions (+-ga); th2 turns a into x about u2, th1 turns x into v about u1 (subproblem 1),
+ * and in mode 3 th3 turns b into (R1 R2)^T Rw R_t b about u3 for a b normal to u3.  Of the two,
+ * the one with the least rotary change from `ref` (each angle taken within 180 deg of it).
+ *   Position: with the angles fixed, p_nom(q) = p_nom(q_lin) + A dq_lin with the columns of A
+ * the linear axes' directions turned by the rotary axes before them; the real position
+ * Rw^T (p_nom - tw) equals p_t for dq_lin = A^-1 (Rw p_t + tw - p_nom(q_lin)).
+ * Returns 0 (the iteration decides) near a pole (CLOSED_POLE_MARGIN times the pole tolerance at
+ * `start`), for a change of a rotary axis above CLOSED_MAX_TURN, an unreachable orientation, or
+ * a result outside a travel. */
+static int closed_rotation(const prep_t *P, const target_t *tg, const double *q0, const double *start,
+                           const double *ref, double pole_tol, double *out)
+{
+    const mtk_model *m = P->m;
+    const int i1 = P->rot_idx[0], i2 = P->rot_idx[1], i3 = P->nrot == 3 ? P->rot_idx[2] : -1;
+    const double *u1 = m->dir[i1], *u2 = m->dir[i2];
+    const double c = P->c12, den = 1.0 - c * c;
+    double a[3], v[3], Mt[9], w[3], al, be, ga2, ga, u12[3], th[2][3], best = INFINITY, xs[2][3], sc[2][3][2];
+    int k, br, pick = -1;
+    /* pole test at the start angles: orientation columns w_i x v_s (mode 2) or w_i (mode 3) */
+    {
+        double w1[3], w2[3], w3[3], vs[3], c1[3], c2[3], x[3], lim;
+        double s1 = sin(start[i1] * DEG), k1 = cos(start[i1] * DEG);
+        lim = CLOSED_POLE_MARGIN * sin(pole_tol * DEG);
+        memcpy(w1, u1, sizeof w1);
+        turn(u1, s1, k1, u2, w2);
+        if (i3 < 0) {
+            double s2 = sin(start[i2] * DEG), k2 = cos(start[i2] * DEG), t[3];
+            turn(u2, s2, k2, m->tool_axis, t);
+            turn(u1, s1, k1, t, vs);
+            cross(w1, vs, c1);
+            cross(w2, vs, c2);
+            cross(c1, c2, x);
+            {
+                double n1 = sqrt(dot3(c1, c1)), n2 = sqrt(dot3(c2, c2)), nx = sqrt(dot3(x, x));
+                if (n1 < lim || n2 < lim || nx < lim * fmax(n1, n2)) return 0;
+            }
+        } else {
+            double s2 = sin(start[i2] * DEG), k2 = cos(start[i2] * DEG), t[3];
+            turn(u2, s2, k2, m->dir[i3], t);
+            turn(u1, s1, k1, t, w3);
+            cross(w2, w3, c1);
+            if (fabs(dot3(w1, c1)) < lim) return 0;   /* |det(w1, w2, w3)|: unit columns */
+        }
+    }
+    /* the orientation target in the nominal machine frame */
+    if (i3 < 0) {
+        memcpy(a, m->tool_axis, sizeof a);
+        mat_vec(P->Rw, tg->v, v);
+    } else {
+        memcpy(a, m->dir[i3], sizeof a);
+        mat_mul(P->Rw, tg->R, Mt);
+        for (k = 0; k < 3; k++) v[k] = Mt[3 * k] * a[0] + Mt[3 * k + 1] * a[1] + Mt[3 * k + 2] * a[2];
+    }
+    {
+        double u1v = dot3(u1, v), u2a = dot3(u2, a);
+        al = (u1v - c * u2a) / den;
+        be = (u2a - c * u1v) / den;
+        ga2 = (dot3(a, a) - al * al - be * be - 2.0 * al * be * c) / den;
+        if (!(ga2 > 1e-12)) return 0;   /* unreachable, or the two solutions merge */
+        ga = sqrt(ga2);
+    }
+    cross(u1, u2, u12);
+    /* the second rotary angle of both solutions first: a solution that turns it by more than
+     * CLOSED_MAX_TURN is out without the rest */
+    for (br = 0; br < 2; br++) {
+        double g = br ? -ga : ga;
+        for (k = 0; k < 3; k++) xs[br][k] = al * u1[k] + be * u2[k] + g * u12[k];
+        th[br][1] = near_turn(turn_angle(u2, a, xs[br], &sc[br][1][0], &sc[br][1][1]), ref[i2]);
+    }
+    for (br = 0; br < 2; br++) {
+        double sum, mx;
+        int j;
+        if (fabs(th[br][1] - ref[i2]) > CLOSED_MAX_TURN) continue;
+        th[br][0] = near_turn(turn_angle(u1, xs[br], v, &sc[br][0][0], &sc[br][0][1]), ref[i1]);
+        if (i3 >= 0) {
+            /* R3 = (R1 R2)^T Mt: turn b by R3 and compare with (R1 R2)^T Mt b */
+            double mb[3], y[3];
+            mat_vec(Mt, P->b3, mb);
+            turn(u1, -sc[br][0][0], sc[br][0][1], mb, y);
+            turn(u2, -sc[br][1][0], sc[br][1][1], y, w);
+            th[br][2] = near_turn(turn_angle(m->dir[i3], P->b3, w, &sc[br][2][0], &sc[br][2][1]), ref[i3]);
+        }
+        for (j = 0, sum = 0.0, mx = 0.0; j < P->nrot; j++) {
+            double d = fabs(th[br][j] - ref[P->rot_idx[j]]);
+            sum += d;
+            if (d > mx) mx = d;
+        }
+        if (mx <= CLOSED_MAX_TURN && sum < best) { best = sum; pick = br; }
+    }
+    if (pick < 0) return 0;
+    memcpy(out, q0, P->n * sizeof(double));
+    for (k = 0; k < P->nrot; k++) out[P->rot_idx[k]] = th[pick][k];
+    {
+        /* the rigid chain at the new angles: p_nom and the linear axes' columns */
+        double R[9], t[3] = {0, 0, 0}, A[3][3], rhs[3], pn[3], det, x[3];
+        int i, nc = 0, lin[3], ident = 1, r = 0;
+        eye(R);
+        for (i = 0; i < P->n; i++) {
+            if (m->rotary[i]) {
+                double Rg[9], tg3[3], tmp[3];
+                const double *cc = P->c[i], *u = m->dir[i];
+                double sn = sc[pick][r][0], cs = sc[pick][r][1], C = 1.0 - cs;
+                r++;
+                Rg[0] = cs + u[0] * u[0] * C;        Rg[1] = u[0] * u[1] * C - u[2] * sn; Rg[2] = u[0] * u[2] * C + u[1] * sn;
+                Rg[3] = u[1] * u[0] * C + u[2] * sn; Rg[4] = cs + u[1] * u[1] * C;        Rg[5] = u[1] * u[2] * C - u[0] * sn;
+                Rg[6] = u[2] * u[0] * C - u[1] * sn; Rg[7] = u[2] * u[1] * C + u[0] * sn; Rg[8] = cs + u[2] * u[2] * C;
+                for (k = 0; k < 3; k++)
+                    tg3[k] = cc[k] - (Rg[3 * k] * cc[0] + Rg[3 * k + 1] * cc[1] + Rg[3 * k + 2] * cc[2]);
+                if (ident) {
+                    for (k = 0; k < 3; k++) t[k] += tg3[k];
+                    memcpy(R, Rg, sizeof R);
+                    ident = 0;
+                } else {
+                    mat_vec(R, tg3, tmp);
+                    for (k = 0; k < 3; k++) t[k] += tmp[k];
+                    mat_mul(R, Rg, R);
+                }
+            } else {
+                double col[3];
+                mat_vec(R, m->dir[i], col);
+                for (k = 0; k < 3; k++) { A[k][nc] = col[k]; t[k] += out[i] * col[k]; }
+                lin[nc++] = i;
+            }
+        }
+        mat_vec(R, P->tp, pn);
+        mat_vec(P->Rw, tg->p, rhs);
+        for (k = 0; k < 3; k++) rhs[k] += P->tw[k] - (pn[k] + t[k]);
+#define DET3(c0, c1, c2) (c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c0[1] * (c1[0] * c2[2] - c1[2] * c2[0]) \
+                          + c0[2] * (c1[0] * c2[1] - c1[1] * c2[0]))
+        {
+            double c0[3] = {A[0][0], A[1][0], A[2][0]}, c1[3] = {A[0][1], A[1][1], A[2][1]},
+                   c2[3] = {A[0][2], A[1][2], A[2][2]};
+            det = DET3(c0, c1, c2);
+            if (det == 0.0) return 0;
+            x[0] = DET3(rhs, c1, c2) / det;
+            x[1] = DET3(c0, rhs, c2) / det;
+            x[2] = DET3(c0, c1, rhs) / det;
+        }
+#undef DET3
+        for (k = 0; k < 3; k++) out[lin[k]] += x[k];
+    }
+    return in_ranges(P, out);
+}
+
 static int limits(const mtk_model *m, const double *q)
 {
     int i;
@@ -1530,6 +1753,13 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
         memcpy(start, q_prog, n * sizeof(double));
         if (c->have_prev)
             for (k = 0; k < n; k++) start[k] += c->corr[k];
+        if (c->P.closed_rot &&
+            closed_rotation(&c->P, &tg, q_prog, start, c->have_prev && c->warm ? start : q_prog, o.pole_tol, q)) {
+            for (k = 0; k < n; k++) c->corr[k] = q[k] - q_prog[k];
+            c->have_prev = 1;
+            c->warm = 1;
+            goto limits;
+        }
         rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, &o, q, &it, &res, &res0,
                         &singular, &bad, &held, &how);
         if (iters) *iters = it;
@@ -1681,6 +1911,13 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         memcpy(start, qa, nax * sizeof(double));
         if (o->continuation && have_prev)
             for (k = 0; k < nax; k++) start[k] += corr[k];
+        if (P.closed_rot &&
+            closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_tol, qo)) {
+            for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
+            have_prev = 1;
+            warm = 1;
+            continue;
+        }
         rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, resi, &r0, &sing, &bad,
                         &held, &how);
         if (rc == MTK_OK) {
