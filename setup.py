@@ -12,14 +12,15 @@ from pathlib import Path
 from setuptools import setup
 from setuptools.command.build_py import build_py
 
-# Must match core/_kernel.py (CFLAGS, source_hash, library_name); tests/test_kernel.py checks it.
+# Must match core/_kernel.py (CFLAGS, SOURCES, source_hash, library_name); tests/test_kernel.py checks it.
 CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
+SOURCES = ("mtk.h", "mtk.c", "cosim_loop.c")
 SRC = Path(__file__).resolve().parent / "fmu" / "c"
 
 
 def kernel_name() -> str:
     h = hashlib.sha256()
-    for name in ("mtk.h", "mtk.c"):
+    for name in SOURCES:
         h.update((SRC / name).read_bytes())
     h.update(" ".join(CFLAGS).encode())
     return f"libmtk-{h.hexdigest()[:16]}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
@@ -33,7 +34,7 @@ class BuildWithKernel(build_py):
             return  # editable installs build on first use into the cache
         out = Path(self.build_lib) / "mtcomp" / kernel_name()
         out.parent.mkdir(parents=True, exist_ok=True)
-        run = subprocess.run([cc[0], *CFLAGS, str(SRC / "mtk.c"), "-o", str(out), "-lm"],
+        run = subprocess.run([cc[0], *CFLAGS, *(str(SRC / f) for f in SOURCES if f.endswith(".c")), "-o", str(out), "-lm"],
                              capture_output=True, text=True)
         if run.returncode:
             print(f"mtcomp: the kinematic kernel was not compiled ({run.stderr.strip()[:200]}); "

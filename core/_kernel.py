@@ -33,6 +33,8 @@ MAX_AXES = 9
 OK, E_RANGE, E_LIMIT, E_CONVERGE = 0, 3, 4, 5
 CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
 
+#: The kernel library's sources (fmu/c): the kinematic kernel and the co-simulation's stepping loop.
+SOURCES = ("mtk.h", "mtk.c", "cosim_loop.c")
 _SUFFIX = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
 
 
@@ -53,7 +55,7 @@ def source_hash(src: Path | None = None) -> str:
     """Hash of the kernel source and the compile flags: the key of a built library."""
     src = src or source_dir()
     h = hashlib.sha256()
-    for name in ("mtk.h", "mtk.c"):
+    for name in SOURCES:
         h.update((src / name).read_bytes())
     h.update(" ".join(CFLAGS).encode())
     return h.hexdigest()[:16]
@@ -90,7 +92,7 @@ def compile_library(out: Path, src: Path | None = None, cc: str | None = None) -
     fd, tmp = tempfile.mkstemp(prefix=".mtk-", suffix=_SUFFIX, dir=out.parent)
     os.close(fd)
     try:
-        run = subprocess.run([cc, *CFLAGS, str(src / "mtk.c"), "-o", tmp, "-lm"],
+        run = subprocess.run([cc, *CFLAGS, *(str(src / f) for f in SOURCES if f.endswith(".c")), "-o", tmp, "-lm"],
                              capture_output=True, text=True)
         if run.returncode:
             raise RuntimeError(f"compiling the kinematic kernel failed:\n{run.stderr[-2000:]}")
@@ -112,6 +114,18 @@ class _Options(ctypes.Structure):
     _fields_ = [("tol", ctypes.c_double), ("max_iter", ctypes.c_int), ("pole_tol", ctypes.c_double),
                 ("continuation", ctypes.c_int), ("run_in", ctypes.c_long)]
 
+
+class CosimLoop(ctypes.Structure):
+    """mtk_cosim of fmu/c/cosim_loop.c: the co-simulation's stepping loop in C (mtcomp.fmu.cosim).
+    Instances, functions (fmi2SetReal, fmi2GetReal, fmi2DoStep) and arrays as plain addresses."""
+    _fields_ = [(f, ctypes.c_void_p) for f in ("comp", "c_set", "c_get", "c_step", "c_in", "c_out",
+                                               "mach", "m_set", "m_get", "m_step", "m_in", "m_out")] + \
+               [("n", ctypes.c_int), ("n_out", ctypes.c_int), ("step", ctypes.c_double),
+                ("q", ctypes.c_void_p), ("qc", ctypes.c_void_p), ("out", ctypes.c_void_p)]
+
+
+#: What mtk_cosim_steps reports as failed (its return value modulo 8; the step is the quotient).
+COSIM_FAILED = {1: "compensator", 2: "machine command", 3: "compensator step", 4: "machine step"}
 
 _D = ctypes.POINTER(ctypes.c_double)
 _I = ctypes.POINTER(ctypes.c_int)
@@ -139,6 +153,8 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.mtk_compensate_batch_mt.restype = c_long
     lib.mtk_compensate_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D,
                                             ctypes.POINTER(_Options), _D, _I, _I, ctypes.c_int]
+    lib.mtk_cosim_steps.restype = c_long
+    lib.mtk_cosim_steps.argtypes = [ctypes.POINTER(CosimLoop), c_long, c_long]
     lib.mtk_threads.restype = ctypes.c_int
     lib.mtk_threads.argtypes = [c_long, ctypes.c_int]
     return lib

@@ -356,14 +356,45 @@ class CosimFailed(MtcompError):
     """An FMU refused a call during the co-simulation (its log message is in the text)."""
 
 
+def _c_loop(mach, comp, m_in, m_out, c_in, c_out, n, step, q, qc, out):
+    """(kernel library, mtk_cosim) for the stepping loop in C (fmu/c/cosim_loop.c), or None
+    without the compiled library.  mach or comp may be None (the other FMU alone).  The arrays and
+    value-reference arrays (ctypes c_uint arrays) must outlive the loop."""
+    import ctypes
+    from .. import _kernel
+    lib = _kernel.load(quiet=True)
+    if lib is None or not hasattr(lib, "mtk_cosim_steps"):
+        return None
+
+    def fmi(runner):
+        dll = runner.fmu.dll
+        comp_ = runner.fmu.component
+        return ((comp_.value if hasattr(comp_, "value") else comp_),
+                *(ctypes.cast(getattr(dll, f), ctypes.c_void_p).value
+                  for f in ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep")))
+
+    s = _kernel.CosimLoop()
+    if mach is not None:
+        s.mach, s.m_set, s.m_get, s.m_step = fmi(mach)
+        s.m_in, s.m_out = ctypes.addressof(m_in), ctypes.addressof(m_out)
+    if comp is not None:
+        s.comp, s.c_set, s.c_get, s.c_step = fmi(comp)
+        s.c_in, s.c_out = ctypes.addressof(c_in), ctypes.addressof(c_out)
+    s.n, s.n_out, s.step = n, len(m_out) if m_out is not None else 0, float(step)
+    s.q, s.qc, s.out = q.ctypes.data, qc.ctypes.data, out.ctypes.data
+    return lib, s
+
+
 def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed: float,
          progress=None):
     """One run; comp_path None: the machine gets the programmed commands.
 
     Per step k: set the compensator's inputs to q[k], read its outputs, give them to the machine,
     step both from t_k to t_k + step, then read the machine (no feed-through: its outputs are
-    its state at t_k + step).  The loop calls the FMUs' C functions with the addresses of the
-    rows of preallocated numpy arrays, so a step costs six ctypes calls and no Python lists."""
+    its state at t_k + step).  The loop runs in C (the kernel library's mtk_cosim_steps: the
+    FMUs' C functions called through their addresses on the rows of preallocated numpy arrays,
+    one ctypes call per progress report); without the library the same loop runs in Python with
+    six ctypes calls per step."""
     import ctypes
     names = machine.axis_names
     logs: list = []
@@ -411,19 +442,32 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
             cc, c_set, c_get, c_step = comp.raw()
             a_cin, a_cout = ctypes.addressof(c_in), ctypes.addressof(c_out)
         report = max(1, K // 200)
-        for k in range(K):
-            t = k * step
-            if comp:
-                if c_set(cc, a_cin, n, a_q + k * row) > 1 or c_get(cc, a_cout, n, a_qc + k * row) > 1:
-                    fail("compensator", k)
-            if m_set(mc, a_min, n, a_qc + k * row) > 1:
-                fail("machine command", k)
-            if comp and c_step(cc, t, step, 1) > 1:
-                fail("compensator step", k)
-            if m_step(mc, t, step, 1) > 1 or m_get(mc, a_mout, 3 + n, a_out + k * orow) > 1:
-                fail("machine step", k)
-            if progress is not None and (k % report == 0 or k == K - 1):
-                progress(k + 1, K)
+        loop = _c_loop(mach, comp, m_in, m_out, c_in, c_out, n, step, qin, qc, out)
+        if loop is not None:
+            # the same calls in the same order from C, `report` steps per ctypes call
+            lib, s = loop
+            for k0 in range(0, K, report):
+                k1 = min(K, k0 + report)
+                bad = lib.mtk_cosim_steps(ctypes.byref(s), k0, k1)
+                if bad >= 0:
+                    from .._kernel import COSIM_FAILED
+                    fail(COSIM_FAILED[bad % 8], bad // 8)
+                if progress is not None:
+                    progress(k1, K)
+        else:  # without the kernel library: the same loop in Python, six ctypes calls per step
+            for k in range(K):
+                t = k * step
+                if comp:
+                    if c_set(cc, a_cin, n, a_q + k * row) > 1 or c_get(cc, a_cout, n, a_qc + k * row) > 1:
+                        fail("compensator", k)
+                if m_set(mc, a_min, n, a_qc + k * row) > 1:
+                    fail("machine command", k)
+                if comp and c_step(cc, t, step, 1) > 1:
+                    fail("compensator step", k)
+                if m_step(mc, t, step, 1) > 1 or m_get(mc, a_mout, 3 + n, a_out + k * orow) > 1:
+                    fail("machine step", k)
+                if progress is not None and (k % report == 0 or k == K - 1):
+                    progress(k + 1, K)
         p[:] = out[:, :3]
         act[:] = out[:, 3:]
         return qc, p, act
