@@ -74,10 +74,17 @@ def main(argv=None):
 
     def case(label, mname, fn_c, fn_n, n_c, n_n, compare=True):
         cc, cw, qc = timed(fn_c, repeat=3)
+        os.environ["MTCOMP_THREADS"] = "1"  # the same batch on one thread: the threads' gain in wall time
+        try:
+            c1, w1, q1 = timed(fn_c, repeat=2)
+        finally:
+            os.environ.pop("MTCOMP_THREADS")
+        assert np.array_equal(q1, qc), "one thread and several must give the same bits"
         nc, nw, qn = timed(fn_n, repeat=1)
         diff = float(np.max(np.abs(qc[:n_n] - qn))) if compare else float("nan")
-        rows.append((label, mname, n_c / cc, n_c / cw, n_n / nc, n_n / nw, diff))
-        print(f"{label:48s} {mname:18s} C {n_c / cc:>12,.0f}/s CPU ({n_c / cw:>12,.0f}/s wall)  numpy "
+        rows.append((label, mname, n_c / cc, n_c / cw, n_n / nc, n_n / nw, diff, n_c / c1, n_c / w1))
+        print(f"{label:48s} {mname:18s} C {n_c / cc:>12,.0f}/s CPU ({n_c / cw:>12,.0f}/s wall; 1 thread "
+              f"{n_c / c1:>12,.0f} CPU, {n_c / w1:>12,.0f} wall)  numpy "
               f"{n_n / nc:>10,.0f}/s CPU  |C-numpy| {diff:.1e}", flush=True)
 
     for name in ("robonano-ui", "robonano-a0ib", "vmc-moving-column"):
@@ -89,7 +96,7 @@ def main(argv=None):
              lambda: retarget(m, q, RIGID, check=False, backend="c"),
              lambda: retarget(m, q[:Nn], RIGID, check=False, backend="numpy"), N, Nn)
         if m.n_rotary:
-            case("retarget, rigid + workpiece rotation (iterative)", name,
+            case("retarget, rigid + workpiece rotation (closed form)", name,
                  lambda: retarget(m, q, ROTATED, check=False, backend="c"),
                  lambda: retarget(m, q[:Nn], ROTATED, check=False, backend="numpy"), N, Nn)
             qp = path_commands(m, N)
@@ -123,8 +130,8 @@ def main(argv=None):
          rate("retarget, setting errors (closed form)", None), 10e6),
         ("`retarget` with component tables on all axes", ">= 2 M poses/s",
          rate("retarget, tables on all axes + setting + location", None), 2e6),
-        ("rigid + workpiece rotation, 5 axes (iterative)", ">= 5 M poses/s",
-         rate("retarget, rigid + workpiece rotation (iterative)", "robonano-a0ib"), 5e6),
+        ("rigid + workpiece rotation, 5 axes", ">= 5 M poses/s",
+         rate("retarget, rigid + workpiece rotation (closed form)", "robonano-a0ib"), 5e6),
     ]
     md = [f"## Core model throughput (`benchmarks/bench_kernel.py --points {N}`)", "",
           machine_line() + f" Load average during the run: {os.getloadavg()[0]:.1f} (wall time suffers "
@@ -136,10 +143,11 @@ def main(argv=None):
           "(0.02, -0.03, 0.15) deg; tables: 15-point random tables on every axis with location "
           "errors and setting errors. The last column is the largest difference of the commands "
           "(mm or deg) between the kernel and numpy.", "",
-          "| case | machine | kernel, poses/s CPU (wall) | numpy, poses/s CPU | max difference |",
-          "|---|---|---|---|---|"]
+          "| case | machine | kernel, poses/s CPU (wall) | kernel on 1 thread, CPU (wall) | numpy, poses/s CPU | max difference |",
+          "|---|---|---|---|---|---|"]
     for r in rows:
-        md.append(f"| {r[0].strip()} | {r[1]} | {r[2]:,.0f} ({r[3]:,.0f}) | {r[4]:,.0f} | {r[6]:.1e} |")
+        md.append(f"| {r[0].strip()} | {r[1]} | {r[2]:,.0f} ({r[3]:,.0f}) | {r[7]:,.0f} ({r[8]:,.0f}) | "
+                  f"{r[4]:,.0f} | {r[6]:.1e} |")
     md += ["", "Targets of the compiled-kernel issue (CPU time, minimum over the machines):", "",
            "| path | target | measured | |", "|---|---|---|---|"]
     for label, target, got, need in targets:
@@ -147,21 +155,31 @@ def main(argv=None):
     md.append(f"| singular case (3-axis program on a tilted blank, a0ib), 20,000 lines | < 2 s, as fast as "
               f"the regular case | {singular_s:.3f} s ({rate('  regular reference: same program at B = 20', None) / rows[-2][2]:.1f}x "
               f"the regular case's time) | {'met' if singular_s < 2 else '**missed**'} |")
-    md += ["", "Where the time goes (perf, and counters in a test build): per pose the kernel takes one "
-           "analytic Jacobian pass, which also gives the residual at the start: of the rigid model for "
-           "setting errors, of the full model (the tables' slopes and the location errors in it) with "
-           "tables; then Newton steps each checked by a forward evaluation, about 3.5 per random pose with a "
-           "workpiece rotation (the Jacobian is kept while the residual falls tenfold per step, and the "
-           "rotary nonlinearity of a 0.15 deg rotation limits that) and with tables as many (before the "
-           "table slopes were in the Jacobian: 7, the chord contracting only by the slopes' size). "
-           "A Newton step below 1e-5 deg and 1e-4 mm inside one table interval is taken without an "
-           "evaluation (the model is linear over it to below 1e-11 mm): along a fine path, as in the FMU, "
-           "one Jacobian pass per pose. A forward evaluation is two or three sincos and a few inlined 3x3 "
-           "products, with tables the interval (searched from the last one) and the small-angle "
-           "Rodrigues series per axis. The closed form is three sincos per pose on the A-B-C head; "
-           "the batch writes straight into the result arrays. Batches of 20,000 poses or more run on "
-           "both cores (wall time), which the CPU-time rates do not show. The FMU step and `mtcomp "
-           "compensate` end to end are measured by bench_fmu.py and bench_gcode.py."]
+    md += ["", "Where the time goes (perf, and counters in a test build). Setting errors without a workpiece "
+           "rotation: the closed form, two or three sincos per pose and a 3x3 solve (constant where the "
+           "linear axes come first in the chain); the Python side (allocation, the finite-command check) "
+           "adds about a fifth. Setting errors with a workpiece rotation (two or three rotary axes): the "
+           "rotary angles in closed form (the orientation of the rigid chain depends on them alone: "
+           "Paden-Kahan subproblem 2 for the first two, subproblem 1 for the third), then the linear "
+           "axes from the 3x3 system the position is affine in: per pose the ideal target (one forward "
+           "evaluation), the pole test at the start (two sincos), three atan2 and the chain at the "
+           "solution built from the subproblems' sines and cosines; poses within five times the pole "
+           "tolerance of a pole or needing a rotary turn over 10 deg go to the iteration. With tables: "
+           "one analytic Jacobian pass of the full model (the tables' slopes and the location errors "
+           "in it) at the start, which also gives the residual there, then chord steps each checked by "
+           "a forward evaluation: 4.3-4.6 forward evaluations per random 5- or 6-axis pose (the target "
+           "included), 3.1 on the 3-axis machine; a forward evaluation with tables costs about 145 ns "
+           "(the interval searched from the last one, the small-angle Rodrigues series per axis), the "
+           "Jacobian pass about 370 ns. The 2 M/s target needs those in SIMD across poses (not done). "
+           "Along a fine path (as in the FMU) a Newton step below 1e-5 deg and 1e-4 mm inside one table "
+           "interval is taken without an evaluation (the model is linear over it to below 1e-11 mm): "
+           "one Jacobian pass per pose. Threads: a batch is cut into chunks of 4,096 poses that do not "
+           "depend on the number of threads (each chunk after the first takes up the path from the 16 "
+           "poses before it), run on min(cores, chunks) threads started in C (MTCOMP_THREADS "
+           "overrides); one thread and two give the same bits (asserted in this run). The CPU-time "
+           "rates count both threads; the wall-time gain shows in the 1-thread column, and depends on "
+           "what else runs on the machine. The FMU step and `mtcomp compensate` end to end are "
+           "measured by bench_fmu.py and bench_gcode.py."]
     if not a.no_write:
         update_section("kernel", "\n".join(md))
 

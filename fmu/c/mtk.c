@@ -703,41 +703,11 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
     return MTK_OK;
 }
 
-/* Solve A X = B for X (n x n, n x k), partial pivoting; 0 if singular. A and B are destroyed. */
 #if defined(__GNUC__)
 #define MTK_INLINE static inline __attribute__((always_inline))
 #else
 #define MTK_INLINE static inline
 #endif
-
-MTK_INLINE int solve(int n, double *A, double *B, int k)
-{
-    int i, j, c, r;
-    for (c = 0; c < n; c++) {
-        int piv = c;
-        for (r = c + 1; r < n; r++)
-            if (fabs(A[r * n + c]) > fabs(A[piv * n + c])) piv = r;
-        if (A[piv * n + c] == 0.0) return 0;
-        if (piv != c) {
-            for (j = 0; j < n; j++) { double tmp = A[c * n + j]; A[c * n + j] = A[piv * n + j]; A[piv * n + j] = tmp; }
-            for (j = 0; j < k; j++) { double tmp = B[c * k + j]; B[c * k + j] = B[piv * k + j]; B[piv * k + j] = tmp; }
-        }
-        for (r = c + 1; r < n; r++) {
-            double f = A[r * n + c] / A[c * n + c];
-            if (f == 0.0) continue;
-            for (j = c; j < n; j++) A[r * n + j] -= f * A[c * n + j];
-            for (j = 0; j < k; j++) B[r * k + j] -= f * B[c * k + j];
-        }
-    }
-    for (i = n - 1; i >= 0; i--) {
-        for (j = 0; j < k; j++) {
-            double s = B[i * k + j];
-            for (c = i + 1; c < n; c++) s -= A[i * n + c] * B[c * k + j];
-            B[i * k + j] = s / A[i * n + i];
-        }
-    }
-    return 1;
-}
 
 static int errors_zero(const mtk_model *m, const mtk_errors *e)
 {
@@ -833,6 +803,7 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
     eye(R);
     for (i = 0; i < n; i++) {
         double Rg[9], tg3[3], w[3], vv[3];
+        int grot = m->rotary[i];      /* Rg differs from the identity (skipped in the products) */
         if (m->rotary[i]) {
             const double *c = P->c[i];
             axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
@@ -842,7 +813,7 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             }
             cross(c, w, vv);
         } else {
-            eye(Rg);
+            eye(Rg);   /* not multiplied by (grot = 0); set for the compilers' flow analysis */
             for (k = 0; k < 3; k++) {
                 tg3[k] = q[i] * P->ueff[i][k];
                 w[k] = 0.0;
@@ -862,14 +833,18 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             cross(de, lp, x);
             for (k = 0; k < 3; k++) ve[k] = dd[k] - x[k];
             if (m->tool_side[i] == m->rotary[i]) {      /* E . N */
-                mat_vec(Re, w, a);
+                if (grot) {
+                    mat_vec(Re, w, a);
+                    cross(te, a, x);
+                } else {                                 /* a linear axis: w = 0 */
+                    a[0] = a[1] = a[2] = x[0] = x[1] = x[2] = 0.0;
+                }
                 mat_vec(Re, vv, b);
-                cross(te, a, x);
                 for (k = 0; k < 3; k++) { w[k] = we[k] + a[k]; vv[k] = ve[k] + b[k] + x[k]; }
                 mat_vec(Re, tg3, b);
                 for (k = 0; k < 3; k++) tg3[k] = b[k] + te[k];
-                mat_mul(Re, Rg, Rg);
-            } else {                                     /* N . E */
+                if (grot) mat_mul(Re, Rg, Rg); else memcpy(Rg, Re, sizeof Rg);
+            } else if (grot) {                           /* N . E */
                 mat_vec(Rg, we, a);
                 mat_vec(Rg, ve, b);
                 cross(tg3, a, x);
@@ -877,7 +852,12 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
                 mat_vec(Rg, te, b);
                 for (k = 0; k < 3; k++) tg3[k] += b[k];
                 mat_mul(Rg, Re, Rg);
+            } else {                                     /* N . E, N a translation */
+                cross(tg3, we, x);
+                for (k = 0; k < 3; k++) { w[k] += we[k]; vv[k] += ve[k] + x[k]; tg3[k] += te[k]; }
+                memcpy(Rg, Re, sizeof Rg);
             }
+            grot = 1;
         }
         mat_vec(R, w, W[i]);
         mat_vec(R, vv, V[i]);
@@ -886,7 +866,7 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             double tmp[3];
             mat_vec(R, tg3, tmp);
             for (k = 0; k < 3; k++) t[k] += tmp[k];
-            mat_mul(R, Rg, R);
+            if (grot) mat_mul(R, Rg, R);
         }
     }
     mat_vec(R, P->tp, p);
@@ -976,10 +956,12 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     return MTK_OK;
 }
 
-/* K = A^-1 J^T with A = J^T J + lambda I (A, Acopy: scratch). */
-MTK_INLINE int normal_solve(int n, int rows, const double *J, double *A, double *Acopy, double *K)
+/* A = J^T J + lambda I, LU-factored in place with partial pivoting (the multipliers below the
+ * diagonal, piv the row order); 0 if singular.  Factored once per linearisation, each chord step
+ * then solves for one right-hand side (normal_step) rather than forming A^-1 J^T for all rows. */
+MTK_INLINE int normal_factor(int n, int rows, const double *J, double *A, int *piv)
 {
-    int i, j, k;
+    int i, j, k, c, r;
     for (i = 0; i < n; i++)
         for (j = i; j < n; j++) {   /* symmetric: the upper triangle, mirrored */
             double s = 0.0;
@@ -987,19 +969,56 @@ MTK_INLINE int normal_solve(int n, int rows, const double *J, double *A, double 
             A[i * n + j] = s + (i == j ? LAMBDA : 0.0);
             A[j * n + i] = A[i * n + j];
         }
-    for (i = 0; i < n; i++)
-        for (k = 0; k < rows; k++) K[i * rows + k] = J[k * n + i];
-    memcpy(Acopy, A, (size_t)n * n * sizeof(double));
-    return solve(n, Acopy, K, rows);
+    for (i = 0; i < n; i++) piv[i] = i;
+    for (c = 0; c < n; c++) {
+        int p = c;
+        for (r = c + 1; r < n; r++)
+            if (fabs(A[r * n + c]) > fabs(A[p * n + c])) p = r;
+        if (A[p * n + c] == 0.0) return 0;
+        if (p != c) {
+            int t = piv[c];
+            piv[c] = piv[p];
+            piv[p] = t;
+            for (j = 0; j < n; j++) { double tmp = A[c * n + j]; A[c * n + j] = A[p * n + j]; A[p * n + j] = tmp; }
+        }
+        for (r = c + 1; r < n; r++) {
+            double f = A[r * n + c] / A[c * n + c];
+            A[r * n + c] = f;
+            for (j = c + 1; j < n; j++) A[r * n + j] -= f * A[c * n + j];
+        }
+    }
+    return 1;
 }
 
-/* K = A^-1 J^T with A = J^T J + lambda I, the columns of frozen axes zeroed.
- * Returns 0 if A is singular. */
+/* x = A^-1 J^T r from normal_factor's factors. */
+MTK_INLINE void normal_step(int n, int rows, const double *J, const double *LU, const int *piv, const double *r,
+                            double *x)
+{
+    double g[MTK_MAX_AXES], y[MTK_MAX_AXES];
+    int i, j, k;
+    for (i = 0; i < n; i++) {
+        double s = 0.0;
+        for (k = 0; k < rows; k++) s += J[k * n + i] * r[k];
+        g[i] = s;
+    }
+    for (i = 0; i < n; i++) {
+        double s = g[piv[i]];
+        for (j = 0; j < i; j++) s -= LU[i * n + j] * y[j];
+        y[i] = s;
+    }
+    for (i = n - 1; i >= 0; i--) {
+        double s = y[i];
+        for (j = i + 1; j < n; j++) s -= LU[i * n + j] * x[j];
+        x[i] = s / LU[i * n + i];
+    }
+}
+
+/* Factors of A = J^T J + lambda I (normal_factor) of the Jacobian J at q, the columns of frozen
+ * axes zeroed.  Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     const double *J0, double *K, double *J, int *rc)
+                     const double *J0, double *LU, int *piv, double *J, int *rc)
 {
     int n = Pr->n, rows = Pr->rows, j, k;
-    double A[MTK_MAX_AXES * MTK_MAX_AXES], Acopy[MTK_MAX_AXES * MTK_MAX_AXES];
     if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
         memcpy(J, J0, (size_t)rows * n * sizeof(double));
         for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
@@ -1013,11 +1032,18 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
             if (freeze[k])
                 for (j = 0; j < rows; j++) J[j * n + k] = 0.0;
     /* the usual shapes with constant sizes (unrolled by the compiler; the same arithmetic) */
-    if (n == 5 && rows == 6) return normal_solve(5, 6, J, A, Acopy, K);
-    if (n == 3 && rows == 3) return normal_solve(3, 3, J, A, Acopy, K);
-    if (n == 6 && rows == 6) return normal_solve(6, 6, J, A, Acopy, K);
-    if (n == 4 && rows == 6) return normal_solve(4, 6, J, A, Acopy, K);
-    return normal_solve(n, rows, J, A, Acopy, K);
+    if (n == 5 && rows == 6) return normal_factor(5, 6, J, LU, piv);
+    if (n == 3 && rows == 3) return normal_factor(3, 3, J, LU, piv);
+    if (n == 6 && rows == 6) return normal_factor(6, 6, J, LU, piv);
+    return normal_factor(n, rows, J, LU, piv);
+}
+
+static void chord_step(int n, int rows, const double *J, const double *LU, const int *piv, const double *r, double *x)
+{
+    if (n == 5 && rows == 6) normal_step(5, 6, J, LU, piv, r, x);
+    else if (n == 3 && rows == 3) normal_step(3, 3, J, LU, piv, r, x);
+    else if (n == 6 && rows == 6) normal_step(6, 6, J, LU, piv, r, x);
+    else normal_step(n, rows, J, LU, piv, r, x);
 }
 
 /* Largest steps (deg, mm) over which the model is linear to below 1e-11 mm: the rotation about a
@@ -1060,7 +1086,8 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                    int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double K[MTK_MAX_AXES * 6], J[6 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
+    double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
+    int piv[MTK_MAX_AXES];
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
@@ -1073,7 +1100,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     while (!done && it < max_iter) {
         int inner, slow = 0;
         memcpy(qlin, q, n * sizeof(double));
-        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, K, J, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, LU, piv, J, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
@@ -1084,13 +1111,11 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                    smax = 0.0, rstep = 0.0;
             int bt;
             it++;
+            /* damped least squares: no component along a null direction of J (an axis the
+             * orientation leaves free keeps the seed's value), no bias of the solution */
+            chord_step(n, rows, J, LU, piv, r, step);
             for (i = 0; i < n; i++) {
-                /* damped least squares: no component along a null direction of J (an axis the
-                 * orientation leaves free keeps the seed's value), no bias of the solution */
-                double s = 0.0;
                 if (freeze && freeze[i]) { step[i] = 0.0; continue; }
-                for (k = 0; k < rows; k++) s += K[i * rows + k] * r[k];
-                step[i] = s;
                 if (P->m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
                 if (fabs(step[i]) > smax) smax = fabs(step[i]);
             }
@@ -1175,10 +1200,10 @@ static double orientation_angle(const prep_t *P, const double *r, double wo)
  * sin(pole_tol) of what the other rotary axes do (C at B = 0 on a B-C table turns the tool about
  * itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of several, the last
  * in the chain (mtcomp.kinematics._pole_axis).  J: the rigid Jacobian at q (ORIENTATION_SCALE). */
-static int pole_axis(const prep_t *Pr, const double *J, double pole_tol)
+static int pole_axis(const prep_t *Pr, const double *J, double thr)
 {
     int n = Pr->n, a, b, j, k, hold = -1;
-    double col[MTK_MAX_AXES][3], thr = sin(pole_tol * DEG);
+    double col[MTK_MAX_AXES][3];
     for (a = 0; a < Pr->nrot; a++)
         for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / (ORIENTATION_SCALE * DEG);
     for (a = 0; a < Pr->nrot; a++) {
@@ -1212,6 +1237,7 @@ typedef struct {
     double tol;
     int max_iter;
     double pole_tol;
+    double pole_sin;     /* sin(pole_tol), taken once per batch or error set */
 } opt_t;
 
 /* Rotary offsets (deg) of the restart seeds, as mtcomp.kinematics._SEED_OFFSETS. */
@@ -1264,7 +1290,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     if (rc) return rc;
     rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
-        int hold = pole_axis(Pj, J0, o->pole_tol);
+        int hold = pole_axis(Pj, J0, o->pole_sin);
         if (hold >= 0) {
             /* The pole axis keeps its programmed value (not the path's: a pole stretch does not
              * depend on what came before it); the others start from `start`, and again from q0
@@ -1528,7 +1554,7 @@ static inline void turn(const double u[3], double sn, double cs, const double x[
  * `start`), for a change of a rotary axis above CLOSED_MAX_TURN, an unreachable orientation, or
  * a result outside a travel. */
 static int closed_rotation(const prep_t *P, const target_t *tg, const double *q0, const double *start,
-                           const double *ref, double pole_tol, double *out)
+                           const double *ref, double pole_sin, double *out)
 {
     const mtk_model *m = P->m;
     const int i1 = P->rot_idx[0], i2 = P->rot_idx[1], i3 = P->nrot == 3 ? P->rot_idx[2] : -1;
@@ -1540,7 +1566,7 @@ static int closed_rotation(const prep_t *P, const target_t *tg, const double *q0
     {
         double w1[3], w2[3], w3[3], vs[3], c1[3], c2[3], x[3], lim;
         double s1 = sin(start[i1] * DEG), k1 = cos(start[i1] * DEG);
-        lim = CLOSED_POLE_MARGIN * sin(pole_tol * DEG);
+        lim = CLOSED_POLE_MARGIN * pole_sin;
         memcpy(w1, u1, sizeof w1);
         turn(u1, s1, k1, u2, w2);
         if (i3 < 0) {
@@ -1693,6 +1719,7 @@ typedef struct {
     prep_t P, Pr, Pi;
     int have_prev, warm;
     double corr[MTK_MAX_AXES];
+    double pole_sin;                  /* sin(MTK_POLE_TOL) */
 } retarget_cache;
 
 static int same_errors(const mtk_errors *a, const mtk_errors *b)
@@ -1739,6 +1766,7 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
         prepare(m, &rigid, 0, &c->Pr);
         prepare(m, NULL, 0, &c->Pi);
         c->have_prev = 0;
+        c->pole_sin = sin(MTK_POLE_TOL * DEG);
         c->valid = 1;
     }
     if (!(c->P.closed && closed_form(&c->P, q_prog, q))) {
@@ -1750,11 +1778,12 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
         o.tol = tol;
         o.max_iter = max_iter;
         o.pole_tol = MTK_POLE_TOL;
+        o.pole_sin = c->pole_sin;
         memcpy(start, q_prog, n * sizeof(double));
         if (c->have_prev)
             for (k = 0; k < n; k++) start[k] += c->corr[k];
         if (c->P.closed_rot &&
-            closed_rotation(&c->P, &tg, q_prog, start, c->have_prev && c->warm ? start : q_prog, o.pole_tol, q)) {
+            closed_rotation(&c->P, &tg, q_prog, start, c->have_prev && c->warm ? start : q_prog, o.pole_sin, q)) {
             for (k = 0; k < n; k++) c->corr[k] = q[k] - q_prog[k];
             c->have_prev = 1;
             c->warm = 1;
@@ -1879,6 +1908,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     so.tol = o->tol;
     so.max_iter = o->max_iter;
     so.pole_tol = o->pole_tol;
+    so.pole_sin = sin(o->pole_tol * DEG);
     long skip = o->run_in > 0 ? (o->run_in < n ? o->run_in : n) : 0;
     double q_in[MTK_MAX_AXES], res_in;
     int status_in, info_in;
@@ -1912,7 +1942,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         if (o->continuation && have_prev)
             for (k = 0; k < nax; k++) start[k] += corr[k];
         if (P.closed_rot &&
-            closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_tol, qo)) {
+            closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_sin, qo)) {
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
             warm = 1;
