@@ -1720,6 +1720,7 @@ typedef struct {
     int have_prev, warm;
     double corr[MTK_MAX_AXES];
     double pole_sin;                  /* sin(MTK_POLE_TOL) */
+    int zero;                         /* the error set is zero: q = q_prog */
 } retarget_cache;
 
 static int same_errors(const mtk_errors *a, const mtk_errors *b)
@@ -1745,7 +1746,7 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
             return MTK_E_ARG;
         }
     }
-    if (!e || errors_zero(m, e)) {
+    if (!e) {
         memcpy(q, q_prog, n * sizeof(double));
         goto limits;
     }
@@ -1767,7 +1768,12 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
         prepare(m, NULL, 0, &c->Pi);
         c->have_prev = 0;
         c->pole_sin = sin(MTK_POLE_TOL * DEG);
+        c->zero = errors_zero(m, e);
         c->valid = 1;
+    }
+    if (c->zero) {   /* (checked once per error set, not per call) */
+        memcpy(q, q_prog, n * sizeof(double));
+        goto limits;
     }
     if (!(c->P.closed && closed_form(&c->P, q_prog, q))) {
         target_t tg;
