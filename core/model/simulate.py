@@ -40,7 +40,7 @@ def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *,
     import tempfile
 
     from ..fmu.build import build_machine_fmu
-    from ..fmu.cosim import _run, interpolate_program
+    from ..fmu.cosim import interpolate_program, run_machine
     machine = load_machine(machine)
     errors = errors or ErrorSet()
     # the machine-only run of mtcomp.fmu.cosim.cosimulate (its uncompensated run, the same
@@ -57,7 +57,7 @@ def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *,
     with tempfile.TemporaryDirectory(prefix="mtcomp-sim-") as tmp:
         wd = Path(workdir) if workdir is not None else Path(tmp)
         mach = build_machine_fmu(machine, wd / "machine.fmu", errors, dynamics, compiler=compiler)
-        _, p, _ = _run(machine, q, step, mach, None, spindle_speed)
+        p = run_machine(mach, machine, q, step, spindle_speed=spindle_speed).p
     return Signals(t, p, q, tuple(machine.axis_names))
 
 
