@@ -360,10 +360,12 @@ class CosimFailed(MtcompError):
 class MachineRun:
     """What the machine FMU did in one run (K steps): p (K, 3) mm the tool edge in the real
     workpiece frame and actual (K, n) mm/deg the axis positions, both read at the end of step k
-    (t_k + step); q (K, n) the commands it was given."""
+    (t_k + step); temperature (K,) degC the machine temperature then; q (K, n) the commands it
+    was given."""
     q: np.ndarray
     p: np.ndarray
     actual: np.ndarray
+    temperature: np.ndarray
 
 
 def run_machine(machine_fmu, machine, q, step: float, *, spindle_speed=0.0, temperature=None,
@@ -393,12 +395,12 @@ def run_machine(machine_fmu, machine, q, step: float, *, spindle_speed=0.0, temp
             raise InputError(f"{name}: expected a finite number or {len(q)} values, got shape {a.shape}",
                              field=name)
         inputs[name] = a
-    _, p, act = _run(machine, q, step, machine_fmu, None, inputs, progress)
-    return MachineRun(q, p, act)
+    _, p, act, temp = _run(machine, q, step, machine_fmu, None, inputs, progress, with_temperature=True)
+    return MachineRun(q, p, act, temp)
 
 
 def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed,
-         progress=None):
+         progress=None, with_temperature: bool = False):
     """One run; comp_path None: the machine gets the programmed commands.
 
     spindle_speed: a number (1/min, held), or a dict {machine input name: (K,) array} of
@@ -406,7 +408,8 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
     Per step k: set the compensator's inputs to q[k], read its outputs, give them to the machine,
     step both from t_k to t_k + step, then read the machine (no feed-through: its outputs are
     its state at t_k + step).  The loop calls the FMUs' C functions with the addresses of the
-    rows of preallocated numpy arrays, so a step costs six ctypes calls and no Python lists."""
+    rows of preallocated numpy arrays, so a step costs six ctypes calls and no Python lists.
+    Returns (commands given to the machine, tool edge, actual positions[, temperature])."""
     import ctypes
     names = machine.axis_names
     logs: list = []
@@ -431,7 +434,8 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
         mach = FmuRunner(mach_path, "machine", logs)
         comp = FmuRunner(comp_path, "compensator", logs) if comp_path else None
         m_in = refs(mach, [f"command.{a}" for a in names])
-        m_out = refs(mach, ["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names])
+        m_out = refs(mach, ["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names]
+                     + (["temperature"] if with_temperature else []))
         c_in = refs(comp, [f"command.{a}" for a in names]) if comp else None
         c_out = refs(comp, [f"compensated.{a}" for a in names]) if comp else None
         for f in (mach, comp):
@@ -454,8 +458,9 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
         qin = np.ascontiguousarray(q, dtype=np.float64)
         if comp is None:
             qc[:] = qin
-        out = np.empty((K, 3 + n))
-        row, orow = n * 8, (3 + n) * 8
+        nout = 3 + n + int(with_temperature)
+        out = np.empty((K, nout))
+        row, orow = n * 8, nout * 8
         a_q, a_qc, a_out = qin.ctypes.data, qc.ctypes.data, out.ctypes.data
         a_min, a_mout = ctypes.addressof(m_in), ctypes.addressof(m_out)
         mc, m_set, m_get, m_step = mach.raw()
@@ -474,13 +479,13 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
                 fail("machine input", k)
             if comp and c_step(cc, t, step, 1) > 1:
                 fail("compensator step", k)
-            if m_step(mc, t, step, 1) > 1 or m_get(mc, a_mout, 3 + n, a_out + k * orow) > 1:
+            if m_step(mc, t, step, 1) > 1 or m_get(mc, a_mout, nout, a_out + k * orow) > 1:
                 fail("machine step", k)
             if progress is not None and (k % report == 0 or k == K - 1):
                 progress(k + 1, K)
         p[:] = out[:, :3]
-        act[:] = out[:, 3:]
-        return qc, p, act
+        act[:] = out[:, 3:3 + n]
+        return (qc, p, act, out[:, 3 + n].copy()) if with_temperature else (qc, p, act)
     except CosimFailed:
         raise
     except Exception as exc:
