@@ -99,7 +99,7 @@ def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None
         prov["errors"] = _rel(errors_path, path.parent)
     if dynamics is not None:
         d = asdict(dynamics)
-        prov["dynamics"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+        prov["dynamics"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items() if v is not None}
     atomic_write(provenance_path(path), "# provenance of a simulated signal file (docs/model-loop.md)\n"
                  + dump_toml({"simulation": prov}))
     return path
