@@ -127,12 +127,13 @@ def run_resimulate(args: argparse.Namespace) -> int:
         program = args.program or prov.program
         machine = load_machine(args.machine) if args.machine else prov.machine
         errors = load_errors(args.errors, machine=machine) if args.errors else prov.errors
-        dyn, step, spindle = prov.dynamics, args.step or prov.step, prov.spindle_speed
+        dyn, step, spindle, temp = prov.dynamics, args.step or prov.step, prov.spindle_speed, prov.temperature
     else:
         if not (args.program and args.machine and args.step):
             raise InputError("give --sim SIM.csv with its provenance sidecar, or --program, --machine and --step",
                              field="--sim")
         program, machine, step, spindle, dyn = args.program, load_machine(args.machine), args.step, 0.0, None
+        temp = None
         errors = load_errors(args.errors, machine=machine) if args.errors else None
     if program is None:
         raise InputError("the provenance names no program: give --program", field="--program")
@@ -148,7 +149,7 @@ def run_resimulate(args: argparse.Namespace) -> int:
         t_rec, rec = read_recording(args.rec)
         log: list = []
         kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
-                  train_until=args.heldout_from, noise_floor=noise, log=log)
+                  temperature=temp, train_until=args.heldout_from, noise_floor=noise, log=log)
         ex = export_model(args.diagnosis, machine, None, step=step)
         if args.prune:
             ex = prune(ex, t_rec, rec, **kw)
@@ -157,7 +158,8 @@ def run_resimulate(args: argparse.Namespace) -> int:
         model = write_export(ex, args.model)
         print("\n".join(log))
     res, _, _ = resimulate(model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,
-                           step=step, spindle_speed=spindle, heldout_from=args.heldout_from, noise_floor=noise)
+                           step=step, spindle_speed=spindle, temperature=temp, heldout_from=args.heldout_from,
+                           noise_floor=noise)
     if args.json:
         atomic_write(args.json, json.dumps(res.to_dict(), indent=2) + "\n")
     if args.plot:
