@@ -358,7 +358,9 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
 
     from ..fmu.build import MachineDynamics
     machine = load_machine(machine)
-    params = [p for p in ex.params if p.type == "Real"]    # thermal.driver is a choice, not a number
+    # thermal.driver is a choice, not a number; thermal.gain is the scale the drift is written in
+    # (only gain * drift enters a spindle-driven drift)
+    params = [p for p in ex.params if p.type == "Real" and p.name != "thermal.gain"]
     if not params:
         return ex
     base_err = errors or ErrorSet()
