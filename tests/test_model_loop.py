@@ -279,3 +279,43 @@ def test_thermal_drift_loop(tmp_path, driver):
         _within_3sigma(got[name].value, got[name].sigma, truth)
     assert res.heldout_rms["before"]["z"] > 20 * NOISE
     _assert_matches_noise(res)
+
+
+def test_cli_thermal_loop_with_logged_driver(tmp_path):
+    """The thermal loop from the command line: the spindle speed log (--drivers) goes into SIM
+    and REC as a column, the REC machine's thermal model comes from a dynamics TOML, the
+    diagnosis takes the column as an input, `model export --sim` and `model resimulate --sim`
+    give it back to the FMU from SIM's provenance: the re-simulation matches REC to the noise."""
+    import json
+    import subprocess
+    import sys
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    t = np.arange(0, 9.0, 0.1)
+    np.savetxt(tmp_path / "drivers.csv", np.column_stack([t, SPINDLE(t)]), delimiter=",",
+               header="t [s],spindle_speed [rpm]", comments="")
+    (tmp_path / "dyn.toml").write_text('[parameters]\n"thermal.gain" = 0.001\n"thermal.time_constant" = 3.0\n'
+                                       '"thermal.drift.z" = 0.004\n')
+    mt = [sys.executable, "-m", "mtcomp"]
+
+    def run(*a):
+        r = subprocess.run(mt + [str(x) for x in a], capture_output=True, text=True, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+    common = ("--machine", M, "--step", STEP, "--drivers", "drivers.csv")
+    run("model", "simulate", prog, *common, "-o", "sim.csv")
+    run("model", "simulate", prog, *common, "--dynamics", "dyn.toml", "--noise", 20, "--seed", 4, "-o", "rec.csv")
+    assert "spindle_speed [rpm]" in (tmp_path / "rec.csv").read_text().splitlines()[0]
+    lines = (tmp_path / "rec.csv").read_text().splitlines()
+    n = int(0.6 * (len(lines) - 1))
+    (tmp_path / "train.csv").write_text("\n".join(lines[:1 + n]) + "\n")
+    t_split = float(lines[1 + n].split(",")[0])
+    run("diagnose", "--sim", "sim.csv", "--rec", "train.csv", "--input", "spindle_speed", "--json", "d.json",
+        "--quiet")
+    out = run("model", "export", "d.json", "--sim", "sim.csv", "-o", "model")
+    assert "thermal.drift.z" in out
+    run("model", "resimulate", "model", "--rec", "rec.csv", "--sim", "sim.csv", "--diagnosis", "d.json",
+        "--heldout-from", t_split, "--json", "rs.json")
+    res = json.loads((tmp_path / "rs.json").read_text())
+    assert res["heldout_rms"]["before"]["z"] > 20 * NOISE
+    assert res["heldout_rms"]["after"]["z"] <= 1.5 * NOISE
