@@ -35,6 +35,9 @@ def register(subparsers) -> None:
     b.add_argument("ssp", metavar="CELL.ssp", help="written by `mtcomp fmu ssp`")
     b.add_argument("ssv", metavar="MODEL/machine.ssv")
     b.add_argument("-o", "--output", required=True, metavar="OUT.ssp")
+    b.add_argument("--name", metavar="SET", help="name of the bound parameter set (default: the .ssv's); ecos "
+                   "applies one name per run: 'commands' makes `ecos --parameterSet commands` apply it together with "
+                   "the compensator's commands")
     b.set_defaults(func=run_ssp)
 
     s = sub.add_parser("simulate", help="NC program -> machine FMU -> tool edge CSV with a provenance sidecar")
@@ -136,7 +139,7 @@ def _read_drivers(path) -> dict:
 
 def run_ssp(args: argparse.Namespace) -> int:
     from .ssp import bind_parameter_set
-    bind_parameter_set(args.ssp, args.ssv, args.output)
+    bind_parameter_set(args.ssp, args.ssv, args.output, set_name=args.name)
     print(f"wrote {args.output}: {args.ssv} bound to the machine component")
     return 0
 

@@ -95,8 +95,8 @@ class ModelExport:
         lines = [f"model export for machine {self.machine}: {len(self.mapped)} effect(s) in the model, "
                  f"{len(self.unmapped)} without a home"]
         for m in self.mapped:
-            what = [f"{p.name} = {p.value:.6g} {p.unit}" + (f" +/- {p.sigma:.2g}" if p.sigma is not None else "")
-                    for p in m.params] + [f"table {t.component}" for t in m.tables]
+            what = [f"{p.name} = {p.value:.6g}" + (f" {p.unit}" if p.unit != "1" else "")
+                    + (f" +/- {p.sigma:.2g}" if p.sigma is not None else "") for p in m.params] + [f"table {t.component}" for t in m.tables]
             lines.append(f"  {m.effect} on {m.output}: " + "; ".join(what))
             lines += [f"    note: {n}" for n in m.notes]
         for e, why in self.unmapped:
