@@ -104,6 +104,26 @@ def test_servo_kv_loop(tmp_path, nominal_servo):
     _assert_matches_noise(res)
 
 
+def test_servo_kv_loop_with_the_ramp_invariant_servo(tmp_path):
+    """The same lag (kv = 40 1/s on X), the machine's servos following the command linearly
+    between steps (servo.interpolation = 1): the FMU is then the continuous lag the diagnosis
+    fits, so with every output diagnosed it names the servo lag on x alone (no common latency,
+    no stand-ins), kv is written as diagnosed (with servo.interpolation = 1) and is within its
+    3 sigma without an allowance, and the re-simulation matches to the noise without pruning."""
+    kv = 40.0
+    base = MachineDynamics(interpolation=1)
+    nom = simulate(SERVO_PROGRAM, M, None, base, step=SERVO_STEP, compiler="cc")
+    rec = simulate(SERVO_PROGRAM, M, None, MachineDynamics(kv=(kv, 0.0, 0.0), interpolation=1, noise=NOISE, seed=7),
+                   step=SERVO_STEP, compiler="cc")
+    lr = close_loop(rec, nom, program=SERVO_PROGRAM, machine=M, step=SERVO_STEP, train=TRAIN, dynamics=base,
+                    do_prune=False, workdir=tmp_path, compiler="cc")
+    assert lr.diagnosis.names == ["servo_lag"]
+    got = {q.name: q for q in lr.export.params}
+    _within_3sigma(got["servo.kv.X"].value, got["servo.kv.X"].sigma, kv)
+    assert got["servo.interpolation"].value == 1
+    _assert_matches_noise(lr.result)
+
+
 def test_cli_loop_with_provenance_sidecar(tmp_path):
     """The loop as a user runs it: simulate SIM and REC (sidecars), diagnose a truncated REC,
     export with --sim, resimulate with --sim --prune --heldout-from; the model folder, the figure

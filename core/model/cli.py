@@ -90,15 +90,16 @@ def run_export(args: argparse.Namespace) -> int:
     from .._io import InputError
     from .export import export_model
     from .simulate import read_provenance
-    machine, step, drivers = args.machine, args.step, None
+    machine, step, drivers, interp = args.machine, args.step, None, False
     if args.sim:
         prov = read_provenance(args.sim)
         machine = machine or prov.machine
         step = step if step is not None else prov.step
         drivers = _driver_starts(prov.spindle_speed, prov.temperature)
+        interp = bool(prov.dynamics.interpolation)
     if machine is None:
         raise InputError("give --machine (or --sim with a provenance sidecar)", field="--machine")
-    ex = export_model(args.diagnosis, machine, args.outdir, step=step, drivers=drivers)
+    ex = export_model(args.diagnosis, machine, args.outdir, step=step, drivers=drivers, servo_interpolation=interp)
     if not args.quiet:
         print(ex.summary())
     return 0
@@ -201,7 +202,8 @@ def run_resimulate(args: argparse.Namespace) -> int:
         log: list = []
         kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
                   temperature=temp, train_until=args.heldout_from, noise_floor=noise, log=log)
-        ex = export_model(args.diagnosis, machine, None, step=step, drivers=_driver_starts(spindle, temp))
+        ex = export_model(args.diagnosis, machine, None, step=step, drivers=_driver_starts(spindle, temp),
+                          servo_interpolation=bool(getattr(dyn, "interpolation", 0)))
         if args.prune:
             ex = prune(ex, t_rec, rec, **kw)
         if args.refine:

@@ -210,7 +210,8 @@ def read_ssv(path) -> dict:
     return out
 
 
-def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict | None = None):
+def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict | None = None,
+                  servo_interpolation: bool = False):
     """(mapped, unmapped) for every effect of the diagnosis.  drivers: {driver column: its value
     at the start} (the thermal mapping needs the spindle speed at the start; 0 when not given).
 
@@ -223,7 +224,7 @@ def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict |
     thermal = None
     for e in data["effects"]:
         try:
-            m = map_effect(e, machine, step, drivers)
+            m = map_effect(e, machine, step, drivers, servo_interpolation)
             if m.effect == "thermal_drift":
                 if thermal is None:
                     thermal = m
@@ -236,15 +237,18 @@ def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict |
 
 
 def export_model(diagnosis, machine, outdir=None, *, step: float | None = None,
-                 check_names: bool = True, drivers: dict | None = None) -> ModelExport:
+                 check_names: bool = True, drivers: dict | None = None,
+                 servo_interpolation: bool = False) -> ModelExport:
     """Map the diagnosis' effects onto the machine model and (with `outdir`) write the files.
 
     diagnosis: path of `mtcomp diagnose --json` output, its dict, or a DiagnosisResult.
     machine: preset name, TOML path or Machine.  step: the co-simulation's communication step
     (s), which the FMU's discrete servo needs to reproduce the fitted kv.  drivers: {driver
-    column: value at the start} of the recording's thermal drivers (map_diagnosis)."""
+    column: value at the start} of the recording's thermal drivers (map_diagnosis).
+    servo_interpolation: the model's servos are ramp invariant (servo.interpolation = 1 in
+    SIM's dynamics): a diagnosed kv is written as it is, with servo.interpolation = 1."""
     machine = load_machine(machine)
-    mapped, unmapped = map_diagnosis(diagnosis, machine, step, drivers)
+    mapped, unmapped = map_diagnosis(diagnosis, machine, step, drivers, servo_interpolation)
     ex = _assemble(mapped, unmapped, machine, step)
     if outdir is not None:
         ex = write_export(ex, outdir, check_names=check_names)

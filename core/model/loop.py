@@ -45,7 +45,8 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
         # so are the logged drivers of the thermal drift (spindle speed, temperature)
         angles += [k for k in rec.inputs]
         diag = diagnose(str(wd / "sim.csv"), str(wd / "rec.csv"), outputs=outputs, inputs=angles or None)
-        ex = export_model(diag, machine, None, step=step, drivers={k: float(v[0]) for k, v in rec.inputs.items()})
+        ex = export_model(diag, machine, None, step=step, drivers={k: float(v[0]) for k, v in rec.inputs.items()},
+                          servo_interpolation=bool(getattr(dynamics, "interpolation", 0)))
         t_split = float(rec.t[n_train])
         rec_out = {o: rec.p[:, k] for k, o in enumerate(OUTPUTS)}
         log: list = []

@@ -72,15 +72,21 @@ def _one_output(e: dict) -> str:
     return outs[0]
 
 
-def map_servo_lag(e: dict, machine: Machine, step: float | None) -> Mapped:
+def map_servo_lag(e: dict, machine: Machine, step: float | None, interpolation: bool = False) -> Mapped:
     """kv (1/s) of the continuous first-order lag the diagnosis fits -> servo.kv.<AXIS>.
 
     The machine FMU's servo is exact first order for a command held over each communication
     step h; its steady following error at speed v is v h / (exp(kv h) - 1), not v/kv, so the
-    continuous kv_c maps to kv = ln(1 + kv_c h)/h (derived by equating the following errors)."""
+    continuous kv_c maps to kv = ln(1 + kv_c h)/h (derived by equating the following errors).
+    With interpolation (the FMU's ramp-invariant servo, servo.interpolation = 1) the FMU is the
+    continuous lag of the piecewise linear command: kv = kv_c, and servo.interpolation = 1 is
+    written beside it."""
     ax = linear_axis(machine, _one_output(e))
     kv_c, s = _p(e, "kv_per_s"), _s(e, "kv_per_s")
     notes = ()
+    if interpolation:
+        return Mapped("servo_lag", e["output"], (Param(f"servo.kv.{ax.axis}", kv_c, s, "1/s"),
+                                                 Param("servo.interpolation", 1, None, "1", "Integer")))
     if step and step > 0:
         kv = math.log1p(kv_c * step) / step
         s = None if s is None else s / (1.0 + kv_c * step)    # d kv / d kv_c
@@ -343,14 +349,18 @@ MAPPERS = {
 }
 
 
-def map_effect(e: dict, machine: Machine, step: float | None = None, drivers: dict | None = None) -> Mapped:
+def map_effect(e: dict, machine: Machine, step: float | None = None, drivers: dict | None = None,
+               servo_interpolation: bool = False) -> Mapped:
     """The model parameters of one diagnosed effect (a dict of the diagnosis JSON), or NoHome.
-    drivers: {driver column: value at the start} for the thermal drift."""
+    drivers: {driver column: value at the start} for the thermal drift; servo_interpolation:
+    the model's servos follow the command linearly between steps (servo.interpolation = 1)."""
     f = MAPPERS.get(e.get("name"))
     if f is None:
         raise NoHome(f"effect {e.get('name')!r} is not known to the model export")
     if f is map_thermal_drift:
         return f(e, machine, step, drivers)
+    if f is map_servo_lag:
+        return f(e, machine, step, servo_interpolation)
     return f(e, machine, step)
 
 
