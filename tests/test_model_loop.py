@@ -104,6 +104,7 @@ def test_servo_kv_loop(tmp_path, nominal_servo):
     _assert_matches_noise(res)
 
 
+@pytest.mark.slow
 def test_servo_kv_loop_with_the_ramp_invariant_servo(tmp_path):
     """The same lag (kv = 40 1/s on X), the machine's servos following the command linearly
     between steps (servo.interpolation = 1): the FMU is then the continuous lag the diagnosis
@@ -271,6 +272,7 @@ def test_friction_loop(tmp_path, seed):
     _assert_matches_noise(res)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("driver", ["spindle", "temperature"])
 def test_thermal_drift_loop(tmp_path, driver):
     """A thermal drift of the tool edge along z (4 µm/K, tau 3 s), driven by the logged spindle
@@ -301,6 +303,7 @@ def test_thermal_drift_loop(tmp_path, driver):
     _assert_matches_noise(res)
 
 
+@pytest.mark.slow
 def test_cli_thermal_loop_with_logged_driver(tmp_path):
     """The thermal loop from the command line: the spindle speed log (--drivers) goes into SIM
     and REC as a column, the REC machine's thermal model comes from a dynamics TOML, the
