@@ -40,7 +40,9 @@ IVR_MAXIT, IVR_ITERS = 0, 1
 SVR_TABLES = 0
 VR_SPINDLE, VR_KV, VR_BACKLASH, VR_TAU, VR_GAIN, VR_AMBIENT, VR_DRIFT, VR_NOISE = 9, 100, 110, 120, 121, 122, 123, 126
 VR_P, VR_V, VR_TEMP, VR_ACT = 130, 133, 136, 140
-IVR_SEED = 0
+VR_TIN, VR_EXCESS, VR_TREF, VR_DELAY, VR_BREAK, VR_COULOMB, VR_FTAU = 127, 128, 129, 150, 160, 170, 180
+IVR_SEED, IVR_DRIVER, IVR_INTERP = 0, 1, 2
+THERMAL_DRIVERS = {"spindle": 0, "temperature": 1, "time": 2}
 # Parameter ranges enforced by the C code (common.h, machine.c); declared as min/max too.
 MAX_TOOL_OFFSET, MAX_WP_TRANSLATION, MAX_WP_ANGLE, MAX_LOC_LINEAR, MAX_LOC_ANGLE = 50.0, 500.0, 30.0, 5.0, 0.05
 
@@ -117,6 +119,7 @@ UNITS = {
     "degC": ({"K": 1}, 1.0, 273.15, {}),
     "mm/K": ({"m": 1, "K": -1}, 1e-3, 0.0, {"um/K": (1e3, 0.0)}),
     "K.min": ({"K": 1, "s": 1}, 60.0, 0.0, {}),
+    "K": ({"K": 1}, 1.0, 0.0, {}),
     "1": ({}, 1.0, 0.0, {}),
 }
 
@@ -338,12 +341,22 @@ def _param_vars(machine: Machine, errors: ErrorSet, tables_spec: str) -> list[Va
 
 @dataclass(frozen=True)
 class MachineDynamics:
-    """Start values of the machine FMU's dynamic parameters.
+    """Start values of the machine FMU's dynamic parameters (docs/model-loop.md, "The machine
+    FMU's dynamics"; mtcomp.model.machine_ref is the same model in Python).
 
     kv: servo gain per axis in 1/s (0: ideal servo, at the command by the end of each step);
-    backlash per axis in mm or deg; thermal time constant (s), gain (K per 1/min of spindle
-    speed), ambient (degC) and drift of the tool edge in the tool frame (mm/K); noise: standard
-    deviation (mm) of the tool edge measurement with its seed.
+    interpolation: 0 the servo holds each command over the step, 1 it follows the command
+    linearly from the previous step's (ramp invariant); backlash per axis in mm or deg;
+    delay: transport delay of the commands (s); friction_breakaway, friction_coulomb per axis
+    (mm or deg) and friction_tau (s): at a reversal static friction holds the slide until the
+    drive has wound up by the breakaway distance, then it catches up with time constant tau to a
+    lag of the Coulomb distance.  Thermal: thermal_driver "spindle" (T -> ambient + gain *
+    spindle speed), "temperature" (T -> ambient + the change of the temperature input since the
+    start) or "time" (T -> ambient: the initial excess relaxes) (or 0, 1, 2), time constant (s),
+    gain (K per 1/min of spindle speed), ambient (degC), initial_excess (K: T at the start =
+    ambient + excess), reference (degC, where the drift is zero; None: ambient) and drift of the
+    tool edge in the tool frame (mm/K); noise: standard deviation (mm) of the tool edge
+    measurement with its seed.
     """
     kv: tuple[float, ...] | float = 0.0
     backlash: tuple[float, ...] | float = 0.0
@@ -353,6 +366,14 @@ class MachineDynamics:
     drift: tuple[float, float, float] = (0.0, 0.0, 0.0)
     noise: float = 0.0
     seed: int = 1
+    thermal_driver: str | int = "spindle"
+    initial_excess: float = 0.0
+    reference: float | None = None
+    delay: float = 0.0
+    friction_breakaway: tuple[float, ...] | float = 0.0
+    friction_coulomb: tuple[float, ...] | float = 0.0
+    friction_tau: tuple[float, ...] | float = 0.0
+    interpolation: int = 0
 
     def per_axis(self, value, n: int, name: str) -> tuple[float, ...]:
         if np.ndim(value) == 0:
@@ -361,6 +382,22 @@ class MachineDynamics:
         if len(v) != n:
             raise MtcompError(f"{name}: expected {n} values (one per axis), got {len(v)}")
         return v
+
+    @property
+    def driver_code(self) -> int:
+        """thermal.driver of the FMU: 0 spindle speed, 1 temperature input, 2 none (time)."""
+        d = self.thermal_driver
+        if isinstance(d, str):
+            if d not in THERMAL_DRIVERS:
+                raise MtcompError(f"thermal_driver: expected one of {', '.join(THERMAL_DRIVERS)}, got {d!r}")
+            return THERMAL_DRIVERS[d]
+        if int(d) not in (0, 1, 2):
+            raise MtcompError(f"thermal_driver: expected 0, 1 or 2, got {d!r}")
+        return int(d)
+
+    @property
+    def reference_temperature(self) -> float:
+        return float(self.ambient if self.reference is None else self.reference)
 
 
 def _resources(machine: Machine, errors: ErrorSet, res: Path) -> str:
@@ -717,8 +754,14 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     n = machine.n_axes
     kv = dyn.per_axis(dyn.kv, n, "kv")
     bl = dyn.per_axis(dyn.backlash, n, "backlash")
-    extra = [Var("spindle_speed", VR_SPINDLE, "input", "Spindle speed driving the thermal drift, 1/min",
-                 start=0.0, unit="1/min", min=0.0, max=1e6)]
+    brk = dyn.per_axis(dyn.friction_breakaway, n, "friction_breakaway")
+    cou = dyn.per_axis(dyn.friction_coulomb, n, "friction_coulomb")
+    ftau = dyn.per_axis(dyn.friction_tau, n, "friction_tau")
+    extra = [Var("spindle_speed", VR_SPINDLE, "input", "Spindle speed driving the thermal drift (thermal.driver = 0), "
+                 "1/min", start=0.0, unit="1/min", min=0.0, max=1e6),
+             Var("temperature_input", VR_TIN, "input", "Logged temperature driving the thermal drift (thermal.driver "
+                 "= 1): the machine temperature follows its change since the start", start=20.0, unit="degC",
+                 min=-50.0, max=200.0)]
     for k, c in enumerate(_XYZ):
         extra.append(Var(f"tool.{c}", VR_P + k, "output",
                          f"{c} of the real tool edge in the real workpiece frame (with sensor noise)",
@@ -744,24 +787,55 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
         extra.append(Var(f"backlash.{a.name}", VR_BACKLASH + i, "parameter",
                          f"Backlash (play width) of axis {a.name}, {unit}", start=bl[i], unit=unit,
                          display_unit=disp, min=0.0, max=1.0))
+    extra.append(Var("servo.interpolation", IVR_INTERP, "parameter",
+                     "Command of the servos over a step: 0 held (zero-order hold), 1 linear from the previous "
+                     "step's command (ramp invariant: no half-step shift of the response)", type="Integer",
+                     start=int(dyn.interpolation), min=0, max=1))
+    extra.append(Var("delay", VR_DELAY, "parameter", "Transport delay: every axis acts on the command given this "
+                     "long before (linear between steps; at most the FMU's command history of about 190 steps)",
+                     start=float(dyn.delay), unit="s", min=0.0, max=1.0))
+    for i, a in enumerate(machine.axes):
+        unit, disp = _axis_unit(machine, i)
+        extra.append(Var(f"friction.breakaway.{a.name}", VR_BREAK + i, "parameter",
+                         f"Friction of axis {a.name} at reversals: static friction over the drive stiffness, the "
+                         f"wind-up at which the slide breaks away after the motion reversed, {unit}",
+                         start=brk[i], unit=unit, display_unit=disp, min=0.0, max=1.0))
+    for i, a in enumerate(machine.axes):
+        unit, disp = _axis_unit(machine, i)
+        extra.append(Var(f"friction.coulomb.{a.name}", VR_COULOMB + i, "parameter",
+                         f"Coulomb friction of axis {a.name} over the drive stiffness: the slide's lag against the "
+                         f"direction of motion once it slides (0 with an integrating velocity loop), {unit}",
+                         start=cou[i], unit=unit, display_unit=disp, min=0.0, max=1.0))
+    for i, a in enumerate(machine.axes):
+        extra.append(Var(f"friction.tau.{a.name}", VR_FTAU + i, "parameter",
+                         f"Time constant with which the slide of axis {a.name} catches up after breaking away",
+                         start=ftau[i], unit="s", min=0.0, max=100.0))
     extra += [
+        Var("thermal.driver", IVR_DRIVER, "parameter", "Driver of the machine temperature: 0 spindle speed "
+            "(ambient + gain * spindle_speed), 1 temperature_input (ambient + its change since the start), 2 none "
+            "(ambient: the initial excess relaxes over time)", type="Integer", start=dyn.driver_code, min=0, max=2),
+        Var("thermal.initial_excess", VR_EXCESS, "parameter", "Machine temperature at the start above ambient",
+            start=float(dyn.initial_excess), unit="K", min=-100.0, max=100.0),
+        Var("thermal.reference", VR_TREF, "parameter", "Machine temperature at which the thermal drift is zero",
+            start=dyn.reference_temperature, unit="degC", min=-50.0, max=100.0),
         Var("thermal.time_constant", VR_TAU, "parameter", "Time constant of the machine temperature", start=dyn.thermal_time_constant,
             unit="s", min=1e-3, max=1e6),
         Var("thermal.gain", VR_GAIN, "parameter", "Steady temperature rise per unit spindle speed", start=dyn.thermal_gain,
             unit="K.min", min=0.0, max=1.0),
-        Var("thermal.ambient", VR_AMBIENT, "parameter", "Ambient (and initial) temperature", start=dyn.ambient,
+        Var("thermal.ambient", VR_AMBIENT, "parameter", "Ambient temperature (the machine starts at ambient + thermal.initial_excess)", start=dyn.ambient,
             unit="degC", min=-50.0, max=100.0),
     ]
     for k, c in enumerate(_XYZ):
         extra.append(Var(f"thermal.drift.{c}", VR_DRIFT + k, "parameter",
-                         f"Tool edge drift along tool-frame {c} per kelvin above ambient", start=dyn.drift[k],
+                         f"Tool edge drift along tool-frame {c} per kelvin above thermal.reference", start=dyn.drift[k],
                          unit="mm/K", display_unit="um/K", min=-1.0, max=1.0))
     extra += [
         Var("noise.sigma", VR_NOISE, "parameter", "Standard deviation of the tool edge measurement noise",
             start=dyn.noise, unit="mm", display_unit="nm", min=0.0, max=1.0),
         Var("noise.seed", IVR_SEED, "parameter", "Seed of the measurement noise", type="Integer", start=int(dyn.seed)),
     ]
-    summary = ("Virtual multi-axis machine tool with tool setting, workpiece setting and geometric errors, first-order "
-               "servos, backlash, thermal drift and sensor noise; the same forward model as mtcomp.kinematics.")
+    summary = ("Virtual multi-axis machine tool with tool setting, workpiece setting and geometric errors, transport "
+               "delay, first-order servos, backlash, friction at reversals, thermal drift and sensor noise; the same "
+               "forward model as mtcomp.kinematics.")
     return _build("machine", machine, errors, out_path, identifier, "mtcomp machine", summary, extra, compile_binary,
                   compiler, fmi_version, windows)

@@ -19,7 +19,7 @@ from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 from . import build as _b
 
-__all__ = ["interpolate_program", "cosimulate", "CosimResult", "FmuRunner"]
+__all__ = ["interpolate_program", "cosimulate", "CosimResult", "FmuRunner", "run_machine", "MachineRun"]
 
 _PLANES = {17: ("X", "Y", "Z"), 18: ("Z", "X", "Y"), 19: ("Y", "Z", "X")}
 
@@ -385,20 +385,70 @@ def _c_loop(mach, comp, m_in, m_out, c_in, c_out, n, step, q, qc, out):
     return lib, s
 
 
-def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed: float,
-         progress=None):
+@dataclass(frozen=True)
+class MachineRun:
+    """What the machine FMU did in one run (K steps): p (K, 3) mm the tool edge in the real
+    workpiece frame and actual (K, n) mm/deg the axis positions, both read at the end of step k
+    (t_k + step); temperature (K,) degC the machine temperature then; q (K, n) the commands it
+    was given."""
+    q: np.ndarray
+    p: np.ndarray
+    actual: np.ndarray
+    temperature: np.ndarray
+
+
+def run_machine(machine_fmu, machine, q, step: float, *, spindle_speed=0.0, temperature=None,
+                progress=None) -> MachineRun:
+    """Drive a machine FMU (built by mtcomp.fmu.build.build_machine_fmu for `machine`) with the
+    axis commands q (K, n_axes) mm/deg, one row per communication step of `step` s, and return
+    its outputs (MachineRun).
+
+    spindle_speed (1/min) and temperature (degC, the FMU's `temperature_input`, the driver of
+    its thermal model with thermal.driver = 1): a number (held) or an array (K,) (row k given
+    with the commands at t_k).  The machine-only loop of `cosimulate` (no compensator):
+    mtcomp.model.simulate and the model loop run it many times.  Raises CosimFailed with the
+    FMU's log message when the FMU refuses a value."""
+    machine = load_machine(machine)
+    q = np.asarray(q, dtype=float)
+    if q.ndim != 2 or q.shape[1] != machine.n_axes or len(q) < 1 or not np.isfinite(q).all():
+        raise InputError(f"axis commands must be finite with shape (K, {machine.n_axes}), got {q.shape}",
+                         field="q")
+    inputs = {}
+    for name, v in (("spindle_speed", spindle_speed), ("temperature_input", temperature)):
+        if v is None:
+            continue
+        a = np.asarray(v, dtype=float)
+        if a.ndim == 0:
+            a = np.full(len(q), float(a))
+        if a.shape != (len(q),) or not np.isfinite(a).all():
+            raise InputError(f"{name}: expected a finite number or {len(q)} values, got shape {a.shape}",
+                             field=name)
+        inputs[name] = a
+    _, p, act, temp = _run(machine, q, step, machine_fmu, None, inputs, progress, with_temperature=True)
+    return MachineRun(q, p, act, temp)
+
+
+def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed,
+         progress=None, with_temperature: bool = False):
     """One run; comp_path None: the machine gets the programmed commands.
 
+    spindle_speed: a number (1/min, held), or a dict {machine input name: (K,) array} of
+    further machine inputs given row by row with the commands.
     Per step k: set the compensator's inputs to q[k], read its outputs, give them to the machine,
     step both from t_k to t_k + step, then read the machine (no feed-through: its outputs are
     its state at t_k + step).  The loop runs in C (the kernel library's mtk_cosim_steps: the
     FMUs' C functions called through their addresses on the rows of preallocated numpy arrays,
-    one ctypes call per progress report); without the library the same loop runs in Python with
-    six ctypes calls per step."""
+    one ctypes call per progress report) when the machine has no inputs given row by row;
+    otherwise, and without the library, the same loop runs in Python with six ctypes calls
+    per step (seven with row inputs).
+    Returns (commands given to the machine, tool edge, actual positions[, temperature])."""
     import ctypes
     names = machine.axis_names
     logs: list = []
     K, n = q.shape
+    extra = dict(spindle_speed) if isinstance(spindle_speed, dict) else {"spindle_speed": float(spindle_speed)}
+    held = {k: float(v) for k, v in extra.items() if np.ndim(v) == 0}
+    varying = {k: np.asarray(v, float) for k, v in extra.items() if np.ndim(v) > 0}
     qc = np.empty((K, n))
     p = np.empty((K, 3))
     act = np.empty((K, n))
@@ -416,7 +466,8 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
         mach = FmuRunner(mach_path, "machine", logs)
         comp = FmuRunner(comp_path, "compensator", logs) if comp_path else None
         m_in = refs(mach, [f"command.{a}" for a in names])
-        m_out = refs(mach, ["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names])
+        m_out = refs(mach, ["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names]
+                     + (["temperature"] if with_temperature else []))
         c_in = refs(comp, [f"command.{a}" for a in names]) if comp else None
         c_out = refs(comp, [f"compensated.{a}" for a in names]) if comp else None
         for f in (mach, comp):
@@ -427,14 +478,21 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
             comp.fmu.exitInitializationMode()
         first = comp.fmu.getReal(list(c_out)) if comp else list(q[0])
         mach.fmu.setReal(list(m_in), first)
-        mach.set({"spindle_speed": spindle_speed})
+        mach.set(held)
+        mach.set({k: v[0] for k, v in varying.items()})
         mach.fmu.exitInitializationMode()
+        n_in = len(varying)
+        if n_in:
+            m_vin = refs(mach, list(varying))
+            vin = np.ascontiguousarray(np.column_stack(list(varying.values())), dtype=np.float64)
+            a_vinref, a_vin, vrow = ctypes.addressof(m_vin), vin.ctypes.data, n_in * 8
         # The FMUs read and write the rows of these C-contiguous arrays in place: no copies.
         qin = np.ascontiguousarray(q, dtype=np.float64)
         if comp is None:
             qc[:] = qin
-        out = np.empty((K, 3 + n))
-        row, orow = n * 8, (3 + n) * 8
+        nout = 3 + n + int(with_temperature)
+        out = np.empty((K, nout))
+        row, orow = n * 8, nout * 8
         a_q, a_qc, a_out = qin.ctypes.data, qc.ctypes.data, out.ctypes.data
         a_min, a_mout = ctypes.addressof(m_in), ctypes.addressof(m_out)
         mc, m_set, m_get, m_step = mach.raw()
@@ -442,7 +500,8 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
             cc, c_set, c_get, c_step = comp.raw()
             a_cin, a_cout = ctypes.addressof(c_in), ctypes.addressof(c_out)
         report = max(1, K // 200)
-        loop = _c_loop(mach, comp, m_in, m_out, c_in, c_out, n, step, qin, qc, out)
+        # the C loop has no row inputs: with them the Python loop runs
+        loop = None if n_in else _c_loop(mach, comp, m_in, m_out, c_in, c_out, n, step, qin, qc, out)
         if loop is not None:
             # the same calls in the same order from C, `report` steps per ctypes call
             lib, s = loop
@@ -454,7 +513,7 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
                     fail(COSIM_FAILED[bad % 8], bad // 8)
                 if progress is not None:
                     progress(k1, K)
-        else:  # without the kernel library: the same loop in Python, six ctypes calls per step
+        else:  # without the kernel library, or with row inputs: the same loop in Python
             for k in range(K):
                 t = k * step
                 if comp:
@@ -462,15 +521,17 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
                         fail("compensator", k)
                 if m_set(mc, a_min, n, a_qc + k * row) > 1:
                     fail("machine command", k)
+                if n_in and m_set(mc, a_vinref, n_in, a_vin + k * vrow) > 1:
+                    fail("machine input", k)
                 if comp and c_step(cc, t, step, 1) > 1:
                     fail("compensator step", k)
-                if m_step(mc, t, step, 1) > 1 or m_get(mc, a_mout, 3 + n, a_out + k * orow) > 1:
+                if m_step(mc, t, step, 1) > 1 or m_get(mc, a_mout, nout, a_out + k * orow) > 1:
                     fail("machine step", k)
                 if progress is not None and (k % report == 0 or k == K - 1):
                     progress(k + 1, K)
         p[:] = out[:, :3]
-        act[:] = out[:, 3:]
-        return qc, p, act
+        act[:] = out[:, 3:3 + n]
+        return (qc, p, act, out[:, 3 + n].copy()) if with_temperature else (qc, p, act)
     except CosimFailed:
         raise
     except Exception as exc:

@@ -87,18 +87,72 @@ def test_workpiece_setting_and_pivot_offset():
 
 def test_no_home_effects_are_listed_not_dropped(tmp_path):
     effects = [_effect("backlash", "x", ["x"], {"backlash_mm": 0.002}),
-               _effect("time_offset", "x,y", ["t"], {"offset_s": 1e-3}),
-               _effect("thermal_drift", "z", ["spindle"], {"gain_mm_per_rpm": 1e-7, "tau_s": 600.0}),
+               _effect("time_offset", "x,y", ["t"], {"offset_s": -1e-3}),          # REC leads: no delay
+               _effect("thermal_drift", "z", ["hum"], {"gain_mm_per_pct": 1e-7, "tau_s": 600.0}),
                _effect("friction", "vx", ["vx"], {"coulomb_mm_per_s": 0.1}),
-               _effect("pivot_offset", "x,z", ["b"], {"dx_mm": 0.001})]       # no rotary axis on the VMC
+               _effect("pivot_offset", "x,z", ["b"], {"dx_mm": 0.001}),         # no rotary axis on the VMC
+               _effect("quadrant_glitch", "y", ["y"], {"peak_mm": 0.001, "tau_s": 0.01})]   # the spike form
     ex = export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3)
     assert [m.effect for m in ex.mapped] == ["backlash"]
-    assert [e["name"] for e, _ in ex.unmapped] == ["time_offset", "thermal_drift", "friction", "pivot_offset"]
+    names = ["time_offset", "thermal_drift", "friction", "pivot_offset", "quadrant_glitch"]
+    assert [e["name"] for e, _ in ex.unmapped] == names
     manifest = (tmp_path / "m" / "model.toml").read_text()
-    for name in ("time_offset", "thermal_drift", "friction", "pivot_offset"):
+    for name in names:
         assert f'name = "{name}"' in manifest
-    assert manifest.count('status = "no home"') == 4
+    assert manifest.count('status = "no home"') == 5
     assert "NOT IN THE MODEL" in ex.summary()
+
+
+def test_dynamic_effects_have_a_home(tmp_path):
+    """A transport delay, stick-slip friction and a thermal drift go into dynamics.toml and the
+    .ssv under the FMU's parameter names (thermal.driver as an ssv:Integer), and load back."""
+    from mtcomp.model.dynamics import load_dynamics
+    from mtcomp.model.export import read_ssv
+    effects = [_effect("time_offset", "x,y,z", ["t"], {"offset_s": 2e-3}, {"offset_s": 1e-6}),
+               _effect("quadrant_glitch", "y", ["y"], {"breakaway_mm": 0.003, "tau_s": 0.02},
+                       {"breakaway_mm": 1e-5, "tau_s": 1e-4}),
+               _effect("thermal_drift", "z", ["spindle_speed"], {"gain_mm_per_rpm": 4e-6, "tau_s": 3.0,
+                                                                 "initial_mm": 1e-3, "offset_mm": -2e-3}),
+               _effect("thermal_drift", "x", ["spindle_speed"], {"gain_mm_per_rpm": -1e-6, "tau_s": 2.0})]
+    ex = export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3, drivers={"spindle_speed": 1000.0})
+    dyn = load_dynamics(tmp_path / "m" / "dynamics.toml", load_machine(VMC))
+    ssv = read_ssv(tmp_path / "m" / "machine.ssv")
+    want = {"delay": 2e-3, "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "thermal.driver": 0,
+            "thermal.gain": 1e-3, "thermal.time_constant": 3.0, "thermal.drift.z": 4e-3, "thermal.drift.x": -1e-3,
+            # excess = r0/drift + G S0 = 0.25 + 1; reference = 20 + G S0 - c/drift = 20 + 1 + 0.5
+            "thermal.initial_excess": 1.25, "thermal.reference": 21.5}
+    for k, v in want.items():
+        assert dyn[k] == pytest.approx(v, rel=1e-12) and ssv[k] == pytest.approx(v, rel=1e-12), k
+    assert isinstance(ssv["thermal.driver"], int)
+    assert "one thermal state" in ex.summary()
+
+
+def test_thermal_mapping_reproduces_the_diagnosed_drift():
+    """The FMU's thermal model with the mapped parameters (Python reference) moves the tool edge
+    by the diagnosis' k (F_tau[u] - u0) + r0 exp(-t/tau) + c, for a spindle speed (starting at
+    800 1/min) and for a logged temperature; the FMU holds the driver over each 1 ms step, the
+    diagnosis' filter is ramp invariant: equal to 1e-3 of the drift."""
+    from mtcomp.diagnose.effects import first_order
+    from mtcomp.fmu.build import MachineDynamics
+    from mtcomp.model.dynamics import apply_dynamics
+    from mtcomp.model.machine_ref import temperature
+    m = load_machine(VMC)
+    h, K = 1e-3, 8000
+    t = np.arange(K) * h
+    k, tau, r0, c = 3e-6, 1.5, 2e-3, -1e-3
+    for col, unit, u in (("spindle_speed", "rpm", 800.0 + 2000.0 * (t > 2.0) + 500.0 * np.sin(t)),
+                         ("temp", "degC", 21.0 + 0.8 * np.sin(t / 2.0))):
+        kk = k if unit == "rpm" else 4e-3
+        e = _effect("thermal_drift", "z", [col], {f"gain_mm_per_{unit}": kk, "tau_s": tau,
+                                                  "initial_mm": r0, "offset_mm": c})
+        ex = export_model({"effects": [e]}, m, None, step=h, drivers={col: float(u[0])})
+        dyn = apply_dynamics(MachineDynamics(), ex.dynamics_values, m, combine=False)
+        T = temperature(K, h, dyn, spindle_speed=u if unit == "rpm" else 0.0,
+                        temperature_input=u if unit == "degC" else 20.0)
+        fmu = dyn.drift[2] * (T - dyn.reference_temperature)
+        te = t + h                       # the FMU's output k is its state at the end of step k
+        want = kk * (first_order(u, h, tau) - u[0]) + r0 * np.exp(-te / tau) + c
+        assert np.max(np.abs(fmu - want)) < 1e-3 * np.max(np.abs(want)), unit
 
 
 def test_files_load_where_they_go(tmp_path):

@@ -101,3 +101,129 @@ def test_ssp_bad_inputs_name_the_file(tmp_path):
     with pytest.raises(InputError, match="a.ssp"):
         bind_parameter_set(notzip, ssv, tmp_path / "o.ssp")
     assert not (tmp_path / "o.ssp").exists()
+
+
+DYNAMIC_EFFECTS = [
+    {"name": "backlash", "output": "x", "inputs": ["x"], "params": {"backlash_mm": 0.002},
+     "uncertainty": {"backlash_mm": 1e-6}},
+    {"name": "squareness", "output": "x", "inputs": ["y"], "params": {"angle_deg": 2e-3},
+     "uncertainty": {"angle_deg": 1e-5}},
+    {"name": "time_offset", "output": "x,y,z", "inputs": ["t"], "params": {"offset_s": 0.002},
+     "uncertainty": {"offset_s": 1e-6}},
+    {"name": "quadrant_glitch", "output": "y", "inputs": ["y"], "params": {"breakaway_mm": 0.003, "tau_s": 0.02},
+     "uncertainty": {"breakaway_mm": 1e-5, "tau_s": 1e-4}},
+    {"name": "thermal_drift", "output": "z", "inputs": ["temperature"],
+     "params": {"gain_mm_per_degC": 4e-3, "tau_s": 3.0, "initial_mm": 1e-3, "offset_mm": -2e-3},
+     "uncertainty": {"gain_mm_per_degC": 1e-5, "tau_s": 0.01, "initial_mm": 1e-5, "offset_mm": 1e-5}}]
+# what the machine FMU must hold: thermal driver 1 (logged temperature), excess = r0/k, reference = 20 - c/k
+DYNAMIC_PARAMS = {"backlash.X": 0.002, "location.EC0Y": -math.radians(2e-3), "delay": 0.002,
+                  "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "thermal.time_constant": 3.0,
+                  "thermal.drift.z": 4e-3, "thermal.initial_excess": 0.25, "thermal.reference": 20.5}
+
+
+@pytest.fixture(scope="module")
+def dynamic_ssp(tmp_path_factory):
+    """The cell SSP with the diagnosed delay, friction and thermal drift (and a backlash and a
+    squareness) bound to the machine, the set named like the compensator's "commands"."""
+    from mtcomp.fmu.build import build_compensator_fmu, build_machine_fmu
+    from mtcomp.fmu.ssp import write_ssp
+    from mtcomp.model.export import export_model
+    from mtcomp.model.ssp import bind_parameter_set
+    d = tmp_path_factory.mktemp("dynssp")
+    M = "vmc-moving-column"
+    export_model({"effects": DYNAMIC_EFFECTS}, M, d / "model", step=1e-3)
+    c = build_compensator_fmu(M, d / "c.fmu", compiler="cc")
+    m = build_machine_fmu(M, d / "m.fmu", compiler="cc")
+    write_ssp(d / "cell.ssp", c, m, commands={"X": 5.0, "Y": 10.0})
+    return bind_parameter_set(d / "cell.ssp", d / "model" / "machine.ssv", d / "cell2.ssp", set_name="commands")
+
+
+def _tool(t, y=10.0):
+    """Tool edge (x, z) of the machine at rest at X5 Y10 Z0 at time t: the squareness moves x,
+    the thermal state (ambient 20 degC + 0.25 K decaying with 3 s) moves z by drift (T - 20.5)."""
+    T = 20.0 + 0.25 * math.exp(-t / 3.0)
+    return 5.0 + math.radians(2e-3) * y, 4e-3 * (T - 20.5)
+
+
+def test_diagnosed_dynamics_applied_by_libcosim(dynamic_ssp):
+    pytest.importorskip("libcosimpy")
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    log_output_level(CosimLogLevel.ERROR)
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+    ex = CosimExecution.from_ssp_file(str(dynamic_ssp), step_size=1_000_000)
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(obs)
+    assert ex.simulate_until(20_000_000)
+    mi = ex.slave_index_from_instance_name("machine")
+    refs = {v.name.decode(): v.reference for v in ex.slave_variables(mi)}
+    got = dict(zip(DYNAMIC_PARAMS, obs.last_real_values(mi, [refs[k] for k in DYNAMIC_PARAMS])))
+    for k, v in DYNAMIC_PARAMS.items():
+        assert got[k] == pytest.approx(v, rel=1e-12), k
+    assert obs.last_integer_values(mi, [refs["thermal.driver"]]) == [1]
+    x, z = obs.last_real_values(mi, [refs["tool.x"], refs["tool.z"]])
+    assert (x, z) == pytest.approx(_tool(0.02), abs=1e-12)
+
+
+def test_diagnosed_dynamics_applied_by_fmpy(dynamic_ssp):
+    """fmpy reads every bound value (the Integer driver too) and, handed them as the parameter
+    set (it does not apply SSD bindings itself), runs the machine with them."""
+    from fmpy.ssp.simulation import simulate_ssp
+    from fmpy.ssp.ssd import read_ssd
+    ssd = read_ssd(str(dynamic_ssp))
+
+    class Param:
+        def __init__(self, name, value):
+            self.name, self.value = name, value
+
+    class ParamSet:
+        parameters = [Param(f"{el.name}.{p.name}", p.value) for el in ssd.system.elements
+                      for b in el.parameterBindings for pv in b.parameterValues for p in pv.parameters]
+
+    read = {p.name: p.value for p in ParamSet.parameters}
+    for k, v in DYNAMIC_PARAMS.items():
+        assert float(read[f"machine.{k}"]) == pytest.approx(v, rel=1e-12), k
+    assert int(read["machine.thermal.driver"]) == 1
+    res = simulate_ssp(str(dynamic_ssp), stop_time=0.02, step_size=1e-3, parameter_set=ParamSet())
+    x, z = _tool(float(res["time"][-1]) + 1e-3)       # fmpy records before the last step
+    # fmpy initialises the machine before the compensator's commands reach it: X starts at 0 and
+    # moves to 5 in the first step, so the play (2 µm) leaves it b/2 behind
+    assert res["machine.tool.x"][-1] == pytest.approx(x - 0.001, abs=1e-12)
+    assert res["machine.tool.z"][-1] == pytest.approx(z, abs=1e-9)
+
+
+def test_diagnosed_dynamics_applied_by_the_ecos_cli(dynamic_ssp, tmp_path):
+    """The ecos CLI (from ecospy) applies the set by its name, on both components: the machine's
+    parameters read back from its CSV (6 decimals), the tool edge as expected."""
+    import csv
+    import importlib.util
+    import os
+    import shutil
+    from pathlib import Path
+    spec = importlib.util.find_spec("ecospy")
+    if spec is None or not spec.submodule_search_locations or sys.platform != "linux":
+        pytest.skip("ecospy with a linux ecos binary not installed")
+    src = Path(list(spec.submodule_search_locations)[0]) / "binaries"
+    if not (src / "ecos").exists():
+        pytest.skip("ecos binary not shipped")
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    for f in ("ecos", "proxyfmu", "libecosc.so"):
+        if (src / f).exists():
+            shutil.copy(src / f, bin_dir / f)
+            (bin_dir / f).chmod(0o755)        # the wheel ships them without the exec bit
+    env = dict(os.environ)
+    env["LD_LIBRARY_PATH"] = os.pathsep.join([str(Path(sys.prefix) / "lib"), env.get("LD_LIBRARY_PATH", "")])
+    run = subprocess.run([str(bin_dir / "ecos"), "simulate", "--path", str(dynamic_ssp), "--stepSize", "0.001",
+                          "--stopTime", "0.02", "-l", "err", "--parameterSet", "commands"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    with open(next(tmp_path.glob("*.csv"))) as fh:
+        rows = list(csv.reader(fh))
+    last = {h.strip(): r for h, r in zip(rows[0], rows[-1])}
+    for k, v in DYNAMIC_PARAMS.items():
+        assert float(last[f"machine::{k}[REAL]"]) == pytest.approx(v, abs=1e-6), k
+    assert int(last["machine::thermal.driver[INT]"]) == 1
+    x, z = _tool(float(last["time"]))
+    assert float(last["machine::tool.x[REAL]"]) == pytest.approx(x, abs=1e-6)
+    assert float(last["machine::tool.z[REAL]"]) == pytest.approx(z, abs=1e-6)

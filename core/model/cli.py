@@ -35,6 +35,9 @@ def register(subparsers) -> None:
     b.add_argument("ssp", metavar="CELL.ssp", help="written by `mtcomp fmu ssp`")
     b.add_argument("ssv", metavar="MODEL/machine.ssv")
     b.add_argument("-o", "--output", required=True, metavar="OUT.ssp")
+    b.add_argument("--name", metavar="SET", help="name of the bound parameter set (default: the .ssv's); ecos "
+                   "applies one name per run: 'commands' makes `ecos --parameterSet commands` apply it together with "
+                   "the compensator's commands")
     b.set_defaults(func=run_ssp)
 
     s = sub.add_parser("simulate", help="NC program -> machine FMU -> tool edge CSV with a provenance sidecar")
@@ -47,6 +50,12 @@ def register(subparsers) -> None:
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--step", type=float, default=1e-3, metavar="S")
     s.add_argument("--spindle-speed", type=float, default=0.0, metavar="RPM")
+    s.add_argument("--delay", type=float, default=0.0, metavar="S", help="transport delay of the commands (s)")
+    s.add_argument("--dynamics", metavar="DYN.toml", help="machine FMU dynamics parameters (the format of "
+                   "`model export`'s dynamics.toml: friction, thermal, ...), applied over the options above")
+    s.add_argument("--drivers", metavar="DRIVERS.csv", help="logged drivers of the thermal drift over time: t and "
+                   "spindle_speed [rpm] and/or temperature [degC] columns, linear between rows; written as "
+                   "columns of the output")
     s.add_argument("-o", "--output", required=True, metavar="OUT.csv")
     s.set_defaults(func=run_simulate)
 
@@ -67,7 +76,8 @@ def register(subparsers) -> None:
                    help="drop exported effects the re-simulation does not need on the training samples "
                         "(t < --heldout-from) and rewrite the model folder with the rest")
     r.add_argument("--refine", action="store_true",
-                   help="refit the exported scalars (kv, backlash, location, setting) through the machine model on "
+                   help="refit the exported scalars (kv, backlash, friction, delay, thermal, location, setting) through the "
+                        "machine model on "
                         "the training samples (needs --diagnosis; a co-simulation per evaluation: slow)")
     r.add_argument("--plot", metavar="OUT.png")
     r.add_argument("--json", metavar="OUT.json")
@@ -80,22 +90,57 @@ def run_export(args: argparse.Namespace) -> int:
     from .._io import InputError
     from .export import export_model
     from .simulate import read_provenance
-    machine, step = args.machine, args.step
+    machine, step, drivers, interp = args.machine, args.step, None, False
     if args.sim:
         prov = read_provenance(args.sim)
         machine = machine or prov.machine
         step = step if step is not None else prov.step
+        drivers = _driver_starts(prov.spindle_speed, prov.temperature)
+        interp = bool(prov.dynamics.interpolation)
     if machine is None:
         raise InputError("give --machine (or --sim with a provenance sidecar)", field="--machine")
-    ex = export_model(args.diagnosis, machine, args.outdir, step=step)
+    ex = export_model(args.diagnosis, machine, args.outdir, step=step, drivers=drivers, servo_interpolation=interp)
     if not args.quiet:
         print(ex.summary())
     return 0
 
 
+def _driver_starts(spindle, temperature) -> dict:
+    """{driver column: value at the start} of the simulation's logged drivers (the thermal
+    mapping needs the spindle speed at the start)."""
+    import numpy as np
+    out = {}
+    for name, v in (("spindle_speed", spindle), ("temperature", temperature)):
+        if v is not None:
+            out[name] = float(np.ravel(v)[0])
+    return out
+
+
+def _read_drivers(path) -> dict:
+    """{"spindle_speed"|"temperature": callable of t} from a CSV with t and driver columns."""
+    import numpy as np
+
+    from .._io import InputError
+    from ..csvtable import read_csv
+    tab = read_csv(path, what="drivers", required=("t",))
+    t = tab.numbers("t", unit="s")
+    if len(t) < 2 or np.any(np.diff(t) <= 0):
+        raise InputError("expected at least two rows with increasing t", path, field="t")
+    out = {}
+    for name, unit in (("spindle_speed", "rpm"), ("temperature", "degC")):
+        try:
+            v = tab.numbers(name, unit=unit)
+        except (InputError, KeyError):
+            continue
+        out[name] = lambda tt, v=v: np.interp(tt, t, v)
+    if not out:
+        raise InputError("expected a spindle_speed [rpm] or temperature [degC] column", path)
+    return out
+
+
 def run_ssp(args: argparse.Namespace) -> int:
     from .ssp import bind_parameter_set
-    bind_parameter_set(args.ssp, args.ssv, args.output)
+    bind_parameter_set(args.ssp, args.ssv, args.output, set_name=args.name)
     print(f"wrote {args.output}: {args.ssv} bound to the machine component")
     return 0
 
@@ -107,8 +152,15 @@ def run_simulate(args: argparse.Namespace) -> int:
     from .simulate import simulate, write_signals
     m = load_machine(args.machine)
     errors = load_errors(args.errors, machine=m) if args.errors else None
-    dyn = MachineDynamics(kv=args.kv, backlash=args.backlash, noise=args.noise * 1e-6, seed=args.seed)
-    sig = simulate(args.program, m, errors, dyn, step=args.step, spindle_speed=args.spindle_speed)
+    dyn = MachineDynamics(kv=args.kv, backlash=args.backlash, noise=args.noise * 1e-6, seed=args.seed,
+                          delay=args.delay)
+    if args.dynamics:
+        from .dynamics import apply_dynamics, load_dynamics
+        dyn = apply_dynamics(dyn, load_dynamics(args.dynamics, m), m, combine=False)
+    drivers = _read_drivers(args.drivers) if args.drivers else {}
+    sig = simulate(args.program, m, errors, dyn, step=args.step,
+                   spindle_speed=drivers.get("spindle_speed", args.spindle_speed),
+                   temperature=drivers.get("temperature"))
     write_signals(args.output, sig, args.machine, program=args.program, errors_path=args.errors, dynamics=dyn,
                   step=args.step, spindle_speed=args.spindle_speed)
     print(f"wrote {args.output} ({len(sig.t)} samples) and its provenance sidecar")
@@ -127,12 +179,13 @@ def run_resimulate(args: argparse.Namespace) -> int:
         program = args.program or prov.program
         machine = load_machine(args.machine) if args.machine else prov.machine
         errors = load_errors(args.errors, machine=machine) if args.errors else prov.errors
-        dyn, step, spindle = prov.dynamics, args.step or prov.step, prov.spindle_speed
+        dyn, step, spindle, temp = prov.dynamics, args.step or prov.step, prov.spindle_speed, prov.temperature
     else:
         if not (args.program and args.machine and args.step):
             raise InputError("give --sim SIM.csv with its provenance sidecar, or --program, --machine and --step",
                              field="--sim")
         program, machine, step, spindle, dyn = args.program, load_machine(args.machine), args.step, 0.0, None
+        temp = None
         errors = load_errors(args.errors, machine=machine) if args.errors else None
     if program is None:
         raise InputError("the provenance names no program: give --program", field="--program")
@@ -148,8 +201,9 @@ def run_resimulate(args: argparse.Namespace) -> int:
         t_rec, rec = read_recording(args.rec)
         log: list = []
         kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
-                  train_until=args.heldout_from, noise_floor=noise, log=log)
-        ex = export_model(args.diagnosis, machine, None, step=step)
+                  temperature=temp, train_until=args.heldout_from, noise_floor=noise, log=log)
+        ex = export_model(args.diagnosis, machine, None, step=step, drivers=_driver_starts(spindle, temp),
+                          servo_interpolation=bool(getattr(dyn, "interpolation", 0)))
         if args.prune:
             ex = prune(ex, t_rec, rec, **kw)
         if args.refine:
@@ -157,7 +211,8 @@ def run_resimulate(args: argparse.Namespace) -> int:
         model = write_export(ex, args.model)
         print("\n".join(log))
     res, _, _ = resimulate(model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,
-                           step=step, spindle_speed=spindle, heldout_from=args.heldout_from, noise_floor=noise)
+                           step=step, spindle_speed=spindle, temperature=temp, heldout_from=args.heldout_from,
+                           noise_floor=noise)
     if args.json:
         atomic_write(args.json, json.dumps(res.to_dict(), indent=2) + "\n")
     if args.plot:

@@ -1,11 +1,17 @@
-"""The machine-dynamics TOML: servo kv and backlash per axis, keyed by the machine FMU's
-parameter names (docs/model-loop.md).
+"""The machine-dynamics TOML: the machine FMU's dynamic parameters (servo kv, backlash,
+friction per axis; transport delay; thermal drift), keyed by the FMU's parameter names
+(docs/model-loop.md).
 
 ```toml
 step_s = 0.001                      # communication step the kv values are for (s)
 [parameters]
 "servo.kv.X" = 30.0                 # 1/s
 "backlash.X" = 0.002                # mm (deg for a rotary axis)
+"delay" = 0.0033                    # s
+"friction.breakaway.X" = 0.003      # mm
+"friction.tau.X" = 0.03             # s
+"thermal.driver" = 0                # 0 spindle speed, 1 temperature input, 2 none (time)
+"thermal.drift.z" = 0.004           # mm/K
 [uncertainty]                       # one standard deviation, same keys (informational)
 "servo.kv.X" = 0.004
 [units]
@@ -20,7 +26,23 @@ from pathlib import Path
 
 from .._io import InputError, atomic_write, dump_toml, parse_toml, read_text
 
-PREFIXES = {"servo.kv.": "kv", "backlash.": "backlash"}
+# per-axis parameters: name prefix -> MachineDynamics field
+AXIS_PREFIXES = {"servo.kv.": "kv", "backlash.": "backlash", "friction.breakaway.": "friction_breakaway",
+                 "friction.coulomb.": "friction_coulomb", "friction.tau.": "friction_tau"}
+# scalar parameters: name -> (MachineDynamics field, lowest value, highest value)
+SCALARS = {"delay": ("delay", 0.0, 1.0), "servo.interpolation": ("interpolation", 0, 1),
+           "thermal.driver": ("thermal_driver", 0, 2), "thermal.gain": ("thermal_gain", 0.0, 1.0),
+           "thermal.time_constant": ("thermal_time_constant", 1e-3, 1e6),
+           "thermal.ambient": ("ambient", -50.0, 100.0), "thermal.initial_excess": ("initial_excess", -100.0, 100.0),
+           "thermal.reference": ("reference", -50.0, 100.0)}
+DRIFT = {"thermal.drift.x": 0, "thermal.drift.y": 1, "thermal.drift.z": 2}
+INTEGERS = ("thermal.driver", "servo.interpolation")
+PREFIXES = tuple(AXIS_PREFIXES) + tuple(SCALARS) + tuple(DRIFT)
+
+
+def is_dynamics(name: str) -> bool:
+    """Is `name` a dynamics parameter of the machine FMU (not a geometric or setting error)?"""
+    return name in SCALARS or name in DRIFT or any(name.startswith(p) for p in AXIS_PREFIXES)
 
 
 def dynamics_dict(params, step: float | None) -> dict:
@@ -28,7 +50,7 @@ def dynamics_dict(params, step: float | None) -> dict:
     data: dict = {}
     if step:
         data["step_s"] = float(step)
-    data["parameters"] = {p.name: float(p.value) for p in params}
+    data["parameters"] = {p.name: (int(p.value) if p.name in INTEGERS else float(p.value)) for p in params}
     unc = {p.name: float(p.sigma) for p in params if p.sigma is not None and math.isfinite(p.sigma)}
     if unc:
         data["uncertainty"] = unc
@@ -37,7 +59,7 @@ def dynamics_dict(params, step: float | None) -> dict:
 
 
 def save_dynamics(path, params, step: float | None) -> Path:
-    header = "# mtcomp machine dynamics (docs/model-loop.md): machine FMU parameter names, 1/s, mm, deg\n"
+    header = "# mtcomp machine dynamics (docs/model-loop.md): machine FMU parameter names, 1/s, mm, deg, s, K\n"
     return atomic_write(path, header + dump_toml(dynamics_dict(params, step)))
 
 
@@ -53,16 +75,27 @@ def load_dynamics(path, machine=None) -> dict:
     axes = tuple(machine.axis_names) if machine is not None else None
     out = {}
     for k, v in params.items():
-        pref = next((p for p in PREFIXES if k.startswith(p)), None)
-        if pref is None:
-            raise InputError(f"unknown dynamics parameter {k!r}; expected servo.kv.<AXIS> or backlash.<AXIS>",
+        pref = next((p for p in AXIS_PREFIXES if k.startswith(p)), None)
+        if pref is None and k not in SCALARS and k not in DRIFT:
+            raise InputError(f"unknown dynamics parameter {k!r}; expected servo.kv.<AXIS>, backlash.<AXIS>, "
+                             "friction.{breakaway,coulomb,tau}.<AXIS>, delay, servo.interpolation or thermal.*",
                              path, field=f"parameters.{k}")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-            raise InputError(f"expected a finite number >= 0, got {v!r}", path, field=f"parameters.{k}")
-        ax = k[len(pref):]
-        if axes is not None and ax not in axes:
-            raise InputError(f"axis {ax} not on machine {machine.name!r} (axes {' '.join(axes)})", path,
-                             field=f"parameters.{k}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"expected a finite number, got {v!r}", path, field=f"parameters.{k}")
+        if pref is not None:
+            if v < 0:
+                raise InputError(f"expected a number >= 0, got {v!r}", path, field=f"parameters.{k}")
+            ax = k[len(pref):]
+            if axes is not None and ax not in axes:
+                raise InputError(f"axis {ax} not on machine {machine.name!r} (axes {' '.join(axes)})", path,
+                                 field=f"parameters.{k}")
+        elif k in SCALARS:
+            _, lo, hi = SCALARS[k]
+            if not lo <= v <= hi or (k in INTEGERS and v != int(v)):
+                raise InputError(f"expected {'an integer' if k in INTEGERS else 'a number'} in [{lo}, {hi}], "
+                                 f"got {v!r}", path, field=f"parameters.{k}")
+        elif abs(v) > 1.0:
+            raise InputError(f"expected a drift within +-1 mm/K, got {v!r}", path, field=f"parameters.{k}")
         out[k] = float(v)
     return out
 
@@ -71,21 +104,31 @@ def apply_dynamics(base, params: dict, machine, *, combine: bool = True):
     """MachineDynamics `base` with the fitted parameters applied.
 
     combine: the fitted values describe what the base model lacked (the diagnosis fits
-    REC - SIM): backlash widths add; servo lags add as time constants in series
-    (1/kv = 1/kv_base + 1/kv_fit, to first order), kv_base = 0 being the ideal servo.
-    Without combine the fitted values replace the base ones."""
+    REC - SIM): backlash widths and delays add; servo lags add as time constants in series
+    (1/kv = 1/kv_base + 1/kv_fit, to first order), kv_base = 0 being the ideal servo; friction
+    and the thermal model replace the base's (one thermal state: a fitted drift replaces the
+    base's).  Without combine the fitted values replace the base ones."""
     names = machine.axis_names
     n = len(names)
-    kv = list(base.per_axis(base.kv, n, "kv"))
-    bl = list(base.per_axis(base.backlash, n, "backlash"))
+    axis = {f: list(base.per_axis(getattr(base, f), n, f)) for f in AXIS_PREFIXES.values()}
+    changes: dict = {}
+    drift = list(base.drift)
     for k, v in params.items():
-        if k.startswith("servo.kv."):
-            i = names.index(k[len("servo.kv."):])
-            if combine and kv[i] > 0 and v > 0:
-                kv[i] = 1.0 / (1.0 / kv[i] + 1.0 / v)
+        pref = next((p for p in AXIS_PREFIXES if k.startswith(p)), None)
+        if pref is not None:
+            f = AXIS_PREFIXES[pref]
+            i = names.index(k[len(pref):])
+            if f == "kv" and combine and axis[f][i] > 0 and v > 0:
+                axis[f][i] = 1.0 / (1.0 / axis[f][i] + 1.0 / v)
+            elif f == "backlash" and combine:
+                axis[f][i] += v
             else:
-                kv[i] = v
-        elif k.startswith("backlash."):
-            i = names.index(k[len("backlash."):])
-            bl[i] = bl[i] + v if combine else v
-    return replace(base, kv=tuple(kv), backlash=tuple(bl))
+                axis[f][i] = v
+        elif k in SCALARS:
+            f = SCALARS[k][0]
+            if f == "delay" and combine:
+                v = base.delay + v
+            changes[f] = int(v) if k in INTEGERS else float(v)
+        elif k in DRIFT:
+            drift[DRIFT[k]] = float(v)
+    return replace(base, **{f: tuple(v) for f, v in axis.items()}, drift=tuple(drift), **changes)

@@ -19,15 +19,17 @@ from .._io import InputError, atomic_write, dump_toml, read_text
 from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting, save_errors
 from ..machine import Machine, load_machine
 from .axes import NoHome
-from .dynamics import PREFIXES, save_dynamics
-from .mapping import map_effect
+from .dynamics import is_dynamics, save_dynamics
+from .mapping import map_effect, merge_thermal
 
 SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 MAX_TABLE_ROWS = 20001
 # SI definitions of the units the parameter set uses (SSP 1.0 ssc:Unit / ssc:BaseUnit)
 _UNITS = {"mm": {"m": "1", "factor": "0.001"}, "deg": {"rad": "1", "factor": str(math.pi / 180)},
-          "rad": {"rad": "1"}, "1/s": {"s": "-1"}}
+          "rad": {"rad": "1"}, "1/s": {"s": "-1"}, "s": {"s": "1"}, "K": {"K": "1"},
+          "degC": {"K": "1", "offset": "273.15"}, "mm/K": {"m": "1", "K": "-1", "factor": "0.001"},
+          "K.min": {"K": "1", "s": "1", "factor": "60"}}
 
 
 def read_diagnosis(src) -> dict:
@@ -93,8 +95,8 @@ class ModelExport:
         lines = [f"model export for machine {self.machine}: {len(self.mapped)} effect(s) in the model, "
                  f"{len(self.unmapped)} without a home"]
         for m in self.mapped:
-            what = [f"{p.name} = {p.value:.6g} {p.unit}" + (f" +/- {p.sigma:.2g}" if p.sigma is not None else "")
-                    for p in m.params] + [f"table {t.component}" for t in m.tables]
+            what = [f"{p.name} = {p.value:.6g}" + (f" {p.unit}" if p.unit != "1" else "")
+                    + (f" +/- {p.sigma:.2g}" if p.sigma is not None else "") for p in m.params] + [f"table {t.component}" for t in m.tables]
             lines.append(f"  {m.effect} on {m.output}: " + "; ".join(what))
             lines += [f"    note: {n}" for n in m.notes]
         for e, why in self.unmapped:
@@ -169,11 +171,14 @@ def ssv_text(params, names: set | None = None, *, name: str = "diagnosed") -> by
         if names is not None and p.name not in names:
             raise InputError(f"the machine FMU has no parameter {p.name!r}", field=p.name)
         el = ET.SubElement(ps, f"{{{SSV}}}Parameter", {"name": p.name})
-        attrs = {"value": repr(float(p.value))}
-        if p.unit in _UNITS:
-            attrs["unit"] = p.unit
-            used.add(p.unit)
-        ET.SubElement(el, f"{{{SSV}}}Real", attrs)
+        if getattr(p, "type", "Real") == "Integer":
+            ET.SubElement(el, f"{{{SSV}}}Integer", {"value": str(int(p.value))})
+        else:
+            attrs = {"value": repr(float(p.value))}
+            if p.unit in _UNITS:
+                attrs["unit"] = p.unit
+                used.add(p.unit)
+            ET.SubElement(el, f"{{{SSV}}}Real", attrs)
         if p.sigma is not None and math.isfinite(p.sigma):
             # SSP 1.0 has no uncertainty attribute: it travels as an annotation
             ann = ET.SubElement(el, f"{{{SSC}}}Annotations")
@@ -189,7 +194,7 @@ def ssv_text(params, names: set | None = None, *, name: str = "diagnosed") -> by
 
 
 def read_ssv(path) -> dict:
-    """{parameter name: value} of a .ssv parameter set (Real values)."""
+    """{parameter name: value} of a .ssv parameter set (Real and Integer values)."""
     try:
         root = ET.parse(str(path)).getroot()
     except (ET.ParseError, OSError) as exc:
@@ -199,31 +204,51 @@ def read_ssv(path) -> dict:
         r = p.find(f"{{{SSV}}}Real")
         if r is not None:
             out[p.get("name")] = float(r.get("value"))
+        i = p.find(f"{{{SSV}}}Integer")
+        if i is not None:
+            out[p.get("name")] = int(i.get("value"))
     return out
 
 
-def map_diagnosis(diagnosis, machine, step: float | None = None):
-    """(mapped, unmapped) for every effect of the diagnosis."""
+def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict | None = None,
+                  servo_interpolation: bool = False):
+    """(mapped, unmapped) for every effect of the diagnosis.  drivers: {driver column: its value
+    at the start} (the thermal mapping needs the spindle speed at the start; 0 when not given).
+
+    The machine FMU has one thermal state: a second thermal drift on another output with the
+    same driver adds its drift gain only (its own time constant, initial state and reference
+    are the first one's: noted); with another driver it has no home."""
     data = read_diagnosis(diagnosis)
     machine = load_machine(machine)
     mapped, unmapped = [], []
+    thermal = None
     for e in data["effects"]:
         try:
-            mapped.append(map_effect(e, machine, step))
+            m = map_effect(e, machine, step, drivers, servo_interpolation)
+            if m.effect == "thermal_drift":
+                if thermal is None:
+                    thermal = m
+                else:
+                    m = merge_thermal(thermal, m)
+            mapped.append(m)
         except NoHome as exc:
             unmapped.append((e, str(exc)))
     return tuple(mapped), tuple(unmapped)
 
 
 def export_model(diagnosis, machine, outdir=None, *, step: float | None = None,
-                 check_names: bool = True) -> ModelExport:
+                 check_names: bool = True, drivers: dict | None = None,
+                 servo_interpolation: bool = False) -> ModelExport:
     """Map the diagnosis' effects onto the machine model and (with `outdir`) write the files.
 
     diagnosis: path of `mtcomp diagnose --json` output, its dict, or a DiagnosisResult.
     machine: preset name, TOML path or Machine.  step: the co-simulation's communication step
-    (s), which the FMU's discrete servo needs to reproduce the fitted kv."""
+    (s), which the FMU's discrete servo needs to reproduce the fitted kv.  drivers: {driver
+    column: value at the start} of the recording's thermal drivers (map_diagnosis).
+    servo_interpolation: the model's servos are ramp invariant (servo.interpolation = 1 in
+    SIM's dynamics): a diagnosed kv is written as it is, with servo.interpolation = 1."""
     machine = load_machine(machine)
-    mapped, unmapped = map_diagnosis(diagnosis, machine, step)
+    mapped, unmapped = map_diagnosis(diagnosis, machine, step, drivers, servo_interpolation)
     ex = _assemble(mapped, unmapped, machine, step)
     if outdir is not None:
         ex = write_export(ex, outdir, check_names=check_names)
@@ -232,7 +257,7 @@ def export_model(diagnosis, machine, outdir=None, *, step: float | None = None,
 
 def _assemble(mapped, unmapped, machine, step) -> ModelExport:
     params = tuple(p for m in mapped for p in m.params)
-    dyn = tuple(p for p in params if any(p.name.startswith(k) for k in PREFIXES))
+    dyn = tuple(p for p in params if is_dynamics(p.name))
     other = tuple(p for p in params if p not in dyn)
     errors = build_errors(other, _tables(mapped, machine))
     return ModelExport(machine.name, tuple(mapped), tuple(unmapped), errors, dyn, params, step, {}, machine)

@@ -42,19 +42,24 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
         (wd / "rec.csv").write_text("\n".join(lines[:1 + n_train]) + "\n")
         # the programmed angles are in both files (signals_csv): inputs of the effects, not outputs
         angles = [a.name.lower() for a in machine.axes if a.is_rotary]
+        # so are the logged drivers of the thermal drift (spindle speed, temperature)
+        angles += [k for k in rec.inputs]
         diag = diagnose(str(wd / "sim.csv"), str(wd / "rec.csv"), outputs=outputs, inputs=angles or None)
-        ex = export_model(diag, machine, None, step=step)
+        ex = export_model(diag, machine, None, step=step, drivers={k: float(v[0]) for k, v in rec.inputs.items()},
+                          servo_interpolation=bool(getattr(dynamics, "interpolation", 0)))
         t_split = float(rec.t[n_train])
         rec_out = {o: rec.p[:, k] for k, o in enumerate(OUTPUTS)}
         log: list = []
+        drv = {"spindle_speed": rec.inputs.get("spindle_speed", 0.0), "temperature": rec.inputs.get("temperature")}
         if do_prune and ex.mapped:
             ex = prune(ex, rec.t, rec_out, program=program, machine=machine, errors=errors, dynamics=dynamics,
-                       step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler, log=log)
+                       step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler, log=log,
+                       **drv)
         if do_refine and ex.params:
             from .simulate import refine
             ex = refine(ex, rec.t, rec_out, program=program, machine=machine, errors=errors, dynamics=dynamics,
                         step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler,
-                        stride=refine_stride, log=log)
+                        stride=refine_stride, log=log, **drv)
         from dataclasses import replace
 
         from ..errors import ErrorSet
@@ -62,7 +67,7 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
         from .simulate import _updated_model
         base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
         e, d = _updated_model(ex, machine, errors or ErrorSet(), base_dyn, True)
-        upd = simulate(program, machine, e, d, step=step, compiler=compiler)
+        upd = simulate(program, machine, e, d, step=step, compiler=compiler, **drv)
         res = compare(rec.t, rec_out, nominal, upd, heldout_from=t_split, noise_floor=diag.noise_floor)
         return LoopResult(diag, ex, res, t_split, tuple(log))
     finally:

@@ -28,6 +28,7 @@ class Param:
     value: float
     sigma: float | None
     unit: str
+    type: str = "Real"       # "Integer" for the FMU's Integer parameters (thermal.driver)
 
 
 @dataclass(frozen=True)
@@ -71,15 +72,21 @@ def _one_output(e: dict) -> str:
     return outs[0]
 
 
-def map_servo_lag(e: dict, machine: Machine, step: float | None) -> Mapped:
+def map_servo_lag(e: dict, machine: Machine, step: float | None, interpolation: bool = False) -> Mapped:
     """kv (1/s) of the continuous first-order lag the diagnosis fits -> servo.kv.<AXIS>.
 
     The machine FMU's servo is exact first order for a command held over each communication
     step h; its steady following error at speed v is v h / (exp(kv h) - 1), not v/kv, so the
-    continuous kv_c maps to kv = ln(1 + kv_c h)/h (derived by equating the following errors)."""
+    continuous kv_c maps to kv = ln(1 + kv_c h)/h (derived by equating the following errors).
+    With interpolation (the FMU's ramp-invariant servo, servo.interpolation = 1) the FMU is the
+    continuous lag of the piecewise linear command: kv = kv_c, and servo.interpolation = 1 is
+    written beside it."""
     ax = linear_axis(machine, _one_output(e))
     kv_c, s = _p(e, "kv_per_s"), _s(e, "kv_per_s")
     notes = ()
+    if interpolation:
+        return Mapped("servo_lag", e["output"], (Param(f"servo.kv.{ax.axis}", kv_c, s, "1/s"),
+                                                 Param("servo.interpolation", 1, None, "1", "Integer")))
     if step and step > 0:
         kv = math.log1p(kv_c * step) / step
         s = None if s is None else s / (1.0 + kv_c * step)    # d kv / d kv_c
@@ -207,6 +214,116 @@ def map_workpiece_setting(e: dict, machine: Machine, step: float | None) -> Mapp
                          "first order",) if any(p.name.startswith("workpiece_setting.angle") for p in params) else ())
 
 
+THERMAL_GAIN = 1e-3    # K per 1/min: the FMU's thermal.gain a spindle-driven drift is written with
+AMBIENT = 20.0         # degC: the FMU's ambient start value, the thermal mapping's reference point
+_SPINDLE_UNITS = ("rpm", "1_min", "rev_min")
+_TEMPERATURE_UNITS = ("degC", "degc", "C", "K")
+
+
+def map_thermal_drift(e: dict, machine: Machine, step: float | None, drivers: dict | None = None) -> Mapped:
+    """r_o = k (F_tau[u] - u0) + r0 exp(-t/tau) + c, u a logged driver -> the FMU's thermal
+    model: one temperature T with T' = (T_target - T)/tau, T(0) = ambient + excess, the tool
+    edge moved by drift_o (T - T_ref) along output o (tool frame = workpiece frame: exact for a
+    machine without rotary axes on the tool side at angle 0).
+
+    Spindle speed S (driver 0, T_target = ambient + G S): T - T_ref = G (F[S] - S0) + (excess -
+    G S0) exp(-t/tau) + (ambient + G S0 - T_ref), so with G = THERMAL_GAIN: drift = k/G,
+    excess = r0/drift + G S0, T_ref = ambient + G S0 - c/drift.  A logged temperature u (driver
+    1, T_target = ambient + u - u0): drift = k, excess = r0/k, T_ref = ambient - c/k (u0 drops
+    out).  S0, the spindle speed at the start, comes from `drivers` (0 when not given, noted)."""
+    o = coordinate_letter(_one_output(e))
+    linear_axis(machine, o)
+    gkey = next((k for k in e["params"] if k.startswith("gain_mm_per_")), None)
+    if gkey is None:
+        raise NoHome("thermal_drift: no gain_mm_per_<unit> in the diagnosis")
+    unit = gkey[len("gain_mm_per_"):]
+    k, sk = _p(e, gkey), _s(e, gkey)
+    tau, stau = _p(e, "tau_s"), _s(e, "tau_s")
+    ikey = next((q for q in e["params"] if q.startswith("initial_")), None)
+    okey = next((q for q in e["params"] if q.startswith("offset_")), None)
+    r0 = float(e["params"][ikey]) if ikey else 0.0
+    c = float(e["params"][okey]) if okey else 0.0
+    sr0, sc = (_s(e, ikey) if ikey else None), (_s(e, okey) if okey else None)
+    if sk is not None and abs(k) < 3 * sk:
+        raise NoHome(f"thermal_drift on {e['output']}: the drift gain {k:.3g} +/- {sk:.2g} mm per {unit} is not "
+                     "significant; the initial state and reference cannot be written as temperatures without it")
+    notes = []
+    if any(a.is_rotary and a.side == "tool" for a in machine.axes):
+        notes.append("drift along the tool frame: equal to the diagnosed output direction with the tool-side "
+                     "rotary axes at zero")
+    if unit in _SPINDLE_UNITS:
+        driver, G = 0, THERMAL_GAIN
+        drift = k / G
+        name = str((e.get("inputs") or ["?"])[0])
+        s0 = (drivers or {}).get(name)
+        if s0 is None:
+            s0 = 0.0
+            notes.append(f"spindle speed at the start taken as 0 (the start value of {name} was not given)")
+        excess = r0 / drift + G * s0
+        ref = AMBIENT + G * s0 - c / drift
+    elif unit in _TEMPERATURE_UNITS:
+        driver, G = 1, None
+        drift = k
+        excess = r0 / drift
+        ref = AMBIENT - c / drift
+    else:
+        raise NoHome(f"thermal_drift driven by {e.get('inputs')} in {unit}: the machine FMU's thermal model is "
+                     "driven by the spindle speed or a logged temperature")
+    if abs(drift) > 1.0 or abs(excess) > 100.0 or not -50.0 <= ref <= 100.0:
+        raise NoHome(f"thermal_drift on {e['output']}: drift {drift:.3g} mm/K, initial excess {excess:.3g} K, "
+                     f"reference {ref:.3g} degC are outside the FMU's ranges")
+    ad = abs(drift)
+    params = [Param("thermal.driver", driver, None, "1", "Integer"),
+              Param("thermal.time_constant", tau, stau, "s"),
+              Param(f"thermal.drift.{o}", drift, None if sk is None else sk / (G or 1.0), "mm/K"),
+              Param("thermal.initial_excess", excess, None if sr0 is None else sr0 / ad, "K"),
+              Param("thermal.reference", ref, None if sc is None else sc / ad, "degC")]
+    if G is not None:
+        params.insert(1, Param("thermal.gain", G, None, "K.min"))
+    notes.append(f"one thermal state, ambient {AMBIENT:g} degC" + (f", gain {G:g} K per 1/min (drift scaled to it)"
+                                                                   if G is not None else ""))
+    return Mapped("thermal_drift", e["output"], tuple(params), notes=tuple(notes))
+
+
+def merge_thermal(first: Mapped, other: Mapped) -> Mapped:
+    """A second thermal drift (another output) beside `first`: the FMU has one thermal state,
+    so only its drift gain is kept, and only with the same driver (else NoHome)."""
+    drv = {p.name: p.value for p in first.params}["thermal.driver"]
+    if {p.name: p.value for p in other.params}["thermal.driver"] != drv:
+        raise NoHome("the machine FMU has one thermal state, already driven by the "
+                     + ("spindle speed" if drv == 0 else "logged temperature"))
+    keep = tuple(p for p in other.params if p.name.startswith("thermal.drift."))
+    return Mapped("thermal_drift", other.output, keep,
+                  notes=(f"shares the time constant, initial state and reference of the thermal drift on "
+                         f"{first.output} (one thermal state)",))
+
+
+def map_time_offset(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """REC(t) = SIM(t - tau), tau > 0 (REC lags) -> transport delay `delay` = tau: every axis
+    acts on the command given tau earlier (with an ideal servo the tool edge then follows the
+    nominal one tau late; the FMU interpolates the commands between steps)."""
+    tau, s = _p(e, "offset_s"), _s(e, "offset_s")
+    if tau <= 0:
+        raise NoHome(f"time_offset of {tau:.3g} s: the recording leads the simulation, which a transport delay "
+                     "cannot do (a clock offset of the recording)")
+    return Mapped("time_offset", e["output"], (Param("delay", tau, s, "s"),))
+
+
+def map_quadrant_glitch(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """Stick-slip at reversals (breakaway delta, catch-up tau) -> friction.breakaway.<AXIS> =
+    delta, friction.tau.<AXIS> = tau: the FMU's friction element is that model (the slide stays
+    where the motion reversed until the drive has moved delta back, then its lag decays with
+    tau).  The spike form (peak, tau: a fixed shape in time) is not that physics: no home."""
+    ax = linear_axis(machine, _one_output(e))
+    bkey = next((k for k in e["params"] if k.startswith("breakaway_")), None)
+    if bkey is None:
+        raise NoHome("quadrant_glitch in the spike form (a fixed shape in time after each reversal) is not the "
+                     "machine model's friction, which follows the command (the stick-slip form)")
+    return Mapped("quadrant_glitch", e["output"],
+                  (Param(f"friction.breakaway.{ax.axis}", _p(e, bkey), _s(e, bkey), "mm"),
+                   Param(f"friction.tau.{ax.axis}", _p(e, "tau_s"), _s(e, "tau_s"), "s")))
+
+
 def _no_home(reason: str):
     def f(e, machine, step):
         raise NoHome(reason)
@@ -223,18 +340,27 @@ MAPPERS = {
     "squareness": map_squareness,
     "pivot_offset": map_pivot_offset,
     "workpiece_setting": map_workpiece_setting,
-    "thermal_drift": _no_home("the machine FMU's thermal model is driven by its spindle speed input only, "
-                              "without the unknown initial state and reference the diagnosis fits"),
-    "time_offset": _no_home("the machine model has no transport delay"),
-    "friction": _no_home("the machine model has no friction"),
+    "thermal_drift": map_thermal_drift,
+    "time_offset": map_time_offset,
+    "quadrant_glitch": map_quadrant_glitch,
+    "friction": _no_home("friction fitted on a velocity signal: the machine FMU's outputs are positions; its "
+                         "friction is the stick-slip element (friction.breakaway/coulomb/tau), which the diagnosis "
+                         "fits as quadrant_glitch (stick-slip) on a position output"),
 }
 
 
-def map_effect(e: dict, machine: Machine, step: float | None = None) -> Mapped:
-    """The model parameters of one diagnosed effect (a dict of the diagnosis JSON), or NoHome."""
+def map_effect(e: dict, machine: Machine, step: float | None = None, drivers: dict | None = None,
+               servo_interpolation: bool = False) -> Mapped:
+    """The model parameters of one diagnosed effect (a dict of the diagnosis JSON), or NoHome.
+    drivers: {driver column: value at the start} for the thermal drift; servo_interpolation:
+    the model's servos follow the command linearly between steps (servo.interpolation = 1)."""
     f = MAPPERS.get(e.get("name"))
     if f is None:
         raise NoHome(f"effect {e.get('name')!r} is not known to the model export")
+    if f is map_thermal_drift:
+        return f(e, machine, step, drivers)
+    if f is map_servo_lag:
+        return f(e, machine, step, servo_interpolation)
     return f(e, machine, step)
 
 

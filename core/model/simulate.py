@@ -20,6 +20,7 @@ from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting, Wor
 from ..machine import load_machine
 
 OUTPUTS = ("x", "y", "z")
+DRIVER_COLUMNS = {"spindle_speed": "spindle_speed [rpm]", "temperature": "temperature [degC]"}
 
 
 @dataclass(frozen=True)
@@ -30,17 +31,24 @@ class Signals:
     p: np.ndarray
     q: np.ndarray
     axes: tuple
+    inputs: dict = field(default_factory=dict)   # driver inputs given per step: "spindle_speed"
+                                                 # (1/min), "temperature" (degC), (K,) each
 
 
 def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *, step: float = 1e-3,
-             spindle_speed: float = 0.0, workdir=None, compiler: str = "cmake") -> Signals:
+             spindle_speed=0.0, temperature=None, workdir=None, compiler: str = "cmake") -> Signals:
     """Run the NC program (path, text, or (K, n) command array) through the machine FMU built
     with `errors` and `dynamics` (mtcomp.fmu.build.MachineDynamics) at `step` s; the machine
-    gets the programmed commands (the uncompensated run of mtcomp.fmu.cosim.cosimulate)."""
+    gets the programmed commands (the uncompensated run of mtcomp.fmu.cosim.cosimulate).
+
+    spindle_speed (1/min) and temperature (degC, the FMU's temperature_input): a number, an
+    array with one value per step, or a callable of the step times t (K,) s; given as arrays
+    (or callables) they are drivers the recording logs, kept in Signals.inputs and written as
+    columns by signals_csv."""
     import tempfile
 
     from ..fmu.build import build_machine_fmu
-    from ..fmu.cosim import _run, interpolate_program
+    from ..fmu.cosim import interpolate_program, run_machine
     machine = load_machine(machine)
     errors = errors or ErrorSet()
     # the machine-only run of mtcomp.fmu.cosim.cosimulate (its uncompensated run, the same
@@ -57,8 +65,15 @@ def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *,
     with tempfile.TemporaryDirectory(prefix="mtcomp-sim-") as tmp:
         wd = Path(workdir) if workdir is not None else Path(tmp)
         mach = build_machine_fmu(machine, wd / "machine.fmu", errors, dynamics, compiler=compiler)
-        _, p, _ = _run(machine, q, step, mach, None, spindle_speed)
-    return Signals(t, p, q, tuple(machine.axis_names))
+        drivers = {}
+        for name, v in (("spindle_speed", spindle_speed), ("temperature", temperature)):
+            if callable(v):
+                v = v(t)
+            if v is not None and np.ndim(v) > 0:
+                drivers[name] = np.asarray(v, float)
+        p = run_machine(mach, machine, q, step, spindle_speed=drivers.get("spindle_speed", spindle_speed),
+                        temperature=drivers.get("temperature", temperature)).p
+    return Signals(t, p, q, tuple(machine.axis_names), drivers)
 
 
 def signals_csv(sig: Signals, machine) -> str:
@@ -71,6 +86,9 @@ def signals_csv(sig: Signals, machine) -> str:
         if ax.is_rotary:
             cols.append(ax.name.lower())
             data.append(sig.q[:, i])
+    for name, v in sig.inputs.items():     # logged drivers of the thermal drift
+        cols.append(DRIVER_COLUMNS[name])
+        data.append(v)
     arr = np.column_stack(data)
     lines = [",".join(cols)] + [",".join(repr(float(v)) for v in row) for row in arr]
     return "\n".join(lines) + "\n"
@@ -82,7 +100,7 @@ def _rel(path, base: Path) -> str:
 
 
 def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None, dynamics=None,
-                  step: float, spindle_speed: float = 0.0) -> Path:
+                  step: float, spindle_speed=0.0) -> Path:
     """Write the signals CSV and its provenance sidecar `<path>.provenance.toml` (paths in it
     relative to its folder; the dynamics inline).  machine: preset name, machine TOML path (kept
     as a path) or Machine (kept by name: give the path to keep a machine file)."""
@@ -91,15 +109,18 @@ def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None
     machine = load_machine(machine)
     atomic_write(path, signals_csv(sig, machine))
     is_file = isinstance(spec, (str, Path)) and Path(spec).is_file()
-    prov: dict = {"machine": _rel(spec, path.parent) if is_file else machine.name, "step_s": float(step),
-                  "spindle_speed_rpm": float(spindle_speed)}
+    prov: dict = {"machine": _rel(spec, path.parent) if is_file else machine.name, "step_s": float(step)}
+    if np.ndim(spindle_speed) == 0 and not callable(spindle_speed):
+        prov["spindle_speed_rpm"] = float(spindle_speed)
+    if sig.inputs:   # logged drivers: columns of the CSV itself, given to the FMU step by step
+        prov["driver_columns"] = [DRIVER_COLUMNS[k] for k in sig.inputs]
     if program is not None and Path(str(program)).is_file():
         prov["program"] = _rel(program, path.parent)
     if errors_path is not None:
         prov["errors"] = _rel(errors_path, path.parent)
     if dynamics is not None:
         d = asdict(dynamics)
-        prov["dynamics"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+        prov["dynamics"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items() if v is not None}
     atomic_write(provenance_path(path), "# provenance of a simulated signal file (docs/model-loop.md)\n"
                  + dump_toml({"simulation": prov}))
     return path
@@ -113,13 +134,15 @@ def provenance_path(csv_path) -> Path:
 @dataclass(frozen=True)
 class Provenance:
     """How a SIM file was made: program path, machine, errors (ErrorSet), dynamics
-    (MachineDynamics), step (s), spindle speed (1/min)."""
+    (MachineDynamics), step (s), spindle speed (1/min: a number, or (K,) per step from the CSV's
+    driver column), temperature input ((K,) degC or None)."""
     program: Path | None
     machine: object
     errors: ErrorSet
     dynamics: object
     step: float
-    spindle_speed: float
+    spindle_speed: object
+    temperature: object = None
 
 
 def read_provenance(csv_path) -> Provenance:
@@ -136,7 +159,16 @@ def read_provenance(csv_path) -> Provenance:
     errors = load_errors(path.parent / d["errors"], machine=machine) if "errors" in d else ErrorSet()
     dyn = MachineDynamics(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.get("dynamics", {}).items()})
     prog = path.parent / d["program"] if "program" in d else None
-    return Provenance(prog, machine, errors, dyn, float(d["step_s"]), float(d.get("spindle_speed_rpm", 0.0)))
+    spindle, temp = float(d.get("spindle_speed_rpm", 0.0)), None
+    if d.get("driver_columns"):
+        from ..csvtable import read_csv
+        tab = read_csv(csv_path, what="simulation")
+        cols = [str(c) for c in d["driver_columns"]]
+        if DRIVER_COLUMNS["spindle_speed"] in cols:
+            spindle = tab.numbers("spindle_speed", unit="rpm")
+        if DRIVER_COLUMNS["temperature"] in cols:
+            temp = tab.numbers("temperature", unit="degC")
+    return Provenance(prog, machine, errors, dyn, float(d["step_s"]), spindle, temp)
 
 
 def read_recording(path) -> tuple:
@@ -295,10 +327,11 @@ def _updated_model(model, machine, base_err, base_dyn, combine):
 
 
 def _training_residual(model, t_rec, rec, keep_t, *, program, machine, base_err, base_dyn, step, spindle_speed,
-                       nf, compiler):
+                       nf, compiler, temperature=None):
     """Stacked (REC - re-simulation) / noise floor on the training samples."""
     e, d = _updated_model(model, machine, base_err, base_dyn, True)
-    sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, compiler=compiler)
+    sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, temperature=temperature,
+                   compiler=compiler)
     keep = keep_t & (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
     parts = []
     for o, v in rec.items():
@@ -308,8 +341,8 @@ def _training_residual(model, t_rec, rec, keep_t, *, program, machine, base_err,
 
 
 def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
-           spindle_speed: float = 0.0, train_until: float | None = None, noise_floor: dict | None = None,
-           compiler: str = "cmake", stride: int = 1, log: list | None = None):
+           spindle_speed=0.0, train_until: float | None = None, noise_floor: dict | None = None,
+           compiler: str = "cmake", stride: int = 1, log: list | None = None, temperature=None):
     """Refit the exported scalar parameters (kv, backlash, location and setting errors) through
     the machine model itself: nonlinear least squares of REC - re-simulation on the training
     samples (t < train_until), each evaluation a co-simulation of the FMU, started from the
@@ -325,7 +358,9 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
 
     from ..fmu.build import MachineDynamics
     machine = load_machine(machine)
-    params = [p for p in ex.params]
+    # thermal.driver is a choice, not a number; thermal.gain is the scale the drift is written in
+    # (only gain * drift enters a spindle-driven drift)
+    params = [p for p in ex.params if p.type == "Real" and p.name != "thermal.gain"]
     if not params:
         return ex
     base_err = errors or ErrorSet()
@@ -339,7 +374,8 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     x0 = np.array([p.value for p in params])
     scale = np.array([p.sigma if p.sigma and math.isfinite(p.sigma) and p.sigma > 0 else max(abs(p.value), 1e-9) * 1e-3
                       for p in params])
-    lo = np.array([0.0 if (p.name.startswith("servo.kv.") or p.name.startswith("backlash.")) else -np.inf
+    nonneg = ("servo.kv.", "backlash.", "friction.", "delay", "thermal.gain")
+    lo = np.array([1e-3 if p.name == "thermal.time_constant" else 0.0 if p.name.startswith(nonneg) else -np.inf
                    for p in params])
 
     def model_at(z):
@@ -348,7 +384,7 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     def fun(z):
         return _training_residual(model_at(z), t_rec, rec, keep_t, program=program, machine=machine,
                                   base_err=base_err, base_dyn=base_dyn, step=step, spindle_speed=spindle_speed,
-                                  nf=nf, compiler=compiler)
+                                  nf=nf, compiler=compiler, temperature=temperature)
     zlo = np.where(np.isfinite(lo), (lo - x0) / scale, -np.inf)
     sol = least_squares(fun, np.zeros(len(params)), bounds=(zlo, np.inf), diff_step=1e-3, x_scale=1.0,
                         max_nfev=20 * (len(params) + 1))
@@ -370,8 +406,8 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
 
 
 def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
-          spindle_speed: float = 0.0, train_until: float | None = None, noise_floor: dict | None = None,
-          compiler: str = "cmake", log: list | None = None):
+          spindle_speed=0.0, train_until: float | None = None, noise_floor: dict | None = None,
+          compiler: str = "cmake", log: list | None = None, temperature=None):
     """Backward elimination through the machine model itself: drop each exported effect (last
     first) whose removal does not raise the training error of the re-simulation (samples with
     t < train_until; all when None), sum over outputs of mean square / noise floor^2.
@@ -392,7 +428,8 @@ def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None,
 
     def score(model):
         e, d = _updated_model(model, machine, base_err, base_dyn, True)
-        sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, compiler=compiler)
+        sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, temperature=temperature,
+                       compiler=compiler)
         keep = (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
         if train_until is not None:
             keep &= t_rec < train_until
@@ -418,8 +455,9 @@ def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None,
 
 
 def resimulate(model, rec, *, program, machine, errors: ErrorSet | None = None, dynamics=None,
-               step: float, spindle_speed: float = 0.0, heldout_from: float | None = None,
-               combine: bool = True, workdir=None, compiler: str = "cmake", noise_floor: dict | None = None):
+               step: float, spindle_speed=0.0, heldout_from: float | None = None,
+               combine: bool = True, workdir=None, compiler: str = "cmake", noise_floor: dict | None = None,
+               temperature=None):
     """Rebuild the machine FMU with the fitted parameters and re-run the co-simulation.
 
     model: a ModelExport or the folder `mtcomp model export` wrote.  rec: REC CSV path or
@@ -435,7 +473,7 @@ def resimulate(model, rec, *, program, machine, errors: ErrorSet | None = None, 
     base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
     new_err, new_dyn = _updated_model(model, machine, base_err, base_dyn, combine)
     t_rec, rec_v = read_recording(rec) if isinstance(rec, (str, Path)) else rec
-    kw = dict(step=step, spindle_speed=spindle_speed, compiler=compiler)
+    kw = dict(step=step, spindle_speed=spindle_speed, temperature=temperature, compiler=compiler)
     sim = simulate(program, machine, base_err, base_dyn, workdir=None if workdir is None else Path(workdir) / "base", **kw)
     upd = simulate(program, machine, new_err, new_dyn,
                    workdir=None if workdir is None else Path(workdir) / "updated", **kw)

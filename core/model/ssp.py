@@ -19,8 +19,12 @@ SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
 
 
-def bind_parameter_set(ssp_in, ssv_path, ssp_out, *, component: str = "machine") -> Path:
-    """Write `ssp_out`: `ssp_in` with the parameter set of `ssv_path` bound to `component`."""
+def bind_parameter_set(ssp_in, ssv_path, ssp_out, *, component: str = "machine", set_name: str | None = None) -> Path:
+    """Write `ssp_out`: `ssp_in` with the parameter set of `ssv_path` bound to `component`.
+
+    set_name: the name of the bound set (default: the .ssv's, "diagnosed").  The ecos CLI applies
+    the sets of one name per run (`--parameterSet NAME`): name it like the compensator's
+    "commands" set of `mtcomp fmu ssp` to have both applied together."""
     for prefix, ns in (("ssd", SSD), ("ssc", SSC), ("ssv", SSV)):
         ET.register_namespace(prefix, ns)
     try:
@@ -51,6 +55,8 @@ def bind_parameter_set(ssp_in, ssv_path, ssp_out, *, component: str = "machine")
         comp.insert(after[-1] + 1 if after else 0, pbs)
     pb = ET.SubElement(pbs, f"{{{SSD}}}ParameterBinding")
     pv = ET.SubElement(pb, f"{{{SSD}}}ParameterValues")
+    if set_name:
+        ssv_root.set("name", str(set_name))
     pv.append(ssv_root)
     ET.indent(root)
     entries["SystemStructure.ssd"] = (b'<?xml version="1.0" encoding="UTF-8"?>\n'

@@ -2,11 +2,20 @@
  *
  * Axis commands in; the real tool edge position and tool direction in the real workpiece frame
  * out (the same forward model as mtcomp.kinematics.forward), plus the actual axis positions and
- * the machine temperature.  Per axis: a first-order servo (velocity gain kv, 1/s; kv = 0 is an
- * ideal servo that reaches the command by the end of the step) followed by backlash (a play of the given width
- * centred on the servo position).  A first-order thermal model driven by the spindle speed input
- * moves the tool edge by drift * (T - T_ambient) in the tool frame.  Gaussian sensor noise with
- * a seed is added to the tool edge output.  docs/fmu.md lists the variables.
+ * the machine temperature.  Per axis, in this order (docs/model-loop.md, "The machine FMU's
+ * dynamics"; mtcomp.model.machine_ref is the Python reference, held to it by tests):
+ *   1. transport delay: the axis acts on the command given `delay` s earlier (linear between
+ *      the commands of the steps; before the start, the first command);
+ *   2. a first-order servo (velocity gain kv, 1/s; kv = 0 is an ideal servo that reaches the
+ *      command by the end of the step), its command held over the step (servo.interpolation = 0)
+ *      or linear from the previous step's command (1: ramp invariant, no half-step shift);
+ *   3. backlash: a play of the given width centred on the servo position;
+ *   4. friction at reversals (stick-slip): after the motion reverses, static friction holds the
+ *      slide until the drive has wound up by the breakaway distance, then the slide catches up
+ *      with a time constant, to a lag of the Coulomb distance against the motion.
+ * A first-order thermal model (driver: spindle speed, a logged temperature, or none) moves the
+ * tool edge by drift * (T - T_reference) in the tool frame.  Gaussian sensor noise with a seed
+ * is added to the tool edge output.  docs/fmu.md lists the variables.
  */
 #include <math.h>
 #include <stdio.h>
@@ -22,19 +31,38 @@
 #define VR_AMBIENT 122    /* ambient temperature, degC */
 #define VR_DRIFT 123      /* 123..125 tool edge drift per kelvin in the tool frame, mm/K */
 #define VR_NOISE 126      /* standard deviation of the tool edge sensor noise, mm */
+#define VR_TIN 127        /* logged temperature input (thermal driver 1), degC */
+#define VR_EXCESS 128     /* initial temperature above ambient, K */
+#define VR_TREF 129       /* temperature at which the drift is zero, degC */
 #define VR_P 130          /* 130..132 tool edge in the workpiece frame, mm */
 #define VR_V 133          /* 133..135 tool direction (unit vector) */
 #define VR_TEMP 136       /* machine temperature, degC */
 #define VR_ACT 140        /* 140..148 actual axis positions, mm or deg */
+#define VR_DELAY 150      /* transport delay of the commands, s */
+#define VR_BREAK 160      /* 160..168 friction breakaway distance per axis, mm or deg */
+#define VR_COULOMB 170    /* 170..178 Coulomb lag distance per axis, mm or deg */
+#define VR_FTAU 180       /* 180..188 friction catch-up time constant per axis, s */
 #define IVR_SEED 0        /* noise seed */
+#define IVR_DRIVER 1      /* thermal driver: 0 spindle speed, 1 temperature input, 2 none (time) */
+#define IVR_INTERP 2      /* servo command: 0 held over the step, 1 linear from the previous one */
 
 /* Internal states in st.x */
 #define X_SERVO 0         /* 0..8 servo positions */
 #define X_PLAY 10         /* 10..18 positions after backlash */
 #define X_TEMP 20         /* temperature */
 #define X_NOISE 21        /* 21..23 current noise sample, mm */
+#define X_TIN0 24         /* temperature input at the start, degC */
+#define X_SLIDE 30        /* 30..38 slide positions after friction (the actual positions) */
+#define X_FERR 40         /* 40..48 play output - slide while slipping, mm or deg */
+#define X_FDIR 50         /* 50..58 direction of the last motion (+1, -1; 0: not moved yet) */
+#define X_FSTUCK 60       /* 60..68 1 while static friction holds the slide */
+#define X_HIST_N 70       /* number of commands in the history */
+#define X_HIST_HEAD 71    /* index of the newest one */
+#define X_HIST 80         /* history of the commands: entries (time, command[MTK_MAX_AXES]) */
+#define HIST_W (1 + MTK_MAX_AXES)
+#define HIST_CAP ((MODEL_NX - X_HIST) / HIST_W)
 
-const uint32_t MODEL_MAGIC = 0x6d746d0bu;  /* "mtm" + layout version 11 */
+const uint32_t MODEL_MAGIC = 0x6d746d0cu;  /* "mtm" + layout version 12 */
 
 static int n_axes(const Instance *inst) { return inst->kin ? inst->kin->n_axes : 0; }
 
@@ -44,6 +72,8 @@ void model_defaults(Instance *inst)
     inst->st.r[VR_TAU] = 600.0;
     inst->st.r[VR_AMBIENT] = 20.0;
     inst->st.r[VR_TEMP] = 20.0;
+    inst->st.r[VR_TIN] = 20.0;
+    inst->st.r[VR_TREF] = 20.0;
     inst->st.i[IVR_SEED] = 1;
     common_start_values(inst);
 }
@@ -51,10 +81,14 @@ void model_defaults(Instance *inst)
 int model_real_kind(const Instance *inst, unsigned vr)
 {
     int n = n_axes(inst);
-    if (vr == VR_SPINDLE) return VAR_INPUT;
+    if (vr == VR_SPINDLE || vr == VR_TIN) return VAR_INPUT;
     if (vr >= VR_KV && vr < VR_KV + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_BACKLASH && vr < VR_BACKLASH + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_TAU && vr <= VR_NOISE) return VAR_PARAM_FIXED;
+    if (vr == VR_EXCESS || vr == VR_TREF || vr == VR_DELAY) return VAR_PARAM_FIXED;
+    if (vr >= VR_BREAK && vr < VR_BREAK + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_COULOMB && vr < VR_COULOMB + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_FTAU && vr < VR_FTAU + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_P && vr <= VR_TEMP) return VAR_OUTPUT;
     if (vr >= VR_ACT && vr < VR_ACT + (unsigned)n) return VAR_OUTPUT;
     return common_real_kind(vr, n);
@@ -63,7 +97,7 @@ int model_real_kind(const Instance *inst, unsigned vr)
 int model_int_kind(const Instance *inst, unsigned vr)
 {
     (void)inst;
-    return vr == IVR_SEED ? VAR_PARAM_FIXED : VAR_NONE;
+    return vr == IVR_SEED || vr == IVR_DRIVER || vr == IVR_INTERP ? VAR_PARAM_FIXED : VAR_NONE;
 }
 
 int model_string_kind(const Instance *inst, unsigned vr)
@@ -93,14 +127,32 @@ fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
     if (vr == VR_AMBIENT) return check_range(inst, "thermal.ambient", value, -50.0, 100.0);
     if (vr >= VR_DRIFT && vr < VR_DRIFT + 3) return check_range(inst, "thermal.drift", value, -1.0, 1.0);
     if (vr == VR_NOISE) return check_range(inst, "noise.sigma", value, 0.0, 1.0);
+    if (vr == VR_TIN) return check_range(inst, "temperature_input", value, -50.0, 200.0);
+    if (vr == VR_EXCESS) return check_range(inst, "thermal.initial_excess", value, -100.0, 100.0);
+    if (vr == VR_TREF) return check_range(inst, "thermal.reference", value, -50.0, 100.0);
+    if (vr == VR_DELAY) return check_range(inst, "delay", value, 0.0, 1.0);
+    if (vr >= VR_BREAK && vr < VR_BREAK + MTK_MAX_AXES)
+        return check_axis_param(inst, "friction.breakaway", (int)(vr - VR_BREAK), value, 0.0, 1.0);
+    if (vr >= VR_COULOMB && vr < VR_COULOMB + MTK_MAX_AXES)
+        return check_axis_param(inst, "friction.coulomb", (int)(vr - VR_COULOMB), value, 0.0, 1.0);
+    if (vr >= VR_FTAU && vr < VR_FTAU + MTK_MAX_AXES)
+        return check_axis_param(inst, "friction.tau", (int)(vr - VR_FTAU), value, 0.0, 100.0);
     return common_check_real(inst, vr, value);
 }
 
 fmi2Status model_check_int(Instance *inst, unsigned vr, int value)
 {
-    (void)inst;
-    (void)vr;
-    (void)value;   /* the noise seed takes any value */
+    /* the noise seed takes any value */
+    if (vr == IVR_DRIVER && (value < 0 || value > 2)) {
+        inst_log(inst, fmi2Error, "logError", "thermal.driver = %d: expected 0 (spindle speed), 1 (temperature "
+                 "input) or 2 (none: the initial excess relaxes over time)", value);
+        return fmi2Error;
+    }
+    if (vr == IVR_INTERP && (value < 0 || value > 1)) {
+        inst_log(inst, fmi2Error, "logError", "servo.interpolation = %d: expected 0 (command held over the "
+                 "step) or 1 (linear from the previous command)", value);
+        return fmi2Error;
+    }
     return fmi2OK;
 }
 
@@ -145,6 +197,125 @@ static double play(double in, double out, double b)
     return out;
 }
 
+static int friction_on(const Instance *inst, int i)
+{
+    return inst->st.r[VR_BREAK + i] > 0.0 || inst->st.r[VR_COULOMB + i] > 0.0;
+}
+
+/* exp(-t/tau), 0 for tau = 0 (an instantaneous catch-up). */
+static double decay(double t, double tau)
+{
+    return tau > 0.0 ? exp(-t / tau) : 0.0;
+}
+
+/* Append the commands given at time t to the history (replacing an entry of the same time). */
+static void history_push(Instance *inst, double t, double tol)
+{
+    double *x = inst->st.x;
+    int cnt = (int)x[X_HIST_N], head = (int)x[X_HIST_HEAD], k, n = n_axes(inst);
+    if (!(cnt > 0 && fabs(x[X_HIST + head * HIST_W] - t) <= tol)) {
+        head = cnt > 0 ? (head + 1) % HIST_CAP : 0;
+        if (cnt < HIST_CAP) cnt++;
+    }
+    x[X_HIST + head * HIST_W] = t;
+    for (k = 0; k < n; k++) x[X_HIST + head * HIST_W + 1 + k] = inst->st.r[VR_CMD + k];
+    x[X_HIST_N] = cnt;
+    x[X_HIST_HEAD] = head;
+}
+
+/* The commands at time `when`: linear between the history's entries, the newest after it, the
+ * first before the start (the machine rested there).  Returns 0 when `when` lies before a
+ * history that has already dropped entries (a delay longer than the history). */
+static int history_at(const Instance *inst, double when, double tol, double *c)
+{
+    const double *x = inst->st.x;
+    int cnt = (int)x[X_HIST_N], head = (int)x[X_HIST_HEAD], j, k, n = n_axes(inst);
+    for (j = 0; j < cnt; j++) {
+        int idx = (head - j + HIST_CAP) % HIST_CAP;
+        const double *e = x + X_HIST + idx * HIST_W;
+        if (e[0] <= when + tol) {
+            if (j == 0 || e[0] >= when - tol) {
+                for (k = 0; k < n; k++) c[k] = e[1 + k];
+            } else {
+                const double *nx = x + X_HIST + ((idx + 1) % HIST_CAP) * HIST_W;
+                double f = (when - e[0]) / (nx[0] - e[0]);
+                for (k = 0; k < n; k++) c[k] = e[1 + k] + f * (nx[1 + k] - e[1 + k]);
+            }
+            return 1;
+        }
+    }
+    if (cnt < HIST_CAP && cnt > 0) {
+        const double *e = x + X_HIST + ((head - cnt + 1 + HIST_CAP) % HIST_CAP) * HIST_W;
+        for (k = 0; k < n; k++) c[k] = e[1 + k];
+        return 1;
+    }
+    return 0;
+}
+
+/* First-order servo over one step of length h from x0, its command linear from c0 (start) to c1
+ * (end; c0 = c1: held).  Exact solution of x' = kv (c - x).  *xm: the position where the motion
+ * reverses inside the step (the ramp can turn it once), else the end position. */
+static double servo_step(double x0, double c0, double c1, double kv, double h, double *xm)
+{
+    double a, g, end;
+    if (!(kv > 0.0)) {
+        *xm = c1;
+        return c1;
+    }
+    a = kv * h;
+    g = -expm1(-a);
+    if (c0 == c1) {
+        end = x0 + (c1 - x0) * g;
+        *xm = end;
+        return end;
+    }
+    /* e = c - x obeys e' = m - kv e: e(t) = m/kv + (e0 - m/kv) exp(-kv t), m = (c1 - c0)/h */
+    end = c1 - (c1 - c0) * g / a - (c0 - x0) * (1.0 - g);
+    *xm = end;
+    {
+        double m = (c1 - c0) / h, e0 = c0 - x0, den = m - kv * e0;
+        if (den != 0.0) {
+            double E = m / den;   /* exp(-kv t*) where x' = kv e = 0 */
+            if (E > 1.0 - g && E < 1.0) {
+                double ts = -log(E) / kv;
+                *xm = c0 + m * ts;   /* e(t*) = 0: the slide is at the command */
+            }
+        }
+    }
+    return end;
+}
+
+/* Friction at reversals on axis i, over a step in which the play output moved from s0 to s1. */
+static void friction_step(Instance *inst, int i, double s0, double s1, double h)
+{
+    double *x = inst->st.x;
+    double brk = inst->st.r[VR_BREAK + i], cou = inst->st.r[VR_COULOMB + i], tau = inst->st.r[VR_FTAU + i];
+    double d = x[X_FDIR + i], ds = s1 - s0;
+    if (fabs(ds) > 1e-12) {
+        double nd = ds > 0.0 ? 1.0 : -1.0;
+        if (d != 0.0 && nd != d) x[X_FSTUCK + i] = 1.0;   /* reversal: the slide sticks where it is */
+        d = nd;
+        x[X_FDIR + i] = d;
+    }
+    if (x[X_FSTUCK + i] != 0.0) {
+        double stick = x[X_SLIDE + i], D1 = d * (s1 - stick);
+        if (D1 >= brk) {   /* breakaway inside this step, where the wind-up crosses brk (linear) */
+            double D0 = d * (s0 - stick), f = D1 > D0 ? (brk - D0) / (D1 - D0) : 1.0;
+            if (f < 0.0) f = 0.0;
+            if (f > 1.0) f = 1.0;
+            x[X_FSTUCK + i] = 0.0;
+            x[X_FERR + i] = d * (cou + (brk - cou) * decay((1.0 - f) * h, tau));
+            x[X_SLIDE + i] = s1 - x[X_FERR + i];
+        }
+        return;
+    }
+    {
+        double target = d * cou;
+        x[X_FERR + i] = target + (x[X_FERR + i] - target) * decay(h, tau);
+        x[X_SLIDE + i] = s1 - x[X_FERR + i];
+    }
+}
+
 /* The machine refuses to move an axis beyond its travel, as a control's software limits do
  * (half a resolution step of tolerance, like mtcomp.kinematics.check_limits). */
 static fmi2Status check_travel(Instance *inst)
@@ -172,11 +343,12 @@ fmi2Status model_update(Instance *inst)
     /* Outputs are functions of the states only (no direct feed-through from the commands:
      * ModelStructure declares no dependencies), so a master sees no algebraic loop. */
     for (i = 0; i < n; i++) {
-        q[i] = play(inst->st.x[X_SERVO + i], inst->st.x[X_PLAY + i], inst->st.r[VR_BACKLASH + i]);
+        q[i] = friction_on(inst, i) ? inst->st.x[X_SLIDE + i]
+                                    : play(inst->st.x[X_SERVO + i], inst->st.x[X_PLAY + i], inst->st.r[VR_BACKLASH + i]);
         inst->st.r[VR_ACT + i] = q[i];
     }
     common_errors(inst, &e);
-    dT = inst->st.x[X_TEMP] - inst->st.r[VR_AMBIENT];
+    dT = inst->st.x[X_TEMP] - inst->st.r[VR_TREF];
     for (k = 0; k < 3; k++) e.tool[k] += inst->st.r[VR_DRIFT + k] * dT;
     if (mtk_forward(inst->kin, &e, q, p, R, err) != MTK_OK) {
         inst_log(inst, fmi2Error, "logError", "t = %g s: %s", inst->st.time, err);
@@ -198,12 +370,20 @@ fmi2Status model_exit_init(Instance *inst)
     if (common_load(inst) != fmi2OK) return fmi2Error;
     if (check_travel(inst) != fmi2OK) return fmi2Error;
     n = n_axes(inst);
-    /* Start at rest at the commanded position, at ambient temperature. */
+    /* Start at rest at the commanded position, at ambient temperature plus the initial excess. */
     for (i = 0; i < n; i++) {
         inst->st.x[X_SERVO + i] = inst->st.r[VR_CMD + i];
         inst->st.x[X_PLAY + i] = inst->st.r[VR_CMD + i];
+        inst->st.x[X_SLIDE + i] = inst->st.r[VR_CMD + i];
+        inst->st.x[X_FERR + i] = 0.0;
+        inst->st.x[X_FDIR + i] = 0.0;
+        inst->st.x[X_FSTUCK + i] = 0.0;
     }
-    inst->st.x[X_TEMP] = inst->st.r[VR_AMBIENT];
+    inst->st.x[X_HIST_N] = 0.0;
+    inst->st.x[X_HIST_HEAD] = 0.0;
+    history_push(inst, inst->st.time, 0.0);
+    inst->st.x[X_TEMP] = inst->st.r[VR_AMBIENT] + inst->st.r[VR_EXCESS];
+    inst->st.x[X_TIN0] = inst->st.r[VR_TIN];
     seed = (uint64_t)(uint32_t)inst->st.i[IVR_SEED];
     inst->st.rng[0] = splitmix(&seed);
     inst->st.rng[1] = splitmix(&seed);
@@ -213,21 +393,36 @@ fmi2Status model_exit_init(Instance *inst)
 
 fmi2Status model_do_step(Instance *inst, double t, double h)
 {
-    int i, n = n_axes(inst);
-    double target;
-    (void)t;
+    int i, n = n_axes(inst), driver = inst->st.i[IVR_DRIVER];
+    double target, delay = inst->st.r[VR_DELAY], tol = 1e-9 * h;
+    double c1[MTK_MAX_AXES], c0[MTK_MAX_AXES];
     if (check_travel(inst) != fmi2OK) return fmi2Error;
+    history_push(inst, t, tol);
+    /* the command the servo follows over [t, t + h]: given `delay` earlier; held, or linear
+     * from the one a step before */
+    if (!history_at(inst, t - delay, tol, c1)
+        || (inst->st.i[IVR_INTERP] ? !history_at(inst, t - h - delay, tol, c0) : 0)) {
+        inst_log(inst, fmi2Error, "logError", "t = %g s: delay = %g s reaches back beyond the %d steps of "
+                 "commands the FMU keeps", t, delay, HIST_CAP);
+        return fmi2Error;
+    }
     for (i = 0; i < n; i++) {
         double kv = inst->st.r[VR_KV + i], b = inst->st.r[VR_BACKLASH + i];
-        double start = inst->st.x[X_SERVO + i], end;
-        /* The first-order response to a held command is monotonic within the step, so the
-         * play operator applied at both ends of the step is exact. */
+        double start = inst->st.x[X_SERVO + i], end, mid, s0 = inst->st.x[X_PLAY + i];
+        double cs = inst->st.i[IVR_INTERP] ? c0[i] : c1[i];
+        /* The servo's motion within the step is monotonic but for at most one reversal (at
+         * `mid`), so the play operator applied there and at both ends of the step is exact. */
+        end = servo_step(start, cs, c1[i], kv, h, &mid);
         inst->st.x[X_PLAY + i] = play(start, inst->st.x[X_PLAY + i], b);
-        end = kv > 0.0 ? start + (inst->st.r[VR_CMD + i] - start) * (-expm1(-kv * h)) : inst->st.r[VR_CMD + i];
+        s0 = inst->st.x[X_PLAY + i];
+        inst->st.x[X_PLAY + i] = play(mid, inst->st.x[X_PLAY + i], b);
         inst->st.x[X_PLAY + i] = play(end, inst->st.x[X_PLAY + i], b);
         inst->st.x[X_SERVO + i] = end;
+        if (friction_on(inst, i)) friction_step(inst, i, s0, inst->st.x[X_PLAY + i], h);
     }
-    target = inst->st.r[VR_AMBIENT] + inst->st.r[VR_GAIN] * inst->st.r[VR_SPINDLE];
+    target = inst->st.r[VR_AMBIENT];
+    if (driver == 0) target += inst->st.r[VR_GAIN] * inst->st.r[VR_SPINDLE];
+    else if (driver == 1) target += inst->st.r[VR_TIN] - inst->st.x[X_TIN0];
     inst->st.x[X_TEMP] += (target - inst->st.x[X_TEMP]) * (-expm1(-h / inst->st.r[VR_TAU]));
     draw_noise(inst);
     inst->st.dirty = 1;

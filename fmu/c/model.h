@@ -19,7 +19,7 @@
 #define MODEL_NI 16       /* Integer value references 0..15 */
 #define MODEL_NS 4        /* String value references 0..3 */
 #define MODEL_SLEN 512    /* capacity of one String variable, bytes */
-#define MODEL_NX 64       /* model-internal states (servo, backlash, temperature ...) */
+#define MODEL_NX 2048     /* model-internal states (servo, backlash, temperature, command history ...) */
 #define MODEL_GUIDLEN 64  /* capacity of the GUID text, bytes */
 
 /* What an importer may do with a value reference (FMI 2.0 causality/variability rules). */

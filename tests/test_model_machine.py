@@ -1,0 +1,162 @@
+"""The machine FMU's dynamics (servo, backlash, transport delay, friction, thermal drift) against
+the Python reference model mtcomp.model.machine_ref, and the public machine-only run."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mtcomp._io import InputError
+from mtcomp.fmu.build import MachineDynamics, build_machine_fmu
+from mtcomp.fmu.cosim import run_machine
+from mtcomp.machine import load_machine
+
+MACHINE = "vmc-moving-column"
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine(MACHINE)
+
+
+def test_run_machine_checks_its_inputs(machine, tmp_path):
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu")
+    q = np.zeros((5, machine.n_axes))
+    with pytest.raises(InputError, match="shape"):
+        run_machine(fmu, machine, q[:, :2], 1e-3)
+    with pytest.raises(InputError, match="spindle_speed"):
+        run_machine(fmu, machine, q, 1e-3, spindle_speed=np.zeros(4))
+    run = run_machine(fmu, machine, q, 1e-3, spindle_speed=np.linspace(0, 100, 5))
+    assert run.p.shape == (5, 3) and run.actual.shape == (5, machine.n_axes)
+
+
+def _path(machine, K=3000, step=1e-3):
+    """Commands (K, n): X and Y on a circle of 5 mm radius (smooth reversals of each axis), a
+    line out and back on Z with a sharp reversal, the other axes at rest (mm)."""
+    t = np.arange(K) * step
+    q = np.zeros((K, machine.n_axes))
+    names = machine.axis_names
+    w = 2 * np.pi / (K * step / 1.5)
+    q[:, names.index("X")] = 5 * np.cos(w * t) - 5
+    q[:, names.index("Y")] = 5 * np.sin(w * t)
+    q[:, names.index("Z")] = -2 + np.abs(t - t[-1] / 2) * 2
+    return q
+
+
+CASES = {
+    "held servo, backlash, friction, delay, spindle-driven thermal drift": dict(
+        dyn=dict(kv=(50.0, 70.0, 0.0), backlash=(0.004, 0.0, 0.002), delay=0.0037,
+                 friction_breakaway=(0.003, 0.002, 0.001), friction_coulomb=(0.0, 0.0005, 0.0),
+                 friction_tau=(0.02, 0.0, 0.05), thermal_time_constant=0.7, thermal_gain=1e-3,
+                 drift=(0.002, -0.001, 0.003), initial_excess=-0.5, reference=20.2),
+        spindle=lambda t: 1000.0 * (t > 0.8)),
+    "ramp servo, delay, friction, temperature-driven drift": dict(
+        dyn=dict(kv=(40.0, 90.0, 200.0), interpolation=1, delay=0.0021, backlash=(0.0, 0.003, 0.0),
+                 friction_breakaway=(0.002, 0.0, 0.001), friction_tau=(0.01, 0.0, 0.0),
+                 thermal_driver="temperature", thermal_time_constant=0.4, drift=(0.0, 0.0, 0.004)),
+        temperature=lambda t: 21.0 + 0.5 * np.sin(t)),
+    "ideal servo, warm-up over time": dict(
+        dyn=dict(thermal_driver="time", thermal_time_constant=1.2, initial_excess=2.0, drift=(0.001, 0.0, -0.002))),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_machine_fmu_matches_the_python_reference(machine, tmp_path, case):
+    """The C model and mtcomp.model.machine_ref agree step by step (actual positions 1e-12 mm,
+    tool edge 1e-9 mm, temperature 1e-9 K) on every dynamic effect."""
+    from mtcomp.model.machine_ref import simulate_reference
+    c = CASES[case]
+    step = 1e-3
+    q = _path(machine, step=step)
+    t = np.arange(len(q)) * step
+    dyn = MachineDynamics(**c["dyn"])
+    kw = {}
+    if "spindle" in c:
+        kw["spindle_speed"] = c["spindle"](t)
+    if "temperature" in c:
+        kw["temperature"] = c["temperature"](t)
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=dyn)
+    run = run_machine(fmu, machine, q, step, **kw)
+    ref = simulate_reference(machine, q, step, None, dyn, spindle_speed=kw.get("spindle_speed", 0.0),
+                             temperature_input=kw.get("temperature", 20.0))
+    assert np.max(np.abs(run.actual - ref.actual)) < 1e-12
+    assert np.max(np.abs(run.temperature - ref.temperature)) < 1e-9
+    assert np.max(np.abs(run.p - ref.p)) < 1e-9
+    # the case is not trivial: the effects moved the tool edge off the ideal machine's by > 1 µm
+    from mtcomp.kinematics import forward
+    assert np.max(np.abs(run.p - forward(machine, q).p)) > 1e-3
+
+
+def _ramp(machine, K, v, step=1e-3, axis="X"):
+    q = np.zeros((K, machine.n_axes))
+    q[:, machine.axis_names.index(axis)] = v * np.arange(K) * step
+    return q
+
+
+def test_delay_and_ramp_servo_are_exact_on_a_ramp(machine, tmp_path):
+    """On a ramp at v = 10 mm/s: a delay of 3.7 steps lags the ideal axis by v d exactly; the
+    ramp-invariant servo (servo.interpolation = 1) lags by v/kv exactly in steady state (the
+    held command gives v h / expm1(kv h) instead, half a step less)."""
+    step, v, kv, d = 1e-3, 10.0, 50.0, 0.0037
+    q = _ramp(machine, 600, v)
+    ix = machine.axis_names.index("X")
+    for dyn, lag in ((MachineDynamics(delay=d), v * d),
+                     (MachineDynamics(kv=kv, interpolation=1), v / kv),
+                     (MachineDynamics(kv=kv), v * step / np.expm1(kv * step))):
+        run = run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=dyn), machine, q, step)
+        err = q[:, ix] - run.actual[:, ix]
+        assert err[-1] == pytest.approx(lag, rel=1e-9, abs=1e-12)
+
+
+def test_friction_sticks_for_the_breakaway_then_catches_up_exponentially(machine, tmp_path):
+    """Out at 10 mm/s and back (a sharp reversal at a sample): the slide stays at the reversal
+    point until the command has come back by the breakaway distance (4 µm = 0.4 steps), then its
+    lag decays as breakaway * exp(-(t - t_b)/tau); with Coulomb friction it settles at the
+    Coulomb distance."""
+    step, v, brk, tau = 1e-3, 10.0, 0.004, 0.02
+    K = 400
+    ix = machine.axis_names.index("X")
+    t = np.arange(K) * step
+    q = np.zeros((K, machine.n_axes))
+    q[:, ix] = v * np.minimum(t, 0.2) - v * np.maximum(t - 0.2, 0.0)       # reversal at k = 200
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu",
+                            dynamics=MachineDynamics(friction_breakaway=brk, friction_tau=tau))
+    lag = run_machine(fmu, machine, q, step).actual[:, ix] - q[:, ix]      # > 0: behind on the way back
+    assert np.max(np.abs(lag[:201])) < 1e-12
+    # the step 200 -> 201 takes the command 10 µm back: the breakaway after 0.4 of it
+    tb = 201 * step + 0.4 * step
+    k = np.arange(201, K)
+    assert np.max(np.abs(lag[201:] - brk * np.exp(-((k + 1) * step - tb) / tau))) < 1e-12
+    # Coulomb friction: a lag of 1 µm against the motion once the slide slides
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=MachineDynamics(
+        friction_breakaway=brk, friction_coulomb=0.001, friction_tau=tau))
+    lag = run_machine(fmu, machine, q, step).actual[:, ix] - q[:, ix]
+    assert lag[199] == pytest.approx(-0.001, abs=1e-7) and lag[-1] == pytest.approx(0.001, abs=3e-7)
+    assert lag[202] > 0.002                                              # the glitch after the reversal
+
+
+def test_thermal_drift_over_time_and_driver_checks(machine, tmp_path):
+    """thermal.driver = time: T = ambient + excess exp(-t/tau), the tool edge moves by
+    drift (T - reference); an unknown driver and a delay beyond the command history are
+    refused with the parameter named."""
+    from mtcomp.fmu.cosim import CosimFailed, FmuRunner
+    step, tau, ex = 1e-3, 0.3, 1.5
+    dyn = MachineDynamics(thermal_driver="time", thermal_time_constant=tau, initial_excess=ex, drift=(0, 0, 2e-3),
+                          reference=20.5)
+    q = np.zeros((500, machine.n_axes))
+    run = run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=dyn), machine, q, step)
+    t_end = (np.arange(500) + 1) * step
+    assert np.allclose(run.temperature, 20.0 + ex * np.exp(-t_end / tau), rtol=0, atol=1e-12)
+    p0 = run_machine(build_machine_fmu(machine, tmp_path / "n.fmu"), machine, q, step).p
+    assert np.allclose(run.p[:, 2] - p0[:, 2], 2e-3 * (run.temperature - 20.5), rtol=0, atol=1e-12)
+    with pytest.raises(Exception, match="thermal_driver"):
+        MachineDynamics(thermal_driver="humidity").driver_code
+    r = FmuRunner(build_machine_fmu(machine, tmp_path / "m.fmu"), "bad")
+    try:
+        with pytest.raises(Exception):
+            r.set({"thermal.driver": 3})
+        assert any("thermal.driver = 3" in m for _, _, m in r.logs)
+    finally:
+        r.close()
+    with pytest.raises(CosimFailed, match="delay"):
+        run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=MachineDynamics(delay=0.5)), machine,
+                    _ramp(machine, 600, 1.0), step)
