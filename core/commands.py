@@ -136,9 +136,23 @@ def load_work_offsets(path: str | None, machine) -> dict | None:
     return out
 
 
-def _travel_check(machine, prog, filename):
+def _axis_positions(machine, prog, P):
+    """Axis positions of the blocks: P itself, except for G43.4 blocks, whose words (tool tip,
+    angles) the control turns into axis positions with its nominal kinematics."""
+    tcp = np.asarray(prog.tcp)
+    if not tcp.any():
+        return np.asarray(P)
+    from .gcode import tcp as gtcp
+    Q = np.array(P, float)
+    Q[tcp] = gtcp.nominal_axes(machine, Q[tcp], np.asarray(prog.tool_length)[tcp])
+    # a tip not fully known gives no axis position (every linear axis depends on all of it)
+    Q[tcp & ~np.asarray(prog.known)] = np.nan
+    return Q
+
+
+def _travel_check(machine, prog, filename, P=None):
     """Programmed positions outside an axis' travel: the control would refuse them too."""
-    P = np.asarray(prog.position)
+    P = np.asarray(prog.position if P is None else P)
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
@@ -185,6 +199,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     ``verify``: the VerifyResult or None)."""
     from . import gcode
     from .gcode import flow
+    from .gcode import tcp as gtcp
     from .gcode.provenance import compensated_line, header_lines, insert_header
 
     tol = _check_chordal_tol(machine, chordal_tol)
@@ -211,24 +226,40 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         # inch programs are written one decimal finer in inch: 2.54 times the mm resolution
         res_lin = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
         tol = max(tol, 2 * 2.54 * res_lin)
-    _travel_check(machine, prog, filename)
+    tcp = np.asarray(prog.tcp)
+    if tcp.any() and (stock is not None or part is not None):
+        raise InputError("verifying the output against --stock/--part is not supported for G43.4 "
+                         "tool centre point programs (mtcomp cad verify reads them)", filename,
+                         int(prog.line[np.argmax(tcp)]))
+    _travel_check(machine, prog, filename, _axis_positions(machine, prog, prog.position))
     hint = _three_axis_hint(machine, prog)
     calls = []
 
     def transform(q):
         lines = calls[-1]
         out = np.empty_like(q)
-        for s in range(0, len(q), CHUNK):
-            try:
-                out[s:s + CHUNK] = retarget(machine, q[s:s + CHUNK], errors)
-            except (LimitError, ConvergenceError, TableRangeError) as exc:
-                i = s + getattr(exc, "index", 0)
-                line = int(lines[i]) if 0 <= i < len(lines) else None
-                is_end = line is not None and i < int(np.count_nonzero(prog.known))
-                where = "" if is_end else " an interior point of the arc ending here"
-                raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
-            if progress:
-                progress(min(s + CHUNK, len(q)), len(q))
+        # rows of G43.4 blocks are tool-tip words: compensated through the TCP transform
+        blk = np.clip(np.searchsorted(prog.line, lines), 0, max(len(prog) - 1, 0))
+        on = (tcp[blk] & (prog.line[blk] == lines)) if tcp.any() else np.zeros(len(q), bool)
+        done = 0
+        for sel in (np.flatnonzero(~on), np.flatnonzero(on)):
+            for s in range(0, len(sel), CHUNK):
+                rows = sel[s:s + CHUNK]
+                try:
+                    if on[rows[0]]:
+                        out[rows] = gtcp.compensate_words(machine, q[rows],
+                                                          prog.tool_length[blk[rows]], errors)
+                    else:
+                        out[rows] = retarget(machine, q[rows], errors)
+                except (LimitError, ConvergenceError, TableRangeError) as exc:
+                    i = int(rows[getattr(exc, "index", 0)])
+                    line = int(lines[i]) if 0 <= i < len(lines) else None
+                    is_end = line is not None and i < int(np.count_nonzero(prog.known))
+                    where = "" if is_end else " an interior point of the arc ending here"
+                    raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
+                done += len(rows)
+                if progress:
+                    progress(done, len(q))
         return out
 
     info = {}
@@ -246,7 +277,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     emitted = emitted_positions(prog, info, new_text, filename=filename, start=start, res=res,
                                 tool_lengths=tool_lengths, work_offsets=work_offsets,
                                 arc_tol=arc_tol, out_line=out_line)
-    _travel_check_emitted(machine, emitted, kn, prog, filename)
+    _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
     verified = None
     if stock is not None or part is not None:
         verified = verify_output(machine, new_text, errors, filename=filename, stock=stock,
@@ -257,9 +288,17 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     after = np.empty(len(kk))
     for s in range(0, len(kk), CHUNK):
         rows = kk[s:s + CHUNK]
-        target = forward(machine, P[rows]).p
-        before[s:s + CHUNK] = np.linalg.norm(forward(machine, P[rows], errors).p - target, axis=1)
-        after[s:s + CHUNK] = np.linalg.norm(forward(machine, emitted[rows], errors).p - target, axis=1)
+        on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
+        r = rows[~on]
+        if len(r):
+            target = forward(machine, P[r]).p
+            before[s:s + CHUNK][~on] = np.linalg.norm(forward(machine, P[r], errors).p - target, axis=1)
+            after[s:s + CHUNK][~on] = np.linalg.norm(forward(machine, emitted[r], errors).p - target,
+                                                     axis=1)
+        if on.any():
+            r = rows[on]
+            b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
+            before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
               "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
@@ -304,7 +343,8 @@ def _travel_check_emitted(machine, emitted, kn, prog, filename):
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
-        bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
         if len(bad):
             j = int(bad[0])
             raise InputError(f"the compensated {ax.name} {emitted[j, k]:g} is outside the travel "

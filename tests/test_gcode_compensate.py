@@ -298,12 +298,13 @@ def test_compensate_program_verification_in_the_library():
     assert [v.line for v in rep["verify"].violations] == [8, 9]
 
 
-@pytest.mark.parametrize("word", ["G43.4 H1", "G43.5 H1", "g43.4"])
-def test_tool_centre_point_programs_are_refused_naming_the_line(word):
-    # documented limit (docs/gcode.md): TCP words are tool-tip coordinates, not axis positions
+@pytest.mark.parametrize("word", ["G43.5 H1", "g43.5"])
+def test_tool_vector_tcp_programs_are_refused_naming_the_line(word):
+    # documented limit (docs/gcode.md): G43.5 I J K tool vectors are not compensated (G43.4 is,
+    # tests/test_gcode_tcp.py)
     m = load_machine("robonano-a0ib")
     text = f"G90 G0 X0 Y0 Z5. B10. C0\n{word}\nG1 X1. B12. F100\n"
-    with pytest.raises(InputError, match=r"^p.nc:2: [Gg]43\.[45]: G43\.[45] tool centre point"):
+    with pytest.raises(InputError, match=r"^p.nc:2: [Gg]43\.5: G43\.5 tool centre point"):
         compensate_program(text, m, ErrorSet(ToolSetting((0.002, 0, 0))), filename="p.nc")
 
 

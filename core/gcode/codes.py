@@ -15,8 +15,9 @@ _G_DIST = {900: 90, 910: 91}
 _G_WCS = {540: 54, 550: 55, 560: 56, 570: 57, 580: 58, 590: 59, 541: 541}
 #: arc centre mode: G90.1 absolute I J K, G91.1 incremental (the default)
 _G_ARC_DIST = {901: 90, 911: 91}
-#: tool length compensation: G43 +H, G44 -H, G49 cancel
-_G_TOOL = {430: 43, 440: 44, 490: 49}
+#: tool length compensation: G43 +H, G44 -H, G49 cancel; G43.4 tool centre point (the words
+#: are the tool tip in the workpiece frame and the rotary angles, gcode.tcp)
+_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434}
 #: canned drilling cycles (hole at X Y, R level, depth Z; G98 back to the initial level, G99
 #: to R)
 _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10)}}
@@ -45,8 +46,8 @@ _G_REFUSED = {
     310: "G31 skip function: the end point depends on a probe signal",
     410: "G41 cutter radius compensation offsets the path by a radius not in the program",
     420: "G42 cutter radius compensation offsets the path by a radius not in the program",
-    434: "G43.4 tool centre point control transforms the axis words in the control",
-    435: "G43.5 tool centre point control transforms the axis words in the control",
+    435: "G43.5 tool centre point with a tool vector (I J K) is not compensated (G43.4 programs, "
+         "with rotary angles, are)",
     510: "G51 scaling changes the commanded positions in the control",
     511: "G51.1 mirror image changes the commanded positions in the control",
     680: "G68 coordinate rotation changes the commanded positions in the control",

@@ -236,8 +236,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         out[wline[i]] = value[i]
         return out
     p_line, h_line = letter_value("P"), letter_value("H")
-    offsets_line, wcs_keys = _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets,
-                                      tool_lengths, n_lines, filename, notes)
+    offsets_line, tlen_line = _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets,
+                                       tool_lengths, n_lines, filename, notes)
+    # G43.4 tool centre point mode per line (modal until G43/G44/G49)
+    tcp_line = _ffill(tool_l == 434, tool_l >= 0, False)
 
     # -- M codes
     mi = np.flatnonzero(wlet == M)
@@ -323,6 +325,21 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                                                                   np.isin(wcol[g52], [k for k, a in enumerate(axes) if a in LINEAR]), INCH, 1.0)
         wcol_all = wcol.copy()
         wcol = np.where((nonmove_l[wline] >= 0) & (wcol < n_ax), np.int8(-1), wcol)
+    if tcp_line.any():
+        # switching into or out of G43.4 changes what the linear words mean (tool tip / axis
+        # positions): the linear axes are unknown until the program writes them again
+        sw = np.flatnonzero(tcp_line != np.r_[False, tcp_line[:-1]])
+        lin_cols = [k for k, a in enumerate(axes) if a in LINEAR]
+        if not {"X", "Y", "Z"} <= set(axes):
+            _fail("G43.4 tool centre point on a machine without X Y Z", int(sw[0]), filename)
+        reset_lines = np.r_[reset_lines, np.repeat(sw, len(lin_cols))].astype(np.int64)
+        reset_cols = np.r_[reset_cols, np.tile(lin_cols, len(sw))].astype(np.int64)
+        o = np.lexsort((reset_cols, reset_lines))
+        reset_lines, reset_cols = reset_lines[o], reset_cols[o]
+        notes.append(f"G43.4 tool centre point on line(s) "
+                     f"{', '.join(str(int(x) + 1) for x in sw[::2][:5])}"
+                     + (" ..." if len(sw) > 10 else "")
+                     + ": its X Y Z words are the tool tip, compensated in tool-tip coordinates")
     if shift_l is not None:
         for k in range(n_ax):
             col = shift_l[:, k]
@@ -377,6 +394,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     del cw, wcol
 
     motion = mode_line[blines]
+    tcp = tcp_line[blines]
+    if tcp.any():
+        bad = tcp & ((motion == 2) | (motion == 3) | (cycle_line[blines] > 0))
+        if bad.any():
+            j = int(np.argmax(bad))
+            _fail(("canned cycle" if cycle_line[blines[j]] > 0 else f"arc G{motion[j]}")
+                  + " under G43.4 tool centre point: not supported (CAM systems write linear "
+                  "moves under TCP)", blines[j], filename)
+    tool_length = tlen_line[blines]
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -481,7 +507,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
-                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
+                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
+                  tcp=tcp, tool_length=tool_length)
     for a in arrays.values():
         a.flags.writeable = False
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
@@ -607,8 +634,9 @@ def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_
             cur = _ffill(keys, wset, used[0])
             for k in used[1:]:
                 off[cur == k] += vec[k] - ref
-    # -- tool length (G43 +, G44 -, G49 cancel) along Z
+    # -- tool length (G43 +, G44 -, G49 cancel) along Z; G43.4: in the TCP transform instead
     tset = tool_l >= 0
+    mode = None
     if tset.any():
         hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
         mode = _ffill(tool_l, tset, 49)
@@ -624,7 +652,11 @@ def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_
             L = np.array([lengths.get(int(h), 0.0) if np.isfinite(h) else 0.0 for h in hmodal])
             sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
             off[:, axes.index("Z")] += sign * L
-    return off, None
+    tlen = np.zeros(n_lines)
+    if tset.any() and (mode == 434).any():
+        tlen = np.where(mode == 434, [lengths.get(int(h), 0.0) if np.isfinite(h) else 0.0
+                                      for h in hmodal], 0.0)
+    return off, tlen
 
 
 def _axis_vector(vec, axes):

@@ -70,6 +70,8 @@ class Program:
     idle_axes: tuple = ()
     arc_tol: float = 0.02            # mm: accepted radius difference (start/end) of arcs
     notes: tuple = ()                # what was read with an assumption or passed uncompensated
+    tcp: np.ndarray = None           # (N,) G43.4 tool centre point block: X Y Z are the tool tip
+    tool_length: np.ndarray = None   # (N,) mm, tool length (H) of G43.4 blocks, 0 elsewhere
 
     @property
     def n_axes(self) -> int:
