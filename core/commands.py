@@ -84,56 +84,26 @@ def parse_start(spec: str | None, machine) -> dict | None:
 
 
 def parse_tool_lengths(spec: str | None) -> dict | None:
-    """Tool lengths per H number (mm): ``1=50.2,2=75`` or a CSV file with lines ``H,length_mm``
-    (a header line and ``#`` comments allowed)."""
-    if spec is None:
-        return None
-    import os
-    items, where = [], "--tool-lengths"
-    if os.path.exists(spec):
-        from ._io import read_text
-        for n, ln in enumerate(read_text(spec, what="tool length table").splitlines(), start=1):
-            ln = ln.split("#")[0].strip()
-            if not ln or (n == 1 and not ln[0].isdigit()):
-                continue
-            items.append((ln.replace(";", ","), (spec, n)))
-    else:
-        items = [(part, (None, None)) for part in spec.split(",") if part.strip()]
-        items = [(it.replace("=", ","), w) for it, w in items]
-    out = {}
-    for text, (file, line) in items:
-        h, _, v = text.partition(",")
-        try:
-            hn, val = int(h.strip().lstrip("Hh")), float(v)
-        except ValueError:
-            hn, val = -1, math.nan
-        if hn < 0 or not math.isfinite(val):
-            raise InputError(f"expected H number and tool length in mm (1=50.2 or a CSV line 1,50.2), "
-                             f"got {text!r}", file, line, field=None if file else where)
-        out[hn] = val
-    return out
+    """Tool lengths per H number (mm): ``1=50.2,2=75``, a LinuxCNC tool table (``T1 P1 Z+50.0``
+    lines) or a CSV file with lines ``H,length_mm`` (a header line and ``#`` comments allowed)."""
+    from .gcode.offsets import tool_lengths_from
+    return tool_lengths_from(spec)
+
+
+def load_offsets(path: str | None, machine) -> tuple[dict | None, dict | None]:
+    """(tool lengths {H: mm}, work offsets) from an offsets TOML file: ``[H]`` tool lengths,
+    ``[D]`` cutter offsets (read, unused), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` tables of axis
+    letters -> mm/deg (docs/gcode.md, "Offset files")."""
+    if path is None:
+        return None, None
+    from .gcode.offsets import read_offsets
+    tools, _, works = read_offsets(path, machine.axis_names)
+    return tools or None, works or None
 
 
 def load_work_offsets(path: str | None, machine) -> dict | None:
-    """Work offsets from a TOML file: one table per offset (``[G54]``, ``["G54.1 P2"]``) with
-    axis letters -> mm/deg."""
-    if path is None:
-        return None
-    from ._io import load_toml
-    data = load_toml(path)
-    out = {}
-    for key, vec in data.items():
-        name = str(key).upper()
-        if not isinstance(vec, dict) or not re.fullmatch(r"G5[4-9]|G54\.1 ?P\d+", name):
-            raise InputError("expected tables named G54..G59 or \"G54.1 P<n>\" with axis letters",
-                             path, field=str(key))
-        for a, v in vec.items():
-            if a.upper() not in machine.axis_names or isinstance(v, bool) or not isinstance(v, (int, float)) \
-                    or not math.isfinite(v):
-                raise InputError(f"expected an axis of {machine.name} and a finite number", path,
-                                 field=f"{key}.{a}")
-        out[name] = {a.upper(): float(v) for a, v in vec.items()}
-    return out
+    """Work offsets from an offsets TOML file (see `load_offsets`)."""
+    return load_offsets(path, machine)[1]
 
 
 def _axis_positions(machine, prog, P):
@@ -453,8 +423,10 @@ def _cmd_compensate(args) -> int:
             raise InputError(f"expected a finite number of µm >= 0, got {args.arc_tol}", field="--arc-tol")
         arc_tol = args.arc_tol * 1e-3
     start = parse_start(args.start, machine)
+    file_tools, offsets = load_offsets(args.work_offsets, machine)
     tools = parse_tool_lengths(args.tool_lengths)
-    offsets = load_work_offsets(args.work_offsets, machine)
+    if file_tools:
+        tools = {**file_tools, **(tools or {})}           # --tool-lengths wins
     options = [f"unknown-start {args.unknown}"]
     if tools:
         options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items()))
@@ -555,11 +527,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="blocks before every axis position is known: pass them uncompensated "
                         "(defer, default) or refuse the program naming the line")
     p.add_argument("--tool-lengths", metavar="H=MM,..|CSV",
-                   help="tool lengths for G43/G44 H: 1=50.2,2=75 or a CSV file of lines H,length_mm "
-                        "(default: taken as 0 and noted)")
-    p.add_argument("--work-offsets", metavar="TOML",
-                   help="work offsets ([G54], [G55], [\"G54.1 P1\"] tables of axis = mm) for "
-                        "programs that switch between them")
+                   help="tool lengths for G43/G44/G43.4 H: 1=50.2,2=75, a CSV file of lines H,length_mm "
+                        "or a LinuxCNC tool table (default: taken as 0 and noted)")
+    p.add_argument("--tool-table", dest="tool_lengths", metavar="TBL",
+                   help="a LinuxCNC tool table (T1 P1 Z+50.0 D6.0 lines): tool lengths by tool number "
+                        "(same as --tool-lengths with the file)")
+    p.add_argument("--work-offsets", "--offsets", metavar="TOML",
+                   help="offsets file: [G54]..[G59], [\"G54.1 P1\"] tables of axis = mm, [H] tool "
+                        "lengths and [D] cutter offsets by number = mm (docs/gcode.md)")
     p.add_argument("--force", action="store_true",
                    help="compensate a program that mtcomp has already compensated")
     p.add_argument("--stock", help="verify the output against this stock (workpiece frame): "

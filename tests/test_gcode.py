@@ -398,7 +398,7 @@ REFUSALS = [
     ("G1 X1.\n\nG43.5 H1\n", 3, "G43.5 tool centre point with a tool vector"),
     ("G1 X1.\nG43.4 H1\nG2 X2. Y1. I1. J0\n", 3, "arc G2 under G43.4"),
     ("G51 X0 Y0 P2\n", 1, "G51 scaling"),
-    ("G10 L2 P1 X0\n", 1, None),
+    ("G10 L2 P0 X0\n", 1, "G10 L2 P0: only P1..P6"),
     ("G41 D1 X1.\n", 1, None),
     ("G5.1 Q1\n", 1, "unknown"),
     ("G1 X1.\nG12 X2.\n", 2, "unknown G code G12"),

@@ -40,7 +40,6 @@ _G_HARMLESS = {
 }
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {
-    100: "G10 writes offsets or parameters from the program, which shifts later positions",
     160: "G16 polar coordinate command: axis words are radius and angle",
     290: "G29 returns from the reference point through an unknown intermediate point",
     310: "G31 skip function: the end point depends on a probe signal",

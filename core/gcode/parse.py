@@ -11,6 +11,7 @@ from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
                     _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
+from .offsets import g10_events, offsets_per_line
 from .program import Program, resolution_formats
 from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
@@ -163,7 +164,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     cat = np.full(len(gi), -1, np.int64)
     tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
               (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_CYCLE, 11),
-              (_G_HARMLESS, 6)]
+              (_G_HARMLESS, 6), ({100: 10}, 12)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
@@ -192,6 +193,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         g187 = np.zeros(n_lines, bool)
         g187[gline[g10 == 1870]] = True
         badlet &= ~((wlet == _ascii("E")) & g187[wline])
+    g10_line = np.zeros(n_lines, bool)
+    g10_line[gline[cat == 12]] = True
+    if badlet.any() and g10_line.any():
+        badlet &= ~((wlet == _ascii("L")) & g10_line[wline])      # G10 L: the data kind
     if badlet.any():
         i = int(np.argmax(badlet))
         c = chr(65 + wlet[i])
@@ -235,9 +240,33 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         i = np.flatnonzero(wlet == _ascii(c))
         out[wline[i]] = value[i]
         return out
-    p_line, h_line = letter_value("P"), letter_value("H")
-    offsets_line, tlen_line = _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets,
-                                       tool_lengths, n_lines, filename, notes)
+    p_line, h_line, t_line = letter_value("P"), letter_value("H"), letter_value("T")
+    inch_line = _ffill(uni_l == 20, uni_l >= 0, False)
+    incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
+    axis_let = np.zeros(26, bool)
+    axis_let[[_ascii(a) for a in axes]] = True
+    ax_lines = wline[axis_let[wlet]]
+    if g10_line.any():
+        ax_lines = ax_lines[~g10_line[ax_lines]]
+    first_motion = int(ax_lines.min()) if len(ax_lines) else 0
+    events = []
+    if g10_line.any():
+        both = g10_line & ((mot_l >= 0) | (np.bincount(gline[np.isin(cat, (9, 11))],
+                                                        minlength=n_lines) > 0))
+        if both.any():
+            _fail("G10 in a block with motion or positioning codes", int(np.argmax(both)), filename)
+        gl = np.flatnonzero(g10_line)
+        sel = np.flatnonzero(g10_line[wline] & (wlet != G))
+        words = {int(ln): [] for ln in gl}
+        for i in sel.tolist():
+            words[int(wline[i])].append((chr(65 + int(wlet[i])), float(value[i])))
+        events = g10_events(gl, words, axes, inch_line, incr_line, bool((wcs_l == 541).any()),
+                            filename)
+        notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
+                     + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
+    offsets_line, tlen_line = offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line,
+                                               work_offsets, tool_lengths, events, first_motion,
+                                               n_lines, filename, notes)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
     tcp_line = _ffill(tool_l == 434, tool_l >= 0, False)
 
@@ -250,8 +279,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             _fail(_M_REFUSED[int(round(value[j]))] + "; refusing rather than guessing", wline[j], filename)
 
     # -- modal state per line
-    inch_line = _ffill(uni_l == 20, uni_l >= 0, False)
-    incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
     plane_line = _ffill(pla_l, pla_l >= 0, 17)
     mode_line = _ffill(mot_l, mot_l >= 0, -1)
     # canned cycles: set by G73..G89, cancelled by G80 or a G0-G3 code (the G0/G1 mode from
@@ -344,11 +371,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         for k in range(n_ax):
             col = shift_l[:, k]
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
+    if g10_line.any():
+        wcol = np.where(g10_line[wline], np.int8(-1), wcol)      # G10 words are data
     # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
     cyc_zw = np.full(n_lines, -1, np.int64)
     cyc_rw = np.full(n_lines, -1, np.int64)
     if (cycle_line > 0).any():
         in_cyc = cycle_line[wline] > 0
+        if g10_line.any():
+            in_cyc &= ~g10_line[wline]
         if "Z" not in axes:
             _fail("canned cycle on a machine without Z", int(np.argmax(cycle_line > 0)), filename)
         zc = axes.index("Z")
@@ -602,71 +633,6 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
                         start_vec[zk:zk + 1])[:, 0]
         position[:, zk] = col
     return position, data
-
-
-def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_lines, filename,
-             notes):
-    """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
-    (the first work offset the program selects, tool length not applied): work offset minus
-    the reference one, plus +/- the tool length along Z for G43/G44.  Unknown tool lengths are
-    taken as 0 and noted; switching work offsets needs their values."""
-    n_ax = len(axes)
-    off = np.zeros((n_lines, n_ax))
-    # -- work offsets
-    wset = wcs_l >= 0
-    pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
-    keys = wcs_l * 1000 + np.where(wcs_l == 541, pnum, 0)
-    if wset.any():
-        used = list(dict.fromkeys(keys[wset].tolist()))
-        name = lambda key: f"G54.1 P{key % 1000}" if key // 1000 == 541 else f"G{key // 1000}"  # noqa: E731
-        if len(used) > 1:
-            table = {}
-            for key, vec in dict(work_offsets or {}).items():
-                table[str(key).upper().replace(" ", "")] = vec
-            missing = [name(k) for k in used if name(k).replace(" ", "") not in table]
-            if missing:
-                ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
-                _fail(f"the program switches from {name(used[0])} to {name(keys[ln])}: give the "
-                      f"work offsets ({', '.join(name(k) for k in used)}) to compensate in one "
-                      "workpiece frame", ln, filename)
-            vec = {k: _axis_vector(table[name(k).replace(" ", "")], axes) for k in used}
-            ref = vec[used[0]]
-            cur = _ffill(keys, wset, used[0])
-            for k in used[1:]:
-                off[cur == k] += vec[k] - ref
-    # -- tool length (G43 +, G44 -, G49 cancel) along Z; G43.4: in the TCP transform instead
-    tset = tool_l >= 0
-    mode = None
-    if tset.any():
-        hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
-        mode = _ffill(tool_l, tset, 49)
-        active = mode != 49
-        hs = np.unique(hmodal[active & ~np.isnan(hmodal)]).astype(int).tolist()
-        lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
-        unknown = [h for h in hs if h not in lengths and h != 0]
-        if unknown:
-            notes.append(f"tool length offsets H{', H'.join(map(str, unknown))} not given: taken as "
-                         "0 mm (the compensation then evaluates the errors at the programmed tool "
-                         "tip position; give the tool lengths where errors depend on Z)")
-        if "Z" in axes and lengths:
-            L = np.array([lengths.get(int(h), 0.0) if np.isfinite(h) else 0.0 for h in hmodal])
-            sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
-            off[:, axes.index("Z")] += sign * L
-    tlen = np.zeros(n_lines)
-    if tset.any() and (mode == 434).any():
-        tlen = np.where(mode == 434, [lengths.get(int(h), 0.0) if np.isfinite(h) else 0.0
-                                      for h in hmodal], 0.0)
-    return off, tlen
-
-
-def _axis_vector(vec, axes):
-    if isinstance(vec, Mapping):
-        up = {str(k).upper(): float(v) for k, v in vec.items()}
-        return np.array([up.get(a, 0.0) for a in axes])
-    v = np.asarray(vec, float).reshape(-1)
-    if len(v) != len(axes) or not np.isfinite(v).all():
-        raise ValueError(f"offset vectors need {len(axes)} finite values ({' '.join(axes)})")
-    return v
 
 
 def _map_codes(vals, mapping):
