@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import math
+import os
 import re
 import sys
 from datetime import datetime, timezone
@@ -148,7 +149,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                        provenance: list | None = None, force: bool = False, progress=None,
                        convert_inch: bool = False, tool_lengths=None, work_offsets=None,
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
-                       tolerance: float = 5e-4, warn_only: bool = False):
+                       tolerance: float = 5e-4, warn_only: bool = False, search_path=None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -164,6 +165,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     raises VerifyError naming the block, unless ``warn_only`` (then it is in the report).
     Every emitted end position is checked against the travel of its axis (arcs: their interior
     points are solved for and checked by the compensation itself).
+    search_path: directories where subprograms called but not in the program are looked for
+    (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
     Returns (new_text, report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
     errors in mm before and after over the compensated blocks, from the forward model,
     ``verify``: the VerifyResult or None)."""
@@ -179,7 +182,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         raise InputError("this program was already compensated by mtcomp (provenance header); "
                          "compensating it again would apply the errors twice: use the original "
                          "program, or --force", filename, done)
-    fl = flow.expand(text, filename)
+    fl = flow.expand(text, filename, search=search_path)
     if fl is not None:
         return _compensate_flow(fl, machine, errors, filename=filename, chordal_tol=chordal_tol,
                                 start=start, unknown=unknown, provenance=provenance,
@@ -295,12 +298,15 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
     note = (f"subprograms: {fl.calls} run(s) followed; each subprogram compensated once (the "
             "correction is the same on every run)" if mode == "once" else
             f"subprograms: {fl.calls} run(s) followed and written out as the blocks they run "
-            "(the correction differs between runs); the calls are left as comments")
+            + ("(subprograms from other files: "
+               + ", ".join(Path(f).name for _, f in fl.segments[1:])
+               + "; the control's own copies would run uncompensated)" if fl.external else
+               "(the correction differs between runs)") + "; the calls are left as comments")
     src_line = lambda m: ", ".join(dict.fromkeys(  # noqa: E731
         str(int(fl.origin[int(x) - 1]) + 1) for x in m.group(1).split(", ")))
     notes = tuple(re.sub(r"(?<=line\(s\) )(\d+(?:, \d+)*)", src_line, n) for n in report["notes"])
     report = dict(report, notes=notes + (note,), flow=mode,
-                  lines=len(flow._lines(fl.text)))
+                  lines=fl.main_lines or len(flow._lines(fl.text)))
     if provenance is not None:
         new, _, added = insert_header(new, header_lines(provenance))
         report["header_lines"] = added
@@ -422,6 +428,10 @@ def _cmd_compensate(args) -> int:
         if not (math.isfinite(args.arc_tol) and args.arc_tol >= 0):
             raise InputError(f"expected a finite number of µm >= 0, got {args.arc_tol}", field="--arc-tol")
         arc_tol = args.arc_tol * 1e-3
+    search = [str(src.parent)] + [d for d in (args.subprogram_path or "").split(os.pathsep) if d]
+    for d in search[1:]:
+        if not os.path.isdir(d):
+            raise InputError("not a directory", d, field="--subprogram-path")
     start = parse_start(args.start, machine)
     file_tools, offsets = load_offsets(args.work_offsets, machine)
     tools = parse_tool_lengths(args.tool_lengths)
@@ -460,7 +470,8 @@ def _cmd_compensate(args) -> int:
                                        force=args.force, progress=Progress("compensating", args.progress),
                                        tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol,
                                        stock=stock, part=part, clearance=args.clearance,
-                                       tolerance=args.tolerance, warn_only=args.warn_only)
+                                       tolerance=args.tolerance, warn_only=args.warn_only,
+                                       search_path=search)
     atomic_write(out, new_text)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
     if rep["deferred"]:
@@ -535,6 +546,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--work-offsets", "--offsets", metavar="TOML",
                    help="offsets file: [G54]..[G59], [\"G54.1 P1\"] tables of axis = mm, [H] tool "
                         "lengths and [D] cutter offsets by number = mm (docs/gcode.md)")
+    p.add_argument("--subprogram-path", metavar="DIR[%sDIR]" % os.pathsep.replace("%", "%%"),
+                   help="directories searched, after the program's own, for subprograms in other "
+                        "files (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written "
+                        "out in the output")
     p.add_argument("--force", action="store_true",
                    help="compensate a program that mtcomp has already compensated")
     p.add_argument("--stock", help="verify the output against this stock (workpiece frame): "

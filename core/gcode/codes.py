@@ -78,4 +78,6 @@ _CHAR_HINT = {
     "(": "unbalanced '(' (comments may not nest and must close on their line)",
     ")": "unbalanced ')' (comments may not nest)", "%": "'%' only on a line of its own",
     "/": "block delete '/' only at the start of a block",
+    "<": "LinuxCNC o<name> program flow: mtcomp compensate follows o<name> sub/endsub/call "
+         "(gcode.flow.expand); other o-words are not followed",
 }
