@@ -174,6 +174,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     from .gcode import flow
     from .gcode import tcp as gtcp
     from .gcode.provenance import compensated_line, header_lines, insert_header
+    from .gcode.rotation import has_rotation, to_reference
 
     tol = _check_chordal_tol(machine, chordal_tol)
     check_errors_for_machine(errors, machine)
@@ -200,11 +201,16 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         res_lin = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
         tol = max(tol, 2 * 2.54 * res_lin)
     tcp = np.asarray(prog.tcp)
+    rotated = has_rotation(prog)
+    if rotated and (stock is not None or part is not None):
+        raise InputError("verifying the output against --stock/--part is not supported for "
+                         "programs with G68 coordinate rotation", filename)
     if tcp.any() and (stock is not None or part is not None):
         raise InputError("verifying the output against --stock/--part is not supported for G43.4 "
                          "tool centre point programs (mtcomp cad verify reads them)", filename,
                          int(prog.line[np.argmax(tcp)]))
-    _travel_check(machine, prog, filename, _axis_positions(machine, prog, prog.position))
+    _travel_check(machine, prog, filename,
+                  _axis_positions(machine, prog, to_reference(prog, prog.position)))
     hint = _three_axis_hint(machine, prog)
     calls = []
 
@@ -246,10 +252,11 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
     kk = np.flatnonzero(kn)
-    P = np.asarray(prog.position)
-    emitted = emitted_positions(prog, info, new_text, filename=filename, start=start, res=res,
-                                tool_lengths=tool_lengths, work_offsets=work_offsets,
-                                arc_tol=arc_tol, out_line=out_line)
+    P = to_reference(prog, prog.position)            # G68: the positions the axes take
+    emitted = to_reference(prog, emitted_positions(prog, info, new_text, filename=filename,
+                                                   start=start, res=res, tool_lengths=tool_lengths,
+                                                   work_offsets=work_offsets, arc_tol=arc_tol,
+                                                   out_line=out_line))
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
     verified = None
     if stock is not None or part is not None:

@@ -49,7 +49,6 @@ _G_REFUSED = {
          "with rotary angles, are)",
     510: "G51 scaling changes the commanded positions in the control",
     511: "G51.1 mirror image changes the commanded positions in the control",
-    680: "G68 coordinate rotation changes the commanded positions in the control",
     682: "G68.2 tilted working plane transforms the axis words in the control",
     650: "G65 macro call: the macro's motion is not straight-line code in this file",
     660: "G66 modal macro call: the macro's motion is not straight-line code in this file",

@@ -164,7 +164,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     cat = np.full(len(gi), -1, np.int64)
     tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
               (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_CYCLE, 11),
-              (_G_HARMLESS, 6), ({100: 10}, 12)]
+              (_G_HARMLESS, 6), ({100: 10}, 12), ({680: 68}, 13)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
@@ -371,6 +371,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         for k in range(n_ax):
             col = shift_l[:, k]
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
+    g68_line = np.zeros(n_lines, bool)
+    g68_line[gline[cat == 13]] = True
+    rot_events = []
+    if g68_line.any():
+        rot_events = _rotation_events(axes, g68_line, gline[g10 == 690], plane_line, inch_line,
+                                      incr_line, mot_l, wline, wlet, value, filename)
+        for L, (u, v), *_ in rot_events:
+            reset_lines = np.r_[reset_lines, [L, L]].astype(np.int64)
+            reset_cols = np.r_[reset_cols, [axes.index(u), axes.index(v)]].astype(np.int64)
+        o = np.lexsort((reset_cols, reset_lines))
+        reset_lines, reset_cols = reset_lines[o], reset_cols[o]
+        on_lines = [str(e[0] + 1) for e in rot_events if e[2] is not None][:5]
+        notes.append(f"G68 coordinate rotation on line(s) {', '.join(on_lines)}: "
+                     "positions rotated as the control does; the plane's axes are unknown after "
+                     "G68/G69 until written")
+        wcol = np.where(g68_line[wline], np.int8(-1), wcol)      # centre and angle, not moves
     if g10_line.any():
         wcol = np.where(g10_line[wline], np.int8(-1), wcol)      # G10 words are data
     # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
@@ -378,8 +394,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     cyc_rw = np.full(n_lines, -1, np.int64)
     if (cycle_line > 0).any():
         in_cyc = cycle_line[wline] > 0
-        if g10_line.any():
-            in_cyc &= ~g10_line[wline]
+        if g10_line.any() or g68_line.any():
+            in_cyc &= ~(g10_line | g68_line)[wline]
         if "Z" not in axes:
             _fail("canned cycle on a machine without Z", int(np.argmax(cycle_line > 0)), filename)
         zc = axes.index("Z")
@@ -501,6 +517,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present,
                                   incremental, offset, start_vec)
 
+    rotation = None
+    if rot_events:
+        rotation = _rotation_per_block(axes, rot_events, blines, position, offset, plane, tcp,
+                                       cycle_line[blines], filename)
     cycle = cycle_line[blines]
     cyc_data = None
     if (cycle > 0).any():
@@ -539,11 +559,90 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
-                  tcp=tcp, tool_length=tool_length)
+                  tcp=tcp, tool_length=tool_length, rotation=rotation)
     for a in arrays.values():
-        a.flags.writeable = False
+        if a is not None:
+            a.flags.writeable = False
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+
+
+def _rotation_events(axes, g68_line, g69_lines, plane_line, inch_line, incr_line, mot_l, wline,
+                     wlet, value, filename):
+    """G68 / G69 in program order: (line, plane axes (u, v), angle deg or None for G69, centre
+    (u, v) in program coordinates with NaN for "the current position")."""
+    from .rotation import PLANE_AXES
+    sel = np.flatnonzero(g68_line[wline])
+    words: dict = {}
+    for i in sel.tolist():
+        c = chr(65 + int(wlet[i]))
+        if c != "G":
+            words.setdefault(int(wline[i]), {})[c] = float(value[i])
+    events, angle = [], 0.0
+    for L in sorted(set(np.flatnonzero(g68_line).tolist()) | set(np.asarray(g69_lines).tolist())):
+        pl = int(plane_line[L])
+        u, v = PLANE_AXES[pl]
+        if not g68_line[L]:
+            if angle:
+                events.append((L, (u, v), None, None))
+            angle = 0.0
+            continue
+        w = words.get(L, {})
+        if mot_l[L] >= 0:
+            _fail("G68 in a block with a motion code", L, filename)
+        if u not in axes or v not in axes:
+            _fail(f"G68 in the plane G{pl}: the machine has no axis {u if u not in axes else v}", L, filename)
+        other = sorted(set(w) - {u, v, "R", "N"})
+        if set(other) & set("IJK"):
+            _fail("G68 with I J K (three-dimensional coordinate rotation): not supported", L, filename)
+        if other:
+            _fail(f"G68 with {' '.join(other)}: expected the centre {u} {v} and the angle R", L, filename)
+        if "R" not in w:
+            _fail("G68 without R: the angle would be a control parameter; not read", L, filename)
+        sc = INCH if inch_line[L] else 1.0
+        angle = (angle if incr_line[L] else 0.0) + w["R"]
+        centre = (w.get(u, np.nan) * sc, w.get(v, np.nan) * sc)
+        if incr_line[L] and (u in w or v in w):
+            _fail("G68 in G91 with a centre: incremental centres are not read", L, filename)
+        events.append((L, (u, v), angle, centre))
+    return events
+
+
+def _rotation_per_block(axes, events, blines, position, offset, plane, tcp, cycle, filename):
+    """(N, 5) per block: G68 angle (deg, 0 where none), centre (program coordinates), the G68
+    line (1-based) and the block whose end is the centre (G68 without centre words; -1)."""
+    from .rotation import PLANE_AXES
+    n = len(blines)
+    rot = np.zeros((n, 5))
+    rot[:, 4] = -1
+    for k, (L, (u, v), angle, centre) in enumerate(events):
+        b0 = int(np.searchsorted(blines, L, side="right"))
+        b1 = int(np.searchsorted(blines, events[k + 1][0], side="right")) if k + 1 < len(events) else n
+        if angle is None or b0 >= b1:
+            continue
+        iu, iv = axes.index(u), axes.index(v)
+        c = np.array(centre, float)
+        implicit = -1
+        if np.isnan(c).any():
+            implicit = b0 - 1
+            # no centre word: the current position (program coordinates) is the centre
+            j = b0 - 1
+            cur = (position[j, [iu, iv]] - offset[j, [iu, iv]]) if j >= 0 else np.array([np.nan, np.nan])
+            c = np.where(np.isnan(c), cur, c)
+            if np.isnan(c).any():
+                _fail("G68 without a centre where the current position is not known", L, filename)
+        seg = slice(b0, b1)
+        pl = PLANE_AXES[int(plane[b0])] if b1 > b0 else (u, v)
+        bad = np.flatnonzero((plane[seg] != plane[b0]) | ((u, v) != pl))
+        if len(bad):
+            _fail("plane change under G68 coordinate rotation: not supported", blines[b0 + bad[0]],
+                  filename)
+        bad = np.flatnonzero(tcp[seg] | ((cycle[seg] > 0) & (plane[seg] != 17)))
+        if len(bad):
+            _fail("G43.4 tool centre point or a canned cycle outside G17 under G68: not supported",
+                  blines[b0 + bad[0]], filename)
+        rot[seg] = (angle, c[0], c[1], L + 1, implicit)
+    return rot
 
 
 def _positions(blines, reset_lines, reset_cols, vals, present, incremental, offset, start_vec):
