@@ -115,9 +115,9 @@ def test_g10_extended_offsets_only_with_g54_1():
 def test_g10_tool_lengths():
     # Fanuc memory C: L10 geometry, L11 wear (G91 adds); LinuxCNC: L1 P<tool> Z
     text = ("G10 L10 P1 R50.\nG10 L11 P1 R-0.02\nG90 G0 X0 Y0 Z100.\nG43 H1 Z10.\n"
-            "G91 G10 L11 P1 R-0.01\nG90 Z10.\nG10 L1 P2 Z30.\nG43 H2 Z10.\n")
+            "G49 Z100.\nG91 G10 L11 P1 R-0.01\nG90 G43 H1 Z10.\nG10 L1 P2 Z30.\nG43 H2 Z10.\n")
     p = gcode.parse(text, axes=XYZ)
-    assert np.allclose(p.position[:, 2], [100, 59.98, 59.97, 40])
+    assert np.allclose(p.position[:, 2], [100, 59.98, 100, 59.97, 40])
     assert not any("not given" in n for n in p.notes)
     assert gcode.rewrite(p, lambda q: q.copy()) == text
 
@@ -131,6 +131,8 @@ def test_g10_tool_lengths():
     ("G10 P1 R5.\n", 1, "without L or P"),
     ("G0 X0 Y0 Z0\nG10 L1 P1 R5.\nG43 H1 Z1.\n", 3, "G10 L1 P1 R on line 2 is a tool length on Fanuc"),
     ("G10 L2 P1 G0 X1.\n", 1, "G10 in a block with motion"),
+    ("G10 L10 P1 R5.\nG0 X0 Y0 Z9.\nG43 H1 Z5.\nG10 L11 P1 R-0.1\nZ4.\n", 4,
+     "G10 changes the length of H1 while it is active"),
 ])
 def test_g10_refusals_name_the_line(text, line, what):
     with pytest.raises(InputError, match=rf"^p.nc:{line}: .*{what}"):
@@ -141,3 +143,17 @@ def test_g10_l1_radius_only_is_harmless_where_unused():
     # LinuxCNC G10 L1 P1 R3 (a radius) for a tool whose length is never applied: nothing refused
     p = gcode.parse("G10 L1 P1 R3.\nG90 G0 X1. Y0 Z0\n", axes=XYZ)
     assert np.allclose(p.position, [[1, 0, 0]])
+
+
+def test_g10_offsets_of_axes_the_program_does_not_write():
+    # a 3-axis program on a 5-axis machine: G10 sets X Y Z of G54 and G55, B and C are the
+    # control's; the program reads (B C are never commanded) but a compensation that writes B
+    # or C would depend on them: refused naming the block
+    text = "G10 L2 P1 X0 Y0 Z0\nG10 L2 P2 X50. Y0 Z0\nG54 G90 G0 X0 Y0 Z5.\nG55 X0\nY1.\n"
+    axes = ("X", "Y", "Z", "B", "C")
+    p = gcode.parse(text, axes=axes)
+    assert p.offset_assumed == ("B", "C") and any("taken as 0" in n for n in p.notes)
+    assert np.allclose(p.position[:, 0], [0, 50, 50])
+    assert gcode.rewrite(p, lambda q: q + [0.001, 0, 0, 0, 0]).splitlines()[3] == "G55 X0.001000"
+    with pytest.raises(InputError, match=r":3: the compensation moves B, whose work offsets"):
+        gcode.rewrite(p, lambda q: q + [0, 0, 0, 0.001, 0])

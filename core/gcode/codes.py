@@ -80,3 +80,34 @@ _CHAR_HINT = {
     "<": "LinuxCNC o<name> program flow: mtcomp compensate follows o<name> sub/endsub/call "
          "(gcode.flow.expand); other o-words are not followed",
 }
+
+#: Siemens (Sinumerik) instructions: frames, transformations, cycles, program flow.  Refused
+#: with their name: they move the tool in ways the straight-line words do not say.
+SIEMENS_WORDS = {
+    "trans": "programmable frame translation", "atrans": "additive frame translation",
+    "rot": "programmable frame rotation", "arot": "additive frame rotation",
+    "rpl": "frame rotation in the plane", "scale": "frame scaling", "ascale": "frame scaling",
+    "mirror": "frame mirroring", "amirror": "frame mirroring",
+    "traori": "5-axis transformation (tool centre point)", "trafoof": "transformation off",
+    "tracyl": "cylinder transformation", "transmit": "face transformation",
+    "cycle": "machining cycle", "mcall": "modal subprogram call", "call": "subprogram call",
+    "pcall": "subprogram call", "gotof": "jump", "gotob": "jump", "goto": "jump",
+    "repeat": "program section repeat", "def": "variable definition", "proc": "subprogram",
+    "if": "condition", "while": "loop", "for": "loop", "loop": "loop",
+}
+
+
+def siemens_hint(line: str) -> str | None:
+    """What a Siemens instruction on this line is, or None when there is none."""
+    import re
+    for m in re.finditer(r"[A-Za-z_][A-Za-z_0-9]*", line):
+        w = m.group().lower()
+        key = "cycle" if re.fullmatch(r"cycle\d*", w) else w
+        if key in SIEMENS_WORDS:
+            return (f"Siemens {m.group().upper()} ({SIEMENS_WORDS[key]}) is not supported: mtcomp "
+                    "reads straight-line code (G0-G3, offsets, canned cycles G73-G89); post the "
+                    "program without frames, transformations and cycles")
+    if re.match(r"^\s*(?:N\d+\s*)?R\d+\s*=", line):
+        return ("Siemens R parameters (R<n>=) are not supported: mtcomp reads straight-line "
+                "code; let the CAM system or control expand them")
+    return None

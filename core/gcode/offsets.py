@@ -109,15 +109,18 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
 # ------------------------------------------------------------------------ offsets per line
 
 def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths,
-                     events, first_motion, n_lines, filename, notes):
+                     events, first_motion, n_lines, filename, notes, written=None):
     """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
     (the work offset in effect at the first motion block, ``first_motion``): work offset minus
     the reference one, plus +/- the tool length along Z for G43/G44; and per line the tool
     length of G43.4 blocks.  Offsets not given are unknown: where only one is used and no G10
     changes it, the difference is 0; otherwise the program is refused naming the line.
-    Tool lengths not given are taken as 0 and noted."""
+    Tool lengths not given are taken as 0 and noted.  ``written`` (n_axes,): the axes the
+    program writes; an unknown offset of an axis it never writes is harmless (the control does
+    not move an axis that is not commanded)."""
     n_ax = len(axes)
     off = np.zeros((n_lines, n_ax))
+    assumed = []
     wev = [e for e in events if e[1] == "wcs"]
     tev = [e for e in events if e[1] != "wcs"]
     # -- work offsets
@@ -144,7 +147,13 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                 for k in used:
                     off[cur == k] += vec[k] - ref
         else:
-            _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename)
+            assumed = _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename,
+                                        np.ones(n_ax, bool) if written is None else
+                                        np.asarray(written, bool))
+            if assumed:
+                notes.append(f"work offsets of {' '.join(assumed)} (axes the program does not "
+                             "write) are not all set: their differences taken as 0; a "
+                             "compensation that writes them is refused")
     # -- tool length (G43 +, G44 -, G49 cancel) along Z; G43.4: in the TCP transform
     tset = tool_l >= 0
     tlen = np.zeros(n_lines)
@@ -171,10 +180,10 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
             sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
             off[:, axes.index("Z")] += sign * L
         tlen = np.where(mode == 434, L, 0.0)
-    return off, tlen
+    return off, tlen, tuple(assumed)
 
 
-def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename):
+def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, written):
     """Work offsets that G10 changes: each offset's value per axis is a known number or "its
     value before the program" (unknown, a symbol) plus a known change; the offset of a line is
     its work offset minus the reference one, defined where both are known or share the symbol."""
@@ -213,17 +222,21 @@ def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename):
         sym, val = value(k)
         snaps.append((c, k, sym.copy(), val.copy()))
     ref = next(s for s in snaps if s[0] == first_motion)
+    assumed = set()
     for i, (c, k, sym, val) in enumerate(snaps):
         end = snaps[i + 1][0] if i + 1 < len(snaps) else n_lines
         same = np.array([a == b for a, b in zip(sym, ref[2])])
-        if not same.all() and c > first_motion - 1:
-            bad = [a for a, s in zip(axes, same) if not s]
+        if not (same | ~written).all() and c > first_motion - 1:
+            bad = [a for a, s, w in zip(axes, same, written) if w and not s]
             raise InputError(f"from here on {wcs_name(k)} {' '.join(bad)} differs from "
                              f"{wcs_name(ref[1])} at the first motion block by an amount not known "
                              "(G10 or the offsets file gives one of them, not the other): give the "
                              "work offsets",
                              file=filename, line=c + 1)
+        if c >= first_motion:
+            assumed |= {a for a, s in zip(axes, same) if not s}
         off[c:end] += np.where(same, val - ref[3], 0.0)
+    return [a for a in axes if a in assumed]
 
 
 def _lengths_per_line(hmodal, active, lengths, tev, filename):
@@ -242,6 +255,10 @@ def _lengths_per_line(hmodal, active, lengths, tev, filename):
         by_line.setdefault(e[0], []).append(e)
     for s, e_ in zip(bounds[:-1], bounds[1:]):
         for _, kind, h, v, inc in by_line.get(s, ()):
+            if active[s] and hmodal[s] == h:
+                raise InputError(f"G10 changes the length of H{h} while it is active (G43/G44 H{h}): "
+                                 "controls differ on when that takes effect; set it before G43 "
+                                 "or cancel with G49 first", file=filename, line=s + 1)
             if kind == "amb":
                 amb[h] = s
                 continue

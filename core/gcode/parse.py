@@ -8,7 +8,7 @@ import numpy as np
 from .._io import InputError
 from . import _ctok
 from .arcs import _arc_geometry
-from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
+from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR, siemens_hint
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
                     _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
 from .offsets import g10_events, offsets_per_line
@@ -99,7 +99,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
         hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
-        _fail(f"unexpected character {ch!r}: {hint}", line_of(bad_at), filename)
+        ln = int(line_of(bad_at))
+        siemens = siemens_hint(data[line_start[ln]:line_end[ln]].decode("latin-1"))
+        if siemens and ch in "=(,)":
+            _fail(siemens, ln, filename)
+        _fail(f"unexpected character {ch!r}: {hint}", ln, filename)
     if len(rs) != len(lp) or np.any(rs != lp + 1):
         # blanks between a letter and its number ("X 10") are read, on the same line
         ok = len(rs) == len(lp) and bool(np.all(rs > lp)) and bool(np.all(rs[:-1] < lp[1:]))
@@ -202,6 +206,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         c = chr(65 + wlet[i])
         if c in CANONICAL:
             what = f"axis word {c} but the machine has axes {' '.join(axes)}"
+        elif c == "L":
+            what = (f"{_word_text(data, lp[i], re_[i])}: a Siemens subprogram call L<n> (or a "
+                    "repeat count L where none is read) is not followed")
         else:
             what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P H D Q, " \
                    f"axes {' '.join(axes)}, arc words I J K R)"
@@ -264,9 +271,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                             filename)
         notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
                      + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
-    offsets_line, tlen_line = offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line,
+    moved = np.zeros(26, bool)                  # axes the program writes (outside G10 blocks)
+    moved[wlet[~g10_line[wline]] if g10_line.any() else wlet] = True
+    offsets_line, tlen_line, offset_assumed = offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line,
                                                work_offsets, tool_lengths, events, first_motion,
-                                               n_lines, filename, notes)
+                                               n_lines, filename, notes,
+                                               [moved[_ascii(a)] for a in axes])
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
     tcp_line = _ffill(tool_l == 434, tool_l >= 0, False)
 
@@ -564,6 +574,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         if a is not None:
             a.flags.writeable = False
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
+                   offset_assumed=offset_assumed,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
 
 

@@ -334,6 +334,12 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
             ov = ov * INCH
         oc = np.rint(ov / res[k]).astype(np.int64)
         differs = target != oc
+        if a in program.offset_assumed and ((pres & differs & kn_edit).any()
+                                            or (~pres & (v != pv) & kn_edit).any()):
+            j = int(np.argmax((pres & differs | ~pres & (v != pv)) & kn_edit))
+            raise InputError(f"the compensation moves {a}, whose work offsets the program does not "
+                             "all set (G10): give the work offsets", program.filename,
+                             int(line[j]))
         _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn_edit),
                       np.flatnonzero(~pres & (v != pv) & kn_edit & ~(no_z & (a == "Z"))), target)
 
