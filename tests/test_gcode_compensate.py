@@ -124,8 +124,23 @@ def test_errors_for_axes_the_machine_lacks_are_refused(key):
 
 
 def test_dev_zero_as_program_is_a_clean_error(tmp_path):
-    with pytest.raises(InputError, match="not a text file"):
+    # a device is refused before reading (/dev/zero never ends); a binary file by its first NUL
+    # byte or its first byte that is not UTF-8; line endings are kept
+    with pytest.raises(InputError, match=r"^/dev/zero: NC program is a device, not a regular file"):
         gcode.read_program("/dev/zero")
+    f = tmp_path / "bin.nc"
+    f.write_bytes(b"G1 X1.\r\nG1 X2.\0\n")
+    with pytest.raises(InputError, match=r"bin.nc: not a text file \(NUL byte at byte 14\)"):
+        gcode.read_program(f)
+    f.write_bytes(b"G1 X1.\r\n(\xe9)\n")
+    with pytest.raises(InputError, match=r"bin.nc: not a text file \(not UTF-8: invalid continuation byte at byte 9\)"):
+        gcode.read_program(f)
+    f.write_bytes(b"\xef\xbb\xbfG1 X1.\r\nM30")
+    assert gcode.read_program(f) == "\ufeffG1 X1.\r\nM30"
+    with pytest.raises(InputError, match=r"nope.nc: NC program not found"):
+        gcode.read_program(tmp_path / "nope.nc")
+    with pytest.raises(InputError, match=r": NC program is a directory"):
+        gcode.read_program(tmp_path)
     r = run("compensate", "/dev/zero", "-m", "robonano-a0ib", "-e", tmp_path / "none.toml")
     assert r.returncode != 0 and "Traceback" not in r.stderr
 

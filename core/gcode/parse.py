@@ -783,30 +783,8 @@ MAX_PROGRAM_BYTES = 2**31 - 2
 
 def read_program(path) -> str:
     """The text of an NC program file, line endings untouched (CR LF stays CR LF, which
-    ``Path.read_text`` would turn into LF).  A missing, binary or endless file (a device such
-    as /dev/zero, a NUL byte) is an InputError naming it; nothing beyond 2 GB is read."""
-    chunks, size = [], 0
-    try:
-        with open(path, "rb") as fh:
-            while True:
-                chunk = fh.read(1 << 22)
-                if not chunk:
-                    break
-                nul = chunk.find(b"\0")
-                if nul >= 0:
-                    raise InputError(f"not a text file (NUL byte at byte {size + nul})", path)
-                size += len(chunk)
-                if size > MAX_PROGRAM_BYTES:
-                    raise InputError("programs of 2 GB and more are not supported", path)
-                chunks.append(chunk)
-    except FileNotFoundError:
-        raise InputError("NC program not found", path) from None
-    except IsADirectoryError:
-        raise InputError("NC program is a directory", path) from None
-    except PermissionError:
-        raise InputError("NC program cannot be read (permission denied)", path) from None
-    data = b"".join(chunks)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", path) from None
+    ``Path.read_text`` would turn into LF).  A missing, binary (a NUL byte, not UTF-8), device
+    (/dev/zero never ends) or directory path is an InputError naming it; nothing beyond 2 GB is
+    read.  The one reader of the package's text files, `mtcomp._io.read_text`, does the work."""
+    from .._io import read_text
+    return read_text(path, newline="", what="NC program", max_bytes=MAX_PROGRAM_BYTES)
