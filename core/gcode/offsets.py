@@ -143,7 +143,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                                      f"({', '.join(wcs_name(k) for k in used)}) to compensate in "
                                      "one workpiece frame", file=filename, line=ln + 1)
                 vec = {k: np.nan_to_num(table[wcs_name(k).replace(" ", "")]) for k in used}
-                ref = vec[cur[first_motion]]
+                ref = vec[used[0]]
                 for k in used:
                     off[cur == k] += vec[k] - ref
         else:

@@ -250,14 +250,17 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     p_line, h_line, t_line = letter_value("P"), letter_value("H"), letter_value("T")
     inch_line = _ffill(uni_l == 20, uni_l >= 0, False)
     incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
-    axis_let = np.zeros(26, bool)
-    axis_let[[_ascii(a) for a in axes]] = True
-    ax_lines = wline[axis_let[wlet]]
+    first_motion, events, written = 0, [], None
     if g10_line.any():
+        # the first line with an axis word (outside G10): the reference work offset's block
+        axis_let = np.zeros(26, bool)
+        axis_let[[_ascii(a) for a in axes]] = True
+        ax_lines = wline[axis_let[wlet]]
         ax_lines = ax_lines[~g10_line[ax_lines]]
-    first_motion = int(ax_lines.min()) if len(ax_lines) else 0
-    events = []
-    if g10_line.any():
+        first_motion = int(ax_lines.min()) if len(ax_lines) else 0
+        moved = np.zeros(26, bool)              # axes the program writes (outside G10 blocks)
+        moved[wlet[~g10_line[wline]]] = True
+        written = [bool(moved[_ascii(a)]) for a in axes]
         both = g10_line & ((mot_l >= 0) | (np.bincount(gline[np.isin(cat, (9, 11))],
                                                         minlength=n_lines) > 0))
         if both.any():
@@ -271,14 +274,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                             filename)
         notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
                      + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
-    moved = np.zeros(26, bool)                  # axes the program writes (outside G10 blocks)
-    moved[wlet[~g10_line[wline]] if g10_line.any() else wlet] = True
-    offsets_line, tlen_line, offset_assumed = offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line,
-                                               work_offsets, tool_lengths, events, first_motion,
-                                               n_lines, filename, notes,
-                                               [moved[_ascii(a)] for a in axes])
+    offsets_line, tlen_line, offset_assumed = offsets_per_line(
+        axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
+        first_motion, n_lines, filename, notes, written)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
-    tcp_line = _ffill(tool_l == 434, tool_l >= 0, False)
+    tcp_line = (_ffill(tool_l == 434, tool_l >= 0, False) if (tool_l == 434).any()
+                else np.zeros(n_lines, bool))
 
     # -- M codes
     mi = np.flatnonzero(wlet == M)
