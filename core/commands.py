@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import math
+import os
 import re
 import sys
 from datetime import datetime, timezone
@@ -84,61 +85,45 @@ def parse_start(spec: str | None, machine) -> dict | None:
 
 
 def parse_tool_lengths(spec: str | None) -> dict | None:
-    """Tool lengths per H number (mm): ``1=50.2,2=75`` or a CSV file with lines ``H,length_mm``
-    (a header line and ``#`` comments allowed)."""
-    if spec is None:
-        return None
-    import os
-    items, where = [], "--tool-lengths"
-    if os.path.exists(spec):
-        from ._io import read_text
-        for n, ln in enumerate(read_text(spec, what="tool length table").splitlines(), start=1):
-            ln = ln.split("#")[0].strip()
-            if not ln or (n == 1 and not ln[0].isdigit()):
-                continue
-            items.append((ln.replace(";", ","), (spec, n)))
-    else:
-        items = [(part, (None, None)) for part in spec.split(",") if part.strip()]
-        items = [(it.replace("=", ","), w) for it, w in items]
-    out = {}
-    for text, (file, line) in items:
-        h, _, v = text.partition(",")
-        try:
-            hn, val = int(h.strip().lstrip("Hh")), float(v)
-        except ValueError:
-            hn, val = -1, math.nan
-        if hn < 0 or not math.isfinite(val):
-            raise InputError(f"expected H number and tool length in mm (1=50.2 or a CSV line 1,50.2), "
-                             f"got {text!r}", file, line, field=None if file else where)
-        out[hn] = val
-    return out
+    """Tool lengths per H number (mm): ``1=50.2,2=75``, a LinuxCNC tool table (``T1 P1 Z+50.0``
+    lines) or a CSV file with lines ``H,length_mm`` (a header line and ``#`` comments allowed)."""
+    from .gcode.offsets import tool_lengths_from
+    return tool_lengths_from(spec)
+
+
+def load_offsets(path: str | None, machine) -> tuple[dict | None, dict | None]:
+    """(tool lengths {H: mm}, work offsets) from an offsets TOML file: ``[H]`` tool lengths,
+    ``[D]`` cutter offsets (read, unused), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` tables of axis
+    letters -> mm/deg (docs/gcode.md, "Offset files")."""
+    if path is None:
+        return None, None
+    from .gcode.offsets import read_offsets
+    tools, _, works = read_offsets(path, machine.axis_names)
+    return tools or None, works or None
 
 
 def load_work_offsets(path: str | None, machine) -> dict | None:
-    """Work offsets from a TOML file: one table per offset (``[G54]``, ``["G54.1 P2"]``) with
-    axis letters -> mm/deg."""
-    if path is None:
-        return None
-    from ._io import load_toml
-    data = load_toml(path)
-    out = {}
-    for key, vec in data.items():
-        name = str(key).upper()
-        if not isinstance(vec, dict) or not re.fullmatch(r"G5[4-9]|G54\.1 ?P\d+", name):
-            raise InputError("expected tables named G54..G59 or \"G54.1 P<n>\" with axis letters",
-                             path, field=str(key))
-        for a, v in vec.items():
-            if a.upper() not in machine.axis_names or isinstance(v, bool) or not isinstance(v, (int, float)) \
-                    or not math.isfinite(v):
-                raise InputError(f"expected an axis of {machine.name} and a finite number", path,
-                                 field=f"{key}.{a}")
-        out[name] = {a.upper(): float(v) for a, v in vec.items()}
-    return out
+    """Work offsets from an offsets TOML file (see `load_offsets`)."""
+    return load_offsets(path, machine)[1]
 
 
-def _travel_check(machine, prog, filename):
+def _axis_positions(machine, prog, P):
+    """Axis positions of the blocks: P itself, except for G43.4 blocks, whose words (tool tip,
+    angles) the control turns into axis positions with its nominal kinematics."""
+    tcp = np.asarray(prog.tcp)
+    if not tcp.any():
+        return np.asarray(P)
+    from .gcode import tcp as gtcp
+    Q = np.array(P, float)
+    Q[tcp] = gtcp.nominal_axes(machine, Q[tcp], np.asarray(prog.tool_length)[tcp])
+    # a tip not fully known gives no axis position (every linear axis depends on all of it)
+    Q[tcp & ~np.asarray(prog.known)] = np.nan
+    return Q
+
+
+def _travel_check(machine, prog, filename, P=None):
     """Programmed positions outside an axis' travel: the control would refuse them too."""
-    P = np.asarray(prog.position)
+    P = np.asarray(prog.position if P is None else P)
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
@@ -164,7 +149,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                        provenance: list | None = None, force: bool = False, progress=None,
                        convert_inch: bool = False, tool_lengths=None, work_offsets=None,
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
-                       tolerance: float = 5e-4, warn_only: bool = False):
+                       tolerance: float = 5e-4, warn_only: bool = False, search_path=None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -180,12 +165,16 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     raises VerifyError naming the block, unless ``warn_only`` (then it is in the report).
     Every emitted end position is checked against the travel of its axis (arcs: their interior
     points are solved for and checked by the compensation itself).
+    search_path: directories where subprograms called but not in the program are looked for
+    (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
     Returns (new_text, report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
     errors in mm before and after over the compensated blocks, from the forward model,
     ``verify``: the VerifyResult or None)."""
     from . import gcode
     from .gcode import flow
+    from .gcode import tcp as gtcp
     from .gcode.provenance import compensated_line, header_lines, insert_header
+    from .gcode.rotation import has_rotation, to_reference
 
     tol = _check_chordal_tol(machine, chordal_tol)
     check_errors_for_machine(errors, machine)
@@ -194,7 +183,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         raise InputError("this program was already compensated by mtcomp (provenance header); "
                          "compensating it again would apply the errors twice: use the original "
                          "program, or --force", filename, done)
-    fl = flow.expand(text, filename)
+    fl = flow.expand(text, filename, search=search_path)
     if fl is not None:
         return _compensate_flow(fl, machine, errors, filename=filename, chordal_tol=chordal_tol,
                                 start=start, unknown=unknown, provenance=provenance,
@@ -211,24 +200,45 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         # inch programs are written one decimal finer in inch: 2.54 times the mm resolution
         res_lin = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
         tol = max(tol, 2 * 2.54 * res_lin)
-    _travel_check(machine, prog, filename)
+    tcp = np.asarray(prog.tcp)
+    rotated = has_rotation(prog)
+    if rotated and (stock is not None or part is not None):
+        raise InputError("verifying the output against --stock/--part is not supported for "
+                         "programs with G68 coordinate rotation", filename)
+    if tcp.any() and (stock is not None or part is not None):
+        raise InputError("verifying the output against --stock/--part is not supported for G43.4 "
+                         "tool centre point programs (mtcomp cad verify reads them)", filename,
+                         int(prog.line[np.argmax(tcp)]))
+    _travel_check(machine, prog, filename,
+                  _axis_positions(machine, prog, to_reference(prog, prog.position)))
     hint = _three_axis_hint(machine, prog)
     calls = []
 
     def transform(q):
         lines = calls[-1]
         out = np.empty_like(q)
-        for s in range(0, len(q), CHUNK):
-            try:
-                out[s:s + CHUNK] = retarget(machine, q[s:s + CHUNK], errors)
-            except (LimitError, ConvergenceError, TableRangeError) as exc:
-                i = s + getattr(exc, "index", 0)
-                line = int(lines[i]) if 0 <= i < len(lines) else None
-                is_end = line is not None and i < int(np.count_nonzero(prog.known))
-                where = "" if is_end else " an interior point of the arc ending here"
-                raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
-            if progress:
-                progress(min(s + CHUNK, len(q)), len(q))
+        # rows of G43.4 blocks are tool-tip words: compensated through the TCP transform
+        blk = np.clip(np.searchsorted(prog.line, lines), 0, max(len(prog) - 1, 0))
+        on = (tcp[blk] & (prog.line[blk] == lines)) if tcp.any() else np.zeros(len(q), bool)
+        done = 0
+        for sel in (np.flatnonzero(~on), np.flatnonzero(on)):
+            for s in range(0, len(sel), CHUNK):
+                rows = sel[s:s + CHUNK]
+                try:
+                    if on[rows[0]]:
+                        out[rows] = gtcp.compensate_words(machine, q[rows],
+                                                          prog.tool_length[blk[rows]], errors)
+                    else:
+                        out[rows] = retarget(machine, q[rows], errors)
+                except (LimitError, ConvergenceError, TableRangeError) as exc:
+                    i = int(rows[getattr(exc, "index", 0)])
+                    line = int(lines[i]) if 0 <= i < len(lines) else None
+                    is_end = line is not None and i < int(np.count_nonzero(prog.known))
+                    where = "" if is_end else " an interior point of the arc ending here"
+                    raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
+                done += len(rows)
+                if progress:
+                    progress(done, len(q))
         return out
 
     info = {}
@@ -242,11 +252,12 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
     kk = np.flatnonzero(kn)
-    P = np.asarray(prog.position)
-    emitted = emitted_positions(prog, info, new_text, filename=filename, start=start, res=res,
-                                tool_lengths=tool_lengths, work_offsets=work_offsets,
-                                arc_tol=arc_tol, out_line=out_line)
-    _travel_check_emitted(machine, emitted, kn, prog, filename)
+    P = to_reference(prog, prog.position)            # G68: the positions the axes take
+    emitted = to_reference(prog, emitted_positions(prog, info, new_text, filename=filename,
+                                                   start=start, res=res, tool_lengths=tool_lengths,
+                                                   work_offsets=work_offsets, arc_tol=arc_tol,
+                                                   out_line=out_line))
+    _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
     verified = None
     if stock is not None or part is not None:
         verified = verify_output(machine, new_text, errors, filename=filename, stock=stock,
@@ -257,9 +268,17 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     after = np.empty(len(kk))
     for s in range(0, len(kk), CHUNK):
         rows = kk[s:s + CHUNK]
-        target = forward(machine, P[rows]).p
-        before[s:s + CHUNK] = np.linalg.norm(forward(machine, P[rows], errors).p - target, axis=1)
-        after[s:s + CHUNK] = np.linalg.norm(forward(machine, emitted[rows], errors).p - target, axis=1)
+        on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
+        r = rows[~on]
+        if len(r):
+            target = forward(machine, P[r]).p
+            before[s:s + CHUNK][~on] = np.linalg.norm(forward(machine, P[r], errors).p - target, axis=1)
+            after[s:s + CHUNK][~on] = np.linalg.norm(forward(machine, emitted[r], errors).p - target,
+                                                     axis=1)
+        if on.any():
+            r = rows[on]
+            b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
+            before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
               "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
@@ -286,12 +305,15 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
     note = (f"subprograms: {fl.calls} run(s) followed; each subprogram compensated once (the "
             "correction is the same on every run)" if mode == "once" else
             f"subprograms: {fl.calls} run(s) followed and written out as the blocks they run "
-            "(the correction differs between runs); the calls are left as comments")
+            + ("(subprograms from other files: "
+               + ", ".join(Path(f).name for _, f in fl.segments[1:])
+               + "; the control's own copies would run uncompensated)" if fl.external else
+               "(the correction differs between runs)") + "; the calls are left as comments")
     src_line = lambda m: ", ".join(dict.fromkeys(  # noqa: E731
         str(int(fl.origin[int(x) - 1]) + 1) for x in m.group(1).split(", ")))
     notes = tuple(re.sub(r"(?<=line\(s\) )(\d+(?:, \d+)*)", src_line, n) for n in report["notes"])
     report = dict(report, notes=notes + (note,), flow=mode,
-                  lines=len(flow._lines(fl.text)))
+                  lines=fl.main_lines or len(flow._lines(fl.text)))
     if provenance is not None:
         new, _, added = insert_header(new, header_lines(provenance))
         report["header_lines"] = added
@@ -304,7 +326,8 @@ def _travel_check_emitted(machine, emitted, kn, prog, filename):
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
-        bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
         if len(bad):
             j = int(bad[0])
             raise InputError(f"the compensated {ax.name} {emitted[j, k]:g} is outside the travel "
@@ -412,9 +435,15 @@ def _cmd_compensate(args) -> int:
         if not (math.isfinite(args.arc_tol) and args.arc_tol >= 0):
             raise InputError(f"expected a finite number of µm >= 0, got {args.arc_tol}", field="--arc-tol")
         arc_tol = args.arc_tol * 1e-3
+    search = [str(src.parent)] + [d for d in (args.subprogram_path or "").split(os.pathsep) if d]
+    for d in search[1:]:
+        if not os.path.isdir(d):
+            raise InputError("not a directory", d, field="--subprogram-path")
     start = parse_start(args.start, machine)
+    file_tools, offsets = load_offsets(args.work_offsets, machine)
     tools = parse_tool_lengths(args.tool_lengths)
-    offsets = load_work_offsets(args.work_offsets, machine)
+    if file_tools:
+        tools = {**file_tools, **(tools or {})}           # --tool-lengths wins
     options = [f"unknown-start {args.unknown}"]
     if tools:
         options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items()))
@@ -448,7 +477,8 @@ def _cmd_compensate(args) -> int:
                                        force=args.force, progress=Progress("compensating", args.progress),
                                        tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol,
                                        stock=stock, part=part, clearance=args.clearance,
-                                       tolerance=args.tolerance, warn_only=args.warn_only)
+                                       tolerance=args.tolerance, warn_only=args.warn_only,
+                                       search_path=search)
     atomic_write(out, new_text)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
     if rep["deferred"]:
@@ -515,11 +545,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="blocks before every axis position is known: pass them uncompensated "
                         "(defer, default) or refuse the program naming the line")
     p.add_argument("--tool-lengths", metavar="H=MM,..|CSV",
-                   help="tool lengths for G43/G44 H: 1=50.2,2=75 or a CSV file of lines H,length_mm "
-                        "(default: taken as 0 and noted)")
-    p.add_argument("--work-offsets", metavar="TOML",
-                   help="work offsets ([G54], [G55], [\"G54.1 P1\"] tables of axis = mm) for "
-                        "programs that switch between them")
+                   help="tool lengths for G43/G44/G43.4 H: 1=50.2,2=75, a CSV file of lines H,length_mm "
+                        "or a LinuxCNC tool table (default: taken as 0 and noted)")
+    p.add_argument("--tool-table", dest="tool_lengths", metavar="TBL",
+                   help="a LinuxCNC tool table (T1 P1 Z+50.0 D6.0 lines): tool lengths by tool number "
+                        "(same as --tool-lengths with the file)")
+    p.add_argument("--work-offsets", "--offsets", metavar="TOML",
+                   help="offsets file: [G54]..[G59], [\"G54.1 P1\"] tables of axis = mm, [H] tool "
+                        "lengths and [D] cutter offsets by number = mm (docs/gcode.md)")
+    p.add_argument("--subprogram-path", metavar="DIR[%sDIR]" % os.pathsep.replace("%", "%%"),
+                   help="directories searched, after the program's own, for subprograms in other "
+                        "files (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written "
+                        "out in the output")
     p.add_argument("--force", action="store_true",
                    help="compensate a program that mtcomp has already compensated")
     p.add_argument("--stock", help="verify the output against this stock (workpiece frame): "

@@ -124,8 +124,23 @@ def test_errors_for_axes_the_machine_lacks_are_refused(key):
 
 
 def test_dev_zero_as_program_is_a_clean_error(tmp_path):
-    with pytest.raises(InputError, match="not a text file"):
+    # a device is refused before reading (/dev/zero never ends); a binary file by its first NUL
+    # byte or its first byte that is not UTF-8; line endings are kept
+    with pytest.raises(InputError, match=r"^/dev/zero: NC program is a device, not a regular file"):
         gcode.read_program("/dev/zero")
+    f = tmp_path / "bin.nc"
+    f.write_bytes(b"G1 X1.\r\nG1 X2.\0\n")
+    with pytest.raises(InputError, match=r"bin.nc: not a text file \(NUL byte at byte 14\)"):
+        gcode.read_program(f)
+    f.write_bytes(b"G1 X1.\r\n(\xe9)\n")
+    with pytest.raises(InputError, match=r"bin.nc: not a text file \(not UTF-8: invalid continuation byte at byte 9\)"):
+        gcode.read_program(f)
+    f.write_bytes(b"\xef\xbb\xbfG1 X1.\r\nM30")
+    assert gcode.read_program(f) == "\ufeffG1 X1.\r\nM30"
+    with pytest.raises(InputError, match=r"nope.nc: NC program not found"):
+        gcode.read_program(tmp_path / "nope.nc")
+    with pytest.raises(InputError, match=r": NC program is a directory"):
+        gcode.read_program(tmp_path)
     r = run("compensate", "/dev/zero", "-m", "robonano-a0ib", "-e", tmp_path / "none.toml")
     assert r.returncode != 0 and "Traceback" not in r.stderr
 
@@ -188,7 +203,7 @@ def _emitted_vs_reread(text, machine, errors, chordal_tol=None, **kw):
     from mtcomp.commands import emitted_positions
     from mtcomp.gcode import flow
     res = {a.name: a.resolution for a in machine.axes}
-    fl = flow.expand(text)                       # subprograms: the blocks as they run
+    fl = flow.expand(text, search=[str(Path(__file__).parent / "data" / "nc" / "subprograms")])
     prog = gcode.parse(fl.expanded if fl else text, axes=machine.axis_names, resolution=res, **kw)
     info = {}
     new_text, out_line = gcode.rewrite_with_lines(
@@ -201,8 +216,8 @@ def _emitted_vs_reread(text, machine, errors, chordal_tol=None, **kw):
     return fast, np.asarray(back.position)[idx][kn], np.asarray(prog.incremental)[kn]
 
 
-@pytest.mark.parametrize("path", sorted((Path(__file__).parent / "data" / "nc").iterdir()),
-                         ids=lambda p: p.name)
+@pytest.mark.parametrize("path", sorted(p for p in (Path(__file__).parent / "data" / "nc").iterdir()
+                                         if p.is_file()), ids=lambda p: p.name)
 def test_verification_from_emitted_values_equals_reading_the_output_back(path):
     m = load_machine("vmc-moving-column")
     # a rigid shift, so that canned cycles are kept (those programs are read back)
@@ -298,12 +313,13 @@ def test_compensate_program_verification_in_the_library():
     assert [v.line for v in rep["verify"].violations] == [8, 9]
 
 
-@pytest.mark.parametrize("word", ["G43.4 H1", "G43.5 H1", "g43.4"])
-def test_tool_centre_point_programs_are_refused_naming_the_line(word):
-    # documented limit (docs/gcode.md): TCP words are tool-tip coordinates, not axis positions
+@pytest.mark.parametrize("word", ["G43.5 H1", "g43.5"])
+def test_tool_vector_tcp_programs_are_refused_naming_the_line(word):
+    # documented limit (docs/gcode.md): G43.5 I J K tool vectors are not compensated (G43.4 is,
+    # tests/test_gcode_tcp.py)
     m = load_machine("robonano-a0ib")
     text = f"G90 G0 X0 Y0 Z5. B10. C0\n{word}\nG1 X1. B12. F100\n"
-    with pytest.raises(InputError, match=r"^p.nc:2: [Gg]43\.[45]: G43\.[45] tool centre point"):
+    with pytest.raises(InputError, match=r"^p.nc:2: [Gg]43\.5: G43\.5 tool centre point"):
         compensate_program(text, m, ErrorSet(ToolSetting((0.002, 0, 0))), filename="p.nc")
 
 

@@ -14,71 +14,163 @@ import pytest
 
 from mtcomp import gcode
 from mtcomp.gcode import flow
+from mtcomp.gcode.rotation import to_reference
 
-CORPUS = sorted((Path(__file__).parent / "data" / "nc").iterdir())
+DATA = Path(__file__).parent / "data" / "nc"
+#: programs; subprogram files of other programs are in data/nc/subprograms, 5-axis tool centre
+#: point programs in data/nc/tcp (tests/test_gcode_tcp.py)
+CORPUS = sorted(p for p in DATA.iterdir() if p.is_file())
+SUBDIR = DATA / "subprograms"
 AXES = ("X", "Y", "Z")
 SHIFT = np.array([0.0123, -0.0071, 0.0042])
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_OWORD = re.compile(r"^\s*[Oo]\s*(?:<([^>]*)>|(\d+))\s*(sub|endsub|call)\b", re.IGNORECASE)
 _PLANES = {17: ("X", "Y", "I", "J"), 18: ("Z", "X", "K", "I"), 19: ("Y", "Z", "J", "K")}
 
 
-def _execution_order(text):
-    """(line number, text) in the order the control runs the lines.  Fanuc ``M98 P<n>``
+def _subprogram_file(key):
+    """The file of an O number or an o<name> subroutine in the subprogram directory."""
+    for f in sorted(SUBDIR.iterdir()):
+        stem = f.name.split(".")[0].lower()
+        if (isinstance(key, float) and re.fullmatch(r"o?0*" + str(int(key)), stem)) or stem == key:
+            return f
+    raise AssertionError(f"no subprogram file for {key}")
+
+
+def _execution_order(text, name="main"):
+    """((file, line), text) in the order the control runs the lines.  Fanuc ``M98 P<n>``
     (repeats ``L``/``K``, or an 8-digit P: 3 digits of repeats, 4 of program number) runs
-    ``O<n>`` up to its ``M99``; Haas ``M97 P<n>`` (repeats ``L``) runs from block ``N<n>`` up
-    to ``M99``; both after the calling block's own words.  With calls, the main program ends at
-    M30/M02 (the subprograms follow it); without, every line is read as before."""
-    lines = text.split("\n")
-    code = [re.sub(r"\([^)]*\)", " ", ln).split(";")[0] for ln in lines]
-    words = [[(w[0].upper(), float(w[1])) for w in _WORD.findall(c)] for c in code]
-    called = any(a == "M" and v in (97, 98) for w in words for a, v in w)
+    ``O<n>`` (in the file, else the file O<n> of the subprogram directory) up to its ``M99``;
+    Haas ``M97 P<n>`` (repeats ``L``) runs from block ``N<n>`` up to ``M99``; both after the
+    calling block's own words.  LinuxCNC ``o<name> call`` runs ``o<name> sub`` up to its
+    ``endsub`` (in the file, else name.ngc); definitions are skipped where they stand.  With
+    calls, the main program ends at M30/M02 (the subprograms follow it); without, every line
+    is read as before."""
+    files = {name: text.split("\n")}
+    code, words, label, osub = {}, {}, {}, {}
+
+    def load(fname):
+        lines = files[fname]
+        code[fname] = [re.sub(r"\([^)]*\)", " ", ln).split(";")[0] for ln in lines]
+        words[fname] = [[(w[0].upper(), float(w[1])) for w in _WORD.findall(c)]
+                        if not _OWORD.match(c) else [] for c in code[fname]]
+        for i, w in enumerate(words[fname]):
+            for a, v in w:
+                if a in "ON":
+                    label.setdefault((a, v), (fname, i))
+            m = _OWORD.match(code[fname][i])
+            if m and m.group(3).lower() == "sub":
+                osub.setdefault((m.group(1) or m.group(2)).lower(), (fname, i))
+
+    load(name)
+    called = any(a == "M" and v in (97, 98) for w in words[name] for a, v in w) or \
+        any(_OWORD.match(c) for c in code[name])
     if not called:
-        return list(enumerate(lines, start=1))
-    label = {}
-    for i, w in enumerate(words):
-        for a, v in w:
-            if a in "ON":
-                label.setdefault((a, v), i)
+        return [((name, i), ln) for i, ln in enumerate(files[name], start=1)]
     order = []
 
-    def run(i, depth):
+    def run(fname, i, depth):
         assert depth < 10
+        lines = files[fname]
         while i < len(lines):
-            w = dict(words[i])
-            ms = {v for a, v in words[i] if a == "M"}
+            w = dict(words[fname][i])
+            ms = {v for a, v in words[fname][i] if a == "M"}
+            m = _OWORD.match(code[fname][i])
+            if m:
+                key, verb = (m.group(1) or m.group(2)).lower(), m.group(3).lower()
+                if verb == "call":
+                    if key not in osub:
+                        f = _subprogram_file(key)
+                        files[f.name] = f.read_text().split("\n")
+                        load(f.name)
+                    run(*osub[key], depth + 1)
+                elif verb == "sub" and depth == 0:       # a definition: skipped
+                    while True:
+                        i += 1
+                        mm = _OWORD.match(code[fname][i])
+                        if mm and mm.group(3).lower() == "endsub":
+                            break
+                elif verb == "endsub":
+                    return
+                i += 1
+                continue
             if ms & {97, 98}:
                 # the block without its call words, then the called lines
-                order.append((i + 1, re.sub(r"[MmPpLlKk]\s*[-+]?[\d.]+", " ", code[i])))
+                order.append(((fname, i + 1), re.sub(r"[MmPpLlKk]\s*[-+]?[\d.]+", " ", code[fname][i])))
                 prog, reps = w["P"], w.get("L", w.get("K", 1))
                 if 98 in ms and ("O", prog) not in label:
-                    reps, prog = divmod(prog, 10000)
+                    if prog > 9999 and ("O", prog % 10000) in label:
+                        reps, prog = divmod(prog, 10000)
+                    else:
+                        f = _subprogram_file(prog)
+                        files[f.name] = f.read_text().split("\n")
+                        load(f.name)
                 for _ in range(int(reps)):
-                    run(label[("N" if 97 in ms else "O", prog)], depth + 1)
+                    run(*label[("N" if 97 in ms else "O", prog)], depth + 1)
             else:
-                order.append((i + 1, lines[i]))
+                order.append(((fname, i + 1), files[fname][i]))
                 if 99 in ms or (depth == 0 and ms & {2, 30}):
                     return
             i += 1
 
-    run(0, 0)
+    run(name, 0, 0)
     return order
 
 
-def interpret(text):
-    """Blocks of a program as a control runs them, one line at a time: (line, position per
-    axis or None where the program has not fixed it, motion, arc centre in the plane or None)."""
-    pos = dict.fromkeys(AXES)
+def _rot(ang, c, u, v):
+    t = math.radians(ang)
+    du, dv = u - c[0], v - c[1]
+    return c[0] + math.cos(t) * du - math.sin(t) * dv, c[1] + math.sin(t) * du + math.cos(t) * dv
+
+
+def interpret(text, name="main"):
+    """Blocks of a program as a control runs them, one line at a time: ((file, line), position
+    per axis in the reference frame or None where the program has not fixed it, motion, arc
+    centre in the plane or None).  Work offsets and tool lengths come from G10 in the program;
+    positions are in the frame of the work offset in effect at the first motion block."""
+    pos = dict.fromkeys(AXES)                  # word frame: word + offset when written
     mode, absolute, inch, plane, centre_abs = None, True, False, 17, False
     cycle, retract, zinit, r_word, z_word = 0, 98, None, None, None
+    wcs = {}                                   # G54.. -> {axis: value} set by G10 L2
+    cur_wcs, ref_wcs = 54, None
+    lengths, tool_mode, h, t_loaded = {}, 49, None, None
+    rot = None                                 # (angle, centre) under G68
     blocks = []
-    for n, raw in _execution_order(text):
+    for n, raw in _execution_order(text, name):
         line = raw.lstrip("\ufeff")
         line = re.sub(r"\([^)]*\)", " ", line).split(";")[0]
         if line.strip().startswith("%"):
             continue
         words = [(w[0].upper(), float(w[1])) for w in _WORD.findall(line)]
         g = [v for a, v in words if a == "G"]
+        wd = dict(words)
+        s = 25.4 if (inch or 20 in g or 70 in g) and not (21 in g or 71 in g) else 1.0
+        if 10 in g:                            # offsets set by the program
+            if wd["L"] == 2:
+                wcs[53 + int(wd["P"])] = {a: wd[a] * s for a in AXES if a in wd}
+            elif wd["L"] in (10, 11):              # geometry, wear: the length is the sum
+                key = (int(wd["P"]), wd["L"])
+                lengths[key] = (lengths.get(key, 0.0) if 91 in g else 0.0) + wd["R"] * s
+            elif wd["L"] == 1:
+                lengths[(int(wd["P"]), 10)] = wd["Z"] * s
+            continue
+        if "T" in wd:
+            t_loaded = int(wd["T"])
+        if "H" in wd:
+            h = int(wd["H"])
         for v in g:
+            if v in (43, 44, 49):
+                tool_mode = int(v)
+                if v != 49 and "H" not in wd:
+                    h = t_loaded                   # LinuxCNC: the loaded tool
+            if 54 <= v <= 59:
+                cur_wcs = int(v)
+            if v == 68:
+                rot = (wd["R"], (wd[_PLANES[plane][0]] * s, wd[_PLANES[plane][1]] * s))
+                pos[_PLANES[plane][0]] = pos[_PLANES[plane][1]] = None
+            if v == 69 and rot is not None:
+                rot = None
+                pos[_PLANES[plane][0]] = pos[_PLANES[plane][1]] = None
             if v in (73, 74, 76) or 81 <= v <= 89:
                 if not cycle:
                     zinit = pos["Z"]
@@ -99,6 +191,8 @@ def interpret(text):
                 plane = int(v)
             elif v in (90.1, 91.1):
                 centre_abs = v == 90.1
+        if 68 in g:
+            continue
         ax = {a: v for a, v in words if a in AXES}
         arcw = {a: v for a, v in words if a in "IJKR"}
         if any(v in (28, 30, 53) for v in g):
@@ -109,22 +203,38 @@ def interpret(text):
             continue
         if not ax and not (arcw and mode in (2, 3)):
             continue
-        s = 25.4 if inch else 1.0
+        if ref_wcs is None:
+            ref_wcs = cur_wcs
+
+        def off(a):
+            o = wcs.get(cur_wcs, {}).get(a, 0.0) - wcs.get(ref_wcs, {}).get(a, 0.0)
+            if a == "Z" and tool_mode in (43, 44):
+                o += (1 if tool_mode == 43 else -1) * (lengths.get((h, 10), 0.0) + lengths.get((h, 11), 0.0))
+            return o
+
+        def ref(p):
+            out = dict(p)
+            if rot is not None:
+                u, v_ = _PLANES[plane][:2]
+                if p[u] is not None and p[v_] is not None:
+                    cu, cv = rot[1][0] + off(u), rot[1][1] + off(v_)
+                    out[u], out[v_] = _rot(rot[0], (cu, cv), p[u], p[v_])
+            return out
         if cycle:
             # a hole: X Y as usual; Z is the depth, R the R level; the tool ends at the
             # initial level (G98) or at R (G99)
             r_word = arcw.get("R", r_word)
             z_word = ax.pop("Z", z_word)
             for a, v in ax.items():
-                pos[a] = v * s if absolute else (None if pos[a] is None else pos[a] + v * s)
-            r_lvl = r_word * s if absolute else (None if zinit is None else zinit + r_word * s)
+                pos[a] = v * s + off(a) if absolute else (None if pos[a] is None else pos[a] + v * s)
+            r_lvl = r_word * s + off("Z") if absolute else (None if zinit is None else zinit + r_word * s)
             pos["Z"] = zinit if retract == 98 else r_lvl
-            blocks.append((n, dict(pos), cycle, None))
+            blocks.append((n, ref(pos), cycle, None))
             continue
         start = dict(pos)
         for a, v in ax.items():
             if absolute:
-                pos[a] = v * s
+                pos[a] = v * s + off(a)
             elif pos[a] is not None:
                 pos[a] += v * s
         centre = None
@@ -133,68 +243,87 @@ def interpret(text):
             if "R" in arcw:
                 su, sv, eu, ev, r = start[u], start[v_], pos[u], pos[v_], arcw["R"] * s
                 d = math.hypot(eu - su, ev - sv)
-                h = math.sqrt(max(r * r - d * d / 4, 0.0))
+                hh = math.sqrt(max(r * r - d * d / 4, 0.0))
                 side = (1 if mode == 3 else -1) * (1 if r > 0 else -1)
-                centre = ((su + eu) / 2 - side * h * (ev - sv) / d, (sv + ev) / 2 + side * h * (eu - su) / d)
+                centre = ((su + eu) / 2 - side * hh * (ev - sv) / d, (sv + ev) / 2 + side * hh * (eu - su) / d)
             elif centre_abs:
-                centre = (arcw.get(iu, 0.0) * s, arcw.get(iv, 0.0) * s)
+                centre = (arcw.get(iu, 0.0) * s + off(u), arcw.get(iv, 0.0) * s + off(v_))
             else:
                 centre = (start[u] + arcw.get(iu, 0.0) * s, start[v_] + arcw.get(iv, 0.0) * s)
-        blocks.append((n, dict(pos), mode, centre))
+            if rot is not None:
+                centre = _rot(rot[0], (rot[1][0] + off(u), rot[1][1] + off(v_)), *centre)
+        blocks.append((n, ref(pos), mode, centre))
     return blocks
 
 
-def _read(text, **kw):
-    """The program as mtcomp reads it: parsed, subprogram calls expanded first; the source
-    line of each block; the flow (None without calls)."""
-    fl = flow.expand(text)
+def _read(text, name="main", **kw):
+    """The program as mtcomp reads it: parsed, subprogram calls expanded first (subprogram
+    files from the subprogram directory); the (file, line) of each block; the flow (None
+    without calls)."""
+    fl = flow.expand(text, name, search=[str(SUBDIR)])
     p = gcode.parse(fl.expanded if fl else text, axes=AXES, **kw)
-    lines = fl.origin[p.line - 1] + 1 if fl else np.asarray(p.line)
-    return p, lines, fl
+    if fl:
+        labels = [fl.where(int(o)) for o in fl.origin[p.line - 1]]
+        labels = [(Path(f).name if f != name else name, ln) for f, ln in labels]
+    else:
+        labels = [(name, int(ln)) for ln in p.line]
+    return p, labels, fl
 
 
-def _rewrite(text, transform):
-    p, lines, fl = _read(text)
+def _rewrite(text, transform, name="main"):
+    p, _, fl = _read(text, name)
     out = gcode.rewrite(p, transform)
     if fl:
         mode, out = flow.fold(fl, out)
-        assert mode == "once"                 # a rigid shift: every subprogram compensated once
+        # a rigid shift: every subprogram compensated once; from other files: written out
+        assert mode == ("expanded" if fl.external else "once")
     return out
 
 
-def _check_against_interpreter(p, blocks, lines=None):
-    assert [b[0] for b in blocks] == list(p.line if lines is None else lines)
+def _check_against_interpreter(p, blocks, labels):
+    assert [b[0] for b in blocks] == labels
+    P = to_reference(p, p.position)
     for j, (n, pos, mode, centre) in enumerate(blocks):
         for k, a in enumerate(AXES):
             assert p.axis_known[j, k] == (pos[a] is not None), (n, a)
             if pos[a] is not None:
-                assert p.position[j, k] == pytest.approx(pos[a], abs=1e-9), (n, a)
+                assert P[j, k] == pytest.approx(pos[a], abs=1e-9), (n, a)
         if centre is not None:
             u, v_ = (AXES.index(c) for c in _PLANES[int(p.plane[j])][:2])
-            assert p.arc_centre[j, [u, v_]] == pytest.approx(centre, abs=1e-9), n
+            row = np.array(p.position[j], float)
+            row[[u, v_]] = p.arc_centre[j, [u, v_]]
+            c = to_reference(p, row[None], [j])[0]
+            assert c[[u, v_]] == pytest.approx(centre, abs=1e-9), n
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
 def test_corpus_program_read_as_the_interpreter_reads_it(path):
     text = gcode.read_program(path)
-    p, lines, _ = _read(text, filename=str(path))
+    p, labels, _ = _read(text, path.name, filename=str(path))
     assert len(p) >= 5
-    _check_against_interpreter(p, interpret(text), lines)
+    _check_against_interpreter(p, interpret(text, path.name), labels)
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
 def test_corpus_identity_is_byte_exact(path):
     text = gcode.read_program(path)
-    assert _rewrite(text, lambda q: q.copy()) == text
+    out = _rewrite(text, lambda q: q.copy(), path.name)
+    p, _, fl = _read(text, path.name)
+    assert out == (text if not (fl and fl.external) else flow.fold(fl, fl.expanded)[1])
 
 
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
 def test_corpus_translation_moves_every_known_block_exactly(path):
     text = gcode.read_program(path)
-    p, lines, _ = _read(text)
-    out = _rewrite(text, lambda q: q + SHIFT)
-    before, after = interpret(text), interpret(out)
-    assert [b[0] for b in after] == [b[0] for b in before]        # no line added or lost
+    p, labels, fl = _read(text, path.name)
+    external = bool(fl and fl.external)
+    out = _rewrite(text, lambda q: q + SHIFT, path.name)
+    before, after = interpret(text, path.name), interpret(out, path.name)
+    if external:
+        # the output holds the subprograms written out: the same blocks, in one file
+        assert len(after) == len(before)
+    else:
+        assert [b[0] for b in after] == [b[0] for b in before]    # no line added or lost
     inch = bool(p.inch.any())
     tol = 2.54e-7 * 5 if inch else 1e-6                           # half a written increment
     for j, ((n, p0, _, c0), (_, p1, _, c1)) in enumerate(zip(before, after)):
@@ -208,8 +337,9 @@ def test_corpus_translation_moves_every_known_block_exactly(path):
             u, v_ = (AXES.index(c) for c in _PLANES[int(p.plane[j])][:2])
             assert np.allclose(np.subtract(c1, c0), SHIFT[[u, v_]], atol=2 * tol), n
     # the output reads back, and is itself an identity fixed point
-    assert _rewrite(out, lambda x: x.copy()) == out
+    assert _rewrite(out, lambda x: x.copy(), path.name) == out
     # nothing invented: a deferred block keeps every byte
-    lines_in, lines_out = text.split("\n"), out.split("\n")
-    for j in np.flatnonzero(~p.known):
-        assert lines_out[lines[j] - 1] == lines_in[lines[j] - 1]
+    if not external:
+        lines_in, lines_out = text.split("\n"), out.split("\n")
+        for j in np.flatnonzero(~p.known):
+            assert lines_out[labels[j][1] - 1] == lines_in[labels[j][1] - 1]

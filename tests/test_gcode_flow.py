@@ -86,7 +86,7 @@ def test_haas_fanuc_eight_digit_p_and_k_repeat():
 
 @pytest.mark.parametrize("text, line, match", [
     ("G0 X1.\nM99\n", 2, "M99 in the main program"),
-    ("G0 X1.\nM98 P200\nM30\nO100\nM99\n", 2, "O200 is not in this file"),
+    ("G0 X1.\nM98 P200\nM30\nO100\nM99\n", 2, "O200 is neither in this file"),
     ("G0 X1.\nM97 P20\nM30\n", 2, "no block N20"),
     ("G0 X1.\nM98\nM30\n", 2, "without P"),
     ("G0 X1.\nM98 P100 L0\nM30\nO100\nM99\n", 2, "repeat count 0"),
@@ -144,7 +144,7 @@ def test_cli_follows_subprograms_and_says_so(tmp_path):
     bad.write_text("G0 X1.\nM98 P9\nM30\n")
     r = subprocess.run([sys.executable, "-m", "mtcomp", "compensate", str(bad), "-m",
                         "vmc-moving-column", "-e", str(err)], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2 and f"{bad}:2: M98 P9: program O9 is not in this file" in r.stderr
+    assert r.returncode == 2 and f"{bad}:2: M98 P9: program O9 is neither in this file nor a file O9[.ext] in the program" in r.stderr
     assert "Traceback" not in r.stderr
 
 

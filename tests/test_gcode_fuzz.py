@@ -13,7 +13,8 @@ from mtcomp import InputError, gcode
 from mtcomp.gcode import flow
 
 AXES = ("X", "Y", "Z", "B", "C")
-CORPUS = [gcode.read_program(p) for p in sorted((Path(__file__).parent / "data" / "nc").iterdir())]
+CORPUS = [gcode.read_program(p) for p in sorted((Path(__file__).parent / "data" / "nc").iterdir())
+          if p.is_file()]
 ALPHABET = "GXYZBCIJKRFNMSTPHQ0123456789.-+ ()%;/#[]=\n\r\t\ufeffgxyz"
 SHIFT = np.array([0.0123, -0.0071, 0.0042, 0.001, -0.002])
 

@@ -18,9 +18,10 @@ from mtcomp.gcode.textops import parse_decimals
 from mtcomp.gcode.tokens import _tokenise
 
 AXES = ("X", "Y", "Z", "B", "C")
-CORPUS_FILES = sorted((Path(__file__).parent / "data" / "nc").iterdir())
+_DATA = Path(__file__).parent / "data" / "nc"
+CORPUS_FILES = sorted([p for p in _DATA.iterdir() if p.is_file()] + sorted((_DATA / "tcp").iterdir()))
 # programs with subprogram calls: the expansion is what is parsed
-CORPUS = [(lambda t, f: f.expanded if f else t)(t, flow.expand(t))
+CORPUS = [(lambda t, f: f.expanded if f else t)(t, flow.expand(t, search=[str(_DATA / "subprograms")]))
           for t in map(gcode.read_program, CORPUS_FILES)]
 ALPHABET = "GXYZBCIJKRFNMSTPHQ0123456789.-+ ()%;/#[]=\n\r\t\ufeffgxyz\u00e9"
 

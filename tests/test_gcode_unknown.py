@@ -88,3 +88,22 @@ def test_axes_never_written_are_idle_at_zero_and_listed():
 def test_identity_with_unknown_axes_is_byte_exact():
     text = "G0 X1.5 (a)\nG0 Y2\nG91 Z-1\nG90 G1 X2 Z0.25 F100\n"
     assert gcode.rewrite(gcode.parse(text, axes=XYZ), lambda q: q) == text
+
+
+# Siemens (Sinumerik) instructions the reader does not follow: refused with their name
+@pytest.mark.parametrize("text,line,what", [
+    ("N10 G0 X1.\nN20 ROT RPL=30\n", 2, "Siemens ROT .programmable frame rotation"),
+    ("N10 TRANS X10 Y5\n", 1, "Siemens TRANS"),
+    ("N10 G0 X1.\nN20 AROT Z30\n", 2, "Siemens AROT"),
+    ("N10 TRAORI\n", 1, "Siemens TRAORI .5-axis transformation"),
+    ("N10 CYCLE81(10,0,2,-5)\n", 1, "Siemens CYCLE81 .machining cycle"),
+    ("N10 CYCLE800(1,\"TC1\",0,57,0,0,0,0,0,0,0,0,0,1)\n", 1, "Siemens CYCLE800"),
+    ("N10 MCALL CYCLE81(10,0,2,-5)\n", 1, "Siemens MCALL"),
+    ("N10 R1=5\n", 1, "Siemens R parameters"),
+    ("N10 G0 X1.\nN20 GOTOF END\n", 2, "Siemens GOTOF"),
+    ("N10 L100\n", 1, "L100: a Siemens subprogram call L<n>"),
+    ("o100 call\n", 1, "LinuxCNC o-word program flow .'call'"),
+])
+def test_siemens_instructions_refused_by_name(text, line, what):
+    with pytest.raises(InputError, match=rf"^s.mpf:{line}: {what}"):
+        gcode.parse(text, axes=("X", "Y", "Z"), filename="s.mpf")

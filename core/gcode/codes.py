@@ -15,8 +15,9 @@ _G_DIST = {900: 90, 910: 91}
 _G_WCS = {540: 54, 550: 55, 560: 56, 570: 57, 580: 58, 590: 59, 541: 541}
 #: arc centre mode: G90.1 absolute I J K, G91.1 incremental (the default)
 _G_ARC_DIST = {901: 90, 911: 91}
-#: tool length compensation: G43 +H, G44 -H, G49 cancel
-_G_TOOL = {430: 43, 440: 44, 490: 49}
+#: tool length compensation: G43 +H, G44 -H, G49 cancel; G43.4 tool centre point (the words
+#: are the tool tip in the workpiece frame and the rotary angles, gcode.tcp)
+_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434}
 #: canned drilling cycles (hole at X Y, R level, depth Z; G98 back to the initial level, G99
 #: to R)
 _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10)}}
@@ -39,17 +40,15 @@ _G_HARMLESS = {
 }
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {
-    100: "G10 writes offsets or parameters from the program, which shifts later positions",
     160: "G16 polar coordinate command: axis words are radius and angle",
     290: "G29 returns from the reference point through an unknown intermediate point",
     310: "G31 skip function: the end point depends on a probe signal",
     410: "G41 cutter radius compensation offsets the path by a radius not in the program",
     420: "G42 cutter radius compensation offsets the path by a radius not in the program",
-    434: "G43.4 tool centre point control transforms the axis words in the control",
-    435: "G43.5 tool centre point control transforms the axis words in the control",
+    435: "G43.5 tool centre point with a tool vector (I J K) is not compensated (G43.4 programs, "
+         "with rotary angles, are)",
     510: "G51 scaling changes the commanded positions in the control",
     511: "G51.1 mirror image changes the commanded positions in the control",
-    680: "G68 coordinate rotation changes the commanded positions in the control",
     682: "G68.2 tilted working plane transforms the axis words in the control",
     650: "G65 macro call: the macro's motion is not straight-line code in this file",
     660: "G66 modal macro call: the macro's motion is not straight-line code in this file",
@@ -78,4 +77,37 @@ _CHAR_HINT = {
     "(": "unbalanced '(' (comments may not nest and must close on their line)",
     ")": "unbalanced ')' (comments may not nest)", "%": "'%' only on a line of its own",
     "/": "block delete '/' only at the start of a block",
+    "<": "LinuxCNC o<name> program flow: mtcomp compensate follows o<name> sub/endsub/call "
+         "(gcode.flow.expand); other o-words are not followed",
 }
+
+#: Siemens (Sinumerik) instructions: frames, transformations, cycles, program flow.  Refused
+#: with their name: they move the tool in ways the straight-line words do not say.
+SIEMENS_WORDS = {
+    "trans": "programmable frame translation", "atrans": "additive frame translation",
+    "rot": "programmable frame rotation", "arot": "additive frame rotation",
+    "rpl": "frame rotation in the plane", "scale": "frame scaling", "ascale": "frame scaling",
+    "mirror": "frame mirroring", "amirror": "frame mirroring",
+    "traori": "5-axis transformation (tool centre point)", "trafoof": "transformation off",
+    "tracyl": "cylinder transformation", "transmit": "face transformation",
+    "cycle": "machining cycle", "mcall": "modal subprogram call", "call": "subprogram call",
+    "pcall": "subprogram call", "gotof": "jump", "gotob": "jump", "goto": "jump",
+    "repeat": "program section repeat", "def": "variable definition", "proc": "subprogram",
+    "if": "condition", "while": "loop", "for": "loop", "loop": "loop",
+}
+
+
+def siemens_hint(line: str) -> str | None:
+    """What a Siemens instruction on this line is, or None when there is none."""
+    import re
+    for m in re.finditer(r"[A-Za-z_][A-Za-z_0-9]*", line):
+        w = m.group().lower()
+        key = "cycle" if re.fullmatch(r"cycle\d*", w) else w
+        if key in SIEMENS_WORDS:
+            return (f"Siemens {m.group().upper()} ({SIEMENS_WORDS[key]}) is not supported: mtcomp "
+                    "reads straight-line code (G0-G3, offsets, canned cycles G73-G89); post the "
+                    "program without frames, transformations and cycles")
+    if re.match(r"^\s*(?:N\d+\s*)?R\d+\s*=", line):
+        return ("Siemens R parameters (R<n>=) are not supported: mtcomp reads straight-line "
+                "code; let the CAM system or control expand them")
+    return None

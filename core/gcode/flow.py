@@ -29,7 +29,9 @@ MAX_DEPTH = 10
 #: largest expansion (lines) written
 MAX_LINES = 5_000_000
 
-_HAS_FLOW = re.compile(r"[Mm][ \t]*0*9[789](?![0-9.])")
+_HAS_FLOW = re.compile(r"[Mm][ \t]*0*9[789](?![0-9.])|[Oo][ \t]*(?:<[^>\n]*>|\d+)[ \t]*[Cc][Aa][Ll][Ll]")
+#: LinuxCNC o-word lines: o<name> or o<number>, then the keyword and the rest
+_OWORD = re.compile(r"^[ \t]*(?:[Nn][ \t]*\d+[ \t]*)?([Oo][ \t]*(?:<([^>\n]*)>|(\d+))[ \t]*([A-Za-z]+))(.*)$")
 _WORD = re.compile(r"([A-Za-z])[ \t]*([-+]?(?:\d+\.?\d*|\.\d+))")
 _COMMENT = re.compile(r"\([^)]*\)")
 _MARK = "(\x02"
@@ -50,6 +52,22 @@ class Flow:
     added_nl: np.ndarray
     calls: int
     trailer: str
+    #: (first line index in ``text``, file name) of every file the expansion read: the program
+    #: and, appended after it, the subprogram files it calls
+    segments: tuple = ()
+    main_lines: int = 0
+
+    @property
+    def external(self) -> bool:
+        """Whether subprograms from other files were followed (the output then holds them
+        written out: the control would run its own, uncompensated copies)."""
+        return len(self.segments) > 1
+
+    def where(self, origin: int) -> tuple[str, int]:
+        """(file name, 1-based line) of a line index of ``text``."""
+        k = bisect.bisect_right([s for s, _ in self.segments], origin) - 1
+        start, name = self.segments[max(k, 0)]
+        return name, origin - start + 1
 
 
 def _lines(text):
@@ -75,15 +93,82 @@ def has_flow(text: str) -> bool:
     return _HAS_FLOW.search(text) is not None
 
 
-def expand(text: str, filename: str = "<string>") -> Flow | None:
+def _find_file(pattern: str, dirs, exclude) -> list:
+    """Files in ``dirs`` (in order; the first directory with a match wins) whose name matches
+    the regular expression ``pattern`` (case-insensitive)."""
+    import os
+    rx = re.compile(pattern, re.IGNORECASE)
+    for d in dirs:
+        try:
+            names = sorted(os.listdir(d))
+        except OSError:
+            continue
+        hits = [os.path.join(d, n) for n in names if rx.fullmatch(n)
+                and os.path.isfile(os.path.join(d, n))
+                and os.path.abspath(os.path.join(d, n)) != exclude]
+        if hits:
+            return hits
+    return []
+
+
+def _oword(line):
+    """(name, keyword lower case, rest, span of the o-word and keyword) of a LinuxCNC o-word
+    line, or None."""
+    code = _COMMENT.sub(lambda m: " " * len(m.group()), line.rstrip("\r\n"))
+    i = code.find(";")
+    if i >= 0:
+        code = code[:i]
+    m = _OWORD.match(code)
+    if m is None:
+        return None
+    name = (m.group(2).strip().lower() if m.group(2) is not None else str(int(m.group(3))))
+    return name, m.group(4).lower(), m.group(5), (m.start(1), m.end(1))
+
+
+def expand(text: str, filename: str = "<string>", search=None) -> Flow | None:
     """The program as it runs, calls expanded; None when it has no M97/M98/M99 block.
     Raises InputError naming the line for flow it does not follow: M99 in the main program
     (a jump to its start), M99 P (return to a block number), a called program or block number
     not in the file, a call without P, a repeat count 0 or not whole, recursion, nesting deeper
-    than MAX_DEPTH, M30/M02 inside a subprogram, a subprogram without M99."""
+    than MAX_DEPTH, M30/M02 inside a subprogram, a subprogram without M99.
+
+    ``search``: directories where subprograms not in the file are looked for (Fanuc ``M98
+    P1234``: a file named ``O1234``, ``1234`` or ``O01234`` with any extension; LinuxCNC
+    ``o<name> call``: ``name.ngc``); None: only the file itself.  Such a file is read as if it
+    followed the program; `fold` then writes the calls out."""
+    import os
     if not has_flow(text):
         return None
     lines = _lines(text)
+    segments = [(0, str(filename))]
+    main_len = len(lines)
+    exclude = os.path.abspath(filename) if os.path.exists(str(filename)) else None
+    dirs = list(search or ())
+
+    def append_file(path):
+        """Read a subprogram file after the program; the index of its first line."""
+        from .parse import read_program
+        sub = read_program(path)
+        if sub.startswith("\ufeff"):
+            sub = sub[1:]
+        new = _lines(sub) or ["\n"]
+        if lines and not lines[-1].endswith("\n"):
+            no_nl.add(len(lines) - 1)
+        at = len(lines)
+        lines.extend(new)
+        segments.append((at, str(path)))
+        for k in range(at, len(lines)):
+            w = _words(lines[k])
+            info[k] = w
+            mcodes[k] = frozenset(v for a, v, _, _ in w if a == "M")
+            ow = _oword(lines[k])
+            if ow is not None:
+                owords[k] = ow
+            if mcodes[k] & {97.0, 98.0, 99.0, 30.0, 2.0} or ow is not None:
+                bisect.insort(flow_at, k)
+        if not lines[-1].endswith("\n"):
+            no_nl.add(len(lines) - 1)
+        return at
     # only lines with an M or O word matter for the flow (N labels are looked up when an M97
     # needs one): read the words of those alone
     starts = np.cumsum([0] + [len(ln) for ln in lines[:-1]])
@@ -97,12 +182,27 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
     info.update((i, _words(lines[i])) for i in cand)
     mcodes = dict.fromkeys(range(len(lines)), frozenset())
     mcodes.update((i, {v for a, v, _, _ in info[i] if a == "M"}) for i in cand)
-    if not any(mcodes[i] & {97.0, 98.0, 99.0} for i in cand):
+    owords = {}
+    for i in lines_with(r"[Oo][ \t]*(?:<|\d+[ \t]*[A-Za-z])"):
+        ow = _oword(lines[i])
+        if ow is not None:
+            owords[i] = ow
+    if not any(mcodes[i] & {97.0, 98.0, 99.0} for i in cand) and \
+            not any(ow[1] == "call" for ow in owords.values()):
         return None
-    flow_at = [i for i in cand if mcodes[i] & {97.0, 98.0, 99.0, 30.0, 2.0}]
+    flow_at = sorted(set(i for i in cand if mcodes[i] & {97.0, 98.0, 99.0, 30.0, 2.0}) | set(owords))
+    no_nl = {len(lines) - 1} if lines and not lines[-1].endswith("\n") else set()
+    sub_at = {}                                  # o-word subroutine name -> its "sub" line
+    for i, ow in owords.items():
+        if ow[1] == "sub":
+            sub_at.setdefault(ow[0], i)
 
     def fail(what, i):
-        raise InputError(what, file=filename, line=int(i) + 1)
+        i = int(i)
+        if i >= main_len:                          # a line of a subprogram file
+            k = bisect.bisect_right([x for x, _ in segments], i) - 1
+            raise InputError(what, file=segments[k][1], line=i - segments[k][0] + 1)
+        raise InputError(what, file=filename, line=i + 1)
 
     if "\x02" in text:
         fail("control character 0x02 in the program", text[:text.index("\x02")].count("\n"))
@@ -118,7 +218,7 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
             if any(a == "N" and v == n for a, v, _, _ in _words(lines[i])):
                 return i
         return None
-    ends = [i for i in flow_at if mcodes[i] & {30.0, 2.0}]
+    ends = [i for i in flow_at if mcodes[i] & {30.0, 2.0} and i < main_len]
     if ends:
         main_end = ends[0]
     else:
@@ -162,12 +262,53 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
             return t, int(count), f"N{n:g}", False
         if n not in o_at and n > 9999 and n == int(n) and (n % 10000) in o_at and not rep:
             count, n = n // 10000, n % 10000             # Fanuc: P<repeats><4-digit program>
+        if n not in o_at and n == int(n) and n >= 0:
+            hits = _find_file(rf"[Oo]?0*{int(n)}(\.[^.]*)?", dirs, exclude)
+            if len(hits) > 1:
+                fail(f"M98 P{n:g}: several files could be program O{n:g} "
+                     f"({', '.join(os.path.basename(h) for h in hits)}): not guessing", i)
+            if hits:
+                at = append_file(hits[0])
+                first_o = next((k for k in range(at, len(lines))
+                                if any(a == "O" for a, _, _, _ in info[k])), None)
+                if first_o is not None and not any(a == "O" and v == n for a, v, _, _ in info[first_o]):
+                    fail(f"M98 P{n:g}: file {hits[0]} holds another program "
+                         f"({lines[first_o].strip()})", i)
+                o_at[n] = first_o if first_o is not None else at
         if n not in o_at:
-            fail(f"M98 P{n:g}: program O{n:g} is not in this file (subprograms in other files "
-                 "are not followed)", i)
+            fail(f"M98 P{n:g}: program O{n:g} is neither in this file nor a file O{n:g}[.ext] "
+                 "in " + ("the program's directory or --subprogram-path" if dirs else
+                          "a directory searched (give the subprogram path)"), i)
         if o_at[n] <= main_end:
             fail(f"M98 P{n:g} calls the main program (recursion)", i)
         return o_at[n], int(count), f"O{n:g}", True
+
+    def o_target(i, name, rest):
+        """The "sub" line of the subroutine an o-word call runs (local, or name.ngc)."""
+        if rest.strip():
+            fail(f"o<{name}> call with arguments: parameters are macro variables, not followed", i)
+        if name not in sub_at and not name.isdigit():
+            hits = _find_file(re.escape(name) + r"\.ngc", dirs, exclude)
+            if hits:
+                at = append_file(hits[0])
+                for k in range(at, len(lines)):
+                    ow = owords.get(k)
+                    if ow is not None and ow[1] == "sub":
+                        sub_at.setdefault(ow[0], k)
+                if name not in sub_at:
+                    fail(f"o<{name}> call: file {hits[0]} has no o<{name}> sub", i)
+        if name not in sub_at:
+            fail(f"o<{name}> call: no o<{name}> sub in this file nor a file {name}.ngc in "
+                 + ("the program's directory or --subprogram-path" if dirs else
+                    "a directory searched (give the subprogram path)"), i)
+        return sub_at[name]
+
+    def skip_sub(i, name):
+        for k in range(i + 1, len(lines)):
+            ow = owords.get(k)
+            if ow is not None and ow[0] == name and ow[1] == "endsub":
+                return k
+        fail(f"o<{name}> sub without o<{name}> endsub", i)
 
     def run(i, stack, call):
         entry = i
@@ -177,14 +318,16 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
                     fail(f"subprogram {stack[-1]} has no M99 (return)", entry)
                 return
             w, m = info[i], mcodes[i]
-            if not (stack and i == entry) and not m & {97.0, 98.0, 99.0, 30.0, 2.0}:
+            if not (stack and i == entry) and not m & {97.0, 98.0, 99.0, 30.0, 2.0} \
+                    and i not in owords:
                 # plain lines up to the next flow line (or the main program's end): in bulk
                 k = bisect.bisect_left(flow_at, i)
                 end = flow_at[k] if k < len(flow_at) else len(lines)
                 if not stack:
                     end = min(end, main_end + 1)
-                if end == len(lines) and not lines[-1].endswith("\n"):
-                    end -= 1
+                for x in no_nl:                   # a line without its ending goes alone
+                    if i <= x < end:
+                        end = x
                 if end > i:
                     out.extend(lines[i:end])
                     origin.extend(range(i, end))
@@ -195,6 +338,34 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
                              "followed", call)
                     i = end
                     continue
+            ow = owords.get(i)
+            if ow is not None:
+                name, verb, rest, span = ow
+                if verb == "call":
+                    t = o_target(i, name, rest)
+                    label = f"o<{name}>"
+                    if label in stack:
+                        fail(f"subroutine {label} calls itself (recursion is not followed)", i)
+                    if len(stack) >= MAX_DEPTH:
+                        fail(f"subprograms nested deeper than {MAX_DEPTH} levels", i)
+                    emit(i, _mark(lines[i], [(span[0], len(lines[i].rstrip("\r\n")))]), call)
+                    nonlocal n_calls
+                    n_calls += 1
+                    run(t, stack + [label], i if call < 0 else call)
+                    i += 1
+                    continue
+                if verb == "sub" and stack and i == entry:
+                    emit(i, _mark(lines[i], [(span[0], len(lines[i].rstrip("\r\n")))]), call)
+                    i += 1
+                    continue
+                if verb == "sub":                 # a definition: not run where it stands
+                    i = skip_sub(i, name) + 1
+                    continue
+                if verb == "endsub" and stack and stack[-1] == f"o<{name}>":
+                    emit(i, _mark(lines[i], [(span[0], len(lines[i].rstrip("\r\n")))]), call)
+                    return
+                fail(f"LinuxCNC o-word '{verb}' (o<{name}>) is not followed: mtcomp follows "
+                     "o<name> sub/endsub/call without arguments only", i)
             if m & {97.0, 98.0}:
                 t, count, name, is_o = call_target(i, w)
                 if name in stack:
@@ -203,7 +374,6 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
                     fail(f"subprograms nested deeper than {MAX_DEPTH} levels", i)
                 spans = [(s, e) for a, v, s, e in w if (a == "M" and v in (97.0, 98.0)) or a in "PLK"]
                 emit(i, _mark(lines[i], spans), call)
-                nonlocal n_calls
                 for _ in range(count):
                     n_calls += 1
                     run(t, stack + [name], i if call < 0 else call)
@@ -226,10 +396,12 @@ def expand(text: str, filename: str = "<string>") -> Flow | None:
             i += 1
 
     run(0, [], -1)
-    trailer = lines[-1] if lines and lines[-1].strip() == "%" and main_end < len(lines) - 1 else ""
-    return Flow(text=text, expanded="".join(out), origin=np.asarray(origin, np.int64),
+    last = lines[main_len - 1] if main_len else ""
+    trailer = last if last.strip() == "%" and main_end < main_len - 1 else ""
+    return Flow(text="".join(lines) if len(segments) > 1 else text, expanded="".join(out),
+                origin=np.asarray(origin, np.int64),
                 caller=np.asarray(caller, np.int64), added_nl=np.asarray(added, bool),
-                calls=n_calls, trailer=trailer)
+                calls=n_calls, trailer=trailer, segments=tuple(segments), main_lines=main_len)
 
 
 def fold(flow: Flow, new_expanded: str) -> tuple[str, str]:
@@ -238,7 +410,7 @@ def fold(flow: Flow, new_expanded: str) -> tuple[str, str]:
     else ("expanded", text): the expansion with the calls written out, the flow words left as
     comments and the subprogram definitions dropped."""
     new = _lines(new_expanded)
-    if len(new) == len(flow.origin):
+    if len(new) == len(flow.origin) and not flow.external:
         src = _lines(flow.text)
         nl_len = 2 if "\r\n" in flow.text else 1
         got: dict[int, str] = {}
@@ -263,4 +435,8 @@ def remap_error(flow: Flow, exc: InputError, filename) -> InputError:
     what = exc.what
     if flow.caller[j] >= 0:
         what += f" (in a subprogram run by the call on line {int(flow.caller[j]) + 1})"
+    if flow.segments:
+        file, line = flow.where(int(flow.origin[j]))
+        if file != str(filename):
+            return InputError(what, file=file, line=line, field=exc.field)
     return InputError(what, file=exc.file, line=int(flow.origin[j]) + 1, field=exc.field)

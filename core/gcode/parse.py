@@ -8,9 +8,10 @@ import numpy as np
 from .._io import InputError
 from . import _ctok
 from .arcs import _arc_geometry
-from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
+from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR, siemens_hint
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
                     _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
+from .offsets import g10_events, offsets_per_line
 from .program import Program, resolution_formats
 from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
@@ -98,7 +99,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
         hint = _CHAR_HINT.get(ch, "expected address letters, numbers, spaces and comments")
-        _fail(f"unexpected character {ch!r}: {hint}", line_of(bad_at), filename)
+        ln = int(line_of(bad_at))
+        siemens = siemens_hint(data[line_start[ln]:line_end[ln]].decode("latin-1"))
+        if siemens and ch in "=(,)":
+            _fail(siemens, ln, filename)
+        _fail(f"unexpected character {ch!r}: {hint}", ln, filename)
     if len(rs) != len(lp) or np.any(rs != lp + 1):
         # blanks between a letter and its number ("X 10") are read, on the same line
         ok = len(rs) == len(lp) and bool(np.all(rs > lp)) and bool(np.all(rs[:-1] < lp[1:]))
@@ -163,7 +168,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     cat = np.full(len(gi), -1, np.int64)
     tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
               (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_CYCLE, 11),
-              (_G_HARMLESS, 6)]
+              (_G_HARMLESS, 6), ({100: 10}, 12), ({680: 68}, 13)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
@@ -192,11 +197,18 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         g187 = np.zeros(n_lines, bool)
         g187[gline[g10 == 1870]] = True
         badlet &= ~((wlet == _ascii("E")) & g187[wline])
+    g10_line = np.zeros(n_lines, bool)
+    g10_line[gline[cat == 12]] = True
+    if badlet.any() and g10_line.any():
+        badlet &= ~((wlet == _ascii("L")) & g10_line[wline])      # G10 L: the data kind
     if badlet.any():
         i = int(np.argmax(badlet))
         c = chr(65 + wlet[i])
         if c in CANONICAL:
             what = f"axis word {c} but the machine has axes {' '.join(axes)}"
+        elif c == "L":
+            what = (f"{_word_text(data, lp[i], re_[i])}: a Siemens subprogram call L<n> (or a "
+                    "repeat count L where none is read) is not followed")
         else:
             what = f"unknown address {_word_text(data, lp[i], re_[i])!r} (reads G M N O F S T P H D Q, " \
                    f"axes {' '.join(axes)}, arc words I J K R)"
@@ -235,9 +247,39 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         i = np.flatnonzero(wlet == _ascii(c))
         out[wline[i]] = value[i]
         return out
-    p_line, h_line = letter_value("P"), letter_value("H")
-    offsets_line, wcs_keys = _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets,
-                                      tool_lengths, n_lines, filename, notes)
+    p_line, h_line, t_line = letter_value("P"), letter_value("H"), letter_value("T")
+    inch_line = _ffill(uni_l == 20, uni_l >= 0, False)
+    incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
+    first_motion, events, written = 0, [], None
+    if g10_line.any():
+        # the first line with an axis word (outside G10): the reference work offset's block
+        axis_let = np.zeros(26, bool)
+        axis_let[[_ascii(a) for a in axes]] = True
+        ax_lines = wline[axis_let[wlet]]
+        ax_lines = ax_lines[~g10_line[ax_lines]]
+        first_motion = int(ax_lines.min()) if len(ax_lines) else 0
+        moved = np.zeros(26, bool)              # axes the program writes (outside G10 blocks)
+        moved[wlet[~g10_line[wline]]] = True
+        written = [bool(moved[_ascii(a)]) for a in axes]
+        both = g10_line & ((mot_l >= 0) | (np.bincount(gline[np.isin(cat, (9, 11))],
+                                                        minlength=n_lines) > 0))
+        if both.any():
+            _fail("G10 in a block with motion or positioning codes", int(np.argmax(both)), filename)
+        gl = np.flatnonzero(g10_line)
+        sel = np.flatnonzero(g10_line[wline] & (wlet != G))
+        words = {int(ln): [] for ln in gl}
+        for i in sel.tolist():
+            words[int(wline[i])].append((chr(65 + int(wlet[i])), float(value[i])))
+        events = g10_events(gl, words, axes, inch_line, incr_line, bool((wcs_l == 541).any()),
+                            filename)
+        notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
+                     + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
+    offsets_line, tlen_line, offset_assumed = offsets_per_line(
+        axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
+        first_motion, n_lines, filename, notes, written)
+    # G43.4 tool centre point mode per line (modal until G43/G44/G49)
+    tcp_line = (_ffill(tool_l == 434, tool_l >= 0, False) if (tool_l == 434).any()
+                else np.zeros(n_lines, bool))
 
     # -- M codes
     mi = np.flatnonzero(wlet == M)
@@ -248,8 +290,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             _fail(_M_REFUSED[int(round(value[j]))] + "; refusing rather than guessing", wline[j], filename)
 
     # -- modal state per line
-    inch_line = _ffill(uni_l == 20, uni_l >= 0, False)
-    incr_line = _ffill(dis_l == 91, dis_l >= 0, False)
     plane_line = _ffill(pla_l, pla_l >= 0, 17)
     mode_line = _ffill(mot_l, mot_l >= 0, -1)
     # canned cycles: set by G73..G89, cancelled by G80 or a G0-G3 code (the G0/G1 mode from
@@ -323,15 +363,50 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                                                                   np.isin(wcol[g52], [k for k, a in enumerate(axes) if a in LINEAR]), INCH, 1.0)
         wcol_all = wcol.copy()
         wcol = np.where((nonmove_l[wline] >= 0) & (wcol < n_ax), np.int8(-1), wcol)
+    if tcp_line.any():
+        # switching into or out of G43.4 changes what the linear words mean (tool tip / axis
+        # positions): the linear axes are unknown until the program writes them again
+        sw = np.flatnonzero(tcp_line != np.r_[False, tcp_line[:-1]])
+        lin_cols = [k for k, a in enumerate(axes) if a in LINEAR]
+        if not {"X", "Y", "Z"} <= set(axes):
+            _fail("G43.4 tool centre point on a machine without X Y Z", int(sw[0]), filename)
+        reset_lines = np.r_[reset_lines, np.repeat(sw, len(lin_cols))].astype(np.int64)
+        reset_cols = np.r_[reset_cols, np.tile(lin_cols, len(sw))].astype(np.int64)
+        o = np.lexsort((reset_cols, reset_lines))
+        reset_lines, reset_cols = reset_lines[o], reset_cols[o]
+        notes.append(f"G43.4 tool centre point on line(s) "
+                     f"{', '.join(str(int(x) + 1) for x in sw[::2][:5])}"
+                     + (" ..." if len(sw) > 10 else "")
+                     + ": its X Y Z words are the tool tip, compensated in tool-tip coordinates")
     if shift_l is not None:
         for k in range(n_ax):
             col = shift_l[:, k]
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
+    g68_line = np.zeros(n_lines, bool)
+    g68_line[gline[cat == 13]] = True
+    rot_events = []
+    if g68_line.any():
+        rot_events = _rotation_events(axes, g68_line, gline[g10 == 690], plane_line, inch_line,
+                                      incr_line, mot_l, wline, wlet, value, filename)
+        for L, (u, v), *_ in rot_events:
+            reset_lines = np.r_[reset_lines, [L, L]].astype(np.int64)
+            reset_cols = np.r_[reset_cols, [axes.index(u), axes.index(v)]].astype(np.int64)
+        o = np.lexsort((reset_cols, reset_lines))
+        reset_lines, reset_cols = reset_lines[o], reset_cols[o]
+        on_lines = [str(e[0] + 1) for e in rot_events if e[2] is not None][:5]
+        notes.append(f"G68 coordinate rotation on line(s) {', '.join(on_lines)}: "
+                     "positions rotated as the control does; the plane's axes are unknown after "
+                     "G68/G69 until written")
+        wcol = np.where(g68_line[wline], np.int8(-1), wcol)      # centre and angle, not moves
+    if g10_line.any():
+        wcol = np.where(g10_line[wline], np.int8(-1), wcol)      # G10 words are data
     # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
     cyc_zw = np.full(n_lines, -1, np.int64)
     cyc_rw = np.full(n_lines, -1, np.int64)
     if (cycle_line > 0).any():
         in_cyc = cycle_line[wline] > 0
+        if g10_line.any() or g68_line.any():
+            in_cyc &= ~(g10_line | g68_line)[wline]
         if "Z" not in axes:
             _fail("canned cycle on a machine without Z", int(np.argmax(cycle_line > 0)), filename)
         zc = axes.index("Z")
@@ -377,6 +452,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     del cw, wcol
 
     motion = mode_line[blines]
+    tcp = tcp_line[blines]
+    if tcp.any():
+        bad = tcp & ((motion == 2) | (motion == 3) | (cycle_line[blines] > 0))
+        if bad.any():
+            j = int(np.argmax(bad))
+            _fail(("canned cycle" if cycle_line[blines[j]] > 0 else f"arc G{motion[j]}")
+                  + " under G43.4 tool centre point: not supported (CAM systems write linear "
+                  "moves under TCP)", blines[j], filename)
+    tool_length = tlen_line[blines]
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -444,6 +528,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present,
                                   incremental, offset, start_vec)
 
+    rotation = None
+    if rot_events:
+        rotation = _rotation_per_block(axes, rot_events, blines, position, offset, plane, tcp,
+                                       cycle_line[blines], filename)
     cycle = cycle_line[blines]
     cyc_data = None
     if (cycle > 0).any():
@@ -481,11 +569,92 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
-                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool))
+                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
+                  tcp=tcp, tool_length=tool_length, rotation=rotation)
     for a in arrays.values():
-        a.flags.writeable = False
+        if a is not None:
+            a.flags.writeable = False
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
+                   offset_assumed=offset_assumed,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+
+
+def _rotation_events(axes, g68_line, g69_lines, plane_line, inch_line, incr_line, mot_l, wline,
+                     wlet, value, filename):
+    """G68 / G69 in program order: (line, plane axes (u, v), angle deg or None for G69, centre
+    (u, v) in program coordinates with NaN for "the current position")."""
+    from .rotation import PLANE_AXES
+    sel = np.flatnonzero(g68_line[wline])
+    words: dict = {}
+    for i in sel.tolist():
+        c = chr(65 + int(wlet[i]))
+        if c != "G":
+            words.setdefault(int(wline[i]), {})[c] = float(value[i])
+    events, angle = [], 0.0
+    for L in sorted(set(np.flatnonzero(g68_line).tolist()) | set(np.asarray(g69_lines).tolist())):
+        pl = int(plane_line[L])
+        u, v = PLANE_AXES[pl]
+        if not g68_line[L]:
+            if angle:
+                events.append((L, (u, v), None, None))
+            angle = 0.0
+            continue
+        w = words.get(L, {})
+        if mot_l[L] >= 0:
+            _fail("G68 in a block with a motion code", L, filename)
+        if u not in axes or v not in axes:
+            _fail(f"G68 in the plane G{pl}: the machine has no axis {u if u not in axes else v}", L, filename)
+        other = sorted(set(w) - {u, v, "R", "N"})
+        if set(other) & set("IJK"):
+            _fail("G68 with I J K (three-dimensional coordinate rotation): not supported", L, filename)
+        if other:
+            _fail(f"G68 with {' '.join(other)}: expected the centre {u} {v} and the angle R", L, filename)
+        if "R" not in w:
+            _fail("G68 without R: the angle would be a control parameter; not read", L, filename)
+        sc = INCH if inch_line[L] else 1.0
+        angle = (angle if incr_line[L] else 0.0) + w["R"]
+        centre = (w.get(u, np.nan) * sc, w.get(v, np.nan) * sc)
+        if incr_line[L] and (u in w or v in w):
+            _fail("G68 in G91 with a centre: incremental centres are not read", L, filename)
+        events.append((L, (u, v), angle, centre))
+    return events
+
+
+def _rotation_per_block(axes, events, blines, position, offset, plane, tcp, cycle, filename):
+    """(N, 5) per block: G68 angle (deg, 0 where none), centre (program coordinates), the G68
+    line (1-based) and the block whose end is the centre (G68 without centre words; -1)."""
+    from .rotation import PLANE_AXES
+    n = len(blines)
+    rot = np.zeros((n, 5))
+    rot[:, 4] = -1
+    for k, (L, (u, v), angle, centre) in enumerate(events):
+        b0 = int(np.searchsorted(blines, L, side="right"))
+        b1 = int(np.searchsorted(blines, events[k + 1][0], side="right")) if k + 1 < len(events) else n
+        if angle is None or b0 >= b1:
+            continue
+        iu, iv = axes.index(u), axes.index(v)
+        c = np.array(centre, float)
+        implicit = -1
+        if np.isnan(c).any():
+            implicit = b0 - 1
+            # no centre word: the current position (program coordinates) is the centre
+            j = b0 - 1
+            cur = (position[j, [iu, iv]] - offset[j, [iu, iv]]) if j >= 0 else np.array([np.nan, np.nan])
+            c = np.where(np.isnan(c), cur, c)
+            if np.isnan(c).any():
+                _fail("G68 without a centre where the current position is not known", L, filename)
+        seg = slice(b0, b1)
+        pl = PLANE_AXES[int(plane[b0])] if b1 > b0 else (u, v)
+        bad = np.flatnonzero((plane[seg] != plane[b0]) | ((u, v) != pl))
+        if len(bad):
+            _fail("plane change under G68 coordinate rotation: not supported", blines[b0 + bad[0]],
+                  filename)
+        bad = np.flatnonzero(tcp[seg] | ((cycle[seg] > 0) & (plane[seg] != 17)))
+        if len(bad):
+            _fail("G43.4 tool centre point or a canned cycle outside G17 under G68: not supported",
+                  blines[b0 + bad[0]], filename)
+        rot[seg] = (angle, c[0], c[1], L + 1, implicit)
+    return rot
 
 
 def _positions(blines, reset_lines, reset_cols, vals, present, incremental, offset, start_vec):
@@ -577,66 +746,6 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
     return position, data
 
 
-def _offsets(axes, wcs_l, p_line, tool_l, h_line, work_offsets, tool_lengths, n_lines, filename,
-             notes):
-    """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
-    (the first work offset the program selects, tool length not applied): work offset minus
-    the reference one, plus +/- the tool length along Z for G43/G44.  Unknown tool lengths are
-    taken as 0 and noted; switching work offsets needs their values."""
-    n_ax = len(axes)
-    off = np.zeros((n_lines, n_ax))
-    # -- work offsets
-    wset = wcs_l >= 0
-    pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
-    keys = wcs_l * 1000 + np.where(wcs_l == 541, pnum, 0)
-    if wset.any():
-        used = list(dict.fromkeys(keys[wset].tolist()))
-        name = lambda key: f"G54.1 P{key % 1000}" if key // 1000 == 541 else f"G{key // 1000}"  # noqa: E731
-        if len(used) > 1:
-            table = {}
-            for key, vec in dict(work_offsets or {}).items():
-                table[str(key).upper().replace(" ", "")] = vec
-            missing = [name(k) for k in used if name(k).replace(" ", "") not in table]
-            if missing:
-                ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
-                _fail(f"the program switches from {name(used[0])} to {name(keys[ln])}: give the "
-                      f"work offsets ({', '.join(name(k) for k in used)}) to compensate in one "
-                      "workpiece frame", ln, filename)
-            vec = {k: _axis_vector(table[name(k).replace(" ", "")], axes) for k in used}
-            ref = vec[used[0]]
-            cur = _ffill(keys, wset, used[0])
-            for k in used[1:]:
-                off[cur == k] += vec[k] - ref
-    # -- tool length (G43 +, G44 -, G49 cancel) along Z
-    tset = tool_l >= 0
-    if tset.any():
-        hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
-        mode = _ffill(tool_l, tset, 49)
-        active = mode != 49
-        hs = np.unique(hmodal[active & ~np.isnan(hmodal)]).astype(int).tolist()
-        lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
-        unknown = [h for h in hs if h not in lengths and h != 0]
-        if unknown:
-            notes.append(f"tool length offsets H{', H'.join(map(str, unknown))} not given: taken as "
-                         "0 mm (the compensation then evaluates the errors at the programmed tool "
-                         "tip position; give the tool lengths where errors depend on Z)")
-        if "Z" in axes and lengths:
-            L = np.array([lengths.get(int(h), 0.0) if np.isfinite(h) else 0.0 for h in hmodal])
-            sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
-            off[:, axes.index("Z")] += sign * L
-    return off, None
-
-
-def _axis_vector(vec, axes):
-    if isinstance(vec, Mapping):
-        up = {str(k).upper(): float(v) for k, v in vec.items()}
-        return np.array([up.get(a, 0.0) for a in axes])
-    v = np.asarray(vec, float).reshape(-1)
-    if len(v) != len(axes) or not np.isfinite(v).all():
-        raise ValueError(f"offset vectors need {len(axes)} finite values ({' '.join(axes)})")
-    return v
-
-
 def _map_codes(vals, mapping):
     out = np.empty(len(vals), np.int64)
     for u in np.unique(vals):
@@ -675,30 +784,8 @@ MAX_PROGRAM_BYTES = 2**31 - 2
 
 def read_program(path) -> str:
     """The text of an NC program file, line endings untouched (CR LF stays CR LF, which
-    ``Path.read_text`` would turn into LF).  A missing, binary or endless file (a device such
-    as /dev/zero, a NUL byte) is an InputError naming it; nothing beyond 2 GB is read."""
-    chunks, size = [], 0
-    try:
-        with open(path, "rb") as fh:
-            while True:
-                chunk = fh.read(1 << 22)
-                if not chunk:
-                    break
-                nul = chunk.find(b"\0")
-                if nul >= 0:
-                    raise InputError(f"not a text file (NUL byte at byte {size + nul})", path)
-                size += len(chunk)
-                if size > MAX_PROGRAM_BYTES:
-                    raise InputError("programs of 2 GB and more are not supported", path)
-                chunks.append(chunk)
-    except FileNotFoundError:
-        raise InputError("NC program not found", path) from None
-    except IsADirectoryError:
-        raise InputError("NC program is a directory", path) from None
-    except PermissionError:
-        raise InputError("NC program cannot be read (permission denied)", path) from None
-    data = b"".join(chunks)
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not a text file ({exc.reason} at byte {exc.start})", path) from None
+    ``Path.read_text`` would turn into LF).  A missing, binary (a NUL byte, not UTF-8), device
+    (/dev/zero never ends) or directory path is an InputError naming it; nothing beyond 2 GB is
+    read.  The one reader of the package's text files, `mtcomp._io.read_text`, does the work."""
+    from .._io import read_text
+    return read_text(path, newline="", what="NC program", max_bytes=MAX_PROGRAM_BYTES)

@@ -70,6 +70,12 @@ class Program:
     idle_axes: tuple = ()
     arc_tol: float = 0.02            # mm: accepted radius difference (start/end) of arcs
     notes: tuple = ()                # what was read with an assumption or passed uncompensated
+    tcp: np.ndarray = None           # (N,) G43.4 tool centre point block: X Y Z are the tool tip
+    tool_length: np.ndarray = None   # (N,) mm, tool length (H) of G43.4 blocks, 0 elsewhere
+    offset_assumed: tuple = ()       # axes whose work offset differences were taken as 0
+    rotation: np.ndarray = None      # (N, 5) G68: angle deg (0: none), centre in program
+                                     # coordinates, G68 line, block giving the centre (-1: words);
+                                     # position is then in the unrotated word frame
 
     @property
     def n_axes(self) -> int:

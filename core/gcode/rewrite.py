@@ -9,6 +9,7 @@ from .arcs import _arc_keep, _arc_params, _arc_samples, _n_samples, _linearisati
 from .._io import InputError
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .program import Program, resolution_formats
+from .rotation import has_rotation, to_reference, to_words
 from .textops import format_counts, splice
 from .tokens import _ascii
 
@@ -251,10 +252,16 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     nk = len(kk)
     cb, cyc_pts = _cycle_points(program, kn)
     Q = np.vstack([P[kk], samp, cyc_pts])
-    if row_lines is not None:
-        row_lines.append(np.concatenate([line[kk], np.repeat(line[ak], 4 * _n_samples(geo) - 1)
-                                         if geo is not None else np.zeros(0, np.int64),
-                                         np.repeat(line[cb], 3)]))
+    rotated = has_rotation(program)
+    if row_lines is not None or rotated:
+        rl = np.concatenate([line[kk], np.repeat(line[ak], 4 * _n_samples(geo) - 1)
+                             if geo is not None else np.zeros(0, np.int64), np.repeat(line[cb], 3)])
+        if row_lines is not None:
+            row_lines.append(rl)
+    if rotated:
+        # G68: positions are in the (unrotated) word frame, the transform in the reference frame
+        transform = _Conjugated(program, transform)
+        transform.blocks = np.searchsorted(line, rl)
     ns = len(samp)
     del samp
     Qt = _call_transform(transform, Q) if len(Q) else Q
@@ -268,6 +275,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     offc = np.rint(off / res).astype(np.int64) if off.any() else None
     Cc = _control_counts(program, res, offc)
     dK = np.rint((Qt[:nk] - P[kk]) / res)
+    if rotated:
+        _check_rotation_centres(program, kk, dK)
     Cc[1 + kk] += dK
     del Qt
     C = np.nan_to_num(Cc, nan=0.0).astype(np.int64)
@@ -296,6 +305,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         if len(seg.points):
             if row_lines is not None:
                 row_lines.append(np.repeat(line[lin], seg.count))
+            if rotated:
+                transform.blocks = np.repeat(lin, seg.count)
             seg.counts = np.rint(_call_transform(transform, seg.points) / res).astype(np.int64)
         else:
             seg.counts = np.zeros((0, n_ax), np.int64)
@@ -323,6 +334,12 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
             ov = ov * INCH
         oc = np.rint(ov / res[k]).astype(np.int64)
         differs = target != oc
+        if a in program.offset_assumed and ((pres & differs & kn_edit).any()
+                                            or (~pres & (v != pv) & kn_edit).any()):
+            j = int(np.argmax((pres & differs | ~pres & (v != pv)) & kn_edit))
+            raise InputError(f"the compensation moves {a}, whose work offsets the program does not "
+                             "all set (G10): give the work offsets", program.filename,
+                             int(line[j]))
         _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn_edit),
                       np.flatnonzero(~pres & (v != pv) & kn_edit & ~(no_z & (a == "Z"))), target)
 
@@ -355,6 +372,33 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         added[k] = n_add
     out_line = np.asarray(program.line) + np.cumsum(added)
     return text, out_line
+
+
+def _check_rotation_centres(program, kk, dK):
+    """A G68 without centre words turns about where the tool is: a correction of that block
+    would move the centre the control uses, which the words cannot follow."""
+    from .rotation import PLANE_AXES
+    rot = program.rotation
+    for j in np.unique(rot[:, 4][rot[:, 4] >= 0]).astype(int):
+        b = int(np.argmax(rot[:, 4] == j))
+        r = np.searchsorted(kk, j)
+        if r < len(kk) and kk[r] == j:
+            cols = [program.axes.index(a) for a in PLANE_AXES[int(program.plane[b])]]
+            if dK[r, cols].any():
+                raise InputError("G68 without a centre turns about the current position, which the "
+                                 "compensation moves: write the centre on the G68 block",
+                                 program.filename, int(rot[b, 3]))
+
+
+class _Conjugated:
+    """A reference-frame transform applied to word-frame rows of ``blocks`` (G68)."""
+
+    def __init__(self, program, transform):
+        self.program, self.transform, self.blocks = program, transform, None
+
+    def __call__(self, q):
+        return to_words(self.program, self.transform(to_reference(self.program, q, self.blocks)),
+                        self.blocks)
 
 
 def _call_transform(transform, q):

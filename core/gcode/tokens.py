@@ -7,7 +7,7 @@ import re
 import numpy as np
 
 from .._io import InputError
-from .codes import O_WORDS
+from .codes import O_WORDS, siemens_hint
 
 _PAREN_RE = re.compile(rb"\([^()\n]*\)")
 _LINE_REST_RE = re.compile(rb"[^\n]*")
@@ -65,7 +65,14 @@ def _word_error(code, lp, rs, re_, line_of, filename):
         word = bytes(code[p1:e]).decode("latin-1")
         if len(word) > 1:
             what = f"unknown word {word!r}: expected an address letter followed by a number"
-            if word.lower() in O_WORDS:
+            ls = int(np.flatnonzero(code[:p1] == 10)[-1]) + 1 if (code[:p1] == 10).any() else 0
+            le = p1 + int(np.argmax(np.r_[code[p1:] == 10, True]))
+            text = bytes(code[ls:le]).decode("latin-1")
+            oword = re.match(r"\s*(?:[Nn]\s*\d+\s*)?[Oo]\s*\d", text) is not None
+            hint = None if oword else siemens_hint(text)
+            if hint:
+                what = hint
+            elif word.lower() in O_WORDS:
                 what = (f"LinuxCNC o-word program flow ({word!r}) is not supported: mtcomp reads "
                         "straight-line code; expand subroutines and loops first")
         else:

@@ -1,0 +1,400 @@
+"""Tool lengths and work offsets: as the control holds them (tables the user gives, files shops
+keep, G10 in the program) and what they make of the program's positions.
+
+Files (docs/gcode.md, "Offset files"):
+
+* a LinuxCNC tool table: ``T1 P1 Z+50.0 D6.0 ;comment`` per tool; the Z value is the tool
+  length of tool (and H number) 1;
+* an offsets TOML: ``[H]`` tool lengths by H number, ``[D]`` cutter offsets by D number (read,
+  not used: G41/G42 are refused), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` work offsets as axis
+  letter = mm/deg;
+* CSV of ``H,length_mm`` lines (a header and ``#`` comments allowed).
+
+G10 in the program (read in program order, as the control executes it):
+
+* ``G10 L2 P1..P6`` (G54..G59), ``G10 L20 P<n>`` (Fanuc: G54.1 P<n>, read only where the program
+  uses G54.1, since on LinuxCNC L20 sets the offset from the current position): axis words set
+  (G90) or add to (G91) those axes of the offset;
+* ``G10 L10 P<h> R`` / ``G10 L11 P<h> R`` (Fanuc geometry / wear of H), ``G10 L1 P<t> Z``
+  (LinuxCNC tool table entry): tool lengths; ``G10 L12/L13`` (D values) change nothing here;
+* everything else (P0, LinuxCNC G59.1-3, L10/L11/L20 relative to the current position, L1 with R
+  only, rotation R in L2) is refused naming the line where it matters.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+from typing import Mapping
+
+import numpy as np
+
+from .._io import InputError
+from .codes import INCH, LINEAR
+
+
+def _ffill(values, isset, default):
+    idx = np.where(isset, np.arange(len(values)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    return np.where(idx >= 0, values[np.maximum(idx, 0)], default)
+
+
+def wcs_name(key: int) -> str:
+    return f"G54.1 P{key % 1000}" if key // 1000 == 541 else f"G{key // 1000}"
+
+
+def axis_vector(vec, axes):
+    if isinstance(vec, Mapping):
+        up = {str(k).upper(): float(v) for k, v in vec.items()}
+        return np.array([up.get(a, 0.0) for a in axes])
+    v = np.asarray(vec, float).reshape(-1)
+    if len(v) != len(axes) or not np.isfinite(v).all():
+        raise ValueError(f"offset vectors need {len(axes)} finite values ({' '.join(axes)})")
+    return v
+
+
+# --------------------------------------------------------------------------------- G10 blocks
+
+def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
+    """G10 blocks as events ``(line, kind, number, values, incremental)``: kind "wcs" (number: a
+    work offset key 54000..59000 or 541000 + P, values (n_axes,) NaN where not written) or
+    "geo"/"wear" (number: H, values: length mm) or "amb" (G10 L1 P R: a tool length on Fanuc
+    memory A, a radius on LinuxCNC; refused if that H is used).  ``words[line]`` is a list of
+    (letter, value)."""
+    out = []
+    lin = np.array([a in LINEAR for a in axes])
+    for ln in lines:
+        w = dict(words[ln])
+        scale = INCH if inch_line[ln] else 1.0
+        inc = bool(incr_line[ln])
+
+        def fail(what):
+            raise InputError(f"G10 {what}", file=filename, line=int(ln) + 1)
+        if "L" not in w or "P" not in w:
+            fail("without L or P: not read")
+        L, P = w["L"], w["P"]
+        if L != int(L) or P != int(P) or P < 0:
+            fail(f"L{L:g} P{P:g}: whole numbers expected")
+        L, P = int(L), int(P)
+        vals = np.array([w.get(a, np.nan) for a in axes]) * np.where(lin, scale, 1.0)
+        if L == 2 or L == 20:
+            if "R" in w:
+                fail(f"L{L} with R (a rotation of the coordinate system, LinuxCNC) is not supported")
+            if L == 2:
+                if not 1 <= P <= 6:
+                    fail(f"L2 P{P}: only P1..P6 (G54..G59) are read (P0, the external or current "
+                         "offset, and G59.1-G59.3 are not)")
+                key = (53 + P) * 1000
+            else:
+                if not uses_g541:
+                    fail("L20 sets the G54.1 P offsets on Fanuc controls but the offset from the "
+                         "current position on LinuxCNC; the program does not use G54.1: not read")
+                key = 541000 + P
+            out.append((int(ln), "wcs", key, vals, inc))
+        elif L in (10, 11) and "R" in w:
+            out.append((int(ln), "geo" if L == 10 else "wear", P, w["R"] * scale, inc))
+        elif L == 1 and "Z" in w:
+            # LinuxCNC tool table entry: Z is the tool length of tool P (G43 H<P>)
+            out.append((int(ln), "geo", P, w["Z"] * scale, inc))
+        elif L == 1 and "R" in w:
+            out.append((int(ln), "amb", P, w["R"] * scale, inc))
+        elif L in (12, 13):
+            pass                                   # D (radius) values: G41/G42 are refused
+        else:
+            fail(f"L{L} with {' '.join(sorted(k for k in w if k not in 'LPG'))}: not read (L10/L11 "
+                 "with axis words set offsets from the current position on LinuxCNC)")
+    return out
+
+
+# ------------------------------------------------------------------------ offsets per line
+
+def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths,
+                     events, first_motion, n_lines, filename, notes, written=None):
+    """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
+    (the work offset in effect at the first motion block, ``first_motion``): work offset minus
+    the reference one, plus +/- the tool length along Z for G43/G44; and per line the tool
+    length of G43.4 blocks.  Offsets not given are unknown: where only one is used and no G10
+    changes it, the difference is 0; otherwise the program is refused naming the line.
+    Tool lengths not given are taken as 0 and noted.  ``written`` (n_axes,): the axes the
+    program writes; an unknown offset of an axis it never writes is harmless (the control does
+    not move an axis that is not commanded)."""
+    n_ax = len(axes)
+    off = np.zeros((n_lines, n_ax))
+    assumed = []
+    wev = [e for e in events if e[1] == "wcs"]
+    tev = [e for e in events if e[1] != "wcs"]
+    # -- work offsets
+    wset = wcs_l >= 0
+    pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
+    keys = wcs_l * 1000 + np.where(wcs_l == 541, pnum, 0)
+    table = {}
+    for key, vec in dict(work_offsets or {}).items():
+        table[str(key).upper().replace(" ", "")] = axis_vector(vec, axes)
+    if wset.any() or wev:
+        used = list(dict.fromkeys(keys[wset].tolist())) or [54000]
+        cur = _ffill(keys, wset, used[0])
+        if not wev:
+            if len(used) > 1:
+                missing = [wcs_name(k) for k in used if wcs_name(k).replace(" ", "") not in table]
+                if missing:
+                    ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
+                    raise InputError(f"the program switches from {wcs_name(used[0])} to "
+                                     f"{wcs_name(keys[ln])}: give the work offsets "
+                                     f"({', '.join(wcs_name(k) for k in used)}) to compensate in "
+                                     "one workpiece frame", file=filename, line=ln + 1)
+                vec = {k: np.nan_to_num(table[wcs_name(k).replace(" ", "")]) for k in used}
+                ref = vec[used[0]]
+                for k in used:
+                    off[cur == k] += vec[k] - ref
+        else:
+            assumed = _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename,
+                                        np.ones(n_ax, bool) if written is None else
+                                        np.asarray(written, bool))
+            if assumed:
+                notes.append(f"work offsets of {' '.join(assumed)} (axes the program does not "
+                             "write) are not all set: their differences taken as 0; a "
+                             "compensation that writes them is refused")
+    # -- tool length (G43 +, G44 -, G49 cancel) along Z; G43.4: in the TCP transform
+    tset = tool_l >= 0
+    tlen = np.zeros(n_lines)
+    if tset.any():
+        # G43/G44/G43.4 without H: the loaded tool T (LinuxCNC)
+        h_line = h_line.copy()
+        noh = tset & (tool_l != 49) & np.isnan(h_line)
+        if noh.any():
+            tmod = _ffill(t_line, ~np.isnan(t_line), np.nan)
+            h_line[noh] = tmod[noh]
+            if np.isfinite(tmod[noh]).any():
+                notes.append("G43 without H: the tool length of the loaded tool (T word) is used, as "
+                             "on LinuxCNC")
+        hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
+        mode = _ffill(tool_l, tset, 49)
+        active = mode != 49
+        lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
+        L, unknown = _lengths_per_line(hmodal, active, lengths, tev, filename)
+        if unknown:
+            notes.append(f"tool length offsets H{', H'.join(map(str, unknown))} not given: taken as "
+                         "0 mm (the compensation then evaluates the errors at the programmed tool "
+                         "tip position; give the tool lengths where errors depend on Z)")
+        if "Z" in axes:
+            sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
+            off[:, axes.index("Z")] += sign * L
+        tlen = np.where(mode == 434, L, 0.0)
+    return off, tlen, tuple(assumed)
+
+
+def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, written):
+    """Work offsets that G10 changes: each offset's value per axis is a known number or "its
+    value before the program" (unknown, a symbol) plus a known change; the offset of a line is
+    its work offset minus the reference one, defined where both are known or share the symbol."""
+    n_ax = len(axes)
+    state = {}                     # key -> (sym (n_ax,) object: None known or key, val (n_ax,))
+
+    def value(key):
+        if key not in state:
+            v = table.get(wcs_name(key).replace(" ", ""))
+            v = np.full(n_ax, np.nan) if v is None else np.asarray(v, float)
+            sym = np.array([None if np.isfinite(x) else key for x in v], object)
+            state[key] = (sym, np.nan_to_num(v))
+        return state[key]
+
+    n_lines = len(cur)
+    ev_lines = sorted({e[0] for e in wev})
+    change = sorted(set(ev_lines) | set(np.flatnonzero(np.r_[True, cur[1:] != cur[:-1]]).tolist())
+                    | {first_motion})
+    # pass 1: the state at every change point (events apply from their own line on)
+    snaps = []
+    by_line = {}
+    for e in wev:
+        by_line.setdefault(e[0], []).append(e)
+    for c in change:
+        for _, _, key, vals, inc in by_line.get(c, ()):
+            sym, val = value(key)
+            sym, val = sym.copy(), val.copy()
+            w = np.isfinite(vals)
+            if inc:
+                val[w] += vals[w]
+            else:
+                val[w] = vals[w]
+                sym[w] = None
+            state[key] = (sym, val)
+        k = int(cur[c])
+        sym, val = value(k)
+        snaps.append((c, k, sym.copy(), val.copy()))
+    ref = next(s for s in snaps if s[0] == first_motion)
+    assumed = set()
+    for i, (c, k, sym, val) in enumerate(snaps):
+        end = snaps[i + 1][0] if i + 1 < len(snaps) else n_lines
+        same = np.array([a == b for a, b in zip(sym, ref[2])])
+        if not (same | ~written).all() and c > first_motion - 1:
+            bad = [a for a, s, w in zip(axes, same, written) if w and not s]
+            raise InputError(f"from here on {wcs_name(k)} {' '.join(bad)} differs from "
+                             f"{wcs_name(ref[1])} at the first motion block by an amount not known "
+                             "(G10 or the offsets file gives one of them, not the other): give the "
+                             "work offsets",
+                             file=filename, line=c + 1)
+        if c >= first_motion:
+            assumed |= {a for a, s in zip(axes, same) if not s}
+        off[c:end] += np.where(same, val - ref[3], 0.0)
+    return [a for a in axes if a in assumed]
+
+
+def _lengths_per_line(hmodal, active, lengths, tev, filename):
+    """Tool length (geometry + wear, mm) per line of the active H, with G10 tool events applied
+    in program order; H numbers used whose length is not known (taken as 0)."""
+    n = len(hmodal)
+    L = np.zeros(n)
+    geo = {h: v for h, v in lengths.items()}
+    wear: dict = {}
+    amb: dict = {}
+    unknown = []
+    evl = sorted({e[0] for e in tev})
+    bounds = [0] + [x for x in evl if x > 0] + [n]
+    by_line: dict = {}
+    for e in tev:
+        by_line.setdefault(e[0], []).append(e)
+    for s, e_ in zip(bounds[:-1], bounds[1:]):
+        for _, kind, h, v, inc in by_line.get(s, ()):
+            if active[s] and hmodal[s] == h:
+                raise InputError(f"G10 changes the length of H{h} while it is active (G43/G44 H{h}): "
+                                 "controls differ on when that takes effect; set it before G43 "
+                                 "or cancel with G49 first", file=filename, line=s + 1)
+            if kind == "amb":
+                amb[h] = s
+                continue
+            d = geo if kind == "geo" else wear
+            if kind == "geo":
+                amb.pop(h, None)
+            if inc:
+                if d is geo and h not in geo:
+                    continue                      # unknown plus a change: still unknown
+                d[h] = d.get(h, 0.0) + v
+            else:
+                d[h] = v
+        seg = slice(s, e_)
+        hs = hmodal[seg]
+        act = active[seg] & np.isfinite(hs)
+        if not act.any():
+            continue
+        for h in np.unique(hs[act]).astype(int).tolist():
+            rows = np.flatnonzero(act & (hs == h)) + s
+            if h in amb:
+                raise InputError(f"H{h}: G10 L1 P{h} R on line {amb[h] + 1} is a tool length on "
+                                 "Fanuc (memory A) but a radius on LinuxCNC: write G10 L10 (Fanuc) "
+                                 "or G10 L1 Z (LinuxCNC)", file=filename, line=int(rows[0]) + 1)
+            if h not in geo and h != 0 and h not in unknown:
+                unknown.append(h)
+            L[rows] = geo.get(h, 0.0) + wear.get(h, 0.0)
+    return L, unknown
+
+
+# ------------------------------------------------------------------------------------- files
+
+_TBL_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+def read_tool_table(path) -> dict:
+    """Tool lengths (mm) by tool number from a LinuxCNC tool table (``T1 P1 Z+50.0 D6.0
+    ;comment`` lines; G43 H<n> takes tool n's Z)."""
+    from .._io import read_text
+    out = {}
+    for n, raw in enumerate(read_text(path, what="tool table").splitlines(), start=1):
+        ln = raw.split(";")[0].strip()
+        if not ln:
+            continue
+        pos, words = 0, {}
+        for m in _TBL_WORD.finditer(ln):
+            if ln[pos:m.start()].strip():
+                break
+            words[m.group(1).upper()] = float(m.group(2))
+            pos = m.end()
+        if ln[pos:].strip() or "T" not in words or words["T"] != int(words["T"]) or words["T"] < 0:
+            raise InputError(f"expected a tool table line like 'T1 P1 Z+50.0 D6.0 ;comment', got "
+                             f"{raw.strip()!r}", file=path, line=n)
+        if "Z" in words:
+            if not math.isfinite(words["Z"]):
+                raise InputError("tool length Z is not finite", file=path, line=n)
+            out[int(words["T"])] = words["Z"]
+    return out
+
+
+def is_tool_table(path) -> bool:
+    """Whether a file looks like a LinuxCNC tool table (its first entry starts with T)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096).decode("utf-8", "replace")
+    except OSError:
+        return False
+    for ln in head.splitlines():
+        ln = ln.split(";")[0].strip()
+        if ln:
+            return bool(re.match(r"[Tt]\s*\d", ln))
+    return False
+
+
+def read_offsets(path, axes) -> tuple[dict, dict, dict]:
+    """(tool lengths {H: mm}, cutter offsets {D: mm}, work offsets {"G54": {axis: value}, ...})
+    from an offsets TOML file: ``[H]`` / ``[D]`` tables of number = mm, ``[G54]``..``[G59]`` and
+    ``["G54.1 P<n>"]`` tables of axis letter = mm/deg."""
+    from .._io import load_toml
+    data = load_toml(path)
+    tools, cutters, works = {}, {}, {}
+    for key, vec in data.items():
+        name = str(key).upper().strip()
+        if name in ("H", "D"):
+            if not isinstance(vec, dict):
+                raise InputError(f"expected a table [{name}] of number = mm", path, field=str(key))
+            for k, v in vec.items():
+                try:
+                    num = int(str(k).lstrip("HDhd"))
+                except ValueError:
+                    num = -1
+                if num < 0 or isinstance(v, bool) or not isinstance(v, (int, float)) \
+                        or not math.isfinite(v):
+                    raise InputError(f"expected an {name} number and a finite length in mm", path,
+                                     field=f"{key}.{k}")
+                (tools if name == "H" else cutters)[num] = float(v)
+            continue
+        name = re.sub(r"\s+", " ", name)
+        if not isinstance(vec, dict) or not re.fullmatch(r"G5[4-9]|G54\.1 ?P\d+", name):
+            raise InputError("expected tables [H], [D], [G54]..[G59] or [\"G54.1 P<n>\"] (axis "
+                             "letters = mm/deg)", path, field=str(key))
+        for a, v in vec.items():
+            if a.upper() not in axes or isinstance(v, bool) or not isinstance(v, (int, float)) \
+                    or not math.isfinite(v):
+                raise InputError(f"expected an axis of the machine ({' '.join(axes)}) and a finite "
+                                 "number", path, field=f"{key}.{a}")
+        works[name] = {a.upper(): float(v) for a, v in vec.items()}
+    return tools, cutters, works
+
+
+def tool_lengths_from(spec: str | None) -> dict | None:
+    """Tool lengths by H number (mm) from an option value: ``1=50.2,2=75``, a LinuxCNC tool
+    table, or a CSV file of ``H,length_mm`` lines (a header line and ``#`` comments allowed)."""
+    if spec is None:
+        return None
+    if os.path.exists(spec) and is_tool_table(spec):
+        return read_tool_table(spec)
+    items, where = [], "--tool-lengths"
+    if os.path.exists(spec):
+        from .._io import read_text
+        for n, ln in enumerate(read_text(spec, what="tool length table").splitlines(), start=1):
+            ln = ln.split("#")[0].strip()
+            if not ln or (n == 1 and not ln[0].isdigit()):
+                continue
+            items.append((ln.replace(";", ","), (spec, n)))
+    else:
+        items = [(part, (None, None)) for part in spec.split(",") if part.strip()]
+        items = [(it.replace("=", ","), w) for it, w in items]
+    out = {}
+    for text, (file, line) in items:
+        h, _, v = text.partition(",")
+        try:
+            hn, val = int(h.strip().lstrip("Hh")), float(v)
+        except ValueError:
+            hn, val = -1, math.nan
+        if hn < 0 or not math.isfinite(val):
+            raise InputError(f"expected H number and tool length in mm (1=50.2 or a CSV line 1,50.2), "
+                             f"got {text!r}", file, line, field=None if file else where)
+        out[hn] = val
+    return out

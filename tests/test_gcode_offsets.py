@@ -1,0 +1,159 @@
+"""Tool lengths and work offsets as shops keep them (issue 20): LinuxCNC tool tables, an offsets
+TOML file, and G10 in the program read in program order as the control executes it."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mtcomp import InputError, gcode
+from mtcomp.errors import ErrorSet, ToolSetting, save_errors
+from mtcomp.gcode.offsets import read_offsets, read_tool_table, tool_lengths_from
+
+XYZ = ("X", "Y", "Z")
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "mtcomp", *map(str, args)], capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_linuxcnc_tool_table(tmp_path):
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z+50.0 D6.0 ;end mill 6\n\n;spare\nT2  P2 Z35.125 D3 X0 ;drill\nT7 P3 D1.\n")
+    assert read_tool_table(tbl) == {1: 50.0, 2: 35.125}            # T7 has no length
+    assert tool_lengths_from(str(tbl)) == {1: 50.0, 2: 35.125}
+    bad = tmp_path / "bad.tbl"
+    bad.write_text("T1 P1 Z50.\nT2 P2 Z=35\n")
+    with pytest.raises(InputError, match=r"bad.tbl:2: expected a tool table line"):
+        read_tool_table(bad)
+    # G43 H2 takes tool 2's Z; G43 without H (LinuxCNC) the loaded tool's
+    text = "G90 G0 X0 Y0 Z100.\nT2 M6\nG43 H2 Z10.\nG49 Z100.\nT1 M6\nG43 Z10.\n"
+    p = gcode.parse(text, axes=XYZ, tool_lengths=read_tool_table(tbl))
+    assert np.allclose(p.position[:, 2], [100, 45.125, 100, 60])
+    assert any("loaded tool" in n for n in p.notes)
+
+
+def test_offsets_toml(tmp_path):
+    f = tmp_path / "offsets.toml"
+    f.write_text('[H]\n1 = 80.5\nH2 = 40\n[D]\n1 = 3.0\n[G54]\nX = 0.0\n[G55]\nX = 100.0\nY = -20.0\n'
+                 '["G54.1 P2"]\nX = 200.0\n')
+    tools, cutters, works = read_offsets(f, XYZ)
+    assert tools == {1: 80.5, 2: 40.0} and cutters == {1: 3.0}
+    assert works == {"G54": {"X": 0.0}, "G55": {"X": 100.0, "Y": -20.0}, "G54.1 P2": {"X": 200.0}}
+    text = "G54 G90 G0 X0 Y0 Z5.\nG55 X1.\nG54.1 P2 X1.\nG43 H1 Z5.\n"
+    p = gcode.parse(text, axes=XYZ, tool_lengths=tools, work_offsets=works)
+    assert np.allclose(p.position, [[0, 0, 5], [101, 0, 5], [201, 0, 5], [201, 0, 85.5]])
+    # (Y not written after G55: the axis stays where it is, as on the control)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[G60]\nX = 1.0\n")
+    with pytest.raises(InputError, match=r"bad.toml \[G60\]: expected tables \[H\], \[D\]"):
+        read_offsets(bad, XYZ)
+    bad.write_text("[H]\n1 = \"long\"\n")
+    with pytest.raises(InputError, match=r"\[H.1\]"):
+        read_offsets(bad, XYZ)
+
+
+def test_offsets_files_on_the_cli(tmp_path):
+    prog = tmp_path / "p.ngc"
+    prog.write_text("g21 g90 g54\ng0 x0 y0 z40.\nt1 m6\ng43 h1 z-60.\ng55 x5.\ng1 z-71. f100\nm2\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0.001))), tmp_path / "e.toml")
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z+50.0 D6.0 ;comment\n")
+    off = tmp_path / "offsets.toml"
+    off.write_text("[G54]\nX = 0.0\n[G55]\nX = 100.0\n")
+    out = tmp_path / "o.ngc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--tool-table", tbl,
+            "--offsets", off)
+    assert r.returncode == 0, r.stderr
+    assert "H1" not in r.stdout                    # no "tool length not given" note
+    text = out.read_text()
+    assert "g55 x4.9980\n" in text and "g43 h1 z-60.0010\n" in text and "H1=50" in text
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out)
+    assert r.returncode == 2 and "give the work offsets (G54, G55)" in r.stderr
+
+
+# ------------------------------------------------------------------------------------- G10
+
+def test_g10_work_offsets_read_as_the_control_does():
+    # Fanuc/LinuxCNC G10 L2 P1..P6 set G54..G59; positions in the frame of the offset in
+    # effect at the first motion block (G54 = (100, 0, -50) here)
+    text = ("G10 L2 P1 X100. Y0 Z-50.\nG10 L2 P2 X200. Y0 Z-50.\nG54 G90 G0 X0 Y0 Z5.\nG55 X0\n"
+            "G91 G10 L2 P2 X1.5\nG90 X0\nG54 X0\n")
+    p = gcode.parse(text, axes=XYZ)
+    # G55 - G54 = 100, then 101.5 after the incremental G10
+    assert np.allclose(p.position[:, 0], [0, 100, 101.5, 0])
+    assert any("G10" in n for n in p.notes)
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0, 0])
+    assert out.splitlines()[:2] == text.splitlines()[:2]       # G10 words are data, not moves
+    assert out.splitlines()[3] == "G55 X0.001000"
+    back = gcode.parse(out, axes=XYZ)
+    assert np.allclose(back.position[:, 0], p.position[:, 0] + 0.001)
+
+
+def test_g10_changing_the_active_offset_mid_program():
+    text = "G54 G90 G0 X0 Y0 Z5.\nG10 L2 P1 X5.\nX1.\n"
+    # G54 before is not known: the change cannot be told
+    with pytest.raises(InputError, match=r":2: from here on G54 X differs from G54 at the first "
+                                         r"motion block by an amount not known"):
+        gcode.parse(text, axes=XYZ)
+    p = gcode.parse(text, axes=XYZ, work_offsets={"G54": (2.0, 0, 0)})
+    assert np.allclose(p.position[:, 0], [0, 4])                # 1 + (5 - 2)
+
+
+def test_g10_extended_offsets_only_with_g54_1():
+    text = "G10 L20 P3 X50. Y0 Z0\nG54.1 P3 G90 G0 X1. Y0 Z0\nG54 X1.\n"
+    p = gcode.parse(text, axes=XYZ, work_offsets={"G54": (0, 0, 0)})
+    assert np.allclose(p.position[:, 0], [1, -49])
+    with pytest.raises(InputError, match=r":1: G10 L20 sets the G54.1 P offsets on Fanuc"):
+        gcode.parse("G10 L20 P1 X0 Y0\nG0 X1.\n", axes=XYZ)
+
+
+def test_g10_tool_lengths():
+    # Fanuc memory C: L10 geometry, L11 wear (G91 adds); LinuxCNC: L1 P<tool> Z
+    text = ("G10 L10 P1 R50.\nG10 L11 P1 R-0.02\nG90 G0 X0 Y0 Z100.\nG43 H1 Z10.\n"
+            "G49 Z100.\nG91 G10 L11 P1 R-0.01\nG90 G43 H1 Z10.\nG10 L1 P2 Z30.\nG43 H2 Z10.\n")
+    p = gcode.parse(text, axes=XYZ)
+    assert np.allclose(p.position[:, 2], [100, 59.98, 100, 59.97, 40])
+    assert not any("not given" in n for n in p.notes)
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+
+
+@pytest.mark.parametrize("text,line,what", [
+    ("G10 L2 P0 X1.\n", 1, "G10 L2 P0: only P1..P6"),
+    ("G10 L2 P7 X1.\n", 1, "G59.1-G59.3 are not"),
+    ("G10 L2 P1 X1. R30.\n", 1, "with R .a rotation"),
+    ("G10 L10 P1 Z5.\n", 1, "L10 with Z: not read"),
+    ("G10 L20 P1 X0\n", 1, "L20 sets the G54.1"),
+    ("G10 P1 R5.\n", 1, "without L or P"),
+    ("G0 X0 Y0 Z0\nG10 L1 P1 R5.\nG43 H1 Z1.\n", 3, "G10 L1 P1 R on line 2 is a tool length on Fanuc"),
+    ("G10 L2 P1 G0 X1.\n", 1, "G10 in a block with motion"),
+    ("G10 L10 P1 R5.\nG0 X0 Y0 Z9.\nG43 H1 Z5.\nG10 L11 P1 R-0.1\nZ4.\n", 4,
+     "G10 changes the length of H1 while it is active"),
+])
+def test_g10_refusals_name_the_line(text, line, what):
+    with pytest.raises(InputError, match=rf"^p.nc:{line}: .*{what}"):
+        gcode.parse(text, axes=XYZ, filename="p.nc")
+
+
+def test_g10_l1_radius_only_is_harmless_where_unused():
+    # LinuxCNC G10 L1 P1 R3 (a radius) for a tool whose length is never applied: nothing refused
+    p = gcode.parse("G10 L1 P1 R3.\nG90 G0 X1. Y0 Z0\n", axes=XYZ)
+    assert np.allclose(p.position, [[1, 0, 0]])
+
+
+def test_g10_offsets_of_axes_the_program_does_not_write():
+    # a 3-axis program on a 5-axis machine: G10 sets X Y Z of G54 and G55, B and C are the
+    # control's; the program reads (B C are never commanded) but a compensation that writes B
+    # or C would depend on them: refused naming the block
+    text = "G10 L2 P1 X0 Y0 Z0\nG10 L2 P2 X50. Y0 Z0\nG54 G90 G0 X0 Y0 Z5.\nG55 X0\nY1.\n"
+    axes = ("X", "Y", "Z", "B", "C")
+    p = gcode.parse(text, axes=axes)
+    assert p.offset_assumed == ("B", "C") and any("taken as 0" in n for n in p.notes)
+    assert np.allclose(p.position[:, 0], [0, 50, 50])
+    assert gcode.rewrite(p, lambda q: q + [0.001, 0, 0, 0, 0]).splitlines()[3] == "G55 X0.001000"
+    with pytest.raises(InputError, match=r":3: the compensation moves B, whose work offsets"):
+        gcode.rewrite(p, lambda q: q + [0, 0, 0, 0.001, 0])
