@@ -10,7 +10,7 @@ interpolation error bound reported with the result.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -419,7 +419,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
             offset, c_off, c_zero = _refine_offset(sim, rec, motion_outs, sim_f, offset0,
                                                    tc[1] - tc[0])
             if c_off < c_zero:
-                shifted = Table(rec.path, rec.t - offset, rec.columns)
+                shifted = replace(rec, t=rec.t - offset)
                 note = (f"clocks aligned: REC's clock runs {offset:+.6g} s from SIM's (estimated "
                         "jointly with a first-order lag per output; it lowers the residual "
                         + (f"{math.sqrt(c_zero / c_off):.3g}x" if c_off > 0 and c_zero / c_off < 1e6

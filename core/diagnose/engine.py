@@ -137,7 +137,9 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     say = progress or (lambda msg: None)
     S = _data.load(sim, "SIM", units)
     R = _data.load(rec, "REC", units)
-    al = _align.align(S, R, outputs=outputs, inputs=inputs)
+    S, R, clock_notes = _data.common_clock(S, R)
+    al = _align.align(S, R, outputs=outputs, inputs=inputs,
+                      notes=tuple(S.notes) + tuple(R.notes) + clock_notes)
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
