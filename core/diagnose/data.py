@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -63,8 +63,17 @@ _JOINT = re.compile(r"^(?:q|joint|j|theta|th)_?\d*(?:$|_(?:cmd|act|set|nom|meas|
 _TEMP = re.compile(r"^(?:t[_\-\s\d].+|t[a-z]{2,}\d*|temp.*|.*temperature.*|.*_temp\w*|theta_.*)$")
 _SPEED = re.compile(r"^(?:s|s\d|s_.*|spindle.*|.*rpm.*|n_spindle.*)$")
 _TOKENS = re.compile(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+")
-_VEL_WORDS = {"v", "vel", "velo", "velocity", "feedrate", "speed"}
-_ACC_WORDS = {"acc", "accel", "acceleration"}
+_VEL_WORDS = {"v", "vel", "velo", "velocity", "feedrate", "speed", "geschwindigkeit", "geschw",
+              "vitesse", "velocidad", "velocita"}
+_ACC_WORDS = {"acc", "accel", "acceleration", "beschleunigung", "besch", "aceleracion",
+              "accelerazione"}
+# words of other conventions (German, French, Spanish; drive parameters): position, angle,
+# spindle speed, temperature
+_POS_WORDS = {"pos", "position", "lage", "weg", "istposition", "sollposition", "posicion",
+              "posizione", "cote", "coord", "coordinate", "displacement", "disp"}
+_ANGLE_WORDS = {"winkel", "angle", "angulo", "joint", "gelenk", "articulation", "achswinkel"}
+_SPEED_WORDS = {"drehzahl", "spindeldrehzahl", "broche", "rpm", "husillo", "mandrino"}
+_TEMP_WORDS = {"temperatur", "temperature", "temp", "temperatura"}
 
 
 def _tokens(name: str) -> list[str]:
@@ -99,8 +108,16 @@ def kind_from_name(key: str) -> str:
         return "angle"
     if _TEMP.match(low):
         return "temperature"
-    if low in ("pos", "position"):
-        return "length"
+    wset = set(words)
+    if wset & _TEMP_WORDS:
+        return "temperature"
+    if wset & _SPEED_WORDS:
+        return "speed"
+    if wset & _ANGLE_WORDS:
+        return "angle"
+    if wset & _POS_WORDS:
+        # `Pos_Act`, `act_pos`, `Istposition_B`: a rotary axis letter makes it an angle
+        return "angle" if _axis_in_words(words) in ("a", "b", "c") else "length"
     return "other"
 
 
@@ -531,3 +548,85 @@ def common_clock(sim: Table, rec: Table) -> tuple[Table, Table, tuple]:
             return sim, rec, (f"{role}'s time stamps are counted from its first row (the other file "
                               "has times in s): the clock offset is left to the alignment",)
     return sim, rec, ()
+
+
+# words that say a column's role (command or measurement), not what it measures: `X_cmd` and
+# `X_act`, `Soll_X` and `Ist_X`, `cmd_pos` and `act_pos`, `X1_CommandPosition` and
+# `X1_ActualPosition` name the same quantity of the same axis
+_ROLE_WORDS = {"cmd", "command", "commanded", "set", "setpoint", "soll", "sollwert", "nom",
+               "nominal", "des", "desired", "ref", "reference", "target", "dem", "demand",
+               "consigne", "cons", "sim", "simulated", "model", "act", "actual", "ist", "istwert",
+               "meas", "measured", "fb", "feedback", "mes", "mesure", "mesuree", "reel", "reelle",
+               "real", "rec", "recorded", "enc", "encoder", "scale", "lin", "rot", "motor", "load",
+               "value", "wert", "valeur", "val"}
+
+
+def stem(name: str) -> str:
+    """A column's name without the words that say its role, lower case: what a command and its
+    measurement have in common (``X_cmd`` / ``x_act`` -> 'x'; ``Pos_Act`` -> 'pos')."""
+    words = []
+    for w in _tokens(name):
+        for pre in ("ist", "soll"):  # German compounds: Istposition, Sollposition
+            if w.startswith(pre) and len(w) > len(pre) + 2:
+                w = w[len(pre):]
+        if w not in _ROLE_WORDS:
+            words.append(w)
+    return "_".join(words)
+
+
+def pair_columns(sim: Table, rec: Table, outputs=None) -> tuple[Table, list | None, tuple]:
+    """Pairs of a SIM column and REC columns under other names, as outputs.
+
+    `outputs` entries ``SIMCOL=RECCOL`` compare REC's RECCOL with SIM's SIMCOL (the output is
+    named RECCOL; several REC columns may pair with one SIM column, e.g. a motor encoder and a
+    linear scale).  Without `outputs`, a SIM column of a motion kind that REC does not have is
+    paired with the REC columns of the same kind whose name differs only by role words
+    (``X_cmd`` with ``X_act``, ``Soll_X`` with ``Ist_X``); every pairing is said in the notes.
+    Returns SIM with a copy of the SIM column under each REC name, the output names, notes.
+    """
+    pairs = []
+    plain = None
+    if outputs:
+        plain = []
+        for o in outputs:
+            if "=" in o:
+                s, r = (x.strip() for x in o.split("=", 1))
+                if s not in sim.columns:
+                    raise InputError(f"--output {o!r}: SIM has no column {s!r} (it has "
+                                     f"{', '.join(sim.columns)})", field="--output")
+                if r not in rec.columns:
+                    raise InputError(f"--output {o!r}: REC has no column {r!r} (it has "
+                                     f"{', '.join(rec.columns)})", field="--output")
+                pairs.append((s, r, "option"))
+                plain.append(r)
+            else:
+                plain.append(o)
+    else:
+        rec_only = [k for k in rec.columns if k not in sim.columns]
+        for s, cs in sim.columns.items():
+            if s in rec.columns or cs.kind not in MOTION_KINDS + ("other",):
+                continue
+            st = stem(s)
+            if not st:
+                continue
+            hits = [r for r in rec_only if stem(r) == st and rec.columns[r].kind == cs.kind]
+            for r in hits:
+                # a REC column that matches two SIM columns is left alone (ambiguous)
+                if sum(stem(k) == st and c.kind == cs.kind for k, c in sim.columns.items()
+                       if k not in rec.columns) == 1:
+                    pairs.append((s, r, "name"))
+    if not pairs:
+        return sim, plain, ()
+    cols = dict(sim.columns)
+    notes = []
+    for s, r, how in pairs:
+        if r in sim.columns:
+            raise InputError(f"--output {s}={r}: SIM has a column {r!r} already", field="--output")
+        c = sim.columns[s]
+        cols[r] = Column(r, c.header, c.kind, c.unit, c.values, c.quantum, c.kind_from, c.present)
+        notes.append(f"REC's {r!r} is compared with SIM's {s!r}"
+                     + (" (their names differ only by words of role: give --output "
+                        f"{s}={r} to choose pairs yourself)" if how == "name" else ""))
+    for s in {p[0] for p in pairs}:
+        cols.pop(s, None)  # the SIM column lives on as the paired outputs
+    return replace(sim, columns=cols), plain, tuple(notes)

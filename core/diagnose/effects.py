@@ -146,6 +146,19 @@ def backlash_play(p: np.ndarray, b: float, d: np.ndarray | None = None) -> np.nd
     return r
 
 
+def below_rounding(ctx, o: str, beta) -> str | None:
+    """A periodic error in the position is refused when its amplitude is below the rounding step
+    of the recorded values: the rounding error of a recording written in coarse counts or with
+    few significant figures is itself a function of the position (a sawtooth of the step's
+    period, aliased by the sampling) that a periodic term partly fits."""
+    q = float(ctx.al.quantum.get(o, 0.0))
+    amp = float(np.hypot(beta[0], beta[1])) if len(beta) >= 2 else 0.0
+    if q > 0 and amp < q:
+        return (f"amplitude {amp:.3g} below the recording's rounding step {q:.3g} "
+                f"({ctx.al.units.get(o, '')}): not identifiable from rounded values")
+    return None
+
+
 class Context:
     """Stacked, whitened layout of the outputs on a subset `idx` of the grid samples.
 
@@ -156,7 +169,7 @@ class Context:
 
     def __init__(self, al: Aligned, idx: np.ndarray | None = None, sigma: dict | None = None):
         self.al = al
-        self.idx = np.arange(al.n) if idx is None else np.asarray(idx)
+        self.idx = al.rows() if idx is None else np.asarray(idx)
         self.full = len(self.idx) == al.n
         self.outputs = al.outputs
         self.sigma = dict(sigma or al.noise_floor)
@@ -222,6 +235,10 @@ class Candidate:
 
     def bounds(self, ctx: Context):
         return [], []
+
+    def implausible(self, ctx: Context, eta, beta) -> str | None:
+        """Why fitted parameters cannot be taken as this effect (None: they can)."""
+        return None
 
     def columns(self, ctx: Context, eta) -> tuple:
         """(fixed (N,) or None, B (N, n_lin)) on ctx's rows, whitened; cached per (ctx, eta)."""
@@ -453,6 +470,9 @@ class PeriodicPitch(Candidate):
     def identifiable(self, ctx) -> bool:
         p = ctx.values(self.outputs[0])
         return 2.0 * visited_spacing(p) < float(np.ptp(p)) / 2.0
+
+    def implausible(self, ctx, eta, beta):
+        return below_rounding(ctx, self.outputs[0], beta)
 
     def build(self, ctx, eta):
         ph = 2 * np.pi * ctx.values(self.outputs[0]) / math.exp(eta[0])
@@ -995,11 +1015,11 @@ def candidates(al: Aligned) -> list[Candidate]:
             out += [Backlash(o), ServoLag(o), ScaleError(o)]
             if not al.at_rest:
                 qg = QuadrantGlitch(o)
-                if qg._reversals(Context(al, np.arange(0, al.n, max(1, al.n // 2000))))[2] >= 2:
+                if qg._reversals(Context(al, al.rows(max(1, al.n // 2000))))[2] >= 2:
                     out += [qg, StickSlip(o)]
             if al.kinds[o] in ("length", "other"):
                 pp = PeriodicPitch(o)
-                if pp.identifiable(Context(al, np.arange(0, al.n, max(1, al.n // 2000)))):
+                if pp.identifiable(Context(al, al.rows(max(1, al.n // 2000)))):
                     out.append(pp)
         if al.kinds[o] == "length":
             for d in lin_drivers:
