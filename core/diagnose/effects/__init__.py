@@ -43,12 +43,12 @@ from .base import (LIN_AXIS, ROT_AXIS, Candidate, Context, _se, backlash_play,  
 from .dynamic import (ServoLag, ServoLagDerivative, ServoLagHermite, ThermalDrift,  # noqa: F401
                       TimeOffset)
 from .friction import Backlash, Friction, QuadrantGlitch, StickSlip  # noqa: F401
-from .geometric import (PeriodicPitch, PivotOffset, ScaleError, Squareness,  # noqa: F401
-                        Straightness, WorkpieceSetting)
+from .geometric import (EncoderCyclic, PeriodicPitch, PivotOffset, ScaleError,  # noqa: F401
+                        Squareness, Straightness, WorkpieceSetting, position_step)
 
 EFFECT_NAMES = ("thermal_drift", "backlash", "servo_lag", "periodic_pitch_error", "scale_error",
                 "squareness", "straightness", "pivot_offset", "workpiece_setting", "time_offset",
-                "friction", "quadrant_glitch")
+                "friction", "quadrant_glitch", "encoder_cyclic_error")
 
 
 class Group(Candidate):
@@ -114,8 +114,8 @@ class Group(Candidate):
 
 
 # effects that act on a machine at rest (the only candidates of a stop-and-measure recording)
-AT_REST = ("thermal_drift", "backlash", "periodic_pitch_error", "scale_error", "squareness",
-           "straightness", "pivot_offset", "workpiece_setting")
+AT_REST = ("thermal_drift", "backlash", "periodic_pitch_error", "encoder_cyclic_error", "scale_error",
+           "squareness", "straightness", "pivot_offset", "workpiece_setting")
 _DERIV = {"velocity": "acceleration", "angular_velocity": "angular_acceleration"}
 
 
@@ -168,6 +168,10 @@ def candidates(al: Aligned) -> list[Candidate]:
                 pp = PeriodicPitch(o)
                 if pp.identifiable(Context(al, al.rows(max(1, al.n // 2000)))):
                     out.append(pp)
+            if al.kinds[o] in ("length", "angle", "other"):
+                ec = EncoderCyclic(o)
+                if ec.identifiable(Context(al, al.rows(max(1, al.n // 2000)))):
+                    out.append(ec)
         if al.kinds[o] == "length":
             for d in lin_drivers:
                 if d == o or (sig[d].letter is not None and sig[d].letter == sig[o].letter):

@@ -118,7 +118,7 @@ def below_rounding(ctx, o: str, beta) -> str | None:
     few significant figures is itself a function of the position (a sawtooth of the step's
     period, aliased by the sampling) that a periodic term partly fits."""
     q = float(ctx.al.quantum.get(o, 0.0))
-    amp = float(np.hypot(beta[0], beta[1])) if len(beta) >= 2 else 0.0
+    amp = float(np.linalg.norm(beta)) if len(beta) else 0.0
     if q > 0 and amp < q:
         return (f"amplitude {amp:.3g} below the recording's rounding step {q:.3g} "
                 f"({ctx.al.units.get(o, '')}): not identifiable from rounded values")

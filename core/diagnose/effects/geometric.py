@@ -28,6 +28,12 @@ class PeriodicPitch(Candidate):
         hi = max(rng / 2.0, 1.01 * lo)
         return [math.log(lo)], [math.log(hi)]
 
+    _max_bins = 8192
+
+    def _positions(self, ctx):
+        """The positions the error repeats in (grid values): the screw turns with the command."""
+        return ctx.values(self.outputs[0])
+
     def identifiable(self, ctx) -> bool:
         p = ctx.values(self.outputs[0])
         return 2.0 * visited_spacing(p) < float(np.ptp(p)) / 2.0
@@ -47,11 +53,11 @@ class PeriodicPitch(Candidate):
         o = self.outputs[0]
         sl = ctx.slices[o]
         rm = rows[sl]
-        pp = ctx.values(o)[ctx.idx][rm]
+        pp = self._positions(ctx)[ctx.idx][rm]
         rr = resid[sl][rm]
         pmin, pmax = float(pp.min()), float(pp.max())
         lead_min = math.exp(lo[0])
-        nb = int(min(8192, max(16, 4 * (pmax - pmin) / lead_min)))
+        nb = int(min(self._max_bins, max(16, 4 * (pmax - pmin) / lead_min)))
         h = (pmax - pmin) / nb if pmax > pmin else 1.0
         idx = np.clip(((pp - pmin) / h).astype(int), 0, nb - 1)
         cnt = np.bincount(idx, minlength=nb)
@@ -83,6 +89,94 @@ class PeriodicPitch(Candidate):
         return ({"lead_mm": lead, f"amplitude_{u}": amp, "phase_deg": math.degrees(math.atan2(b, a))},
                 {"lead_mm": lead * _se(cov_eta, 0), f"amplitude_{u}": s_amp,
                  "phase_deg": math.degrees(s_ph)})
+
+
+# Longest signal period taken as an encoder's (mm): optical and interferential scales have
+# 0.004-0.1 mm, magnetic ones up to about 1 mm; screw leads start at about 1 mm.  The two
+# ranges meet here, so that a periodic error has one name (PeriodicPitch starts at 0.2 mm).
+ENCODER_MAX_PERIOD_MM = 0.2
+
+
+def position_step(p: np.ndarray) -> float:
+    """Spacing in position of what is known about a periodic error: the larger of the spacing
+    of the visited positions and the median distance travelled between two samples while
+    moving (a longer step makes the phase at each sample depend on its exact time)."""
+    d = np.abs(np.diff(np.asarray(p, float)))
+    rng = float(np.ptp(p))
+    moving = d > 1e-9 * max(rng, 1e-300)
+    step = float(np.median(d[moving])) if moving.any() else rng
+    return max(visited_spacing(p), step)
+
+
+class EncoderCyclic(PeriodicPitch):
+    """Cyclic (interpolation) error of an encoder or resolver: periodic in the measured position
+    with the encoder's signal period P, first and second harmonics (offset and gain mismatch
+    of the sine/cosine signals give the first, their phase error and distortion the second),
+    amplitude independent of speed.  r = sum_{h=1,2} a_h sin(2 pi h p / P) + b_h cos(2 pi h p / P),
+    p the RECORDED position (the encoder reads the actual position: a following error of more
+    than a fraction of P would scramble a phase taken from the command).
+
+    Told from a screw's periodic pitch error by its period (below ENCODER_MAX_PERIOD_MM for a
+    length; any period up to a revolution for an angle, where no screw applies) and by the
+    harmonic 2.  Identifiable only when the shortest period modelled, P/2, is at least twice
+    the spacing in position of the samples (`position_step`): P >= 4 x that spacing.
+    """
+    nl_names = ("log_period",)
+    _max_bins = 1 << 16
+
+    def __init__(self, output):
+        Candidate.__init__(self, "encoder_cyclic_error", (output,), (output,), 4)
+
+    def _positions(self, ctx):
+        return ctx.al.rec[self.outputs[0]]
+
+    def _range(self, ctx):
+        p = self._positions(ctx)
+        travel = float(np.ptp(p))
+        lo = 4.0 * position_step(p)
+        top = 360.0 if ctx.al.kinds[self.outputs[0]] == "angle" else ENCODER_MAX_PERIOD_MM
+        return lo, min(top, travel / 2.0)
+
+    def bounds(self, ctx):
+        lo, hi = self._range(ctx)
+        return [math.log(lo)], [math.log(max(hi, 1.01 * lo))]
+
+    def identifiable(self, ctx) -> bool:
+        lo, hi = self._range(ctx)
+        return 0 < lo < hi
+
+    def implausible(self, ctx, eta, beta):
+        lo, hi = self._range(ctx)
+        if math.exp(eta[0]) > hi * 1.0001:
+            return f"period above the encoder range ({hi:.3g})"
+        return below_rounding(ctx, self.outputs[0], beta)
+
+    def build(self, ctx, eta):
+        ph = 2 * np.pi * self._positions(ctx) / math.exp(eta[0])
+        o = self.outputs[0]
+        return None, [{o: np.sin(ph)}, {o: np.cos(ph)}, {o: np.sin(2 * ph)}, {o: np.cos(2 * ph)}]
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        period = math.exp(eta[0])
+        u = ctx.al.units[self.outputs[0]] or "mm"
+        pu = "deg" if ctx.al.kinds[self.outputs[0]] == "angle" else "mm"
+        params = {f"period_{pu}": period}
+        unc = {f"period_{pu}": period * _se(cov_eta, 0)}
+        for h in (1, 2):
+            a, b = float(beta[2 * h - 2]), float(beta[2 * h - 1])
+            amp = math.hypot(a, b)
+            if cov_beta is not None and cov_beta.size and amp > 0:
+                c = cov_beta[2 * h - 2:2 * h, 2 * h - 2:2 * h]
+                g = np.array([a, b]) / amp
+                gp = np.array([-b, a]) / amp ** 2
+                s_amp, s_ph = (float(np.sqrt(max(g @ c @ g, 0))), float(np.sqrt(max(gp @ c @ gp, 0))))
+            else:
+                s_amp = s_ph = float("nan")
+            params[f"amplitude_h{h}_{u}"] = amp
+            params[f"phase_h{h}_deg"] = math.degrees(math.atan2(b, a))
+            unc[f"amplitude_h{h}_{u}"] = s_amp
+            unc[f"phase_h{h}_deg"] = math.degrees(s_ph)
+        return params, unc
 
 
 class ScaleError(Candidate):
