@@ -376,7 +376,11 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     # stays white); the finer file is evaluated at them with the interpolant that predicts it
     # best by cross-validation on itself (linear for piecewise-linear commands, splines for
     # smooth motion, held values for steps), which also gives the interpolation error bound
-    rec_grid = dtr >= 0.999 * dts
+    # a REC on an irregular clock is never interpolated either: its samples go onto a fine
+    # uniform grid (below)
+    rec_in_span = rec.t[(rec.t >= t0) & (rec.t <= t1)]
+    rec_irregular = len(rec_in_span) >= 3 and not _uniform(rec_in_span)
+    rec_grid = dtr >= 0.999 * dts or rec_irregular
     interp = {}
     sim_f, rec_f = {}, {}
     for tab, fs, is_grid in ((sim, sim_f, not rec_grid), (rec, rec_f, rec_grid)):
@@ -451,6 +455,14 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     regular = _uniform(tg) or at_rest
     if not regular:
         step = float(np.median(np.diff(tg)))
+        if base is rec.t:
+            # each REC sample is put on the nearest point of a grid fine against both files'
+            # steps (an effect is then evaluated within h/2 of the sample's time: a servo lag's
+            # residual changes by a tau h/2 there), at most about 100,000 points
+            h0 = min(step, dts)
+            step = h0 / 4
+            while step > h0 / 64 and (tg[-1] - tg[0]) / (step / 2) <= 100_000:
+                step /= 2
         tg = np.arange(tg[0], tg[-1] + 0.5 * step, step)
     dt = float((tg[-1] - tg[0]) / (len(tg) - 1))
     on_rec = base is rec.t and regular
