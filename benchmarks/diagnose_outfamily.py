@@ -6,8 +6,10 @@ library or with synth (they are not tuned on):
 - physics simulated on a fine time grid (10 kHz) and sampled twice, SIM and REC, on their own
   clocks and rates, instead of effects added to samples;
 - jerk-limited (S-curve) moves, piecewise-linear corner paths, stop-and-measure runs;
-- outputs named `carriage`, `q2`, `ELEV`, `spd_axis`, `stage` (positions in µm, joint angles,
-  velocities), 100-400 samples in some, 1 µm counts in some;
+- outputs named `carriage`, `q2`, `ELEV`, `spd_axis`, `stage`, `axis1`, `Soll_X`/`Ist_X`
+  (positions in µm or inches, joint angles, velocities), 60-400 samples in some, 1 µm counts in
+  some, an irregular clock with pauses and empty cells in one;
+- an optical scale's cyclic interpolation error (harmonics 1 and 2 of a 20-40 µm period);
 - friction at reversals simulated as stick-slip (the library's quadrant_glitch has another
   shape), and an effect outside the library (a joint hunting around a constant set point),
   which must be answered with "unexplained mismatch", not with a wrong name.
@@ -254,12 +256,74 @@ def case(kind: str, seed: int) -> dict:
         return {"sim": {"t": ts, "slide[um]": sample(t, cmd, ts) * 1e3},
                 "rec": {"t": tr, "slide[um]": np.round(sample(t, cmd, tr) * 1e3 + rng.normal(0, 0.3, len(tr)))},
                 "expect": set()}
+    if kind == "encoder_cyclic_scale":
+        # a slow scan of an optical scale (signal period 20 or 40 µm) whose interpolation error
+        # has a first and a second harmonic, behind a position loop; REC in µm at 1 kHz, 3 nm noise
+        T = rng.uniform(8, 14)
+        t = np.arange(0, T, FINE)
+        cmd = s_curve_path(rng, t, 0, rng.uniform(1.0, 3.0), rng.uniform(0.3, 1.0), 10.0, 200.0,
+                           dwell=(0.1, 0.4))
+        tau = rng.uniform(0.01, 0.03)
+        act = lag(cmd, tau)
+        period = float(rng.choice([0.02, 0.04]))
+        a1, a2 = rng.uniform(20e-6, 60e-6), rng.uniform(8e-6, 20e-6)
+        f1, f2 = rng.uniform(0, 2 * np.pi, 2)
+        read = act + a1 * np.cos(2 * np.pi * act / period + f1) + a2 * np.cos(4 * np.pi * act / period + f2)
+        ts = np.arange(0, T, 1 / 2000)
+        tr = np.arange(0.05, T - 0.05, 1 / 1000)
+        return {"sim": {"t": ts, "table_x[um]": sample(t, cmd, ts) * 1e3},
+                "rec": {"t": tr, "table_x[um]": (sample(t, read, tr) + rng.normal(0, 3e-6, len(tr))) * 1e3},
+                "expect": {"encoder_cyclic_error", "servo_lag"}, "truth": {"period_mm": period}}
+    if kind == "gaps_irregular_backlash":
+        # a logger on an irregular clock (exponential jitter around 5 ms), two pauses of 1-3 s and
+        # 1 % of its cells empty (NaN), backlash 4-10 µm on jerk-limited moves
+        T = rng.uniform(20, 30)
+        t = np.arange(0, T, FINE)
+        cmd = s_curve_path(rng, t, 0, 120, 40.0, 400.0, 8000.0)
+        b = rng.uniform(4e-3, 10e-3)
+        ts = np.arange(0, T, 1 / 250)
+        tr = np.cumsum(rng.exponential(0.005, int(2 * T / 0.005)))
+        tr = tr[(tr > 0.1) & (tr < T - 0.1)]
+        for _ in range(2):
+            a = rng.uniform(2, T - 5)
+            tr = tr[(tr < a) | (tr > a + rng.uniform(1, 3))]
+        rec = sample(t, play(cmd, b), tr) + rng.normal(0, noise, len(tr))
+        rec[rng.random(len(tr)) < 0.01] = np.nan
+        return {"sim": {"t": ts, "axis1": sample(t, cmd, ts)}, "rec": {"t": tr, "axis1": rec},
+                "expect": {"backlash"}, "truth": {"backlash_mm": b}}
+    if kind == "inch_sparse_lag":
+        # a servo lag seen by 60-100 readings in inches (5 decimals: 0.25 µm) of a 20 s run
+        T = rng.uniform(15, 25)
+        t = np.arange(0, T, FINE)
+        cmd = s_curve_path(rng, t, 0, 200, 40.0, 300.0, 5000.0)
+        tau = rng.uniform(0.02, 0.05)
+        n = int(rng.integers(60, 100))
+        ts = np.arange(0, T, 1 / 100)
+        tr = np.sort(rng.uniform(0.2, T - 0.2, n))
+        rec = np.round((sample(t, lag(cmd, tau), tr) + rng.normal(0, 0.5e-3, n)) / 25.4, 5)
+        return {"sim": {"t": ts, "carriage[mm]": sample(t, cmd, ts)}, "rec": {"t": tr, "carriage[in]": rec},
+                "expect": {"servo_lag"}, "truth": {"kv_per_s": 1 / tau}}
+    if kind == "soll_ist_names":
+        # German names, command and measurement in different columns (Soll_X / Ist_X), no units:
+        # a backlash on X, nothing on Y
+        T = rng.uniform(15, 25)
+        t = np.arange(0, T, FINE)
+        cx = s_curve_path(rng, t, 0, 100, 30.0, 300.0, 6000.0)
+        cy = s_curve_path(rng, t, 0, 100, 30.0, 300.0, 6000.0)
+        b = rng.uniform(3e-3, 8e-3)
+        ts = np.arange(0, T, 1 / 200)
+        tr = np.arange(0.1, T - 0.1, 1 / 200)
+        return {"sim": {"t": ts, "Soll_X": sample(t, cx, ts), "Soll_Y": sample(t, cy, ts)},
+                "rec": {"t": tr, "Ist_X": sample(t, play(cx, b), tr) + rng.normal(0, noise, len(tr)),
+                        "Ist_Y": sample(t, cy, tr) + rng.normal(0, noise, len(tr))},
+                "expect": {"backlash"}, "truth": {"backlash_mm": b}}
     raise ValueError(kind)
 
 
 KINDS = ("joint_servo_lag", "velocity_servo_lag", "backlash_um_counts", "stop_and_measure",
          "thermal_spindle_steps", "clock_and_lag", "corners_sim_coarse", "friction_stick_slip",
-         "joint_hunting", "null_fine")
+         "joint_hunting", "null_fine", "encoder_cyclic_scale", "gaps_irregular_backlash",
+         "inch_sparse_lag", "soll_ist_names")
 
 
 def run(spec):

@@ -52,6 +52,7 @@ MAX_ABS = 1e12
 # column is matched by one expression, and an ambiguous one backtracks exponentially.
 _NUMBER = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
 _NUMBER_RE = re.compile(_NUMBER)
+_DECIMAL_COMMA_RE = re.compile(r"[+-]?[0-9]+,[0-9]+(?:[eE][+-]?[0-9]+)?")
 _HEADER_RE = re.compile(r"^(?P<name>[^\[\(]*?)\s*(?:[\[\(]\s*(?P<unit>[^\]\)]*?)\s*[\]\)])?$")
 
 
@@ -95,6 +96,7 @@ class CsvTable:
     lines: tuple[int, ...]
     comments: tuple[str, ...] = ()
     case_sensitive: bool = True
+    decimal: str = "."  # "," for files written with a decimal comma (``;`` or tab separated)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -132,7 +134,8 @@ class CsvTable:
         s = self.rows[row][c.index]
         if s == "" and empty is not None:
             return empty
-        x = _parse_number(s, self.source, self.lines[row], c.header)
+        x = _parse_number(s.replace(",", ".") if self.decimal == "," else s, self.source,
+                          self.lines[row], c.header)
         fac, off = unit_factor(c.unit, unit, source=self.source, line=self.header_line, column=c.header)
         x = x * fac + off
         _check_range(x, s, lo, hi, max_abs, unit, self.source, self.lines[row], c.header)
@@ -151,13 +154,19 @@ class CsvTable:
         return v
 
     def numbers(self, name: str, *, unit: str | None = None, lo: float | None = None, hi: float | None = None,
-                max_abs: float = MAX_ABS, empty: float | None = None) -> np.ndarray:
+                max_abs: float = MAX_ABS, empty: float | None = None, missing: tuple = ("",)) -> np.ndarray:
         """A whole column as a float array, checked like `number` (one regular-expression pass
-        over the column; the first bad cell is named)."""
+        over the column; the first bad cell is named).  With `empty` given, the cells in
+        `missing` (default: empty cells only) read as `empty`."""
         c = self.col(name)
         cells = [r[c.index] for r in self.rows]
+        if self.decimal == ",":
+            cells = [s.replace(",", ".") for s in cells]
+        if empty is not None and set(missing).isdisjoint(cells):
+            empty = None  # no cell to fill: the plain path
         if empty is not None:
-            blank = [s == "" for s in cells]
+            miss = set(missing)
+            blank = [s in miss for s in cells]
             cells = ["0" if b else s for s, b in zip(cells, blank)]
         if cells and not re.fullmatch(rf"(?:{_NUMBER}\n)*{_NUMBER}", "\n".join(cells)):
             for i, s in enumerate(cells):
@@ -206,13 +215,16 @@ def _check_range(x, s, lo, hi, max_abs, unit, source, line, column):
 
 def parse_csv(text: str, source: str | os.PathLike = "<string>", *, required=(), allowed=None,
               case_sensitive: bool = True, delimiter: str | None = ",", pad: bool = False,
-              min_rows: int = 0, what: str = "table") -> CsvTable:
+              min_rows: int = 0, what: str = "table", decimal: str | None = ".") -> CsvTable:
     """Split CSV text into a checked `CsvTable`.
 
     required: column names that must be present; allowed: the only names accepted (None: any).
     case_sensitive=False matches names (and reports duplicates) ignoring case.  delimiter=None
     takes ``,`` or else ``;`` or a tab, whichever the header line contains.  pad=True accepts
-    rows shorter than the header (missing cells are empty).  min_rows: fewest data rows."""
+    rows shorter than the header (missing cells are empty).  min_rows: fewest data rows.
+    decimal: "." or ","; None takes "," when the separator is not a comma and a data cell of
+    the first rows is a number written with a decimal comma (``1,5``; spreadsheets of many
+    locales), else ".".  Numbers never have thousands separators."""
     source = str(source)
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     comments: list[str] = []
@@ -258,7 +270,8 @@ def parse_csv(text: str, source: str | os.PathLike = "<string>", *, required=(),
             raise InputError(f"column {i + 1} of the header has no name (got {_show(h)})", source, hline)
         key = name if case_sensitive else name.lower()
         if key in seen:
-            raise InputError(f"column {name!r} appears twice (columns {seen[key] + 1} and {i + 1})", source, hline)
+            raise InputError(f"column {name!r} appears twice (columns {seen[key] + 1} and {i + 1})",
+                             source, hline, name)
         seen[key] = i
         unit = m.group("unit")
         columns.append(Column(name, unit.strip() if unit is not None else None, i, h))
@@ -286,7 +299,16 @@ def parse_csv(text: str, source: str | os.PathLike = "<string>", *, required=(),
         linenos.append(lineno)
     if len(rows) < min_rows:
         raise InputError(f"expected at least {min_rows} data rows, got {len(rows)}", source)
-    return CsvTable(source, hline, tuple(columns), tuple(rows), tuple(linenos), tuple(comments), case_sensitive)
+    if decimal is None:
+        decimal = "."
+        if delimiter != ",":
+            decimal = "," if any(_DECIMAL_COMMA_RE.fullmatch(c) for r in rows[:50] for c in r) else "."
+    if decimal not in (".", ","):
+        raise ValueError(f"decimal must be '.' or ',', got {decimal!r}")
+    if decimal == "," and delimiter == ",":
+        raise ValueError("a decimal comma needs another separator than ','")
+    return CsvTable(source, hline, tuple(columns), tuple(rows), tuple(linenos), tuple(comments),
+                    case_sensitive, decimal)
 
 
 def read_csv(path: str | os.PathLike, *, what: str = "table", max_bytes: int | None = None, **kw) -> CsvTable:

@@ -60,7 +60,8 @@ def test_quantisation_sets_the_noise_floor():
 BAD = {
     "no_t": ("clock,x\n0,1\n1,2\n2,3\n", "no time column `t`"),
     "unsorted": ("t,x\n0,1\n1,2\n0.5,3\n2,4\n", "t must increase"),
-    "nan": ("t,x\n0,1\n1,nan\n2,3\n", "expected a finite number"),
+    "overflow": ("t,x\n0,1\n1,1e400\n2,3\n", "out of range"),
+    "inf": ("t,x\n0,1\n1,inf\n2,3\n", "expected a number"),
     "text": ("t,x\n0,1\n1,abc\n2,3\n", "expected a number"),
     "short_row": ("t,x\n0,1\n1\n2,3\n", "expected 2 values"),
 }
@@ -77,7 +78,7 @@ def test_bad_rec_file_gives_clear_error_and_exit_2(tmp_path, capsys, kind):
     err = capsys.readouterr().err
     assert rc == 2
     assert msg in err and "rec.csv" in err
-    if kind in ("unsorted", "nan", "text", "short_row"):
+    if kind in ("unsorted", "overflow", "inf", "text", "short_row"):
         assert "rec.csv:3" in err or "rec.csv:4" in err  # the line is named
     assert not out.exists()
 

@@ -10,7 +10,7 @@ interpolation error bound reported with the result.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -58,10 +58,18 @@ class Aligned:
     roles: dict = field(default_factory=dict)        # column -> (role, kind, unit, kind from)
     notes: tuple = ()                 # what the alignment decided, in words
     sim_native: dict = field(default_factory=dict)   # output -> (t, values) of SIM as sampled
+    # grid samples backed by data (None: all): False in a gap of either file or where an
+    # output's cell was missing; those samples take no part in fits, noise floors or RMS
+    valid: np.ndarray | None = None
 
     @property
     def n(self) -> int:
         return len(self.t)
+
+    def rows(self, step: int = 1) -> np.ndarray:
+        """Indices of the grid samples backed by data, every `step`-th."""
+        idx = np.arange(self.n) if self.valid is None else np.flatnonzero(self.valid)
+        return idx[::max(1, int(step))]
 
 
 def _spline(t, y):
@@ -368,7 +376,11 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     # stays white); the finer file is evaluated at them with the interpolant that predicts it
     # best by cross-validation on itself (linear for piecewise-linear commands, splines for
     # smooth motion, held values for steps), which also gives the interpolation error bound
-    rec_grid = dtr >= 0.999 * dts
+    # a REC on an irregular clock is never interpolated either: its samples go onto a fine
+    # uniform grid (below)
+    rec_in_span = rec.t[(rec.t >= t0) & (rec.t <= t1)]
+    rec_irregular = len(rec_in_span) >= 3 and not _uniform(rec_in_span)
+    rec_grid = dtr >= 0.999 * dts or rec_irregular
     interp = {}
     sim_f, rec_f = {}, {}
     for tab, fs, is_grid in ((sim, sim_f, not rec_grid), (rec, rec_f, rec_grid)):
@@ -419,7 +431,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
             offset, c_off, c_zero = _refine_offset(sim, rec, motion_outs, sim_f, offset0,
                                                    tc[1] - tc[0])
             if c_off < c_zero:
-                shifted = Table(rec.path, rec.t - offset, rec.columns)
+                shifted = replace(rec, t=rec.t - offset)
                 note = (f"clocks aligned: REC's clock runs {offset:+.6g} s from SIM's (estimated "
                         "jointly with a first-order lag per output; it lowers the residual "
                         + (f"{math.sqrt(c_zero / c_off):.3g}x" if c_off > 0 and c_zero / c_off < 1e6
@@ -443,12 +455,67 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     regular = _uniform(tg) or at_rest
     if not regular:
         step = float(np.median(np.diff(tg)))
+        if base is rec.t:
+            # each REC sample is put on the nearest point of a grid fine against both files'
+            # steps (an effect is then evaluated within h/2 of the sample's time: a servo lag's
+            # residual changes by a tau h/2 there), at most about 100,000 points
+            h0 = min(step, dts)
+            step = h0 / 4
+            while step > h0 / 64 and (tg[-1] - tg[0]) / (step / 2) <= 100_000:
+                step /= 2
         tg = np.arange(tg[0], tg[-1] + 0.5 * step, step)
     dt = float((tg[-1] - tg[0]) / (len(tg) - 1))
     on_rec = base is rec.t and regular
     on_sim = base is sim.t and regular
     rec_on = {k: (rec.columns[k].values[sel] if on_rec else rec_f[k](tg)) for k in rec.columns}
     sim_on = {k: (sim.columns[k].values[sel] if on_sim else sim_f[k](tg)) for k in sim.columns}
+    hit = np.ones(len(tg), bool)
+    if base is rec.t and not regular:
+        # REC on an irregular clock: SIM (smooth, noise-free) is evaluated at REC's own times and
+        # each sample's residual REC - SIM is put on the grid point nearest to it (within half
+        # a step; the nearest sample wins); grid points without a sample are set aside.
+        # Interpolating REC would add the curvature of the motion between samples (a h^2 / 8:
+        # micrometres at 10 ms and 200 mm/s^2) and smooth its noise
+        step = float(tg[1] - tg[0])
+        j = np.rint((rec.t - tg[0]) / step).astype(np.int64)
+        d = np.abs(rec.t - (tg[0] + j * step))
+        ok = (j >= 0) & (j < len(tg)) & (d <= 0.5 * step)
+        order = np.flatnonzero(ok)[np.argsort(d[ok], kind="stable")[::-1]]
+        pick = np.full(len(tg), -1)
+        pick[j[order]] = order  # the nearest sample is written last
+        hit = pick >= 0
+        for k in outputs:
+            r = rec.columns[k].values - sim_f[k](rec.t)
+            p = rec.columns[k].present
+            rec_on[k] = sim_on[k] + np.where(hit, r[np.maximum(pick, 0)], 0.0)
+            if p is not None:
+                hit &= np.where(pick >= 0, p[np.maximum(pick, 0)], False)
+            interp[k] = ("none (REC's samples on the nearest grid point, SIM at their times)", 0.0)
+    # no recorded output is interpolated across a gap (a pause of the logger, rows with missing
+    # cells): grid samples not backed by REC are set aside, and said so.  SIM is the noise-free
+    # side, interpolated by evidence (a command may well be written only at its corners); only
+    # its missing cells count
+    valid = hit.copy()
+    if not hit.all():
+        notes += (f"REC's clock is irregular: {int((~hit).sum())} of {len(tg)} points of the "
+                  f"uniform {tg[1] - tg[0]:.4g} s grid have no REC sample within half a step and "
+                  "take no part",)
+    for tab, own, step in ((rec, on_rec, dtr), (sim, on_sim, np.inf)):
+        ok, longest = _backed(tab, outputs, tg, step, sel if own else None)
+        if not ok.all():
+            notes += (f"{int((~ok).sum())} of {len(tg)} grid samples fall in gaps of "
+                      f"{'REC' if tab is rec else 'SIM'} (longest {longest:.4g} s) or on rows "
+                      "with a missing output value: they take no part in the fit or the RMS"
+                      if tab is rec else f"{int((~ok).sum())} of {len(tg)} grid samples fall on "
+                      "rows of SIM with a missing output value: they take no part in the fit "
+                      "or the RMS",)
+        valid &= ok
+    if valid.sum() < 8:
+        raise InputError(f"fewer than 8 samples of the common span are backed by data in both "
+                         f"files ({int(valid.sum())})", rec.path, field="t")
+    if not valid.all():
+        for k in outputs:
+            rec_on[k] = np.where(valid, rec_on[k], sim_on[k])
     if at_rest:
         # readings at rest: SIM at the reading is the position it rests at (no interpolant
         # between a move's samples can matter there)
@@ -485,10 +552,41 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
         quantum={k: rec.columns[k].quantum for k in outputs},
         rates={"sim": 1.0 / dts, "rec": 1.0 / dtr}, at_rest=bool(at_rest), interp=interp,
         roles=roles, notes=notes,
-        sim_native={k: (sim.t, sim.columns[k].values) for k in outputs})
+        sim_native={k: (sim.t, sim.columns[k].values) for k in outputs},
+        valid=None if valid.all() else valid)
     for k in outputs:
-        al.noise_floor[k] = noise_sigma(al.rec[k] - al.sim[k], al.quantum[k])
+        al.noise_floor[k] = noise_sigma((al.rec[k] - al.sim[k])[valid], al.quantum[k])
     return al
+
+
+# a grid sample between two samples of a file further apart than this many of its median
+# steps lies in a gap: it is not filled by interpolation
+GAP_STEPS = 3.0
+
+
+def _backed(tab: Table, outputs, tg: np.ndarray, step: float, sel) -> tuple[np.ndarray, float]:
+    """Which grid times are backed by samples of `tab` holding every output: on its own rows
+    (`sel`, the rows taken as the grid) the row must hold them; between rows the two rows
+    around must be at most GAP_STEPS median steps apart.  Also the longest gap, s."""
+    pres = np.ones(tab.n, bool)
+    for k in outputs:
+        p = tab.columns[k].present
+        if p is not None:
+            pres &= p
+    if sel is not None:
+        ok = pres[sel]
+    else:
+        tt = tab.t[pres]
+        if len(tt) < 2:
+            return np.zeros(len(tg), bool), float(tab.t[-1] - tab.t[0])
+        i = np.clip(np.searchsorted(tt, tg), 1, len(tt) - 1)
+        exact = np.isclose(tt[np.clip(np.searchsorted(tt, tg), 0, len(tt) - 1)], tg, rtol=0,
+                           atol=1e-9 * (step if math.isfinite(step) else 1.0))
+        ok = exact | ((tt[i] - tt[i - 1]) <= GAP_STEPS * step)
+        ok &= (tg >= tt[0]) & (tg <= tt[-1])
+    tp = tab.t[pres]
+    longest = float(np.max(np.diff(tp))) if len(tp) > 1 else 0.0
+    return ok, longest
 
 
 def _letter(key, kind):

@@ -20,8 +20,9 @@ def register(subparsers) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="plot recorded/simulated/corrected and residuals")
     p.add_argument("--report", metavar="OUT.md", help="write a Markdown report")
-    p.add_argument("--output", action="append", metavar="COL",
-                   help="compare only this column (repeatable; it must be in both files)")
+    p.add_argument("--output", action="append", metavar="COL|SIMCOL=RECCOL",
+                   help="compare only this column (repeatable; it must be in both files), or "
+                        "REC's RECCOL with SIM's SIMCOL (several REC columns may pair with one)")
     p.add_argument("--input", action="append", metavar="COL",
                    help="treat this column as an input even if both files have it (repeatable)")
     p.add_argument("--unit", action="append", metavar="COL=UNIT",

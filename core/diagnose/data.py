@@ -12,38 +12,40 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from .._io import InputError
+from ..csvtable import UNITS as _BASE_UNITS
+from ..csvtable import read_csv
 
-# unit -> (kind, factor, offset): value_in_interface_unit = value * factor + offset
+# unit -> (kind, factor, offset): value_in_interface_unit = value * factor + offset.  The base
+# units are the project's one table (mtcomp.csvtable.UNITS, angles there in rad, here in deg);
+# added here: units of rates, and spellings that recording tools write.
 UNITS: dict[str, tuple[str, float, float]] = {
-    "mm": ("length", 1.0, 0.0), "um": ("length", 1e-3, 0.0), "µm": ("length", 1e-3, 0.0),
-    "μm": ("length", 1e-3, 0.0), "micron": ("length", 1e-3, 0.0), "nm": ("length", 1e-6, 0.0),
-    "m": ("length", 1e3, 0.0), "cm": ("length", 10.0, 0.0), "in": ("length", 25.4, 0.0),
-    "deg": ("angle", 1.0, 0.0), "°": ("angle", 1.0, 0.0), "rad": ("angle", 180.0 / math.pi, 0.0),
-    "mrad": ("angle", 0.180 / math.pi, 0.0), "urad": ("angle", 1.8e-4 / math.pi, 0.0),
-    "µrad": ("angle", 1.8e-4 / math.pi, 0.0), "arcsec": ("angle", 1.0 / 3600.0, 0.0),
-    "s": ("time", 1.0, 0.0), "ms": ("time", 1e-3, 0.0), "us": ("time", 1e-6, 0.0),
-    "µs": ("time", 1e-6, 0.0), "min": ("time", 60.0, 0.0),
-    "degc": ("temperature", 1.0, 0.0), "°c": ("temperature", 1.0, 0.0), "c": ("temperature", 1.0, 0.0),
-    "k": ("temperature", 1.0, -273.15),
-    "rpm": ("speed", 1.0, 0.0), "1/min": ("speed", 1.0, 0.0), "rev/min": ("speed", 1.0, 0.0),
-    "hz": ("speed", 60.0, 0.0), "rev/s": ("speed", 60.0, 0.0),
-}
+    u: (q, f * (180.0 / math.pi if q == "angle" else 1.0), o * (180.0 / math.pi if q == "angle" else 1.0))
+    for u, (q, f, o) in _BASE_UNITS.items()}
+UNITS.update({
+    "inch": ("length", 25.4, 0.0), "\"": ("length", 25.4, 0.0), "mil": ("length", 0.0254, 0.0),
+    "thou": ("length", 0.0254, 0.0), "mm": ("length", 1.0, 0.0),
+    "grad": ("angle", 0.9, 0.0), "gon": ("angle", 0.9, 0.0), "rev": ("angle", 360.0, 0.0),
+    "c": ("temperature", 1.0, 0.0), "°f": ("temperature", 5.0 / 9.0, -160.0 / 9.0),
+    "degf": ("temperature", 5.0 / 9.0, -160.0 / 9.0),
+    "rev/min": ("speed", 1.0, 0.0), "u/min": ("speed", 1.0, 0.0), "rev/s": ("speed", 60.0, 0.0),
+})
 # velocities and accelerations of linear and rotary axes: every length/angle unit over s, min
 for _u, (_k, _f, _) in list(UNITS.items()):
     if _k not in ("length", "angle"):
         continue
     _vk, _ak = ("velocity", "acceleration") if _k == "length" else ("angular_velocity",
                                                                        "angular_acceleration")
-    UNITS[_u + "/s"] = (_vk, _f, 0.0)
-    UNITS[_u + "/min"] = (_vk, _f / 60.0, 0.0)
+    # rev/s and rev/min stay spindle speeds
+    UNITS.setdefault(_u + "/s", (_vk, _f, 0.0))
+    UNITS.setdefault(_u + "/min", (_vk, _f / 60.0, 0.0))
     for _sq in ("/s^2", "/s2", "/s²", "/s/s", "/s**2"):
-        UNITS[_u + _sq] = (_ak, _f, 0.0)
+        UNITS.setdefault(_u + _sq, (_ak, _f, 0.0))
 INTERFACE_UNIT = {"length": "mm", "angle": "deg", "time": "s", "temperature": "degC",
                   "speed": "rpm", "velocity": "mm/s", "angular_velocity": "deg/s",
                   "acceleration": "mm/s^2", "angular_acceleration": "deg/s^2", "other": ""}
@@ -61,8 +63,17 @@ _JOINT = re.compile(r"^(?:q|joint|j|theta|th)_?\d*(?:$|_(?:cmd|act|set|nom|meas|
 _TEMP = re.compile(r"^(?:t[_\-\s\d].+|t[a-z]{2,}\d*|temp.*|.*temperature.*|.*_temp\w*|theta_.*)$")
 _SPEED = re.compile(r"^(?:s|s\d|s_.*|spindle.*|.*rpm.*|n_spindle.*)$")
 _TOKENS = re.compile(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+")
-_VEL_WORDS = {"v", "vel", "velo", "velocity", "feedrate", "speed"}
-_ACC_WORDS = {"acc", "accel", "acceleration"}
+_VEL_WORDS = {"v", "vel", "velo", "velocity", "feedrate", "speed", "geschwindigkeit", "geschw",
+              "vitesse", "velocidad", "velocita"}
+_ACC_WORDS = {"acc", "accel", "acceleration", "beschleunigung", "besch", "aceleracion",
+              "accelerazione"}
+# words of other conventions (German, French, Spanish; drive parameters): position, angle,
+# spindle speed, temperature
+_POS_WORDS = {"pos", "position", "lage", "weg", "istposition", "sollposition", "posicion",
+              "posizione", "cote", "coord", "coordinate", "displacement", "disp"}
+_ANGLE_WORDS = {"winkel", "angle", "angulo", "joint", "gelenk", "articulation", "achswinkel"}
+_SPEED_WORDS = {"drehzahl", "spindeldrehzahl", "broche", "rpm", "husillo", "mandrino"}
+_TEMP_WORDS = {"temperatur", "temperature", "temp", "temperatura"}
 
 
 def _tokens(name: str) -> list[str]:
@@ -97,8 +108,16 @@ def kind_from_name(key: str) -> str:
         return "angle"
     if _TEMP.match(low):
         return "temperature"
-    if low in ("pos", "position"):
-        return "length"
+    wset = set(words)
+    if wset & _TEMP_WORDS:
+        return "temperature"
+    if wset & _SPEED_WORDS:
+        return "speed"
+    if wset & _ANGLE_WORDS:
+        return "angle"
+    if wset & _POS_WORDS:
+        # `Pos_Act`, `act_pos`, `Istposition_B`: a rotary axis letter makes it an angle
+        return "angle" if _axis_in_words(words) in ("a", "b", "c") else "length"
     return "other"
 
 
@@ -135,9 +154,10 @@ class Column:
     header: str         # header as written
     kind: str           # one of KINDS
     unit: str           # unit after conversion (interface unit, or the raw unit for 'other')
-    values: np.ndarray  # converted values
+    values: np.ndarray  # converted values (missing cells filled linearly between neighbours)
     quantum: float      # resolution of the written values in converted units (0 if not quantised)
     kind_from: str = "unit"  # where the kind came from: "unit", "option" or "name" (a guess)
+    present: np.ndarray | None = None  # per row: the cell held a value (None: every cell did)
 
 
 @dataclass(frozen=True)
@@ -146,6 +166,10 @@ class Table:
     path: str
     t: np.ndarray
     columns: dict = field(default_factory=dict)  # key -> Column (excluding t)
+    # where t = 0 is when t came from time stamps: ("date", s since 1970-01-01) or
+    # ("day", s since midnight); None for a numeric time column
+    origin: tuple | None = None
+    notes: tuple = ()   # what the reader decided (missing cells, repeated time stamps), in words
 
     @property
     def n(self) -> int:
@@ -155,9 +179,15 @@ class Table:
 # Largest magnitude accepted in interface units (mm, deg, s, ...): 1e12 mm is a million km.
 # Larger values are a corrupt cell, not a measurement, and would overflow sums of squares.
 MAX_ABS = 1e12
+# cells that mean "no value": loggers write an empty cell, NaN (MATLAB, pandas) or NA/null
+MISSING = ("", "nan", "NaN", "NAN", "NA", "N/A", "n/a", "null", "NULL", "None", "-")
+# a column with fewer values than this share of the rows is too sparse to use
+MIN_PRESENT = 0.5
 
 
 def _parse_header(cells: list[str], path, line: int | None = 1) -> list[tuple[str, str, str | None]]:
+    """(header, name, unit) of each header cell (for in-memory arrays; files are read by
+    mtcomp.csvtable, which applies the same rules)."""
     out = []
     seen = {}
     for i, cell in enumerate(cells):
@@ -200,12 +230,62 @@ def _quantum(values: np.ndarray) -> float:
     return 0.0
 
 
+# names of a time column other than `t` (English, German, French, Spanish, Italian; a logger's
+# "timestamp"), matched ignoring case
+_TIME_NAMES = ("t", "time", "timestamp", "time_stamp", "zeit", "zeitstempel", "temps", "tiempo",
+               "tempo", "time_s", "t_s", "datetime", "date_time", "horodatage")
+
+
 def _time_key(keys: list[str]) -> str | None:
-    """The time column: `t` as written, else a single `T`, `time` or `Time`."""
+    """The time column: `t` as written, else the single column named like a time (`T`, `time`,
+    `Time`, `timestamp`, `Zeit`, `temps`, ...)."""
     if "t" in keys:
         return "t"
-    alts = [k for k in keys if k.lower() in ("t", "time")]
+    alts = [k for k in keys if k.lower() in _TIME_NAMES]
     return alts[0] if len(alts) == 1 else None
+
+
+_STAMP = re.compile(r"(?:(?P<date>\d{4}-\d{2}-\d{2})[T ])?(?P<h>\d{1,2}):(?P<m>\d{2}):"
+                    r"(?P<s>\d{2}(?:[.,]\d+)?)(?P<tz>Z|[+-]\d{2}:?\d{2})?")
+
+
+def _time_stamps(cells, source, lines, column) -> tuple[np.ndarray, tuple]:
+    """Seconds of ISO 8601 time stamps (``2024-03-01 12:00:00.125``, ``2024-03-01T12:00:00Z``,
+    ``12:00:00.125``) relative to the first, and the origin ("date" s since 1970, or "day" s
+    since midnight).  A time of day without a date that passes midnight continues on the next
+    day.  Parsed by hand because numpy's datetime64 takes neither a time of day alone nor a
+    decimal comma; the calendar arithmetic is numpy's."""
+    days = np.zeros(len(cells))
+    secs = np.zeros(len(cells))
+    dated = None
+    for i, c in enumerate(cells):
+        m = _STAMP.fullmatch(c)
+        if m is None or (dated is not None and (m.group("date") is not None) != dated):
+            what = "an empty cell" if c == "" else repr(c[:40])
+            raise InputError(f"expected a time in s or a time stamp like 2024-03-01 12:00:00.5 "
+                             f"(the same form on every row), got {what}", source, lines[i], column)
+        dated = m.group("date") is not None
+        h, mi, sc = int(m.group("h")), int(m.group("m")), float(m.group("s").replace(",", "."))
+        if h > 23 or mi > 59 or sc >= 61:
+            raise InputError(f"not a time of day: {c!r}", source, lines[i], column)
+        x = h * 3600.0 + mi * 60.0 + sc
+        tz = m.group("tz")
+        if tz and tz != "Z":
+            sign = -1.0 if tz[0] == "-" else 1.0
+            x -= sign * (int(tz[1:3]) * 3600.0 + int(tz[-2:]) * 60.0)
+        if dated:
+            try:
+                days[i] = float(np.datetime64(m.group("date"), "D").astype(np.int64))
+            except ValueError:
+                raise InputError(f"not a date: {m.group('date')!r}", source, lines[i], column) from None
+        secs[i] = x
+    if not dated:
+        # past midnight: a jump back by most of a day is the next day
+        back = np.diff(secs) < -43200.0
+        days[1:] = np.cumsum(back)
+    absolute = (days - days[0]) * 86400.0 + (secs - secs[0])
+    origin = ("date" if dated else "day", float(days[0] * 86400.0 + secs[0]) if dated else float(secs[0]))
+    return absolute, origin
 
 
 def _decimal_resolution(values: np.ndarray) -> float:
@@ -244,114 +324,121 @@ def _decimal_resolution(values: np.ndarray) -> float:
 
 
 def read_table(path: str | Path, role: str = "file", units: dict | None = None) -> Table:
-    """Read one CSV file (header row; `t` column; numbers) into a :class:`Table`.
+    """Read one CSV file (header row; a time column; numbers) into a :class:`Table`.
 
-    `units` maps column names to units for columns whose header carries none (the --unit
-    option).  Raises InputError naming the file, line and column for a missing `t`, a bad
-    number, a NaN or absurd magnitude, a time that does not increase, or an unknown unit on `t`.
+    Read by the project's one table reader, `mtcomp.csvtable` (``#`` comments, ``,`` or else
+    ``;`` or tab separators, a decimal comma in ``;``/tab files, units in headers).  `units`
+    maps column names to units for columns whose header carries none (the --unit option).
+    Missing cells (empty, ``NaN``, ``NA``) are allowed in every column but time and reported;
+    time may be seconds (any time unit in its header) or ISO 8601 time stamps.  Raises
+    InputError naming the file, line and column for a missing time column, a bad number, an
+    absurd magnitude, a time that goes back, or an unknown unit on the time column.
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{role} file not found", path) from None
-    except IsADirectoryError:
-        raise InputError(f"{role} is a directory, expected a CSV file", path) from None
-    except UnicodeDecodeError as exc:
-        raise InputError(f"not a UTF-8 text file ({exc.reason})", path) from None
-    lines = text.splitlines()
-    # header = first line that is neither empty nor a comment
-    hline = next((i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None)
-    if hline is None:
-        raise InputError("empty file: expected a header row and data rows", path)
-    header_text = lines[hline]
-    delim = ","
-    if "," not in header_text:
-        delim = ";" if ";" in header_text else ("\t" if "\t" in header_text else ",")
-    cols = _parse_header(header_text.split(delim), path, hline + 1)
-    keys = [c[1] for c in cols]
-    if _time_key(keys) is None:
+    tab = read_csv(path, what=role, delimiter=None, decimal=None)
+    names = list(tab.names)
+    tkey = _time_key(names)
+    if tkey is None:
         raise InputError("no time column `t` (expected a header like `t,x,y,...` with t in s)",
-                         path, hline + 1, field="t")
-    ncol = len(cols)
-    body = [s for s in lines[hline + 1:] if s.strip() and not s.lstrip().startswith("#")]
-    if len(body) == len(lines) - hline - 1 and len(body) >= 2:
-        # fast path: numpy's C parser; any problem falls through to the checking parser below,
-        # which names the line and column
-        try:
-            data = np.loadtxt(lines[hline + 1:], delimiter=delim, ndmin=2, dtype=float)
-            if data.shape[1] == ncol:
-                return _from_matrix(str(path), cols, data, list(range(hline + 2, hline + 2 + len(data))),
-                                    hline + 1, units)
-        except ValueError:
-            pass
-    rows, linenos = [], []
-    for i in range(hline + 1, len(lines)):
-        s = lines[i].strip()
-        if not s or s.startswith("#"):
+                         tab.source, tab.header_line, field="t")
+    if len(tab) < 2:
+        raise InputError("fewer than two data rows", tab.source)
+    tc = tab.col(tkey)
+    origin = None
+    cells = [r[tc.index] for r in tab.rows]
+    if cells and ":" in cells[0]:
+        t, origin = _time_stamps(cells, tab.source, tab.lines, tc.header)
+        tunit = None
+    else:
+        t = tab.numbers(tkey)
+        tunit = tc.unit
+    cols = [(tc.header, tkey, tunit)]
+    data = [t]
+    for c in tab.columns:
+        if c.name == tkey:
             continue
-        cells = s.split(delim)
-        if len(cells) != ncol:
-            raise InputError(f"expected {ncol} values, found {len(cells)}", path, i + 1)
-        rows.append(cells)
-        linenos.append(i + 1)
-    if len(rows) < 2:
-        raise InputError("fewer than two data rows", path)
-    try:
-        data = np.array(rows, dtype=float)
-    except ValueError:
-        for cells, ln in zip(rows, linenos):
-            for (hdr, key, unit), c in zip(cols, cells):
-                try:
-                    float(c)
-                except ValueError:
-                    raise InputError(f"expected a number, found {c.strip()!r}", path, ln,
-                                     field=hdr) from None
-        raise
-    return _from_matrix(str(path), cols, data, linenos, hline + 1, units)
+        cols.append((c.header, c.name, c.unit))
+        data.append(tab.numbers(c.name, empty=np.nan, missing=MISSING))
+    return _from_matrix(tab.source, cols, np.column_stack(data), list(tab.lines), tab.header_line,
+                        units, origin=origin)
+
+
+_SCALED = re.compile(r"^(?P<n>[0-9]*\.?[0-9]+(?:e[+-]?[0-9]+)?)\s*\*?\s*(?P<u>[^0-9].*)$")
 
 
 def _unit_of(unit: str | None):
-    """(kind, factor, offset) of a unit string, or None when unknown."""
+    """(kind, factor, offset) of a unit string, or None when unknown.  A unit may be scaled,
+    ``0.5um`` or ``1e-4 mm``: counts of an encoder or a scale with that resolution."""
     if unit is None:
         return None
-    return UNITS.get(unit.lower().replace(" ", "").replace("sec", "s"))
+    u = unit.lower().replace(" ", "").replace("sec", "s").replace("inches", "inch")
+    hit = UNITS.get(u)
+    if hit is None:
+        m = _SCALED.match(u)
+        if m and float(m.group("n")) > 0:
+            base = UNITS.get(m.group("u"))
+            if base is not None and base[2] == 0.0:
+                return base[0], base[1] * float(m.group("n")), 0.0
+    return hit
+
+
+def _fill_missing(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, int]:
+    """Missing values filled linearly between the neighbours present (held at the ends), and
+    the longest run of missing rows."""
+    bad = ~np.isfinite(v)
+    if not bad.any():
+        return v, 0
+    ok = ~bad
+    out = v.copy()
+    out[bad] = np.interp(t[bad], t[ok], v[ok])
+    edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    runs = np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)
+    return out, int(runs.max())
 
 
 def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
-                 units: dict | None = None) -> Table:
-    """Checks and unit conversion shared by files and in-memory arrays."""
+                 units: dict | None = None, origin: tuple | None = None) -> Table:
+    """Checks and unit conversion shared by files and in-memory arrays (NaN: a missing value)."""
     path = label
     units = dict(units or {})
-    bad = ~np.isfinite(data)
-    if bad.any():
-        r, c = np.argwhere(bad)[0]
+    inf = np.isinf(data)
+    if inf.any():
+        r, c = np.argwhere(inf)[0]
         raise InputError(f"value is {data[r, c]} (expected a finite number)", path,
                          linenos[r] if linenos else None, field=cols[c][0])
     columns = {}
-    t = None
+    notes = []
     tkey = _time_key([c[1] for c in cols])
+    jt = [c[1] for c in cols].index(tkey)
+    hdr_t, _, unit_t = cols[jt]
+    if origin is None:
+        ut = _unit_of(unit_t) if unit_t else ("time", 1.0, 0.0)
+        if ut is None or ut[0] != "time":
+            raise InputError(f"unit {unit_t!r} of {tkey} is not a time unit (s, ms, us, min)",
+                             path, hline, field=hdr_t)
+        t = data[:, jt] * ut[1]
+    else:
+        t = data[:, jt]
+    if np.isnan(t).any():
+        r = int(np.argmax(np.isnan(t)))
+        raise InputError("the time is missing (expected a number on every row)", path,
+                         linenos[r] if linenos else None, field=hdr_t)
     for j, (hdr, key, unit) in enumerate(cols):
+        if j == jt:
+            continue
         raw = data[:, j]
         src = "unit"
         if unit is None and key in units:
             unit, src = units[key], "option"
             if _unit_of(unit) is None and unit not in ("", "-", "1"):
                 raise InputError(f"unknown unit {unit!r} given for column {key!r} (expected one of "
-                                 "mm, um, nm, deg, rad, mm/s, deg/s, mm/s^2, degC, rpm, ...)",
-                                 field=f"--unit {key}")
+                                 "mm, um, nm, in, deg, rad, mm/s, deg/s, mm/s^2, degC, rpm, or a "
+                                 "resolution like 0.5um for counts)", field=f"--unit {key}")
         if unit:
             u = _unit_of(unit)
             kind, fac, off = u if u is not None else (None, 1.0, 0.0)
         else:
             kind, fac, off = kind_from_name(key), 1.0, 0.0
             src = "name"
-        if key == tkey:
-            if kind != "time":
-                raise InputError(f"unit {unit!r} of {key} is not a time unit (s, ms, us, min)",
-                                 path, hline, field=hdr)
-            t = raw * fac
-            continue
         if kind is None:  # a unit we do not know: keep the values as written
             kind, cunit = "other", unit
         else:
@@ -363,19 +450,61 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
             raise InputError(f"value {raw[r]:g} is out of range (|value| above {MAX_ABS:g} "
                              f"{cunit or 'units'}: a corrupt cell?)", path,
                              linenos[r] if linenos else None, field=hdr)
-        q = max(_quantum(raw), _decimal_resolution(raw))
-        columns[key] = Column(key, hdr, kind, cunit, v, q * abs(fac), src)
+        q = max(_quantum(raw), _decimal_resolution(raw)) if np.isfinite(raw).all() else \
+            max(_quantum(raw[np.isfinite(raw)]), _decimal_resolution(raw[np.isfinite(raw)]))
+        present = None
+        miss = np.isnan(v)
+        if miss.any():
+            n_ok = int((~miss).sum())
+            if n_ok < max(2, MIN_PRESENT * len(v)):
+                notes.append(f"column {key!r} of {Path(path).name} is left out: only {n_ok} of "
+                             f"{len(v)} rows hold a value")
+                continue
+            present = ~miss
+            first = int(np.argmax(miss))
+            where = f" (first on line {linenos[first]})" if linenos else ""
+            v, run = _fill_missing(t, v)
+            notes.append(f"column {key!r} of {Path(path).name}: {int(miss.sum())} missing values{where}, "
+                         f"longest run {run} rows; as an output, rows without a value take no part "
+                         "in the fit; as an input, it is filled linearly between its neighbours")
+        columns[key] = Column(key, hdr, kind, cunit, v, q * abs(fac), src, present)
     if np.any(np.abs(t) > MAX_ABS):
         r = int(np.argmax(np.abs(t) > MAX_ABS))
         raise InputError(f"time {t[r]:g} s is out of range", path, linenos[r] if linenos else None,
                          field=tkey)
     dt = np.diff(t)
-    if not np.all(dt > 0):
-        i = int(np.argmax(~(dt > 0)))
-        raise InputError(f"t must increase strictly: {t[i + 1]:g} s follows {t[i]:g} s "
-                         "(sort the rows or remove duplicates)", path,
-                         linenos[i + 1] if linenos else None, field=tkey)
-    return Table(str(path), t, columns)
+    if np.any(dt < 0):
+        i = int(np.argmax(dt < 0))
+        raise InputError(f"t must increase: {t[i + 1]:g} s follows {t[i]:g} s "
+                         "(sort the rows)", path, linenos[i + 1] if linenos else None, field=tkey)
+    if np.any(dt == 0):
+        # repeated time stamps (a logger's clock coarser than its rate, or a row written twice):
+        # the rows of one time stamp are averaged
+        t, columns, k = _merge_repeated(t, columns)
+        first = int(np.argmax(dt == 0)) + 1
+        where = f" (first on line {linenos[first]})" if linenos else ""
+        notes.append(f"{k} rows of {Path(path).name} repeat the time stamp of the row before{where}: "
+                     "the values of one time stamp are averaged")
+        if len(t) < 2:
+            raise InputError("fewer than two distinct times", path, field=tkey)
+    return Table(str(path), t, columns, origin, tuple(notes))
+
+
+def _merge_repeated(t: np.ndarray, columns: dict):
+    """Average the rows that share a time stamp: (unique t, columns, rows merged)."""
+    ut, inv, cnt = np.unique(t, return_inverse=True, return_counts=True)
+    out = {}
+    for k, c in columns.items():
+        w = np.ones(len(t)) if c.present is None else c.present.astype(float)
+        s = np.bincount(inv, weights=c.values * w, minlength=len(ut))
+        n = np.bincount(inv, weights=w, minlength=len(ut))
+        pres = n > 0
+        v = np.where(pres, s / np.maximum(n, 1), np.nan)
+        if not pres.all():
+            v, _ = _fill_missing(ut, v)
+        out[k] = Column(c.key, c.header, c.kind, c.unit, v, c.quantum, c.kind_from,
+                        None if pres.all() else pres)
+    return ut, out, int(len(t) - len(ut))
 
 
 def table_from_arrays(data, name: str = "arrays", units: dict | None = None) -> Table:
@@ -404,3 +533,100 @@ def load(source, role: str, units: dict | None = None) -> Table:
     if hasattr(source, "to_dict") and hasattr(source, "columns"):  # DataFrame-like
         source = {c: np.asarray(source[c]) for c in source.columns}
     return table_from_arrays(source, role, units)
+
+
+def common_clock(sim: Table, rec: Table) -> tuple[Table, Table, tuple]:
+    """SIM and REC on one clock when their times came from time stamps of the same form (REC
+    moved by the difference of their origins); otherwise unchanged, with a note when only one
+    file has time stamps (its times then count from its first row)."""
+    if sim.origin and rec.origin and sim.origin[0] == rec.origin[0]:
+        d = rec.origin[1] - sim.origin[1]
+        return sim, Table(rec.path, rec.t + d, rec.columns, sim.origin, rec.notes), (
+            f"time stamps of both files read on one clock (REC starts {d:+.6g} s after SIM)",)
+    for tab, role in ((sim, "SIM"), (rec, "REC")):
+        if tab.origin:
+            return sim, rec, (f"{role}'s time stamps are counted from its first row (the other file "
+                              "has times in s): the clock offset is left to the alignment",)
+    return sim, rec, ()
+
+
+# words that say a column's role (command or measurement), not what it measures: `X_cmd` and
+# `X_act`, `Soll_X` and `Ist_X`, `cmd_pos` and `act_pos`, `X1_CommandPosition` and
+# `X1_ActualPosition` name the same quantity of the same axis
+_ROLE_WORDS = {"cmd", "command", "commanded", "set", "setpoint", "soll", "sollwert", "nom",
+               "nominal", "des", "desired", "ref", "reference", "target", "dem", "demand",
+               "consigne", "cons", "sim", "simulated", "model", "act", "actual", "ist", "istwert",
+               "meas", "measured", "fb", "feedback", "mes", "mesure", "mesuree", "reel", "reelle",
+               "real", "rec", "recorded", "enc", "encoder", "scale", "lin", "rot", "motor", "load",
+               "value", "wert", "valeur", "val"}
+
+
+def stem(name: str) -> str:
+    """A column's name without the words that say its role, lower case: what a command and its
+    measurement have in common (``X_cmd`` / ``x_act`` -> 'x'; ``Pos_Act`` -> 'pos')."""
+    words = []
+    for w in _tokens(name):
+        for pre in ("ist", "soll"):  # German compounds: Istposition, Sollposition
+            if w.startswith(pre) and len(w) > len(pre) + 2:
+                w = w[len(pre):]
+        if w not in _ROLE_WORDS:
+            words.append(w)
+    return "_".join(words)
+
+
+def pair_columns(sim: Table, rec: Table, outputs=None) -> tuple[Table, list | None, tuple]:
+    """Pairs of a SIM column and REC columns under other names, as outputs.
+
+    `outputs` entries ``SIMCOL=RECCOL`` compare REC's RECCOL with SIM's SIMCOL (the output is
+    named RECCOL; several REC columns may pair with one SIM column, e.g. a motor encoder and a
+    linear scale).  Without `outputs`, a SIM column of a motion kind that REC does not have is
+    paired with the REC columns of the same kind whose name differs only by role words
+    (``X_cmd`` with ``X_act``, ``Soll_X`` with ``Ist_X``); every pairing is said in the notes.
+    Returns SIM with a copy of the SIM column under each REC name, the output names, notes.
+    """
+    pairs = []
+    plain = None
+    if outputs:
+        plain = []
+        for o in outputs:
+            if "=" in o:
+                s, r = (x.strip() for x in o.split("=", 1))
+                if s not in sim.columns:
+                    raise InputError(f"--output {o!r}: SIM has no column {s!r} (it has "
+                                     f"{', '.join(sim.columns)})", field="--output")
+                if r not in rec.columns:
+                    raise InputError(f"--output {o!r}: REC has no column {r!r} (it has "
+                                     f"{', '.join(rec.columns)})", field="--output")
+                pairs.append((s, r, "option"))
+                plain.append(r)
+            else:
+                plain.append(o)
+    else:
+        rec_only = [k for k in rec.columns if k not in sim.columns]
+        for s, cs in sim.columns.items():
+            if s in rec.columns or cs.kind not in MOTION_KINDS + ("other",):
+                continue
+            st = stem(s)
+            if not st:
+                continue
+            hits = [r for r in rec_only if stem(r) == st and rec.columns[r].kind == cs.kind]
+            for r in hits:
+                # a REC column that matches two SIM columns is left alone (ambiguous)
+                if sum(stem(k) == st and c.kind == cs.kind for k, c in sim.columns.items()
+                       if k not in rec.columns) == 1:
+                    pairs.append((s, r, "name"))
+    if not pairs:
+        return sim, plain, ()
+    cols = dict(sim.columns)
+    notes = []
+    for s, r, how in pairs:
+        if r in sim.columns:
+            raise InputError(f"--output {s}={r}: SIM has a column {r!r} already", field="--output")
+        c = sim.columns[s]
+        cols[r] = Column(r, c.header, c.kind, c.unit, c.values, c.quantum, c.kind_from, c.present)
+        notes.append(f"REC's {r!r} is compared with SIM's {s!r}"
+                     + (" (their names differ only by words of role: give --output "
+                        f"{s}={r} to choose pairs yourself)" if how == "name" else ""))
+    for s in {p[0] for p in pairs}:
+        cols.pop(s, None)  # the SIM column lives on as the paired outputs
+    return replace(sim, columns=cols), plain, tuple(notes)

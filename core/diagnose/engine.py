@@ -137,17 +137,27 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     say = progress or (lambda msg: None)
     S = _data.load(sim, "SIM", units)
     R = _data.load(rec, "REC", units)
-    al = _align.align(S, R, outputs=outputs, inputs=inputs)
+    S, R, clock_notes = _data.common_clock(S, R)
+    S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
+    al = _align.align(S, R, outputs=outputs, inputs=inputs,
+                      notes=tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes)
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
     # then the chosen effects are refitted on every sample
-    step = max(1, int(np.ceil(al.n / st.fit_rows)))
-    ctx_sel = Context(al, np.arange(0, al.n, step))
+    step = max(1, int(np.ceil(len(al.rows()) / st.fit_rows)))
+    ctx_sel = Context(al, al.rows(step))
     cands = candidates(al)
     say(f"{len(cands)} candidate effects, selecting on {ctx_sel.n} of {al.n} samples")
     chosen, evidence, log = select(ctx_sel, cands, st, progress=say)
-    ctx = Context(al) if step > 1 else ctx_sel
+    ctx = Context(al, al.rows()) if step > 1 else ctx_sel
+    rows = ctx.idx  # grid samples backed by data (all, unless the files have gaps)
+
+    def full(x, o):
+        """A per-output array on ctx's rows spread onto the whole grid (0 in gaps)."""
+        out = np.zeros(al.n)
+        out[rows] = x
+        return out
     final = (fit(ctx, chosen.cands, chosen.etas, max_nfev=15) if step > 1 and chosen.cands
              else (chosen if step == 1 else fit(ctx, [], [])))
 
@@ -218,7 +228,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                        betas=final.betas)
         starts = [f.extra["held"][0] for f in folds] + [np.inf]
         for i, f in enumerate(folds):
-            inblk = (al.t >= starts[i]) & (al.t < starts[i + 1])
+            inblk = (ctx.t >= starts[i]) & (ctx.t < starts[i + 1])
             pred = np.zeros(ctx.N)
             for (fx, B), beta in zip(model_columns(ctx, f.cands, f.etas), f.betas):
                 pred += (fx if fx is not None else 0.0) + (B @ beta if B.shape[1] else 0.0)
@@ -232,10 +242,10 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
              for o in al.outputs}
     for o in al.outputs:
         sl = ctx.slices[o]
-        before = al.rec[o] - al.sim[o]
+        before = (al.rec[o] - al.sim[o])[rows]
         after = final.resid[sl] * sig[o]
-        corrected[o] = al.rec[o] - after
-        held[o] = al.rec[o] - oof[sl] * sig[o]
+        corrected[o] = al.rec[o] - full(after, o)
+        held[o] = al.rec[o] - full(oof[sl] * sig[o], o)
         fitd["rms_before"][o] = _rms(before)
         fitd["rms_after"][o] = _rms(after)
         fitd["holdout_rms_before"][o] = _rms(before)
@@ -244,7 +254,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     unexplained = []
     for o in al.outputs:
         sl = ctx.slices[o]
-        after = final.resid[sl] * sig[o]
+        after = full(final.resid[sl] * sig[o], o)
         worst = max(fitd["rms_after"][o], fitd["holdout_rms_after"][o])
         if worst > UNEXPLAINED_RATIO * floor[o]:
             spans = locate(al, max_spans=3, resid={o: after}, only=(o,))
@@ -253,13 +263,13 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                 "noise_floor": floor[o], "ratio": worst / floor[o],
                 "where": [m.where for m in spans],
                 "correlates": conditions(al, o, after, floor[o]),
-                "empirical": empirical_dependence(al, o, oof[sl] * sig[o]),
+                "empirical": empirical_dependence(al, o, full(oof[sl] * sig[o], o)),
                 "interpolation_error": al.interp.get(o, ("", 0.0))[1]})
     # the recording-wide conditions of an output belong to the words of each of its spans
     mism = [Mismatch(m.output, m.t_start, m.t_end,
                      m.where + "".join(f"; overall: {c}" for c in cond[m.output]), m.rms)
             for m in mism]
-    alignment = {"grid_step_s": al.dt, "samples": al.n, "t_start": float(al.t[0]),
+    alignment = {"grid_step_s": al.dt, "samples": int(len(rows)), "grid_samples": al.n, "t_start": float(al.t[0]),
                  "t_end": float(al.t[-1]), "clock_offset_s": al.clock_offset + clock_fine[0],
                  "clock_offset_uncertainty_s": clock_fine[1],
                  "coarse_offset_s": al.offset0,

@@ -9,6 +9,8 @@ SIGNATURE = {
     "backlash": "offset that flips sign with the direction of the axis' last motion",
     "servo_lag": "lag proportional to velocity with first-order dynamics (position loop gain kv)",
     "periodic_pitch_error": "error periodic in the axis position (period = screw lead)",
+    "encoder_cyclic_error": "error periodic in the measured position with the encoder's signal "
+                            "period (harmonics 1 and 2), the same at every speed",
     "scale_error": "error proportional to the axis' own position",
     "squareness": "error proportional to another axis' position",
     "straightness": "smooth curve of the error along another axis' travel",

@@ -393,6 +393,10 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             if snr < st.min_effect_snr:
                 log.append(f"step {step + 1}: {c.label} rejected: RMS {snr:.2f} x noise")
                 continue
+            why = c.implausible(ctx, f.etas[-1], f.betas[-1])
+            if why:
+                log.append(f"step {step + 1}: {c.label} rejected: {why}")
+                continue
             cv_new, oof_new = cross_validate(ctx, m_new, f.etas, st.folds)
             gain = 1.0 - cv_new / cv_cur
             # materiality on the effect's own outputs (one output with a tiny noise floor must

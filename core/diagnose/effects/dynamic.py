@@ -1,0 +1,204 @@
+"""Dynamic effects: a driver filtered in time (thermal drift), first-order servo lags in their
+forms, and the transport delay common to every output (time offset)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import Candidate, _se, first_order  # noqa: F401
+
+
+class ThermalDrift(Candidate):
+    nl_names = ("log_tau",)
+
+    def __init__(self, output, driver):
+        super().__init__("thermal_drift", (output,), (driver,), 3)
+
+    def bounds(self, ctx):
+        lo = math.log(max(ctx.al.dt, 1e-3))
+        # up to 3x the recording: a longer time constant makes the driver's response, the free
+        # initial transient and the offset nearly collinear, and they cancel at large amplitudes
+        hi = math.log(max(3 * ctx.duration, 10 * ctx.al.dt))
+        return [lo], [hi]
+
+    def build(self, ctx, eta):
+        al = ctx.al
+        sig = al.signals[self.inputs[0]]
+        u = sig.values
+        tau = math.exp(eta[0])
+        tn, vn = sig.native if sig.native else (al.t, u)
+        dt_native = float(np.median(np.diff(tn)))
+        m = int(np.clip(math.ceil(al.dt / dt_native), 1, max(1, 200_000 // al.n)))
+        if m > 1:
+            # a sparse grid: filter the driver as it was sampled (a spindle-speed step smeared
+            # over one coarse step would shift the response by half a step)
+            k = np.arange((al.n - 1) * m + 1)
+            tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
+            uf = np.interp(tf, tn, vn)
+            y = first_order(uf, al.dt / m, tau)[::m] - uf[0]
+        else:
+            y = first_order(u, al.dt, tau) - u[0]
+        # the structure's thermal state at the start is unknown: a free initial transient, and
+        # a free offset (the drift is measured from an unknown reference state)
+        tr = np.exp(-(ctx.al.t - ctx.al.t[0]) / tau)
+        o = self.outputs[0]
+        return None, [{o: y}, {o: tr}, {o: np.ones_like(y)}]
+
+    def coarse(self, ctx, resid, rows):
+        lo, hi = self.bounds(ctx)
+        return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 20))
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        tau = math.exp(eta[0])
+        unit = (ctx.al.signals[self.inputs[0]].unit or "unit").replace("/", "_").replace("%", "pct")
+        g = "gain_mm_per_" + unit
+        u = ctx.al.units[self.outputs[0]]
+        return ({g: float(beta[0]), "tau_s": tau, f"initial_{u}": float(beta[1]),
+                 f"offset_{u}": float(beta[2])},
+                {g: _se(cov_beta, 0), "tau_s": tau * _se(cov_eta, 0), f"initial_{u}": _se(cov_beta, 1),
+                 f"offset_{u}": _se(cov_beta, 2)})
+
+
+class ServoLag(Candidate):
+    nl_names = ("log_kv",)
+
+    def __init__(self, output):
+        super().__init__("servo_lag", (output,), (output,), 0)
+
+    def bounds(self, ctx):
+        # up to 20 per grid step, or 5x SIM's rate when the recording is sparse (the lag is
+        # resolved through SIM, which is dense)
+        hi = max(20.0 / ctx.al.dt, 5.0 * ctx.al.rates["sim"], 1.0)
+        if type(self) is ServoLag:
+            # identifiable: a lag shorter than half of the finer file's sample step cannot be
+            # told from a pure delay (time_offset), which then has to explain it
+            hi = min(hi, 2.0 * max(ctx.al.rates["sim"], ctx.al.rates["rec"]))
+        return [math.log(max(0.5, 1.0 / ctx.duration))], [math.log(hi)]
+
+    def build(self, ctx, eta):
+        # the filter runs on a finer grid from SIM's spline: the ramp-invariant step assumes the
+        # input linear between samples, and a moving axis is parabolic while it accelerates;
+        # at least 4x finer, and fine against SIM's own step and the lag itself.  It starts
+        # up to 20 lags before the grid (SIM permitting): the axis may be moving at the start.
+        al = ctx.al
+        o = self.outputs[0]
+        tau = math.exp(-eta[0])
+        h_want = min(0.25 / al.rates["sim"], tau / 8)
+        m = int(np.clip(math.ceil(al.dt / h_want), 4, max(4, 400_000 // al.n)))
+        h = al.dt / m
+        warm = int(min(max(al.t[0] - al.sim_span[0], 0.0), 20 * tau) / h)
+        k = np.arange(-warm, (al.n - 1) * m + 1)
+        tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
+        pf = al.sim_spline[o](tf)
+        y = first_order(pf, h, tau)[warm::m] - al.sim[o]
+        return {o: y}, []
+
+    def coarse(self, ctx, resid, rows):
+        lo, hi = self.bounds(ctx)
+        return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 24))
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        kv = math.exp(eta[0])
+        return {"kv_per_s": kv}, {"kv_per_s": kv * _se(cov_eta, 0)}
+
+
+class TimeOffset(Candidate):
+    nl_names = ("tau_dt",)
+
+    def __init__(self, outputs):
+        super().__init__("time_offset", tuple(outputs), ("t",), 0)
+
+    def bounds(self, ctx):
+        al = ctx.al
+        w = max(10.0 * al.dt, 0.02 * abs(al.offset0))
+        return [(al.offset0 - w) / al.dt], [(al.offset0 + w) / al.dt]
+
+    def build(self, ctx, eta):
+        al = ctx.al
+        tau = float(eta[0]) * al.dt
+        # evaluated on ctx's rows only: the spline needs no neighbours
+        return {o: al.sim_spline[o](ctx.t - tau) - al.sim[o][ctx.idx] for o in self.outputs}, []
+
+    def coarse(self, ctx, resid, rows):
+        lo, hi = self.bounds(ctx)
+        c = ctx.al.offset0 / ctx.al.dt
+        grid = np.unique(np.clip(np.concatenate([[c], np.linspace(lo[0], hi[0], 21)]), lo[0], hi[0]))
+        return self._grid_best(ctx, resid, rows, grid)
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        dt = ctx.al.dt
+        return {"offset_s": float(eta[0]) * dt}, {"offset_s": _se(cov_eta, 0) * dt}
+
+
+class ServoLagDerivative(Candidate):
+    """Servo lag of a velocity output, linearised through a logged commanded acceleration:
+    r = -tau a_cmd (tau linear; kv = 1/tau).
+
+    The first-order term of F_tau[c] - c.  Beside the filtered form (ServoLagHermite) because
+    real loggers sample command and actual a little apart within a cycle: the linear form uses
+    the logged acceleration only at the sample itself and degrades more gracefully then.
+    """
+
+    def __init__(self, output, derivative):
+        super().__init__("servo_lag", (output,), (output, derivative), 1)
+
+    @property
+    def label(self) -> str:
+        return super().label + "(linear)"
+
+    def build(self, ctx, eta):
+        return None, [{self.outputs[0]: -ctx.values(self.inputs[1])}]
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        tau = float(beta[0])
+        s_tau = _se(cov_beta, 0)
+        kv = 1.0 / tau if tau > 0 else float("inf")
+        return ({"kv_per_s": kv, "tau_s": tau},
+                {"kv_per_s": s_tau / tau ** 2 if tau > 0 else float("nan"), "tau_s": s_tau})
+
+
+class ServoLagHermite(ServoLag):
+    """Servo lag of a velocity (or acceleration) output, using a logged commanded derivative.
+
+    A first-order loop of time constant tau = 1/kv lags its command c by r = F_tau[c] - c
+    (-tau dc/dt to first order).  At a coarse logging rate (10 Hz) c between its samples is
+    poorly known; with the commanded acceleration logged beside the commanded velocity the
+    command is a cubic Hermite curve through both (exact slopes at the samples), which is what
+    the lag filter runs on, on a grid fine against tau.
+    """
+
+    def __init__(self, output, derivative):
+        Candidate.__init__(self, "servo_lag", (output,), (output, derivative), 0)
+        self._herm = None
+
+    def _hermite(self, ctx):
+        if self._herm is None:
+            from scipy.interpolate import CubicHermiteSpline
+            al = ctx.al
+            tv, v = al.signals[self.outputs[0]].native
+            sd = al.signals[self.inputs[1]]
+            td, a = sd.native if sd.native else (al.t, sd.values)
+            a_v = np.interp(tv, td, a)
+            h = CubicHermiteSpline(tv, v, a_v, extrapolate=False)
+            self._herm = lambda x, _h=h, _a=tv[0], _b=tv[-1]: _h(np.clip(x, _a, _b))
+        return self._herm
+
+    def build(self, ctx, eta):
+        al = ctx.al
+        o = self.outputs[0]
+        tau = math.exp(-eta[0])
+        m = int(np.clip(math.ceil(al.dt / (tau / 8)), 4, max(4, 400_000 // al.n)))
+        h = al.dt / m
+        warm = int(min(max(al.t[0] - al.sim_span[0], 0.0), 20 * tau) / h)
+        k = np.arange(-warm, (al.n - 1) * m + 1)
+        tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
+        cf = self._hermite(ctx)(tf)
+        y = first_order(cf, h, tau)[warm::m] - al.sim[o]
+        return {o: y}, []
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        kv = math.exp(eta[0])
+        s = _se(cov_eta, 0)
+        return {"kv_per_s": kv, "tau_s": 1.0 / kv}, {"kv_per_s": kv * s, "tau_s": s / kv}
