@@ -337,6 +337,16 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
         common = [k for k in common if k in outputs]
     if inputs:
         common = [k for k in common if k not in inputs]
+    if not outputs:
+        # a logged temperature or spindle speed copied into SIM is what drove the simulation,
+        # not something it predicts: an input (a thermal drift needs it as its driver)
+        drivers = [k for k in common if sim.columns[k].kind in ("temperature", "speed")
+                   and rec.columns[k].kind == sim.columns[k].kind]
+        if drivers and len(drivers) < len(common):
+            common = [k for k in common if k not in drivers]
+            notes = tuple(notes) + tuple(
+                f"column {k!r} is in both files but is a {sim.columns[k].kind}: used as an input "
+                f"(give --output {k} to compare it)" for k in drivers)
     if not common:
         raise InputError(
             f"no output to compare: no column other than t is in both files "
