@@ -433,7 +433,9 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                 note = (f"clocks aligned: REC's clock runs {offset:+.6g} s from SIM's (estimated "
                         "jointly with a first-order lag per output; it lowers the residual "
                         + (f"{math.sqrt(c_zero / c_off):.3g}x" if c_off > 0 and c_zero / c_off < 1e6
-                         else "to the noise") + " against no alignment)")
+                         else "to the noise") + " against no alignment; a pure transport delay of "
+                        "the machine is a time shift too and cannot be told from it: if the clocks "
+                        "are known to agree, part of this is a delay)")
                 return align(sim, shifted, clock_offset=offset, outputs=outputs, inputs=inputs,
                              notes=notes + (note,))
             notes += (f"a clock offset of {offset:+.4g} s was tried and rejected: it does not "
