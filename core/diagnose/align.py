@@ -345,6 +345,16 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
         common = [k for k in common if k in outputs]
     if inputs:
         common = [k for k in common if k not in inputs]
+    if not outputs:
+        # a logged temperature or spindle speed copied into SIM is what drove the simulation,
+        # not something it predicts: an input (a thermal drift needs it as its driver)
+        drivers = [k for k in common if sim.columns[k].kind in ("temperature", "speed")
+                   and rec.columns[k].kind == sim.columns[k].kind]
+        if drivers and len(drivers) < len(common):
+            common = [k for k in common if k not in drivers]
+            notes = tuple(notes) + tuple(
+                f"column {k!r} is in both files but is a {sim.columns[k].kind}: used as an input "
+                f"(give --output {k} to compare it)" for k in drivers)
     if not common:
         raise InputError(
             f"no output to compare: no column other than t is in both files "
@@ -435,7 +445,9 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                 note = (f"clocks aligned: REC's clock runs {offset:+.6g} s from SIM's (estimated "
                         "jointly with a first-order lag per output; it lowers the residual "
                         + (f"{math.sqrt(c_zero / c_off):.3g}x" if c_off > 0 and c_zero / c_off < 1e6
-                         else "to the noise") + " against no alignment)")
+                         else "to the noise") + " against no alignment; a pure transport delay of "
+                        "the machine is a time shift too and cannot be told from it: if the clocks "
+                        "are known to agree, part of this is a delay)")
                 return align(sim, shifted, clock_offset=offset, outputs=outputs, inputs=inputs,
                              notes=notes + (note,))
             notes += (f"a clock offset of {offset:+.4g} s was tried and rejected: it does not "

@@ -283,6 +283,9 @@ def _conflicts(c: Candidate, model: list) -> bool:
             return True
         if c.name == m.name and c.name in ("workpiece_setting", "time_offset"):
             return True
+        # the direct and the lagged response to the same driver are two forms of one drift
+        if c.name == m.name == "thermal_drift" and c.outputs == m.outputs and c.inputs == m.inputs:
+            return True
         if (c.name == m.name and c.outputs == m.outputs
                 and c.name in ("backlash", "servo_lag", "scale_error", "periodic_pitch_error",
                                "friction", "quadrant_glitch")):

@@ -40,7 +40,7 @@ from ..align import Aligned
 from .base import (LIN_AXIS, ROT_AXIS, Candidate, Context, _se, backlash_play,  # noqa: F401
                    below_rounding, direction_of_motion, first_order, legendre_cols, rot,
                    visited_spacing)
-from .dynamic import (ServoLag, ServoLagDerivative, ServoLagHermite, ThermalDrift,  # noqa: F401
+from .dynamic import (ServoLag, ServoLagDerivative, ServoLagHermite, ThermalDirect, ThermalDrift,  # noqa: F401
                       TimeOffset)
 from .friction import Backlash, Friction, QuadrantGlitch, StickSlip  # noqa: F401
 from .geometric import (EncoderCyclic, PeriodicPitch, PivotOffset, ScaleError,  # noqa: F401
@@ -158,6 +158,8 @@ def candidates(al: Aligned) -> list[Candidate]:
     for o in outs:
         for d in thermal_drivers:
             out.append(ThermalDrift(o, d))
+            if sig[d].kind == "temperature":
+                out.append(ThermalDirect(o, d))
         if o in moving:
             out += [Backlash(o), ServoLag(o), ScaleError(o)]
             if not al.at_rest:

@@ -61,6 +61,46 @@ class ThermalDrift(Candidate):
                  f"offset_{u}": _se(cov_beta, 2)})
 
 
+class ThermalDirect(ThermalDrift):
+    """Thermal drift that follows a logged temperature directly: r = k (u - u(t0)) + c.
+
+    The reading of a sensor on the structure already is its thermal state, so the lag and the
+    free initial transient of ThermalDrift are often not identifiable: when the temperature
+    itself rises like exp(-t/tau), k (u - u0) equals c' + r0' exp(-t/tau) exactly, and the full
+    model can trade its gain for a cancelling transient and offset (a gain of 0.01 +- 0.02
+    µm/degC beside an initial -12 µm and offset +12 µm was seen).  Offered beside the full model
+    for temperature drivers; with two parameters instead of four, BIC keeps it unless the lag
+    is really there.
+    """
+    nl_names = ()
+
+    def __init__(self, output, driver):
+        Candidate.__init__(self, "thermal_drift", (output,), (driver,), 2)
+
+    @property
+    def label(self) -> str:
+        return f"thermal_drift_direct[{self.outputs[0]}<-{self.inputs[0]}]"
+
+    def bounds(self, ctx):
+        return [], []
+
+    def build(self, ctx, eta):
+        u = ctx.al.signals[self.inputs[0]].values
+        o = self.outputs[0]
+        return None, [{o: u - u[0]}, {o: np.ones_like(u)}]
+
+    def coarse(self, ctx, resid, rows):
+        return np.zeros(0)
+
+    def physical(self, ctx, eta, beta, cov_eta, cov_beta):
+        unit = (ctx.al.signals[self.inputs[0]].unit or "unit").replace("/", "_").replace("%", "pct")
+        g = "gain_mm_per_" + unit
+        u = ctx.al.units[self.outputs[0]]
+        # tau 0: the response follows the reading without a lag of its own; no initial transient
+        return ({g: float(beta[0]), "tau_s": 0.0, f"initial_{u}": 0.0, f"offset_{u}": float(beta[1])},
+                {g: _se(cov_beta, 0), "tau_s": 0.0, f"initial_{u}": 0.0, f"offset_{u}": _se(cov_beta, 1)})
+
+
 class ServoLag(Candidate):
     nl_names = ("log_kv",)
 
