@@ -10,18 +10,20 @@ Submodules: axes (which machine axis an output follows), mapping (one function p
 effect -> model parameters), export (the files), dynamics (the dynamics TOML), simulate
 (co-simulation, provenance sidecar, re-simulation and its figure), loop (the loop in one
 call), compensate (program compensation with the model, part error), story (the loop end to
-end, the demo's stage), cli.
+end, the demo's stage), machine_ref (the machine FMU's dynamics in Python, the reference the C
+model is tested against), cli.
 """
 from __future__ import annotations
 
 __all__ = ["export_model", "ModelExport", "resimulate", "ResimResult", "close_loop", "load_dynamics",
-           "compensate_with_model", "read_model", "part_error"]
+           "compensate_with_model", "read_model", "part_error", "simulate_reference"]
 
 # name -> submodule; the functions load on first use (numpy, scipy, fmpy stay unloaded until then).
 # `simulate` is a submodule, so the function of that name is imported from it explicitly.
 _WHERE = {"export_model": "export", "ModelExport": "export", "resimulate": "simulate",
           "ResimResult": "simulate", "close_loop": "loop", "load_dynamics": "dynamics",
-          "compensate_with_model": "compensate", "read_model": "compensate", "part_error": "compensate"}
+          "compensate_with_model": "compensate", "read_model": "compensate", "part_error": "compensate",
+          "simulate_reference": "machine_ref"}
 
 
 def __getattr__(name):
