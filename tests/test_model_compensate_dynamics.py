@@ -1,0 +1,204 @@
+"""Compensating the diagnosed thermal drift, transport delay and friction at reversals
+(`mtcomp model compensate`, docs/model-loop.md "Feeding the compensation").  Each switch: the
+pure function against the Python reference of the machine FMU (an independent implementation
+of the same equations), then the machine FMU co-simulated with the compensated program (part
+error reduced), and the switch off gives the previous output byte for byte."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mtcomp.errors import ErrorSet, GeometricErrors
+from mtcomp.fmu.build import MachineDynamics
+from mtcomp.machine import load_machine
+from mtcomp.model.compensate import compensate_with_model, model_dynamics
+
+M = "vmc-moving-column"
+STEP = 1e-3
+DATA = Path(__file__).parent / "data" / "model"
+SQUARE = ErrorSet(geometric=GeometricErrors({}, {"EC0Y": 1.5e-4}))
+# the program of tests/test_model_compensate.py (its backlash and servo output is the golden file)
+LEGACY = """G90 G1 F300
+X0 Y0 Z0
+X10 Y4
+X-8 Y-6
+G2 X-8 Y-6 I5 J0
+G1 X6 Y5
+X0 Y0
+"""
+# the spindle runs up to 8000 1/min, then 12000 (an S word alone), stops (M5) before the last move
+SPINDLE = """G90 G1 F600
+S8000 M3
+X0 Y0 Z0
+X20 Y4
+X-10 Y-6
+S12000
+G2 X-10 Y-6 I5 J0
+G1 X10 Y5
+M5
+X0 Y0
+"""
+THERMAL = {"thermal.driver": 0, "thermal.gain": 1e-3, "thermal.time_constant": 2.0, "thermal.drift.z": 0.004}
+
+
+def test_spindle_profile_follows_the_program():
+    from mtcomp.fmu.cosim import interpolate_program
+    from mtcomp.model.thermal_comp import spindle_profile
+    m = load_machine(M)
+    sp = spindle_profile(SPINDLE, m, STEP)
+    t, _ = interpolate_program(SPINDLE, m, STEP)
+    assert len(sp) == len(t)
+    # block ends: 20.396 mm at 10 mm/s; + 31.62 mm; the circle 2 pi 5; + 22.36 mm; M5 before the last
+    e1 = np.hypot(20, 4) / 10
+    e2 = e1 + np.hypot(30, 10) / 10
+    e4 = e2 + 2 * np.pi * 5 * np.sin(np.radians(0.5)) / np.radians(0.5) / 10 + np.hypot(20, 11) / 10
+    assert set(sp[t <= e2 - STEP]) == {8000.0}
+    assert set(sp[(t > e2 + STEP) & (t < e4 - STEP)]) == {12000.0}
+    assert set(sp[t > e4 + STEP]) == {0.0}
+    # M4 runs the other way (negative), no M3 at all: stopped
+    assert set(spindle_profile("G1 F600 X0 Y0 Z0\nS500 M4\nX5\n", m, STEP)[5:]) == {-500.0}
+    assert not np.any(spindle_profile("G1 F600 X0 Y0 Z0 S500\nX5\n", m, STEP))
+
+
+def test_thermal_correction_cancels_the_reference_drift_and_the_delay_switch():
+    """The predicted temperature and the corrected commands through the Python reference of the
+    machine FMU (spindle driver, drift along z and x, a delay of 3 steps): the tool edge is where
+    the uncorrected commands would put it on a machine without drift, to 1e-9 mm; without the
+    delay's lead the offsets are taken 3 ms early."""
+    from mtcomp.fmu.cosim import interpolate_program
+    from mtcomp.kinematics import forward
+    from mtcomp.model.machine_ref import simulate_reference
+    from mtcomp.model.thermal_comp import (ThermalModel, predicted_temperature, spindle_profile, thermal_correction,
+                                           thermal_offsets)
+    m = load_machine(M)
+    _, w = interpolate_program(SPINDLE, m, STEP)
+    sp = spindle_profile(SPINDLE, m, STEP)
+    dyn = MachineDynamics(thermal_driver="spindle", thermal_gain=1e-3, thermal_time_constant=1.5,
+                          drift=(0.001, 0.0, 0.004), reference=20.5, initial_excess=0.3, delay=3 * STEP)
+    tm = ThermalModel.from_dynamics(dyn)
+    ideal = forward(m, w, SQUARE).p
+    for lead, most in ((3 * STEP, 1e-9), (0.0, None)):
+        T = predicted_temperature(tm, len(w), STEP, sp, lead=lead)
+        u = thermal_correction(m, w, thermal_offsets(m, w, tm, T, SQUARE), SQUARE)
+        run = simulate_reference(m, u, STEP, SQUARE, dyn, spindle_speed=np.abs(sp))
+        err = np.abs(run.p[3:] - ideal[:-3]).max()       # the axes act 3 steps later
+        if most:
+            assert err < most
+        else:
+            assert err > 1e-6        # the drift moves by more than 1 µm over 3 ms at the spindle steps
+    before = simulate_reference(m, w, STEP, SQUARE, dyn, spindle_speed=np.abs(sp))
+    assert np.abs(before.p[3:] - ideal[:-3]).max() > 0.02          # 8 K * 4 µm/K and more
+
+
+@pytest.fixture(scope="module")
+def thermal_runs():
+    """Part error of the SPINDLE program on a machine with a squareness and a spindle-driven
+    drift along z, stage by stage (the FMU's spindle input follows each program's S words)."""
+    pytest.importorskip("fmpy")
+    from mtcomp.model.compensate import compare_compensations
+    dyn = model_dynamics(THERMAL, M, STEP)
+    return compare_compensations(SPINDLE, M, SQUARE, dyn, compiler="cc")
+
+
+def test_thermal_compensation_in_the_cosimulation(thermal_runs):
+    e = thermal_runs
+    assert list(e) == ["none", "geometric", "+thermal"]
+    # measured: RMS 36.0 µm -> 36.0 µm -> 0.05 µm; max 46 µm -> 0.3 µm (axis resolution 0.1 µm)
+    assert e["none"]["rms"] > 20e-3 and e["geometric"]["rms"] > 20e-3
+    assert e["+thermal"]["rms"] < 0.01 * e["geometric"]["rms"]
+    assert e["+thermal"]["max"] < 0.5e-3
+
+
+def test_thermal_switch_off_is_the_previous_output():
+    """With thermal (and friction) off, or with the drift out of the model, the program is the one
+    the backlash and servo compensation wrote before those switches existed (golden file)."""
+    base = {"servo.kv.X": 80.0, "servo.kv.Y": 80.0, "backlash.X": 0.004, "backlash.Y": 0.004}
+    golden = (DATA / "compensated_backlash_servo.nc").read_text()
+    full = model_dynamics({**base, **THERMAL, "friction.breakaway.X": 0.003, "friction.tau.X": 0.03,
+                           "delay": 0.002}, M, STEP)
+    assert compensate_with_model(LEGACY, M, None, model_dynamics(base, M, STEP))[0] == golden
+    assert compensate_with_model(LEGACY, M, None, full, thermal=False, friction=False)[0] == golden
+    assert compensate_with_model(LEGACY, M, None, full, thermal=False, friction=False, delay=False)[0] == golden
+    on = compensate_with_model(LEGACY, M, None, full)[0]
+    assert on != golden and "thermal offsets" in on and "friction reversal spikes" in on
+
+
+def test_time_driven_drift_from_the_program_time():
+    """Driver "time": a warm machine cools down (initial excess 2 K relaxes with 1.5 s) while a
+    program without S words runs; the growth follows the program time."""
+    pytest.importorskip("fmpy")
+    from mtcomp.model.compensate import compare_compensations
+    prog = LEGACY.replace("F300", "F900")
+    dyn = model_dynamics({"thermal.driver": 2, "thermal.time_constant": 1.5, "thermal.initial_excess": 2.0,
+                          "thermal.drift.y": 0.003}, M, STEP)
+    e = compare_compensations(prog, M, ErrorSet(), dyn, compiler="cc")
+    # measured: max 6 µm (2 K * 3 µm/K at the start) -> 0.1 µm
+    assert list(e) == ["none", "geometric", "+thermal"]
+    assert e["none"]["max"] > 4e-3 and e["+thermal"]["max"] < 0.3e-3
+
+
+def test_temperature_driver_goes_to_the_control(tmp_path):
+    """A drift driven by a logged temperature: the program is not changed for it (the future
+    temperature is unknown); the control's parameters follow the model, and their law, applied
+    online (causally) to the logged sensor, cancels the machine FMU's drift."""
+    pytest.importorskip("fmpy")
+    from mtcomp.fmu.cosim import interpolate_program
+    from mtcomp.kinematics import forward
+    from mtcomp.model.simulate import simulate
+    from mtcomp.model.thermal_comp import control_offsets, thermal_correction
+    params = {"thermal.driver": 1, "thermal.time_constant": 0.8, "thermal.drift.z": 0.005,
+              "thermal.initial_excess": 0.4, "thermal.reference": 20.2}
+    dyn = model_dynamics(params, M, STEP)
+    text, rep = compensate_with_model(LEGACY, M, SQUARE, dyn)
+    assert text == compensate_with_model(LEGACY, M, SQUARE, dyn, thermal=False)[0]
+    assert rep.thermal == "temperature" and rep.step is None
+    ctl = rep.thermal_control["thermal_compensation"]
+    assert ctl["gain_mm_per_K"] == [0.0, 0.0, 0.005] and ctl["time_constant_s"] == 0.8
+    assert ctl["reference_K"] == pytest.approx(0.2) and ctl["initial_excess_K"] == 0.4
+    m = load_machine(M)
+    t, w = interpolate_program(LEGACY, m, STEP)
+    sensor = 21.3 + 1.5 * np.sin(2 * np.pi * t / 3.0) + 0.8 * (t > 2.0)        # the logged temperature
+    growth = -control_offsets(rep.thermal_control, sensor, STEP)               # tool frame = workpiece frame here
+    u = thermal_correction(m, w, growth, SQUARE)
+    truth = dyn.machine_dynamics(m)
+    before = simulate(w, M, SQUARE, truth, step=STEP, temperature=sensor, compiler="cc")
+    after = simulate(u, M, SQUARE, truth, step=STEP, temperature=sensor, compiler="cc")
+    ideal = forward(m, w, SQUARE).p
+    assert np.abs(before.p - ideal).max() > 5e-3
+    assert np.abs(after.p - ideal).max() < 1e-9
+
+
+def _cli(tmp_path, *a):
+    return subprocess.run([sys.executable, "-m", "mtcomp", *[str(x) for x in a]], capture_output=True, text=True,
+                          cwd=tmp_path)
+
+
+def test_cli_thermal_switches(tmp_path):
+    d = tmp_path / "model"
+    d.mkdir()
+    (d / "dynamics.toml").write_text('step_s = 0.001\n[parameters]\n"thermal.driver" = 1\n"thermal.drift.z" = 0.004\n'
+                                     '"thermal.time_constant" = 60.0\n')
+    (tmp_path / "p.nc").write_text(SPINDLE)
+    r = _cli(tmp_path, "model", "compensate", "p.nc", "--model", "model", "--machine", M, "-o", "out.nc")
+    assert r.returncode == 0, r.stderr
+    from mtcomp._io import parse_toml
+    ctl = parse_toml((tmp_path / "out.nc.thermal.toml").read_text(), "x")["thermal_compensation"]
+    assert ctl["gain_mm_per_K"] == [0.0, 0.0, 0.004] and ctl["time_constant_s"] == 60.0
+    assert "left to the control" in r.stdout
+    r = _cli(tmp_path, "model", "compensate", "p.nc", "--model", "model", "--machine", M, "--no-thermal",
+             "-o", "off.nc")
+    assert r.returncode == 0, r.stderr
+    assert not (tmp_path / "off.nc.thermal.toml").exists()
+    # spindle driver: sampled, the S words carried to the samples where the speed changes
+    (d / "dynamics.toml").write_text('step_s = 0.001\n[parameters]\n"thermal.driver" = 0\n"thermal.gain" = 0.001\n'
+                                     '"thermal.drift.z" = 0.004\n"thermal.time_constant" = 2.0\n')
+    r = _cli(tmp_path, "model", "compensate", "p.nc", "--model", "model", "--machine", M, "-o", "sp.nc")
+    assert r.returncode == 0, r.stderr
+    from mtcomp.model.thermal_comp import spindle_profile
+    out = (tmp_path / "sp.nc").read_text()
+    assert "thermal offsets [spindle_speed]" in out      # the header writes brackets
+    assert np.array_equal(spindle_profile(out, M, STEP), spindle_profile(SPINDLE, M, STEP))
