@@ -271,3 +271,36 @@ def test_friction_switch_off_is_the_previous_output():
     text, rep = compensate_with_model(CIRCLE, M, None, dyn)
     assert rep.friction == ((0.003, 0.003, 0.0), (0.0, 0.0, 0.0), (0.03, 0.03, 0.0))
     assert "friction reversal spikes" in text and "breakaway 3, 3, 0 µm" in rep.summary()
+
+
+# ---------------------------------------------------------------- transport delay
+
+def test_a_delay_leaves_the_contour_and_the_switch_times_the_thermal_offsets():
+    """A transport delay of all axes runs the same path later: with a whole number of steps the
+    compensated part error is the one without delay (nothing for a rewritten program to
+    advance).  What it shifts is the axes against the clock-driven drift: with the `delay`
+    switch the thermal offsets are taken when the axes act (a fast drift, tau = 0.5 s, 10 ms)."""
+    pytest.importorskip("fmpy")
+    from mtcomp.model.compensate import part_error
+    from mtcomp.model.simulate import simulate
+    from mtcomp.model.thermal_comp import spindle_profile
+    base = {"servo.kv.X": 80.0, "servo.kv.Y": 80.0, "backlash.X": 0.004, "backlash.Y": 0.004}
+    plain, delayed = model_dynamics(base, M, STEP), model_dynamics({**base, "delay": 3 * STEP}, M, STEP)
+    text = compensate_with_model(LEGACY, M, SQUARE, plain)[0]
+    assert compensate_with_model(LEGACY, M, SQUARE, delayed)[0] == text
+    p0 = simulate(text, M, SQUARE, plain.machine_dynamics(M), step=STEP, compiler="cc").p
+    p1 = simulate(text, M, SQUARE, delayed.machine_dynamics(M), step=STEP, compiler="cc").p
+    assert np.abs(p1[3:] - p0[:-3]).max() < 1e-12          # the same tool edge, 3 steps later
+    assert part_error(LEGACY, simulate(text, M, SQUARE, plain.machine_dynamics(M), step=STEP, compiler="cc"),
+                      M)["max"] < 1e-3
+    dyn = model_dynamics({**THERMAL, "thermal.time_constant": 0.5, "delay": 10 * STEP}, M, STEP)
+    rms = {}
+    for on in (True, False):
+        text, rep = compensate_with_model(SPINDLE, M, None, dyn, delay=on)
+        assert rep.delay == (10 * STEP if on else None)
+        sp = spindle_profile(text, M, STEP)
+        sig = simulate(text, M, None, dyn.machine_dynamics(M), step=STEP, spindle_speed=np.abs(sp), compiler="cc")
+        rms[on] = part_error(SPINDLE, sig, M)["rms"]
+    # measured (uncompensated 38 µm RMS): RMS 0.196 µm with the offsets at the command's time, 0.081 µm
+    # at the axes' time; max 0.95 -> 0.70 µm (the first 10 ms: no command has reached the axes yet)
+    assert rms[True] < 0.6 * rms[False]
