@@ -1,8 +1,11 @@
 """Compensate an NC program with what the loop learned: the exported geometric errors and,
-switchable, the diagnosed backlash (reversal compensation) and servo lag (feed-forward).
+switchable, the diagnosed backlash (reversal compensation), servo lag (feed-forward), friction
+at reversals (reversal spikes, mtcomp.model.friction_comp) and thermal drift (offsets predicted
+from the program's spindle speed or time, mtcomp.model.thermal_comp; the transport delay times
+them).
 
 Geometric and setting errors go through `mtcomp.commands.compensate_program` (the program keeps
-its blocks).  The dynamic effects act on the axis commands *in time*, so with either switch on
+its blocks).  The dynamic effects act on the axis commands *in time*, so with any of them on
 the geometrically compensated program is sampled at the control's interpolation period h (the
 model's communication step, `mtcomp.fmu.cosim.interpolate_program`, feeds honoured) and every
 sample is corrected as a control does it:
