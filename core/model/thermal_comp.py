@@ -145,8 +145,10 @@ def spindle_profile(program, machine, step: float, *, rapid: float = 3000.0) -> 
     if isinstance(program, gcode.Program):
         prog = program
     else:
-        text = program if "\n" in str(program) else open(program, encoding="utf-8").read()
-        prog = gcode.parse(text, axes=machine.axis_names)
+        from .._io import read_text
+        name = "<string>" if "\n" in str(program) else str(program)
+        text = program if name == "<string>" else read_text(program, what="NC program")
+        prog = gcode.parse(text, axes=machine.axis_names, filename=name)
     t, _ = interpolate_program(prog, machine, step, rapid=rapid)
     ends = block_end_times(prog, machine, rapid=rapid)
     j = np.minimum(np.searchsorted(ends, t - 1e-9 * step, side="left"), len(ends) - 1)
