@@ -241,8 +241,23 @@ def test_bad_dynamics_and_missing_provenance_are_named(tmp_path):
     bad.write_text('[parameters]\n"friction.X" = 1.0\n')
     with pytest.raises(InputError, match="unknown dynamics parameter"):
         load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"thermal.driver" = 3\n')
+    with pytest.raises(InputError, match="thermal.driver"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"delay" = 2.0\n')
+    with pytest.raises(InputError, match="delay"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"thermal.drift.z" = -0.004\n"thermal.reference" = 21.5\n')
+    assert load_dynamics(bad, VMC) == {"thermal.drift.z": -0.004, "thermal.reference": 21.5}   # signed: fine
     with pytest.raises(InputError, match="provenance"):
         read_provenance(tmp_path / "nothing.csv")
+    # a drivers file without a driver column, through the CLI: one line naming the file, no traceback
+    (tmp_path / "p.nc").write_text("G90 G1 F600\nX0 Y0 Z0\nX1\n")
+    (tmp_path / "drv.csv").write_text("t,humidity\n0,1\n1,2\n")
+    r = subprocess.run([sys.executable, "-m", "mtcomp", "model", "simulate", "p.nc", "--machine", "vmc-moving-column",
+                        "--drivers", "drv.csv", "-o", "s.csv"], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode != 0 and "drv.csv" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "s.csv").exists()
     # a leading (negative) backlash has no home in the FMU's play: listed, not exported
     ex = export_model({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": -0.001})]}, VMC)
     assert not ex.mapped and "negative" in ex.unmapped[0][1]

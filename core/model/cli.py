@@ -233,11 +233,18 @@ def register_compensate(sub) -> None:
     c.add_argument("--no-geometric", action="store_true", help="leave the geometric and setting errors out")
     c.add_argument("--no-backlash", action="store_true", help="no reversal compensation")
     c.add_argument("--no-servo", action="store_true", help="no servo-lag feed-forward")
+    c.add_argument("--no-friction", action="store_true", help="no reversal spikes for the friction breakaway")
+    c.add_argument("--no-thermal", action="store_true", help="no thermal offsets (spindle- or time-driven drift "
+                   "subtracted along the program; a drift driven by a logged temperature goes to OUT.thermal.toml "
+                   "for the control)")
+    c.add_argument("--no-delay", action="store_true", help="take the thermal offsets at the command's time, not "
+                   "at the time the axes act (t + transport delay)")
     c.add_argument("--rapid", type=float, default=3000.0, metavar="MM_PER_MIN",
                    help="the G0 rate of the control, for the sampling (default 3000)")
     c.add_argument("--cosim", action="store_true",
                    help="co-simulate the machine the model describes (machine FMU) with the program uncompensated, "
-                        "compensated for the geometric errors only, + backlash, + servo: print the part errors")
+                        "compensated for the geometric errors only, + backlash, + servo, + friction, + thermal "
+                        "(those in the model): print the part errors")
     c.add_argument("-o", "--output", required=True, metavar="OUT.nc")
     c.set_defaults(func=run_compensate)
 
@@ -262,10 +269,16 @@ def run_compensate(args: argparse.Namespace) -> int:
     prov = [("VERSION", f"mtcomp {__version__}"), ("MACHINE", m.name), ("SOURCE", src.name),
             ("MODEL", Path(args.model).name)]
     new, rep = compensate_with_model(text, m, None if args.no_geometric else errors, dyn,
-                                     backlash=not args.no_backlash, servo=not args.no_servo, rapid=args.rapid,
-                                     filename=str(src), provenance=prov)
+                                     backlash=not args.no_backlash, servo=not args.no_servo,
+                                     friction=not args.no_friction, thermal=not args.no_thermal,
+                                     delay=not args.no_delay, rapid=args.rapid, filename=str(src), provenance=prov)
     atomic_write(args.output, new)
     print(f"{src} -> {args.output}: {rep.summary()}")
+    if rep.thermal_control is not None:
+        from .thermal_comp import control_file_text
+        ctl = Path(str(args.output) + ".thermal.toml")
+        atomic_write(ctl, control_file_text(rep.thermal_control))
+        print(f"thermal drift driven by a logged temperature: not in the program; the control's parameters -> {ctl}")
     if args.cosim:
         from .compensate import compare_compensations
         pe = compare_compensations(text, m, errors, dyn, rapid=args.rapid, filename=str(src))

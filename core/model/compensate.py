@@ -1,8 +1,11 @@
 """Compensate an NC program with what the loop learned: the exported geometric errors and,
-switchable, the diagnosed backlash (reversal compensation) and servo lag (feed-forward).
+switchable, the diagnosed backlash (reversal compensation), servo lag (feed-forward), friction
+at reversals (reversal spikes, mtcomp.model.friction_comp) and thermal drift (offsets predicted
+from the program's spindle speed or time, mtcomp.model.thermal_comp; the transport delay times
+them).
 
 Geometric and setting errors go through `mtcomp.commands.compensate_program` (the program keeps
-its blocks).  The dynamic effects act on the axis commands *in time*, so with either switch on
+its blocks).  The dynamic effects act on the axis commands *in time*, so with any of them on
 the geometrically compensated program is sampled at the control's interpolation period h (the
 model's communication step, `mtcomp.fmu.cosim.interpolate_program`, feeds honoured) and every
 sample is corrected as a control does it:
@@ -41,10 +44,39 @@ from ..machine import load_machine
 @dataclass(frozen=True)
 class ModelDynamics:
     """What the dynamic compensation uses: per axis backlash (mm or deg) and servo gain kv (1/s,
-    0: ideal servo), for the communication step `step` (s) the kv values are for."""
+    0: ideal servo), for the communication step `step` (s) the kv values are for; `params`: all
+    the model's dynamics parameters {FMU parameter name: value} (dynamics.toml: friction, delay,
+    thermal model too)."""
     backlash: tuple
     kv: tuple
     step: float
+    params: dict = field(default_factory=dict, compare=False)
+
+    def machine_dynamics(self, machine):
+        """The mtcomp.fmu.build.MachineDynamics the model describes (no noise)."""
+        from ..fmu.build import MachineDynamics
+        from .dynamics import apply_dynamics
+        machine = load_machine(machine)
+        return apply_dynamics(MachineDynamics(kv=tuple(self.kv), backlash=tuple(self.backlash)), self.params,
+                              machine, combine=False)
+
+    def thermal(self, machine):
+        """mtcomp.model.thermal_comp.ThermalModel of the model, None without a drift."""
+        from .thermal_comp import ThermalModel
+        return ThermalModel.from_dynamics(self.machine_dynamics(machine))
+
+    def friction(self, machine) -> tuple | None:
+        """(breakaway, coulomb, tau) per-axis tuples, None without friction."""
+        d = self.machine_dynamics(machine)
+        n = load_machine(machine).n_axes
+        brk, cou = d.per_axis(d.friction_breakaway, n, "friction"), d.per_axis(d.friction_coulomb, n, "friction")
+        if not any(brk) and not any(cou):
+            return None
+        return brk, cou, d.per_axis(d.friction_tau, n, "friction")
+
+    @property
+    def delay(self) -> float:
+        return float(self.params.get("delay", 0.0))
 
 
 def read_model(outdir, machine) -> tuple:
@@ -79,7 +111,7 @@ def model_dynamics(params: dict, machine, step: float) -> ModelDynamics:
             kv[machine.axis_names.index(k[len("servo.kv."):])] = float(v)
         elif k.startswith("backlash."):
             bl[machine.axis_names.index(k[len("backlash."):])] = float(v)
-    return ModelDynamics(tuple(bl), tuple(kv), float(step))
+    return ModelDynamics(tuple(bl), tuple(kv), float(step), dict(params))
 
 
 def backlash_offsets(w: np.ndarray, backlash, *, eps: float = 0.0) -> np.ndarray:
@@ -114,14 +146,21 @@ def feed_forward(w: np.ndarray, kv, step: float) -> np.ndarray:
     return w + d * c
 
 
-def _merge(u: np.ndarray, tol: np.ndarray) -> np.ndarray:
+def _merge(u: np.ndarray, tol: np.ndarray, breaks=()) -> np.ndarray:
     """Indices of the samples to keep so that the dropped ones lie on the straight line (in axis
-    space and time) between kept neighbours within tol (n,) per axis."""
+    space and time) between kept neighbours within tol (n,) per axis; the samples in `breaks`
+    are kept."""
     keep = [0]
     a = 0
     K = len(u)
     j = 1
+    brk = set(int(b) for b in breaks)
     while j < K - 1:
+        if j in brk:
+            keep.append(j)
+            a = j
+            j += 1
+            continue
         # try to extend the run a..j+1: every sample between must be on the chord a -> j+1
         b = j + 1
         s = (np.arange(a + 1, b) - a) / (b - a)
@@ -137,19 +176,34 @@ def _merge(u: np.ndarray, tol: np.ndarray) -> np.ndarray:
     return np.asarray(keep)
 
 
-def sampled_program(u: np.ndarray, step: float, machine, *, header=()) -> str:
+def _spindle_words(v: float) -> str:
+    if v == 0:
+        return "M5"
+    return f"S{abs(v):.15g} {'M3' if v > 0 else 'M4'}"
+
+
+def sampled_program(u: np.ndarray, step: float, machine, *, header=(), spindle=None, start=None) -> str:
     """NC text (G90 G94 G1 blocks) that the interpolator runs through the commands u (K, n)
     sampled every `step` s: each block lasts its samples' time (F = length / duration, mm/min,
-    lengths over all axes as the control measures them); collinear runs merged."""
+    lengths over all axes as the control measures them); collinear runs merged.  spindle: (K,)
+    signed speed (1/min, + M3, - M4, 0 stopped) per sample, written as S/M3/M4/M5 words on the
+    block that runs the sample where it changes (None or all 0: no spindle words).  start: where
+    the program starts (n,); when u[0] is elsewhere (a thermal offset at t = 0) the first block
+    goes there at F100000, so that it takes no time of the sample clock (< 1e-9 s per µm)."""
     machine = load_machine(machine)
     res = machine.resolutions
-    keep = _merge(u, 0.25 * res)
+    sp = None if spindle is None or not np.any(spindle) else np.asarray(spindle, float)
+    changes = np.flatnonzero(np.diff(sp)) + 1 if sp is not None else np.zeros(0, int)
+    keep = _merge(u, 0.25 * res, breaks=changes - 1)
+    pending = {int(c): _spindle_words(sp[c]) for c in changes}
     dec = [a.decimals for a in machine.axes]
     names = machine.axis_names
     lines = [f"({h})" for h in header]
     lines.append("G90 G94 G1")
     fmt = lambda j, v: f"{names[j]}{v:.{dec[j]}f}"  # noqa: E731
-    lines.append(" ".join(fmt(j, u[0, j]) for j in range(len(names))) + " F1000")
+    first = " " + _spindle_words(sp[0]) if sp is not None and sp[0] != 0 else ""
+    moved = start is not None and any(round(float(a), d) != round(float(b), d) for a, b, d in zip(u[0], start, dec))
+    lines.append(" ".join(fmt(j, u[0, j]) for j in range(len(names))) + (" F100000" if moved else " F1000") + first)
     # The first block moves from the program's start (the parse takes unknown axes at 0, the
     # sampled program starts where the original did) and must take no time: the interpolator
     # skips zero-length moves.  Written positions are rounded: feeds use the rounded lengths.
@@ -158,12 +212,15 @@ def sampled_program(u: np.ndarray, step: float, machine, *, header=()) -> str:
     for b in keep[1:]:
         p = np.array([round(v, d) for v, d in zip(u[b], dec)])
         length = float(np.sqrt(np.sum((p - prev) ** 2)))
+        spw = pending.pop(a + 1, None)
         if length == 0:
+            if spw:
+                lines.append(spw)   # the spindle change still acts before the next move
             continue        # the interpolator skips zero-length moves: its time goes to the next block
         f = length / ((b - a) * step) * 60.0
         words = [fmt(j, u[b, j]) for j in range(len(names)) if p[j] != prev[j]]
         # 15 digits: the block times add up over thousands of blocks to the sample clock
-        lines.append(" ".join(words) + f" F{f:.15g}")
+        lines.append(" ".join(words) + f" F{f:.15g}" + (" " + spw if spw else ""))
         prev, a = p, b
     lines.append("M30")
     return "\n".join(lines) + "\n"
@@ -173,18 +230,34 @@ def sampled_program(u: np.ndarray, step: float, machine, *, header=()) -> str:
 class CompensationReport:
     """What was compensated: geometric (bool), backlash / servo (per axis values used, or None),
     step (s, of the sampling, None without dynamics), blocks (written), geometric report (dict
-    of compensate_program)."""
+    of compensate_program); friction ((breakaway, coulomb, tau) per axis, or None), thermal
+    ("spindle_speed" | "time" when subtracted along the program, "temperature" when left to the
+    control, None), delay (s, the lead the thermal offsets were evaluated with, None),
+    thermal_control (the control's parameters, mtcomp.model.thermal_comp.control_parameters,
+    for a drift driven by a logged temperature)."""
     geometric: bool
     backlash: tuple | None
     kv: tuple | None
     step: float | None
     blocks: int
     geometric_report: dict = field(default_factory=dict)
+    friction: tuple | None = None
+    thermal: str | None = None
+    delay: float | None = None
+    thermal_control: dict | None = None
 
     def summary(self) -> str:
+        th = None
+        if self.thermal == "temperature":
+            th = "thermal drift (logged temperature): left to the control, parameters for it written apart"
+        elif self.thermal:
+            th = f"thermal offsets from the {self.thermal.replace('_', ' ')}" + (
+                f" at the axes' time (delay {self.delay * 1e3:g} ms)" if self.delay else "")
         parts = ["geometric and setting errors" if self.geometric else None,
                  f"backlash {', '.join(f'{b * 1e3:g} µm' for b in self.backlash)}" if self.backlash else None,
-                 f"servo feed-forward kv {', '.join(f'{k:g}' for k in self.kv)} 1/s" if self.kv else None]
+                 f"servo feed-forward kv {', '.join(f'{k:g}' for k in self.kv)} 1/s" if self.kv else None,
+                 "reversal spikes (friction breakaway " + ", ".join(f"{b * 1e3:g}" for b in self.friction[0])
+                 + " µm)" if self.friction else None, th]
         what = "; ".join(p for p in parts if p) or "nothing"
         tail = f" (sampled every {self.step * 1e3:g} ms)" if self.step else ""
         return f"compensated: {what}; {self.blocks} blocks{tail}"
@@ -198,11 +271,16 @@ def _no_errors(e: ErrorSet) -> bool:
 
 def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dynamics: ModelDynamics | None = None,
                           *, geometric: bool = True, backlash: bool = True, servo: bool = True,
+                          friction: bool = True, thermal: bool = True, delay: bool = True,
                           rapid: float = 3000.0, filename: str = "<string>", provenance=None) -> tuple:
     """Rewrite an NC program for the machine the model describes: geometric and setting
-    `errors` (when `geometric`), then the `dynamics` backlash (when `backlash`) and servo lag
-    (when `servo`).  Returns (new_text, CompensationReport).  rapid: the G0 rate (mm/min) the
-    control runs, for the sampling."""
+    `errors` (when `geometric`), then the `dynamics` thermal offsets (`thermal`: spindle- or
+    time-driven drift subtracted along the program; a drift driven by a logged temperature is
+    left to the control, its parameters in the report), friction reversal spikes (`friction`),
+    backlash (`backlash`) and servo lag (`servo`); `delay`: the thermal offsets are taken at the
+    time the axes act (t + transport delay).  Returns (new_text, CompensationReport).  rapid:
+    the G0 rate (mm/min) the control runs, for the sampling.  With every new switch off (or
+    nothing of it in the model) the output is the one without them, byte for byte."""
     from ..commands import compensate_program
     from ..gcode.provenance import compensated_line, header_lines
     machine = load_machine(machine)
@@ -213,32 +291,52 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
         if vals is not None and len(vals) != n:
             raise InputError(f"expected {n} {name} values (one per axis of {machine.name}), got {len(vals)}",
                              field=name)
+    fr = dynamics.friction(machine) if (dynamics and friction and dynamics.params) else None
+    tm = dynamics.thermal(machine) if (dynamics and thermal and dynamics.params) else None
+    from .thermal_comp import DRIVERS, control_parameters
+    th_name = DRIVERS[tm.driver] if tm is not None else None
+    th_ctl = control_parameters(tm, machine) if th_name == "temperature" else None
+    th_pred = tm if th_name in ("spindle_speed", "time") else None
+    lead = dynamics.delay if (th_pred is not None and delay and dynamics.delay) else None
     done = compensated_line(text)
     if done is not None:
         raise InputError("this program was already compensated by mtcomp (provenance header): use the original "
                          "program", filename, done)
-    sampled = bl is not None or kv is not None
+    sampled = bl is not None or kv is not None or fr is not None or th_pred is not None
     rep_geo: dict = {}
     geo = bool(geometric and errors is not None and not _no_errors(errors))
     if geo:
         text, rep_geo = compensate_program(text, machine, errors, filename=filename,
                                            provenance=None if sampled else list(provenance or []))
+    extra = dict(friction=fr, thermal=th_name, delay=lead, thermal_control=th_ctl)
     if not sampled:
-        return text, CompensationReport(geo, None, None, None, int(rep_geo.get("blocks", 0)), rep_geo)
+        return text, CompensationReport(geo, None, None, None, int(rep_geo.get("blocks", 0)), rep_geo, **extra)
     from ..fmu.cosim import interpolate_program
     from ..gcode import parse
+    from .thermal_comp import spindle_profile
     h = dynamics.step
     prog = parse(text, axes=machine.axis_names, filename=filename)
     _, w = interpolate_program(prog, machine, h, rapid=rapid)
+    w0 = w[0].copy()
+    sp = spindle_profile(prog, machine, h, rapid=rapid)
+    if th_pred is not None:
+        from .thermal_comp import predicted_temperature, thermal_correction, thermal_offsets
+        T = predicted_temperature(th_pred, len(w), h, sp, lead=lead or 0.0)
+        w = thermal_correction(machine, w, thermal_offsets(machine, w, th_pred, T, errors), errors)
+    if fr is not None:
+        from .friction_comp import friction_commands
+        w = friction_commands(w, h, *fr)
     u = w + (backlash_offsets(w, bl) if bl else 0.0)
     if kv:
         u = feed_forward(u, kv, h)
     what = ", ".join(x for x, on in (("geometric and setting errors", geo), ("backlash", bl),
-                                     ("servo feed-forward", kv)) if on)
+                                     ("servo feed-forward", kv), ("friction reversal spikes", fr),
+                                     (f"thermal offsets ({th_name})", th_pred),
+                                     (f"at the axes' time (delay {lead:g} s)" if lead else "", lead)) if on)
     items = list(provenance or []) + [("DYNAMICS", f"{what}; sampled every {h:g} s; G0 as G1 at {rapid:g} mm/min")]
-    new = sampled_program(u, h, machine, header=header_lines(items))
+    new = sampled_program(u, h, machine, header=header_lines(items), spindle=sp, start=w0)
     blocks = sum(1 for ln in new.splitlines() if ln and ln[0] in machine.axis_names)
-    return new, CompensationReport(geo, bl, kv, h, blocks, rep_geo)
+    return new, CompensationReport(geo, bl, kv, h, blocks, rep_geo, **extra)
 
 
 # ---------------------------------------------------------------- part error of a co-simulation
@@ -284,7 +382,8 @@ def part_error(program, signals, machine, *, rapid: float = 3000.0, fine: int = 
     the program or of a compensated version of it, same timing) over the feed moves.
 
     "max", "rms" (mm): the distance of each tool edge sample from the programmed path (contour
-    error; "e" per sample, with "t").  "reach" (mm): the other way, the largest distance of a
+    error; "e" per sample, with "t"), from the second sample on (the first is the machine at
+    the program's start before it moves).  "reach" (mm): the other way, the largest distance of a
     commanded point of the program (one per step) from the tool edge's path: it sees the ends
     and reversal points the tool does not reach (short by b/2 with a backlash b), which lie on
     the path; it also holds the corner cut of the interpolation period (up to about v h at a
@@ -296,28 +395,55 @@ def part_error(program, signals, machine, *, rapid: float = 3000.0, fine: int = 
     _, path, _ = programmed_path(program, machine, step / fine, rapid=rapid, arc_step_deg=0.02)
     t, cmd, feed = programmed_path(program, machine, step, rapid=rapid)
     k = min(len(t), len(signals.t))
+    # from the second sample on: the first is the machine at the program's start, before the
+    # program moves (a compensated program gets there by a first move that takes no time)
     sel = np.flatnonzero(feed[:k])
+    sel = sel[sel > 0]
     e = distance_to_path(signals.p[sel], path)
     back = distance_to_path(cmd[sel], signals.p[:k]) if sel.size > 1 else np.zeros(0)
     return {"max": float(e.max(initial=0.0)), "rms": float(np.sqrt(np.mean(e ** 2))) if e.size else 0.0,
             "reach": float(back.max(initial=0.0)), "e": e, "t": t[sel]}
 
 
+def compensation_stages(dynamics: ModelDynamics | None, machine) -> list:
+    """[(name, compensate_with_model switches or None for the original program)]: none,
+    geometric, then + backlash, + servo, + friction and + thermal where the model has them
+    (thermal only when the program predicts its driver: spindle speed or time); each stage adds
+    one switch to the one before."""
+    machine = load_machine(machine)
+    off = dict(backlash=False, servo=False, friction=False, thermal=False)
+    stages = [("none", None), ("geometric", dict(off))]
+    if dynamics is not None and any(dynamics.backlash):
+        stages.append(("+backlash", dict(off, backlash=True)))
+    if dynamics is not None and any(dynamics.kv):
+        stages.append(("+servo", dict(off, backlash=True, servo=True)))
+    has_fr = bool(dynamics and dynamics.params and dynamics.friction(machine))
+    tm = dynamics.thermal(machine) if (dynamics and dynamics.params) else None
+    if has_fr:
+        stages.append(("+friction", dict(off, backlash=True, servo=True, friction=True)))
+    if tm is not None and tm.driver != 1:
+        stages.append(("+thermal", dict(off, backlash=True, servo=True, friction=True, thermal=True)))
+    return stages
+
+
 def compare_compensations(text: str, machine, errors: ErrorSet, dynamics: ModelDynamics, *,
                           rapid: float = 3000.0, compiler: str = "cmake", filename: str = "<string>") -> dict:
     """Co-simulate the program on the machine the model describes (errors, dynamics; no noise)
-    uncompensated, compensated for the geometric errors only, + backlash, + servo feed-forward;
-    returns {"none"|"geometric"|"+backlash"|"+servo": part_error dict (max, rms, reach in mm)}."""
-    from ..fmu.build import MachineDynamics
+    uncompensated and compensated stage by stage (`compensation_stages`: geometric only,
+    + backlash, + servo feed-forward, + friction reversal spikes, + thermal offsets); the
+    machine's spindle follows each run's own S words (the thermal driver).  Returns
+    {stage name: part_error dict (max, rms, reach in mm)}."""
     from .simulate import simulate
+    from .thermal_comp import spindle_profile
     machine = load_machine(machine)
-    dyn = MachineDynamics(kv=tuple(dynamics.kv), backlash=tuple(dynamics.backlash))
+    dyn = dynamics.machine_dynamics(machine)
     out = {}
-    for name, kw in (("none", None), ("geometric", dict(backlash=False, servo=False)),
-                     ("+backlash", dict(servo=False)), ("+servo", {})):
+    for name, kw in compensation_stages(dynamics, machine):
         prog = text if kw is None else compensate_with_model(text, machine, errors, dynamics, rapid=rapid,
                                                              filename=filename, **kw)[0]
-        sig = simulate(prog, machine, errors, dyn, step=dynamics.step, compiler=compiler)
+        sp = spindle_profile(prog, machine, dynamics.step, rapid=rapid)
+        sig = simulate(prog, machine, errors, dyn, step=dynamics.step, compiler=compiler,
+                       spindle_speed=np.abs(sp) if np.any(sp) else 0.0)
         pe = part_error(text, sig, machine, rapid=rapid)
         out[name] = {"max": pe["max"], "rms": pe["rms"], "reach": pe["reach"]}
     return out

@@ -105,7 +105,9 @@ class Story:
         ax.bar(x - 0.2, [self.part[k]["max"] * 1e3 for k in names], 0.4, color="tab:red", label="max")
         ax.bar(x + 0.2, [self.part[k]["rms"] * 1e3 for k in names], 0.4, color="tab:blue", label="RMS")
         ax.set_yscale("log")
-        ax.set_xticks(x, ["none", "geometric", "+ backlash", "+ servo\nfeed-forward"], fontsize=8)
+        label = {"+backlash": "+ backlash", "+servo": "+ servo\nfeed-forward", "+friction": "+ friction\nspikes",
+                 "+thermal": "+ thermal\noffsets"}
+        ax.set_xticks(x, [label.get(k, k) for k in names], fontsize=8)
         ax.set_ylabel("part error [µm]")
         ax.set_title("co-simulated part error by compensation", fontsize=9)
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
@@ -117,7 +119,7 @@ def run_story(out, *, quick: bool = False, seed: int = 7, step: float = 2e-3, co
     provenance, the program, the model folder, the compensated programs."""
     from ..errors import ErrorSet, GeometricErrors
     from ..fmu.build import MachineDynamics
-    from .compensate import compensate_with_model, model_dynamics, part_error
+    from .compensate import compensate_with_model, compensation_stages, model_dynamics, part_error
     from ..machine import load_machine
     from .export import write_export
     from .loop import close_loop
@@ -146,8 +148,8 @@ def run_story(out, *, quick: bool = False, seed: int = 7, step: float = 2e-3, co
     # compensate with the model, switch by switch; the machine runs noise-free (part error)
     dyn_m = model_dynamics(lr.export.dynamics_values, MACHINE, step)
     part = {}
-    for name, kw in (("none", None), ("geometric", dict(backlash=False, servo=False)),
-                     ("+backlash", dict(servo=False)), ("+servo", {})):
+    # the stages of `model compensate --cosim`: + friction / + thermal too if the updated model had them
+    for name, kw in compensation_stages(dyn_m, MACHINE):
         text = program if kw is None else compensate_with_model(program, MACHINE, lr.export.errors, dyn_m, **kw)[0]
         if kw is not None:
             (out / f"part-{name.strip('+')}.nc").write_text(text)

@@ -1,0 +1,91 @@
+"""Reversal (quadrant-glitch) compensation of the diagnosed friction at reversals
+(docs/model-loop.md, "Feeding the compensation").
+
+The machine FMU's friction element (mtcomp.model.machine_ref.friction_step): when the motion of
+the drive (the play output s) reverses, the slide sticks; it breaks away once the drive has
+wound up by the breakaway delta past it, then its lag relaxes from delta to the Coulomb c_f with
+time constant tau.  Uncompensated this is a lost motion at each reversal: the slide stays
+behind by up to delta, the quadrant glitch of a circle test.
+
+Controls offer a reversal spike: at a reversal of the commanded direction they add a pulse in
+the new direction, of height about the breakaway, decaying with the catch-up time constant
+(plus the Coulomb lag as a constant lost motion).  `friction_commands` computes that pulse for
+the discrete FMU exactly: step by step it chooses the drive position s_k that puts the slide at
+the target w_k, by the friction element itself (the sliding step in closed form, the breakaway
+step by bisection).  Where the decay of the spike outruns a slowly starting command the drive
+would have to move back, which would stick the slide again; there the drive is held or allowed
+to reverse, whichever leaves the slide nearer to w_k (an error of at most the command's motion
+in that step).  Written by hand: the inverse of mtcomp's own friction model.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from .machine_ref import FrictionState, friction_step
+
+
+def _after(st: FrictionState, s0: float, s1: float, h: float, brk: float, cou: float, tau: float):
+    new = replace(st)
+    friction_step(new, s0, s1, h, brk, cou, tau)
+    return new
+
+
+def friction_axis(w: np.ndarray, step: float, breakaway: float, coulomb: float, tau: float) -> np.ndarray:
+    """(K,) drive positions (play output, mm or deg) that make the FMU's friction element put the
+    slide at w (K,) at the end of each step (the FMU's start: slide and drive at w[0], no
+    direction yet)."""
+    w = np.asarray(w, float)
+    s = np.empty_like(w)
+    st = FrictionState(float(w[0]))
+    s_prev = float(w[0])
+    decay = math.exp(-step / tau) if tau > 0 else 0.0
+    scale = breakaway + coulomb + 1e-9
+    for k in range(len(w)):
+        target = float(w[k])
+        cands = []
+        if st.direction != 0.0 and not st.stuck:
+            c = st.direction * coulomb
+            cands.append(target + c + (st.err - c) * decay)      # keep sliding: slide = s - err_new
+        cands.append(s_prev)                                     # hold the drive
+        best, best_e, best_st = None, math.inf, None
+        for s1 in cands:
+            ns = _after(st, s_prev, s1, step, breakaway, coulomb, tau)
+            e = abs(ns.slide - target)
+            if e < best_e:
+                best, best_e, best_st = s1, e, ns
+        if best_e > 1e-13:
+            # move towards the target far enough to break away: the slide is monotone in s1
+            # within one direction of motion (stuck, then s1 - err with err falling)
+            d = 1.0 if target > st.slide else -1.0
+            lo, hi = s_prev + d * 2e-12, s_prev + d * (abs(target - st.slide) + abs(st.err) + 2 * scale)
+            if d * (_after(st, s_prev, hi, step, breakaway, coulomb, tau).slide - target) > 0:
+                for _ in range(200):
+                    mid = 0.5 * (lo + hi)
+                    if d * (_after(st, s_prev, mid, step, breakaway, coulomb, tau).slide - target) < 0:
+                        lo = mid
+                    else:
+                        hi = mid
+                    if abs(hi - lo) < 1e-15 * max(1.0, abs(hi)):
+                        break
+                ns = _after(st, s_prev, hi, step, breakaway, coulomb, tau)
+                if abs(ns.slide - target) < best_e:
+                    best, best_e, best_st = hi, abs(ns.slide - target), ns
+        s[k] = best
+        st, s_prev = best_st, best
+    return s
+
+
+def friction_commands(w: np.ndarray, step: float, breakaway, coulomb, tau) -> np.ndarray:
+    """(K, n) drive positions for the targets w (K, n): `friction_axis` on every axis with a
+    breakaway or Coulomb friction (per-axis values mm/deg, tau s); other axes unchanged."""
+    w = np.asarray(w, float)
+    n = w.shape[1]
+    brk, cou, ftau = (np.broadcast_to(np.asarray(v, float), (n,)) for v in (breakaway, coulomb, tau))
+    out = w.copy()
+    for i in range(n):
+        if brk[i] > 0 or cou[i] > 0:
+            out[:, i] = friction_axis(w[:, i], step, float(brk[i]), float(cou[i]), float(ftau[i]))
+    return out
