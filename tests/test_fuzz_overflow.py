@@ -47,3 +47,21 @@ def test_geometric_measurement_set(tmp_path):
     _mutate(s, r"offset = \[")
     with pytest.raises(InputError, match=r"set.toml \[run\[0\]\.offset\]"):
         load_measurement_set(s)
+
+
+@pytest.mark.parametrize("pattern, field", [
+    (r"depth =", r"\[depth\]"),
+    (r"id = 2, x =", r"\[bowls\[1\]\.x\]"),
+    (r"\{ id =", r"\[bowls\[0\]\.id\]"),
+    (r"blank = \[", r"\[blank\]"),
+], ids=["depth", "bowl-x", "bowl-id", "blank"])
+def test_workpiece_plan_scalars(tmp_path, pattern, field):
+    # the 10,000-input campaign (seed 11) found these four: a number, a bowl id, a bowl
+    # position and a blank size given as a 320-digit integer
+    from mtcomp.setting.bowl_plan import load_plan
+    plan = tmp_path / "wp.toml"
+    assert main(["workpiece-setting", "plan", "-o", str(plan)]) == 0
+    _mutate(plan, pattern)
+    with pytest.raises(InputError, match=r"wp.toml " + field) as e:
+        load_plan(plan)
+    assert len(str(e.value)) < 300   # the number is not echoed in full

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import InputError
+from ..validate import MAX_MAGNITUDE, _describe
 
 
 @dataclass(frozen=True)
@@ -198,6 +199,11 @@ def plan_to_dict(plan: BowlPlan) -> dict:
     }
 
 
+def _float_range(v) -> bool:
+    """False for a TOML integer too large for a length (float() or isfinite() would overflow)."""
+    return not isinstance(v, int) or abs(v) <= MAX_MAGNITUDE
+
+
 def plan_from_dict(d: dict, file=None) -> BowlPlan:
     def num(key, default=None):
         v = d.get(key, default)
@@ -205,6 +211,8 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
             raise InputError("missing", file, field=key)
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise InputError(f"expected a number (mm), got {v!r}", file, field=key)
+        if isinstance(v, int) and abs(v) > MAX_MAGNITUDE:   # TOML integers are unbounded
+            raise InputError(f"expected a number of at most {MAX_MAGNITUDE:g} mm, got {_describe(v)}", file, field=key)
         return float(v)
     try:
         raw = d["bowls"]
@@ -218,13 +226,14 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
             raise InputError("each bowl needs an integer id and numbers x, y (mm)", file, field=f"bowls[{k}]")
         bid, x, y = b["id"], b["x"], b["y"]
         # an id must be a whole number: a float like 1.0 is taken, inf, nan, 1.5 or a string are not
-        if isinstance(bid, bool) or not isinstance(bid, (int, float)) or not math.isfinite(bid) \
-                or bid != int(bid) or not 0 < bid < 1e9:
-            raise InputError(f"bowl id must be a positive integer below 1e9, got {bid!r}", file,
+        if isinstance(bid, bool) or not isinstance(bid, (int, float)) or not _float_range(bid) \
+                or not math.isfinite(bid) or bid != int(bid) or not 0 < bid < 1e9:
+            raise InputError(f"bowl id must be a positive integer below 1e9, got {_describe(bid)}", file,
                              field=f"bowls[{k}].id")
         for name, v in (("x", x), ("y", y)):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or abs(v) > 1e4:
-                raise InputError(f"expected a finite position of at most 1e4 mm, got {v!r}", file,
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not _float_range(v) \
+                    or not math.isfinite(v) or abs(v) > 1e4:
+                raise InputError(f"expected a finite position of at most 1e4 mm, got {_describe(v)}", file,
                                  field=f"bowls[{k}].{name}")
         bowls.append(Bowl(int(bid), float(x), float(y)))
     ids = [b.id for b in bowls]
@@ -249,8 +258,9 @@ def plan_from_dict(d: dict, file=None) -> BowlPlan:
         raise InputError("every direction must be a unit vector", file, field="directions")
     blank = d.get("blank", [20.0, 20.0, 5.0])
     if (not isinstance(blank, list) or len(blank) != 3
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in blank)):
-        raise InputError(f"expected three positive sizes [lx, ly, lz] mm, got {blank!r}", file, field="blank")
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and _float_range(v)
+                       and v > 0 for v in blank)):
+        raise InputError(f"expected three positive sizes [lx, ly, lz] mm, got {_describe(blank)}", file, field="blank")
     plan = BowlPlan(bowls=tuple(bowls), blank=tuple(float(v) for v in blank),
                     tool_radius=num("tool_radius"), depth=num("depth"),
                     probe_radius=num("probe_radius"),
