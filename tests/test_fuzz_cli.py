@@ -76,3 +76,32 @@ def test_fuzz_campaign_harness_counts(tmp_path):
         assert c["tried"] == 6 == c["accepted"] + c["refused"] + c["tracebacks"] + c["hangs"], (name, c)
         assert c["tracebacks"] == c["hangs"] == c["half_written"] == 0, (name, c["kinds"])
     assert res["errors-csv"]["refused"] > 0  # the mutations reach the reader's checks
+
+
+@pytest.mark.slow
+def test_fuzz_workers_give_the_same_counts_as_one_process(tmp_path):
+    """--jobs splits the surfaces over forked workers; each surface has its own seeded generator,
+    so the counts (all but CPU time) are those of a single-process run, and --merge of two partial
+    --json runs reports the union."""
+    import argparse
+    import json
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    sys.path.insert(0, str(root / "benchmarks"))
+    try:
+        import fuzz
+    finally:
+        sys.path.remove(str(root / "benchmarks"))
+    names = ["errors-csv", "machine-toml", "cell-journal"]
+    one = fuzz.campaign(5, 4, 20.0, names, None, 3000)
+    a = argparse.Namespace(per_surface=5, seed=4, timeout=20.0, repro_dir=None, memory_mb=3000,
+                           show=False, jobs=2)
+    two = fuzz.parallel_campaign(a, names)
+    assert list(two) == names
+    strip = lambda r: {n: {k: v for k, v in c.items() if k != "cpu"} for n, c in r.items()}  # noqa: E731
+    assert strip(two) == strip(one)
+    meta = dict(per_surface=5, seed=4, timeout=20.0, wall=1.0, jobs=1)
+    for i, part in enumerate((["errors-csv"], ["machine-toml", "cell-journal"])):
+        (tmp_path / f"{i}.json").write_text(json.dumps({"meta": meta, "results": {n: one[n] for n in part}}))
+    assert fuzz.merge([tmp_path / "0.json", tmp_path / "1.json"], no_docs=True) == 0
