@@ -11,9 +11,11 @@
 #pragma GCC optimize("O3", "no-math-errno")
 #endif
 #ifdef MTK_THREADS
-#define _GNU_SOURCE   /* sched_getaffinity */
+#define _GNU_SOURCE   /* sched_getaffinity (Linux; elsewhere the online CPUs) */
 #include <pthread.h>
+#ifdef __linux__
 #include <sched.h>
+#endif
 #include <unistd.h>
 #endif
 #include <ctype.h>
@@ -2052,9 +2054,16 @@ int mtk_threads(long n, int threads)
         const char *env = getenv("MTCOMP_THREADS");
         threads = env ? atoi(env) : 0;
         if (threads <= 0) {
+#ifdef __linux__
             cpu_set_t set;
             threads = sched_getaffinity(0, sizeof set, &set) == 0 ? CPU_COUNT(&set)
                                                                  : (int)sysconf(_SC_NPROCESSORS_ONLN);
+#elif defined(_WIN32)
+            const char *np = getenv("NUMBER_OF_PROCESSORS");
+            threads = np ? atoi(np) : 1;
+#else
+            threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
+#endif
         }
     }
     if (threads > 64) threads = 64;
