@@ -282,10 +282,11 @@ RUN_IN = 16
 
 
 def threads() -> int:
-    """Threads a long batch runs on: $MTCOMP_THREADS, else the CPUs this process may use."""
-    env = os.environ.get("MTCOMP_THREADS")
-    if env:
-        return max(1, int(env))
+    """Threads a long batch runs on: $MTCOMP_THREADS (a positive integer; anything else is
+    ignored), else the CPUs this process may use."""
+    env = os.environ.get("MTCOMP_THREADS", "").strip()
+    if env.isdigit() and int(env) > 0:
+        return min(int(env), 64)
     try:
         return max(1, min(len(os.sched_getaffinity(0)), 64))
     except AttributeError:  # not on Linux
