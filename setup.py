@@ -14,7 +14,7 @@ from setuptools.command.build_py import build_py
 
 # Must match core/_kernel.py (CFLAGS, SOURCES, source_hash, library_name); tests/test_kernel.py checks it.
 CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
-SOURCES = ("mtk.h", "mtk.c", "cosim_loop.c")
+SOURCES = ("mtk.h", "mtk.c", "mtk_threads.c", "cosim_loop.c")
 SRC = Path(__file__).resolve().parent / "fmu" / "c"
 
 

@@ -33,8 +33,9 @@ MAX_AXES = 9
 OK, E_RANGE, E_LIMIT, E_CONVERGE = 0, 3, 4, 5
 CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
 
-#: The kernel library's sources (fmu/c): the kinematic kernel and the co-simulation's stepping loop.
-SOURCES = ("mtk.h", "mtk.c", "cosim_loop.c")
+#: The kernel library's sources (fmu/c): the kinematic kernel, its batches on threads and the
+#: co-simulation's stepping loop.
+SOURCES = ("mtk.h", "mtk.c", "mtk_threads.c", "cosim_loop.c")
 _SUFFIX = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
 
 
