@@ -194,3 +194,53 @@ void mtc_splice(const uint8_t *orig, int64_t n_orig, const uint8_t *src, const i
     }
     if (n_orig > prev) memcpy(out + o, orig + prev, (size_t)(n_orig - prev));
 }
+
+/* Number formatting of the rewrite (the twin of textops.format_counts): the fixed-point text of
+ * counts[i] * 10**-d, without exponent, with a point always and a '-' only below zero, packed
+ * one after the other.  mtc_format_size gives the total size; mtc_format writes the texts into
+ * `buf` and their offsets and lengths. */
+static inline int format_one(int64_t c, int d, uint8_t *o)
+{
+    uint8_t tmp[24];
+    uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
+    int k = 0, w = 0;
+    do { tmp[k++] = (uint8_t)('0' + a % 10); a /= 10; } while (a);
+    while (k < d + 1) tmp[k++] = '0';
+    if (c < 0) o[w++] = '-';
+    for (int j = k - 1; j >= d; j--) o[w++] = tmp[j];
+    o[w++] = '.';
+    for (int j = d - 1; j >= 0; j--) o[w++] = tmp[j];
+    return w;
+}
+
+int64_t mtc_format_size(const int64_t *counts, int64_t n, int64_t d)
+{
+    int64_t total = 0;
+    for (int64_t i = 0; i < n; i++) {
+        int64_t c = counts[i];
+        uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
+        int k = 1;
+        while (a >= 10) { a /= 10; k++; }
+        total += (c < 0) + (k > d + 1 ? k : d + 1) + 1;
+    }
+    return total;
+}
+
+void mtc_format(const int64_t *counts, int64_t n, int64_t d, uint8_t *buf, int64_t *off, int64_t *len)
+{
+    int64_t o = 0;
+    for (int64_t i = 0; i < n; i++) {
+        int w = format_one(counts[i], (int)d, buf + o);
+        off[i] = o;
+        len[i] = w;
+        o += w;
+    }
+}
+
+/* Replacements by texts of the same length, in place: out[pos[i] : pos[i] + len[i]] =
+ * src[src_off[i] : ...] (the ranges do not overlap; the in-place step of textops.splice). */
+void mtc_overwrite(uint8_t *out, const uint8_t *src, const int64_t *pos, const int64_t *src_off,
+                   const int64_t *len, int64_t m)
+{
+    for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
+}
