@@ -4,9 +4,9 @@ Why: `mtcomp compensate` on a 1 M-line program allocates and frees a few GB of n
 over its run.  With glibc's defaults every array above 32 MB is a fresh mapping, returned to the
 system when freed, and every page of the next one costs a fault and its zeroing; numpy also asks
 for transparent huge pages on large arrays, whose faults on a loaded machine add compaction.
-The system time was 1.4-2.0 s of 4.1-4.5 s CPU; with freed arrays reused from the heap and no
-huge-page advice, 0.4-0.6 s (docs/benchmarks.md, section gcode), for about 50 MB more peak
-resident memory.  Only the CLI calls this: importing the library never changes the allocator of
+The system time was 1.4-2.0 s of 4.1-4.5 s CPU; with freed arrays up to 64 MB reused from the
+heap and no huge-page advice, about 0.5-0.7 s (docs/benchmarks.md, section gcode), for about
+20 MB more peak resident memory (256 MB: 0.4-0.6 s, but 50 MB more).  Only the CLI calls this: importing the library never changes the allocator of
 its host process.  Elsewhere than glibc (musl, macOS, Windows) only the numpy part applies.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import ctypes
 import sys
 
 #: Arrays up to this size come from the heap, which keeps as much freed memory for reuse.
-HEAP_REUSE_BYTES = 256 << 20
+HEAP_REUSE_BYTES = 64 << 20
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3     # glibc <malloc.h>
 _state: dict = {}
 
