@@ -238,3 +238,19 @@ def test_generated_program_rewrite_same_bytes_compiled_and_numpy(seed_):
     spec.loader.exec_module(bench)
     a, b = _rewrite_both(bench.generate(3000, seed=seed_))
     assert isinstance(a, str) and a == b and a.count("\n") > 2900
+
+
+def test_install_hook_builds_the_tokenizer_the_loader_looks_for():
+    """setup.py compiles _tok.c at install under the name (source and flags hashed) that _ctok
+    looks for first: a non-editable install has the file next to _ctok; in an editable checkout
+    the hook's name is checked against the loader's."""
+    root = Path(_ctok.__file__).resolve().parents[2]
+    setup_py = root / "setup.py"
+    if setup_py.is_file():
+        # setup.py calls setup() at import: run its definitions before the build class alone
+        ns: dict = {"__file__": str(setup_py)}
+        exec(compile(setup_py.read_text().split("class BuildWithKernel")[0], str(setup_py), "exec"), ns)
+        assert ns["TOK_CFLAGS"] == _ctok.CFLAGS
+        assert ns["tok_name"]() == _ctok.packaged_name(_ctok.source_hash())
+    else:
+        assert (Path(_ctok.__file__).parent / _ctok.packaged_name(_ctok.source_hash())).is_file()

@@ -1,7 +1,8 @@
 """The compiled one-pass tokenizer (``_tok.c``) behind `mtcomp.gcode.parse`.
 
 Built like the kinematic kernel (mtcomp._kernel): a plain shared library without Python
-headers, compiled on first use with the C compiler ($CC, cc or gcc) into the per-user cache
+headers, compiled at install (setup.py, next to this module as ``libmtctok-<hash>``) or else on
+first use with the C compiler ($CC, cc or gcc) into the per-user cache
 (``~/.cache/mtcomp/tok/<hash>/`` or $MTCOMP_CACHE_DIR/tok), loaded through ctypes.  Without a
 compiler, or with MTCOMP_TOKENIZER=python, the numpy tokenizer (``tokens._tokenise`` and
 ``textops.parse_decimals``) runs instead: the same results, about 3x slower.
@@ -44,6 +45,15 @@ def _build(out: Path, cc: str) -> None:
             os.unlink(tmp)
 
 
+def source_hash() -> str:
+    return hashlib.sha256(_SRC.read_bytes() + " ".join(CFLAGS).encode()).hexdigest()[:16]
+
+
+def packaged_name(digest: str) -> str:
+    """File name of the library the install's build hook (setup.py) puts next to this module."""
+    return f"libmtctok-{digest}{_SUFFIX}"
+
+
 def load():
     """The ctypes library, or None (no compiler, build failed, or MTCOMP_TOKENIZER=python)."""
     global _lib, _tried
@@ -53,8 +63,10 @@ def load():
         return _lib
     _tried = True
     try:
-        h = hashlib.sha256(_SRC.read_bytes() + " ".join(CFLAGS).encode()).hexdigest()[:16]
-        path = _cache() / h / f"libmtctok{_SUFFIX}"
+        h = source_hash()
+        path = _SRC.parent / packaged_name(h)
+        if not path.is_file():
+            path = _cache() / h / f"libmtctok{_SUFFIX}"
         if not path.is_file():
             from .._kernel import find_compiler
             cc = find_compiler()
