@@ -1,5 +1,6 @@
 """Build hook: compile the kinematic kernel (fmu/c/mtk.c) into a plain shared library next to
-mtcomp._kernel at install time, with the C compiler the FMUs need anyway ($CC, cc or gcc).
+mtcomp._kernel, and the G-code tokenizer and formatter (core/gcode/_tok.c) next to
+mtcomp.gcode._ctok, at install time, with the C compiler the FMUs need anyway ($CC, cc or gcc).
 Without a compiler the install goes on: the library is then built on first use into the per-user
 cache, or mtcomp runs its numpy implementation (core/_kernel.py).  Metadata: pyproject.toml."""
 import hashlib
@@ -14,8 +15,18 @@ from setuptools.command.build_py import build_py
 
 # Must match core/_kernel.py (CFLAGS, SOURCES, source_hash, library_name); tests/test_kernel.py checks it.
 CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
-SOURCES = ("mtk.h", "mtk.c", "cosim_loop.c")
+SOURCES = ("mtk.h", "mtk.c", "mtk_threads.c", "cosim_loop.c")
 SRC = Path(__file__).resolve().parent / "fmu" / "c"
+
+
+# Must match core/gcode/_ctok.py (CFLAGS, packaged_name); tests/test_gcode_tokenizer.py checks it.
+TOK_CFLAGS = ("-O3", "-std=c99", "-fPIC", "-shared")
+TOK_SRC = Path(__file__).resolve().parent / "core" / "gcode" / "_tok.c"
+
+
+def tok_name() -> str:
+    h = hashlib.sha256(TOK_SRC.read_bytes() + " ".join(TOK_CFLAGS).encode()).hexdigest()[:16]
+    return f"libmtctok-{h}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
 
 
 def kernel_name() -> str:
@@ -39,6 +50,12 @@ class BuildWithKernel(build_py):
         if run.returncode:
             print(f"mtcomp: the kinematic kernel was not compiled ({run.stderr.strip()[:200]}); "
                   "it is built on first use or the numpy implementation runs")
+        tok = Path(self.build_lib) / "mtcomp" / "gcode" / tok_name()
+        tok.parent.mkdir(parents=True, exist_ok=True)
+        run = subprocess.run([cc[0], *TOK_CFLAGS, str(TOK_SRC), "-o", str(tok)], capture_output=True, text=True)
+        if run.returncode:
+            print(f"mtcomp: the G-code tokenizer was not compiled ({run.stderr.strip()[:200]}); "
+                  "it is built on first use or the numpy tokenizer runs")
 
 
 setup(cmdclass={"build_py": BuildWithKernel})

@@ -217,14 +217,18 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def compensate_e2e(path_in: str, path_out: str, old: bool = False) -> dict:
+def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: bool = True) -> dict:
     """`mtcomp compensate` as the CLI runs it (read, compensate_program with setting errors,
-    verification through the forward model, atomic write).  ``old``: the path before the
-    compiled tokenizer and the verification from emitted values, rebuilt for the comparison:
-    numpy tokenizer and splice, and the written program parsed a second time for the
-    verification (the other improvements of this path are in both)."""
+    verification through the forward model, atomic write; with the CLI's allocator settings,
+    mtcomp._heap, unless ``cli_heap`` is false).  ``old``: the path before the compiled
+    tokenizer and the verification from emitted values, rebuilt for the comparison: numpy
+    tokenizer, formatter and splice, the written program parsed a second time for the
+    verification, the allocator's defaults (the other improvements of this path are in both)."""
     if old:
         os.environ["MTCOMP_TOKENIZER"] = "python"
+    elif cli_heap:
+        from mtcomp._heap import tune
+        tune()
     from mtcomp._io import atomic_write
     from mtcomp.commands import compensate_program
     from mtcomp.gcode import read_program
@@ -232,6 +236,8 @@ def compensate_e2e(path_in: str, path_out: str, old: bool = False) -> dict:
     m = load_machine(MACHINE)
     err = errors_setting()
     gcode.parse("G1 X0\n", axes=m.axis_names)             # compile/load the tokenizer first
+    import resource
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
     t0, c0 = time.perf_counter(), time.process_time()
     text = read_program(path_in)
     new_text, rep = compensate_program(text, m, err, filename=path_in, provenance=[("BENCH", "1")])
@@ -239,8 +245,10 @@ def compensate_e2e(path_in: str, path_out: str, old: bool = False) -> dict:
         res = {a.name: a.resolution for a in m.axes}
         gcode.parse(new_text, axes=m.axis_names, resolution=res)
     atomic_write(path_out, new_text)
+    import resource
+    ru = resource.getrusage(resource.RUSAGE_SELF)
     return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0,
-            "maxrss_mb": peak_rss_mb(),
+            "sys": ru.ru_stime - ru0.ru_stime, "maxrss_mb": peak_rss_mb(),
             "lines": rep["lines"], "after_max_nm": rep["after_max"] * 1e6}
 
 
@@ -254,13 +262,40 @@ def run_child(path_in: str, path_out: str, fn: str = "end_to_end", *extra) -> di
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def compensate_only(n_lines: int) -> int:
+    """`mtcomp compensate` end to end three ways, interleaved, twice: a quick run (under a minute
+    at 1 M lines on 2 idle cores) for the compensate rows of docs/benchmarks.md."""
+    text = generate(n_lines)
+    with tempfile.TemporaryDirectory() as tmp:
+        pin, pout = os.path.join(tmp, "in.nc"), os.path.join(tmp, "out.nc")
+        Path(pin).write_text(text, encoding="utf-8", newline="")
+        del text
+        outs = {}
+        for rnd in range(2):
+            for name, extra in (("new", (False, True)), ("new, allocator defaults", (False, False)),
+                                ("old", (True, False))):
+                r = run_child(pin, pout, "compensate_e2e", *extra)
+                with open(pout, "rb") as fh:
+                    outs.setdefault(name, fh.read())
+                print(f"round {rnd + 1} {name:24s} cpu {r['cpu']:.2f} s (sys {r['sys']:.2f} s) wall {r['wall']:.2f} s "
+                      f"{r['lines'] / r['cpu']:>10,.0f} lines/s cpu  peak {r['maxrss_mb']:.0f} MB  "
+                      f"after {r['after_max_nm']:.3f} nm", flush=True)
+        print(f"same output on all paths: {len(set(outs.values())) == 1}; load average {os.getloadavg()[0]:.1f}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--lines", type=int, default=1_000_000)
     ap.add_argument("--reference-lines", type=int, default=200_000,
                     help="lines for the per-line reference and gcodeparser (default 200000)")
     ap.add_argument("--no-report", action="store_true", help="do not write docs/benchmarks.md")
+    ap.add_argument("--compensate-only", action="store_true",
+                    help="only `mtcomp compensate` end to end (new path, new path with the allocator's "
+                         "defaults, old path; interleaved, twice), printed; docs not written")
     args = ap.parse_args(argv)
+    if args.compensate_only:
+        return compensate_only(args.lines)
     from mtcomp.kinematics import retarget
     from mtcomp.machine import load_machine
     m = load_machine(MACHINE)
@@ -339,6 +374,7 @@ def main(argv=None) -> int:
         with open(pout, encoding="utf-8", newline="") as fh:
             comp_out = fh.read()
         comp_old = run_child(pin, pout, "compensate_e2e", True)
+        comp_lib = run_child(pin, pout, "compensate_e2e", False, False)
         with open(pout, encoding="utf-8", newline="") as fh:
             comp_same = fh.read() == comp_out
     say(f"  new {comp['lines'] / comp['cpu']:,.0f} lines/s cpu ({comp['lines'] / comp['wall']:,.0f} wall), "
@@ -404,7 +440,8 @@ the run, so wall clock is inflated by other processes).
 | rewrite with retarget, setting errors | {c_rs:.2f} s ({w_rs:.2f} s) | {rate(n, c_rs)} lines/s |
 | **end to end** (read, parse, retarget, rewrite, atomic write; child process) | {e2e['cpu']:.2f} s ({e2e['wall']:.2f} s) | **{e2e_rate:,.0f} lines/s** |
 | **`mtcomp compensate`** end to end (read, parse, travel check, retarget, rewrite, verification of every block through the forward model, atomic write; child process) | {comp['cpu']:.2f} s ({comp['wall']:.2f} s) | **{comp['lines'] / comp['cpu']:,.0f} lines/s** |
-| `mtcomp compensate`, old path in the same run (numpy tokenizer and splice, output parsed again for the verification) | {comp_old['cpu']:.2f} s ({comp_old['wall']:.2f} s) | {comp_old['lines'] / comp_old['cpu']:,.0f} lines/s |
+| `mtcomp compensate` new path, library allocator defaults (no `mtcomp._heap` settings; system time {comp_lib['sys']:.2f} s against {comp['sys']:.2f} s) | {comp_lib['cpu']:.2f} s ({comp_lib['wall']:.2f} s) | {comp_lib['lines'] / comp_lib['cpu']:,.0f} lines/s |
+| `mtcomp compensate`, old path in the same run (numpy tokenizer, formatter and splice, output parsed again for the verification, allocator defaults) | {comp_old['cpu']:.2f} s ({comp_old['wall']:.2f} s) | {comp_old['lines'] / comp_old['cpu']:,.0f} lines/s |
 | per-line Python reference, parse + rewrite ({nref:,} lines, translation) | {c_ref:.2f} s ({w_ref:.2f} s) | {rate(nref, c_ref)} lines/s |
 | mtcomp on the same {nref:,} lines | {c_ours_sub:.2f} s | {rate(nref, c_ours_sub)} lines/s |
 | `gcodeparser` 0.3 parse only ({nref:,} lines; trailing-point numbers such as `10.` rewritten `10.0`, which it cannot read) | {'' if gp is None else f'{nref / gp:.2f} s'} | {'not installed' if gp is None else f'{gp:,.0f} lines/s'} |
@@ -430,17 +467,23 @@ kernel {c_ks:.2f} s and the G-code side of the rewrite (decisions, number format
 {c_rw:.2f} s; the rest of the end-to-end time is reading, decoding, encoding and writing
 {mb:.0f} MB. The compiled tokenizer (`core/gcode/_tok.c`, through ctypes: one pass over the
 bytes for comments, words, number syntax and the values of the {len(prog.w_value):,} numbers;
-the numpy fallback needs about fifteen byte-wise passes) is about a quarter of the parse; the
+the numpy fallback needs about fifteen byte-wise passes; each number's value is read while
+the run is scanned) is about a tenth of the parse; the
 rest is numpy over words and blocks (duplicate addresses, G-code categories, modal fills, the
 scatter of the words into block columns, absolute positions), and the first large allocations
 of a process pay page faults (a first parse costs up to twice the best one). `mtcomp
 compensate` adds to parse + rewrite the travel checks and three forward evaluations per block
 for its report (nominal, with errors before and after, in chunks of 200,000 blocks, from the
-emitted values); the old path parsed the written program a second time instead. The splice
-of the rewrite's edits is one memcpy pass in C too. A third to a half of the CPU time of
-`mtcomp compensate` is system time: page faults on fresh large arrays. The 1 M
-lines/s target needs the block building of the parse and the rewrite's decisions in C (or the
-whole path in chunks that stay in the cache): not done.
+emitted values); the old path parsed the written program a second time instead. The number
+formatting of the rewrite (`mtc_format`), the in-place replacements of its splice
+(`mtc_overwrite`) and the splice's gather are C too (`core/gcode/_tok.c`; numpy with
+`MTCOMP_TOKENIZER=python`, same bytes). With the library allocator's defaults a third to a half
+of the CPU time of `mtcomp compensate` is system time (page faults, and huge-page compaction
+on a loaded machine, on fresh large arrays); the CLI reuses freed arrays from the heap
+(`mtcomp._heap`), which the bench's compensate runs do as the CLI. The 1 M lines/s target
+needs the block building of the parse, the subprogram scan (`gcode.flow`, a regular
+expression over the whole text) and the rewrite's decisions in C (or the whole path in chunks
+that stay in the cache): not done.
 The compensation kernel belongs to
 `mtcomp.kinematics`; the geometric-table path is its iterative solver. cProfile of parse +
 rewrite with retarget, top functions by own time:

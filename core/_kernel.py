@@ -33,8 +33,9 @@ MAX_AXES = 9
 OK, E_RANGE, E_LIMIT, E_CONVERGE = 0, 3, 4, 5
 CFLAGS = ("-O3", "-fno-math-errno", "-std=c99", "-fPIC", "-shared", "-DMTK_THREADS", "-pthread")
 
-#: The kernel library's sources (fmu/c): the kinematic kernel and the co-simulation's stepping loop.
-SOURCES = ("mtk.h", "mtk.c", "cosim_loop.c")
+#: The kernel library's sources (fmu/c): the kinematic kernel, its batches on threads and the
+#: co-simulation's stepping loop.
+SOURCES = ("mtk.h", "mtk.c", "mtk_threads.c", "cosim_loop.c")
 _SUFFIX = sysconfig.get_config_var("SHLIB_SUFFIX") or ".so"
 
 
@@ -282,10 +283,11 @@ RUN_IN = 16
 
 
 def threads() -> int:
-    """Threads a long batch runs on: $MTCOMP_THREADS, else the CPUs this process may use."""
-    env = os.environ.get("MTCOMP_THREADS")
-    if env:
-        return max(1, int(env))
+    """Threads a long batch runs on: $MTCOMP_THREADS (a positive integer; anything else is
+    ignored), else the CPUs this process may use."""
+    env = os.environ.get("MTCOMP_THREADS", "").strip()
+    if env.isdigit() and int(env) > 0:
+        return min(int(env), 64)
     try:
         return max(1, min(len(os.sched_getaffinity(0)), 64))
     except AttributeError:  # not on Linux

@@ -105,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     prog = f"mtcomp {args.command}"
     try:
         _check_outputs(args)
+        from ._heap import tune
+        tune()                    # one job per process: reuse freed arrays (mtcomp._heap)
         rc = args.func(args)
     except MtcompError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)

@@ -186,3 +186,72 @@ def test_splice_same_bytes(orig, raw):
         mp.setenv("MTCOMP_TOKENIZER", "python")
         b = splice(*args)
     assert a == b
+
+
+@seed(19)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.one_of(st.integers(-10**18, 10**18), st.integers(-1000, 1000), st.sampled_from([0, -1, 1, 9, -10])),
+                min_size=1, max_size=50), st.integers(0, 12))
+def test_compiled_number_formatter_same_texts(counts, decimals):
+    from mtcomp.gcode.textops import format_counts
+    c = np.array(counts, np.int64)
+    buf, off, ln = _ctok.format_counts(c, decimals)
+    rbuf, roff, rln = format_counts(c, decimals)
+    got = [buf[o:o + n].tobytes() for o, n in zip(off, ln)]
+    ref = [rbuf[o:o + n].tobytes() for o, n in zip(roff, rln)]
+    assert got == ref
+    # and the text means the value: counts * 10**-decimals, a point always, no "-0"
+    for v, t in zip(counts, got):
+        assert t.count(b".") == 1 and len(t) - t.index(b".") - 1 == decimals
+        assert (t[:1] == b"-") == (v < 0) and int(t.replace(b".", b"")) == v
+
+
+def _rewrite_both(text, machine_axes=AXES):
+    """Parse and rewrite (translation + small rotation) with the compiled and the numpy paths."""
+    out = []
+    for python in (False, True):
+        with pytest.MonkeyPatch.context() as mp:
+            if python:
+                mp.setenv("MTCOMP_TOKENIZER", "python")
+            else:
+                mp.delenv("MTCOMP_TOKENIZER", raising=False)
+            try:
+                prog = gcode.parse(text, axes=machine_axes, filename="p.nc")
+                shift = np.array([0.0123456, -0.0045, 0.002, 0.0, 0.001])[:len(machine_axes)]
+                out.append(gcode.rewrite(prog, lambda q: q + shift))
+            except InputError as exc:
+                out.append(str(exc))
+    return out
+
+
+@pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
+def test_corpus_rewrite_same_bytes_compiled_and_numpy(i):
+    a, b = _rewrite_both(CORPUS[i])
+    assert a == b
+
+
+@pytest.mark.parametrize("seed_", [1, 2, 3])
+def test_generated_program_rewrite_same_bytes_compiled_and_numpy(seed_):
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(
+        "bench_gcode", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_gcode.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    a, b = _rewrite_both(bench.generate(3000, seed=seed_))
+    assert isinstance(a, str) and a == b and a.count("\n") > 2900
+
+
+def test_install_hook_builds_the_tokenizer_the_loader_looks_for():
+    """setup.py compiles _tok.c at install under the name (source and flags hashed) that _ctok
+    looks for first: a non-editable install has the file next to _ctok; in an editable checkout
+    the hook's name is checked against the loader's."""
+    root = Path(_ctok.__file__).resolve().parents[2]
+    setup_py = root / "setup.py"
+    if setup_py.is_file():
+        # setup.py calls setup() at import: run its definitions before the build class alone
+        ns: dict = {"__file__": str(setup_py)}
+        exec(compile(setup_py.read_text().split("class BuildWithKernel")[0], str(setup_py), "exec"), ns)
+        assert ns["TOK_CFLAGS"] == _ctok.CFLAGS
+        assert ns["tok_name"]() == _ctok.packaged_name(_ctok.source_hash())
+    else:
+        assert (Path(_ctok.__file__).parent / _ctok.packaged_name(_ctok.source_hash())).is_file()

@@ -1,7 +1,8 @@
 """The compiled one-pass tokenizer (``_tok.c``) behind `mtcomp.gcode.parse`.
 
 Built like the kinematic kernel (mtcomp._kernel): a plain shared library without Python
-headers, compiled on first use with the C compiler ($CC, cc or gcc) into the per-user cache
+headers, compiled at install (setup.py, next to this module as ``libmtctok-<hash>``) or else on
+first use with the C compiler ($CC, cc or gcc) into the per-user cache
 (``~/.cache/mtcomp/tok/<hash>/`` or $MTCOMP_CACHE_DIR/tok), loaded through ctypes.  Without a
 compiler, or with MTCOMP_TOKENIZER=python, the numpy tokenizer (``tokens._tokenise`` and
 ``textops.parse_decimals``) runs instead: the same results, about 3x slower.
@@ -44,6 +45,15 @@ def _build(out: Path, cc: str) -> None:
             os.unlink(tmp)
 
 
+def source_hash() -> str:
+    return hashlib.sha256(_SRC.read_bytes() + " ".join(CFLAGS).encode()).hexdigest()[:16]
+
+
+def packaged_name(digest: str) -> str:
+    """File name of the library the install's build hook (setup.py) puts next to this module."""
+    return f"libmtctok-{digest}{_SUFFIX}"
+
+
 def load():
     """The ctypes library, or None (no compiler, build failed, or MTCOMP_TOKENIZER=python)."""
     global _lib, _tried
@@ -53,8 +63,10 @@ def load():
         return _lib
     _tried = True
     try:
-        h = hashlib.sha256(_SRC.read_bytes() + " ".join(CFLAGS).encode()).hexdigest()[:16]
-        path = _cache() / h / f"libmtctok{_SUFFIX}"
+        h = source_hash()
+        path = _SRC.parent / packaged_name(h)
+        if not path.is_file():
+            path = _cache() / h / f"libmtctok{_SUFFIX}"
         if not path.is_file():
             from .._kernel import find_compiler
             cc = find_compiler()
@@ -73,6 +85,12 @@ def load():
     lib.mtc_splice.restype = None
     lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_blank_comments.restype = i64
+    lib.mtc_format_size.argtypes = [vp, i64, i64]
+    lib.mtc_format_size.restype = i64
+    lib.mtc_format.argtypes = [vp, i64, i64, vp, vp, vp]
+    lib.mtc_format.restype = None
+    lib.mtc_overwrite.argtypes = [vp, vp, vp, vp, vp, i64]
+    lib.mtc_overwrite.restype = None
     _lib = lib
     return lib
 
@@ -133,3 +151,36 @@ def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total
                    len(arrs[0]), out.ctypes.data)
     del out
     return ba
+
+
+def format_counts(counts, decimals: int):
+    """Same texts as ``textops.format_counts`` (``buffer[offset[i]:offset[i] + length[i]]`` is
+    the text of ``counts[i] * 10**-decimals``), packed without padding; None without the
+    library."""
+    lib = load()
+    if lib is None or not 0 <= int(decimals) <= 18:
+        return None
+    counts = np.ascontiguousarray(counts, np.int64).ravel()
+    n, d = len(counts), int(decimals)
+    size = lib.mtc_format_size(counts.ctypes.data, n, d)
+    buf = np.empty(size, np.uint8)
+    off, ln = np.empty(n, np.int64), np.empty(n, np.int64)
+    lib.mtc_format(counts.ctypes.data, n, d, buf.ctypes.data, off.ctypes.data, ln.ctypes.data)
+    return buf, off, ln
+
+
+def overwrite(out: np.ndarray, src: np.ndarray, pos, src_off, length) -> bool:
+    """Write ``src[src_off[i]:src_off[i] + length[i]]`` at ``out[pos[i]:]`` for every i (ranges
+    inside ``out``, not overlapping; `out` a writable C-contiguous uint8 array).  False without
+    the library (nothing done)."""
+    lib = load()
+    if lib is None or not out.flags.c_contiguous or not out.flags.writeable:
+        return False
+    src = np.ascontiguousarray(src, np.uint8)
+    pos, src_off, length = (np.ascontiguousarray(a, np.int64) for a in (pos, src_off, length))
+    if len(pos) and (pos.min() < 0 or int((pos + length).max()) > len(out)
+                     or src_off.min() < 0 or int((src_off + length).max()) > len(src)):
+        raise ValueError("overwrite outside the buffers")
+    lib.mtc_overwrite(out.ctypes.data, src.ctypes.data, pos.ctypes.data, src_off.ctypes.data,
+                      length.ctypes.data, len(pos))
+    return True

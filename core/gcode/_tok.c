@@ -19,17 +19,26 @@ static inline int is_blank(uint8_t c) { return c == 32 || (uint8_t)(c - 9) < 5; 
 static const double POW10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
                                  1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
 
-/* Number of letters and of maximal runs of number characters. */
+/* Number of letters and of maximal runs of number characters.  Written without a carried
+ * state (a run starts where a number character follows a non-number one) so that the compiler
+ * vectorises it. */
 void mtc_count(const uint8_t *c, int64_t n, int64_t *n_letters, int64_t *n_runs)
 {
-    int64_t nl = 0, nr = 0;
-    int prev = 0;
-    for (int64_t i = 0; i < n; i++) {
-        uint8_t ch = c[i];
-        int num = is_num(ch);
-        nl += is_letter(ch);
-        nr += num & !prev;
-        prev = num;
+    int64_t nl = 0, nr = 0, i0 = 0;
+    while (i0 < n) {                       /* blocks of 2**20 bytes: 32-bit counters vectorise */
+        int64_t i1 = n - i0 > (1 << 20) ? i0 + (1 << 20) : n;
+        uint32_t a = 0, b = 0;
+        for (int64_t i = i0 > 0 ? i0 : 1; i < i1; i++) {
+            a += is_letter(c[i]);
+            b += is_num(c[i]) & !is_num(c[i - 1]);
+        }
+        nl += a;
+        nr += b;
+        i0 = i1;
+    }
+    if (n > 0) {
+        nl += is_letter(c[0]);
+        nr += is_num(c[0]);
     }
     *n_letters = nl;
     *n_runs = nr;
@@ -72,51 +81,61 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
                   int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
                   int64_t *bad_at, int32_t *dup_line)
 {
+    /* classes: 0 other, 1 blank, 2 letter, 3 number character, 4 newline */
+    uint8_t cls[256];
+    for (int k = 0; k < 256; k++)
+        cls[k] = is_num((uint8_t)k) ? 3 : is_letter((uint8_t)k) ? 2 : k == '\n' ? 4 : is_blank((uint8_t)k) ? 1 : 0;
     int64_t nl = 0, nr = -1, line = 0;
     uint32_t seen = 0;                  /* letters of the current line */
     for (int k = 0; k < 26; k++) dup_line[k] = -1;
     int64_t sg = -1, bad = -1;
-    int in_run = 0;
-    for (int64_t i = 0; i < n; i++) {
+    int64_t i = 0;
+    while (i < n) {
         uint8_t ch = c[i];
-        if (is_num(ch)) {
-            if (!in_run) {
-                nr++;
-                rs[nr] = (int32_t)i;
-                dot[nr] = -1;
-                two[nr] = 0;
-                in_run = 1;
-            } else if ((ch == '-' || ch == '+') && sg < 0) {
-                sg = i;
+        uint8_t k = cls[ch];
+        if (k == 3) {
+            /* one number run, its value read on the way (the same arithmetic as number()) */
+            int64_t s = i, d = -1;
+            int pts = 0, inner = 0;     /* points; an inner sign (number() then decides) */
+            uint64_t m = 0;
+            int64_t nd = 0;
+            if (ch == '-' || ch == '+') i++;
+            for (; i < n; i++) {
+                uint8_t x = c[i];
+                unsigned dg = (unsigned)x - '0';
+                if (dg < 10) { m = m * 10 + dg; nd++; continue; }
+                if (x == '.') { pts++; d = i; continue; }
+                if (x == '-' || x == '+') { if (sg < 0) sg = i; inner = 1; continue; }
+                break;
             }
-            if (ch == '.') {
-                if (dot[nr] >= 0) two[nr] = 1;
-                dot[nr] = (int32_t)i;
+            nr++;
+            rs[nr] = (int32_t)s;
+            re[nr] = (int32_t)i;
+            dot[nr] = (int32_t)d;
+            two[nr] = (uint8_t)(pts > 1);
+            int64_t flen = d >= 0 ? i - d - 1 : 0, ilen = nd - flen;
+            if (!inner && pts <= 1 && ilen <= 8 && flen <= 8 && nd <= 15) {
+                double v = (double)m / POW10[flen];
+                value[nr] = c[s] == '-' ? -v : v;
+            } else {
+                value[nr] = number(c, s, i, d);
             }
             continue;
         }
-        if (in_run) {
-            re[nr] = (int32_t)i;
-            value[nr] = number(c, rs[nr], i, dot[nr]);
-            in_run = 0;
-        }
-        if (is_letter(ch)) {
+        i++;
+        if (k == 2) {
             uint32_t bit = 1u << ((ch | 32) - 97);
             if ((seen & bit) && dup_line[(ch | 32) - 97] < 0) dup_line[(ch | 32) - 97] = (int32_t)line;
             seen |= bit;
-            lp[nl] = (int32_t)i;
+            lp[nl] = (int32_t)(i - 1);
             wline[nl] = (int32_t)line;
             nl++;
-        } else if (ch == '\n') {
+        } else if (k == 4) {
             line++;
             seen = 0;
-        } else if (bad < 0 && !is_blank(ch)) {
-            bad = i;
+        } else if (k == 0 && bad < 0) {
+            bad = i - 1;
         }
-    }
-    if (in_run) {
-        re[nr] = (int32_t)n;
-        value[nr] = number(c, rs[nr], n, dot[nr]);
     }
     *sign_at = sg;
     *bad_at = bad;
@@ -174,4 +193,54 @@ void mtc_splice(const uint8_t *orig, int64_t n_orig, const uint8_t *src, const i
         if (stop[i] > prev) prev = stop[i];
     }
     if (n_orig > prev) memcpy(out + o, orig + prev, (size_t)(n_orig - prev));
+}
+
+/* Number formatting of the rewrite (the twin of textops.format_counts): the fixed-point text of
+ * counts[i] * 10**-d, without exponent, with a point always and a '-' only below zero, packed
+ * one after the other.  mtc_format_size gives the total size; mtc_format writes the texts into
+ * `buf` and their offsets and lengths. */
+static inline int format_one(int64_t c, int d, uint8_t *o)
+{
+    uint8_t tmp[24];
+    uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
+    int k = 0, w = 0;
+    do { tmp[k++] = (uint8_t)('0' + a % 10); a /= 10; } while (a);
+    while (k < d + 1) tmp[k++] = '0';
+    if (c < 0) o[w++] = '-';
+    for (int j = k - 1; j >= d; j--) o[w++] = tmp[j];
+    o[w++] = '.';
+    for (int j = d - 1; j >= 0; j--) o[w++] = tmp[j];
+    return w;
+}
+
+int64_t mtc_format_size(const int64_t *counts, int64_t n, int64_t d)
+{
+    int64_t total = 0;
+    for (int64_t i = 0; i < n; i++) {
+        int64_t c = counts[i];
+        uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
+        int k = 1;
+        while (a >= 10) { a /= 10; k++; }
+        total += (c < 0) + (k > d + 1 ? k : d + 1) + 1;
+    }
+    return total;
+}
+
+void mtc_format(const int64_t *counts, int64_t n, int64_t d, uint8_t *buf, int64_t *off, int64_t *len)
+{
+    int64_t o = 0;
+    for (int64_t i = 0; i < n; i++) {
+        int w = format_one(counts[i], (int)d, buf + o);
+        off[i] = o;
+        len[i] = w;
+        o += w;
+    }
+}
+
+/* Replacements by texts of the same length, in place: out[pos[i] : pos[i] + len[i]] =
+ * src[src_off[i] : ...] (the ranges do not overlap; the in-place step of textops.splice). */
+void mtc_overwrite(uint8_t *out, const uint8_t *src, const int64_t *pos, const int64_t *src_off,
+                   const int64_t *len, int64_t m)
+{
+    for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
 }

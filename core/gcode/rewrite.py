@@ -9,6 +9,7 @@ from .arcs import _arc_keep, _arc_params, _arc_samples, _n_samples, _linearisati
 from .._io import InputError
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .program import Program, resolution_formats
+from . import _ctok
 from .rotation import has_rotation, to_reference, to_words
 from .textops import format_counts, splice
 from .tokens import _ascii
@@ -421,7 +422,8 @@ def _column_edits(ctx, cw, col, letter: bytes, fmt: tuple, rep_rows, ins_rows, c
         return
     p = ctx.p
     decimals, mult = fmt
-    buf, off, ln = format_counts(counts[rows] * mult, decimals)
+    # compiled formatter (same bytes), the numpy one without it or with MTCOMP_TOKENIZER=python
+    buf, off, ln = _ctok.format_counts(counts[rows] * mult, decimals) or format_counts(counts[rows] * mult, decimals)
     off = off + ctx.edits.add_buffer(buf)
     nr = len(rep_rows)
     if nr:

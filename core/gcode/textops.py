@@ -136,12 +136,14 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     out = orig.copy()
     same = (stop - pos == src_len) & (src_len > 0)
     if same.any():
-        lens = src_len[same]
-        for L in np.flatnonzero(np.bincount(lens)).tolist():
-            g = np.flatnonzero(same)[lens == L]
-            dst = np.lib.stride_tricks.as_strided(out, shape=(len(out) - L + 1, L), strides=(1, 1))
-            srcw = np.lib.stride_tricks.sliding_window_view(src, L)
-            dst[pos[g]] = srcw[src_off[g]]
+        from ._ctok import overwrite as c_overwrite
+        if not c_overwrite(out, src, pos[same], src_off[same], src_len[same]):   # compiled: memcpy each
+            lens = src_len[same]
+            for L in np.flatnonzero(np.bincount(lens)).tolist():
+                g = np.flatnonzero(same)[lens == L]
+                dst = np.lib.stride_tricks.as_strided(out, shape=(len(out) - L + 1, L), strides=(1, 1))
+                srcw = np.lib.stride_tricks.sliding_window_view(src, L)
+                dst[pos[g]] = srcw[src_off[g]]
         rest = ~same & ((src_len > 0) | (stop > pos))
         pos, stop, sub, src_off, src_len = pos[rest], stop[rest], sub[rest], src_off[rest], src_len[rest]
     if len(pos) == 0:

@@ -114,8 +114,8 @@ long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const
  * (<= 0: $MTCOMP_THREADS, else the CPUs this process may use; never more than the chunks).  The
  * chunks do not depend on the number of threads: with continuation each chunk after the first
  * takes up the path from the MTK_RUN_IN poses before it (solved, not written), so one thread and
- * many give bit-identical results.  Without MTK_THREADS at compile time (the FMUs) the chunks run
- * in the calling thread.  o->run_in is ignored. */
+ * many give bit-identical results.  In mtk_threads.c, compiled into the library only (not the
+ * FMUs); without MTK_THREADS at compile time the chunks run in the calling thread.  o->run_in is ignored. */
 #define MTK_CHUNK 4096
 #define MTK_RUN_IN 16
 long mtk_forward_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *q, double *p, double *R,
