@@ -194,7 +194,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
                        convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
-                       work_offsets=work_offsets, arc_tol=arc_tol)
+                       work_offsets=work_offsets, arc_tol=arc_tol, tcp=True, rotation=True)
     n_blocks = len(prog)
     if chordal_tol is None and np.asarray(prog.inch).any():
         # inch programs are written one decimal finer in inch: 2.54 times the mm resolution
@@ -405,6 +405,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     from . import gcode
     after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
                              tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
+                             tcp=True, rotation=True,
                              filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
     idx = np.searchsorted(after_prog.line, out_line, side="right") - 1

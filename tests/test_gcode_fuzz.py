@@ -23,7 +23,7 @@ def _check(text):
     """Accepted programs: identity exact, translation re-read exactly (known blocks)."""
     try:
         fl = flow.expand(text)                 # subprogram calls: the blocks as they run
-        p = gcode.parse(fl.expanded if fl else text, axes=AXES)
+        p = gcode.parse(fl.expanded if fl else text, axes=AXES, tcp=True, rotation=True)
         ident = gcode.rewrite(p, lambda q: q.copy())
         out = gcode.rewrite(p, lambda q: q + SHIFT)
     except InputError:
@@ -37,7 +37,7 @@ def _check(text):
             assert flow.expand(folded) is None
         ident = text
     assert ident == text
-    q = gcode.parse(out, axes=AXES)
+    q = gcode.parse(out, axes=AXES, tcp=True, rotation=True)
     assert len(q) >= len(p)
     if len(q) == len(p) and len(p):
         res = np.array([1e-6, 1e-6, 1e-6, 1e-5, 1e-5]) * (25.4 if p.inch.any() else 1.0)

@@ -45,7 +45,7 @@ def control(text):
 
 
 def test_rotation_read_as_the_control_does():
-    p = gcode.parse(PROG, axes=XYZ)
+    p = gcode.parse(PROG, axes=XYZ, rotation=True)
     assert p.known.all()
     assert np.allclose(to_reference(p, p.position), control(PROG), atol=1e-12)
     # the arc keeps its radius about the rotated centre
@@ -57,10 +57,10 @@ def test_rotation_read_as_the_control_does():
 
 
 def test_a_translation_is_written_in_the_rotated_frame():
-    p = gcode.parse(PROG, axes=XYZ)
+    p = gcode.parse(PROG, axes=XYZ, rotation=True)
     d = np.array([0.003, -0.002, 0.001])
     out = gcode.rewrite(p, lambda q: q + d)
-    back = gcode.parse(out, axes=XYZ)
+    back = gcode.parse(out, axes=XYZ, rotation=True)
     assert np.allclose(to_reference(back, back.position), control(PROG) + d, atol=1.5e-6)
     assert np.allclose(control(out), control(PROG) + d, atol=1.5e-6)
     t = np.radians(-30)
@@ -82,13 +82,13 @@ def test_compensated_rotated_program_hits_the_programmed_points():
 
 def test_rotation_centre_is_the_current_position_and_axes_unknown_until_written():
     text = "G90 G0 X10. Y5. Z0\nG68 R90.\nG1 X11. F100\nY5.\nX12.\n"
-    p = gcode.parse(text, axes=XYZ)
+    p = gcode.parse(text, axes=XYZ, rotation=True)
     assert list(p.known) == [True, False, True, True]          # X alone after G68: Y unknown
     assert np.allclose(p.rotation[2, :3], [90, 10, 5])
     assert np.allclose(to_reference(p, p.position)[2:], [[10, 6, 0], [10, 7, 0]])
     assert gcode.rewrite(p, lambda q: q.copy()) == text
     # incremental angle: added to the active one
-    q = gcode.parse("G0 X0 Y0 Z0\nG68 X0 Y0 R10.\nG91 G68 R20.\nG90 G1 X1. Y0 F1\n", axes=XYZ)
+    q = gcode.parse("G0 X0 Y0 Z0\nG68 X0 Y0 R10.\nG91 G68 R20.\nG90 G1 X1. Y0 F1\n", axes=XYZ, rotation=True)
     assert np.allclose(to_reference(q, q.position)[-1], [np.cos(np.pi / 6), 0.5, 0])
     # the compensation would move the centre: refused naming the G68 block
     with pytest.raises(InputError, match=r":2: G68 without a centre turns about the current"):
@@ -108,4 +108,10 @@ def test_rotation_centre_is_the_current_position_and_axes_unknown_until_written(
 ])
 def test_rotation_refusals(text, line, what):
     with pytest.raises(InputError, match=rf"^p.nc:{line}: .*{what}"):
-        gcode.parse(text, axes=XYZ, filename="p.nc")
+        gcode.parse(text, axes=XYZ, filename="p.nc", rotation=True)
+
+
+def test_rotation_is_read_only_where_the_caller_says_so():
+    # a caller that takes `position` as axis positions (the default) gets G68 refused
+    with pytest.raises(InputError, match=r"^p.nc:2: G68: G68 coordinate rotation .* rotation=True"):
+        gcode.parse(PROG, axes=XYZ, filename="p.nc")

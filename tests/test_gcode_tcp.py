@@ -38,7 +38,7 @@ def program(body):
 def control_tip(machine, text, length, errors):
     """(real tip, real tool direction) where the control runs the G43.4 blocks of `text`, and
     (programmed tip, nominal direction at the programmed angles) on the ideal machine."""
-    p = gcode.parse(text, axes=machine.axis_names, tool_lengths={1: length})
+    p = gcode.parse(text, axes=machine.axis_names, tool_lengths={1: length}, tcp=True)
     k = np.asarray(p.tcp) & np.asarray(p.known)
     m = replace(machine, tool_point=tuple(np.asarray(machine.tool_point) - length * np.asarray(machine.tool_axis)))
     real = forward(m, tcp_to_axes(m, p.position[k]), errors)
@@ -89,7 +89,7 @@ def test_switching_into_tcp_makes_the_tip_unknown_until_written():
     # about it, so a block that does not write all of X Y Z is not compensated (nothing invented)
     m = load_machine("robonano-a0ib")
     text = "G90 G0 X0 Y0 Z50. B0 C0\nG43.4 H1\nG1 Z5. B10. F100\nX1. Y2. Z3.\nX2.\nG49\nX5.\nG0 Y0 Z50.\n"
-    p = gcode.parse(text, axes=m.axis_names, tool_lengths={1: 30.0})
+    p = gcode.parse(text, axes=m.axis_names, tool_lengths={1: 30.0}, tcp=True)
     assert list(p.tcp) == [False, True, True, True, False, False]
     assert list(p.known) == [True, False, True, True, False, True]
     out, rep = compensate_program(text, m, ERRORS, tool_lengths={1: 30.0})
@@ -145,3 +145,9 @@ def test_fusion_style_tcp_program_from_the_corpus():
     # only the blocks under G43.4 changed, and only their axis words
     changed = [a for a, b in zip(text.splitlines(), out.splitlines()) if a != b]
     assert len(changed) == 9 and all(c.startswith(("N55", "N6", "N7", "N8", "N9")) for c in changed)
+
+
+def test_tcp_is_read_only_where_the_caller_says_so():
+    m = load_machine("robonano-a0ib")
+    with pytest.raises(InputError, match=r"^p.nc:5: G43.4: G43.4 tool centre point: X Y Z are the tool tip"):
+        gcode.parse(program(BODIES["robonano-a0ib"]), axes=m.axis_names, filename="p.nc")

@@ -27,7 +27,8 @@ def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
 
 def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<string>",
           convert_inch: bool = False, start=None, arc_tol: float | None = None,
-          resolution=None, tool_lengths=None, work_offsets=None) -> Program:
+          resolution=None, tool_lengths=None, work_offsets=None, tcp: bool = False,
+          rotation: bool = False) -> Program:
     """Read a Fanuc-style NC program (text) for a machine with the given axis letters.
 
     ``start``: position of the axes before the first block, where the user knows it (mapping
@@ -42,6 +43,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     spiral, as controls run it).  ``resolution`` (as for `rewrite`): the axis resolutions; an
     arc whose end equals its start at the resolution is a full circle, and a radius below the
     resolution is refused.
+    ``tcp``: read G43.4 tool centre point blocks (their X Y Z are the tool tip: ``Program.tcp``
+    marks them, `mtcomp.gcode.tcp` turns them into axis positions); ``rotation``: read G68
+    (``position`` is then in the unrotated word frame, `mtcomp.gcode.rotation`).  Both are
+    refused by default, so that a caller taking ``position`` as axis positions cannot misread
+    them; `rewrite` and `mtcomp compensate` handle both.
     Raises ``InputError`` naming ``filename:line`` for anything it cannot read or would not
     transform correctly (docs/gcode.md lists the cases).
     """
@@ -278,6 +284,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
         first_motion, n_lines, filename, notes, written)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
+    if (tool_l == 434).any() and not tcp:
+        _fail("G43.4: G43.4 tool centre point: X Y Z are the tool tip, not axis positions; "
+              "refusing rather than guessing (mtcomp compensate compensates it in tool-tip "
+              "coordinates: parse(..., tcp=True))", int(np.argmax(tool_l == 434)), filename)
     tcp_line = (_ffill(tool_l == 434, tool_l >= 0, False) if (tool_l == 434).any()
                 else np.zeros(n_lines, bool))
 
@@ -384,6 +394,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
     g68_line = np.zeros(n_lines, bool)
     g68_line[gline[cat == 13]] = True
+    if g68_line.any() and not rotation:
+        _fail("G68: G68 coordinate rotation changes the commanded positions in the control; "
+              "refusing rather than guessing (mtcomp compensate follows it: parse(..., "
+              "rotation=True))", int(np.argmax(g68_line)), filename)
     rot_events = []
     if g68_line.any():
         rot_events = _rotation_events(axes, g68_line, gline[g10 == 690], plane_line, inch_line,
