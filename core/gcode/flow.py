@@ -183,10 +183,11 @@ def expand(text: str, filename: str = "<string>", search=None) -> Flow | None:
     mcodes = dict.fromkeys(range(len(lines)), frozenset())
     mcodes.update((i, {v for a, v, _, _ in info[i] if a == "M"}) for i in cand)
     owords = {}
-    for i in lines_with(r"[Oo][ \t]*(?:<|\d+[ \t]*[A-Za-z])"):
-        ow = _oword(lines[i])
-        if ow is not None:
-            owords[i] = ow
+    for i in cand:                       # o-word lines have an O (and o<name> a '<')
+        if "<" in lines[i] or any(a == "O" for a, _, _, _ in info[i]):
+            ow = _oword(lines[i])
+            if ow is not None:
+                owords[i] = ow
     if not any(mcodes[i] & {97.0, 98.0, 99.0} for i in cand) and \
             not any(ow[1] == "call" for ow in owords.values()):
         return None
