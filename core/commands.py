@@ -456,6 +456,8 @@ def _cmd_compensate(args) -> int:
         options.append(f"arc-tol {arc_tol:g} mm")
     if start:
         options.append("start " + ",".join(f"{k}={v:g}" for k, v in start.items()))
+    if args.subprogram_path:
+        options.append("subprogram-path " + args.subprogram_path)
     if args.force:
         options.append("force")
     provenance = [("VERSION", f"mtcomp {__version__}"),

@@ -64,7 +64,7 @@ def test_subprogram_path_on_the_cli(tmp_path):
     r = run("compensate", main, "-m", M.name, "-e", err, "-o", out, "--subprogram-path", tmp_path / "subs")
     assert r.returncode == 0, r.stderr
     assert "O1234.nc" in r.stdout and "written out" in r.stdout
-    assert out.read_text().count("(M99)") == 2
+    assert out.read_text().count("(M99)") == 2 and "; subprogram-path " in out.read_text()
     r = run("compensate", main, "-m", M.name, "-e", err, "-o", out, "--subprogram-path", tmp_path / "none")
     assert r.returncode == 2 and "--subprogram-path" in r.stderr
 
