@@ -80,10 +80,13 @@ def test_compensated_rotated_program_hits_the_programmed_points():
     assert rep["after_max"] < 2e-4 < 0.01 < rep["before_max"]
 
 
-def test_rotation_centre_is_the_current_position_and_axes_unknown_until_written():
+def test_rotation_centre_is_the_current_position_and_axes_stay_known():
+    # G68 about the current point leaves the tool where it is whichever way the control reads
+    # the words there (modal words, or the position re-expressed): Y stays known
     text = "G90 G0 X10. Y5. Z0\nG68 R90.\nG1 X11. F100\nY5.\nX12.\n"
     p = gcode.parse(text, axes=XYZ, rotation=True)
-    assert list(p.known) == [True, False, True, True]          # X alone after G68: Y unknown
+    assert list(p.known) == [True, True, True, True]
+    assert np.allclose(to_reference(p, p.position)[1], [10, 6, 0])
     assert np.allclose(p.rotation[2, :3], [90, 10, 5])
     assert np.allclose(to_reference(p, p.position)[2:], [[10, 6, 0], [10, 7, 0]])
     assert gcode.rewrite(p, lambda q: q.copy()) == text
@@ -115,3 +118,66 @@ def test_rotation_is_read_only_where_the_caller_says_so():
     # a caller that takes `position` as axis positions (the default) gets G68 refused
     with pytest.raises(InputError, match=r"^p.nc:2: G68: G68 coordinate rotation .* rotation=True"):
         gcode.parse(PROG, axes=XYZ, filename="p.nc")
+
+
+def control_reexpress(text):
+    """Like `control`, for a control that at G68/G69 re-expresses where the tool is in the new
+    frame (instead of keeping the modal words): unwritten words then mean that point."""
+    rows, pos, ang, c = [], {"X": 0.0, "Y": 0.0, "Z": 0.0}, 0.0, (0.0, 0.0)
+    inc = False
+
+    def rot(p, a, cc, sign=1.0):
+        t = np.radians(a) * sign
+        dx, dy = p[0] - cc[0], p[1] - cc[1]
+        return cc[0] + np.cos(t) * dx - np.sin(t) * dy, cc[1] + np.sin(t) * dx + np.cos(t) * dy
+
+    for ln in text.splitlines():
+        w = dict((t[0], float(t[1:])) for t in ln.split())
+        g = [v for k, v in ((t[0], t[1:]) for t in ln.split()) if k == "G"]
+        inc = True if "91" in g else False if "90" in g else inc
+        if "68" in g or "69" in g:
+            here = rot((pos["X"], pos["Y"]), ang, c)
+            if "68" in g:
+                ang = (ang if inc else 0.0) + w["R"]
+                c = (w["X"], w["Y"]) if "X" in w else (pos["X"], pos["Y"])
+            else:
+                ang = 0.0
+            pos["X"], pos["Y"] = rot(here, ang, c, -1.0)
+            if "68" in g:
+                continue
+        if not any(k in w for k in "XYZ"):
+            continue
+        for k in "XYZ":
+            if k in w:
+                pos[k] = pos[k] + w[k] if inc else w[k]
+        rows.append((*rot((pos["X"], pos["Y"]), ang, c), pos["Z"]))
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("text,known", [
+    # G69 with the tool at the centre: the retract after it is compensated
+    ("G90 G17 G0 X0 Y0 Z-5.\nG68 X10. Y5. R30.\nG0 X20. Y5.\nG1 Z-10. F100\nX10. Y5.\nG69\n"
+     "G0 Z-5.\nX0 Y0\n", [True] * 6),
+    # G68 about the current point (written: without centre words compensation is refused): X
+    # alone after it is compensated
+    ("G90 G17 G0 X10. Y5. Z-5.\nG68 X10. Y5. R90.\nG1 X11. F100\nZ-10.\nY6.\nG69\nG0 Z-5.\nX0 Y0\n",
+     [True, True, True, True, False, True]),
+    # G69 away from the centre: the two readings differ, Z alone stays deferred
+    ("G90 G17 G0 X0 Y0 Z-5.\nG68 X10. Y5. R30.\nG0 X20. Y5.\nG1 Z-10. F100\nX12. Y5.\nG69\n"
+     "G0 Z-5.\nX0 Y0\n", [True, True, True, True, False, True]),
+])
+def test_rotation_keeps_axes_known_where_the_pose_is_known(text, known):
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.002, -0.001, 0.0005)), WorkpieceSetting((0.01, 0.02, 0), (0, 0, 0.01)))
+    p = gcode.parse(text, axes=m.axis_names, rotation=True)
+    assert p.known.tolist() == known
+    k = np.asarray(p.known)
+    # where known, both readings of the control agree on the program and on its compensation
+    assert np.allclose(control(text)[k], control_reexpress(text)[k], atol=1e-12)
+    out, rep = compensate_program(text, m, e)
+    assert rep["deferred"] == known.count(False)
+    a, b = control(out), control_reexpress(out)
+    assert np.abs(a[k] - b[k]).max() < 2e-4
+    want = forward(m, control(text)).p
+    for got in (forward(m, a, e).p, forward(m, b, e).p):
+        assert np.abs(got[k] - want[k]).max() < 2e-4           # 0.1 µm resolution of the machine

@@ -542,6 +542,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present,
                                   incremental, offset, start_vec)
 
+    if rot_events:
+        reset_lines, reset_cols, position = _rotation_known(
+            axes, rot_events, blines, position, offset, res_ax, reset_lines, reset_cols,
+            lambda rl, rc: _positions(blines, rl, rc, vals[:, :n_ax], present, incremental,
+                                      offset, start_vec))
     rotation = None
     if rot_events:
         rotation = _rotation_per_block(axes, rot_events, blines, position, offset, plane, tcp,
@@ -632,6 +637,41 @@ def _rotation_events(axes, g68_line, g69_lines, plane_line, inch_line, incr_line
             _fail("G68 in G91 with a centre: incremental centres are not read", L, filename)
         events.append((L, (u, v), angle, centre))
     return events
+
+
+def _rotation_known(axes, events, blines, position, offset, res_ax, reset_lines, reset_cols,
+                    positions):
+    """Keep the plane's axes known across a G68/G69 where the tool's place does not depend on
+    how the control reads the words there: if the current point maps to the same axis positions
+    under the rotation before and after the event (G68 about the current point, G69 with the
+    tool at the centre, an angle change of 360 deg), the modal words and the re-expressed
+    position agree, so the axes stay known (their resets are dropped).  Returns the reset
+    arrays and the positions recomputed."""
+    from .rotation import PLANE_AXES  # noqa: F401  (the events carry the plane's axes)
+    active = None                                  # (angle deg, centre u, v program coords)
+    for L, (u, v), angle, centre in events:
+        iu, iv = axes.index(u), axes.index(v)
+        j = int(np.searchsorted(blines, L)) - 1     # the last block before the event
+        w = position[j, [iu, iv]] if j >= 0 else np.array([np.nan, np.nan])
+        off = offset[j, [iu, iv]] if j >= 0 else np.zeros(2)
+        new_c = None
+        if angle is not None:
+            new_c = np.where(np.isnan(centre), w - off, np.asarray(centre, float))
+        if np.isfinite(w).all():
+            def ref(a, c):
+                c = np.asarray(c, float) + off
+                t = np.radians(a)
+                d = w - c
+                return c + np.array([np.cos(t) * d[0] - np.sin(t) * d[1],
+                                     np.sin(t) * d[0] + np.cos(t) * d[1]])
+            before = ref(*active) if active is not None else w
+            after = ref(angle, new_c) if angle is not None else w
+            if np.abs(before - after).max() <= 0.5 * min(res_ax[iu], res_ax[iv]):
+                keep = ~((reset_lines == L) & np.isin(reset_cols, (iu, iv)))
+                reset_lines, reset_cols = reset_lines[keep], reset_cols[keep]
+                position = positions(reset_lines, reset_cols)
+        active = None if angle is None else (angle, new_c)
+    return reset_lines, reset_cols, position
 
 
 def _rotation_per_block(axes, events, blines, position, offset, plane, tcp, cycle, filename):
