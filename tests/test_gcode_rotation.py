@@ -181,3 +181,21 @@ def test_rotation_keeps_axes_known_where_the_pose_is_known(text, known):
     want = forward(m, control(text)).p
     for got in (forward(m, a, e).p, forward(m, b, e).p):
         assert np.abs(got[k] - want[k]).max() < 2e-4           # 0.1 µm resolution of the machine
+
+
+def test_workpiece_setting_compensates_rotated_programs():
+    # the setting error is a rigid motion of the blank in the reference frame: the rotated words
+    # are compensated there and written back in the rotated frame
+    from mtcomp.setting.workpiece import compensate_text
+    m = load_machine("vmc-moving-column")
+    pose = WorkpieceSetting((0.01, 0.02, -0.005), (0.002, -0.001, 0.01))
+    text = PROG.replace("Z-1.", "Z-10.").replace("Z5.", "Z-5.")
+    out, n = compensate_text(m, text, pose, mode="3axis", chordal_tol=2e-4)
+    assert out != text and n == 8
+    want = forward(m, control(text)).p
+    got = forward(m, control(out), ErrorSet(workpiece=pose)).p
+    unc = forward(m, control(text), ErrorSet(workpiece=pose)).p
+    assert np.abs(got - want).max() < 2e-4 < 0.01 < np.abs(unc - want).max()
+    # the words really are in the rotated frame: read without the rotation they would be off
+    plain = gcode.parse(out, axes=m.axis_names, rotation=True).position
+    assert np.abs(forward(m, plain, ErrorSet(workpiece=pose)).p - want).max() > 1.0
