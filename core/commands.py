@@ -350,7 +350,7 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
     motion[np.asarray(back.cycle) > 0] = PROBE         # not checked
     arcs_all = program_arcs(machine, back, motion)
     position = to_reference(back, back.position)       # G68: where the axes go
-    tcp, tlen = np.asarray(back.tcp, bool), np.asarray(back.tool_length, float)
+    tcp, tlen = np.asarray(back.tcp, bool), np.asarray(back.tool_tip, float)
     src = text.split("\n")
     lines = np.asarray(back.line, int)
     kn = np.asarray(back.known)

@@ -670,7 +670,8 @@ def program_arcs(machine, prog, motion):
 def program_commands(machine, text: str, filename: str = "<string>", tool_lengths=None):
     """Per motion block: words (N, n_axes: axis positions, or for G43.4 blocks tool tip and
     angles; G68 rotation applied), motion codes (N,), source lines (N,), line texts, arc data,
-    the G43.4 mask (N,), tool lengths (N,) mm of the G43.4 blocks and the known mask (N,), read
+    the G43.4 mask (N,), the active tool length (N,) mm (G43/G44 H and G43.4: the tip checked is
+    that far along -tool_axis from the machine file's tool point) and the known mask (N,), read
     through :func:`mtcomp.gcode.parse`."""
     from . import gcode
     from .gcode.rotation import to_reference
@@ -695,15 +696,16 @@ def program_commands(machine, text: str, filename: str = "<string>", tool_length
     texts = [src[int(ln) - 1] if 0 < int(ln) <= len(src) else "" for ln in prog.line]
     arcs = program_arcs(machine, prog, motion) if (motion == 3).any() else None
     return (to_reference(prog, prog.position), motion, np.asarray(prog.line, int), texts, arcs,
-            np.asarray(prog.tcp, bool), np.asarray(prog.tool_length, float), np.asarray(prog.known))
+            np.asarray(prog.tcp, bool), np.asarray(prog.tool_tip, float), np.asarray(prog.known))
 
 
 def verify_program(machine, text: str, *, filename: str = "<string>", tool_lengths=None,
                    **kw) -> VerifyResult:
     """Read an NC program (text) for `machine` and :func:`verify_commands` it (same keywords).
     G43.4 blocks are read as tool-centre-point words with the tool lengths of their H
-    (``tool_lengths`` {H: mm}; none given: 0, the machine file's tool point), G68 rotation is
-    applied; blocks whose pose the program has not fixed yet are not checked (see `known`)."""
+    (``tool_lengths`` {H: mm}; none given: 0, the machine file's tool point); under G43/G44 H
+    the axes carry the length and the tool tip checked is that length down the tool axis; G68
+    rotation is applied; blocks whose pose the program has not fixed yet are not checked (see `known`)."""
     q, motion, lines, texts, arcs, tcp, length, known = program_commands(machine, text, filename,
                                                                           tool_lengths)
     kw.setdefault("name", filename)

@@ -130,3 +130,21 @@ def test_compensate_verifies_g68_programs_against_the_stock():
         compensate_program(ROT.format(r="180."), m, errors, part=BAR)
     out, rep = compensate_program(ROT.format(r="0."), m, errors, part=BAR)
     assert rep["verify"].ok
+
+
+def test_tool_length_compensation_checks_the_tool_tip_not_the_gauge_point():
+    # G43 H1 with a 20 mm tool: the axes stand 20 mm higher than the words, the tip where the
+    # words say; a rapid to Z-1. puts the tip 1 mm into the stock (formerly checked at the
+    # gauge point, 19 mm above it, and passed)
+    m = load_machine("vmc-moving-column")
+    text = "G21 G90\nG43 H1 Z25.\nG0 X1. Y1.\nG0 Z-1.\nG0 Z25.\nM30\n"
+    stock = HalfSpace(0.0)
+    with pytest.raises(VerifyError, match=r"line 4 \(G0 Z-1\.\): rapid move: the tool enters the stock "
+                                          r"at -1000 µm") as e:
+        verify_program(m, text, stock=stock, tool_lengths={1: 20.0})
+    assert e.value.result.violations[0].value == pytest.approx(-1.0, abs=1e-9)
+    errors = ErrorSet(ToolSetting((0.001, 0.0, 0.0)))
+    with pytest.raises(VerifyError, match=r"line 4 \(G0 Z-1\.\): rapid move: the tool enters"):
+        compensate_program(text, m, errors, tool_lengths={1: 20.0}, stock=stock)
+    ok = verify_program(m, text.replace("Z-1.", "Z1."), stock=stock, tool_lengths={1: 20.0})
+    assert ok.min_clearance == pytest.approx(1.0, abs=1e-9)

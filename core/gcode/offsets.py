@@ -161,6 +161,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     # -- tool length (G43 +, G44 -, G49 cancel) along Z; G43.4: in the TCP transform
     tset = tool_l >= 0
     tlen = np.zeros(n_lines)
+    tip = np.zeros(n_lines)
     if tset.any():
         # G43/G44/G43.4 without H: the loaded tool T (LinuxCNC)
         h_line = h_line.copy()
@@ -184,7 +185,9 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
             sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
             off[:, axes.index("Z")] += sign * L
         tlen = np.where(mode == 434, L, 0.0)
-    return off, tlen, tuple(assumed)
+        # where the tool tip is: L along -tool axis from the gauge point (G44 subtracts: -L)
+        tip = np.where(mode == 434, L, sign * L if "Z" in axes else 0.0)
+    return off, tlen, tuple(assumed), tip
 
 
 def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, written):

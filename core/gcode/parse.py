@@ -280,7 +280,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                             filename)
         notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
                      + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
-    offsets_line, tlen_line, offset_assumed = offsets_per_line(
+    offsets_line, tlen_line, offset_assumed, tip_line = offsets_per_line(
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
         first_motion, n_lines, filename, notes, written)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
@@ -475,6 +475,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   + " under G43.4 tool centre point: not supported (CAM systems write linear "
                   "moves under TCP)", blines[j], filename)
     tool_length = tlen_line[blines]
+    tool_tip = tip_line[blines]
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -589,7 +590,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
-                  tcp=tcp, tool_length=tool_length, rotation=rotation)
+                  tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip)
     for a in arrays.values():
         if a is not None:
             a.flags.writeable = False
