@@ -148,3 +148,17 @@ def test_tool_length_compensation_checks_the_tool_tip_not_the_gauge_point():
         compensate_program(text, m, errors, tool_lengths={1: 20.0}, stock=stock)
     ok = verify_program(m, text.replace("Z-1.", "Z1."), stock=stock, tool_lengths={1: 20.0})
     assert ok.min_clearance == pytest.approx(1.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("b", [0.0, 30.0])
+def test_ball_tool_under_tcp_sits_along_the_tilted_tool_axis(b):
+    # a ball of radius r whose tip is on the plane z = 0 with the tool tilted by B (the table
+    # turns the blank): the ball centre is r cos(B) above the plane, so it enters the material
+    # by r (1 - cos B)
+    m = load_machine("robonano-a0ib")
+    r = 0.5
+    text = tcp_program(f"G00 C0. B{b:.0f}. X-5. Y0. Z1.\nG01 Z0. F100.\nG01 X5.\nG00 Z5.\n")
+    res = verify_program(m, text, part=HalfSpace(0.0), tool_radius=r, raise_on_violation=False,
+                         tool_lengths={1: 30.0})
+    assert res.min_part == pytest.approx(-r * (1 - np.cos(np.radians(b))), abs=1e-9)
+    assert [v.line for v in res.violations] == ([] if b == 0 else [4, 5])
