@@ -162,3 +162,16 @@ def test_ball_tool_under_tcp_sits_along_the_tilted_tool_axis(b):
                          tool_lengths={1: 30.0})
     assert res.min_part == pytest.approx(-r * (1 - np.cos(np.radians(b))), abs=1e-9)
     assert [v.line for v in res.violations] == ([] if b == 0 else [4, 5])
+
+
+def test_after_g49_the_tool_is_still_in_the_spindle():
+    # G49 cancels the length compensation: the words are axis positions again, but the 20 mm
+    # tool still hangs below the gauge point until another tool is selected
+    m = load_machine("vmc-moving-column")
+    stock = HalfSpace(0.0)
+    text = "G21 G90\nG43 H1 Z5.\nG0 X1. Y1.\nG49\nG0 Z15.\nG0 X2.\nT2\nG0 X3.\nM30\n"
+    p = parse(text, axes=m.axis_names, tool_lengths={1: 20.0})
+    assert p.tool_tip.tolist() == [20.0, 20.0, 20.0, 20.0, 0.0]
+    res = verify_program(m, text, stock=stock, tool_lengths={1: 20.0}, raise_on_violation=False)
+    assert [v.line for v in res.violations] == [5, 6]            # the tip 5 mm into the stock
+    assert res.violations[1].value == pytest.approx(-5.0, abs=1e-9)

@@ -187,6 +187,10 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         tlen = np.where(mode == 434, L, 0.0)
         # where the tool tip is: L along -tool axis from the gauge point (G44 subtracts: -L)
         tip = np.where(mode == 434, L, sign * L if "Z" in axes else 0.0)
+        # G49 cancels the compensation, not the tool: its tip stays that far down the axis until
+        # another tool is selected (a T word; its length is unknown until its G43)
+        newtool = ~np.isnan(t_line) & ~active
+        tip = _ffill(np.where(active, tip, 0.0), active | newtool, 0.0)
     return off, tlen, tuple(assumed), tip
 
 
