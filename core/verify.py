@@ -15,6 +15,11 @@ Checks (mm):
   ``tolerance`` (the finished shape; the cut itself touches it);
 * G31 probing moves end past the surface by design and are not checked.
 
+G43.4 tool-centre-point blocks are run as the machine runs them: the control's nominal inverse
+of the written tip and angles (with the H tool length), then the forward model with the errors;
+feeds move the tip straight, rapids are checked tip-straight and axis-linear (controls differ).
+G68 rotation is applied; under G43/G44 H the tool tip, not the gauge point, is checked.
+
 The tool is a point (the edge of a V tool) or a ball of ``tool_radius`` about the point
 ``tool_radius`` along the tool axis (ball end mill, probe).  The holder and the flanks of a V
 tool are not modelled.  Stocks: :class:`Box` (analytic), :class:`HalfSpace` (a plane with
