@@ -648,7 +648,6 @@ def _rotation_known(axes, events, blines, position, offset, res_ax, reset_lines,
     tool at the centre, an angle change of 360 deg), the modal words and the re-expressed
     position agree, so the axes stay known (their resets are dropped).  Returns the reset
     arrays and the positions recomputed."""
-    from .rotation import PLANE_AXES  # noqa: F401  (the events carry the plane's axes)
     active = None                                  # (angle deg, centre u, v program coords)
     for L, (u, v), angle, centre in events:
         iu, iv = axes.index(u), axes.index(v)
