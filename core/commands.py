@@ -174,7 +174,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     from .gcode import flow
     from .gcode import tcp as gtcp
     from .gcode.provenance import compensated_line, header_lines, insert_header
-    from .gcode.rotation import has_rotation, to_reference
+    from .gcode.rotation import to_reference
 
     tol = _check_chordal_tol(machine, chordal_tol)
     check_errors_for_machine(errors, machine)
@@ -194,21 +194,13 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
                        convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
-                       work_offsets=work_offsets, arc_tol=arc_tol)
+                       work_offsets=work_offsets, arc_tol=arc_tol, tcp=True, rotation=True)
     n_blocks = len(prog)
     if chordal_tol is None and np.asarray(prog.inch).any():
         # inch programs are written one decimal finer in inch: 2.54 times the mm resolution
         res_lin = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
         tol = max(tol, 2 * 2.54 * res_lin)
     tcp = np.asarray(prog.tcp)
-    rotated = has_rotation(prog)
-    if rotated and (stock is not None or part is not None):
-        raise InputError("verifying the output against --stock/--part is not supported for "
-                         "programs with G68 coordinate rotation", filename)
-    if tcp.any() and (stock is not None or part is not None):
-        raise InputError("verifying the output against --stock/--part is not supported for G43.4 "
-                         "tool centre point programs (mtcomp cad verify reads them)", filename,
-                         int(prog.line[np.argmax(tcp)]))
     _travel_check(machine, prog, filename,
                   _axis_positions(machine, prog, to_reference(prog, prog.position)))
     hint = _three_axis_hint(machine, prog)
@@ -347,22 +339,18 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
 
     from . import gcode
     from .verify import FEED, PROBE, RAPID, VerifyError, verify_commands
+    from .gcode.rotation import to_reference
+    from .verify import program_arcs
     back = gcode.parse(text, axes=machine.axis_names, filename=f"{filename} (compensated output)",
-                       **parse_kw)
+                       tcp=True, rotation=True, **parse_kw)
     motion = np.asarray(back.motion, int).copy()
     motion[motion < 0] = RAPID
     motion[motion == 1] = FEED
     motion[(motion == 2) | (motion == 3)] = 3
     motion[np.asarray(back.cycle) > 0] = PROBE         # not checked
-    cols = np.zeros((len(back), 2), int)
-    xyz = {"X": 0, "Y": 1, "Z": 2}
-    cidx = np.zeros((len(back), 2), int)
-    for k, pl in enumerate(np.asarray(back.plane)):
-        pair = {17: "XY", 18: "ZX", 19: "YZ"}[int(pl)]
-        cols[k] = [machine.axis_names.index(a) if a in machine.axis_names else 0 for a in pair]
-        cidx[k] = [xyz[a] for a in pair]
-    centre = np.take_along_axis(np.asarray(back.arc_centre, float), cidx, axis=1)
-    arcs_all = (centre, np.nan_to_num(np.asarray(back.arc_sweep, float)), cols, motion == 3)
+    arcs_all = program_arcs(machine, back, motion)
+    position = to_reference(back, back.position)       # G68: where the axes go
+    tcp, tlen = np.asarray(back.tcp, bool), np.asarray(back.tool_tip, float)
     src = text.split("\n")
     lines = np.asarray(back.line, int)
     kn = np.asarray(back.known)
@@ -371,7 +359,8 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
     results = []
     for a, b in zip(edges[::2], edges[1::2]):
         sl = slice(int(a), int(b))
-        res = verify_commands(machine, back.position[sl], motion[sl], stock=stock, part=part,
+        res = verify_commands(machine, position[sl], motion[sl], stock=stock, part=part,
+                              tcp=tcp[sl], tool_length=tlen[sl],
                               clearance=clearance, tolerance=tolerance, errors=errors,
                               lines=lines[sl], texts=[src[ln - 1] if 0 < ln <= len(src) else ""
                                                       for ln in lines[sl]],
@@ -405,6 +394,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     from . import gcode
     after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
                              tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
+                             tcp=True, rotation=True,
                              filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
     idx = np.searchsorted(after_prog.line, out_line, side="right") - 1
@@ -455,6 +445,8 @@ def _cmd_compensate(args) -> int:
         options.append(f"arc-tol {arc_tol:g} mm")
     if start:
         options.append("start " + ",".join(f"{k}={v:g}" for k, v in start.items()))
+    if args.subprogram_path:
+        options.append("subprogram-path " + args.subprogram_path)
     if args.force:
         options.append("force")
     provenance = [("VERSION", f"mtcomp {__version__}"),

@@ -15,6 +15,11 @@ Checks (mm):
   ``tolerance`` (the finished shape; the cut itself touches it);
 * G31 probing moves end past the surface by design and are not checked.
 
+G43.4 tool-centre-point blocks are run as the machine runs them: the control's nominal inverse
+of the written tip and angles (with the H tool length), then the forward model with the errors;
+feeds move the tip straight, rapids are checked tip-straight and axis-linear (controls differ).
+G68 rotation is applied; under G43/G44 H the tool tip, not the gauge point, is checked.
+
 The tool is a point (the edge of a V tool) or a ball of ``tool_radius`` about the point
 ``tool_radius`` along the tool axis (ball end mill, probe).  The holder and the flanks of a V
 tool are not modelled.  Stocks: :class:`Box` (analytic), :class:`HalfSpace` (a plane with
@@ -25,7 +30,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -221,12 +226,54 @@ def tcp_to_axes(machine, w: np.ndarray) -> np.ndarray:
     return q
 
 
-def _tool_points(machine, q: np.ndarray, errors, tool_radius: float, tcp: bool = False) -> np.ndarray:
+def _tool_points(machine, q: np.ndarray, errors, tool_radius: float, tcp: bool = False,
+                 lengths=None) -> np.ndarray:
+    """Tool points (M, 3) for axis positions q (M, n) (or G43.4 words with ``tcp``) with the
+    tool lengths (M,) mm (None: 0, the machine file's tool point), through the forward model."""
+    from .gcode.tcp import tool_machine
     from .kinematics import forward
-    if tcp:
-        q = tcp_to_axes(machine, q)
-    pose = forward(machine, q, errors, strict=False)
-    return pose.p + tool_radius * pose.v if tool_radius else pose.p
+    q = np.asarray(q, float)
+    L = np.zeros(len(q)) if lengths is None else np.broadcast_to(np.asarray(lengths, float), (len(q),))
+    out = np.empty((len(q), 3))
+    for Lv in np.unique(L):
+        rows = np.flatnonzero(L == Lv) if len(np.unique(L)) > 1 else slice(None)
+        m = tool_machine(machine, float(Lv))
+        qr = tcp_to_axes(m, q[rows]) if tcp else q[rows]
+        pose = forward(m, qr, errors, strict=False)
+        out[rows] = pose.p + tool_radius * pose.v if tool_radius else pose.p
+    return out
+
+
+def _tip_words(machine, Q: np.ndarray, lengths) -> np.ndarray:
+    """G43.4 words (tool tip, angles) of axis positions Q (M, n) on the nominal machine with the
+    tool lengths (M,): what a control in tool centre point mode takes as the current point."""
+    from .gcode.tcp import tool_machine
+    from .kinematics import forward
+    Q = np.asarray(Q, float)
+    W = Q.copy()
+    lin = [i for i, a in enumerate(machine.axes) if not a.is_rotary]
+    xyz = ["XYZ".index(machine.axes[i].name) for i in lin]
+    L = np.broadcast_to(np.asarray(lengths, float), (len(Q),))
+    for Lv in np.unique(L):
+        rows = np.flatnonzero(L == Lv)
+        W[np.ix_(rows, lin)] = forward(tool_machine(machine, float(Lv)), Q[rows]).p[:, xyz]
+    return W
+
+
+def _axes_of(machine, q: np.ndarray, tcp, lengths) -> np.ndarray:
+    """Axis positions of blocks: q itself, G43.4 rows (tcp mask) through the control's nominal
+    inverse with their tool lengths."""
+    q = np.asarray(q, float)
+    tcp = np.asarray(tcp, bool)
+    if not tcp.any():
+        return q
+    from .gcode.tcp import tool_machine
+    Q = q.copy()
+    L = np.asarray(lengths, float)
+    for Lv in np.unique(L[tcp]):
+        rows = np.flatnonzero(tcp & (L == Lv))
+        Q[rows] = tcp_to_axes(tool_machine(machine, float(Lv)), q[rows])
+    return Q
 
 
 def _interpolate(qa, qb, frac, arc=None, rates=None):
@@ -257,27 +304,45 @@ def _interpolate(qa, qb, frac, arc=None, rates=None):
 
 
 def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
-          step: float = 0.005, arcs=None, max_rounds: int = 12, tcp: bool = False,
-          rapid_rates=None):
+          step: float = 0.005, arcs=None, max_rounds: int = 12, tcp=False,
+          rapid_rates=None, tool_length=None, space: str = "tip"):
     """Samples of the tool along the moves into `blocks` (indices i >= 1: the move q[i-1] -> q[i]).
 
     Returns (points (M,3) mm, owner (M,) block index, spacing (B,) largest distance between
     consecutive samples of each block, mm).  The number of samples of each block doubles until
     that spacing is <= step, so every point of the swept path is within step/2 of a sample.
     arcs: optional (centre (N,2), sweep (N,), plane columns (N,2), is_arc (N,)) per block.
-    tcp: q are tool-centre-point words (G43.4): the control moves the tool point straight and
-    the rotary axes linearly, i.e. linearly in these words, and its kinematics gives the axes.
+    tcp: True or a mask (N,): those rows of q are tool-centre-point words (G43.4: tool tip in the
+    workpiece frame, rotary angles), turned into axis positions by the control's nominal inverse
+    (:func:`tcp_to_axes`) with the row's tool length (tool_length (N,) mm, default 0: the
+    machine file's tool point; the tool point checked is the tip of that tool).  A move into a
+    G43.4 row runs, with ``space="tip"``, linearly in the words (the control moves the tip
+    straight and the rotary axes linearly, from the tip the previous pose gives with this
+    block's tool); with ``space="joint"`` linearly in the axis positions (controls that move
+    G00 under TCP axis by axis).  Other moves are linear in axis space.
     rapid_rates (n_axes,) mm/min and deg/min: the blocks are dog-leg rapids, each axis at its own
     rate (a control with non-linear rapid traverse, Fanuc LRP = 0); None: linear."""
     blocks = np.asarray(blocks, int)
     q = np.asarray(q, float)
     if blocks.size == 0:
         return np.zeros((0, 3)), np.zeros(0, int), np.zeros(0)
-    ends = _tool_points(machine, q, errors, tool_radius, tcp)
-    n = np.maximum(1, np.ceil(np.linalg.norm(ends[blocks] - ends[blocks - 1], axis=1) / step)).astype(int)
+    mask = np.broadcast_to(np.asarray(tcp, bool), (len(q),))
+    L = (np.zeros(len(q)) if tool_length is None
+         else np.broadcast_to(np.asarray(tool_length, float), (len(q),)))
+    Q = _axes_of(machine, q, mask, L)
+    in_tip = mask[blocks] & (space == "tip")
+    # each move from A to B in its interpolation space (tip words or axis positions)
+    A, B = Q[blocks - 1].copy(), Q[blocks].copy()
+    if in_tip.any():
+        A[in_tip] = _tip_words(machine, Q[blocks[in_tip] - 1], L[blocks[in_tip]])
+        B[in_tip] = q[blocks[in_tip]]
+    Lb = L[blocks]
+    ends_a = _tool_points(machine, Q[blocks - 1], errors, tool_radius, lengths=Lb)
+    ends_b = _tool_points(machine, Q[blocks], errors, tool_radius, lengths=Lb)
+    n = np.maximum(1, np.ceil(np.linalg.norm(ends_b - ends_a, axis=1) / step)).astype(int)
     rot = list(machine.rotary_indices)
     if rot:  # rotary blocks: start from 8 samples per degree turned, refined below
-        turn = np.abs(q[blocks][:, rot] - q[blocks - 1][:, rot]).max(axis=1)
+        turn = np.abs(B[:, rot] - A[:, rot]).max(axis=1)
         n = np.maximum(n, np.ceil(turn * 8).astype(int))
     if arcs is not None:
         n = np.maximum(n, np.where(arcs[3][blocks], np.ceil(np.abs(arcs[1][blocks]) * 180).astype(int), 1))
@@ -286,10 +351,13 @@ def sweep(machine, q: np.ndarray, blocks, errors=None, tool_radius: float = 0.0,
         start = np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
         frac = (np.arange(owner.size) - start) / np.repeat(n, n + 1)
         b = blocks[owner]
-        sub = None if arcs is None else (arcs[0][b], arcs[1][b], arcs[2][b], arcs[3][b])
-        qs = _interpolate(q[b - 1], q[b], frac, sub,
+        sub = None if arcs is None else (arcs[0][b], arcs[1][b], arcs[2][b], arcs[3][b] & ~in_tip[owner])
+        qs = _interpolate(A[owner], B[owner], frac, sub,
                           None if rapid_rates is None else np.asarray(rapid_rates, float))
-        pts = _tool_points(machine, qs, errors, tool_radius, tcp)
+        if in_tip.any():
+            t = in_tip[owner]
+            qs[t] = _axes_of(machine, qs[t], np.ones(int(t.sum()), bool), L[b[t]])
+        pts = _tool_points(machine, qs, errors, tool_radius, lengths=L[b])
         gap = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         gap[np.cumsum(n + 1)[:-1] - 1] = 0.0  # across two blocks
         spacing = np.zeros(len(blocks))
@@ -313,9 +381,12 @@ class Violation:
     value: float
     point: tuple
     text: str = ""
+    path: str = ""                   # "axis": a G43.4 rapid interpolated in axis space
 
     def describe(self, clearance: float, tolerance: float) -> str:
         where = f"line {self.line}" + (f" ({self.text.strip()})" if self.text else "")
+        if self.path == "axis":
+            where += " [G43.4 rapid, axes interpolated linearly]"
         x, y, z = self.point
         if self.kind == "rapid":
             what = ("the tool enters the stock" if self.value < 0 else "the tool passes the stock")
@@ -390,17 +461,26 @@ class VerifyResult:
 def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, part=None,
                     tolerance: float = 5e-4, tool_radius: float = 0.0, errors=None,
                     step: float = 0.005, lines=None, texts=None, arcs=None, name: str = "program",
-                    raise_on_violation: bool = True, tcp: bool = False,
-                    rapid_rates=None, retracts: bool = False) -> VerifyResult:
+                    raise_on_violation: bool = True, tcp=False,
+                    rapid_rates=None, retracts: bool = False, tool_length=None,
+                    tcp_rapids: str = "both", known=None) -> VerifyResult:
     """Verify axis commands q (N, n_axes) mm/deg with per-block motion codes (N,) (0 rapid,
     1 feed, 2 probe, 3 feed on an arc).
 
     The move into block 0 starts from an unknown position: only its end point is checked.
+    known (N,): False for blocks whose pose the program has not fixed (placeholders in q): moves
+    into or out of them are not checked; a known block after an unknown one is checked at its
+    end point (where the move into it starts is unknown).
     stock/part: objects with ``distance(points) -> signed mm`` (Box, HalfSpace, ShapeStock);
     tool_radius: ball radius, mm (0: a point tool); errors: ErrorSet of the real machine (None:
     nominal); lines/texts: source line numbers and texts for the messages.  Raises VerifyError
     naming the first failing block (all are in ``.result``) unless raise_on_violation is False.
-    tcp: q are G43.4 tool-centre-point words (see :func:`sweep`).  rapid_rates: {axis letter:
+    tcp: True, or a mask (N,) of the rows of q that are G43.4 tool-centre-point words (tool tip
+    in the workpiece frame, rotary angles; see :func:`sweep`), with tool_length (N,) mm (the
+    tool point checked is that tool's tip).  Feeds under G43.4 move the tip straight (linear in
+    the words); how a control moves G00 under G43.4 is a parameter of it (tip straight, or each
+    axis linearly), so ``tcp_rapids="both"`` (default) checks a G43.4 rapid along both paths
+    and reports the worse; "tip" or "joint" checks one.  rapid_rates: {axis letter:
     rate} (mm/min, deg/min) of a control with dog-leg rapids (each axis at its own rate); None:
     rapids interpolated linearly (LRP = 1).
 
@@ -434,43 +514,80 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
                                  texts[b] if texts is not None else ""))
         return out
 
+    kn = np.ones(len(q), bool) if known is None else np.asarray(known, bool)
     idx = np.arange(1, len(q))
+    both_known = kn[1:] & kn[:-1]
+    idx = idx[both_known]
+    # blocks checked at their end point only: the first one, and known ones after unknown ones
+    ends_only = np.flatnonzero(kn & ~np.r_[False, both_known])
+    tmask = np.broadcast_to(np.asarray(tcp, bool), (len(q),))
+    if tcp_rapids not in ("both", "tip", "joint"):
+        raise InputError(f"tcp_rapids must be both, tip or joint, got {tcp_rapids!r}", field="tcp_rapids")
     rates = None
     if rapid_rates is not None:
-        if tcp:
+        if tmask.any():
             raise InputError("dog-leg rapids and G43.4 output do not go together", field="rapid_rates")
         missing = [a for a in machine.axis_names if a not in rapid_rates]
         if missing or any(not float(v) > 0 for v in rapid_rates.values()):
             raise InputError(f"rapid rates > 0 needed for every axis; missing {missing}",
                              field="rapid_rates")
         rates = np.array([float(rapid_rates[a]) for a in machine.axis_names])
+    L = (np.zeros(len(q)) if tool_length is None
+         else np.broadcast_to(np.asarray(tool_length, float), (len(q),)))
     if stock is not None:
-        rb = idx[motion[1:] == RAPID]
-        pts, owner, _ = sweep(machine, q, rb, errors, tool_radius, step, arcs, tcp=tcp,
-                              rapid_rates=rates)
-        if motion.size and motion[0] == RAPID:  # end point of the first move
-            pts = np.vstack([_tool_points(machine, q[:1], errors, tool_radius, tcp), pts])
-            owner = np.concatenate([[0], owner])
-        n_samples += len(pts)
-        if len(pts):
+        rb = idx[motion[idx] == RAPID]
+        # G43.4 rapids: the tip-space path and/or the axis-space path (see tcp_rapids)
+        passes = [("tip" if tcp_rapids != "joint" else "joint", rb)]
+        if tcp_rapids == "both" and tmask[rb].any():
+            passes.append(("joint", rb[tmask[rb]]))
+        retract_ok, bad_blocks = set(), set()
+        for k_pass, (space, blocks) in enumerate(passes):
+            pts, owner, _ = sweep(machine, q, blocks, errors, tool_radius, step, arcs, tcp=tmask,
+                                  rapid_rates=rates, tool_length=L, space=space)
+            e = ends_only[motion[ends_only] == RAPID] if k_pass == 0 else ends_only[:0]
+            if len(e):                               # end points of moves from unknown starts
+                pe = np.empty((len(e), 3))
+                for flag in (False, True):
+                    r = tmask[e] == flag
+                    if r.any():
+                        pe[r] = _tool_points(machine, q[e[r]], errors, tool_radius, flag, L[e[r]])
+                pts = np.vstack([pe, pts])
+                owner = np.concatenate([e, owner])
+                o = np.argsort(owner, kind="stable")
+                pts, owner = pts[o], owner[o]
+            n_samples += len(pts)
+            if not len(pts):
+                continue
             dist = stock.distance(pts) - tool_radius
             bad = dist - step / 2 < clearance
             counted = np.ones(len(dist), bool)
             if retracts:
                 for b in np.unique(owner[bad]):
                     sel = np.nonzero(owner == b)[0]
-                    if b == 0 or len(sel) < 2 or not _departs(pts[sel], dist[sel], clearance, step):
+                    if b in e or len(sel) < 2 or not _departs(pts[sel], dist[sel], clearance, step):
                         continue
                     bad[sel] = False
                     counted[sel] = False
-                    n_retracts += 1
+                    retract_ok.add(int(b))
             if counted.any():
                 k = int(np.flatnonzero(counted)[np.argmin(dist[counted])])
-                min_c, min_c_line = float(dist[k]), int(lines[owner[k]])
-            violations += worst_per_block(pts, owner, dist, bad, "rapid")
+                if dist[k] < min_c:
+                    min_c, min_c_line = float(dist[k]), int(lines[owner[k]])
+            found = worst_per_block(pts, owner, dist, bad, "rapid")
+            if space == "joint" and tmask.any():
+                found = [replace(v, path="axis") for v in found]
+            for v in found:                  # one violation per block: the worst of the paths
+                old = next((w for w in violations if w.block == v.block and w.kind == "rapid"), None)
+                if old is None or v.value < old.value:
+                    if old is not None:
+                        violations.remove(old)
+                    violations.append(v)
+                bad_blocks.add(v.block)
+        n_retracts = len(retract_ok - bad_blocks)
     if part is not None:
-        fb = idx[(motion[1:] == FEED) | (motion[1:] == 3)]
-        pts, owner, _ = sweep(machine, q, fb, errors, tool_radius, step, arcs, tcp=tcp)
+        fb = idx[(motion[idx] == FEED) | (motion[idx] == 3)]
+        pts, owner, _ = sweep(machine, q, fb, errors, tool_radius, step, arcs, tcp=tmask,
+                              tool_length=L, space="tip")
         n_samples += len(pts)
         if len(pts):
             dist = part.distance(pts) - tool_radius
@@ -509,50 +626,63 @@ def _departs(pts: np.ndarray, dist: np.ndarray, clearance: float, step: float) -
 #: and macro output lines of a probing macro (POPEN, DPRNT, PCLOS, #-assignments).
 _MACRO_LINE = re.compile(r"^\s*(?:N\d+\s*)?(?:POPEN|PCLOS|DPRNT\[.*\]|#\d+\s*=.*)\s*(?:\(.*\))?\s*$",
                          re.IGNORECASE)
-_DROP_WORDS = re.compile(r"\bG(?:43(?:\.0)?\s*H\d+|49|93|94)\b(?![.\d])", re.IGNORECASE)
+_DROP_WORDS = re.compile(r"\bG(?:93|94)\b(?![.\d])", re.IGNORECASE)
 _G31 = re.compile(r"\bG31\b(?![.\d])", re.IGNORECASE)
 
 
-_TCP_ON = re.compile(r"\bG43\.4\s*(?:H\d+)?", re.IGNORECASE)
-_TCP_OFF = re.compile(r"\bG49\b(?![.\d])", re.IGNORECASE)
-
-
-def _prepare(text: str) -> tuple[str, set, tuple]:
-    """Program text the motion reader accepts, same line numbering; the lines with G31; the
-    (first, last) lines of G43.4 tool-centre-point mode (None if the program has none)."""
+def _prepare(text: str) -> tuple[str, set]:
+    """Program text the motion reader accepts, same line numbering, and the lines with G31."""
     out, probe_lines = [], set()
-    tcp_on = tcp_off = None
     for k, line in enumerate(text.split("\n"), 1):
         code = re.sub(r"\([^()]*\)", lambda m: " " * len(m.group()), line)
         if _MACRO_LINE.match(code):
             out.append("")
             continue
-        if _TCP_ON.search(code):
-            tcp_on = tcp_on or k
-            code = _TCP_ON.sub("", code)
-        if tcp_on and tcp_off is None and _TCP_OFF.search(code):
-            tcp_off = k
         if _G31.search(code):
             probe_lines.add(k)
             code = _G31.sub("G01", code)
         code = _DROP_WORDS.sub("", code)
         out.append(code)
-    return "\n".join(out), probe_lines, (None if tcp_on is None else (tcp_on, tcp_off))
+    return "\n".join(out), probe_lines
 
 
-def program_commands(machine, text: str, filename: str = "<string>"):
-    """Axis words (N, n_axes), motion codes (N,), source lines (N,), line texts, arc data and
-    whether the words are G43.4 tool-centre-point words, read through :func:`mtcomp.gcode.parse`."""
+def program_arcs(machine, prog, motion):
+    """Arc data for :func:`sweep` (centre (N, 2) in the plane axes, sweep (N,), plane columns
+    (N, 2), is_arc (N,)) of a parsed program, in the frame the axes move in (G68 applied)."""
+    from .gcode.rotation import has_rotation, to_reference
+    cols = np.zeros((len(prog), 2), int)
+    cidx = np.zeros((len(prog), 2), int)
+    xyz = {"X": 0, "Y": 1, "Z": 2}
+    for k, pl in enumerate(np.asarray(prog.plane)):
+        pair = {17: "XY", 18: "ZX", 19: "YZ"}[int(pl)]
+        cols[k] = [machine.axis_names.index(a) if a in machine.axis_names else 0 for a in pair]
+        cidx[k] = [xyz[a] for a in pair]
+    centre3 = np.array(prog.arc_centre, float)
+    if has_rotation(prog):
+        # the centre turns with the words (G68 is a rotation: the sweep keeps its sign)
+        C = np.array(prog.position, float)
+        for a, j in xyz.items():
+            if a in machine.axis_names:
+                C[:, machine.axis_names.index(a)] = centre3[:, j]
+        C = to_reference(prog, np.nan_to_num(C))
+        for a, j in xyz.items():
+            if a in machine.axis_names:
+                centre3[:, j] = C[:, machine.axis_names.index(a)]
+    centre = np.take_along_axis(centre3, cidx, axis=1)
+    return centre, np.nan_to_num(np.asarray(prog.arc_sweep, float)), cols, motion == 3
+
+
+def program_commands(machine, text: str, filename: str = "<string>", tool_lengths=None):
+    """Per motion block: words (N, n_axes: axis positions, or for G43.4 blocks tool tip and
+    angles; G68 rotation applied), motion codes (N,), source lines (N,), line texts, arc data,
+    the G43.4 mask (N,), the active tool length (N,) mm (G43/G44 H and G43.4: the tip checked is
+    that far along -tool_axis from the machine file's tool point) and the known mask (N,), read
+    through :func:`mtcomp.gcode.parse`."""
     from . import gcode
-    clean, probe_lines, tcp = _prepare(text)
-    prog = gcode.parse(clean, axes=machine.axis_names, filename=filename)
-    if tcp is not None:
-        on, off = tcp
-        inside = (prog.line > on) & ((prog.line < off) if off else True)
-        if not inside.all():
-            k = int(np.nonzero(~inside)[0][0])
-            raise InputError("motion outside the G43.4 section of a tool-centre-point program: "
-                             "verify reads a program in one mode", filename, int(prog.line[k]))
+    from .gcode.rotation import to_reference
+    clean, probe_lines = _prepare(text)
+    prog = gcode.parse(clean, axes=machine.axis_names, filename=filename, tcp=True, rotation=True,
+                       tool_lengths=tool_lengths)
     motion = np.asarray(prog.motion, int).copy()
     motion[motion < 0] = RAPID  # axis words before any motion code: the control's power-on G00
     motion[(motion == 2) | (motion == 3)] = 3
@@ -569,22 +699,20 @@ def program_commands(machine, text: str, filename: str = "<string>"):
             probe[i] = False
     src = text.split("\n")
     texts = [src[int(ln) - 1] if 0 < int(ln) <= len(src) else "" for ln in prog.line]
-    arcs = None
-    if (motion == 3).any():
-        cols = np.zeros((len(prog), 2), int)
-        for k, pl in enumerate(prog.plane):
-            pair = {17: "XY", 18: "ZX", 19: "YZ"}[int(pl)]
-            cols[k] = [machine.axis_names.index(a) if a in machine.axis_names else 0 for a in pair]
-        centre3 = np.asarray(prog.arc_centre, float)
-        centre = np.take_along_axis(centre3, np.array([[{"X": 0, "Y": 1, "Z": 2}.get(
-            machine.axis_names[c], 0) for c in row] for row in cols]), axis=1)
-        arcs = (centre, np.nan_to_num(np.asarray(prog.arc_sweep, float)), cols, motion == 3)
-    return prog.position, motion, np.asarray(prog.line, int), texts, arcs, tcp is not None
+    arcs = program_arcs(machine, prog, motion) if (motion == 3).any() else None
+    return (to_reference(prog, prog.position), motion, np.asarray(prog.line, int), texts, arcs,
+            np.asarray(prog.tcp, bool), np.asarray(prog.tool_tip, float), np.asarray(prog.known))
 
 
-def verify_program(machine, text: str, *, filename: str = "<string>", **kw) -> VerifyResult:
+def verify_program(machine, text: str, *, filename: str = "<string>", tool_lengths=None,
+                   **kw) -> VerifyResult:
     """Read an NC program (text) for `machine` and :func:`verify_commands` it (same keywords).
-    A G43.4 program is read as tool-centre-point words (see :func:`sweep`)."""
-    q, motion, lines, texts, arcs, tcp = program_commands(machine, text, filename)
+    G43.4 blocks are read as tool-centre-point words with the tool lengths of their H
+    (``tool_lengths`` {H: mm}; none given: 0, the machine file's tool point); under G43/G44 H
+    the axes carry the length and the tool tip checked is that length down the tool axis; G68
+    rotation is applied; blocks whose pose the program has not fixed yet are not checked (see `known`)."""
+    q, motion, lines, texts, arcs, tcp, length, known = program_commands(machine, text, filename,
+                                                                          tool_lengths)
     kw.setdefault("name", filename)
-    return verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, tcp=tcp, **kw)
+    return verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, tcp=tcp,
+                           tool_length=length, known=known, **kw)

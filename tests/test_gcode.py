@@ -394,10 +394,10 @@ def test_inch_read_and_written_in_inch():
 # ----------------------------------------------------------------------------------- refusals
 
 REFUSALS = [
-    ("G1 X1.\nG68 X0 Y0\n", 2, "G68 without R"),
+    ("G1 X1.\nG68 X0 Y0 R30.\n", 2, "G68 coordinate rotation changes"),
+    ("G1 X1.\n\nG43.4 H1\n", 3, "G43.4 tool centre point: X Y Z are the tool tip"),
     ("G1 X1.\nG68.2 X0 Y0 Z0 I0 J30. K0\n", 2, "G68.2 tilted working plane"),
     ("G1 X1.\n\nG43.5 H1\n", 3, "G43.5 tool centre point with a tool vector"),
-    ("G1 X1.\nG43.4 H1\nG2 X2. Y1. I1. J0\n", 3, "arc G2 under G43.4"),
     ("G51 X0 Y0 P2\n", 1, "G51 scaling"),
     ("G10 L2 P0 X0\n", 1, "G10 L2 P0: only P1..P6"),
     ("G41 D1 X1.\n", 1, None),

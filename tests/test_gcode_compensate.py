@@ -204,13 +204,14 @@ def _emitted_vs_reread(text, machine, errors, chordal_tol=None, **kw):
     from mtcomp.gcode import flow
     res = {a.name: a.resolution for a in machine.axes}
     fl = flow.expand(text, search=[str(Path(__file__).parent / "data" / "nc" / "subprograms")])
-    prog = gcode.parse(fl.expanded if fl else text, axes=machine.axis_names, resolution=res, **kw)
+    prog = gcode.parse(fl.expanded if fl else text, axes=machine.axis_names, resolution=res,
+                       rotation=True, **kw)
     info = {}
     new_text, out_line = gcode.rewrite_with_lines(
         prog, lambda q: __import__("mtcomp.kinematics").kinematics.retarget(machine, q, errors),
         resolution=res, chordal_tol=chordal_tol or max(1e-4, 2 * max(res.values())), info=info)
     kn = np.asarray(info["compensated"])
-    back = gcode.parse(new_text, axes=machine.axis_names, resolution=res, **kw)
+    back = gcode.parse(new_text, axes=machine.axis_names, resolution=res, rotation=True, **kw)
     fast = emitted_positions(prog, info, new_text, res=res, out_line=out_line, **kw)[kn]
     idx = np.searchsorted(back.line, out_line, side="right") - 1
     return fast, np.asarray(back.position)[idx][kn], np.asarray(prog.incremental)[kn]

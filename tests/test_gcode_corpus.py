@@ -261,7 +261,7 @@ def _read(text, name="main", **kw):
     files from the subprogram directory); the (file, line) of each block; the flow (None
     without calls)."""
     fl = flow.expand(text, name, search=[str(SUBDIR)])
-    p = gcode.parse(fl.expanded if fl else text, axes=AXES, **kw)
+    p = gcode.parse(fl.expanded if fl else text, axes=AXES, tcp=True, rotation=True, **kw)
     if fl:
         labels = [fl.where(int(o)) for o in fl.origin[p.line - 1]]
         labels = [(Path(f).name if f != name else name, ln) for f, ln in labels]

@@ -64,7 +64,7 @@ def test_subprogram_path_on_the_cli(tmp_path):
     r = run("compensate", main, "-m", M.name, "-e", err, "-o", out, "--subprogram-path", tmp_path / "subs")
     assert r.returncode == 0, r.stderr
     assert "O1234.nc" in r.stdout and "written out" in r.stdout
-    assert out.read_text().count("(M99)") == 2
+    assert out.read_text().count("(M99)") == 2 and "; subprogram-path " in out.read_text()
     r = run("compensate", main, "-m", M.name, "-e", err, "-o", out, "--subprogram-path", tmp_path / "none")
     assert r.returncode == 2 and "--subprogram-path" in r.stderr
 
@@ -106,3 +106,23 @@ def test_subprogram_files_refused_with_the_file_and_line(tmp_path, files, text, 
         compensate_program(text, M, E, filename=str(main), search_path=[str(tmp_path)])
     msg = str(exc.value)
     assert f"{where}: " in msg and what in msg, msg
+
+
+def test_m97_in_a_subprogram_file_jumps_within_that_file(tmp_path):
+    # Haas: M97 P<n> runs the block N<n> of the program it is in, here the subprogram file,
+    # not the main program (which has an N100 of its own)
+    main = tmp_path / "main.nc"
+    text = "%\nO0001\nG21 G90\nN100 G0 X0 Y0 Z5.\nM98 P1234\nG0 Z50.\nM30\n%\n"
+    main.write_text(text)
+    (tmp_path / "O1234.nc").write_text("%\nO1234 (LOCAL)\nG0 X1. Y2.\nM97 P100 L2\nG0 Z5.\nM99\n"
+                                       "N100 G91 G1 X5. F100\nG90\nM99\n%\n")
+    fl = flow.expand(text, str(main), search=[str(tmp_path)])
+    inline = ("G21 G90\nG0 X0 Y0 Z5.\nG0 X1. Y2.\nG91 G1 X5. F100\nG90\nG91 G1 X5. F100\nG90\n"
+              "G0 Z5.\nG0 Z50.\nM30\n")
+    got, want = gcode.parse(fl.expanded, axes=XYZ), gcode.parse(inline, axes=XYZ)
+    assert np.array_equal(got.position, want.position)
+    assert got.position[-2].tolist() == [11.0, 2.0, 5.0]
+    # a label only in the main program is not found from the subprogram file
+    (tmp_path / "O1234.nc").write_text("%\nO1234\nM97 P100\nM99\n%\n")
+    with pytest.raises(InputError, match=r"O1234.nc:3: M97 P100: no block N100 in this program"):
+        flow.expand(text, str(main), search=[str(tmp_path)])

@@ -81,9 +81,9 @@ def test_g10_work_offsets_read_as_the_control_does():
     # Fanuc/LinuxCNC G10 L2 P1..P6 set G54..G59; positions in the frame of the offset in
     # effect at the first motion block (G54 = (100, 0, -50) here)
     text = ("G10 L2 P1 X100. Y0 Z-50.\nG10 L2 P2 X200. Y0 Z-50.\nG54 G90 G0 X0 Y0 Z5.\nG55 X0\n"
-            "G91 G10 L2 P2 X1.5\nG90 X0\nG54 X0\n")
+            "G10 L2 P2 X201.5\nG90 X0\nG54 X0\n")
     p = gcode.parse(text, axes=XYZ)
-    # G55 - G54 = 100, then 101.5 after the incremental G10
+    # G55 - G54 = 100, then 101.5 after the second G10
     assert np.allclose(p.position[:, 0], [0, 100, 101.5, 0])
     assert any("G10" in n for n in p.notes)
     assert gcode.rewrite(p, lambda q: q.copy()) == text
@@ -92,6 +92,12 @@ def test_g10_work_offsets_read_as_the_control_does():
     assert out.splitlines()[3] == "G55 X0.001000"
     back = gcode.parse(out, axes=XYZ)
     assert np.allclose(back.position[:, 0], p.position[:, 0] + 0.001)
+
+
+def test_g10_extended_offset_adds_in_g91():
+    text = "G10 L20 P3 X50. Y0 Z0\nG91 G10 L20 P3 X1.\nG90 G54.1 P3 G0 X1. Y0 Z0\nG54 X1.\n"
+    p = gcode.parse(text, axes=XYZ, work_offsets={"G54": (0, 0, 0)})
+    assert np.allclose(p.position[:, 0], [1, -50])
 
 
 def test_g10_changing_the_active_offset_mid_program():
@@ -129,6 +135,8 @@ def test_g10_tool_lengths():
     ("G10 L10 P1 Z5.\n", 1, "L10 with Z: not read"),
     ("G10 L20 P1 X0\n", 1, "L20 sets the G54.1"),
     ("G10 P1 R5.\n", 1, "without L or P"),
+    ("G91 G10 L2 P1 X1.\n", 1, "L2 in G91: Fanuc adds"),
+    ("G91 G10 L1 P1 Z1.\n", 1, "L1 in G91"),
     ("G0 X0 Y0 Z0\nG10 L1 P1 R5.\nG43 H1 Z1.\n", 3, "G10 L1 P1 R on line 2 is a tool length on Fanuc"),
     ("G10 L2 P1 G0 X1.\n", 1, "G10 in a block with motion"),
     ("G10 L10 P1 R5.\nG0 X0 Y0 Z9.\nG43 H1 Z5.\nG10 L11 P1 R-0.1\nZ4.\n", 4,

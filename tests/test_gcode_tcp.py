@@ -38,7 +38,7 @@ def program(body):
 def control_tip(machine, text, length, errors):
     """(real tip, real tool direction) where the control runs the G43.4 blocks of `text`, and
     (programmed tip, nominal direction at the programmed angles) on the ideal machine."""
-    p = gcode.parse(text, axes=machine.axis_names, tool_lengths={1: length})
+    p = gcode.parse(text, axes=machine.axis_names, tool_lengths={1: length}, tcp=True)
     k = np.asarray(p.tcp) & np.asarray(p.known)
     m = replace(machine, tool_point=tuple(np.asarray(machine.tool_point) - length * np.asarray(machine.tool_axis)))
     real = forward(m, tcp_to_axes(m, p.position[k]), errors)
@@ -89,7 +89,7 @@ def test_switching_into_tcp_makes_the_tip_unknown_until_written():
     # about it, so a block that does not write all of X Y Z is not compensated (nothing invented)
     m = load_machine("robonano-a0ib")
     text = "G90 G0 X0 Y0 Z50. B0 C0\nG43.4 H1\nG1 Z5. B10. F100\nX1. Y2. Z3.\nX2.\nG49\nX5.\nG0 Y0 Z50.\n"
-    p = gcode.parse(text, axes=m.axis_names, tool_lengths={1: 30.0})
+    p = gcode.parse(text, axes=m.axis_names, tool_lengths={1: 30.0}, tcp=True)
     assert list(p.tcp) == [False, True, True, True, False, False]
     assert list(p.known) == [True, False, True, True, False, True]
     out, rep = compensate_program(text, m, ERRORS, tool_lengths={1: 30.0})
@@ -145,3 +145,61 @@ def test_fusion_style_tcp_program_from_the_corpus():
     # only the blocks under G43.4 changed, and only their axis words
     changed = [a for a, b in zip(text.splitlines(), out.splitlines()) if a != b]
     assert len(changed) == 9 and all(c.startswith(("N55", "N6", "N7", "N8", "N9")) for c in changed)
+
+
+def test_tcp_is_read_only_where_the_caller_says_so():
+    m = load_machine("robonano-a0ib")
+    with pytest.raises(InputError, match=r"^p.nc:5: G43.4: G43.4 tool centre point: X Y Z are the tool tip"):
+        gcode.parse(program(BODIES["robonano-a0ib"]), axes=m.axis_names, filename="p.nc")
+
+
+@pytest.mark.parametrize("name", sorted(BODIES))
+@pytest.mark.parametrize("mode", ["3axis", "5axis"])
+def test_workpiece_setting_compensates_tcp_programs_in_the_workpiece_frame(name, mode):
+    # the tip words are a workpiece-frame point: the real blank at the pose, the control's
+    # nominal inverse and the forward model with the setting error put the tip on the program
+    from mtcomp.setting.workpiece import compensate_text
+    m = load_machine(name)
+    pose = WorkpieceSetting((0.01, -0.02, 0.005), (0.001, -0.002, 0.003))
+    real_blank = ErrorSet(workpiece=pose)
+    text = program(BODIES[name])
+    out, n = compensate_text(m, text, pose, mode=mode, tool_lengths={1: 40.0})
+    assert out != text
+    ideal, k, _ = control_tip(m, text, 40.0, None)
+    real, k2, _ = control_tip(m, out, 40.0, real_blank)
+    assert list(k) == list(k2) and k.sum() == 4
+    assert np.abs(real.p - ideal.p).max() < 1.8e-6
+    unc, _, _ = control_tip(m, text, 40.0, real_blank)
+    assert np.abs(unc.p - ideal.p).max() > 0.01
+    dv = np.abs(real.v - ideal.v).max()
+    if mode == "5axis":                 # the direction relative to the blank kept too
+        assert dv < 2 * np.radians(1e-5)
+    else:                               # 3axis: the direction in the machine kept
+        assert dv > 1e-5
+    assert compensate_text(m, text, WorkpieceSetting((0, 0, 0), (0, 0, 0)), mode=mode,
+                           tool_lengths={1: 40.0})[0] == text
+
+
+def test_workpiece_setting_cli_reads_tcp_programs_with_tool_lengths(tmp_path):
+    from mtcomp.setting.workpiece import compensate_text
+    pose = WorkpieceSetting((0.01, -0.02, 0.005), (0.001, -0.002, 0.003))
+    prog = tmp_path / "p.nc"
+    text = program(BODIES["robonano-ui"])
+    prog.write_text(text)
+    err = save_errors(ErrorSet(workpiece=pose), tmp_path / "e.toml")
+    out = tmp_path / "o.nc"
+    r = run_cli("workpiece-setting", "compensate", prog, "--errors", err, "--machine", "robonano-ui",
+                "--mode", "5axis", "--tool-lengths", "1=40", "--stock", "box:-20,-20,-5,20,20,0",
+                "-o", out)
+    assert r.returncode == 0, r.stderr
+    assert "passed" in r.stdout
+    m = load_machine("robonano-ui")
+    assert out.read_text() == compensate_text(m, text, pose, mode="5axis", tool_lengths={1: 40.0})[0]
+    # a rigid motion of the blank moves tip and direction alike for any tool length: the words
+    # do not depend on it (the verification's tool tip and the travel do)
+    assert out.read_text() == compensate_text(m, text, pose, mode="5axis")[0]
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "mtcomp", *map(str, args)], capture_output=True,
+                          text=True, timeout=120)

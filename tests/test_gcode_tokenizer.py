@@ -34,7 +34,7 @@ def _parse(text, python: bool, monkeypatch):
     else:
         monkeypatch.delenv("MTCOMP_TOKENIZER", raising=False)
     try:
-        return gcode.parse(text, axes=AXES, filename="p.nc")
+        return gcode.parse(text, axes=AXES, filename="p.nc", tcp=True, rotation=True)
     except InputError as exc:
         return str(exc)
 

@@ -9,7 +9,8 @@ Modules: ``tokens`` (comments and words), ``codes`` (which G/M codes are followe
 refused), ``parse`` (modal state, positions), ``arcs`` (circle geometry, keep or linearise),
 ``rewrite`` (new words spliced into the bytes), ``textops`` (vectorised number parsing and
 formatting), ``flow`` (M98/M97/M99 subprogram calls expanded in run order and folded back), ``tcp``
-(G43.4 tool centre point words compensated in tool-tip coordinates).  What is read, what is refused and why is described in docs/gcode.md.
+(G43.4 tool centre point words compensated in tool-tip coordinates), ``rotation`` (G68 in the
+plane), ``offsets`` (tool tables, offsets files, G10 in the program).  What is read, what is refused and why is described in docs/gcode.md.
 """
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .parse import parse, read_program, write

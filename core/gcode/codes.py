@@ -45,8 +45,9 @@ _G_REFUSED = {
     310: "G31 skip function: the end point depends on a probe signal",
     410: "G41 cutter radius compensation offsets the path by a radius not in the program",
     420: "G42 cutter radius compensation offsets the path by a radius not in the program",
-    435: "G43.5 tool centre point with a tool vector (I J K) is not compensated (G43.4 programs, "
-         "with rotary angles, are)",
+    435: "G43.5 tool centre point with a tool vector (I J K) is not compensated: the control "
+         "picks the rotary angles among several solutions by its own rules and the errors "
+         "depend on that choice (post with G43.4 and rotary angles, which is compensated)",
     510: "G51 scaling changes the commanded positions in the control",
     511: "G51.1 mirror image changes the commanded positions in the control",
     682: "G68.2 tilted working plane transforms the axis words in the control",

@@ -183,10 +183,11 @@ def expand(text: str, filename: str = "<string>", search=None) -> Flow | None:
     mcodes = dict.fromkeys(range(len(lines)), frozenset())
     mcodes.update((i, {v for a, v, _, _ in info[i] if a == "M"}) for i in cand)
     owords = {}
-    for i in lines_with(r"[Oo][ \t]*(?:<|\d+[ \t]*[A-Za-z])"):
-        ow = _oword(lines[i])
-        if ow is not None:
-            owords[i] = ow
+    for i in cand:                       # o-word lines have an O (and o<name> a '<')
+        if "<" in lines[i] or any(a == "O" for a, _, _, _ in info[i]):
+            ow = _oword(lines[i])
+            if ow is not None:
+                owords[i] = ow
     if not any(mcodes[i] & {97.0, 98.0, 99.0} for i in cand) and \
             not any(ow[1] == "call" for ow in owords.values()):
         return None
@@ -212,9 +213,18 @@ def expand(text: str, filename: str = "<string>", search=None) -> Flow | None:
             if a == "O":
                 o_at.setdefault(v, i)
 
-    def n_line(n):
-        """The first line with the block number N<n> (None if none)."""
-        for i in lines_with(r"[Nn][ \t]*[+]?0*" + re.escape(f"{n:g}") + r"(?![0-9])"):
+    def n_line(n, at):
+        """The first line with the block number N<n> in the file holding line `at` (Haas looks
+        an M97 label up in the program it runs in; None if none)."""
+        pat = r"[Nn][ \t]*[+]?0*" + re.escape(f"{n:g}") + r"(?![0-9])"
+        if at < main_len:
+            found = lines_with(pat)
+        else:                                      # a subprogram file: its own lines
+            k = bisect.bisect_right([x for x, _ in segments], at) - 1
+            hi = segments[k + 1][0] if k + 1 < len(segments) else len(lines)
+            rx = re.compile(pat)
+            found = [j for j in range(segments[k][0], hi) if rx.search(lines[j])]
+        for i in found:
             if any(a == "N" and v == n for a, v, _, _ in _words(lines[i])):
                 return i
         return None
@@ -256,9 +266,11 @@ def expand(text: str, filename: str = "<string>", search=None) -> Flow | None:
             fail(f"repeat count {count:g} of M{m:.0f}: a whole number >= 1 expected", i)
         n = p[0]
         if m == 97.0:
-            t = n_line(n)
+            t = n_line(n, i)
             if t is None:
-                fail(f"M97 P{n:g}: no block N{n:g} in this program", i)
+                fail(f"M97 P{n:g}: no block N{n:g} in this program"
+                     + (" (its own file: M97 calls within the program it is in)"
+                        if i >= main_len else ""), i)
             return t, int(count), f"N{n:g}", False
         if n not in o_at and n > 9999 and n == int(n) and (n % 10000) in o_at and not rep:
             count, n = n // 10000, n % 10000             # Fanuc: P<repeats><4-digit program>

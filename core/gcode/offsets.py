@@ -14,7 +14,8 @@ G10 in the program (read in program order, as the control executes it):
 
 * ``G10 L2 P1..P6`` (G54..G59), ``G10 L20 P<n>`` (Fanuc: G54.1 P<n>, read only where the program
   uses G54.1, since on LinuxCNC L20 sets the offset from the current position): axis words set
-  (G90) or add to (G91) those axes of the offset;
+  those axes of the offset (L20 in G91, Fanuc only: add to them; L1/L2 in G91 are refused, the
+  dialects differ);
 * ``G10 L10 P<h> R`` / ``G10 L11 P<h> R`` (Fanuc geometry / wear of H), ``G10 L1 P<t> Z``
   (LinuxCNC tool table entry): tool lengths; ``G10 L12/L13`` (D values) change nothing here;
 * everything else (P0, LinuxCNC G59.1-3, L10/L11/L20 relative to the current position, L1 with R
@@ -77,6 +78,9 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
             fail(f"L{L:g} P{P:g}: whole numbers expected")
         L, P = int(L), int(P)
         vals = np.array([w.get(a, np.nan) for a in axes]) * np.where(lin, scale, 1.0)
+        if inc and L in (1, 2):
+            fail(f"L{L} in G91: Fanuc adds the values to the offset, LinuxCNC's reading differs; "
+                 "not read (write the offset in G90)")
         if L == 2 or L == 20:
             if "R" in w:
                 fail(f"L{L} with R (a rotation of the coordinate system, LinuxCNC) is not supported")
@@ -157,6 +161,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     # -- tool length (G43 +, G44 -, G49 cancel) along Z; G43.4: in the TCP transform
     tset = tool_l >= 0
     tlen = np.zeros(n_lines)
+    tip = np.zeros(n_lines)
     if tset.any():
         # G43/G44/G43.4 without H: the loaded tool T (LinuxCNC)
         h_line = h_line.copy()
@@ -180,7 +185,13 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
             sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
             off[:, axes.index("Z")] += sign * L
         tlen = np.where(mode == 434, L, 0.0)
-    return off, tlen, tuple(assumed)
+        # where the tool tip is: L along -tool axis from the gauge point (G44 subtracts: -L)
+        tip = np.where(mode == 434, L, sign * L if "Z" in axes else 0.0)
+        # G49 cancels the compensation, not the tool: its tip stays that far down the axis until
+        # another tool is selected (a T word; its length is unknown until its G43)
+        newtool = ~np.isnan(t_line) & ~active
+        tip = _ffill(np.where(active, tip, 0.0), active | newtool, 0.0)
+    return off, tlen, tuple(assumed), tip
 
 
 def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, written):

@@ -27,7 +27,8 @@ def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
 
 def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<string>",
           convert_inch: bool = False, start=None, arc_tol: float | None = None,
-          resolution=None, tool_lengths=None, work_offsets=None) -> Program:
+          resolution=None, tool_lengths=None, work_offsets=None, tcp: bool = False,
+          rotation: bool = False) -> Program:
     """Read a Fanuc-style NC program (text) for a machine with the given axis letters.
 
     ``start``: position of the axes before the first block, where the user knows it (mapping
@@ -42,6 +43,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     spiral, as controls run it).  ``resolution`` (as for `rewrite`): the axis resolutions; an
     arc whose end equals its start at the resolution is a full circle, and a radius below the
     resolution is refused.
+    ``tcp``: read G43.4 tool centre point blocks (their X Y Z are the tool tip: ``Program.tcp``
+    marks them, `mtcomp.gcode.tcp` turns them into axis positions); ``rotation``: read G68
+    (``position`` is then in the unrotated word frame, `mtcomp.gcode.rotation`).  Both are
+    refused by default, so that a caller taking ``position`` as axis positions cannot misread
+    them; `rewrite` and `mtcomp compensate` handle both.
     Raises ``InputError`` naming ``filename:line`` for anything it cannot read or would not
     transform correctly (docs/gcode.md lists the cases).
     """
@@ -274,10 +280,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                             filename)
         notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
                      + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
-    offsets_line, tlen_line, offset_assumed = offsets_per_line(
+    offsets_line, tlen_line, offset_assumed, tip_line = offsets_per_line(
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
         first_motion, n_lines, filename, notes, written)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
+    if (tool_l == 434).any() and not tcp:
+        _fail("G43.4: G43.4 tool centre point: X Y Z are the tool tip, not axis positions; "
+              "refusing rather than guessing (mtcomp compensate compensates it in tool-tip "
+              "coordinates: parse(..., tcp=True))", int(np.argmax(tool_l == 434)), filename)
     tcp_line = (_ffill(tool_l == 434, tool_l >= 0, False) if (tool_l == 434).any()
                 else np.zeros(n_lines, bool))
 
@@ -384,6 +394,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
     g68_line = np.zeros(n_lines, bool)
     g68_line[gline[cat == 13]] = True
+    if g68_line.any() and not rotation:
+        _fail("G68: G68 coordinate rotation changes the commanded positions in the control; "
+              "refusing rather than guessing (mtcomp compensate follows it: parse(..., "
+              "rotation=True))", int(np.argmax(g68_line)), filename)
     rot_events = []
     if g68_line.any():
         rot_events = _rotation_events(axes, g68_line, gline[g10 == 690], plane_line, inch_line,
@@ -461,6 +475,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   + " under G43.4 tool centre point: not supported (CAM systems write linear "
                   "moves under TCP)", blines[j], filename)
     tool_length = tlen_line[blines]
+    tool_tip = tip_line[blines]
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -528,6 +543,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present,
                                   incremental, offset, start_vec)
 
+    if rot_events:
+        reset_lines, reset_cols, position = _rotation_known(
+            axes, rot_events, blines, position, offset, res_ax, reset_lines, reset_cols,
+            lambda rl, rc: _positions(blines, rl, rc, vals[:, :n_ax], present, incremental,
+                                      offset, start_vec))
     rotation = None
     if rot_events:
         rotation = _rotation_per_block(axes, rot_events, blines, position, offset, plane, tcp,
@@ -570,7 +590,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
-                  tcp=tcp, tool_length=tool_length, rotation=rotation)
+                  tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip)
     for a in arrays.values():
         if a is not None:
             a.flags.writeable = False
@@ -618,6 +638,40 @@ def _rotation_events(axes, g68_line, g69_lines, plane_line, inch_line, incr_line
             _fail("G68 in G91 with a centre: incremental centres are not read", L, filename)
         events.append((L, (u, v), angle, centre))
     return events
+
+
+def _rotation_known(axes, events, blines, position, offset, res_ax, reset_lines, reset_cols,
+                    positions):
+    """Keep the plane's axes known across a G68/G69 where the tool's place does not depend on
+    how the control reads the words there: if the current point maps to the same axis positions
+    under the rotation before and after the event (G68 about the current point, G69 with the
+    tool at the centre, an angle change of 360 deg), the modal words and the re-expressed
+    position agree, so the axes stay known (their resets are dropped).  Returns the reset
+    arrays and the positions recomputed."""
+    active = None                                  # (angle deg, centre u, v program coords)
+    for L, (u, v), angle, centre in events:
+        iu, iv = axes.index(u), axes.index(v)
+        j = int(np.searchsorted(blines, L)) - 1     # the last block before the event
+        w = position[j, [iu, iv]] if j >= 0 else np.array([np.nan, np.nan])
+        off = offset[j, [iu, iv]] if j >= 0 else np.zeros(2)
+        new_c = None
+        if angle is not None:
+            new_c = np.where(np.isnan(centre), w - off, np.asarray(centre, float))
+        if np.isfinite(w).all():
+            def ref(a, c):
+                c = np.asarray(c, float) + off
+                t = np.radians(a)
+                d = w - c
+                return c + np.array([np.cos(t) * d[0] - np.sin(t) * d[1],
+                                     np.sin(t) * d[0] + np.cos(t) * d[1]])
+            before = ref(*active) if active is not None else w
+            after = ref(angle, new_c) if angle is not None else w
+            if np.abs(before - after).max() <= 0.5 * min(res_ax[iu], res_ax[iv]):
+                keep = ~((reset_lines == L) & np.isin(reset_cols, (iu, iv)))
+                reset_lines, reset_cols = reset_lines[keep], reset_cols[keep]
+                position = positions(reset_lines, reset_cols)
+        active = None if angle is None else (angle, new_c)
+    return reset_lines, reset_cols, position
 
 
 def _rotation_per_block(axes, events, blines, position, offset, plane, tcp, cycle, filename):

@@ -76,6 +76,10 @@ class Program:
     rotation: np.ndarray = None      # (N, 5) G68: angle deg (0: none), centre in program
                                      # coordinates, G68 line, block giving the centre (-1: words);
                                      # position is then in the unrotated word frame
+    tool_tip: np.ndarray = None      # (N,) mm, the active tool's length: the tool tip is this far
+                                     # along -tool_axis from the machine file's tool point
+                                     # (G43 H: L, G44: -L, G43.4: L, 0 without; lengths not
+                                     # given count 0)
 
     @property
     def n_axes(self) -> int:

@@ -28,7 +28,7 @@ def plan_stock(plan):
 
 def verify_on_blank(machine, text: str, pose, stock, *, clearance: float = DEFAULT_CLEARANCE,
                     tool_radius: float = 0.0, part=None, filename: str = "<program>",
-                    raise_on_violation: bool = True):
+                    raise_on_violation: bool = True, tool_lengths=None):
     """Verify compensated program `text` on `machine` with the blank at `pose` (a
     WorkpieceSetting); `stock`/`part` in the blank's own frame (mm).  Returns the
     `mtcomp.verify.VerifyResult`; raises `VerifyError` naming the first failing block unless
@@ -38,7 +38,7 @@ def verify_on_blank(machine, text: str, pose, stock, *, clearance: float = DEFAU
     return verify_program(machine, text, filename=filename, stock=stock, part=part,
                           clearance=clearance, tool_radius=tool_radius,
                           errors=ErrorSet(workpiece=pose), raise_on_violation=raise_on_violation,
-                          retracts=True)
+                          retracts=True, tool_lengths=tool_lengths)
 
 
 @dataclass(frozen=True)

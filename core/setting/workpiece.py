@@ -141,27 +141,101 @@ def _five_axis(machine, q, errors):
     return compensate(machine, forward(machine, q), errors, q)
 
 
+def _tcp_words(machine, w, lengths, pose: WorkpieceSetting, mode: str):
+    """G43.4 words (N, n_axes: tool tip in the workpiece frame, rotary angles) for the real blank
+    at `pose`.  The tip is a workpiece-frame point, so "3axis" is paper 001's x' = R x + t on the
+    tip words themselves, angles kept (the tool keeps its direction in the machine, as the 3-axis
+    mode does; the control's TCP does the kinematics); "5axis" also keeps the tool direction
+    relative to the blank: the words whose nominal inverse puts the real tool (blank at `pose`)
+    at the programmed tip and direction (`mtcomp.gcode.tcp.compensate_words`)."""
+    from ..gcode import tcp as gtcp
+    w = np.asarray(w, float)
+    if mode == "5axis":
+        return gtcp.compensate_words(machine, w, lengths, ErrorSet(workpiece=pose))
+    lin = [i for i, a in enumerate(machine.axes) if not a.is_rotary]
+    xyz = ["XYZ".index(machine.axes[i].name) for i in lin]
+    tip = np.empty((len(w), 3))
+    tip[:, xyz] = w[:, lin]
+    R, t = pose_matrix(pose)
+    out = w.copy()
+    out[:, lin] = (tip @ R.T + t)[:, xyz]
+    return out
+
+
+def _tcp_checked(machine, w, lengths, pose, mode, lines, source):
+    """`_tcp_words` with the axis positions the control derives checked against the travel
+    (InputError naming the line)."""
+    from ..gcode import tcp as gtcp
+    from ..kinematics import ConvergenceError, LimitError, check_limits
+    try:
+        out = _tcp_words(machine, w, lengths, pose, mode)
+        check_limits(machine, gtcp.nominal_axes(machine, out, lengths))
+    except LimitError as exc:
+        raise InputError("the compensated tool centre point words put an axis outside its travel: "
+                         + str(exc).replace(f" (point {exc.index})", ""),
+                         **_where(exc.index, lines, source)) from None
+    except ConvergenceError as exc:
+        raise InputError(f"no axis commands reach this tool tip and direction on the real blank: {exc}",
+                         **_where(getattr(exc, "index", 0), lines, source)) from None
+    return out
+
+
 def compensate_text(machine, text: str, pose: WorkpieceSetting, *, mode: str = "auto",
-                    filename: str = "<program>", chordal_tol: float = 1e-4) -> tuple[str, int]:
+                    filename: str = "<program>", chordal_tol: float = 1e-4,
+                    tool_lengths=None) -> tuple[str, int]:
     """Rewrite NC program text for the real blank at `pose`: (new text, motion blocks).
 
     mtcomp.gcode reads the program and splices the new axis words in (every other byte is
     kept); every block end point and arc sample goes through `compensate_commands`; axis words
     are written at the machine's resolutions.  The whole program is checked first, so an axis
     leaving its travel is an InputError naming `filename` and the line.
+    G68 rotation is followed (the setting error applies in the reference frame, the words are
+    written in the rotated one, as `mtcomp compensate` does); G43.4 blocks are tool-tip words
+    transformed in the workpiece frame (`_tcp_words`; ``tool_lengths`` {H: mm} for the 5-axis
+    mode, where the tool length is the lever of head axes).
     """
     from .. import gcode
-    prog = gcode.parse(text, axes=machine.axis_names, filename=filename)
+    from ..gcode import tcp as gtcp
+    from ..gcode.rotation import to_reference
+    prog = gcode.parse(text, axes=machine.axis_names, filename=filename, tcp=True, rotation=True,
+                       tool_lengths=tool_lengths)
     # blocks before every axis position is known pass uncompensated (gcode.rewrite)
     known = np.asarray(prog.known)
-    q_all = np.asarray(prog.position, float)[known]
+    tcp = np.asarray(prog.tcp, bool)
+    tlen = np.asarray(prog.tool_length, float)
+    words = to_reference(prog, prog.position)           # G68: the positions the axes take
+    q_all = words.copy()
+    if tcp.any():
+        q_all[tcp & known] = gtcp.nominal_axes(machine, words[tcp & known], tlen[tcp & known])
     if mode == "auto":
-        mode = "3axis" if is_three_axis(machine, q_all) else "5axis"
+        mode = "3axis" if is_three_axis(machine, q_all[known]) else "5axis"
+    # (in 3axis mode the rotary axes must be at 0 outside G43.4 only: under it the control's
+    # tool centre point does the kinematics)
     # validate every block with its line number before any text is produced
-    compensate_commands(machine, q_all, pose, mode, lines=np.asarray(prog.line)[known], source=filename)
+    lines = np.asarray(prog.line)
+    if (known & ~tcp).any():
+        compensate_commands(machine, q_all[known & ~tcp], pose, mode, lines=lines[known & ~tcp],
+                            source=filename)
+    if (tcp & known).any():
+        _tcp_checked(machine, words[tcp & known], tlen[tcp & known], pose, mode,
+                     lines[tcp & known], filename)
     res = {a.name: a.resolution for a in machine.axes}
-    new = gcode.rewrite(prog, lambda q: compensate_commands(machine, q, pose, mode, source=filename),
-                        resolution=res, chordal_tol=chordal_tol)
+    calls = []
+
+    def transform(q):
+        if not tcp.any():
+            return compensate_commands(machine, q, pose, mode, source=filename)
+        rl = np.asarray(calls[-1])
+        blk = np.clip(np.searchsorted(lines, rl), 0, len(lines) - 1)
+        on = tcp[blk] & (lines[blk] == rl)
+        out = np.empty_like(q)
+        if (~on).any():
+            out[~on] = compensate_commands(machine, q[~on], pose, mode, source=filename)
+        if on.any():
+            out[on] = _tcp_checked(machine, q[on], tlen[blk[on]], pose, mode, rl[on], filename)
+        return out
+
+    new = gcode.rewrite(prog, transform, resolution=res, chordal_tol=chordal_tol, row_lines=calls)
     return new, len(prog)
 
 

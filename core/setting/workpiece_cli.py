@@ -137,14 +137,17 @@ def cmd_compensate(args) -> int:
                          args.errors, field=other[0].strip("[]"))
     stock, source = _blank(args)
     text = gcode.read_program(args.program)
-    new, n = compensate_text(machine, text, errors.workpiece, mode=args.mode, filename=str(args.program))
+    from ..commands import parse_tool_lengths
+    tools = parse_tool_lengths(args.tool_lengths)
+    new, n = compensate_text(machine, text, errors.workpiece, mode=args.mode, filename=str(args.program),
+                             tool_lengths=tools)
     print(f"{n} motion lines transformed ({args.mode})")
     if stock is not None:
         # verified as the control runs it, on the blank where it really is (the measured pose),
         # before the file exists: a failing program is never written unless asked
         res = verify_on_blank(machine, new, errors.workpiece, stock, clearance=args.clearance,
                               tool_radius=args.tool_radius, filename=str(args.out),
-                              raise_on_violation=False)
+                              raise_on_violation=False, tool_lengths=tools)
         print(f"blank from {source}, at the measured pose:")
         print("  " + res.summary().replace("\n", "\n  "))
         if not res.ok and not args.warn_only:
@@ -273,6 +276,8 @@ def register(subparsers) -> None:
                    help="3axis: paper 001 formula; 5axis: tool direction too (default auto)")
     a.add_argument("--workpiece-only", action="store_true",
                    help="apply only [workpiece_setting] of an errors file that has other errors too")
+    a.add_argument("--tool-lengths", help="tool lengths of G43.4 H words: 1=50.2,2=75, a CSV file of "
+                   "lines H,length_mm or a LinuxCNC tool table (the lever of head axes in 5axis mode)")
     a.add_argument("--plan", help="bowl plan TOML: verify the program against its blank (default: the "
                    "plan named in the errors file by 'workpiece-setting fit', if found)")
     a.add_argument("--stock", help="verify against this stock instead: box:x0,y0,z0,x1,y1,z1 (mm, blank "
