@@ -55,17 +55,21 @@ def packaged_name(digest: str) -> str:
 
 
 def load():
-    """The ctypes library, or None (no compiler, build failed, or MTCOMP_TOKENIZER=python)."""
+    """The ctypes library, or None (no compiler, build failed, or MTCOMP_TOKENIZER=python).
+
+    MTCOMP_TOKENIZER=cache skips the library built at install and uses (or builds) the cached one."""
     global _lib, _tried
-    if os.environ.get("MTCOMP_TOKENIZER", "").lower() == "python":
+    mode = os.environ.get("MTCOMP_TOKENIZER", "").lower()
+    if mode == "python":
         return None
     if _tried:
         return _lib
     _tried = True
     try:
         h = source_hash()
+        # MTCOMP_TOKENIZER=cache: ignore the library built at install (as MTCOMP_KERNEL=cache)
         path = _SRC.parent / packaged_name(h)
-        if not path.is_file():
+        if mode == "cache" or not path.is_file():
             path = _cache() / h / f"libmtctok{_SUFFIX}"
         if not path.is_file():
             from .._kernel import find_compiler
