@@ -119,7 +119,8 @@ class EncoderCyclic(PeriodicPitch):
     Told from a screw's periodic pitch error by its period (below ENCODER_MAX_PERIOD_MM for a
     length; any period up to a revolution for an angle, where no screw applies) and by the
     harmonic 2.  Identifiable only when the shortest period modelled, P/2, is at least twice
-    the spacing in position of the samples (`position_step`): P >= 4 x that spacing.
+    the spacing in position of the samples (`position_step` of the commanded positions):
+    P >= 4 x that spacing, and the command travels at least two periods.
     """
     nl_names = ("log_period",)
     _max_bins = 1 << 16
@@ -131,7 +132,11 @@ class EncoderCyclic(PeriodicPitch):
         return ctx.al.rec[self.outputs[0]]
 
     def _range(self, ctx):
-        p = self._positions(ctx)
+        # spacing and travel of the COMMANDED positions: the phase is taken from the recorded
+        # position, but the positions must be visited by the motion, not by the error itself
+        # (an axis hunting around a constant set point has a residual that is trivially a
+        # function of its recorded position)
+        p = ctx.values(self.outputs[0])
         travel = float(np.ptp(p))
         lo = 4.0 * position_step(p)
         top = 360.0 if ctx.al.kinds[self.outputs[0]] == "angle" else ENCODER_MAX_PERIOD_MM
