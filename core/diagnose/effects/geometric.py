@@ -99,12 +99,13 @@ ENCODER_MAX_PERIOD_MM = 0.2
 
 def position_step(p: np.ndarray) -> float:
     """Spacing in position of what is known about a periodic error: the larger of the spacing
-    of the visited positions and the median distance travelled between two samples while
-    moving (a longer step makes the phase at each sample depend on its exact time)."""
+    of the visited positions and the distance travelled between two samples by 90 % of the
+    moving samples (a longer step makes the phase at a sample depend on its exact time; a
+    period resolved only by the slow ends of fast moves is not identified)."""
     d = np.abs(np.diff(np.asarray(p, float)))
     rng = float(np.ptp(p))
     moving = d > 1e-9 * max(rng, 1e-300)
-    step = float(np.median(d[moving])) if moving.any() else rng
+    step = float(np.percentile(d[moving], 90)) if moving.any() else rng
     return max(visited_spacing(p), step)
 
 
