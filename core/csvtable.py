@@ -52,6 +52,10 @@ MAX_ABS = 1e12
 # column is matched by one expression, and an ambiguous one backtracks exponentially.
 _NUMBER = r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
 _NUMBER_RE = re.compile(_NUMBER)
+_SPACE_RE = re.compile(r"\s")  # the characters str.strip() removes
+# the characters of a plain decimal number: a column made of these only, which float() accepts
+# cell by cell, follows _NUMBER (float() alone would also take nan, inf, 1_000, other digits)
+_NUMBER_CHARS = str.maketrans("", "", "0123456789.eE+-")
 _DECIMAL_COMMA_RE = re.compile(r"[+-]?[0-9]+,[0-9]+(?:[eE][+-]?[0-9]+)?")
 _HEADER_RE = re.compile(r"^(?P<name>[^\[\(]*?)\s*(?:[\[\(]\s*(?P<unit>[^\]\)]*?)\s*[\]\)])?$")
 
@@ -168,10 +172,17 @@ class CsvTable:
             miss = set(missing)
             blank = [s in miss for s in cells]
             cells = ["0" if b else s for s, b in zip(cells, blank)]
-        if cells and not re.fullmatch(rf"(?:{_NUMBER}\n)*{_NUMBER}", "\n".join(cells)):
-            for i, s in enumerate(cells):
-                _parse_number(s, self.source, self.lines[i], c.header)
-        x = np.array(cells, dtype=float) if cells else np.zeros(0)
+        x = None
+        if cells and not "".join(cells).translate(_NUMBER_CHARS) and all(cells):
+            try:
+                x = np.array(cells, dtype=float)
+            except ValueError:
+                x = None  # a malformed number ("1e", "."): named below
+        if x is None:
+            if cells and not re.fullmatch(rf"(?:{_NUMBER}\n)*{_NUMBER}", "\n".join(cells)):
+                for i, s in enumerate(cells):
+                    _parse_number(s, self.source, self.lines[i], c.header)
+            x = np.array(cells, dtype=float) if cells else np.zeros(0)
         fac, off = unit_factor(c.unit, unit, source=self.source, line=self.header_line, column=c.header)
         if fac != 1.0 or off != 0.0:
             x = x * fac + off
@@ -256,7 +267,8 @@ def parse_csv(text: str, source: str | os.PathLike = "<string>", *, required=(),
                 raise InputError(f"malformed CSV: {exc}", source, body[min(k, len(body) - 1)][0]) from None
             if reader.line_num != k + 1:  # a quoted cell ran over the end of its line
                 raise InputError("a quoted cell runs over the end of the line", source, body[k][0])
-            yield body[k][0], [c.strip() for c in cells]
+            # most lines have no blank to strip (a scan in C instead of a strip per cell)
+            yield body[k][0], ([c.strip() for c in cells] if _SPACE_RE.search(body[k][1]) else cells)
             k += 1
 
     recs = records()

@@ -185,3 +185,23 @@ def test_other_naming_conventions_get_their_kind():
     assert data.stem("X1_ActualPosition") == data.stem("X1_CommandPosition") == "x_1_position"
     assert data._unit_of("0.5um") == ("length", 0.5e-3, 0.0)
     assert data._unit_of("rad")[1] == pytest.approx(180 / math.pi)
+
+
+def test_cli_reads_a_semicolon_file_and_pairs_columns_by_option(tmp_path, capsys):
+    import json
+
+    from mtcomp.cli import main
+    case = _case()
+    sim = {("X" if k == "x" else k): v for k, v in case.sim.items()}
+    rec = {("X_scale" if k == "x" else k): v for k, v in case.rec.items()}
+    s = _write(tmp_path / "sim.csv", sim, sep=";", dec=",")
+    r = _write(tmp_path / "rec.csv", rec)
+    out = tmp_path / "d.json"
+    assert main(["diagnose", "--sim", str(s), "--rec", str(r), "--output", "X=X_scale",
+                 "--output", "y", "--json", str(out), "--quiet"]) == 0
+    d = json.loads(out.read_text())
+    assert sorted(d["outputs"]) == ["X_scale", "y"]
+    assert [(e["name"], e["output"]) for e in d["effects"]] == [("backlash", "X_scale")]
+    # a pair naming a column that is not there: one line naming it, exit 2
+    assert main(["diagnose", "--sim", str(s), "--rec", str(r), "--output", "X=X_enc"]) == 2
+    assert "REC has no column 'X_enc'" in capsys.readouterr().err

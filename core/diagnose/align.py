@@ -331,7 +331,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     outputs / inputs: column names to compare / to use as inputs only (default: the columns in
     both files are outputs).  Names are case-sensitive.
     """
-    from .data import MOTION_KINDS
+    from .columns import MOTION_KINDS
     common = [k for k in sim.columns if k in rec.columns]
     for opt, names in (("--output", outputs), ("--input", inputs)):
         for k in names or ():
@@ -602,5 +602,5 @@ def _backed(tab: Table, outputs, tg: np.ndarray, step: float, sel) -> tuple[np.n
 
 
 def _letter(key, kind):
-    from .data import axis_letter
+    from .columns import axis_letter
     return axis_letter(key, kind)

@@ -127,7 +127,7 @@ _ROLE_WORDS = {"v", "vel", "velo", "velocity", "spd", "speed", "feed", "feedrate
 def _stem(key: str) -> str:
     """A name without the words that say which derivative or which side it is:
     `spd_axis` and `acc_axis` -> 'axis', `X1_CommandVelocity` -> 'x1'."""
-    from ..data import _tokens
+    from ..columns import _tokens
     return "".join(w for w in _tokens(key) if w not in _ROLE_WORDS)
 
 

@@ -10,6 +10,10 @@ import numpy as np
 from .base import Candidate, _se, first_order  # noqa: F401
 
 
+# responses of drivers to first-order lags, for the alignment being diagnosed (one at a time)
+_RESPONSES = {"al": None, "d": {}}
+
+
 class ThermalDrift(Candidate):
     nl_names = ("log_tau",)
 
@@ -24,10 +28,25 @@ class ThermalDrift(Candidate):
         return [lo], [hi]
 
     def build(self, ctx, eta):
+        # the driver's response does not depend on the output: computed once per driver and
+        # time constant for all outputs (most of the cost of a recording with many inputs)
+        if _RESPONSES["al"] is not ctx.al:  # the response is on the full grid: one per alignment
+            _RESPONSES["al"], _RESPONSES["d"] = ctx.al, {}
+        cache = _RESPONSES["d"]
+        key = (self.inputs[0], float(eta[0]))
+        hit = cache.get(key)
+        if hit is None:
+            if len(cache) > 48:  # 2 arrays per entry of the full grid
+                cache.clear()
+            hit = cache[key] = self._response(ctx, math.exp(eta[0]))
+        y, tr = hit
+        o = self.outputs[0]
+        return None, [{o: y}, {o: tr}, {o: np.ones_like(y)}]
+
+    def _response(self, ctx, tau):
         al = ctx.al
         sig = al.signals[self.inputs[0]]
         u = sig.values
-        tau = math.exp(eta[0])
         tn, vn = sig.native if sig.native else (al.t, u)
         dt_native = float(np.median(np.diff(tn)))
         m = int(np.clip(math.ceil(al.dt / dt_native), 1, max(1, 200_000 // al.n)))
@@ -43,8 +62,7 @@ class ThermalDrift(Candidate):
         # the structure's thermal state at the start is unknown: a free initial transient, and
         # a free offset (the drift is measured from an unknown reference state)
         tr = np.exp(-(ctx.al.t - ctx.al.t[0]) / tau)
-        o = self.outputs[0]
-        return None, [{o: y}, {o: tr}, {o: np.ones_like(y)}]
+        return y, tr
 
     def coarse(self, ctx, resid, rows):
         lo, hi = self.bounds(ctx)

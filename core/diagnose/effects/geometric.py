@@ -99,12 +99,13 @@ ENCODER_MAX_PERIOD_MM = 0.2
 
 def position_step(p: np.ndarray) -> float:
     """Spacing in position of what is known about a periodic error: the larger of the spacing
-    of the visited positions and the median distance travelled between two samples while
-    moving (a longer step makes the phase at each sample depend on its exact time)."""
+    of the visited positions and the distance travelled between two samples by 90 % of the
+    moving samples (a longer step makes the phase at a sample depend on its exact time; a
+    period resolved only by the slow ends of fast moves is not identified)."""
     d = np.abs(np.diff(np.asarray(p, float)))
     rng = float(np.ptp(p))
     moving = d > 1e-9 * max(rng, 1e-300)
-    step = float(np.median(d[moving])) if moving.any() else rng
+    step = float(np.percentile(d[moving], 90)) if moving.any() else rng
     return max(visited_spacing(p), step)
 
 
@@ -119,7 +120,8 @@ class EncoderCyclic(PeriodicPitch):
     Told from a screw's periodic pitch error by its period (below ENCODER_MAX_PERIOD_MM for a
     length; any period up to a revolution for an angle, where no screw applies) and by the
     harmonic 2.  Identifiable only when the shortest period modelled, P/2, is at least twice
-    the spacing in position of the samples (`position_step`): P >= 4 x that spacing.
+    the spacing in position of the samples (`position_step` of the commanded positions):
+    P >= 4 x that spacing, and the command travels at least two periods.
     """
     nl_names = ("log_period",)
     _max_bins = 1 << 16
@@ -131,7 +133,11 @@ class EncoderCyclic(PeriodicPitch):
         return ctx.al.rec[self.outputs[0]]
 
     def _range(self, ctx):
-        p = self._positions(ctx)
+        # spacing and travel of the COMMANDED positions: the phase is taken from the recorded
+        # position, but the positions must be visited by the motion, not by the error itself
+        # (an axis hunting around a constant set point has a residual that is trivially a
+        # function of its recorded position)
+        p = ctx.values(self.outputs[0])
         travel = float(np.ptp(p))
         lo = 4.0 * position_step(p)
         top = 360.0 if ctx.al.kinds[self.outputs[0]] == "angle" else ENCODER_MAX_PERIOD_MM
