@@ -672,7 +672,8 @@ def program_arcs(machine, prog, motion):
     return centre, np.nan_to_num(np.asarray(prog.arc_sweep, float)), cols, motion == 3
 
 
-def program_commands(machine, text: str, filename: str = "<string>", tool_lengths=None):
+def program_commands(machine, text: str, filename: str = "<string>", tool_lengths=None,
+                     work_offsets=None):
     """Per motion block: words (N, n_axes: axis positions, or for G43.4 blocks tool tip and
     angles; G68 rotation applied), motion codes (N,), source lines (N,), line texts, arc data,
     the G43.4 mask (N,), the active tool length (N,) mm (G43/G44 H and G43.4: the tip checked is
@@ -682,7 +683,7 @@ def program_commands(machine, text: str, filename: str = "<string>", tool_length
     from .gcode.rotation import to_reference
     clean, probe_lines = _prepare(text)
     prog = gcode.parse(clean, axes=machine.axis_names, filename=filename, tcp=True, rotation=True,
-                       tool_lengths=tool_lengths)
+                       tool_lengths=tool_lengths, work_offsets=work_offsets)
     motion = np.asarray(prog.motion, int).copy()
     motion[motion < 0] = RAPID  # axis words before any motion code: the control's power-on G00
     motion[(motion == 2) | (motion == 3)] = 3
@@ -705,14 +706,14 @@ def program_commands(machine, text: str, filename: str = "<string>", tool_length
 
 
 def verify_program(machine, text: str, *, filename: str = "<string>", tool_lengths=None,
-                   **kw) -> VerifyResult:
+                   work_offsets=None, **kw) -> VerifyResult:
     """Read an NC program (text) for `machine` and :func:`verify_commands` it (same keywords).
     G43.4 blocks are read as tool-centre-point words with the tool lengths of their H
     (``tool_lengths`` {H: mm}; none given: 0, the machine file's tool point); under G43/G44 H
     the axes carry the length and the tool tip checked is that length down the tool axis; G68
     rotation is applied; blocks whose pose the program has not fixed yet are not checked (see `known`)."""
     q, motion, lines, texts, arcs, tcp, length, known = program_commands(machine, text, filename,
-                                                                          tool_lengths)
+                                                                          tool_lengths, work_offsets)
     kw.setdefault("name", filename)
     return verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, tcp=tcp,
                            tool_length=length, known=known, **kw)

@@ -175,3 +175,41 @@ def test_after_g49_the_tool_is_still_in_the_spindle():
     res = verify_program(m, text, stock=stock, tool_lengths={1: 20.0}, raise_on_violation=False)
     assert [v.line for v in res.violations] == [5, 6]            # the tip 5 mm into the stock
     assert res.violations[1].value == pytest.approx(-5.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("source", ["lengths", "table", "offsets"])
+def test_verify_command_checks_the_tool_tip_with_the_tool_lengths(tmp_path, capsys, source):
+    # G43 H1 with a 40 mm tool, then G49: the axes stand where the words say and the tip 40 mm
+    # below, so the rapid to Z42. puts the tip at Z2., into a stock whose top is at Z3.;
+    # `mtcomp verify` had no tool lengths and checked the gauge point (40 mm up)
+    from mtcomp.cli import main
+    nc = tmp_path / "g43.nc"
+    nc.write_text("G21 G90\nT1 M6\nG43 H1 Z50.\nG0 X1. Y1.\nG49\nG0 Z42.\nG0 Z90.\nM30\n")
+    opt = {"lengths": ["--tool-lengths", "1=40"],
+           "table": ["--tool-table", str(tmp_path / "tool.tbl")],
+           "offsets": ["--offsets", str(tmp_path / "off.toml")]}[source]
+    (tmp_path / "tool.tbl").write_text("T1 P1 Z+40.0 D6.0 ;end mill\n")
+    (tmp_path / "off.toml").write_text("[H]\n1 = 40.0\n")
+    base = ["verify", str(nc), "-m", "vmc-moving-column", "--clearance", "0.5"]
+    assert main(base + ["--stock", "box:-10,-10,-10,10,10,3"] + opt) == 2
+    io = capsys.readouterr()
+    assert "line 6 (G0 Z42.)" in io.err and "enters the stock at -1000 µm" in io.err
+    assert main(base + ["--stock", "box:-10,-10,-10,10,10,1"] + opt) == 0
+    assert "passed" in capsys.readouterr().out
+    # without the length the gauge point is checked and (wrongly) passes
+    assert main(base + ["--stock", "box:-10,-10,-10,10,10,3"]) == 0
+
+
+def test_verify_command_tcp_rapids_option(tmp_path, capsys):
+    # the G00 B-30 swing of the test above, through the command: tip-straight passes, the
+    # axis-linear path (default "both", and "joint") is refused naming the block
+    from mtcomp.cli import main
+    nc = tmp_path / "t.nc"
+    nc.write_text(tcp_program("G00 C0. B0. X-5. Y0. Z1.\nG00 B-30. X5. Z1.\n"))
+    base = ["verify", str(nc), "-m", "robonano-a0ib", "--stock", "box:-10,-10,-3,10,10,0",
+            "--tool-lengths", "1=40"]
+    assert main(base + ["--tcp-rapids", "tip"]) == 0
+    for mode in ([], ["--tcp-rapids", "joint"]):
+        capsys.readouterr()
+        assert main(base + mode) == 2
+        assert "line 4 (G00 B-30. X5. Z1.)" in capsys.readouterr().err

@@ -409,3 +409,31 @@ def tool_lengths_from(spec: str | None) -> dict | None:
                              f"got {text!r}", file, line, field=None if file else where)
         out[hn] = val
     return out
+
+
+def add_tool_length_options(parser) -> None:
+    """The tool-length and offset options of the CLI commands that read G43/G44/G43.4 programs
+    (`mtcomp compensate`, `mtcomp verify`): --tool-lengths, --tool-table, --offsets; read them
+    with :func:`tool_lengths_of_options`."""
+    parser.add_argument("--tool-lengths", metavar="H=MM,..|CSV",
+                        help="tool lengths for G43/G44/G43.4 H (and of the tool a T word loads): "
+                             "1=50.2,2=75, a CSV file of lines H,length_mm or a LinuxCNC tool "
+                             "table (default: taken as 0 and noted)")
+    parser.add_argument("--tool-table", dest="tool_lengths", metavar="TBL",
+                        help="a LinuxCNC tool table (T1 P1 Z+50.0 D6.0 lines): tool lengths by tool "
+                             "number (same as --tool-lengths with the file)")
+    parser.add_argument("--work-offsets", "--offsets", metavar="TOML",
+                        help="offsets file: [G54]..[G59], [\"G54.1 P1\"] tables of axis = mm, [H] "
+                             "tool lengths and [D] cutter offsets by number = mm (docs/gcode.md)")
+
+
+def tool_lengths_of_options(args, axes) -> tuple[dict | None, dict | None]:
+    """(tool lengths {number: mm}, work offsets) from the options of
+    :func:`add_tool_length_options`: the offsets file's [H] table, overridden by --tool-lengths."""
+    tools = tool_lengths_from(args.tool_lengths)
+    if args.work_offsets is None:
+        return tools, None
+    file_tools, _, works = read_offsets(args.work_offsets, axes)
+    if file_tools:
+        tools = {**file_tools, **(tools or {})}           # --tool-lengths wins
+    return tools, works or None
