@@ -213,3 +213,51 @@ def test_verify_command_tcp_rapids_option(tmp_path, capsys):
         capsys.readouterr()
         assert main(base + mode) == 2
         assert "line 4 (G00 B-30. X5. Z1.)" in capsys.readouterr().err
+
+
+TOOL_CHANGE = ("G21 G90\nG43 H1 Z50.\nG0 X1. Y1.\nG49\nG0 Z90.\nT2 M6\nG0 Z45.\nG43 H2 Z50.\n"
+               "G0 Z60.\nM30\n")
+
+
+def test_after_a_tool_change_before_its_g43_the_new_tools_tip_is_checked():
+    # T2 M6 loads a 40 mm tool; until G43 H2 the axes stand where the words say and the tip is
+    # 40 mm below: G0 Z45. puts it at Z5., 1 mm into a stock whose top is at Z6. (checked at
+    # the gauge point, 45 mm up, it passed)
+    m = load_machine("vmc-moving-column")
+    stock = Box((-10.0, -10.0, -10.0), (10.0, 10.0, 6.0))
+    p = parse(TOOL_CHANGE, axes=m.axis_names, tool_lengths={1: 20.0, 2: 40.0})
+    assert p.tool_tip.tolist() == [20.0, 20.0, 20.0, 40.0, 40.0, 40.0]
+    assert not p.tool_unknown.any()
+    with pytest.raises(VerifyError, match=r"line 7 \(G0 Z45\.\): rapid move: the tool enters the "
+                                          r"stock at -1000 µm") as e:
+        verify_program(m, TOOL_CHANGE, stock=stock, tool_lengths={1: 20.0, 2: 40.0})
+    assert not e.value.result.warnings
+    # a lower stock: the tip keeps 1 mm
+    ok = verify_program(m, TOOL_CHANGE, stock=Box((-10.0, -10.0, -10.0), (10.0, 10.0, 4.0)),
+                        tool_lengths={1: 20.0, 2: 40.0})
+    assert ok.ok and ok.min_clearance == pytest.approx(1.0, abs=ok.step / 2)
+    # a preselected T (no M6 yet) does not change the tool in the spindle
+    pre = TOOL_CHANGE.replace("T2 M6\n", "T2\n").replace("G43 H2 Z50.\n", "M6\nG43 H2 Z50.\n")
+    p = parse(pre, axes=m.axis_names, tool_lengths={1: 20.0, 2: 40.0})
+    assert p.tool_tip.tolist() == [20.0, 20.0, 20.0, 20.0, 40.0, 40.0]
+
+
+def test_after_a_tool_change_with_unknown_length_the_report_says_gauge_point(tmp_path, capsys):
+    from mtcomp.cli import main
+    m = load_machine("vmc-moving-column")
+    stock = Box((-10.0, -10.0, -10.0), (10.0, 10.0, 6.0))
+    res = verify_program(m, TOOL_CHANGE, stock=stock, tool_lengths={1: 20.0})
+    assert res.ok and len(res.warnings) == 1
+    assert res.warnings[0].startswith("line(s) 7 (after a tool change, before its G43) were "
+                                      "checked at the gauge point only")
+    assert "warning: line(s) 7 " in res.summary()
+    nc = tmp_path / "tc.nc"
+    nc.write_text(TOOL_CHANGE)
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z+20.0\nT2 P2 Z+40.0\n")
+    args = ["verify", str(nc), "-m", "vmc-moving-column", "--stock", "box:-10,-10,-10,10,10,6"]
+    assert main(args + ["--tool-lengths", "1=20"]) == 0
+    assert "warning: line(s) 7 (after a tool change" in capsys.readouterr().out
+    assert main(args + ["--tool-table", str(tbl)]) == 2
+    io = capsys.readouterr()
+    assert "line 7 (G0 Z45.)" in io.err and "warning" not in io.out
