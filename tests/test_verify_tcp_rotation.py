@@ -236,6 +236,11 @@ def test_after_a_tool_change_before_its_g43_the_new_tools_tip_is_checked():
     ok = verify_program(m, TOOL_CHANGE, stock=Box((-10.0, -10.0, -10.0), (10.0, 10.0, 4.0)),
                         tool_lengths={1: 20.0, 2: 40.0})
     assert ok.ok and ok.min_clearance == pytest.approx(1.0, abs=ok.step / 2)
+    # the length set by the program (G10 L1: LinuxCNC tool table entry) before the change
+    g10 = TOOL_CHANGE.replace("T2 M6\n", "G10 L1 P2 Z40.\nT2 M6\n")
+    p = parse(g10, axes=m.axis_names, tool_lengths={1: 20.0})
+    assert p.tool_tip.tolist() == [20.0, 20.0, 20.0, 40.0, 40.0, 40.0]
+    assert not p.tool_unknown.any()
     # a preselected T (no M6 yet) does not change the tool in the spindle
     pre = TOOL_CHANGE.replace("T2 M6\n", "T2\n").replace("G43 H2 Z50.\n", "M6\nG43 H2 Z50.\n")
     p = parse(pre, axes=m.axis_names, tool_lengths={1: 20.0, 2: 40.0})

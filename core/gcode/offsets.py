@@ -198,14 +198,20 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     # another tool is loaded. From a tool change (M6; without any M6 in the program, the T word)
     # to its G43 the axes do not carry the new tool's length, so its tip is that length below
     # the gauge point: the length of the number of its T word (tool table; --tool-lengths and
-    # [H] by the same number, as shops number H after T); not known: the gauge point, flagged.
+    # [H] by the same number, as shops number H after T; G10 before the change as for G43 H);
+    # not known: the gauge point, flagged.
     change = ~np.isnan(t_line) if change_line is None else np.asarray(change_line, bool)
     newtool = change & ~active
     gauge = np.zeros(n_lines, bool)
     if newtool.any():
-        tool = _ffill(t_line, ~np.isnan(t_line), np.nan)[newtool]
-        newlen = np.array([lengths.get(int(t), np.nan) if np.isfinite(t) else np.nan
-                           for t in tool.tolist()])
+        tool = _ffill(t_line, ~np.isnan(t_line), np.nan)
+        hm = np.where(newtool, tool, np.nan)
+        try:      # the lengths the G10 blocks before the change have set, as for G43 H
+            Lnew, unk_h = _lengths_per_line(hm, newtool, lengths, tev, filename)
+        except InputError:     # an ambiguous G10 entry of that number: its length is not known
+            Lnew, unk_h = np.zeros(n_lines), np.unique(hm[newtool & np.isfinite(hm)]).tolist()
+        newlen = np.where(np.isfinite(hm[newtool]) & ~np.isin(hm[newtool], list(unk_h)),
+                          Lnew[newtool], np.nan)
         start = np.zeros(n_lines)
         start[newtool] = np.nan_to_num(newlen)
         unk = np.zeros(n_lines, bool)
