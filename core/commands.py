@@ -374,6 +374,10 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
                   n_samples=sum(r.n_samples for r in results),
                   min_part=min(r.min_part for r in results),
                   violations=tuple(v for r in results for v in r.violations))
+    from .verify import gauge_point_warning
+    warning = gauge_point_warning(lines, back.tool_unknown)    # tool change before its G43
+    if warning:
+        out = replace(out, warnings=out.warnings + (warning,))
     if out.violations and not warn_only:
         v = out.violations
         raise VerifyError(f"{filename}: the compensated program fails the verification (lines "

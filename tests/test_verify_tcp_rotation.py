@@ -266,3 +266,16 @@ def test_after_a_tool_change_with_unknown_length_the_report_says_gauge_point(tmp
     assert main(args + ["--tool-table", str(tbl)]) == 2
     io = capsys.readouterr()
     assert "line 7 (G0 Z45.)" in io.err and "warning" not in io.out
+
+
+def test_compensate_verification_says_gauge_point_after_a_tool_change():
+    m = load_machine("vmc-moving-column")
+    errors = ErrorSet(ToolSetting((0.001, 0.0, 0.0)))
+    stock = Box((-10.0, -10.0, -10.0), (10.0, 10.0, 6.0))
+    # within the Z travel (at most 50): the axes stand at 40 (G43 H1), 45 (T2, tip at 5), 47
+    text = ("G21 G90\nG43 H1 Z20.\nG0 X1. Y1.\nG49\nG0 Z40.\nT2 M6\nG0 Z45.\nG43 H2 Z7.\n"
+            "G0 X2.\nM30\n")
+    _, rep = compensate_program(text, m, errors, tool_lengths={1: 20.0}, stock=stock)
+    assert rep["verify"].ok and rep["verify"].warnings[0].startswith("line(s) 7 (after a tool")
+    with pytest.raises(VerifyError, match=r"line 7 \(G0 Z45\.\)"):
+        compensate_program(text, m, errors, tool_lengths={1: 20.0, 2: 40.0}, stock=stock)
