@@ -256,6 +256,12 @@ def test_after_a_tool_change_with_unknown_length_the_report_says_gauge_point(tmp
     assert res.warnings[0].startswith("line(s) 7 (after a tool change, before its G43) were "
                                       "checked at the gauge point only")
     assert "warning: line(s) 7 " in res.summary()
+    # a tool the program never compensates (no G43 after its change: written for the machine
+    # file's tool point, as mtcomp cad toolpath writes) is not flagged
+    plain = "G21 G90\nT1 M6\nG0 X1. Y1. Z50.\nG0 Z7.\nM30\n"
+    assert verify_program(m, plain, stock=stock).warnings == ()
+    assert verify_program(m, plain + "G43 H1 Z9.\n", stock=stock).warnings[0].startswith(
+        "line(s) 3-4 (after a tool change")
     nc = tmp_path / "tc.nc"
     nc.write_text(TOOL_CHANGE)
     tbl = tmp_path / "tool.tbl"

@@ -217,7 +217,14 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         unk = np.zeros(n_lines, bool)
         unk[newtool] = ~np.isfinite(newlen)
         tip = _ffill(np.where(active, tip, start), active | newtool, 0.0)
-        gauge = _ffill(unk & ~active, active | newtool, False)
+        # flagged only where a G43/G44/G43.4 follows (the program compensates lengths, so the
+        # machine file's tool point is the gauge point); a tool never compensated is taken as
+        # the program was written for it, at the machine file's tool point
+        ev = np.flatnonzero(active | newtool)
+        for i in np.flatnonzero(unk).tolist():
+            k = int(np.searchsorted(ev, i, side="right"))     # the next change or G43 line
+            if k < len(ev) and active[ev[k]]:
+                gauge[i:ev[k]] = True
     elif tset.any():
         tip = _ffill(np.where(active, tip, 0.0), active, 0.0)
     return off, tlen, tuple(assumed), tip, gauge
