@@ -82,7 +82,8 @@ class Program:
                                      # given count 0; after a tool change before its G43:
                                      # the loaded tool's length, see tool_unknown)
     tool_unknown: np.ndarray = None  # (N,) blocks after a tool change, before its G43, whose
-                                     # tool has no known length: tool_tip 0 (the gauge point)
+                                     # tool has no known length: tool_tip 0 (the gauge point);
+                                     # only where a G43/G44/G43.4 follows the change
 
     @property
     def n_axes(self) -> int:
