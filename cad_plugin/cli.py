@@ -282,11 +282,14 @@ def cmd_verify(args) -> int:
                      (item.split("=") for item in args.rapid_rates.split(","))}
         except ValueError:
             raise InputError("expected A=RATE,... with numbers", field="--rapid-rates") from None
+    from ..gcode.offsets import tool_lengths_of_options
+    tools, offsets = tool_lengths_of_options(args, machine.axis_names)
     try:
         res = verify_program(machine, text, filename=str(args.program), stock=stock, part=part,
                              clearance=args.clearance, tolerance=args.tolerance, errors=errors,
                              tool_radius=args.tool_radius, step=args.step, raise_on_violation=False,
-                             rapid_rates=rates)
+                             rapid_rates=rates, tool_lengths=tools, work_offsets=offsets,
+                             tcp_rapids=args.tcp_rapids)
     except VerifyError as exc:  # not raised with raise_on_violation=False; kept for clarity
         res = exc.result
     print(res.summary(max_listed=20))
@@ -379,6 +382,11 @@ def register(subparsers) -> None:
     v.add_argument("--rapid-rates", metavar="A=RATE,...",
                    help="dog-leg rapids: each axis at its own rate (mm/min, deg/min), e.g. "
                         "X=10000,Y=10000,Z=5000,B=3600,C=3600; default: linear rapids")
+    from ..gcode.offsets import add_tool_length_options
+    add_tool_length_options(v)
+    v.add_argument("--tcp-rapids", choices=("both", "tip", "joint"), default="both",
+                   help="how the control moves G00 under G43.4: check both paths (default), the "
+                        "tip straight (tip) or every axis linearly (joint)")
     v.set_defaults(func=cmd_verify)
 
 

@@ -374,6 +374,10 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
                   n_samples=sum(r.n_samples for r in results),
                   min_part=min(r.min_part for r in results),
                   violations=tuple(v for r in results for v in r.violations))
+    from .verify import gauge_point_warning
+    warning = gauge_point_warning(lines, back.tool_unknown)    # tool change before its G43
+    if warning:
+        out = replace(out, warnings=out.warnings + (warning,))
     if out.violations and not warn_only:
         v = out.violations
         raise VerifyError(f"{filename}: the compensated program fails the verification (lines "
@@ -430,10 +434,8 @@ def _cmd_compensate(args) -> int:
         if not os.path.isdir(d):
             raise InputError("not a directory", d, field="--subprogram-path")
     start = parse_start(args.start, machine)
-    file_tools, offsets = load_offsets(args.work_offsets, machine)
-    tools = parse_tool_lengths(args.tool_lengths)
-    if file_tools:
-        tools = {**file_tools, **(tools or {})}           # --tool-lengths wins
+    from .gcode.offsets import tool_lengths_of_options
+    tools, offsets = tool_lengths_of_options(args, machine.axis_names)
     options = [f"unknown-start {args.unknown}"]
     if tools:
         options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items()))
@@ -536,15 +538,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--unknown", choices=("defer", "refuse"), default="defer",
                    help="blocks before every axis position is known: pass them uncompensated "
                         "(defer, default) or refuse the program naming the line")
-    p.add_argument("--tool-lengths", metavar="H=MM,..|CSV",
-                   help="tool lengths for G43/G44/G43.4 H: 1=50.2,2=75, a CSV file of lines H,length_mm "
-                        "or a LinuxCNC tool table (default: taken as 0 and noted)")
-    p.add_argument("--tool-table", dest="tool_lengths", metavar="TBL",
-                   help="a LinuxCNC tool table (T1 P1 Z+50.0 D6.0 lines): tool lengths by tool number "
-                        "(same as --tool-lengths with the file)")
-    p.add_argument("--work-offsets", "--offsets", metavar="TOML",
-                   help="offsets file: [G54]..[G59], [\"G54.1 P1\"] tables of axis = mm, [H] tool "
-                        "lengths and [D] cutter offsets by number = mm (docs/gcode.md)")
+    from .gcode.offsets import add_tool_length_options
+    add_tool_length_options(p)
     p.add_argument("--subprogram-path", metavar="DIR[%sDIR]" % os.pathsep.replace("%", "%%"),
                    help="directories searched, after the program's own, for subprograms in other "
                         "files (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written "

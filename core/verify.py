@@ -426,6 +426,7 @@ class VerifyResult:
     stock: str = ""
     part: str = ""
     retracts: int = 0
+    warnings: tuple = ()            # what was checked with an assumption (e.g. the gauge point)
 
     @property
     def ok(self) -> bool:
@@ -447,6 +448,8 @@ class VerifyResult:
                   f"feed moves reach {_um(-self.min_part)} into it" if self.min_part < 0 else
                   f"feed moves stay {_um(self.min_part)} off it at least")
             lines.append(f"  part {self.part}: {mp} (tolerance {_um(self.tolerance)})")
+        for w in self.warnings:
+            lines.append("  warning: " + w)
         if self.violations:
             lines.append(f"  {len(self.violations)} block(s) FAIL:")
             for v in self.violations[:max_listed]:
@@ -672,7 +675,8 @@ def program_arcs(machine, prog, motion):
     return centre, np.nan_to_num(np.asarray(prog.arc_sweep, float)), cols, motion == 3
 
 
-def program_commands(machine, text: str, filename: str = "<string>", tool_lengths=None):
+def program_commands(machine, text: str, filename: str = "<string>", tool_lengths=None,
+                     work_offsets=None):
     """Per motion block: words (N, n_axes: axis positions, or for G43.4 blocks tool tip and
     angles; G68 rotation applied), motion codes (N,), source lines (N,), line texts, arc data,
     the G43.4 mask (N,), the active tool length (N,) mm (G43/G44 H and G43.4: the tip checked is
@@ -682,7 +686,7 @@ def program_commands(machine, text: str, filename: str = "<string>", tool_length
     from .gcode.rotation import to_reference
     clean, probe_lines = _prepare(text)
     prog = gcode.parse(clean, axes=machine.axis_names, filename=filename, tcp=True, rotation=True,
-                       tool_lengths=tool_lengths)
+                       tool_lengths=tool_lengths, work_offsets=work_offsets)
     motion = np.asarray(prog.motion, int).copy()
     motion[motion < 0] = RAPID  # axis words before any motion code: the control's power-on G00
     motion[(motion == 2) | (motion == 3)] = 3
@@ -701,18 +705,46 @@ def program_commands(machine, text: str, filename: str = "<string>", tool_length
     texts = [src[int(ln) - 1] if 0 < int(ln) <= len(src) else "" for ln in prog.line]
     arcs = program_arcs(machine, prog, motion) if (motion == 3).any() else None
     return (to_reference(prog, prog.position), motion, np.asarray(prog.line, int), texts, arcs,
-            np.asarray(prog.tcp, bool), np.asarray(prog.tool_tip, float), np.asarray(prog.known))
+            np.asarray(prog.tcp, bool), np.asarray(prog.tool_tip, float), np.asarray(prog.known),
+            np.asarray(prog.tool_unknown, bool))
+
+
+def gauge_point_warning(lines, tool_unknown, max_listed: int = 5) -> str:
+    """The warning for blocks (source lines (N,)) checked at the gauge point because the tool
+    loaded by a tool change has no known length until its G43 (``tool_unknown`` (N,)); "" if none."""
+    mask = np.asarray(tool_unknown, bool)
+    if not mask.any():
+        return ""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    runs = [(int(lines[a]), int(lines[b - 1])) for a, b in zip(edges[::2], edges[1::2])]
+    text = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:max_listed])
+    more = f" and {len(runs) - max_listed} more runs" if len(runs) > max_listed else ""
+    return (f"line(s) {text}{more} (after a tool change, before its G43) were checked at the gauge "
+            "point only: the loaded tool's length is not known, its tip is lower by that length "
+            "(give --tool-lengths or --tool-table with the T number)")
 
 
 def verify_program(machine, text: str, *, filename: str = "<string>", tool_lengths=None,
-                   **kw) -> VerifyResult:
+                   work_offsets=None, **kw) -> VerifyResult:
     """Read an NC program (text) for `machine` and :func:`verify_commands` it (same keywords).
     G43.4 blocks are read as tool-centre-point words with the tool lengths of their H
     (``tool_lengths`` {H: mm}; none given: 0, the machine file's tool point); under G43/G44 H
     the axes carry the length and the tool tip checked is that length down the tool axis; G68
-    rotation is applied; blocks whose pose the program has not fixed yet are not checked (see `known`)."""
-    q, motion, lines, texts, arcs, tcp, length, known = program_commands(machine, text, filename,
-                                                                          tool_lengths)
+    rotation is applied; blocks whose pose the program has not fixed yet are not checked (see `known`).
+    Between a tool change and its G43 the tip of the loaded tool is checked (its length from
+    ``tool_lengths`` by its T number); without that length the gauge point is, and
+    ``VerifyResult.warnings`` says which lines."""
+    q, motion, lines, texts, arcs, tcp, length, known, unknown = program_commands(
+        machine, text, filename, tool_lengths, work_offsets)
     kw.setdefault("name", filename)
-    return verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, tcp=tcp,
-                           tool_length=length, known=known, **kw)
+    warning = gauge_point_warning(lines, unknown)
+    raise_on_violation = kw.pop("raise_on_violation", True)
+    try:
+        res = verify_commands(machine, q, motion, lines=lines, texts=texts, arcs=arcs, tcp=tcp,
+                              tool_length=length, known=known, raise_on_violation=raise_on_violation,
+                              **kw)
+    except VerifyError as exc:
+        if warning:
+            exc.result = replace(exc.result, warnings=exc.result.warnings + (warning,))
+        raise
+    return replace(res, warnings=res.warnings + (warning,)) if warning else res

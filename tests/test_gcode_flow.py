@@ -184,3 +184,30 @@ def test_crlf_and_no_final_newline_fold_byte_exact(eol, last):
     mode, out = flow.fold(fl, gcode.rewrite(p, lambda q: q + [0.01, 0, 0]))
     assert mode == "once" and out.endswith("M99" + last)
     assert out.count("\r\n") == (text.count("\r\n"))        # no line ending changed
+
+
+def test_has_flow_prefilter_agrees_with_the_plain_search():
+    # has_flow jumps to the M/O letters with str.find and tries the pattern there only: the
+    # same answer as the regex searched over the whole text, on the corpus and random texts
+    def plain(t):
+        return flow._HAS_FLOW.search(t) is not None
+    files = sorted(p for p in NC.rglob("*") if p.is_file())
+    assert len(files) >= 10
+    answers = [flow.has_flow(p.read_text(errors="replace")) for p in files]
+    assert answers == [plain(p.read_text(errors="replace")) for p in files]
+    assert any(answers) and not all(answers)
+    rng = np.random.default_rng(7)
+    alphabet = list("MmOo0123456789789 .\t\n<>()XYZGCcLlaA-")
+    pieces = ["M98", "m 097", "M99.", "M990", "o<a> call", "O12 CALL", "o 3 cal", "M9 8", "O<x\n>call"]
+    hit = 0
+    for _ in range(3000):
+        parts = rng.choice(alphabet, size=int(rng.integers(0, 40))).tolist()
+        if rng.random() < 0.5:
+            parts.insert(int(rng.integers(0, len(parts) + 1)), str(rng.choice(pieces)))
+        t = "".join(parts)
+        assert flow.has_flow(t) == plain(t), repr(t)
+        hit += plain(t)
+    assert 300 < hit < 2700
+    # past the letter budget the plain search takes over: same answers
+    many = "M3 " * (flow._FIND_HITS + 5)
+    assert not flow.has_flow(many) and flow.has_flow(many + "M98 P1")

@@ -175,3 +175,113 @@ def test_after_g49_the_tool_is_still_in_the_spindle():
     res = verify_program(m, text, stock=stock, tool_lengths={1: 20.0}, raise_on_violation=False)
     assert [v.line for v in res.violations] == [5, 6]            # the tip 5 mm into the stock
     assert res.violations[1].value == pytest.approx(-5.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("source", ["lengths", "table", "offsets"])
+def test_verify_command_checks_the_tool_tip_with_the_tool_lengths(tmp_path, capsys, source):
+    # G43 H1 with a 40 mm tool, then G49: the axes stand where the words say and the tip 40 mm
+    # below, so the rapid to Z42. puts the tip at Z2., into a stock whose top is at Z3.;
+    # `mtcomp verify` had no tool lengths and checked the gauge point (40 mm up)
+    from mtcomp.cli import main
+    nc = tmp_path / "g43.nc"
+    nc.write_text("G21 G90\nT1 M6\nG43 H1 Z50.\nG0 X1. Y1.\nG49\nG0 Z42.\nG0 Z90.\nM30\n")
+    opt = {"lengths": ["--tool-lengths", "1=40"],
+           "table": ["--tool-table", str(tmp_path / "tool.tbl")],
+           "offsets": ["--offsets", str(tmp_path / "off.toml")]}[source]
+    (tmp_path / "tool.tbl").write_text("T1 P1 Z+40.0 D6.0 ;end mill\n")
+    (tmp_path / "off.toml").write_text("[H]\n1 = 40.0\n")
+    base = ["verify", str(nc), "-m", "vmc-moving-column", "--clearance", "0.5"]
+    assert main(base + ["--stock", "box:-10,-10,-10,10,10,3"] + opt) == 2
+    io = capsys.readouterr()
+    assert "line 6 (G0 Z42.)" in io.err and "enters the stock at -1000 µm" in io.err
+    assert main(base + ["--stock", "box:-10,-10,-10,10,10,1"] + opt) == 0
+    assert "passed" in capsys.readouterr().out
+    # without the length the gauge point is checked and (wrongly) passes
+    assert main(base + ["--stock", "box:-10,-10,-10,10,10,3"]) == 0
+
+
+def test_verify_command_tcp_rapids_option(tmp_path, capsys):
+    # the G00 B-30 swing of the test above, through the command: tip-straight passes, the
+    # axis-linear path (default "both", and "joint") is refused naming the block
+    from mtcomp.cli import main
+    nc = tmp_path / "t.nc"
+    nc.write_text(tcp_program("G00 C0. B0. X-5. Y0. Z1.\nG00 B-30. X5. Z1.\n"))
+    base = ["verify", str(nc), "-m", "robonano-a0ib", "--stock", "box:-10,-10,-3,10,10,0",
+            "--tool-lengths", "1=40"]
+    assert main(base + ["--tcp-rapids", "tip"]) == 0
+    for mode in ([], ["--tcp-rapids", "joint"]):
+        capsys.readouterr()
+        assert main(base + mode) == 2
+        assert "line 4 (G00 B-30. X5. Z1.)" in capsys.readouterr().err
+
+
+TOOL_CHANGE = ("G21 G90\nG43 H1 Z50.\nG0 X1. Y1.\nG49\nG0 Z90.\nT2 M6\nG0 Z45.\nG43 H2 Z50.\n"
+               "G0 Z60.\nM30\n")
+
+
+def test_after_a_tool_change_before_its_g43_the_new_tools_tip_is_checked():
+    # T2 M6 loads a 40 mm tool; until G43 H2 the axes stand where the words say and the tip is
+    # 40 mm below: G0 Z45. puts it at Z5., 1 mm into a stock whose top is at Z6. (checked at
+    # the gauge point, 45 mm up, it passed)
+    m = load_machine("vmc-moving-column")
+    stock = Box((-10.0, -10.0, -10.0), (10.0, 10.0, 6.0))
+    p = parse(TOOL_CHANGE, axes=m.axis_names, tool_lengths={1: 20.0, 2: 40.0})
+    assert p.tool_tip.tolist() == [20.0, 20.0, 20.0, 40.0, 40.0, 40.0]
+    assert not p.tool_unknown.any()
+    with pytest.raises(VerifyError, match=r"line 7 \(G0 Z45\.\): rapid move: the tool enters the "
+                                          r"stock at -1000 µm") as e:
+        verify_program(m, TOOL_CHANGE, stock=stock, tool_lengths={1: 20.0, 2: 40.0})
+    assert not e.value.result.warnings
+    # a lower stock: the tip keeps 1 mm
+    ok = verify_program(m, TOOL_CHANGE, stock=Box((-10.0, -10.0, -10.0), (10.0, 10.0, 4.0)),
+                        tool_lengths={1: 20.0, 2: 40.0})
+    assert ok.ok and ok.min_clearance == pytest.approx(1.0, abs=ok.step / 2)
+    # the length set by the program (G10 L1: LinuxCNC tool table entry) before the change
+    g10 = TOOL_CHANGE.replace("T2 M6\n", "G10 L1 P2 Z40.\nT2 M6\n")
+    p = parse(g10, axes=m.axis_names, tool_lengths={1: 20.0})
+    assert p.tool_tip.tolist() == [20.0, 20.0, 20.0, 40.0, 40.0, 40.0]
+    assert not p.tool_unknown.any()
+    # a preselected T (no M6 yet) does not change the tool in the spindle
+    pre = TOOL_CHANGE.replace("T2 M6\n", "T2\n").replace("G43 H2 Z50.\n", "M6\nG43 H2 Z50.\n")
+    p = parse(pre, axes=m.axis_names, tool_lengths={1: 20.0, 2: 40.0})
+    assert p.tool_tip.tolist() == [20.0, 20.0, 20.0, 20.0, 40.0, 40.0]
+
+
+def test_after_a_tool_change_with_unknown_length_the_report_says_gauge_point(tmp_path, capsys):
+    from mtcomp.cli import main
+    m = load_machine("vmc-moving-column")
+    stock = Box((-10.0, -10.0, -10.0), (10.0, 10.0, 6.0))
+    res = verify_program(m, TOOL_CHANGE, stock=stock, tool_lengths={1: 20.0})
+    assert res.ok and len(res.warnings) == 1
+    assert res.warnings[0].startswith("line(s) 7 (after a tool change, before its G43) were "
+                                      "checked at the gauge point only")
+    assert "warning: line(s) 7 " in res.summary()
+    # a tool the program never compensates (no G43 after its change: written for the machine
+    # file's tool point, as mtcomp cad toolpath writes) is not flagged
+    plain = "G21 G90\nT1 M6\nG0 X1. Y1. Z50.\nG0 Z7.\nM30\n"
+    assert verify_program(m, plain, stock=stock).warnings == ()
+    assert verify_program(m, plain + "G43 H1 Z9.\n", stock=stock).warnings[0].startswith(
+        "line(s) 3-4 (after a tool change")
+    nc = tmp_path / "tc.nc"
+    nc.write_text(TOOL_CHANGE)
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z+20.0\nT2 P2 Z+40.0\n")
+    args = ["verify", str(nc), "-m", "vmc-moving-column", "--stock", "box:-10,-10,-10,10,10,6"]
+    assert main(args + ["--tool-lengths", "1=20"]) == 0
+    assert "warning: line(s) 7 (after a tool change" in capsys.readouterr().out
+    assert main(args + ["--tool-table", str(tbl)]) == 2
+    io = capsys.readouterr()
+    assert "line 7 (G0 Z45.)" in io.err and "warning" not in io.out
+
+
+def test_compensate_verification_says_gauge_point_after_a_tool_change():
+    m = load_machine("vmc-moving-column")
+    errors = ErrorSet(ToolSetting((0.001, 0.0, 0.0)))
+    stock = Box((-10.0, -10.0, -10.0), (10.0, 10.0, 6.0))
+    # within the Z travel (at most 50): the axes stand at 40 (G43 H1), 45 (T2, tip at 5), 47
+    text = ("G21 G90\nG43 H1 Z20.\nG0 X1. Y1.\nG49\nG0 Z40.\nT2 M6\nG0 Z45.\nG43 H2 Z7.\n"
+            "G0 X2.\nM30\n")
+    _, rep = compensate_program(text, m, errors, tool_lengths={1: 20.0}, stock=stock)
+    assert rep["verify"].ok and rep["verify"].warnings[0].startswith("line(s) 7 (after a tool")
+    with pytest.raises(VerifyError, match=r"line 7 \(G0 Z45\.\)"):
+        compensate_program(text, m, errors, tool_lengths={1: 20.0, 2: 40.0}, stock=stock)

@@ -113,7 +113,8 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
 # ------------------------------------------------------------------------ offsets per line
 
 def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths,
-                     events, first_motion, n_lines, filename, notes, written=None):
+                     events, first_motion, n_lines, filename, notes, written=None,
+                     change_line=None):
     """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
     (the work offset in effect at the first motion block, ``first_motion``): work offset minus
     the reference one, plus +/- the tool length along Z for G43/G44; and per line the tool
@@ -121,7 +122,12 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     changes it, the difference is 0; otherwise the program is refused naming the line.
     Tool lengths not given are taken as 0 and noted.  ``written`` (n_axes,): the axes the
     program writes; an unknown offset of an axis it never writes is harmless (the control does
-    not move an axis that is not commanded)."""
+    not move an axis that is not commanded).
+
+    ``change_line`` (n_lines,) bool: the tool changes (M6 lines; default: the T words); the tool
+    loaded is the last T word. Also returned: per line the tool tip (mm along -tool axis from
+    the gauge point) and whether the tool in the spindle has an unknown length there (after a
+    change, before its G43: its tip taken at the gauge point)."""
     n_ax = len(axes)
     off = np.zeros((n_lines, n_ax))
     assumed = []
@@ -162,6 +168,8 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     tset = tool_l >= 0
     tlen = np.zeros(n_lines)
     tip = np.zeros(n_lines)
+    active = np.zeros(n_lines, bool)
+    lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
     if tset.any():
         # G43/G44/G43.4 without H: the loaded tool T (LinuxCNC)
         h_line = h_line.copy()
@@ -175,7 +183,6 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
         mode = _ffill(tool_l, tset, 49)
         active = mode != 49
-        lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
         L, unknown = _lengths_per_line(hmodal, active, lengths, tev, filename)
         if unknown:
             notes.append(f"tool length offsets H{', H'.join(map(str, unknown))} not given: taken as "
@@ -187,11 +194,40 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         tlen = np.where(mode == 434, L, 0.0)
         # where the tool tip is: L along -tool axis from the gauge point (G44 subtracts: -L)
         tip = np.where(mode == 434, L, sign * L if "Z" in axes else 0.0)
-        # G49 cancels the compensation, not the tool: its tip stays that far down the axis until
-        # another tool is selected (a T word; its length is unknown until its G43)
-        newtool = ~np.isnan(t_line) & ~active
-        tip = _ffill(np.where(active, tip, 0.0), active | newtool, 0.0)
-    return off, tlen, tuple(assumed), tip
+    # G49 cancels the compensation, not the tool: its tip stays that far down the axis until
+    # another tool is loaded. From a tool change (M6; without any M6 in the program, the T word)
+    # to its G43 the axes do not carry the new tool's length, so its tip is that length below
+    # the gauge point: the length of the number of its T word (tool table; --tool-lengths and
+    # [H] by the same number, as shops number H after T; G10 before the change as for G43 H);
+    # not known: the gauge point, flagged.
+    change = ~np.isnan(t_line) if change_line is None else np.asarray(change_line, bool)
+    newtool = change & ~active
+    gauge = np.zeros(n_lines, bool)
+    if newtool.any():
+        tool = _ffill(t_line, ~np.isnan(t_line), np.nan)
+        hm = np.where(newtool, tool, np.nan)
+        try:      # the lengths the G10 blocks before the change have set, as for G43 H
+            Lnew, unk_h = _lengths_per_line(hm, newtool, lengths, tev, filename)
+        except InputError:     # an ambiguous G10 entry of that number: its length is not known
+            Lnew, unk_h = np.zeros(n_lines), np.unique(hm[newtool & np.isfinite(hm)]).tolist()
+        newlen = np.where(np.isfinite(hm[newtool]) & ~np.isin(hm[newtool], list(unk_h)),
+                          Lnew[newtool], np.nan)
+        start = np.zeros(n_lines)
+        start[newtool] = np.nan_to_num(newlen)
+        unk = np.zeros(n_lines, bool)
+        unk[newtool] = ~np.isfinite(newlen)
+        tip = _ffill(np.where(active, tip, start), active | newtool, 0.0)
+        # flagged only where a G43/G44/G43.4 follows (the program compensates lengths, so the
+        # machine file's tool point is the gauge point); a tool never compensated is taken as
+        # the program was written for it, at the machine file's tool point
+        ev = np.flatnonzero(active | newtool)
+        for i in np.flatnonzero(unk).tolist():
+            k = int(np.searchsorted(ev, i, side="right"))     # the next change or G43 line
+            if k < len(ev) and active[ev[k]]:
+                gauge[i:ev[k]] = True
+    elif tset.any():
+        tip = _ffill(np.where(active, tip, 0.0), active, 0.0)
+    return off, tlen, tuple(assumed), tip, gauge
 
 
 def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, written):
@@ -409,3 +445,31 @@ def tool_lengths_from(spec: str | None) -> dict | None:
                              f"got {text!r}", file, line, field=None if file else where)
         out[hn] = val
     return out
+
+
+def add_tool_length_options(parser) -> None:
+    """The tool-length and offset options of the CLI commands that read G43/G44/G43.4 programs
+    (`mtcomp compensate`, `mtcomp verify`): --tool-lengths, --tool-table, --offsets; read them
+    with :func:`tool_lengths_of_options`."""
+    parser.add_argument("--tool-lengths", metavar="H=MM,..|CSV",
+                        help="tool lengths for G43/G44/G43.4 H (and of the tool a T word loads): "
+                             "1=50.2,2=75, a CSV file of lines H,length_mm or a LinuxCNC tool "
+                             "table (default: taken as 0 and noted)")
+    parser.add_argument("--tool-table", dest="tool_lengths", metavar="TBL",
+                        help="a LinuxCNC tool table (T1 P1 Z+50.0 D6.0 lines): tool lengths by tool "
+                             "number (same as --tool-lengths with the file)")
+    parser.add_argument("--work-offsets", "--offsets", metavar="TOML",
+                        help="offsets file: [G54]..[G59], [\"G54.1 P1\"] tables of axis = mm, [H] "
+                             "tool lengths and [D] cutter offsets by number = mm (docs/gcode.md)")
+
+
+def tool_lengths_of_options(args, axes) -> tuple[dict | None, dict | None]:
+    """(tool lengths {number: mm}, work offsets) from the options of
+    :func:`add_tool_length_options`: the offsets file's [H] table, overridden by --tool-lengths."""
+    tools = tool_lengths_from(args.tool_lengths)
+    if args.work_offsets is None:
+        return tools, None
+    file_tools, _, works = read_offsets(args.work_offsets, axes)
+    if file_tools:
+        tools = {**file_tools, **(tools or {})}           # --tool-lengths wins
+    return tools, works or None

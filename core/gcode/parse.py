@@ -280,9 +280,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                             filename)
         notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
                      + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
-    offsets_line, tlen_line, offset_assumed, tip_line = offsets_per_line(
+    # tool changes: the M6 lines (T only preselects); a program without M6 changes at its T words
+    mi6 = np.flatnonzero(wlet == M)
+    mi6 = mi6[np.rint(value[mi6]) == 6]
+    change_line = None
+    if len(mi6):
+        change_line = np.zeros(n_lines, bool)
+        change_line[wline[mi6]] = True
+    offsets_line, tlen_line, offset_assumed, tip_line, gauge_line = offsets_per_line(
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
-        first_motion, n_lines, filename, notes, written)
+        first_motion, n_lines, filename, notes, written, change_line)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
     if (tool_l == 434).any() and not tcp:
         _fail("G43.4: G43.4 tool centre point: X Y Z are the tool tip, not axis positions; "
@@ -476,6 +483,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   "moves under TCP)", blines[j], filename)
     tool_length = tlen_line[blines]
     tool_tip = tip_line[blines]
+    tool_unknown = gauge_line[blines]
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -590,7 +598,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
-                  tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip)
+                  tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
+                  tool_unknown=tool_unknown)
     for a in arrays.values():
         if a is not None:
             a.flags.writeable = False

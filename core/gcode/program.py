@@ -79,7 +79,11 @@ class Program:
     tool_tip: np.ndarray = None      # (N,) mm, the active tool's length: the tool tip is this far
                                      # along -tool_axis from the machine file's tool point
                                      # (G43 H: L, G44: -L, G43.4: L, 0 without; lengths not
-                                     # given count 0)
+                                     # given count 0; after a tool change before its G43:
+                                     # the loaded tool's length, see tool_unknown)
+    tool_unknown: np.ndarray = None  # (N,) blocks after a tool change, before its G43, whose
+                                     # tool has no known length: tool_tip 0 (the gauge point);
+                                     # only where a G43/G44/G43.4 follows the change
 
     @property
     def n_axes(self) -> int:
