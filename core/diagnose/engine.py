@@ -11,7 +11,7 @@ from . import align as _align
 from . import data as _data
 from .effects import Context, candidates
 from .locate import Mismatch, conditions, empirical_dependence, locate
-from .select import Settings, cross_validate, fit, model_columns, n_effective, select
+from .select import Settings, cross_validate, fit, joint_covariance, model_columns, n_effective, select
 
 
 @dataclass(frozen=True)
@@ -148,6 +148,9 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     step = max(1, int(np.ceil(len(al.rows()) / st.fit_rows)))
     ctx_sel = Context(al, al.rows(step))
     cands = candidates(al)
+    # a candidate whose parameter range is empty on these data cannot be identified (a servo
+    # lag when both files are sampled every few seconds): it is not offered
+    cands = [c for c in cands if all(a < b for a, b in zip(*c.bounds(ctx_sel)))]
     say(f"{len(cands)} candidate effects, selecting on {ctx_sel.n} of {al.n} samples")
     chosen, evidence, log = select(ctx_sel, cands, st, progress=say)
     ctx = Context(al, al.rows()) if step > 1 else ctx_sel
@@ -166,10 +169,11 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     dof = max(final.n_rows - final.k, 1)
     s2 = final.rss / dof
     infl = ctx.N / n_effective(ctx)
-    cov_eta_all = None
-    if final.jac_eta is not None and final.jac_eta.size:
-        cov_eta_all = np.linalg.pinv(final.jac_eta.T @ final.jac_eta) * s2 * infl
-    cov_beta_all = final.gram_inv * s2 * infl if final.gram_inv is not None else None
+    # nonlinear parameters and amplitudes together: an amplitude correlated with a time
+    # constant is as uncertain as the pair (the amplitudes' Gram matrix alone holds eta fixed)
+    ce_all, cb_all = joint_covariance(ctx, final)
+    cov_eta_all = ce_all * s2 * infl
+    cov_beta_all = cb_all * s2 * infl
     effects = []
     clock_fine = (0.0, 0.0)
     latency_note = ()

@@ -115,6 +115,55 @@ def _solve(B: np.ndarray, y: np.ndarray, want_inverse: bool = False):
     return beta_n / nrm, Ginv
 
 
+def joint_covariance(ctx: Context, f: "Fit"):
+    """Unscaled covariance of all parameters of a fit, nonlinear (eta) and amplitudes (beta)
+    together: (cov_eta, cov_beta), to be multiplied by the residual variance.
+
+    The amplitudes' own inverse Gram matrix is their covariance with the nonlinear parameters
+    held at their estimates; where an amplitude is correlated with a time constant (a thermal
+    gain with its lag), that understates its uncertainty several times.  Here the Jacobian of
+    the prediction F(eta) + B(eta) beta in both sets (eta by central differences, beta exactly:
+    the columns B) is inverted as one, columns normalised as in _solve."""
+    nls = [len(e) for e in f.etas]
+    x = np.concatenate([np.asarray(e, float) for e in f.etas]) if sum(nls) else np.zeros(0)
+    beta = np.concatenate([np.asarray(b, float) for b in f.betas]) if f.betas else np.zeros(0)
+    F0, B0, _ = _assemble(ctx, f.cands, f.etas)
+    if not len(x):
+        return np.zeros((0, 0)), (_solve(B0, np.zeros(ctx.N), want_inverse=True)[1]
+                                  if B0.shape[1] else np.zeros((0, 0)))
+    lo, hi = [], []
+    for c in f.cands:
+        a, b = c.bounds(ctx)
+        lo += list(a)
+        hi += list(b)
+
+    def split(v):
+        out, i = [], 0
+        for m in nls:
+            out.append(v[i:i + m])
+            i += m
+        return out
+
+    def pred(v):
+        F, B, _ = _assemble(ctx, f.cands, split(v))
+        return F + (B @ beta if B.shape[1] else 0.0)
+
+    cols = []
+    for j in range(len(x)):
+        h = 1e-4 * max(1.0, abs(x[j]))
+        up, dn = x.copy(), x.copy()
+        up[j] = min(x[j] + h, hi[j])
+        dn[j] = max(x[j] - h, lo[j])
+        cols.append((pred(up) - pred(dn)) / max(up[j] - dn[j], 1e-300))
+    J = np.column_stack(cols + ([B0] if B0.shape[1] else []))
+    G = J.T @ J
+    nrm = np.sqrt(np.diag(G)).copy()
+    nrm[nrm == 0] = 1.0
+    C = np.linalg.pinv(G / np.outer(nrm, nrm), rcond=1e-12) / np.outer(nrm, nrm)
+    k = len(x)
+    return C[:k, :k], C[k:, k:]
+
+
 def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
         max_nfev: int = 60, target: np.ndarray | None = None, beta_default=None) -> Fit:
     """Fit `cands` jointly to the whitened residual (`target`, default REC - SIM) on `rows`.
