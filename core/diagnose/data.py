@@ -197,6 +197,25 @@ def _decimal_resolution(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(steps ** 2)))
 
 
+def _units_row(tab):
+    """A second header row of units, as scope and trace exports write (``Time,X`` then ``s,mm``):
+    taken as the units of the columns whose header has none, and removed from the data.  Only
+    when every non-empty cell of the first row is a known unit (one of them the time column's),
+    so a row of numbers or a stray word is never taken for units."""
+    from dataclasses import replace
+    if len(tab.rows) < 3:
+        return tab
+    first = [c.strip().strip("[]()").strip() for c in tab.rows[0]]
+    if not any(first) or any(c and _unit_of(c) is None and c.lower() not in _TIME_UNITS for c in first):
+        return tab
+    cols = tuple(c if c.unit or not first[c.index] else replace(c, unit=first[c.index])
+                 for c in tab.columns)
+    return replace(tab, columns=cols, rows=tab.rows[1:], lines=tab.lines[1:])
+
+
+_TIME_UNITS = ("s", "ms", "us", "µs", "min", "h", "sec")
+
+
 def read_table(path: str | Path, role: str = "file", units: dict | None = None) -> Table:
     """Read one CSV file (header row; a time column; numbers) into a :class:`Table`.
 
@@ -208,7 +227,7 @@ def read_table(path: str | Path, role: str = "file", units: dict | None = None) 
     InputError naming the file, line and column for a missing time column, a bad number, an
     absurd magnitude, a time that goes back, or an unknown unit on the time column.
     """
-    tab = read_csv(path, what=role, delimiter=None, decimal=None)
+    tab = _units_row(read_csv(path, what=role, delimiter=None, decimal=None))
     names = list(tab.names)
     tkey = _time_key(names)
     if tkey is None:
