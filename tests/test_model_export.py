@@ -304,3 +304,20 @@ def test_package_exports():
     assert mm.export_model is export_model
     with pytest.raises(AttributeError):
         mm.nothing_here  # noqa: B018
+
+
+def test_encoder_cyclic_error_as_a_table_or_refused_with_the_reason():
+    """Harmonics 1 and 2 of a scale's signal period: a positioning table when 64 rows per period
+    fit the travel, else no home (controls correct it in the encoder interface)."""
+    q = _poses(VMC, seed=4)
+    P = 2.0   # mm: 64 rows per period over the travel stays below the row limit
+    par = {"period_mm": P, "amplitude_h1_mm": 3e-4, "phase_h1_deg": 40.0,
+           "amplitude_h2_mm": 1e-4, "phase_h2_deg": -70.0}
+    r, p, ex = _residual(VMC, [_effect("encoder_cyclic_error", "y", ["y"], par)], q)
+    w = 2 * math.pi * p[:, 1] / P
+    expect = sum(par[f"amplitude_h{h}_mm"] * (math.cos(math.radians(par[f"phase_h{h}_deg"])) * np.sin(h * w)
+                                             + math.sin(math.radians(par[f"phase_h{h}_deg"])) * np.cos(h * w))
+                 for h in (1, 2))
+    assert np.allclose(r[:, 1], expect, atol=2e-3 * 4e-4)
+    ex = export_model({"effects": [_effect("encoder_cyclic_error", "y", ["y"], dict(par, period_mm=0.02))]}, VMC)
+    assert len(ex.unmapped) == 1 and "encoder interface" in str(ex.unmapped[0])

@@ -117,6 +117,11 @@ def map_scale_error(e: dict, machine: Machine, step: float | None) -> Mapped:
                                 math.inf, {"scale": _s(e, "scale")}),))
 
 
+# rows a periodic table may need (64 per period) before it is refused: the export writes at most
+# 20001 rows per table, and a periodic profile sampled coarser than its period would alias
+MAX_PERIODIC_ROWS = 20_000
+
+
 def map_periodic_pitch_error(e: dict, machine: Machine, step: float | None) -> Mapped:
     """r = A sin(2 pi p/L) + B cos(2 pi p/L) -> positioning table E{O}{AXIS}, 64 rows per lead
     (linear interpolation of a sine at 64 points per period errs by at most 0.12 % of A)."""
@@ -124,6 +129,9 @@ def map_periodic_pitch_error(e: dict, machine: Machine, step: float | None) -> M
     ax = linear_axis(machine, o)
     _travel(ax)
     lead = _p(e, "lead_mm")
+    if (ax.hi - ax.lo) / lead * 64 > MAX_PERIODIC_ROWS:   # sampled coarser, the table would alias
+        raise NoHome(f"periodic_pitch_error on {e['output']}: a lead of {lead:g} mm over the {ax.hi - ax.lo:g} mm "
+                     f"travel of {ax.axis} needs more than {MAX_PERIODIC_ROWS} table rows (64 per lead)")
     amp_key = next((k for k in e["params"] if k.startswith("amplitude_")), "amplitude_mm")
     amp, ph = _p(e, amp_key), math.radians(_p(e, "phase_deg"))
     a, b = amp * math.cos(ph), amp * math.sin(ph)   # phase = atan2(B, A)
@@ -135,6 +143,35 @@ def map_periodic_pitch_error(e: dict, machine: Machine, step: float | None) -> M
                   tables=(Table(ax.axis, f"E{o.upper()}{ax.axis}", fn, lead / 64,
                                 {"lead_mm": _s(e, "lead_mm"), "amplitude_mm": _s(e, amp_key),
                                  "phase_deg": _s(e, "phase_deg")}),))
+
+
+def map_encoder_cyclic_error(e: dict, machine: Machine, step: float | None) -> Mapped:
+    """r = sum_h A_h sin(2 pi h p/P + phi_h), h = 1, 2 -> positioning table E{O}{AXIS} with 64
+    rows per signal period P, when that fits the axis travel in MAX_PERIODIC_ROWS rows.  A period of
+    tens of µm over a travel of hundreds of mm does not: controls correct this error in the
+    encoder interface (signal-period compensation), not in a pitch table, and the model has no
+    such element, so it is refused with the reason."""
+    o = coordinate_letter(_one_output(e))
+    ax = linear_axis(machine, o)
+    _travel(ax)
+    period = _p(e, "period_mm")
+    rows = (ax.hi - ax.lo) / period * 64
+    if rows > MAX_PERIODIC_ROWS:
+        raise NoHome(f"encoder_cyclic_error on {e['output']}: a period of {period * 1e3:.4g} µm over the "
+                     f"{ax.hi - ax.lo:g} mm travel of {ax.axis} needs {rows:.3g} table rows (64 per period; "
+                     f"at most {MAX_PERIODIC_ROWS}): correct it in the encoder interface")
+    harm = []
+    for h in (1, 2):
+        amp = _p(e, next((k for k in e["params"] if k.startswith(f"amplitude_h{h}_")), f"amplitude_h{h}_mm"))
+        ph = math.radians(_p(e, f"phase_h{h}_deg"))
+        harm.append((h, amp * math.cos(ph), amp * math.sin(ph)))   # phase = atan2(cos coeff, sin coeff)
+
+    def fn(q):
+        w = 2 * math.pi * ax.coordinate(q) / period
+        return sum(a * np.sin(h * w) + b * np.cos(h * w) for h, a, b in harm)
+    unc = {k: _s(e, k) for k in e["params"]}
+    return Mapped("encoder_cyclic_error", e["output"],
+                  tables=(Table(ax.axis, f"E{o.upper()}{ax.axis}", fn, period / 64, unc),))
 
 
 def map_straightness(e: dict, machine: Machine, step: float | None) -> Mapped:
@@ -336,6 +373,7 @@ MAPPERS = {
     "backlash": map_backlash,
     "scale_error": map_scale_error,
     "periodic_pitch_error": map_periodic_pitch_error,
+    "encoder_cyclic_error": map_encoder_cyclic_error,
     "straightness": map_straightness,
     "squareness": map_squareness,
     "pivot_offset": map_pivot_offset,
