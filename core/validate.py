@@ -65,7 +65,7 @@ def number(value, file, field: str, *, lo: float | None = None, hi: float | None
         raise InputError(f"expected a number{' in' + u if u else ''}, got {_describe(value)}", file, field=field)
     if isinstance(value, int) and abs(value) > max_abs:
         # large TOML integers (above 2**63 too) are refused before float() could overflow
-        raise InputError(f"{value} is out of range: expected |x| <= {max_abs:g}{u}", file, field=field)
+        raise InputError(f"{_describe(value)} is out of range: expected |x| <= {max_abs:g}{u}", file, field=field)
     x = float(value)
     if math.isnan(x):
         raise InputError(f"expected a number{' in' + u if u else ''}, got nan", file, field=field)

@@ -65,3 +65,18 @@ def test_workpiece_plan_scalars(tmp_path, pattern, field):
     with pytest.raises(InputError, match=r"wp.toml " + field) as e:
         load_plan(plan)
     assert len(str(e.value)) < 300   # the number is not echoed in full
+
+
+@pytest.mark.parametrize("pattern, field", [(r"clearance_mm =", r"\[plan\.clearance_mm\]"),
+                                            (r"plate_mm = \[", r"\[plan\.plate_mm\]")],
+                         ids=["clearance", "plate"])
+def test_tool_setting_plan_head(tmp_path, pattern, field):
+    # found by the 10,000-input campaign (seed 12): a [plan] number and the plate size as a
+    # 320-digit integer gave OverflowError tracebacks
+    from mtcomp.setting.tool_plan import load_plan
+    assert main(["tool-setting", "plan", "-o", str(tmp_path / "tp"), "--no-png"]) == 0
+    plan = tmp_path / "tp" / "plan.toml"
+    _mutate(plan, pattern)
+    with pytest.raises(InputError, match=r"plan.toml " + field) as e:
+        load_plan(plan)
+    assert len(str(e.value)) < 300   # the number is not echoed in full

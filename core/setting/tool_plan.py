@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import InputError, MtcompError, atomic_write, dump_toml, load_toml
+from .. import validate as _validate
 
 TESTS = ("A", "B", "C")
 FEATURES = ("start", "end")
@@ -480,13 +481,15 @@ def _options_from_head(head: dict, grooves, angles) -> PlanOptions:
     kw = {}
     for key, (name, default) in _HEAD_KEYS.items():
         v = head.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise InputError(f"expected a number, got {v!r}", field=f"plan.{key}")
-        kw[name] = float(v)
+        # validate.number: never a bool or a string, and a TOML integer beyond float range is
+        # refused before float() could overflow
+        kw[name] = _validate.number(v, None, f"plan.{key}")
     plate = head.get("plate_mm", [20.0, 20.0])
     if (not isinstance(plate, (list, tuple)) or len(plate) != 2
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in plate)):
-        raise InputError(f"expected two positive sizes [w, h] mm, got {plate!r}", field="plan.plate_mm")
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       and (not isinstance(v, int) or v <= _validate.MAX_MAGNITUDE) and v > 0 for v in plate)):
+        raise InputError(f"expected two positive sizes [w, h] mm, got {_validate._describe(plate)}",
+                         field="plan.plate_mm")
     try:
         return PlanOptions(tests=tuple(t for t in TESTS if any(g.test == t for g in grooves)),
                            plate=tuple(float(v) for v in plate), a_angles=angles["A"],
