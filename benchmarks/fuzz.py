@@ -350,7 +350,9 @@ def campaign(per_surface: int, seed: int, timeout: float, surfaces: list[str] | 
                 if status == "hang":
                     counts["hangs"] += 1
                     bad = "hang"
-                elif status == "signal" or code not in (0, 2) or "Traceback" in err or "internal error" in err:
+                elif (status == "signal" or code not in (0, 2) or "internal error" in err
+                      # --debug asks for the traceback of a refusal too: status 2 with --debug is a refusal
+                      or ("Traceback" in err and not (code == 2 and "--debug" in argv))):
                     counts["tracebacks"] += 1
                     bad = signature(err, status, code)
                 elif code == 2:
