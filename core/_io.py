@@ -34,9 +34,19 @@ def atomic_path(path: str | os.PathLike):
 
     Nothing is left behind on failure, so a crash never leaves a half-written output.
     """
+    import stat
     path = Path(path)
     if path.is_dir():  # say so by its name, not by the temporary file's
         raise IsADirectoryError(errno.EISDIR, "Is a directory", str(path))
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        mode = None
+    if mode is not None and not stat.S_ISREG(mode):
+        # the rename would replace the node itself: run as root, `-o /dev/zero` turned the
+        # machine's /dev/zero into a text file
+        raise InputError("output exists and is not a regular file (a device, pipe or socket): "
+                         "expected a file path", path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)

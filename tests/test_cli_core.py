@@ -257,3 +257,20 @@ def test_machines_prints_arrays_on_one_line():
     assert "direction = [0.0, 0.0, 1.0]" in out and "limits = [-360.0, 360.0]" in out
     from mtcomp._io import parse_toml
     assert parse_toml(out) == load_machine("robonano-a0ib").to_dict()
+
+
+def test_an_output_that_is_a_device_or_pipe_is_refused_not_replaced(tmp_path):
+    """The atomic rename would replace the node itself: a fuzz run as root turned /dev/zero
+    into a text file with `-o /dev/zero`.  A FIFO stands in for the device here."""
+    import os
+    import stat
+    from mtcomp._io import InputError, atomic_write
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="not a regular file"):
+        atomic_write(fifo, "x")
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert [p.name for p in tmp_path.iterdir()] == ["pipe"]        # no temporary file left
+    rc, _, e = main_inproc(["workpiece-setting", "plan", "-o", fifo])
+    assert rc == 2 and "not a regular file" in _one_line_error(rc, e)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
