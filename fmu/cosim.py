@@ -24,6 +24,27 @@ __all__ = ["interpolate_program", "cosimulate", "CosimResult", "FmuRunner", "run
 _PLANES = {17: ("X", "Y", "Z"), 18: ("Z", "X", "Y"), 19: ("Y", "Z", "X")}
 
 
+def block_points(prog, b: int, prev: np.ndarray, ix: dict, max_arc_step_deg: float) -> np.ndarray:
+    """Axis positions (m, n) mm/deg along block b of a parsed program, from `prev`: an arc at
+    most max_arc_step_deg apart (the other axes linear in its angle), any other block its end."""
+    end = np.asarray(prog.position[b], float)
+    if int(prog.motion[b]) not in (2, 3) or not np.isfinite(prog.arc_sweep[b]):
+        return end[None, :]
+    u, v, _ = (ix[c] for c in _PLANES[int(prog.plane[b])])
+    iu, iv = ("XYZ".index(c) for c in _PLANES[int(prog.plane[b])][:2])
+    cu, cv = prog.arc_centre[b, iu], prog.arc_centre[b, iv]
+    sweep = float(prog.arc_sweep[b])
+    r = np.hypot(prev[u] - cu, prev[v] - cv)
+    a0 = np.arctan2(prev[v] - cv, prev[u] - cu)
+    m = max(1, int(np.ceil(abs(np.degrees(sweep)) / max_arc_step_deg)))
+    s = np.arange(1, m + 1) / m
+    seg = prev + s[:, None] * (end - prev)
+    seg[:, u] = cu + r * np.cos(a0 + s * sweep)
+    seg[:, v] = cv + r * np.sin(a0 + s * sweep)
+    seg[-1] = end
+    return seg
+
+
 def interpolate_program(program, machine: Machine, step: float, *, rapid: float = 3000.0,
                         dwell: float = 0.0, max_arc_step_deg: float = 1.0, with_rapid: bool = False):
     """Sample an NC program at the communication step.
@@ -61,21 +82,7 @@ def interpolate_program(program, machine: Machine, step: float, *, rapid: float 
         end = prog.position[b]
         motion = int(prog.motion[b])
         feed = float(prog.feed[b])
-        if motion in (2, 3) and np.isfinite(prog.arc_sweep[b]):
-            u, v, w = (ix[c] for c in _PLANES[int(prog.plane[b])])
-            iu, iv = ("XYZ".index(c) for c in _PLANES[int(prog.plane[b])][:2])
-            cu, cv = prog.arc_centre[b, iu], prog.arc_centre[b, iv]
-            sweep = float(prog.arc_sweep[b])
-            r = np.hypot(prev[u] - cu, prev[v] - cv)
-            a0 = np.arctan2(prev[v] - cv, prev[u] - cu)
-            m = max(1, int(np.ceil(abs(np.degrees(sweep)) / max_arc_step_deg)))
-            s = np.arange(1, m + 1) / m
-            seg = prev + s[:, None] * (end - prev)
-            seg[:, u] = cu + r * np.cos(a0 + s * sweep)
-            seg[:, v] = cv + r * np.sin(a0 + s * sweep)
-            seg[-1] = end
-        else:
-            seg = end[None, :]
+        seg = block_points(prog, b, prev, ix, max_arc_step_deg)
         rate = rapid if motion == 0 else feed
         if motion != 0 and not (rate > 0):
             raise InputError("feed motion without a positive feed rate F", prog.filename, int(prog.line[b]))

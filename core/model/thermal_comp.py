@@ -68,7 +68,7 @@ def block_end_times(prog, machine, *, rapid: float = 3000.0, max_arc_step_deg: f
     mtcomp.fmu.cosim.interpolate_program (the same lengths and rates: feed moves at F over
     sqrt(sum of squared axis moves), arcs as chords of at most max_arc_step_deg, G0 at `rapid`
     over the longest axis move)."""
-    from ..fmu.cosim import _PLANES
+    from ..fmu.cosim import block_points
     ix = {a: k for k, a in enumerate(machine.axis_names)}
     prev = np.asarray(prog.start, float)
     t = 0.0
@@ -76,21 +76,7 @@ def block_end_times(prog, machine, *, rapid: float = 3000.0, max_arc_step_deg: f
     for b in range(len(prog)):
         end = np.asarray(prog.position[b], float)
         motion = int(prog.motion[b])
-        if motion in (2, 3) and np.isfinite(prog.arc_sweep[b]):
-            u, v, _ = (ix[c] for c in _PLANES[int(prog.plane[b])])
-            iu, iv = ("XYZ".index(c) for c in _PLANES[int(prog.plane[b])][:2])
-            cu, cv = prog.arc_centre[b, iu], prog.arc_centre[b, iv]
-            sweep = float(prog.arc_sweep[b])
-            r = np.hypot(prev[u] - cu, prev[v] - cv)
-            a0 = np.arctan2(prev[v] - cv, prev[u] - cu)
-            m = max(1, int(np.ceil(abs(np.degrees(sweep)) / max_arc_step_deg)))
-            s = np.arange(1, m + 1) / m
-            seg = prev + s[:, None] * (end - prev)
-            seg[:, u] = cu + r * np.cos(a0 + s * sweep)
-            seg[:, v] = cv + r * np.sin(a0 + s * sweep)
-            seg[-1] = end
-        else:
-            seg = end[None, :]
+        seg = block_points(prog, b, prev, ix, max_arc_step_deg)
         rate = rapid if motion == 0 else float(prog.feed[b])
         last = prev
         for pnt in seg:
