@@ -115,6 +115,25 @@ def _solve(B: np.ndarray, y: np.ndarray, want_inverse: bool = False):
     return beta_n / nrm, Ginv
 
 
+def _bounds(ctx: Context, cands) -> tuple[list, list]:
+    """Lower and upper bounds of all candidates' nonlinear parameters, stacked."""
+    lo, hi = [], []
+    for c in cands:
+        a, b = c.bounds(ctx)
+        lo += list(a)
+        hi += list(b)
+    return lo, hi
+
+
+def _split(x: np.ndarray, nls: list) -> list:
+    """The stacked nonlinear parameters x cut into one array per candidate (sizes nls)."""
+    out, i = [], 0
+    for m in nls:
+        out.append(x[i:i + m])
+        i += m
+    return out
+
+
 def joint_covariance(ctx: Context, f: "Fit"):
     """Unscaled covariance of all parameters of a fit, nonlinear (eta) and amplitudes (beta)
     together: (cov_eta, cov_beta), to be multiplied by the residual variance.
@@ -131,21 +150,10 @@ def joint_covariance(ctx: Context, f: "Fit"):
     if not len(x):
         return np.zeros((0, 0)), (_solve(B0, np.zeros(ctx.N), want_inverse=True)[1]
                                   if B0.shape[1] else np.zeros((0, 0)))
-    lo, hi = [], []
-    for c in f.cands:
-        a, b = c.bounds(ctx)
-        lo += list(a)
-        hi += list(b)
-
-    def split(v):
-        out, i = [], 0
-        for m in nls:
-            out.append(v[i:i + m])
-            i += m
-        return out
+    lo, hi = _bounds(ctx, f.cands)
 
     def pred(v):
-        F, B, _ = _assemble(ctx, f.cands, split(v))
+        F, B, _ = _assemble(ctx, f.cands, _split(v, nls))
         return F + (B @ beta if B.shape[1] else 0.0)
 
     cols = []
@@ -176,20 +184,12 @@ def fit(ctx: Context, cands: list, etas0: list, rows: np.ndarray | None = None,
         rows = None
     take = (lambda a: a) if rows is None else (lambda a: a[rows])
     nls = [len(c.nl_names) for c in cands]
-    lo, hi = [], []
-    for c in cands:
-        a, b = c.bounds(ctx)
-        lo += list(a)
-        hi += list(b)
+    lo, hi = _bounds(ctx, cands)
     x0 = np.concatenate([np.asarray(e, float) for e in etas0]) if sum(nls) else np.zeros(0)
     x0 = np.clip(x0, lo, hi) if len(x0) else x0
 
     def split(x):
-        out, i = [], 0
-        for m in nls:
-            out.append(x[i:i + m])
-            i += m
-        return out
+        return _split(x, nls)
 
     def resid_rows(x):
         F, B, _ = _assemble(ctx, cands, split(x))
