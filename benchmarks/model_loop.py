@@ -4,11 +4,12 @@ recording (20 nm noise), diagnose the first 60 %, export, prune through the mode
 and check on the last 40 % (held out): RMS of REC - re-simulation against the noise floor, and
 the parameter against its reported 3 sigma.
 
-    python benchmarks/model_loop.py [--seeds N] [--group classic|dynamics|compensate|all]   (default 2 seeds, all)
+    python benchmarks/model_loop.py [--seeds N] [--group classic|dynamics|glitch|compensate|all]   (default 2 seeds, all)
 
 Groups: "classic" (backlash, squareness, servo lag, workpiece setting, pivot offset; section
 model-loop) and "dynamics" (transport delay, stick-slip friction, thermal drift driven by a
-logged spindle speed or temperature; section model-loop-dynamics); "compensate" (friction and
+logged spindle speed or temperature, the quadrant glitch's spike form; section
+model-loop-dynamics); "glitch" (the spike form alone, section model-loop-glitch); "compensate" (friction and
 a spindle-driven thermal drift diagnosed, then `model compensate` with the diagnosed model:
 the co-simulated part error; section model-loop-compensate; not in "all").  Writes each group's table
 into docs/model-loop.md and docs/benchmarks.md.
@@ -54,6 +55,9 @@ def dynamic_cases(rng):
     b, tau = float(rng.uniform(2e-3, 5e-3)), float(rng.uniform(0.015, 0.04))
     yield ("quadrant_glitch (friction)", {"friction.breakaway.X": b, "friction.tau.X": tau},
            dict(friction_breakaway=(b, 0, 0), friction_tau=(tau, 0, 0)), 1200, 2e-3, {}, False, CIRCLE)
+    a, tau = float(rng.uniform(1e-3, 5e-3)), float(rng.uniform(0.015, 0.04))
+    yield ("quadrant_glitch (spike)", {"glitch.height.X": a, "glitch.time.X": tau},
+           dict(glitch_height=(a, 0, 0), glitch_time=(tau, 0, 0)), 1200, 2e-3, {}, False, CIRCLE)
     tau, drift = float(rng.uniform(2.0, 4.0)), float(rng.uniform(2e-3, 6e-3)) * rng.choice([-1, 1])
     yield ("thermal_drift (spindle)", {"thermal.time_constant": tau, "thermal.drift.z": drift,
                                        "thermal.initial_excess": 0.0, "thermal.reference": 20.0},
@@ -85,15 +89,18 @@ def cases(rng):
            {}, 3000, 2e-3, None, 0.0, "robonano-a0ib", ROTARY_PROGRAM)
 
 
-def run_dynamics(seeds: int) -> None:
+def run_dynamics(seeds: int, only: str | None = None, section: str = "model-loop-dynamics") -> None:
     """The dynamic effects' table (section model-loop-dynamics): every listed parameter must be
-    within its 3 sigma for the trial to count."""
+    within its 3 sigma for the trial to count.  only: the cases whose name starts with it
+    (their own section)."""
     rows: dict = {}
     nominal: dict = {}
     t0, c0 = time.perf_counter(), time.process_time()
     for seed in range(seeds):
         rng = np.random.default_rng(2000 + seed)
         for k, (name, truth, dyn, feed, step, drivers, refine, program) in enumerate(dynamic_cases(rng)):
+            if only and not name.startswith(only):
+                continue
             prog = program.format(F=feed)
             key = (prog, step, tuple(drivers))
             if key not in nominal:
@@ -113,7 +120,8 @@ def run_dynamics(seeds: int) -> None:
             res = lr.result
             r["ratio"].append(max(res.heldout_rms["after"][o] / NOISE for o in res.rec))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    lines = [f"Run of `benchmarks/model_loop.py --group dynamics --seeds {seeds}`: machine {M}, noise 20 nm, "
+    group = "glitch" if only else "dynamics"
+    lines = [f"Run of `benchmarks/model_loop.py --group {group} --seeds {seeds}`: machine {M}, noise 20 nm, "
              "h = 2 ms, F1200, diagnosis on the first 60 % of each recording, held-out RMS on the last 40 %; "
              f"{wall:.0f} s wall, {cpu:.0f} s CPU.", "",
              "| effect | trials | named | every parameter within 3 sigma | worst z: median | max "
@@ -125,14 +133,14 @@ def run_dynamics(seeds: int) -> None:
     lines += [""] + [f"{name}: {', '.join(r['params'])}" + (" (refined through the model)" if r["refine"] else "")
                      + "." for name, r in rows.items()]
     lines += ["", "Random per seed: delay 1-5 ms; breakaway 2-5 µm and catch-up 15-40 ms on X (a circle, "
-              "smooth reversals); thermal time constant 2-4 s, drift +-2-6 µm/K along z (spindle: 1 K per "
+              "smooth reversals); glitch height 1-5 µm and time to peak 15-40 ms on X (the same circle); thermal time constant 2-4 s, drift +-2-6 µm/K along z (spindle: 1 K per "
               "1000 1/min, steps at 0.8 s and 3.5 s; temperature: steps and a sine, initial excess +-0.5 K, "
               "reference 19.8-20.2 degC).", "", machine_line()]
     md = "\n".join(lines)
     print(md)
     doc = Path(__file__).resolve().parent.parent / "docs" / "model-loop.md"
-    update_section("model-loop-dynamics", md, doc)
-    update_section("model-loop-dynamics", md)
+    update_section(section, md, doc)
+    update_section(section, md)
 
 
 SPINDLE_PROGRAM = ("G90 G1 F1200\nX0 Y0 Z0\nX20 Y5\nS3000 M3\nX-20 Y-10\nX15 Y10\nS5000\nX-15 Y-5\n"
@@ -220,8 +228,11 @@ def run_compensation(seeds: int) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=2)
-    ap.add_argument("--group", choices=("classic", "dynamics", "compensate", "all"), default="all")
+    ap.add_argument("--group", choices=("classic", "dynamics", "glitch", "compensate", "all"), default="all")
     args = ap.parse_args(argv)
+    if args.group == "glitch":
+        run_dynamics(args.seeds, only="quadrant_glitch (spike)", section="model-loop-glitch")
+        return 0
     if args.group == "compensate":
         run_compensation(args.seeds)
         return 0

@@ -41,6 +41,7 @@ SVR_TABLES = 0
 VR_SPINDLE, VR_KV, VR_BACKLASH, VR_TAU, VR_GAIN, VR_AMBIENT, VR_DRIFT, VR_NOISE = 9, 100, 110, 120, 121, 122, 123, 126
 VR_P, VR_V, VR_TEMP, VR_ACT = 130, 133, 136, 140
 VR_TIN, VR_EXCESS, VR_TREF, VR_DELAY, VR_BREAK, VR_COULOMB, VR_FTAU = 127, 128, 129, 150, 160, 170, 180
+VR_GH, VR_GT = 190, 200
 IVR_SEED, IVR_DRIVER, IVR_INTERP = 0, 1, 2
 THERMAL_DRIVERS = {"spindle": 0, "temperature": 1, "time": 2}
 # Parameter ranges enforced by the C code (common.h, machine.c); declared as min/max too.
@@ -350,7 +351,10 @@ class MachineDynamics:
     delay: transport delay of the commands (s); friction_breakaway, friction_coulomb per axis
     (mm or deg) and friction_tau (s): at a reversal static friction holds the slide until the
     drive has wound up by the breakaway distance, then it catches up with time constant tau to a
-    lag of the Coulomb distance.  Thermal: thermal_driver "spindle" (T -> ambient + gain *
+    lag of the Coulomb distance; glitch_height per axis (mm or deg) and glitch_time (s): the
+    quadrant glitch in the diagnosis' spike form, a lag of height s exp(1 - s), s = (t -
+    t_reversal)/glitch_time, against the new direction after each reversal of the drive's
+    motion (glitch_time 0: none).  Thermal: thermal_driver "spindle" (T -> ambient + gain *
     spindle speed), "temperature" (T -> ambient + the change of the temperature input since the
     start) or "time" (T -> ambient: the initial excess relaxes) (or 0, 1, 2), time constant (s),
     gain (K per 1/min of spindle speed), ambient (degC), initial_excess (K: T at the start =
@@ -374,6 +378,8 @@ class MachineDynamics:
     friction_coulomb: tuple[float, ...] | float = 0.0
     friction_tau: tuple[float, ...] | float = 0.0
     interpolation: int = 0
+    glitch_height: tuple[float, ...] | float = 0.0
+    glitch_time: tuple[float, ...] | float = 0.0
 
     def per_axis(self, value, n: int, name: str) -> tuple[float, ...]:
         if np.ndim(value) == 0:
@@ -757,6 +763,8 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     brk = dyn.per_axis(dyn.friction_breakaway, n, "friction_breakaway")
     cou = dyn.per_axis(dyn.friction_coulomb, n, "friction_coulomb")
     ftau = dyn.per_axis(dyn.friction_tau, n, "friction_tau")
+    gh = dyn.per_axis(dyn.glitch_height, n, "glitch_height")
+    gt = dyn.per_axis(dyn.glitch_time, n, "glitch_time")
     extra = [Var("spindle_speed", VR_SPINDLE, "input", "Spindle speed driving the thermal drift (thermal.driver = 0), "
                  "1/min", start=0.0, unit="1/min", min=0.0, max=1e6),
              Var("temperature_input", VR_TIN, "input", "Logged temperature driving the thermal drift (thermal.driver "
@@ -792,7 +800,7 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
                      "step's command (ramp invariant: no half-step shift of the response)", type="Integer",
                      start=int(dyn.interpolation), min=0, max=1))
     extra.append(Var("delay", VR_DELAY, "parameter", "Transport delay: every axis acts on the command given this "
-                     "long before (linear between steps; at most the FMU's command history of about 190 steps)",
+                     "long before (linear between steps; at most the FMU's command history of 193 steps)",
                      start=float(dyn.delay), unit="s", min=0.0, max=1.0))
     for i, a in enumerate(machine.axes):
         unit, disp = _axis_unit(machine, i)
@@ -810,6 +818,16 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
         extra.append(Var(f"friction.tau.{a.name}", VR_FTAU + i, "parameter",
                          f"Time constant with which the slide of axis {a.name} catches up after breaking away",
                          start=ftau[i], unit="s", min=0.0, max=100.0))
+    for i, a in enumerate(machine.axes):
+        unit, disp = _axis_unit(machine, i)
+        extra.append(Var(f"glitch.height.{a.name}", VR_GH + i, "parameter",
+                         f"Quadrant glitch of axis {a.name} (spike form): peak lag against the new direction after "
+                         f"a reversal of the drive's motion, height * s exp(1 - s), s = t / glitch.time, {unit}",
+                         start=gh[i], unit=unit, display_unit=disp, min=-1.0, max=1.0))
+    for i, a in enumerate(machine.axes):
+        extra.append(Var(f"glitch.time.{a.name}", VR_GT + i, "parameter",
+                         f"Time from a reversal of axis {a.name} to the peak of its quadrant glitch (0: no glitch)",
+                         start=gt[i], unit="s", min=0.0, max=100.0))
     extra += [
         Var("thermal.driver", IVR_DRIVER, "parameter", "Driver of the machine temperature: 0 spindle speed "
             "(ambient + gain * spindle_speed), 1 temperature_input (ambient + its change since the start), 2 none "

@@ -264,6 +264,51 @@ def test_circle_test_with_reversal_spikes():
     assert np.abs(after - ideal).max() < 0.12e-3
 
 
+def test_glitch_lead_inverts_the_reference_glitch():
+    """glitch_commands with friction, backlash and feed-forward, through the Python reference of
+    the FMU (servo, play, friction, quadrant glitch in the spike form on every axis): the axes
+    follow the targets to 1e-12 mm (on Y the friction compensation holds the drive at each
+    reversal, so the glitch's clock comes from the drive); the lead after X's reversal is the
+    glitch itself."""
+    from mtcomp.model.compensate import backlash_offsets, feed_forward
+    from mtcomp.model.compensate import _glitch_and_friction
+    from mtcomp.model.friction_comp import glitch_commands
+    from mtcomp.model.machine_ref import axis_response
+    t = np.arange(3000) * STEP
+    w = np.column_stack([5 * np.cos(2 * np.pi * t / 1.5), 5 * np.sin(2 * np.pi * t / 1.5),
+                         np.interp(t, [0, 0.5, 1.0, 3.0], [0, 2.0, 2.0, -1.0])])
+    gh, gt = (0.003, 0.001, 0.002), (0.03, 0.01, 0.02)
+    kv, bl, brk, ftau = (60.0, 0.0, 80.0), (0.002, 0.0, 0.0), (0.0, 0.002, 0.0), (0.0, 0.02, 0.0)
+    dyn = MachineDynamics(kv=kv, backlash=bl, friction_breakaway=brk, friction_tau=ftau, glitch_height=gh,
+                          glitch_time=gt)
+    s = _glitch_and_friction(w, STEP, (gh, gt), (brk, (0.0, 0.0, 0.0), ftau), bl)
+    u = feed_forward(s + backlash_offsets(s, bl), kv, STEP)
+    assert np.abs(axis_response(u, STEP, dyn) - w).max() < 1e-12
+    k = int(np.argmin(w[:, 0]))                       # X reverses at its minimum (t = 0.75 s)
+    lead = (glitch_commands(w, STEP, gh, gt) - w)[:, 0]
+    assert np.abs(lead[:k + 1]).max() == 0.0
+    assert lead.max() == pytest.approx(0.003, rel=1e-9) and np.argmax(lead) == k + 30   # tau = 30 steps
+
+
+def test_circle_test_with_the_glitch_lead():
+    """The quadrant glitch in the spike form (3 µm, 30 ms on X; 2 µm, 20 ms on Y) on a circle
+    in the machine FMU: the deviation from the ideal machine's run drops from 3 µm to the axis
+    resolution's floor (0.1 µm), with --no-friction it stays."""
+    pytest.importorskip("fmpy")
+    from mtcomp.model.simulate import simulate
+    dyn = model_dynamics({"glitch.height.X": 0.003, "glitch.time.X": 0.03, "glitch.height.Y": 0.002,
+                          "glitch.time.Y": 0.02}, M, STEP)
+    ideal = simulate(CIRCLE, M, None, None, step=STEP, compiler="cc").p
+    text, rep = compensate_with_model(CIRCLE, M, None, dyn)
+    assert rep.glitch == ((0.003, 0.002, 0.0), (0.03, 0.02, 0.0)) and "quadrant glitch lead" in rep.summary()
+    before = simulate(CIRCLE, M, None, dyn.machine_dynamics(M), step=STEP, compiler="cc").p
+    after = simulate(text, M, None, dyn.machine_dynamics(M), step=STEP, compiler="cc").p
+    assert np.abs(before - ideal).max() > 2.5e-3
+    assert np.abs(after - ideal).max() < 0.12e-3
+    text, rep = compensate_with_model(CIRCLE, M, None, dyn, friction=False)
+    assert text == CIRCLE and rep.glitch is None
+
+
 def test_friction_switch_off_is_the_previous_output():
     dyn = model_dynamics(FRICTION, M, STEP)
     text, rep = compensate_with_model(CIRCLE, M, None, dyn, friction=False)

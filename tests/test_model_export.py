@@ -91,7 +91,7 @@ def test_no_home_effects_are_listed_not_dropped(tmp_path):
                _effect("thermal_drift", "z", ["hum"], {"gain_mm_per_pct": 1e-7, "tau_s": 600.0}),
                _effect("friction", "vx", ["vx"], {"coulomb_mm_per_s": 0.1}),
                _effect("pivot_offset", "x,z", ["b"], {"dx_mm": 0.001}),         # no rotary axis on the VMC
-               _effect("quadrant_glitch", "y", ["y"], {"peak_mm": 0.001, "tau_s": 0.01})]   # the spike form
+               _effect("quadrant_glitch", "y", ["y"], {"peak_mm": 2.0, "tau_s": 0.01})]   # beyond the FMU's range
     ex = export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3)
     assert [m.effect for m in ex.mapped] == ["backlash"]
     names = ["time_offset", "thermal_drift", "friction", "pivot_offset", "quadrant_glitch"]
@@ -111,13 +111,16 @@ def test_dynamic_effects_have_a_home(tmp_path):
     effects = [_effect("time_offset", "x,y,z", ["t"], {"offset_s": 2e-3}, {"offset_s": 1e-6}),
                _effect("quadrant_glitch", "y", ["y"], {"breakaway_mm": 0.003, "tau_s": 0.02},
                        {"breakaway_mm": 1e-5, "tau_s": 1e-4}),
+               _effect("quadrant_glitch", "x", ["x"], {"peak_mm": -0.0025, "tau_s": 0.015},      # the spike form
+                       {"peak_mm": 2e-6, "tau_s": 3e-5}),
                _effect("thermal_drift", "z", ["spindle_speed"], {"gain_mm_per_rpm": 4e-6, "tau_s": 3.0,
                                                                  "initial_mm": 1e-3, "offset_mm": -2e-3}),
                _effect("thermal_drift", "x", ["spindle_speed"], {"gain_mm_per_rpm": -1e-6, "tau_s": 2.0})]
     ex = export_model({"effects": effects}, VMC, tmp_path / "m", step=1e-3, drivers={"spindle_speed": 1000.0})
     dyn = load_dynamics(tmp_path / "m" / "dynamics.toml", load_machine(VMC))
     ssv = read_ssv(tmp_path / "m" / "machine.ssv")
-    want = {"delay": 2e-3, "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "thermal.driver": 0,
+    want = {"delay": 2e-3, "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "glitch.height.X": -0.0025,
+            "glitch.time.X": 0.015, "thermal.driver": 0,
             "thermal.gain": 1e-3, "thermal.time_constant": 3.0, "thermal.drift.z": 4e-3, "thermal.drift.x": -1e-3,
             # excess = r0/drift + G S0 = 0.25 + 1; reference = 20 + G S0 - c/drift = 20 + 1 + 0.5
             "thermal.initial_excess": 1.25, "thermal.reference": 21.5}

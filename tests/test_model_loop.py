@@ -272,6 +272,22 @@ def test_friction_loop(tmp_path, seed):
     _assert_matches_noise(res)
 
 
+@pytest.mark.parametrize("seed", [17, 18])
+def test_quadrant_glitch_spike_loop(tmp_path, seed):
+    """A quadrant glitch in the spike form on X (peak 3 µm, 30 ms after each reversal) on a
+    circle: diagnosed as quadrant_glitch (peak, tau), exported as glitch.height.X and
+    glitch.time.X, the FMU's own spike term, re-simulated to the noise on held-out time."""
+    a, tau = 0.003, 0.03
+    diag, got, res = _dyn_loop(tmp_path, CIRCLE, MachineDynamics(glitch_height=(a, 0, 0), glitch_time=(tau, 0, 0),
+                                                                 noise=NOISE, seed=seed))
+    assert diag.names == ["quadrant_glitch"]
+    assert "friction.breakaway.X" not in got
+    _within_3sigma(got["glitch.height.X"].value, got["glitch.height.X"].sigma, a)
+    _within_3sigma(got["glitch.time.X"].value, got["glitch.time.X"].sigma, tau)
+    assert res.heldout_rms["before"]["x"] > 5 * NOISE
+    _assert_matches_noise(res)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("driver", ["spindle", "temperature"])
 def test_thermal_drift_loop(tmp_path, driver):

@@ -49,6 +49,12 @@ CASES = {
                  friction_tau=(0.02, 0.0, 0.05), thermal_time_constant=0.7, thermal_gain=1e-3,
                  drift=(0.002, -0.001, 0.003), initial_excess=-0.5, reference=20.2),
         spindle=lambda t: 1000.0 * (t > 0.8)),
+    "quadrant glitch (spike form) on a held servo with backlash and friction": dict(
+        dyn=dict(kv=(50.0, 0.0, 80.0), backlash=(0.0, 0.002, 0.0), friction_breakaway=(0.0, 0.002, 0.0),
+                 friction_tau=(0.0, 0.01, 0.0), glitch_height=(0.003, -0.002, 0.001), glitch_time=(0.02, 0.005, 0.0))),
+    "quadrant glitch on a ramp servo with delay": dict(
+        dyn=dict(kv=(40.0, 0.0, 0.0), interpolation=1, delay=0.0021, glitch_height=(0.002, 0.004, 0.003),
+                 glitch_time=(0.015, 0.03, 0.01))),
     "ramp servo, delay, friction, temperature-driven drift": dict(
         dyn=dict(kv=(40.0, 90.0, 200.0), interpolation=1, delay=0.0021, backlash=(0.0, 0.003, 0.0),
                  friction_breakaway=(0.002, 0.0, 0.001), friction_tau=(0.01, 0.0, 0.0),
@@ -132,6 +138,32 @@ def test_friction_sticks_for_the_breakaway_then_catches_up_exponentially(machine
     lag = run_machine(fmu, machine, q, step).actual[:, ix] - q[:, ix]
     assert lag[199] == pytest.approx(-0.001, abs=1e-7) and lag[-1] == pytest.approx(0.001, abs=3e-7)
     assert lag[202] > 0.002                                              # the glitch after the reversal
+
+
+def test_quadrant_glitch_is_the_diagnosis_spike_after_each_reversal(machine, tmp_path):
+    """Out at 10 mm/s and back, the command peaking at row 200 (t = 0.2 s): the drive reaches
+    it at the end of that step and turns, so output row k (the end of step k) is t_k - 0.2 s
+    after the reversal, on the recording's clock the time since the peak sample, as the
+    diagnosis counts it.  The actual position lags against the new direction by A s exp(1 - s),
+    s = (t_k - 0.2)/tau, peak A at tau after it (the diagnosis' quadrant_glitch); none before
+    the reversal; a second reversal (row 400) restarts it with the other sign."""
+    step, v, A, tau = 1e-3, 10.0, 0.003, 0.02
+    K = 600
+    ix = machine.axis_names.index("X")
+    t = np.arange(K) * step
+    q = np.zeros((K, machine.n_axes))
+    q[:, ix] = v * np.minimum(t, 0.2) - v * np.clip(t - 0.2, 0.0, 0.2) + v * np.maximum(t - 0.4, 0.0)
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=MachineDynamics(glitch_height=(A, 0, 0),
+                                                                                   glitch_time=(tau, 0, 0)))
+    err = run_machine(fmu, machine, q, step).actual[:, ix] - q[:, ix]
+    assert np.max(np.abs(err[:200])) == 0.0
+    s1 = (t - 0.2) / tau
+    s2 = (t - 0.4) / tau
+    want = np.where(t <= 0.4 + 1e-12, A * s1 * np.exp(1 - s1), -A * s2 * np.exp(1 - s2))
+    want[:201] = 0.0
+    assert np.max(np.abs(err - want)) < 1e-12
+    k_peak = int(np.argmax(err))
+    assert t[k_peak] == pytest.approx(0.2 + tau) and err[k_peak] == pytest.approx(A, rel=1e-12)
 
 
 def test_thermal_drift_over_time_and_driver_checks(machine, tmp_path):

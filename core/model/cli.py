@@ -233,7 +233,7 @@ def register_compensate(sub) -> None:
     c.add_argument("--no-geometric", action="store_true", help="leave the geometric and setting errors out")
     c.add_argument("--no-backlash", action="store_true", help="no reversal compensation")
     c.add_argument("--no-servo", action="store_true", help="no servo-lag feed-forward")
-    c.add_argument("--no-friction", action="store_true", help="no reversal spikes for the friction breakaway")
+    c.add_argument("--no-friction", action="store_true", help="no reversal spikes for the friction breakaway, no lead for the quadrant glitch")
     c.add_argument("--no-thermal", action="store_true", help="no thermal offsets (spindle- or time-driven drift "
                    "subtracted along the program; a drift driven by a logged temperature goes to OUT.thermal.toml "
                    "for the control)")

@@ -65,6 +65,15 @@ class ModelDynamics:
         from .thermal_comp import ThermalModel
         return ThermalModel.from_dynamics(self.machine_dynamics(machine))
 
+    def glitch(self, machine) -> tuple | None:
+        """(height, time) per-axis tuples of the quadrant glitch (spike form), None without it."""
+        d = self.machine_dynamics(machine)
+        n = load_machine(machine).n_axes
+        gh, gt = d.per_axis(d.glitch_height, n, "glitch"), d.per_axis(d.glitch_time, n, "glitch")
+        if not any(h != 0 and t > 0 for h, t in zip(gh, gt)):
+            return None
+        return gh, gt
+
     def friction(self, machine) -> tuple | None:
         """(breakaway, coulomb, tau) per-axis tuples, None without friction."""
         d = self.machine_dynamics(machine)
@@ -230,7 +239,8 @@ def sampled_program(u: np.ndarray, step: float, machine, *, header=(), spindle=N
 class CompensationReport:
     """What was compensated: geometric (bool), backlash / servo (per axis values used, or None),
     step (s, of the sampling, None without dynamics), blocks (written), geometric report (dict
-    of compensate_program); friction ((breakaway, coulomb, tau) per axis, or None), thermal
+    of compensate_program); friction ((breakaway, coulomb, tau) per axis, or None), glitch
+    ((height, time) per axis of the quadrant glitch's spike form, or None), thermal
     ("spindle_speed" | "time" when subtracted along the program, "temperature" when left to the
     control, None), delay (s, the lead the thermal offsets were evaluated with, None),
     thermal_control (the control's parameters, mtcomp.model.thermal_comp.control_parameters,
@@ -245,6 +255,7 @@ class CompensationReport:
     thermal: str | None = None
     delay: float | None = None
     thermal_control: dict | None = None
+    glitch: tuple | None = None
 
     def summary(self) -> str:
         th = None
@@ -257,7 +268,9 @@ class CompensationReport:
                  f"backlash {', '.join(f'{b * 1e3:g} µm' for b in self.backlash)}" if self.backlash else None,
                  f"servo feed-forward kv {', '.join(f'{k:g}' for k in self.kv)} 1/s" if self.kv else None,
                  "reversal spikes (friction breakaway " + ", ".join(f"{b * 1e3:g}" for b in self.friction[0])
-                 + " µm)" if self.friction else None, th]
+                 + " µm)" if self.friction else None,
+                 "quadrant glitch lead (height " + ", ".join(f"{g * 1e3:g}" for g in self.glitch[0]) + " µm)"
+                 if self.glitch else None, th]
         what = "; ".join(p for p in parts if p) or "nothing"
         tail = f" (sampled every {self.step * 1e3:g} ms)" if self.step else ""
         return f"compensated: {what}; {self.blocks} blocks{tail}"
@@ -276,7 +289,8 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
     """Rewrite an NC program for the machine the model describes: geometric and setting
     `errors` (when `geometric`), then the `dynamics` thermal offsets (`thermal`: spindle- or
     time-driven drift subtracted along the program; a drift driven by a logged temperature is
-    left to the control, its parameters in the report), friction reversal spikes (`friction`),
+    left to the control, its parameters in the report), friction reversal spikes and the
+    quadrant glitch's lead (`friction`),
     backlash (`backlash`) and servo lag (`servo`); `delay`: the thermal offsets are taken at the
     time the axes act (t + transport delay).  Returns (new_text, CompensationReport).  rapid:
     the G0 rate (mm/min) the control runs, for the sampling.  With every new switch off (or
@@ -292,6 +306,7 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
             raise InputError(f"expected {n} {name} values (one per axis of {machine.name}), got {len(vals)}",
                              field=name)
     fr = dynamics.friction(machine) if (dynamics and friction and dynamics.params) else None
+    gl = dynamics.glitch(machine) if (dynamics and friction and dynamics.params) else None
     tm = dynamics.thermal(machine) if (dynamics and thermal and dynamics.params) else None
     from .thermal_comp import DRIVERS, control_parameters
     th_name = DRIVERS[tm.driver] if tm is not None else None
@@ -302,13 +317,13 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
     if done is not None:
         raise InputError("this program was already compensated by mtcomp (provenance header): use the original "
                          "program", filename, done)
-    sampled = bl is not None or kv is not None or fr is not None or th_pred is not None
+    sampled = bl is not None or kv is not None or fr is not None or gl is not None or th_pred is not None
     rep_geo: dict = {}
     geo = bool(geometric and errors is not None and not _no_errors(errors))
     if geo:
         text, rep_geo = compensate_program(text, machine, errors, filename=filename,
                                            provenance=None if sampled else list(provenance or []))
-    extra = dict(friction=fr, thermal=th_name, delay=lead, thermal_control=th_ctl)
+    extra = dict(friction=fr, thermal=th_name, delay=lead, thermal_control=th_ctl, glitch=gl)
     if not sampled:
         return text, CompensationReport(geo, None, None, None, int(rep_geo.get("blocks", 0)), rep_geo, **extra)
     from ..fmu.cosim import interpolate_program
@@ -323,20 +338,43 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
         from .thermal_comp import predicted_temperature, thermal_correction, thermal_offsets
         T = predicted_temperature(th_pred, len(w), h, sp, lead=lead or 0.0)
         w = thermal_correction(machine, w, thermal_offsets(machine, w, th_pred, T, errors), errors)
-    if fr is not None:
-        from .friction_comp import friction_commands
-        w = friction_commands(w, h, *fr)
+    w = _glitch_and_friction(w, h, gl, fr, bl)
     u = w + (backlash_offsets(w, bl) if bl else 0.0)
     if kv:
         u = feed_forward(u, kv, h)
     what = ", ".join(x for x, on in (("geometric and setting errors", geo), ("backlash", bl),
                                      ("servo feed-forward", kv), ("friction reversal spikes", fr),
+                                     ("quadrant glitch lead", gl),
                                      (f"thermal offsets ({th_name})", th_pred),
                                      (f"at the axes' time (delay {lead:g} s)" if lead else "", lead)) if on)
     items = list(provenance or []) + [("DYNAMICS", f"{what}; sampled every {h:g} s; G0 as G1 at {rapid:g} mm/min")]
     new = sampled_program(u, h, machine, header=header_lines(items), spindle=sp, start=w0)
     blocks = sum(1 for ln in new.splitlines() if ln and ln[0] in machine.axis_names)
     return new, CompensationReport(geo, bl, kv, h, blocks, rep_geo, **extra)
+
+
+def _glitch_and_friction(w: np.ndarray, h: float, gl, fr, bl) -> np.ndarray:
+    """The drive positions (before backlash and feed-forward) for the targets w: the FMU adds the
+    glitch after the friction element, so the targets are led by the glitch first
+    (friction_comp.glitch_commands) and the friction inverted on that.  The glitch runs on the
+    drive's reversals, which the friction (and backlash) compensation can move by a few steps:
+    with friction too, the glitch's clock is taken from the drive and the two solved again until
+    the drive's reversals stay (at most 4 rounds)."""
+    from .friction_comp import friction_commands, glitch_commands
+    if gl is None:
+        return friction_commands(w, h, *fr) if fr is not None else w
+    g = glitch_commands(w, h, *gl)
+    s = friction_commands(g, h, *fr) if fr is not None else g
+    if fr is None and not bl:
+        return s
+    for _ in range(4):
+        drive = s + (backlash_offsets(s, bl) if bl else 0.0)
+        g2 = glitch_commands(w, h, *gl, drive=drive)
+        if np.array_equal(g2, g):
+            break
+        g = g2
+        s = friction_commands(g, h, *fr) if fr is not None else g
+    return s
 
 
 # ---------------------------------------------------------------- part error of a co-simulation
@@ -417,7 +455,7 @@ def compensation_stages(dynamics: ModelDynamics | None, machine) -> list:
         stages.append(("+backlash", dict(off, backlash=True)))
     if dynamics is not None and any(dynamics.kv):
         stages.append(("+servo", dict(off, backlash=True, servo=True)))
-    has_fr = bool(dynamics and dynamics.params and dynamics.friction(machine))
+    has_fr = bool(dynamics and dynamics.params and (dynamics.friction(machine) or dynamics.glitch(machine)))
     tm = dynamics.thermal(machine) if (dynamics and dynamics.params) else None
     if has_fr:
         stages.append(("+friction", dict(off, backlash=True, servo=True, friction=True)))

@@ -10,6 +10,8 @@ step_s = 0.001                      # communication step the kv values are for (
 "delay" = 0.0033                    # s
 "friction.breakaway.X" = 0.003      # mm
 "friction.tau.X" = 0.03             # s
+"glitch.height.Y" = 0.002           # mm, quadrant glitch (spike form) peak
+"glitch.time.Y" = 0.02              # s, reversal to peak
 "thermal.driver" = 0                # 0 spindle speed, 1 temperature input, 2 none (time)
 "thermal.drift.z" = 0.004           # mm/K
 [uncertainty]                       # one standard deviation, same keys (informational)
@@ -28,7 +30,10 @@ from .._io import InputError, atomic_write, dump_toml, parse_toml, read_text
 
 # per-axis parameters: name prefix -> MachineDynamics field
 AXIS_PREFIXES = {"servo.kv.": "kv", "backlash.": "backlash", "friction.breakaway.": "friction_breakaway",
-                 "friction.coulomb.": "friction_coulomb", "friction.tau.": "friction_tau"}
+                 "friction.coulomb.": "friction_coulomb", "friction.tau.": "friction_tau",
+                 "glitch.height.": "glitch_height", "glitch.time.": "glitch_time"}
+# per-axis parameters that may be negative (within +-1 mm or deg)
+SIGNED = ("glitch.height.",)
 # scalar parameters: name -> (MachineDynamics field, lowest value, highest value)
 SCALARS = {"delay": ("delay", 0.0, 1.0), "servo.interpolation": ("interpolation", 0, 1),
            "thermal.driver": ("thermal_driver", 0, 2), "thermal.gain": ("thermal_gain", 0.0, 1.0),
@@ -78,12 +83,14 @@ def load_dynamics(path, machine=None) -> dict:
         pref = next((p for p in AXIS_PREFIXES if k.startswith(p)), None)
         if pref is None and k not in SCALARS and k not in DRIFT:
             raise InputError(f"unknown dynamics parameter {k!r}; expected servo.kv.<AXIS>, backlash.<AXIS>, "
-                             "friction.{breakaway,coulomb,tau}.<AXIS>, delay, servo.interpolation or thermal.*",
+                             "friction.{breakaway,coulomb,tau}.<AXIS>, glitch.{height,time}.<AXIS>, delay, servo.interpolation or thermal.*",
                              path, field=f"parameters.{k}")
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise InputError(f"expected a finite number, got {v!r}", path, field=f"parameters.{k}")
         if pref is not None:
-            if v < 0:
+            if pref in SIGNED and abs(v) > 1.0:
+                raise InputError(f"expected a number within +-1, got {v!r}", path, field=f"parameters.{k}")
+            if pref not in SIGNED and v < 0:
                 raise InputError(f"expected a number >= 0, got {v!r}", path, field=f"parameters.{k}")
             ax = k[len(pref):]
             if axes is not None and ax not in axes:
@@ -105,8 +112,8 @@ def apply_dynamics(base, params: dict, machine, *, combine: bool = True):
 
     combine: the fitted values describe what the base model lacked (the diagnosis fits
     REC - SIM): backlash widths and delays add; servo lags add as time constants in series
-    (1/kv = 1/kv_base + 1/kv_fit, to first order), kv_base = 0 being the ideal servo; friction
-    and the thermal model replace the base's (one thermal state: a fitted drift replaces the
+    (1/kv = 1/kv_base + 1/kv_fit, to first order), kv_base = 0 being the ideal servo; friction,
+    the quadrant glitch and the thermal model replace the base's (one thermal state: a fitted drift replaces the
     base's).  Without combine the fitted values replace the base ones."""
     names = machine.axis_names
     n = len(names)

@@ -89,3 +89,47 @@ def friction_commands(w: np.ndarray, step: float, breakaway, coulomb, tau) -> np
         if brk[i] > 0 or cou[i] > 0:
             out[:, i] = friction_axis(w[:, i], step, float(brk[i]), float(cou[i]), float(ftau[i]))
     return out
+
+
+def reversal_clock(w: np.ndarray, step: float) -> tuple:
+    """For the samples w (K,) of one axis (mm or deg), the machine FMU's reversal rule
+    (fmu/c/machine.c, machine_ref.axis_response): the motion over step k is w_k - w_{k-1}
+    (moves of at most 1e-12 keep the direction); where it opposes the last direction the motion
+    reversed at t_k = k h.  Returns (since (K,) s from the last reversal to the end of step k,
+    inf before the first; direction (K,) +1/-1, 0 before the first move).  Vectorised."""
+    w = np.asarray(w, float)
+    K = len(w)
+    dw = np.diff(w, prepend=w[:1])
+    s = np.where(np.abs(dw) > 1e-12, np.sign(dw), 0.0)
+    idx = np.where(s != 0, np.arange(K), -1)
+    np.maximum.accumulate(idx, out=idx)
+    d = np.where(idx >= 0, s[np.clip(idx, 0, None)], 0.0)
+    prev = np.concatenate([[0.0], d[:-1]])
+    rev = (s != 0) & (prev != 0) & (s != prev)
+    k_rev = np.where(rev, np.arange(K), -1)
+    np.maximum.accumulate(k_rev, out=k_rev)
+    since = np.where(k_rev >= 0, (np.arange(K) + 1 - k_rev) * step, np.inf)
+    return since, d
+
+
+def glitch_commands(w: np.ndarray, step: float, height, time, drive: np.ndarray | None = None) -> np.ndarray:
+    """(K, n) targets with the quadrant glitch (spike form) taken out: the machine FMU lags the
+    axis by height s exp(1 - s), s = since/time, against its new direction after each reversal
+    (machine_ref.glitch), so the target is led by the same spike: w + height d s exp(1 - s),
+    the reversals found on w by the FMU's own rule (`reversal_clock`).  Exact for the ideal
+    servo and with the feed-forward (the servo reaches each sample); the lead moves along the
+    new direction at first, so it adds no reversal of its own while the axis is faster than
+    0.37 height/time.  Per-axis height (mm or deg) and time (s); time 0: unchanged.  drive:
+    (K, n) the servo's positions, whose reversals time the FMU's glitch (default w: they differ
+    where a friction or backlash compensation holds the drive at a reversal)."""
+    from .machine_ref import glitch
+    w = np.asarray(w, float)
+    n = w.shape[1]
+    gh, gt = (np.broadcast_to(np.asarray(v, float), (n,)) for v in (height, time))
+    out = w.copy()
+    for i in range(n):
+        if gt[i] > 0 and gh[i] != 0:
+            since, d = reversal_clock((w if drive is None else np.asarray(drive, float))[:, i], step)
+            out[:, i] = w[:, i] - glitch(since, d, float(gh[i]), float(gt[i]))
+    return out
+

@@ -3,7 +3,7 @@ against, step by step.
 
 Per axis, in this order: transport delay of the commands, first-order servo (command held over
 the step, or linear from the previous step's command), backlash (play), friction at reversals
-(stick-slip); then the exact forward model (mtcomp.kinematics.forward) at the actual positions,
+(stick-slip), quadrant glitch (spike form, `glitch`); then the exact forward model (mtcomp.kinematics.forward) at the actual positions,
 the thermal drift added along the tool frame.  The math is in docs/model-loop.md ("The machine
 FMU's dynamics"); each function says what it computes and in which units.  Written out by hand:
 no library has this discrete machine model, and the test needs an independent implementation.
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ReferenceRun", "delayed_commands", "servo_step", "play", "FrictionState", "friction_step",
-           "axis_response", "temperature", "simulate_reference"]
+           "glitch", "axis_response", "temperature", "simulate_reference"]
 
 
 @dataclass(frozen=True)
@@ -116,6 +116,20 @@ def friction_step(st: FrictionState, s0: float, s1: float, h: float, breakaway: 
     st.slide = s1 - st.err
 
 
+def glitch(since: np.ndarray, direction: np.ndarray, height: float, time: float) -> np.ndarray:
+    """Quadrant glitch (spike form, mm or deg): -height d s exp(1 - s), s = since/time, `since` the
+    time (s) from the drive's last reversal (inf before any), d the direction of motion since;
+    the diagnosis' quadrant_glitch (mtcomp.diagnose.effects.friction.QuadrantGlitch), peak
+    `height` at `time` after the reversal.  time = 0: none."""
+    since = np.asarray(since, float)
+    if not time > 0:
+        return np.zeros_like(since)
+    s = since / time
+    ok = (s > 0) & (s <= 700.0)
+    sc = np.where(ok, s, 0.0)
+    return np.where(ok, -height * np.asarray(direction, float) * sc * np.exp(1.0 - sc), 0.0)
+
+
 def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = None) -> np.ndarray:
     """(K, n) actual axis positions (mm/deg) at the end of each step for the commands q (K, n)
     given at t_k = k step, under `dynamics` (mtcomp.fmu.build.MachineDynamics)."""
@@ -126,6 +140,8 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
     brk = dynamics.per_axis(dynamics.friction_breakaway, n, "friction_breakaway")
     cou = dynamics.per_axis(dynamics.friction_coulomb, n, "friction_coulomb")
     ftau = dynamics.per_axis(dynamics.friction_tau, n, "friction_tau")
+    gh = dynamics.per_axis(getattr(dynamics, "glitch_height", 0.0), n, "glitch_height")
+    gt = dynamics.per_axis(getattr(dynamics, "glitch_time", 0.0), n, "glitch_time")
     c1 = delayed_commands(q, step, float(dynamics.delay))
     # the command a step before: the delayed command at t_k - h (the first row before the start)
     c0 = np.vstack([c1[:1], c1[:-1]]) if dynamics.interpolation else c1
@@ -138,18 +154,33 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
         pl = q[0, i]
         fr = FrictionState(q[0, i])
         on = brk[i] > 0 or cou[i] > 0
+        since = np.full(K, np.inf)     # from the drive's last reversal to the end of step k
+        gdir = np.zeros(K)
+        d, t_rev = 0.0, None
         for k in range(K):
             end, mid = servo_step(servo, float(c0[k, i]), float(c1[k, i]), kv[i], step)
             pl = play(servo, pl, bl[i])
             s0 = pl
             pl = play(mid, pl, bl[i])
             pl = play(end, pl, bl[i])
+            # the drive's motion over the step (resolved to the step): a reversal starts the glitch
+            # at the step's start, t_k = k h
+            if abs(end - servo) > 1e-12:
+                nd = 1.0 if end > servo else -1.0
+                if d != 0.0 and nd != d:
+                    t_rev = k * step
+                d = nd
+            gdir[k] = d
+            if t_rev is not None:
+                since[k] = (k + 1) * step - t_rev
             servo = end
             if on:
                 friction_step(fr, s0, pl, step, brk[i], cou[i], ftau[i])
                 out[k, i] = fr.slide
             else:
                 out[k, i] = pl
+        if gt[i] > 0:
+            out[:, i] += glitch(since, gdir, gh[i], gt[i])
     return out
 
 

@@ -347,18 +347,35 @@ def map_time_offset(e: dict, machine: Machine, step: float | None) -> Mapped:
 
 
 def map_quadrant_glitch(e: dict, machine: Machine, step: float | None) -> Mapped:
-    """Stick-slip at reversals (breakaway delta, catch-up tau) -> friction.breakaway.<AXIS> =
-    delta, friction.tau.<AXIS> = tau: the FMU's friction element is that model (the slide stays
-    where the motion reversed until the drive has moved delta back, then its lag decays with
-    tau).  The spike form (peak, tau: a fixed shape in time) is not that physics: no home."""
+    """Both forms of the diagnosis' quadrant glitch have a home in the machine FMU.
+
+    Stick-slip form (breakaway delta, catch-up tau) -> friction.breakaway.<AXIS> = delta,
+    friction.tau.<AXIS> = tau: the FMU's friction element is that model (the slide stays where
+    the motion reversed until the drive has moved delta back, then its lag decays with tau).
+
+    Spike form r = -A d s exp(1 - s), s = (t - t_rev)/tau (peak A, output unit, at tau s after
+    the reversal) -> glitch.height.<AXIS> = A, glitch.time.<AXIS> = tau: the FMU adds exactly
+    this term to the axis after each reversal of the drive's motion.  The output is
+    sign * q + offset of its axis, and r flips with d: A is the same on the axis."""
     ax = linear_axis(machine, _one_output(e))
     bkey = next((k for k in e["params"] if k.startswith("breakaway_")), None)
-    if bkey is None:
-        raise NoHome("quadrant_glitch in the spike form (a fixed shape in time after each reversal) is not the "
-                     "machine model's friction, which follows the command (the stick-slip form)")
+    if bkey is not None:
+        return Mapped("quadrant_glitch", e["output"],
+                      (Param(f"friction.breakaway.{ax.axis}", _p(e, bkey), _s(e, bkey), "mm"),
+                       Param(f"friction.tau.{ax.axis}", _p(e, "tau_s"), _s(e, "tau_s"), "s")))
+    pkey = next((k for k in e["params"] if k.startswith("peak_")), None)
+    if pkey is None:
+        raise NoHome("quadrant_glitch: neither breakaway_<unit> (stick-slip) nor peak_<unit> (spike) in the "
+                     "diagnosis")
+    a, tau = _p(e, pkey), _p(e, "tau_s")
+    if abs(a) > 1.0 or not 0.0 < tau <= 100.0:
+        raise NoHome(f"quadrant_glitch on {e['output']}: height {a:.3g} mm, time {tau:.3g} s are outside the FMU's "
+                     "ranges (+-1 mm, 0..100 s)")
     return Mapped("quadrant_glitch", e["output"],
-                  (Param(f"friction.breakaway.{ax.axis}", _p(e, bkey), _s(e, bkey), "mm"),
-                   Param(f"friction.tau.{ax.axis}", _p(e, "tau_s"), _s(e, "tau_s"), "s")))
+                  (Param(f"glitch.height.{ax.axis}", a, _s(e, pkey), "mm"),
+                   Param(f"glitch.time.{ax.axis}", tau, _s(e, "tau_s"), "s")),
+                  notes=("spike form: the FMU's glitch starts at the reversal of the drive's motion resolved to the "
+                         "step; the diagnosis places it half a sample either side",))
 
 
 def _no_home(reason: str):

@@ -12,7 +12,10 @@
  *   3. backlash: a play of the given width centred on the servo position;
  *   4. friction at reversals (stick-slip): after the motion reverses, static friction holds the
  *      slide until the drive has wound up by the breakaway distance, then the slide catches up
- *      with a time constant, to a lag of the Coulomb distance against the motion.
+ *      with a time constant, to a lag of the Coulomb distance against the motion;
+ *   5. quadrant glitch (the spike form): after the drive's motion reverses at t_r, the slide
+ *      lags by height * s exp(1 - s), s = (t - t_r)/time, against the new direction (the
+ *      diagnosis' quadrant_glitch, peak `height` at `time` after the reversal).
  * A first-order thermal model (driver: spindle speed, a logged temperature, or none) moves the
  * tool edge by drift * (T - T_reference) in the tool frame.  Gaussian sensor noise with a seed
  * is added to the tool edge output.  docs/fmu.md lists the variables.
@@ -42,6 +45,8 @@
 #define VR_BREAK 160      /* 160..168 friction breakaway distance per axis, mm or deg */
 #define VR_COULOMB 170    /* 170..178 Coulomb lag distance per axis, mm or deg */
 #define VR_FTAU 180       /* 180..188 friction catch-up time constant per axis, s */
+#define VR_GH 190         /* 190..198 quadrant glitch height per axis, mm or deg */
+#define VR_GT 200         /* 200..208 quadrant glitch time (reversal to peak) per axis, s */
 #define IVR_SEED 0        /* noise seed */
 #define IVR_DRIVER 1      /* thermal driver: 0 spindle speed, 1 temperature input, 2 none (time) */
 #define IVR_INTERP 2      /* servo command: 0 held over the step, 1 linear from the previous one */
@@ -58,11 +63,14 @@
 #define X_FSTUCK 60       /* 60..68 1 while static friction holds the slide */
 #define X_HIST_N 70       /* number of commands in the history */
 #define X_HIST_HEAD 71    /* index of the newest one */
-#define X_HIST 80         /* history of the commands: entries (time, command[MTK_MAX_AXES]) */
+#define X_GDIR 80         /* 80..88 direction of the drive's last motion (+1, -1; 0: not moved yet) */
+#define X_GREV 90         /* 90..98 time of its last reversal, s (while X_GDIR is 0 or before one: none) */
+#define X_GON 100         /* 100..108 1 once a reversal has happened */
+#define X_HIST 110        /* history of the commands: entries (time, command[MTK_MAX_AXES]) */
 #define HIST_W (1 + MTK_MAX_AXES)
 #define HIST_CAP ((MODEL_NX - X_HIST) / HIST_W)
 
-const uint32_t MODEL_MAGIC = 0x6d746d0cu;  /* "mtm" + layout version 12 */
+const uint32_t MODEL_MAGIC = 0x6d746d0du;  /* "mtm" + layout version 13 */
 
 static int n_axes(const Instance *inst) { return inst->kin ? inst->kin->n_axes : 0; }
 
@@ -89,6 +97,8 @@ int model_real_kind(const Instance *inst, unsigned vr)
     if (vr >= VR_BREAK && vr < VR_BREAK + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_COULOMB && vr < VR_COULOMB + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_FTAU && vr < VR_FTAU + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_GH && vr < VR_GH + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_GT && vr < VR_GT + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_P && vr <= VR_TEMP) return VAR_OUTPUT;
     if (vr >= VR_ACT && vr < VR_ACT + (unsigned)n) return VAR_OUTPUT;
     return common_real_kind(vr, n);
@@ -137,6 +147,10 @@ fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
         return check_axis_param(inst, "friction.coulomb", (int)(vr - VR_COULOMB), value, 0.0, 1.0);
     if (vr >= VR_FTAU && vr < VR_FTAU + MTK_MAX_AXES)
         return check_axis_param(inst, "friction.tau", (int)(vr - VR_FTAU), value, 0.0, 100.0);
+    if (vr >= VR_GH && vr < VR_GH + MTK_MAX_AXES)
+        return check_axis_param(inst, "glitch.height", (int)(vr - VR_GH), value, -1.0, 1.0);
+    if (vr >= VR_GT && vr < VR_GT + MTK_MAX_AXES)
+        return check_axis_param(inst, "glitch.time", (int)(vr - VR_GT), value, 0.0, 100.0);
     return common_check_real(inst, vr, value);
 }
 
@@ -200,6 +214,17 @@ static double play(double in, double out, double b)
 static int friction_on(const Instance *inst, int i)
 {
     return inst->st.r[VR_BREAK + i] > 0.0 || inst->st.r[VR_COULOMB + i] > 0.0;
+}
+
+/* The quadrant glitch of axis i at time t: -height d s exp(1 - s), s = (t - t_r)/time after the
+ * drive's last reversal at t_r, d the direction since; 0 before any reversal or with time = 0. */
+static double glitch(const Instance *inst, int i, double t)
+{
+    double tg = inst->st.r[VR_GT + i], s;
+    if (!(tg > 0.0) || inst->st.x[X_GON + i] == 0.0) return 0.0;
+    s = (t - inst->st.x[X_GREV + i]) / tg;
+    if (s <= 0.0 || s > 700.0) return 0.0;
+    return -inst->st.r[VR_GH + i] * inst->st.x[X_GDIR + i] * s * exp(1.0 - s);
 }
 
 /* exp(-t/tau), 0 for tau = 0 (an instantaneous catch-up). */
@@ -345,6 +370,7 @@ fmi2Status model_update(Instance *inst)
     for (i = 0; i < n; i++) {
         q[i] = friction_on(inst, i) ? inst->st.x[X_SLIDE + i]
                                     : play(inst->st.x[X_SERVO + i], inst->st.x[X_PLAY + i], inst->st.r[VR_BACKLASH + i]);
+        q[i] += glitch(inst, i, inst->st.time);
         inst->st.r[VR_ACT + i] = q[i];
     }
     common_errors(inst, &e);
@@ -378,6 +404,9 @@ fmi2Status model_exit_init(Instance *inst)
         inst->st.x[X_FERR + i] = 0.0;
         inst->st.x[X_FDIR + i] = 0.0;
         inst->st.x[X_FSTUCK + i] = 0.0;
+        inst->st.x[X_GDIR + i] = 0.0;
+        inst->st.x[X_GREV + i] = 0.0;
+        inst->st.x[X_GON + i] = 0.0;
     }
     inst->st.x[X_HIST_N] = 0.0;
     inst->st.x[X_HIST_HEAD] = 0.0;
@@ -418,6 +447,16 @@ fmi2Status model_do_step(Instance *inst, double t, double h)
         inst->st.x[X_PLAY + i] = play(mid, inst->st.x[X_PLAY + i], b);
         inst->st.x[X_PLAY + i] = play(end, inst->st.x[X_PLAY + i], b);
         inst->st.x[X_SERVO + i] = end;
+        /* the drive's motion over the step, resolved to the step: a reversal starts the glitch
+         * at the step's start (where a held command turns the motion) */
+        if (fabs(end - start) > 1e-12) {
+            double nd = end > start ? 1.0 : -1.0;
+            if (inst->st.x[X_GDIR + i] != 0.0 && nd != inst->st.x[X_GDIR + i]) {
+                inst->st.x[X_GREV + i] = t;
+                inst->st.x[X_GON + i] = 1.0;
+            }
+            inst->st.x[X_GDIR + i] = nd;
+        }
         if (friction_on(inst, i)) friction_step(inst, i, s0, inst->st.x[X_PLAY + i], h);
     }
     target = inst->st.r[VR_AMBIENT];
