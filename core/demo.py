@@ -248,7 +248,11 @@ def stage_model_loop(out: Path, seed: int, quick: bool) -> dict:
     story = run_story(out / "model-loop", quick=quick, seed=seed)
     png = out / "model-loop" / "model_loop.png"
     plot_model_loop(story, png)
-    return {"story": story, "png": png}
+    r = {"story": story, "png": png}
+    if story.dynamics is not None:
+        r["png_dynamics"] = out / "model-loop" / "model_loop_dynamics.png"
+        plot_model_loop(story.dynamics, r["png_dynamics"])
+    return r
 
 
 def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, stream=None) -> dict:

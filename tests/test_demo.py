@@ -48,6 +48,20 @@ def test_demo_quick(tmp_path):
     assert all(b < a for a, b in zip(rms[:-1], rms[1:])), rms
     assert story["part_error"]["+servo"]["max"] < 0.01 * story["part_error"]["geometric"]["max"]
     assert "7. Closing the loop" in html and "7 loop closed" in summary
+    # ... and for friction and a spindle-driven thermal drift: both named and in the model, the
+    # re-simulation at the noise on x and z, each compensation removes its own effect
+    dyn = story["dynamics"]
+    for k, v in dyn["truth"].items():
+        assert abs(dyn["fitted"][k][0] - v) <= 0.01 * v, k
+    for o in "xz":
+        assert dyn["heldout_rms"]["before"][o] > 10 * dyn["noise"]
+        assert dyn["heldout_rms"]["after"][o] < 1.5 * dyn["noise"], o
+    pe = dyn["part_error"]
+    assert pe["friction"]["dev_xy"] < 0.1 * pe["none"]["dev_xy"] and pe["thermal"]["dev_z"] < 0.1 * pe["none"]["dev_z"]
+    assert pe["friction+thermal"]["dev"] < 0.01 * pe["none"]["dev"]
+    assert pe["friction+thermal"]["rms"] < pe["thermal"]["rms"] < pe["none"]["rms"]
+    assert "loop closed: friction, thermal drift" in summary
+    assert html.count("data:image/png;base64,") >= 5
     # The compensated program the cell wrote exists and differs from the nominal one.
     assert (out / "nc" / "O1100.nc").read_text() != (out / "nc" / "O0100.nc").read_text()
 
