@@ -87,6 +87,11 @@ class ModelDynamics:
     def delay(self) -> float:
         return float(self.params.get("delay", 0.0))
 
+    @property
+    def interpolation(self) -> int:
+        """The servos' command over a step (servo.interpolation): 0 held, 1 linear."""
+        return int(self.params.get("servo.interpolation", 0))
+
 
 def read_model(outdir, machine) -> tuple:
     """(ErrorSet, ModelDynamics) of a folder written by `mtcomp model export` (missing files:
@@ -144,15 +149,38 @@ def backlash_offsets(w: np.ndarray, backlash, *, eps: float = 0.0) -> np.ndarray
     return out
 
 
-def feed_forward(w: np.ndarray, kv, step: float) -> np.ndarray:
-    """Commands u (K, n) that make the machine FMU's servo (gain kv 1/s per axis, command held
-    over each step) reach w (K, n) at the end of each step: u_k = w_k + (w_k - w_{k-1}) /
-    expm1(kv h); kv = 0 (ideal servo) leaves w."""
+def feed_forward(w: np.ndarray, kv, step: float, interpolation: int = 0) -> np.ndarray:
+    """Commands u (K, n) that make the machine FMU's servo (gain kv 1/s per axis) reach w (K, n)
+    at the end of each step, the axes starting at rest at w_0; kv = 0 (ideal servo) leaves w.
+
+    interpolation 0 (the command held over each step): u_k = w_k + (w_k - w_{k-1}) / expm1(kv h).
+
+    interpolation 1 (ramp invariant: the command linear from u_{k-1} to u_k over step k, the
+    FMU's servo.interpolation = 1): the exact step from x = w_{k-1} is x_end = u_k (1 - g/a) +
+    u_{k-1} (g/a - E) + w_{k-1} E, a = kv h, E = exp(-a), g = 1 - E; x_end = w_k gives the
+    recursion u_k = (w_k - E w_{k-1} - (g/a - E) u_{k-1}) / (1 - g/a), a first-order filter
+    whose pole -(g/a - E)/(1 - g/a) lies in (-1, 0) (-> -1 + a/3 for small a: stable, its
+    alternating transient decays over about 3/a steps), run by scipy.signal.lfilter from rest
+    (u_{-1} = w_{-1} = w_0, so u_0 = w_0)."""
     w = np.asarray(w, float)
     kv = np.broadcast_to(np.asarray(kv, float), (w.shape[1],))
-    c = np.array([1.0 / math.expm1(k * step) if k > 0 else 0.0 for k in kv])
-    d = np.diff(w, axis=0, prepend=w[:1])
-    return w + d * c
+    if not interpolation:
+        c = np.array([1.0 / math.expm1(k * step) if k > 0 else 0.0 for k in kv])
+        d = np.diff(w, axis=0, prepend=w[:1])
+        return w + d * c
+    from scipy.signal import lfilter
+    u = w.copy()
+    for i, k in enumerate(kv):
+        if not k > 0:
+            continue
+        a = k * step
+        E = math.exp(-a)
+        ga = -math.expm1(-a) / a
+        den = 1.0 - ga
+        b, a1 = [1.0 / den, -E / den], (ga - E) / den
+        # direct form II transposed, state z = b1 x[-1] - a1 y[-1] at rest at w_0
+        u[:, i], _ = lfilter(b, [1.0, a1], w[:, i], zi=[(b[1] - a1) * w[0, i]])
+    return u
 
 
 def _merge(u: np.ndarray, tol: np.ndarray, breaks=()) -> np.ndarray:
@@ -341,7 +369,7 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
     w = _glitch_and_friction(w, h, gl, fr, bl)
     u = w + (backlash_offsets(w, bl) if bl else 0.0)
     if kv:
-        u = feed_forward(u, kv, h)
+        u = feed_forward(u, kv, h, dynamics.interpolation)
     what = ", ".join(x for x, on in (("geometric and setting errors", geo), ("backlash", bl),
                                      ("servo feed-forward", kv), ("friction reversal spikes", fr),
                                      ("quadrant glitch lead", gl),
