@@ -272,14 +272,20 @@ def test_friction_loop(tmp_path, seed):
     _assert_matches_noise(res)
 
 
-@pytest.mark.parametrize("seed", [17, 18])
+@pytest.mark.parametrize("seed", [17, pytest.param(18, marks=pytest.mark.slow)])
 def test_quadrant_glitch_spike_loop(tmp_path, seed):
     """A quadrant glitch in the spike form on X (peak 3 µm, 30 ms after each reversal) on a
     circle: diagnosed as quadrant_glitch (peak, tau), exported as glitch.height.X and
-    glitch.time.X, the FMU's own spike term, re-simulated to the noise on held-out time."""
+    glitch.time.X, the FMU's own spike term, refined through the model and re-simulated to the
+    noise on held-out time.
+
+    Refined: the diagnosis places each reversal half a sample before or after the sample where
+    the command turns, the FMU at that sample (docs/model-loop.md); the spike's shape then
+    differs by up to h/2 in time, which biases peak and tau by 1-3 of the diagnosis' sigmas in
+    some seeds (benchmark: 18/20 within 3 sigma unrefined)."""
     a, tau = 0.003, 0.03
     diag, got, res = _dyn_loop(tmp_path, CIRCLE, MachineDynamics(glitch_height=(a, 0, 0), glitch_time=(tau, 0, 0),
-                                                                 noise=NOISE, seed=seed))
+                                                                 noise=NOISE, seed=seed), do_refine=True)
     assert diag.names == ["quadrant_glitch"]
     assert "friction.breakaway.X" not in got
     _within_3sigma(got["glitch.height.X"].value, got["glitch.height.X"].sigma, a)

@@ -4,16 +4,16 @@
 --json` in the model's own formats (errors TOML and tables, machine dynamics TOML, SSP
 parameter set); ``simulate`` / ``resimulate`` run the machine FMU with the base and the updated
 parameters and compare both with the recording; ``compensate_with_model`` writes the program
-compensated for the model's geometric errors, backlash, servo lag, friction at reversals and
-thermal drift (each switchable).  docs/model-loop.md.
+compensated for the model's geometric errors, backlash, servo lag, friction at reversals, the
+quadrant glitch and thermal drift (each switchable).  docs/model-loop.md.
 
 Submodules: axes (which machine axis an output follows), mapping (one function per effect:
 effect -> model parameters), export (the files), dynamics (the dynamics TOML), simulate
 (co-simulation, provenance sidecar, re-simulation and its figure), loop (the loop in one
 call), compensate (program compensation with the model, part error), friction_comp
-(reversal spikes), thermal_comp (thermal offsets from the program's spindle speed or time; the
+(reversal spikes, the quadrant glitch's lead), thermal_comp (thermal offsets from the program's spindle speed or time; the
 control's parameters for a logged temperature), story (the loop end to
-end, the demo's stage), machine_ref (the machine FMU's dynamics in Python, the reference the C
+end, the demo's stage: servo, backlash, squareness; then friction and thermal drift), machine_ref (the machine FMU's dynamics in Python, the reference the C
 model is tested against), cli.
 """
 from __future__ import annotations
