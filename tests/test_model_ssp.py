@@ -112,12 +112,15 @@ DYNAMIC_EFFECTS = [
      "uncertainty": {"offset_s": 1e-6}},
     {"name": "quadrant_glitch", "output": "y", "inputs": ["y"], "params": {"breakaway_mm": 0.003, "tau_s": 0.02},
      "uncertainty": {"breakaway_mm": 1e-5, "tau_s": 1e-4}},
+    {"name": "quadrant_glitch", "output": "x", "inputs": ["x"], "params": {"peak_mm": 0.0025, "tau_s": 0.015},
+     "uncertainty": {"peak_mm": 2e-6, "tau_s": 3e-5}},        # the spike form (no reversal here: no glitch)
     {"name": "thermal_drift", "output": "z", "inputs": ["temperature"],
      "params": {"gain_mm_per_degC": 4e-3, "tau_s": 3.0, "initial_mm": 1e-3, "offset_mm": -2e-3},
      "uncertainty": {"gain_mm_per_degC": 1e-5, "tau_s": 0.01, "initial_mm": 1e-5, "offset_mm": 1e-5}}]
 # what the machine FMU must hold: thermal driver 1 (logged temperature), excess = r0/k, reference = 20 - c/k
 DYNAMIC_PARAMS = {"backlash.X": 0.002, "location.EC0Y": -math.radians(2e-3), "delay": 0.002,
-                  "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "thermal.time_constant": 3.0,
+                  "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "glitch.height.X": 0.0025,
+                  "glitch.time.X": 0.015, "thermal.time_constant": 3.0,
                   "thermal.drift.z": 4e-3, "thermal.initial_excess": 0.25, "thermal.reference": 20.5}
 
 
