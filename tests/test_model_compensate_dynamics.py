@@ -264,6 +264,27 @@ def test_circle_test_with_reversal_spikes():
     assert np.abs(after - ideal).max() < 0.12e-3
 
 
+def test_friction_inversion_steps_the_reference_element():
+    """The inversion's own step of the friction element (tuples, no object per trial) is the
+    Python reference's friction_step bit for bit, on random states and drive moves: stuck or
+    sliding, reversals, breakaways inside the step, tau = 0."""
+    import random
+
+    from mtcomp.model.friction_comp import _stepper
+    from mtcomp.model.machine_ref import FrictionState, friction_step
+    rng = random.Random(5)
+    for _ in range(3000):
+        h, brk, cou = rng.choice([1e-3, 2e-3]), rng.choice([0.0, 0.003]), rng.choice([0.0, 0.0005])
+        tau = rng.choice([0.0, 0.01, 0.03])
+        st = FrictionState(rng.uniform(-1, 1), rng.uniform(-0.004, 0.004), rng.choice([-1.0, 0.0, 1.0]),
+                           rng.random() < 0.5)
+        s0 = st.slide + rng.uniform(-0.005, 0.005)
+        s1 = s0 + rng.choice([0.0, 1e-13, rng.uniform(-0.01, 0.01)])
+        got = _stepper(h, brk, cou, tau)((st.slide, st.err, st.direction, st.stuck), s0, s1)
+        friction_step(st, s0, s1, h, brk, cou, tau)
+        assert got == (st.slide, st.err, st.direction, st.stuck)
+
+
 def test_glitch_lead_inverts_the_reference_glitch():
     """glitch_commands with friction, backlash and feed-forward, through the Python reference of
     the FMU (servo, play, friction, quadrant glitch in the spike form on every axis): the axes

@@ -20,17 +20,39 @@ in that step).  Written by hand: the inverse of mtcomp's own friction model.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 
-from .machine_ref import FrictionState, friction_step
 
+def _stepper(step: float, brk: float, cou: float, tau: float):
+    """The FMU's friction element (machine_ref.friction_step) over one step as a pure function
+    of a state tuple (slide, err, direction, stuck) -> the new tuple: the same arithmetic, in
+    the same order, without an object per trial (the inversion tries several drive positions
+    per sample)."""
+    decay_h = math.exp(-step / tau) if tau > 0 else 0.0
 
-def _after(st: FrictionState, s0: float, s1: float, h: float, brk: float, cou: float, tau: float):
-    new = replace(st)
-    friction_step(new, s0, s1, h, brk, cou, tau)
-    return new
+    def after(st, s0, s1):
+        slide, err, d, stuck = st
+        ds = s1 - s0
+        if abs(ds) > 1e-12:
+            nd = 1.0 if ds > 0 else -1.0
+            if d != 0.0 and nd != d:
+                stuck = True
+            d = nd
+        if stuck:
+            D1 = d * (s1 - slide)
+            if D1 >= brk:
+                D0 = d * (s0 - slide)
+                f = (brk - D0) / (D1 - D0) if D1 > D0 else 1.0
+                f = min(max(f, 0.0), 1.0)
+                dec = math.exp(-((1.0 - f) * step) / tau) if tau > 0 else 0.0
+                err = d * (cou + (brk - cou) * dec)
+                return (s1 - err, err, d, False)
+            return (slide, err, d, True)
+        target = d * cou
+        err = target + (err - target) * decay_h
+        return (s1 - err, err, d, False)
+    return after
 
 
 def friction_axis(w: np.ndarray, step: float, breakaway: float, coulomb: float, tau: float) -> np.ndarray:
@@ -39,40 +61,40 @@ def friction_axis(w: np.ndarray, step: float, breakaway: float, coulomb: float, 
     direction yet)."""
     w = np.asarray(w, float)
     s = np.empty_like(w)
-    st = FrictionState(float(w[0]))
+    after = _stepper(step, breakaway, coulomb, tau)
+    st = (float(w[0]), 0.0, 0.0, False)
     s_prev = float(w[0])
     decay = math.exp(-step / tau) if tau > 0 else 0.0
     scale = breakaway + coulomb + 1e-9
-    for k in range(len(w)):
-        target = float(w[k])
-        cands = []
-        if st.direction != 0.0 and not st.stuck:
-            c = st.direction * coulomb
-            cands.append(target + c + (st.err - c) * decay)      # keep sliding: slide = s - err_new
-        cands.append(s_prev)                                     # hold the drive
+    for k, target in enumerate(w.tolist()):
+        slide, err, direction, stuck = st
         best, best_e, best_st = None, math.inf, None
-        for s1 in cands:
-            ns = _after(st, s_prev, s1, step, breakaway, coulomb, tau)
-            e = abs(ns.slide - target)
-            if e < best_e:
-                best, best_e, best_st = s1, e, ns
+        if direction != 0.0 and not stuck:
+            c = direction * coulomb
+            s1 = target + c + (err - c) * decay          # keep sliding: slide = s - err_new
+            ns = after(st, s_prev, s1)
+            best, best_e, best_st = s1, abs(ns[0] - target), ns
+        ns = after(st, s_prev, s_prev)                    # hold the drive
+        e = abs(ns[0] - target)
+        if e < best_e:
+            best, best_e, best_st = s_prev, e, ns
         if best_e > 1e-13:
             # move towards the target far enough to break away: the slide is monotone in s1
             # within one direction of motion (stuck, then s1 - err with err falling)
-            d = 1.0 if target > st.slide else -1.0
-            lo, hi = s_prev + d * 2e-12, s_prev + d * (abs(target - st.slide) + abs(st.err) + 2 * scale)
-            if d * (_after(st, s_prev, hi, step, breakaway, coulomb, tau).slide - target) > 0:
+            d = 1.0 if target > slide else -1.0
+            lo, hi = s_prev + d * 2e-12, s_prev + d * (abs(target - slide) + abs(err) + 2 * scale)
+            if d * (after(st, s_prev, hi)[0] - target) > 0:
                 for _ in range(200):
                     mid = 0.5 * (lo + hi)
-                    if d * (_after(st, s_prev, mid, step, breakaway, coulomb, tau).slide - target) < 0:
+                    if d * (after(st, s_prev, mid)[0] - target) < 0:
                         lo = mid
                     else:
                         hi = mid
                     if abs(hi - lo) < 1e-15 * max(1.0, abs(hi)):
                         break
-                ns = _after(st, s_prev, hi, step, breakaway, coulomb, tau)
-                if abs(ns.slide - target) < best_e:
-                    best, best_e, best_st = hi, abs(ns.slide - target), ns
+                ns = after(st, s_prev, hi)
+                if abs(ns[0] - target) < best_e:
+                    best, best_e, best_st = hi, abs(ns[0] - target), ns
         s[k] = best
         st, s_prev = best_st, best
     return s
