@@ -9,6 +9,8 @@ import numpy as np
 
 from . import align as _align
 from . import data as _data
+from . import rows as _rows
+from .._io import InputError
 from .effects import Context, candidates
 from .locate import Mismatch, conditions, empirical_dependence, locate
 from .select import Settings, cross_validate, fit, joint_covariance, model_columns, n_effective, select
@@ -114,6 +116,28 @@ def _clean(x):
     return x
 
 
+def _nrem(tab) -> int:
+    return 0 if tab.excluded is None else int(tab.excluded.sum())
+
+
+def _row_filter_notes(conds, S, R) -> tuple:
+    """Check that every row condition names a column of SIM or REC; say what it removed."""
+    if not conds:
+        return ()
+    for c in conds:
+        if c not in S.row_filter and c not in R.row_filter:
+            have = sorted(set(S.columns) | set(R.columns))
+            raise InputError(f"{c.describe()}: no column {c.column!r} in SIM or REC (they have "
+                             f"{', '.join(have)})", field=c.option)
+    said = "; ".join(c.describe() for c in conds)
+    for tab, role in ((S, "SIM"), (R, "REC")):
+        if tab.n - _nrem(tab) < 8:
+            raise InputError(f"the row filter ({said}) leaves {tab.n - _nrem(tab)} rows of {role} "
+                             "(expected at least 8)", field=conds[0].option)
+    return (f"row filter ({said}): {_nrem(S)} of {S.n} rows of SIM and {_nrem(R)} of {R.n} rows "
+            "of REC removed; the fit and the held-out RMS use only the rows kept",)
+
+
 def _rms(a) -> float:
     a = np.asarray(a, float)
     return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
@@ -124,23 +148,28 @@ UNEXPLAINED_RATIO = 3.0
 
 
 def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
-             inputs=None, units=None) -> DiagnosisResult:
+             inputs=None, units=None, where=None, exclude_rows=None) -> DiagnosisResult:
     """Diagnose a simulation against a recording.
 
     sim, rec: CSV paths, or mappings header -> 1-D array (dict, DataFrame-like) with a `t`
     column in s (headers may carry units, ``z[um]``).  Columns in both are the outputs compared;
     all others are inputs the effects may use.  outputs / inputs: column names to compare /
     to treat as inputs only; units: column name -> unit for columns whose header has none.
-    Names are case-sensitive.  Raises mtcomp.InputError for unusable input.
+    Names are case-sensitive.  where / exclude_rows: row conditions ``'COL!=50'``,
+    ``'phase==Prep'`` (`mtcomp.diagnose.rows`): only rows where every `where` holds and no
+    `exclude_rows` does take part in the fit and the held-out RMS; nothing is interpolated across
+    the rows removed.  Raises mtcomp.InputError for unusable input.
     """
     st = settings or Settings()
     say = progress or (lambda msg: None)
-    S = _data.load(sim, "SIM", units)
-    R = _data.load(rec, "REC", units)
+    conds = _rows.parse(where, exclude_rows)
+    S = _data.load(sim, "SIM", units, conds)
+    R = _data.load(rec, "REC", units, conds)
+    filter_notes = _row_filter_notes(conds, S, R)
     S, R, clock_notes = _data.common_clock(S, R)
     S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
     al = _align.align(S, R, outputs=outputs, inputs=inputs,
-                      notes=tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes)
+                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes)
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
@@ -283,7 +312,10 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                  "interpolation_error": {o: v[1] for o, v in al.interp.items()},
                  "columns": {k: {"role": r[0], "kind": r[1], "unit": r[2], "kind_from": r[3]}
                              for k, r in al.roles.items()},
-                 "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC")}
+                 "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC"),
+                 "row_filter": {"conditions": [c.describe() for c in conds],
+                                "sim_rows_removed": _nrem(S), "rec_rows_removed": _nrem(R),
+                                "sim_rows": S.n, "rec_rows": R.n}}
     return DiagnosisResult(
         outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
