@@ -61,6 +61,7 @@ class Aligned:
     # grid samples backed by data (None: all): False in a gap of either file or where an
     # output's cell was missing; those samples take no part in fits, noise floors or RMS
     valid: np.ndarray | None = None
+    same_clock: bool = False          # SIM and REC share one clock (no clock offset estimated)
 
     @property
     def n(self) -> int:
@@ -325,11 +326,13 @@ def _stop_and_measure(sim, outputs, t) -> bool:
 
 
 def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, inputs=None,
-          notes: tuple = ()) -> Aligned:
+          notes: tuple = (), same_clock: bool = False) -> Aligned:
     """Common grid, outputs, inputs and coarse clock offset of a SIM/REC pair.
 
     outputs / inputs: column names to compare / to use as inputs only (default: the columns in
-    both files are outputs).  Names are case-sensitive.
+    both files are outputs).  Names are case-sensitive.  same_clock: SIM and REC share one
+    clock (the user says so): no clock offset is estimated; the cross-correlation's delay only
+    starts the `time_offset` effect, which is then a transport delay.
     """
     from .columns import MOTION_KINDS
     common = [k for k in sim.columns if k in rec.columns]
@@ -443,7 +446,10 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                                    [rec_f[k](tc) for k in motion_outs], max_lag)
         if abs(offset0) < 0.5 * min(dts, dtr):
             offset0 = 0.0
-        if abs(offset0) >= CLOCK_OFFSET_MIN and clock_offset == 0.0:
+        if same_clock:
+            notes += ("SIM and REC share one clock (--same-clock): no clock offset is estimated; "
+                      "a delay found is a transport delay of the machine or its loop",)
+        elif abs(offset0) >= CLOCK_OFFSET_MIN and clock_offset == 0.0:
             offset, c_off, c_zero = _refine_offset(sim, rec, motion_outs, sim_f, offset0,
                                                    tc[1] - tc[0])
             if c_off < c_zero:
@@ -453,7 +459,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                         + (f"{math.sqrt(c_zero / c_off):.3g}x" if c_off > 0 and c_zero / c_off < 1e6
                          else "to the noise") + " against no alignment; a pure transport delay of "
                         "the machine is a time shift too and cannot be told from it: if the clocks "
-                        "are known to agree, part of this is a delay)")
+                        "are known to agree, say so with --same-clock)")
                 return align(sim, shifted, clock_offset=offset, outputs=outputs, inputs=inputs,
                              notes=notes + (note,))
             notes += (f"a clock offset of {offset:+.4g} s was tried and rejected: it does not "
@@ -585,7 +591,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
         rates={"sim": 1.0 / dts, "rec": 1.0 / dtr}, at_rest=bool(at_rest), interp=interp,
         roles=roles, notes=notes,
         sim_native={k: (sim.t, sim.columns[k].values) for k in outputs},
-        valid=None if valid.all() else valid)
+        valid=None if valid.all() else valid, same_clock=bool(same_clock))
     for k in outputs:
         al.noise_floor[k] = noise_sigma((al.rec[k] - al.sim[k])[valid], al.quantum[k])
     return al

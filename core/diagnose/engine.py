@@ -148,7 +148,8 @@ UNEXPLAINED_RATIO = 3.0
 
 
 def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
-             inputs=None, units=None, where=None, exclude_rows=None) -> DiagnosisResult:
+             inputs=None, units=None, where=None, exclude_rows=None,
+             same_clock: bool = False) -> DiagnosisResult:
     """Diagnose a simulation against a recording.
 
     sim, rec: CSV paths, or mappings header -> 1-D array (dict, DataFrame-like) with a `t`
@@ -158,7 +159,9 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     Names are case-sensitive.  where / exclude_rows: row conditions ``'COL!=50'``,
     ``'phase==Prep'`` (`mtcomp.diagnose.rows`): only rows where every `where` holds and no
     `exclude_rows` does take part in the fit and the held-out RMS; nothing is interpolated across
-    the rows removed.  Raises mtcomp.InputError for unusable input.
+    the rows removed.  same_clock: SIM and REC share one clock (no clock offset is estimated; a
+    common delay is reported as a transport delay, `time_offset`).  Raises mtcomp.InputError for
+    unusable input.
     """
     st = settings or Settings()
     say = progress or (lambda msg: None)
@@ -169,7 +172,8 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     S, R, clock_notes = _data.common_clock(S, R)
     S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
     al = _align.align(S, R, outputs=outputs, inputs=inputs,
-                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes)
+                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes,
+                      same_clock=same_clock)
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
@@ -231,6 +235,16 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
             continue
         params, unc = c.physical(ctx, eta, beta, ce, cb)
         rms = {o: _rms(contrib[ctx.slices[o]] * ctx.sigma[o]) for o in c.outputs}
+        if c.name == "time_offset" and same_clock:
+            # one clock (the user says so): a common delay is a delay of the machine or its
+            # loop (or of the logger's sampling), never a clock offset
+            effects.append(EffectResult(
+                c.name, tuple(c.outputs), tuple(c.inputs), params, unc,
+                dict(evidence.get(c.label, {}),
+                     meaning="transport delay: SIM and REC share one clock (--same-clock), so "
+                             "REC(t) = SIM(t - delay) is a delay of the machine or its loop, not a "
+                             "clock offset"), rms))
+            continue
         if c.name == "time_offset" and (al.clock_offset or set(c.outputs) <= lagged):
             # the clocks were aligned: what is left of the offset refines that alignment (a
             # latency on top of another clock start cannot be told from it).  Likewise a common
@@ -308,6 +322,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                  "coarse_offset_s": al.offset0,
                  "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
                  "folds": st.folds, "quantum": dict(al.quantum), "at_rest": al.at_rest,
+                 "same_clock": bool(same_clock),
                  "interpolation": {o: v[0] for o, v in al.interp.items()},
                  "interpolation_error": {o: v[1] for o, v in al.interp.items()},
                  "columns": {k: {"role": r[0], "kind": r[1], "unit": r[2], "kind_from": r[3]}
