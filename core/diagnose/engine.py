@@ -259,8 +259,11 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                                 f"in the alignment: logger or loop latency, not separable from "
                                 f"the lags or from a clock offset",)
             continue
-        effects.append(EffectResult(c.name, tuple(c.outputs), tuple(c.inputs), params, unc,
-                                    evidence.get(c.label, {}), rms))
+        ev = evidence.get(c.label, {})
+        said = c.meaning(params) if hasattr(c, "meaning") else None
+        if said:
+            ev = dict(ev, meaning=said)
+        effects.append(EffectResult(c.name, tuple(c.outputs), tuple(c.inputs), params, unc, ev, rms))
 
     sig = ctx.sigma
     corrected, held = {}, {}
