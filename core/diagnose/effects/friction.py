@@ -34,6 +34,27 @@ class Backlash(Candidate):
     def label(self) -> str:
         return super().label + ("(negative)" if self.sign < 0 else "")
 
+    def implausible(self, ctx, eta, beta) -> str | None:
+        """A negative width is taken only where it is identifiable: an error that leads the
+        command in the direction of motion is, while the axis moves at one speed, also what a
+        lead proportional to the speed gives (a time lead, a command held over a control
+        cycle).  A reversal error stays when the axis rests; a lead vanishes.  So readings at
+        rest after motion in both directions are needed (or a stop-and-measure run)."""
+        if self.sign > 0 or ctx.al.at_rest:
+            return None
+        o = self.outputs[0]
+        v = np.abs(np.gradient(ctx.values(o)))
+        vmax = float(v.max()) if len(v) else 0.0
+        rest = (v <= 1e-3 * vmax)[ctx.idx]
+        d = ctx.direction(o)[ctx.idx]
+        need = max(5, int(0.01 * len(ctx.idx)))
+        n_pos, n_neg = int((rest & (d > 0)).sum()), int((rest & (d < 0)).sum())
+        if min(n_pos, n_neg) < need:
+            return (f"negative width not identifiable: {n_pos} and {n_neg} samples at rest after "
+                    f"motion in + and - (at least {need} each are needed to tell a reversal error "
+                    "from a lead proportional to the speed)")
+        return None
+
     def meaning(self, params: dict) -> str | None:
         if self.sign > 0:
             return None
