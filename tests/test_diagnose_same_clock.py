@@ -1,6 +1,5 @@
 """--same-clock: SIM and REC share one clock, so a common delay is a transport delay of the
 machine (physics), never a clock offset."""
-import numpy as np
 import pytest
 
 from mtcomp.cli import main

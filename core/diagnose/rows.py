@@ -30,7 +30,6 @@ import numpy as np
 
 from .._io import InputError
 
-_OPS = ("==", "!=", "<=", ">=", "<", ">", "=")
 _COND = re.compile(r"^\s*(?P<col>[^=!<>]+?)\s*(?P<op>==|!=|<=|>=|<|>|=)\s*(?P<val>.*?)\s*$")
 
 
