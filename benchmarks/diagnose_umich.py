@@ -21,16 +21,26 @@ sys.path.insert(0, str(HERE.parent / "tests" / "data" / "umich"))
 RUNS = ("01", "04", "06", "11")
 
 
-def run(data_dir: Path):
-    from make_excerpt import convert
+def run(data_dir: Path, valid_only: bool = False):
+    """Diagnosis of every run, on all rows or on the rows the source's rule says are valid
+    (make_excerpt.VALID_ROWS, given as `--where` conditions)."""
+    from make_excerpt import VALID_ROWS, convert
     from mtcomp.diagnose import diagnose
     out = {}
     with tempfile.TemporaryDirectory() as d:
         for r in RUNS:
             src = data_dir / f"experiment_{r}.csv"
             convert(src, Path(d) / r)
-            out[r] = diagnose(Path(d) / r / "sim.csv", Path(d) / r / "rec.csv")
+            out[r] = diagnose(Path(d) / r / "sim.csv", Path(d) / r / "rec.csv",
+                              where=VALID_ROWS if valid_only else None)
     return out
+
+
+def total_ratio(res) -> float:
+    """Held-out RMS after / before over the three axes together."""
+    b = sum(v ** 2 for v in res.fit["holdout_rms_before"].values())
+    a = sum(v ** 2 for v in res.fit["holdout_rms_after"].values())
+    return (a / b) ** 0.5
 
 
 def markdown(results) -> str:
@@ -55,12 +65,28 @@ def markdown(results) -> str:
                    if lag else "not named")
                 + f" | {', '.join(other) or '-'} | "
                 + (f"{un[0]['ratio']:.1f}" if un else "-") + " |")
-    tot = []
-    for r, res in results.items():
-        b = sum(v ** 2 for v in res.fit["holdout_rms_before"].values())
-        a = sum(v ** 2 for v in res.fit["holdout_rms_after"].values())
-        tot.append(f"{r}: {(a / b) ** 0.5:.2f}")
-    lines += ["", "Held-out RMS after / before over the three axes together: " + ", ".join(tot) + "."]
+    return "\n".join(lines)
+
+
+def comparison(all_rows, valid) -> str:
+    """Held-out ratios on all rows and on the valid rows, per run and axis."""
+    from make_excerpt import VALID_ROWS
+    lines = ["| run | samples kept (valid in both files) | held-out after / before, all rows (vx, vy, vz; together) | "
+             "valid rows only (vx, vy, vz; together) |", "|---|---|---|---|"]
+    for r in all_rows:
+        a, v = all_rows[r], valid[r]
+        rf = v.alignment["row_filter"]
+        kept = f"{v.alignment['samples']} of {a.alignment['samples']}"
+
+        def cells(res):
+            f = res.fit
+            per = ", ".join(f"{f['holdout_rms_after'][o] / f['holdout_rms_before'][o]:.2f}"
+                            for o in res.outputs)
+            return f"{per}; **{total_ratio(res):.2f}**"
+        lines.append(f"| {r} | {kept} | {cells(a)} | {cells(v)} |")
+    rule = " ".join(f"`--where '{c}'`" for c in VALID_ROWS)
+    lines += ["", f"Valid rows: {rule}. Every row of the four runs reads program 1: the last "
+              "condition removes none of them (see the text)."]
     return "\n".join(lines)
 
 
@@ -71,10 +97,13 @@ def main(argv=None) -> int:
     ap.add_argument("--no-docs", action="store_true")
     a = ap.parse_args(argv)
     results = run(a.data_dir)
-    md = markdown(results)
+    valid = run(a.data_dir, valid_only=True)
+    md = ("All rows:\n\n" + markdown(results) + "\n\nValid rows only (the source's rule: rows where M1_CURRENT_FEEDRATE reads 50 or "
+          "X1_ActualPosition reads 198, or with no program running, are removed):\n\n"
+          + markdown(valid) + "\n\n" + comparison(results, valid))
     print(md)
-    for r, res in results.items():
-        print(f"--- run {r}\n{res.summary()}\n")
+    for r, res in valid.items():
+        print(f"--- run {r}, valid rows\n{res.summary()}\n")
     if not a.no_docs:
         from _report import update_section
         update_section("diagnose-umich", md, doc=HERE.parent / "docs" / "diagnose.md")

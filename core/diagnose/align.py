@@ -61,6 +61,7 @@ class Aligned:
     # grid samples backed by data (None: all): False in a gap of either file or where an
     # output's cell was missing; those samples take no part in fits, noise floors or RMS
     valid: np.ndarray | None = None
+    same_clock: bool = False          # SIM and REC share one clock (no clock offset estimated)
 
     @property
     def n(self) -> int:
@@ -325,11 +326,13 @@ def _stop_and_measure(sim, outputs, t) -> bool:
 
 
 def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, inputs=None,
-          notes: tuple = ()) -> Aligned:
+          notes: tuple = (), same_clock: bool = False) -> Aligned:
     """Common grid, outputs, inputs and coarse clock offset of a SIM/REC pair.
 
     outputs / inputs: column names to compare / to use as inputs only (default: the columns in
-    both files are outputs).  Names are case-sensitive.
+    both files are outputs).  Names are case-sensitive.  same_clock: SIM and REC share one
+    clock (the user says so): no clock offset is estimated; the cross-correlation's delay only
+    starts the `time_offset` effect, which is then a transport delay.
     """
     from .columns import MOTION_KINDS
     common = [k for k in sim.columns if k in rec.columns]
@@ -399,11 +402,17 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
             kinds = ("linear", "cubic", "pchip", "hold") if motion else ("linear", "hold")
             if tab is rec and k not in common:
                 kinds = ("linear",)  # REC inputs: logged temperatures and the like
-            name, f, bound = choose_interpolant(tab.t, c.values, kinds)
+            tt, vv = tab.t, c.values
+            if tab is rec and k in common and rec.excluded is not None:
+                # rows removed by the row filter do not feed REC's interpolant (a spline would
+                # carry a removed value to its neighbours); grid times next to them are set
+                # aside below
+                tt, vv = tt[~rec.excluded], vv[~rec.excluded]
+            name, f, bound = choose_interpolant(tt, vv, kinds)
             if tab is rec and k in common and bound > 0:
                 # the cross-validated error of a noisy signal includes its noise (the held-out
                 # sample's and, about half, its neighbours'): what is left is interpolation
-                sn = noise_sigma(c.values) * 2 ** _ORDER[name]
+                sn = noise_sigma(vv) * 2 ** _ORDER[name]
                 bound = math.sqrt(max((bound * 2 ** _ORDER[name]) ** 2 - 1.5 * sn ** 2, 0.0)) / 2 ** _ORDER[name]
             fs[k] = f
             if k in common and not is_grid:
@@ -437,7 +446,10 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                                    [rec_f[k](tc) for k in motion_outs], max_lag)
         if abs(offset0) < 0.5 * min(dts, dtr):
             offset0 = 0.0
-        if abs(offset0) >= CLOCK_OFFSET_MIN and clock_offset == 0.0:
+        if same_clock:
+            notes += ("SIM and REC share one clock (--same-clock): no clock offset is estimated; "
+                      "a delay found is a transport delay of the machine or its loop",)
+        elif abs(offset0) >= CLOCK_OFFSET_MIN and clock_offset == 0.0:
             offset, c_off, c_zero = _refine_offset(sim, rec, motion_outs, sim_f, offset0,
                                                    tc[1] - tc[0])
             if c_off < c_zero:
@@ -447,7 +459,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                         + (f"{math.sqrt(c_zero / c_off):.3g}x" if c_off > 0 and c_zero / c_off < 1e6
                          else "to the noise") + " against no alignment; a pure transport delay of "
                         "the machine is a time shift too and cannot be told from it: if the clocks "
-                        "are known to agree, part of this is a delay)")
+                        "are known to agree, say so with --same-clock)")
                 return align(sim, shifted, clock_offset=offset, outputs=outputs, inputs=inputs,
                              notes=notes + (note,))
             notes += (f"a clock offset of {offset:+.4g} s was tried and rejected: it does not "
@@ -522,6 +534,20 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                       "rows of SIM with a missing output value: they take no part in the fit "
                       "or the RMS",)
         valid &= ok
+    removed = np.zeros(len(tg), bool)
+    for tab, own in ((rec, on_rec), (sim, on_sim)):
+        if tab.excluded is not None:
+            p = pick if (tab is rec and base is rec.t and not regular) else None
+            removed |= _excluded_on_grid(tab, tg, sel if own else None, p)
+    if removed.any():
+        notes += (f"row filter: {int(removed.sum())} of {len(tg)} grid samples fall on rows it "
+                  "removed or between such a row and its neighbour: they take no part in the fit, "
+                  "the held-out RMS, the noise floor or the RMS (nothing is interpolated across "
+                  "them)",)
+        valid &= ~removed
+    if valid.sum() < 8 and removed.any():
+        raise InputError(f"the row filter leaves {int(valid.sum())} usable samples of the common "
+                         "span (expected at least 8)", field="--where")
     if valid.sum() < 8:
         raise InputError(f"fewer than 8 samples of the common span are backed by data in both "
                          f"files ({int(valid.sum())})", rec.path, field="t")
@@ -565,7 +591,7 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
         rates={"sim": 1.0 / dts, "rec": 1.0 / dtr}, at_rest=bool(at_rest), interp=interp,
         roles=roles, notes=notes,
         sim_native={k: (sim.t, sim.columns[k].values) for k in outputs},
-        valid=None if valid.all() else valid)
+        valid=None if valid.all() else valid, same_clock=bool(same_clock))
     for k in outputs:
         al.noise_floor[k] = noise_sigma((al.rec[k] - al.sim[k])[valid], al.quantum[k])
     return al
@@ -599,6 +625,23 @@ def _backed(tab: Table, outputs, tg: np.ndarray, step: float, sel) -> tuple[np.n
     tp = tab.t[pres]
     longest = float(np.max(np.diff(tp))) if len(tp) > 1 else 0.0
     return ok, longest
+
+
+def _excluded_on_grid(tab: Table, tg: np.ndarray, sel, pick) -> np.ndarray:
+    """Grid samples that depend on a row of `tab` removed by the row filter: on its own rows
+    (`sel`) the row itself; for an irregular REC put onto the grid (`pick`: the sample on each
+    grid point, -1 none) that sample; otherwise the two rows around the grid time (the one it
+    falls on when it falls on a row), so that no value is interpolated across a removed row."""
+    ex = tab.excluded
+    if sel is not None:
+        return ex[sel]
+    if pick is not None:
+        return np.where(pick >= 0, ex[np.maximum(pick, 0)], False)
+    t = tab.t
+    i = np.clip(np.searchsorted(t, tg), 0, len(t) - 1)
+    on = np.abs(t[i] - tg) <= 1e-9 * max(float(np.median(np.diff(t))), 1e-12)
+    lo = np.clip(i - 1, 0, len(t) - 1)
+    return np.where(on, ex[i], ex[i] | ex[lo])
 
 
 def _letter(key, kind):

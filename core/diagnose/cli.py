@@ -27,6 +27,18 @@ def register(subparsers) -> None:
                    help="treat this column as an input even if both files have it (repeatable)")
     p.add_argument("--unit", action="append", metavar="COL=UNIT",
                    help="unit of a column whose header has none, e.g. --unit vx=mm/s (repeatable)")
+    p.add_argument("--where", action="append", metavar="'COL OP VALUE'",
+                   help="keep only the rows where this holds, e.g. --where 'FEEDRATE!=50' "
+                        "(OP ==, !=, <, <=, >, >=; VALUE a number as written in the file, or a "
+                        "text for == and !=; COL a column of either file; repeatable: all must "
+                        "hold). The rows removed take no part in the fit or the held-out RMS")
+    p.add_argument("--exclude-rows", action="append", metavar="'COL OP VALUE'",
+                   help="remove the rows where this holds, e.g. --exclude-rows 'phase==Prep' "
+                        "(repeatable: a row is removed when any holds)")
+    p.add_argument("--same-clock", action="store_true",
+                   help="SIM and REC were logged on one clock: no clock offset is estimated, and a "
+                        "common delay found is reported as a transport delay (time_offset), not "
+                        "as clock alignment")
     p.add_argument("--model", metavar="OUTDIR",
                    help="also write the fitted effects in the machine model's formats (errors TOML, "
                         "machine dynamics, SSP parameter set) into OUTDIR, as `mtcomp model export` "
@@ -59,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         if machine is None:
             raise InputError("--model needs the machine: give --machine (SIM has no provenance "
                              "sidecar)", field="--machine")
-    res = diagnose(args.sim, args.rec, outputs=args.output, inputs=args.input, units=units)
+    res = diagnose(args.sim, args.rec, outputs=args.output, inputs=args.input, units=units,
+                   where=args.where, exclude_rows=args.exclude_rows, same_clock=args.same_clock)
     if args.json:
         atomic_write(args.json, res.to_json() + "\n")
     if args.plot:

@@ -17,6 +17,7 @@ import numpy as np
 
 from .._io import InputError
 from ..csvtable import read_csv
+from . import rows as _rows
 from .columns import (_HEADER, INTERFACE_UNIT, KINDS, MOTION_KINDS, UNITS, _tokens,  # noqa: F401
                       _unit_of, axis_letter, kind_from_name, stem)
 
@@ -44,6 +45,9 @@ class Table:
     # ("day", s since midnight); None for a numeric time column
     origin: tuple | None = None
     notes: tuple = ()   # what the reader decided (missing cells, repeated time stamps), in words
+    # per row: removed by the row filter (--where / --exclude-rows); None: no row removed
+    excluded: np.ndarray | None = None
+    row_filter: tuple = ()  # the row conditions that named a column of this file
 
     @property
     def n(self) -> int:
@@ -216,7 +220,8 @@ def _units_row(tab):
 _TIME_UNITS = ("s", "ms", "us", "µs", "min", "h", "sec")
 
 
-def read_table(path: str | Path, role: str = "file", units: dict | None = None) -> Table:
+def read_table(path: str | Path, role: str = "file", units: dict | None = None,
+               conditions=()) -> Table:
     """Read one CSV file (header row; a time column; numbers) into a :class:`Table`.
 
     Read by the project's one table reader, `mtcomp.csvtable` (``#`` comments, ``,`` or else
@@ -226,6 +231,8 @@ def read_table(path: str | Path, role: str = "file", units: dict | None = None) 
     time may be seconds (any time unit in its header) or ISO 8601 time stamps.  Raises
     InputError naming the file, line and column for a missing time column, a bad number, an
     absurd magnitude, a time that goes back, or an unknown unit on the time column.
+    `conditions` (`mtcomp.diagnose.rows`) mark the rows the row filter removes; a column they
+    name may hold text (it then serves the filter only).
     """
     tab = _units_row(read_csv(path, what=role, delimiter=None, decimal=None))
     names = list(tab.names)
@@ -246,13 +253,23 @@ def read_table(path: str | Path, role: str = "file", units: dict | None = None) 
         tunit = tc.unit
     cols = [(tc.header, tkey, tunit)]
     data = [t]
+    named = {(c.name, c.header): [r[c.index] for r in tab.rows] for c in tab.columns
+             if any(_rows.matches(k, c.name, c.header) for k in conditions)}
+    excluded, used = _rows.excluded(conditions, named, MISSING)
+    text_notes = []
     for c in tab.columns:
         if c.name == tkey:
             continue
+        if (c.name, c.header) in named and _rows.is_text(named[(c.name, c.header)], MISSING):
+            # a text column (a phase, a tool state) can only serve the row filter
+            text_notes.append(f"column {c.name!r} of {Path(tab.source).name} holds text: it serves "
+                              "the row filter only")
+            continue
         cols.append((c.header, c.name, c.unit))
         data.append(tab.numbers(c.name, empty=np.nan, missing=MISSING))
-    return _from_matrix(tab.source, cols, np.column_stack(data), list(tab.lines), tab.header_line,
-                        units, origin=origin)
+    out = _from_matrix(tab.source, cols, np.column_stack(data), list(tab.lines), tab.header_line,
+                       units, origin=origin, excluded=excluded)
+    return replace(out, notes=tuple(text_notes) + out.notes, row_filter=tuple(used))
 
 
 def _fill_missing(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, int]:
@@ -270,7 +287,8 @@ def _fill_missing(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
-                 units: dict | None = None, origin: tuple | None = None) -> Table:
+                 units: dict | None = None, origin: tuple | None = None,
+                 excluded: np.ndarray | None = None) -> Table:
     """Checks and unit conversion shared by files and in-memory arrays (NaN: a missing value)."""
     path = label
     units = dict(units or {})
@@ -354,14 +372,21 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
     if np.any(dt == 0):
         # repeated time stamps (a logger's clock coarser than its rate, or a row written twice):
         # the rows of one time stamp are averaged
+        t0 = t
         t, columns, k = _merge_repeated(t, columns)
+        if excluded is not None:
+            # a time stamp is set aside when any of its rows is
+            _, inv = np.unique(t0, return_inverse=True)
+            excluded = np.bincount(inv, weights=excluded.astype(float), minlength=len(t)) > 0
         first = int(np.argmax(dt == 0)) + 1
         where = f" (first on line {linenos[first]})" if linenos else ""
         notes.append(f"{k} rows of {Path(path).name} repeat the time stamp of the row before{where}: "
                      "the values of one time stamp are averaged")
         if len(t) < 2:
             raise InputError("fewer than two distinct times", path, field=tkey)
-    return Table(str(path), t, columns, origin, tuple(notes))
+    if excluded is not None and not excluded.any():
+        excluded = None
+    return Table(str(path), t, columns, origin, tuple(notes), excluded)
 
 
 def _merge_repeated(t: np.ndarray, columns: dict):
@@ -381,7 +406,8 @@ def _merge_repeated(t: np.ndarray, columns: dict):
     return ut, out, int(len(t) - len(ut))
 
 
-def table_from_arrays(data, name: str = "arrays", units: dict | None = None) -> Table:
+def table_from_arrays(data, name: str = "arrays", units: dict | None = None,
+                      conditions=()) -> Table:
     """Build a Table from a mapping name -> 1-D array (keys may carry units, ``z[um]``)."""
     try:
         items = {str(k): np.asarray(v, dtype=float).ravel() for k, v in dict(data).items()}
@@ -395,18 +421,24 @@ def table_from_arrays(data, name: str = "arrays", units: dict | None = None) -> 
         raise InputError("all arrays must have the same length", name)
     if n.pop() < 2:
         raise InputError("fewer than two samples", name)
-    return _from_matrix(name, cols, np.column_stack(list(items.values())), None, None, units)
+    mat = np.column_stack(list(items.values()))
+    named = {(c[1], c[0]): mat[:, j] for j, c in enumerate(cols)
+             if any(_rows.matches(k, c[1], c[0]) for k in conditions)}
+    excluded, used = _rows.excluded(conditions, named)
+    return replace(_from_matrix(name, cols, mat, None, None, units, excluded=excluded),
+                   row_filter=tuple(used))
 
 
-def load(source, role: str, units: dict | None = None) -> Table:
-    """Accept a path, a Table, or a mapping of arrays (e.g. a dict or a DataFrame)."""
+def load(source, role: str, units: dict | None = None, conditions=()) -> Table:
+    """Accept a path, a Table, or a mapping of arrays (e.g. a dict or a DataFrame).
+    `conditions`: the row filter (`mtcomp.diagnose.rows`), applied to paths and arrays."""
     if isinstance(source, Table):
         return source
     if isinstance(source, (str, Path)):
-        return read_table(source, role, units)
+        return read_table(source, role, units, conditions)
     if hasattr(source, "to_dict") and hasattr(source, "columns"):  # DataFrame-like
         source = {c: np.asarray(source[c]) for c in source.columns}
-    return table_from_arrays(source, role, units)
+    return table_from_arrays(source, role, units, conditions)
 
 
 def common_clock(sim: Table, rec: Table) -> tuple[Table, Table, tuple]:
@@ -415,7 +447,7 @@ def common_clock(sim: Table, rec: Table) -> tuple[Table, Table, tuple]:
     file has time stamps (its times then count from its first row)."""
     if sim.origin and rec.origin and sim.origin[0] == rec.origin[0]:
         d = rec.origin[1] - sim.origin[1]
-        return sim, Table(rec.path, rec.t + d, rec.columns, sim.origin, rec.notes), (
+        return sim, replace(rec, t=rec.t + d, origin=sim.origin), (
             f"time stamps of both files read on one clock (REC starts {d:+.6g} s after SIM)",)
     for tab, role in ((sim, "SIM"), (rec, "REC")):
         if tab.origin:

@@ -9,6 +9,8 @@ import numpy as np
 
 from . import align as _align
 from . import data as _data
+from . import rows as _rows
+from .._io import InputError
 from .effects import Context, candidates
 from .locate import Mismatch, conditions, empirical_dependence, locate
 from .select import Settings, cross_validate, fit, joint_covariance, model_columns, n_effective, select
@@ -114,6 +116,28 @@ def _clean(x):
     return x
 
 
+def _nrem(tab) -> int:
+    return 0 if tab.excluded is None else int(tab.excluded.sum())
+
+
+def _row_filter_notes(conds, S, R) -> tuple:
+    """Check that every row condition names a column of SIM or REC; say what it removed."""
+    if not conds:
+        return ()
+    for c in conds:
+        if c not in S.row_filter and c not in R.row_filter:
+            have = sorted(set(S.columns) | set(R.columns))
+            raise InputError(f"{c.describe()}: no column {c.column!r} in SIM or REC (they have "
+                             f"{', '.join(have)})", field=c.option)
+    said = "; ".join(c.describe() for c in conds)
+    for tab, role in ((S, "SIM"), (R, "REC")):
+        if tab.n - _nrem(tab) < 8:
+            raise InputError(f"the row filter ({said}) leaves {tab.n - _nrem(tab)} rows of {role} "
+                             "(expected at least 8)", field=conds[0].option)
+    return (f"row filter ({said}): {_nrem(S)} of {S.n} rows of SIM and {_nrem(R)} of {R.n} rows "
+            "of REC removed; the fit and the held-out RMS use only the rows kept",)
+
+
 def _rms(a) -> float:
     a = np.asarray(a, float)
     return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
@@ -124,23 +148,32 @@ UNEXPLAINED_RATIO = 3.0
 
 
 def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
-             inputs=None, units=None) -> DiagnosisResult:
+             inputs=None, units=None, where=None, exclude_rows=None,
+             same_clock: bool = False) -> DiagnosisResult:
     """Diagnose a simulation against a recording.
 
     sim, rec: CSV paths, or mappings header -> 1-D array (dict, DataFrame-like) with a `t`
     column in s (headers may carry units, ``z[um]``).  Columns in both are the outputs compared;
     all others are inputs the effects may use.  outputs / inputs: column names to compare /
     to treat as inputs only; units: column name -> unit for columns whose header has none.
-    Names are case-sensitive.  Raises mtcomp.InputError for unusable input.
+    Names are case-sensitive.  where / exclude_rows: row conditions ``'COL!=50'``,
+    ``'phase==Prep'`` (`mtcomp.diagnose.rows`): only rows where every `where` holds and no
+    `exclude_rows` does take part in the fit and the held-out RMS; nothing is interpolated across
+    the rows removed.  same_clock: SIM and REC share one clock (no clock offset is estimated; a
+    common delay is reported as a transport delay, `time_offset`).  Raises mtcomp.InputError for
+    unusable input.
     """
     st = settings or Settings()
     say = progress or (lambda msg: None)
-    S = _data.load(sim, "SIM", units)
-    R = _data.load(rec, "REC", units)
+    conds = _rows.parse(where, exclude_rows)
+    S = _data.load(sim, "SIM", units, conds)
+    R = _data.load(rec, "REC", units, conds)
+    filter_notes = _row_filter_notes(conds, S, R)
     S, R, clock_notes = _data.common_clock(S, R)
     S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
     al = _align.align(S, R, outputs=outputs, inputs=inputs,
-                      notes=tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes)
+                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes,
+                      same_clock=same_clock)
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
@@ -202,6 +235,16 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
             continue
         params, unc = c.physical(ctx, eta, beta, ce, cb)
         rms = {o: _rms(contrib[ctx.slices[o]] * ctx.sigma[o]) for o in c.outputs}
+        if c.name == "time_offset" and same_clock:
+            # one clock (the user says so): a common delay is a delay of the machine or its
+            # loop (or of the logger's sampling), never a clock offset
+            effects.append(EffectResult(
+                c.name, tuple(c.outputs), tuple(c.inputs), params, unc,
+                dict(evidence.get(c.label, {}),
+                     meaning="transport delay: SIM and REC share one clock (--same-clock), so "
+                             "REC(t) = SIM(t - delay) is a delay of the machine or its loop, not a "
+                             "clock offset"), rms))
+            continue
         if c.name == "time_offset" and (al.clock_offset or set(c.outputs) <= lagged):
             # the clocks were aligned: what is left of the offset refines that alignment (a
             # latency on top of another clock start cannot be told from it).  Likewise a common
@@ -216,8 +259,11 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                                 f"in the alignment: logger or loop latency, not separable from "
                                 f"the lags or from a clock offset",)
             continue
-        effects.append(EffectResult(c.name, tuple(c.outputs), tuple(c.inputs), params, unc,
-                                    evidence.get(c.label, {}), rms))
+        ev = evidence.get(c.label, {})
+        said = c.meaning(params) if hasattr(c, "meaning") else None
+        if said:
+            ev = dict(ev, meaning=said)
+        effects.append(EffectResult(c.name, tuple(c.outputs), tuple(c.inputs), params, unc, ev, rms))
 
     sig = ctx.sigma
     corrected, held = {}, {}
@@ -279,11 +325,15 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                  "coarse_offset_s": al.offset0,
                  "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
                  "folds": st.folds, "quantum": dict(al.quantum), "at_rest": al.at_rest,
+                 "same_clock": bool(same_clock),
                  "interpolation": {o: v[0] for o, v in al.interp.items()},
                  "interpolation_error": {o: v[1] for o, v in al.interp.items()},
                  "columns": {k: {"role": r[0], "kind": r[1], "unit": r[2], "kind_from": r[3]}
                              for k, r in al.roles.items()},
-                 "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC")}
+                 "sim": getattr(S, "path", "SIM"), "rec": getattr(R, "path", "REC"),
+                 "row_filter": {"conditions": [c.describe() for c in conds],
+                                "sim_rows_removed": _nrem(S), "rec_rows_removed": _nrem(R),
+                                "sim_rows": S.n, "rec_rows": R.n}}
     return DiagnosisResult(
         outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,

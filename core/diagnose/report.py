@@ -77,7 +77,10 @@ def _unexplained_lines(res, indent="  ") -> list:
 def _effect_line(e) -> str:
     ps = ", ".join(f"{k} = {_val(v, k)} +/- {_val(e.uncertainty.get(k), k)}"
                    for k, v in e.params.items() if not k.startswith(("range_", "initial_state")))
-    return f"{e.name} on {e.output} (from {', '.join(e.inputs)}): {ps}"
+    line = f"{e.name} on {e.output} (from {', '.join(e.inputs)}): {ps}"
+    if e.evidence.get("meaning"):
+        line += f"; {e.evidence['meaning']}"
+    return line
 
 
 def summary_text(res) -> str:

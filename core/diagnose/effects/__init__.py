@@ -15,7 +15,9 @@ Signatures and parameters (documented for users in docs/diagnose.md):
   the unknown reference (mm).
 - backlash: play operator of width b on the axis position: after a reversal at p_rev the
   error moves from +-b/2 to -+b/2 over the first b of travel, r = clip(d b/2 - (p - p_rev), -b/2, b/2),
-  d = +1/-1 the direction of the last motion (kept during dwells).
+  d = +1/-1 the direction of the last motion (kept during dwells).  A second candidate has the
+  other sign (negative width B < 0, ISO 230-2 reversal value B negative): the error leads the
+  command, the control over-compensating its backlash; reported in those words.
 - servo_lag: r = F_{1/kv}[p] - p, p the simulated axis position: a first-order position loop
   of gain kv (1/s); the steady following error is v/kv.
 - periodic_pitch_error: r = A sin(2 pi p / L) + B cos(2 pi p / L), L the screw lead (mm).
@@ -161,7 +163,7 @@ def candidates(al: Aligned) -> list[Candidate]:
             if sig[d].kind == "temperature":
                 out.append(ThermalDirect(o, d))
         if o in moving:
-            out += [Backlash(o), ServoLag(o), ScaleError(o)]
+            out += [Backlash(o), Backlash(o, sign=-1), ServoLag(o), ScaleError(o)]
             if not al.at_rest:
                 qg = QuadrantGlitch(o)
                 if qg._reversals(Context(al, al.rows(max(1, al.n // 2000))))[2] >= 2:

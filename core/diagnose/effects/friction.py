@@ -11,12 +11,56 @@ from .base import Candidate, _se, backlash_play, direction_of_motion  # noqa: F4
 
 
 class Backlash(Candidate):
+    """Reversal error of an axis: a play (backlash) of width b, or with `sign` -1 the same
+    error of the other sign, B = -b < 0 (ISO 230-2 reversal value B negative).
+
+    A play lags the command by b/2 against the direction of motion and, after a reversal, stands
+    still until the command has travelled b.  A negative width is the error that leads the
+    command by |B|/2 in the direction of motion: the control's backlash compensation is larger
+    than the play it compensates (over-compensated).  Modelled as the mirror image of the play
+    (the error moves to its new side over a travel of |B|); from readings at rest and away from
+    the reversals only the sign and the size of B matter.  Both signs are candidates; the
+    selection keeps at most one per output.
+    """
     nl_names = ("log_b",)
 
-    def __init__(self, output):
+    def __init__(self, output, sign: int = 1):
         # one linear column: the state of the play before the axis first moves is unknown (a
         # machine switched on mid-gap); it is free until the first motion takes the play up
         super().__init__("backlash", (output,), (output,), 1)
+        self.sign = 1 if sign >= 0 else -1
+
+    @property
+    def label(self) -> str:
+        return super().label + ("(negative)" if self.sign < 0 else "")
+
+    def implausible(self, ctx, eta, beta) -> str | None:
+        """A negative width is taken only where it is identifiable: an error that leads the
+        command in the direction of motion is, while the axis moves at one speed, also what a
+        lead proportional to the speed gives (a time lead, a command held over a control
+        cycle).  A reversal error stays when the axis rests; a lead vanishes.  So readings at
+        rest after motion in both directions are needed (or a stop-and-measure run)."""
+        if self.sign > 0 or ctx.al.at_rest:
+            return None
+        o = self.outputs[0]
+        v = np.abs(np.gradient(ctx.values(o)))
+        vmax = float(v.max()) if len(v) else 0.0
+        rest = (v <= 1e-3 * vmax)[ctx.idx]
+        d = ctx.direction(o)[ctx.idx]
+        need = max(5, int(0.01 * len(ctx.idx)))
+        n_pos, n_neg = int((rest & (d > 0)).sum()), int((rest & (d < 0)).sum())
+        if min(n_pos, n_neg) < need:
+            return (f"negative width not identifiable: {n_pos} and {n_neg} samples at rest after "
+                    f"motion in + and - (at least {need} each are needed to tell a reversal error "
+                    "from a lead proportional to the speed)")
+        return None
+
+    def meaning(self, params: dict) -> str | None:
+        if self.sign > 0:
+            return None
+        return ("negative backlash: the reversal error leads the command (ISO 230-2 reversal "
+                "value B negative), i.e. the control over-compensates the backlash by |B| more "
+                "than the play it has")
 
     def _before_first(self, ctx):
         if not hasattr(self, "_first"):
@@ -40,7 +84,7 @@ class Backlash(Candidate):
         sig = ctx.al.signals[o]
         first = [{o: self._before_first(ctx)}]
         if not sig.native or len(sig.native[0]) == ctx.al.n:
-            return {o: backlash_play(ctx.values(o), b, ctx.direction(o))}, first
+            return {o: self.sign * backlash_play(ctx.values(o), b, ctx.direction(o))}, first
         # a grid coarser than SIM: the reversal positions come from SIM as sampled (on a 10 Hz
         # grid the sample before a reversal can be far from where the axis turned)
         if not hasattr(self, "_prev"):
@@ -55,7 +99,7 @@ class Backlash(Candidate):
         h = 0.5 * b
         r = np.clip(d * h - (ctx.values(o) - p_rev), -h, h)
         r = np.where(np.isnan(p_rev), -d0 * h, r)
-        return {o: r}, first
+        return {o: self.sign * r}, first
 
     def coarse(self, ctx, resid, rows):
         # the linear (instant-reversal) approximation gives b directly
@@ -63,14 +107,15 @@ class Backlash(Candidate):
         ir = self._rows_for(ctx, rows)
         col = ctx.vec({o: -0.5 * ctx.direction(o)})[ir]
         den = float(col @ col)
-        b = float(col @ resid[ir]) / den if den > 0 else 0.0
+        b = self.sign * float(col @ resid[ir]) / den if den > 0 else 0.0
         lo, hi = self.bounds(ctx)
         return np.array([float(np.clip(math.log(max(b, 1e-300)), lo[0], hi[0]))])
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         u = ctx.al.units[self.outputs[0]]
         b = math.exp(eta[0])
-        return ({f"backlash_{u}": b, f"initial_state_{u}": float(beta[0]) if len(beta) else 0.0},
+        return ({f"backlash_{u}": self.sign * b,
+                 f"initial_state_{u}": float(beta[0]) if len(beta) else 0.0},
                 {f"backlash_{u}": b * _se(cov_eta, 0), f"initial_state_{u}": _se(cov_beta, 0)})
 
 
