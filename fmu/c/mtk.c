@@ -1697,40 +1697,57 @@ static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3
      * components from the constants of prepare: y = x.(u2 x ap), c = ap.x, and |ap| |x - (u2.x)
      * u2| = a.a - (u2.a)^2 as |x| = |a|): a solution that turns it by more than CLOSED_MAX_TURN is
      * out without the rest */
-    for (br = 0; br < 2; br++) {
-        double g = br ? -ga : ga, y = al * P->K[2] + g * P->K[3], cc = al * P->K[0] + g * P->K[1], ir;
-        ok[br] = cc * rsc[1][1] + y * rsc[1][0] >= cos_max * P->r2;
-        if (!ok[br]) continue;
-        ir = 1.0 / sqrt(y * y + cc * cc);   /* (unit sine and cosine: near a pole y and cc are
-                                             * small and a.a - (u2.a)^2 off by their rounding) */
-        sc[br][1][0] = y * ir;
-        sc[br][1][1] = cc * ir;
-        th[br][1] = near_turn(atan2(y, cc) / DEG, ref[i2]);
-    }
-    for (br = 0; br < 2; br++) {
-        double sum, mx, g = br ? -ga : ga, y, cc, ir;
-        int j;
-        if (!ok[br] || fabs(th[br][1] - ref[i2]) > CLOSED_MAX_TURN) continue;
-        /* subproblem 1 for x into v about u1: y = u1.(x x v), c = x.v - (u1.x)(u1.v) */
-        y = be * vw + g * (c * u1v - u2v);
-        cc = al * u1v + be * u2v + g * vw - (al + be * c) * u1v;
-        ir = 1.0 / sqrt(y * y + cc * cc);
-        sc[br][0][0] = y * ir;
-        sc[br][0][1] = cc * ir;
-        th[br][0] = near_turn(atan2(y, cc) / DEG, ref[i1]);
-        if (i3 >= 0) {
-            /* R3 = (R1 R2)^T Mt: turn b by R3 and compare with (R1 R2)^T Mt b */
-            double t[3];
-            turn(u1, -sc[br][0][0], sc[br][0][1], mb, t);
-            turn(u2, -sc[br][1][0], sc[br][1][1], t, w);
-            th[br][2] = near_turn(turn_angle(m->dir[i3], P->b3, w, &sc[br][2][0], &sc[br][2][1]), ref[i3]);
+    {
+        /* Both solutions' (y, c) for th2, and turned back by ref2, (Y, X) = the sine and cosine
+         * of th2 - ref2 times a.a - (u2.a)^2: X >= cos(CLOSED_MAX_TURN) r2 is the test, and
+         * atan2(Y, X) the turn from ref2 (no wrapping).  Decided without a branch on which of the
+         * two it is (random poses pick either: a mispredicted branch costs more than the sums). */
+        double y2[2], c2[2], Y2[2], X2[2];
+        int cand[2], ncand = 0, ci;
+        for (br = 0; br < 2; br++) {
+            double g = br ? -ga : ga;
+            y2[br] = al * P->K[2] + g * P->K[3];
+            c2[br] = al * P->K[0] + g * P->K[1];
+            Y2[br] = y2[br] * rsc[1][1] - c2[br] * rsc[1][0];
+            X2[br] = c2[br] * rsc[1][1] + y2[br] * rsc[1][0];
+            ok[br] = X2[br] >= cos_max * P->r2;
         }
-        for (j = 0, sum = 0.0, mx = 0.0; j < P->nrot; j++) {
-            double d = fabs(th[br][j] - ref[P->rot_idx[j]]);
-            sum += d;
-            if (d > mx) mx = d;
+        cand[0] = ok[0] ? 0 : 1;
+        cand[1] = 1;
+        ncand = ok[0] + ok[1];
+        for (ci = 0; ci < ncand; ci++) {
+            double sum, mx, g, y, cc, ir, Y, X;
+            int j;
+            br = cand[ci];
+            g = br ? -ga : ga;
+            ir = 1.0 / sqrt(y2[br] * y2[br] + c2[br] * c2[br]);   /* (unit sine and cosine: near a pole
+                                                     * y and c are small and r2 off by their rounding) */
+            sc[br][1][0] = y2[br] * ir;
+            sc[br][1][1] = c2[br] * ir;
+            th[br][1] = ref[i2] + atan2(Y2[br], X2[br]) / DEG;
+            /* subproblem 1 for x into v about u1: y = u1.(x x v), c = x.v - (u1.x)(u1.v) */
+            y = be * vw + g * (c * u1v - u2v);
+            cc = al * u1v + be * u2v + g * vw - (al + be * c) * u1v;
+            ir = 1.0 / sqrt(y * y + cc * cc);
+            sc[br][0][0] = y * ir;
+            sc[br][0][1] = cc * ir;
+            Y = y * rsc[0][1] - cc * rsc[0][0];
+            X = cc * rsc[0][1] + y * rsc[0][0];
+            th[br][0] = ref[i1] + atan2(Y, X) / DEG;
+            if (i3 >= 0) {
+                /* R3 = (R1 R2)^T Mt: turn b by R3 and compare with (R1 R2)^T Mt b */
+                double t[3];
+                turn(u1, -sc[br][0][0], sc[br][0][1], mb, t);
+                turn(u2, -sc[br][1][0], sc[br][1][1], t, w);
+                th[br][2] = near_turn(turn_angle(m->dir[i3], P->b3, w, &sc[br][2][0], &sc[br][2][1]), ref[i3]);
+            }
+            for (j = 0, sum = 0.0, mx = 0.0; j < P->nrot; j++) {
+                double d = fabs(th[br][j] - ref[P->rot_idx[j]]);
+                sum += d;
+                mx = d > mx ? d : mx;
+            }
+            if (mx <= CLOSED_MAX_TURN && sum < best) { best = sum; pick = br; }
         }
-        if (mx <= CLOSED_MAX_TURN && sum < best) { best = sum; pick = br; }
     }
     if (pick < 0) return 0;
     memcpy(out, q0, P->n * sizeof(double));
