@@ -2053,9 +2053,10 @@ long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const do
     prep_t P;
     long i;
     int nax = m->n_axes;
+    double Rl[9];
     prepare(m, e, 1, &P);
     for (i = 0; i < n; i++) {
-        if (fwd(&P, q + i * nax, p + 3 * i, R + 9 * i, strict, bad_axis) != MTK_OK) return i;
+        if (fwd(&P, q + i * nax, p + 3 * i, R ? R + 9 * i : Rl, strict, bad_axis) != MTK_OK) return i;
     }
     return -1;
 }
