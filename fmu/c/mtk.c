@@ -48,6 +48,27 @@ static inline void mat_mul(const double A[9], const double B[9], double C[9])
     memcpy(C, T, sizeof T);
 }
 
+static inline void cross(const double a[3], const double b[3], double c[3])
+{
+    double c0 = a[1] * b[2] - a[2] * b[1], c1 = a[2] * b[0] - a[0] * b[2], c2 = a[0] * b[1] - a[1] * b[0];
+    c[0] = c0; c[1] = c1; c[2] = c2;
+}
+
+static inline double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* Apply the rotation about unit u by the angle with sine sn and cosine cs to x (Rodrigues);
+ * y may be x. */
+static inline void turn(const double u[3], double sn, double cs, const double x[3], double y[3])
+{
+    double ux[3], ud = dot3(u, x) * (1.0 - cs);
+    int k;
+    cross(u, x, ux);
+    for (k = 0; k < 3; k++) y[k] = x[k] * cs + ux[k] * sn + u[k] * ud;
+}
+
 static void eye(double A[9])
 {
     memset(A, 0, 9 * sizeof(double));
@@ -703,6 +724,61 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
     return MTK_OK;
 }
 
+/* The position and the tool direction of fwd alone (tables held at their ends, no range check),
+ * on vectors from the tool end: each axis' motion G = E N (the error motion after the nominal
+ * one) or N E applied to the tool point and, without its translation, to the tool direction; a
+ * rotary axis turns them by Rodrigues on the vector.  About half the arithmetic of the
+ * matrix products (what the iteration's residual needs on machines with one or two rotary
+ * axes). */
+static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
+{
+    const mtk_model *m = P->m;
+    double x[3], d[3];
+    int i, k;
+    memcpy(x, P->tp, sizeof x);
+    memcpy(d, m->tool_axis, sizeof d);
+    for (i = P->n - 1; i >= 0; i--) {
+        double Re[9], te[3], y[3];
+        int has_e = P->tab[i] != NULL, e_after = has_e && m->tool_side[i] == m->rotary[i];
+        if (has_e) {
+            double dd[3], ang[3];
+            const double *loc = m->loc[i];
+            table_eval_hint(P->tab[i], q[i], dd, ang, NULL, NULL, 0, (int *)&P->hint[i]);
+            rotvec_fast(ang, Re);
+            for (k = 0; k < 3; k++)
+                te[k] = loc[k] + dd[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+            if (!e_after) {
+                mat_vec(Re, x, y);
+                for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
+                mat_vec(Re, d, d);
+            }
+        }
+        if (m->rotary[i]) {
+            const double *c = P->c[i], *u = P->ueff[i];
+            double a = q[i] * DEG + P->zero[i], sn = sin(a), cs = cos(a);
+            for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
+            turn(u, sn, cs, y, y);
+            for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
+            turn(u, sn, cs, d, d);
+        } else {
+            for (k = 0; k < 3; k++) x[k] += q[i] * P->ueff[i][k];
+        }
+        if (e_after) {
+            mat_vec(Re, x, y);
+            for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
+            mat_vec(Re, d, d);
+        }
+    }
+    if (P->wp) {
+        for (k = 0; k < 3; k++) x[k] -= P->tw[k];
+        mat_vec(P->RwT, x, p);
+        mat_vec(P->RwT, d, v);
+    } else {
+        memcpy(p, x, sizeof x);
+        memcpy(v, d, sizeof d);
+    }
+}
+
 static void range_message(const mtk_model *m, int i, double q, char *err)
 {
     char msg[MTK_ERRLEN];
@@ -734,7 +810,16 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
                     int *bad)
 {
     double p[3], R[9];
-    int k, rc = fwd(P, q, p, R, strict, bad);
+    int k, rc;
+    if (!strict && P->mode != 3) {   /* position and tool direction only */
+        double v[3];
+        fwd_pv(P, q, p, v);
+        for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
+        if (P->mode == 2)
+            for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
+        return MTK_OK;
+    }
+    rc = fwd(P, q, p, R, strict, bad);
     if (rc) return rc;
     for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
     if (P->mode == 2) {
@@ -781,11 +866,6 @@ static double norm(const double *r, int rows)
     return sqrt(s);
 }
 
-static inline void cross(const double a[3], const double b[3], double c[3])
-{
-    double c0 = a[1] * b[2] - a[2] * b[1], c1 = a[2] * b[0] - a[0] * b[2], c2 = a[0] * b[1] - a[1] * b[0];
-    c[0] = c0; c[1] = c1; c[2] = c2;
-}
 
 /* Jacobian of the full model (location errors and the tables' slopes) and its residual at q
  * (tables held at their ends), in one pass: each axis' motion G_i(q_i) is a rigid motion whose
@@ -1535,10 +1615,6 @@ static int closed_form(const prep_t *P, const double *q, double *out)
     return 1;
 }
 
-static inline double dot3(const double a[3], const double b[3])
-{
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
 
 /* Components of the rotation about the unit vector u that takes a to b, both seen in the plane
  * normal to u (Paden-Kahan subproblem 1; a and b need not be normalised): *y = u.(a' x b') and
@@ -1574,15 +1650,6 @@ static inline double near_turn(double th, double ref)
     return ref + d;
 }
 
-/* Apply the rotation about unit u by the angle with sine sn and cosine cs to x (Rodrigues);
- * y may be x. */
-static inline void turn(const double u[3], double sn, double cs, const double x[3], double y[3])
-{
-    double ux[3], ud = dot3(u, x) * (1.0 - cs);
-    int k;
-    cross(u, x, ux);
-    for (k = 0; k < 3; k++) y[k] = x[k] * cs + ux[k] * sn + u[k] * ud;
-}
 
 /* The rigid chain on vectors, from the sines and cosines sc of its rotary angles (per rotary
  * axis, in chain order): no rotation matrix is built, each rotary axis turns a vector once. */
