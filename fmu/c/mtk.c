@@ -2128,6 +2128,16 @@ long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const do
     return -1;
 }
 
+/* The commands q within 1 deg and 1 mm of the previous pose's qp on every axis (a path: the
+ * previous correction is the better start). */
+static int near_previous(const prep_t *P, const double *q, const double *qp)
+{
+    int k;
+    for (k = 0; k < P->n; k++)
+        if (!(fabs(q[k] - qp[k]) <= 1.0)) return 0;
+    return 1;
+}
+
 /* Shared loop of the two batch entries: targets either given (p_t, R_t) or the ideal poses of q0. */
 static long batch(const mtk_model *m, const mtk_errors *e, long n, const double *p_t, const double *R_t,
                   const double *q0, double *q, const mtk_options *o, double *res, int *status, int *info)
@@ -2157,6 +2167,9 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
      * angle sum from the pose's own */
     double csc[3][2];
     int csc_ok = 0, fast_rot = !p_t && P.closed_rot;
+    /* retarget with tables or location errors: the iteration seeded by the rigid closed form */
+    int seed_rigid = !p_t && P.geo && (Pr.closed_rot || Pr.closed), seeded, have_geo = 0;
+    double qr[MTK_MAX_AXES], dgeo[MTK_MAX_AXES];
     int status_in, info_in;
     for (i = 0; i < n; i++) {
         const double *qa = q0 + i * nax;
@@ -2234,9 +2247,22 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             warm = 1;
             continue;
         }
-        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, resi, &r0, &sing, &bad,
-                        &held, &how);
+        seeded = 0;
+        if (seed_rigid && !(o->continuation && have_prev && warm && i > 0 && near_previous(&P, qa, qa - nax)) &&
+            (Pr.closed_rot ? closed_rotation(&Pr, &tg, qa, qa, qa, so.pole_sin, qr) : closed_form(&Pr, qa, qr))) {
+            /* with tables or location errors: start from the rigid model's closed-form solution
+             * plus the previous pose's correction beyond it (the tables' part, µm and µrad) */
+            for (k = 0; k < nax; k++) start[k] = qr[k] + (o->continuation && have_prev && have_geo ? dgeo[k] : 0.0);
+            seeded = 1;
+        }
+        rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), &so, qo, &it, resi, &r0, &sing,
+                        &bad, &held, &how);
         csc_ok = 0;
+        have_geo = 0;
+        if (rc == MTK_OK && seeded) {
+            for (k = 0; k < nax; k++) dgeo[k] = qo[k] - qr[k];
+            have_geo = 1;
+        }
         if (rc == MTK_OK) {
             *infoi = held;
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
