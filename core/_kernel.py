@@ -294,17 +294,17 @@ def threads() -> int:
         return max(1, min(os.cpu_count() or 1, 64))
 
 
-def forward(lib, machine, q: np.ndarray, errors, strict: bool):
-    """(p (N,3), R (N,3,3), first bad index or -1)."""
+def forward(lib, machine, q: np.ndarray, errors, strict: bool, orientation: bool = True):
+    """(p (N,3), R (N,3,3) or None without `orientation`, first bad index or -1)."""
     q = np.ascontiguousarray(q, dtype=float)
     n = q.shape[0]
     p = np.empty((n, 3))
-    R = np.empty((n, 3, 3))
+    R = np.empty((n, 3, 3)) if orientation else None
     m = model(lib, machine, errors)
     e = c_errors(machine, errors)
     bad_axis = ctypes.c_int(-1)
-    bad = lib.mtk_forward_batch_mt(m.ptr, ctypes.byref(e), n, _p(q), _p(p), _p(R), int(strict),
-                                   ctypes.byref(bad_axis), threads())
+    bad = lib.mtk_forward_batch_mt(m.ptr, ctypes.byref(e), n, _p(q), _p(p), None if R is None else _p(R),
+                                   int(strict), ctypes.byref(bad_axis), threads())
     return p, R, int(bad) if bad >= 0 else -1
 
 

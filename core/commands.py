@@ -15,7 +15,7 @@ import numpy as np
 from ._io import InputError, atomic_write
 from .cliargs import positive_float
 from .errors import ErrorSet, TableRangeError, load_errors
-from .kinematics import ConvergenceError, LimitError, forward, retarget
+from .kinematics import ConvergenceError, LimitError, forward, forward_position, retarget
 from .machine import list_presets, load_machine
 from .progress import Progress
 
@@ -263,9 +263,9 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
         r = rows[~on]
         if len(r):
-            target = forward(machine, P[r]).p
-            before[s:s + CHUNK][~on] = np.linalg.norm(forward(machine, P[r], errors).p - target, axis=1)
-            after[s:s + CHUNK][~on] = np.linalg.norm(forward(machine, emitted[r], errors).p - target,
+            target = forward_position(machine, P[r])     # (positions only: no orientations built)
+            before[s:s + CHUNK][~on] = np.linalg.norm(forward_position(machine, P[r], errors) - target, axis=1)
+            after[s:s + CHUNK][~on] = np.linalg.norm(forward_position(machine, emitted[r], errors) - target,
                                                      axis=1)
         if on.any():
             r = rows[on]

@@ -232,6 +232,21 @@ def forward(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = 
     return Pose(p, R, machine.tool_axis)
 
 
+def forward_position(machine: Machine, q, errors: ErrorSet | None = None, strict: bool = True, *,
+                     backend: str | None = None) -> np.ndarray:
+    """The tool edge positions (N, 3) mm of `forward` alone: the compiled kernel neither writes
+    nor allocates the orientations (a verification of millions of blocks needs the positions
+    only).  Same arguments as `forward`."""
+    q = _as_commands(machine, q)
+    lib = _backend(backend)
+    if lib is not None:
+        from . import _kernel
+        p, _, bad = _kernel.forward(lib, machine, q, errors, strict, orientation=False)
+        if bad < 0:
+            return p
+    return forward(machine, q, errors, strict, backend="numpy").p
+
+
 class SwingError(MtcompError):
     """The compensation would turn a rotary axis further in one block than allowed."""
 

@@ -208,18 +208,18 @@ def tcp_to_axes(machine, w: np.ndarray) -> np.ndarray:
     tool point X Y Z in the workpiece frame, the rotary columns the rotary angles, as a G43.4
     control reads them with its nominal kinematics.  The linear axes translate the tool point
     along their (rotated) directions, so one least-squares step is exact."""
-    from .kinematics import forward
+    from .kinematics import forward_position
     w = np.asarray(w, float)
     lin = [i for i, a in enumerate(machine.axes) if not a.is_rotary]
     xyz = ["XYZ".index(machine.axes[i].name) for i in lin]
     q = w.copy()
     q[:, lin] = 0.0
-    p0 = forward(machine, q).p
+    p0 = forward_position(machine, q)
     J = np.empty((len(w), 3, len(lin)))
     for k, i in enumerate(lin):
         dq = q.copy()
         dq[:, i] = 1.0
-        J[:, :, k] = forward(machine, dq).p - p0
+        J[:, :, k] = forward_position(machine, dq) - p0
     target = np.zeros((len(w), 3))
     target[:, xyz] = w[:, lin]
     q[:, lin] = np.einsum("nij,nj->ni", np.linalg.pinv(J), target - p0)
@@ -231,7 +231,7 @@ def _tool_points(machine, q: np.ndarray, errors, tool_radius: float, tcp: bool =
     """Tool points (M, 3) for axis positions q (M, n) (or G43.4 words with ``tcp``) with the
     tool lengths (M,) mm (None: 0, the machine file's tool point), through the forward model."""
     from .gcode.tcp import tool_machine
-    from .kinematics import forward
+    from .kinematics import forward, forward_position
     q = np.asarray(q, float)
     L = np.zeros(len(q)) if lengths is None else np.broadcast_to(np.asarray(lengths, float), (len(q),))
     out = np.empty((len(q), 3))
@@ -239,8 +239,11 @@ def _tool_points(machine, q: np.ndarray, errors, tool_radius: float, tcp: bool =
         rows = np.flatnonzero(L == Lv) if len(np.unique(L)) > 1 else slice(None)
         m = tool_machine(machine, float(Lv))
         qr = tcp_to_axes(m, q[rows]) if tcp else q[rows]
-        pose = forward(m, qr, errors, strict=False)
-        out[rows] = pose.p + tool_radius * pose.v if tool_radius else pose.p
+        if tool_radius:
+            pose = forward(m, qr, errors, strict=False)
+            out[rows] = pose.p + tool_radius * pose.v
+        else:   # positions only: the kernel builds no orientations
+            out[rows] = forward_position(m, qr, errors, strict=False)
     return out
 
 
@@ -248,7 +251,7 @@ def _tip_words(machine, Q: np.ndarray, lengths) -> np.ndarray:
     """G43.4 words (tool tip, angles) of axis positions Q (M, n) on the nominal machine with the
     tool lengths (M,): what a control in tool centre point mode takes as the current point."""
     from .gcode.tcp import tool_machine
-    from .kinematics import forward
+    from .kinematics import forward_position
     Q = np.asarray(Q, float)
     W = Q.copy()
     lin = [i for i, a in enumerate(machine.axes) if not a.is_rotary]
@@ -256,7 +259,7 @@ def _tip_words(machine, Q: np.ndarray, lengths) -> np.ndarray:
     L = np.broadcast_to(np.asarray(lengths, float), (len(Q),))
     for Lv in np.unique(L):
         rows = np.flatnonzero(L == Lv)
-        W[np.ix_(rows, lin)] = forward(tool_machine(machine, float(Lv)), Q[rows]).p[:, xyz]
+        W[np.ix_(rows, lin)] = forward_position(tool_machine(machine, float(Lv)), Q[rows])[:, xyz]
     return W
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from mtcomp import _kernel
 from mtcomp.errors import (ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting, load_errors)
-from mtcomp.kinematics import SwingError, compensate, forward, retarget
+from mtcomp.kinematics import SwingError, compensate, forward, forward_position, retarget
 from mtcomp.machine import load_machine
 
 from _models import random_commands, random_errors
@@ -45,6 +45,9 @@ def test_c_and_numpy_agree_on_every_preset_and_error_kind(name, kind, rng):
     q = random_commands(m, 200, rng, span=0.3)
     Pc, Pn = forward(m, q, E, backend="c"), forward(m, q, E, backend="numpy")
     assert np.max(np.abs(Pc.p - Pn.p)) <= 1e-12 and np.max(np.abs(Pc.R - Pn.R)) <= 1e-14
+    # the positions-only forward (no orientations written) gives the same bits as the full one
+    assert np.array_equal(forward_position(m, q, E, backend="c"), Pc.p)
+    assert np.array_equal(forward_position(m, q, E, backend="numpy"), Pn.p)
     target = forward(m, q)
     qc = compensate(m, target, E, q, backend="c")
     qn = compensate(m, target, E, q, backend="numpy")
@@ -65,9 +68,10 @@ def test_table_range_error_is_the_references(rng):
     q[3, 0] = hi + 1.0
     from mtcomp.errors import TableRangeError
     for be in ("c", "numpy"):
-        with pytest.raises(TableRangeError) as exc:
-            forward(m, q, E, backend=be)
-        assert exc.value.axis == "X" and exc.value.index == 3
+        for fn in (forward, forward_position):
+            with pytest.raises(TableRangeError) as exc:
+                fn(m, q, E, backend=be)
+            assert exc.value.axis == "X" and exc.value.index == 3
 
 
 def _tilted_blank_program(n):

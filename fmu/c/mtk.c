@@ -48,6 +48,27 @@ static inline void mat_mul(const double A[9], const double B[9], double C[9])
     memcpy(C, T, sizeof T);
 }
 
+static inline void cross(const double a[3], const double b[3], double c[3])
+{
+    double c0 = a[1] * b[2] - a[2] * b[1], c1 = a[2] * b[0] - a[0] * b[2], c2 = a[0] * b[1] - a[1] * b[0];
+    c[0] = c0; c[1] = c1; c[2] = c2;
+}
+
+static inline double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* Apply the rotation about unit u by the angle with sine sn and cosine cs to x (Rodrigues);
+ * y may be x. */
+static inline void turn(const double u[3], double sn, double cs, const double x[3], double y[3])
+{
+    double ux[3], ud = dot3(u, x) * (1.0 - cs);
+    int k;
+    cross(u, x, ux);
+    for (k = 0; k < 3; k++) y[k] = x[k] * cs + ux[k] * sn + u[k] * ud;
+}
+
 static void eye(double A[9])
 {
     memset(A, 0, 9 * sizeof(double));
@@ -438,6 +459,14 @@ typedef struct {
                                        * axes: closed_rotation applies */
     double c12;                       /* u1 . u2 of the first two rotary axes */
     double b3[3];                     /* a unit vector normal to the third rotary axis (mode 3) */
+    int lin_order;                    /* closed_rot: the linear axes all precede (1) or all follow (2)
+                                       * the rotary axes, else 0 ... */
+    double Dinv[9];                   /* ... and then the inverse of their directions' matrix */
+    double u12[3];                    /* closed_rot: u1 x u2, and for a (the tool axis, or the third
+                                       * rotary axis) a.a, u2.a and with ap = a - (u2.a) u2 the
+                                       * dot products ap.u1, ap.u12, u1.(u2 x ap), u12.(u2 x ap) */
+    double aa, u2a, K[4];
+    double r2, iden;                  /* a.a - (u2.a)^2, 1 / (1 - (u1.u2)^2) */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
@@ -466,6 +495,13 @@ static int n_rotary(const mtk_model *m)
     int i, n = 0;
     for (i = 0; i < m->n_axes; i++) n += m->rotary[i];
     return n;
+}
+
+static void u12_cross(const double a[3], const double b[3], double c[3])
+{
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
 }
 
 /* geo = 0: the rigid model (setting errors only: the chord Jacobian's model). */
@@ -546,6 +582,49 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
                 for (k = 0; k < 3; k++) P->b3[k] = ref[k] - d * u3[k];
                 nb = sqrt(P->b3[0] * P->b3[0] + P->b3[1] * P->b3[1] + P->b3[2] * P->b3[2]);
                 for (k = 0; k < 3; k++) P->b3[k] /= nb;
+            }
+            {
+                /* the constants of the subproblems in closed_rot_core */
+                const double *a = P->nrot == 3 ? m->dir[P->rot_idx[2]] : m->tool_axis;
+                double ap[3], w[3];
+                u12_cross(u1, u2, P->u12);
+                P->aa = a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
+                P->u2a = a[0] * u2[0] + a[1] * u2[1] + a[2] * u2[2];
+                for (k = 0; k < 3; k++) ap[k] = a[k] - P->u2a * u2[k];
+                u12_cross(u2, ap, w);
+                P->K[0] = ap[0] * u1[0] + ap[1] * u1[1] + ap[2] * u1[2];
+                P->K[1] = ap[0] * P->u12[0] + ap[1] * P->u12[1] + ap[2] * P->u12[2];
+                P->K[2] = w[0] * u1[0] + w[1] * u1[1] + w[2] * u1[2];
+                P->K[3] = w[0] * P->u12[0] + w[1] * P->u12[1] + w[2] * P->u12[2];
+                P->r2 = P->aa - P->u2a * P->u2a;
+                P->iden = 1.0 / (1.0 - P->c12 * P->c12);
+                if (!(P->r2 > 1e-9)) P->closed_rot = 0;   /* a along u2: no second angle to find */
+            }
+            {
+                /* order of the linear axes against the rotary ones, and D^-1 for closed_rot_core */
+                int first = -1, last = -1, c = 0, r;
+                double D[9], det;
+                for (i = 0; i < m->n_axes; i++) {
+                    if (m->rotary[i]) continue;
+                    if (first < 0) first = i;
+                    last = i;
+                    for (r = 0; r < 3; r++) D[3 * r + c] = m->dir[i][r];
+                    c++;
+                }
+                det = D[0] * (D[4] * D[8] - D[5] * D[7]) - D[1] * (D[3] * D[8] - D[5] * D[6])
+                      + D[2] * (D[3] * D[7] - D[4] * D[6]);
+                if (det != 0.0 && (last - first == 2)) {
+                    P->lin_order = first == 0 ? 1 : (last == m->n_axes - 1 ? 2 : 0);
+                    P->Dinv[0] = (D[4] * D[8] - D[5] * D[7]) / det;
+                    P->Dinv[1] = (D[2] * D[7] - D[1] * D[8]) / det;
+                    P->Dinv[2] = (D[1] * D[5] - D[2] * D[4]) / det;
+                    P->Dinv[3] = (D[5] * D[6] - D[3] * D[8]) / det;
+                    P->Dinv[4] = (D[0] * D[8] - D[2] * D[6]) / det;
+                    P->Dinv[5] = (D[2] * D[3] - D[0] * D[5]) / det;
+                    P->Dinv[6] = (D[3] * D[7] - D[4] * D[6]) / det;
+                    P->Dinv[7] = (D[1] * D[6] - D[0] * D[7]) / det;
+                    P->Dinv[8] = (D[0] * D[4] - D[1] * D[3]) / det;
+                }
             }
         }
         if (P->closed) {
@@ -645,6 +724,61 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
     return MTK_OK;
 }
 
+/* The position and the tool direction of fwd alone (tables held at their ends, no range check),
+ * on vectors from the tool end: each axis' motion G = E N (the error motion after the nominal
+ * one) or N E applied to the tool point and, without its translation, to the tool direction; a
+ * rotary axis turns them by Rodrigues on the vector.  About half the arithmetic of the
+ * matrix products (what the iteration's residual needs on machines with one or two rotary
+ * axes). */
+static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
+{
+    const mtk_model *m = P->m;
+    double x[3], d[3];
+    int i, k;
+    memcpy(x, P->tp, sizeof x);
+    memcpy(d, m->tool_axis, sizeof d);
+    for (i = P->n - 1; i >= 0; i--) {
+        double Re[9], te[3], y[3];
+        int has_e = P->tab[i] != NULL, e_after = has_e && m->tool_side[i] == m->rotary[i];
+        if (has_e) {
+            double dd[3], ang[3];
+            const double *loc = m->loc[i];
+            table_eval_hint(P->tab[i], q[i], dd, ang, NULL, NULL, 0, (int *)&P->hint[i]);
+            rotvec_fast(ang, Re);
+            for (k = 0; k < 3; k++)
+                te[k] = loc[k] + dd[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+            if (!e_after) {
+                mat_vec(Re, x, y);
+                for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
+                mat_vec(Re, d, d);
+            }
+        }
+        if (m->rotary[i]) {
+            const double *c = P->c[i], *u = P->ueff[i];
+            double a = q[i] * DEG + P->zero[i], sn = sin(a), cs = cos(a);
+            for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
+            turn(u, sn, cs, y, y);
+            for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
+            turn(u, sn, cs, d, d);
+        } else {
+            for (k = 0; k < 3; k++) x[k] += q[i] * P->ueff[i][k];
+        }
+        if (e_after) {
+            mat_vec(Re, x, y);
+            for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
+            mat_vec(Re, d, d);
+        }
+    }
+    if (P->wp) {
+        for (k = 0; k < 3; k++) x[k] -= P->tw[k];
+        mat_vec(P->RwT, x, p);
+        mat_vec(P->RwT, d, v);
+    } else {
+        memcpy(p, x, sizeof x);
+        memcpy(v, d, sizeof d);
+    }
+}
+
 static void range_message(const mtk_model *m, int i, double q, char *err)
 {
     char msg[MTK_ERRLEN];
@@ -676,7 +810,16 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
                     int *bad)
 {
     double p[3], R[9];
-    int k, rc = fwd(P, q, p, R, strict, bad);
+    int k, rc;
+    if (!strict && P->mode != 3) {   /* position and tool direction only */
+        double v[3];
+        fwd_pv(P, q, p, v);
+        for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
+        if (P->mode == 2)
+            for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
+        return MTK_OK;
+    }
+    rc = fwd(P, q, p, R, strict, bad);
     if (rc) return rc;
     for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
     if (P->mode == 2) {
@@ -723,11 +866,6 @@ static double norm(const double *r, int rows)
     return sqrt(s);
 }
 
-static inline void cross(const double a[3], const double b[3], double c[3])
-{
-    double c0 = a[1] * b[2] - a[2] * b[1], c1 = a[2] * b[0] - a[0] * b[2], c2 = a[0] * b[1] - a[1] * b[0];
-    c[0] = c0; c[1] = c1; c[2] = c2;
-}
 
 /* Jacobian of the full model (location errors and the tables' slopes) and its residual at q
  * (tables held at their ends), in one pass: each axis' motion G_i(q_i) is a rigid motion whose
@@ -1477,22 +1615,26 @@ static int closed_form(const prep_t *P, const double *q, double *out)
     return 1;
 }
 
-static inline double dot3(const double a[3], const double b[3])
-{
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
 
-/* Rotation about the unit vector u that takes a to b, both seen in the plane normal to u
- * (Paden-Kahan subproblem 1; a and b need not be normalised): its angle in deg, and its sine and
- * cosine in *sn, *cs (the rigid chain at the solution is built from them, no sin/cos again). */
-static inline double turn_angle(const double u[3], const double a[3], const double b[3], double *sn, double *cs)
+/* Components of the rotation about the unit vector u that takes a to b, both seen in the plane
+ * normal to u (Paden-Kahan subproblem 1; a and b need not be normalised): *y = u.(a' x b') and
+ * *c = a'.b' with a', b' the projections, so that the angle is atan2(y, c). */
+static inline void turn_yc(const double u[3], const double a[3], const double b[3], double *y, double *c)
 {
-    double ap[3], bp[3], x[3], ua = dot3(u, a), ub = dot3(u, b), y, c, r;
+    double ap[3], bp[3], x[3], ua = dot3(u, a), ub = dot3(u, b);
     int k;
     for (k = 0; k < 3; k++) { ap[k] = a[k] - ua * u[k]; bp[k] = b[k] - ub * u[k]; }
     cross(ap, bp, x);
-    y = dot3(u, x);
-    c = dot3(ap, bp);
+    *y = dot3(u, x);
+    *c = dot3(ap, bp);
+}
+
+/* Subproblem 1 in full: the angle in deg, and its sine and cosine in *sn, *cs (the rigid chain at
+ * the solution is built from them, no sin/cos again). */
+static inline double turn_angle(const double u[3], const double a[3], const double b[3], double *sn, double *cs)
+{
+    double y, c, r;
+    turn_yc(u, a, b, &y, &c);
     r = sqrt(y * y + c * c);
     *sn = y / r;
     *cs = c / r;
@@ -1508,13 +1650,40 @@ static inline double near_turn(double th, double ref)
     return ref + d;
 }
 
-/* Apply the rotation about unit u by the angle with sine sn and cosine cs to x (Rodrigues). */
-static inline void turn(const double u[3], double sn, double cs, const double x[3], double y[3])
+
+/* The rigid chain on vectors, from the sines and cosines sc of its rotary angles (per rotary
+ * axis, in chain order): no rotation matrix is built, each rotary axis turns a vector once. */
+
+/* x turned by the rotary axes before axis `upto` (P->n: all of them, the chain's rotation). */
+static inline void rigid_turn(const prep_t *P, const double (*sc)[2], int upto, double x[3])
 {
-    double ux[3], ud = dot3(u, x) * (1.0 - cs);
-    int k;
-    cross(u, x, ux);
-    for (k = 0; k < 3; k++) y[k] = x[k] * cs + ux[k] * sn + u[k] * ud;
+    int r;
+    for (r = P->nrot - 1; r >= 0; r--)
+        if (P->rot_idx[r] < upto) turn(P->m->dir[P->rot_idx[r]], sc[r][0], sc[r][1], x, x);
+}
+
+/* Nominal tool position (no workpiece pose) of the rigid chain with tool point tp, the linear
+ * axes at q and the rotary axes at the angles of sc: from the tool end, x <- c + R (x - c) for a
+ * rotary axis about its centre c, x <- x + q u for a linear axis. */
+static inline void rigid_position(const prep_t *P, const double *q, const double (*sc)[2], const double tp[3],
+                                  double p[3])
+{
+    const mtk_model *m = P->m;
+    double x[3] = {tp[0], tp[1], tp[2]};
+    int i, k, r = P->nrot - 1;
+    for (i = P->n - 1; i >= 0; i--) {
+        const double *u = m->dir[i];
+        if (m->rotary[i]) {
+            const double *c = P->c[i];
+            double d[3] = {x[0] - c[0], x[1] - c[1], x[2] - c[2]};
+            turn(u, sc[r][0], sc[r][1], d, d);
+            for (k = 0; k < 3; k++) x[k] = c[k] + d[k];
+            r--;
+        } else {
+            for (k = 0; k < 3; k++) x[k] += q[i] * u[k];
+        }
+    }
+    memcpy(p, x, sizeof x);
 }
 
 /* The rotary axes' columns of the orientation rows (rotation rates w_i in the machine frame, for
@@ -1539,147 +1708,218 @@ static inline void turn(const double u[3], double sn, double cs, const double x[
  *     al = (u1.v - c u2.a) / (1 - c^2),  be = (u2.a - c u1.v) / (1 - c^2),  c = u1.u2,
  *     ga^2 = (1 - al^2 - be^2 - 2 al be c) / (1 - c^2),
  * two solutions (+-ga); th2 turns a into x about u2, th1 turns x into v about u1 (subproblem 1),
- * and in mode 3 th3 turns b into (R1 R2)^T Rw R_t b about u3 for a b normal to u3.  Of the two,
- * the one with the least rotary change from `ref` (each angle taken within 180 deg of it).
+ * and in mode 3 th3 turns b into (R1 R2)^T mb about u3 for a b normal to u3 (mb = Rw R_t b).  Of
+ * the two, the one with the least rotary change from `ref` (each angle taken within 180 deg of
+ * it); a solution whose th2 is more than CLOSED_MAX_TURN from ref is dropped by the cosine of
+ * the difference (from rsc, the sines and cosines of ref's rotary angles) before any atan2.
  *   Position: with the angles fixed, p_nom(q) = p_nom(q_lin) + A dq_lin with the columns of A
  * the linear axes' directions turned by the rotary axes before them; the real position
- * Rw^T (p_nom - tw) equals p_t for dq_lin = A^-1 (Rw p_t + tw - p_nom(q_lin)).
- * Returns 0 (the iteration decides) near a pole (CLOSED_POLE_MARGIN times the pole tolerance at
- * `start`), for a change of a rotary axis above CLOSED_MAX_TURN, an unreachable orientation, or
- * a result outside a travel. */
-static int closed_rotation(const prep_t *P, const target_t *tg, const double *q0, const double *start,
-                           const double *ref, double pole_sin, double *out)
+ * Rw^T (p_nom - tw) equals p_t for dq_lin = A^-1 (Rw p_t + tw - p_nom(q_lin)).  A = D (the linear
+ * axes' directions) where they precede the rotary axes, A = R D where they follow them (A^-1 =
+ * D^-1 R^T: the right-hand side turned back), else its columns turned one by one.
+ *   Pole test at the start angles (ss2: sine and cosine of the second rotary angle there): the
+ * orientation columns w_i x v_s (mode 2) or w_i (mode 3) all carry the first axis' rotation,
+ * which changes neither their lengths nor their determinant, so only the second angle enters.
+ * Returns 0 (the iteration decides) near a pole (CLOSED_POLE_MARGIN times the pole tolerance),
+ * for a change of a rotary axis above CLOSED_MAX_TURN, an unreachable orientation, or a result
+ * outside a travel; else 1 with the commands in out and the sines and cosines of the rotary
+ * angles in osc. */
+static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3], const double mb[3],
+                           const double *q0, const double ss2[2], const double *ref, const double (*rsc)[2],
+                           double pole_sin, double *out, double (*osc)[2])
 {
     const mtk_model *m = P->m;
     const int i1 = P->rot_idx[0], i2 = P->rot_idx[1], i3 = P->nrot == 3 ? P->rot_idx[2] : -1;
     const double *u1 = m->dir[i1], *u2 = m->dir[i2];
-    const double c = P->c12, den = 1.0 - c * c;
-    double a[3], v[3], Mt[9], w[3], al, be, ga2, ga, u12[3], th[2][3], best = INFINITY, xs[2][3], sc[2][3][2];
-    int k, br, pick = -1;
-    /* pole test at the start angles: orientation columns w_i x v_s (mode 2) or w_i (mode 3) */
+    const double c = P->c12, iden = P->iden;
+    const double cos_max = cos(CLOSED_MAX_TURN * DEG) - 1e-12;
+    double w[3], al, be, ga2, ga, u1v, u2v, vw, th[2][3], best = INFINITY, sc[2][3][2];
+    int k, br, pick = -1, ok[2];
     {
-        double w1[3], w2[3], w3[3], vs[3], c1[3], c2[3], x[3], lim;
-        double s1 = sin(start[i1] * DEG), k1 = cos(start[i1] * DEG);
-        lim = CLOSED_POLE_MARGIN * pole_sin;
-        memcpy(w1, u1, sizeof w1);
-        turn(u1, s1, k1, u2, w2);
+        /* t = R(u2, start2) a: u1.t and u12.t from the constants of prepare; |u1 x t|^2 =
+         * a.a - (u1.t)^2, |u2 x t|^2 = a.a - (u2.a)^2, |(u1 x t) x (u2 x t)|^2 = (u12.t)^2 a.a and
+         * det(w1, w2, w3) = u12.t (mode 3) */
+        double lim2 = CLOSED_POLE_MARGIN * pole_sin, u1t, t12;
+        lim2 *= lim2;
+        u1t = P->K[0] * ss2[1] + P->K[2] * ss2[0] + c * P->u2a;
+        t12 = P->K[1] * ss2[1] + P->K[3] * ss2[0];
         if (i3 < 0) {
-            double s2 = sin(start[i2] * DEG), k2 = cos(start[i2] * DEG), t[3];
-            turn(u2, s2, k2, m->tool_axis, t);
-            turn(u1, s1, k1, t, vs);
-            cross(w1, vs, c1);
-            cross(w2, vs, c2);
-            cross(c1, c2, x);
-            {
-                double n1 = sqrt(dot3(c1, c1)), n2 = sqrt(dot3(c2, c2)), nx = sqrt(dot3(x, x));
-                if (n1 < lim || n2 < lim || nx < lim * fmax(n1, n2)) return 0;
-            }
-        } else {
-            double s2 = sin(start[i2] * DEG), k2 = cos(start[i2] * DEG), t[3];
-            turn(u2, s2, k2, m->dir[i3], t);
-            turn(u1, s1, k1, t, w3);
-            cross(w2, w3, c1);
-            if (fabs(dot3(w1, c1)) < lim) return 0;   /* |det(w1, w2, w3)|: unit columns */
+            double n1 = P->aa - u1t * u1t, n2 = P->r2, nx = t12 * t12 * P->aa;
+            if (n1 < lim2 || n2 < lim2 || nx < lim2 * (n1 > n2 ? n1 : n2)) return 0;
+        } else if (t12 * t12 < lim2) {
+            return 0;
         }
     }
-    /* the orientation target in the nominal machine frame */
-    if (i3 < 0) {
-        memcpy(a, m->tool_axis, sizeof a);
-        mat_vec(P->Rw, tg->v, v);
-    } else {
-        memcpy(a, m->dir[i3], sizeof a);
-        mat_mul(P->Rw, tg->R, Mt);
-        for (k = 0; k < 3; k++) v[k] = Mt[3 * k] * a[0] + Mt[3 * k + 1] * a[1] + Mt[3 * k + 2] * a[2];
-    }
     {
-        double u1v = dot3(u1, v), u2a = dot3(u2, a);
-        al = (u1v - c * u2a) / den;
-        be = (u2a - c * u1v) / den;
-        ga2 = (dot3(a, a) - al * al - be * be - 2.0 * al * be * c) / den;
+        u1v = dot3(u1, v);
+        u2v = dot3(u2, v);
+        vw = dot3(P->u12, v);
+        al = (u1v - c * P->u2a) * iden;
+        be = (P->u2a - c * u1v) * iden;
+        ga2 = (P->aa - al * al - be * be - 2.0 * al * be * c) * iden;
         if (!(ga2 > 1e-12)) return 0;   /* unreachable, or the two solutions merge */
         ga = sqrt(ga2);
     }
-    cross(u1, u2, u12);
-    /* the second rotary angle of both solutions first: a solution that turns it by more than
-     * CLOSED_MAX_TURN is out without the rest */
-    for (br = 0; br < 2; br++) {
-        double g = br ? -ga : ga;
-        for (k = 0; k < 3; k++) xs[br][k] = al * u1[k] + be * u2[k] + g * u12[k];
-        th[br][1] = near_turn(turn_angle(u2, a, xs[br], &sc[br][1][0], &sc[br][1][1]), ref[i2]);
-    }
-    for (br = 0; br < 2; br++) {
-        double sum, mx;
-        int j;
-        if (fabs(th[br][1] - ref[i2]) > CLOSED_MAX_TURN) continue;
-        th[br][0] = near_turn(turn_angle(u1, xs[br], v, &sc[br][0][0], &sc[br][0][1]), ref[i1]);
-        if (i3 >= 0) {
-            /* R3 = (R1 R2)^T Mt: turn b by R3 and compare with (R1 R2)^T Mt b */
-            double mb[3], y[3];
-            mat_vec(Mt, P->b3, mb);
-            turn(u1, -sc[br][0][0], sc[br][0][1], mb, y);
-            turn(u2, -sc[br][1][0], sc[br][1][1], y, w);
-            th[br][2] = near_turn(turn_angle(m->dir[i3], P->b3, w, &sc[br][2][0], &sc[br][2][1]), ref[i3]);
+    /* the second rotary angle of both solutions first (subproblem 1 for a into x about u2, its
+     * components from the constants of prepare: y = x.(u2 x ap), c = ap.x, and |ap| |x - (u2.x)
+     * u2| = a.a - (u2.a)^2 as |x| = |a|): a solution that turns it by more than CLOSED_MAX_TURN is
+     * out without the rest */
+    {
+        /* Both solutions' (y, c) for th2, and turned back by ref2, (Y, X) = the sine and cosine
+         * of th2 - ref2 times a.a - (u2.a)^2: X >= cos(CLOSED_MAX_TURN) r2 is the test, and
+         * atan2(Y, X) the turn from ref2 (no wrapping).  Decided without a branch on which of the
+         * two it is (random poses pick either: a mispredicted branch costs more than the sums). */
+        double y2[2], c2[2], Y2[2], X2[2];
+        int cand[2], ncand = 0, ci;
+        for (br = 0; br < 2; br++) {
+            double g = br ? -ga : ga;
+            y2[br] = al * P->K[2] + g * P->K[3];
+            c2[br] = al * P->K[0] + g * P->K[1];
+            Y2[br] = y2[br] * rsc[1][1] - c2[br] * rsc[1][0];
+            X2[br] = c2[br] * rsc[1][1] + y2[br] * rsc[1][0];
+            ok[br] = X2[br] >= cos_max * P->r2;
         }
-        for (j = 0, sum = 0.0, mx = 0.0; j < P->nrot; j++) {
-            double d = fabs(th[br][j] - ref[P->rot_idx[j]]);
-            sum += d;
-            if (d > mx) mx = d;
+        cand[0] = ok[0] ? 0 : 1;
+        cand[1] = 1;
+        ncand = ok[0] + ok[1];
+        for (ci = 0; ci < ncand; ci++) {
+            double sum, mx, g, y, cc, ir, Y, X;
+            int j;
+            br = cand[ci];
+            g = br ? -ga : ga;
+            ir = 1.0 / sqrt(y2[br] * y2[br] + c2[br] * c2[br]);   /* (unit sine and cosine: near a pole
+                                                     * y and c are small and r2 off by their rounding) */
+            sc[br][1][0] = y2[br] * ir;
+            sc[br][1][1] = c2[br] * ir;
+            th[br][1] = ref[i2] + atan2(Y2[br], X2[br]) / DEG;
+            /* subproblem 1 for x into v about u1: y = u1.(x x v), c = x.v - (u1.x)(u1.v) */
+            y = be * vw + g * (c * u1v - u2v);
+            cc = al * u1v + be * u2v + g * vw - (al + be * c) * u1v;
+            ir = 1.0 / sqrt(y * y + cc * cc);
+            sc[br][0][0] = y * ir;
+            sc[br][0][1] = cc * ir;
+            Y = y * rsc[0][1] - cc * rsc[0][0];
+            X = cc * rsc[0][1] + y * rsc[0][0];
+            th[br][0] = ref[i1] + atan2(Y, X) / DEG;
+            if (i3 >= 0) {
+                /* R3 = (R1 R2)^T Mt: turn b by R3 and compare with (R1 R2)^T Mt b */
+                double t[3];
+                turn(u1, -sc[br][0][0], sc[br][0][1], mb, t);
+                turn(u2, -sc[br][1][0], sc[br][1][1], t, w);
+                th[br][2] = near_turn(turn_angle(m->dir[i3], P->b3, w, &sc[br][2][0], &sc[br][2][1]), ref[i3]);
+            }
+            for (j = 0, sum = 0.0, mx = 0.0; j < P->nrot; j++) {
+                double d = fabs(th[br][j] - ref[P->rot_idx[j]]);
+                sum += d;
+                mx = d > mx ? d : mx;
+            }
+            if (mx <= CLOSED_MAX_TURN && sum < best) { best = sum; pick = br; }
         }
-        if (mx <= CLOSED_MAX_TURN && sum < best) { best = sum; pick = br; }
     }
     if (pick < 0) return 0;
     memcpy(out, q0, P->n * sizeof(double));
-    for (k = 0; k < P->nrot; k++) out[P->rot_idx[k]] = th[pick][k];
+    for (k = 0; k < P->nrot; k++) {
+        out[P->rot_idx[k]] = th[pick][k];
+        osc[k][0] = sc[pick][k][0];
+        osc[k][1] = sc[pick][k][1];
+    }
     {
-        /* the rigid chain at the new angles: p_nom and the linear axes' columns */
-        double R[9], t[3] = {0, 0, 0}, A[3][3], rhs[3], pn[3], det, x[3];
-        int i, nc = 0, lin[3], ident = 1, r = 0;
-        eye(R);
-        for (i = 0; i < P->n; i++) {
-            if (m->rotary[i]) {
-                double Rg[9], tg3[3], tmp[3];
-                const double *cc = P->c[i], *u = m->dir[i];
-                double sn = sc[pick][r][0], cs = sc[pick][r][1], C = 1.0 - cs;
-                r++;
-                Rg[0] = cs + u[0] * u[0] * C;        Rg[1] = u[0] * u[1] * C - u[2] * sn; Rg[2] = u[0] * u[2] * C + u[1] * sn;
-                Rg[3] = u[1] * u[0] * C + u[2] * sn; Rg[4] = cs + u[1] * u[1] * C;        Rg[5] = u[1] * u[2] * C - u[0] * sn;
-                Rg[6] = u[2] * u[0] * C - u[1] * sn; Rg[7] = u[2] * u[1] * C + u[0] * sn; Rg[8] = cs + u[2] * u[2] * C;
-                for (k = 0; k < 3; k++)
-                    tg3[k] = cc[k] - (Rg[3 * k] * cc[0] + Rg[3 * k + 1] * cc[1] + Rg[3 * k + 2] * cc[2]);
-                if (ident) {
-                    for (k = 0; k < 3; k++) t[k] += tg3[k];
-                    memcpy(R, Rg, sizeof R);
-                    ident = 0;
-                } else {
-                    mat_vec(R, tg3, tmp);
-                    for (k = 0; k < 3; k++) t[k] += tmp[k];
-                    mat_mul(R, Rg, R);
-                }
-            } else {
-                double col[3];
-                mat_vec(R, m->dir[i], col);
-                for (k = 0; k < 3; k++) { A[k][nc] = col[k]; t[k] += out[i] * col[k]; }
-                lin[nc++] = i;
+        const double (*s)[2] = (const double (*)[2])sc[pick];
+        double pn[3], rhs[3], x[3];
+        int i, nc = 0, lin[3];
+        for (i = 0; i < P->n; i++)
+            if (!m->rotary[i]) lin[nc++] = i;
+        mat_vec(P->Rw, pt, rhs);
+        for (k = 0; k < 3; k++) rhs[k] += P->tw[k];
+        if (P->lin_order == 2) {
+            /* the rotary axes first: undo them, x <- c + R^T (x - c) from the workpiece end, and
+             * tp + D q_lin is what remains */
+            for (k = 0; k < P->nrot; k++) {
+                const double *cc = P->c[P->rot_idx[k]];
+                double d[3] = {rhs[0] - cc[0], rhs[1] - cc[1], rhs[2] - cc[2]};
+                turn(m->dir[P->rot_idx[k]], -s[k][0], s[k][1], d, d);
+                for (i = 0; i < 3; i++) rhs[i] = cc[i] + d[i];
             }
+            for (i = 0; i < 3; i++) rhs[i] -= P->tp[i];
+            mat_vec(P->Dinv, rhs, x);
+            for (k = 0; k < 3; k++) out[lin[k]] = x[k];
+            return in_ranges(P, out);
         }
-        mat_vec(R, P->tp, pn);
-        mat_vec(P->Rw, tg->p, rhs);
-        for (k = 0; k < 3; k++) rhs[k] += P->tw[k] - (pn[k] + t[k]);
+        rigid_position(P, out, s, P->tp, pn);
+        for (k = 0; k < 3; k++) rhs[k] -= pn[k];
+        if (P->lin_order == 1) {
+            mat_vec(P->Dinv, rhs, x);
+        } else {
+            double A[3][3], det;
+            for (k = 0; k < 3; k++) {
+                double col[3];
+                memcpy(col, m->dir[lin[k]], sizeof col);
+                rigid_turn(P, s, lin[k], col);
+                A[0][k] = col[0]; A[1][k] = col[1]; A[2][k] = col[2];
+            }
 #define DET3(c0, c1, c2) (c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c0[1] * (c1[0] * c2[2] - c1[2] * c2[0]) \
                           + c0[2] * (c1[0] * c2[1] - c1[1] * c2[0]))
-        {
-            double c0[3] = {A[0][0], A[1][0], A[2][0]}, c1[3] = {A[0][1], A[1][1], A[2][1]},
-                   c2[3] = {A[0][2], A[1][2], A[2][2]};
-            det = DET3(c0, c1, c2);
-            if (det == 0.0) return 0;
-            x[0] = DET3(rhs, c1, c2) / det;
-            x[1] = DET3(c0, rhs, c2) / det;
-            x[2] = DET3(c0, c1, rhs) / det;
-        }
+            {
+                double c0[3] = {A[0][0], A[1][0], A[2][0]}, c1[3] = {A[0][1], A[1][1], A[2][1]},
+                       c2[3] = {A[0][2], A[1][2], A[2][2]};
+                det = DET3(c0, c1, c2);
+                if (det == 0.0) return 0;
+                x[0] = DET3(rhs, c1, c2) / det;
+                x[1] = DET3(c0, rhs, c2) / det;
+                x[2] = DET3(c0, c1, rhs) / det;
+            }
 #undef DET3
+        }
         for (k = 0; k < 3; k++) out[lin[k]] += x[k];
     }
     return in_ranges(P, out);
+}
+
+/* The orientation inputs of closed_rot_core from a target pose (p, R, v in the workpiece frame):
+ * v = Rw R_t a and, with three rotary axes, mb = Rw R_t b. */
+static void closed_target(const prep_t *P, const target_t *tg, double v[3], double mb[3])
+{
+    if (P->nrot == 3) {
+        double Mt[9];
+        mat_mul(P->Rw, tg->R, Mt);
+        mat_vec(Mt, P->m->dir[P->rot_idx[2]], v);
+        mat_vec(Mt, P->b3, mb);
+    } else {
+        mat_vec(P->Rw, tg->v, v);
+    }
+}
+
+/* The same inputs for the ideal pose of q (retarget), composed on vectors from the sines and
+ * cosines of q's rotary angles: p_t the nominal position with the nominal tool point. */
+static inline void closed_ideal_target(const prep_t *P, const double *q, const double (*sc)[2], double pt[3],
+                                       double v[3], double mb[3])
+{
+    double x[3];
+    rigid_position(P, q, sc, P->m->tool_point, pt);
+    memcpy(x, P->nrot == 3 ? P->m->dir[P->rot_idx[2]] : P->m->tool_axis, sizeof x);
+    rigid_turn(P, sc, P->n, x);
+    mat_vec(P->Rw, x, v);
+    if (P->nrot == 3) {
+        memcpy(x, P->b3, sizeof x);
+        rigid_turn(P, sc, P->n, x);
+        mat_vec(P->Rw, x, mb);
+    }
+}
+
+/* closed_rot_core for a target pose, the start and ref angles given as commands (deg). */
+static int closed_rotation(const prep_t *P, const target_t *tg, const double *q0, const double *start,
+                           const double *ref, double pole_sin, double *out)
+{
+    double v[3], mb[3] = {0, 0, 0}, ss2[2], rsc[3][2], osc[3][2];
+    int r;
+    closed_target(P, tg, v, mb);
+    ss2[0] = sin(start[P->rot_idx[1]] * DEG);
+    ss2[1] = cos(start[P->rot_idx[1]] * DEG);
+    for (r = 0; r < P->nrot; r++) {
+        rsc[r][0] = sin(ref[P->rot_idx[r]] * DEG);
+        rsc[r][1] = cos(ref[P->rot_idx[r]] * DEG);
+    }
+    return closed_rot_core(P, tg->p, v, mb, q0, ss2, ref, (const double (*)[2])rsc, pole_sin, out, osc);
 }
 
 static int limits(const mtk_model *m, const double *q)
@@ -1880,11 +2120,22 @@ long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const do
     prep_t P;
     long i;
     int nax = m->n_axes;
+    double Rl[9];
     prepare(m, e, 1, &P);
     for (i = 0; i < n; i++) {
-        if (fwd(&P, q + i * nax, p + 3 * i, R + 9 * i, strict, bad_axis) != MTK_OK) return i;
+        if (fwd(&P, q + i * nax, p + 3 * i, R ? R + 9 * i : Rl, strict, bad_axis) != MTK_OK) return i;
     }
     return -1;
+}
+
+/* The commands q within 1 deg and 1 mm of the previous pose's qp on every axis (a path: the
+ * previous correction is the better start). */
+static int near_previous(const prep_t *P, const double *q, const double *qp)
+{
+    int k;
+    for (k = 0; k < P->n; k++)
+        if (!(fabs(q[k] - qp[k]) <= 1.0)) return 0;
+    return 1;
 }
 
 /* Shared loop of the two batch entries: targets either given (p_t, R_t) or the ideal poses of q0. */
@@ -1911,6 +2162,14 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     so.pole_sin = sin(o->pole_tol * DEG);
     long skip = o->run_in > 0 ? (o->run_in < n ? o->run_in : n) : 0;
     double q_in[MTK_MAX_AXES], res_in;
+    /* closed_rot along a retarget batch: the sines and cosines of the previous correction's
+     * rotary angles (csc_ok: they belong to corr), so that those of the start follow by the
+     * angle sum from the pose's own */
+    double csc[3][2];
+    int csc_ok = 0, fast_rot = !p_t && P.closed_rot;
+    /* retarget with tables or location errors: the iteration seeded by the rigid closed form */
+    int seed_rigid = !p_t && P.geo && (Pr.closed_rot || Pr.closed), seeded, have_geo = 0;
+    double qr[MTK_MAX_AXES], dgeo[MTK_MAX_AXES];
     int status_in, info_in;
     for (i = 0; i < n; i++) {
         const double *qa = q0 + i * nax;
@@ -1931,7 +2190,47 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         if (!p_t && P.closed) {
             if (closed_form(&P, qa, qo)) continue;
         }
-        if (p_t) {
+        if (fast_rot) {
+            /* the ideal target composed on vectors, one sine and cosine per rotary angle */
+            double scq[3][2], scs[3][2], osc[3][2], pt[3], v[3], mb[3] = {0, 0, 0};
+            int r, cont = o->continuation && have_prev;
+            for (r = 0; r < P.nrot; r++) {
+                double a = qa[P.rot_idx[r]] * DEG;
+                scq[r][0] = sin(a);
+                scq[r][1] = cos(a);
+            }
+            if (cont && !csc_ok) {
+                for (r = 0; r < P.nrot; r++) {
+                    csc[r][0] = sin(corr[P.rot_idx[r]] * DEG);
+                    csc[r][1] = cos(corr[P.rot_idx[r]] * DEG);
+                }
+                csc_ok = 1;
+            }
+            for (r = 0; r < P.nrot; r++) {
+                if (cont) {
+                    scs[r][0] = scq[r][0] * csc[r][1] + scq[r][1] * csc[r][0];
+                    scs[r][1] = scq[r][1] * csc[r][1] - scq[r][0] * csc[r][0];
+                } else {
+                    scs[r][0] = scq[r][0];
+                    scs[r][1] = scq[r][1];
+                }
+                start[P.rot_idx[r]] = qa[P.rot_idx[r]] + (cont ? corr[P.rot_idx[r]] : 0.0);
+            }
+            closed_ideal_target(&P, qa, (const double (*)[2])scq, pt, v, mb);
+            if (closed_rot_core(&P, pt, v, mb, qa, scs[1], cont && warm ? start : qa,
+                                (const double (*)[2])(cont && warm ? scs : scq), so.pole_sin, qo, osc)) {
+                for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
+                for (r = 0; r < P.nrot; r++) {   /* sin and cos of (th - qa) */
+                    csc[r][0] = osc[r][0] * scq[r][1] - osc[r][1] * scq[r][0];
+                    csc[r][1] = osc[r][1] * scq[r][1] + osc[r][0] * scq[r][0];
+                }
+                csc_ok = 1;
+                have_prev = 1;
+                warm = 1;
+                continue;
+            }
+            make_target(&Pi, qa, &tg);
+        } else if (p_t) {
             memcpy(tg.p, p_t + 3 * i, sizeof tg.p);
             memcpy(tg.R, R_t + 9 * i, sizeof tg.R);
             mat_vec(tg.R, m->tool_axis, tg.v);
@@ -1941,15 +2240,29 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         memcpy(start, qa, nax * sizeof(double));
         if (o->continuation && have_prev)
             for (k = 0; k < nax; k++) start[k] += corr[k];
-        if (P.closed_rot &&
+        if (P.closed_rot && !fast_rot &&
             closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_sin, qo)) {
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
             warm = 1;
             continue;
         }
-        rc = solve_pose(&P, &Pr, &tg, qa, start, have_prev && warm, &so, qo, &it, resi, &r0, &sing, &bad,
-                        &held, &how);
+        seeded = 0;
+        if (seed_rigid && !(o->continuation && have_prev && warm && i > 0 && near_previous(&P, qa, qa - nax)) &&
+            (Pr.closed_rot ? closed_rotation(&Pr, &tg, qa, qa, qa, so.pole_sin, qr) : closed_form(&Pr, qa, qr))) {
+            /* with tables or location errors: start from the rigid model's closed-form solution
+             * plus the previous pose's correction beyond it (the tables' part, µm and µrad) */
+            for (k = 0; k < nax; k++) start[k] = qr[k] + (o->continuation && have_prev && have_geo ? dgeo[k] : 0.0);
+            seeded = 1;
+        }
+        rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), &so, qo, &it, resi, &r0, &sing,
+                        &bad, &held, &how);
+        csc_ok = 0;
+        have_geo = 0;
+        if (rc == MTK_OK && seeded) {
+            for (k = 0; k < nax; k++) dgeo[k] = qo[k] - qr[k];
+            have_geo = 1;
+        }
         if (rc == MTK_OK) {
             *infoi = held;
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];

@@ -99,7 +99,8 @@ mtk_model *mtk_model_new(int n_axes, const char *axis_names, const int *rotary, 
                          const double *dir, const double *loc, const double *lo, const double *hi,
                          const double *slack, const double *tool_point, const double *tool_axis);
 int mtk_model_set_table(mtk_model *m, int axis, int n, const double *pos, const double *val);
-/* Returns the index of the first pose outside a table's range (strict; axis in *bad_axis), or -1. */
+/* Returns the index of the first pose outside a table's range (strict; axis in *bad_axis), or -1.
+ * R may be NULL: positions only. */
 long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q, double *p, double *R,
                        int strict, int *bad_axis);
 /* Per pose: status MTK_OK, MTK_E_CONVERGE or MTK_E_RANGE; info the held pole axis (-1: none) or the

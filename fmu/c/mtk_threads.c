@@ -64,7 +64,7 @@ static void *mt_work(void *arg)
         if (b <= a) continue;
         if (j->fwd) {
             int ax = -1;
-            long bad = mtk_forward_batch(j->m, j->e, b - a, j->q0 + a * nax, j->p + 3 * a, j->R + 9 * a,
+            long bad = mtk_forward_batch(j->m, j->e, b - a, j->q0 + a * nax, j->p + 3 * a, j->R ? j->R + 9 * a : NULL,
                                          j->strict, &ax);
             if (bad >= 0 && (w->bad < 0 || a + bad < w->bad)) { w->bad = a + bad; w->bad_axis = ax; }
         } else {
