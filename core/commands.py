@@ -438,7 +438,8 @@ def _cmd_compensate(args) -> int:
     tools, offsets = tool_lengths_of_options(args, machine.axis_names)
     options = [f"unknown-start {args.unknown}"]
     if tools:
-        options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items()))
+        options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items())
+                       + (" (H = T)" if "H = T" in getattr(tools, "note", "") else ""))
     if offsets:
         options.append(f"work offsets {Path(args.work_offsets).name}")
     if tol is not None:
@@ -480,7 +481,7 @@ def _cmd_compensate(args) -> int:
               "(give --start to compensate them)")
     if rep["idle_axes"]:
         print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}")
-    for note in rep["notes"]:
+    for note in ([tools.note] if getattr(tools, "note", "") else []) + list(rep["notes"]):
         print(f"note: {note}")
     if rep["linearised"]:
         print(f"{rep['linearised']} arcs written as lines (chordal tolerance {rep['chordal_tol'] * 1e3:g} µm)")

@@ -165,3 +165,48 @@ def test_g10_offsets_of_axes_the_program_does_not_write():
     assert gcode.rewrite(p, lambda q: q + [0.001, 0, 0, 0, 0]).splitlines()[3] == "G55 X0.001000"
     with pytest.raises(InputError, match=r":3: the compensation moves B, whose work offsets"):
         gcode.rewrite(p, lambda q: q + [0, 0, 0, 0.001, 0])
+
+
+def test_tool_table_with_an_h_column(tmp_path):
+    """A table whose tools carry their own length offset number: G43 H<n> takes the tool with
+    H n, not tool n; a tool change loads the tool's own length; without an H column H = T, and
+    the table says so (issue 20)."""
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T12 P1 H2 Z+80.0 ;face mill\nT2 P2 H12 Z+35.0 ;drill\n")
+    t = read_tool_table(tbl)
+    assert t == {2: 80.0, 12: 35.0} and t.by_tool == {12: 80.0, 2: 35.0}
+    assert "H column" in t.note and "H = T" not in t.note
+    text = "G90 G0 X0 Y0 Z100.\nT12 M6\nG43 H2 Z10.\nG49 Z100.\nT2 M6\nG43 Z10.\n"
+    p = gcode.parse(text, axes=XYZ, tool_lengths=t)
+    # G43 H2 -> 80 (T12's line); G43 without H after T2 M6 -> T2's own entry (H12, 35)
+    assert np.allclose(p.position[:, 2], [100, 90, 100, 45])
+    # after the change to T2, before its G43: its tip is T2's length (35), not H2's (80)
+    q = gcode.parse("G90 G0 X0 Y0 Z100.\nT2 M6\nG0 X1.\nG43 H12 Z10.\n", axes=XYZ, tool_lengths=t)
+    assert np.allclose(q.tool_tip, [0, 35, 35])
+    plain = tmp_path / "plain.tbl"
+    plain.write_text("T12 P1 Z+80.0\n")
+    assert "no H column: H = T" in read_tool_table(plain).note
+    mixed = tmp_path / "mixed.tbl"
+    mixed.write_text("T1 P1 H1 Z50.\nT2 P2 Z40.\n")
+    with pytest.raises(InputError, match=r"mixed.tbl:2: T2 has no H word"):
+        read_tool_table(mixed)
+    dup = tmp_path / "dup.tbl"
+    dup.write_text("T1 P1 H5 Z50.\nT2 P2 H5 Z40.\n")
+    with pytest.raises(InputError, match=r"dup.tbl:2: H5 is given two lengths"):
+        read_tool_table(dup)
+
+
+def test_tool_table_convention_said_on_the_cli(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text("G21 G90 G54\nG0 X0 Y0 Z40.\nT1 M6\nG43 H1 Z-60.\nG1 Z-71. F100\nM30\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0.001))), tmp_path / "e.toml")
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z+50.0\n")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--tool-table", tbl)
+    assert r.returncode == 0, r.stderr
+    assert "no H column: H = T" in r.stdout and "H1=50 [H = T]" in out.read_text()
+    tbl.write_text("T1 P1 H1 Z+50.0\n")
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--tool-table", tbl)
+    assert r.returncode == 0, r.stderr
+    assert "lengths by the H column" in r.stdout and "H = T" not in out.read_text()

@@ -40,6 +40,14 @@ def _ffill(values, isset, default):
     return np.where(idx >= 0, values[np.maximum(idx, 0)], default)
 
 
+def _renumber(numbers, mapping):
+    """Tool numbers (float array, NaN where none) -> their H numbers by ``mapping`` {T: H}."""
+    out = numbers.copy()
+    for t, h in mapping.items():
+        out[numbers == t] = h
+    return out
+
+
 def wcs_name(key: int) -> str:
     return f"G54.1 P{key % 1000}" if key // 1000 == 541 else f"G{key // 1000}"
 
@@ -170,12 +178,16 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     tip = np.zeros(n_lines)
     active = np.zeros(n_lines, bool)
     lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
+    # a tool table with an H column: tool T's own length and offset number (else H = T)
+    by_tool = getattr(tool_lengths, "by_tool", None)
+    h_of_tool = getattr(tool_lengths, "h_of_tool", None) or {}
     if tset.any():
         # G43/G44/G43.4 without H: the loaded tool T (LinuxCNC)
         h_line = h_line.copy()
         noh = tset & (tool_l != 49) & np.isnan(h_line)
         if noh.any():
             tmod = _ffill(t_line, ~np.isnan(t_line), np.nan)
+            tmod = _renumber(tmod, h_of_tool)
             h_line[noh] = tmod[noh]
             if np.isfinite(tmod[noh]).any():
                 notes.append("G43 without H: the tool length of the loaded tool (T word) is used, as "
@@ -207,6 +219,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         tool = _ffill(t_line, ~np.isnan(t_line), np.nan)
         hm = np.where(newtool, tool, np.nan)
         try:      # the lengths the G10 blocks before the change have set, as for G43 H
+            hm = _renumber(hm, h_of_tool)     # a table's H column: the tool's own entry
             Lnew, unk_h = _lengths_per_line(hm, newtool, lengths, tev, filename)
         except InputError:     # an ambiguous G10 entry of that number: its length is not known
             Lnew, unk_h = np.zeros(n_lines), np.unique(hm[newtool & np.isfinite(hm)]).tolist()
@@ -340,11 +353,25 @@ def _lengths_per_line(hmodal, active, lengths, tev, filename):
 _TBL_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 
 
-def read_tool_table(path) -> dict:
-    """Tool lengths (mm) by tool number from a LinuxCNC tool table (``T1 P1 Z+50.0 D6.0
-    ;comment`` lines; G43 H<n> takes tool n's Z)."""
+class ToolTable(dict):
+    """Tool lengths (mm) by H number read from a tool table, with what the table says about tools:
+    ``by_tool`` {T: mm} (the length of the tool a T word loads), ``h_of_tool`` {T: H} and
+    ``note``, the convention used (said in the output of the commands)."""
+
+    def __init__(self, by_h=(), *, by_tool=None, h_of_tool=None, note=""):
+        super().__init__(by_h)
+        self.by_tool = dict(by_tool or {})
+        self.h_of_tool = dict(h_of_tool or {})
+        self.note = note
+
+
+def read_tool_table(path) -> ToolTable:
+    """Tool lengths (mm) by H number from a tool table: LinuxCNC's ``T1 P1 Z+50.0 D6.0 ;comment``
+    lines, optionally with an ``H`` word, the length offset number of the tool (``T12 P3 H2
+    Z+80.0``: G43 H2 takes 80).  Without any H word the offset number is the tool number (H = T,
+    as Fanuc and Haas shops number them), and the returned table says so in ``note``."""
     from .._io import read_text
-    out = {}
+    by_h, by_t, h_of_t, rows = {}, {}, {}, []
     for n, raw in enumerate(read_text(path, what="tool table").splitlines(), start=1):
         ln = raw.split(";")[0].strip()
         if not ln:
@@ -358,11 +385,30 @@ def read_tool_table(path) -> dict:
         if ln[pos:].strip() or "T" not in words or words["T"] != int(words["T"]) or words["T"] < 0:
             raise InputError(f"expected a tool table line like 'T1 P1 Z+50.0 D6.0 ;comment', got "
                              f"{raw.strip()!r}", file=path, line=n)
-        if "Z" in words:
-            if not math.isfinite(words["Z"]):
-                raise InputError("tool length Z is not finite", file=path, line=n)
-            out[int(words["T"])] = words["Z"]
-    return out
+        if "H" in words and not (words["H"] == int(words["H"]) and words["H"] >= 0):
+            raise InputError(f"expected an H offset number (an integer >= 0), got H{words['H']:g}",
+                             file=path, line=n, field="H")
+        if "Z" in words and not math.isfinite(words["Z"]):
+            raise InputError("tool length Z is not finite", file=path, line=n)
+        rows.append((n, words))
+    has_h = any("H" in w for _, w in rows)
+    for n, w in rows:
+        t = int(w["T"])
+        if has_h and "H" not in w:
+            raise InputError(f"T{t} has no H word while other tools have one: give every tool its "
+                             "length offset number, or none (then H = T)", file=path, line=n)
+        h = int(w["H"]) if has_h else t
+        if "Z" in w:
+            if h in by_h and by_h[h] != w["Z"]:
+                raise InputError(f"H{h} is given two lengths ({by_h[h]:g} and {w['Z']:g} mm)",
+                                 file=path, line=n)
+            by_h[h] = w["Z"]
+            by_t[t] = w["Z"]
+        h_of_t[t] = h
+    note = (f"tool table {os.path.basename(str(path))}: lengths by the H column" if has_h else
+            f"tool table {os.path.basename(str(path))} has no H column: H = T (offset number = tool "
+            "number, the Fanuc/Haas convention)")
+    return ToolTable(by_h, by_tool=by_t, h_of_tool=h_of_t, note=note)
 
 
 def is_tool_table(path) -> bool:
@@ -471,5 +517,7 @@ def tool_lengths_of_options(args, axes) -> tuple[dict | None, dict | None]:
         return tools, None
     file_tools, _, works = read_offsets(args.work_offsets, axes)
     if file_tools:
-        tools = {**file_tools, **(tools or {})}           # --tool-lengths wins
+        merged = {**file_tools, **(tools or {})}          # --tool-lengths wins
+        tools = ToolTable(merged, by_tool=tools.by_tool, h_of_tool=tools.h_of_tool,
+                          note=tools.note) if isinstance(tools, ToolTable) else merged
     return tools, works or None
