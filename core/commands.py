@@ -482,7 +482,10 @@ def _cmd_compensate(args) -> int:
     if rep["idle_axes"]:
         print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}")
     for note in ([tools.note] if getattr(tools, "note", "") else []) + list(rep["notes"]):
-        print(f"note: {note}")
+        if note.startswith("warning: "):
+            print(note, file=sys.stderr)
+        else:
+            print(f"note: {note}")
     if rep["linearised"]:
         print(f"{rep['linearised']} arcs written as lines (chordal tolerance {rep['chordal_tol'] * 1e3:g} µm)")
     if rep["cycles_kept"] or rep["cycles_expanded"]:

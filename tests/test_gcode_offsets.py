@@ -210,3 +210,30 @@ def test_tool_table_convention_said_on_the_cli(tmp_path):
     r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--tool-table", tbl)
     assert r.returncode == 0, r.stderr
     assert "lengths by the H column" in r.stdout and "H = T" not in out.read_text()
+
+
+def test_tool_change_under_g43_keeps_the_length_and_warns(tmp_path):
+    """Fanuc/Haas: M6 under active G43 keeps the old H length until the next G43 H; a feed move
+    before that new G43 H is warned with its lines (issue 20)."""
+    lengths = {1: 50.0, 2: 30.0}
+    text = ("G90 G0 X0 Y0 Z100.\nT1 M6\nG43 H1 Z10.\nG1 Z5. F100\n"
+            "T2 M6\nG0 X10.\nG1 Z2.\nG43 H2 Z1.\nM30\n")
+    p = gcode.parse(text, axes=XYZ, tool_lengths=lengths)
+    # the old H1 length stays through the change: Z2 (line 7) is 2 + 50, after G43 H2 1 + 30
+    assert np.allclose(p.position[:, 2], [100, 60, 55, 55, 52, 31])
+    w = [n for n in p.notes if n.startswith("warning:")]
+    assert len(w) == 1 and "line 5 under G43" in w[0] and "H1" in w[0] and "line 7" in w[0]
+    # a new G43 H before the feed, G49, a change with its own G43 H, or rapids only: no warning
+    for ok in ("T2 M6\nG0 X10.\nG43 H2 Z10.\nG1 Z2.\n", "T2 M6\nG49 Z100.\nG1 Z2.\n",
+               "T2 M6 G43 H2\nG1 Z2.\n", "T2 M6\nG0 X10.\nM30\n"):
+        q = gcode.parse("G90 G0 X0 Y0 Z100.\nT1 M6\nG43 H1 Z10.\n" + ok, axes=XYZ,
+                        tool_lengths=lengths)
+        assert not [n for n in q.notes if n.startswith("warning:")], ok
+    # on the CLI the warning goes to stderr, with the lines, and the program is still written
+    prog = tmp_path / "p.nc"
+    prog.write_text(text.replace("Z100.", "Z40."))         # within the preset's Z travel
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0.001))), tmp_path / "e.toml")
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", tmp_path / "o.nc",
+            "--tool-lengths", "1=5,2=3")
+    assert r.returncode == 0, r.stderr
+    assert "warning: tool change on line 5 under G43" in r.stderr

@@ -299,6 +299,44 @@ def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, writte
     return [a for a in axes if a in assumed]
 
 
+def tool_change_warnings(tool_l, h_line, change, feed_lines, limit=5) -> list:
+    """Warnings for tool changes made while G43/G44/G43.4 is active and not followed by a new
+    length (G43 H, an H word, G49) before the next feed move.  Fanuc and Haas controls keep the
+    old H length then (it changes only at the next G43 H), and so does mtcomp; but a program that
+    cuts with the new tool on the old tool's length is usually a post-processor or hand-editing
+    slip.  tool_l (n_lines,): tool length code per line (43, 44, 49, 434, -1 none); h_line: H
+    word per line (NaN none); change: the tool change lines (bool, or T values with NaN where
+    none); feed_lines: sorted line indices of the feed blocks (G1-G3, cycles)."""
+    change = np.asarray(change)
+    ch = np.flatnonzero(~np.isnan(change) if change.dtype.kind == "f" else change)
+    if not len(ch) or not len(feed_lines):
+        return []
+    mode = _ffill(tool_l, tool_l >= 0, 49)
+    length_set = np.flatnonzero((tool_l >= 0) | ~np.isnan(h_line))
+    out = []
+    for c in ch.tolist():
+        if mode[c] == 49 or tool_l[c] >= 0 or not np.isnan(h_line[c]):
+            continue            # no length active, or the change block sets the new one itself
+        k = int(np.searchsorted(feed_lines, c, side="right"))
+        if k == len(feed_lines):
+            continue
+        f = int(feed_lines[k])
+        e = int(np.searchsorted(length_set, c, side="right"))
+        if e < len(length_set) and length_set[e] < f:
+            continue
+        h = _ffill(h_line, ~np.isnan(h_line), np.nan)[c]
+        hs = f"H{int(h)}" if np.isfinite(h) else "the old length"
+        code = {43: "G43", 44: "G44", 434: "G43.4"}.get(int(mode[c]), "G43")
+        out.append(f"warning: tool change on line {c + 1} under {code}: the tool length stays "
+                   f"{hs} (as Fanuc and Haas controls keep it until the next G43 H), and the "
+                   f"feed move on line {f + 1} comes before any new G43 H; check that the new "
+                   "tool is meant to cut on the old tool's length")
+        if len(out) == limit:
+            out.append("warning: more tool changes under G43 without a new G43 H follow")
+            break
+    return out
+
+
 def _lengths_per_line(hmodal, active, lengths, tev, filename):
     """Tool length (geometry + wear, mm) per line of the active H, with G10 tool events applied
     in program order; H numbers used whose length is not known (taken as 0)."""

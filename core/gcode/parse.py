@@ -11,7 +11,7 @@ from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR, siemens_hint
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
                     _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
-from .offsets import g10_events, offsets_per_line
+from .offsets import g10_events, offsets_per_line, tool_change_warnings
 from .program import Program, resolution_formats
 from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
@@ -484,6 +484,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     tool_length = tlen_line[blines]
     tool_tip = tip_line[blines]
     tool_unknown = gauge_line[blines]
+    feed_blk = np.isin(mode_line[blines], (1, 2, 3)) | (cycle_line[blines] > 0)
+    notes.extend(tool_change_warnings(tool_l, h_line, t_line if change_line is None else change_line,
+                                      blines[feed_blk]))
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
