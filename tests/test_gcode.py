@@ -399,7 +399,7 @@ REFUSALS = [
     ("G1 X1.\nG68.2 X0 Y0 Z0 I0 J30. K0\n", 2, "G68.2 tilted working plane"),
     ("G1 X1.\n\nG43.5 H1\n", 3, "G43.5 tool centre point with a tool vector"),
     ("G51 X0 Y0 P2\n", 1, "G51 scaling"),
-    ("G10 L2 P0 X0\n", 1, "G10 L2 P0: only P1..P6"),
+    ("G10 L2 P0 X0\nG55 G0 X1.\n", 1, "G10 L2 P0 sets the external work offset"),
     ("G41 D1 X1.\n", 1, None),
     ("G5.1 Q1\n", 1, "unknown"),
     ("G1 X1.\nG12 X2.\n", 2, "unknown G code G12"),

@@ -129,7 +129,7 @@ def test_g10_tool_lengths():
 
 
 @pytest.mark.parametrize("text,line,what", [
-    ("G10 L2 P0 X1.\n", 1, "G10 L2 P0: only P1..P6"),
+    ("G54 G0 X0\nG55 X1.\nG10 L2 P0 X1.\n", 3, "P0 sets the external .* uses G54, G55"),
     ("G10 L2 P7 X1.\n", 1, "G59.1-G59.3 are not"),
     ("G10 L2 P1 X1. R30.\n", 1, "with R .a rotation"),
     ("G10 L10 P1 Z5.\n", 1, "L10 with Z: not read"),
@@ -237,3 +237,16 @@ def test_tool_change_under_g43_keeps_the_length_and_warns(tmp_path):
             "--tool-lengths", "1=5,2=3")
     assert r.returncode == 0, r.stderr
     assert "warning: tool change on line 5 under G43" in r.stderr
+
+
+def test_g10_l2_p0_in_a_program_with_one_work_offset():
+    """G10 L2 P0 is Fanuc's external offset and LinuxCNC's current one: in a program that stays
+    in G54 both shift G54, so it is read as G10 L2 P1 (a real program sets Z so, before its
+    G54); with two work offsets it is refused (test_g10_refusals_name_the_line) (issue 20)."""
+    body = "G21 G90\n{g10}\nG54\nG0 X1. Y2. Z10.\nG10 L2 P{p} Z-45.\nG1 Z5. F100\n"
+    for p in (0, 1):
+        q = gcode.parse(body.format(g10=f"G10 L2 P{p} Z-50.", p=p), axes=XYZ)
+        # the reference frame is G54 at the first motion (Z-50); the second G10 moves it by +5
+        assert np.allclose(q.position[:, 2], [10, 10]) and np.allclose(q.offset[:, 2], [0, 5])
+    text = body.format(g10="G10 L2 P0 Z-50.", p=0)
+    assert gcode.rewrite(gcode.parse(text, axes=XYZ), lambda x: x.copy()) == text

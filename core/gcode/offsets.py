@@ -18,7 +18,9 @@ G10 in the program (read in program order, as the control executes it):
   dialects differ);
 * ``G10 L10 P<h> R`` / ``G10 L11 P<h> R`` (Fanuc geometry / wear of H), ``G10 L1 P<t> Z``
   (LinuxCNC tool table entry): tool lengths; ``G10 L12/L13`` (D values) change nothing here;
-* everything else (P0, LinuxCNC G59.1-3, L10/L11/L20 relative to the current position, L1 with R
+* ``G10 L2 P0`` (Fanuc: the external offset, LinuxCNC: the current one): read where the
+  program uses one work offset only, where both mean the same;
+* everything else (LinuxCNC G59.1-3, L10/L11/L20 relative to the current position, L1 with R
   only, rotation R in L2) is refused naming the line where it matters.
 """
 from __future__ import annotations
@@ -93,10 +95,11 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
             if "R" in w:
                 fail(f"L{L} with R (a rotation of the coordinate system, LinuxCNC) is not supported")
             if L == 2:
-                if not 1 <= P <= 6:
-                    fail(f"L2 P{P}: only P1..P6 (G54..G59) are read (P0, the external or current "
-                         "offset, and G59.1-G59.3 are not)")
-                key = (53 + P) * 1000
+                if not 0 <= P <= 6:
+                    fail(f"L2 P{P}: only P0..P6 are read (G59.1-G59.3 are not)")
+                # P0: Fanuc's external offset (added to every work offset), LinuxCNC's current
+                # one; resolved where the program uses one work offset only (key 0 till then)
+                key = (53 + P) * 1000 if P else 0
             else:
                 if not uses_g541:
                     fail("L20 sets the G54.1 P offsets on Fanuc controls but the offset from the "
@@ -151,8 +154,21 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     if wset.any() or wev:
         used = list(dict.fromkeys(keys[wset].tolist())) or [54000]
         cur = _ffill(keys, wset, used[0])
+        p0 = [e for e in wev if e[2] == 0]
+        if p0:
+            # the external offset (Fanuc) and the current one (LinuxCNC) are the same change
+            # only in a program that stays in one work offset
+            first_sel = int(np.argmax(wset)) if wset.any() else n_lines
+            if len(used) > 1 or (used[0] != 54000 and p0[0][0] < first_sel):
+                raise InputError(f"G10 L2 P0 sets the external work offset (Fanuc, added to every "
+                                 f"work offset) or the current one (LinuxCNC), and the program "
+                                 f"uses {', '.join(wcs_name(k) for k in used)}, where the two "
+                                 "differ: write G10 L2 P<n> for the offset meant",
+                                 file=filename, line=p0[0][0] + 1)
+            wev = [(e[0], e[1], used[0] if e[2] == 0 else e[2], e[3], e[4]) for e in wev]
         if not wev:
-            if len(used) > 1:
+            first_sel = int(np.argmax(wset)) if wset.any() else n_lines
+            if len(used) > 1 or (used[0] != 54000 and p0[0][0] < first_sel):
                 missing = [wcs_name(k) for k in used if wcs_name(k).replace(" ", "") not in table]
                 if missing:
                     ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
