@@ -329,6 +329,7 @@ def tool_change_warnings(tool_l, h_line, change, feed_lines, limit=5) -> list:
         return []
     mode = _ffill(tool_l, tool_l >= 0, 49)
     length_set = np.flatnonzero((tool_l >= 0) | ~np.isnan(h_line))
+    hmodal = None
     out = []
     for c in ch.tolist():
         if mode[c] == 49 or tool_l[c] >= 0 or not np.isnan(h_line[c]):
@@ -340,7 +341,9 @@ def tool_change_warnings(tool_l, h_line, change, feed_lines, limit=5) -> list:
         e = int(np.searchsorted(length_set, c, side="right"))
         if e < len(length_set) and length_set[e] < f:
             continue
-        h = _ffill(h_line, ~np.isnan(h_line), np.nan)[c]
+        if hmodal is None:
+            hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
+        h = hmodal[c]
         hs = f"H{int(h)}" if np.isfinite(h) else "the old length"
         code = {43: "G43", 44: "G44", 434: "G43.4"}.get(int(mode[c]), "G43")
         out.append(f"warning: tool change on line {c + 1} under {code}: the tool length stays "
