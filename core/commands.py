@@ -480,7 +480,10 @@ def _cmd_compensate(args) -> int:
         print(f"{rep['deferred']} blocks before every axis position is known passed uncompensated "
               "(give --start to compensate them)")
     if rep["idle_axes"]:
-        print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}")
+        lin = [a for a in rep["idle_axes"] if a in "XYZUVW"]
+        print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}"
+              + (f" (no word is written for {' '.join(lin)}, so its correction is not applied: "
+                 "give --start to state where it stands)" if lin else ""))
     for note in ([tools.note] if getattr(tools, "note", "") else []) + list(rep["notes"]):
         if note.startswith("warning: "):
             print(note, file=sys.stderr)

@@ -107,3 +107,19 @@ def test_identity_with_unknown_axes_is_byte_exact():
 def test_siemens_instructions_refused_by_name(text, line, what):
     with pytest.raises(InputError, match=rf"^s.mpf:{line}: {what}"):
         gcode.parse(text, axes=("X", "Y", "Z"), filename="s.mpf")
+
+
+def test_an_axis_never_written_gets_no_word():
+    """A 2D program that never writes Z (the operator sets the height): Z is taken at 0 to
+    evaluate the errors, but no Z word is written, which would send the tool to Z0 + the
+    correction (found in a public LinuxCNC example, issue 20)."""
+    text = "g00 x2 y2\nm06 t55\ng00 x5 y5\ng01 x15 f125\ng01 y15\nm02\n"
+    p = gcode.parse(text, axes=XYZ)
+    assert p.idle_axes == ("Z",)
+    out = gcode.rewrite(p, shift([0.0123, -0.0071, 0.0042]), resolution={"X": 4, "Y": 4, "Z": 4})
+    assert "z" not in out.lower().replace("m02", "")
+    assert out.split("\n")[0] == "g00 x2.0123 y1.9929"
+    # a stated start makes the axis known: then it is moved to its compensated position
+    p = gcode.parse(text, axes=XYZ, start={"Z": 10})
+    out = gcode.rewrite(p, shift([0.0123, -0.0071, 0.0042]), resolution={"X": 4, "Y": 4, "Z": 4})
+    assert out.split("\n")[0] == "g00 x2.0123 y1.9929 z10.0042"

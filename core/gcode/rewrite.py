@@ -212,6 +212,14 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         res = np.where([a in LINEAR for a in axes], res * INCH, res)
     if not chordal_tol > 0:
         raise ValueError("chordal_tol must be positive")
+    idle = [k for k, a in enumerate(axes) if a in program.idle_axes and a in LINEAR]
+    if idle:
+        # a linear axis the program never writes stands where the operator set it (Z of a 2D
+        # program): it is taken at 0 to evaluate the transform, but gets no word (a word would
+        # move it to a position the program never stated), so its correction is not applied.
+        # Rotary axes never written stand at 0 by the convention 3-axis programs are run with
+        # on a 5-axis machine, and are compensated (docs/gcode.md, "Unknown positions")
+        transform = _KeepIdle(transform, idle)
     ctx = _Ctx(program)
     N = len(program)
     P = np.asarray(program.position)
@@ -400,6 +408,19 @@ class _Conjugated:
     def __call__(self, q):
         return to_words(self.program, self.transform(to_reference(self.program, q, self.blocks)),
                         self.blocks)
+
+
+class _KeepIdle:
+    """A transform whose output keeps the input in the columns ``idle``."""
+
+    def __init__(self, transform, idle):
+        self.transform, self.idle = transform, idle
+
+    def __call__(self, q):
+        out = np.array(self.transform(q.copy()), dtype=float)
+        if out.shape == q.shape:
+            out[:, self.idle] = q[:, self.idle]
+        return out
 
 
 def _call_transform(transform, q):
