@@ -3,11 +3,12 @@
     python benchmarks/nc_corpus.py DIR [--list] [--json OUT]
 
 Walks DIR for milling and turning programs (.nc .ngc .tap .cnc .gcode .gc .mpf .eia .ptp
-.min .nct .g with motion words), sets aside 3D-printer programs (extruder E words, M104/M109/M140
-heaters) and macro programs (``#`` variables, ``[ ]`` expressions, G65, o-word control flow),
-and runs every other one through ``compensate_program`` on a 3-axis machine (the
-vmc-moving-column preset with its travels widened to +-10 m, so that a program's own travel
-does not refuse it, and 1 nm resolution; with a rotary table axis added for each of A B C the program writes) twice:
+.min .nct .g with motion words; a file found twice is run once), sets aside 3D-printer
+programs (extruder E words, M104/M109/M140 heaters) and macro programs (``#`` variables,
+``[ ]`` expressions, G65, o-word control flow), and runs every other one through
+``compensate_program`` on a 3-axis machine (the vmc-moving-column preset with its travels
+widened to +-10 m, so that a program's own travel does not refuse it, and 1 nm resolution;
+a rotary table axis added for each of A B C the program writes) twice:
 
 * with zero errors: the output must be the input byte for byte;
 * with a small workpiece-setting translation (a rigid shift): every block whose position the
@@ -63,8 +64,8 @@ _ROT_DIR = {"A": (1.0, 0.0, 0.0), "B": (0.0, 1.0, 0.0), "C": (0.0, 0.0, 1.0)}
 
 
 def wide_machine(rotary=()):
-    """vmc-moving-column with travels of +-10 m and 1 nm resolution, and rotary table axes (on the workpiece side,
-    about X, Y, Z for A, B, C, +-10^7 deg) for the rotary letters a program writes."""
+    """vmc-moving-column with travels of +-10 m and 1 nm resolution, and rotary table axes (on
+    the workpiece side, about X, Y, Z for A, B, C, +-10^7 deg) for the rotary letters given."""
     m = load_machine("vmc-moving-column")
     # 1 nm steps: finer than any program's numbers, so a shift is written without rounding
     # the program's own positions (inch output then has 7 decimals)
@@ -195,7 +196,10 @@ def run_one(path, zero, shift):
     if len(a) == len(b):
         try:
             p = gcode.parse(text, axes=machine.axis_names, tcp=True, rotation=True)
-            known = {int(ln): {x for x, k in zip(machine.axis_names, row) if k}
+            # a linear axis never written is "known" at 0 to the reader, but has no position
+            # the program stated: a word for it is invented
+            idle = {a for a in p.idle_axes if a in "XYZ"}
+            known = {int(ln): {x for x, k in zip(machine.axis_names, row) if k} - idle
                      for ln, row in zip(p.line, np.asarray(p.axis_known))}
         except InputError:               # subprogram calls: read through their expansion
             known = None
