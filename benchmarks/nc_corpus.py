@@ -97,7 +97,7 @@ def classify(text):
 
 def reason(msg):
     """A refusal message reduced to its kind: numbers, quoted words and file names out."""
-    msg = msg.split(": ", 1)[1] if re.match(r"^\S+:\d+", msg) else msg
+    msg = re.sub(r"^.*?\.\w+(?::\d+)?(?: \[[^]]*\])?: ", "", msg, count=1)   # file[:line]: out
     msg = re.sub(r"'[^']*'|\"[^\"]*\"", "'…'", msg)
     msg = re.sub(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "N", msg)
     return msg[:110]
@@ -242,7 +242,7 @@ def main(argv=None):
     if args.json:
         Path(args.json).write_text(json.dumps(recs, indent=1))
     st = collections.Counter(r["status"] for r in recs)
-    nc = [r for r in recs if r["status"] not in ("printer", "macro", "unreadable")]
+    nc = [r for r in recs if r["status"] not in ("printer", "macro")]
     acc = [r for r in nc if r["status"] == "accepted"]
     print(f"files: {len(recs)} ({sum(r['lines'] for r in recs)} lines); {dict(st)}")
     print(f"NC programs (macros and printer files aside): {len(nc)}, accepted {len(acc)} "
@@ -257,7 +257,8 @@ def main(argv=None):
     notes = collections.Counter(r["note"] for r in acc if r.get("note"))
     for k, v in notes.most_common():
         print(f"  not checked ({v}): {k}")
-    reasons = collections.Counter(r["reason"] for r in recs if r["status"].startswith("refused"))
+    reasons = collections.Counter(r["reason"] for r in recs
+                                  if r["status"].startswith("refused") or r["status"] == "unreadable")
     print("refused, by first reason:")
     for k, v in reasons.most_common():
         print(f"  {v:4d}  {k}")
