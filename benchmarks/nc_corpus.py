@@ -213,8 +213,8 @@ def run_one(path, zero, shift):
         if n and len(machine.axes) > 3:
             rec["note"] = "rotary axes: the shift is not a translation of X Y Z, not checked"
         elif n:
-            p = gcode.parse(text, axes=("X", "Y", "Z"), tcp=True, rotation=True)
-            n2, wrong2 = check_shift(text, out1, path.name, np.asarray(p.known))
+            # the blocks the rewrite compensated (it defers the unknown ones and arcs after them)
+            n2, wrong2 = check_shift(text, out1, path.name, np.asarray(rep["compensated"]))
             rec.update(shift_checked=n2, shift_wrong=wrong2)
     except Exception:
         rec.update(note="check: " + traceback.format_exc(limit=-1).strip().splitlines()[-1])

@@ -278,7 +278,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
               "cycles_kept": info["cycles_kept"], "cycles_expanded": info["cycles_expanded"],
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
-              "verify": verified, "flow": None}
+              "verify": verified, "flow": None, "compensated": kn}
     return new_text, report
 
 

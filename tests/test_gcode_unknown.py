@@ -71,10 +71,20 @@ def test_arc_from_an_unknown_position_is_refused():
         gcode.parse("G90 G0 X10\nG2 X0 Y10 I-10 J0\n", axes=XYZ)
 
 
-def test_first_known_block_being_an_arc_is_refused():
-    p = gcode.parse("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n", axes=XYZ)
-    with pytest.raises(InputError, match=r":2: the first block where every axis position is known is an arc"):
-        gcode.rewrite(p, shift([0.1, 0, 0]))
+def test_first_known_block_being_an_arc_is_deferred_with_the_arcs_after_it():
+    """An arc cannot be the first compensated block (its start was not compensated): with
+    unknown="defer" it passes unchanged, and so do the arcs directly after it; the first line
+    after them moves every axis onto the compensated path (a public program starts so, issue
+    20). unknown="refuse" refuses the program at the first unknown block."""
+    text = "G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\nG3 X10 Y0 I0 J-10\nG1 X5\nG2 X0 Y5 I-5 J0\n"
+    p = gcode.parse(text, axes=XYZ)
+    info = {}
+    out, _ = gcode.rewrite_with_lines(p, shift([0.1, 0, 0.01]), info=info)
+    assert out == ("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\nG3 X10 Y0 I0 J-10\n"
+                   "G1 X5.100000 Z-0.990000\nG2 X0.100000 Y5 I-5 J0\n")
+    assert info["compensated"].tolist() == [False, False, False, True, True]
+    with pytest.raises(InputError, match=r":1: position of Z not known"):
+        gcode.rewrite(p, shift([0.1, 0, 0]), unknown="refuse")
     # with a known identity nothing changes and nothing is refused... once the start is given
     p = gcode.parse("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n", axes=XYZ, start={"Z": 0})
     assert gcode.rewrite(p, lambda q: q) == "G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n"

@@ -139,7 +139,8 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
     called while the output is assembled (bytes).
     ``unknown``: what happens to motion blocks before every axis position is known
     (``program.known``): ``"defer"`` passes them through unchanged and compensates from the
-    first block where the pose is known (that block gets words for every axis that must move);
+    first block where the pose is known (that block gets words for every axis that must move;
+    arcs directly after the unknown blocks pass unchanged too, an arc's start cannot move);
     ``"refuse"`` raises InputError naming the first such block.
     Everything except the axis words of known motion blocks (and, for arcs, I J K R and
     linearisation) stays byte for byte; see docs/gcode.md.
@@ -241,8 +242,23 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         if late.any():
             kn = kn.copy()
             kn[cb0[late]] = False
-    ak = np.flatnonzero(program.is_arc & kn)
+    is_arc = np.asarray(program.is_arc)
+    ak = np.flatnonzero(is_arc & kn)
     first_arc = ak[~kprev[ak]]
+    if len(first_arc) and unknown == "defer":
+        # an arc cannot be the first compensated block (its start was not compensated): arcs
+        # that directly follow the blocks before the pose is known pass uncompensated too, and
+        # the first line after them brings every axis onto the compensated path
+        idx = np.arange(N)
+        lu = np.where(~kn, idx, -1 if not kprev[0] else -2)
+        lu = np.maximum.accumulate(np.r_[-1 if not kprev[0] else -2, lu[:-1]])
+        nonarc = np.cumsum(~is_arc)
+        before = np.where(lu >= 0, nonarc[np.maximum(lu, 0)], 0)
+        chain = kn & is_arc & (lu >= -1) & (nonarc - before == 0)
+        kn = kn.copy()
+        kn[chain] = False
+        ak = np.flatnonzero(is_arc & kn)
+        first_arc = ak[:0]
     if len(first_arc):
         j = int(first_arc[0])
         raise InputError(f"the first block where every axis position is known is an arc "
