@@ -157,7 +157,7 @@ def check_shift(text, out, name, known):
 def run_one(path, zero, shift):
     rec = {"file": str(path), "lines": 0}
     try:
-        text = gcode.read_program(path)
+        text, _ = gcode.read_program_8bit(path)     # as compensate reads it
     except InputError as exc:
         rec.update(status="unreadable", reason=reason(str(exc)))
         return rec

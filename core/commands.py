@@ -415,11 +415,11 @@ def _sha256(path) -> str:
 
 def _cmd_compensate(args) -> int:
     from . import __version__
-    from .gcode import read_program
+    from .gcode import read_program_8bit
     machine = load_machine(args.machine)
     errors = load_errors(args.errors, machine=machine)
     src = Path(args.program)
-    text = read_program(src)  # keeps CR LF byte for byte
+    text, encoding = read_program_8bit(src)  # keeps CR LF (and 8-bit comments) byte for byte
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
     if out.is_dir():
         raise InputError("the output is a directory; give a file name", str(out), field="-o")
@@ -474,8 +474,11 @@ def _cmd_compensate(args) -> int:
                                        stock=stock, part=part, clearance=args.clearance,
                                        tolerance=args.tolerance, warn_only=args.warn_only,
                                        search_path=search)
-    atomic_write(out, new_text)
+    atomic_write(out, new_text if encoding == "utf-8" else new_text.encode(encoding))
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
+    if encoding != "utf-8":
+        print("note: the program is not UTF-8: its 8-bit comment characters were read as Latin-1 "
+              "and written back byte for byte")
     if rep["deferred"]:
         print(f"{rep['deferred']} blocks before every axis position is known passed uncompensated "
               "(give --start to compensate them)")

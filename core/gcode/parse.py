@@ -1,6 +1,7 @@
 """Reading a program into per-block arrays (modal state, absolute positions, arcs)."""
 from __future__ import annotations
 
+import re
 from typing import Mapping
 
 import numpy as np
@@ -855,3 +856,29 @@ def read_program(path) -> str:
     read.  The one reader of the package's text files, `mtcomp._io.read_text`, does the work."""
     from .._io import read_text
     return read_text(path, newline="", what="NC program", max_bytes=MAX_PROGRAM_BYTES)
+
+
+_COMMENTS = re.compile(r"\([^)\n]*\)|;[^\n]*")
+
+
+def read_program_8bit(path) -> tuple[str, str]:
+    """(text, encoding) of an NC program file that may carry 8-bit characters in its comments
+    (``(FRÄSER Ø6)`` written by Windows CAM systems in Latin-1 / cp1252): UTF-8 where it is,
+    else Latin-1, every byte one character, provided no byte above 127 stands outside a
+    comment (the program's words stay ASCII); write the output back with the same encoding to
+    keep those bytes.  Otherwise as `read_program`."""
+    from .._io import read_text
+    try:
+        return read_program(path), "utf-8"
+    except InputError as exc:
+        if "not UTF-8" not in str(exc):
+            raise
+        text = read_text(path, newline="", what="NC program", max_bytes=MAX_PROGRAM_BYTES,
+                         encoding="latin-1")
+        code = _COMMENTS.sub("", text)
+        bad = re.search(r"[^\x00-\x7f]", code)
+        if bad is None:
+            return text, "latin-1"
+        # the line of the first 8-bit byte outside a comment (comments keep the line count)
+        raise InputError(f"{str(exc).split(': ', 1)[-1]}; an 8-bit character outside a comment "
+                         f"({bad.group()!r})", path, code.count("\n", 0, bad.start()) + 1) from None
