@@ -278,7 +278,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
               "cycles_kept": info["cycles_kept"], "cycles_expanded": info["cycles_expanded"],
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
-              "verify": verified, "flow": None}
+              "verify": verified, "flow": None, "compensated": kn}
     return new_text, report
 
 
@@ -415,11 +415,11 @@ def _sha256(path) -> str:
 
 def _cmd_compensate(args) -> int:
     from . import __version__
-    from .gcode import read_program
+    from .gcode import read_program_8bit
     machine = load_machine(args.machine)
     errors = load_errors(args.errors, machine=machine)
     src = Path(args.program)
-    text = read_program(src)  # keeps CR LF byte for byte
+    text, encoding = read_program_8bit(src)  # keeps CR LF (and 8-bit comments) byte for byte
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
     if out.is_dir():
         raise InputError("the output is a directory; give a file name", str(out), field="-o")
@@ -438,7 +438,8 @@ def _cmd_compensate(args) -> int:
     tools, offsets = tool_lengths_of_options(args, machine.axis_names)
     options = [f"unknown-start {args.unknown}"]
     if tools:
-        options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items()))
+        options.append("tool lengths " + ",".join(f"H{k}={v:g}" for k, v in tools.items())
+                       + (" (H = T)" if "H = T" in getattr(tools, "note", "") else ""))
     if offsets:
         options.append(f"work offsets {Path(args.work_offsets).name}")
     if tol is not None:
@@ -473,15 +474,24 @@ def _cmd_compensate(args) -> int:
                                        stock=stock, part=part, clearance=args.clearance,
                                        tolerance=args.tolerance, warn_only=args.warn_only,
                                        search_path=search)
-    atomic_write(out, new_text)
+    atomic_write(out, new_text if encoding == "utf-8" else new_text.encode(encoding))
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
+    if encoding != "utf-8":
+        print("note: the program is not UTF-8: its 8-bit comment characters were read as Latin-1 "
+              "and written back byte for byte")
     if rep["deferred"]:
         print(f"{rep['deferred']} blocks before every axis position is known passed uncompensated "
               "(give --start to compensate them)")
     if rep["idle_axes"]:
-        print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}")
-    for note in rep["notes"]:
-        print(f"note: {note}")
+        lin = [a for a in rep["idle_axes"] if a in "XYZUVW"]
+        print(f"axes the program never writes, taken at 0: {' '.join(rep['idle_axes'])}"
+              + (f" (no word is written for {' '.join(lin)}, so its correction is not applied: "
+                 "give --start to state where it stands)" if lin else ""))
+    for note in ([tools.note] if getattr(tools, "note", "") else []) + list(rep["notes"]):
+        if note.startswith("warning: "):
+            print(note, file=sys.stderr)
+        else:
+            print(f"note: {note}")
     if rep["linearised"]:
         print(f"{rep['linearised']} arcs written as lines (chordal tolerance {rep['chordal_tol'] * 1e3:g} µm)")
     if rep["cycles_kept"] or rep["cycles_expanded"]:

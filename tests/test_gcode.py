@@ -399,7 +399,9 @@ REFUSALS = [
     ("G1 X1.\nG68.2 X0 Y0 Z0 I0 J30. K0\n", 2, "G68.2 tilted working plane"),
     ("G1 X1.\n\nG43.5 H1\n", 3, "G43.5 tool centre point with a tool vector"),
     ("G51 X0 Y0 P2\n", 1, "G51 scaling"),
-    ("G10 L2 P0 X0\n", 1, "G10 L2 P0: only P1..P6"),
+    ("G10 L2 P0 X0\nG55 G0 X1.\n", 1, "G10 L2 P0 sets the external work offset"),
+    ("G18 G7\nG0 X20. Z1.\n", 1, "G7 diameter mode (LinuxCNC lathe): X words are diameters"),
+    ("G91 G81 R.1 Z-.5 ^60 L6 F10\n", 1, "LinuxCNC polar coordinates (@ distance, ^ angle)"),
     ("G41 D1 X1.\n", 1, None),
     ("G5.1 Q1\n", 1, "unknown"),
     ("G1 X1.\nG12 X2.\n", 2, "unknown G code G12"),
@@ -529,3 +531,12 @@ def test_rewrite_with_lines_maps_blocks_to_output_lines():
     assert np.allclose(got, tf(p.position), atol=1e-6)
     out2, lines2 = gcode.rewrite_with_lines(p, shift([1, 0, 0]))
     assert np.array_equal(lines2, p.line)
+
+
+def test_g8_radius_mode_reads_x_as_the_axis_position():
+    """LinuxCNC lathe programs start with G18 G8 (radius mode, the default): X words are the
+    axis positions, so the program reads as without it (a public LinuxCNC sample, issue 20)."""
+    text = "G21\nG18 G8\nG00 X13.5 Z1.0 S1000 M3\nG01 X10. Z-5. F100\n"
+    p = gcode.parse(text, axes=("X", "Y", "Z"))
+    assert np.allclose(p.position[:, [0, 2]], [[13.5, 1.0], [10.0, -5.0]])
+    assert gcode.rewrite(p, lambda q: q.copy()) == text

@@ -369,3 +369,27 @@ def test_inch_arcs_with_the_default_chordal_tolerance():
     text = "G20 G90 G0 X0 Y0 Z1.\nG1 Z0 F10.\nG2 X1. Y0 I0.5 J0\nG0 Z1.\n"
     out, rep = compensate_program(text, m, ErrorSet(geometric=GeometricErrors(location={"EB0Z": 2e-4})))
     assert rep["after_max"] < 1e-4 and out.startswith("G20")
+
+
+def test_latin1_comments_are_kept_byte_for_byte(tmp_path):
+    """Windows CAM systems write comments in Latin-1 (a public LinuxCNC example: "Fräser"):
+    compensate reads such a program when every 8-bit byte is inside a comment and writes them
+    back unchanged; an 8-bit byte in the code is still refused, naming the line (issue 20)."""
+    from mtcomp.cli import main
+    src = tmp_path / "p.nc"
+    body = "(Fr\xe4ser \xd86 mm)\nG21 G90 G54\nG0 X1. Y2. Z5. ; Ma\xdf\nG1 Z-1. F100\nM30\n".encode("latin-1")
+    src.write_bytes(body)
+    text, enc = gcode.read_program_8bit(src)
+    assert enc == "latin-1" and text.encode("latin-1") == body
+    assert gcode.read_program_8bit(tmp_path / "p.nc")[0].startswith("(Fr\xe4ser")
+    err = tmp_path / "zero.toml"
+    err.write_text("")
+    out = tmp_path / "o.nc"
+    assert main(["compensate", str(src), "-m", "vmc-moving-column", "-e", str(err), "-o", str(out)]) == 0
+    written = out.read_bytes()
+    assert written.endswith(body)                  # after the ASCII provenance header
+    src.write_bytes("(ok)\nG0 X1. Y\xe42.\n".encode("latin-1"))
+    with pytest.raises(InputError, match=r"p.nc:2: not a text file .*outside a comment"):
+        gcode.read_program_8bit(src)
+    with pytest.raises(InputError, match=r"not UTF-8"):
+        gcode.read_program(tmp_path / "p.nc")      # the strict reader is unchanged

@@ -129,7 +129,7 @@ def test_g10_tool_lengths():
 
 
 @pytest.mark.parametrize("text,line,what", [
-    ("G10 L2 P0 X1.\n", 1, "G10 L2 P0: only P1..P6"),
+    ("G54 G0 X0\nG55 X1.\nG10 L2 P0 X1.\n", 3, "P0 sets the external .* uses G54, G55"),
     ("G10 L2 P7 X1.\n", 1, "G59.1-G59.3 are not"),
     ("G10 L2 P1 X1. R30.\n", 1, "with R .a rotation"),
     ("G10 L10 P1 Z5.\n", 1, "L10 with Z: not read"),
@@ -165,3 +165,88 @@ def test_g10_offsets_of_axes_the_program_does_not_write():
     assert gcode.rewrite(p, lambda q: q + [0.001, 0, 0, 0, 0]).splitlines()[3] == "G55 X0.001000"
     with pytest.raises(InputError, match=r":3: the compensation moves B, whose work offsets"):
         gcode.rewrite(p, lambda q: q + [0, 0, 0, 0.001, 0])
+
+
+def test_tool_table_with_an_h_column(tmp_path):
+    """A table whose tools carry their own length offset number: G43 H<n> takes the tool with
+    H n, not tool n; a tool change loads the tool's own length; without an H column H = T, and
+    the table says so (issue 20)."""
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T12 P1 H2 Z+80.0 ;face mill\nT2 P2 H12 Z+35.0 ;drill\n")
+    t = read_tool_table(tbl)
+    assert t == {2: 80.0, 12: 35.0} and t.by_tool == {12: 80.0, 2: 35.0}
+    assert "H column" in t.note and "H = T" not in t.note
+    text = "G90 G0 X0 Y0 Z100.\nT12 M6\nG43 H2 Z10.\nG49 Z100.\nT2 M6\nG43 Z10.\n"
+    p = gcode.parse(text, axes=XYZ, tool_lengths=t)
+    # G43 H2 -> 80 (T12's line); G43 without H after T2 M6 -> T2's own entry (H12, 35)
+    assert np.allclose(p.position[:, 2], [100, 90, 100, 45])
+    # after the change to T2, before its G43: its tip is T2's length (35), not H2's (80)
+    q = gcode.parse("G90 G0 X0 Y0 Z100.\nT2 M6\nG0 X1.\nG43 H12 Z10.\n", axes=XYZ, tool_lengths=t)
+    assert np.allclose(q.tool_tip, [0, 35, 35])
+    plain = tmp_path / "plain.tbl"
+    plain.write_text("T12 P1 Z+80.0\n")
+    assert "no H column: H = T" in read_tool_table(plain).note
+    mixed = tmp_path / "mixed.tbl"
+    mixed.write_text("T1 P1 H1 Z50.\nT2 P2 Z40.\n")
+    with pytest.raises(InputError, match=r"mixed.tbl:2: T2 has no H word"):
+        read_tool_table(mixed)
+    dup = tmp_path / "dup.tbl"
+    dup.write_text("T1 P1 H5 Z50.\nT2 P2 H5 Z40.\n")
+    with pytest.raises(InputError, match=r"dup.tbl:2: H5 is given two lengths"):
+        read_tool_table(dup)
+
+
+def test_tool_table_convention_said_on_the_cli(tmp_path):
+    prog = tmp_path / "p.nc"
+    prog.write_text("G21 G90 G54\nG0 X0 Y0 Z40.\nT1 M6\nG43 H1 Z-60.\nG1 Z-71. F100\nM30\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0.001))), tmp_path / "e.toml")
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z+50.0\n")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--tool-table", tbl)
+    assert r.returncode == 0, r.stderr
+    assert "no H column: H = T" in r.stdout and "H1=50 [H = T]" in out.read_text()
+    tbl.write_text("T1 P1 H1 Z+50.0\n")
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", out, "--tool-table", tbl)
+    assert r.returncode == 0, r.stderr
+    assert "lengths by the H column" in r.stdout and "H = T" not in out.read_text()
+
+
+def test_tool_change_under_g43_keeps_the_length_and_warns(tmp_path):
+    """Fanuc/Haas: M6 under active G43 keeps the old H length until the next G43 H; a feed move
+    before that new G43 H is warned with its lines (issue 20)."""
+    lengths = {1: 50.0, 2: 30.0}
+    text = ("G90 G0 X0 Y0 Z100.\nT1 M6\nG43 H1 Z10.\nG1 Z5. F100\n"
+            "T2 M6\nG0 X10.\nG1 Z2.\nG43 H2 Z1.\nM30\n")
+    p = gcode.parse(text, axes=XYZ, tool_lengths=lengths)
+    # the old H1 length stays through the change: Z2 (line 7) is 2 + 50, after G43 H2 1 + 30
+    assert np.allclose(p.position[:, 2], [100, 60, 55, 55, 52, 31])
+    w = [n for n in p.notes if n.startswith("warning:")]
+    assert len(w) == 1 and "line 5 under G43" in w[0] and "H1" in w[0] and "line 7" in w[0]
+    # a new G43 H before the feed, G49, a change with its own G43 H, or rapids only: no warning
+    for ok in ("T2 M6\nG0 X10.\nG43 H2 Z10.\nG1 Z2.\n", "T2 M6\nG49 Z100.\nG1 Z2.\n",
+               "T2 M6 G43 H2\nG1 Z2.\n", "T2 M6\nG0 X10.\nM30\n"):
+        q = gcode.parse("G90 G0 X0 Y0 Z100.\nT1 M6\nG43 H1 Z10.\n" + ok, axes=XYZ,
+                        tool_lengths=lengths)
+        assert not [n for n in q.notes if n.startswith("warning:")], ok
+    # on the CLI the warning goes to stderr, with the lines, and the program is still written
+    prog = tmp_path / "p.nc"
+    prog.write_text(text.replace("Z100.", "Z40."))         # within the preset's Z travel
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0.001))), tmp_path / "e.toml")
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "-o", tmp_path / "o.nc",
+            "--tool-lengths", "1=5,2=3")
+    assert r.returncode == 0, r.stderr
+    assert "warning: tool change on line 5 under G43" in r.stderr
+
+
+def test_g10_l2_p0_in_a_program_with_one_work_offset():
+    """G10 L2 P0 is Fanuc's external offset and LinuxCNC's current one: in a program that stays
+    in G54 both shift G54, so it is read as G10 L2 P1 (a real program sets Z so, before its
+    G54); with two work offsets it is refused (test_g10_refusals_name_the_line) (issue 20)."""
+    body = "G21 G90\n{g10}\nG54\nG0 X1. Y2. Z10.\nG10 L2 P{p} Z-45.\nG1 Z5. F100\n"
+    for p in (0, 1):
+        q = gcode.parse(body.format(g10=f"G10 L2 P{p} Z-50.", p=p), axes=XYZ)
+        # the reference frame is G54 at the first motion (Z-50); the second G10 moves it by +5
+        assert np.allclose(q.position[:, 2], [10, 10]) and np.allclose(q.offset[:, 2], [0, 5])
+    text = body.format(g10="G10 L2 P0 Z-50.", p=0)
+    assert gcode.rewrite(gcode.parse(text, axes=XYZ), lambda x: x.copy()) == text

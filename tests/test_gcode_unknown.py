@@ -71,10 +71,20 @@ def test_arc_from_an_unknown_position_is_refused():
         gcode.parse("G90 G0 X10\nG2 X0 Y10 I-10 J0\n", axes=XYZ)
 
 
-def test_first_known_block_being_an_arc_is_refused():
-    p = gcode.parse("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n", axes=XYZ)
-    with pytest.raises(InputError, match=r":2: the first block where every axis position is known is an arc"):
-        gcode.rewrite(p, shift([0.1, 0, 0]))
+def test_first_known_block_being_an_arc_is_deferred_with_the_arcs_after_it():
+    """An arc cannot be the first compensated block (its start was not compensated): with
+    unknown="defer" it passes unchanged, and so do the arcs directly after it; the first line
+    after them moves every axis onto the compensated path (a public program starts so, issue
+    20). unknown="refuse" refuses the program at the first unknown block."""
+    text = "G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\nG3 X10 Y0 I0 J-10\nG1 X5\nG2 X0 Y5 I-5 J0\n"
+    p = gcode.parse(text, axes=XYZ)
+    info = {}
+    out, _ = gcode.rewrite_with_lines(p, shift([0.1, 0, 0.01]), info=info)
+    assert out == ("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\nG3 X10 Y0 I0 J-10\n"
+                   "G1 X5.100000 Z-0.990000\nG2 X0.100000 Y5 I-5 J0\n")
+    assert info["compensated"].tolist() == [False, False, False, True, True]
+    with pytest.raises(InputError, match=r":1: position of Z not known"):
+        gcode.rewrite(p, shift([0.1, 0, 0]), unknown="refuse")
     # with a known identity nothing changes and nothing is refused... once the start is given
     p = gcode.parse("G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n", axes=XYZ, start={"Z": 0})
     assert gcode.rewrite(p, lambda q: q) == "G90 G0 X10 Y0\nG2 X0 Y10 Z-1 I-10 J0\n"
@@ -107,3 +117,19 @@ def test_identity_with_unknown_axes_is_byte_exact():
 def test_siemens_instructions_refused_by_name(text, line, what):
     with pytest.raises(InputError, match=rf"^s.mpf:{line}: {what}"):
         gcode.parse(text, axes=("X", "Y", "Z"), filename="s.mpf")
+
+
+def test_an_axis_never_written_gets_no_word():
+    """A 2D program that never writes Z (the operator sets the height): Z is taken at 0 to
+    evaluate the errors, but no Z word is written, which would send the tool to Z0 + the
+    correction (found in a public LinuxCNC example, issue 20)."""
+    text = "g00 x2 y2\nm06 t55\ng00 x5 y5\ng01 x15 f125\ng01 y15\nm02\n"
+    p = gcode.parse(text, axes=XYZ)
+    assert p.idle_axes == ("Z",)
+    out = gcode.rewrite(p, shift([0.0123, -0.0071, 0.0042]), resolution={"X": 4, "Y": 4, "Z": 4})
+    assert "z" not in out.lower().replace("m02", "")
+    assert out.split("\n")[0] == "g00 x2.0123 y1.9929"
+    # a stated start makes the axis known: then it is moved to its compensated position
+    p = gcode.parse(text, axes=XYZ, start={"Z": 10})
+    out = gcode.rewrite(p, shift([0.0123, -0.0071, 0.0042]), resolution={"X": 4, "Y": 4, "Z": 4})
+    assert out.split("\n")[0] == "g00 x2.0123 y1.9929 z10.0042"

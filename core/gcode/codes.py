@@ -30,6 +30,7 @@ _G_FEED = {930: 93, 940: 94, 950: 95}
 _G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501, 920: 92}
 _G_HARMLESS = {
     40: "dwell", 90: "exact stop (one block)", 150: "polar coordinates cancel",
+    80: "radius mode (LinuxCNC lathe: X words are radii, the default); look-ahead (Fanuc G08)",
     400: "cutter compensation cancel",
     500: "scaling cancel", 610: "exact stop mode", 611: "inposition check mode",
     640: "cutting mode", 670: "macro modal call cancel", 690: "coordinate rotation cancel",
@@ -41,6 +42,7 @@ _G_HARMLESS = {
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {
     160: "G16 polar coordinate command: axis words are radius and angle",
+    70: "G7 diameter mode (LinuxCNC lathe): X words are diameters, not axis positions",
     290: "G29 returns from the reference point through an unknown intermediate point",
     310: "G31 skip function: the end point depends on a probe signal",
     410: "G41 cutter radius compensation offsets the path by a radius not in the program",
@@ -78,6 +80,8 @@ _CHAR_HINT = {
     "(": "unbalanced '(' (comments may not nest and must close on their line)",
     ")": "unbalanced ')' (comments may not nest)", "%": "'%' only on a line of its own",
     "/": "block delete '/' only at the start of a block",
+    "@": "LinuxCNC polar coordinates (@ distance, ^ angle) are not supported",
+    "^": "LinuxCNC polar coordinates (@ distance, ^ angle) are not supported",
     "<": "LinuxCNC o<name> program flow: mtcomp compensate follows o<name> sub/endsub/call "
          "(gcode.flow.expand); other o-words are not followed",
 }

@@ -18,7 +18,9 @@ G10 in the program (read in program order, as the control executes it):
   dialects differ);
 * ``G10 L10 P<h> R`` / ``G10 L11 P<h> R`` (Fanuc geometry / wear of H), ``G10 L1 P<t> Z``
   (LinuxCNC tool table entry): tool lengths; ``G10 L12/L13`` (D values) change nothing here;
-* everything else (P0, LinuxCNC G59.1-3, L10/L11/L20 relative to the current position, L1 with R
+* ``G10 L2 P0`` (Fanuc: the external offset, LinuxCNC: the current one): read where the
+  program uses one work offset only, where both mean the same;
+* everything else (LinuxCNC G59.1-3, L10/L11/L20 relative to the current position, L1 with R
   only, rotation R in L2) is refused naming the line where it matters.
 """
 from __future__ import annotations
@@ -38,6 +40,14 @@ def _ffill(values, isset, default):
     idx = np.where(isset, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     return np.where(idx >= 0, values[np.maximum(idx, 0)], default)
+
+
+def _renumber(numbers, mapping):
+    """Tool numbers (float array, NaN where none) -> their H numbers by ``mapping`` {T: H}."""
+    out = numbers.copy()
+    for t, h in mapping.items():
+        out[numbers == t] = h
+    return out
 
 
 def wcs_name(key: int) -> str:
@@ -85,10 +95,11 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
             if "R" in w:
                 fail(f"L{L} with R (a rotation of the coordinate system, LinuxCNC) is not supported")
             if L == 2:
-                if not 1 <= P <= 6:
-                    fail(f"L2 P{P}: only P1..P6 (G54..G59) are read (P0, the external or current "
-                         "offset, and G59.1-G59.3 are not)")
-                key = (53 + P) * 1000
+                if not 0 <= P <= 6:
+                    fail(f"L2 P{P}: only P0..P6 are read (G59.1-G59.3 are not)")
+                # P0: Fanuc's external offset (added to every work offset), LinuxCNC's current
+                # one; resolved where the program uses one work offset only (key 0 till then)
+                key = (53 + P) * 1000 if P else 0
             else:
                 if not uses_g541:
                     fail("L20 sets the G54.1 P offsets on Fanuc controls but the offset from the "
@@ -143,8 +154,21 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     if wset.any() or wev:
         used = list(dict.fromkeys(keys[wset].tolist())) or [54000]
         cur = _ffill(keys, wset, used[0])
+        p0 = [e for e in wev if e[2] == 0]
+        if p0:
+            # the external offset (Fanuc) and the current one (LinuxCNC) are the same change
+            # only in a program that stays in one work offset
+            first_sel = int(np.argmax(wset)) if wset.any() else n_lines
+            if len(used) > 1 or (used[0] != 54000 and p0[0][0] < first_sel):
+                raise InputError(f"G10 L2 P0 sets the external work offset (Fanuc, added to every "
+                                 f"work offset) or the current one (LinuxCNC), and the program "
+                                 f"uses {', '.join(wcs_name(k) for k in used)}, where the two "
+                                 "differ: write G10 L2 P<n> for the offset meant",
+                                 file=filename, line=p0[0][0] + 1)
+            wev = [(e[0], e[1], used[0] if e[2] == 0 else e[2], e[3], e[4]) for e in wev]
         if not wev:
-            if len(used) > 1:
+            first_sel = int(np.argmax(wset)) if wset.any() else n_lines
+            if len(used) > 1 or (used[0] != 54000 and p0[0][0] < first_sel):
                 missing = [wcs_name(k) for k in used if wcs_name(k).replace(" ", "") not in table]
                 if missing:
                     ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
@@ -170,12 +194,16 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     tip = np.zeros(n_lines)
     active = np.zeros(n_lines, bool)
     lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
+    # a tool table with an H column: tool T's own length and offset number (else H = T)
+    by_tool = getattr(tool_lengths, "by_tool", None)
+    h_of_tool = getattr(tool_lengths, "h_of_tool", None) or {}
     if tset.any():
         # G43/G44/G43.4 without H: the loaded tool T (LinuxCNC)
         h_line = h_line.copy()
         noh = tset & (tool_l != 49) & np.isnan(h_line)
         if noh.any():
             tmod = _ffill(t_line, ~np.isnan(t_line), np.nan)
+            tmod = _renumber(tmod, h_of_tool)
             h_line[noh] = tmod[noh]
             if np.isfinite(tmod[noh]).any():
                 notes.append("G43 without H: the tool length of the loaded tool (T word) is used, as "
@@ -207,6 +235,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         tool = _ffill(t_line, ~np.isnan(t_line), np.nan)
         hm = np.where(newtool, tool, np.nan)
         try:      # the lengths the G10 blocks before the change have set, as for G43 H
+            hm = _renumber(hm, h_of_tool)     # a table's H column: the tool's own entry
             Lnew, unk_h = _lengths_per_line(hm, newtool, lengths, tev, filename)
         except InputError:     # an ambiguous G10 entry of that number: its length is not known
             Lnew, unk_h = np.zeros(n_lines), np.unique(hm[newtool & np.isfinite(hm)]).tolist()
@@ -286,6 +315,47 @@ def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, writte
     return [a for a in axes if a in assumed]
 
 
+def tool_change_warnings(tool_l, h_line, change, feed_lines, limit=5) -> list:
+    """Warnings for tool changes made while G43/G44/G43.4 is active and not followed by a new
+    length (G43 H, an H word, G49) before the next feed move.  Fanuc and Haas controls keep the
+    old H length then (it changes only at the next G43 H), and so does mtcomp; but a program that
+    cuts with the new tool on the old tool's length is usually a post-processor or hand-editing
+    slip.  tool_l (n_lines,): tool length code per line (43, 44, 49, 434, -1 none); h_line: H
+    word per line (NaN none); change: the tool change lines (bool, or T values with NaN where
+    none); feed_lines: sorted line indices of the feed blocks (G1-G3, cycles)."""
+    change = np.asarray(change)
+    ch = np.flatnonzero(~np.isnan(change) if change.dtype.kind == "f" else change)
+    if not len(ch) or not len(feed_lines):
+        return []
+    mode = _ffill(tool_l, tool_l >= 0, 49)
+    length_set = np.flatnonzero((tool_l >= 0) | ~np.isnan(h_line))
+    hmodal = None
+    out = []
+    for c in ch.tolist():
+        if mode[c] == 49 or tool_l[c] >= 0 or not np.isnan(h_line[c]):
+            continue            # no length active, or the change block sets the new one itself
+        k = int(np.searchsorted(feed_lines, c, side="right"))
+        if k == len(feed_lines):
+            continue
+        f = int(feed_lines[k])
+        e = int(np.searchsorted(length_set, c, side="right"))
+        if e < len(length_set) and length_set[e] < f:
+            continue
+        if hmodal is None:
+            hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
+        h = hmodal[c]
+        hs = f"H{int(h)}" if np.isfinite(h) else "the old length"
+        code = {43: "G43", 44: "G44", 434: "G43.4"}.get(int(mode[c]), "G43")
+        out.append(f"warning: tool change on line {c + 1} under {code}: the tool length stays "
+                   f"{hs} (as Fanuc and Haas controls keep it until the next G43 H), and the "
+                   f"feed move on line {f + 1} comes before any new G43 H; check that the new "
+                   "tool is meant to cut on the old tool's length")
+        if len(out) == limit:
+            out.append("warning: more tool changes under G43 without a new G43 H follow")
+            break
+    return out
+
+
 def _lengths_per_line(hmodal, active, lengths, tev, filename):
     """Tool length (geometry + wear, mm) per line of the active H, with G10 tool events applied
     in program order; H numbers used whose length is not known (taken as 0)."""
@@ -340,11 +410,25 @@ def _lengths_per_line(hmodal, active, lengths, tev, filename):
 _TBL_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 
 
-def read_tool_table(path) -> dict:
-    """Tool lengths (mm) by tool number from a LinuxCNC tool table (``T1 P1 Z+50.0 D6.0
-    ;comment`` lines; G43 H<n> takes tool n's Z)."""
+class ToolTable(dict):
+    """Tool lengths (mm) by H number read from a tool table, with what the table says about tools:
+    ``by_tool`` {T: mm} (the length of the tool a T word loads), ``h_of_tool`` {T: H} and
+    ``note``, the convention used (said in the output of the commands)."""
+
+    def __init__(self, by_h=(), *, by_tool=None, h_of_tool=None, note=""):
+        super().__init__(by_h)
+        self.by_tool = dict(by_tool or {})
+        self.h_of_tool = dict(h_of_tool or {})
+        self.note = note
+
+
+def read_tool_table(path) -> ToolTable:
+    """Tool lengths (mm) by H number from a tool table: LinuxCNC's ``T1 P1 Z+50.0 D6.0 ;comment``
+    lines, optionally with an ``H`` word, the length offset number of the tool (``T12 P3 H2
+    Z+80.0``: G43 H2 takes 80).  Without any H word the offset number is the tool number (H = T,
+    as Fanuc and Haas shops number them), and the returned table says so in ``note``."""
     from .._io import read_text
-    out = {}
+    by_h, by_t, h_of_t, rows = {}, {}, {}, []
     for n, raw in enumerate(read_text(path, what="tool table").splitlines(), start=1):
         ln = raw.split(";")[0].strip()
         if not ln:
@@ -358,11 +442,30 @@ def read_tool_table(path) -> dict:
         if ln[pos:].strip() or "T" not in words or words["T"] != int(words["T"]) or words["T"] < 0:
             raise InputError(f"expected a tool table line like 'T1 P1 Z+50.0 D6.0 ;comment', got "
                              f"{raw.strip()!r}", file=path, line=n)
-        if "Z" in words:
-            if not math.isfinite(words["Z"]):
-                raise InputError("tool length Z is not finite", file=path, line=n)
-            out[int(words["T"])] = words["Z"]
-    return out
+        if "H" in words and not (words["H"] == int(words["H"]) and words["H"] >= 0):
+            raise InputError(f"expected an H offset number (an integer >= 0), got H{words['H']:g}",
+                             file=path, line=n, field="H")
+        if "Z" in words and not math.isfinite(words["Z"]):
+            raise InputError("tool length Z is not finite", file=path, line=n)
+        rows.append((n, words))
+    has_h = any("H" in w for _, w in rows)
+    for n, w in rows:
+        t = int(w["T"])
+        if has_h and "H" not in w:
+            raise InputError(f"T{t} has no H word while other tools have one: give every tool its "
+                             "length offset number, or none (then H = T)", file=path, line=n)
+        h = int(w["H"]) if has_h else t
+        if "Z" in w:
+            if h in by_h and by_h[h] != w["Z"]:
+                raise InputError(f"H{h} is given two lengths ({by_h[h]:g} and {w['Z']:g} mm)",
+                                 file=path, line=n)
+            by_h[h] = w["Z"]
+            by_t[t] = w["Z"]
+        h_of_t[t] = h
+    note = (f"tool table {os.path.basename(str(path))}: lengths by the H column" if has_h else
+            f"tool table {os.path.basename(str(path))} has no H column: H = T (offset number = tool "
+            "number, the Fanuc/Haas convention)")
+    return ToolTable(by_h, by_tool=by_t, h_of_tool=h_of_t, note=note)
 
 
 def is_tool_table(path) -> bool:
@@ -471,5 +574,7 @@ def tool_lengths_of_options(args, axes) -> tuple[dict | None, dict | None]:
         return tools, None
     file_tools, _, works = read_offsets(args.work_offsets, axes)
     if file_tools:
-        tools = {**file_tools, **(tools or {})}           # --tool-lengths wins
+        merged = {**file_tools, **(tools or {})}          # --tool-lengths wins
+        tools = ToolTable(merged, by_tool=tools.by_tool, h_of_tool=tools.h_of_tool,
+                          note=tools.note) if isinstance(tools, ToolTable) else merged
     return tools, works or None

@@ -1,6 +1,7 @@
 """Reading a program into per-block arrays (modal state, absolute positions, arcs)."""
 from __future__ import annotations
 
+import re
 from typing import Mapping
 
 import numpy as np
@@ -11,7 +12,7 @@ from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR, siemens_hint
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
                     _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
-from .offsets import g10_events, offsets_per_line
+from .offsets import g10_events, offsets_per_line, tool_change_warnings
 from .program import Program, resolution_formats
 from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
@@ -484,6 +485,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     tool_length = tlen_line[blines]
     tool_tip = tip_line[blines]
     tool_unknown = gauge_line[blines]
+    feed_blk = np.isin(mode_line[blines], (1, 2, 3)) | (cycle_line[blines] > 0)
+    notes.extend(tool_change_warnings(tool_l, h_line, t_line if change_line is None else change_line,
+                                      blines[feed_blk]))
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -852,3 +856,29 @@ def read_program(path) -> str:
     read.  The one reader of the package's text files, `mtcomp._io.read_text`, does the work."""
     from .._io import read_text
     return read_text(path, newline="", what="NC program", max_bytes=MAX_PROGRAM_BYTES)
+
+
+_COMMENTS = re.compile(r"\([^)\n]*\)|;[^\n]*")
+
+
+def read_program_8bit(path) -> tuple[str, str]:
+    """(text, encoding) of an NC program file that may carry 8-bit characters in its comments
+    (``(FRÄSER Ø6)`` written by Windows CAM systems in Latin-1 / cp1252): UTF-8 where it is,
+    else Latin-1, every byte one character, provided no byte above 127 stands outside a
+    comment (the program's words stay ASCII); write the output back with the same encoding to
+    keep those bytes.  Otherwise as `read_program`."""
+    from .._io import read_text
+    try:
+        return read_program(path), "utf-8"
+    except InputError as exc:
+        if "not UTF-8" not in str(exc):
+            raise
+        text = read_text(path, newline="", what="NC program", max_bytes=MAX_PROGRAM_BYTES,
+                         encoding="latin-1")
+        code = _COMMENTS.sub("", text)
+        bad = re.search(r"[^\x00-\x7f]", code)
+        if bad is None:
+            return text, "latin-1"
+        # the line of the first 8-bit byte outside a comment (comments keep the line count)
+        raise InputError(f"{str(exc).split(': ', 1)[-1]}; an 8-bit character outside a comment "
+                         f"({bad.group()!r})", path, code.count("\n", 0, bad.start()) + 1) from None

@@ -139,7 +139,8 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
     called while the output is assembled (bytes).
     ``unknown``: what happens to motion blocks before every axis position is known
     (``program.known``): ``"defer"`` passes them through unchanged and compensates from the
-    first block where the pose is known (that block gets words for every axis that must move);
+    first block where the pose is known (that block gets words for every axis that must move;
+    arcs directly after the unknown blocks pass unchanged too, an arc's start cannot move);
     ``"refuse"`` raises InputError naming the first such block.
     Everything except the axis words of known motion blocks (and, for arcs, I J K R and
     linearisation) stays byte for byte; see docs/gcode.md.
@@ -212,6 +213,14 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         res = np.where([a in LINEAR for a in axes], res * INCH, res)
     if not chordal_tol > 0:
         raise ValueError("chordal_tol must be positive")
+    idle = [k for k, a in enumerate(axes) if a in program.idle_axes and a in LINEAR]
+    if idle:
+        # a linear axis the program never writes stands where the operator set it (Z of a 2D
+        # program): it is taken at 0 to evaluate the transform, but gets no word (a word would
+        # move it to a position the program never stated), so its correction is not applied.
+        # Rotary axes never written stand at 0 by the convention 3-axis programs are run with
+        # on a 5-axis machine, and are compensated (docs/gcode.md, "Unknown positions")
+        transform = _KeepIdle(transform, idle)
     ctx = _Ctx(program)
     N = len(program)
     P = np.asarray(program.position)
@@ -233,8 +242,23 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         if late.any():
             kn = kn.copy()
             kn[cb0[late]] = False
-    ak = np.flatnonzero(program.is_arc & kn)
+    is_arc = np.asarray(program.is_arc)
+    ak = np.flatnonzero(is_arc & kn)
     first_arc = ak[~kprev[ak]]
+    if len(first_arc) and unknown == "defer":
+        # an arc cannot be the first compensated block (its start was not compensated): arcs
+        # that directly follow the blocks before the pose is known pass uncompensated too, and
+        # the first line after them brings every axis onto the compensated path
+        idx = np.arange(N)
+        lu = np.where(~kn, idx, -1 if not kprev[0] else -2)
+        lu = np.maximum.accumulate(np.r_[-1 if not kprev[0] else -2, lu[:-1]])
+        nonarc = np.cumsum(~is_arc)
+        before = np.where(lu >= 0, nonarc[np.maximum(lu, 0)], 0)
+        chain = kn & is_arc & (lu >= -1) & (nonarc - before == 0)
+        kn = kn.copy()
+        kn[chain] = False
+        ak = np.flatnonzero(is_arc & kn)
+        first_arc = ak[:0]
     if len(first_arc):
         j = int(first_arc[0])
         raise InputError(f"the first block where every axis position is known is an arc "
@@ -400,6 +424,19 @@ class _Conjugated:
     def __call__(self, q):
         return to_words(self.program, self.transform(to_reference(self.program, q, self.blocks)),
                         self.blocks)
+
+
+class _KeepIdle:
+    """A transform whose output keeps the input in the columns ``idle``."""
+
+    def __init__(self, transform, idle):
+        self.transform, self.idle = transform, idle
+
+    def __call__(self, q):
+        out = np.array(self.transform(q.copy()), dtype=float)
+        if out.shape == q.shape:
+            out[:, self.idle] = q[:, self.idle]
+        return out
 
 
 def _call_transform(transform, q):
