@@ -364,3 +364,48 @@ def test_cli_thermal_loop_with_logged_driver(tmp_path):
     res = json.loads((tmp_path / "rs.json").read_text())
     assert res["heldout_rms"]["before"]["z"] > 20 * NOISE
     assert res["heldout_rms"]["after"]["z"] <= 1.5 * NOISE
+
+
+def test_velocity_friction_loop(tmp_path, nominal):
+    """Friction of a velocity-mode X axis (c = 0.05 mm/s, b = 1 %, smoothing speed 2 % of the peak
+    speed) seen on the actual-velocity output vX (REC with 2 µm/s of sensor noise): diagnosed as
+    `friction` on vX, exported as velfriction.{coulomb,viscous,vs}.X (v_s from SIM's peak speed on
+    the diagnosed span), written to dynamics.toml and the .ssv with sigmas, and re-simulated:
+    the held-out velocity residual is the noise; the position, the integral of the velocity, is
+    re-simulated too (the velocity-mode axis falls behind by the integrated loss)."""
+    import dataclasses
+
+    from mtcomp.machine import load_machine
+    from mtcomp.model.dynamics import load_dynamics
+    from mtcomp.model.export import read_ssv
+    from mtcomp.model.mapping import NoHome, map_effect
+    c, b, nv = 0.05, 0.01, 0.002
+    n_train = int(TRAIN * len(nominal.t))
+    vs = 0.02 * float(np.max(np.abs(nominal.v[:n_train, 0])))
+    rec = simulate(PROGRAM, M, None, MachineDynamics(velfriction_coulomb=(c, 0, 0), velfriction_viscous=(b, 0, 0),
+                                                    velfriction_vs=(vs, 0, 0)), step=STEP, compiler="cc")
+    rec = dataclasses.replace(rec, v=rec.v + nv * np.random.default_rng(3).standard_normal(rec.v.shape))
+    lr = close_loop(rec, nominal, program=PROGRAM, machine=M, step=STEP, train=TRAIN, outputs=["vX"],
+                    do_prune=False, workdir=tmp_path, compiler="cc")
+    assert lr.diagnosis.names == ["friction"] and not lr.export.unmapped
+    got = {p.name: p for p in lr.export.params}
+    _within_3sigma(got["velfriction.coulomb.X"].value, got["velfriction.coulomb.X"].sigma, c)
+    _within_3sigma(got["velfriction.viscous.X"].value, got["velfriction.viscous.X"].sigma, b)
+    assert got["velfriction.vs.X"].value == pytest.approx(vs, rel=1e-9)
+    res = lr.result
+    assert res.heldout_rms["before"]["vX"] > 50 * nv
+    assert res.heldout_rms["after"]["vX"] <= 1.5 * nv, res.summary()
+    assert res.heldout_rms["after"]["x"] < 1e-3 * res.heldout_rms["before"]["x"]
+    # the files: dynamics.toml and the .ssv carry the three parameters with units and sigmas
+    from mtcomp.model.export import write_export
+    write_export(lr.export, tmp_path / "model")
+    dyn = load_dynamics(tmp_path / "model" / "dynamics.toml")
+    assert dyn["velfriction.coulomb.X"] == pytest.approx(got["velfriction.coulomb.X"].value)
+    ssv = read_ssv(tmp_path / "model" / "machine.ssv")
+    assert ssv["velfriction.vs.X"] == pytest.approx(vs)
+    text = (tmp_path / "model" / "machine.ssv").read_text()
+    assert 'unit="mm/s"' in text and "org.mtcomp.uncertainty" in text
+    # without SIM's peak speed the smoothing speed is unknown: no home, said so
+    e = {"name": "friction", "output": "vX", "params": {"coulomb_mm_per_s": c, "viscous": b}}
+    with pytest.raises(NoHome, match="v_s"):
+        map_effect(e, load_machine(M))
