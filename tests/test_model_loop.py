@@ -409,3 +409,38 @@ def test_velocity_friction_loop(tmp_path, nominal):
     e = {"name": "friction", "output": "vX", "params": {"coulomb_mm_per_s": c, "viscous": b}}
     with pytest.raises(NoHome, match="v_s"):
         map_effect(e, load_machine(M))
+
+
+def test_cli_velocity_friction_loop(tmp_path, nominal):
+    """The velocity-friction loop as a user runs it: SIM with `model simulate --velocity X`, a
+    recording with the velocity column vX (friction injected, 2 µm/s noise), `diagnose --output
+    vX`, `model export --sim` (v_s from SIM's velocity column), `model resimulate` comparing vX."""
+    import dataclasses
+    import json
+    import subprocess
+    import sys
+
+    from mtcomp.model.simulate import signals_csv
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    mt = [sys.executable, "-m", "mtcomp"]
+
+    def run(*a):
+        r = subprocess.run(mt + [str(x) for x in a], capture_output=True, text=True, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+    run("model", "simulate", prog, "--machine", M, "--step", STEP, "--velocity", "X", "-o", "sim.csv")
+    assert "vX [mm/s]" in (tmp_path / "sim.csv").read_text().splitlines()[0]
+    vs = 0.02 * float(np.max(np.abs(nominal.v[:, 0])))
+    rec = simulate(PROGRAM, M, None, MachineDynamics(velfriction_coulomb=(0.05, 0, 0), velfriction_viscous=(0.01, 0, 0),
+                                                    velfriction_vs=(vs, 0, 0)), step=STEP, compiler="cc")
+    rec = dataclasses.replace(rec, v=rec.v + 0.002 * np.random.default_rng(4).standard_normal(rec.v.shape))
+    (tmp_path / "rec.csv").write_text(signals_csv(rec, M, ("X",)))
+    run("diagnose", "--sim", "sim.csv", "--rec", "rec.csv", "--output", "vX", "--json", "d.json", "--quiet")
+    out = run("model", "export", "d.json", "--sim", "sim.csv", "-o", "model")
+    assert "velfriction.coulomb.X" in out and "velfriction.vs.X" in out
+    run("model", "resimulate", "model", "--rec", "rec.csv", "--sim", "sim.csv", "--diagnosis", "d.json",
+        "--json", "rs.json")
+    res = json.loads((tmp_path / "rs.json").read_text())
+    assert res["rms"]["before"]["vX"] > 0.1
+    assert res["rms"]["after"]["vX"] <= 1.5 * 0.002

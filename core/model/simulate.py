@@ -129,14 +129,14 @@ def _rel(path, base: Path) -> str:
 
 
 def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None, dynamics=None,
-                  step: float, spindle_speed=0.0) -> Path:
+                  step: float, spindle_speed=0.0, velocities=()) -> Path:
     """Write the signals CSV and its provenance sidecar `<path>.provenance.toml` (paths in it
     relative to its folder; the dynamics inline).  machine: preset name, machine TOML path (kept
     as a path) or Machine (kept by name: give the path to keep a machine file)."""
     path = Path(path)
     spec = machine
     machine = load_machine(machine)
-    atomic_write(path, signals_csv(sig, machine))
+    atomic_write(path, signals_csv(sig, machine, velocities))
     is_file = isinstance(spec, (str, Path)) and Path(spec).is_file()
     prov: dict = {"machine": _rel(spec, path.parent) if is_file else machine.name, "step_s": float(step)}
     if np.ndim(spindle_speed) == 0 and not callable(spindle_speed):
