@@ -222,3 +222,35 @@ def test_thermal_drift_over_time_and_driver_checks(machine, tmp_path):
     with pytest.raises(CosimFailed, match="delay"):
         run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=MachineDynamics(delay=0.5)), machine,
                     _ramp(machine, 600, 1.0), step)
+
+
+def test_velocity_friction_out_of_range_is_refused_by_name(machine, tmp_path):
+    """The FMU refuses (fmi2Error) a viscous loss beyond +-1 (the axis would run backwards) and a
+    negative smoothing speed set through fmpy; the build refuses such start values naming the
+    parameter, and so does the dynamics file."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from mtcomp._io import MtcompError
+    from mtcomp.model.dynamics import load_dynamics
+    with pytest.raises(MtcompError, match=r"velfriction\.viscous\.X"):
+        build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(velfriction_viscous=(1.5, 0, 0)))
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu")
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="m")
+    slave.instantiate(loggingOn=True, callbacks=None)
+    try:
+        for name, value in (("velfriction.viscous.X", 1.5), ("velfriction.vs.Y", -1.0)):
+            with pytest.raises(Exception):
+                slave.setReal([vr[name]], [value])
+        slave.setReal([vr["velfriction.coulomb.Z"]], [0.5])      # in range: accepted
+    finally:
+        slave.freeInstance()
+    (tmp_path / "d.toml").write_text('[parameters]\n"velfriction.viscous.X" = 1.5\n')
+    with pytest.raises(InputError, match="velfriction.viscous.X"):
+        load_dynamics(tmp_path / "d.toml", machine)
+    (tmp_path / "d.toml").write_text('[parameters]\n"velfriction.vs.X" = -1.0\n')
+    with pytest.raises(InputError, match="velfriction.vs.X"):
+        load_dynamics(tmp_path / "d.toml", machine)
