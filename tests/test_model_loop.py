@@ -439,6 +439,10 @@ def test_cli_velocity_friction_loop(tmp_path, nominal):
     run("diagnose", "--sim", "sim.csv", "--rec", "rec.csv", "--output", "vX", "--json", "d.json", "--quiet")
     out = run("model", "export", "d.json", "--sim", "sim.csv", "-o", "model")
     assert "velfriction.coulomb.X" in out and "velfriction.vs.X" in out
+    # diagnose --model: v_s from the diagnosis' own aligned SIM, the same peak here
+    out = run("diagnose", "--sim", "sim.csv", "--rec", "rec.csv", "--output", "vX", "--model", "model2")
+    assert "velfriction.vs.X" in out
+    assert (tmp_path / "model2" / "dynamics.toml").read_text() == (tmp_path / "model" / "dynamics.toml").read_text()
     run("model", "resimulate", "model", "--rec", "rec.csv", "--sim", "sim.csv", "--diagnosis", "d.json",
         "--json", "rs.json")
     res = json.loads((tmp_path / "rs.json").read_text())

@@ -217,13 +217,18 @@ def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict |
     """(mapped, unmapped) for every effect of the diagnosis.  drivers: {driver column: its value
     at the start} (the thermal mapping needs the spindle speed at the start; 0 when not given).
     velocity_peaks: {velocity output v<AXIS>: SIM's peak |v| over the diagnosed span} (friction
-    on a velocity output needs it: mapping.map_friction).
+    on a velocity output needs it: mapping.map_friction); default: from a DiagnosisResult's
+    aligned SIM (`mtcomp diagnose --model`, close_loop), none from a JSON.
 
     The machine FMU has one thermal state: a second thermal drift on another output with the
     same driver adds its drift gain only (its own time constant, initial state and reference
     are the first one's: noted); with another driver it has no home."""
     data = read_diagnosis(diagnosis)
     machine = load_machine(machine)
+    if velocity_peaks is None and getattr(diagnosis, "sim", None):
+        # a DiagnosisResult carries SIM on its own grid: the peak the diagnosis took v_s from
+        velocity_peaks = {o: float(np.max(np.abs(v))) for o, v in diagnosis.sim.items()
+                          if len(o) > 1 and o[0] == "v" and o[1:] in machine.axis_names and len(v)}
     mapped, unmapped = [], []
     thermal = None
     for e in data["effects"]:

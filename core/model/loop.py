@@ -8,8 +8,6 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from ..machine import load_machine
 from .simulate import OUTPUTS, Signals, compare, prune, signals_csv, simulate, velocity_axis  # noqa: F401
 
@@ -51,11 +49,10 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
         angles += [k for k in rec.inputs]
         diag = diagnose(str(wd / "sim.csv"), str(wd / "rec.csv"), outputs=outputs, inputs=angles or None)
         t_split = float(rec.t[n_train])
-        # v_s of friction on a velocity output: 2 % of SIM's peak speed over the span diagnosed
-        seen = nominal.t <= rec.t[n_train - 1]
-        peaks = {f"v{a}": float(np.max(np.abs(nominal.output(f"v{a}")[seen]))) for a in vaxes}
+        # v_s of friction on a velocity output (2 % of SIM's peak speed) from the diagnosis' own
+        # aligned SIM (export_model's default for a DiagnosisResult)
         ex = export_model(diag, machine, None, step=step, drivers={k: float(v[0]) for k, v in rec.inputs.items()},
-                          servo_interpolation=bool(getattr(dynamics, "interpolation", 0)), velocity_peaks=peaks)
+                          servo_interpolation=bool(getattr(dynamics, "interpolation", 0)))
         rec_out = {o: rec.p[:, k] for k, o in enumerate(OUTPUTS)}
         rec_out.update({f"v{a}": rec.output(f"v{a}") for a in vaxes})
         log: list = []
