@@ -402,8 +402,10 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     from ..fmu.build import MachineDynamics
     machine = load_machine(machine)
     # thermal.driver is a choice, not a number; thermal.gain is the scale the drift is written in
-    # (only gain * drift enters a spindle-driven drift)
-    params = [p for p in ex.params if p.type == "Real" and p.name != "thermal.gain"]
+    # (only gain * drift enters a spindle-driven drift);
+    # velfriction.vs is the diagnosis' convention (2 % of SIM's peak speed), not a fitted value
+    params = [p for p in ex.params if p.type == "Real" and p.name != "thermal.gain"
+              and not p.name.startswith("velfriction.vs.")]
     if not params:
         return ex
     base_err = errors or ErrorSet()
