@@ -42,6 +42,7 @@ VR_SPINDLE, VR_KV, VR_BACKLASH, VR_TAU, VR_GAIN, VR_AMBIENT, VR_DRIFT, VR_NOISE 
 VR_P, VR_V, VR_TEMP, VR_ACT = 130, 133, 136, 140
 VR_TIN, VR_EXCESS, VR_TREF, VR_DELAY, VR_BREAK, VR_COULOMB, VR_FTAU = 127, 128, 129, 150, 160, 170, 180
 VR_GH, VR_GT = 190, 200
+VR_VFC, VR_VFB, VR_VFS, VR_VEL = 210, 220, 230, 240
 IVR_SEED, IVR_DRIVER, IVR_INTERP = 0, 1, 2
 THERMAL_DRIVERS = {"spindle": 0, "temperature": 1, "time": 2}
 # Parameter ranges enforced by the C code (common.h, machine.c); declared as min/max too.
@@ -116,6 +117,8 @@ UNITS = {
     "rad": ({"rad": 1}, 1.0, 0.0, {"urad": (1e6, 0.0)}),
     "s": ({"s": 1}, 1.0, 0.0, {}),
     "1/s": ({"s": -1}, 1.0, 0.0, {}),
+    "mm/s": ({"m": 1, "s": -1}, 1e-3, 0.0, {}),
+    "deg/s": ({"rad": 1, "s": -1}, math.pi / 180.0, 0.0, {}),
     "1/min": ({"s": -1}, 1.0 / 60.0, 0.0, {}),
     "degC": ({"K": 1}, 1.0, 273.15, {}),
     "mm/K": ({"m": 1, "K": -1}, 1e-3, 0.0, {"um/K": (1e3, 0.0)}),
@@ -354,7 +357,10 @@ class MachineDynamics:
     lag of the Coulomb distance; glitch_height per axis (mm or deg) and glitch_time (s): the
     quadrant glitch in the diagnosis' spike form, a lag of height s exp(1 - s), s = (t -
     t_reversal)/glitch_time, against the new direction after each reversal of the drive's
-    motion (glitch_time 0: none).  Thermal: thermal_driver "spindle" (T -> ambient + gain *
+    motion (glitch_time 0: none); velfriction_coulomb per axis (mm/s or deg/s, c),
+    velfriction_viscous (1, b) and velfriction_vs (mm/s or deg/s, v_s; 0: sign): velocity
+    friction of a velocity-mode axis, its actual velocity v - c tanh(v/v_s) - b v for the
+    drive's velocity v, its position the integral of that (0: off).  Thermal: thermal_driver "spindle" (T -> ambient + gain *
     spindle speed), "temperature" (T -> ambient + the change of the temperature input since the
     start) or "time" (T -> ambient: the initial excess relaxes) (or 0, 1, 2), time constant (s),
     gain (K per 1/min of spindle speed), ambient (degC), initial_excess (K: T at the start =
@@ -380,6 +386,9 @@ class MachineDynamics:
     interpolation: int = 0
     glitch_height: tuple[float, ...] | float = 0.0
     glitch_time: tuple[float, ...] | float = 0.0
+    velfriction_coulomb: tuple[float, ...] | float = 0.0
+    velfriction_viscous: tuple[float, ...] | float = 0.0
+    velfriction_vs: tuple[float, ...] | float = 0.0
 
     def per_axis(self, value, n: int, name: str) -> tuple[float, ...]:
         if np.ndim(value) == 0:
@@ -765,6 +774,9 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     ftau = dyn.per_axis(dyn.friction_tau, n, "friction_tau")
     gh = dyn.per_axis(dyn.glitch_height, n, "glitch_height")
     gt = dyn.per_axis(dyn.glitch_time, n, "glitch_time")
+    vfc = dyn.per_axis(dyn.velfriction_coulomb, n, "velfriction_coulomb")
+    vfb = dyn.per_axis(dyn.velfriction_viscous, n, "velfriction_viscous")
+    vfs = dyn.per_axis(dyn.velfriction_vs, n, "velfriction_vs")
     extra = [Var("spindle_speed", VR_SPINDLE, "input", "Spindle speed driving the thermal drift (thermal.driver = 0), "
                  "1/min", start=0.0, unit="1/min", min=0.0, max=1e6),
              Var("temperature_input", VR_TIN, "input", "Logged temperature driving the thermal drift (thermal.driver "
@@ -786,6 +798,11 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
                          f"Actual position of axis {a.name} after servo lag and backlash, {unit}", unit=unit,
                          depends_on=()))
     for i, a in enumerate(machine.axes):
+        unit, _ = _axis_unit(machine, i)
+        extra.append(Var(f"v.{a.name}", VR_VEL + i, "output",
+                         f"Actual velocity of axis {a.name} over the last step: the drive's mean velocity less the "
+                         f"velocity friction (velfriction.*), {unit}/s", unit=f"{unit}/s", depends_on=()))
+    for i, a in enumerate(machine.axes):
         extra.append(Var(f"servo.kv.{a.name}", VR_KV + i, "parameter",
                          f"Position loop gain of axis {a.name} (first-order servo); 0 = ideal servo "
                          "(at the command by the end of each step)",
@@ -800,7 +817,7 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
                      "step's command (ramp invariant: no half-step shift of the response)", type="Integer",
                      start=int(dyn.interpolation), min=0, max=1))
     extra.append(Var("delay", VR_DELAY, "parameter", "Transport delay: every axis acts on the command given this "
-                     "long before (linear between steps; at most the FMU's command history of 193 steps)",
+                     "long before (linear between steps; at most the FMU's command history of 191 steps)",
                      start=float(dyn.delay), unit="s", min=0.0, max=1.0))
     for i, a in enumerate(machine.axes):
         unit, disp = _axis_unit(machine, i)
@@ -828,6 +845,22 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
         extra.append(Var(f"glitch.time.{a.name}", VR_GT + i, "parameter",
                          f"Time from a reversal of axis {a.name} to the peak of its quadrant glitch (0: no glitch)",
                          start=gt[i], unit="s", min=0.0, max=100.0))
+    for i, a in enumerate(machine.axes):
+        unit, _ = _axis_unit(machine, i)
+        extra.append(Var(f"velfriction.coulomb.{a.name}", VR_VFC + i, "parameter",
+                         f"Velocity friction of axis {a.name} (a velocity-mode axis, proportional velocity loop): "
+                         f"Coulomb velocity loss c, v_act = v - c tanh(v/vs) - viscous v (0: off), {unit}/s",
+                         start=vfc[i], unit=f"{unit}/s", min=-1e4, max=1e4))
+    for i, a in enumerate(machine.axes):
+        extra.append(Var(f"velfriction.viscous.{a.name}", VR_VFB + i, "parameter",
+                         f"Velocity friction of axis {a.name}: viscous velocity loss per unit velocity (0: off)",
+                         start=vfb[i], unit="1", min=-1.0, max=1.0))
+    for i, a in enumerate(machine.axes):
+        unit, _ = _axis_unit(machine, i)
+        extra.append(Var(f"velfriction.vs.{a.name}", VR_VFS + i, "parameter",
+                         f"Velocity friction of axis {a.name}: speed over which the Coulomb loss turns with the "
+                         f"direction, tanh(v/vs) (0: sign(v)), {unit}/s", start=vfs[i], unit=f"{unit}/s",
+                         min=0.0, max=1e6))
     extra += [
         Var("thermal.driver", IVR_DRIVER, "parameter", "Driver of the machine temperature: 0 spindle speed "
             "(ambient + gain * spindle_speed), 1 temperature_input (ambient + its change since the start), 2 none "

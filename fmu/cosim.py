@@ -397,11 +397,13 @@ class MachineRun:
     """What the machine FMU did in one run (K steps): p (K, 3) mm the tool edge in the real
     workpiece frame and actual (K, n) mm/deg the axis positions, both read at the end of step k
     (t_k + step); temperature (K,) degC the machine temperature then; q (K, n) the commands it
-    was given."""
+    was given; velocity (K, n) mm/s, deg/s the actual axis velocities over each step (the
+    FMU's v.<AXIS>: the drive's less its velocity friction)."""
     q: np.ndarray
     p: np.ndarray
     actual: np.ndarray
     temperature: np.ndarray
+    velocity: np.ndarray | None = None
 
 
 def run_machine(machine_fmu, machine, q, step: float, *, spindle_speed=0.0, temperature=None,
@@ -431,12 +433,13 @@ def run_machine(machine_fmu, machine, q, step: float, *, spindle_speed=0.0, temp
             raise InputError(f"{name}: expected a finite number or {len(q)} values, got shape {a.shape}",
                              field=name)
         inputs[name] = a
-    _, p, act, temp = _run(machine, q, step, machine_fmu, None, inputs, progress, with_temperature=True)
-    return MachineRun(q, p, act, temp)
+    _, p, act, temp, vel = _run(machine, q, step, machine_fmu, None, inputs, progress, with_temperature=True,
+                                with_velocity=True)
+    return MachineRun(q, p, act, temp, vel)
 
 
 def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spindle_speed,
-         progress=None, with_temperature: bool = False):
+         progress=None, with_temperature: bool = False, with_velocity: bool = False):
     """One run; comp_path None: the machine gets the programmed commands.
 
     spindle_speed: a number (1/min, held), or a dict {machine input name: (K,) array} of
@@ -448,7 +451,8 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
     one ctypes call per progress report) when the machine has no inputs given row by row;
     otherwise, and without the library, the same loop runs in Python with six ctypes calls
     per step (seven with row inputs).
-    Returns (commands given to the machine, tool edge, actual positions[, temperature])."""
+    Returns (commands given to the machine, tool edge, actual positions[, temperature, velocities]);
+    with_velocity needs with_temperature."""
     import ctypes
     names = machine.axis_names
     logs: list = []
@@ -474,7 +478,8 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
         comp = FmuRunner(comp_path, "compensator", logs) if comp_path else None
         m_in = refs(mach, [f"command.{a}" for a in names])
         m_out = refs(mach, ["tool.x", "tool.y", "tool.z"] + [f"actual.{a}" for a in names]
-                     + (["temperature"] if with_temperature else []))
+                     + (["temperature"] if with_temperature else [])
+                     + ([f"v.{a}" for a in names] if with_velocity else []))
         c_in = refs(comp, [f"command.{a}" for a in names]) if comp else None
         c_out = refs(comp, [f"compensated.{a}" for a in names]) if comp else None
         for f in (mach, comp):
@@ -497,7 +502,7 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
         qin = np.ascontiguousarray(q, dtype=np.float64)
         if comp is None:
             qc[:] = qin
-        nout = 3 + n + int(with_temperature)
+        nout = 3 + n + int(with_temperature) + (n if with_velocity else 0)
         out = np.empty((K, nout))
         row, orow = n * 8, nout * 8
         a_q, a_qc, a_out = qin.ctypes.data, qc.ctypes.data, out.ctypes.data
@@ -538,6 +543,8 @@ def _run(machine: Machine, q: np.ndarray, step: float, mach_path, comp_path, spi
                     progress(k + 1, K)
         p[:] = out[:, :3]
         act[:] = out[:, 3:3 + n]
+        if with_velocity:
+            return qc, p, act, out[:, 3 + n].copy(), out[:, 4 + n:4 + 2 * n].copy()
         return (qc, p, act, out[:, 3 + n].copy()) if with_temperature else (qc, p, act)
     except CosimFailed:
         raise

@@ -104,7 +104,7 @@ def test_every_fmu_validates_and_is_complete(built):
         for v in md.modelVariables:
             assert v.description, v.name
             if v.type == "Real":
-                assert v.unit in {"mm", "deg", "rad", "s", "1/s", "1/min", "degC", "mm/K", "K.min", "K", "1"}, v.name
+                assert v.unit in {"mm", "deg", "rad", "s", "1/s", "mm/s", "deg/s", "1/min", "degC", "mm/K", "K.min", "K", "1"}, v.name
         # translational errors display in um
         units = {v.name: (v.unit, v.displayUnit) for v in md.modelVariables}
         assert units["tool_setting.offset.x"] == ("mm", "um")

@@ -364,3 +364,87 @@ def test_cli_thermal_loop_with_logged_driver(tmp_path):
     res = json.loads((tmp_path / "rs.json").read_text())
     assert res["heldout_rms"]["before"]["z"] > 20 * NOISE
     assert res["heldout_rms"]["after"]["z"] <= 1.5 * NOISE
+
+
+def test_velocity_friction_loop(tmp_path, nominal):
+    """Friction of a velocity-mode X axis (c = 0.05 mm/s, b = 1 %, smoothing speed 2 % of the peak
+    speed) seen on the actual-velocity output vX (REC with 2 µm/s of sensor noise): diagnosed as
+    `friction` on vX, exported as velfriction.{coulomb,viscous,vs}.X (v_s from SIM's peak speed on
+    the diagnosed span), written to dynamics.toml and the .ssv with sigmas, and re-simulated:
+    the held-out velocity residual is the noise; the position, the integral of the velocity, is
+    re-simulated too (the velocity-mode axis falls behind by the integrated loss)."""
+    import dataclasses
+
+    from mtcomp.machine import load_machine
+    from mtcomp.model.dynamics import load_dynamics
+    from mtcomp.model.export import read_ssv
+    from mtcomp.model.mapping import NoHome, map_effect
+    c, b, nv = 0.05, 0.01, 0.002
+    n_train = int(TRAIN * len(nominal.t))
+    vs = 0.02 * float(np.max(np.abs(nominal.v[:n_train, 0])))
+    rec = simulate(PROGRAM, M, None, MachineDynamics(velfriction_coulomb=(c, 0, 0), velfriction_viscous=(b, 0, 0),
+                                                    velfriction_vs=(vs, 0, 0)), step=STEP, compiler="cc")
+    rec = dataclasses.replace(rec, v=rec.v + nv * np.random.default_rng(3).standard_normal(rec.v.shape))
+    lr = close_loop(rec, nominal, program=PROGRAM, machine=M, step=STEP, train=TRAIN, outputs=["vX"],
+                    do_prune=False, workdir=tmp_path, compiler="cc")
+    assert lr.diagnosis.names == ["friction"] and not lr.export.unmapped
+    got = {p.name: p for p in lr.export.params}
+    _within_3sigma(got["velfriction.coulomb.X"].value, got["velfriction.coulomb.X"].sigma, c)
+    _within_3sigma(got["velfriction.viscous.X"].value, got["velfriction.viscous.X"].sigma, b)
+    assert got["velfriction.vs.X"].value == pytest.approx(vs, rel=1e-9)
+    res = lr.result
+    assert res.heldout_rms["before"]["vX"] > 50 * nv
+    assert res.heldout_rms["after"]["vX"] <= 1.5 * nv, res.summary()
+    assert res.heldout_rms["after"]["x"] < 1e-3 * res.heldout_rms["before"]["x"]
+    # the files: dynamics.toml and the .ssv carry the three parameters with units and sigmas
+    from mtcomp.model.export import write_export
+    write_export(lr.export, tmp_path / "model")
+    dyn = load_dynamics(tmp_path / "model" / "dynamics.toml")
+    assert dyn["velfriction.coulomb.X"] == pytest.approx(got["velfriction.coulomb.X"].value)
+    ssv = read_ssv(tmp_path / "model" / "machine.ssv")
+    assert ssv["velfriction.vs.X"] == pytest.approx(vs)
+    text = (tmp_path / "model" / "machine.ssv").read_text()
+    assert 'unit="mm/s"' in text and "org.mtcomp.uncertainty" in text
+    # without SIM's peak speed the smoothing speed is unknown: no home, said so
+    e = {"name": "friction", "output": "vX", "params": {"coulomb_mm_per_s": c, "viscous": b}}
+    with pytest.raises(NoHome, match="v_s"):
+        map_effect(e, load_machine(M))
+
+
+def test_cli_velocity_friction_loop(tmp_path, nominal):
+    """The velocity-friction loop as a user runs it: SIM with `model simulate --velocity X`, a
+    recording with the velocity column vX (friction injected, 2 µm/s noise), `diagnose --output
+    vX`, `model export --sim` (v_s from SIM's velocity column), `model resimulate` comparing vX."""
+    import dataclasses
+    import json
+    import subprocess
+    import sys
+
+    from mtcomp.model.simulate import signals_csv
+    prog = tmp_path / "p.nc"
+    prog.write_text(PROGRAM)
+    mt = [sys.executable, "-m", "mtcomp"]
+
+    def run(*a):
+        r = subprocess.run(mt + [str(x) for x in a], capture_output=True, text=True, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+    run("model", "simulate", prog, "--machine", M, "--step", STEP, "--velocity", "X", "-o", "sim.csv")
+    assert "vX [mm/s]" in (tmp_path / "sim.csv").read_text().splitlines()[0]
+    vs = 0.02 * float(np.max(np.abs(nominal.v[:, 0])))
+    rec = simulate(PROGRAM, M, None, MachineDynamics(velfriction_coulomb=(0.05, 0, 0), velfriction_viscous=(0.01, 0, 0),
+                                                    velfriction_vs=(vs, 0, 0)), step=STEP, compiler="cc")
+    rec = dataclasses.replace(rec, v=rec.v + 0.002 * np.random.default_rng(4).standard_normal(rec.v.shape))
+    (tmp_path / "rec.csv").write_text(signals_csv(rec, M, ("X",)))
+    run("diagnose", "--sim", "sim.csv", "--rec", "rec.csv", "--output", "vX", "--json", "d.json", "--quiet")
+    out = run("model", "export", "d.json", "--sim", "sim.csv", "-o", "model")
+    assert "velfriction.coulomb.X" in out and "velfriction.vs.X" in out
+    # diagnose --model: v_s from the diagnosis' own aligned SIM, the same peak here
+    out = run("diagnose", "--sim", "sim.csv", "--rec", "rec.csv", "--output", "vX", "--model", "model2")
+    assert "velfriction.vs.X" in out
+    assert (tmp_path / "model2" / "dynamics.toml").read_text() == (tmp_path / "model" / "dynamics.toml").read_text()
+    run("model", "resimulate", "model", "--rec", "rec.csv", "--sim", "sim.csv", "--diagnosis", "d.json",
+        "--json", "rs.json")
+    res = json.loads((tmp_path / "rs.json").read_text())
+    assert res["rms"]["before"]["vX"] > 0.1
+    assert res["rms"]["after"]["vX"] <= 1.5 * 0.002

@@ -60,6 +60,11 @@ CASES = {
                  friction_breakaway=(0.002, 0.0, 0.001), friction_tau=(0.01, 0.0, 0.0),
                  thermal_driver="temperature", thermal_time_constant=0.4, drift=(0.0, 0.0, 0.004)),
         temperature=lambda t: 21.0 + 0.5 * np.sin(t)),
+    "velocity friction on a held servo with backlash, friction and glitch": dict(
+        dyn=dict(kv=(50.0, 0.0, 80.0), backlash=(0.002, 0.0, 0.0), friction_breakaway=(0.0, 0.002, 0.0),
+                 friction_tau=(0.0, 0.01, 0.0), glitch_height=(0.0, 0.0, 0.001), glitch_time=(0.0, 0.0, 0.01),
+                 velfriction_coulomb=(0.2, 0.1, 0.05), velfriction_viscous=(0.02, 0.0, -0.01),
+                 velfriction_vs=(0.5, 0.0, 1.0))),
     "ideal servo, warm-up over time": dict(
         dyn=dict(thermal_driver="time", thermal_time_constant=1.2, initial_excess=2.0, drift=(0.001, 0.0, -0.002))),
 }
@@ -85,6 +90,7 @@ def test_machine_fmu_matches_the_python_reference(machine, tmp_path, case):
     ref = simulate_reference(machine, q, step, None, dyn, spindle_speed=kw.get("spindle_speed", 0.0),
                              temperature_input=kw.get("temperature", 20.0))
     assert np.max(np.abs(run.actual - ref.actual)) < 1e-12
+    assert np.max(np.abs(run.velocity - ref.velocity)) < 1e-9
     assert np.max(np.abs(run.temperature - ref.temperature)) < 1e-9
     assert np.max(np.abs(run.p - ref.p)) < 1e-9
     # the case is not trivial: the effects moved the tool edge off the ideal machine's by > 1 µm
@@ -111,6 +117,30 @@ def test_delay_and_ramp_servo_are_exact_on_a_ramp(machine, tmp_path):
         run = run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=dyn), machine, q, step)
         err = q[:, ix] - run.actual[:, ix]
         assert err[-1] == pytest.approx(lag, rel=1e-9, abs=1e-12)
+
+
+def test_velocity_friction_is_the_diagnosis_friction_on_the_velocity_output(machine, tmp_path):
+    """A velocity-mode axis: on a ramp out at 10 mm/s and back (ideal servo), v.X is the drive's
+    velocity less c tanh(v/vs) + b v, exactly; the position integrates the deficit (it falls
+    behind by (c tanh(v/vs) + b v) t); the FMU without velocity friction gives v.X = the
+    command's backward difference, at rest 0."""
+    step, v, c, b, vs = 1e-3, 10.0, 0.3, 0.02, 0.2
+    K = 400
+    ix = machine.axis_names.index("X")
+    t = np.arange(K) * step
+    q = np.zeros((K, machine.n_axes))
+    q[:, ix] = v * np.minimum(t, 0.2) - v * np.maximum(t - 0.2, 0.0)
+    base = run_machine(build_machine_fmu(machine, tmp_path / "m0.fmu"), machine, q, step)
+    vd = np.diff(np.r_[q[0, ix], q[:, ix]]) / step
+    assert np.max(np.abs(base.velocity[:, ix] - vd)) < 1e-9 and base.velocity[0, ix] == 0.0
+    dyn = MachineDynamics(velfriction_coulomb=c, velfriction_viscous=b, velfriction_vs=vs)
+    run = run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=dyn), machine, q, step)
+    loss = c * np.tanh(vd / vs) + b * vd
+    assert np.max(np.abs(run.velocity[:, ix] - (vd - loss))) < 1e-9
+    assert np.max(np.abs(run.actual[:, ix] - (q[:, ix] - np.cumsum(loss) * step))) < 1e-9
+    # the other axes are untouched
+    others = [i for i in range(machine.n_axes) if i != ix]
+    assert np.max(np.abs(run.actual[:, others] - q[:, others])) == 0.0
 
 
 def test_friction_sticks_for_the_breakaway_then_catches_up_exponentially(machine, tmp_path):
@@ -192,3 +222,35 @@ def test_thermal_drift_over_time_and_driver_checks(machine, tmp_path):
     with pytest.raises(CosimFailed, match="delay"):
         run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=MachineDynamics(delay=0.5)), machine,
                     _ramp(machine, 600, 1.0), step)
+
+
+def test_velocity_friction_out_of_range_is_refused_by_name(machine, tmp_path):
+    """The FMU refuses (fmi2Error) a viscous loss beyond +-1 (the axis would run backwards) and a
+    negative smoothing speed set through fmpy; the build refuses such start values naming the
+    parameter, and so does the dynamics file."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from mtcomp._io import MtcompError
+    from mtcomp.model.dynamics import load_dynamics
+    with pytest.raises(MtcompError, match=r"velfriction\.viscous\.X"):
+        build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(velfriction_viscous=(1.5, 0, 0)))
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu")
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="m")
+    slave.instantiate(loggingOn=True, callbacks=None)
+    try:
+        for name, value in (("velfriction.viscous.X", 1.5), ("velfriction.vs.Y", -1.0)):
+            with pytest.raises(Exception):
+                slave.setReal([vr[name]], [value])
+        slave.setReal([vr["velfriction.coulomb.Z"]], [0.5])      # in range: accepted
+    finally:
+        slave.freeInstance()
+    (tmp_path / "d.toml").write_text('[parameters]\n"velfriction.viscous.X" = 1.5\n')
+    with pytest.raises(InputError, match="velfriction.viscous.X"):
+        load_dynamics(tmp_path / "d.toml", machine)
+    (tmp_path / "d.toml").write_text('[parameters]\n"velfriction.vs.X" = -1.0\n')
+    with pytest.raises(InputError, match="velfriction.vs.X"):
+        load_dynamics(tmp_path / "d.toml", machine)

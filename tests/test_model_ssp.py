@@ -116,12 +116,16 @@ DYNAMIC_EFFECTS = [
      "uncertainty": {"peak_mm": 2e-6, "tau_s": 3e-5}},        # the spike form (no reversal here: no glitch)
     {"name": "thermal_drift", "output": "z", "inputs": ["temperature"],
      "params": {"gain_mm_per_degC": 4e-3, "tau_s": 3.0, "initial_mm": 1e-3, "offset_mm": -2e-3},
-     "uncertainty": {"gain_mm_per_degC": 1e-5, "tau_s": 0.01, "initial_mm": 1e-5, "offset_mm": 1e-5}}]
+     "uncertainty": {"gain_mm_per_degC": 1e-5, "tau_s": 0.01, "initial_mm": 1e-5, "offset_mm": 1e-5}},
+    {"name": "friction", "output": "vZ", "inputs": ["vZ"], "params": {"coulomb_mm_per_s": 0.05, "viscous": 0.01},
+     "uncertainty": {"coulomb_mm_per_s": 1e-3, "viscous": 1e-4}}]     # velocity friction (Z at rest: no effect)
+VELOCITY_PEAKS = {"vZ": 10.0}    # SIM's peak speed on vZ, mm/s: v_s = 0.2 mm/s
 # what the machine FMU must hold: thermal driver 1 (logged temperature), excess = r0/k, reference = 20 - c/k
 DYNAMIC_PARAMS = {"backlash.X": 0.002, "location.EC0Y": -math.radians(2e-3), "delay": 0.002,
                   "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "glitch.height.X": 0.0025,
                   "glitch.time.X": 0.015, "thermal.time_constant": 3.0,
-                  "thermal.drift.z": 4e-3, "thermal.initial_excess": 0.25, "thermal.reference": 20.5}
+                  "thermal.drift.z": 4e-3, "thermal.initial_excess": 0.25, "thermal.reference": 20.5,
+                  "velfriction.coulomb.Z": 0.05, "velfriction.viscous.Z": 0.01, "velfriction.vs.Z": 0.2}
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +138,7 @@ def dynamic_ssp(tmp_path_factory):
     from mtcomp.model.ssp import bind_parameter_set
     d = tmp_path_factory.mktemp("dynssp")
     M = "vmc-moving-column"
-    export_model({"effects": DYNAMIC_EFFECTS}, M, d / "model", step=1e-3)
+    export_model({"effects": DYNAMIC_EFFECTS}, M, d / "model", step=1e-3, velocity_peaks=VELOCITY_PEAKS)
     c = build_compensator_fmu(M, d / "c.fmu", compiler="cc")
     m = build_machine_fmu(M, d / "m.fmu", compiler="cc")
     write_ssp(d / "cell.ssp", c, m, commands={"X": 5.0, "Y": 10.0})

@@ -26,7 +26,8 @@ def register(subparsers) -> None:
     e.add_argument("--machine", metavar="PRESET|machine.toml",
                    help="machine (default: from the SIM file's provenance sidecar given with --sim)")
     e.add_argument("--sim", metavar="SIM.csv", help="the simulation the diagnosis compared with (reads its "
-                   "provenance sidecar for machine and step)")
+                   "provenance sidecar for machine and step, and the peak speed of its velocity columns v<AXIS>: "
+                   "friction on a velocity output needs it)")
     e.add_argument("--step", type=float, metavar="S", help="co-simulation communication step (s)")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=run_export)
@@ -56,6 +57,9 @@ def register(subparsers) -> None:
     s.add_argument("--drivers", metavar="DRIVERS.csv", help="logged drivers of the thermal drift over time: t and "
                    "spindle_speed [rpm] and/or temperature [degC] columns, linear between rows; written as "
                    "columns of the output")
+    s.add_argument("--velocity", action="append", default=[], metavar="AXIS",
+                   help="also write the actual velocity of this axis as column v<AXIS> [mm/s] or [deg/s] (the FMU's "
+                        "v.<AXIS>, noise-free; repeatable): a velocity output for the diagnosis")
     s.add_argument("-o", "--output", required=True, metavar="OUT.csv")
     s.set_defaults(func=run_simulate)
 
@@ -90,19 +94,32 @@ def run_export(args: argparse.Namespace) -> int:
     from .._io import InputError
     from .export import export_model
     from .simulate import read_provenance
-    machine, step, drivers, interp = args.machine, args.step, None, False
+    machine, step, drivers, interp, peaks = args.machine, args.step, None, False, None
     if args.sim:
         prov = read_provenance(args.sim)
         machine = machine or prov.machine
         step = step if step is not None else prov.step
         drivers = _driver_starts(prov.spindle_speed, prov.temperature)
         interp = bool(prov.dynamics.interpolation)
+        peaks = _velocity_peaks(args.sim)
     if machine is None:
         raise InputError("give --machine (or --sim with a provenance sidecar)", field="--machine")
-    ex = export_model(args.diagnosis, machine, args.outdir, step=step, drivers=drivers, servo_interpolation=interp)
+    ex = export_model(args.diagnosis, machine, args.outdir, step=step, drivers=drivers, servo_interpolation=interp,
+                      velocity_peaks=peaks)
     if not args.quiet:
         print(ex.summary())
     return 0
+
+
+def _velocity_peaks(sim_path) -> dict:
+    """{v<AXIS>: peak |v|} of SIM's velocity columns (mm/s, deg/s) over the whole file: the
+    smoothing speed of friction on a velocity output is 2 % of it (the diagnosis' choice; equal
+    when REC covers SIM's peak speed)."""
+    import numpy as np
+
+    from .simulate import OUTPUTS, read_recording
+    _, sig = read_recording(sim_path)
+    return {o: float(np.max(np.abs(v))) for o, v in sig.items() if o not in OUTPUTS}
 
 
 def _driver_starts(spindle, temperature) -> dict:
@@ -161,8 +178,12 @@ def run_simulate(args: argparse.Namespace) -> int:
     sig = simulate(args.program, m, errors, dyn, step=args.step,
                    spindle_speed=drivers.get("spindle_speed", args.spindle_speed),
                    temperature=drivers.get("temperature"))
+    for a in args.velocity:
+        if a not in m.axis_names:
+            from .._io import InputError
+            raise InputError(f"no axis {a!r} on {m.name} (axes {' '.join(m.axis_names)})", field="--velocity")
     write_signals(args.output, sig, args.machine, program=args.program, errors_path=args.errors, dynamics=dyn,
-                  step=args.step, spindle_speed=args.spindle_speed)
+                  step=args.step, spindle_speed=args.spindle_speed, velocities=tuple(args.velocity))
     print(f"wrote {args.output} ({len(sig.t)} samples) and its provenance sidecar")
     return 0
 
@@ -203,7 +224,8 @@ def run_resimulate(args: argparse.Namespace) -> int:
         kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
                   temperature=temp, train_until=args.heldout_from, noise_floor=noise, log=log)
         ex = export_model(args.diagnosis, machine, None, step=step, drivers=_driver_starts(spindle, temp),
-                          servo_interpolation=bool(getattr(dyn, "interpolation", 0)))
+                          servo_interpolation=bool(getattr(dyn, "interpolation", 0)),
+                          velocity_peaks=_velocity_peaks(args.sim) if args.sim else None)
         if args.prune:
             ex = prune(ex, t_rec, rec, **kw)
         if args.refine:

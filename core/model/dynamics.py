@@ -12,6 +12,9 @@ step_s = 0.001                      # communication step the kv values are for (
 "friction.tau.X" = 0.03             # s
 "glitch.height.Y" = 0.002           # mm, quadrant glitch (spike form) peak
 "glitch.time.Y" = 0.02              # s, reversal to peak
+"velfriction.coulomb.C" = 0.5       # deg/s (mm/s), velocity friction of a velocity-mode axis
+"velfriction.viscous.C" = 0.01      # 1
+"velfriction.vs.C" = 2.0            # deg/s (mm/s), tanh smoothing speed
 "thermal.driver" = 0                # 0 spindle speed, 1 temperature input, 2 none (time)
 "thermal.drift.z" = 0.004           # mm/K
 [uncertainty]                       # one standard deviation, same keys (informational)
@@ -31,9 +34,11 @@ from .._io import InputError, atomic_write, dump_toml, parse_toml, read_text
 # per-axis parameters: name prefix -> MachineDynamics field
 AXIS_PREFIXES = {"servo.kv.": "kv", "backlash.": "backlash", "friction.breakaway.": "friction_breakaway",
                  "friction.coulomb.": "friction_coulomb", "friction.tau.": "friction_tau",
-                 "glitch.height.": "glitch_height", "glitch.time.": "glitch_time"}
-# per-axis parameters that may be negative (within +-1 mm or deg)
-SIGNED = ("glitch.height.",)
+                 "glitch.height.": "glitch_height", "glitch.time.": "glitch_time",
+                 "velfriction.coulomb.": "velfriction_coulomb", "velfriction.viscous.": "velfriction_viscous",
+                 "velfriction.vs.": "velfriction_vs"}
+# per-axis parameters that may be negative: their range (the FMU's)
+SIGNED = {"glitch.height.": 1.0, "velfriction.coulomb.": 1e4, "velfriction.viscous.": 1.0}
 # scalar parameters: name -> (MachineDynamics field, lowest value, highest value)
 SCALARS = {"delay": ("delay", 0.0, 1.0), "servo.interpolation": ("interpolation", 0, 1),
            "thermal.driver": ("thermal_driver", 0, 2), "thermal.gain": ("thermal_gain", 0.0, 1.0),
@@ -83,13 +88,15 @@ def load_dynamics(path, machine=None) -> dict:
         pref = next((p for p in AXIS_PREFIXES if k.startswith(p)), None)
         if pref is None and k not in SCALARS and k not in DRIFT:
             raise InputError(f"unknown dynamics parameter {k!r}; expected servo.kv.<AXIS>, backlash.<AXIS>, "
-                             "friction.{breakaway,coulomb,tau}.<AXIS>, glitch.{height,time}.<AXIS>, delay, servo.interpolation or thermal.*",
+                             "friction.{breakaway,coulomb,tau}.<AXIS>, glitch.{height,time}.<AXIS>, "
+                             "velfriction.{coulomb,viscous,vs}.<AXIS>, delay, servo.interpolation or thermal.*",
                              path, field=f"parameters.{k}")
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise InputError(f"expected a finite number, got {v!r}", path, field=f"parameters.{k}")
         if pref is not None:
-            if pref in SIGNED and abs(v) > 1.0:
-                raise InputError(f"expected a number within +-1, got {v!r}", path, field=f"parameters.{k}")
+            if pref in SIGNED and abs(v) > SIGNED[pref]:
+                raise InputError(f"expected a number within +-{SIGNED[pref]:g}, got {v!r}", path,
+                                 field=f"parameters.{k}")
             if pref not in SIGNED and v < 0:
                 raise InputError(f"expected a number >= 0, got {v!r}", path, field=f"parameters.{k}")
             ax = k[len(pref):]
@@ -113,7 +120,7 @@ def apply_dynamics(base, params: dict, machine, *, combine: bool = True):
     combine: the fitted values describe what the base model lacked (the diagnosis fits
     REC - SIM): backlash widths and delays add; servo lags add as time constants in series
     (1/kv = 1/kv_base + 1/kv_fit, to first order), kv_base = 0 being the ideal servo; friction,
-    the quadrant glitch and the thermal model replace the base's (one thermal state: a fitted drift replaces the
+    the velocity friction, the quadrant glitch and the thermal model replace the base's (one thermal state: a fitted drift replaces the
     base's).  Without combine the fitted values replace the base ones."""
     names = machine.axis_names
     n = len(names)

@@ -29,7 +29,9 @@ MAX_TABLE_ROWS = 20001
 _UNITS = {"mm": {"m": "1", "factor": "0.001"}, "deg": {"rad": "1", "factor": str(math.pi / 180)},
           "rad": {"rad": "1"}, "1/s": {"s": "-1"}, "s": {"s": "1"}, "K": {"K": "1"},
           "degC": {"K": "1", "offset": "273.15"}, "mm/K": {"m": "1", "K": "-1", "factor": "0.001"},
-          "K.min": {"K": "1", "s": "1", "factor": "60"}}
+          "K.min": {"K": "1", "s": "1", "factor": "60"},
+          "mm/s": {"m": "1", "s": "-1", "factor": "0.001"},
+          "deg/s": {"rad": "1", "s": "-1", "factor": str(math.pi / 180)}}
 
 
 def read_diagnosis(src) -> dict:
@@ -211,20 +213,27 @@ def read_ssv(path) -> dict:
 
 
 def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict | None = None,
-                  servo_interpolation: bool = False):
+                  servo_interpolation: bool = False, velocity_peaks: dict | None = None):
     """(mapped, unmapped) for every effect of the diagnosis.  drivers: {driver column: its value
     at the start} (the thermal mapping needs the spindle speed at the start; 0 when not given).
+    velocity_peaks: {velocity output v<AXIS>: SIM's peak |v| over the diagnosed span} (friction
+    on a velocity output needs it: mapping.map_friction); default: from a DiagnosisResult's
+    aligned SIM (`mtcomp diagnose --model`, close_loop), none from a JSON.
 
     The machine FMU has one thermal state: a second thermal drift on another output with the
     same driver adds its drift gain only (its own time constant, initial state and reference
     are the first one's: noted); with another driver it has no home."""
     data = read_diagnosis(diagnosis)
     machine = load_machine(machine)
+    if velocity_peaks is None and getattr(diagnosis, "sim", None):
+        # a DiagnosisResult carries SIM on its own grid: the peak the diagnosis took v_s from
+        velocity_peaks = {o: float(np.max(np.abs(v))) for o, v in diagnosis.sim.items()
+                          if len(o) > 1 and o[0] == "v" and o[1:] in machine.axis_names and len(v)}
     mapped, unmapped = [], []
     thermal = None
     for e in data["effects"]:
         try:
-            m = map_effect(e, machine, step, drivers, servo_interpolation)
+            m = map_effect(e, machine, step, drivers, servo_interpolation, velocity_peaks)
             if m.effect == "thermal_drift":
                 if thermal is None:
                     thermal = m
@@ -238,7 +247,7 @@ def map_diagnosis(diagnosis, machine, step: float | None = None, drivers: dict |
 
 def export_model(diagnosis, machine, outdir=None, *, step: float | None = None,
                  check_names: bool = True, drivers: dict | None = None,
-                 servo_interpolation: bool = False) -> ModelExport:
+                 servo_interpolation: bool = False, velocity_peaks: dict | None = None) -> ModelExport:
     """Map the diagnosis' effects onto the machine model and (with `outdir`) write the files.
 
     diagnosis: path of `mtcomp diagnose --json` output, its dict, or a DiagnosisResult.
@@ -246,9 +255,10 @@ def export_model(diagnosis, machine, outdir=None, *, step: float | None = None,
     (s), which the FMU's discrete servo needs to reproduce the fitted kv.  drivers: {driver
     column: value at the start} of the recording's thermal drivers (map_diagnosis).
     servo_interpolation: the model's servos are ramp invariant (servo.interpolation = 1 in
-    SIM's dynamics): a diagnosed kv is written as it is, with servo.interpolation = 1."""
+    SIM's dynamics): a diagnosed kv is written as it is, with servo.interpolation = 1.
+    velocity_peaks: {velocity output v<AXIS>: SIM's peak |v| (mm/s, deg/s)} (map_diagnosis)."""
     machine = load_machine(machine)
-    mapped, unmapped = map_diagnosis(diagnosis, machine, step, drivers, servo_interpolation)
+    mapped, unmapped = map_diagnosis(diagnosis, machine, step, drivers, servo_interpolation, velocity_peaks)
     ex = _assemble(mapped, unmapped, machine, step)
     if outdir is not None:
         ex = write_export(ex, outdir, check_names=check_names)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..machine import load_machine
-from .simulate import OUTPUTS, Signals, compare, prune, signals_csv, simulate  # noqa: F401
+from .simulate import OUTPUTS, Signals, compare, prune, signals_csv, simulate, velocity_axis  # noqa: F401
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,9 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
     """Diagnose REC against the nominal SIM on the first `train` fraction of the samples, export
     the effects into the model, prune them through the model on the same samples (and with
     do_refine refit their scalars through it, every `refine_stride`-th training sample),
-    re-simulate and compare on the rest (held out).  errors/dynamics: the nominal model's."""
+    re-simulate and compare on the rest (held out).  errors/dynamics: the nominal model's.
+    outputs: the outputs to diagnose (default: x, y, z); velocity outputs v<AXIS> (the axes'
+    actual velocities) are written to both CSVs when named, and compared in the re-simulation."""
     from ..diagnose import diagnose
     from .export import export_model
     machine = load_machine(machine)
@@ -37,18 +39,22 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
     wd = Path(tmp.name if tmp else workdir)
     try:
         n_train = int(train * len(rec.t))
-        (wd / "sim.csv").write_text(signals_csv(nominal, machine))
-        lines = signals_csv(rec, machine).splitlines()
+        vaxes = [a for a in (velocity_axis(o, machine.axis_names) for o in (outputs or ())) if a]
+        (wd / "sim.csv").write_text(signals_csv(nominal, machine, vaxes))
+        lines = signals_csv(rec, machine, vaxes).splitlines()
         (wd / "rec.csv").write_text("\n".join(lines[:1 + n_train]) + "\n")
         # the programmed angles are in both files (signals_csv): inputs of the effects, not outputs
         angles = [a.name.lower() for a in machine.axes if a.is_rotary]
         # so are the logged drivers of the thermal drift (spindle speed, temperature)
         angles += [k for k in rec.inputs]
         diag = diagnose(str(wd / "sim.csv"), str(wd / "rec.csv"), outputs=outputs, inputs=angles or None)
+        t_split = float(rec.t[n_train])
+        # v_s of friction on a velocity output (2 % of SIM's peak speed) from the diagnosis' own
+        # aligned SIM (export_model's default for a DiagnosisResult)
         ex = export_model(diag, machine, None, step=step, drivers={k: float(v[0]) for k, v in rec.inputs.items()},
                           servo_interpolation=bool(getattr(dynamics, "interpolation", 0)))
-        t_split = float(rec.t[n_train])
         rec_out = {o: rec.p[:, k] for k, o in enumerate(OUTPUTS)}
+        rec_out.update({f"v{a}": rec.output(f"v{a}") for a in vaxes})
         log: list = []
         drv = {"spindle_speed": rec.inputs.get("spindle_speed", 0.0), "temperature": rec.inputs.get("temperature")}
         if do_prune and ex.mapped:

@@ -3,7 +3,8 @@ against, step by step.
 
 Per axis, in this order: transport delay of the commands, first-order servo (command held over
 the step, or linear from the previous step's command), backlash (play), friction at reversals
-(stick-slip), quadrant glitch (spike form, `glitch`); then the exact forward model (mtcomp.kinematics.forward) at the actual positions,
+(stick-slip), quadrant glitch (spike form, `glitch`), velocity friction of a velocity-mode axis
+(`velfriction`: the actual velocity, whose deficit the position integrates); then the exact forward model (mtcomp.kinematics.forward) at the actual positions,
 the thermal drift added along the tool frame.  The math is in docs/model-loop.md ("The machine
 FMU's dynamics"); each function says what it computes and in which units.  Written out by hand:
 no library has this discrete machine model, and the test needs an independent implementation.
@@ -19,16 +20,18 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ReferenceRun", "delayed_commands", "servo_step", "play", "FrictionState", "friction_step",
-           "glitch", "axis_response", "temperature", "simulate_reference"]
+           "glitch", "velfriction", "axis_response", "temperature", "simulate_reference"]
 
 
 @dataclass(frozen=True)
 class ReferenceRun:
     """p (K, 3) mm tool edge in the real workpiece frame, actual (K, n) mm/deg axis positions,
-    temperature (K,) degC, all at the end of each step."""
+    temperature (K,) degC, all at the end of each step; velocity (K, n) mm/s, deg/s the actual
+    axis velocities over each step (the FMU's v.<AXIS>)."""
     p: np.ndarray
     actual: np.ndarray
     temperature: np.ndarray
+    velocity: np.ndarray | None = None
 
 
 def delayed_commands(q: np.ndarray, step: float, delay: float) -> np.ndarray:
@@ -130,9 +133,24 @@ def glitch(since: np.ndarray, direction: np.ndarray, height: float, time: float)
     return np.where(ok, -height * np.asarray(direction, float) * sc * np.exp(1.0 - sc), 0.0)
 
 
-def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = None) -> np.ndarray:
+def velfriction(v, coulomb: float, viscous: float, vs: float):
+    """Actual velocity (mm/s, deg/s) of a velocity-mode axis whose drive moves at v: its
+    proportional velocity loop loses coulomb tanh(v/vs) + viscous v to friction,
+    v - coulomb tanh(v/vs) - viscous v (vs = 0: sign(v)); the diagnosis' `friction` on a
+    velocity output (mtcomp.diagnose.effects.friction.Friction) with the same vs."""
+    v = np.asarray(v, float)
+    s = np.tanh(v / vs) if vs > 0 else np.sign(v)
+    return v - coulomb * s - viscous * v
+
+
+def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = None, *,
+                  with_velocity: bool = False):
     """(K, n) actual axis positions (mm/deg) at the end of each step for the commands q (K, n)
-    given at t_k = k step, under `dynamics` (mtcomp.fmu.build.MachineDynamics)."""
+    given at t_k = k step, under `dynamics` (mtcomp.fmu.build.MachineDynamics).  with_velocity:
+    (positions, velocities (K, n) mm/s or deg/s over each step).
+
+    Velocity friction: the drive's mean velocity over step k, v_k = (servo_k+1 - servo_k)/h,
+    becomes velfriction(v_k); the position adds the integral of the deficit, h sum (v_a - v)."""
     q = np.asarray(q, float)
     K, n = q.shape
     kv = dynamics.per_axis(dynamics.kv, n, "kv")
@@ -142,6 +160,9 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
     ftau = dynamics.per_axis(dynamics.friction_tau, n, "friction_tau")
     gh = dynamics.per_axis(getattr(dynamics, "glitch_height", 0.0), n, "glitch_height")
     gt = dynamics.per_axis(getattr(dynamics, "glitch_time", 0.0), n, "glitch_time")
+    vfc = dynamics.per_axis(getattr(dynamics, "velfriction_coulomb", 0.0), n, "velfriction_coulomb")
+    vfb = dynamics.per_axis(getattr(dynamics, "velfriction_viscous", 0.0), n, "velfriction_viscous")
+    vfs = dynamics.per_axis(getattr(dynamics, "velfriction_vs", 0.0), n, "velfriction_vs")
     c1 = delayed_commands(q, step, float(dynamics.delay))
     # the command a step before: the delayed command at t_k - h (the first row before the start)
     c0 = np.vstack([c1[:1], c1[:-1]]) if dynamics.interpolation else c1
@@ -149,6 +170,7 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
         t = np.arange(K) * step
         c0 = np.column_stack([np.interp(t - step - dynamics.delay, t, q[:, j]) for j in range(n)])
     out = np.empty((K, n))
+    vel = np.empty((K, n))
     for i in range(n):
         servo = q[0, i]
         pl = q[0, i]
@@ -173,6 +195,7 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
             gdir[k] = d
             if t_rev is not None:
                 since[k] = (k + 1) * step - t_rev
+            vel[k, i] = (end - servo) / step     # the drive's, made actual below
             servo = end
             if on:
                 friction_step(fr, s0, pl, step, brk[i], cou[i], ftau[i])
@@ -181,7 +204,14 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
                 out[k, i] = pl
         if gt[i] > 0:
             out[:, i] += glitch(since, gdir, gh[i], gt[i])
-    return out
+        va = velfriction(vel[:, i], vfc[i], vfb[i], vfs[i])
+        # the deficit accumulated step by step, as the FMU does (same rounding)
+        dfc = 0.0
+        for k in range(K):
+            dfc += (va[k] - vel[k, i]) * step
+            out[k, i] += dfc
+        vel[:, i] = va
+    return (out, vel) if with_velocity else out
 
 
 def temperature(K: int, step: float, dynamics, spindle_speed=0.0, temperature_input=20.0) -> np.ndarray:
@@ -217,9 +247,9 @@ def simulate_reference(machine, q, step: float, errors=None, dynamics=None, *, s
     machine = load_machine(machine)
     dyn = dynamics or MachineDynamics()
     q = np.asarray(q, float)
-    act = axis_response(q, step, dyn)
+    act, vel = axis_response(q, step, dyn, with_velocity=True)
     T = temperature(len(q), step, dyn, spindle_speed, temperature_input)
     pose = forward(machine, act, errors, strict=False)
     drift = np.asarray(dyn.drift, float) * (T - dyn.reference_temperature)[:, None]
     p = pose.p + np.einsum("nij,nj->ni", pose.R, drift)
-    return ReferenceRun(p, act, T)
+    return ReferenceRun(p, act, T, vel)

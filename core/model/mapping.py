@@ -378,6 +378,48 @@ def map_quadrant_glitch(e: dict, machine: Machine, step: float | None) -> Mapped
                          "step; the diagnosis places it half a sample either side",))
 
 
+def velocity_output_axis(machine: Machine, output: str):
+    """The machine axis of a velocity output ``v<AXIS>`` (``vX``, ``vC``: the actual-velocity
+    columns mtcomp.model.simulate writes, the FMU's v.<AXIS>), or None."""
+    return machine.axes[machine.axis_names.index(output[1:])] \
+        if len(output) > 1 and output[0] == "v" and output[1:] in machine.axis_names else None
+
+
+def map_friction(e: dict, machine: Machine, step: float | None, velocity_peaks: dict | None = None) -> Mapped:
+    """Friction fitted on a velocity output v<AXIS> -> the machine FMU's velocity friction.
+
+    The diagnosis fits r_v = -c tanh(v/v_s) - b v on the output (c in its unit, mm/s or deg/s;
+    b dimensionless; v SIM's velocity, v_s = 2 % of SIM's peak |v| on the diagnosed span).  The
+    FMU's velocity-mode axis gives v.<AXIS> = v - c tanh(v/v_s) - b v for the drive's velocity v,
+    which is SIM's v.<AXIS> (the base model has no velocity friction): the same term, so
+    velfriction.coulomb.<AXIS> = c, velfriction.viscous.<AXIS> = b and velfriction.vs.<AXIS> =
+    0.02 peak.  The diagnosis JSON does not carry v_s: velocity_peaks {output: SIM's peak |v|
+    over the span the diagnosis saw} gives it (mtcomp.model.loop and the CLI take it from SIM);
+    without it the effect has no home."""
+    o = _one_output(e)
+    ax = velocity_output_axis(machine, o)
+    if ax is None:
+        raise NoHome(f"friction on {o}: not a velocity output v<AXIS> of an axis of {machine.name} "
+                     f"({', '.join('v' + a for a in machine.axis_names)}): the model cannot place it")
+    peak = (velocity_peaks or {}).get(o)
+    if not peak or not math.isfinite(peak) or peak <= 0:
+        raise NoHome(f"friction on {o}: the smoothing speed v_s (2 % of SIM's peak speed) is unknown: give SIM's "
+                     "velocity column (--sim) so that the export can take its peak")
+    unit = "deg/s" if ax.is_rotary else "mm/s"
+    ckey = next((k for k in e["params"] if k.startswith("coulomb_")), None)
+    if ckey is None:
+        raise NoHome("friction: parameter coulomb_<unit> missing in the diagnosis")
+    c, b = _p(e, ckey), _p(e, "viscous")
+    if abs(c) > 1e4 or abs(b) > 1.0:
+        raise NoHome(f"friction on {o}: coulomb {c:.3g} {unit}, viscous {b:.3g} are outside the FMU's ranges "
+                     "(+-1e4, +-1)")
+    return Mapped("friction", o,
+                  (Param(f"velfriction.coulomb.{ax.name}", c, _s(e, ckey), unit),
+                   Param(f"velfriction.viscous.{ax.name}", b, _s(e, "viscous"), "1"),
+                   Param(f"velfriction.vs.{ax.name}", 0.02 * float(peak), 0.0, unit)),
+                  notes=(f"v_s = 2 % of SIM's peak speed {float(peak):.6g} {unit} (the diagnosis' own choice)",))
+
+
 def _no_home(reason: str):
     def f(e, machine, step):
         raise NoHome(reason)
@@ -398,17 +440,16 @@ MAPPERS = {
     "thermal_drift": map_thermal_drift,
     "time_offset": map_time_offset,
     "quadrant_glitch": map_quadrant_glitch,
-    "friction": _no_home("friction fitted on a velocity signal: the machine FMU's outputs are positions; its "
-                         "friction is the stick-slip element (friction.breakaway/coulomb/tau), which the diagnosis "
-                         "fits as quadrant_glitch (stick-slip) on a position output"),
+    "friction": map_friction,
 }
 
 
 def map_effect(e: dict, machine: Machine, step: float | None = None, drivers: dict | None = None,
-               servo_interpolation: bool = False) -> Mapped:
+               servo_interpolation: bool = False, velocity_peaks: dict | None = None) -> Mapped:
     """The model parameters of one diagnosed effect (a dict of the diagnosis JSON), or NoHome.
     drivers: {driver column: value at the start} for the thermal drift; servo_interpolation:
-    the model's servos follow the command linearly between steps (servo.interpolation = 1)."""
+    the model's servos follow the command linearly between steps (servo.interpolation = 1);
+    velocity_peaks: {velocity output: SIM's peak |v|} for friction on a velocity output."""
     f = MAPPERS.get(e.get("name"))
     if f is None:
         raise NoHome(f"effect {e.get('name')!r} is not known to the model export")
@@ -416,6 +457,8 @@ def map_effect(e: dict, machine: Machine, step: float | None = None, drivers: di
         return f(e, machine, step, drivers)
     if f is map_servo_lag:
         return f(e, machine, step, servo_interpolation)
+    if f is map_friction:
+        return f(e, machine, step, velocity_peaks)
     return f(e, machine, step)
 
 

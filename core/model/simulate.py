@@ -33,6 +33,30 @@ class Signals:
     axes: tuple
     inputs: dict = field(default_factory=dict)   # driver inputs given per step: "spindle_speed"
                                                  # (1/min), "temperature" (degC), (K,) each
+    v: np.ndarray | None = None                  # (K, n) actual axis velocities, mm/s or deg/s
+                                                 # (the FMU's v.<AXIS>, over each step)
+
+    def output(self, name: str) -> np.ndarray:
+        """(K,) values of one output: x, y, z (tool edge, mm) or v<AXIS> (velocity_output)."""
+        if name in OUTPUTS:
+            return self.p[:, OUTPUTS.index(name)]
+        ax = velocity_axis(name, self.axes)
+        if ax is None or self.v is None:
+            raise InputError(f"no output {name!r} in the simulation (x, y, z"
+                             + (", " + ", ".join(f"v{a}" for a in self.axes) if self.v is not None else "") + ")",
+                             field="outputs")
+        return self.v[:, list(self.axes).index(ax)]
+
+
+def velocity_output(axis: str) -> str:
+    """Name of the actual-velocity output of an axis in the signal CSVs: v<AXIS> (``vX``, ``vC``),
+    a velocity column to the diagnosis (unit in the header: mm/s, deg/s)."""
+    return f"v{axis}"
+
+
+def velocity_axis(name: str, axes) -> str | None:
+    """The axis of a velocity output v<AXIS> (None for any other name)."""
+    return name[1:] if len(name) > 1 and name[0] == "v" and name[1:] in tuple(axes) else None
 
 
 def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *, step: float = 1e-3,
@@ -71,17 +95,22 @@ def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *,
                 v = v(t)
             if v is not None and np.ndim(v) > 0:
                 drivers[name] = np.asarray(v, float)
-        p = run_machine(mach, machine, q, step, spindle_speed=drivers.get("spindle_speed", spindle_speed),
-                        temperature=drivers.get("temperature", temperature)).p
-    return Signals(t, p, q, tuple(machine.axis_names), drivers)
+        run = run_machine(mach, machine, q, step, spindle_speed=drivers.get("spindle_speed", spindle_speed),
+                          temperature=drivers.get("temperature", temperature))
+    return Signals(t, run.p, q, tuple(machine.axis_names), drivers, run.velocity)
 
 
-def signals_csv(sig: Signals, machine) -> str:
+def signals_csv(sig: Signals, machine, velocities=()) -> str:
     """CSV text: t (s), x, y, z (mm); the programmed angles of rotary axes (deg, lower-case
-    letters) as inputs for the diagnosis (pivot offsets follow them)."""
+    letters) as inputs for the diagnosis (pivot offsets follow them); velocities: axes whose
+    actual velocity is written too, as v<AXIS> [mm/s] or [deg/s] (a velocity output)."""
     machine = load_machine(machine)
     cols = ["t"] + list(OUTPUTS)
     data = [sig.t] + [sig.p[:, k] for k in range(3)]
+    for a in velocities:
+        ax = machine.axes[machine.axis_names.index(a)]
+        cols.append(f"{velocity_output(a)} [{'deg' if ax.is_rotary else 'mm'}/s]")
+        data.append(sig.output(velocity_output(a)))
     for i, ax in enumerate(machine.axes):
         if ax.is_rotary:
             cols.append(ax.name.lower())
@@ -100,14 +129,14 @@ def _rel(path, base: Path) -> str:
 
 
 def write_signals(path, sig: Signals, machine, *, program=None, errors_path=None, dynamics=None,
-                  step: float, spindle_speed=0.0) -> Path:
+                  step: float, spindle_speed=0.0, velocities=()) -> Path:
     """Write the signals CSV and its provenance sidecar `<path>.provenance.toml` (paths in it
     relative to its folder; the dynamics inline).  machine: preset name, machine TOML path (kept
     as a path) or Machine (kept by name: give the path to keep a machine file)."""
     path = Path(path)
     spec = machine
     machine = load_machine(machine)
-    atomic_write(path, signals_csv(sig, machine))
+    atomic_write(path, signals_csv(sig, machine, velocities))
     is_file = isinstance(spec, (str, Path)) and Path(spec).is_file()
     prov: dict = {"machine": _rel(spec, path.parent) if is_file else machine.name, "step_s": float(step)}
     if np.ndim(spindle_speed) == 0 and not callable(spindle_speed):
@@ -172,7 +201,8 @@ def read_provenance(csv_path) -> Provenance:
 
 
 def read_recording(path) -> tuple:
-    """(t (K,) s, {output: (K,) mm}) of a CSV with t and x/y/z columns (units from the header)."""
+    """(t (K,) s, {output: (K,) mm or mm/s, deg/s}) of a CSV with t and x/y/z columns (units
+    from the header) and velocity outputs v<AXIS> [mm/s] or [deg/s] (signals_csv)."""
     from ..csvtable import read_csv
     tab = read_csv(path, what="recording", required=("t",))
     t = tab.numbers("t", unit="s")
@@ -182,6 +212,9 @@ def read_recording(path) -> tuple:
             out[o] = tab.numbers(o, unit="mm")
         except (InputError, KeyError):
             continue
+    for c in tab.columns:
+        if c.name.startswith("v") and len(c.name) > 1 and c.name[1:].isupper() and c.unit in ("mm/s", "deg/s"):
+            out[c.name] = tab.numbers(c.name, unit=c.unit)
     if not out:
         raise InputError("expected tool edge columns x, y and/or z", path)
     return t, out
@@ -238,10 +271,11 @@ class ResimResult:
         lines = ["re-simulation with the diagnosed model: RMS of REC - model"
                  + (f" (held out: t >= {self.heldout_from:g} s)" if self.heldout_from is not None else "")]
         for o in self.rec:
+            f = _um if o in OUTPUTS else _mm_s
             nf = self.noise_floor.get(o)
-            nfs = f", noise floor {_um(nf)}" if nf else ""
-            lines.append(f"  {o}: original {_um(self.rms['before'][o])} -> updated {_um(self.rms['after'][o])}; "
-                         f"held out {_um(self.heldout_rms['before'][o])} -> {_um(self.heldout_rms['after'][o])}"
+            nfs = f", noise floor {f(nf)}" if nf else ""
+            lines.append(f"  {o}: original {f(self.rms['before'][o])} -> updated {f(self.rms['after'][o])}; "
+                         f"held out {f(self.heldout_rms['before'][o])} -> {f(self.heldout_rms['after'][o])}"
                          + nfs)
         return "\n".join(lines)
 
@@ -262,11 +296,13 @@ class ResimResult:
             for col, (key, model, color, what) in enumerate((("before", self.sim, "tab:red", "original model"),
                                                              ("after", self.updated, "tab:blue", "updated model"))):
                 ax = axs[row, col]
+                # positions in µm, velocity outputs (v<AXIS>) in µm/s (deg/s x 1e3 on a rotary axis)
                 ax.plot(self.t, (self.rec[o] - model[o]) * 1e3, lw=0.6, color=color)
                 if self.heldout_from is not None:
                     ax.axvspan(self.heldout_from, self.t[-1], color="0.9", zorder=0)
-                ax.set_title(f"{o}: REC - {what}, held-out RMS {_um(self.heldout_rms[key][o])}", fontsize=9)
-                ax.set_ylabel(f"{o} error [µm]")
+                f = _um if o in OUTPUTS else _mm_s
+                ax.set_title(f"{o}: REC - {what}, held-out RMS {f(self.heldout_rms[key][o])}", fontsize=9)
+                ax.set_ylabel(f"{o} error [µm]" if o in OUTPUTS else f"{o} error [µm/s, mdeg/s]")
         for ax in axs[-1]:
             ax.set_xlabel("t [s]" + ("  (shaded: held out)" if self.heldout_from is not None else ""))
         return fig
@@ -285,6 +321,13 @@ def _um(x) -> str:
     return f"{x * 1e6:.3g} nm" if abs(x) < 1e-4 else f"{x * 1e3:.3g} µm"
 
 
+def _mm_s(x) -> str:
+    """A velocity (mm/s or deg/s) for the reports: µm/s below 0.1 (deg/s: read m for µ)."""
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    return f"{x * 1e3:.3g} µm/s" if abs(x) < 0.1 else f"{x:.3g} mm/s"
+
+
 def _rms(a) -> float:
     a = np.asarray(a, float)
     return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
@@ -300,8 +343,8 @@ def compare(t_rec, rec: dict, sim: Signals, updated: Signals, *, heldout_from: f
         raise InputError("the recording and the simulation do not overlap in time", field="t")
     t = t_rec[keep]
     r = {o: np.asarray(v, float)[keep] for o, v in rec.items()}
-    s = {o: np.interp(t, sim.t, sim.p[:, OUTPUTS.index(o)]) for o in r}
-    u = {o: np.interp(t, updated.t, updated.p[:, OUTPUTS.index(o)]) for o in r}
+    s = {o: np.interp(t, sim.t, sim.output(o)) for o in r}
+    u = {o: np.interp(t, updated.t, updated.output(o)) for o in r}
     edges = np.linspace(t[0], t[-1], n_blocks + 1)
     blocks = tuple((float(a), float(b)) for a, b in zip(edges[:-1], edges[1:]))
     held = np.ones(len(t), bool) if heldout_from is None else t >= heldout_from
@@ -335,7 +378,7 @@ def _training_residual(model, t_rec, rec, keep_t, *, program, machine, base_err,
     keep = keep_t & (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
     parts = []
     for o, v in rec.items():
-        m = np.interp(t_rec[keep], sig.t, sig.p[:, OUTPUTS.index(o)])
+        m = np.interp(t_rec[keep], sig.t, sig.output(o))
         parts.append((np.asarray(v, float)[keep] - m) / (nf.get(o) or 1.0))
     return np.concatenate(parts)
 
@@ -359,8 +402,10 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     from ..fmu.build import MachineDynamics
     machine = load_machine(machine)
     # thermal.driver is a choice, not a number; thermal.gain is the scale the drift is written in
-    # (only gain * drift enters a spindle-driven drift)
-    params = [p for p in ex.params if p.type == "Real" and p.name != "thermal.gain"]
+    # (only gain * drift enters a spindle-driven drift);
+    # velfriction.vs is the diagnosis' convention (2 % of SIM's peak speed), not a fitted value
+    params = [p for p in ex.params if p.type == "Real" and p.name != "thermal.gain"
+              and not p.name.startswith("velfriction.vs.")]
     if not params:
         return ex
     base_err = errors or ErrorSet()
@@ -435,7 +480,7 @@ def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None,
             keep &= t_rec < train_until
         tot = 0.0
         for o, v in rec.items():
-            m = np.interp(t_rec[keep], sig.t, sig.p[:, OUTPUTS.index(o)])
+            m = np.interp(t_rec[keep], sig.t, sig.output(o))
             tot += float(np.mean((np.asarray(v, float)[keep] - m) ** 2)) / (nf.get(o) or 1.0) ** 2
         return tot
 

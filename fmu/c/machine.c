@@ -15,7 +15,11 @@
  *      with a time constant, to a lag of the Coulomb distance against the motion;
  *   5. quadrant glitch (the spike form): after the drive's motion reverses at t_r, the slide
  *      lags by height * s exp(1 - s), s = (t - t_r)/time, against the new direction (the
- *      diagnosis' quadrant_glitch, peak `height` at `time` after the reversal).
+ *      diagnosis' quadrant_glitch, peak `height` at `time` after the reversal);
+ *   6. velocity friction (a velocity-mode axis with a proportional velocity loop): the axis'
+ *      actual velocity is the drive's less coulomb tanh(v/vs) + viscous v (v the drive's mean
+ *      velocity over the step), output as v.<AXIS>; the position follows its integral (the
+ *      deficit accumulates on the actual position).
  * A first-order thermal model (driver: spindle speed, a logged temperature, or none) moves the
  * tool edge by drift * (T - T_reference) in the tool frame.  Gaussian sensor noise with a seed
  * is added to the tool edge output.  docs/fmu.md lists the variables.
@@ -47,6 +51,10 @@
 #define VR_FTAU 180       /* 180..188 friction catch-up time constant per axis, s */
 #define VR_GH 190         /* 190..198 quadrant glitch height per axis, mm or deg */
 #define VR_GT 200         /* 200..208 quadrant glitch time (reversal to peak) per axis, s */
+#define VR_VFC 210        /* 210..218 velocity friction: Coulomb velocity loss per axis, mm/s or deg/s */
+#define VR_VFB 220        /* 220..228 velocity friction: viscous loss per unit velocity (1) */
+#define VR_VFS 230        /* 230..238 velocity friction: tanh smoothing speed, mm/s or deg/s */
+#define VR_VEL 240        /* 240..248 actual axis velocities, mm/s or deg/s */
 #define IVR_SEED 0        /* noise seed */
 #define IVR_DRIVER 1      /* thermal driver: 0 spindle speed, 1 temperature input, 2 none (time) */
 #define IVR_INTERP 2      /* servo command: 0 held over the step, 1 linear from the previous one */
@@ -66,11 +74,13 @@
 #define X_GDIR 80         /* 80..88 direction of the drive's last motion (+1, -1; 0: not moved yet) */
 #define X_GREV 90         /* 90..98 time of its last reversal, s (while X_GDIR is 0 or before one: none) */
 #define X_GON 100         /* 100..108 1 once a reversal has happened */
-#define X_HIST 110        /* history of the commands: entries (time, command[MTK_MAX_AXES]) */
+#define X_VEL 110         /* 110..118 actual velocity over the last step, mm/s or deg/s */
+#define X_VDEF 120        /* 120..128 integral of the velocity friction's deficit, mm or deg */
+#define X_HIST 130        /* history of the commands: entries (time, command[MTK_MAX_AXES]) */
 #define HIST_W (1 + MTK_MAX_AXES)
 #define HIST_CAP ((MODEL_NX - X_HIST) / HIST_W)
 
-const uint32_t MODEL_MAGIC = 0x6d746d0du;  /* "mtm" + layout version 13 */
+const uint32_t MODEL_MAGIC = 0x6d746d0eu;  /* "mtm" + layout version 14 */
 
 static int n_axes(const Instance *inst) { return inst->kin ? inst->kin->n_axes : 0; }
 
@@ -99,6 +109,10 @@ int model_real_kind(const Instance *inst, unsigned vr)
     if (vr >= VR_FTAU && vr < VR_FTAU + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_GH && vr < VR_GH + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_GT && vr < VR_GT + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_VFC && vr < VR_VFC + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_VFB && vr < VR_VFB + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_VFS && vr < VR_VFS + (unsigned)n) return VAR_PARAM_FIXED;
+    if (vr >= VR_VEL && vr < VR_VEL + (unsigned)n) return VAR_OUTPUT;
     if (vr >= VR_P && vr <= VR_TEMP) return VAR_OUTPUT;
     if (vr >= VR_ACT && vr < VR_ACT + (unsigned)n) return VAR_OUTPUT;
     return common_real_kind(vr, n);
@@ -151,6 +165,12 @@ fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
         return check_axis_param(inst, "glitch.height", (int)(vr - VR_GH), value, -1.0, 1.0);
     if (vr >= VR_GT && vr < VR_GT + MTK_MAX_AXES)
         return check_axis_param(inst, "glitch.time", (int)(vr - VR_GT), value, 0.0, 100.0);
+    if (vr >= VR_VFC && vr < VR_VFC + MTK_MAX_AXES)
+        return check_axis_param(inst, "velfriction.coulomb", (int)(vr - VR_VFC), value, -1e4, 1e4);
+    if (vr >= VR_VFB && vr < VR_VFB + MTK_MAX_AXES)
+        return check_axis_param(inst, "velfriction.viscous", (int)(vr - VR_VFB), value, -1.0, 1.0);
+    if (vr >= VR_VFS && vr < VR_VFS + MTK_MAX_AXES)
+        return check_axis_param(inst, "velfriction.vs", (int)(vr - VR_VFS), value, 0.0, 1e6);
     return common_check_real(inst, vr, value);
 }
 
@@ -225,6 +245,14 @@ static double glitch(const Instance *inst, int i, double t)
     s = (t - inst->st.x[X_GREV + i]) / tg;
     if (s <= 0.0 || s > 700.0) return 0.0;
     return -inst->st.r[VR_GH + i] * inst->st.x[X_GDIR + i] * s * exp(1.0 - s);
+}
+
+/* The actual velocity of a velocity-mode axis whose drive moves at v: v - c tanh(v/vs) - b v
+ * (vs = 0: the sign of v, 0 at rest). */
+static double velfriction(double v, double c, double b, double vs)
+{
+    double s = vs > 0.0 ? tanh(v / vs) : (v > 0.0) - (v < 0.0);
+    return v - c * s - b * v;
 }
 
 /* exp(-t/tau), 0 for tau = 0 (an instantaneous catch-up). */
@@ -370,8 +398,9 @@ fmi2Status model_update(Instance *inst)
     for (i = 0; i < n; i++) {
         q[i] = friction_on(inst, i) ? inst->st.x[X_SLIDE + i]
                                     : play(inst->st.x[X_SERVO + i], inst->st.x[X_PLAY + i], inst->st.r[VR_BACKLASH + i]);
-        q[i] += glitch(inst, i, inst->st.time);
+        q[i] += glitch(inst, i, inst->st.time) + inst->st.x[X_VDEF + i];
         inst->st.r[VR_ACT + i] = q[i];
+        inst->st.r[VR_VEL + i] = inst->st.x[X_VEL + i];
     }
     common_errors(inst, &e);
     dT = inst->st.x[X_TEMP] - inst->st.r[VR_TREF];
@@ -407,6 +436,8 @@ fmi2Status model_exit_init(Instance *inst)
         inst->st.x[X_GDIR + i] = 0.0;
         inst->st.x[X_GREV + i] = 0.0;
         inst->st.x[X_GON + i] = 0.0;
+        inst->st.x[X_VEL + i] = 0.0;
+        inst->st.x[X_VDEF + i] = 0.0;
     }
     inst->st.x[X_HIST_N] = 0.0;
     inst->st.x[X_HIST_HEAD] = 0.0;
@@ -458,6 +489,14 @@ fmi2Status model_do_step(Instance *inst, double t, double h)
             inst->st.x[X_GDIR + i] = nd;
         }
         if (friction_on(inst, i)) friction_step(inst, i, s0, inst->st.x[X_PLAY + i], h);
+        /* the drive's mean velocity over the step; a velocity-mode axis loses to friction what
+         * its proportional velocity loop cannot hold, and its position integrates the loss */
+        {
+            double vd = (end - start) / h;
+            double va = velfriction(vd, inst->st.r[VR_VFC + i], inst->st.r[VR_VFB + i], inst->st.r[VR_VFS + i]);
+            inst->st.x[X_VEL + i] = va;
+            inst->st.x[X_VDEF + i] += (va - vd) * h;
+        }
     }
     target = inst->st.r[VR_AMBIENT];
     if (driver == 0) target += inst->st.r[VR_GAIN] * inst->st.r[VR_SPINDLE];
