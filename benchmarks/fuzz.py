@@ -47,6 +47,13 @@ SMALL5 = ("O0001 (fuzz seed)\nG21 G90 G17\nN10 G0 X0 Y0 Z5. B0 C0\nN20 G1 Z0 F20
 ARCS = ("O0002 (fuzz seed: arcs)\nG21 G90 G17\nG0 X0 Y0 Z1. B0 C0\nG1 X1. Y0 F100\nG2 X1. Y0 I-1. J0\n"
         "G1 X10. Y0\nG3 X5.403 Y8.415 I-10. J0\nG2 X6.5 Y8. R1.5\nG91 G1 X0.001 Y-0.002\nG90 G0 Z5.\nM30\n")
 POSE = "0.05,-0.03,0.02,0.1,-0.2,0.3"
+# tool lengths (G43 H, a tool change) and work offsets (G54/G55): the programs the tool table and
+# the offsets file are read for
+G43 = ("O0003 (fuzz seed: tool lengths)\nG21 G90 G17\nT1 M6\nG54 G0 X0 Y0 B0 C0\nG43 H1 Z5.\nG1 Z0 F200\n"
+       "X5. Y2.\nG0 Z5.\nT2 M6\nG0 X1. Y1.\nG43 H2 Z5.\nG1 Z-0.5 F100\nG2 X3. Y1. I1. J0\nG0 Z5.\nG49\nM30\n")
+G43W = G43.replace("T2 M6\nG0 X1.", "T2 M6\nG55 G0 X1.")
+TOOL_TABLE = "T1 P1 Z+5.0 D6.0 ;end mill\nT2 P2 Z+7.5 D3.0\nT3 P3 Z+2.25\n"
+OFFSETS = "[H]\n1 = 5.0\n2 = 7.5\n[D]\n1 = 3.0\n[G54]\nX = 0.0\nY = 0.0\n[G55]\nX = 1.0\nY = -2.0\n"
 HOSTILE = ["nan", "inf", "-inf", "1e308", "1e400", "-0", "0", "-1", "", "true", '"x"', "[]", "{}",
            "99999999999999999999", "1e-320", "5e-6", "0.0000004", "1" * 320, "abc", "1,5", "\u0661",
            "9.3e12", "-1e12", "2147483648", "1e-9", "-0.0000004", "0.000001", "10.000001"]
@@ -112,6 +119,11 @@ def make_seeds(s: Path) -> dict:
     (s / "small5.nc").write_text(SMALL5)
     (s / "arcs.nc").write_text(ARCS)
     (s / "zero.toml").write_text("# no errors\n")
+    (s / "g43.nc").write_text(G43)
+    (s / "g43w.nc").write_text(G43W)
+    (s / "tool.tbl").write_text(TOOL_TABLE)
+    (s / "toolh.tbl").write_text("T12 P1 H1 Z+5.0\nT7 P2 H2 Z+7.5 D3.\n")
+    (s / "offsets.toml").write_text(OFFSETS)
     tab = AxisErrorTable("X", [-150.0, 0.0, 150.0], {"EXX": [0.001, 0.0, -0.002], "EBX": [2e-6, 0.0, 1e-6]})
     save_errors(ErrorSet(geometric=GeometricErrors({"X": tab}, {"EC0Y": 1e-5, "EB0Z": -8e-6})), s / "geo.toml")
     shutil.copy(ROOT / "core/presets/robonano-a0ib.toml", s / "machine.toml")
@@ -164,6 +176,12 @@ def make_seeds(s: Path) -> dict:
         "iso230-2-run": (s / "geo/set_EXX.csv", "run.csv", ["geometric", "iso230-2", "{f}", "-o", "{o}/r"], []),
         "diagnose-csv": (s / "diag/rec.csv", "rec.csv",
                          ["diagnose", "--sim", "{s}/diag/sim.csv", "--rec", "{f}", "--json", "{o}/d.json"], []),
+        "tool-table": ([s / "tool.tbl", s / "toolh.tbl"], "tool.tbl",
+                       ["compensate", "{s}/g43.nc", "-m", "robonano-a0ib", "-e", "{s}/setting.toml",
+                        "--tool-table", "{f}", "-o", "{o}/out.nc"], []),
+        "offsets-toml": (s / "offsets.toml", "offsets.toml",
+                         ["compensate", "{s}/g43w.nc", "-m", "robonano-a0ib", "-e", "{s}/setting.toml",
+                          "--offsets", "{f}", "-o", "{o}/out.nc"], []),
         "cell-journal": (s / "journal.jsonl", "journal.jsonl", ["<journal>", "{f}"], []),
         "cli-options": (None, None, None, []),
     }
@@ -171,13 +189,13 @@ def make_seeds(s: Path) -> dict:
 
 OPTION_TOKENS = ["-o", "--out", "--output", "-m", "--machine", "-e", "--errors", "--plan", "--seed", "--pose",
                  "--offset", "--chordal-tol", "--noise", "--step", "--png", "--report", "--json", "--debug",
-                 "--help", "--", "-", "0", "-1", "nan", "inf", "1e400", "abc", "1,2,3", "0,0,0,0,0,0",
+                 "--help", "--where", "--exclude-rows", "--same-clock", "x!=50", "t >= 1", "name==Prep", "x=", "--tool-table", "--offsets", "--tool-lengths", "1=5,2=7.5", "--start", "X=1,Y=2", "--unknown", "defer", "refuse", "--cutter-radius", "{s}/g43.nc", "{s}/tool.tbl", "{s}/offsets.toml", "--", "-", "0", "-1", "nan", "inf", "1e400", "abc", "1,2,3", "0,0,0,0,0,0",
                  "robonano-a0ib", "no-such", "", "/dev/null", "/dev/zero", "{o}", "{o}/x", "{o}/none/x",
                  "{s}/small5.nc", "{s}/setting.toml", "{s}/wp/plan.toml", "{s}/ts/plan.toml", "{s}/geo/set.toml"]
 COMMANDS = [["compensate"], ["machines"], ["tool-setting", "plan"], ["tool-setting", "simulate"],
             ["tool-setting", "estimate"], ["workpiece-setting", "plan"], ["workpiece-setting", "probe"],
             ["workpiece-setting", "fit"], ["geometric", "iso230-2"], ["geometric", "build"],
-            ["geometric", "simulate"], ["diagnose"]]
+            ["geometric", "simulate"], ["diagnose"], ["model", "export"]]
 
 
 # ---------------------------------------------------------------------------------------------
