@@ -271,7 +271,7 @@ class ResimResult:
         lines = ["re-simulation with the diagnosed model: RMS of REC - model"
                  + (f" (held out: t >= {self.heldout_from:g} s)" if self.heldout_from is not None else "")]
         for o in self.rec:
-            f = _um if o in OUTPUTS else _mm_s
+            f = _um if o in OUTPUTS else _velocity_formatter(o)
             nf = self.noise_floor.get(o)
             nfs = f", noise floor {f(nf)}" if nf else ""
             lines.append(f"  {o}: original {f(self.rms['before'][o])} -> updated {f(self.rms['after'][o])}; "
@@ -296,13 +296,14 @@ class ResimResult:
             for col, (key, model, color, what) in enumerate((("before", self.sim, "tab:red", "original model"),
                                                              ("after", self.updated, "tab:blue", "updated model"))):
                 ax = axs[row, col]
-                # positions in µm, velocity outputs (v<AXIS>) in µm/s (deg/s x 1e3 on a rotary axis)
+                # positions in µm, velocity outputs (v<AXIS>) in µm/s, or mdeg/s on a rotary axis
                 ax.plot(self.t, (self.rec[o] - model[o]) * 1e3, lw=0.6, color=color)
                 if self.heldout_from is not None:
                     ax.axvspan(self.heldout_from, self.t[-1], color="0.9", zorder=0)
-                f = _um if o in OUTPUTS else _mm_s
+                f = _um if o in OUTPUTS else _velocity_formatter(o)
                 ax.set_title(f"{o}: REC - {what}, held-out RMS {f(self.heldout_rms[key][o])}", fontsize=9)
-                ax.set_ylabel(f"{o} error [µm]" if o in OUTPUTS else f"{o} error [µm/s, mdeg/s]")
+                ax.set_ylabel(f"{o} error [µm]" if o in OUTPUTS else
+                              f"{o} error [{'mdeg/s' if _is_rotary_velocity(o) else 'µm/s'}]")
         for ax in axs[-1]:
             ax.set_xlabel("t [s]" + ("  (shaded: held out)" if self.heldout_from is not None else ""))
         return fig
@@ -321,11 +322,27 @@ def _um(x) -> str:
     return f"{x * 1e6:.3g} nm" if abs(x) < 1e-4 else f"{x * 1e3:.3g} µm"
 
 
+def _is_rotary_velocity(name: str) -> bool:
+    """True for the velocity output of a rotary axis (vA, vB, vC: deg/s)."""
+    return len(name) == 2 and name[0] == "v" and name[1].upper() in "ABC"
+
+
 def _mm_s(x) -> str:
-    """A velocity (mm/s or deg/s) for the reports: µm/s below 0.1 (deg/s: read m for µ)."""
+    """A linear velocity (mm/s) for the reports: µm/s below 0.1 mm/s."""
     if x is None or not math.isfinite(x):
         return "n/a"
     return f"{x * 1e3:.3g} µm/s" if abs(x) < 0.1 else f"{x:.3g} mm/s"
+
+
+def _deg_s(x) -> str:
+    """An angular velocity (deg/s) for the reports: mdeg/s below 0.1 deg/s."""
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    return f"{x * 1e3:.3g} mdeg/s" if abs(x) < 0.1 else f"{x:.3g} deg/s"
+
+
+def _velocity_formatter(name: str):
+    return _deg_s if _is_rotary_velocity(name) else _mm_s
 
 
 def _rms(a) -> float:
