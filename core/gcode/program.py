@@ -85,6 +85,10 @@ class Program:
                                      # tool has no known length: tool_tip 0 (the gauge point);
                                      # only where a G43/G44/G43.4 follows the change
 
+    cutter: np.ndarray = None        # (N,) 41/42: the block is under cutter radius compensation
+                                     # G41/G42 (its end point offset by the control), 0: not
+    cutter_d: np.ndarray = None      # (N,) the modal D number (NaN: none written yet)
+
     @property
     def n_axes(self) -> int:
         return len(self.axes)
