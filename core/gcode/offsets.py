@@ -5,8 +5,8 @@ Files (docs/gcode.md, "Offset files"):
 
 * a LinuxCNC tool table: ``T1 P1 Z+50.0 D6.0 ;comment`` per tool; the Z value is the tool
   length of tool (and H number) 1;
-* an offsets TOML: ``[H]`` tool lengths by H number, ``[D]`` cutter offsets by D number (read,
-  not used: G41/G42 are refused), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` work offsets as axis
+* an offsets TOML: ``[H]`` tool lengths by H number, ``[D]`` cutter radii by D number (the
+  G41/G42 bound of `mtcomp compensate`), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` work offsets as axis
   letter = mm/deg;
 * CSV of ``H,length_mm`` lines (a header and ``#`` comments allowed).
 
@@ -114,7 +114,7 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
         elif L == 1 and "R" in w:
             out.append((int(ln), "amb", P, w["R"] * scale, inc))
         elif L in (12, 13):
-            pass                                   # D (radius) values: G41/G42 are refused
+            pass                                   # D (radius) values: not read (--cutter-radius, [D])
         else:
             fail(f"L{L} with {' '.join(sorted(k for k in w if k not in 'LPG'))}: not read (L10/L11 "
                  "with axis words set offsets from the current position on LinuxCNC)")
