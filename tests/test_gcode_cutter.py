@@ -158,3 +158,20 @@ def test_cli_says_the_radius_is_assumed_and_writes_it_in_the_header(tmp_path):
                         "-e", err, "-o", out, "--cutter-radius", "-1"], capture_output=True,
                        text=True, timeout=120)
     assert r.returncode != 0 and "--cutter-radius" in r.stderr
+
+
+def test_rigid_shift_checked_by_the_independent_interpreter(machine):
+    from test_gcode_corpus import interpret
+    shift = np.array([0.0123, -0.0071, 0.0042])
+    out, rep = comp(machine, ErrorSet(workpiece=WorkpieceSetting(tuple(shift))), cutter_radius=8.0)
+    before, after = interpret(PROGRAM), interpret(out)
+    assert [b[0] for b in after] == [b[0] for b in before]          # no line added or lost
+    n_checked = 0
+    for (n, p0, _, c0), (_, p1, _, c1) in zip(before, after):
+        for k, a in enumerate("XYZ"):
+            if p0[a] is not None:
+                assert p1[a] == pytest.approx(p0[a] + shift[k], abs=1e-9), (n, a)   # a multiple of the 0.1 µm grid
+                n_checked += 1
+        if c0 is not None:
+            np.testing.assert_allclose(np.subtract(c1, c0), shift[:2], atol=1e-9)
+    assert n_checked >= 30 and rep["cutter"]["radius"] == 8.0
