@@ -395,6 +395,10 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
     notes = tuple(re.sub(r"(?<=line\(s\) )(\d+(?:, \d+)*)", src_line, n) for n in report["notes"])
     report = dict(report, notes=notes + (note,), flow=mode,
                   lines=fl.main_lines or len(flow._lines(fl.text)))
+    if report.get("cutter") is not None:
+        # the worst G41/G42 block by its source line (a subprogram file: named)
+        f, ln = fl.where(int(fl.origin[report["cutter"]["line"] - 1]))
+        report["cutter"] = dict(report["cutter"], line=ln if f == filename else f"{Path(f).name}:{ln}")
     if provenance is not None:
         new, _, added = insert_header(new, header_lines(provenance + _cutter_items(report["cutter"])))
         report["header_lines"] = added

@@ -175,3 +175,26 @@ def test_rigid_shift_checked_by_the_independent_interpreter(machine):
         if c0 is not None:
             np.testing.assert_allclose(np.subtract(c1, c0), shift[:2], atol=1e-9)
     assert n_checked >= 30 and rep["cutter"]["radius"] == 8.0
+
+
+def test_g41_in_a_local_subprogram_reports_the_source_line(machine):
+    text = ("%\nO1002\nG21 G90 G17\nG0 X-20. Y-20. Z5.\nG1 Z-2. F300\nM98 P2000\nG0 Z5.\nM30\n"
+            "O2000\nG41 D1 G1 X0 Y-10.\nY30.\nG2 X20. Y50. R20.\nG40 G1 X-20. Y-20.\nM99\n%\n")
+    errs = ErrorSet(ToolSetting((0.002, -0.001, 0.0005)))
+    out, rep = comp(machine, errs, text, cutter_radius=5.0)
+    assert rep["flow"] == "once" and rep["cutter"]["blocks"] == 3
+    assert rep["cutter"]["line"] in (10, 11, 12)                  # a line of O2000 in the file
+    with pytest.raises(InputError) as exc:
+        comp(machine, ErrorSet(workpiece=WorkpieceSetting(angles=(0.05, 0, 0))),
+             text.replace("G2 X20. Y50. R20.", "X20. Y50."), cutter_radius=50.0)
+    assert exc.value.line == 10
+
+
+def test_bound_in_the_g18_plane():
+    # G18: the plane is Z X, its normal Y; a rotation about Y is in the plane, one about X tilts it
+    r, th = 20.0, np.radians(0.1)
+    for axis, expect in (((0, th, 0), 0.0), ((th, 0, 0), r * th)):
+        R = Rotation.from_rotvec(axis).as_matrix()
+        b = offset_error_bound(lambda q: q @ R.T, np.array([[10.0, 5.0, -3.0]]), np.array([18]),
+                               np.array([r]), ("X", "Y", "Z"))[0]
+        assert b == pytest.approx(expect, abs=np.sqrt(5) * r * th**2)
