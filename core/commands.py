@@ -551,10 +551,13 @@ def _cmd_compensate(args) -> int:
             raise InputError(f"expected a cutter radius >= 0 mm, got {cutter_radius}",
                              field="--cutter-radius")
         options.append(f"cutter-radius {cutter_radius:g} mm")
-    cutter_offsets = None
+    # G41/G42 D<n> radii: the offsets file's [D] (radius), else the tool table's D column
+    # (diameter of tool n, LinuxCNC)
+    cutter_offsets = dict(getattr(tools, "radius_of_tool", {}) or {})
     if args.work_offsets is not None:
         from .gcode.offsets import read_offsets
-        cutter_offsets = read_offsets(args.work_offsets, machine.axis_names)[1] or None
+        cutter_offsets.update(read_offsets(args.work_offsets, machine.axis_names)[1])
+    cutter_offsets = cutter_offsets or None
     provenance = [("VERSION", f"mtcomp {__version__}"),
                   ("ERRORS", f"{Path(args.errors).name} SHA256 {_sha256(args.errors)}"),
                   ("MACHINE", machine.name),

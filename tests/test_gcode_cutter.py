@@ -198,3 +198,26 @@ def test_bound_in_the_g18_plane():
         b = offset_error_bound(lambda q: q @ R.T, np.array([[10.0, 5.0, -3.0]]), np.array([18]),
                                np.array([r]), ("X", "Y", "Z"))[0]
         assert b == pytest.approx(expect, abs=np.sqrt(5) * r * th**2)
+
+
+def test_cli_radius_from_the_tool_table_d_column_and_the_offsets_file(tmp_path):
+    prog = tmp_path / "cc.nc"
+    prog.write_text(PROGRAM)
+    err = save_errors(ErrorSet(ToolSetting((0.002, -0.001, 0.0005))), tmp_path / "e.toml")
+    tbl = tmp_path / "tool.tbl"
+    tbl.write_text("T1 P1 Z+50.0 D12.0 ;end mill\nT2 P2 Z+40.0 D6.0\n")
+    out = tmp_path / "o.nc"
+    base = [sys.executable, "-m", "mtcomp", "compensate", prog, "-m", "vmc-moving-column", "-e", err,
+            "-o", out]
+    r = subprocess.run(base + ["--tool-table", tbl], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "radius 6 mm (D table)" in r.stdout                 # D12 is a diameter
+    off = tmp_path / "off.toml"
+    off.write_text("[D]\n1 = 4.5\n")
+    r = subprocess.run(base + ["--tool-table", tbl, "--offsets", off], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "radius 4.5 mm (D table)" in r.stdout               # [D] is a radius and wins
+    r = subprocess.run(base + ["--offsets", off, "--cutter-radius", "2"], capture_output=True,
+                       text=True, timeout=120)
+    assert "radius 2 mm (--cutter-radius)" in r.stdout and "cutter-radius 2 mm" in out.read_text()
