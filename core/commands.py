@@ -326,13 +326,15 @@ def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filenam
                          field="--cutter-radius")
     P = to_reference(prog, prog.position)[rows]
 
+    blk = [rows]                                     # the block of each row of q, repeated
+
     def correct(q):
         try:
             return retarget(machine, q, errors)
         except (LimitError, ConvergenceError, TableRangeError) as exc:
-            i = int(getattr(exc, "index", 0)) % len(rows)
+            i = int(blk[0][int(getattr(exc, "index", 0)) % len(blk[0])])
             raise InputError(f"cannot evaluate the correction one cutter radius from the "
-                             f"programmed point (G41/G42): {exc}", filename, int(line[rows[i]])) from None
+                             f"programmed point (G41/G42): {exc}", filename, int(line[i])) from None
 
     axes = tuple(a.name for a in machine.axes)
     rot = [k for k, a in enumerate(machine.axes) if a.is_rotary]
@@ -344,10 +346,18 @@ def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filenam
             raise InputError("the correction turns a rotary axis on a block under cutter radius "
                              "compensation G41/G42: the plane the control offsets in would turn "
                              "with it; refusing", filename, int(line[rows[np.argmax(bad)]]))
+    # end points, and the middle of every arc (the correction may vary along a long arc)
+    arcs, mid = gcut.arc_midpoints(prog, rows)
+    at = np.searchsorted(rows, arcs)
+    pts = np.vstack([P, to_reference(prog, mid, arcs)]) if len(arcs) else P
+    which = np.concatenate([np.arange(len(rows)), at])
+    blk[0] = rows[which]
     try:
-        bound = gcut.offset_error_bound(correct, P, np.asarray(prog.plane)[rows], r, axes)
+        b = gcut.offset_error_bound(correct, pts, np.asarray(prog.plane)[rows][which], r[which], axes)
     except ValueError as exc:
         raise InputError(f"G41/G42: {exc}", filename, int(line[rows[0]])) from None
+    bound = np.zeros(len(rows))
+    np.maximum.at(bound, which, b)
     over = bound > tolerance
     if over.any():
         j = int(np.argmax(over))

@@ -221,3 +221,14 @@ def test_cli_radius_from_the_tool_table_d_column_and_the_offsets_file(tmp_path):
     r = subprocess.run(base + ["--offsets", off, "--cutter-radius", "2"], capture_output=True,
                        text=True, timeout=120)
     assert "radius 2 mm (--cutter-radius)" in r.stdout and "cutter-radius 2 mm" in out.read_text()
+
+
+def test_arc_midpoints_in_the_three_planes():
+    from mtcomp.gcode.cutter import arc_midpoints
+    p = gcode.parse("G90 G17 G0 X0 Y0 Z0\nG2 X20. Y0 I10. J0\nG3 X0 Y0 R10.\n"
+                    "G18 G2 X20. Z0 I10. K0\nG19 G3 Y10. Z0 J5. K0\nG17 G1 X0\n", axes=("X", "Y", "Z"))
+    blocks, mid = arc_midpoints(p, np.arange(len(p)))
+    assert blocks.tolist() == [1, 2, 3, 4]
+    # G2 clockwise from (0,0) about (10,0) passes (10,10); G3 back counter-clockwise too;
+    # G18 G2 (clockwise seen from +Y) passes Z-10; G19 G3 from Y0 about Y5 passes Z-5
+    np.testing.assert_allclose(mid, [[10, 10, 0], [10, 10, 0], [10, 0, -10], [20, 5, -5]], atol=1e-12)

@@ -82,3 +82,32 @@ def rotary_change(correct_minus_q: np.ndarray, axes: tuple) -> np.ndarray:
     if not rot:
         return np.zeros(len(correct_minus_q))
     return np.abs(np.asarray(correct_minus_q)[:, rot]).max(axis=1)
+
+
+def arc_midpoints(program, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(blocks, midpoints): for the arc blocks among ``rows`` (indices of motion blocks), the
+    point half way along the arc (angle and helix axis), in the word frame like
+    ``program.position``.  The correction can vary along a long arc more than between its
+    end points; the bound is taken there too."""
+    rows = np.asarray(rows, np.int64)
+    arcs = rows[np.asarray(program.is_arc)[rows]]
+    if not len(arcs):
+        return arcs, np.zeros((0, program.n_axes))
+    P = np.asarray(program.position)
+    start = np.where(arcs[:, None] > 0, P[np.maximum(arcs - 1, 0)], np.asarray(program.start)[None])
+    end = P[arcs]
+    mid = 0.5 * (start + end)                # other axes (helix, rotary): half way
+    axes = program.axes
+    xyz = {a: i for i, a in enumerate("XYZ")}
+    for pl, (u, v, _) in PLANE_AXES.items():
+        sel = np.asarray(program.plane)[arcs] == pl
+        if not sel.any() or u not in axes or v not in axes:
+            continue
+        iu, iv = axes.index(u), axes.index(v)
+        cu = np.asarray(program.arc_centre)[arcs[sel], xyz[u]]
+        cv = np.asarray(program.arc_centre)[arcs[sel], xyz[v]]
+        h = 0.5 * np.asarray(program.arc_sweep)[arcs[sel]]
+        du, dv = start[sel, iu] - cu, start[sel, iv] - cv
+        mid[sel, iu] = cu + np.cos(h) * du - np.sin(h) * dv
+        mid[sel, iv] = cv + np.sin(h) * du + np.cos(h) * dv
+    return arcs, mid
