@@ -318,8 +318,8 @@ def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filenam
         given = np.isfinite(r)
         r[~given] = gcut.DEFAULT_RADIUS
         source = ("D table" if given.all() else
-                  f"assumed {gcut.DEFAULT_RADIUS:g} mm (no --cutter-radius"
-                  + (", D value not in the offsets file" if table else "") + ")"
+                  "assumed (no --cutter-radius"
+                  + (", D value not in the offsets file or tool table" if table else "") + ")"
                   + ("; D table where given" if given.any() else ""))
     if not (np.all(np.isfinite(r)) and np.all(r >= 0)):
         raise InputError(f"cutter radius must be a finite number >= 0 mm, got {r[~(r >= 0)][0]}",
@@ -361,9 +361,10 @@ def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filenam
     over = bound > tolerance
     if over.any():
         j = int(np.argmax(over))
+        src = source.replace("assumed (", "assumed: ").rstrip(")")
         raise InputError(f"under cutter radius compensation G{int(prog.cutter[rows[j]])} the "
                          f"correction is evaluated at the programmed contour, not at the tool "
-                         f"centre {r[j]:g} mm away ({source}); the difference may reach "
+                         f"centre {r[j]:g} mm away ({src}); the difference may reach "
                          f"{bound[j] * 1e3:.3g} µm, above the tolerance {tolerance * 1e3:g} µm "
                          "(the correction tilts or stretches the plane: table slopes, workpiece "
                          "tilt); refusing", filename, int(line[rows[j]]))
@@ -617,7 +618,9 @@ def _cmd_compensate(args) -> int:
     cut = rep.get("cutter")
     if cut is not None:
         print(f"cutter radius compensation G41/G42 on {cut['blocks']} blocks: corrected at the "
-              f"programmed contour; radius {cut['radius']:g} mm ({cut['source']}); worst "
+              f"programmed contour; radius {cut['radius']:g} mm "
+              + (cut["source"] if cut["source"].startswith("assumed") else f"({cut['source']})")
+              + "; worst "
               f"difference from the correction at the tool centre {cut['bound'] * 1e3:.3g} µm "
               f"(line {cut['line']}), within the tolerance {cut['tolerance'] * 1e3:g} µm")
     print(f"tool-edge error before compensation: max {rep['before_max'] * 1e3:10.3f} µm   "

@@ -63,7 +63,7 @@ def test_zero_errors_byte_identical(machine):
     out, rep = comp(machine, ErrorSet())
     assert out == PROGRAM
     assert rep["cutter"]["blocks"] == 7 and rep["cutter"]["bound"] == 0.0
-    assert "assumed 10 mm" in rep["cutter"]["source"]
+    assert rep["cutter"]["source"].startswith("assumed") and rep["cutter"]["radius"] == 10.0
 
 
 def test_rigid_shift_moves_every_programmed_word_exactly_and_keeps_arcs(machine):
@@ -152,7 +152,7 @@ def test_cli_says_the_radius_is_assumed_and_writes_it_in_the_header(tmp_path):
     r = subprocess.run([sys.executable, "-m", "mtcomp", "compensate", prog, "-m", "vmc-moving-column",
                         "-e", err, "-o", out], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert "G41/G42 on 7 blocks" in r.stdout and "assumed 10 mm" in r.stdout
+    assert "G41/G42 on 7 blocks" in r.stdout and "radius 10 mm assumed (no --cutter-radius)" in r.stdout
     assert "(CUTTER-COMP G41/G42 on 7 blocks" in out.read_text()
     r = subprocess.run([sys.executable, "-m", "mtcomp", "compensate", prog, "-m", "vmc-moving-column",
                         "-e", err, "-o", out, "--cutter-radius", "-1"], capture_output=True,

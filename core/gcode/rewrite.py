@@ -333,10 +333,12 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         j = int(lin[np.argmax(np.asarray(cutter)[lin] > 0)])
         # segments would change the control's offset path at every joint (and tiny ones raise
         # gouge alarms): an arc under G41/G42 is kept as an arc or refused
-        raise InputError(f"this arc must be written as line segments under the transform (the "
-                         f"correction is not rigid over it), but cutter radius compensation "
+        raise InputError(f"the corrected arc is not an arc in the plane within the chordal "
+                         f"tolerance (a tilt or a correction that is not rigid), so it would be "
+                         f"written as line segments, but cutter radius compensation "
                          f"G{int(cutter[j])} is active: segments would change the offset path "
-                         "the control computes; refusing", program.filename, int(line[j]))
+                         "the control computes; refusing (a larger --chordal-tol keeps arcs "
+                         "that stay within it)", program.filename, int(line[j]))
     seg = None
     inner_rows = inner_pts = None
     if len(lin):
