@@ -498,6 +498,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
     cutter = np.where(cutter_line[blines] == 40, 0, cutter_line[blines]).astype(np.int8)
     if (cutter > 0).any():
+        on = np.flatnonzero(np.isin(cut_l, (41, 42))) + 1
+        notes.append(f"G41/G42 cutter radius compensation on line(s) "
+                     f"{', '.join(str(int(x)) for x in on[:5])}{' ...' if len(on) > 5 else ''}: the "
+                     "positions are the programmed contour; the control offsets the tool by the "
+                     "D radius in the plane")
         d_val = letter_value("D")
         cutter_d = _ffill(d_val, ~np.isnan(d_val), np.nan)[blines]
     else:
