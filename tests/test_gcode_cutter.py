@@ -232,3 +232,20 @@ def test_arc_midpoints_in_the_three_planes():
     # G2 clockwise from (0,0) about (10,0) passes (10,10); G3 back counter-clockwise too;
     # G18 G2 (clockwise seen from +Y) passes Z-10; G19 G3 from Y0 about Y5 passes Z-5
     np.testing.assert_allclose(mid, [[10, 10, 0], [10, 10, 0], [10, 0, -10], [20, 5, -5]], atol=1e-12)
+
+
+def test_default_radius_refusal_says_it_was_assumed(machine):
+    with pytest.raises(InputError) as exc:
+        comp(machine, ErrorSet(workpiece=WorkpieceSetting(angles=(0.05, 0, 0))), LINES_ONLY)
+    assert exc.value.line == 7 and "10 mm away (assumed: no --cutter-radius" in str(exc.value)
+
+
+def test_canned_cycle_written_out_under_g41_refused(machine):
+    text = ("G21 G90 G17\nG0 X-5. Y-5. Z5.\nG41 D1 G1 X0 Y0 F200\n"
+            "G81 X10. Y10. R1. Z-5. F100\nG80\nG40 G0 X-5. Y-5.\nM30\n")
+    tilt = ErrorSet(workpiece=WorkpieceSetting(angles=(0.05, 0, 0)))
+    with pytest.raises(InputError) as exc:
+        comp(machine, tilt, text, cutter_radius=0.0)
+    assert exc.value.line == 4 and "canned cycle must be written out" in str(exc.value)
+    _, rep = comp(machine, tilt, text.replace("G41 D1 ", "").replace("G40 ", ""))
+    assert rep["cycles_expanded"] == 1                  # without G41 it is written out
