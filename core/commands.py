@@ -321,6 +321,13 @@ def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filenam
                   "assumed (no --cutter-radius"
                   + (", D value not in the offsets file or tool table" if table else "") + ")"
                   + ("; D table where given" if given.any() else ""))
+    if prog.cutter_radius is not None:
+        # G41.1/G42.1 D<diameter> (LinuxCNC): the program gives the radius the control uses
+        dyn = np.isfinite(np.asarray(prog.cutter_radius)[rows])
+        if dyn.any():
+            r = r.copy()
+            r[dyn] = np.asarray(prog.cutter_radius)[rows][dyn]
+            source = "G41.1/G42.1 D" if dyn.all() else source + "; G41.1/G42.1 D where given"
     if not (np.all(np.isfinite(r)) and np.all(r >= 0)):
         raise InputError(f"cutter radius must be a finite number >= 0 mm, got {r[~(r >= 0)][0]}",
                          field="--cutter-radius")

@@ -249,3 +249,18 @@ def test_canned_cycle_written_out_under_g41_refused(machine):
     assert exc.value.line == 4 and "canned cycle must be written out" in str(exc.value)
     _, rep = comp(machine, tilt, text.replace("G41 D1 ", "").replace("G40 ", ""))
     assert rep["cycles_expanded"] == 1                  # without G41 it is written out
+
+
+def test_linuxcnc_dynamic_g41_1_takes_the_diameter_from_the_program(machine):
+    text = PROGRAM.replace("G41 D1 ", "G41.1 D6. ")
+    p = gcode.parse(text, axes=("X", "Y", "Z"))
+    assert p.cutter.tolist() == gcode.parse(PROGRAM, axes=("X", "Y", "Z")).cutter.tolist()
+    assert np.all(p.cutter_radius[p.cutter > 0] == 3.0) and np.isnan(p.cutter_radius[p.cutter == 0]).all()
+    inch = gcode.parse("G20 G90 G0 X0 Y0\nG42.1 D0.5 G1 X1.\nG40 X2.\n", axes=("X", "Y", "Z"))
+    assert inch.cutter.tolist() == [0, 42, 0] and inch.cutter_radius[1] == pytest.approx(6.35)
+    out, rep = comp(machine, ErrorSet(), text, cutter_radius=20.0)
+    assert out == text                                           # byte for byte
+    assert rep["cutter"]["radius"] == 3.0 and rep["cutter"]["source"] == "G41.1/G42.1 D"
+    with pytest.raises(InputError) as exc:
+        gcode.parse("G0 X0 Y0\nG41.1 G1 X1.\n", axes=("X", "Y", "Z"))
+    assert exc.value.line == 2 and "without D" in str(exc.value)

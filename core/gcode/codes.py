@@ -24,7 +24,8 @@ _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10
 #: cutter radius compensation: G41 left, G42 right of the path, G40 cancel.  The control
 #: offsets the programmed contour by the tool radius (D) in the active plane; mtcomp corrects
 #: the programmed contour and bounds the error of doing so (commands.cutter_bound, docs/gcode.md)
-_G_CUTTER = {400: 40, 410: 41, 420: 42}
+#: G41.1/G42.1 (LinuxCNC dynamic compensation): D is the tool diameter, in the program
+_G_CUTTER = {400: 40, 410: 41, 420: 42, 411: 411, 421: 421}
 #: feed mode: G93 inverse time, G94 per minute, G95 per revolution
 _G_FEED = {930: 93, 940: 94, 950: 95}
 #: codes whose axis words are not moves: G92 (the current position gets these coordinates),

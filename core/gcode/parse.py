@@ -496,10 +496,21 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
               "blocks: not supported", blines[j], filename)
     ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
-    cutter = np.where(cutter_line[blines] == 40, 0, cutter_line[blines]).astype(np.int8)
+    cl = cutter_line[blines]
+    cutter = np.where(cl == 40, 0, np.where(cl > 100, cl // 10, cl)).astype(np.int8)
+    cutter_radius = np.full(nblk, np.nan)
+    if (cl > 100).any():
+        # G41.1/G42.1 D<diameter>: the radius is the D word of the line that switched it on
+        d_val = letter_value("D")
+        dyn = np.isin(cut_l, (411, 421))
+        if np.isnan(d_val[dyn]).any():
+            _fail("G41.1/G42.1 without D (the tool diameter)", int(np.flatnonzero(dyn & np.isnan(d_val))[0]),
+                  filename)
+        dia = _ffill(np.where(dyn, d_val * np.where(inch_line, INCH, 1.0), np.nan), cut_l >= 0, np.nan)
+        cutter_radius = 0.5 * dia[blines]
     if (cutter > 0).any():
-        on = np.flatnonzero(np.isin(cut_l, (41, 42))) + 1
-        notes.append(f"G41/G42 cutter radius compensation on line(s) "
+        on = np.flatnonzero(np.isin(cut_l, (41, 42, 411, 421))) + 1
+        notes.append(f"G41/G42 cutter radius compensation on line(s) "  # (also G41.1/G42.1)
                      f"{', '.join(str(int(x)) for x in on[:5])}{' ...' if len(on) > 5 else ''}: the "
                      "positions are the programmed contour; the control offsets the tool by the "
                      "D radius in the plane")
@@ -617,7 +628,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
                   tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
-                  tool_unknown=tool_unknown, cutter=cutter, cutter_d=cutter_d)
+                  tool_unknown=tool_unknown, cutter=cutter, cutter_d=cutter_d,
+                  cutter_radius=cutter_radius)
     for a in arrays.values():
         if a is not None:
             a.flags.writeable = False
