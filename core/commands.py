@@ -149,7 +149,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                        provenance: list | None = None, force: bool = False, progress=None,
                        convert_inch: bool = False, tool_lengths=None, work_offsets=None,
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
-                       tolerance: float = 5e-4, warn_only: bool = False, search_path=None):
+                       tolerance: float = 5e-4, warn_only: bool = False, search_path=None,
+                       cutter_radius: float | None = None, cutter_offsets: dict | None = None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -165,6 +166,10 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     raises VerifyError naming the block, unless ``warn_only`` (then it is in the report).
     Every emitted end position is checked against the travel of its axis (arcs: their interior
     points are solved for and checked by the compensation itself).
+    cutter_radius (mm) / cutter_offsets ({D number: radius mm}): the tool radius of blocks
+    under G41/G42 (the option wins; default gcode.cutter.DEFAULT_RADIUS, noted): their
+    correction is evaluated at the programmed contour, and a block where that differs from the
+    correction at the tool centre by more than ``tolerance`` is refused (docs/gcode.md).
     search_path: directories where subprograms called but not in the program are looked for
     (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
     Returns (new_text, report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
@@ -190,7 +195,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                                 progress=progress, convert_inch=convert_inch,
                                 tool_lengths=tool_lengths, work_offsets=work_offsets,
                                 arc_tol=arc_tol, stock=stock, part=part, clearance=clearance,
-                                tolerance=tolerance, warn_only=warn_only)
+                                tolerance=tolerance, warn_only=warn_only,
+                                cutter_radius=cutter_radius, cutter_offsets=cutter_offsets)
     res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
                        convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
@@ -236,9 +242,12 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     info = {}
     new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
                                                   unknown=unknown, row_lines=calls, info=info)
+    kn = np.asarray(info["compensated"])
+    cut = _cutter_check(machine, prog, errors, kn, cutter_radius, cutter_offsets, tolerance,
+                        filename)
     added = 0
     if provenance is not None:
-        new_text, at, added = insert_header(new_text, header_lines(provenance))
+        new_text, at, added = insert_header(new_text, header_lines(provenance + _cutter_items(cut)))
         out_line = np.where(out_line > at, out_line + added, out_line)
     # Check the result as the machine will run it: the emitted positions (rounded numbers, the
     # end of linearised arcs) through the forward model with the errors, in chunks.
@@ -278,8 +287,106 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
               "cycles_kept": info["cycles_kept"], "cycles_expanded": info["cycles_expanded"],
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
-              "verify": verified, "flow": None, "compensated": kn}
+              "verify": verified, "flow": None, "compensated": kn, "cutter": cut}
     return new_text, report
+
+
+def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filename):
+    """Blocks under G41/G42: the bound on correcting the programmed contour instead of the
+    tool centre (gcode.cutter) at each compensated block's end point, refused above
+    ``tolerance`` (mm).  Returns None without such blocks, else a dict: blocks, worst bound
+    (mm) and its line, the radius used and where it came from."""
+    from .gcode import cutter as gcut
+    from .gcode.rotation import to_reference
+    if prog.cutter is None:
+        return None
+    rows = np.flatnonzero((np.asarray(prog.cutter) > 0) & kn)
+    if not len(rows):
+        return None
+    line = np.asarray(prog.line)
+    tcp = np.asarray(prog.tcp)
+    if tcp.any() and tcp[rows].any():
+        raise InputError("cutter radius compensation G41/G42 with G43.4 tool centre point is "
+                         "not supported", filename, int(line[rows[np.argmax(tcp[rows])]]))
+    if radius is not None:
+        r = np.full(len(rows), float(radius))
+        source = "--cutter-radius"
+    else:
+        d = np.asarray(prog.cutter_d)[rows]
+        table = {int(k): float(v) for k, v in (offsets or {}).items()}
+        r = np.array([table.get(int(x), np.nan) if np.isfinite(x) else np.nan for x in d])
+        given = np.isfinite(r)
+        r[~given] = gcut.DEFAULT_RADIUS
+        source = ("D table" if given.all() else
+                  "assumed (no --cutter-radius"
+                  + (", D value not in the offsets file or tool table" if table else "") + ")"
+                  + ("; D table where given" if given.any() else ""))
+    if prog.cutter_radius is not None:
+        # G41.1/G42.1 D<diameter> (LinuxCNC): the program gives the radius the control uses
+        dyn = np.isfinite(np.asarray(prog.cutter_radius)[rows])
+        if dyn.any():
+            r = r.copy()
+            r[dyn] = np.asarray(prog.cutter_radius)[rows][dyn]
+            source = "G41.1/G42.1 D" if dyn.all() else source + "; G41.1/G42.1 D where given"
+    if not (np.all(np.isfinite(r)) and np.all(r >= 0)):
+        raise InputError(f"cutter radius must be a finite number >= 0 mm, got {r[~(r >= 0)][0]}",
+                         field="--cutter-radius")
+    P = to_reference(prog, prog.position)[rows]
+
+    blk = [rows]                                     # the block of each row of q, repeated
+
+    def correct(q):
+        try:
+            return retarget(machine, q, errors)
+        except (LimitError, ConvergenceError, TableRangeError) as exc:
+            i = int(blk[0][int(getattr(exc, "index", 0)) % len(blk[0])])
+            raise InputError(f"cannot evaluate the correction one cutter radius from the "
+                             f"programmed point (G41/G42): {exc}", filename, int(line[i])) from None
+
+    axes = tuple(a.name for a in machine.axes)
+    rot = [k for k, a in enumerate(machine.axes) if a.is_rotary]
+    if rot:
+        turn = np.abs(correct(P)[:, rot] - P[:, rot])
+        res_rot = np.array([machine.axes[k].resolution for k in rot])
+        bad = (turn > 0.5 * res_rot).any(axis=1)
+        if bad.any():
+            raise InputError("the correction turns a rotary axis on a block under cutter radius "
+                             "compensation G41/G42: the plane the control offsets in would turn "
+                             "with it; refusing", filename, int(line[rows[np.argmax(bad)]]))
+    # end points, and the middle of every arc (the correction may vary along a long arc)
+    arcs, mid = gcut.arc_midpoints(prog, rows)
+    at = np.searchsorted(rows, arcs)
+    pts = np.vstack([P, to_reference(prog, mid, arcs)]) if len(arcs) else P
+    which = np.concatenate([np.arange(len(rows)), at])
+    blk[0] = rows[which]
+    try:
+        b = gcut.offset_error_bound(correct, pts, np.asarray(prog.plane)[rows][which], r[which], axes)
+    except ValueError as exc:
+        raise InputError(f"G41/G42: {exc}", filename, int(line[rows[0]])) from None
+    bound = np.zeros(len(rows))
+    np.maximum.at(bound, which, b)
+    over = bound > tolerance
+    if over.any():
+        j = int(np.argmax(over))
+        src = source.replace("assumed (", "assumed: ").rstrip(")")
+        raise InputError(f"under cutter radius compensation G{int(prog.cutter[rows[j]])} the "
+                         f"correction is evaluated at the programmed contour, not at the tool "
+                         f"centre {r[j]:g} mm away ({src}); the difference may reach "
+                         f"{bound[j] * 1e3:.3g} µm, above the tolerance {tolerance * 1e3:g} µm "
+                         "(the correction tilts or stretches the plane: table slopes, workpiece "
+                         "tilt); refusing", filename, int(line[rows[j]]))
+    j = int(np.argmax(bound))
+    return {"blocks": int(len(rows)), "bound": float(bound[j]), "line": int(line[rows[j]]),
+            "radius": float(r[j]), "source": source, "tolerance": float(tolerance)}
+
+
+def _cutter_items(cut) -> list:
+    """Provenance items for the G41/G42 check (none without cutter compensation)."""
+    if cut is None:
+        return []
+    return [("CUTTER-COMP", f"G41/G42 on {cut['blocks']} blocks: correction at the programmed "
+             f"contour; radius {cut['radius']:g} mm [{cut['source']}]; worst bound "
+             f"{cut['bound']:.2e} mm at line {cut['line']}, tolerance {cut['tolerance']:g} mm")]
 
 
 def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
@@ -306,8 +413,12 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
     notes = tuple(re.sub(r"(?<=line\(s\) )(\d+(?:, \d+)*)", src_line, n) for n in report["notes"])
     report = dict(report, notes=notes + (note,), flow=mode,
                   lines=fl.main_lines or len(flow._lines(fl.text)))
+    if report.get("cutter") is not None:
+        # the worst G41/G42 block by its source line (a subprogram file: named)
+        f, ln = fl.where(int(fl.origin[report["cutter"]["line"] - 1]))
+        report["cutter"] = dict(report["cutter"], line=ln if f == filename else f"{Path(f).name}:{ln}")
     if provenance is not None:
-        new, _, added = insert_header(new, header_lines(provenance))
+        new, _, added = insert_header(new, header_lines(provenance + _cutter_items(report["cutter"])))
         report["header_lines"] = added
     return new, report
 
@@ -452,6 +563,19 @@ def _cmd_compensate(args) -> int:
         options.append("subprogram-path " + args.subprogram_path)
     if args.force:
         options.append("force")
+    cutter_radius = args.cutter_radius
+    if cutter_radius is not None:
+        if not (math.isfinite(cutter_radius) and cutter_radius >= 0):
+            raise InputError(f"expected a cutter radius >= 0 mm, got {cutter_radius}",
+                             field="--cutter-radius")
+        options.append(f"cutter-radius {cutter_radius:g} mm")
+    # G41/G42 D<n> radii: the offsets file's [D] (radius), else the tool table's D column
+    # (diameter of tool n, LinuxCNC)
+    cutter_offsets = dict(getattr(tools, "radius_of_tool", {}) or {})
+    if args.work_offsets is not None:
+        from .gcode.offsets import read_offsets
+        cutter_offsets.update(read_offsets(args.work_offsets, machine.axis_names)[1])
+    cutter_offsets = cutter_offsets or None
     provenance = [("VERSION", f"mtcomp {__version__}"),
                   ("ERRORS", f"{Path(args.errors).name} SHA256 {_sha256(args.errors)}"),
                   ("MACHINE", machine.name),
@@ -473,7 +597,8 @@ def _cmd_compensate(args) -> int:
                                        tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol,
                                        stock=stock, part=part, clearance=args.clearance,
                                        tolerance=args.tolerance, warn_only=args.warn_only,
-                                       search_path=search)
+                                       search_path=search, cutter_radius=cutter_radius,
+                                       cutter_offsets=cutter_offsets)
     atomic_write(out, new_text if encoding == "utf-8" else new_text.encode(encoding))
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
     if encoding != "utf-8":
@@ -497,6 +622,14 @@ def _cmd_compensate(args) -> int:
     if rep["cycles_kept"] or rep["cycles_expanded"]:
         print(f"canned cycle holes: {rep['cycles_kept']} kept (rigid shift: positions and R/Z levels "
               f"compensated), {rep['cycles_expanded']} written out as moves")
+    cut = rep.get("cutter")
+    if cut is not None:
+        print(f"cutter radius compensation G41/G42 on {cut['blocks']} blocks: corrected at the "
+              f"programmed contour; radius {cut['radius']:g} mm "
+              + (cut["source"] if cut["source"].startswith("assumed") else f"({cut['source']})")
+              + "; worst "
+              f"difference from the correction at the tool centre {cut['bound'] * 1e3:.3g} µm "
+              f"(line {cut['line']}), within the tolerance {cut['tolerance'] * 1e3:g} µm")
     print(f"tool-edge error before compensation: max {rep['before_max'] * 1e3:10.3f} µm   "
           f"RMS {rep['before_rms'] * 1e3:10.3f} µm")
     print(f"tool-edge error after  compensation: max {rep['after_max'] * 1e6:10.3f} nm   "
@@ -550,6 +683,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(defer, default) or refuse the program naming the line")
     from .gcode.offsets import add_tool_length_options
     add_tool_length_options(p)
+    p.add_argument("--cutter-radius", type=float, default=None, metavar="MM",
+                   help="tool radius under G41/G42, mm (default: the [D] value of the offsets "
+                        "file, else 10 mm assumed and said so): bounds the error of correcting "
+                        "the programmed contour instead of the tool centre")
     p.add_argument("--subprogram-path", metavar="DIR[%sDIR]" % os.pathsep.replace("%", "%%"),
                    help="directories searched, after the program's own, for subprograms in other "
                         "files (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written "

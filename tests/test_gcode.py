@@ -402,7 +402,6 @@ REFUSALS = [
     ("G10 L2 P0 X0\nG55 G0 X1.\n", 1, "G10 L2 P0 sets the external work offset"),
     ("G18 G7\nG0 X20. Z1.\n", 1, "G7 diameter mode (LinuxCNC lathe): X words are diameters"),
     ("G91 G81 R.1 Z-.5 ^60 L6 F10\n", 1, "LinuxCNC polar coordinates (@ distance, ^ angle)"),
-    ("G41 D1 X1.\n", 1, None),
     ("G5.1 Q1\n", 1, "unknown"),
     ("G1 X1.\nG12 X2.\n", 2, "unknown G code G12"),
     ("G1 X1.2.3\n", 1, "malformed number"),

@@ -21,6 +21,11 @@ _G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434}
 #: canned drilling cycles (hole at X Y, R level, depth Z; G98 back to the initial level, G99
 #: to R)
 _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10)}}
+#: cutter radius compensation: G41 left, G42 right of the path, G40 cancel.  The control
+#: offsets the programmed contour by the tool radius (D) in the active plane; mtcomp corrects
+#: the programmed contour and bounds the error of doing so (commands.cutter_bound, docs/gcode.md)
+#: G41.1/G42.1 (LinuxCNC dynamic compensation): D is the tool diameter, in the program
+_G_CUTTER = {400: 40, 410: 41, 420: 42, 411: 411, 421: 421}
 #: feed mode: G93 inverse time, G94 per minute, G95 per revolution
 _G_FEED = {930: 93, 940: 94, 950: 95}
 #: codes whose axis words are not moves: G92 (the current position gets these coordinates),
@@ -31,7 +36,6 @@ _G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501, 920: 92}
 _G_HARMLESS = {
     40: "dwell", 90: "exact stop (one block)", 150: "polar coordinates cancel",
     80: "radius mode (LinuxCNC lathe: X words are radii, the default); look-ahead (Fanuc G08)",
-    400: "cutter compensation cancel",
     500: "scaling cancel", 610: "exact stop mode", 611: "inposition check mode",
     640: "cutting mode", 670: "macro modal call cancel", 690: "coordinate rotation cancel",
     800: "canned cycle cancel", 970: "constant spindle speed", 980: "cycle return to initial level",
@@ -45,8 +49,6 @@ _G_REFUSED = {
     70: "G7 diameter mode (LinuxCNC lathe): X words are diameters, not axis positions",
     290: "G29 returns from the reference point through an unknown intermediate point",
     310: "G31 skip function: the end point depends on a probe signal",
-    410: "G41 cutter radius compensation offsets the path by a radius not in the program",
-    420: "G42 cutter radius compensation offsets the path by a radius not in the program",
     435: "G43.5 tool centre point with a tool vector (I J K) is not compensated: the control "
          "picks the rotary angles among several solutions by its own rules and the errors "
          "depend on that choice (post with G43.4 and rotary angles, which is compensated)",

@@ -5,8 +5,8 @@ Files (docs/gcode.md, "Offset files"):
 
 * a LinuxCNC tool table: ``T1 P1 Z+50.0 D6.0 ;comment`` per tool; the Z value is the tool
   length of tool (and H number) 1;
-* an offsets TOML: ``[H]`` tool lengths by H number, ``[D]`` cutter offsets by D number (read,
-  not used: G41/G42 are refused), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` work offsets as axis
+* an offsets TOML: ``[H]`` tool lengths by H number, ``[D]`` cutter radii by D number (the
+  G41/G42 bound of `mtcomp compensate`), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` work offsets as axis
   letter = mm/deg;
 * CSV of ``H,length_mm`` lines (a header and ``#`` comments allowed).
 
@@ -114,7 +114,7 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
         elif L == 1 and "R" in w:
             out.append((int(ln), "amb", P, w["R"] * scale, inc))
         elif L in (12, 13):
-            pass                                   # D (radius) values: G41/G42 are refused
+            pass                                   # D (radius) values: not read (--cutter-radius, [D])
         else:
             fail(f"L{L} with {' '.join(sorted(k for k in w if k not in 'LPG'))}: not read (L10/L11 "
                  "with axis words set offsets from the current position on LinuxCNC)")
@@ -415,8 +415,9 @@ class ToolTable(dict):
     ``by_tool`` {T: mm} (the length of the tool a T word loads), ``h_of_tool`` {T: H} and
     ``note``, the convention used (said in the output of the commands)."""
 
-    def __init__(self, by_h=(), *, by_tool=None, h_of_tool=None, note=""):
+    def __init__(self, by_h=(), *, by_tool=None, h_of_tool=None, note="", radius_of_tool=None):
         super().__init__(by_h)
+        self.radius_of_tool = dict(radius_of_tool or {})   # {T: mm}, half the D (diameter) column
         self.by_tool = dict(by_tool or {})
         self.h_of_tool = dict(h_of_tool or {})
         self.note = note
@@ -447,6 +448,9 @@ def read_tool_table(path) -> ToolTable:
                              file=path, line=n, field="H")
         if "Z" in words and not math.isfinite(words["Z"]):
             raise InputError("tool length Z is not finite", file=path, line=n)
+        if "D" in words and not (math.isfinite(words["D"]) and words["D"] >= 0):
+            raise InputError(f"tool diameter D must be a finite number >= 0 mm, got {words['D']:g}",
+                             file=path, line=n, field="D")
         rows.append((n, words))
     has_h = any("H" in w for _, w in rows)
     for n, w in rows:
@@ -465,7 +469,9 @@ def read_tool_table(path) -> ToolTable:
     note = (f"tool table {os.path.basename(str(path))}: lengths by the H column" if has_h else
             f"tool table {os.path.basename(str(path))} has no H column: H = T (offset number = tool "
             "number, the Fanuc/Haas convention)")
-    return ToolTable(by_h, by_tool=by_t, h_of_tool=h_of_t, note=note)
+    # D is the diameter (LinuxCNC); G41/G42 D<n> takes tool n's radius
+    radii = {int(w["T"]): 0.5 * w["D"] for _, w in rows if "D" in w}
+    return ToolTable(by_h, by_tool=by_t, h_of_tool=h_of_t, note=note, radius_of_tool=radii)
 
 
 def is_tool_table(path) -> bool:
@@ -576,5 +582,5 @@ def tool_lengths_of_options(args, axes) -> tuple[dict | None, dict | None]:
     if file_tools:
         merged = {**file_tools, **(tools or {})}          # --tool-lengths wins
         tools = ToolTable(merged, by_tool=tools.by_tool, h_of_tool=tools.h_of_tool,
-                          note=tools.note) if isinstance(tools, ToolTable) else merged
+                          note=tools.note, radius_of_tool=tools.radius_of_tool) if isinstance(tools, ToolTable) else merged
     return tools, works or None

@@ -11,7 +11,7 @@ from . import _ctok
 from .arcs import _arc_geometry
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR, siemens_hint
 from .codes import (_CHAR_HINT, _G_ARC_DIST, _G_CYCLE, _G_DIST, _G_FEED, _G_HARMLESS, _G_MOTION, _G_NONMOVE,
-                    _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
+                    _G_CUTTER, _G_PLANE, _G_REFUSED, _G_TOOL, _G_UNITS, _G_WCS, _M_REFUSED)
 from .offsets import g10_events, offsets_per_line, tool_change_warnings
 from .program import Program, resolution_formats
 from .textops import parse_decimals
@@ -175,7 +175,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     cat = np.full(len(gi), -1, np.int64)
     tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
               (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_CYCLE, 11),
-              (_G_HARMLESS, 6), ({100: 10}, 12), ({680: 68}, 13)]
+              (_G_HARMLESS, 6), ({100: 10}, 12), ({680: 68}, 13), (_G_CUTTER, 14)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
@@ -244,6 +244,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     tool_l, _ = per_line(8, _G_TOOL, "tool length (G43 G44 G49)")
     nonmove_l, _ = per_line(9, _G_NONMOVE, "non-modal positioning (G28 G30 G52 G53)")
     feedm_l, _ = per_line(10, _G_FEED, "feed mode (G93 G94 G95)")
+    cut_l, _ = per_line(14, _G_CUTTER, "cutter compensation (G40 G41 G42)")
+    # G41/G42 per line, modal until G40: the block's end point is offset by the control
+    cutter_line = _ffill(cut_l, cut_l >= 0, 40)
     dwell_line = np.zeros(n_lines, bool)
     dwell_line[gline[cat == 1]] = True
     g50_line = np.zeros(n_lines, bool)
@@ -493,6 +496,28 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
               "blocks: not supported", blines[j], filename)
     ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
+    cl = cutter_line[blines]
+    cutter = np.where(cl == 40, 0, np.where(cl > 100, cl // 10, cl)).astype(np.int8)
+    cutter_radius = np.full(nblk, np.nan)
+    if (cl > 100).any():
+        # G41.1/G42.1 D<diameter>: the radius is the D word of the line that switched it on
+        d_val = letter_value("D")
+        dyn = np.isin(cut_l, (411, 421))
+        if np.isnan(d_val[dyn]).any():
+            _fail("G41.1/G42.1 without D (the tool diameter)", int(np.flatnonzero(dyn & np.isnan(d_val))[0]),
+                  filename)
+        dia = _ffill(np.where(dyn, d_val * np.where(inch_line, INCH, 1.0), np.nan), cut_l >= 0, np.nan)
+        cutter_radius = 0.5 * dia[blines]
+    if (cutter > 0).any():
+        on = np.flatnonzero(np.isin(cut_l, (41, 42, 411, 421))) + 1
+        notes.append(f"G41/G42 cutter radius compensation on line(s) "  # (also G41.1/G42.1)
+                     f"{', '.join(str(int(x)) for x in on[:5])}{' ...' if len(on) > 5 else ''}: the "
+                     "positions are the programmed contour; the control offsets the tool by the "
+                     "D radius in the plane")
+        d_val = letter_value("D")
+        cutter_d = _ffill(d_val, ~np.isnan(d_val), np.nan)[blines]
+    else:
+        cutter_d = np.full(nblk, np.nan)
     inverse_time = _ffill(feedm_l == 93, feedm_l >= 0, False)[blines]
     plane = plane_line[blines]
     incremental = incr_line[blines]
@@ -501,7 +526,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # the per-line state is in the block arrays now: free it before the positions (peak memory)
     del (mot_l, pla_l, dis_l, wcs_l, acm_l, tool_l, nonmove_l, feedm_l, dwell_line, g50_line,
          p_line, h_line, incr_line, plane_line, mode_line, cyc_l, cyc_w, ev, rl, fval, fset,
-         feed_line, blk_of_line, block, has_motion, has_arcw, gi, cat)
+         feed_line, blk_of_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
     vals = value[np.maximum(col_word, 0)]
     vals[col_word < 0] = np.nan
     if inch.any():
@@ -603,7 +628,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
                   tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
-                  tool_unknown=tool_unknown)
+                  tool_unknown=tool_unknown, cutter=cutter, cutter_d=cutter_d,
+                  cutter_radius=cutter_radius)
     for a in arrays.values():
         if a is not None:
             a.flags.writeable = False

@@ -85,6 +85,12 @@ class Program:
                                      # tool has no known length: tool_tip 0 (the gauge point);
                                      # only where a G43/G44/G43.4 follows the change
 
+    cutter: np.ndarray = None        # (N,) 41/42: the block is under cutter radius compensation
+                                     # G41/G42 (its end point offset by the control), 0: not
+    cutter_d: np.ndarray = None      # (N,) the modal D number (NaN: none written yet)
+    cutter_radius: np.ndarray = None  # (N,) mm, radius the program gives (G41.1/G42.1 D<diameter>
+                                      # of LinuxCNC: D/2), NaN where the control's table gives it
+
     @property
     def n_axes(self) -> int:
         return len(self.axes)

@@ -314,6 +314,11 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         dE = dK[np.searchsorted(kk, cb)].astype(np.int64)
         expanded = _cycle_edits(ctx, program, cb, cyc_delta, dE, new, res, fm,
                                 inc_=np.asarray(program.incremental))
+        if program.cutter is not None and len(expanded) and (np.asarray(program.cutter)[expanded] > 0).any():
+            j = int(expanded[np.argmax(np.asarray(program.cutter)[expanded] > 0)])
+            raise InputError("this canned cycle must be written out as moves, but cutter radius "
+                             "compensation (G41/G42) is active: refusing", program.filename,
+                             int(line[j]))
         kn_edit = kn.copy()
         kn_edit[expanded] = False                 # written out as new lines instead
 
@@ -323,6 +328,17 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, fm, chordal_tol, program.arc_tol, offc)
     del St
     lin = ak[~keep]
+    cutter = program.cutter
+    if cutter is not None and len(lin) and (np.asarray(cutter)[lin] > 0).any():
+        j = int(lin[np.argmax(np.asarray(cutter)[lin] > 0)])
+        # segments would change the control's offset path at every joint (and tiny ones raise
+        # gouge alarms): an arc under G41/G42 is kept as an arc or refused
+        raise InputError(f"the corrected arc is not an arc in the plane within the chordal "
+                         f"tolerance (a tilt or a correction that is not rigid), so it would be "
+                         f"written as line segments, but cutter radius compensation "
+                         f"G{int(cutter[j])} is active: segments would change the offset path "
+                         "the control computes; refusing (a larger --chordal-tol keeps arcs "
+                         "that stay within it)", program.filename, int(line[j]))
     seg = None
     inner_rows = inner_pts = None
     if len(lin):
