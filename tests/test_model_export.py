@@ -238,7 +238,10 @@ def test_bad_dynamics_and_missing_provenance_are_named(tmp_path):
     bad.write_text('[parameters]\n"servo.kv.Q" = 30.0\n')
     with pytest.raises(InputError, match="axis Q"):
         load_dynamics(bad, VMC)
-    bad.write_text('[parameters]\n"backlash.X" = -0.001\n')
+    bad.write_text('[parameters]\n"backlash.X" = -2.0\n')     # negative is an over-compensated backlash, to -1
+    with pytest.raises(InputError, match="within"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"friction.breakaway.X" = -0.001\n')
     with pytest.raises(InputError, match=">= 0"):
         load_dynamics(bad, VMC)
     bad.write_text('[parameters]\n"friction.X" = 1.0\n')

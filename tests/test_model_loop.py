@@ -96,6 +96,11 @@ def test_negative_backlash_loop(tmp_path):
     _within_3sigma(got["backlash.X"].value, got["backlash.X"].sigma, b)
     assert res.heldout_rms["before"]["x"] > 20 * NOISE
     _assert_matches_noise(res)
+    # the written model carries it: dynamics.toml reads back negative (the FMU's range is +-1)
+    from mtcomp.model.dynamics import load_dynamics
+    export_model(diag, M, tmp_path / "model", step=STEP)
+    from mtcomp.machine import load_machine
+    assert load_dynamics(tmp_path / "model" / "dynamics.toml", load_machine(M))["backlash.X"] == pytest.approx(b, abs=3 * got["backlash.X"].sigma)
 
 
 def test_squareness_loop(tmp_path, nominal):
