@@ -301,3 +301,11 @@ def test_compensation_of_a_negative_backlash_is_exact_through_the_fmu(machine, t
     assert abs(np.max(np.abs(raw[:, z] - w[:, z])) - 0.5 * abs(b)) < 1e-9
     naive = run_machine(fmu, machine, feed_forward(w - backlash_offsets(w, [abs(b)] * 3), kv, step), step).actual
     assert np.max(np.abs(naive[:, z] - w[:, z])) > 0.9 * abs(b)
+
+
+def test_backlash_range_is_plus_minus_one(machine, tmp_path):
+    """backlash.<AXIS> spans -1..1 mm or deg (negative: the mirrored play); beyond, refused by name."""
+    from mtcomp._io import MtcompError
+    with pytest.raises(MtcompError, match=r"backlash.X = -1.5 is outside \[-1.0, 1.0\]"):
+        build_machine_fmu(machine, tmp_path / "a.fmu", dynamics=MachineDynamics(backlash=(-1.5, 0.0, 0.0)))
+    assert build_machine_fmu(machine, tmp_path / "b.fmu", dynamics=MachineDynamics(backlash=(-1.0, 0.0, 0.0))).is_file()
