@@ -350,7 +350,8 @@ class MachineDynamics:
 
     kv: servo gain per axis in 1/s (0: ideal servo, at the command by the end of each step);
     interpolation: 0 the servo holds each command over the step, 1 it follows the command
-    linearly from the previous step's (ramp invariant); backlash per axis in mm or deg;
+    linearly from the previous step's (ramp invariant); backlash per axis in mm or deg (negative:
+    an over-compensated backlash, the mirror of the play about the servo position);
     delay: transport delay of the commands (s); friction_breakaway, friction_coulomb per axis
     (mm or deg) and friction_tau (s): at a reversal static friction holds the slide until the
     drive has wound up by the breakaway distance, then it catches up with time constant tau to a
@@ -810,8 +811,10 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     for i, a in enumerate(machine.axes):
         unit, disp = _axis_unit(machine, i)
         extra.append(Var(f"backlash.{a.name}", VR_BACKLASH + i, "parameter",
-                         f"Backlash (play width) of axis {a.name}, {unit}", start=bl[i], unit=unit,
-                         display_unit=disp, min=0.0, max=1.0))
+                         f"Backlash (play width) of axis {a.name}, {unit}; negative: an over-compensated "
+                         "backlash, the mirror of the play of width |b| about the servo position (leads the "
+                         "command by |b|/2)", start=bl[i], unit=unit,
+                         display_unit=disp, min=-1.0, max=1.0))
     extra.append(Var("servo.interpolation", IVR_INTERP, "parameter",
                      "Command of the servos over a step: 0 held (zero-order hold), 1 linear from the previous "
                      "step's command (ramp invariant: no half-step shift of the response)", type="Integer",

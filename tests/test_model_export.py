@@ -238,7 +238,10 @@ def test_bad_dynamics_and_missing_provenance_are_named(tmp_path):
     bad.write_text('[parameters]\n"servo.kv.Q" = 30.0\n')
     with pytest.raises(InputError, match="axis Q"):
         load_dynamics(bad, VMC)
-    bad.write_text('[parameters]\n"backlash.X" = -0.001\n')
+    bad.write_text('[parameters]\n"backlash.X" = -2.0\n')     # negative is an over-compensated backlash, to -1
+    with pytest.raises(InputError, match="within"):
+        load_dynamics(bad, VMC)
+    bad.write_text('[parameters]\n"friction.breakaway.X" = -0.001\n')
     with pytest.raises(InputError, match=">= 0"):
         load_dynamics(bad, VMC)
     bad.write_text('[parameters]\n"friction.X" = 1.0\n')
@@ -261,9 +264,13 @@ def test_bad_dynamics_and_missing_provenance_are_named(tmp_path):
                         "--drivers", "drv.csv", "-o", "s.csv"], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode != 0 and "drv.csv" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "s.csv").exists()
-    # a leading (negative) backlash has no home in the FMU's play: listed, not exported
-    ex = export_model({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": -0.001})]}, VMC)
-    assert not ex.mapped and "negative" in ex.unmapped[0][1]
+    # a leading (negative, over-compensated) backlash maps to a negative backlash.X, sigma along
+    # (the FMU mirrors its play: issue 18, every effect of the diagnosis has a home)
+    ex = export_model({"effects": [_effect("backlash", "x", ["x"], {"backlash_mm": -0.001},
+                                           {"backlash_mm": 2e-5})]}, VMC)
+    assert not ex.unmapped
+    (p,) = ex.params
+    assert (p.name, p.value, p.sigma) == ("backlash.X", -0.001, 2e-5)
 
 
 def test_output_names_with_prefixes_and_suffixes():

@@ -65,6 +65,44 @@ def test_backlash_loop(tmp_path, nominal):
     assert (tmp_path / "model" / "machine.ssv").is_file()
 
 
+# the zig-zag with rests: after each move in X a Z move up and down holds X and Y still, so the
+# diagnosis sees the axes at rest after motion in both directions (what tells a reversal error
+# that leads the command from a lead proportional to the speed: Backlash.implausible)
+PROGRAM_RESTS = """G90 G1 F1200
+X0 Y0 Z0
+X20 Y5
+Z2
+Z0
+X-20 Y-10
+Z2
+Z0
+X15 Y10
+Z2
+Z0
+X-15 Y-5
+Z2
+Z0
+X0 Y0
+"""
+
+
+def test_negative_backlash_loop(tmp_path):
+    """An over-compensated backlash on X, backlash.X = -4 µm (the FMU mirrors the play about the
+    servo position: the axis leads the command by 2 µm): diagnosed as the negative backlash,
+    exported as backlash.X < 0 (it had no home before: NoHome), re-simulated to the noise."""
+    b = -0.004
+    diag, got, res = _dyn_loop(tmp_path, PROGRAM_RESTS, MachineDynamics(backlash=(b, 0.0, 0.0), noise=NOISE, seed=7))
+    assert diag.names == ["backlash"], diag.names
+    _within_3sigma(got["backlash.X"].value, got["backlash.X"].sigma, b)
+    assert res.heldout_rms["before"]["x"] > 20 * NOISE
+    _assert_matches_noise(res)
+    # the written model carries it: dynamics.toml reads back negative (the FMU's range is +-1)
+    from mtcomp.model.dynamics import load_dynamics
+    export_model(diag, M, tmp_path / "model", step=STEP)
+    from mtcomp.machine import load_machine
+    assert load_dynamics(tmp_path / "model" / "dynamics.toml", load_machine(M))["backlash.X"] == pytest.approx(b, abs=3 * got["backlash.X"].sigma)
+
+
 def test_squareness_loop(tmp_path, nominal):
     ec0y = 20e-6    # rad: Y tilted about Z
     diag, ex, res = _loop(tmp_path, nominal, errors=ErrorSet(geometric=GeometricErrors({}, {"EC0Y": ec0y})),

@@ -65,6 +65,12 @@ CASES = {
                  friction_tau=(0.0, 0.01, 0.0), glitch_height=(0.0, 0.0, 0.001), glitch_time=(0.0, 0.0, 0.01),
                  velfriction_coulomb=(0.2, 0.1, 0.05), velfriction_viscous=(0.02, 0.0, -0.01),
                  velfriction_vs=(0.5, 0.0, 1.0))),
+    "negative (over-compensated) backlash alone, held servo": dict(
+        dyn=dict(kv=(50.0, 70.0, 0.0), backlash=(-0.004, -0.002, -0.003))),
+    "negative backlash with friction, glitch and delay, ramp servo": dict(
+        dyn=dict(kv=(40.0, 0.0, 80.0), interpolation=1, delay=0.0021, backlash=(-0.003, 0.002, -0.002),
+                 friction_breakaway=(0.002, 0.001, 0.003), friction_coulomb=(0.0005, 0.0, 0.001),
+                 friction_tau=(0.01, 0.0, 0.02), glitch_height=(0.001, 0.0, 0.0), glitch_time=(0.01, 0.0, 0.0))),
     "ideal servo, warm-up over time": dict(
         dyn=dict(thermal_driver="time", thermal_time_constant=1.2, initial_excess=2.0, drift=(0.001, 0.0, -0.002))),
 }
@@ -254,3 +260,52 @@ def test_velocity_friction_out_of_range_is_refused_by_name(machine, tmp_path):
     (tmp_path / "d.toml").write_text('[parameters]\n"velfriction.vs.X" = -1.0\n')
     with pytest.raises(InputError, match="velfriction.vs.X"):
         load_dynamics(tmp_path / "d.toml", machine)
+
+
+def test_negative_backlash_is_the_mirror_of_the_play_about_the_servo(machine, tmp_path):
+    """backlash.<AXIS> = -|b| (an over-compensated backlash, ISO 230-2 reversal value negative):
+    the FMU's axis is the play of width |b| mirrored about the servo position, x = 2 servo - play,
+    the form of the diagnosis' Backlash with sign -1; on an ideal servo it leads the command by
+    |b|/2 in the direction of motion."""
+    step, b = 1e-3, 0.004
+    q = _path(machine, K=1500, step=step)
+    runs = {}
+    for name, bl in (("servo", 0.0), ("play", b), ("mirror", -b)):
+        dyn = MachineDynamics(kv=(50.0, 0.0, 0.0), backlash=(bl, bl, bl))
+        runs[name] = run_machine(build_machine_fmu(machine, tmp_path / f"{name}.fmu", dynamics=dyn),
+                                 machine, q, step).actual
+    assert np.max(np.abs(runs["mirror"] - (2 * runs["servo"] - runs["play"]))) < 1e-12
+    # Z (ideal servo): out at 2 mm/s, back from the middle; at constant speed the axis leads by b/2
+    z = machine.axis_names.index("Z")
+    e = runs["mirror"][:, z] - q[:, z]
+    k = len(q) // 2
+    assert np.allclose(e[k - 300:k - 10], -0.5 * b, atol=1e-12)    # moving in -Z: leads in -Z
+    assert np.allclose(e[k + 10 + int(b / 2e-3 / step):k + 300], 0.5 * b, atol=1e-12)
+
+
+def test_compensation_of_a_negative_backlash_is_exact_through_the_fmu(machine, tmp_path):
+    """mtcomp.model.compensate.backlash_offsets inverts the mirrored play (b < 0) exactly: the
+    FMU's axes, fed the compensated and feed-forwarded commands, are at the targets at every
+    step; the opposite reversal step (-|b|/2 by direction) leaves a spike of |b| after each
+    reversal (inside the band the mirror moves twice as fast as the drive)."""
+    from mtcomp.model.compensate import backlash_offsets, feed_forward
+    step, b = 1e-3, -0.004
+    w = _path(machine, K=1500, step=step)
+    bl, kv = (b, b, b), (50.0, 80.0, 0.0)
+    fmu = build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=MachineDynamics(kv=kv, backlash=bl))
+    act = run_machine(fmu, machine, feed_forward(w + backlash_offsets(w, bl), kv, step), step).actual
+    assert np.max(np.abs(act - w)) < 1e-9
+    # uncompensated: the axis leads by |b|/2; the naive opposite step: spikes of |b|
+    z = machine.axis_names.index("Z")
+    raw = run_machine(fmu, machine, feed_forward(w, kv, step), step).actual
+    assert abs(np.max(np.abs(raw[:, z] - w[:, z])) - 0.5 * abs(b)) < 1e-9
+    naive = run_machine(fmu, machine, feed_forward(w - backlash_offsets(w, [abs(b)] * 3), kv, step), step).actual
+    assert np.max(np.abs(naive[:, z] - w[:, z])) > 0.9 * abs(b)
+
+
+def test_backlash_range_is_plus_minus_one(machine, tmp_path):
+    """backlash.<AXIS> spans -1..1 mm or deg (negative: the mirrored play); beyond, refused by name."""
+    from mtcomp._io import MtcompError
+    with pytest.raises(MtcompError, match=r"backlash.X = -1.5 is outside \[-1.0, 1.0\]"):
+        build_machine_fmu(machine, tmp_path / "a.fmu", dynamics=MachineDynamics(backlash=(-1.5, 0.0, 0.0)))
+    assert build_machine_fmu(machine, tmp_path / "b.fmu", dynamics=MachineDynamics(backlash=(-1.0, 0.0, 0.0))).is_file()

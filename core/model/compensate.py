@@ -13,7 +13,8 @@ sample is corrected as a control does it:
 - backlash b of an axis (a play centred on the servo position, as in the machine FMU): the
   command is shifted by +b/2 while the axis moves in + and by -b/2 while it moves in -, so on
   each reversal of the commanded direction it jumps by b (the axis starts with the play
-  centred, as the FMU does: the first move shifts by b/2);
+  centred, as the FMU does: the first move shifts by b/2); a negative b (over-compensated, the
+  FMU's mirrored play) is inverted exactly without a jump (`backlash_offsets`);
 - servo lag (first-order servo, gain kv, command held over each step as in the machine FMU):
   feed-forward u_k = w_k + (w_k - w_{k-1}) / expm1(kv h), the command that makes the servo
   reach w_k at the end of step k.  At constant velocity v this is w + v T with the lead time
@@ -129,8 +130,20 @@ def model_dynamics(params: dict, machine, step: float) -> ModelDynamics:
 
 
 def backlash_offsets(w: np.ndarray, backlash, *, eps: float = 0.0) -> np.ndarray:
-    """(K, n) shifts +b/2 / -b/2 by the last commanded direction of each axis of the sampled
-    commands w (K, n) (0 before its first move; moves of at most eps keep the direction)."""
+    """(K, n) shifts (mm or deg) for the sampled commands w (K, n) that cancel the machine FMU's
+    backlash element of each axis.
+
+    b > 0 (a play): +b/2 / -b/2 by the last commanded direction (0 before the first move; moves
+    of at most eps keep the direction), the reversal jump of a control's backlash compensation.
+
+    b < 0 (an over-compensated backlash: the FMU's axis is x = 2 u - P(u), P the play of width
+    |b| on the drive u): the inverse of that mirror, u = (w + P2(w)) / 2 with P2 the play of
+    width 2|b| on the targets started at w_0 (as the FMU's play starts centred).  It is no
+    jump: after a reversal the drive moves at half the commanded speed over 2|b| of commanded
+    travel (inside its band the mirror moves the axis twice as fast as the drive), so the
+    opposite step a control would take out (-|b| at each reversal) is exact only at rest, and
+    this is exact on the samples."""
+    from .machine_ref import play
     w = np.asarray(w, float)
     b = np.broadcast_to(np.asarray(backlash, float), (w.shape[1],))
     d = np.diff(w, axis=0, prepend=w[:1])
@@ -138,6 +151,12 @@ def backlash_offsets(w: np.ndarray, backlash, *, eps: float = 0.0) -> np.ndarray
     out = np.zeros_like(w)
     for j in range(w.shape[1]):
         if b[j] == 0:
+            continue
+        if b[j] < 0:
+            p2, wid = float(w[0, j]), -2.0 * float(b[j])
+            for k in range(len(w)):
+                p2 = play(float(w[k, j]), p2, wid)
+                out[k, j] = 0.5 * (p2 - w[k, j])
             continue
         nz = np.flatnonzero(sgn[:, j])
         if nz.size == 0:

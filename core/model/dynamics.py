@@ -38,7 +38,7 @@ AXIS_PREFIXES = {"servo.kv.": "kv", "backlash.": "backlash", "friction.breakaway
                  "velfriction.coulomb.": "velfriction_coulomb", "velfriction.viscous.": "velfriction_viscous",
                  "velfriction.vs.": "velfriction_vs"}
 # per-axis parameters that may be negative: their range (the FMU's)
-SIGNED = {"glitch.height.": 1.0, "velfriction.coulomb.": 1e4, "velfriction.viscous.": 1.0}
+SIGNED = {"backlash.": 1.0, "glitch.height.": 1.0, "velfriction.coulomb.": 1e4, "velfriction.viscous.": 1.0}
 # scalar parameters: name -> (MachineDynamics field, lowest value, highest value)
 SCALARS = {"delay": ("delay", 0.0, 1.0), "servo.interpolation": ("interpolation", 0, 1),
            "thermal.driver": ("thermal_driver", 0, 2), "thermal.gain": ("thermal_gain", 0.0, 1.0),

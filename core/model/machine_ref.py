@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ReferenceRun", "delayed_commands", "servo_step", "play", "FrictionState", "friction_step",
+__all__ = ["ReferenceRun", "delayed_commands", "servo_step", "play", "backlash_out", "FrictionState", "friction_step",
            "glitch", "velfriction", "axis_response", "temperature", "simulate_reference"]
 
 
@@ -75,6 +75,14 @@ def play(inp: float, out: float, b: float) -> float:
     if inp - out < -0.5 * b:
         return inp + 0.5 * b
     return out
+
+
+def backlash_out(servo: float, play_state: float, b: float) -> float:
+    """The position after the backlash element of width b (mm or deg) from the servo position
+    and the play state (a play of width |b|): b >= 0 the play itself; b < 0 (an over-compensated
+    backlash, ISO 230-2 reversal value negative) its mirror about the servo position,
+    2 servo - play, which leads the command by |b|/2 where the play lags it."""
+    return 2.0 * servo - play_state if b < 0 else play_state
 
 
 @dataclass
@@ -181,10 +189,12 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
         d, t_rev = 0.0, None
         for k in range(K):
             end, mid = servo_step(servo, float(c0[k, i]), float(c1[k, i]), kv[i], step)
-            pl = play(servo, pl, bl[i])
-            s0 = pl
-            pl = play(mid, pl, bl[i])
-            pl = play(end, pl, bl[i])
+            w = abs(bl[i])
+            pl = play(servo, pl, w)
+            s0 = backlash_out(servo, pl, bl[i])
+            pl = play(mid, pl, w)
+            pl = play(end, pl, w)
+            s1 = backlash_out(end, pl, bl[i])
             # the drive's motion over the step (resolved to the step): a reversal starts the glitch
             # at the step's start, t_k = k h
             if abs(end - servo) > 1e-12:
@@ -198,10 +208,10 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
             vel[k, i] = (end - servo) / step     # the drive's, made actual below
             servo = end
             if on:
-                friction_step(fr, s0, pl, step, brk[i], cou[i], ftau[i])
+                friction_step(fr, s0, s1, step, brk[i], cou[i], ftau[i])
                 out[k, i] = fr.slide
             else:
-                out[k, i] = pl
+                out[k, i] = s1
         if gt[i] > 0:
             out[:, i] += glitch(since, gdir, gh[i], gt[i])
         va = velfriction(vel[:, i], vfc[i], vfb[i], vfs[i])

@@ -96,12 +96,12 @@ def map_servo_lag(e: dict, machine: Machine, step: float | None, interpolation: 
 
 
 def map_backlash(e: dict, machine: Machine, step: float | None) -> Mapped:
-    """Play width b (positive: the axis lags behind the command) -> backlash.<AXIS>."""
+    """Play width b -> backlash.<AXIS> = b.  Positive: the axis lags behind the command (a
+    play); negative (the diagnosis' Backlash with sign -1, an over-compensated backlash): the
+    FMU's backlash element is then the mirror of the play of width |b| about the servo position,
+    the same form as the diagnosis' residual -backlash_play(p, |b|)."""
     ax = linear_axis(machine, _one_output(e))
     b = _p(e, "backlash_mm")
-    if b < 0:
-        raise NoHome(f"backlash on {e['output']} is negative ({b:g} mm: the axis leads the command); "
-                     "the machine FMU's play only lags")
     return Mapped("backlash", e["output"], (Param(f"backlash.{ax.axis}", b, _s(e, "backlash_mm"), "mm"),))
 
 

@@ -437,8 +437,9 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     scale = np.array([p.sigma if p.sigma and math.isfinite(p.sigma) and p.sigma > 0 else max(abs(p.value), 1e-9) * 1e-3
                       for p in params])
     nonneg = ("servo.kv.", "backlash.", "friction.", "glitch.time.", "delay", "thermal.gain")
-    lo = np.array([1e-3 if p.name == "thermal.time_constant" else 0.0 if p.name.startswith(nonneg) else -np.inf
-                   for p in params])
+    # a negative backlash (over-compensated: the FMU's mirrored play) keeps the FMU's range
+    lo = np.array([1e-3 if p.name == "thermal.time_constant" else -1.0 if p.name.startswith("backlash.") and p.value < 0
+                   else 0.0 if p.name.startswith(nonneg) else -np.inf for p in params])
 
     def model_at(z):
         return ex.with_values({p.name: float(v) for p, v in zip(params, x0 + z * scale)})

@@ -9,7 +9,9 @@
  *   2. a first-order servo (velocity gain kv, 1/s; kv = 0 is an ideal servo that reaches the
  *      command by the end of the step), its command held over the step (servo.interpolation = 0)
  *      or linear from the previous step's command (1: ramp invariant, no half-step shift);
- *   3. backlash: a play of the given width centred on the servo position;
+ *   3. backlash: a play of the given width centred on the servo position; a negative width -|b|
+ *      (an over-compensated backlash) is the mirror of the play of width |b| about the servo
+ *      position, out = 2 servo - play (the error leads the command by |b|/2);
  *   4. friction at reversals (stick-slip): after the motion reverses, static friction holds the
  *      slide until the drive has wound up by the breakaway distance, then the slide catches up
  *      with a time constant, to a lag of the Coulomb distance against the motion;
@@ -61,12 +63,12 @@
 
 /* Internal states in st.x */
 #define X_SERVO 0         /* 0..8 servo positions */
-#define X_PLAY 10         /* 10..18 positions after backlash */
+#define X_PLAY 10         /* 10..18 play states (width |backlash|; backlash_out gives the position) */
 #define X_TEMP 20         /* temperature */
 #define X_NOISE 21        /* 21..23 current noise sample, mm */
 #define X_TIN0 24         /* temperature input at the start, degC */
 #define X_SLIDE 30        /* 30..38 slide positions after friction (the actual positions) */
-#define X_FERR 40         /* 40..48 play output - slide while slipping, mm or deg */
+#define X_FERR 40         /* 40..48 backlash output - slide while slipping, mm or deg */
 #define X_FDIR 50         /* 50..58 direction of the last motion (+1, -1; 0: not moved yet) */
 #define X_FSTUCK 60       /* 60..68 1 while static friction holds the slide */
 #define X_HIST_N 70       /* number of commands in the history */
@@ -145,7 +147,7 @@ fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
     if (vr >= VR_KV && vr < VR_KV + MTK_MAX_AXES)
         return check_axis_param(inst, "servo.kv", (int)(vr - VR_KV), value, 0.0, 1e4);
     if (vr >= VR_BACKLASH && vr < VR_BACKLASH + MTK_MAX_AXES)
-        return check_axis_param(inst, "backlash", (int)(vr - VR_BACKLASH), value, 0.0, 1.0);
+        return check_axis_param(inst, "backlash", (int)(vr - VR_BACKLASH), value, -1.0, 1.0);
     if (vr == VR_TAU) return check_range(inst, "thermal.time_constant", value, 1e-3, 1e6);
     if (vr == VR_GAIN) return check_range(inst, "thermal.gain", value, 0.0, 1.0);
     if (vr == VR_AMBIENT) return check_range(inst, "thermal.ambient", value, -50.0, 100.0);
@@ -229,6 +231,15 @@ static double play(double in, double out, double b)
     if (in - out > 0.5 * b) return in - 0.5 * b;
     if (in - out < -0.5 * b) return in + 0.5 * b;
     return out;
+}
+
+/* The position after the backlash element of width b from the servo position and the play
+ * state (a play of width |b|): b >= 0 the play itself; b < 0 (an over-compensated backlash, ISO
+ * 230-2 reversal value negative) its mirror about the servo position, which leads the command
+ * by |b|/2 where the play lags it. */
+static double backlash_out(double servo, double play_state, double b)
+{
+    return b < 0.0 ? 2.0 * servo - play_state : play_state;
 }
 
 static int friction_on(const Instance *inst, int i)
@@ -338,7 +349,7 @@ static double servo_step(double x0, double c0, double c1, double kv, double h, d
     return end;
 }
 
-/* Friction at reversals on axis i, over a step in which the play output moved from s0 to s1. */
+/* Friction at reversals on axis i, over a step in which the backlash output moved from s0 to s1. */
 static void friction_step(Instance *inst, int i, double s0, double s1, double h)
 {
     double *x = inst->st.x;
@@ -396,8 +407,9 @@ fmi2Status model_update(Instance *inst)
     /* Outputs are functions of the states only (no direct feed-through from the commands:
      * ModelStructure declares no dependencies), so a master sees no algebraic loop. */
     for (i = 0; i < n; i++) {
+        double sv = inst->st.x[X_SERVO + i], b = inst->st.r[VR_BACKLASH + i];
         q[i] = friction_on(inst, i) ? inst->st.x[X_SLIDE + i]
-                                    : play(inst->st.x[X_SERVO + i], inst->st.x[X_PLAY + i], inst->st.r[VR_BACKLASH + i]);
+                                    : backlash_out(sv, play(sv, inst->st.x[X_PLAY + i], fabs(b)), b);
         q[i] += glitch(inst, i, inst->st.time) + inst->st.x[X_VDEF + i];
         inst->st.r[VR_ACT + i] = q[i];
         inst->st.r[VR_VEL + i] = inst->st.x[X_VEL + i];
@@ -467,14 +479,14 @@ fmi2Status model_do_step(Instance *inst, double t, double h)
         return fmi2Error;
     }
     for (i = 0; i < n; i++) {
-        double kv = inst->st.r[VR_KV + i], b = inst->st.r[VR_BACKLASH + i];
-        double start = inst->st.x[X_SERVO + i], end, mid, s0 = inst->st.x[X_PLAY + i];
+        double kv = inst->st.r[VR_KV + i], bs = inst->st.r[VR_BACKLASH + i], b = fabs(bs);
+        double start = inst->st.x[X_SERVO + i], end, mid, s0;
         double cs = inst->st.i[IVR_INTERP] ? c0[i] : c1[i];
         /* The servo's motion within the step is monotonic but for at most one reversal (at
          * `mid`), so the play operator applied there and at both ends of the step is exact. */
         end = servo_step(start, cs, c1[i], kv, h, &mid);
         inst->st.x[X_PLAY + i] = play(start, inst->st.x[X_PLAY + i], b);
-        s0 = inst->st.x[X_PLAY + i];
+        s0 = backlash_out(start, inst->st.x[X_PLAY + i], bs);
         inst->st.x[X_PLAY + i] = play(mid, inst->st.x[X_PLAY + i], b);
         inst->st.x[X_PLAY + i] = play(end, inst->st.x[X_PLAY + i], b);
         inst->st.x[X_SERVO + i] = end;
@@ -488,7 +500,7 @@ fmi2Status model_do_step(Instance *inst, double t, double h)
             }
             inst->st.x[X_GDIR + i] = nd;
         }
-        if (friction_on(inst, i)) friction_step(inst, i, s0, inst->st.x[X_PLAY + i], h);
+        if (friction_on(inst, i)) friction_step(inst, i, s0, backlash_out(end, inst->st.x[X_PLAY + i], bs), h);
         /* the drive's mean velocity over the step; a velocity-mode axis loses to friction what
          * its proportional velocity loop cannot hold, and its position integrates the loss */
         {
