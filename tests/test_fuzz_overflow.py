@@ -80,3 +80,32 @@ def test_tool_setting_plan_head(tmp_path, pattern, field):
     with pytest.raises(InputError, match=r"plan.toml " + field) as e:
         load_plan(plan)
     assert len(str(e.value)) < 300   # the number is not echoed in full
+
+
+# --- tool tables and offsets files (fuzz campaign of the tool-table and offsets-toml surfaces) ---
+
+BIG = "1" * 320
+
+
+@pytest.mark.parametrize("text", [f"T{BIG} P1\n", f"T12 P1 H{BIG} Z+5.0\nT7 P2 H2 Z+7.5\n",
+                                  f"T1 P{BIG} Z+5.0\n"])
+def test_tool_table_with_a_huge_number_is_refused_by_line(tmp_path, text):
+    from mtcomp._io import InputError
+    from mtcomp.gcode.offsets import read_tool_table
+    f = tmp_path / "tool.tbl"
+    f.write_text(text)
+    with pytest.raises(InputError) as e:
+        read_tool_table(f)
+    assert e.value.line == 1 and "tool.tbl" in str(e.value)
+
+
+@pytest.mark.parametrize("text, field", [(f"[H]\n1 = 5.0\n2 = {BIG}\n", "H.2"),
+                                         (f"[G55]\nX = 1.0\nY = {BIG}\n", "G55.Y")])
+def test_offsets_file_with_a_huge_integer_is_refused_by_field(tmp_path, text, field):
+    from mtcomp._io import InputError
+    from mtcomp.gcode.offsets import read_offsets
+    f = tmp_path / "offsets.toml"
+    f.write_text(text)
+    with pytest.raises(InputError) as e:
+        read_offsets(f, ("X", "Y", "Z"))
+    assert field in str(e.value)

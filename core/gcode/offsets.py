@@ -423,6 +423,18 @@ class ToolTable(dict):
         self.note = note
 
 
+def _finite_number(v) -> bool:
+    """True for an int or float (not a bool) that is finite as a float.  An integer of hundreds
+    of digits (TOML and Python read it exactly) does not fit a float: that is not finite either,
+    where math.isfinite would raise OverflowError."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
+
+
 def read_tool_table(path) -> ToolTable:
     """Tool lengths (mm) by H number from a tool table: LinuxCNC's ``T1 P1 Z+50.0 D6.0 ;comment``
     lines, optionally with an ``H`` word, the length offset number of the tool (``T12 P3 H2
@@ -440,6 +452,11 @@ def read_tool_table(path) -> ToolTable:
                 break
             words[m.group(1).upper()] = float(m.group(2))
             pos = m.end()
+        # float() of a number of hundreds of digits is inf: not finite, never int()-converted
+        bad = [k for k in ("T", "H", "P") if k in words and not math.isfinite(words[k])]
+        if bad:
+            raise InputError(f"{bad[0]} number too large in {raw.strip()[:60]!r}", file=path, line=n,
+                             field=bad[0])
         if ln[pos:].strip() or "T" not in words or words["T"] != int(words["T"]) or words["T"] < 0:
             raise InputError(f"expected a tool table line like 'T1 P1 Z+50.0 D6.0 ;comment', got "
                              f"{raw.strip()!r}", file=path, line=n)
@@ -505,8 +522,7 @@ def read_offsets(path, axes) -> tuple[dict, dict, dict]:
                     num = int(str(k).lstrip("HDhd"))
                 except ValueError:
                     num = -1
-                if num < 0 or isinstance(v, bool) or not isinstance(v, (int, float)) \
-                        or not math.isfinite(v):
+                if num < 0 or not _finite_number(v):
                     raise InputError(f"expected an {name} number and a finite length in mm", path,
                                      field=f"{key}.{k}")
                 (tools if name == "H" else cutters)[num] = float(v)
@@ -516,8 +532,7 @@ def read_offsets(path, axes) -> tuple[dict, dict, dict]:
             raise InputError("expected tables [H], [D], [G54]..[G59] or [\"G54.1 P<n>\"] (axis "
                              "letters = mm/deg)", path, field=str(key))
         for a, v in vec.items():
-            if a.upper() not in axes or isinstance(v, bool) or not isinstance(v, (int, float)) \
-                    or not math.isfinite(v):
+            if a.upper() not in axes or not _finite_number(v):
                 raise InputError(f"expected an axis of the machine ({' '.join(axes)}) and a finite "
                                  "number", path, field=f"{key}.{a}")
         works[name] = {a.upper(): float(v) for a, v in vec.items()}
