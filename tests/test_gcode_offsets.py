@@ -269,3 +269,14 @@ def test_g92_word_carries_the_correction_of_the_point_it_names():
         assert [p1[a] - p0[a] for a in "XYZ"] == pytest.approx(t, abs=1e-9)
     # a G92 where nothing is corrected stays byte for byte
     assert gcode.rewrite(p, lambda q: q.copy()) == text
+
+
+def test_g92_word_correction_in_an_inch_program():
+    """The G92 word of an inch program gets the correction in inch, like the axis words."""
+    from test_gcode_corpus import interpret
+    text = "G20 G90\nG0 X1. Y1. Z0.1\nG92 X0\nG1 X0.5 F10.\nG1 Y2.\n"
+    t = np.array([0.0254, 0.0, 0.0])                     # 0.001 inch in X
+    out = gcode.rewrite(gcode.parse(text, axes=XYZ), lambda q: q + t)
+    assert out.split("\n")[2].startswith("G92 X0.0010")
+    for (_, p0, _, _), (_, p1, _, _) in zip(interpret(text), interpret(out)):
+        assert [p1[a] - p0[a] for a in "XYZ"] == pytest.approx(t, abs=1e-7)
