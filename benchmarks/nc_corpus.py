@@ -18,7 +18,9 @@ a rotary table axis added for each of A B C the program writes) twice:
 Positions are also checked block by block against the independent interpreter of
 tests/test_gcode_corpus.py (written from the controls' rules, not from mtcomp's parser): the
 position of every block as mtcomp reads it, which axes are known, and the shifted output read
-by that interpreter.
+by that interpreter (with rotary table axes: each block shifted by the translation turned with
+the table, see `expected_shift`).  An accepted program that cannot be compared is counted
+under "not checked" with the reason.
 
 Counts: programs, accepted, refused (grouped by the first reason, numbers and names taken out),
 byte-identical under zero errors, invented axis words, tracebacks, blocks checked and wrong.
@@ -132,8 +134,29 @@ def check_positions(text, name, axes):
     return len(blocks), wrong, None
 
 
-def check_shift(text, out, name, known):
-    """(blocks checked, wrong) of the shifted output read by the interpreter."""
+def _turn(direction, deg):
+    """The rotation matrix by deg about the unit vector direction (Rodrigues)."""
+    u = np.asarray(direction, float)
+    t = np.radians(deg)
+    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+    return np.eye(3) + np.sin(t) * K + (1.0 - np.cos(t)) * K @ K
+
+
+def expected_shift(angles, directions):
+    """The X Y Z shift of a block that the workpiece translation SHIFT asks for, with the
+    rotary table axes at these angles (deg): the table turns the workpiece by minus its angle
+    (ISO 841 senses are those of the tool relative to the workpiece), each rotary axis of the
+    machine's list carried by the ones after it (the first nearest the workpiece); the
+    translation, fixed to the workpiece, turns with it."""
+    M = np.eye(3)
+    for d, a in zip(directions, angles):
+        M = _turn(d, -a) @ M
+    return M @ SHIFT
+
+
+def check_shift(text, out, name, known, angles=None, directions=()):
+    """(blocks checked, wrong) of the shifted output read by the interpreter; angles (N, r):
+    the rotary table positions of each block (deg), directions their axes."""
     from test_gcode_corpus import AXES, interpret
     try:
         before, after = interpret(text, name), interpret(out, name)
@@ -148,7 +171,8 @@ def check_shift(text, out, name, known):
             if (p0[a] is None) != (p1[a] is None):
                 wrong += 1
                 break
-            if p0[a] is not None and abs(p1[a] - p0[a] - (SHIFT[k] if known[j] else 0.0)) > tol:
+            want = (SHIFT if angles is None else expected_shift(angles[j], directions))[k]
+            if p0[a] is not None and abs(p1[a] - p0[a] - (want if known[j] else 0.0)) > tol:
                 wrong += 1
                 break
     return len(before), wrong
@@ -210,11 +234,16 @@ def run_one(path, zero, shift):
     try:
         n, wrong, note = check_positions(text, path.name, machine.axis_names)
         rec.update(checked=n, wrong=wrong, note=note)
-        if n and len(machine.axes) > 3:
-            rec["note"] = "rotary axes: the shift is not a translation of X Y Z, not checked"
-        elif n:
-            # the blocks the rewrite compensated (it defers the unknown ones and arcs after them)
-            n2, wrong2 = check_shift(text, out1, path.name, np.asarray(rep["compensated"]))
+        if n:
+            # the blocks the rewrite compensated (it defers the unknown ones and arcs after them);
+            # with rotary table axes the translation turns with the table
+            rot = [k for k, a in enumerate(machine.axes) if a.kind == "rotary"]
+            angles = None
+            if rot:
+                p = gcode.parse(text, axes=machine.axis_names, tcp=True, rotation=True)
+                angles = np.asarray(p.position)[:, rot]
+            n2, wrong2 = check_shift(text, out1, path.name, np.asarray(rep["compensated"]),
+                                     angles, [machine.axes[k].direction for k in rot])
             rec.update(shift_checked=n2, shift_wrong=wrong2)
     except Exception:
         rec.update(note="check: " + traceback.format_exc(limit=-1).strip().splitlines()[-1])

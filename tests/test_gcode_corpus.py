@@ -123,6 +123,11 @@ def _rot(ang, c, u, v):
     return c[0] + math.cos(t) * du - math.sin(t) * dv, c[1] + math.sin(t) * du + math.cos(t) * dv
 
 
+def _plus(a, b):
+    """a + b, None where either is unknown."""
+    return None if a is None or b is None else a + b
+
+
 def interpret(text, name="main"):
     """Blocks of a program as a control runs them, one line at a time: ((file, line), position
     per axis in the reference frame or None where the program has not fixed it, motion, arc
@@ -135,6 +140,7 @@ def interpret(text, name="main"):
     cur_wcs, ref_wcs = 54, None
     lengths, tool_mode, h, t_loaded = {}, 49, None, None
     rot = None                                 # (angle, centre) under G68
+    g92 = {}                                   # G92 shift per axis; None: set where unknown
     blocks = []
     for n, raw in _execution_order(text, name):
         line = raw.lstrip("\ufeff")
@@ -193,24 +199,36 @@ def interpret(text, name="main"):
                 centre_abs = v == 90.1
         if 68 in g:
             continue
+
+        def off(a, with92=True):
+            o = wcs.get(cur_wcs, {}).get(a, 0.0) - wcs.get(ref_wcs or cur_wcs, {}).get(a, 0.0)
+            if a == "Z" and tool_mode in (43, 44):
+                o += (1 if tool_mode == 43 else -1) * (lengths.get((h, 10), 0.0) + lengths.get((h, 11), 0.0))
+            if with92 and a in g92:
+                o = None if g92[a] is None else o + g92[a]
+            return o
         ax = {a: v for a, v in words if a in AXES}
         arcw = {a: v for a, v in words if a in "IJKR"}
+        if 92.1 in g or 92.2 in g:
+            g92 = {}                               # the G92 shift cancelled
+            continue
+        if 92 in g:
+            # the current position gets the words' coordinates; the tool does not move, and
+            # later absolute words are shifted by the difference (unknown where it is unknown)
+            for a, v in ax.items():
+                g92[a] = None if pos[a] is None else pos[a] - v * s - off(a, with92=False)
+            continue
         if any(v in (28, 30, 53) for v in g):
             for a in ax:
                 pos[a] = None                      # reference point / machine coordinates
             continue
         if any(v in (4, 52, 50.1) for v in g):
             continue
-        if not ax and not (arcw and mode in (2, 3)):
-            continue
+        rotary = any(a in "ABC" for a, _ in words)
+        if not ax and not rotary and not (arcw and mode in (2, 3)):
+            continue                           # a block that moves no axis
         if ref_wcs is None:
             ref_wcs = cur_wcs
-
-        def off(a):
-            o = wcs.get(cur_wcs, {}).get(a, 0.0) - wcs.get(ref_wcs, {}).get(a, 0.0)
-            if a == "Z" and tool_mode in (43, 44):
-                o += (1 if tool_mode == 43 else -1) * (lengths.get((h, 10), 0.0) + lengths.get((h, 11), 0.0))
-            return o
 
         def ref(p):
             out = dict(p)
@@ -226,15 +244,15 @@ def interpret(text, name="main"):
             r_word = arcw.get("R", r_word)
             z_word = ax.pop("Z", z_word)
             for a, v in ax.items():
-                pos[a] = v * s + off(a) if absolute else (None if pos[a] is None else pos[a] + v * s)
-            r_lvl = r_word * s + off("Z") if absolute else (None if zinit is None else zinit + r_word * s)
+                pos[a] = _plus(v * s, off(a)) if absolute else _plus(pos[a], v * s)
+            r_lvl = _plus(r_word * s, off("Z")) if absolute else (None if zinit is None else zinit + r_word * s)
             pos["Z"] = zinit if retract == 98 else r_lvl
             blocks.append((n, ref(pos), cycle, None))
             continue
         start = dict(pos)
         for a, v in ax.items():
             if absolute:
-                pos[a] = v * s + off(a)
+                pos[a] = _plus(v * s, off(a))
             elif pos[a] is not None:
                 pos[a] += v * s
         centre = None
@@ -343,3 +361,19 @@ def test_corpus_translation_moves_every_known_block_exactly(path):
         lines_in, lines_out = text.split("\n"), out.split("\n")
         for j in np.flatnonzero(~p.known):
             assert lines_out[labels[j][1] - 1] == lines_in[labels[j][1] - 1]
+
+
+def test_interpreter_g92_and_rotary_only_blocks_as_the_controls_run_them():
+    """G92 sets the coordinates of the current point (no move; later absolute words shift by
+    the difference, G92.1 cancels); a block writing only a rotary axis is a block; both read
+    by mtcomp as by the interpreter (the corpus programs of filament winders use both)."""
+    text = "G21 G90\nG0 X10 Y5 Z1\nG92 X0 A25\nG1 X5 F100\nG0 A90\nG92.1\nG1 X5\n"
+    blocks = interpret(text)
+    assert [b[0][1] for b in blocks] == [2, 4, 5, 7]
+    assert [b[1]["X"] for b in blocks] == [10.0, 15.0, 15.0, 5.0]
+    p = gcode.parse(text, axes=("A", "X", "Y", "Z"))
+    assert [int(x) for x in p.line] == [2, 4, 5, 7]
+    assert np.allclose(to_reference(p, p.position)[:, 1], [10.0, 15.0, 15.0, 5.0])
+    # G92 where the position is not known: unknown until G92.1
+    blocks = interpret("G90\nG92 X3\nG1 X5 Y1\nG92.1\nG1 X4\n")
+    assert [b[1]["X"] for b in blocks] == [None, 4.0]

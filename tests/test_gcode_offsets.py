@@ -250,3 +250,33 @@ def test_g10_l2_p0_in_a_program_with_one_work_offset():
         assert np.allclose(q.position[:, 2], [10, 10]) and np.allclose(q.offset[:, 2], [0, 5])
     text = body.format(g10="G10 L2 P0 Z-50.", p=0)
     assert gcode.rewrite(gcode.parse(text, axes=XYZ), lambda x: x.copy()) == text
+
+
+def test_g92_word_carries_the_correction_of_the_point_it_names():
+    """G92 names the coordinates of the point where the tool stands.  In the compensated
+    program the tool stands at the compensated point, so the G92 words get that point's
+    correction: otherwise the control's G92 shift takes the correction in, and every later
+    absolute block is corrected twice (found on a filament-winder program of the corpus)."""
+    from test_gcode_corpus import interpret
+    text = "G21 G90\nG0 X10 Y5 Z1\nG92 X0 Y0\nG1 X5 Y2 F100\nG1 X7\nG92.1\nG1 X4\n"
+    t = np.array([0.0123, -0.0071, 0.0042])
+    p = gcode.parse(text, axes=XYZ)
+    out = gcode.rewrite(p, lambda q: q + t)
+    assert out.split("\n")[2] == "G92 X0.012300 Y-0.007100"
+    before, after = interpret(text), interpret(out)
+    assert [b[0] for b in after] == [b[0] for b in before]
+    for (_, p0, _, _), (_, p1, _, _) in zip(before, after):
+        assert [p1[a] - p0[a] for a in "XYZ"] == pytest.approx(t, abs=1e-9)
+    # a G92 where nothing is corrected stays byte for byte
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+
+
+def test_g92_word_correction_in_an_inch_program():
+    """The G92 word of an inch program gets the correction in inch, like the axis words."""
+    from test_gcode_corpus import interpret
+    text = "G20 G90\nG0 X1. Y1. Z0.1\nG92 X0\nG1 X0.5 F10.\nG1 Y2.\n"
+    t = np.array([0.0254, 0.0, 0.0])                     # 0.001 inch in X
+    out = gcode.rewrite(gcode.parse(text, axes=XYZ), lambda q: q + t)
+    assert out.split("\n")[2].startswith("G92 X0.0010")
+    for (_, p0, _, _), (_, p1, _, _) in zip(interpret(text), interpret(out)):
+        assert [p1[a] - p0[a] for a in "XYZ"] == pytest.approx(t, abs=1e-7)

@@ -384,6 +384,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn_edit),
                       np.flatnonzero(~pres & (v != pv) & kn_edit & ~(no_z & (a == "Z"))), target)
 
+    _g92_edits(ctx, program, kk, dK, res, fm, inch_prog)
+
     if arc_cols is not None:
         a_rep, a_ins, a_counts, a_fmt = arc_cols
         for j, letter in enumerate(ARC_WORDS):
@@ -870,3 +872,33 @@ def _cycle_expand(ctx, p, rows, sel, d, new, res, fm, code):
             eol = "\r\n"
         _insert_text(ctx, le, "".join(eol + o for o in out).encode(), sub=_SUB_LINES)
         ctx.added_lines[k] = ctx.added_lines.get(k, 0) + len(out)
+
+
+def _g92_edits(ctx, program, kk, dK, res, fm, inch_prog):
+    """G92 names the coordinates of the point where the tool stands.  In the output the tool
+    stands at the compensated point, so each G92 axis word gets that point's correction (the
+    last block before it; none before the first block or after a deferred one): the G92 shift
+    the control then sets is the program's own, and later absolute words, compensated against
+    the program's shift, are not corrected a second time."""
+    p = program
+    wl, wv = np.asarray(p.w_letter), np.asarray(p.w_value)
+    g92_lines = np.unique(np.asarray(p.w_line)[(wl == ord("G") - 65) & (wv == 92.0)])
+    if not len(g92_lines) or not len(kk):
+        return
+    line = np.asarray(p.line)
+    delta = np.zeros((len(line), len(p.axes)), np.int64)
+    delta[kk] = dK.astype(np.int64)
+    col = {ord(a) - 65: k for k, a in enumerate(p.axes) if len(a) == 1}
+    for L in g92_lines.tolist():
+        j = int(np.searchsorted(line, L + 1)) - 1          # the block the tool stands at
+        if j < 0 or not delta[j].any():
+            continue
+        if has_rotation(p):
+            raise InputError("G92 under a coordinate rotation with a correction at its point: "
+                             "not supported, refusing", p.filename, L + 1)
+        for w in np.flatnonzero((np.asarray(p.w_line) == L) & np.isin(wl, list(col))).tolist():
+            k = col[int(wl[w])]
+            if delta[j, k] == 0:
+                continue
+            v = wv[w] * (INCH if inch_prog and p.axes[k] in LINEAR else 1.0)
+            _replace_number(ctx, w, int(np.rint(v / res[k])) + int(delta[j, k]), fm[p.axes[k]])
