@@ -1538,6 +1538,22 @@ strict:
     return MTK_OK;
 }
 
+/* A x = rhs for a 3x3 A by Cramer's rule (the closed forms' linear axes); 0 where A is singular. */
+static int solve3_cramer(const double A[3][3], const double rhs[3], double x[3])
+{
+#define DET3(c0, c1, c2) (c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c0[1] * (c1[0] * c2[2] - c1[2] * c2[0]) \
+                          + c0[2] * (c1[0] * c2[1] - c1[1] * c2[0]))
+    double c0[3] = {A[0][0], A[1][0], A[2][0]}, c1[3] = {A[0][1], A[1][1], A[2][1]},
+           c2[3] = {A[0][2], A[1][2], A[2][2]};
+    double det = DET3(c0, c1, c2);
+    if (det == 0.0) return 0;
+    x[0] = DET3(rhs, c1, c2) / det;
+    x[1] = DET3(c0, rhs, c2) / det;
+    x[2] = DET3(c0, c1, rhs) / det;
+    return 1;
+#undef DET3
+}
+
 /* Closed form of retarget for rigid setting errors when the rotary angles need not change (no
  * geometric errors; no workpiece rotation unless the machine has no rotary axes): with the
  * rotary angles fixed the nominal tool position is affine in the three linear axes,
@@ -1545,7 +1561,7 @@ strict:
 static int closed_form(const prep_t *P, const double *q, double *out)
 {
     const mtk_model *m = P->m;
-    double R[9], A[3][3], rhs[3], t[3], Rt[3], det, x[3];
+    double R[9], A[3][3], rhs[3], t[3], Rt[3], x[3];
     int i, k, nc = 0, lin[3], ident = 1;
     if (P->lin_first) {
         /* R t by turning the vector t through the rotary axes from the tool end (Rodrigues on a
@@ -1597,19 +1613,7 @@ static int closed_form(const prep_t *P, const double *q, double *out)
         mat_vec(P->Rw, p, Rp);
         for (k = 0; k < 3; k++) rhs[k] += Rp[k] - p[k];
     }
-    /* Cramer's rule */
-#define DET3(c0, c1, c2) (c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c0[1] * (c1[0] * c2[2] - c1[2] * c2[0]) \
-                          + c0[2] * (c1[0] * c2[1] - c1[1] * c2[0]))
-    {
-        double c0[3] = {A[0][0], A[1][0], A[2][0]}, c1[3] = {A[0][1], A[1][1], A[2][1]},
-               c2[3] = {A[0][2], A[1][2], A[2][2]};
-        det = DET3(c0, c1, c2);
-        if (det == 0.0) return 0;
-        x[0] = DET3(rhs, c1, c2) / det;
-        x[1] = DET3(c0, rhs, c2) / det;
-        x[2] = DET3(c0, c1, rhs) / det;
-    }
-#undef DET3
+    if (!solve3_cramer(A, rhs, x)) return 0;
     memcpy(out, q, P->n * sizeof(double));
     for (k = 0; k < 3; k++) out[lin[k]] += x[k];
     return 1;
@@ -1850,25 +1854,14 @@ static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3
         if (P->lin_order == 1) {
             mat_vec(P->Dinv, rhs, x);
         } else {
-            double A[3][3], det;
+            double A[3][3];
             for (k = 0; k < 3; k++) {
                 double col[3];
                 memcpy(col, m->dir[lin[k]], sizeof col);
                 rigid_turn(P, s, lin[k], col);
                 A[0][k] = col[0]; A[1][k] = col[1]; A[2][k] = col[2];
             }
-#define DET3(c0, c1, c2) (c0[0] * (c1[1] * c2[2] - c1[2] * c2[1]) - c0[1] * (c1[0] * c2[2] - c1[2] * c2[0]) \
-                          + c0[2] * (c1[0] * c2[1] - c1[1] * c2[0]))
-            {
-                double c0[3] = {A[0][0], A[1][0], A[2][0]}, c1[3] = {A[0][1], A[1][1], A[2][1]},
-                       c2[3] = {A[0][2], A[1][2], A[2][2]};
-                det = DET3(c0, c1, c2);
-                if (det == 0.0) return 0;
-                x[0] = DET3(rhs, c1, c2) / det;
-                x[1] = DET3(c0, rhs, c2) / det;
-                x[2] = DET3(c0, c1, rhs) / det;
-            }
-#undef DET3
+            if (!solve3_cramer(A, rhs, x)) return 0;
         }
         for (k = 0; k < 3; k++) out[lin[k]] += x[k];
     }
