@@ -486,3 +486,18 @@ def test_cli_velocity_friction_loop(tmp_path, nominal):
     res = json.loads((tmp_path / "rs.json").read_text())
     assert res["rms"]["before"]["vX"] > 0.1
     assert res["rms"]["after"]["vX"] <= 1.5 * 0.002
+
+
+def test_straightness_loop(tmp_path, nominal):
+    """A straightness of X in Y (EYX, a quadratic bow of 4 µm across the X the program visits,
+    no linear part: that would be squareness): diagnosed as straightness of y along x, exported
+    as the EYX table over the fitted range, re-simulated to the noise on held-out time."""
+    from mtcomp.errors import AxisErrorTable
+    q = np.linspace(-300.0, 300.0, 6001)
+    bow = 4e-3 * ((q / 20.0) ** 2 - 1.0 / 3.0)
+    err = ErrorSet(geometric=GeometricErrors({"X": AxisErrorTable("X", q, {"EYX": bow})}, {}))
+    diag, ex, res = _loop(tmp_path, nominal, errors=err, dynamics=MachineDynamics(noise=NOISE, seed=21))
+    assert diag.names == ["straightness"], diag.names
+    assert [m.effect for m in ex.mapped] == ["straightness"] and not ex.unmapped
+    assert res.heldout_rms["before"]["y"] > 20 * NOISE
+    _assert_matches_noise(res)
