@@ -43,6 +43,7 @@ VR_P, VR_V, VR_TEMP, VR_ACT = 130, 133, 136, 140
 VR_TIN, VR_EXCESS, VR_TREF, VR_DELAY, VR_BREAK, VR_COULOMB, VR_FTAU = 127, 128, 129, 150, 160, 170, 180
 VR_GH, VR_GT = 190, 200
 VR_VFC, VR_VFB, VR_VFS, VR_VEL = 210, 220, 230, 240
+VR_EP, VR_EA1, VR_EPH1, VR_EA2, VR_EPH2 = 250, 260, 270, 280, 290
 IVR_SEED, IVR_DRIVER, IVR_INTERP = 0, 1, 2
 THERMAL_DRIVERS = {"spindle": 0, "temperature": 1, "time": 2}
 # Parameter ranges enforced by the C code (common.h, machine.c); declared as min/max too.
@@ -361,7 +362,10 @@ class MachineDynamics:
     motion (glitch_time 0: none); velfriction_coulomb per axis (mm/s or deg/s, c),
     velfriction_viscous (1, b) and velfriction_vs (mm/s or deg/s, v_s; 0: sign): velocity
     friction of a velocity-mode axis, its actual velocity v - c tanh(v/v_s) - b v for the
-    drive's velocity v, its position the integral of that (0: off).  Thermal: thermal_driver "spindle" (T -> ambient + gain *
+    drive's velocity v, its position the integral of that (0: off); encoder_period per axis (mm or
+    deg; 0: off), encoder_a1, encoder_a2 (mm or deg) and encoder_phase1, encoder_phase2 (deg): the
+    encoder's cyclic error, a1 sin(2 pi p/period + phase1) + a2 sin(4 pi p/period + phase2) added
+    to the actual position p the other elements give.  Thermal: thermal_driver "spindle" (T -> ambient + gain *
     spindle speed), "temperature" (T -> ambient + the change of the temperature input since the
     start) or "time" (T -> ambient: the initial excess relaxes) (or 0, 1, 2), time constant (s),
     gain (K per 1/min of spindle speed), ambient (degC), initial_excess (K: T at the start =
@@ -390,6 +394,11 @@ class MachineDynamics:
     velfriction_coulomb: tuple[float, ...] | float = 0.0
     velfriction_viscous: tuple[float, ...] | float = 0.0
     velfriction_vs: tuple[float, ...] | float = 0.0
+    encoder_period: tuple[float, ...] | float = 0.0
+    encoder_a1: tuple[float, ...] | float = 0.0
+    encoder_phase1: tuple[float, ...] | float = 0.0
+    encoder_a2: tuple[float, ...] | float = 0.0
+    encoder_phase2: tuple[float, ...] | float = 0.0
 
     def per_axis(self, value, n: int, name: str) -> tuple[float, ...]:
         if np.ndim(value) == 0:
@@ -778,6 +787,8 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
     vfc = dyn.per_axis(dyn.velfriction_coulomb, n, "velfriction_coulomb")
     vfb = dyn.per_axis(dyn.velfriction_viscous, n, "velfriction_viscous")
     vfs = dyn.per_axis(dyn.velfriction_vs, n, "velfriction_vs")
+    enc = {f: dyn.per_axis(getattr(dyn, f"encoder_{f}"), n, f"encoder_{f}")
+           for f in ("period", "a1", "phase1", "a2", "phase2")}
     extra = [Var("spindle_speed", VR_SPINDLE, "input", "Spindle speed driving the thermal drift (thermal.driver = 0), "
                  "1/min", start=0.0, unit="1/min", min=0.0, max=1e6),
              Var("temperature_input", VR_TIN, "input", "Logged temperature driving the thermal drift (thermal.driver "
@@ -864,6 +875,20 @@ def build_machine_fmu(machine: Machine | str, out_path, errors: ErrorSet | None 
                          f"Velocity friction of axis {a.name}: speed over which the Coulomb loss turns with the "
                          f"direction, tanh(v/vs) (0: sign(v)), {unit}/s", start=vfs[i], unit=f"{unit}/s",
                          min=0.0, max=1e6))
+    for i, a in enumerate(machine.axes):
+        unit, disp = _axis_unit(machine, i)
+        extra.append(Var(f"encoder.period.{a.name}", VR_EP + i, "parameter",
+                         f"Signal period of the encoder of axis {a.name} for its cyclic error (encoder.a1/a2, "
+                         f"phase1/2) added to the actual position p: a1 sin(2 pi p/period + phase1) + a2 "
+                         f"sin(4 pi p/period + phase2) (0: none), {unit}", start=enc["period"][i], unit=unit,
+                         min=0.0, max=1000.0))
+        for h in (1, 2):
+            extra.append(Var(f"encoder.a{h}.{a.name}", (VR_EA1 if h == 1 else VR_EA2) + i, "parameter",
+                             f"Encoder cyclic error of axis {a.name}: amplitude of harmonic {h}, {unit}",
+                             start=enc[f"a{h}"][i], unit=unit, display_unit=disp, min=-1.0, max=1.0))
+            extra.append(Var(f"encoder.phase{h}.{a.name}", (VR_EPH1 if h == 1 else VR_EPH2) + i, "parameter",
+                             f"Encoder cyclic error of axis {a.name}: phase of harmonic {h} at p = 0",
+                             start=enc[f"phase{h}"][i], unit="deg", min=-720.0, max=720.0))
     extra += [
         Var("thermal.driver", IVR_DRIVER, "parameter", "Driver of the machine temperature: 0 spindle speed "
             "(ambient + gain * spindle_speed), 1 temperature_input (ambient + its change since the start), 2 none "

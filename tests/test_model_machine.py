@@ -71,6 +71,12 @@ CASES = {
         dyn=dict(kv=(40.0, 0.0, 80.0), interpolation=1, delay=0.0021, backlash=(-0.003, 0.002, -0.002),
                  friction_breakaway=(0.002, 0.001, 0.003), friction_coulomb=(0.0005, 0.0, 0.001),
                  friction_tau=(0.01, 0.0, 0.02), glitch_height=(0.001, 0.0, 0.0), glitch_time=(0.01, 0.0, 0.0))),
+    "encoder cyclic error after servo, backlash, glitch and velocity friction": dict(
+        dyn=dict(kv=(50.0, 0.0, 80.0), backlash=(0.002, 0.0, 0.0), glitch_height=(0.0, 0.002, 0.0),
+                 glitch_time=(0.0, 0.01, 0.0), velfriction_coulomb=(0.0, 0.0, 0.05), velfriction_vs=(0.0, 0.0, 1.0),
+                 encoder_period=(0.02, 0.5, 0.1), encoder_a1=(0.0003, 0.002, -0.001),
+                 encoder_phase1=(40.0, -120.0, 400.0), encoder_a2=(0.0001, 0.0, 0.0005),
+                 encoder_phase2=(-30.0, 0.0, 90.0))),
     "ideal servo, warm-up over time": dict(
         dyn=dict(thermal_driver="time", thermal_time_constant=1.2, initial_excess=2.0, drift=(0.001, 0.0, -0.002))),
 }
@@ -200,6 +206,34 @@ def test_quadrant_glitch_is_the_diagnosis_spike_after_each_reversal(machine, tmp
     assert np.max(np.abs(err - want)) < 1e-12
     k_peak = int(np.argmax(err))
     assert t[k_peak] == pytest.approx(0.2 + tau) and err[k_peak] == pytest.approx(A, rel=1e-12)
+
+
+def test_encoder_cyclic_error_is_the_diagnosis_form_on_the_actual_position(machine, tmp_path):
+    """Ideal servo, X at 5 mm/s: the actual position is the command plus a1 sin(2 pi q/P +
+    phi1) + a2 sin(4 pi q/P + phi2) (the diagnosis' encoder_cyclic_error, phases in deg) with
+    no other element, q the command; Y and Z untouched; out-of-range amplitudes and negative
+    periods are refused by name (build, FMU, dynamics file)."""
+    from mtcomp._io import MtcompError
+    from mtcomp.model.dynamics import load_dynamics
+    step, P, a1, p1, a2, p2 = 1e-3, 0.02, 3e-4, 40.0, 1e-4, -75.0
+    q = _ramp(machine, 500, 5.0, step)
+    dyn = MachineDynamics(encoder_period=(P, 0, 0), encoder_a1=(a1, 0, 0), encoder_phase1=(p1, 0, 0),
+                          encoder_a2=(a2, 0, 0), encoder_phase2=(p2, 0, 0))
+    act = run_machine(build_machine_fmu(machine, tmp_path / "m.fmu", dynamics=dyn), machine, q, step).actual
+    x = q[:, 0]
+    want = a1 * np.sin(2 * np.pi * x / P + np.radians(p1)) + a2 * np.sin(4 * np.pi * x / P + np.radians(p2))
+    assert np.max(np.abs(act[:, 0] - x - want)) < 1e-12
+    assert np.max(np.abs(want)) > 3e-4
+    assert np.max(np.abs(act[:, 1:] - q[:, 1:])) == 0.0
+    with pytest.raises(MtcompError, match=r"encoder\.a1\.X"):
+        build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(encoder_a1=(1.5, 0, 0)))
+    with pytest.raises(MtcompError, match=r"encoder\.period\.Y"):
+        build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(encoder_period=(0, -1.0, 0)))
+    (tmp_path / "d.toml").write_text('[parameters]\n"encoder.period.X" = -0.02\n')
+    with pytest.raises(InputError, match="encoder.period.X"):
+        load_dynamics(tmp_path / "d.toml", machine)
+    (tmp_path / "d.toml").write_text('[parameters]\n"encoder.a2.Z" = 0.0003\n"encoder.phase2.Z" = -90.0\n')
+    assert load_dynamics(tmp_path / "d.toml", machine) == {"encoder.a2.Z": 0.0003, "encoder.phase2.Z": -90.0}
 
 
 def test_thermal_drift_over_time_and_driver_checks(machine, tmp_path):

@@ -15,6 +15,9 @@ step_s = 0.001                      # communication step the kv values are for (
 "velfriction.coulomb.C" = 0.5       # deg/s (mm/s), velocity friction of a velocity-mode axis
 "velfriction.viscous.C" = 0.01      # 1
 "velfriction.vs.C" = 2.0            # deg/s (mm/s), tanh smoothing speed
+"encoder.period.X" = 0.02           # mm (deg), encoder signal period of the cyclic error (0: off)
+"encoder.a1.X" = 0.0002             # mm (deg), first harmonic amplitude
+"encoder.phase1.X" = 40.0           # deg
 "thermal.driver" = 0                # 0 spindle speed, 1 temperature input, 2 none (time)
 "thermal.drift.z" = 0.004           # mm/K
 [uncertainty]                       # one standard deviation, same keys (informational)
@@ -36,9 +39,12 @@ AXIS_PREFIXES = {"servo.kv.": "kv", "backlash.": "backlash", "friction.breakaway
                  "friction.coulomb.": "friction_coulomb", "friction.tau.": "friction_tau",
                  "glitch.height.": "glitch_height", "glitch.time.": "glitch_time",
                  "velfriction.coulomb.": "velfriction_coulomb", "velfriction.viscous.": "velfriction_viscous",
-                 "velfriction.vs.": "velfriction_vs"}
+                 "velfriction.vs.": "velfriction_vs", "encoder.period.": "encoder_period",
+                 "encoder.a1.": "encoder_a1", "encoder.phase1.": "encoder_phase1", "encoder.a2.": "encoder_a2",
+                 "encoder.phase2.": "encoder_phase2"}
 # per-axis parameters that may be negative: their range (the FMU's)
-SIGNED = {"backlash.": 1.0, "glitch.height.": 1.0, "velfriction.coulomb.": 1e4, "velfriction.viscous.": 1.0}
+SIGNED = {"backlash.": 1.0, "glitch.height.": 1.0, "velfriction.coulomb.": 1e4, "velfriction.viscous.": 1.0,
+          "encoder.a1.": 1.0, "encoder.phase1.": 720.0, "encoder.a2.": 1.0, "encoder.phase2.": 720.0}
 # scalar parameters: name -> (MachineDynamics field, lowest value, highest value)
 SCALARS = {"delay": ("delay", 0.0, 1.0), "servo.interpolation": ("interpolation", 0, 1),
            "thermal.driver": ("thermal_driver", 0, 2), "thermal.gain": ("thermal_gain", 0.0, 1.0),
@@ -89,7 +95,7 @@ def load_dynamics(path, machine=None) -> dict:
         if pref is None and k not in SCALARS and k not in DRIFT:
             raise InputError(f"unknown dynamics parameter {k!r}; expected servo.kv.<AXIS>, backlash.<AXIS>, "
                              "friction.{breakaway,coulomb,tau}.<AXIS>, glitch.{height,time}.<AXIS>, "
-                             "velfriction.{coulomb,viscous,vs}.<AXIS>, delay, servo.interpolation or thermal.*",
+                             "velfriction.{coulomb,viscous,vs}.<AXIS>, encoder.{period,a1,phase1,a2,phase2}.<AXIS>, delay, servo.interpolation or thermal.*",
                              path, field=f"parameters.{k}")
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise InputError(f"expected a finite number, got {v!r}", path, field=f"parameters.{k}")
@@ -120,7 +126,7 @@ def apply_dynamics(base, params: dict, machine, *, combine: bool = True):
     combine: the fitted values describe what the base model lacked (the diagnosis fits
     REC - SIM): backlash widths and delays add; servo lags add as time constants in series
     (1/kv = 1/kv_base + 1/kv_fit, to first order), kv_base = 0 being the ideal servo; friction,
-    the velocity friction, the quadrant glitch and the thermal model replace the base's (one thermal state: a fitted drift replaces the
+    the velocity friction, the quadrant glitch, the encoder cyclic error and the thermal model replace the base's (one thermal state: a fitted drift replaces the
     base's).  Without combine the fitted values replace the base ones."""
     names = machine.axis_names
     n = len(names)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ReferenceRun", "delayed_commands", "servo_step", "play", "backlash_out", "FrictionState", "friction_step",
-           "glitch", "velfriction", "axis_response", "temperature", "simulate_reference"]
+           "glitch", "velfriction", "encoder_cyclic", "axis_response", "temperature", "simulate_reference"]
 
 
 @dataclass(frozen=True)
@@ -151,6 +151,18 @@ def velfriction(v, coulomb: float, viscous: float, vs: float):
     return v - coulomb * s - viscous * v
 
 
+def encoder_cyclic(p: np.ndarray, period: float, a1: float, phase1: float, a2: float = 0.0,
+                   phase2: float = 0.0) -> np.ndarray:
+    """Encoder cyclic error (mm or deg) at axis positions p: a1 sin(2 pi p/period + phase1) +
+    a2 sin(4 pi p/period + phase2), phases in deg; 0 with period 0.  The machine FMU adds it to
+    the actual position the other elements give (the diagnosis' encoder_cyclic_error)."""
+    p = np.asarray(p, float)
+    if not period > 0:
+        return np.zeros_like(p)
+    w = 2 * np.pi * p / period
+    return a1 * np.sin(w + math.radians(phase1)) + a2 * np.sin(2 * w + math.radians(phase2))
+
+
 def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = None, *,
                   with_velocity: bool = False):
     """(K, n) actual axis positions (mm/deg) at the end of each step for the commands q (K, n)
@@ -171,6 +183,8 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
     vfc = dynamics.per_axis(getattr(dynamics, "velfriction_coulomb", 0.0), n, "velfriction_coulomb")
     vfb = dynamics.per_axis(getattr(dynamics, "velfriction_viscous", 0.0), n, "velfriction_viscous")
     vfs = dynamics.per_axis(getattr(dynamics, "velfriction_vs", 0.0), n, "velfriction_vs")
+    enc = [dynamics.per_axis(getattr(dynamics, f"encoder_{f}", 0.0), n, f"encoder_{f}")
+           for f in ("period", "a1", "phase1", "a2", "phase2")]
     c1 = delayed_commands(q, step, float(dynamics.delay))
     # the command a step before: the delayed command at t_k - h (the first row before the start)
     c0 = np.vstack([c1[:1], c1[:-1]]) if dynamics.interpolation else c1
@@ -221,6 +235,7 @@ def axis_response(q: np.ndarray, step: float, dynamics, n_axes: int | None = Non
             dfc += (va[k] - vel[k, i]) * step
             out[k, i] += dfc
         vel[:, i] = va
+        out[:, i] += encoder_cyclic(out[:, i], *(e[i] for e in enc))
     return (out, vel) if with_velocity else out
 
 

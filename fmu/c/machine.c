@@ -21,7 +21,11 @@
  *   6. velocity friction (a velocity-mode axis with a proportional velocity loop): the axis'
  *      actual velocity is the drive's less coulomb tanh(v/vs) + viscous v (v the drive's mean
  *      velocity over the step), output as v.<AXIS>; the position follows its integral (the
- *      deficit accumulates on the actual position).
+ *      deficit accumulates on the actual position);
+ *   7. encoder cyclic error (the encoder interface): r(p) = sum_{h=1,2} a_h sin(2 pi h p / period
+ *      + phase_h) is added to the actual position, p the axis position that elements 1..6 give
+ *      (the diagnosis' encoder_cyclic_error takes p from the recorded position, which differs
+ *      from it by r itself: a second-order difference, |r| |dr/dp|); period 0: off.
  * A first-order thermal model (driver: spindle speed, a logged temperature, or none) moves the
  * tool edge by drift * (T - T_reference) in the tool frame.  Gaussian sensor noise with a seed
  * is added to the tool edge output.  docs/fmu.md lists the variables.
@@ -57,6 +61,11 @@
 #define VR_VFB 220        /* 220..228 velocity friction: viscous loss per unit velocity (1) */
 #define VR_VFS 230        /* 230..238 velocity friction: tanh smoothing speed, mm/s or deg/s */
 #define VR_VEL 240        /* 240..248 actual axis velocities, mm/s or deg/s */
+#define VR_EP 250         /* 250..258 encoder signal period per axis, mm or deg (0: no cyclic error) */
+#define VR_EA1 260        /* 260..268 encoder cyclic error, first harmonic amplitude, mm or deg */
+#define VR_EPH1 270       /* 270..278 its phase, deg */
+#define VR_EA2 280        /* 280..288 second harmonic amplitude, mm or deg */
+#define VR_EPH2 290       /* 290..298 its phase, deg */
 #define IVR_SEED 0        /* noise seed */
 #define IVR_DRIVER 1      /* thermal driver: 0 spindle speed, 1 temperature input, 2 none (time) */
 #define IVR_INTERP 2      /* servo command: 0 held over the step, 1 linear from the previous one */
@@ -82,7 +91,7 @@
 #define HIST_W (1 + MTK_MAX_AXES)
 #define HIST_CAP ((MODEL_NX - X_HIST) / HIST_W)
 
-const uint32_t MODEL_MAGIC = 0x6d746d0eu;  /* "mtm" + layout version 14 */
+const uint32_t MODEL_MAGIC = 0x6d746d0fu;  /* "mtm" + layout version 15 */
 
 static int n_axes(const Instance *inst) { return inst->kin ? inst->kin->n_axes : 0; }
 
@@ -115,6 +124,7 @@ int model_real_kind(const Instance *inst, unsigned vr)
     if (vr >= VR_VFB && vr < VR_VFB + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_VFS && vr < VR_VFS + (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_VEL && vr < VR_VEL + (unsigned)n) return VAR_OUTPUT;
+    if (vr >= VR_EP && vr < VR_EPH2 + 10 && (vr - VR_EP) % 10 < (unsigned)n) return VAR_PARAM_FIXED;
     if (vr >= VR_P && vr <= VR_TEMP) return VAR_OUTPUT;
     if (vr >= VR_ACT && vr < VR_ACT + (unsigned)n) return VAR_OUTPUT;
     return common_real_kind(vr, n);
@@ -173,6 +183,16 @@ fmi2Status model_check_real(Instance *inst, unsigned vr, double value)
         return check_axis_param(inst, "velfriction.viscous", (int)(vr - VR_VFB), value, -1.0, 1.0);
     if (vr >= VR_VFS && vr < VR_VFS + MTK_MAX_AXES)
         return check_axis_param(inst, "velfriction.vs", (int)(vr - VR_VFS), value, 0.0, 1e6);
+    if (vr >= VR_EP && vr < VR_EP + MTK_MAX_AXES)
+        return check_axis_param(inst, "encoder.period", (int)(vr - VR_EP), value, 0.0, 1000.0);
+    if (vr >= VR_EA1 && vr < VR_EA1 + MTK_MAX_AXES)
+        return check_axis_param(inst, "encoder.a1", (int)(vr - VR_EA1), value, -1.0, 1.0);
+    if (vr >= VR_EPH1 && vr < VR_EPH1 + MTK_MAX_AXES)
+        return check_axis_param(inst, "encoder.phase1", (int)(vr - VR_EPH1), value, -720.0, 720.0);
+    if (vr >= VR_EA2 && vr < VR_EA2 + MTK_MAX_AXES)
+        return check_axis_param(inst, "encoder.a2", (int)(vr - VR_EA2), value, -1.0, 1.0);
+    if (vr >= VR_EPH2 && vr < VR_EPH2 + MTK_MAX_AXES)
+        return check_axis_param(inst, "encoder.phase2", (int)(vr - VR_EPH2), value, -720.0, 720.0);
     return common_check_real(inst, vr, value);
 }
 
@@ -264,6 +284,17 @@ static double velfriction(double v, double c, double b, double vs)
 {
     double s = vs > 0.0 ? tanh(v / vs) : (v > 0.0) - (v < 0.0);
     return v - c * s - b * v;
+}
+
+/* The encoder cyclic error of axis i at axis position p: sum_h a_h sin(2 pi h p / period +
+ * phase_h), h = 1, 2; 0 with period 0. */
+static double encoder_cyclic(const Instance *inst, int i, double p)
+{
+    const double *r = inst->st.r;
+    double P = r[VR_EP + i], w, d = 3.14159265358979323846 / 180.0;
+    if (!(P > 0.0)) return 0.0;
+    w = 2.0 * 3.14159265358979323846 * p / P;
+    return r[VR_EA1 + i] * sin(w + r[VR_EPH1 + i] * d) + r[VR_EA2 + i] * sin(2.0 * w + r[VR_EPH2 + i] * d);
 }
 
 /* exp(-t/tau), 0 for tau = 0 (an instantaneous catch-up). */
@@ -411,6 +442,7 @@ fmi2Status model_update(Instance *inst)
         q[i] = friction_on(inst, i) ? inst->st.x[X_SLIDE + i]
                                     : backlash_out(sv, play(sv, inst->st.x[X_PLAY + i], fabs(b)), b);
         q[i] += glitch(inst, i, inst->st.time) + inst->st.x[X_VDEF + i];
+        q[i] += encoder_cyclic(inst, i, q[i]);
         inst->st.r[VR_ACT + i] = q[i];
         inst->st.r[VR_VEL + i] = inst->st.x[X_VEL + i];
     }

@@ -15,7 +15,7 @@
 #include "fmi2Functions.h"
 #include "mtk.h"
 
-#define MODEL_NR 256      /* Real value references 0..255 */
+#define MODEL_NR 320      /* Real value references 0..319 */
 #define MODEL_NI 16       /* Integer value references 0..15 */
 #define MODEL_NS 4        /* String value references 0..3 */
 #define MODEL_SLEN 512    /* capacity of one String variable, bytes */
