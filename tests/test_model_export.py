@@ -316,9 +316,14 @@ def test_package_exports():
         mm.nothing_here  # noqa: B018
 
 
-def test_encoder_cyclic_error_as_a_table_or_refused_with_the_reason():
+def test_encoder_cyclic_error_as_a_table_or_the_encoder_element():
     """Harmonics 1 and 2 of a scale's signal period: a positioning table when 64 rows per period
-    fit the travel, else no home (controls correct it in the encoder interface)."""
+    fit the travel, else the machine FMU's encoder element of the axis (controls correct it in the
+    encoder interface): on each output of the VMC (axis signs and offsets of the tool edge at
+    zero), the element on the axis reproduces the diagnosis' r(p) on the output coordinate."""
+    from mtcomp.fmu.build import MachineDynamics
+    from mtcomp.model.dynamics import apply_dynamics
+    from mtcomp.model.machine_ref import encoder_cyclic
     q = _poses(VMC, seed=4)
     P = 2.0   # mm: 64 rows per period over the travel stays below the row limit
     par = {"period_mm": P, "amplitude_h1_mm": 3e-4, "phase_h1_deg": 40.0,
@@ -329,5 +334,22 @@ def test_encoder_cyclic_error_as_a_table_or_refused_with_the_reason():
                                              + math.sin(math.radians(par[f"phase_h{h}_deg"])) * np.cos(h * w))
                  for h in (1, 2))
     assert np.allclose(r[:, 1], expect, atol=2e-3 * 4e-4)
-    ex = export_model({"effects": [_effect("encoder_cyclic_error", "y", ["y"], dict(par, period_mm=0.02))]}, VMC)
-    assert len(ex.unmapped) == 1 and "encoder interface" in str(ex.unmapped[0])
+    P = 0.02    # mm: 20 µm over 600 mm would need 1.9 million rows
+    for out in "xyz":
+        ex = export_model({"effects": [_effect("encoder_cyclic_error", out, [out], dict(par, period_mm=P))]}, VMC)
+        assert not ex.unmapped and not ex.errors.geometric.tables
+        names = {p.name for p in ex.dynamics}
+        (axis,) = {n.rsplit(".", 1)[1] for n in names}
+        assert names == {f"encoder.{k}.{axis}" for k in ("period", "a1", "phase1", "a2", "phase2")}
+        dyn = apply_dynamics(MachineDynamics(), ex.dynamics_values, VMC)
+        i = VMC.axis_names.index(axis)
+        act = q.copy()
+        act[:, i] += encoder_cyclic(q[:, i], *(dyn.per_axis(getattr(dyn, f"encoder_{k}"), 3, k)[i]
+                                               for k in ("period", "a1", "phase1", "a2", "phase2")))
+        p = forward(VMC, q).p
+        r = forward(VMC, act).p - p
+        o = "xyz".index(out)
+        w = 2 * math.pi * p[:, o] / P
+        expect = sum(par[f"amplitude_h{h}_mm"] * np.sin(h * w + math.radians(par[f"phase_h{h}_deg"])) for h in (1, 2))
+        assert np.max(np.abs(r[:, o] - expect)) < 1e-9
+        assert np.max(np.abs(np.delete(r, o, axis=1))) < 1e-9

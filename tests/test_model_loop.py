@@ -518,8 +518,8 @@ def test_encoder_cyclic_error_loop(tmp_path):
     noise on held-out time, period, amplitudes and phase within 3 sigma.
 
     On a short-travel X (10 mm, as a fine stage or a fast tool servo): over the 600 mm of the
-    preset's X the table would need 384,000 rows and the export refuses it, saying that the
-    encoder interface corrects it (test_model_export)."""
+    preset's X the table would need 384,000 rows and the export maps it to the machine FMU's
+    encoder element instead (test_encoder_cyclic_error_loop_on_the_full_travel)."""
     from importlib import resources
 
     from mtcomp.errors import AxisErrorTable
@@ -544,5 +544,49 @@ def test_encoder_cyclic_error_loop(tmp_path):
     for k, truth in (("period_mm", period), ("amplitude_h1_mm", amp), ("phase_h1_deg", np.degrees(ph)),
                      ("amplitude_h2_mm", 0.0)):
         _within_3sigma(par[k], unc[k], truth)
+    assert lr.result.heldout_rms["before"]["x"] > 5 * NOISE
+    _assert_matches_noise(lr.result)
+
+
+def test_encoder_cyclic_error_loop_on_the_full_travel(tmp_path):
+    """The same cyclic error of the X encoder (period 0.1 mm, first harmonic 0.2 µm) on the
+    unmodified preset, whose 600 mm of X would need 384,000 table rows: the machine that records
+    has it in its encoder element; diagnosed as encoder_cyclic_error, exported to the encoder
+    element of X (encoder.*.X in dynamics.toml and the .ssv, no table), re-simulated to the noise
+    on held-out time; period, amplitudes and phase within 3 sigma of the truth on the output
+    coordinate x = sign X + offset (phase sign (psi) - 360 offset/P)."""
+    from mtcomp.machine import load_machine
+    from mtcomp.model.axes import linear_axis
+    from mtcomp.model.dynamics import load_dynamics
+    from mtcomp.model.export import read_ssv, write_export
+    prog = "G90 G1 F120\nX0 Y0 Z0\nX2\nX0\n"
+    period, amp, psi = 0.1, 2e-4, 40.0
+    ix = load_machine(M).axis_names.index("X")
+    enc = dict(encoder_period=tuple(period if i == ix else 0.0 for i in range(3)),
+               encoder_a1=tuple(amp if i == ix else 0.0 for i in range(3)),
+               encoder_phase1=tuple(psi if i == ix else 0.0 for i in range(3)))
+    nom = simulate(prog, M, None, None, step=STEP, compiler="cc")
+    rec = simulate(prog, M, None, MachineDynamics(noise=NOISE, seed=22, **enc), step=STEP, compiler="cc")
+    lr = close_loop(rec, nom, program=prog, machine=M, step=STEP, train=TRAIN, workdir=tmp_path, compiler="cc")
+    assert lr.diagnosis.names == ["encoder_cyclic_error"], lr.diagnosis.names
+    (mp,) = lr.export.mapped
+    assert mp.effect == "encoder_cyclic_error" and not mp.tables and not lr.export.unmapped
+    values = {p.name: p for p in mp.params}
+    assert set(values) == {f"encoder.{k}.X" for k in ("period", "a1", "phase1", "a2", "phase2")}
+    files = write_export(lr.export, tmp_path / "export").files
+    assert set(load_dynamics(files["dynamics"])) == set(values)
+    assert set(values) <= set(read_ssv(files["ssv"]))
+    e = lr.diagnosis.effects[0].to_dict()
+    par, unc = e["params"], e["uncertainty"]
+    ax = linear_axis(load_machine(M), "x")
+    phi = (ax.sign * psi - 360.0 * ax.offset / period + 180.0) % 360.0 - 180.0
+    dphi = (par["phase_h1_deg"] - phi + 180.0) % 360.0 - 180.0
+    for k, truth in (("period_mm", period), ("amplitude_h1_mm", amp), ("amplitude_h2_mm", 0.0)):
+        _within_3sigma(par[k], unc[k], truth)
+    _within_3sigma(phi + dphi, unc["phase_h1_deg"], phi)
+    # the element's own parameters: amplitude and phase on the axis
+    _within_3sigma(values["encoder.a1.X"].value, values["encoder.a1.X"].sigma, amp)
+    d = (values["encoder.phase1.X"].value - psi + 180.0) % 360.0 - 180.0
+    assert abs(d) <= 3 * values["encoder.phase1.X"].sigma, (d, values["encoder.phase1.X"])
     assert lr.result.heldout_rms["before"]["x"] > 5 * NOISE
     _assert_matches_noise(lr.result)

@@ -146,20 +146,23 @@ def map_periodic_pitch_error(e: dict, machine: Machine, step: float | None) -> M
 
 
 def map_encoder_cyclic_error(e: dict, machine: Machine, step: float | None) -> Mapped:
-    """r = sum_h A_h sin(2 pi h p/P + phi_h), h = 1, 2 -> positioning table E{O}{AXIS} with 64
-    rows per signal period P, when that fits the axis travel in MAX_PERIODIC_ROWS rows.  A period of
-    tens of µm over a travel of hundreds of mm does not: controls correct this error in the
-    encoder interface (signal-period compensation), not in a pitch table, and the model has no
-    such element, so it is refused with the reason."""
+    """r = sum_h A_h sin(2 pi h p/P + phi_h), h = 1, 2 (p the output coordinate, mm) ->
+    positioning table E{O}{AXIS} with 64 rows per signal period P when that fits the axis travel
+    in MAX_PERIODIC_ROWS rows (`mtcomp compensate --errors` can then use it); else the machine
+    FMU's encoder element of the axis, encoder.{period,a1,phase1,a2,phase2}.<AXIS> (a period of
+    tens of µm over hundreds of mm: controls correct it in the encoder interface, and so does the
+    model).  _encoder_params gives the element's parameters on the axis."""
     o = coordinate_letter(_one_output(e))
     ax = linear_axis(machine, o)
     _travel(ax)
     period = _p(e, "period_mm")
     rows = (ax.hi - ax.lo) / period * 64
     if rows > MAX_PERIODIC_ROWS:
-        raise NoHome(f"encoder_cyclic_error on {e['output']}: a period of {period * 1e3:.4g} µm over the "
-                     f"{ax.hi - ax.lo:g} mm travel of {ax.axis} needs {rows:.3g} table rows (64 per period; "
-                     f"at most {MAX_PERIODIC_ROWS}): correct it in the encoder interface")
+        return Mapped("encoder_cyclic_error", e["output"], _encoder_params(e, ax, period),
+                      notes=(f"a period of {period * 1e3:.4g} µm over the {ax.hi - ax.lo:g} mm travel of {ax.axis} "
+                             f"needs {rows:.3g} table rows (at most {MAX_PERIODIC_ROWS}): the encoder element of "
+                             f"{ax.axis} holds it (encoder.*.{ax.axis}); its p is the axis position, the "
+                             "diagnosis' the recorded one (a second-order difference)",))
     harm = []
     for h in (1, 2):
         amp = _p(e, next((k for k in e["params"] if k.startswith(f"amplitude_h{h}_")), f"amplitude_h{h}_mm"))
@@ -172,6 +175,27 @@ def map_encoder_cyclic_error(e: dict, machine: Machine, step: float | None) -> M
     unc = {k: _s(e, k) for k in e["params"]}
     return Mapped("encoder_cyclic_error", e["output"],
                   tables=(Table(ax.axis, f"E{o.upper()}{ax.axis}", fn, period / 64, unc),))
+
+
+def _encoder_params(e: dict, ax, period: float) -> tuple:
+    """The encoder element's parameters of axis ax for the diagnosis' r(x) on output coordinate
+    x = sign q + offset.  The element adds d(q) to the axis, which moves x by sign d, so
+    d(q) = sign r(sign q + offset) = sum_h A_h sin(2 pi h q/P + sign psi_h), psi_h = phi_h +
+    360 h offset/P deg (sign = -1: -sin(-u + psi) = sin(u - psi)).  Sigma of the phase: the
+    diagnosis' with the period's through the offset, 360 h offset sigma_P / P^2, added in
+    quadrature (their correlation is not in the diagnosis)."""
+    sp = _s(e, "period_mm")
+    out = [Param(f"encoder.period.{ax.axis}", period, sp, "mm")]
+    for h in (1, 2):
+        akey = next((k for k in e["params"] if k.startswith(f"amplitude_h{h}_")), f"amplitude_h{h}_mm")
+        psi = ax.sign * (_p(e, f"phase_h{h}_deg") + 360.0 * h * ax.offset / period)
+        psi = float((psi + 180.0) % 360.0 - 180.0)
+        s_ph = _s(e, f"phase_h{h}_deg")
+        if s_ph is not None and sp is not None:
+            s_ph = math.hypot(s_ph, 360.0 * h * ax.offset * sp / period ** 2)
+        out += [Param(f"encoder.a{h}.{ax.axis}", _p(e, akey), _s(e, akey), "mm"),
+                Param(f"encoder.phase{h}.{ax.axis}", psi, s_ph, "deg")]
+    return tuple(out)
 
 
 def map_straightness(e: dict, machine: Machine, step: float | None) -> Mapped:
