@@ -436,7 +436,7 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     x0 = np.array([p.value for p in params])
     scale = np.array([p.sigma if p.sigma and math.isfinite(p.sigma) and p.sigma > 0 else max(abs(p.value), 1e-9) * 1e-3
                       for p in params])
-    nonneg = ("servo.kv.", "backlash.", "friction.", "glitch.time.", "delay", "thermal.gain")
+    nonneg = ("servo.kv.", "backlash.", "friction.", "glitch.time.", "delay", "thermal.gain", "encoder.period.")
     # a negative backlash (over-compensated: the FMU's mirrored play) keeps the FMU's range
     lo = np.array([1e-3 if p.name == "thermal.time_constant" else -1.0 if p.name.startswith("backlash.") and p.value < 0
                    else 0.0 if p.name.startswith(nonneg) else -np.inf for p in params])
