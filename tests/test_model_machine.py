@@ -229,6 +229,21 @@ def test_encoder_cyclic_error_is_the_diagnosis_form_on_the_actual_position(machi
         build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(encoder_a1=(1.5, 0, 0)))
     with pytest.raises(MtcompError, match=r"encoder\.period\.Y"):
         build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(encoder_period=(0, -1.0, 0)))
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    fmu = tmp_path / "m.fmu"
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="m")
+    slave.instantiate(loggingOn=True, callbacks=None)
+    try:
+        for name, value in (("encoder.period.X", -0.02), ("encoder.a2.Y", 2.0), ("encoder.phase1.Z", 800.0)):
+            with pytest.raises(Exception):
+                slave.setReal([vr[name]], [value])
+        slave.setReal([vr["encoder.phase2.Z"]], [-700.0])      # in range: accepted
+    finally:
+        slave.freeInstance()
     (tmp_path / "d.toml").write_text('[parameters]\n"encoder.period.X" = -0.02\n')
     with pytest.raises(InputError, match="encoder.period.X"):
         load_dynamics(tmp_path / "d.toml", machine)
