@@ -118,14 +118,22 @@ DYNAMIC_EFFECTS = [
      "params": {"gain_mm_per_degC": 4e-3, "tau_s": 3.0, "initial_mm": 1e-3, "offset_mm": -2e-3},
      "uncertainty": {"gain_mm_per_degC": 1e-5, "tau_s": 0.01, "initial_mm": 1e-5, "offset_mm": 1e-5}},
     {"name": "friction", "output": "vZ", "inputs": ["vZ"], "params": {"coulomb_mm_per_s": 0.05, "viscous": 0.01},
-     "uncertainty": {"coulomb_mm_per_s": 1e-3, "viscous": 1e-4}}]     # velocity friction (Z at rest: no effect)
+     "uncertainty": {"coulomb_mm_per_s": 1e-3, "viscous": 1e-4}},     # velocity friction (Z at rest: no effect)
+    # a 50 µm signal period on 600 mm of Z: no table, the encoder element of Z (Z at 0: z moves by r(0))
+    {"name": "encoder_cyclic_error", "output": "z", "inputs": ["z"],
+     "params": {"period_mm": 0.05, "amplitude_h1_mm": 3e-4, "phase_h1_deg": 30.0, "amplitude_h2_mm": 1e-4,
+                "phase_h2_deg": -45.0},
+     "uncertainty": {"period_mm": 1e-6, "amplitude_h1_mm": 1e-6, "phase_h1_deg": 0.1, "amplitude_h2_mm": 1e-6,
+                     "phase_h2_deg": 0.5}}]
+ENCODER_Z0 = 3e-4 * math.sin(math.radians(30.0)) + 1e-4 * math.sin(math.radians(-45.0))   # r at z = 0, mm
 VELOCITY_PEAKS = {"vZ": 10.0}    # SIM's peak speed on vZ, mm/s: v_s = 0.2 mm/s
 # what the machine FMU must hold: thermal driver 1 (logged temperature), excess = r0/k, reference = 20 - c/k
 DYNAMIC_PARAMS = {"backlash.X": 0.002, "location.EC0Y": -math.radians(2e-3), "delay": 0.002,
                   "friction.breakaway.Y": 0.003, "friction.tau.Y": 0.02, "glitch.height.X": 0.0025,
                   "glitch.time.X": 0.015, "thermal.time_constant": 3.0,
                   "thermal.drift.z": 4e-3, "thermal.initial_excess": 0.25, "thermal.reference": 20.5,
-                  "velfriction.coulomb.Z": 0.05, "velfriction.viscous.Z": 0.01, "velfriction.vs.Z": 0.2}
+                  "velfriction.coulomb.Z": 0.05, "velfriction.viscous.Z": 0.01, "velfriction.vs.Z": 0.2,
+                  "encoder.period.Z": 0.05, "encoder.a1.Z": 3e-4, "encoder.a2.Z": 1e-4}
 
 
 @pytest.fixture(scope="module")
@@ -147,9 +155,10 @@ def dynamic_ssp(tmp_path_factory):
 
 def _tool(t, y=10.0):
     """Tool edge (x, z) of the machine at rest at X5 Y10 Z0 at time t: the squareness moves x,
-    the thermal state (ambient 20 degC + 0.25 K decaying with 3 s) moves z by drift (T - 20.5)."""
+    the thermal state (ambient 20 degC + 0.25 K decaying with 3 s) moves z by drift (T - 20.5),
+    the encoder cyclic error of Z by its value at z = 0 (the tool edge's z with the axes at 0)."""
     T = 20.0 + 0.25 * math.exp(-t / 3.0)
-    return 5.0 + math.radians(2e-3) * y, 4e-3 * (T - 20.5)
+    return 5.0 + math.radians(2e-3) * y, 4e-3 * (T - 20.5) + ENCODER_Z0
 
 
 def test_diagnosed_dynamics_applied_by_libcosim(dynamic_ssp):
