@@ -316,6 +316,25 @@ def test_package_exports():
         mm.nothing_here  # noqa: B018
 
 
+def test_encoder_cyclic_error_of_a_rotary_axis_is_its_encoder_element():
+    """On the angle output of a rotary axis (C of the robonano-ui, a 0.5 deg signal period,
+    amplitudes in deg) the effect maps to the element of C as it is: the axis reads its angle."""
+    from mtcomp.model.machine_ref import encoder_cyclic
+    m = load_machine("robonano-ui")
+    par = {"period_deg": 0.5, "amplitude_h1_deg": 2e-4, "phase_h1_deg": 200.0, "amplitude_h2_deg": 5e-5,
+           "phase_h2_deg": -10.0}
+    ex = export_model({"effects": [_effect("encoder_cyclic_error", "c", ["c"], par)]}, m)
+    assert not ex.unmapped and not ex.errors.geometric.tables
+    v = ex.dynamics_values
+    assert v["encoder.period.C"] == 0.5 and v["encoder.a1.C"] == 2e-4 and v["encoder.a2.C"] == 5e-5
+    c = np.linspace(-360.0, 360.0, 7001)
+    got = encoder_cyclic(c, 0.5, 2e-4, v["encoder.phase1.C"], 5e-5, v["encoder.phase2.C"])
+    w = 2 * np.pi * c / 0.5
+    want = 2e-4 * np.sin(w + math.radians(200.0)) + 5e-5 * np.sin(2 * w + math.radians(-10.0))
+    assert np.max(np.abs(got - want)) < 1e-15
+    assert {p.unit for p in ex.dynamics if not p.name.startswith("encoder.phase")} == {"deg"}
+
+
 def test_encoder_cyclic_error_as_a_table_or_the_encoder_element():
     """Harmonics 1 and 2 of a scale's signal period: a positioning table when 64 rows per period
     fit the travel, else the machine FMU's encoder element of the axis (controls correct it in the

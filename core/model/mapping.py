@@ -11,6 +11,7 @@ When the diagnosis JSON changes, only the function of the effect concerned chang
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -151,8 +152,15 @@ def map_encoder_cyclic_error(e: dict, machine: Machine, step: float | None) -> M
     in MAX_PERIODIC_ROWS rows (`mtcomp compensate --errors` can then use it); else the machine
     FMU's encoder element of the axis, encoder.{period,a1,phase1,a2,phase2}.<AXIS> (a period of
     tens of µm over hundreds of mm: controls correct it in the encoder interface, and so does the
-    model).  _encoder_params gives the element's parameters on the axis."""
-    o = coordinate_letter(_one_output(e))
+    model).  _encoder_params gives the element's parameters on the axis.  On the angle output of a
+    rotary axis (period_deg, amplitudes in deg: the axis' own reading) always the element."""
+    try:
+        o = coordinate_letter(_one_output(e))
+    except NoHome:
+        _, rax = rotary_axis(machine, _one_output(e))
+        return Mapped("encoder_cyclic_error", e["output"],
+                      _encoder_params(e, SimpleNamespace(axis=rax.name, sign=1.0, offset=0.0), _p(e, "period_deg"),
+                                      "deg"))
     ax = linear_axis(machine, o)
     _travel(ax)
     period = _p(e, "period_mm")
@@ -177,23 +185,23 @@ def map_encoder_cyclic_error(e: dict, machine: Machine, step: float | None) -> M
                   tables=(Table(ax.axis, f"E{o.upper()}{ax.axis}", fn, period / 64, unc),))
 
 
-def _encoder_params(e: dict, ax, period: float) -> tuple:
+def _encoder_params(e: dict, ax, period: float, unit: str = "mm") -> tuple:
     """The encoder element's parameters of axis ax for the diagnosis' r(x) on output coordinate
     x = sign q + offset.  The element adds d(q) to the axis, which moves x by sign d, so
     d(q) = sign r(sign q + offset) = sum_h A_h sin(2 pi h q/P + sign psi_h), psi_h = phi_h +
     360 h offset/P deg (sign = -1: -sin(-u + psi) = sin(u - psi)).  Sigma of the phase: the
     diagnosis' with the period's through the offset, 360 h offset sigma_P / P^2, added in
     quadrature (their correlation is not in the diagnosis)."""
-    sp = _s(e, "period_mm")
-    out = [Param(f"encoder.period.{ax.axis}", period, sp, "mm")]
+    sp = _s(e, f"period_{unit}")
+    out = [Param(f"encoder.period.{ax.axis}", period, sp, unit)]
     for h in (1, 2):
-        akey = next((k for k in e["params"] if k.startswith(f"amplitude_h{h}_")), f"amplitude_h{h}_mm")
+        akey = next((k for k in e["params"] if k.startswith(f"amplitude_h{h}_")), f"amplitude_h{h}_{unit}")
         psi = ax.sign * (_p(e, f"phase_h{h}_deg") + 360.0 * h * ax.offset / period)
         psi = float((psi + 180.0) % 360.0 - 180.0)
         s_ph = _s(e, f"phase_h{h}_deg")
         if s_ph is not None and sp is not None:
             s_ph = math.hypot(s_ph, 360.0 * h * ax.offset * sp / period ** 2)
-        out += [Param(f"encoder.a{h}.{ax.axis}", _p(e, akey), _s(e, akey), "mm"),
+        out += [Param(f"encoder.a{h}.{ax.axis}", _p(e, akey), _s(e, akey), unit),
                 Param(f"encoder.phase{h}.{ax.axis}", psi, s_ph, "deg")]
     return tuple(out)
 
