@@ -443,3 +443,21 @@ def test_friction_compensated_with_the_diagnosed_model():
     # measured: 3.3 µm -> 0.07 µm (the 0.1 µm axis resolution)
     assert np.abs(before - nominal.p).max() > 2.5e-3
     assert np.abs(after - nominal.p).max() < 0.15e-3
+
+
+def test_cli_encoder_switch(tmp_path):
+    """`--no-encoder` leaves the encoder cyclic error to the control: the program comes back with
+    its positions; without it the X targets move by -r(w)."""
+    d = tmp_path / "model"
+    d.mkdir()
+    (d / "dynamics.toml").write_text('step_s = 0.001\n[parameters]\n"encoder.period.X" = 0.1\n'
+                                     '"encoder.a1.X" = 0.001\n"encoder.phase1.X" = 30.0\n')
+    prog = "G90 G1 F60\nX0 Y0 Z0\nX1.525 Y0.5\n"
+    (tmp_path / "p.nc").write_text(prog)
+    r = _cli(tmp_path, "model", "compensate", "p.nc", "--model", "model", "--machine", M, "--no-encoder",
+             "-o", "off.nc")
+    assert r.returncode == 0, r.stderr
+    assert "X1.525 Y0.5" in (tmp_path / "off.nc").read_text()
+    r = _cli(tmp_path, "model", "compensate", "p.nc", "--model", "model", "--machine", M, "-o", "on.nc")
+    assert r.returncode == 0, r.stderr
+    assert "X1.525 Y0.5" not in (tmp_path / "on.nc").read_text()

@@ -259,6 +259,8 @@ def register_compensate(sub) -> None:
     c.add_argument("--no-thermal", action="store_true", help="no thermal offsets (spindle- or time-driven drift "
                    "subtracted along the program; a drift driven by a logged temperature goes to OUT.thermal.toml "
                    "for the control)")
+    c.add_argument("--no-encoder", action="store_true", help="leave the encoder cyclic error (the machine "
+                   "FMU's encoder element) to the control's encoder interface: no w - r(w) on the targets")
     c.add_argument("--no-delay", action="store_true", help="take the thermal offsets at the command's time, not "
                    "at the time the axes act (t + transport delay)")
     c.add_argument("--rapid", type=float, default=3000.0, metavar="MM_PER_MIN",
@@ -293,7 +295,7 @@ def run_compensate(args: argparse.Namespace) -> int:
     new, rep = compensate_with_model(text, m, None if args.no_geometric else errors, dyn,
                                      backlash=not args.no_backlash, servo=not args.no_servo,
                                      friction=not args.no_friction, thermal=not args.no_thermal,
-                                     delay=not args.no_delay, rapid=args.rapid, filename=str(src), provenance=prov)
+                                     delay=not args.no_delay, encoder=not args.no_encoder, rapid=args.rapid, filename=str(src), provenance=prov)
     atomic_write(args.output, new)
     print(f"{src} -> {args.output}: {rep.summary()}")
     if rep.thermal_control is not None:
