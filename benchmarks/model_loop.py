@@ -319,8 +319,12 @@ def more_cases(rng):
     per, a1, psi = float(rng.uniform(0.05, 0.2)), float(rng.uniform(0.1e-3, 0.4e-3)), float(rng.uniform(-180, 180))
     yield ("encoder_cyclic_error (encoder element)", "encoder_cyclic_error", None,
            dict(encoder_period=(per, 0.0, 0.0), encoder_a1=(a1, 0.0, 0.0), encoder_phase1=(psi, 0.0, 0.0)), SLOW_X,
+           # the FMU's element reads q + r(q); the diagnosis fits r on the reading x: r(q) = r(x) - r'(x) r(x)
+           # to second order, a second harmonic of amplitude (pi/P) a1^2 on its coordinate (3-6 nm here),
+           # none on the axis (the exported encoder.a2.X)
            {("diag", "period_mm"): per, ("diag", "amplitude_h1_mm"): a1, ("diag", "phase_h1_deg"): psi,
-            ("diag", "amplitude_h2_mm"): 0.0, ("export", "encoder.a1.X"): a1, ("export", "encoder.phase1.X"): psi})
+            ("diag", "amplitude_h2_mm"): np.pi / per * a1 ** 2, ("export", "encoder.a1.X"): a1,
+            ("export", "encoder.phase1.X"): psi, ("export", "encoder.a2.X"): 0.0})
     b = -float(rng.uniform(2e-3, 6e-3))
     yield ("backlash (negative)", "backlash", None, dict(backlash=(b, 0.0, 0.0)), PROGRAM_RESTS,
            {("export", "backlash.X"): b})
@@ -396,7 +400,11 @@ def run_more(seeds: int, section: str = "model-loop-more") -> None:
                      for name, r in rows.items()]
     lines += ["", "Parameters: the diagnosis' own (scale, lead, amplitude, phase, period, the straightness' "
               "Legendre terms on its fitted range; X's axis coordinate is the output x on this preset) and, for "
-              "the encoder and the backlash, the exported model parameters. Random per seed: scale +-5-20 µm/m "
+              "the encoder and the backlash, the exported model parameters. The encoder's second harmonic: the element "
+              "reads q + r(q) at the axis position q, the diagnosis fits r on the reading x, r(q) = r(x) - r'(x) r(x) "
+              "to second order: a second harmonic of amplitude (pi/P) a1^2 (3-6 nm here) is the truth of the "
+              "diagnosis' amplitude_h2_mm, 0 that of the exported encoder.a2.X (the export copies the diagnosis' "
+              "value). Random per seed: scale +-5-20 µm/m "
               "(EXX, the zig-zag F1200); pitch lead 2-8 mm, amplitude 0.2-0.5 µm, phase -180-180 deg (EXX, the "
               "zig-zag); straightness EYX = c ((x/20 mm)^2 - 1/3), c +-2-6 µm (the zig-zag); encoder of X "
               "period 0.05-0.2 mm, first harmonic 0.1-0.4 µm, phase -180-180 deg, on the full 600 mm travel (the "
