@@ -316,6 +316,26 @@ def test_package_exports():
         mm.nothing_here  # noqa: B018
 
 
+def _element_truth(P, par, unit="mm"):
+    """The encoder element's harmonics 1 and 2 for the diagnosis' r_d(y) (y the recorded
+    position): per axis position q the recorded y solves y - r_d(y) = q (brentq, independent of
+    the mapping's fixed-point iteration), r(q) = y - q, fitted by least squares with harmonics
+    0..4 over one period; returns [(A_1, phi_1 deg), (A_2, phi_2 deg)]."""
+    from scipy.optimize import brentq
+
+    def r_d(y):
+        return sum(par[f"amplitude_h{h}_{unit}"] * np.sin(2 * np.pi * h * y / P + math.radians(par[f"phase_h{h}_deg"]))
+                   for h in (1, 2))
+    q = np.arange(512) / 512 * P
+    amp = sum(par[f"amplitude_h{h}_{unit}"] for h in (1, 2))
+    r = np.array([brentq(lambda y: y - r_d(y) - qi, qi - 2 * amp - 1e-12, qi + 2 * amp + 1e-12, xtol=1e-16)
+                  for qi in q]) - q
+    w = 2 * np.pi * q / P
+    cols = [np.ones_like(w)] + [f(h * w) for h in range(1, 5) for f in (np.sin, np.cos)]
+    c = np.linalg.lstsq(np.stack(cols, axis=1), r, rcond=None)[0]
+    return [(math.hypot(c[2 * h - 1], c[2 * h]), math.degrees(math.atan2(c[2 * h], c[2 * h - 1]))) for h in (1, 2)]
+
+
 def test_encoder_cyclic_error_of_a_rotary_axis_is_its_encoder_element():
     """On the angle output of a rotary axis (C of the robonano-ui, a 0.5 deg signal period,
     amplitudes in deg) the effect maps to the element of C as it is: the axis reads its angle."""
@@ -326,12 +346,20 @@ def test_encoder_cyclic_error_of_a_rotary_axis_is_its_encoder_element():
     ex = export_model({"effects": [_effect("encoder_cyclic_error", "c", ["c"], par)]}, m)
     assert not ex.unmapped and not ex.errors.geometric.tables
     v = ex.dynamics_values
-    assert v["encoder.period.C"] == 0.5 and v["encoder.a1.C"] == 2e-4 and v["encoder.a2.C"] == 5e-5
+    assert v["encoder.period.C"] == 0.5
+    # the element acts on the axis' angle before the error, the diagnosis' r_d on the read one
+    (a1, f1), (a2, f2) = _element_truth(0.5, par, "deg")
     c = np.linspace(-360.0, 360.0, 7001)
-    got = encoder_cyclic(c, 0.5, 2e-4, v["encoder.phase1.C"], 5e-5, v["encoder.phase2.C"])
-    w = 2 * np.pi * c / 0.5
-    want = 2e-4 * np.sin(w + math.radians(200.0)) + 5e-5 * np.sin(2 * w + math.radians(-10.0))
-    assert np.max(np.abs(got - want)) < 1e-15
+    got = encoder_cyclic(c, 0.5, v["encoder.a1.C"], v["encoder.phase1.C"], v["encoder.a2.C"], v["encoder.phase2.C"])
+    assert np.max(np.abs(got - encoder_cyclic(c, 0.5, a1, f1, a2, f2))) < 1e-12
+    # and the angle it gives reproduces the diagnosis' r_d at the angle read better than a copy
+    # of r_d's harmonics does (what is left: harmonics 3 and up, order 2 pi A_1 A_2/P)
+
+    def r_d(y):
+        w = 2 * np.pi * y / 0.5
+        return 2e-4 * np.sin(w + math.radians(200.0)) + 5e-5 * np.sin(2 * w + math.radians(-10.0))
+    copy = encoder_cyclic(c, 0.5, 2e-4, 200.0, 5e-5, -10.0)
+    assert np.max(np.abs(got - r_d(c + got))) < 0.5 * np.max(np.abs(copy - r_d(c + copy)))
     assert {p.unit for p in ex.dynamics if not p.name.startswith("encoder.phase")} == {"deg"}
 
 
@@ -348,10 +376,11 @@ def test_encoder_cyclic_error_as_a_table_or_the_encoder_element():
     par = {"period_mm": P, "amplitude_h1_mm": 3e-4, "phase_h1_deg": 40.0,
            "amplitude_h2_mm": 1e-4, "phase_h2_deg": -70.0}
     r, p, ex = _residual(VMC, [_effect("encoder_cyclic_error", "y", ["y"], par)], q)
+    # the table is a function of the axis position before the error: the harmonics of r(q) =
+    # y - q with y - r_d(y) = q, to the table's linear interpolation (0.12 % of the amplitude)
+    (a1, f1), (a2, f2) = _element_truth(P, par)
     w = 2 * math.pi * p[:, 1] / P
-    expect = sum(par[f"amplitude_h{h}_mm"] * (math.cos(math.radians(par[f"phase_h{h}_deg"])) * np.sin(h * w)
-                                             + math.sin(math.radians(par[f"phase_h{h}_deg"])) * np.cos(h * w))
-                 for h in (1, 2))
+    expect = a1 * np.sin(w + math.radians(f1)) + a2 * np.sin(2 * w + math.radians(f2))
     assert np.allclose(r[:, 1], expect, atol=2e-3 * 4e-4)
     P = 0.02    # mm: 20 µm over 600 mm would need 1.9 million rows
     for out in "xyz":
@@ -368,7 +397,11 @@ def test_encoder_cyclic_error_as_a_table_or_the_encoder_element():
         p = forward(VMC, q).p
         r = forward(VMC, act).p - p
         o = "xyz".index(out)
+        # the element's harmonics are those of r(q) = y - q with y - r_d(y) = q (the diagnosis
+        # reads r_d at the recorded position y): on the output coordinate, with the axis' sign
+        # and offset, exactly those
+        (a1, f1), (a2, f2) = _element_truth(P, dict(par, period_mm=P))
         w = 2 * math.pi * p[:, o] / P
-        expect = sum(par[f"amplitude_h{h}_mm"] * np.sin(h * w + math.radians(par[f"phase_h{h}_deg"])) for h in (1, 2))
+        expect = a1 * np.sin(w + math.radians(f1)) + a2 * np.sin(2 * w + math.radians(f2))
         assert np.max(np.abs(r[:, o] - expect)) < 1e-9
         assert np.max(np.abs(np.delete(r, o, axis=1))) < 1e-9
