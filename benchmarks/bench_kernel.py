@@ -182,7 +182,7 @@ def main(argv=None):
            "takes the positions only (`kinematics.forward_position`: the kernel writes no orientations) in "
            "chunks; the kernel's share (three forward passes and the retarget) is about 14 % of the CPU "
            "time (cProfile at 200,000 lines), parsing (twice: the input, and the emitted values) and "
-           "rewriting most of the rest (the G-code helper's part; its figures are in the gcode block).",
+           "rewriting most of the rest (the G-code reader and writer; their figures are in the gcode block).",
            "", "Targets of the compiled-kernel issue (CPU time, minimum over the machines):", "",
            "| path | target | measured | |", "|---|---|---|---|"]
     six = rate("retarget, rigid + workpiece rotation (closed form)", "robonano-ui")
