@@ -11,6 +11,8 @@ import pytest
 
 pytest.importorskip("fmpy")
 
+from mtcomp.model.mapping import _encoder_harmonics  # noqa: E402
+
 
 def test_bound_ssv_is_applied_by_libcosim(tmp_path):
     pytest.importorskip("libcosimpy")
@@ -125,7 +127,11 @@ DYNAMIC_EFFECTS = [
                 "phase_h2_deg": -45.0},
      "uncertainty": {"period_mm": 1e-6, "amplitude_h1_mm": 1e-6, "phase_h1_deg": 0.1, "amplitude_h2_mm": 1e-6,
                      "phase_h2_deg": 0.5}}]
-ENCODER_Z0 = 3e-4 * math.sin(math.radians(30.0)) + 1e-4 * math.sin(math.radians(-45.0))   # r at z = 0, mm
+# the element holds the error's harmonics on the axis position (the export solves r(q) = r_d(q +
+# r(q)) for the diagnosis' r_d, read at the recorded position; tests/test_model_export.py checks
+# that against an independent model): 3.004e-4 and 0.99e-4 mm here
+(ENC_A1, ENC_F1, _, _), (ENC_A2, ENC_F2, _, _) = _encoder_harmonics(DYNAMIC_EFFECTS[-1], 0.05)
+ENCODER_Z0 = ENC_A1 * math.sin(math.radians(ENC_F1)) + ENC_A2 * math.sin(math.radians(ENC_F2))  # r at z = 0, mm
 VELOCITY_PEAKS = {"vZ": 10.0}    # SIM's peak speed on vZ, mm/s: v_s = 0.2 mm/s
 # what the machine FMU must hold: thermal driver 1 (logged temperature), excess = r0/k, reference = 20 - c/k
 DYNAMIC_PARAMS = {"backlash.X": 0.002, "location.EC0Y": -math.radians(2e-3), "delay": 0.002,
@@ -133,7 +139,7 @@ DYNAMIC_PARAMS = {"backlash.X": 0.002, "location.EC0Y": -math.radians(2e-3), "de
                   "glitch.time.X": 0.015, "thermal.time_constant": 3.0,
                   "thermal.drift.z": 4e-3, "thermal.initial_excess": 0.25, "thermal.reference": 20.5,
                   "velfriction.coulomb.Z": 0.05, "velfriction.viscous.Z": 0.01, "velfriction.vs.Z": 0.2,
-                  "encoder.period.Z": 0.05, "encoder.a1.Z": 3e-4, "encoder.a2.Z": 1e-4}
+                  "encoder.period.Z": 0.05, "encoder.a1.Z": ENC_A1, "encoder.a2.Z": ENC_A2}
 
 
 @pytest.fixture(scope="module")
