@@ -142,11 +142,7 @@ def run_dynamics(seeds: int, only: str | None = None, section: str = "model-loop
               "smooth reversals); glitch height 1-5 µm and time to peak 15-40 ms on X (the same circle); thermal time constant 2-4 s, drift +-2-6 µm/K along z (spindle: 1 K per "
               "1000 1/min, steps at 0.8 s and 3.5 s; temperature: steps and a sine, initial excess +-0.5 K, "
               "reference 19.8-20.2 degC).", "", machine_line()]
-    md = "\n".join(lines)
-    print(md)
-    doc = Path(__file__).resolve().parent.parent / "docs" / "model-loop.md"
-    update_section(section, md, doc)
-    update_section(section, md)
+    _publish(section, lines)
 
 
 def run_velfriction(seeds: int, section: str = "model-loop-velfriction") -> None:
@@ -188,11 +184,7 @@ def run_velfriction(seeds: int, section: str = "model-loop-velfriction") -> None
              f"{np.median(r['z']):.2f} | {max(r['z']):.2f} | {np.median(r['ratio']):.3f} | {max(r['ratio']):.3f} |",
              "", "friction (velocity output): velfriction.coulomb.X, velfriction.viscous.X (velfriction.vs.X set from "
              "SIM's peak speed).", "", "Random per seed: Coulomb 0.02-0.1 mm/s, viscous 0.5-2 %.", "", machine_line()]
-    md = "\n".join(lines)
-    print(md)
-    doc = Path(__file__).resolve().parent.parent / "docs" / "model-loop.md"
-    update_section(section, md, doc)
-    update_section(section, md)
+    _publish(section, lines)
 
 
 SPINDLE_PROGRAM = ("G90 G1 F1200\nX0 Y0 Z0\nX20 Y5\nS3000 M3\nX-20 Y-10\nX15 Y10\nS5000\nX-15 Y-5\n"
@@ -270,16 +262,23 @@ def run_compensation(seeds: int) -> None:
               "circle r = 10 mm, smooth reversals); thermal time constant 2-4 s, drift +-2-6 µm/K along z, 1 K "
               "per 1000 1/min, the spindle from the program's S words (S3000 M3 at 1.03 s, S5000 at 4.95 s), "
               "logged in the recording for the diagnosis.", "", machine_line()]
-    md = "\n".join(lines)
-    print(md)
-    doc = Path(__file__).resolve().parent.parent / "docs" / "model-loop.md"
-    update_section("model-loop-compensate", md, doc)
-    update_section("model-loop-compensate", md)
+    _publish("model-loop-compensate", lines)
 
 
 PROGRAM_RESTS = ("G90 G1 F1200\nX0 Y0 Z0\nX20 Y5\nZ2\nZ0\nX-20 Y-10\nZ2\nZ0\nX15 Y10\nZ2\nZ0\nX-15 Y-5\nZ2\nZ0\n"
                  "X0 Y0\n")   # rests in X and Y after each move: what tells a negative backlash from a lead
 SLOW_X = "G90 G1 F120\nX0 Y0 Z0\nX2\nX0\n"    # 4 µm per 2 ms sample: the encoder's period resolved
+
+
+
+def _publish(section: str, lines: list[str], in_model_loop_doc: bool = True) -> None:
+    """Print a group's block and write it to docs/benchmarks.md (and to docs/model-loop.md,
+    where the group's table also stands)."""
+    md = "\n".join(lines)
+    print(md)
+    if in_model_loop_doc:
+        update_section(section, md, Path(__file__).resolve().parent.parent / "docs" / "model-loop.md")
+    update_section(section, md)
 
 
 def _x_table(fn, n=24001):
@@ -411,9 +410,7 @@ def run_more(seeds: int, section: str = "model-loop-more") -> None:
               "period 0.05-0.2 mm, first harmonic 0.1-0.4 µm, phase -180-180 deg, on the full 600 mm travel (the "
               "FMU's encoder element; a slow move X0-X2-X0 at F120); backlash of X -2 to -6 µm (the zig-zag "
               "with Z rests after each XY move).", "", machine_line()]
-    md = "\n".join(lines)
-    print(md)
-    update_section(section, md)
+    _publish(section, lines, in_model_loop_doc=False)
 
 
 def main(argv=None) -> int:
@@ -474,11 +471,7 @@ def main(argv=None) -> int:
               "servo_lag: only x diagnosed, sigma widened by 1e-4 kv (the FMU's held-command servo against "
               "the diagnosis' continuous lag, docs/model-loop.md); the noise is the FMU's 20 nm, the ratio "
               "uses it.", "", machine_line()]
-    md = "\n".join(lines)
-    print(md)
-    doc = Path(__file__).resolve().parent.parent / "docs" / "model-loop.md"
-    update_section("model-loop", md, doc)
-    update_section("model-loop", md)
+    _publish("model-loop", lines)
     return 0
 
 
