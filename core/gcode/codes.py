@@ -31,8 +31,12 @@ _G_FEED = {930: 93, 940: 94, 950: 95}
 #: codes whose axis words are not moves: G92 (the current position gets these coordinates),
 #: G52 local shift (values), G53 machine coordinates, G28
 #: and G30 (via an intermediate point to a reference point), G50.1 (axes named to cancel
-#: mirroring); after G53/G28/G30 the axes named are at a place the program does not know
-_G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501, 920: 92}
+#: mirroring); after G53/G28/G30 the axes named are at a place the program does not know.
+#: G92.4 A0 S0 is the Carvera (Smoothieware-based) A-axis "shrink": the A value is reduced to
+#: 0-360 deg keeping the work offset, without a move (the Carvera controller sends it for its
+#: Shrink button, "374 becomes 14"); A is unknown after it until written again (the value it
+#: takes depends on the work offset and on how the firmware wraps negative angles)
+_G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501, 920: 92, 924: 924}
 _G_HARMLESS = {
     40: "dwell", 90: "exact stop (one block)", 150: "polar coordinates cancel",
     80: "radius mode (LinuxCNC lathe: X words are radii, the default); look-ahead (Fanuc G08)",

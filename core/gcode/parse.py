@@ -243,6 +243,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     acm_l, _ = per_line(7, _G_ARC_DIST, "arc centre mode (G90.1 G91.1)")
     tool_l, _ = per_line(8, _G_TOOL, "tool length (G43 G44 G49)")
     nonmove_l, _ = per_line(9, _G_NONMOVE, "non-modal positioning (G28 G30 G52 G53)")
+    if (nonmove_l == 924).any():
+        _carvera_shrink(np.flatnonzero(nonmove_l == 924), mot_l, wline, wlet, value, filename)
     feedm_l, _ = per_line(10, _G_FEED, "feed mode (G93 G94 G95)")
     cut_l, _ = per_line(14, _G_CUTTER, "cutter compensation (G40 G41 G42)")
     # G41/G42 per line, modal until G40: the block's end point is offset by the control
@@ -363,15 +365,17 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     g92_w = np.zeros(0, np.int64)
     if len(nm_w):
         code_w = nonmove_l[wline[nm_w]]
-        rs_ = np.isin(code_w, (28, 30, 53))
+        rs_ = np.isin(code_w, (28, 30, 53, 924))
         reset_lines, reset_cols = wline[nm_w[rs_]].astype(np.int64), wcol[nm_w[rs_]].astype(np.int64)
         for c in sorted(set(code_w.tolist())):
             ln = wline[nm_w[code_w == c]]
-            notes.append(f"G{c if c != 501 else '50.1'} on line(s) "
+            notes.append(f"G{ {501: '50.1', 924: '92.4'}.get(c, c)} on line(s) "
                          f"{', '.join(str(x + 1) for x in np.unique(ln)[:5])}"
                          + (" ..." if len(np.unique(ln)) > 5 else "")
                          + (": passed through uncompensated; the axes it names are unknown "
                             "until written again" if c in (28, 30, 53) else
+                            ": Carvera A-axis shrink (A reduced to 0-360 deg, no move); A is "
+                            "unknown until written again" if c == 924 else
                             ": its axis words are not moves" if c == 501 else
                             ": the coordinates of the current position set (later positions "
                             "shifted; unknown where the position is)" if c == 92 else
@@ -636,6 +640,23 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
                    offset_assumed=offset_assumed,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+
+
+def _carvera_shrink(lines, mot_l, wline, wlet, value, filename):
+    """Check that the G92.4 blocks are Carvera's A-axis shrink ``G92.4 A0 S0``, the one form
+    whose meaning is documented (the controller's Shrink button: the A value reduced to 0-360
+    deg keeping the work offset, no move).  Smoothieware's G92.4 with X Y Z sets the machine
+    position (a frame change by an amount the program does not carry) and Carvera's
+    ``G92.4 A.. R0`` is a rapid A move: both refused naming the line."""
+    for L in lines.tolist():
+        i = np.flatnonzero(wline == L)
+        words = {chr(65 + int(wlet[j])): float(value[j]) for j in i if chr(65 + int(wlet[j])) != "G"}
+        words.pop("N", None)
+        if mot_l[L] >= 0 or set(words) != {"A", "S"} or words["A"] != 0 or words["S"] != 0:
+            _fail("G92.4 (Smoothieware/Carvera): only the Carvera A-axis shrink 'G92.4 A0 S0' is "
+                  "read (A reduced to 0-360 deg, no move); other forms set the machine position "
+                  "or move the A axis by rules the program does not carry; refusing rather than "
+                  "guessing", L, filename)
 
 
 def _rotation_events(axes, g68_line, g69_lines, plane_line, inch_line, incr_line, mot_l, wline,
