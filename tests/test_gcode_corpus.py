@@ -141,6 +141,7 @@ def interpret(text, name="main"):
     lengths, tool_mode, h, t_loaded = {}, 49, None, None
     rot = None                                 # (angle, centre) under G68
     g92 = {}                                   # G92 shift per axis; None: set where unknown
+    polar, pr, pa = False, None, None          # G16: radius and angle words (modal in G16)
     blocks = []
     for n, raw in _execution_order(text, name):
         line = raw.lstrip("\ufeff")
@@ -197,6 +198,10 @@ def interpret(text, name="main"):
                 plane = int(v)
             elif v in (90.1, 91.1):
                 centre_abs = v == 90.1
+            elif v == 16:                          # Fanuc polar: X radius, Y angle (G17, G90)
+                polar, pr, pa = True, None, None
+            elif v == 15:
+                polar = False
         if 68 in g:
             continue
 
@@ -209,6 +214,15 @@ def interpret(text, name="main"):
             return o
         ax = {a: v for a, v in words if a in AXES}
         arcw = {a: v for a, v in words if a in "IJKR"}
+        if polar and ("X" in ax or "Y" in ax) and not any(v in (4, 10, 52, 53, 92) for v in g):
+            # the point at radius X and angle Y (deg, counter-clockwise from +X) from the work
+            # origin; a word not written keeps its last value in the G16 section
+            assert absolute and plane == 17
+            pr, pa = ax.get("X", pr), ax.get("Y", pa)
+            if pr is None or pa is None:
+                ax["X"] = ax["Y"] = None
+            else:
+                ax["X"], ax["Y"] = pr * math.cos(math.radians(pa)), pr * math.sin(math.radians(pa))
         if 92.1 in g or 92.2 in g:
             g92 = {}                               # the G92 shift cancelled
             continue
@@ -248,14 +262,16 @@ def interpret(text, name="main"):
             r_word = arcw.get("R", r_word)
             z_word = ax.pop("Z", z_word)
             for a, v in ax.items():
-                pos[a] = _plus(v * s, off(a)) if absolute else _plus(pos[a], v * s)
+                pos[a] = (None if v is None else _plus(v * s, off(a))) if absolute else _plus(pos[a], v * s)
             r_lvl = _plus(r_word * s, off("Z")) if absolute else (None if zinit is None else zinit + r_word * s)
             pos["Z"] = zinit if retract == 98 else r_lvl
             blocks.append((n, ref(pos), cycle, None))
             continue
         start = dict(pos)
         for a, v in ax.items():
-            if absolute:
+            if v is None:
+                pos[a] = None                      # a polar word not yet known
+            elif absolute:
                 pos[a] = _plus(v * s, off(a))
             elif pos[a] is not None:
                 pos[a] += v * s

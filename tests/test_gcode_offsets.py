@@ -280,3 +280,12 @@ def test_g92_word_correction_in_an_inch_program():
     assert out.split("\n")[2].startswith("G92 X0.0010")
     for (_, p0, _, _), (_, p1, _, _) in zip(interpret(text), interpret(out)):
         assert [p1[a] - p0[a] for a in "XYZ"] == pytest.approx(t, abs=1e-7)
+
+
+def test_a_program_in_one_work_offset_other_than_g54_is_read():
+    """A program that selects G55 (and no other offset, no G10) is read in G55's frame: it raised
+    an IndexError (a traceback) before, with or without offset values given."""
+    text = "G90 G55 G0 X0 Y0 Z1.\nG1 X2. F100.\n"
+    for kw in ({}, {"work_offsets": {"G55": {"X": 100.0}}}):
+        p = gcode.parse(text, axes=("X", "Y", "Z"), **kw)
+        assert np.allclose(p.position, [[0, 0, 1], [2, 0, 1]])

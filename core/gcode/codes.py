@@ -49,7 +49,6 @@ _G_HARMLESS = {
 }
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {
-    160: "G16 polar coordinate command: axis words are radius and angle",
     70: "G7 diameter mode (LinuxCNC lathe): X words are diameters, not axis positions",
     290: "G29 returns from the reference point through an unknown intermediate point",
     310: "G31 skip function: the end point depends on a probe signal",

@@ -167,8 +167,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                                  file=filename, line=p0[0][0] + 1)
             wev = [(e[0], e[1], used[0] if e[2] == 0 else e[2], e[3], e[4]) for e in wev]
         if not wev:
-            first_sel = int(np.argmax(wset)) if wset.any() else n_lines
-            if len(used) > 1 or (used[0] != 54000 and p0[0][0] < first_sel):
+            if len(used) > 1:
                 missing = [wcs_name(k) for k in used if wcs_name(k).replace(" ", "") not in table]
                 if missing:
                     ln = int(np.flatnonzero(wset & (keys != used[0]))[0])

@@ -175,7 +175,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     cat = np.full(len(gi), -1, np.int64)
     tables = [(_G_MOTION, 0), ({40: 4}, 1), (_G_PLANE, 2), (_G_UNITS, 3), (_G_DIST, 4), (_G_WCS, 5),
               (_G_ARC_DIST, 7), (_G_TOOL, 8), (_G_NONMOVE, 9), (_G_FEED, 10), (_G_CYCLE, 11),
-              (_G_HARMLESS, 6), ({100: 10}, 12), ({680: 68}, 13), (_G_CUTTER, 14)]
+              (_G_HARMLESS, 6), ({100: 10}, 12), ({680: 68}, 13), (_G_CUTTER, 14), ({160: 16}, 15)]
     for u in np.unique(g10):
         sel = g10 == u
         u = int(u)
@@ -539,6 +539,33 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             if c in LINEAR or c in ARC_WORDS:
                 vals[:, k] *= lin_scale
     present = col_word[:, :n_ax] >= 0
+    polar = polar_xy = None
+    pres_pos = present
+    if (g10 == 160).any():
+        # G16 polar coordinates (modal until G15): X radius, Y angle in G17 (gcode.polar)
+        from .polar import read_polar
+        ev16 = np.full(n_lines, -1, np.int64)
+        ev16[gline[g10 == 150]] = 0
+        ev16[gline[g10 == 160]] = 1
+        on16 = _ffill(ev16, ev16 >= 0, 0)[blines] == 1
+        sec16 = np.cumsum(ev16 == 1)[blines]
+        if on16.any() and (tcp[on16].any() or g68_line.any()):
+            _fail("G16 polar coordinates together with G43.4 or G68: not supported",
+                  int(blines[np.argmax(on16)]), filename)
+        polar, polar_xy = read_polar(axes, blines, on16, sec16, col_word, value, inch,
+                                     incremental, motion, plane, filename)
+        if polar.any():
+            # the positions see the point (NaN where a word is not known yet: unknown)
+            ix, iy = axes.index("X"), axes.index("Y")
+            sc = np.where(inch, INCH, 1.0)
+            vals[polar, ix] = polar_xy[polar, 0] * sc[polar]
+            vals[polar, iy] = polar_xy[polar, 1] * sc[polar]
+            pres_pos = present.copy()
+            pres_pos[polar, ix] = pres_pos[polar, iy] = True
+            notes.append(f"G16 polar coordinates on line(s) "
+                         f"{', '.join(str(int(x)) for x in blines[polar][:5] + 1)}"
+                         + (" ..." if polar.sum() > 5 else "")
+                         + ": X radius and Y angle from the work origin, compensated as polar words")
 
     # -- absolute modal positions: last absolute value plus the increments since
     fm = resolution_formats(resolution, axes)
@@ -554,7 +581,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     start_vec[idle] = 0.0
     idle_axes = tuple(a for a, i in zip(axes, idle) if i)
     offset = offsets_line[blines] if offsets_line.any() else np.zeros((nblk, n_ax))
-    position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present, incremental,
+    position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos, incremental,
                           offset, start_vec)
     cancel92 = gline[np.isin(g10, (921, 922))]
     if len(g92_w):
@@ -581,13 +608,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                     g92[k] = new92
             offsets_line[L:] += delta
             offset = offsets_line[blines]
-            position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], present,
+            position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos,
                                   incremental, offset, start_vec)
 
     if rot_events:
         reset_lines, reset_cols, position = _rotation_known(
             axes, rot_events, blines, position, offset, res_ax, reset_lines, reset_cols,
-            lambda rl, rc: _positions(blines, rl, rc, vals[:, :n_ax], present, incremental,
+            lambda rl, rc: _positions(blines, rl, rc, vals[:, :n_ax], pres_pos, incremental,
                                       offset, start_vec))
     rotation = None
     if rot_events:
@@ -633,7 +660,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
                   tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
                   tool_unknown=tool_unknown, cutter=cutter, cutter_d=cutter_d,
-                  cutter_radius=cutter_radius)
+                  cutter_radius=cutter_radius, polar=polar, polar_xy=polar_xy)
     for a in arrays.values():
         if a is not None:
             a.flags.writeable = False
