@@ -161,3 +161,11 @@ def test_corpus_pecks_under_a_squareness_are_written_out_and_checked(name):
 def test_haas_variable_peck_words_are_refused_by_name():
     with pytest.raises(InputError, match=r":2: I word in canned cycle G83 \(Haas variable peck"):
         gcode.parse("G90 G0 X0 Y0 Z10.\nG99 G83 X5. Z-9. R2. I2. J0.5 F100\nG80\n", axes=XYZ)
+
+
+def test_linuxcnc_lathe_threading_g76_is_refused_by_name():
+    """LinuxCNC's G76 is a lathe threading cycle (P pitch, I J K depths, H R Q E L), not Fanuc's
+    fine boring: refused naming it (a public LinuxCNC sample; before, "unknown address 'e.05'")."""
+    text = "G18 G20 G0 X.2 Z.2\ng76 p.05 z-.5 i-.075 j.008 k.045 h3 r2.0 q29.5 e.05 l2\n"
+    with pytest.raises(InputError, match=r"t.ngc:2: e.05 in a G76 block: the LinuxCNC lathe threading"):
+        gcode.parse(text, axes=("X", "Y", "Z"), filename="t.ngc")
