@@ -46,6 +46,9 @@ _G_HARMLESS = {
     990: "cycle return to R level", 1030: "block look-ahead limit (Haas)",
     1870: "smoothness/accuracy setting (Haas)", 921: "G92 offsets cancel",
     922: "G92 offsets cancel (parameters kept)", 940: "feed per minute",
+    # Fanuc G05.1 Q1 / Q0: AI contour control on / off (look-ahead feed control, the programmed
+    # path kept); Q2/Q3 (smooth interpolation, nano smoothing) are refused in parse
+    51: "AI contour control (Fanuc G05.1 Q1/Q0)",
 }
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {

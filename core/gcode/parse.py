@@ -189,6 +189,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                 f"unknown G code {word}: it may affect motion; refusing rather than guessing")
         _fail(what, wline[gi[j]], filename)
     gline = wline[gi]
+    if (g10 == 51).any():
+        # G05.1: only Q1/Q0 (AI contour control, a feed control) leave the path as programmed
+        q_at = np.full(n_lines, np.nan)
+        qi = np.flatnonzero(wlet == _ascii("Q"))
+        q_at[wline[qi]] = value[qi]
+        for L in np.unique(gline[g10 == 51]).tolist():
+            if q_at[L] not in (0.0, 1.0):
+                _fail("G5.1 without Q1/Q0 (Fanuc smooth interpolation Q2, nano smoothing Q3): the "
+                      "control replaces the programmed path by a curve it computes; refusing "
+                      "rather than guessing (G5.1 Q1, AI contour control, is read)", L, filename)
 
     # -- letters
     # H tool length offset number, D cutter compensation number, Q peck/shift amounts: values
