@@ -92,6 +92,8 @@ def test_angle_keeps_its_turn():
     ("G0 X0 Y0 Z1.\nG16\nG91 G1 X1. Y10.\n", 3, "G91 under G16"),
     ("G0 X0 Y0 Z1.\nG18 G16\nG1 X1. Y10.\n", 3, "outside the G17 plane"),
     ("G0 X0 Y0 Z1.\nG16\nG1 X10. Y0\nG2 X10. Y90. R10.\n", 4, "arc under G16"),
+    ("G0 X0 Y0 Z1.\nG16\nG1 X10. Y0\nG28 X0 Y0\n", 4, "X Y words of G10/G28"),
+    ("G0 X0 Y0 Z1.\nG16 G92 X10.\n", 2, "X Y words of G10/G28"),
 ])
 def test_what_is_not_read_under_g16_is_refused(text, line, what):
     with pytest.raises(InputError, match=rf"p.nc:{line}: .*{what}"):

@@ -444,6 +444,19 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         wcol = np.where(g68_line[wline], np.int8(-1), wcol)      # centre and angle, not moves
     if g10_line.any():
         wcol = np.where(g10_line[wline], np.int8(-1), wcol)      # G10 words are data
+    if (g10 == 160).any() and (len(nm_w) or g10_line.any()) and {"X", "Y"} <= set(axes):
+        # under G16 the X Y words of G10/G28/G30/G52/G53/G92 would be polar too, or not,
+        # depending on the control: not read
+        ev16 = np.full(n_lines, -1, np.int64)
+        ev16[gline[g10 == 150]] = 0
+        ev16[gline[g10 == 160]] = 1
+        on16 = _ffill(ev16, ev16 >= 0, 0) == 1
+        xy = np.isin(wlet, (_ascii("X"), _ascii("Y")))
+        bad = xy & on16[wline] & (g10_line[wline] | (nonmove_l[wline] >= 0))
+        if bad.any():
+            _fail("X Y words of G10/G28/G30/G52/G53/G92 under G16 polar coordinates: not read "
+                  "(controls differ on whether they are polar); cancel G16 with G15 first",
+                  wline[int(np.argmax(bad))], filename)
     # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
     cyc_zw = np.full(n_lines, -1, np.int64)
     cyc_rw = np.full(n_lines, -1, np.int64)
