@@ -169,3 +169,16 @@ def test_linuxcnc_lathe_threading_g76_is_refused_by_name():
     text = "G18 G20 G0 X.2 Z.2\ng76 p.05 z-.5 i-.075 j.008 k.045 h3 r2.0 q29.5 e.05 l2\n"
     with pytest.raises(InputError, match=r"t.ngc:2: e.05 in a G76 block: the LinuxCNC lathe threading"):
         gcode.parse(text, axes=("X", "Y", "Z"), filename="t.ngc")
+
+
+@pytest.mark.parametrize("line,what", [
+    ("G70 I2. J0. L6", "G70 with I J K L words: a Haas bolt hole pattern"),
+    ("G71 I2. J0. K30. L6", "G71 with I J K L words: a Haas bolt hole pattern"),
+    ("G72 I1. J45. L4", "G72: G72 .Haas: bolt holes along an angle"),
+])
+def test_haas_bolt_hole_patterns_are_refused_by_name(line, what):
+    """On Haas mills G70/G71/G72 are bolt hole patterns run with the active cycle, not inch/mm:
+    refused naming them (before: "L6: a Siemens subprogram call")."""
+    text = "G90 G0 X0 Y0 Z1.\nG81 Z-1. R.1 F10.\n" + line + "\nG80\n"
+    with pytest.raises(InputError, match=rf"h.nc:3: {what}"):
+        gcode.parse(text, axes=("X", "Y", "Z"), filename="h.nc")

@@ -54,6 +54,7 @@ _G_HARMLESS = {
 _G_REFUSED = {
     70: "G7 diameter mode (LinuxCNC lathe): X words are diameters, not axis positions",
     290: "G29 returns from the reference point through an unknown intermediate point",
+    720: "G72 (Haas: bolt holes along an angle; lathes: a facing cycle) is not supported",
     310: "G31 skip function: the end point depends on a probe signal",
     435: "G43.5 tool centre point with a tool vector (I J K) is not compensated: the control "
          "picks the rotary angles among several solutions by its own rules and the errors "

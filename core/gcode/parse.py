@@ -189,6 +189,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                 f"unknown G code {word}: it may affect motion; refusing rather than guessing")
         _fail(what, wline[gi[j]], filename)
     gline = wline[gi]
+    g7071 = gline[np.isin(g10, (700, 710))]
+    if len(g7071):
+        # Haas mills: G70 bolt hole circle, G71 bolt hole arc (I radius, J angle, K step, L
+        # count, run with the active cycle), not inch/mm as elsewhere
+        ijkl = np.isin(wlet, [_ascii(c) for c in "IJKL"]) & np.isin(wline, g7071)
+        if ijkl.any():
+            L = int(wline[np.argmax(ijkl)])
+            _fail(f"G{70 if L in gline[g10 == 700] else 71} with I J K L words: a Haas bolt hole "
+                  "pattern (G70 circle, G71 arc), not inch/mm; not supported (post the holes as "
+                  "X Y positions)", L, filename)
     if (g10 == 51).any():
         # G05.1: only Q1/Q0 (AI contour control, a feed control) leave the path as programmed
         q_at = np.full(n_lines, np.nan)
