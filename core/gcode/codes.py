@@ -12,7 +12,9 @@ _G_PLANE = {170: 17, 180: 18, 190: 19}
 _G_UNITS = {200: 20, 210: 21, 700: 20, 710: 21}          # G70/G71: inch/mm (Siemens and others)
 _G_DIST = {900: 90, 910: 91}
 #: work offsets: G54..G59 and G54.1 (with P)
-_G_WCS = {540: 54, 550: 55, 560: 56, 570: 57, 580: 58, 590: 59, 541: 541}
+_G_WCS = {540: 54, 550: 55, 560: 56, 570: 57, 580: 58, 590: 59, 541: 541,
+          # Haas additional work offsets: G154 P1-P99, and G110-G129 (the same as G154 P1-P20)
+          1540: 154, **{g: g // 10 for g in range(1100, 1300, 10)}}
 #: arc centre mode: G90.1 absolute I J K, G91.1 incremental (the default)
 _G_ARC_DIST = {901: 90, 911: 91}
 #: tool length compensation: G43 +H, G44 -H, G49 cancel; G43.4 tool centre point (the words
