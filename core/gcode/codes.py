@@ -19,7 +19,9 @@ _G_WCS = {540: 54, 550: 55, 560: 56, 570: 57, 580: 58, 590: 59, 541: 541,
 _G_ARC_DIST = {901: 90, 911: 91}
 #: tool length compensation: G43 +H, G44 -H, G49 cancel; G43.4 tool centre point (the words
 #: are the tool tip in the workpiece frame and the rotary angles, gcode.tcp)
-_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434}
+#: Haas G234 (TCPC, tool centre point control, cancelled by G49) is its G43.4: the words are
+#: the tool tip in the work frame and the rotary angles
+_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434, 2340: 434}
 #: canned drilling cycles (hole at X Y, R level, depth Z; G98 back to the initial level, G99
 #: to R)
 _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10)}}
