@@ -122,3 +122,12 @@ def test_fanuc_ai_contour_control_g05_1_q1_is_read_as_harmless():
     assert np.array_equal(p.position, q.position) and len(p) == 4
     out = gcode.rewrite(p, lambda x: x + 0.01)
     assert out.split("\n")[1] == "G05.1 Q1" and out.split("\n")[3] == "X5.010000"
+
+
+def test_okuma_g15_h_work_coordinate_switching_is_refused():
+    """Okuma's G15 H<n> selects work coordinate system n; a program switching between two was
+    read as if G15 were only "polar cancel" (positions in two frames taken as one)."""
+    one = "G15 H1\nG90 G0 X1. Y2. Z3.\nG1 X5. F100.\n"
+    assert len(gcode.parse(one, axes=("X", "Y", "Z"))) == 2
+    with pytest.raises(InputError, match=r"o.min:4: G15 H<n> .Okuma work coordinate"):
+        gcode.parse(one + "G15 H2\nG0 X1.\n", axes=("X", "Y", "Z"), filename="o.min")

@@ -199,6 +199,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             _fail(f"G{70 if L in gline[g10 == 700] else 71} with I J K L words: a Haas bolt hole "
                   "pattern (G70 circle, G71 arc), not inch/mm; not supported (post the holes as "
                   "X Y positions)", L, filename)
+    if (g10 == 150).any():
+        # G15 H<n> on Okuma controls selects work coordinate system n (elsewhere G15 cancels
+        # polar coordinates): one is read as it is; switching between them is not read
+        hi = np.flatnonzero(wlet == _ascii("H"))
+        hi = hi[np.isin(wline[hi], gline[g10 == 150])]
+        if len(np.unique(value[hi])) > 1:
+            j = hi[np.flatnonzero(value[hi] != value[hi[0]])[0]]
+            _fail("G15 H<n> (Okuma work coordinate system selection) switches between work "
+                  "coordinate systems: not read (their offsets are the control's)", wline[j],
+                  filename)
     if (g10 == 51).any():
         # G05.1: only Q1/Q0 (AI contour control, a feed control) leave the path as programmed
         q_at = np.full(n_lines, np.nan)
