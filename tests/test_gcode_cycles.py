@@ -175,10 +175,13 @@ def test_linuxcnc_lathe_threading_g76_is_refused_by_name():
     ("G70 I2. J0. L6", "G70 with I J K L words: a Haas bolt hole pattern"),
     ("G71 I2. J0. K30. L6", "G71 with I J K L words: a Haas bolt hole pattern"),
     ("G72 I1. J45. L4", "G72: G72 .Haas: bolt holes along an angle"),
+    ("G71 P10 Q20 F.2", "G71 with P Q U W R words: a Fanuc lathe stock removal cycle"),
+    ("G70 P10 Q20", "G70 with P Q U W R words: a Fanuc lathe finishing cycle"),
 ])
 def test_haas_bolt_hole_patterns_are_refused_by_name(line, what):
-    """On Haas mills G70/G71/G72 are bolt hole patterns run with the active cycle, not inch/mm:
-    refused naming them (before: "L6: a Siemens subprogram call")."""
+    """On Haas mills G70/G71/G72 are bolt hole patterns run with the active cycle, on Fanuc
+    lathes G70/G71 are finishing and stock removal cycles, not inch/mm: refused naming them
+    (before: "L6: a Siemens subprogram call", or G71 P Q read as mm)."""
     text = "G90 G0 X0 Y0 Z1.\nG81 Z-1. R.1 F10.\n" + line + "\nG80\n"
     with pytest.raises(InputError, match=rf"h.nc:3: {what}"):
         gcode.parse(text, axes=("X", "Y", "Z"), filename="h.nc")
