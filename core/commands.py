@@ -503,8 +503,10 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     """End position of every motion block of the rewritten program (N, n_axes; mm, deg), as
     the control reads it back.  Taken from the values `rewrite` emitted (counts times the
     resolution: the same numbers the written words hold, to float rounding); programs with
-    canned cycles, whose holes may be written out as new lines, are read back instead."""
-    if not np.asarray(prog.cycle).any():
+    canned cycles, whose holes may be written out as new lines, and with G16 polar blocks, whose
+    radius and angle words put the point up to a count from the emitted one, are read back."""
+    polar = prog.polar is not None and bool(np.asarray(prog.polar).any())
+    if not np.asarray(prog.cycle).any() and not polar:
         return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
     from . import gcode
     after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,

@@ -110,3 +110,24 @@ def test_g92_sets_the_current_position_and_g92_1_cancels():
     # where the position is not known, G92 leaves the axis unknown until cancelled
     p = gcode.parse("G92 X0\nG0 X1. Y1. Z1.\nG92.1\nG0 X2.\n", axes=XYZ)
     assert p.known.tolist() == [False, True]
+
+
+def test_fanuc_ai_contour_control_g05_1_q1_is_read_as_harmless():
+    """G05.1 Q1 (AI contour control, written by Fanuc posts when smoothing is on) controls the
+    feed by look-ahead; the path stays as programmed: read, and the program compensated as
+    without it (it was an unknown G code). Q2/Q3 change the path: refused."""
+    text = "G21 G90 G0 X0 Y0 Z5.\nG05.1 Q1\nG1 Z-1. F100.\nX5.\nG05.1 Q0\nG0 Z5.\n"
+    p = gcode.parse(text, axes=("X", "Y", "Z"))
+    q = gcode.parse(text.replace("G05.1 Q1\n", "\n").replace("G05.1 Q0\n", "\n"), axes=("X", "Y", "Z"))
+    assert np.array_equal(p.position, q.position) and len(p) == 4
+    out = gcode.rewrite(p, lambda x: x + 0.01)
+    assert out.split("\n")[1] == "G05.1 Q1" and out.split("\n")[3] == "X5.010000"
+
+
+def test_okuma_g15_h_work_coordinate_switching_is_refused():
+    """Okuma's G15 H<n> selects work coordinate system n; a program switching between two was
+    read as if G15 were only "polar cancel" (positions in two frames taken as one)."""
+    one = "G15 H1\nG90 G0 X1. Y2. Z3.\nG1 X5. F100.\n"
+    assert len(gcode.parse(one, axes=("X", "Y", "Z"))) == 2
+    with pytest.raises(InputError, match=r"o.min:4: G15 H<n> .Okuma work coordinate"):
+        gcode.parse(one + "G15 H2\nG0 X1.\n", axes=("X", "Y", "Z"), filename="o.min")

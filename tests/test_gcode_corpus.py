@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mtcomp import gcode
+from mtcomp import InputError, gcode
 from mtcomp.gcode import flow
 from mtcomp.gcode.rotation import to_reference
 
@@ -141,6 +141,7 @@ def interpret(text, name="main"):
     lengths, tool_mode, h, t_loaded = {}, 49, None, None
     rot = None                                 # (angle, centre) under G68
     g92 = {}                                   # G92 shift per axis; None: set where unknown
+    polar, pr, pa = False, None, None          # G16: radius and angle words (modal in G16)
     blocks = []
     for n, raw in _execution_order(text, name):
         line = raw.lstrip("\ufeff")
@@ -197,6 +198,10 @@ def interpret(text, name="main"):
                 plane = int(v)
             elif v in (90.1, 91.1):
                 centre_abs = v == 90.1
+            elif v == 16:                          # Fanuc polar: X radius, Y angle (G17, G90)
+                polar, pr, pa = True, None, None
+            elif v == 15:
+                polar = False
         if 68 in g:
             continue
 
@@ -209,6 +214,15 @@ def interpret(text, name="main"):
             return o
         ax = {a: v for a, v in words if a in AXES}
         arcw = {a: v for a, v in words if a in "IJKR"}
+        if polar and ("X" in ax or "Y" in ax) and not any(v in (4, 10, 52, 53, 92) for v in g):
+            # the point at radius X and angle Y (deg, counter-clockwise from +X) from the work
+            # origin; a word not written keeps its last value in the G16 section
+            assert absolute and plane == 17
+            pr, pa = ax.get("X", pr), ax.get("Y", pa)
+            if pr is None or pa is None:
+                ax["X"] = ax["Y"] = None
+            else:
+                ax["X"], ax["Y"] = pr * math.cos(math.radians(pa)), pr * math.sin(math.radians(pa))
         if 92.1 in g or 92.2 in g:
             g92 = {}                               # the G92 shift cancelled
             continue
@@ -223,6 +237,10 @@ def interpret(text, name="main"):
                 pos[a] = None                      # reference point / machine coordinates
             continue
         if any(v in (4, 52, 50.1) for v in g):
+            continue
+        if 92.4 in g:
+            # Carvera's A-axis shrink (G92.4 A0 S0, its controller's Shrink button: "reset A
+            # axis value to 0-360 while keeping the offset"): no move; A is not followed here
             continue
         rotary = any(a in "ABC" for a, _ in words)
         if not ax and not rotary and not (arcw and mode in (2, 3)):
@@ -244,20 +262,26 @@ def interpret(text, name="main"):
             r_word = arcw.get("R", r_word)
             z_word = ax.pop("Z", z_word)
             for a, v in ax.items():
-                pos[a] = _plus(v * s, off(a)) if absolute else _plus(pos[a], v * s)
+                pos[a] = (None if v is None else _plus(v * s, off(a))) if absolute else _plus(pos[a], v * s)
             r_lvl = _plus(r_word * s, off("Z")) if absolute else (None if zinit is None else zinit + r_word * s)
             pos["Z"] = zinit if retract == 98 else r_lvl
             blocks.append((n, ref(pos), cycle, None))
             continue
         start = dict(pos)
         for a, v in ax.items():
-            if absolute:
+            if v is None:
+                pos[a] = None                      # a polar word not yet known
+            elif absolute:
                 pos[a] = _plus(v * s, off(a))
             elif pos[a] is not None:
                 pos[a] += v * s
         centre = None
         if mode in (2, 3):
             u, v_, iu, iv = _PLANES[plane]
+            if start[u] is None or start[v_] is None:
+                # from where the axes stand: the control knows the centre, the program does not
+                blocks.append((n, ref(pos), mode, None))
+                continue
             if "R" in arcw:
                 su, sv, eu, ev, r = start[u], start[v_], pos[u], pos[v_], arcw["R"] * s
                 d = math.hypot(eu - su, ev - sv)
@@ -377,3 +401,42 @@ def test_interpreter_g92_and_rotary_only_blocks_as_the_controls_run_them():
     # G92 where the position is not known: unknown until G92.1
     blocks = interpret("G90\nG92 X3\nG1 X5 Y1\nG92.1\nG1 X4\n")
     assert [b[1]["X"] for b in blocks] == [None, 4.0]
+
+
+def test_interpreter_unknown_arc_start_and_carvera_shrink():
+    """An arc from a start the program has not fixed runs from where the axes stand (its end
+    is known, its centre is not); Carvera's G92.4 A0 S0 is no move.  mtcomp reads both as the
+    interpreter does, and a translation moves every block it compensates (issue 20: a
+    LinuxCNC sample and two Carvera 4-axis programs were refused for them)."""
+    text = ("g0 z2\ng1 z-1.6 f50\ng2 x-10 y10 i0 j10 f100\ng0 z2 a0\nG0 X5 Y1 Z3 A370\n"
+            "G92.4A0S0\nG1 X6\nG0 A10\nG2 X4 Y1 I-1 J0\n")
+    blocks = interpret(text)
+    assert [b[0][1] for b in blocks] == [1, 2, 3, 4, 5, 7, 8, 9]
+    assert blocks[2][1] == {"X": -10.0, "Y": 10.0, "Z": -1.6} and blocks[2][3] is None
+    p = gcode.parse(text, axes=AXES + ("A",))        # X Y Z first: the interpreter's columns
+    assert p.notes and "G92.4" in p.notes[-1]
+    _check_against_interpreter(p, blocks, [("main", int(x)) for x in p.line])
+    info = {}
+    out, _ = gcode.rewrite_with_lines(p, lambda x: x + np.r_[SHIFT, 0.0], info=info)
+    comp = info["compensated"]
+    # the arc from the unknown start passes; A is unknown from the shrink to its next word
+    assert comp.tolist() == [False, False, False, True, True, False, True, True]
+    after = interpret(out)
+    for (n, p0, _, c0), (_, p1, _, c1), c in zip(blocks, after, comp):
+        for k, a in enumerate(AXES):
+            assert (p0[a] is None) == (p1[a] is None)
+            if p0[a] is not None and c:
+                assert abs(p1[a] - p0[a] - SHIFT[k]) < 1e-9, (n, a)
+    # the blocks passed keep every byte
+    assert out.split("\n")[:3] == text.split("\n")[:3]
+    assert out.split("\n")[5:7] == ["G92.4A0S0", "G1 X6"]
+    assert gcode.rewrite(p, lambda x: x.copy()) == text
+
+
+@pytest.mark.parametrize("line", ["G92.4 X0", "G92.4 A10 R0", "G92.4 A0", "G92.4 A0 S1",
+                                  "G0 G92.4 A0 S0"])
+def test_other_g92_4_forms_are_refused(line):
+    """Smoothieware's G92.4 X.. sets the machine position, Carvera's G92.4 A.. R0 moves A
+    rapidly: neither is read; only the shrink G92.4 A0 S0 is."""
+    with pytest.raises(InputError, match=r"c.nc:2: G92.4 \(Smoothieware/Carvera\): only"):
+        gcode.parse("G0 X1 A5\n" + line + "\n", axes=AXES + ("A",), filename="c.nc")

@@ -161,3 +161,27 @@ def test_corpus_pecks_under_a_squareness_are_written_out_and_checked(name):
 def test_haas_variable_peck_words_are_refused_by_name():
     with pytest.raises(InputError, match=r":2: I word in canned cycle G83 \(Haas variable peck"):
         gcode.parse("G90 G0 X0 Y0 Z10.\nG99 G83 X5. Z-9. R2. I2. J0.5 F100\nG80\n", axes=XYZ)
+
+
+def test_linuxcnc_lathe_threading_g76_is_refused_by_name():
+    """LinuxCNC's G76 is a lathe threading cycle (P pitch, I J K depths, H R Q E L), not Fanuc's
+    fine boring: refused naming it (a public LinuxCNC sample; before, "unknown address 'e.05'")."""
+    text = "G18 G20 G0 X.2 Z.2\ng76 p.05 z-.5 i-.075 j.008 k.045 h3 r2.0 q29.5 e.05 l2\n"
+    with pytest.raises(InputError, match=r"t.ngc:2: e.05 in a G76 block: the LinuxCNC lathe threading"):
+        gcode.parse(text, axes=("X", "Y", "Z"), filename="t.ngc")
+
+
+@pytest.mark.parametrize("line,what", [
+    ("G70 I2. J0. L6", "G70 with I J K L words: a Haas bolt hole pattern"),
+    ("G71 I2. J0. K30. L6", "G71 with I J K L words: a Haas bolt hole pattern"),
+    ("G72 I1. J45. L4", "G72: G72 .Haas: bolt holes along an angle"),
+    ("G71 P10 Q20 F.2", "G71 with P Q U W R words: a Fanuc lathe stock removal cycle"),
+    ("G70 P10 Q20", "G70 with P Q U W R words: a Fanuc lathe finishing cycle"),
+])
+def test_haas_bolt_hole_patterns_are_refused_by_name(line, what):
+    """On Haas mills G70/G71/G72 are bolt hole patterns run with the active cycle, on Fanuc
+    lathes G70/G71 are finishing and stock removal cycles, not inch/mm: refused naming them
+    (before: "L6: a Siemens subprogram call", or G71 P Q read as mm)."""
+    text = "G90 G0 X0 Y0 Z1.\nG81 Z-1. R.1 F10.\n" + line + "\nG80\n"
+    with pytest.raises(InputError, match=rf"h.nc:3: {what}"):
+        gcode.parse(text, axes=("X", "Y", "Z"), filename="h.nc")

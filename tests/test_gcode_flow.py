@@ -103,8 +103,8 @@ def test_flow_not_followed_is_refused_with_its_line(text, line, match):
 
 def test_errors_inside_a_subprogram_name_its_source_line_and_the_call():
     m = load_machine("vmc-moving-column")
-    t = "G90 G0 X0 Y0 Z5.\nM98 P100\nM30\nO100\nG0 Q1. X1.\nG16 X2.\nM99\n"
-    with pytest.raises(InputError, match=r"G16.*called|G16.*run by the call on line 2") as exc:
+    t = "G90 G0 X0 Y0 Z5.\nM98 P100\nM30\nO100\nG0 Q1. X1.\nG51 X2.\nM99\n"
+    with pytest.raises(InputError, match=r"G51.*called|G51.*run by the call on line 2") as exc:
         compensate_program(t, m, ErrorSet(ToolSetting((0.001, 0, 0))), filename="f.nc")
     assert exc.value.line == 6
 

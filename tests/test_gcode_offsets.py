@@ -280,3 +280,33 @@ def test_g92_word_correction_in_an_inch_program():
     assert out.split("\n")[2].startswith("G92 X0.0010")
     for (_, p0, _, _), (_, p1, _, _) in zip(interpret(text), interpret(out)):
         assert [p1[a] - p0[a] for a in "XYZ"] == pytest.approx(t, abs=1e-7)
+
+
+def test_a_program_in_one_work_offset_other_than_g54_is_read():
+    """A program that selects G55 (and no other offset, no G10) is read in G55's frame: it raised
+    an IndexError (a traceback) before, with or without offset values given."""
+    text = "G90 G55 G0 X0 Y0 Z1.\nG1 X2. F100.\n"
+    for kw in ({}, {"work_offsets": {"G55": {"X": 100.0}}}):
+        p = gcode.parse(text, axes=("X", "Y", "Z"), **kw)
+        assert np.allclose(p.position, [[0, 0, 1], [2, 0, 1]])
+
+
+def test_haas_g154_and_g110_work_offsets(tmp_path):
+    """Haas' additional work offsets G154 P1-P99 (G110-G129 = G154 P1-P20) are work offsets
+    like G54.1 P (they were unknown G codes): one used alone is read as it is, switching takes
+    their values from the offsets file (by either name)."""
+    XYZ = ("X", "Y", "Z")
+    p = gcode.parse("G90 G154 P1 G0 X0 Y0 Z1.\nG1 X2. F100.\n", axes=XYZ)
+    assert np.allclose(p.position[:, 0], [0, 2])
+    text = "G90 G54 G0 X0 Y0 Z1.\nG154 P2 G0 X1.\nG110 X2.\nG154 P1 X3.\n"
+    with pytest.raises(InputError, match=r":2: the program switches from G54 to G154 P2"):
+        gcode.parse(text, axes=XYZ)
+    f = tmp_path / "off.toml"
+    f.write_text('[G54]\nX = 0.0\n["G154 P2"]\nX = 100.0\n[G110]\nX = 50.0\n')
+    _, _, works = read_offsets(f, XYZ)
+    assert set(works) == {"G54", "G154 P2", "G154 P1"}
+    p = gcode.parse(text, axes=XYZ, work_offsets=works)
+    assert np.allclose(p.position[:, 0], [0, 101, 52, 53])         # G110 is G154 P1
+    f.write_text('[G130]\nX = 1.0\n')
+    with pytest.raises(InputError, match=r"G154 P<n>"):
+        read_offsets(f, XYZ)

@@ -203,3 +203,17 @@ def test_workpiece_setting_cli_reads_tcp_programs_with_tool_lengths(tmp_path):
 def run_cli(*args):
     return subprocess.run([sys.executable, "-m", "mtcomp", *map(str, args)], capture_output=True,
                           text=True, timeout=120)
+
+
+def test_haas_g234_is_read_as_its_g43_4():
+    """Haas G234 (TCPC, cancelled by G49) is the same tool centre point mode as Fanuc's G43.4
+    (it was an unknown G code): read alike, compensated to the same words."""
+    m = load_machine("robonano-a0ib")
+    text = program(BODIES["robonano-a0ib"])
+    haas = text.replace("G43.4 H1", "G234 H1")
+    p, q = (gcode.parse(t, axes=m.axis_names, tool_lengths={1: 40.0}, tcp=True) for t in (text, haas))
+    assert np.array_equal(p.tcp, q.tcp) and p.tcp.sum() == 4
+    assert np.array_equal(p.position, q.position) and np.array_equal(p.axis_known, q.axis_known)
+    a, _ = compensate_program(text, m, ERRORS, tool_lengths={1: 40.0})
+    b, _ = compensate_program(haas, m, ERRORS, tool_lengths={1: 40.0})
+    assert b == a.replace("G43.4 H1", "G234 H1")

@@ -66,9 +66,32 @@ def test_incremental_moves_from_an_unknown_position_stay_unknown():
     assert out.splitlines()[2] == "X5.001000 Y5.002000 Z5.003000"
 
 
-def test_arc_from_an_unknown_position_is_refused():
-    with pytest.raises(InputError, match=r":2: arc \(G2\) from an unknown position: axis Y"):
-        gcode.parse("G90 G0 X10\nG2 X0 Y10 I-10 J0\n", axes=XYZ)
+def test_arc_from_an_unknown_position_passes_unchanged_and_fixes_its_end():
+    """An arc whose start the program has not fixed in its plane (X Y never written before
+    it) runs from wherever the axes stand: mtcomp reads its end point, passes it unchanged,
+    and compensates from the next block (a public LinuxCNC sample starts so, issue 20; it was
+    refused before)."""
+    text = ("m06 t55\ng0 z2\ng1 z-1.6 f50\ng2 x-10 y10 i0 j10 f100\ng0 z2\ng0 x-15 y0\n"
+            "G2 X-15 Y20 i0 j10 F100\nm02\n")
+    p = gcode.parse(text, axes=XYZ)
+    assert list(p.known) == [False, False, True, True, True, True]
+    assert np.allclose(p.position[2], [-10, 10, -1.6])
+    assert np.isnan(p.arc_centre[2]).all() and np.isnan(p.arc_sweep[2])     # not known here
+    assert np.allclose(p.arc_centre[5, :2], [-15, 10])
+    info = {}
+    out, _ = gcode.rewrite_with_lines(p, shift([0.0123, -0.0071, 0.0042]), info=info)
+    assert out.split("\n")[:6] == ["m06 t55", "g0 z2", "g1 z-1.6 f50", "g2 x-10 y10 i0 j10 f100",
+                                   "g0 x-9.987700 y9.992900 z2.004200", "g0 x-14.987700 y-0.007100"]
+    assert info["compensated"].tolist() == [False, False, False, True, True, True]
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+    with pytest.raises(InputError, match=r":2: position of X Y not known"):
+        gcode.rewrite(p, shift([0.1, 0, 0]), unknown="refuse")
+    # an arc whose end leaves a plane axis unknown stays unknown itself
+    p = gcode.parse("G90 G0 X10\nG2 X0 I-10 J0\nG1 Y3\n", axes=XYZ, start={"Z": 0})
+    assert list(p.known) == [False, False, True]
+    # the syntax is still checked: words of the wrong plane
+    with pytest.raises(InputError, match=r":2: arc word K does not belong"):
+        gcode.parse("G90 G0 Z1\nG2 X0 Y10 K1\n", axes=XYZ)
 
 
 def test_first_known_block_being_an_arc_is_deferred_with_the_arcs_after_it():

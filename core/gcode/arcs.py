@@ -49,13 +49,6 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
     # axes other than the plane and its normal must not move during an arc
     other = np.ones((len(k), len(axes)), bool)
     other[r_, u] = other[r_, v] = other[r_, w] = False
-    nowhere = np.isnan(prev[r_, u]) | np.isnan(prev[r_, v])
-    if nowhere.any():
-        j = int(np.argmax(nowhere))
-        a = axes[u[j]] if np.isnan(prev[j, u[j]]) else axes[v[j]]
-        _fail(f"arc (G{motion[k[j]]}) from an unknown position: axis {a} has not been written "
-              "before this block; state the start position (--start) or move there first",
-              blines[k[j]], filename)
     moved = other & ((np.abs(end - prev) > 1e-12) | (np.isnan(prev) != np.isnan(end)))
     if moved.any():
         j = int(np.argmax(moved.any(axis=1)))
@@ -66,6 +59,18 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
     if badw.any():
         j = int(np.argmax(badw))
         _fail(f"arc word {'IJK'[iw[j]]} does not belong to plane G{plane[k[j]]}", blines[k[j]], filename)
+    # an arc from a start the program has not fixed in its plane (the axes not written yet):
+    # the control runs it from wherever the axes are, so its centre is not known here; it is
+    # read with its end point (where the program writes it) and no geometry (centre and sweep
+    # NaN), and the rewrite passes it unchanged, as it does every block before the pose is
+    # known (it can only stand among those, or be the first block with a known end)
+    nowhere = np.isnan(prev[r_, u]) | np.isnan(prev[r_, v])
+    if nowhere.any():
+        keep = ~nowhere
+        k, u, v, w, iu, iv, prev, end = (x[keep] for x in (k, u, v, w, iu, iv, prev, end))
+        r_ = np.arange(len(k))
+        if not len(k):
+            return
     su, sv = prev[r_, u], prev[r_, v]
     eu, ev = end[r_, u], end[r_, v]
     dirs = np.where(motion[k] == 3, 1.0, -1.0)

@@ -12,12 +12,16 @@ _G_PLANE = {170: 17, 180: 18, 190: 19}
 _G_UNITS = {200: 20, 210: 21, 700: 20, 710: 21}          # G70/G71: inch/mm (Siemens and others)
 _G_DIST = {900: 90, 910: 91}
 #: work offsets: G54..G59 and G54.1 (with P)
-_G_WCS = {540: 54, 550: 55, 560: 56, 570: 57, 580: 58, 590: 59, 541: 541}
+_G_WCS = {540: 54, 550: 55, 560: 56, 570: 57, 580: 58, 590: 59, 541: 541,
+          # Haas additional work offsets: G154 P1-P99, and G110-G129 (the same as G154 P1-P20)
+          1540: 154, **{g: g // 10 for g in range(1100, 1300, 10)}}
 #: arc centre mode: G90.1 absolute I J K, G91.1 incremental (the default)
 _G_ARC_DIST = {901: 90, 911: 91}
 #: tool length compensation: G43 +H, G44 -H, G49 cancel; G43.4 tool centre point (the words
 #: are the tool tip in the workpiece frame and the rotary angles, gcode.tcp)
-_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434}
+#: Haas G234 (TCPC, tool centre point control, cancelled by G49) is its G43.4: the words are
+#: the tool tip in the work frame and the rotary angles
+_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434, 2340: 434}
 #: canned drilling cycles (hole at X Y, R level, depth Z; G98 back to the initial level, G99
 #: to R)
 _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10)}}
@@ -31,8 +35,12 @@ _G_FEED = {930: 93, 940: 94, 950: 95}
 #: codes whose axis words are not moves: G92 (the current position gets these coordinates),
 #: G52 local shift (values), G53 machine coordinates, G28
 #: and G30 (via an intermediate point to a reference point), G50.1 (axes named to cancel
-#: mirroring); after G53/G28/G30 the axes named are at a place the program does not know
-_G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501, 920: 92}
+#: mirroring); after G53/G28/G30 the axes named are at a place the program does not know.
+#: G92.4 A0 S0 is the Carvera (Smoothieware-based) A-axis "shrink": the A value is reduced to
+#: 0-360 deg keeping the work offset, without a move (the Carvera controller sends it for its
+#: Shrink button, "374 becomes 14"); A is unknown after it until written again (the value it
+#: takes depends on the work offset and on how the firmware wraps negative angles)
+_G_NONMOVE = {520: 52, 530: 53, 280: 28, 300: 30, 501: 501, 920: 92, 924: 924}
 _G_HARMLESS = {
     40: "dwell", 90: "exact stop (one block)", 150: "polar coordinates cancel",
     80: "radius mode (LinuxCNC lathe: X words are radii, the default); look-ahead (Fanuc G08)",
@@ -42,12 +50,15 @@ _G_HARMLESS = {
     990: "cycle return to R level", 1030: "block look-ahead limit (Haas)",
     1870: "smoothness/accuracy setting (Haas)", 921: "G92 offsets cancel",
     922: "G92 offsets cancel (parameters kept)", 940: "feed per minute",
+    # Fanuc G05.1 Q1 / Q0: AI contour control on / off (look-ahead feed control, the programmed
+    # path kept); Q2/Q3 (smooth interpolation, nano smoothing) are refused in parse
+    51: "AI contour control (Fanuc G05.1 Q1/Q0)",
 }
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {
-    160: "G16 polar coordinate command: axis words are radius and angle",
     70: "G7 diameter mode (LinuxCNC lathe): X words are diameters, not axis positions",
     290: "G29 returns from the reference point through an unknown intermediate point",
+    720: "G72 (Haas: bolt holes along an angle; lathes: a facing cycle) is not supported",
     310: "G31 skip function: the end point depends on a probe signal",
     435: "G43.5 tool centre point with a tool vector (I J K) is not compensated: the control "
          "picks the rotary angles among several solutions by its own rules and the errors "

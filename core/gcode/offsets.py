@@ -6,7 +6,8 @@ Files (docs/gcode.md, "Offset files"):
 * a LinuxCNC tool table: ``T1 P1 Z+50.0 D6.0 ;comment`` per tool; the Z value is the tool
   length of tool (and H number) 1;
 * an offsets TOML: ``[H]`` tool lengths by H number, ``[D]`` cutter radii by D number (the
-  G41/G42 bound of `mtcomp compensate`), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` work offsets as axis
+  G41/G42 bound of `mtcomp compensate`), ``[G54]``..``[G59]``, ``["G54.1 P2"]`` (Haas:
+  ``["G154 P2"]``, ``[G110]``..``[G129]``) work offsets as axis
   letter = mm/deg;
 * CSV of ``H,length_mm`` lines (a header and ``#`` comments allowed).
 
@@ -51,7 +52,9 @@ def _renumber(numbers, mapping):
 
 
 def wcs_name(key: int) -> str:
-    return f"G54.1 P{key % 1000}" if key // 1000 == 541 else f"G{key // 1000}"
+    if key // 1000 in (541, 154):
+        return f"G{'54.1' if key // 1000 == 541 else '154'} P{key % 1000}"
+    return f"G{key // 1000}"
 
 
 def axis_vector(vec, axes):
@@ -147,7 +150,9 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     # -- work offsets
     wset = wcs_l >= 0
     pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
-    keys = wcs_l * 1000 + np.where(wcs_l == 541, pnum, 0)
+    keys = wcs_l * 1000 + np.where((wcs_l == 541) | (wcs_l == 154), pnum, 0)
+    # Haas G110..G129 are G154 P1..P20
+    keys = np.where((wcs_l >= 110) & (wcs_l <= 129), 154000 + wcs_l - 109, keys)
     table = {}
     for key, vec in dict(work_offsets or {}).items():
         table[str(key).upper().replace(" ", "")] = axis_vector(vec, axes)
@@ -167,8 +172,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                                  file=filename, line=p0[0][0] + 1)
             wev = [(e[0], e[1], used[0] if e[2] == 0 else e[2], e[3], e[4]) for e in wev]
         if not wev:
-            first_sel = int(np.argmax(wset)) if wset.any() else n_lines
-            if len(used) > 1 or (used[0] != 54000 and p0[0][0] < first_sel):
+            if len(used) > 1:
                 missing = [wcs_name(k) for k in used if wcs_name(k).replace(" ", "") not in table]
                 if missing:
                     ln = int(np.flatnonzero(wset & (keys != used[0]))[0])
@@ -528,9 +532,14 @@ def read_offsets(path, axes) -> tuple[dict, dict, dict]:
                 (tools if name == "H" else cutters)[num] = float(v)
             continue
         name = re.sub(r"\s+", " ", name)
-        if not isinstance(vec, dict) or not re.fullmatch(r"G5[4-9]|G54\.1 ?P\d+", name):
-            raise InputError("expected tables [H], [D], [G54]..[G59] or [\"G54.1 P<n>\"] (axis "
-                             "letters = mm/deg)", path, field=str(key))
+        if not isinstance(vec, dict) or not re.fullmatch(r"G5[4-9]|G54\.1 ?P\d+|G154 ?P\d+|"
+                                                         r"G1[12]\d", name) or \
+                re.fullmatch(r"G1[12]\d", name) and not 110 <= int(name[1:]) <= 129:
+            raise InputError("expected tables [H], [D], [G54]..[G59], [\"G54.1 P<n>\"], "
+                             "[\"G154 P<n>\"] or [G110]..[G129] (axis letters = mm/deg)", path,
+                             field=str(key))
+        if re.fullmatch(r"G1[12]\d", name):
+            name = f"G154 P{int(name[1:]) - 109}"             # Haas: G110..G129 = G154 P1..P20
         for a, v in vec.items():
             if a.upper() not in axes or not _finite_number(v):
                 raise InputError(f"expected an axis of the machine ({' '.join(axes)}) and a finite "

@@ -90,6 +90,10 @@ class Program:
     cutter_d: np.ndarray = None      # (N,) the modal D number (NaN: none written yet)
     cutter_radius: np.ndarray = None  # (N,) mm, radius the program gives (G41.1/G42.1 D<diameter>
                                       # of LinuxCNC: D/2), NaN where the control's table gives it
+    polar: np.ndarray = None         # (N,) G16 polar blocks writing X or Y: X is a radius, Y an
+                                     # angle (deg) from the work origin (gcode.polar)
+    polar_xy: np.ndarray = None      # (N, 2) their point in the program frame and units (NaN
+                                     # where a word is not known yet; elsewhere NaN)
 
     @property
     def n_axes(self) -> int:

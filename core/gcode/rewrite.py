@@ -162,6 +162,10 @@ def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
         w = cw[:, k]
         pres = w >= 0
         v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
+        if program.polar is not None and a in "XY":
+            # G16: X Y words are a radius and an angle; the control stands at their point
+            v = np.where(program.polar, np.nan_to_num(program.polar_xy[:, "XY".index(a)]), v)
+            pres = pres | program.polar
         if a in LINEAR and inch.any():
             v = v * np.where(inch, INCH, 1.0)
         c = np.rint(v / res[k])
@@ -361,7 +365,12 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         cw = cw.copy()
         cw[lin, n_ax:] = -1          # removed arc words are no anchors for inserted words
     wv = np.asarray(program.w_value)
+    # G16 polar blocks: their X Y are written as radius and angle (gcode.polar)
+    from .polar import polar_edits
+    pmask = polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc,
+                        expanded if len(cb) else np.zeros(0, np.int64), _column_edits)
     for k, a in enumerate(axes):
+        kn_edit_k = kn_edit if pmask is None else kn_edit & ~pmask[:, k]
         v = new[:, k]
         if inner_rows is not None:
             v = v.copy()
@@ -375,14 +384,14 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
             ov = ov * INCH
         oc = np.rint(ov / res[k]).astype(np.int64)
         differs = target != oc
-        if a in program.offset_assumed and ((pres & differs & kn_edit).any()
-                                            or (~pres & (v != pv) & kn_edit).any()):
-            j = int(np.argmax((pres & differs | ~pres & (v != pv)) & kn_edit))
+        if a in program.offset_assumed and ((pres & differs & kn_edit_k).any()
+                                            or (~pres & (v != pv) & kn_edit_k).any()):
+            j = int(np.argmax((pres & differs | ~pres & (v != pv)) & kn_edit_k))
             raise InputError(f"the compensation moves {a}, whose work offsets the program does not "
                              "all set (G10): give the work offsets", program.filename,
                              int(line[j]))
-        _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn_edit),
-                      np.flatnonzero(~pres & (v != pv) & kn_edit & ~(no_z & (a == "Z"))), target)
+        _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], np.flatnonzero(pres & differs & kn_edit_k),
+                      np.flatnonzero(~pres & (v != pv) & kn_edit_k & ~(no_z & (a == "Z"))), target)
 
     _g92_edits(ctx, program, kk, dK, res, fm, inch_prog)
 
