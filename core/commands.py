@@ -501,11 +501,32 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
                       tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
     """End position of every motion block of the rewritten program (N, n_axes; mm, deg), as
-    the control reads it back.  Taken from the values `rewrite` emitted (counts times the
-    resolution: the same numbers the written words hold, to float rounding); programs with
-    canned cycles, whose holes may be written out as new lines, are read back instead."""
-    if not np.asarray(prog.cycle).any():
-        return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
+    the control reads it back.  The axis words are found again in the written bytes on each
+    block's output line and run through the input's modal state (`gcode.rewrite.read_back_counts`,
+    one compiled pass); they must give the counts `rewrite` meant to emit
+    (``info["emitted"]``), else the output is refused (InputError: a wrong byte in a written
+    number would otherwise go to the machine unseen).  Programs where that reading does not
+    apply (canned cycles, whose holes may be written out as new lines; linearised arcs; G92;
+    no compiled reader) are parsed back whole instead."""
+    from .gcode.rewrite import read_back_counts
+    kn = np.asarray(info["compensated"], bool)
+    if out_line is not None:
+        try:
+            got = read_back_counts(prog, info, new_text.encode("utf-8", "surrogateescape"), out_line)
+        except ValueError as exc:
+            raise InputError(f"internal error, the written program is not what was computed: "
+                             f"{exc}; refusing to write it", filename) from None
+        if got is not None:
+            want = np.asarray(info["emitted"])
+            with np.errstate(invalid="ignore"):
+                bad = np.flatnonzero(kn & (got != want).any(axis=1))
+            if len(bad):
+                j = int(bad[0])
+                raise InputError("internal error, the written program is not what was computed: "
+                                 f"its line {int(out_line[j])} reads back as counts "
+                                 f"{got[j].tolist()}, not {want[j].tolist()}; refusing to write it",
+                                 filename, int(prog.line[j]))
+            return want.astype(float) * np.asarray(info["emitted_resolution"])
     from . import gcode
     after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
                              tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,

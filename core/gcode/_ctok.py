@@ -95,6 +95,11 @@ def load():
     lib.mtc_format.restype = None
     lib.mtc_overwrite.argtypes = [vp, vp, vp, vp, vp, i64]
     lib.mtc_overwrite.restype = None
+    lib.mtc_read_words.argtypes = [vp, i64, vp, i64, vp, i64, vp]
+    lib.mtc_read_words.restype = i64
+    lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
+                                       vp, vp, vp, vp, vp]
+    lib.mtc_control_counts.restype = i64
     _lib = lib
     return lib
 
@@ -188,3 +193,60 @@ def overwrite(out: np.ndarray, src: np.ndarray, pos, src_off, length) -> bool:
     lib.mtc_overwrite(out.ctypes.data, src.ctypes.data, pos.ctypes.data, src_off.ctypes.data,
                       length.ctypes.data, len(pos))
     return True
+
+
+def read_words(data, lines, letters: str):
+    """The written words of ``lines`` (0-based, ascending int64) of the program bytes `data`:
+    (len(lines), len(letters)) float64, the value of the word of each letter (upper case; read
+    in either case), NaN where the line has none; and the index into ``lines`` of the first line
+    that cannot be read (a letter without a well-formed number, twice, or a line past the end),
+    -1 if none.  None without the library."""
+    lib = load()
+    if lib is None:
+        return None
+    b = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data
+    b = np.ascontiguousarray(b, np.uint8)
+    lines = np.ascontiguousarray(lines, np.int64)
+    if len(lines) > 1 and (np.diff(lines) <= 0).any():
+        raise ValueError("lines must be ascending")
+    col = np.full(26, -1, np.int8)
+    for k, a in enumerate(letters):
+        col[ord(a.upper()) - 65] = k
+    val = np.empty((len(lines), len(letters)), np.float64)
+    ptr = b.ctypes.data if len(b) else np.zeros(1, np.uint8).ctypes.data
+    bad = lib.mtc_read_words(ptr, len(b), lines.ctypes.data, len(lines), col.ctypes.data,
+                             len(letters), val.ctypes.data)
+    return val, int(bad)
+
+
+def control_counts(N: int, res, inc, inch, lin, inch_mm: float, start, known, *, words=None,
+                   col_word=None, w_value=None, offc=None):
+    """Same as ``rewrite._control_counts`` (the (N + 1, n) counts, float) from ``words`` (N, n)
+    values (NaN: no word) or from the program's ``col_word`` / ``w_value``; ``offc`` (N, n)
+    int64 or None; ``lin`` per axis whether it is linear (inch conversion).  Returns (counts,
+    -1) or (None, k * N + i) for the first count above 2**52 (axis k, block i); None without the
+    library."""
+    lib = load()
+    if lib is None:
+        return None
+    res = np.ascontiguousarray(res, np.float64)
+    n = len(res)
+    u8 = lambda a: np.ascontiguousarray(a, np.bool_).view(np.uint8)  # noqa: E731
+    inc, inch, lin, known = u8(inc), u8(inch), u8(lin), u8(known)
+    start = np.ascontiguousarray(start, np.float64)
+    if words is not None:
+        words = np.ascontiguousarray(words, np.float64)
+        vals, cw, stride, wv = words.ctypes.data, None, 0, None
+    else:
+        col_word = np.ascontiguousarray(col_word, np.int32)
+        w_value = np.ascontiguousarray(w_value, np.float64)
+        vals, cw, stride = None, col_word.ctypes.data, col_word.shape[1]
+        wv = w_value.ctypes.data if len(w_value) else None
+    if offc is not None:
+        offc = np.ascontiguousarray(offc, np.int64)
+    out = np.empty((N + 1, n), np.float64)
+    bad = lib.mtc_control_counts(N, n, vals, cw, stride, wv, inc.ctypes.data, inch.ctypes.data,
+                                 lin.ctypes.data, float(inch_mm), res.ctypes.data,
+                                 None if offc is None else offc.ctypes.data, start.ctypes.data,
+                                 known.ctypes.data, out.ctypes.data)
+    return (None, int(bad)) if bad >= 0 else (out, -1)

@@ -244,3 +244,114 @@ void mtc_overwrite(uint8_t *out, const uint8_t *src, const int64_t *pos, const i
 {
     for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
 }
+
+/* Read-back of the written program for the check of `mtcomp compensate`: for each wanted line
+ * (0-based, ascending), the value of its word for every letter with a column in col[26] (-1:
+ * not read) into val[i * n_cols + column]; NaN where the line has no such word.  Comments are
+ * skipped as mtc_blank_comments finds them, blanks between a letter and its number are read
+ * as the parser reads them.  Deliberately independent of the rewrite's bookkeeping (no word
+ * positions, no edit list): it finds the words again in the bytes.  Returns -1, or the index
+ * (into lines) of the first wanted line where a read letter has no well-formed number or
+ * appears twice, or that is beyond the text. */
+int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_t n_lines,
+                       const int8_t *col, int64_t n_cols, double *val)
+{
+    const double nan = __builtin_nan("");     /* positive, as numpy.nan */
+    int64_t i = 0, line = 0;
+    for (int64_t w = 0; w < n_lines * n_cols; w++) val[w] = nan;
+    for (int64_t q = 0; q < n_lines; q++) {
+        int64_t want = lines[q];
+        while (line < want) {                       /* to the start of the wanted line */
+            const uint8_t *p = i < n ? memchr(c + i, '\n', (size_t)(n - i)) : NULL;
+            if (!p) return q;
+            i = p - c + 1;
+            line++;
+        }
+        if (line > want) return q;                  /* not ascending */
+        const uint8_t *p = i < n ? memchr(c + i, '\n', (size_t)(n - i)) : NULL;
+        int64_t end = p ? p - c : n;
+        double *v = val + q * n_cols;
+        int64_t j = i;
+        if (j < end && c[j] == '%') j = end;        /* a '%' line is a comment */
+        while (j < end) {
+            uint8_t ch = c[j];
+            if (ch == '(') {
+                int64_t k = j + 1;
+                while (k < end && c[k] != ')' && c[k] != '(') k++;
+                j = (k < end && c[k] == ')') ? k + 1 : j + 1;
+                continue;
+            }
+            if (ch == ';') break;
+            if (!is_letter(ch) || col[(ch | 32) - 97] < 0) { j++; continue; }
+            int cc = col[(ch | 32) - 97];
+            j++;
+            while (j < end && (c[j] == ' ' || c[j] == '\t' || c[j] == '\r')) j++;
+            int64_t s = j, d = -1, nd = 0;
+            if (j < end && (c[j] == '-' || c[j] == '+')) j++;
+            for (; j < end; j++) {
+                if ((unsigned)c[j] - '0' < 10) { nd++; continue; }
+                if (c[j] == '.' && d < 0) { d = j; continue; }
+                break;
+            }
+            if (nd == 0 || (j < end && is_num(c[j])) || v[cc] == v[cc]) return q;
+            v[cc] = number(c, s, j, d);
+        }
+        i = end < n ? end + 1 : n;
+        line++;
+    }
+    return -1;
+}
+
+/* Round to the nearest integer, halves to even (numpy.rint; no libm: the library links
+ * nothing): adding and taking away 2**52 leaves the rounded value in the default rounding
+ * mode; magnitudes from 2**52 are integers already. */
+static inline double round_even(double x)
+{
+    const double two52 = 4503599627370496.0;
+    double a = x < 0 ? -x : x;
+    if (!(a < two52)) return x;
+    a = (a + two52) - two52;
+    return x < 0 ? -a : a;
+}
+
+/* Where the control stands after each block, in counts (the compiled twin of
+ * rewrite._control_counts, same float bits): out[(i + 1) * n + k] for block i and axis k,
+ * out[k] the start (start[k], NaN where unknown).  The value of a word: vals[i * n + k] if
+ * vals is given (NaN: no word), else wv[cw[i * cw_stride + k]] where that is >= 0.  A word
+ * counts rint(value * (inch[i] && lin[k] ? inch_mm : 1) / res[k]) (+ offc[i * n + k] if
+ * absolute and offc given); absolute words set the position, G91 (inc[i]) words add to it.
+ * Rows where known[i * n + k] is 0 are NaN.  Returns -1, or k * N + i of the first count
+ * (axis by axis) above 2**52 in magnitude. */
+int64_t mtc_control_counts(int64_t N, int64_t n, const double *vals, const int32_t *cw,
+                           int64_t cw_stride, const double *wv, const uint8_t *inc,
+                           const uint8_t *inch, const uint8_t *lin, double inch_mm,
+                           const double *res, const int64_t *offc, const double *start,
+                           const uint8_t *known, double *out)
+{
+    const double nan = __builtin_nan(""), big = 4503599627370496.0;   /* numpy.nan; 2**52 */
+    for (int64_t k = 0; k < n; k++) {
+        double p = start[k];
+        out[k] = p;
+        for (int64_t i = 0; i < N; i++) {
+            double v;
+            if (vals) {
+                v = vals[i * n + k];
+            } else {
+                int32_t w = cw[i * cw_stride + k];
+                v = w >= 0 ? wv[w] : nan;
+            }
+            if (v == v) {
+                if (inch[i] && lin[k]) v = v * inch_mm;
+                double c = round_even(v / res[k]);
+                if (c > big || c < -big) return k * N + i;
+                if (inc[i]) {
+                    p = p + c;
+                } else {
+                    p = offc ? c + (double)offc[i * n + k] : c;
+                }
+            }
+            out[(i + 1) * n + k] = known[i * n + k] ? p : nan;
+        }
+    }
+    return -1;
+}

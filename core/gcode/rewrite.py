@@ -149,19 +149,40 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                               progress=progress, unknown=unknown, row_lines=row_lines, info=info)[0]
 
 
-def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
+def _control_counts(program: Program, res: np.ndarray, offc=None, words=None) -> np.ndarray:
     """Where the control stands after each block, in counts of the axis resolution, as it
     reads the words (each rounded to its input increment, G91 increments summed): (N + 1,
-    n_axes) float holding integers, row 0 the start, NaN where unknown."""
+    n_axes) float holding integers, row 0 the start, NaN where unknown.  ``words``: (N, n_axes)
+    values of the axis words of each block (NaN: no word) instead of the program's own (the
+    written program read back, with the program's modal state)."""
     N, n = len(program), program.n_axes
     cw, wv = np.asarray(program.col_word), np.asarray(program.w_value)
     inc, inch = np.asarray(program.incremental), np.asarray(program.inch)
+    start = np.where(program.start_known, np.rint(np.asarray(program.start) / res), np.nan)
+    # compiled: one sequential pass per axis (numpy below without it, or MTCOMP_TOKENIZER=python)
+    got = _ctok.control_counts(N, res, inc, inch, [a in LINEAR for a in program.axes], INCH,
+                               start, program.axis_known, words=words, col_word=cw,
+                               w_value=wv, offc=offc)
+    if got is not None:
+        if got[0] is not None:
+            return got[0]
+        k, j = divmod(got[1], max(N, 1))
+        v = (words[j, k] if words is not None else wv[cw[j, k]])
+        if program.axes[k] in LINEAR and inch[j]:
+            v = v * INCH
+        raise InputError(f"axis word {program.axes[k]}{v:g} is too large for the axis resolution "
+                         f"{res[k]:g} (more than 2**52 counts)", program.filename,
+                         int(program.line[j]))
     Cc = np.empty((N + 1, n))
-    Cc[0] = np.where(program.start_known, np.rint(np.asarray(program.start) / res), np.nan)
+    Cc[0] = start
     for k, a in enumerate(program.axes):
-        w = cw[:, k]
-        pres = w >= 0
-        v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
+        if words is None:
+            w = cw[:, k]
+            pres = w >= 0
+            v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
+        else:
+            pres = ~np.isnan(words[:, k])
+            v = np.where(pres, words[:, k], 0.0)
         if a in LINEAR and inch.any():
             v = v * np.where(inch, INCH, 1.0)
         c = np.rint(v / res[k])
@@ -182,6 +203,45 @@ def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
         Cc[1:, k] = np.where(idx >= 0, c[i0] - cum[i0], Cc[0, k]) + cum
     Cc[1:][~np.asarray(program.axis_known)] = np.nan
     return Cc
+
+
+def read_back_counts(program: Program, info: dict, data, out_line) -> np.ndarray | None:
+    """Where the control stands after each block of the *written* program, in counts of
+    ``info["emitted_resolution"]`` (N, n_axes; NaN where unknown): the axis words found again
+    in the output bytes `data` on each block's output line (``out_line``, 1-based, as
+    `rewrite_with_lines` returns it, shifted by any header), run through the program's modal
+    state (G90/G91, units, work offsets) as the control reads them.  Independent of how the
+    rewrite placed and formatted its numbers, so that a wrong byte in a written word shows.
+    None where this reading does not apply (the compiled reader missing; linearised arcs,
+    canned cycles or G92 in the program; a block line with axis letters that are no move, such
+    as G4 X) and the caller must parse the output instead; raises ValueError naming the line
+    where a written word cannot be read."""
+    p = program
+    N, n_ax = len(p), p.n_axes
+    if info.get("linearised") or np.asarray(p.cycle).any():
+        return None
+    wl, wlet, wv = np.asarray(p.w_line), np.asarray(p.w_letter), np.asarray(p.w_value)
+    G = ord("G") - 65
+    if ((wlet == G) & (wv == 92.0)).any():
+        return None
+    # every axis-letter word on a block's line must be one of its axis words
+    axl = np.zeros(26, bool)
+    axl[[ord(a) - 65 for a in p.axes]] = True
+    n_axis_words = np.bincount(wl[axl[wlet]], minlength=p.n_lines)
+    cw = np.asarray(p.col_word)[:, :n_ax]
+    if not np.array_equal(n_axis_words[np.asarray(p.line) - 1], np.count_nonzero(cw >= 0, axis=1)):
+        return None
+    got = _ctok.read_words(data, np.asarray(out_line, np.int64) - 1, "".join(p.axes))
+    if got is None:
+        return None
+    words, bad = got
+    if bad >= 0:
+        raise ValueError(f"line {int(out_line[bad])} of the written program: an axis word "
+                         "cannot be read back")
+    res = np.asarray(info["emitted_resolution"], float)
+    off = np.asarray(p.offset)
+    offc = np.rint(off / res).astype(np.int64) if off.any() else None
+    return _control_counts(p, res, offc, words=words)[1:]
 
 
 def _unknown_axes(program: Program, k: int) -> str:
