@@ -231,6 +231,8 @@ def control_counts(N: int, res, inc, inch, lin, inch_mm: float, start, known, *,
         return None
     res = np.ascontiguousarray(res, np.float64)
     n = len(res)
+    if n > 64:                                   # the C pass keeps at most 64 axes' state
+        return None
     u8 = lambda a: np.ascontiguousarray(a, np.bool_).view(np.uint8)  # noqa: E731
     inc, inch, lin, known = u8(inc), u8(inch), u8(lin), u8(known)
     start = np.ascontiguousarray(start, np.float64)

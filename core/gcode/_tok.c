@@ -257,6 +257,13 @@ int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_
                        const int8_t *col, int64_t n_cols, double *val)
 {
     const double nan = __builtin_nan("");     /* positive, as numpy.nan */
+    /* byte classes: 0 other, 1 a read letter, 2 '(', 3 ';', 4 newline */
+    uint8_t cls[256];
+    int8_t colof[256];
+    for (int k = 0; k < 256; k++) {
+        colof[k] = is_letter((uint8_t)k) ? col[(k | 32) - 97] : -1;
+        cls[k] = colof[k] >= 0 ? 1 : k == '(' ? 2 : k == ';' ? 3 : k == '\n' ? 4 : 0;
+    }
     int64_t i = 0, line = 0;
     for (int64_t w = 0; w < n_lines * n_cols; w++) val[w] = nan;
     for (int64_t q = 0; q < n_lines; q++) {
@@ -267,36 +274,50 @@ int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_
             i = p - c + 1;
             line++;
         }
-        if (line > want) return q;                  /* not ascending */
-        const uint8_t *p = i < n ? memchr(c + i, '\n', (size_t)(n - i)) : NULL;
-        int64_t end = p ? p - c : n;
+        if (line > want || (i >= n && want > 0 && (n == 0 || c[n - 1] == '\n'))) return q;
         double *v = val + q * n_cols;
         int64_t j = i;
-        if (j < end && c[j] == '%') j = end;        /* a '%' line is a comment */
-        while (j < end) {
-            uint8_t ch = c[j];
-            if (ch == '(') {
-                int64_t k = j + 1;
-                while (k < end && c[k] != ')' && c[k] != '(') k++;
-                j = (k < end && c[k] == ')') ? k + 1 : j + 1;
+        if (j < n && c[j] == '%') {                 /* a '%' line is a comment */
+            const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
+            j = p ? p - c : n;
+        }
+        while (j < n) {
+            uint8_t ch = c[j], k = cls[ch];
+            if (k == 0) { j++; continue; }
+            if (k == 4) break;
+            if (k == 2) {                           /* ( ... ) closed on its line */
+                int64_t e = j + 1;
+                while (e < n && c[e] != ')' && c[e] != '(' && c[e] != '\n') e++;
+                j = (e < n && c[e] == ')') ? e + 1 : j + 1;
                 continue;
             }
-            if (ch == ';') break;
-            if (!is_letter(ch) || col[(ch | 32) - 97] < 0) { j++; continue; }
-            int cc = col[(ch | 32) - 97];
+            if (k == 3) {                           /* ';' to the end of the line */
+                const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
+                j = p ? p - c : n;
+                break;
+            }
+            int cc = colof[ch];
             j++;
-            while (j < end && (c[j] == ' ' || c[j] == '\t' || c[j] == '\r')) j++;
+            while (j < n && (c[j] == ' ' || c[j] == '\t' || c[j] == '\r')) j++;
             int64_t s = j, d = -1, nd = 0;
-            if (j < end && (c[j] == '-' || c[j] == '+')) j++;
-            for (; j < end; j++) {
-                if ((unsigned)c[j] - '0' < 10) { nd++; continue; }
+            uint64_t m = 0;
+            if (j < n && (c[j] == '-' || c[j] == '+')) j++;
+            for (; j < n; j++) {
+                unsigned dg = (unsigned)c[j] - '0';
+                if (dg < 10) { m = m * 10 + dg; nd++; continue; }
                 if (c[j] == '.' && d < 0) { d = j; continue; }
                 break;
             }
-            if (nd == 0 || (j < end && is_num(c[j])) || v[cc] == v[cc]) return q;
-            v[cc] = number(c, s, j, d);
+            if (nd == 0 || (j < n && is_num(c[j])) || v[cc] == v[cc]) return q;
+            int64_t flen = d >= 0 ? j - d - 1 : 0;
+            if (nd <= 15 && nd - flen <= 8 && flen <= 8) {     /* as number(), inline */
+                double x = (double)m / POW10[flen];
+                v[cc] = c[s] == '-' ? -x : x;
+            } else {
+                v[cc] = number(c, s, j, d);
+            }
         }
-        i = end < n ? end + 1 : n;
+        i = j < n ? j + 1 : n;
         line++;
     }
     return -1;
@@ -329,10 +350,18 @@ int64_t mtc_control_counts(int64_t N, int64_t n, const double *vals, const int32
                            const uint8_t *known, double *out)
 {
     const double nan = __builtin_nan(""), big = 4503599627370496.0;   /* numpy.nan; 2**52 */
+    double p[64];
+    int64_t first_bad[64];
+    if (n > 64) return -2;                       /* not called so (_ctok.control_counts) */
     for (int64_t k = 0; k < n; k++) {
-        double p = start[k];
-        out[k] = p;
-        for (int64_t i = 0; i < N; i++) {
+        p[k] = start[k];
+        out[k] = p[k];
+        first_bad[k] = -1;
+    }
+    /* block by block (row-major, cache-friendly), every axis of the block */
+    for (int64_t i = 0; i < N; i++) {
+        double *o = out + (i + 1) * n;
+        for (int64_t k = 0; k < n; k++) {
             double v;
             if (vals) {
                 v = vals[i * n + k];
@@ -343,15 +372,18 @@ int64_t mtc_control_counts(int64_t N, int64_t n, const double *vals, const int32
             if (v == v) {
                 if (inch[i] && lin[k]) v = v * inch_mm;
                 double c = round_even(v / res[k]);
-                if (c > big || c < -big) return k * N + i;
-                if (inc[i]) {
-                    p = p + c;
+                if (c > big || c < -big) {
+                    if (first_bad[k] < 0) first_bad[k] = i;
+                } else if (inc[i]) {
+                    p[k] = p[k] + c;
                 } else {
-                    p = offc ? c + (double)offc[i * n + k] : c;
+                    p[k] = offc ? c + (double)offc[i * n + k] : c;
                 }
             }
-            out[(i + 1) * n + k] = known[i * n + k] ? p : nan;
+            o[k] = known[i * n + k] ? p[k] : nan;
         }
     }
+    for (int64_t k = 0; k < n; k++)
+        if (first_bad[k] >= 0) return k * N + first_bad[k];
     return -1;
 }
