@@ -178,7 +178,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     from . import gcode
     from .gcode import flow
     from .gcode import tcp as gtcp
-    from .gcode.provenance import compensated_line, header_lines, insert_header
+    from .gcode.provenance import compensated_line, header_lines, insert_header_bytes
     from .gcode.rotation import to_reference
 
     tol = _check_chordal_tol(machine, chordal_tol)
@@ -240,27 +240,34 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         return out
 
     info = {}
-    new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
-                                                  unknown=unknown, row_lines=calls, info=info)
+    # the output as bytes: the header goes in place and the check reads these bytes, with one
+    # decoding to text at the end (a 1 M-line program is 57 MB: each copy counts at the peak)
+    raw, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
+                                             unknown=unknown, row_lines=calls, info=info,
+                                             as_bytes=True)
+    raw = raw if isinstance(raw, bytearray) else bytearray(raw)
     kn = np.asarray(info["compensated"])
     cut = _cutter_check(machine, prog, errors, kn, cutter_radius, cutter_offsets, tolerance,
                         filename)
     added = 0
     if provenance is not None:
-        new_text, at, added = insert_header(new_text, header_lines(provenance + _cutter_items(cut)))
+        at, added = insert_header_bytes(raw, header_lines(provenance + _cutter_items(cut)))
         out_line = np.where(out_line > at, out_line + added, out_line)
     # Check the result as the machine will run it: the emitted positions (rounded numbers, the
     # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
     kk = np.flatnonzero(kn)
     P = to_reference(prog, prog.position)            # G68: the positions the axes take
-    emitted = to_reference(prog, emitted_positions(prog, info, new_text, filename=filename,
+    emitted = to_reference(prog, emitted_positions(prog, info, raw, filename=filename,
                                                    start=start, res=res, tool_lengths=tool_lengths,
                                                    work_offsets=work_offsets, arc_tol=arc_tol,
                                                    out_line=out_line))
+    info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
-    verified = None
+    verified = new_text = None
     if stock is not None or part is not None:
+        new_text = raw.decode("utf-8", "surrogateescape")
+        del raw
         verified = verify_output(machine, new_text, errors, filename=filename, stock=stock,
                                  part=part, clearance=clearance, tolerance=tolerance,
                                  warn_only=warn_only, start=start, resolution=res,
@@ -280,6 +287,10 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
             before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
+    del P, emitted
+    if new_text is None:                          # the text last: fewer arrays alive with it
+        new_text = raw.decode("utf-8", "surrogateescape")
+        del raw
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
     report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
               "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
@@ -500,8 +511,8 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
 
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
                       tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
-    """End position of every motion block of the rewritten program (N, n_axes; mm, deg), as
-    the control reads it back.  The axis words are found again in the written bytes on each
+    """End position of every motion block of the rewritten program `new_text` (str, or its
+    bytes; N, n_axes; mm, deg), as the control reads it back.  The axis words are found again in the written bytes on each
     block's output line and run through the input's modal state (`gcode.rewrite.read_back_counts`,
     one compiled pass); they must give the counts `rewrite` meant to emit
     (``info["emitted"]``), else the output is refused (InputError: a wrong byte in a written
@@ -510,9 +521,15 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     no compiled reader) are parsed back whole instead."""
     from .gcode.rewrite import read_back_counts
     kn = np.asarray(info["compensated"], bool)
+    if not isinstance(new_text, str):                 # the written bytes (compensate_program)
+        data, new_text = new_text, None
+    else:
+        data = None
     if out_line is not None:
         try:
-            got = read_back_counts(prog, info, new_text.encode("utf-8", "surrogateescape"), out_line)
+            if data is None:
+                data = new_text.encode("utf-8", "surrogateescape")
+            got = read_back_counts(prog, info, data, out_line)
         except ValueError as exc:
             raise InputError(f"internal error, the written program is not what was computed: "
                              f"{exc}; refusing to write it", filename) from None
@@ -528,6 +545,8 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                                  filename, int(prog.line[j]))
             return want.astype(float) * np.asarray(info["emitted_resolution"])
     from . import gcode
+    if new_text is None:
+        new_text = bytes(data).decode("utf-8", "surrogateescape")
     after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
                              tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
                              tcp=True, rotation=True,

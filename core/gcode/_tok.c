@@ -387,3 +387,17 @@ int64_t mtc_control_counts(int64_t N, int64_t n, const double *vals, const int32
         if (first_bad[k] >= 0) return k * N + first_bad[k];
     return -1;
 }
+
+/* mtc_overwrite with 32-bit positions, offsets and lengths (the rewrite's edit arrays as they
+ * are: no 64-bit copies of millions of edits), each range checked against the buffers first.
+ * Returns -1, or the index of the first edit outside them (nothing written then). */
+int64_t mtc_overwrite32(uint8_t *out, int64_t n_out, const uint8_t *src, int64_t n_src,
+                        const int32_t *pos, const int32_t *src_off, const int32_t *len, int64_t m)
+{
+    for (int64_t i = 0; i < m; i++)
+        if (pos[i] < 0 || src_off[i] < 0 || len[i] < 0 || (int64_t)pos[i] + len[i] > n_out
+            || (int64_t)src_off[i] + len[i] > n_src)
+            return i;
+    for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
+    return -1;
+}

@@ -251,12 +251,15 @@ def _unknown_axes(program: Program, k: int) -> str:
 def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                        resolution=None, chordal_tol: float = 1e-4, progress=None,
                        unknown: str = "defer", row_lines: list | None = None,
-                       info: dict | None = None):
+                       info: dict | None = None, as_bytes: bool = False):
     """`rewrite`, also returning for every motion block the 1-based line of the output where
     the block ends (after a linearised arc: its last segment line), so that the output can be
     compared block by block with the input.  ``info``, if a dict, receives what was done:
     ``deferred`` blocks, ``linearised`` arcs, canned cycle holes ``cycles_kept`` and
-    ``cycles_expanded``."""
+    ``cycles_expanded``.  ``as_bytes``: the output as a bytes-like object (a bytearray where
+    the compiled splice made it; the program's encoding, UTF-8 with its undecodable bytes
+    kept) instead of str, so that a caller that edits it further or writes it saves a copy of
+    the whole text."""
     axes = program.axes
     n_ax = len(axes)
     if unknown not in ("defer", "refuse"):
@@ -469,7 +472,13 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                     cycles_kept=rep["kept"], cycles_expanded=rep["expanded"],
                     emitted=new, emitted_resolution=res)
     ed = ctx.edits
-    text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
+    # the splice holds the output twice at its peak: free what the edits no longer need
+    del dK, C
+    v = pv = target = wk = pres = ov = oc = differs = None      # the axis loop's last columns
+    ctx._anch = ctx._spaced = None
+    text = ed.apply(ctx.data, progress=progress)
+    if not as_bytes:
+        text = text.decode("utf-8", "surrogateescape")
     added = np.zeros(N, np.int64)
     for k, n_add in ctx.added_lines.items():
         added[k] = n_add
