@@ -461,3 +461,19 @@ def test_latin1_comments_are_kept_byte_for_byte(tmp_path):
         gcode.read_program_8bit(src)
     with pytest.raises(InputError, match=r"not UTF-8"):
         gcode.read_program(tmp_path / "p.nc")      # the strict reader is unchanged
+
+
+@pytest.mark.parametrize("text", [
+    "", "G1 X1\n", "%\nO1234 (PART)\nG1 X1.\nM30\n%\n", "%\r\nO12\r\nG1 X1\r\n", ":123\nG1 X1\n",
+    "; only semicolons\nG1 X1 ; c\n", "\n\n%\nO7", "O7", "%", "(caf\u00e9 \udce9)\nG1 X1\n",
+    "\n" * 70000 + "%\nO1\nG1 X1\n", "(" + "x" * 70000 + ")\nG1 X1\n",
+])
+def test_header_inserted_into_bytes_as_into_text(text):
+    # compensate inserts its header into the output bytes in place (no copy of a large text):
+    # the same bytes as the text version
+    from mtcomp.gcode.provenance import header_lines, insert_header_bytes
+    lines = header_lines([("VERSION", "x"), ("SOURCE", "a (b).nc")])
+    want, at, added = insert_header(text, lines)
+    buf = bytearray(text.encode("utf-8", "surrogateescape"))
+    assert insert_header_bytes(buf, lines) == (at, added)
+    assert bytes(buf) == want.encode("utf-8", "surrogateescape")
