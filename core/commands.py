@@ -216,25 +216,31 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         lines = calls[-1]
         out = np.empty_like(q)
         # rows of G43.4 blocks are tool-tip words: compensated through the TCP transform
-        blk = np.clip(np.searchsorted(prog.line, lines), 0, max(len(prog) - 1, 0))
-        on = (tcp[blk] & (prog.line[blk] == lines)) if tcp.any() else np.zeros(len(q), bool)
+        if tcp.any():
+            blk = np.clip(np.searchsorted(prog.line, lines), 0, max(len(prog) - 1, 0))
+            on = tcp[blk] & (prog.line[blk] == lines)
+            sels = (np.flatnonzero(~on), np.flatnonzero(on))
+        else:                                   # (slices: no index arrays, no gathered copies)
+            on, sels = None, (range(len(q)),)
         done = 0
-        for sel in (np.flatnonzero(~on), np.flatnonzero(on)):
+        for sel in sels:
             for s in range(0, len(sel), CHUNK):
                 rows = sel[s:s + CHUNK]
+                if isinstance(rows, range):
+                    rows = slice(rows.start, rows.stop)
                 try:
-                    if on[rows[0]]:
+                    if on is not None and on[rows[0]]:
                         out[rows] = gtcp.compensate_words(machine, q[rows],
                                                           prog.tool_length[blk[rows]], errors)
                     else:
                         out[rows] = retarget(machine, q[rows], errors)
                 except (LimitError, ConvergenceError, TableRangeError) as exc:
-                    i = int(rows[getattr(exc, "index", 0)])
+                    i = int(np.arange(len(q))[rows][getattr(exc, "index", 0)])
                     line = int(lines[i]) if 0 <= i < len(lines) else None
                     is_end = line is not None and i < int(np.count_nonzero(prog.known))
                     where = "" if is_end else " an interior point of the arc ending here"
                     raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
-                done += len(rows)
+                done += rows.stop - rows.start if isinstance(rows, slice) else len(rows)
                 if progress:
                     progress(done, len(q))
         return out
@@ -274,15 +280,16 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                                  tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
     before = np.empty(len(kk))
     after = np.empty(len(kk))
+    norm = lambda d: np.sqrt(np.einsum("ij,ij->i", d, d))  # noqa: E731
+    every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
     for s in range(0, len(kk), CHUNK):
         rows = kk[s:s + CHUNK]
         on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
-        r = rows[~on]
-        if len(r):
+        r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
+        if len(rows[~on]):
             target = forward_position(machine, P[r])     # (positions only: no orientations built)
-            before[s:s + CHUNK][~on] = np.linalg.norm(forward_position(machine, P[r], errors) - target, axis=1)
-            after[s:s + CHUNK][~on] = np.linalg.norm(forward_position(machine, emitted[r], errors) - target,
-                                                     axis=1)
+            before[s:s + CHUNK][~on] = norm(forward_position(machine, P[r], errors) - target)
+            after[s:s + CHUNK][~on] = norm(forward_position(machine, emitted[r], errors) - target)
         if on.any():
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
