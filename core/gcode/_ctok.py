@@ -97,6 +97,9 @@ def load():
     lib.mtc_overwrite.restype = None
     lib.mtc_overwrite32.argtypes = [vp, i64, vp, i64, vp, vp, vp, i64]
     lib.mtc_overwrite32.restype = i64
+    lib.mtc_axis_edits.argtypes = [i64, i64, i64, vp, vp, vp, vp, i64, vp, ctypes.c_double,
+                                   ctypes.c_double, vp, vp, vp, vp, vp, vp, vp]
+    lib.mtc_axis_edits.restype = None
     lib.mtc_read_words.argtypes = [vp, i64, vp, i64, vp, i64, vp]
     lib.mtc_read_words.restype = i64
     lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
@@ -264,3 +267,31 @@ def control_counts(N: int, res, inc, inch, lin, inch_mm: float, start, known, *,
                                  None if offc is None else offc.ctypes.data, start.ctypes.data,
                                  known.ctypes.data, out.ctypes.data)
     return (None, int(bad)) if bad >= 0 else (out, -1)
+
+
+def axis_edits(C, k: int, inc, offc, col_word, w_value, scale: float, res: float, edit, no_z):
+    """The rewrite's decisions for axis column ``k`` (see ``mtc_axis_edits``): (target counts
+    (N,) int64, blocks whose word is replaced, blocks that get a new word), or None without the
+    library.  C: (N + 1, n) int64 counts; offc (N, n) int64 or None; no_z (N,) bool or None."""
+    lib = load()
+    if lib is None:
+        return None
+    C = np.ascontiguousarray(C, np.int64)
+    N, n = C.shape[0] - 1, C.shape[1]
+    u8 = lambda a: np.ascontiguousarray(a, np.bool_).view(np.uint8)  # noqa: E731
+    inc, edit = u8(inc), u8(edit)
+    no_z = None if no_z is None else u8(no_z)
+    cw = np.ascontiguousarray(col_word, np.int32)
+    wv = np.ascontiguousarray(w_value, np.float64)
+    if offc is not None:
+        offc = np.ascontiguousarray(offc, np.int64)
+    target = np.empty(N, np.int64)
+    rep, ins = np.empty(N, np.int64), np.empty(N, np.int64)
+    nr, ni = ctypes.c_int64(), ctypes.c_int64()
+    lib.mtc_axis_edits(N, n, int(k), C.ctypes.data, inc.ctypes.data,
+                       None if offc is None else offc.ctypes.data, cw.ctypes.data, cw.shape[1],
+                       wv.ctypes.data if len(wv) else None, float(scale), float(res),
+                       edit.ctypes.data, None if no_z is None else no_z.ctypes.data,
+                       target.ctypes.data, rep.ctypes.data, ins.ctypes.data, ctypes.byref(nr),
+                       ctypes.byref(ni))
+    return target, rep[:nr.value], ins[:ni.value]

@@ -401,3 +401,35 @@ int64_t mtc_overwrite32(uint8_t *out, int64_t n_out, const uint8_t *src, int64_t
     for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
     return -1;
 }
+
+/* The rewrite's decisions for one axis column k (the compiled twin of the axis loop of
+ * rewrite.rewrite_with_lines): C is the (N + 1) x n matrix of counts (row 0 the start, row i + 1
+ * where block i ends).  Per block: the number to write, target[i] (G91: the increment from the
+ * previous row; else the count minus the work offset count offc[i * n + k] if given), and
+ * whether it is written: in place of the block's word (cw[i * cw_stride + k] >= 0) where that
+ * word's own count rint(wv[w] * scale / res) differs, or as a new word where the block has none
+ * and the axis moves; only blocks with edit[i], never the Z of no_z[i] blocks (no_z NULL:
+ * none).  rep and ins receive the block indices, ascending; their counts are returned in
+ * *n_rep, *n_ins. */
+void mtc_axis_edits(int64_t N, int64_t n, int64_t k, const int64_t *C, const uint8_t *inc,
+                    const int64_t *offc, const int32_t *cw, int64_t cw_stride, const double *wv,
+                    double scale, double res, const uint8_t *edit, const uint8_t *no_z,
+                    int64_t *target, int64_t *rep, int64_t *ins, int64_t *n_rep, int64_t *n_ins)
+{
+    int64_t nr = 0, ni = 0;
+    for (int64_t i = 0; i < N; i++) {
+        int64_t pv = C[i * n + k], v = C[(i + 1) * n + k];
+        int64_t t = inc[i] ? v - pv : (offc ? v - offc[i * n + k] : v);
+        target[i] = t;
+        if (!edit[i]) continue;
+        int32_t w = cw[i * cw_stride + k];
+        if (w >= 0) {
+            int64_t oc = (int64_t)round_even(wv[w] * scale / res);
+            if (t != oc) rep[nr++] = i;
+        } else if (v != pv && !(no_z && no_z[i])) {
+            ins[ni++] = i;
+        }
+    }
+    *n_rep = nr;
+    *n_ins = ni;
+}

@@ -424,7 +424,18 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         cw = cw.copy()
         cw[lin, n_ax:] = -1          # removed arc words are no anchors for inserted words
     wv = np.asarray(program.w_value)
+    nz_any = bool(no_z.any())
     for k, a in enumerate(axes):
+        # compiled: one pass per axis (not for linearised arcs' first points or axes with
+        # assumed work offsets: numpy below, as without the library)
+        got = None
+        if inner_rows is None and a not in program.offset_assumed:
+            got = _ctok.axis_edits(C, k, inc, offc, cw, wv, INCH if inch_prog and a in LINEAR else 1.0,
+                                   res[k], kn_edit, no_z if nz_any and a == "Z" else None)
+        if got is not None:
+            target, rep, ins = got
+            _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], rep, ins, target)
+            continue
         v = new[:, k]
         if inner_rows is not None:
             v = v.copy()
