@@ -220,10 +220,12 @@ def peak_rss_mb() -> float:
 def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: bool = True) -> dict:
     """`mtcomp compensate` as the CLI runs it (read, compensate_program with setting errors,
     verification through the forward model, atomic write; with the CLI's allocator settings,
-    mtcomp._heap, unless ``cli_heap`` is false).  ``old``: the path before the compiled
-    tokenizer and the verification from emitted values, rebuilt for the comparison: numpy
-    tokenizer, formatter and splice, the written program parsed a second time for the
-    verification, the allocator's defaults (the other improvements of this path are in both)."""
+    mtcomp._heap, unless ``cli_heap`` is false).  ``old``: the path without the compiled text
+    library (``MTCOMP_TOKENIZER=python``, as on a machine without a compiler), which is the path
+    before the compiled tokenizer and the check from emitted values: numpy tokenizer, control
+    counts, per-axis decisions, formatter and splice, the written program parsed a second time
+    for the check; with the allocator's defaults (the other improvements of this path are in
+    both)."""
     if old:
         os.environ["MTCOMP_TOKENIZER"] = "python"
     elif cli_heap:
@@ -241,9 +243,6 @@ def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: boo
     t0, c0 = time.perf_counter(), time.process_time()
     text = read_program(path_in)
     new_text, rep = compensate_program(text, m, err, filename=path_in, provenance=[("BENCH", "1")])
-    if old:
-        res = {a.name: a.resolution for a in m.axes}
-        gcode.parse(new_text, axes=m.axis_names, resolution=res)
     atomic_write(path_out, new_text)
     import resource
     ru = resource.getrusage(resource.RUSAGE_SELF)
@@ -262,16 +261,17 @@ def run_child(path_in: str, path_out: str, fn: str = "end_to_end", *extra) -> di
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def compensate_only(n_lines: int) -> int:
-    """`mtcomp compensate` end to end three ways, interleaved, twice: a quick run (under a minute
-    at 1 M lines on 2 idle cores) for the compensate rows of docs/benchmarks.md."""
+def compensate_only(n_lines: int, rounds: int = 2) -> int:
+    """`mtcomp compensate` end to end three ways, interleaved, ``rounds`` times: a quick run
+    (under a minute at 1 M lines and one round on 2 idle cores) for the compensate rows of
+    docs/benchmarks.md."""
     text = generate(n_lines)
     with tempfile.TemporaryDirectory() as tmp:
         pin, pout = os.path.join(tmp, "in.nc"), os.path.join(tmp, "out.nc")
         Path(pin).write_text(text, encoding="utf-8", newline="")
         del text
         outs = {}
-        for rnd in range(2):
+        for rnd in range(rounds):
             for name, extra in (("new", (False, True)), ("new, allocator defaults", (False, False)),
                                 ("old", (True, False))):
                 r = run_child(pin, pout, "compensate_e2e", *extra)
@@ -292,10 +292,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-report", action="store_true", help="do not write docs/benchmarks.md")
     ap.add_argument("--compensate-only", action="store_true",
                     help="only `mtcomp compensate` end to end (new path, new path with the allocator's "
-                         "defaults, old path; interleaved, twice), printed; docs not written")
+                         "defaults, old path; interleaved, --rounds times), printed; docs not written")
+    ap.add_argument("--rounds", type=int, default=2, help="rounds of --compensate-only (default 2)")
     args = ap.parse_args(argv)
     if args.compensate_only:
-        return compensate_only(args.lines)
+        return compensate_only(args.lines, args.rounds)
     from mtcomp.kinematics import retarget
     from mtcomp.machine import load_machine
     m = load_machine(MACHINE)

@@ -181,12 +181,16 @@ def test_splice_same_bytes(orig, raw):
         src += t
     args = (o, np.array(pos), np.array(stop), np.array(sub), np.frombuffer(src, np.uint8),
             np.array(off), np.array(ln))
+    # the rewrite's edit arrays are 32-bit: the compiled in-place step (mtc_overwrite_same)
+    args32 = args[:4] + (args[4],) + tuple(np.asarray(a, np.int32) for a in args[5:])
+    args32 = (args[0],) + tuple(np.asarray(a, np.int32) for a in args[1:3]) + args32[3:]
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("MTCOMP_TOKENIZER", raising=False)
         a = splice(*args)
+        a32 = splice(*args32)
         mp.setenv("MTCOMP_TOKENIZER", "python")
         b = splice(*args)
-    assert a == b
+    assert a == b and a32 == b
 
 
 @seed(19)

@@ -100,6 +100,8 @@ def load():
     lib.mtc_axis_edits.argtypes = [i64, i64, i64, vp, vp, vp, vp, i64, vp, ctypes.c_double,
                                    ctypes.c_double, vp, vp, vp, vp, vp, vp, vp]
     lib.mtc_axis_edits.restype = None
+    lib.mtc_overwrite_same.argtypes = [vp, i64, vp, i64, vp, vp, vp, vp, i64, vp]
+    lib.mtc_overwrite_same.restype = i64
     lib.mtc_read_words.argtypes = [vp, i64, vp, i64, vp, i64, vp]
     lib.mtc_read_words.restype = i64
     lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
@@ -295,3 +297,28 @@ def axis_edits(C, k: int, inc, offc, col_word, w_value, scale: float, res: float
                        target.ctypes.data, rep.ctypes.data, ins.ctypes.data, ctypes.byref(nr),
                        ctypes.byref(ni))
     return target, rep[:nr.value], ins[:ni.value]
+
+
+def overwrite_same(out: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len):
+    """The in-place step of ``textops.splice``: edits whose text has the length of the range it
+    replaces are written into `out` (writable C-contiguous uint8); returns the indices (int64)
+    of the other edits that do something.  None without the library or unless the four edit
+    arrays are int32 (nothing done)."""
+    lib = load()
+    arrs = [np.asarray(a) for a in (pos, stop, src_off, src_len)]
+    if (lib is None or not out.flags.c_contiguous or not out.flags.writeable
+            or any(a.dtype != np.int32 for a in arrs)):
+        return None
+    arrs = [np.ascontiguousarray(a) for a in arrs]
+    src = np.ascontiguousarray(src, np.uint8)
+    m = len(arrs[0])
+    rest = np.empty(m, np.int64)
+    if not m:
+        return rest
+    dummy = np.zeros(1, np.uint8)
+    k = lib.mtc_overwrite_same(out.ctypes.data if len(out) else dummy.ctypes.data, len(out),
+                               src.ctypes.data if len(src) else dummy.ctypes.data, len(src),
+                               *(a.ctypes.data for a in arrs), m, rest.ctypes.data)
+    if k < 0:
+        raise ValueError("overwrite outside the buffers")
+    return rest[:k]

@@ -433,3 +433,29 @@ void mtc_axis_edits(int64_t N, int64_t n, int64_t k, const int64_t *C, const uin
     *n_rep = nr;
     *n_ins = ni;
 }
+
+/* The in-place step of textops.splice in one pass over the edits (32-bit arrays as the rewrite
+ * makes them): every edit whose text has the length of the range it replaces (and is not
+ * empty) is written into out in place; the indices of the other edits that do something (an
+ * insertion, a removal, a replacement of another length) go to rest[], their number is
+ * returned.  Ranges are checked first: -1 - i for the first edit i outside the buffers
+ * (nothing written then). */
+int64_t mtc_overwrite_same(uint8_t *out, int64_t n_out, const uint8_t *src, int64_t n_src,
+                           const int32_t *pos, const int32_t *stop, const int32_t *src_off,
+                           const int32_t *len, int64_t m, int64_t *rest)
+{
+    for (int64_t i = 0; i < m; i++)
+        if (pos[i] < 0 || stop[i] < pos[i] || stop[i] > n_out || src_off[i] < 0 || len[i] < 0
+            || (int64_t)src_off[i] + len[i] > n_src)
+            return -1 - i;
+    int64_t nr = 0;
+    for (int64_t i = 0; i < m; i++) {
+        int32_t L = len[i];
+        if (L > 0 && stop[i] - pos[i] == L) {
+            memcpy(out + pos[i], src + src_off[i], (size_t)L);
+        } else if (L > 0 || stop[i] > pos[i]) {
+            rest[nr++] = i;
+        }
+    }
+    return nr;
+}

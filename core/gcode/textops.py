@@ -138,7 +138,13 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     ba = bytearray(len(orig))
     out = np.frombuffer(ba, np.uint8) if len(orig) else np.zeros(0, np.uint8)
     out[:] = orig
-    same = (stop - pos == src_len) & (src_len > 0)
+    from ._ctok import overwrite_same
+    rest = overwrite_same(out, src, pos, stop, src_off, src_len)     # compiled: one pass
+    if rest is not None:
+        pos, stop, sub, src_off, src_len = pos[rest], stop[rest], sub[rest], src_off[rest], src_len[rest]
+        same = np.zeros(0, bool)
+    else:
+        same = (stop - pos == src_len) & (src_len > 0)
     if same.any():
         from ._ctok import overwrite as c_overwrite
         every = bool(same.all())                 # (then no copies of the edit arrays)
