@@ -522,15 +522,15 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
                       tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
     """End position of every motion block of the rewritten program `new_text` (str, or its
-    bytes; N, n_axes; mm, deg), as the control reads it back.  The axis words are found again in the written bytes on each
-    block's output line and run through the input's modal state (`gcode.rewrite.read_back_counts`,
-    one compiled pass); they must give the counts `rewrite` meant to emit
+    bytes; N, n_axes; mm, deg), as the control reads it back.  The axis words are found again
+    in the written bytes on each block's output line and run through the input's modal state
+    (`gcode.rewrite.check_written`, one compiled pass); they must give the counts `rewrite`
+    meant to emit
     (``info["emitted"]``), else the output is refused (InputError: a wrong byte in a written
     number would otherwise go to the machine unseen).  Programs where that reading does not
     apply (canned cycles, whose holes may be written out as new lines; linearised arcs; G92;
     no compiled reader) are parsed back whole instead."""
-    from .gcode.rewrite import read_back_counts
-    kn = np.asarray(info["compensated"], bool)
+    from .gcode.rewrite import check_written
     if not isinstance(new_text, str):                 # the written bytes (compensate_program)
         data, new_text = new_text, None
     else:
@@ -539,21 +539,14 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
         try:
             if data is None:
                 data = new_text.encode("utf-8", "surrogateescape")
-            got = read_back_counts(prog, info, data, out_line)
+            ok = check_written(prog, info, data, out_line)
         except ValueError as exc:
+            j = exc.args[1] if len(exc.args) > 1 else None
             raise InputError(f"internal error, the written program is not what was computed: "
-                             f"{exc}; refusing to write it", filename) from None
-        if got is not None:
-            want = np.asarray(info["emitted"])
-            with np.errstate(invalid="ignore"):
-                bad = np.flatnonzero(kn & (got != want).any(axis=1))
-            if len(bad):
-                j = int(bad[0])
-                raise InputError("internal error, the written program is not what was computed: "
-                                 f"its line {int(out_line[j])} reads back as counts "
-                                 f"{got[j].tolist()}, not {want[j].tolist()}; refusing to write it",
-                                 filename, int(prog.line[j]))
-            return want.astype(float) * np.asarray(info["emitted_resolution"])
+                             f"{exc.args[0]}; refusing to write it", filename,
+                             None if j is None else int(prog.line[j])) from None
+        if ok:
+            return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
     from . import gcode
     if new_text is None:
         new_text = bytes(data).decode("utf-8", "surrogateescape")

@@ -277,6 +277,34 @@ def test_read_back_words_are_the_parsed_words(i):
     assert np.array_equal(np.nan_to_num(a).view(np.int64), np.nan_to_num(b).view(np.int64))
 
 
+@pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
+def test_read_back_applies_same_compiled_and_numpy(i):
+    """Whether compensate's read-back applies (no G92; no axis letter that is no move on a
+    block's line): the compiled pass and the numpy reference agree, and a G92 or a G4 X line
+    made into a block's line turns it off."""
+    rw = __import__("importlib").import_module("mtcomp.gcode.rewrite")
+    texts = [CORPUS[i]]
+    lines = CORPUS[i].split("\n")
+    k = next((j for j, ln in enumerate(lines) if re.match(r"\s*[Gg]0*1\b.*[Xx]", ln)), None)
+    if k is not None:
+        texts += ["\n".join(lines[:k + 1] + ["G92 X0"] + lines[k + 1:]),
+                  "\n".join(lines[:k] + [lines[k] + " G4 P1"] + lines[k + 1:])]
+    for n, text in enumerate(texts):
+        try:
+            prog = gcode.parse(text, axes=AXES, filename="p.nc", tcp=True, rotation=True)
+        except InputError:
+            continue
+        got = []
+        for python in (False, True):
+            with pytest.MonkeyPatch.context() as mp:
+                if python:
+                    mp.setenv("MTCOMP_TOKENIZER", "python")
+                got.append(rw._read_back_applies(prog, {"linearised": 0}))
+        assert got[0] == got[1]
+        if n == 1:
+            assert got[0] is False                  # G92 in the program
+
+
 @seed(20)
 @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
 @given(st.lists(st.text(alphabet="XYZxyGg0123456789.-+ ()%;\t", max_size=30), min_size=1, max_size=12))

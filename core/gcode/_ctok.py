@@ -102,6 +102,11 @@ def load():
     lib.mtc_axis_edits.restype = None
     lib.mtc_overwrite_same.argtypes = [vp, i64, vp, i64, vp, vp, vp, vp, i64, vp]
     lib.mtc_overwrite_same.restype = i64
+    lib.mtc_check_words.argtypes = [vp, i64, vp, i64, i64, vp, vp, vp, vp, ctypes.c_double,
+                                    vp, vp, vp, vp, vp, vp, vp]
+    lib.mtc_check_words.restype = i64
+    lib.mtc_read_back_applies.argtypes = [vp, vp, vp, i64, vp, vp, vp, i64, i64, i64]
+    lib.mtc_read_back_applies.restype = i64
     lib.mtc_read_words.argtypes = [vp, i64, vp, i64, vp, i64, vp]
     lib.mtc_read_words.restype = i64
     lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
@@ -322,3 +327,60 @@ def overwrite_same(out: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len
     if k < 0:
         raise ValueError("overwrite outside the buffers")
     return rest[:k]
+
+
+def check_words(data, lines, letters: str, res, inc, inch, lin, inch_mm: float, start, known,
+                check, want, offc=None):
+    """``read_words`` of the block ``lines`` run through ``control_counts`` (same arguments)
+    and compared with ``want`` ((N, n) int64 counts) on the blocks with ``check``, in one
+    compiled pass: (-1, 0) if every checked block reads back as ``want``, else (block, kind:
+    1 unreadable word or line, 2 other counts, 3 a count above 2**52).  None without the
+    library."""
+    lib = load()
+    if lib is None or len(letters) > 64:
+        return None
+    b = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data
+    b = np.ascontiguousarray(b, np.uint8)
+    lines = np.ascontiguousarray(lines, np.int64)
+    col = np.full(26, -1, np.int8)
+    for k, a in enumerate(letters):
+        col[ord(a.upper()) - 65] = k
+    u8 = lambda a: np.ascontiguousarray(a, np.bool_).view(np.uint8)  # noqa: E731
+    inc, inch, lin, known, check = u8(inc), u8(inch), u8(lin), u8(known), u8(check)
+    res = np.ascontiguousarray(res, np.float64)
+    start = np.ascontiguousarray(start, np.float64)
+    want = np.ascontiguousarray(want, np.int64)
+    if offc is not None:
+        offc = np.ascontiguousarray(offc, np.int64)
+    kind = ctypes.c_int64()
+    ptr = b.ctypes.data if len(b) else np.zeros(1, np.uint8).ctypes.data
+    j = lib.mtc_check_words(ptr, len(b), lines.ctypes.data, len(lines), len(letters),
+                            col.ctypes.data, inc.ctypes.data, inch.ctypes.data, lin.ctypes.data,
+                            float(inch_mm), res.ctypes.data,
+                            None if offc is None else offc.ctypes.data, start.ctypes.data,
+                            known.ctypes.data, check.ctypes.data, want.ctypes.data,
+                            ctypes.byref(kind))
+    return int(j), int(kind.value)
+
+
+def read_back_applies(w_line, w_letter, w_value, axes: str, block_line, col_word):
+    """``rewrite._read_back_applies`` in one compiled pass (no G92 word; every axis-letter word
+    on a block's line one of its axis words), or None without the library or if the words are
+    not in text order."""
+    lib = load()
+    if lib is None:
+        return None
+    wl = np.ascontiguousarray(w_line, np.int32)
+    wlet = np.ascontiguousarray(w_letter, np.int8)
+    wv = np.ascontiguousarray(w_value, np.float64)
+    axis = np.zeros(26, np.uint8)
+    axis[[ord(a) - 65 for a in axes]] = 1
+    bl = np.ascontiguousarray(block_line, np.int64)
+    cw = np.ascontiguousarray(col_word, np.int32)
+    dummy = np.zeros(1, np.float64)
+    got = int(lib.mtc_read_back_applies(
+        wl.ctypes.data if len(wl) else dummy.ctypes.data, wlet.ctypes.data if len(wl) else dummy.ctypes.data,
+        wv.ctypes.data if len(wl) else dummy.ctypes.data, len(wl), axis.ctypes.data,
+        bl.ctypes.data if len(bl) else dummy.ctypes.data, cw.ctypes.data if cw.size else dummy.ctypes.data,
+        cw.shape[1] if cw.ndim == 2 else 0, len(axes), len(bl)))
+    return None if got < 0 else bool(got)

@@ -253,70 +253,92 @@ void mtc_overwrite(uint8_t *out, const uint8_t *src, const int64_t *pos, const i
  * positions, no edit list): it finds the words again in the bytes.  Returns -1, or the index
  * (into lines) of the first wanted line where a read letter has no well-formed number or
  * appears twice, or that is beyond the text. */
-int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_t n_lines,
-                       const int8_t *col, int64_t n_cols, double *val)
+/* Byte classes and columns of the read-back (cls: 0 other, 1 a read letter, 2 '(', 3 ';',
+ * 4 newline). */
+static void read_tables(const int8_t *col, uint8_t *cls, int8_t *colof)
 {
-    const double nan = __builtin_nan("");     /* positive, as numpy.nan */
-    /* byte classes: 0 other, 1 a read letter, 2 '(', 3 ';', 4 newline */
-    uint8_t cls[256];
-    int8_t colof[256];
     for (int k = 0; k < 256; k++) {
         colof[k] = is_letter((uint8_t)k) ? col[(k | 32) - 97] : -1;
         cls[k] = colof[k] >= 0 ? 1 : k == '(' ? 2 : k == ';' ? 3 : k == '\n' ? 4 : 0;
     }
+}
+
+/* The words of the line starting at c[i] into v[column] (v NaN-filled by the caller).
+ * Returns the index of the line's end (its newline or n); *bad = 1 if a read letter has no
+ * well-formed number or appears twice. */
+static int64_t line_words(const uint8_t *c, int64_t n, int64_t i, const uint8_t *cls,
+                          const int8_t *colof, double *v, int *bad)
+{
+    int64_t j = i;
+    *bad = 0;
+    if (j < n && c[j] == '%') {                 /* a '%' line is a comment */
+        const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
+        return p ? p - c : n;
+    }
+    while (j < n) {
+        uint8_t ch = c[j], k = cls[ch];
+        if (k == 0) { j++; continue; }
+        if (k == 4) break;
+        if (k == 2) {                           /* ( ... ) closed on its line */
+            int64_t e = j + 1;
+            while (e < n && c[e] != ')' && c[e] != '(' && c[e] != '\n') e++;
+            j = (e < n && c[e] == ')') ? e + 1 : j + 1;
+            continue;
+        }
+        if (k == 3) {                           /* ';' to the end of the line */
+            const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
+            return p ? p - c : n;
+        }
+        int cc = colof[ch];
+        j++;
+        while (j < n && (c[j] == ' ' || c[j] == '\t' || c[j] == '\r')) j++;
+        int64_t s = j, d = -1, nd = 0;
+        uint64_t m = 0;
+        if (j < n && (c[j] == '-' || c[j] == '+')) j++;
+        for (; j < n; j++) {
+            unsigned dg = (unsigned)c[j] - '0';
+            if (dg < 10) { m = m * 10 + dg; nd++; continue; }
+            if (c[j] == '.' && d < 0) { d = j; continue; }
+            break;
+        }
+        if (nd == 0 || (j < n && is_num(c[j])) || v[cc] == v[cc]) { *bad = 1; return j; }
+        int64_t flen = d >= 0 ? j - d - 1 : 0;
+        if (nd <= 15 && nd - flen <= 8 && flen <= 8) {     /* as number(), inline */
+            double x = (double)m / POW10[flen];
+            v[cc] = c[s] == '-' ? -x : x;
+        } else {
+            v[cc] = number(c, s, j, d);
+        }
+    }
+    return j;
+}
+
+/* To the start of line `want` from position *i on line *line; 0 if the text ends first. */
+static int seek_line(const uint8_t *c, int64_t n, int64_t want, int64_t *i, int64_t *line)
+{
+    while (*line < want) {
+        const uint8_t *p = *i < n ? memchr(c + *i, '\n', (size_t)(n - *i)) : NULL;
+        if (!p) return 0;
+        *i = p - c + 1;
+        (*line)++;
+    }
+    return *line == want && !(*i >= n && want > 0 && (n == 0 || c[n - 1] == '\n'));
+}
+
+int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_t n_lines,
+                       const int8_t *col, int64_t n_cols, double *val)
+{
+    const double nan = __builtin_nan("");     /* positive, as numpy.nan */
+    uint8_t cls[256];
+    int8_t colof[256];
+    read_tables(col, cls, colof);
     int64_t i = 0, line = 0;
+    int bad;
     for (int64_t w = 0; w < n_lines * n_cols; w++) val[w] = nan;
     for (int64_t q = 0; q < n_lines; q++) {
-        int64_t want = lines[q];
-        while (line < want) {                       /* to the start of the wanted line */
-            const uint8_t *p = i < n ? memchr(c + i, '\n', (size_t)(n - i)) : NULL;
-            if (!p) return q;
-            i = p - c + 1;
-            line++;
-        }
-        if (line > want || (i >= n && want > 0 && (n == 0 || c[n - 1] == '\n'))) return q;
-        double *v = val + q * n_cols;
-        int64_t j = i;
-        if (j < n && c[j] == '%') {                 /* a '%' line is a comment */
-            const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
-            j = p ? p - c : n;
-        }
-        while (j < n) {
-            uint8_t ch = c[j], k = cls[ch];
-            if (k == 0) { j++; continue; }
-            if (k == 4) break;
-            if (k == 2) {                           /* ( ... ) closed on its line */
-                int64_t e = j + 1;
-                while (e < n && c[e] != ')' && c[e] != '(' && c[e] != '\n') e++;
-                j = (e < n && c[e] == ')') ? e + 1 : j + 1;
-                continue;
-            }
-            if (k == 3) {                           /* ';' to the end of the line */
-                const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
-                j = p ? p - c : n;
-                break;
-            }
-            int cc = colof[ch];
-            j++;
-            while (j < n && (c[j] == ' ' || c[j] == '\t' || c[j] == '\r')) j++;
-            int64_t s = j, d = -1, nd = 0;
-            uint64_t m = 0;
-            if (j < n && (c[j] == '-' || c[j] == '+')) j++;
-            for (; j < n; j++) {
-                unsigned dg = (unsigned)c[j] - '0';
-                if (dg < 10) { m = m * 10 + dg; nd++; continue; }
-                if (c[j] == '.' && d < 0) { d = j; continue; }
-                break;
-            }
-            if (nd == 0 || (j < n && is_num(c[j])) || v[cc] == v[cc]) return q;
-            int64_t flen = d >= 0 ? j - d - 1 : 0;
-            if (nd <= 15 && nd - flen <= 8 && flen <= 8) {     /* as number(), inline */
-                double x = (double)m / POW10[flen];
-                v[cc] = c[s] == '-' ? -x : x;
-            } else {
-                v[cc] = number(c, s, j, d);
-            }
-        }
+        if (!seek_line(c, n, lines[q], &i, &line)) return q;
+        int64_t j = line_words(c, n, i, cls, colof, val + q * n_cols, &bad);
+        if (bad) return q;
         i = j < n ? j + 1 : n;
         line++;
     }
@@ -458,4 +480,77 @@ int64_t mtc_overwrite_same(uint8_t *out, int64_t n_out, const uint8_t *src, int6
         }
     }
     return nr;
+}
+
+/* The check of `mtcomp compensate` in one pass, without arrays of the whole program: the
+ * words of each block's line (lines[i], as mtc_read_words), through the modal state as
+ * mtc_control_counts (same arguments), compared with the counts the rewrite emitted
+ * (want[i * n + k]) on the blocks with check[i].  Returns -1 if every checked block reads
+ * back as emitted, else the first block that does not, with *kind: 1 a word that cannot be
+ * read (or a line past the end), 2 other counts, 3 a count above 2**52. */
+int64_t mtc_check_words(const uint8_t *c, int64_t nbytes, const int64_t *lines, int64_t N,
+                        int64_t n, const int8_t *col, const uint8_t *inc, const uint8_t *inch,
+                        const uint8_t *lin, double inch_mm, const double *res,
+                        const int64_t *offc, const double *start, const uint8_t *known,
+                        const uint8_t *check, const int64_t *want, int64_t *kind)
+{
+    const double nan = __builtin_nan(""), big = 4503599627370496.0;
+    uint8_t cls[256];
+    int8_t colof[256];
+    double p[64], v[64];
+    if (n > 64) { *kind = 1; return 0; }
+    read_tables(col, cls, colof);
+    for (int64_t k = 0; k < n; k++) p[k] = start[k];
+    int64_t i = 0, line = 0;
+    int bad;
+    *kind = 0;
+    for (int64_t b = 0; b < N; b++) {
+        for (int64_t k = 0; k < n; k++) v[k] = nan;
+        if (!seek_line(c, nbytes, lines[b], &i, &line)) { *kind = 1; return b; }
+        int64_t j = line_words(c, nbytes, i, cls, colof, v, &bad);
+        if (bad) { *kind = 1; return b; }
+        i = j < nbytes ? j + 1 : nbytes;
+        line++;
+        int differs = 0;
+        for (int64_t k = 0; k < n; k++) {
+            double x = v[k];
+            if (x == x) {
+                if (inch[b] && lin[k]) x = x * inch_mm;
+                double cnt = round_even(x / res[k]);
+                if (cnt > big || cnt < -big) { *kind = 3; return b; }
+                p[k] = inc[b] ? p[k] + cnt : (offc ? cnt + (double)offc[b * n + k] : cnt);
+            }
+            if (check[b] && !(known[b * n + k] && p[k] == (double)want[b * n + k])) differs = 1;
+        }
+        if (differs) { *kind = 2; return b; }
+    }
+    return -1;
+}
+
+/* Whether the read-back of the check applies to a program (rewrite._read_back_applies): no
+ * G92 word (w_letter 6 with value 92), and on each block's line (block_line[b], 0-based,
+ * ascending) exactly as many words with a letter in axis[26] as the block has axis words
+ * (cw[b * cw_stride + k] >= 0 for k < n_ax): 1, else 0; -1 if the words are not in text
+ * order (w_line ascending). */
+int64_t mtc_read_back_applies(const int32_t *w_line, const int8_t *w_letter, const double *w_value,
+                              int64_t n_words, const uint8_t *axis, const int64_t *block_line,
+                              const int32_t *cw, int64_t cw_stride, int64_t n_ax, int64_t N)
+{
+    for (int64_t w = 0; w < n_words; w++) {
+        if (w > 0 && w_line[w] < w_line[w - 1]) return -1;     /* not in text order */
+        if (w_letter[w] == 6 && w_value[w] == 92.0) return 0;
+    }
+    int64_t w = 0;
+    for (int64_t b = 0; b < N; b++) {
+        int64_t L = block_line[b], count = 0, have = 0;
+        while (w < n_words && w_line[w] < L) w++;
+        while (w < n_words && w_line[w] == L) {
+            int8_t l = w_letter[w];
+            count += l >= 0 && l < 26 && axis[l];
+            w++;
+        }
+        for (int64_t k = 0; k < n_ax; k++) have += cw[b * cw_stride + k] >= 0;
+        if (count != have) return 0;
+    }
+    return 1;
 }

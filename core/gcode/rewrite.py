@@ -217,19 +217,7 @@ def read_back_counts(program: Program, info: dict, data, out_line) -> np.ndarray
     as G4 X) and the caller must parse the output instead; raises ValueError naming the line
     where a written word cannot be read."""
     p = program
-    N, n_ax = len(p), p.n_axes
-    if info.get("linearised") or np.asarray(p.cycle).any():
-        return None
-    wl, wlet, wv = np.asarray(p.w_line), np.asarray(p.w_letter), np.asarray(p.w_value)
-    G = ord("G") - 65
-    if ((wlet == G) & (wv == 92.0)).any():
-        return None
-    # every axis-letter word on a block's line must be one of its axis words
-    axl = np.zeros(26, bool)
-    axl[[ord(a) - 65 for a in p.axes]] = True
-    n_axis_words = np.bincount(wl[axl[wlet]], minlength=p.n_lines)
-    cw = np.asarray(p.col_word)[:, :n_ax]
-    if not np.array_equal(n_axis_words[np.asarray(p.line) - 1], np.count_nonzero(cw >= 0, axis=1)):
+    if not _read_back_applies(p, info):
         return None
     got = _ctok.read_words(data, np.asarray(out_line, np.int64) - 1, "".join(p.axes))
     if got is None:
@@ -242,6 +230,61 @@ def read_back_counts(program: Program, info: dict, data, out_line) -> np.ndarray
     off = np.asarray(p.offset)
     offc = np.rint(off / res).astype(np.int64) if off.any() else None
     return _control_counts(p, res, offc, words=words)[1:]
+
+
+def _read_back_applies(p: Program, info: dict) -> bool:
+    """Whether the written program's words can be read back block line by block line: no
+    linearised arcs or canned cycles (new lines), no G92 (its words are edited too), and every
+    axis-letter word on a block's line is one of its axis words (not G4 X, G10 X ...)."""
+    if info.get("linearised") or np.asarray(p.cycle).any():
+        return False
+    fast = _ctok.read_back_applies(p.w_line, p.w_letter, p.w_value, "".join(p.axes),
+                                   np.asarray(p.line) - 1, p.col_word)
+    if fast is not None:
+        return fast
+    wl, wlet, wv = np.asarray(p.w_line), np.asarray(p.w_letter), np.asarray(p.w_value)
+    G = ord("G") - 65
+    if ((wlet == G) & (wv == 92.0)).any():
+        return False
+    axl = np.zeros(26, bool)
+    axl[[ord(a) - 65 for a in p.axes]] = True
+    n_axis_words = np.bincount(wl[axl[wlet]], minlength=p.n_lines)
+    cw = np.asarray(p.col_word)[:, :p.n_axes]
+    return bool(np.array_equal(n_axis_words[np.asarray(p.line) - 1],
+                               np.count_nonzero(cw >= 0, axis=1)))
+
+
+def check_written(program: Program, info: dict, data, out_line) -> bool | None:
+    """Whether every compensated block (``info["compensated"]``) of the written program
+    `data` reads back (`read_back_counts`) as the counts the rewrite emitted
+    (``info["emitted"]``): True, or ValueError(message, block index) where it does not; None
+    where the reading does not apply (see `read_back_counts`).  One compiled pass with no
+    arrays of the whole program; the arrays of `read_back_counts` only to describe a
+    failure."""
+    p = program
+    if _ctok.load() is None or not _read_back_applies(p, info):
+        return None
+    res = np.asarray(info["emitted_resolution"], float)
+    off = np.asarray(p.offset)
+    offc = np.rint(off / res).astype(np.int64) if off.any() else None
+    start = np.where(p.start_known, np.rint(np.asarray(p.start) / res), np.nan)
+    want = np.asarray(info["emitted"])
+    got = _ctok.check_words(data, np.asarray(out_line, np.int64) - 1, "".join(p.axes), res,
+                            p.incremental, p.inch, [a in LINEAR for a in p.axes], INCH, start,
+                            p.axis_known, info["compensated"], want, offc)
+    if got is None:
+        return None
+    j, kind = got
+    if j < 0:
+        return True
+    if kind == 2:
+        counts = read_back_counts(p, info, data, out_line)
+        raise ValueError(f"its line {int(out_line[j])} reads back as counts "
+                         f"{counts[j].tolist()}, not {want[j].tolist()}", j)
+    raise ValueError(f"line {int(out_line[j])} of the written program: an axis word cannot be "
+                     "read back" if kind == 1 else
+                     f"line {int(out_line[j])} of the written program: a word of more than "
+                     "2**52 counts", j)
 
 
 def _unknown_axes(program: Program, k: int) -> str:
