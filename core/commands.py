@@ -127,6 +127,8 @@ def _travel_check(machine, prog, filename, P=None):
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
+        if len(P) and P[:, k].min() >= lo - tol and P[:, k].max() <= hi + tol:
+            continue                             # (two passes; NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((P[:, k] < lo - tol) | (P[:, k] > hi + tol)) & prog.axis_known[:, k])
         if len(bad):
@@ -450,6 +452,8 @@ def _travel_check_emitted(machine, emitted, kn, prog, filename):
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
+        if len(emitted) and emitted[:, k].min() >= lo - tol and emitted[:, k].max() <= hi + tol:
+            continue                             # (two passes; NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
         if len(bad):
