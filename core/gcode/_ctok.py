@@ -95,8 +95,6 @@ def load():
     lib.mtc_format.restype = None
     lib.mtc_overwrite.argtypes = [vp, vp, vp, vp, vp, i64]
     lib.mtc_overwrite.restype = None
-    lib.mtc_overwrite32.argtypes = [vp, i64, vp, i64, vp, vp, vp, i64]
-    lib.mtc_overwrite32.restype = i64
     lib.mtc_axis_edits.argtypes = [i64, i64, i64, vp, vp, vp, vp, i64, vp, ctypes.c_double,
                                    ctypes.c_double, vp, vp, vp, vp, vp, vp, vp]
     lib.mtc_axis_edits.restype = None
@@ -198,16 +196,6 @@ def overwrite(out: np.ndarray, src: np.ndarray, pos, src_off, length) -> bool:
     if lib is None or not out.flags.c_contiguous or not out.flags.writeable:
         return False
     src = np.ascontiguousarray(src, np.uint8)
-    if all(np.asarray(a).dtype == np.int32 for a in (pos, src_off, length)):
-        # the rewrite's arrays as they are (no 64-bit copies), ranges checked in C
-        pos, src_off, length = (np.ascontiguousarray(a) for a in (pos, src_off, length))
-        if not len(pos):
-            return True
-        bad = lib.mtc_overwrite32(out.ctypes.data, len(out), src.ctypes.data, len(src),
-                                  pos.ctypes.data, src_off.ctypes.data, length.ctypes.data, len(pos))
-        if bad >= 0:
-            raise ValueError("overwrite outside the buffers")
-        return True
     pos, src_off, length = (np.ascontiguousarray(a, np.int64) for a in (pos, src_off, length))
     if len(pos) and (pos.min() < 0 or int((pos + length).max()) > len(out)
                      or src_off.min() < 0 or int((src_off + length).max()) > len(src)):

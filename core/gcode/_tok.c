@@ -245,14 +245,6 @@ void mtc_overwrite(uint8_t *out, const uint8_t *src, const int64_t *pos, const i
     for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
 }
 
-/* Read-back of the written program for the check of `mtcomp compensate`: for each wanted line
- * (0-based, ascending), the value of its word for every letter with a column in col[26] (-1:
- * not read) into val[i * n_cols + column]; NaN where the line has no such word.  Comments are
- * skipped as mtc_blank_comments finds them, blanks between a letter and its number are read
- * as the parser reads them.  Deliberately independent of the rewrite's bookkeeping (no word
- * positions, no edit list): it finds the words again in the bytes.  Returns -1, or the index
- * (into lines) of the first wanted line where a read letter has no well-formed number or
- * appears twice, or that is beyond the text. */
 /* Byte classes and columns of the read-back (cls: 0 other, 1 a read letter, 2 '(', 3 ';',
  * 4 newline). */
 static void read_tables(const int8_t *col, uint8_t *cls, int8_t *colof)
@@ -325,6 +317,14 @@ static int seek_line(const uint8_t *c, int64_t n, int64_t want, int64_t *i, int6
     return *line == want && !(*i >= n && want > 0 && (n == 0 || c[n - 1] == '\n'));
 }
 
+/* Read-back of the written program for the check of `mtcomp compensate`: for each wanted line
+ * (0-based, ascending), the value of its word for every letter with a column in col[26] (-1:
+ * not read) into val[i * n_cols + column]; NaN where the line has no such word.  Comments are
+ * skipped as mtc_blank_comments finds them, blanks between a letter and its number are read
+ * as the parser reads them.  Deliberately independent of the rewrite's bookkeeping (no word
+ * positions, no edit list): it finds the words again in the bytes.  Returns -1, or the index
+ * (into lines) of the first wanted line where a read letter has no well-formed number or
+ * appears twice, or that is beyond the text. */
 int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_t n_lines,
                        const int8_t *col, int64_t n_cols, double *val)
 {
@@ -407,20 +407,6 @@ int64_t mtc_control_counts(int64_t N, int64_t n, const double *vals, const int32
     }
     for (int64_t k = 0; k < n; k++)
         if (first_bad[k] >= 0) return k * N + first_bad[k];
-    return -1;
-}
-
-/* mtc_overwrite with 32-bit positions, offsets and lengths (the rewrite's edit arrays as they
- * are: no 64-bit copies of millions of edits), each range checked against the buffers first.
- * Returns -1, or the index of the first edit outside them (nothing written then). */
-int64_t mtc_overwrite32(uint8_t *out, int64_t n_out, const uint8_t *src, int64_t n_src,
-                        const int32_t *pos, const int32_t *src_off, const int32_t *len, int64_t m)
-{
-    for (int64_t i = 0; i < m; i++)
-        if (pos[i] < 0 || src_off[i] < 0 || len[i] < 0 || (int64_t)pos[i] + len[i] > n_out
-            || (int64_t)src_off[i] + len[i] > n_src)
-            return i;
-    for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
     return -1;
 }
 
