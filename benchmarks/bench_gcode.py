@@ -220,10 +220,12 @@ def peak_rss_mb() -> float:
 def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: bool = True) -> dict:
     """`mtcomp compensate` as the CLI runs it (read, compensate_program with setting errors,
     verification through the forward model, atomic write; with the CLI's allocator settings,
-    mtcomp._heap, unless ``cli_heap`` is false).  ``old``: the path before the compiled
-    tokenizer and the verification from emitted values, rebuilt for the comparison: numpy
-    tokenizer, formatter and splice, the written program parsed a second time for the
-    verification, the allocator's defaults (the other improvements of this path are in both)."""
+    mtcomp._heap, unless ``cli_heap`` is false).  ``old``: the path without the compiled text
+    library (``MTCOMP_TOKENIZER=python``, as on a machine without a compiler), which is the path
+    before the compiled tokenizer and the check from emitted values: numpy tokenizer, control
+    counts, per-axis decisions, formatter and splice, the written program parsed a second time
+    for the check; with the allocator's defaults (the other improvements of this path are in
+    both)."""
     if old:
         os.environ["MTCOMP_TOKENIZER"] = "python"
     elif cli_heap:
@@ -241,9 +243,6 @@ def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: boo
     t0, c0 = time.perf_counter(), time.process_time()
     text = read_program(path_in)
     new_text, rep = compensate_program(text, m, err, filename=path_in, provenance=[("BENCH", "1")])
-    if old:
-        res = {a.name: a.resolution for a in m.axes}
-        gcode.parse(new_text, axes=m.axis_names, resolution=res)
     atomic_write(path_out, new_text)
     import resource
     ru = resource.getrusage(resource.RUSAGE_SELF)
@@ -262,16 +261,17 @@ def run_child(path_in: str, path_out: str, fn: str = "end_to_end", *extra) -> di
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def compensate_only(n_lines: int) -> int:
-    """`mtcomp compensate` end to end three ways, interleaved, twice: a quick run (under a minute
-    at 1 M lines on 2 idle cores) for the compensate rows of docs/benchmarks.md."""
+def compensate_only(n_lines: int, rounds: int = 2) -> int:
+    """`mtcomp compensate` end to end three ways, interleaved, ``rounds`` times: a quick run
+    (under a minute at 1 M lines and one round on 2 idle cores) for the compensate rows of
+    docs/benchmarks.md."""
     text = generate(n_lines)
     with tempfile.TemporaryDirectory() as tmp:
         pin, pout = os.path.join(tmp, "in.nc"), os.path.join(tmp, "out.nc")
         Path(pin).write_text(text, encoding="utf-8", newline="")
         del text
         outs = {}
-        for rnd in range(2):
+        for rnd in range(rounds):
             for name, extra in (("new", (False, True)), ("new, allocator defaults", (False, False)),
                                 ("old", (True, False))):
                 r = run_child(pin, pout, "compensate_e2e", *extra)
@@ -292,10 +292,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-report", action="store_true", help="do not write docs/benchmarks.md")
     ap.add_argument("--compensate-only", action="store_true",
                     help="only `mtcomp compensate` end to end (new path, new path with the allocator's "
-                         "defaults, old path; interleaved, twice), printed; docs not written")
+                         "defaults, old path; interleaved, --rounds times), printed; docs not written")
+    ap.add_argument("--rounds", type=int, default=2, help="rounds of --compensate-only (default 2)")
     args = ap.parse_args(argv)
     if args.compensate_only:
-        return compensate_only(args.lines)
+        return compensate_only(args.lines, args.rounds)
     from mtcomp.kinematics import retarget
     from mtcomp.machine import load_machine
     m = load_machine(MACHINE)
@@ -439,14 +440,14 @@ the run, so wall clock is inflated by other processes).
 | retarget kernel, setting + geometric tables ({ng:,} points with abs(B) >= 1 deg) | {c_kg:.2f} s ({w_kg:.2f} s) | {rate(ng, c_kg)} points/s |
 | rewrite with retarget, setting errors | {c_rs:.2f} s ({w_rs:.2f} s) | {rate(n, c_rs)} lines/s |
 | **end to end** (read, parse, retarget, rewrite, atomic write; child process) | {e2e['cpu']:.2f} s ({e2e['wall']:.2f} s) | **{e2e_rate:,.0f} lines/s** |
-| **`mtcomp compensate`** end to end (read, parse, travel check, retarget, rewrite, verification of every block through the forward model, atomic write; child process) | {comp['cpu']:.2f} s ({comp['wall']:.2f} s) | **{comp['lines'] / comp['cpu']:,.0f} lines/s** |
+| **`mtcomp compensate`** end to end (read, parse, travel check, retarget, rewrite, the written words read back and checked, verification of every block through the forward model, atomic write; child process) | {comp['cpu']:.2f} s ({comp['wall']:.2f} s) | **{comp['lines'] / comp['cpu']:,.0f} lines/s** |
 | `mtcomp compensate` new path, library allocator defaults (no `mtcomp._heap` settings; system time {comp_lib['sys']:.2f} s against {comp['sys']:.2f} s) | {comp_lib['cpu']:.2f} s ({comp_lib['wall']:.2f} s) | {comp_lib['lines'] / comp_lib['cpu']:,.0f} lines/s |
-| `mtcomp compensate`, old path in the same run (numpy tokenizer, formatter and splice, output parsed again for the verification, allocator defaults) | {comp_old['cpu']:.2f} s ({comp_old['wall']:.2f} s) | {comp_old['lines'] / comp_old['cpu']:,.0f} lines/s |
+| `mtcomp compensate`, old path in the same run (without the compiled text library, `MTCOMP_TOKENIZER=python`: numpy tokenizer, control counts, decisions, formatter and splice, output parsed again for the check, allocator defaults) | {comp_old['cpu']:.2f} s ({comp_old['wall']:.2f} s) | {comp_old['lines'] / comp_old['cpu']:,.0f} lines/s |
 | per-line Python reference, parse + rewrite ({nref:,} lines, translation) | {c_ref:.2f} s ({w_ref:.2f} s) | {rate(nref, c_ref)} lines/s |
 | mtcomp on the same {nref:,} lines | {c_ours_sub:.2f} s | {rate(nref, c_ours_sub)} lines/s |
 | `gcodeparser` 0.3 parse only ({nref:,} lines; trailing-point numbers such as `10.` rewritten `10.0`, which it cannot read) | {'' if gp is None else f'{nref / gp:.2f} s'} | {'not installed' if gp is None else f'{gp:,.0f} lines/s'} |
 
-Peak memory of `mtcomp compensate`: {comp['maxrss_mb']:.0f} MB resident (old path
+Peak memory of `mtcomp compensate`: {comp['maxrss_mb']:.0f} MB resident (MB = 2**20 bytes, VmHWM; old path
 {comp_old['maxrss_mb']:.0f} MB); both give the same program: {comp_same}; largest tool-edge error
 after compensation (forward model, from the emitted values) {comp['after_max_nm']:.3f} nm. CPU time
 is the process's over all its threads (the kernel runs its batches on both cores).
@@ -472,18 +473,19 @@ the run is scanned) is about a tenth of the parse; the
 rest is numpy over words and blocks (duplicate addresses, G-code categories, modal fills, the
 scatter of the words into block columns, absolute positions), and the first large allocations
 of a process pay page faults (a first parse costs up to twice the best one). `mtcomp
-compensate` adds to parse + rewrite the travel checks and three forward evaluations per block
-for its report (nominal, with errors before and after, in chunks of 200,000 blocks, from the
-emitted values); the old path parsed the written program a second time instead. The number
-formatting of the rewrite (`mtc_format`), the in-place replacements of its splice
-(`mtc_overwrite`) and the splice's gather are C too (`core/gcode/_tok.c`; numpy with
-`MTCOMP_TOKENIZER=python`, same bytes). With the library allocator's defaults a third to a half
+compensate` adds to parse + rewrite the travel checks, the read-back of the written words and
+three forward evaluations per block for its report (nominal, with errors before and after, in
+chunks of 200,000 blocks, from the positions read back); the old path parsed the written
+program a second time instead. The control counts (`mtc_control_counts`), the per-axis
+decisions (`mtc_axis_edits`), the number formatting of the rewrite (`mtc_format`), the in-place
+replacements of its splice (`mtc_overwrite_same`), the splice's gather and the read-back
+(`mtc_check_words`) are C too (`core/gcode/_tok.c`; numpy with `MTCOMP_TOKENIZER=python`,
+same bytes). With the library allocator's defaults a third to a half
 of the CPU time of `mtcomp compensate` is system time (page faults, and huge-page compaction
 on a loaded machine, on fresh large arrays); the CLI reuses freed arrays from the heap
 (`mtcomp._heap`), which the bench's compensate runs do as the CLI. The 1 M lines/s target
-needs the block building of the parse, the subprogram scan (`gcode.flow`, a regular
-expression over the whole text) and the rewrite's decisions in C (or the whole path in chunks
-that stay in the cache): not done.
+needs the block building of the parse in C (or the whole path in chunks that stay in the
+cache): not done.
 The compensation kernel belongs to
 `mtcomp.kinematics`; the geometric-table path is its iterative solver. cProfile of parse +
 rewrite with retarget, top functions by own time:

@@ -127,6 +127,8 @@ def _travel_check(machine, prog, filename, P=None):
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
+        if len(P) and P[:, k].min() >= lo - tol and P[:, k].max() <= hi + tol:
+            continue                             # (two passes; NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((P[:, k] < lo - tol) | (P[:, k] > hi + tol)) & prog.axis_known[:, k])
         if len(bad):
@@ -178,7 +180,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     from . import gcode
     from .gcode import flow
     from .gcode import tcp as gtcp
-    from .gcode.provenance import compensated_line, header_lines, insert_header
+    from .gcode.provenance import compensated_line, header_lines, insert_header_bytes
     from .gcode.rotation import to_reference
 
     tol = _check_chordal_tol(machine, chordal_tol)
@@ -216,74 +218,95 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         lines = calls[-1]
         out = np.empty_like(q)
         # rows of G43.4 blocks are tool-tip words: compensated through the TCP transform
-        blk = np.clip(np.searchsorted(prog.line, lines), 0, max(len(prog) - 1, 0))
-        on = (tcp[blk] & (prog.line[blk] == lines)) if tcp.any() else np.zeros(len(q), bool)
+        if tcp.any():
+            blk = np.clip(np.searchsorted(prog.line, lines), 0, max(len(prog) - 1, 0))
+            on = tcp[blk] & (prog.line[blk] == lines)
+            sels = (np.flatnonzero(~on), np.flatnonzero(on))
+        else:                                   # (slices: no index arrays, no gathered copies)
+            on, sels = None, (range(len(q)),)
         done = 0
-        for sel in (np.flatnonzero(~on), np.flatnonzero(on)):
+        for sel in sels:
             for s in range(0, len(sel), CHUNK):
                 rows = sel[s:s + CHUNK]
+                if isinstance(rows, range):
+                    rows = slice(rows.start, rows.stop)
                 try:
-                    if on[rows[0]]:
+                    if on is not None and on[rows[0]]:
                         out[rows] = gtcp.compensate_words(machine, q[rows],
                                                           prog.tool_length[blk[rows]], errors)
                     else:
                         out[rows] = retarget(machine, q[rows], errors)
                 except (LimitError, ConvergenceError, TableRangeError) as exc:
-                    i = int(rows[getattr(exc, "index", 0)])
+                    i = int(np.arange(len(q))[rows][getattr(exc, "index", 0)])
                     line = int(lines[i]) if 0 <= i < len(lines) else None
                     is_end = line is not None and i < int(np.count_nonzero(prog.known))
                     where = "" if is_end else " an interior point of the arc ending here"
                     raise InputError(f"cannot compensate{where}: {exc}{hint}", filename, line) from None
-                done += len(rows)
+                done += rows.stop - rows.start if isinstance(rows, slice) else len(rows)
                 if progress:
                     progress(done, len(q))
         return out
 
     info = {}
-    new_text, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
-                                                  unknown=unknown, row_lines=calls, info=info)
+    # the output as bytes: the header goes in place and the check reads these bytes, with one
+    # decoding to text at the end (a 1 M-line program is 57 MB: each copy counts at the peak)
+    raw, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
+                                             unknown=unknown, row_lines=calls, info=info,
+                                             as_bytes=True)
+    raw = raw if isinstance(raw, bytearray) else bytearray(raw)
     kn = np.asarray(info["compensated"])
     cut = _cutter_check(machine, prog, errors, kn, cutter_radius, cutter_offsets, tolerance,
                         filename)
     added = 0
     if provenance is not None:
-        new_text, at, added = insert_header(new_text, header_lines(provenance + _cutter_items(cut)))
+        at, added = insert_header_bytes(raw, header_lines(provenance + _cutter_items(cut)))
         out_line = np.where(out_line > at, out_line + added, out_line)
     # Check the result as the machine will run it: the emitted positions (rounded numbers, the
     # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
     kk = np.flatnonzero(kn)
     P = to_reference(prog, prog.position)            # G68: the positions the axes take
-    emitted = to_reference(prog, emitted_positions(prog, info, new_text, filename=filename,
+    emitted = to_reference(prog, emitted_positions(prog, info, raw, filename=filename,
                                                    start=start, res=res, tool_lengths=tool_lengths,
                                                    work_offsets=work_offsets, arc_tol=arc_tol,
                                                    out_line=out_line))
+    info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
-    verified = None
+    verified = new_text = None
     if stock is not None or part is not None:
+        new_text = raw.decode("utf-8", "surrogateescape")
+        del raw
         verified = verify_output(machine, new_text, errors, filename=filename, stock=stock,
                                  part=part, clearance=clearance, tolerance=tolerance,
                                  warn_only=warn_only, start=start, resolution=res,
                                  tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
     before = np.empty(len(kk))
     after = np.empty(len(kk))
+    norm = lambda d: np.sqrt(np.einsum("ij,ij->i", d, d))  # noqa: E731
+    every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
     for s in range(0, len(kk), CHUNK):
         rows = kk[s:s + CHUNK]
         on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
-        r = rows[~on]
-        if len(r):
+        r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
+        if len(rows[~on]):
             target = forward_position(machine, P[r])     # (positions only: no orientations built)
-            before[s:s + CHUNK][~on] = np.linalg.norm(forward_position(machine, P[r], errors) - target, axis=1)
-            after[s:s + CHUNK][~on] = np.linalg.norm(forward_position(machine, emitted[r], errors) - target,
-                                                     axis=1)
+            before[s:s + CHUNK][~on] = norm(forward_position(machine, P[r], errors) - target)
+            after[s:s + CHUNK][~on] = norm(forward_position(machine, emitted[r], errors) - target)
         if on.any():
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
             before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
+    n_lines, idle_axes, notes = prog.n_lines, prog.idle_axes, prog.notes
+    if new_text is None:
+        # the text last, with the program's arrays and bytes freed: its 57 MB (1 M lines) then
+        # reuse their memory instead of raising the peak
+        del P, emitted, prog, calls, tcp
+        new_text = raw.decode("utf-8", "surrogateescape")
+        del raw
     rms = lambda e: float(np.sqrt(np.mean(e**2))) if e.size else 0.0  # noqa: E731
-    report = {"blocks": n_blocks, "lines": prog.n_lines, "deferred": int(n_blocks - kn.sum()),
-              "idle_axes": prog.idle_axes, "chordal_tol": tol, "header_lines": added,
-              "notes": prog.notes, "linearised": info["linearised"],
+    report = {"blocks": n_blocks, "lines": n_lines, "deferred": int(n_blocks - kn.sum()),
+              "idle_axes": idle_axes, "chordal_tol": tol, "header_lines": added,
+              "notes": notes, "linearised": info["linearised"],
               "cycles_kept": info["cycles_kept"], "cycles_expanded": info["cycles_expanded"],
               "before_max": float(before.max(initial=0)), "before_rms": rms(before),
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
@@ -429,6 +452,8 @@ def _travel_check_emitted(machine, emitted, kn, prog, filename):
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
+        if len(emitted) and emitted[:, k].min() >= lo - tol and emitted[:, k].max() <= hi + tol:
+            continue                             # (two passes; NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
         if len(bad):
@@ -500,15 +525,37 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
 
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
                       tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
-    """End position of every motion block of the rewritten program (N, n_axes; mm, deg), as
-    the control reads it back.  Taken from the values `rewrite` emitted (counts times the
-    resolution: the same numbers the written words hold, to float rounding); programs with
-    canned cycles, whose holes may be written out as new lines, and with G16 polar blocks, whose
-    radius and angle words put the point up to a count from the emitted one, are read back."""
+    """End position of every motion block of the rewritten program `new_text` (str, or its
+    bytes; N, n_axes; mm, deg), as the control reads it back.  The axis words are found again
+    in the written bytes on each block's output line and run through the input's modal state
+    (`gcode.rewrite.check_written`, one compiled pass); they must give the counts `rewrite`
+    meant to emit
+    (``info["emitted"]``), else the output is refused (InputError: a wrong byte in a written
+    number would otherwise go to the machine unseen).  Programs where that reading does not
+    apply (canned cycles, whose holes may be written out as new lines; linearised arcs; G92;
+    G16 polar blocks, whose radius and angle words put the point up to a count from the
+    emitted one; no compiled reader) are parsed back whole instead."""
+    from .gcode.rewrite import check_written
+    if not isinstance(new_text, str):                 # the written bytes (compensate_program)
+        data, new_text = new_text, None
+    else:
+        data = None
     polar = prog.polar is not None and bool(np.asarray(prog.polar).any())
-    if not np.asarray(prog.cycle).any() and not polar:
-        return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
+    if out_line is not None and not polar:
+        try:
+            if data is None:
+                data = new_text.encode("utf-8", "surrogateescape")
+            ok = check_written(prog, info, data, out_line)
+        except ValueError as exc:
+            j = exc.args[1] if len(exc.args) > 1 else None
+            raise InputError(f"internal error, the written program is not what was computed: "
+                             f"{exc.args[0]}; refusing to write it", filename,
+                             None if j is None else int(prog.line[j])) from None
+        if ok:
+            return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
     from . import gcode
+    if new_text is None:
+        new_text = bytes(data).decode("utf-8", "surrogateescape")
     after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
                              tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
                              tcp=True, rotation=True,

@@ -247,6 +247,74 @@ def test_verification_from_emitted_values_five_axes_arcs_and_increments():
     assert np.abs(fast - back).max() < 1e-12 and len(fast) == 8
 
 
+_CORRUPT_PROG = ("G90 G0 X0 Y0 Z10. B10. C0\nG1 Z0.5 F100\nX1. Y2. B12. C30.\nG3 X5. Y2. I2. J0\n"
+                 "G91 G1 X0.01 Y-0.002\nX0.001 Z-0.0005 C1.\nG90 G1 X-3. Y4. Z1. B-10. C-90.\nM30\n")
+
+
+def _corrupting(fmt, at):
+    """A number formatter that writes one digit wrong: the last digit of the ``at``-th number
+    of its first call."""
+    calls = []
+
+    def wrong(counts, decimals):
+        got = fmt(counts, decimals)
+        if got is None or calls:
+            return got
+        calls.append(1)
+        buf, off, ln = got
+        buf = buf.copy()
+        k = int(off[at] + ln[at] - 1)
+        buf[k] = ord("1") if buf[k] != ord("1") else ord("2")
+        return buf, off, ln
+    return wrong
+
+
+def test_a_corrupted_written_number_is_caught_and_nothing_returned(monkeypatch):
+    # the check of compensate reads the written words back from the output bytes: a wrong
+    # digit from the formatter (or the splice) must not pass as the emitted value
+    from mtcomp.gcode import _ctok
+    if _ctok.load() is None:
+        pytest.skip("no compiled tokenizer")
+    m = load_machine("robonano-a0ib")
+    e = ErrorSet(ToolSetting((0.012, -0.004, 0.020)), WorkpieceSetting((0.01, 0.005, -0.003), (0.0, 0.0, 0.0)))
+    good, rep = compensate_program(_CORRUPT_PROG, m, e)
+    assert rep["after_max"] < 1e-6
+    for at in (0, 2):
+        monkeypatch.setattr(_ctok, "format_counts", _corrupting(_ctok.format_counts, at))
+        with pytest.raises(InputError, match="not what was computed"):
+            compensate_program(_CORRUPT_PROG, m, e)
+        monkeypatch.undo()
+    # a word the splice inserts on the wrong line is caught as well: the Y word inserted into
+    # "X0.001 Z-0.0005 C1." (line 6) goes to the end of line 5 instead
+    real = _ctok.splice
+
+    def misplaced(orig, src, pos, stop, src_off, src_len, total):
+        pos, stop, src_off, src_len = (np.array(a) for a in (pos, stop, src_off, src_len))
+        nl = np.flatnonzero(np.asarray(orig) == 10)
+        ins = (pos == stop) & (pos > nl[4]) & (pos < nl[5])
+        assert ins.any()
+        pos[ins] = stop[ins] = nl[4]
+        o = np.argsort(pos, kind="stable")
+        return real(orig, src, pos[o], stop[o], src_off[o], src_len[o], total)
+    monkeypatch.setattr(_ctok, "splice", misplaced)
+    with pytest.raises(InputError, match="not what was computed"):
+        compensate_program(_CORRUPT_PROG, m, e)
+
+
+def test_a_corrupted_written_number_shows_in_the_check_without_the_compiled_reader(monkeypatch):
+    # without the compiled tokenizer the output is parsed back whole: the forward model from
+    # what was written shows the wrong digit as a tool-edge error after compensation
+    monkeypatch.setenv("MTCOMP_TOKENIZER", "python")
+    rw = __import__("importlib").import_module("mtcomp.gcode.rewrite")
+    m = load_machine("robonano-a0ib")
+    e = ErrorSet(ToolSetting((0.012, -0.004, 0.020)), WorkpieceSetting((0.01, 0.005, -0.003), (0.0, 0.0, 0.0)))
+    _, rep = compensate_program(_CORRUPT_PROG, m, e)
+    assert rep["after_max"] < 1e-6
+    monkeypatch.setattr(rw, "format_counts", _corrupting(rw.format_counts, 0))
+    _, rep = compensate_program(_CORRUPT_PROG, m, e)
+    assert rep["after_max"] > 0.5e-6                 # a last digit of X Y Z: at least 1 nm ... 9 nm
+
+
 def test_provenance_marker_found_at_the_top_in_any_case_and_further_down():
     from mtcomp.gcode.provenance import compensated_line
     body = "G1 X1. Y2.\n" * 20000                         # over 64 kB
@@ -393,3 +461,19 @@ def test_latin1_comments_are_kept_byte_for_byte(tmp_path):
         gcode.read_program_8bit(src)
     with pytest.raises(InputError, match=r"not UTF-8"):
         gcode.read_program(tmp_path / "p.nc")      # the strict reader is unchanged
+
+
+@pytest.mark.parametrize("text", [
+    "", "G1 X1\n", "%\nO1234 (PART)\nG1 X1.\nM30\n%\n", "%\r\nO12\r\nG1 X1\r\n", ":123\nG1 X1\n",
+    "; only semicolons\nG1 X1 ; c\n", "\n\n%\nO7", "O7", "%", "(caf\u00e9 \udce9)\nG1 X1\n",
+    "\n" * 70000 + "%\nO1\nG1 X1\n", "(" + "x" * 70000 + ")\nG1 X1\n",
+])
+def test_header_inserted_into_bytes_as_into_text(text):
+    # compensate inserts its header into the output bytes in place (no copy of a large text):
+    # the same bytes as the text version
+    from mtcomp.gcode.provenance import header_lines, insert_header_bytes
+    lines = header_lines([("VERSION", "x"), ("SOURCE", "a (b).nc")])
+    want, at, added = insert_header(text, lines)
+    buf = bytearray(text.encode("utf-8", "surrogateescape"))
+    assert insert_header_bytes(buf, lines) == (at, added)
+    assert bytes(buf) == want.encode("utf-8", "surrogateescape")

@@ -181,12 +181,16 @@ def test_splice_same_bytes(orig, raw):
         src += t
     args = (o, np.array(pos), np.array(stop), np.array(sub), np.frombuffer(src, np.uint8),
             np.array(off), np.array(ln))
+    # the rewrite's edit arrays are 32-bit: the compiled in-place step (mtc_overwrite_same)
+    args32 = args[:4] + (args[4],) + tuple(np.asarray(a, np.int32) for a in args[5:])
+    args32 = (args[0],) + tuple(np.asarray(a, np.int32) for a in args[1:3]) + args32[3:]
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("MTCOMP_TOKENIZER", raising=False)
         a = splice(*args)
+        a32 = splice(*args32)
         mp.setenv("MTCOMP_TOKENIZER", "python")
         b = splice(*args)
-    assert a == b
+    assert a == b and a32 == b
 
 
 @seed(19)
@@ -205,6 +209,132 @@ def test_compiled_number_formatter_same_texts(counts, decimals):
     for v, t in zip(counts, got):
         assert t.count(b".") == 1 and len(t) - t.index(b".") - 1 == decimals
         assert (t[:1] == b"-") == (v < 0) and int(t.replace(b".", b"")) == v
+
+
+def _control_counts_both(prog, res, offc=None, words=None):
+    rw = __import__("importlib").import_module("mtcomp.gcode.rewrite")
+    out = []
+    for python in (False, True):
+        with pytest.MonkeyPatch.context() as mp:
+            if python:
+                mp.setenv("MTCOMP_TOKENIZER", "python")
+            else:
+                mp.delenv("MTCOMP_TOKENIZER", raising=False)
+            try:
+                out.append(rw._control_counts(prog, res, offc, words=words))
+            except InputError as exc:
+                out.append(str(exc))
+    return out
+
+
+@pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
+def test_control_counts_same_bits_compiled_and_numpy(i):
+    """The control's position in counts (G90/G91, inch, work offsets, unknown start): the C
+    pass and the numpy reference give the same float bits, from the program's words and from
+    words given as values."""
+    try:
+        prog = gcode.parse(CORPUS[i], axes=AXES, filename="p.nc", tcp=True, rotation=True)
+    except InputError:
+        pytest.skip("not a program for these axes")
+    rng = np.random.default_rng(i)
+    res = np.array([1e-4, 1e-6, 5e-6, 1e-5, 1e-3])
+    offc = rng.integers(-10**6, 10**6, (len(prog), len(AXES)))
+    cw = np.asarray(prog.col_word)[:, :len(AXES)]
+    words = np.where(cw >= 0, np.asarray(prog.w_value)[np.maximum(cw, 0)], np.nan)
+    for o in (None, offc):
+        a, b = _control_counts_both(prog, res, o)
+        assert np.array_equal(a.view(np.int64), b.view(np.int64))
+        c, d = _control_counts_both(prog, res, o, words=words)
+        assert np.array_equal(c.view(np.int64), d.view(np.int64))
+        if prog.polar is None or not np.asarray(prog.polar).any():
+            # (G16 blocks: the program's X Y words are a radius and an angle, the values given
+            # here Cartesian, so the two differ there by design)
+            assert np.array_equal(a.view(np.int64), c.view(np.int64))
+    # a word of more than 2**52 counts: the same message
+    big = words.copy()
+    big[np.isfinite(big)] *= 1e12
+    a, b = _control_counts_both(prog, np.full(len(AXES), 1e-9), None, words=big)
+    assert isinstance(a, str) and a == b
+
+
+@pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
+def test_read_back_words_are_the_parsed_words(i):
+    """The read-back of the check (mtc_read_words) finds on every block's line the axis words
+    the parser found there, to the bit."""
+    try:
+        prog = gcode.parse(CORPUS[i], axes=AXES, filename="p.nc", tcp=True, rotation=True)
+    except InputError:
+        pytest.skip("not a program for these axes")
+    cw = np.asarray(prog.col_word)[:, :len(AXES)]
+    words = np.where(cw >= 0, np.asarray(prog.w_value)[np.maximum(cw, 0)], np.nan)
+    got, bad = _ctok.read_words(prog.data, np.asarray(prog.line) - 1, "".join(AXES))
+    assert bad == -1 and len(prog) > 0
+    # lines where an axis letter is no move (G4 X, G10 X, G92 X) are left to the full parse
+    lines = np.asarray(prog.line) - 1
+    wl, wlet = np.asarray(prog.w_line), np.asarray(prog.w_letter)
+    axl = np.isin(wlet, [ord(a) - 65 for a in AXES])
+    simple = np.bincount(wl[axl], minlength=prog.n_lines)[lines] == (cw >= 0).sum(axis=1)
+    assert simple.mean() > 0.5
+    a, b = got[simple], words[simple]
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    assert np.array_equal(np.nan_to_num(a).view(np.int64), np.nan_to_num(b).view(np.int64))
+
+
+@pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
+def test_read_back_applies_same_compiled_and_numpy(i):
+    """Whether compensate's read-back applies (no G92; no axis letter that is no move on a
+    block's line): the compiled pass and the numpy reference agree, and a G92 or a G4 X line
+    made into a block's line turns it off."""
+    rw = __import__("importlib").import_module("mtcomp.gcode.rewrite")
+    texts = [CORPUS[i]]
+    lines = CORPUS[i].split("\n")
+    k = next((j for j, ln in enumerate(lines) if re.match(r"\s*[Gg]0*1\b.*[Xx]", ln)), None)
+    if k is not None:
+        texts += ["\n".join(lines[:k + 1] + ["G92 X0"] + lines[k + 1:]),
+                  "\n".join(lines[:k] + [lines[k] + " G4 P1"] + lines[k + 1:])]
+    for n, text in enumerate(texts):
+        try:
+            prog = gcode.parse(text, axes=AXES, filename="p.nc", tcp=True, rotation=True)
+        except InputError:
+            continue
+        got = []
+        for python in (False, True):
+            with pytest.MonkeyPatch.context() as mp:
+                if python:
+                    mp.setenv("MTCOMP_TOKENIZER", "python")
+                got.append(rw._read_back_applies(prog, {"linearised": 0}))
+        assert got[0] == got[1]
+        if n == 1:
+            assert got[0] is False                  # G92 in the program
+
+
+@seed(20)
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.text(alphabet="XYZxyGg0123456789.-+ ()%;\t", max_size=30), min_size=1, max_size=12))
+def test_read_back_words_against_a_python_reader(lines):
+    """mtc_read_words on arbitrary lines against a small reader written here: comments skipped,
+    blanks between letter and number read, a bad or repeated word reported."""
+    text = "\n".join(lines) + "\n"
+    want = np.arange(len(lines))
+    got, bad = _ctok.read_words(text.encode(), want, "XYZ")
+    ref_bad, ref = -1, np.full((len(lines), 3), np.nan)
+    for q, ln in enumerate(lines):
+        code = "" if ln.startswith("%") else re.sub(r"\([^()]*\)", lambda m: " " * len(m.group()), ln).split(";")[0]
+        ok = True
+        for m in re.finditer(r"([XYZxyz])[ \t\r]*", code):
+            num = re.match(r"[-+]?(\d*)(\.?)(\d*)", code[m.end():])
+            rest = code[m.end() + num.end():m.end() + num.end() + 1]
+            k = "XYZ".index(m.group(1).upper())
+            if not (num.group(1) or num.group(3)) or (rest and rest in "0123456789.+-") or not np.isnan(ref[q, k]):
+                ok = False
+                break
+            ref[q, k] = float(num.group())
+        if not ok:
+            ref_bad = q
+            break
+    assert bad == ref_bad
+    n = len(lines) if bad < 0 else bad
+    np.testing.assert_array_equal(got[:n], ref[:n])
 
 
 def _rewrite_both(text, machine_axes=AXES):

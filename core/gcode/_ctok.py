@@ -95,6 +95,21 @@ def load():
     lib.mtc_format.restype = None
     lib.mtc_overwrite.argtypes = [vp, vp, vp, vp, vp, i64]
     lib.mtc_overwrite.restype = None
+    lib.mtc_axis_edits.argtypes = [i64, i64, i64, vp, vp, vp, vp, i64, vp, ctypes.c_double,
+                                   ctypes.c_double, vp, vp, vp, vp, vp, vp, vp]
+    lib.mtc_axis_edits.restype = None
+    lib.mtc_overwrite_same.argtypes = [vp, i64, vp, i64, vp, vp, vp, vp, i64, vp]
+    lib.mtc_overwrite_same.restype = i64
+    lib.mtc_check_words.argtypes = [vp, i64, vp, i64, i64, vp, vp, vp, vp, ctypes.c_double,
+                                    vp, vp, vp, vp, vp, vp, vp]
+    lib.mtc_check_words.restype = i64
+    lib.mtc_read_back_applies.argtypes = [vp, vp, vp, i64, vp, vp, vp, i64, i64, i64]
+    lib.mtc_read_back_applies.restype = i64
+    lib.mtc_read_words.argtypes = [vp, i64, vp, i64, vp, i64, vp]
+    lib.mtc_read_words.restype = i64
+    lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
+                                       vp, vp, vp, vp, vp]
+    lib.mtc_control_counts.restype = i64
     _lib = lib
     return lib
 
@@ -188,3 +203,172 @@ def overwrite(out: np.ndarray, src: np.ndarray, pos, src_off, length) -> bool:
     lib.mtc_overwrite(out.ctypes.data, src.ctypes.data, pos.ctypes.data, src_off.ctypes.data,
                       length.ctypes.data, len(pos))
     return True
+
+
+def read_words(data, lines, letters: str):
+    """The written words of ``lines`` (0-based, ascending int64) of the program bytes `data`:
+    (len(lines), len(letters)) float64, the value of the word of each letter (upper case; read
+    in either case), NaN where the line has none; and the index into ``lines`` of the first line
+    that cannot be read (a letter without a well-formed number, twice, or a line past the end),
+    -1 if none.  None without the library."""
+    lib = load()
+    if lib is None:
+        return None
+    b = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data
+    b = np.ascontiguousarray(b, np.uint8)
+    lines = np.ascontiguousarray(lines, np.int64)
+    if len(lines) > 1 and (np.diff(lines) <= 0).any():
+        raise ValueError("lines must be ascending")
+    col = np.full(26, -1, np.int8)
+    for k, a in enumerate(letters):
+        col[ord(a.upper()) - 65] = k
+    val = np.empty((len(lines), len(letters)), np.float64)
+    ptr = b.ctypes.data if len(b) else np.zeros(1, np.uint8).ctypes.data
+    bad = lib.mtc_read_words(ptr, len(b), lines.ctypes.data, len(lines), col.ctypes.data,
+                             len(letters), val.ctypes.data)
+    return val, int(bad)
+
+
+def control_counts(N: int, res, inc, inch, lin, inch_mm: float, start, known, *, words=None,
+                   col_word=None, w_value=None, offc=None):
+    """Same as ``rewrite._control_counts`` (the (N + 1, n) counts, float) from ``words`` (N, n)
+    values (NaN: no word) or from the program's ``col_word`` / ``w_value``; ``offc`` (N, n)
+    int64 or None; ``lin`` per axis whether it is linear (inch conversion).  Returns (counts,
+    -1) or (None, k * N + i) for the first count above 2**52 (axis k, block i); None without the
+    library."""
+    lib = load()
+    if lib is None:
+        return None
+    res = np.ascontiguousarray(res, np.float64)
+    n = len(res)
+    if n > 64:                                   # the C pass keeps at most 64 axes' state
+        return None
+    u8 = lambda a: np.ascontiguousarray(a, np.bool_).view(np.uint8)  # noqa: E731
+    inc, inch, lin, known = u8(inc), u8(inch), u8(lin), u8(known)
+    start = np.ascontiguousarray(start, np.float64)
+    if words is not None:
+        words = np.ascontiguousarray(words, np.float64)
+        vals, cw, stride, wv = words.ctypes.data, None, 0, None
+    else:
+        col_word = np.ascontiguousarray(col_word, np.int32)
+        w_value = np.ascontiguousarray(w_value, np.float64)
+        vals, cw, stride = None, col_word.ctypes.data, col_word.shape[1]
+        wv = w_value.ctypes.data if len(w_value) else None
+    if offc is not None:
+        offc = np.ascontiguousarray(offc, np.int64)
+    out = np.empty((N + 1, n), np.float64)
+    bad = lib.mtc_control_counts(N, n, vals, cw, stride, wv, inc.ctypes.data, inch.ctypes.data,
+                                 lin.ctypes.data, float(inch_mm), res.ctypes.data,
+                                 None if offc is None else offc.ctypes.data, start.ctypes.data,
+                                 known.ctypes.data, out.ctypes.data)
+    return (None, int(bad)) if bad >= 0 else (out, -1)
+
+
+def axis_edits(C, k: int, inc, offc, col_word, w_value, scale: float, res: float, edit, no_z):
+    """The rewrite's decisions for axis column ``k`` (see ``mtc_axis_edits``): (target counts
+    (N,) int64, blocks whose word is replaced, blocks that get a new word), or None without the
+    library.  C: (N + 1, n) int64 counts; offc (N, n) int64 or None; no_z (N,) bool or None."""
+    lib = load()
+    if lib is None:
+        return None
+    C = np.ascontiguousarray(C, np.int64)
+    N, n = C.shape[0] - 1, C.shape[1]
+    u8 = lambda a: np.ascontiguousarray(a, np.bool_).view(np.uint8)  # noqa: E731
+    inc, edit = u8(inc), u8(edit)
+    no_z = None if no_z is None else u8(no_z)
+    cw = np.ascontiguousarray(col_word, np.int32)
+    wv = np.ascontiguousarray(w_value, np.float64)
+    if offc is not None:
+        offc = np.ascontiguousarray(offc, np.int64)
+    target = np.empty(N, np.int64)
+    rep, ins = np.empty(N, np.int64), np.empty(N, np.int64)
+    nr, ni = ctypes.c_int64(), ctypes.c_int64()
+    lib.mtc_axis_edits(N, n, int(k), C.ctypes.data, inc.ctypes.data,
+                       None if offc is None else offc.ctypes.data, cw.ctypes.data, cw.shape[1],
+                       wv.ctypes.data if len(wv) else None, float(scale), float(res),
+                       edit.ctypes.data, None if no_z is None else no_z.ctypes.data,
+                       target.ctypes.data, rep.ctypes.data, ins.ctypes.data, ctypes.byref(nr),
+                       ctypes.byref(ni))
+    return target, rep[:nr.value], ins[:ni.value]
+
+
+def overwrite_same(out: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len):
+    """The in-place step of ``textops.splice``: edits whose text has the length of the range it
+    replaces are written into `out` (writable C-contiguous uint8); returns the indices (int64)
+    of the other edits that do something.  None without the library or unless the four edit
+    arrays are int32 (nothing done)."""
+    lib = load()
+    arrs = [np.asarray(a) for a in (pos, stop, src_off, src_len)]
+    if (lib is None or not out.flags.c_contiguous or not out.flags.writeable
+            or any(a.dtype != np.int32 for a in arrs)):
+        return None
+    arrs = [np.ascontiguousarray(a) for a in arrs]
+    src = np.ascontiguousarray(src, np.uint8)
+    m = len(arrs[0])
+    rest = np.empty(m, np.int64)
+    if not m:
+        return rest
+    dummy = np.zeros(1, np.uint8)
+    k = lib.mtc_overwrite_same(out.ctypes.data if len(out) else dummy.ctypes.data, len(out),
+                               src.ctypes.data if len(src) else dummy.ctypes.data, len(src),
+                               *(a.ctypes.data for a in arrs), m, rest.ctypes.data)
+    if k < 0:
+        raise ValueError("overwrite outside the buffers")
+    return rest[:k]
+
+
+def check_words(data, lines, letters: str, res, inc, inch, lin, inch_mm: float, start, known,
+                check, want, offc=None):
+    """``read_words`` of the block ``lines`` run through ``control_counts`` (same arguments)
+    and compared with ``want`` ((N, n) int64 counts) on the blocks with ``check``, in one
+    compiled pass: (-1, 0) if every checked block reads back as ``want``, else (block, kind:
+    1 unreadable word or line, 2 other counts, 3 a count above 2**52).  None without the
+    library."""
+    lib = load()
+    if lib is None or len(letters) > 64:
+        return None
+    b = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data
+    b = np.ascontiguousarray(b, np.uint8)
+    lines = np.ascontiguousarray(lines, np.int64)
+    col = np.full(26, -1, np.int8)
+    for k, a in enumerate(letters):
+        col[ord(a.upper()) - 65] = k
+    u8 = lambda a: np.ascontiguousarray(a, np.bool_).view(np.uint8)  # noqa: E731
+    inc, inch, lin, known, check = u8(inc), u8(inch), u8(lin), u8(known), u8(check)
+    res = np.ascontiguousarray(res, np.float64)
+    start = np.ascontiguousarray(start, np.float64)
+    want = np.ascontiguousarray(want, np.int64)
+    if offc is not None:
+        offc = np.ascontiguousarray(offc, np.int64)
+    kind = ctypes.c_int64()
+    ptr = b.ctypes.data if len(b) else np.zeros(1, np.uint8).ctypes.data
+    j = lib.mtc_check_words(ptr, len(b), lines.ctypes.data, len(lines), len(letters),
+                            col.ctypes.data, inc.ctypes.data, inch.ctypes.data, lin.ctypes.data,
+                            float(inch_mm), res.ctypes.data,
+                            None if offc is None else offc.ctypes.data, start.ctypes.data,
+                            known.ctypes.data, check.ctypes.data, want.ctypes.data,
+                            ctypes.byref(kind))
+    return int(j), int(kind.value)
+
+
+def read_back_applies(w_line, w_letter, w_value, axes: str, block_line, col_word):
+    """``rewrite._read_back_applies`` in one compiled pass (no G92 word; every axis-letter word
+    on a block's line one of its axis words), or None without the library or if the words are
+    not in text order."""
+    lib = load()
+    if lib is None:
+        return None
+    wl = np.ascontiguousarray(w_line, np.int32)
+    wlet = np.ascontiguousarray(w_letter, np.int8)
+    wv = np.ascontiguousarray(w_value, np.float64)
+    axis = np.zeros(26, np.uint8)
+    axis[[ord(a) - 65 for a in axes]] = 1
+    bl = np.ascontiguousarray(block_line, np.int64)
+    cw = np.ascontiguousarray(col_word, np.int32)
+    dummy = np.zeros(1, np.float64)
+    got = int(lib.mtc_read_back_applies(
+        wl.ctypes.data if len(wl) else dummy.ctypes.data, wlet.ctypes.data if len(wl) else dummy.ctypes.data,
+        wv.ctypes.data if len(wl) else dummy.ctypes.data, len(wl), axis.ctypes.data,
+        bl.ctypes.data if len(bl) else dummy.ctypes.data, cw.ctypes.data if cw.size else dummy.ctypes.data,
+        cw.shape[1] if cw.ndim == 2 else 0, len(axes), len(bl)))
+    return None if got < 0 else bool(got)

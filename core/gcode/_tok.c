@@ -244,3 +244,299 @@ void mtc_overwrite(uint8_t *out, const uint8_t *src, const int64_t *pos, const i
 {
     for (int64_t i = 0; i < m; i++) memcpy(out + pos[i], src + src_off[i], (size_t)len[i]);
 }
+
+/* Byte classes and columns of the read-back (cls: 0 other, 1 a read letter, 2 '(', 3 ';',
+ * 4 newline). */
+static void read_tables(const int8_t *col, uint8_t *cls, int8_t *colof)
+{
+    for (int k = 0; k < 256; k++) {
+        colof[k] = is_letter((uint8_t)k) ? col[(k | 32) - 97] : -1;
+        cls[k] = colof[k] >= 0 ? 1 : k == '(' ? 2 : k == ';' ? 3 : k == '\n' ? 4 : 0;
+    }
+}
+
+/* The words of the line starting at c[i] into v[column] (v NaN-filled by the caller).
+ * Returns the index of the line's end (its newline or n); *bad = 1 if a read letter has no
+ * well-formed number or appears twice. */
+static int64_t line_words(const uint8_t *c, int64_t n, int64_t i, const uint8_t *cls,
+                          const int8_t *colof, double *v, int *bad)
+{
+    int64_t j = i;
+    *bad = 0;
+    if (j < n && c[j] == '%') {                 /* a '%' line is a comment */
+        const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
+        return p ? p - c : n;
+    }
+    while (j < n) {
+        uint8_t ch = c[j], k = cls[ch];
+        if (k == 0) { j++; continue; }
+        if (k == 4) break;
+        if (k == 2) {                           /* ( ... ) closed on its line */
+            int64_t e = j + 1;
+            while (e < n && c[e] != ')' && c[e] != '(' && c[e] != '\n') e++;
+            j = (e < n && c[e] == ')') ? e + 1 : j + 1;
+            continue;
+        }
+        if (k == 3) {                           /* ';' to the end of the line */
+            const uint8_t *p = memchr(c + j, '\n', (size_t)(n - j));
+            return p ? p - c : n;
+        }
+        int cc = colof[ch];
+        j++;
+        while (j < n && (c[j] == ' ' || c[j] == '\t' || c[j] == '\r')) j++;
+        int64_t s = j, d = -1, nd = 0;
+        uint64_t m = 0;
+        if (j < n && (c[j] == '-' || c[j] == '+')) j++;
+        for (; j < n; j++) {
+            unsigned dg = (unsigned)c[j] - '0';
+            if (dg < 10) { m = m * 10 + dg; nd++; continue; }
+            if (c[j] == '.' && d < 0) { d = j; continue; }
+            break;
+        }
+        if (nd == 0 || (j < n && is_num(c[j])) || v[cc] == v[cc]) { *bad = 1; return j; }
+        int64_t flen = d >= 0 ? j - d - 1 : 0;
+        if (nd <= 15 && nd - flen <= 8 && flen <= 8) {     /* as number(), inline */
+            double x = (double)m / POW10[flen];
+            v[cc] = c[s] == '-' ? -x : x;
+        } else {
+            v[cc] = number(c, s, j, d);
+        }
+    }
+    return j;
+}
+
+/* To the start of line `want` from position *i on line *line; 0 if the text ends first. */
+static int seek_line(const uint8_t *c, int64_t n, int64_t want, int64_t *i, int64_t *line)
+{
+    while (*line < want) {
+        const uint8_t *p = *i < n ? memchr(c + *i, '\n', (size_t)(n - *i)) : NULL;
+        if (!p) return 0;
+        *i = p - c + 1;
+        (*line)++;
+    }
+    return *line == want && !(*i >= n && want > 0 && (n == 0 || c[n - 1] == '\n'));
+}
+
+/* Read-back of the written program for the check of `mtcomp compensate`: for each wanted line
+ * (0-based, ascending), the value of its word for every letter with a column in col[26] (-1:
+ * not read) into val[i * n_cols + column]; NaN where the line has no such word.  Comments are
+ * skipped as mtc_blank_comments finds them, blanks between a letter and its number are read
+ * as the parser reads them.  Deliberately independent of the rewrite's bookkeeping (no word
+ * positions, no edit list): it finds the words again in the bytes.  Returns -1, or the index
+ * (into lines) of the first wanted line where a read letter has no well-formed number or
+ * appears twice, or that is beyond the text. */
+int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_t n_lines,
+                       const int8_t *col, int64_t n_cols, double *val)
+{
+    const double nan = __builtin_nan("");     /* positive, as numpy.nan */
+    uint8_t cls[256];
+    int8_t colof[256];
+    read_tables(col, cls, colof);
+    int64_t i = 0, line = 0;
+    int bad;
+    for (int64_t w = 0; w < n_lines * n_cols; w++) val[w] = nan;
+    for (int64_t q = 0; q < n_lines; q++) {
+        if (!seek_line(c, n, lines[q], &i, &line)) return q;
+        int64_t j = line_words(c, n, i, cls, colof, val + q * n_cols, &bad);
+        if (bad) return q;
+        i = j < n ? j + 1 : n;
+        line++;
+    }
+    return -1;
+}
+
+/* Round to the nearest integer, halves to even (numpy.rint; no libm: the library links
+ * nothing): adding and taking away 2**52 leaves the rounded value in the default rounding
+ * mode; magnitudes from 2**52 are integers already. */
+static inline double round_even(double x)
+{
+    const double two52 = 4503599627370496.0;
+    double a = x < 0 ? -x : x;
+    if (!(a < two52)) return x;
+    a = (a + two52) - two52;
+    return x < 0 ? -a : a;
+}
+
+/* Where the control stands after each block, in counts (the compiled twin of
+ * rewrite._control_counts, same float bits): out[(i + 1) * n + k] for block i and axis k,
+ * out[k] the start (start[k], NaN where unknown).  The value of a word: vals[i * n + k] if
+ * vals is given (NaN: no word), else wv[cw[i * cw_stride + k]] where that is >= 0.  A word
+ * counts rint(value * (inch[i] && lin[k] ? inch_mm : 1) / res[k]) (+ offc[i * n + k] if
+ * absolute and offc given); absolute words set the position, G91 (inc[i]) words add to it.
+ * Rows where known[i * n + k] is 0 are NaN.  Returns -1, or k * N + i of the first count
+ * (axis by axis) above 2**52 in magnitude. */
+int64_t mtc_control_counts(int64_t N, int64_t n, const double *vals, const int32_t *cw,
+                           int64_t cw_stride, const double *wv, const uint8_t *inc,
+                           const uint8_t *inch, const uint8_t *lin, double inch_mm,
+                           const double *res, const int64_t *offc, const double *start,
+                           const uint8_t *known, double *out)
+{
+    const double nan = __builtin_nan(""), big = 4503599627370496.0;   /* numpy.nan; 2**52 */
+    double p[64];
+    int64_t first_bad[64];
+    if (n > 64) return -2;                       /* not called so (_ctok.control_counts) */
+    for (int64_t k = 0; k < n; k++) {
+        p[k] = start[k];
+        out[k] = p[k];
+        first_bad[k] = -1;
+    }
+    /* block by block (row-major, cache-friendly), every axis of the block */
+    for (int64_t i = 0; i < N; i++) {
+        double *o = out + (i + 1) * n;
+        for (int64_t k = 0; k < n; k++) {
+            double v;
+            if (vals) {
+                v = vals[i * n + k];
+            } else {
+                int32_t w = cw[i * cw_stride + k];
+                v = w >= 0 ? wv[w] : nan;
+            }
+            if (v == v) {
+                if (inch[i] && lin[k]) v = v * inch_mm;
+                double c = round_even(v / res[k]);
+                if (c > big || c < -big) {
+                    if (first_bad[k] < 0) first_bad[k] = i;
+                } else if (inc[i]) {
+                    p[k] = p[k] + c;
+                } else {
+                    p[k] = offc ? c + (double)offc[i * n + k] : c;
+                }
+            }
+            o[k] = known[i * n + k] ? p[k] : nan;
+        }
+    }
+    for (int64_t k = 0; k < n; k++)
+        if (first_bad[k] >= 0) return k * N + first_bad[k];
+    return -1;
+}
+
+/* The rewrite's decisions for one axis column k (the compiled twin of the axis loop of
+ * rewrite.rewrite_with_lines): C is the (N + 1) x n matrix of counts (row 0 the start, row i + 1
+ * where block i ends).  Per block: the number to write, target[i] (G91: the increment from the
+ * previous row; else the count minus the work offset count offc[i * n + k] if given), and
+ * whether it is written: in place of the block's word (cw[i * cw_stride + k] >= 0) where that
+ * word's own count rint(wv[w] * scale / res) differs, or as a new word where the block has none
+ * and the axis moves; only blocks with edit[i], never the Z of no_z[i] blocks (no_z NULL:
+ * none).  rep and ins receive the block indices, ascending; their counts are returned in
+ * *n_rep, *n_ins. */
+void mtc_axis_edits(int64_t N, int64_t n, int64_t k, const int64_t *C, const uint8_t *inc,
+                    const int64_t *offc, const int32_t *cw, int64_t cw_stride, const double *wv,
+                    double scale, double res, const uint8_t *edit, const uint8_t *no_z,
+                    int64_t *target, int64_t *rep, int64_t *ins, int64_t *n_rep, int64_t *n_ins)
+{
+    int64_t nr = 0, ni = 0;
+    for (int64_t i = 0; i < N; i++) {
+        int64_t pv = C[i * n + k], v = C[(i + 1) * n + k];
+        int64_t t = inc[i] ? v - pv : (offc ? v - offc[i * n + k] : v);
+        target[i] = t;
+        if (!edit[i]) continue;
+        int32_t w = cw[i * cw_stride + k];
+        if (w >= 0) {
+            int64_t oc = (int64_t)round_even(wv[w] * scale / res);
+            if (t != oc) rep[nr++] = i;
+        } else if (v != pv && !(no_z && no_z[i])) {
+            ins[ni++] = i;
+        }
+    }
+    *n_rep = nr;
+    *n_ins = ni;
+}
+
+/* The in-place step of textops.splice in one pass over the edits (32-bit arrays as the rewrite
+ * makes them): every edit whose text has the length of the range it replaces (and is not
+ * empty) is written into out in place; the indices of the other edits that do something (an
+ * insertion, a removal, a replacement of another length) go to rest[], their number is
+ * returned.  Ranges are checked first: -1 - i for the first edit i outside the buffers
+ * (nothing written then). */
+int64_t mtc_overwrite_same(uint8_t *out, int64_t n_out, const uint8_t *src, int64_t n_src,
+                           const int32_t *pos, const int32_t *stop, const int32_t *src_off,
+                           const int32_t *len, int64_t m, int64_t *rest)
+{
+    for (int64_t i = 0; i < m; i++)
+        if (pos[i] < 0 || stop[i] < pos[i] || stop[i] > n_out || src_off[i] < 0 || len[i] < 0
+            || (int64_t)src_off[i] + len[i] > n_src)
+            return -1 - i;
+    int64_t nr = 0;
+    for (int64_t i = 0; i < m; i++) {
+        int32_t L = len[i];
+        if (L > 0 && stop[i] - pos[i] == L) {
+            memcpy(out + pos[i], src + src_off[i], (size_t)L);
+        } else if (L > 0 || stop[i] > pos[i]) {
+            rest[nr++] = i;
+        }
+    }
+    return nr;
+}
+
+/* The check of `mtcomp compensate` in one pass, without arrays of the whole program: the
+ * words of each block's line (lines[i], as mtc_read_words), through the modal state as
+ * mtc_control_counts (same arguments), compared with the counts the rewrite emitted
+ * (want[i * n + k]) on the blocks with check[i].  Returns -1 if every checked block reads
+ * back as emitted, else the first block that does not, with *kind: 1 a word that cannot be
+ * read (or a line past the end), 2 other counts, 3 a count above 2**52. */
+int64_t mtc_check_words(const uint8_t *c, int64_t nbytes, const int64_t *lines, int64_t N,
+                        int64_t n, const int8_t *col, const uint8_t *inc, const uint8_t *inch,
+                        const uint8_t *lin, double inch_mm, const double *res,
+                        const int64_t *offc, const double *start, const uint8_t *known,
+                        const uint8_t *check, const int64_t *want, int64_t *kind)
+{
+    const double nan = __builtin_nan(""), big = 4503599627370496.0;
+    uint8_t cls[256];
+    int8_t colof[256];
+    double p[64], v[64];
+    if (n > 64) { *kind = 1; return 0; }
+    read_tables(col, cls, colof);
+    for (int64_t k = 0; k < n; k++) p[k] = start[k];
+    int64_t i = 0, line = 0;
+    int bad;
+    *kind = 0;
+    for (int64_t b = 0; b < N; b++) {
+        for (int64_t k = 0; k < n; k++) v[k] = nan;
+        if (!seek_line(c, nbytes, lines[b], &i, &line)) { *kind = 1; return b; }
+        int64_t j = line_words(c, nbytes, i, cls, colof, v, &bad);
+        if (bad) { *kind = 1; return b; }
+        i = j < nbytes ? j + 1 : nbytes;
+        line++;
+        int differs = 0;
+        for (int64_t k = 0; k < n; k++) {
+            double x = v[k];
+            if (x == x) {
+                if (inch[b] && lin[k]) x = x * inch_mm;
+                double cnt = round_even(x / res[k]);
+                if (cnt > big || cnt < -big) { *kind = 3; return b; }
+                p[k] = inc[b] ? p[k] + cnt : (offc ? cnt + (double)offc[b * n + k] : cnt);
+            }
+            if (check[b] && !(known[b * n + k] && p[k] == (double)want[b * n + k])) differs = 1;
+        }
+        if (differs) { *kind = 2; return b; }
+    }
+    return -1;
+}
+
+/* Whether the read-back of the check applies to a program (rewrite._read_back_applies): no
+ * G92 word (w_letter 6 with value 92), and on each block's line (block_line[b], 0-based,
+ * ascending) exactly as many words with a letter in axis[26] as the block has axis words
+ * (cw[b * cw_stride + k] >= 0 for k < n_ax): 1, else 0; -1 if the words are not in text
+ * order (w_line ascending). */
+int64_t mtc_read_back_applies(const int32_t *w_line, const int8_t *w_letter, const double *w_value,
+                              int64_t n_words, const uint8_t *axis, const int64_t *block_line,
+                              const int32_t *cw, int64_t cw_stride, int64_t n_ax, int64_t N)
+{
+    for (int64_t w = 0; w < n_words; w++) {
+        if (w > 0 && w_line[w] < w_line[w - 1]) return -1;     /* not in text order */
+        if (w_letter[w] == 6 && w_value[w] == 92.0) return 0;
+    }
+    int64_t w = 0;
+    for (int64_t b = 0; b < N; b++) {
+        int64_t L = block_line[b], count = 0, have = 0;
+        while (w < n_words && w_line[w] < L) w++;
+        while (w < n_words && w_line[w] == L) {
+            int8_t l = w_letter[w];
+            count += l >= 0 && l < 26 && axis[l];
+            w++;
+        }
+        for (int64_t k = 0; k < n_ax; k++) have += cw[b * cw_stride + k] >= 0;
+        if (count != have) return 0;
+    }
+    return 1;
+}

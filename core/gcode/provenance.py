@@ -42,7 +42,32 @@ def insert_header(text: str, lines: list[str]) -> tuple[str, int, int]:
     after the program number line (``O1234``), where controls expect those, in the program's
     comment style (``( )``, or ``;`` when the program writes only ``;`` comments) and line
     ending.  Returns (new text, 0-based line index where the header starts, lines added)."""
-    semicolon = ";" in text and "(" not in text
+    new, at, added, _ = _place_header(text, lines, ";" in text and "(" not in text)
+    return new, at, added
+
+
+def insert_header_bytes(buf: bytearray, lines: list[str]) -> tuple[int, int]:
+    """`insert_header` into the program's bytes (UTF-8, undecodable bytes kept), in place:
+    only the first lines are decoded, so a large program is not copied as text.  Returns (0-based
+    line index where the header starts, lines added)."""
+    head_end = buf.find(b"\n", min(len(buf), 1 << 16))
+    head_end = len(buf) if head_end < 0 else head_end + 1
+    head = bytes(buf[:head_end]).decode("utf-8", "surrogateescape")
+    semicolon = buf.find(b";") >= 0 and buf.find(b"(") < 0
+    _, at, added, (cut, block) = _place_header(head, lines, semicolon)
+    if cut >= len(head) and head_end < len(buf):
+        # the leading lines fill the first 64 kB: place the header on the whole text
+        text = bytes(buf).decode("utf-8", "surrogateescape")
+        _, at, added, (cut, block) = _place_header(text, lines, semicolon)
+        head = text
+    at_b = len(head[:cut].encode("utf-8", "surrogateescape"))
+    buf[at_b:at_b] = block.encode("utf-8", "surrogateescape")
+    return at, added
+
+
+def _place_header(text: str, lines: list[str], semicolon: bool):
+    """insert_header's work: (new text, line index, lines added, (character offset, header
+    text))."""
     first = text.split("\n", 1)[0]
     eol = "\r\n" if first.endswith("\r") else "\n"
     comments = [f"; {ln}" if semicolon else f"({ln})" for ln in lines]
@@ -71,7 +96,7 @@ def insert_header(text: str, lines: list[str]) -> tuple[str, int, int]:
         cut -= last
         at -= 1
     block = "".join(c + eol for c in comments)
-    return text[:cut] + block + text[cut:], at, len(comments)
+    return (text[:cut] + block + text[cut:] if text else block), at, len(comments), (cut, block)
 
 
 _HEADER_LINE_RE = re.compile(r"^(\(|; )([A-Z0-9]+ |MTCOMP COMPENSATED PROGRAM)[^\n]*\n", re.MULTILINE)

@@ -149,23 +149,46 @@ def rewrite(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                               progress=progress, unknown=unknown, row_lines=row_lines, info=info)[0]
 
 
-def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
+def _control_counts(program: Program, res: np.ndarray, offc=None, words=None) -> np.ndarray:
     """Where the control stands after each block, in counts of the axis resolution, as it
     reads the words (each rounded to its input increment, G91 increments summed): (N + 1,
-    n_axes) float holding integers, row 0 the start, NaN where unknown."""
+    n_axes) float holding integers, row 0 the start, NaN where unknown.  ``words``: (N, n_axes)
+    values of the axis words of each block (NaN: no word) instead of the program's own (the
+    written program read back, with the program's modal state)."""
     N, n = len(program), program.n_axes
     cw, wv = np.asarray(program.col_word), np.asarray(program.w_value)
     inc, inch = np.asarray(program.incremental), np.asarray(program.inch)
+    start = np.where(program.start_known, np.rint(np.asarray(program.start) / res), np.nan)
+    polar = program.polar is not None and bool(np.asarray(program.polar).any())
+    # compiled: one sequential pass per axis (numpy below without it, or MTCOMP_TOKENIZER=python;
+    # and for G16 polar blocks, whose X Y words are a radius and an angle)
+    got = None if polar else _ctok.control_counts(N, res, inc, inch, [a in LINEAR for a in program.axes], INCH,
+                               start, program.axis_known, words=words, col_word=cw,
+                               w_value=wv, offc=offc)
+    if got is not None:
+        if got[0] is not None:
+            return got[0]
+        k, j = divmod(got[1], max(N, 1))
+        v = (words[j, k] if words is not None else wv[cw[j, k]])
+        if program.axes[k] in LINEAR and inch[j]:
+            v = v * INCH
+        raise InputError(f"axis word {program.axes[k]}{v:g} is too large for the axis resolution "
+                         f"{res[k]:g} (more than 2**52 counts)", program.filename,
+                         int(program.line[j]))
     Cc = np.empty((N + 1, n))
-    Cc[0] = np.where(program.start_known, np.rint(np.asarray(program.start) / res), np.nan)
+    Cc[0] = start
     for k, a in enumerate(program.axes):
-        w = cw[:, k]
-        pres = w >= 0
-        v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
-        if program.polar is not None and a in "XY":
-            # G16: X Y words are a radius and an angle; the control stands at their point
-            v = np.where(program.polar, np.nan_to_num(program.polar_xy[:, "XY".index(a)]), v)
-            pres = pres | program.polar
+        if words is None:
+            w = cw[:, k]
+            pres = w >= 0
+            v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
+            if polar and a in "XY":
+                # G16: X Y words are a radius and an angle; the control stands at their point
+                v = np.where(program.polar, np.nan_to_num(program.polar_xy[:, "XY".index(a)]), v)
+                pres = pres | program.polar
+        else:
+            pres = ~np.isnan(words[:, k])
+            v = np.where(pres, words[:, k], 0.0)
         if a in LINEAR and inch.any():
             v = v * np.where(inch, INCH, 1.0)
         c = np.rint(v / res[k])
@@ -188,6 +211,88 @@ def _control_counts(program: Program, res: np.ndarray, offc=None) -> np.ndarray:
     return Cc
 
 
+def read_back_counts(program: Program, info: dict, data, out_line) -> np.ndarray | None:
+    """Where the control stands after each block of the *written* program, in counts of
+    ``info["emitted_resolution"]`` (N, n_axes; NaN where unknown): the axis words found again
+    in the output bytes `data` on each block's output line (``out_line``, 1-based, as
+    `rewrite_with_lines` returns it, shifted by any header), run through the program's modal
+    state (G90/G91, units, work offsets) as the control reads them.  Independent of how the
+    rewrite placed and formatted its numbers, so that a wrong byte in a written word shows.
+    None where this reading does not apply (the compiled reader missing; linearised arcs,
+    canned cycles or G92 in the program; a block line with axis letters that are no move, such
+    as G4 X) and the caller must parse the output instead; raises ValueError naming the line
+    where a written word cannot be read."""
+    p = program
+    if not _read_back_applies(p, info):
+        return None
+    got = _ctok.read_words(data, np.asarray(out_line, np.int64) - 1, "".join(p.axes))
+    if got is None:
+        return None
+    words, bad = got
+    if bad >= 0:
+        raise ValueError(f"line {int(out_line[bad])} of the written program: an axis word "
+                         "cannot be read back")
+    res = np.asarray(info["emitted_resolution"], float)
+    off = np.asarray(p.offset)
+    offc = np.rint(off / res).astype(np.int64) if off.any() else None
+    return _control_counts(p, res, offc, words=words)[1:]
+
+
+def _read_back_applies(p: Program, info: dict) -> bool:
+    """Whether the written program's words can be read back block line by block line: no
+    linearised arcs or canned cycles (new lines), no G92 (its words are edited too), and every
+    axis-letter word on a block's line is one of its axis words (not G4 X, G10 X ...)."""
+    if info.get("linearised") or np.asarray(p.cycle).any():
+        return False
+    fast = _ctok.read_back_applies(p.w_line, p.w_letter, p.w_value, "".join(p.axes),
+                                   np.asarray(p.line) - 1, p.col_word)
+    if fast is not None:
+        return fast
+    wl, wlet, wv = np.asarray(p.w_line), np.asarray(p.w_letter), np.asarray(p.w_value)
+    G = ord("G") - 65
+    if ((wlet == G) & (wv == 92.0)).any():
+        return False
+    axl = np.zeros(26, bool)
+    axl[[ord(a) - 65 for a in p.axes]] = True
+    n_axis_words = np.bincount(wl[axl[wlet]], minlength=p.n_lines)
+    cw = np.asarray(p.col_word)[:, :p.n_axes]
+    return bool(np.array_equal(n_axis_words[np.asarray(p.line) - 1],
+                               np.count_nonzero(cw >= 0, axis=1)))
+
+
+def check_written(program: Program, info: dict, data, out_line) -> bool | None:
+    """Whether every compensated block (``info["compensated"]``) of the written program
+    `data` reads back (`read_back_counts`) as the counts the rewrite emitted
+    (``info["emitted"]``): True, or ValueError(message, block index) where it does not; None
+    where the reading does not apply (see `read_back_counts`).  One compiled pass with no
+    arrays of the whole program; the arrays of `read_back_counts` only to describe a
+    failure."""
+    p = program
+    if _ctok.load() is None or not _read_back_applies(p, info):
+        return None
+    res = np.asarray(info["emitted_resolution"], float)
+    off = np.asarray(p.offset)
+    offc = np.rint(off / res).astype(np.int64) if off.any() else None
+    start = np.where(p.start_known, np.rint(np.asarray(p.start) / res), np.nan)
+    want = np.asarray(info["emitted"])
+    got = _ctok.check_words(data, np.asarray(out_line, np.int64) - 1, "".join(p.axes), res,
+                            p.incremental, p.inch, [a in LINEAR for a in p.axes], INCH, start,
+                            p.axis_known, info["compensated"], want, offc)
+    if got is None:
+        return None
+    j, kind = got
+    if j < 0:
+        return True
+    if kind == 2:
+        counts = read_back_counts(p, info, data, out_line)
+        raise ValueError(f"its line {int(out_line[j])} reads back as counts "
+                         f"{counts[j].tolist()}, not {want[j].tolist()}", j)
+    raise ValueError(f"line {int(out_line[j])} of the written program: an axis word cannot be "
+                     "read back" if kind == 1 else
+                     f"line {int(out_line[j])} of the written program: a word of more than "
+                     "2**52 counts", j)
+
+
 def _unknown_axes(program: Program, k: int) -> str:
     return " ".join(a for a, x in zip(program.axes, program.axis_known[k]) if not x)
 
@@ -195,12 +300,15 @@ def _unknown_axes(program: Program, k: int) -> str:
 def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                        resolution=None, chordal_tol: float = 1e-4, progress=None,
                        unknown: str = "defer", row_lines: list | None = None,
-                       info: dict | None = None):
+                       info: dict | None = None, as_bytes: bool = False):
     """`rewrite`, also returning for every motion block the 1-based line of the output where
     the block ends (after a linearised arc: its last segment line), so that the output can be
     compared block by block with the input.  ``info``, if a dict, receives what was done:
     ``deferred`` blocks, ``linearised`` arcs, canned cycle holes ``cycles_kept`` and
-    ``cycles_expanded``."""
+    ``cycles_expanded``.  ``as_bytes``: the output as a bytes-like object (a bytearray where
+    the compiled splice made it; the program's encoding, UTF-8 with its undecodable bytes
+    kept) instead of str, so that a caller that edits it further or writes it saves a copy of
+    the whole text."""
     axes = program.axes
     n_ax = len(axes)
     if unknown not in ("defer", "refuse"):
@@ -369,8 +477,19 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     from .polar import polar_edits
     pmask = polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc,
                         expanded if len(cb) else np.zeros(0, np.int64), _column_edits)
+    nz_any = bool(no_z.any())
     for k, a in enumerate(axes):
         kn_edit_k = kn_edit if pmask is None else kn_edit & ~pmask[:, k]
+        # compiled: one pass per axis (not for linearised arcs' first points or axes with
+        # assumed work offsets: numpy below, as without the library)
+        got = None
+        if inner_rows is None and a not in program.offset_assumed:
+            got = _ctok.axis_edits(C, k, inc, offc, cw, wv, INCH if inch_prog and a in LINEAR else 1.0,
+                                   res[k], kn_edit_k, no_z if nz_any and a == "Z" else None)
+        if got is not None:
+            target, rep, ins = got
+            _column_edits(ctx, cw, k, ctx.letter(a).encode(), fm[a], rep, ins, target)
+            continue
         v = new[:, k]
         if inner_rows is not None:
             v = v.copy()
@@ -418,7 +537,13 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                     cycles_kept=rep["kept"], cycles_expanded=rep["expanded"],
                     emitted=new, emitted_resolution=res)
     ed = ctx.edits
-    text = ed.apply(ctx.data, progress=progress).decode("utf-8", "surrogateescape")
+    # the splice holds the output twice at its peak: free what the edits no longer need
+    del dK, C
+    v = pv = target = wk = pres = ov = oc = differs = None      # the axis loop's last columns
+    ctx._anch = ctx._spaced = None
+    text = ed.apply(ctx.data, progress=progress)
+    if not as_bytes:
+        text = text.decode("utf-8", "surrogateescape")
     added = np.zeros(N, np.int64)
     for k, n_add in ctx.added_lines.items():
         added[k] = n_add

@@ -133,11 +133,23 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
         return orig.tobytes()
     stop, sub = np.asarray(stop), np.asarray(sub)
     src_off, src_len = np.asarray(src_off), np.asarray(src_len)
-    out = orig.copy()
-    same = (stop - pos == src_len) & (src_len > 0)
+    # the copy lives in a bytearray, returned as it is when every edit is in place (no copy
+    # into bytes: the output of a large program is tens of MB)
+    ba = bytearray(len(orig))
+    out = np.frombuffer(ba, np.uint8) if len(orig) else np.zeros(0, np.uint8)
+    out[:] = orig
+    from ._ctok import overwrite_same
+    rest = overwrite_same(out, src, pos, stop, src_off, src_len)     # compiled: one pass
+    if rest is not None:
+        pos, stop, sub, src_off, src_len = pos[rest], stop[rest], sub[rest], src_off[rest], src_len[rest]
+        same = np.zeros(0, bool)
+    else:
+        same = (stop - pos == src_len) & (src_len > 0)
     if same.any():
         from ._ctok import overwrite as c_overwrite
-        if not c_overwrite(out, src, pos[same], src_off[same], src_len[same]):   # compiled: memcpy each
+        every = bool(same.all())                 # (then no copies of the edit arrays)
+        if not c_overwrite(out, src, *((pos, src_off, src_len) if every else
+                                       (pos[same], src_off[same], src_len[same]))):   # compiled: memcpy each
             lens = src_len[same]
             for L in np.flatnonzero(np.bincount(lens)).tolist():
                 g = np.flatnonzero(same)[lens == L]
@@ -149,7 +161,8 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     if len(pos) == 0:
         if progress is not None:
             progress(len(out), len(out))
-        return out.tobytes()
+        del out                               # the bytearray's only view: it stays resizable
+        return ba
     pos, stop, sub = pos.astype(np.int64), stop.astype(np.int64), sub.astype(np.int64)
     src_off, src_len = src_off.astype(np.int64), src_len.astype(np.int64)
     # edits come in runs sorted by position (one run per kind of edit): a stable argsort on a
@@ -164,13 +177,18 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     npieces = 2 * len(pos) + 1
     if npieces * 64 < n_orig:
         # few pieces: join memory slices (no per-byte index arrays)
-        mo, ms = memoryview(out), memoryview(src)
-        parts = []
+        # (into a bytearray of the final size: no joined copy)
+        total = n_orig - int((stop - pos).sum()) + int(src_len.sum())
+        res = bytearray(total)
+        mo, ms, mr = memoryview(out), memoryview(src), memoryview(res)
+        o = 0
         for p0, e0, so, sl in zip(prev_end.tolist(), pos.tolist(), src_off.tolist(), src_len.tolist()):
-            parts.append(mo[p0:e0])
-            parts.append(ms[so:so + sl])
-        parts.append(mo[tail:])
-        res = b"".join(parts)
+            mr[o:o + e0 - p0] = mo[p0:e0]
+            o += e0 - p0
+            mr[o:o + sl] = ms[so:so + sl]
+            o += sl
+        mr[o:] = mo[tail:]
+        mo.release(), ms.release(), mr.release()
         if progress is not None:
             progress(len(res), len(res))
         return res
