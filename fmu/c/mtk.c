@@ -154,15 +154,36 @@ int mtk_axis_index(const mtk_model *m, char axis_name)
     return -1;
 }
 
+static void table_free(mtk_table *t)
+{
+    free(t->pos); free(t->val); free(t->coef); free(t);
+}
+
+/* The per-interval values and slopes of a loaded table (coef, p0, inv_h); MTK_E_IO without memory. */
+static int table_finish(mtk_table *t)
+{
+    int i, k;
+    t->coef = (double *)malloc((size_t)(t->n - 1) * 12 * sizeof(double));
+    if (!t->coef) return MTK_E_IO;
+    for (i = 0; i < t->n - 1; i++) {
+        double inv = 1.0 / (t->pos[i + 1] - t->pos[i]), *c = t->coef + 12 * i;
+        for (k = 0; k < 6; k++) {
+            c[k] = t->val[6 * i + k];
+            c[6 + k] = (t->val[6 * i + 6 + k] - t->val[6 * i + k]) * inv;
+        }
+    }
+    t->p0 = t->pos[0];
+    t->inv_h = (t->n - 1) / (t->pos[t->n - 1] - t->pos[0]);
+    return MTK_OK;
+}
+
 void mtk_free(mtk_model *m)
 {
     int i;
     if (!m) return;
     for (i = 0; i < MTK_MAX_AXES; i++) {
         if (m->table[i]) {
-            free(m->table[i]->pos);
-            free(m->table[i]->val);
-            free(m->table[i]);
+            table_free(m->table[i]);
         }
     }
     free(m->cache);
@@ -368,8 +389,13 @@ int mtk_load_table(mtk_model *m, const char *axis_name, const char *path, char *
         free(t->pos); free(t->val); free(t);
         return MTK_E_FORMAT;
     }
+    if (table_finish(t) != MTK_OK) {
+        seterr(err, "out of memory");
+        table_free(t);
+        return MTK_E_IO;
+    }
     if (m->table[idx]) {
-        free(m->table[idx]->pos); free(m->table[idx]->val); free(m->table[idx]);
+        table_free(m->table[idx]);
     }
     m->table[idx] = t;
     return MTK_OK;
@@ -382,11 +408,16 @@ bad:
     return MTK_E_FORMAT;
 }
 
-/* Interval [lo, lo + 1] of the table holding q (pos[0] < q < pos[n-1]), starting from *hint:
- * the iterates of one pose and the poses of a path stay in or next to the same interval. */
+/* Interval [lo, lo + 1] of the table holding q (pos[0] < q < pos[n-1]): on an evenly spaced
+ * grid by one multiplication, else from *hint (the iterates of one pose and the poses of a path
+ * stay in or next to the same interval), else by bisection. */
 static inline int table_interval(const mtk_table *t, double q, int *hint)
 {
-    int lo = *hint, hi;
+    int lo = (int)((q - t->p0) * t->inv_h), hi;   /* (pos[0] < q < pos[n-1]: no overflow) */
+    if (lo > t->n - 2) lo = t->n - 2;
+    if (lo < 0) lo = 0;
+    if (t->pos[lo] <= q && q < t->pos[lo + 1]) { *hint = lo; return lo; }
+    lo = *hint;
     if (lo >= 0 && lo < t->n - 1 && t->pos[lo] <= q && q < t->pos[lo + 1]) return lo;
     lo = 0;
     hi = t->n - 1;
@@ -405,7 +436,8 @@ static inline int table_eval_hint(const mtk_table *t, double q, double d[3], dou
                                   int strict, int *hint)
 {
     int lo, k;
-    double f, inv;
+    double f;
+    const double *c;
     if (isnan(q)) {
         if (strict) return MTK_E_RANGE;
         for (k = 0; k < 3; k++) d[k] = e[k] = NAN;
@@ -421,13 +453,11 @@ static inline int table_eval_hint(const mtk_table *t, double q, double d[3], dou
     }
     lo = table_interval(t, q, hint);
     f = q - t->pos[lo];
-    inv = 1.0 / (t->pos[lo + 1] - t->pos[lo]);
+    c = t->coef + 12 * lo;
     for (k = 0; k < 3; k++) {
-        double s = (t->val[6 * lo + 6 + k] - t->val[6 * lo + k]) * inv;
-        double se = (t->val[6 * lo + 9 + k] - t->val[6 * lo + 3 + k]) * inv;
-        d[k] = s * f + t->val[6 * lo + k];
-        e[k] = se * f + t->val[6 * lo + 3 + k];
-        if (dd) { dd[k] = s; de[k] = se; }
+        d[k] = c[6 + k] * f + c[k];
+        e[k] = c[9 + k] * f + c[3 + k];
+        if (dd) { dd[k] = c[6 + k]; de[k] = c[9 + k]; }
     }
     return MTK_OK;
 }
@@ -467,6 +497,9 @@ typedef struct {
                                        * dot products ap.u1, ap.u12, u1.(u2 x ap), u12.(u2 x ap) */
     double aa, u2a, K[4];
     double r2, iden;                  /* a.a - (u2.a)^2, 1 / (1 - (u1.u2)^2) */
+    double wmax[MTK_MAX_AXES];        /* bound of |W_i|, the angular velocity of axis i per deg or mm:
+                                       * DEG for a rotary axis, plus the steepest slope of its table's
+                                       * angles (the second-order bounds of iterate) */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
@@ -552,6 +585,21 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
     for (i = 0, k = 0; i < m->n_axes; i++)
         if (m->rotary[i]) P->rot_idx[k++] = i;
+    for (i = 0; i < m->n_axes; i++) {
+        double w = m->rotary[i] ? DEG : 0.0;
+        if (P->tab[i]) {
+            const mtk_table *t = P->tab[i];
+            double smax = 0.0;
+            int j;
+            for (j = 0; j < t->n - 1; j++) {
+                const double *c = t->coef + 12 * j + 9;
+                double sl = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+                smax = sl > smax ? sl : smax;
+            }
+            w += smax;
+        }
+        P->wmax[i] = w;
+    }
     for (k = 0; k < 3; k++) P->tp[k] = m->tool_point[k] + (e ? e->tool[k] : 0.0);
     if (e && (e->wp_t[0] != 0.0 || e->wp_t[1] != 0.0 || e->wp_t[2] != 0.0 ||
               e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0)) {
@@ -779,6 +827,19 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
     }
 }
 
+#ifdef MTK_STATS
+long mtk_stat[8];
+#include <stdio.h>
+__attribute__((destructor)) static void mtk_stat_print(void)
+{
+    fprintf(stderr, "STATS res %ld jac %ld steps %ld acc %ld corr %ld poses %ld\n", mtk_stat[0], mtk_stat[1],
+            mtk_stat[2], mtk_stat[3], mtk_stat[4], mtk_stat[5]);
+}
+#define STAT(i) (mtk_stat[i]++)
+#else
+#define STAT(i) ((void)0)
+#endif
+
 static void range_message(const mtk_model *m, int i, double q, char *err)
 {
     char msg[MTK_ERRLEN];
@@ -811,6 +872,7 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
 {
     double p[3], R[9];
     int k, rc;
+    STAT(0);
     if (!strict && P->mode != 3) {   /* position and tool direction only */
         double v[3];
         fwd_pv(P, q, p, v);
@@ -927,7 +989,8 @@ static inline void orientation_column(const prep_t *P, const double w[3], const 
     }
 }
 
-static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0)
+static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0,
+                         double *Wo)
 {
     const mtk_model *m = P->m;
     double W[MTK_MAX_AXES][3], V[MTK_MAX_AXES][3], T[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
@@ -992,6 +1055,7 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             grot = 1;
         }
         mat_vec(R, w, W[i]);
+        if (Wo) mat_vec(P->RwT, W[i], Wo + 3 * i);
         mat_vec(R, vv, V[i]);
         memcpy(T[i], t, sizeof t);
         {
@@ -1023,12 +1087,14 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
  * centre c_w = R_pre c + t_pre along w, dp = w x (p - c_w) and dR = [w]x R (per rad), all in
  * the nominal workpiece frame and then turned into the real one by Rw^T.  The rigid model has
  * no tables and no location errors (prepare with geo = 0). */
-static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J, double *r0)
+static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J, double *r0,
+                    double *Wo)
 {
     const mtk_model *m = Pr->m;
+    STAT(1);
     double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
     int n = Pr->n, i, k, ident = 1;
-    if (Pr->geo) return jacobian_full(Pr, q, tg, wo, J, r0);  /* the full model (see solve_pose) */
+    if (Pr->geo) return jacobian_full(Pr, q, tg, wo, J, r0, Wo);  /* the full model (see solve_pose) */
     eye(R);
     for (i = 0; i < n; i++) {
         memcpy(Rpre[i], R, sizeof R);
@@ -1063,6 +1129,11 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     for (i = 0; i < n; i++) {
         double w[3], dp[3], dpr[3];
         mat_vec(Rpre[i], Pr->ueff[i], w);
+        if (Wo) {
+            double wd[3] = {w[0] * DEG, w[1] * DEG, w[2] * DEG};
+            if (m->rotary[i]) mat_vec(Pr->RwT, wd, Wo + 3 * i);
+            else Wo[3 * i] = Wo[3 * i + 1] = Wo[3 * i + 2] = 0.0;
+        }
         if (!m->rotary[i]) {
             mat_vec(Pr->RwT, w, dpr);
             for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
@@ -1148,15 +1219,16 @@ MTK_INLINE void normal_step(int n, int rows, const double *J, const double *LU, 
 /* Factors of A = J^T J + lambda I (normal_factor) of the Jacobian J at q, the columns of frozen
  * axes zeroed.  Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     const double *J0, double *LU, int *piv, double *J, int *rc)
+                     const double *J0, const double *W0, double *LU, int *piv, double *J, double *W, int *rc)
 {
     int n = Pr->n, rows = Pr->rows, j, k;
     if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
         memcpy(J, J0, (size_t)rows * n * sizeof(double));
+        memcpy(W, W0, (size_t)3 * n * sizeof(double));
         for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
         *rc = MTK_OK;
     } else {
-        *rc = jacobian(Pr, q, tg, wo, J, NULL);
+        *rc = jacobian(Pr, q, tg, wo, J, NULL, W);
         if (*rc) return 0;
     }
     if (freeze)
@@ -1202,6 +1274,104 @@ static int linear_exact(const prep_t *P, const double *q, const double *step)
     return 1;
 }
 
+/* Second-order term of the residual along a step: r(q - s) = r(q) - J s + h + O(s^3) with
+ * h = 1/2 sum_ij s_i s_j d2r/dq_i dq_j.  For a serial chain the mixed derivative of a point is
+ * the earlier axis' angular velocity crossed with the later axis' velocity of the point,
+ * d2p/dq_i dq_j = W_i x P_j (i <= j; the spatial twists of the axes after i turn with it), and
+ * the same for the tool direction (mode 2: its columns O_j = W_j x v); the orientation rows of
+ * mode 3 (the skew part of T^T R) have 1/2 O_i x O_j (O_j = T^T W_j) at a small residual, and no
+ * diagonal term.  So h = sum_j s_j A_j x col_j with A_j = sum_{i<j} s_i W_i + s_j W_j / 2 (mode
+ * 3: 1/2 sum_{i<j} s_i s_j O_i x O_j).  J: the columns (position rows, then the orientation rows
+ * times wo), W (n x 3): the axes' angular velocities in the workpiece frame, per deg or mm.
+ * (The tables' own curvature within an interval and the rates of the error motions' twists are
+ * of the order of their µrad angles relative to these: the term improves a step, it is not used
+ * as a bound.) */
+static void second_order(const prep_t *P, const double *J, const double *W, const double *s, double wo,
+                         double *h)
+{
+    int n = P->n, i, j, k;
+    double A[3] = {0, 0, 0}, S[3] = {0, 0, 0};
+    for (k = 0; k < P->rows; k++) h[k] = 0.0;
+    for (j = 0; j < n; j++) {
+        double a[3], col[3], c[3];
+        if (s[j] == 0.0) continue;
+        for (k = 0; k < 3; k++) a[k] = A[k] + 0.5 * s[j] * W[3 * j + k];
+        for (k = 0; k < 3; k++) col[k] = J[k * n + j];
+        cross(a, col, c);
+        for (k = 0; k < 3; k++) h[k] += s[j] * c[k];
+        if (P->mode == 2) {
+            for (k = 0; k < 3; k++) col[k] = J[(3 + k) * n + j];
+            cross(a, col, c);
+            for (k = 0; k < 3; k++) h[3 + k] += s[j] * c[k];
+        } else if (P->mode == 3) {
+            /* 1/(2 wo) (sum_{i<j} s_i Jo_i) x s_j Jo_j */
+            for (k = 0; k < 3; k++) col[k] = J[(3 + k) * n + j];
+            cross(S, col, c);
+            for (k = 0; k < 3; k++) h[3 + k] += s[j] * c[k] * (0.5 / wo);
+            for (k = 0; k < 3; k++) S[k] += s[j] * col[k];
+        }
+        for (k = 0; k < 3; k++) A[k] += s[j] * W[3 * j + k];
+    }
+    (void)i;
+}
+
+/* Bound of the error of the chord prediction r(q - s) = r(q) - J s, with J taken at qlin and
+ * every table axis within one interval over qlin, q and q - s (the model smooth there).  With
+ * D_i = |q_i - qlin_i| + |s_i| (the box about qlin holding both segments), w_i = wmax_i and p_i
+ * the length of J's position column i at qlin:
+ *     |r(q - s) - r(q) + J s| <= sum_ij M_ij (|q_i - qlin_i| + |s_i| / 2) |s_j|,
+ *     M_ij = 2 (w_i P_j + w_j P_i + wo w_i w_j),
+ * the second derivatives of all rows bounded by second_order's expressions (|W_i x P_j| <=
+ * w_i |P_j|, the orientation rows' by wo w_i w_j), the factor 2 for the tables' twists turning
+ * with their axis and their curvature (both of the order of their µrad angles relative to
+ * these).  P_j bounds the column's length over the box: |dP_j/dq_i| <= w_i P_j + w_j P_i gives,
+ * with e = sum_i w_i D_i and Q = sum_i P_i D_i <= (sum_i p_i D_i) / (1 - 2 e),
+ * P_j = (p_j + w_j Q) / (1 - e).  So the bound is 2 sum_j |s_j| (P_j A_w + w_j A_p + wo w_j A_w)
+ * with A_w = sum_i w_i a_i, A_p = sum_i P_i a_i, a_i = |q_i - qlin_i| + |s_i| / 2.  pn: the
+ * lengths p_j; ilin: each table axis' interval at qlin (-1: at or beyond an end).  Returns
+ * INFINITY where the conditions do not hold. */
+static void column_lengths(const prep_t *P, const double *J, double *pn)
+{
+    int n = P->n, j;
+    for (j = 0; j < n; j++)
+        pn[j] = sqrt(J[j] * J[j] + J[n + j] * J[n + j] + J[2 * n + j] * J[2 * n + j]);
+}
+
+static double second_order_bound(const prep_t *P, const double *pn, const int *ilin, const double *qlin,
+                                 const double *q, const double *s, double wo)
+{
+    int n = P->n, i;
+    double a[MTK_MAX_AXES], D[MTK_MAX_AXES], e = 0.0, T = 0.0, Q, Aw = 0.0, Ap = 0.0, b = 0.0;
+    for (i = 0; i < n; i++) {
+        const mtk_table *t = P->tab[i];
+        double qn = q[i] - s[i], d = fabs(q[i] - qlin[i]);
+        if (t) {
+            int lo = ilin[i];
+            if (lo < 0) return INFINITY;
+            if (!(t->pos[lo] <= q[i] && q[i] < t->pos[lo + 1] && t->pos[lo] <= qn && qn < t->pos[lo + 1]))
+                return INFINITY;
+        }
+        a[i] = d + 0.5 * fabs(s[i]);
+        D[i] = d + fabs(s[i]);
+        e += P->wmax[i] * D[i];
+        T += pn[i] * D[i];
+    }
+    if (!(e <= 0.01)) return INFINITY;
+    Q = T / (1.0 - 2.0 * e);
+    for (i = 0; i < n; i++) {
+        double Pb = (pn[i] + P->wmax[i] * Q) / (1.0 - e);
+        D[i] = Pb;   /* (reused: the column bounds) */
+        Aw += P->wmax[i] * a[i];
+        Ap += Pb * a[i];
+    }
+    for (i = 0; i < n; i++)
+        b += fabs(s[i]) * (D[i] * Aw + P->wmax[i] * Ap + wo * P->wmax[i] * Aw);
+    return 2.0 * b;
+}
+
+/* Largest bound (mm) of second_order_bound at which a step is taken without an evaluation. */
+#define LINEAR_BOUND 1e-11
+
 /* With a held axis, rotary axes within this (deg) of where the Jacobian was taken do not make it
  * stale (its orientation rows depend on the rotary angles alone): the bias of the least-squares point it
  * leaves is below 1e-10 deg for the orientation residuals the pole tolerance admits (a warm start
@@ -1214,12 +1384,13 @@ static int linear_exact(const prep_t *P, const double *q, const double *step)
  * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0, r0: the
  * rigid Jacobian and the residual at seed if already known (NULL: evaluated here). */
 static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
-                   const double *seed, const double *J0, const double *r0, double *q, double tol, int max_iter,
-                   int *iters, double *r, int *singular)
+                   const double *seed, const double *J0, const double *W0, const double *r0, double *q, double tol,
+                   int max_iter, int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
-    int piv[MTK_MAX_AXES];
+    double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], W[3 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
+    double pn[MTK_MAX_AXES];
+    int piv[MTK_MAX_AXES], ilin[MTK_MAX_AXES], bounded, have_pn = 0;
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
@@ -1232,20 +1403,43 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     while (!done && it < max_iter) {
         int inner, slow = 0;
         memcpy(qlin, q, n * sizeof(double));
-        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, LU, piv, J, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, W0, LU, piv, J, W, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
             return MTK_OK;
         }
+        /* J the Jacobian of the evaluated model itself (not the rigid one's; no axis held): its
+         * second-order term corrects the first step, and a chord step whose second-order bound
+         * is below LINEAR_BOUND needs no evaluation */
+        bounded = (Pr == P || !P->geo) && !freeze;
+        have_pn = 0;   /* column lengths and intervals at qlin: taken when first needed */
         for (inner = 0; inner < 8; inner++) {
             double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0,
                    smax = 0.0, rstep = 0.0;
             int bt;
             it++;
+            STAT(2);
             /* damped least squares: no component along a null direction of J (an axis the
              * orientation leaves free keeps the seed's value), no bias of the solution */
             chord_step(n, rows, J, LU, piv, r, step);
+            if (inner == 0 && bounded && nr > 1e-4) {
+                /* Newton on the quadratic model r - J s + h(s) = 0: s = J+ (r + h(J+ r)), where
+                 * the quadratic term is a small part of the residual and the rotary steps below
+                 * 0.5 deg (the error left is then of third order, rather than second; far from
+                 * the solution or near a pole the plain step).  Where the term is below 1e-8 mm
+                 * the plain chord step already ends the iteration with one evaluation. */
+                double h[6], rh[6], nh, rmax = 0.0;
+                for (i = 0; i < n; i++)
+                    if (P->m->rotary[i] && fabs(step[i]) > rmax) rmax = fabs(step[i]);
+                second_order(P, J, W, step, wo, h);
+                nh = norm(h, rows);
+                if (nh > 1e-8 && nh < 1e-3 * nr && rmax <= 0.5) {
+                    STAT(4);
+                    for (k = 0; k < rows; k++) rh[k] = r[k] + h[k];
+                    chord_step(n, rows, J, LU, piv, rh, step);
+                }
+            }
             for (i = 0; i < n; i++) {
                 if (freeze && freeze[i]) { step[i] = 0.0; continue; }
                 if (P->m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
@@ -1257,10 +1451,22 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
             memcpy(qn, q, n * sizeof(double));
             memcpy(rn, r, rows * sizeof(double));
-            if (smax >= tol && (Pr == P || !P->geo) && !freeze && inner == 0 && linear_exact(P, q, step)) {
-                /* Newton step on the full model's Jacobian so small that the model is linear
-                 * over it to below 1e-11 mm: the residual after it is the linear prediction, no
-                 * evaluation (a warm start along a path ends here) */
+            if (smax >= tol && bounded && !(inner == 0 && linear_exact(P, q, step)) && !have_pn) {
+                column_lengths(P, J, pn);
+                for (i = 0; i < n; i++) {
+                    const mtk_table *t = P->tab[i];
+                    ilin[i] = t && qlin[i] > t->pos[0] && qlin[i] < t->pos[t->n - 1] ?
+                              table_interval(t, qlin[i], (int *)&P->hint[i]) : -1;
+                }
+                have_pn = 1;
+            }
+            if (smax >= tol && bounded && ((inner == 0 && linear_exact(P, q, step)) ||
+                                           second_order_bound(P, pn, ilin, qlin, q, step, wo) <= LINEAR_BOUND)) {
+                /* Newton or chord step on the full model's Jacobian so small that the model is
+                 * linear over it to below 1e-11 mm: the residual after it is the linear
+                 * prediction, no evaluation (a warm start along a path ends here, and a random
+                 * pose once its residual is below about 1e-9 mm) */
+                STAT(3);
                 for (i = 0; i < n; i++) qn[i] = q[i] - step[i];
                 for (k = 0; k < rows; k++) {
                     double sk = r[k];
@@ -1405,7 +1611,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
 {
     int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
     int tables = 0;
-    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], r0s[6];
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], W0[3 * MTK_MAX_AXES], r0s[6];
     const double *rs;
     const double *Jq0 = differs ? NULL : J0;
     const prep_t *Pj;
@@ -1418,7 +1624,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
      * residual at start.  With an axis held the rigid Jacobian stays (the least-squares point
      * the reference defines, mtcomp._solver). */
     Pj = P->geo ? P : Pr;
-    rc = jacobian(Pj, start, tg, ORIENTATION_SCALE, J0, r0s);
+    rc = jacobian(Pj, start, tg, ORIENTATION_SCALE, J0, r0s, W0);
     if (rc) return rc;
     rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
@@ -1435,7 +1641,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
                 memcpy(hs, attempt ? q0 : start, n * sizeof(double));
                 hs[hold] = q0[hold];
                 same = !memcmp(hs, start, n * sizeof(double));  /* else J0, rs were taken elsewhere */
-                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same && Pj == Pr ? J0 : NULL, same ? rs : NULL, qt, o->tol,
+                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same && Pj == Pr ? J0 : NULL, W0, same ? rs : NULL, qt, o->tol,
                              o->max_iter, iters, r, &sing);
                 if (rc) return rc;
                 if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG
@@ -1448,14 +1654,14 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
         }
     }
     if (differs && warm) {
-        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, W0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
             goto accept;
         }
     }
-    rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, q0, Jq0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
+    rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, q0, Jq0, W0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
@@ -1465,7 +1671,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     }
     if (differs && !warm) {
         /* continuation: the previous pose's correction keeps the branch the path is on */
-        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, W0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
@@ -1497,7 +1703,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(seed, q0, n * sizeof(double));
             seed[sa[s]] += va[s];
             if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             et = sing ? INFINITY : maxabs(r, rows);
             for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
@@ -2100,8 +2306,12 @@ int mtk_model_set_table(mtk_model *m, int axis, int n, const double *pos, const 
     memcpy(t->pos, pos, n * sizeof(double));
     memcpy(t->val, val, 6 * n * sizeof(double));
     t->n = n;
+    if (table_finish(t) != MTK_OK) {
+        table_free(t);
+        return MTK_E_IO;
+    }
     if (m->table[axis]) {
-        free(m->table[axis]->pos); free(m->table[axis]->val); free(m->table[axis]);
+        table_free(m->table[axis]);
     }
     m->table[axis] = t;
     return MTK_OK;
@@ -2170,6 +2380,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         int *statusi, *infoi;
         target_t tg;
         int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
+        STAT(5);
         if (i < skip) {
             if (!o->continuation || (!p_t && P.closed)) continue;   /* nothing to take up */
             qo = q_in; resi = &res_in; statusi = &status_in; infoi = &info_in;
