@@ -962,10 +962,24 @@ static inline void pose_residual(const prep_t *P, const double p[3], const doubl
     }
 }
 
+/* E = T^T Rw^T R (mode 3): the real tool frame R (machine frame) seen from the target's T, for
+ * orientation_column. */
+static inline void orientation_frame(const prep_t *P, const double R[9], const target_t *tg, double E[9])
+{
+    double X[9];
+    int r, c;
+    mat_mul(P->RwT, R, X);
+    for (r = 0; r < 3; r++)
+        for (c = 0; c < 3; c++)
+            E[3 * r + c] = tg->R[r] * X[c] + tg->R[3 + r] * X[3 + c] + tg->R[6 + r] * X[6 + c];
+}
+
 /* Column i of the orientation rows of the Jacobian for an axis turning about w (workpiece-side
  * direction in the machine frame): the tool vector's rate w x v (mode 2), or the small rotation
- * of T^T Rw^T [w]x R, half the vee of its antisymmetric part (mode 3).  Shared by both passes. */
-static inline void orientation_column(const prep_t *P, const double w[3], const double R[9],
+ * of dM = T^T Rw^T [w]x R, half the vee of its antisymmetric part (mode 3).  With u = T^T Rw^T w,
+ * dM = [u]x E (E from orientation_frame), and [u]x E - ([u]x E)^T = [(tr E I - E) u]x: the
+ * column is wo (tr E u - E u) / 2, no 3x3 product per axis.  Shared by both passes. */
+static inline void orientation_column(const prep_t *P, const double w[3], const double E[9],
                                       const double v[3], const target_t *tg, double wo, double *J,
                                       int n, int i)
 {
@@ -976,25 +990,24 @@ static inline void orientation_column(const prep_t *P, const double w[3], const 
         mat_vec(P->RwT, c, dv);
         for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
     } else if (P->mode == 3) {
-        double W[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
-        int r, c;
-        mat_mul(W, R, dR);
-        mat_mul(P->RwT, dR, dR);
-        for (r = 0; r < 3; r++)
-            for (c = 0; c < 3; c++)
-                dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
-        J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
-        J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
-        J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
+        double wp[3], u[3], Eu[3], tr = E[0] + E[4] + E[8];
+        const double *T = tg->R;
+        mat_vec(P->RwT, w, wp);
+        for (k = 0; k < 3; k++) u[k] = T[k] * wp[0] + T[3 + k] * wp[1] + T[6 + k] * wp[2];
+        mat_vec(E, u, Eu);
+        for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * 0.5 * (tr * u[k] - Eu[k]);
     }
 }
 
+
 static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0,
-                         double *Wo)
+                         double *Wo, double *Bo)
 {
     const mtk_model *m = P->m;
     double W[MTK_MAX_AXES][3], V[MTK_MAX_AXES][3], T[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
-    int n = P->n, i, k;
+    double WB[MTK_MAX_AXES][3], VB[MTK_MAX_AXES][3];   /* the bracket twists (second_order) */
+    double E[9];
+    int n = P->n, i, k, anyb = 0;
     eye(R);
     for (i = 0; i < n; i++) {
         double Rg[9], tg3[3], w[3], vv[3];
@@ -1027,6 +1040,9 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             }
             cross(de, lp, x);
             for (k = 0; k < 3; k++) ve[k] = dd[k] - x[k];
+            /* The axis' twist xi_A + Ad_A xi_B (A, B: the nominal and the error motion in their
+             * order) turns with A along the axis: d xi / dq = [xi_A, Ad_A xi_B], the bracket
+             * (w1 x w2, w1 x v2 - w2 x v1), kept in WB, VB for the diagonal second derivative */
             if (m->tool_side[i] == m->rotary[i]) {      /* E . N */
                 if (grot) {
                     mat_vec(Re, w, a);
@@ -1035,6 +1051,15 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
                     a[0] = a[1] = a[2] = x[0] = x[1] = x[2] = 0.0;
                 }
                 mat_vec(Re, vv, b);
+                if (Bo) {
+                    double v2[3], c1[3], c2[3];
+                    for (k = 0; k < 3; k++) v2[k] = b[k] + x[k];
+                    cross(we, a, WB[i]);
+                    cross(we, v2, c1);
+                    cross(a, ve, c2);
+                    for (k = 0; k < 3; k++) VB[i][k] = c1[k] - c2[k];
+                    anyb = 1;
+                }
                 for (k = 0; k < 3; k++) { w[k] = we[k] + a[k]; vv[k] = ve[k] + b[k] + x[k]; }
                 mat_vec(Re, tg3, b);
                 for (k = 0; k < 3; k++) tg3[k] = b[k] + te[k];
@@ -1043,16 +1068,42 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
                 mat_vec(Rg, we, a);
                 mat_vec(Rg, ve, b);
                 cross(tg3, a, x);
+                if (Bo) {
+                    double v2[3], c1[3], c2[3];
+                    for (k = 0; k < 3; k++) v2[k] = b[k] + x[k];
+                    cross(w, a, WB[i]);
+                    cross(w, v2, c1);
+                    cross(a, vv, c2);
+                    for (k = 0; k < 3; k++) VB[i][k] = c1[k] - c2[k];
+                    anyb = 1;
+                }
                 for (k = 0; k < 3; k++) { w[k] += a[k]; vv[k] += b[k] + x[k]; }
                 mat_vec(Rg, te, b);
                 for (k = 0; k < 3; k++) tg3[k] += b[k];
                 mat_mul(Rg, Re, Rg);
             } else {                                     /* N . E, N a translation */
                 cross(tg3, we, x);
+                if (Bo) {   /* [(0, u), (we, .)] = (0, -we x u) */
+                    WB[i][0] = WB[i][1] = WB[i][2] = 0.0;
+                    cross(we, vv, VB[i]);
+                    for (k = 0; k < 3; k++) VB[i][k] = -VB[i][k];
+                    anyb = 1;
+                }
                 for (k = 0; k < 3; k++) { w[k] += we[k]; vv[k] += ve[k] + x[k]; tg3[k] += te[k]; }
                 memcpy(Rg, Re, sizeof Rg);
             }
             grot = 1;
+        }
+        if (Bo) {
+            if (P->tab[i]) {
+                double tmp[3];
+                mat_vec(R, WB[i], tmp);
+                memcpy(WB[i], tmp, sizeof tmp);
+                mat_vec(R, VB[i], tmp);
+                memcpy(VB[i], tmp, sizeof tmp);
+            } else {
+                for (k = 0; k < 3; k++) WB[i][k] = VB[i][k] = 0.0;
+            }
         }
         mat_vec(R, w, W[i]);
         if (Wo) mat_vec(P->RwT, W[i], Wo + 3 * i);
@@ -1069,6 +1120,7 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
     for (k = 0; k < 3; k++) p[k] += t[k];
     mat_vec(R, m->tool_axis, v);
     if (r0) pose_residual(P, p, R, v, tg, wo, r0);
+    if (P->mode == 3) orientation_frame(P, R, tg, E);
     for (i = 0; i < n; i++) {
         double dp[3], dpr[3], d[3], *w = W[i];
         for (k = 0; k < 3; k++) d[k] = p[k] - T[i][k];
@@ -1076,7 +1128,20 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
         for (k = 0; k < 3; k++) dp[k] += V[i][k];
         mat_vec(P->RwT, dp, dpr);
         for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
-        orientation_column(P, w, R, v, tg, wo, J, n, i);
+        orientation_column(P, w, E, v, tg, wo, J, n, i);
+        if (Bo) {
+            /* the bracket twist's column: the diagonal term's part beyond W_i x P_i */
+            if (anyb && P->tab[i]) {
+                for (k = 0; k < 3; k++) d[k] = p[k] - T[i][k];
+                cross(WB[i], d, dp);
+                for (k = 0; k < 3; k++) dp[k] += VB[i][k];
+                mat_vec(P->RwT, dp, dpr);
+                for (k = 0; k < 3; k++) Bo[k * n + i] = dpr[k];
+                orientation_column(P, WB[i], E, v, tg, wo, Bo, n, i);
+            } else {
+                for (k = 0; k < P->rows; k++) Bo[k * n + i] = 0.0;
+            }
+        }
     }
     return MTK_OK;
 }
@@ -1088,13 +1153,13 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
  * the nominal workpiece frame and then turned into the real one by Rw^T.  The rigid model has
  * no tables and no location errors (prepare with geo = 0). */
 static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J, double *r0,
-                    double *Wo)
+                    double *Wo, double *Bo)
 {
     const mtk_model *m = Pr->m;
     STAT(1);
-    double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
+    double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3], E[9];
     int n = Pr->n, i, k, ident = 1;
-    if (Pr->geo) return jacobian_full(Pr, q, tg, wo, J, r0, Wo);  /* the full model (see solve_pose) */
+    if (Pr->geo) return jacobian_full(Pr, q, tg, wo, J, r0, Wo, Bo);  /* the full model (see solve_pose) */
     eye(R);
     for (i = 0; i < n; i++) {
         memcpy(Rpre[i], R, sizeof R);
@@ -1126,9 +1191,12 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     if (r0) /* the residual of this (rigid) model at q from the same pass: the caller's model is
              * the rigid one (no tables, no location errors) */
         pose_residual(Pr, p, R, v, tg, wo, r0);
+    if (Pr->mode == 3) orientation_frame(Pr, R, tg, E);
     for (i = 0; i < n; i++) {
         double w[3], dp[3], dpr[3];
         mat_vec(Rpre[i], Pr->ueff[i], w);
+        if (Bo)
+            for (k = 0; k < Pr->rows; k++) Bo[k * n + i] = 0.0;
         if (Wo) {
             double wd[3] = {w[0] * DEG, w[1] * DEG, w[2] * DEG};
             if (m->rotary[i]) mat_vec(Pr->RwT, wd, Wo + 3 * i);
@@ -1154,13 +1222,13 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
             mat_vec(Pr->RwT, dp, dpr);
             for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
         }
-        orientation_column(Pr, w, R, v, tg, wo, J, n, i);
+        orientation_column(Pr, w, E, v, tg, wo, J, n, i);
     }
     return MTK_OK;
 }
 
 /* A = J^T J + lambda I, LU-factored in place with partial pivoting (the multipliers below the
- * diagonal, piv the row order); 0 if singular.  Factored once per linearisation, each chord step
+ * diagonal, the reciprocals of U's diagonal on it, piv the row order); 0 if singular.  Factored once per linearisation, each chord step
  * then solves for one right-hand side (normal_step) rather than forming A^-1 J^T for all rows. */
 MTK_INLINE int normal_factor(int n, int rows, const double *J, double *A, int *piv)
 {
@@ -1190,6 +1258,7 @@ MTK_INLINE int normal_factor(int n, int rows, const double *J, double *A, int *p
             for (j = c + 1; j < n; j++) A[r * n + j] -= f * A[c * n + j];
         }
     }
+    for (c = 0; c < n; c++) A[c * n + c] = 1.0 / A[c * n + c];   /* (the steps multiply) */
     return 1;
 }
 
@@ -1212,23 +1281,30 @@ MTK_INLINE void normal_step(int n, int rows, const double *J, const double *LU, 
     for (i = n - 1; i >= 0; i--) {
         double s = y[i];
         for (j = i + 1; j < n; j++) s -= LU[i * n + j] * x[j];
-        x[i] = s / LU[i * n + i];
+        x[i] = s * LU[i * n + i];
     }
 }
 
 /* Factors of A = J^T J + lambda I (normal_factor) of the Jacobian J at q, the columns of frozen
  * axes zeroed.  Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     const double *J0, const double *W0, double *LU, int *piv, double *J, double *W, int *rc)
+                     const double *J0, const double *W0, const double *B0, double *LU, int *piv, double *J,
+                     double *W, double *B, int *rc)
 {
     int n = Pr->n, rows = Pr->rows, j, k;
     if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
         memcpy(J, J0, (size_t)rows * n * sizeof(double));
-        memcpy(W, W0, (size_t)3 * n * sizeof(double));
-        for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
+        if (W0) memcpy(W, W0, (size_t)3 * n * sizeof(double));
+        else W[0] = NAN;   /* not taken: no second-order correction */
+        if (B0) memcpy(B, B0, (size_t)rows * n * sizeof(double));
+        else B[0] = NAN;   /* not taken (second_order leaves the brackets out) */
+        for (k = 3 * n; k < rows * n; k++) {
+            J[k] *= wo / ORIENTATION_SCALE;
+            if (B0) B[k] *= wo / ORIENTATION_SCALE;
+        }
         *rc = MTK_OK;
     } else {
-        *rc = jacobian(Pr, q, tg, wo, J, NULL, W);
+        *rc = jacobian(Pr, q, tg, wo, J, NULL, W, B);
         if (*rc) return 0;
     }
     if (freeze)
@@ -1277,7 +1353,9 @@ static int linear_exact(const prep_t *P, const double *q, const double *step)
 /* Second-order term of the residual along a step: r(q - s) = r(q) - J s + h + O(s^3) with
  * h = 1/2 sum_ij s_i s_j d2r/dq_i dq_j.  For a serial chain the mixed derivative of a point is
  * the earlier axis' angular velocity crossed with the later axis' velocity of the point,
- * d2p/dq_i dq_j = W_i x P_j (i <= j; the spatial twists of the axes after i turn with it), and
+ * d2p/dq_i dq_j = W_i x P_j (i <= j; the spatial twists of the axes after i turn with it; on the
+ * diagonal of an axis with a table also its twist's own rate, the bracket column B_j of
+ * jacobian_full: 1/2 s_j^2 B_j), and
  * the same for the tool direction (mode 2: its columns O_j = W_j x v); the orientation rows of
  * mode 3 (the skew part of T^T R) have 1/2 O_i x O_j (O_j = T^T W_j) at a small residual, and no
  * diagonal term.  So h = sum_j s_j A_j x col_j with A_j = sum_{i<j} s_i W_i + s_j W_j / 2 (mode
@@ -1286,8 +1364,8 @@ static int linear_exact(const prep_t *P, const double *q, const double *step)
  * (The tables' own curvature within an interval and the rates of the error motions' twists are
  * of the order of their µrad angles relative to these: the term improves a step, it is not used
  * as a bound.) */
-static void second_order(const prep_t *P, const double *J, const double *W, const double *s, double wo,
-                         double *h)
+static void second_order(const prep_t *P, const double *J, const double *W, const double *B, const double *s,
+                         double wo, double *h)
 {
     int n = P->n, i, j, k;
     double A[3] = {0, 0, 0}, S[3] = {0, 0, 0};
@@ -1311,6 +1389,8 @@ static void second_order(const prep_t *P, const double *J, const double *W, cons
             for (k = 0; k < 3; k++) S[k] += s[j] * col[k];
         }
         for (k = 0; k < 3; k++) A[k] += s[j] * W[3 * j + k];
+        if (P->tab[j] && !isnan(B[0]))   /* the tables' bracket column: d xi_j / dq_j applied */
+            for (k = 0; k < P->rows; k++) h[k] += 0.5 * s[j] * s[j] * B[k * n + j];
     }
     (void)i;
 }
@@ -1369,8 +1449,10 @@ static double second_order_bound(const prep_t *P, const double *pn, const int *i
     return 2.0 * b;
 }
 
-/* Largest bound (mm) of second_order_bound at which a step is taken without an evaluation. */
-#define LINEAR_BOUND 1e-11
+/* Largest bound (mm) of second_order_bound at which a step is taken without an evaluation: half
+ * the resolution of the iteration itself, which stops at steps below tol = 1e-10 mm or deg
+ * (residuals of about 1e-10 mm). */
+#define LINEAR_BOUND 5e-11
 
 /* With a held axis, rotary axes within this (deg) of where the Jacobian was taken do not make it
  * stale (its orientation rows depend on the rotary angles alone): the bias of the least-squares point it
@@ -1384,11 +1466,13 @@ static double second_order_bound(const prep_t *P, const double *pn, const int *i
  * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0, r0: the
  * rigid Jacobian and the residual at seed if already known (NULL: evaluated here). */
 static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
-                   const double *seed, const double *J0, const double *W0, const double *r0, double *q, double tol,
+                   const double *seed, const double *J0, const double *W0, const double *B0, const double *r0,
+                   double *q, double tol,
                    int max_iter, int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], W[3 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
+    double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], W[3 * MTK_MAX_AXES], B[6 * MTK_MAX_AXES], nr,
+           qlin[MTK_MAX_AXES];
     double pn[MTK_MAX_AXES];
     int piv[MTK_MAX_AXES], ilin[MTK_MAX_AXES], bounded, have_pn = 0;
     *singular = 0;
@@ -1403,7 +1487,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     while (!done && it < max_iter) {
         int inner, slow = 0;
         memcpy(qlin, q, n * sizeof(double));
-        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, W0, LU, piv, J, W, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, W0, B0, LU, piv, J, W, B, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
@@ -1423,18 +1507,18 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             /* damped least squares: no component along a null direction of J (an axis the
              * orientation leaves free keeps the seed's value), no bias of the solution */
             chord_step(n, rows, J, LU, piv, r, step);
-            if (inner == 0 && bounded && nr > 1e-4) {
+            if (inner == 0 && bounded && nr > 1e-4 && !isnan(W[0])) {
                 /* Newton on the quadratic model r - J s + h(s) = 0: s = J+ (r + h(J+ r)), where
                  * the quadratic term is a small part of the residual and the rotary steps below
                  * 0.5 deg (the error left is then of third order, rather than second; far from
-                 * the solution or near a pole the plain step).  Where the term is below 1e-8 mm
+                 * the solution or near a pole the plain step).  Where the term is below 1e-7 mm
                  * the plain chord step already ends the iteration with one evaluation. */
                 double h[6], rh[6], nh, rmax = 0.0;
                 for (i = 0; i < n; i++)
                     if (P->m->rotary[i] && fabs(step[i]) > rmax) rmax = fabs(step[i]);
-                second_order(P, J, W, step, wo, h);
+                second_order(P, J, W, B, step, wo, h);
                 nh = norm(h, rows);
-                if (nh > 1e-8 && nh < 1e-3 * nr && rmax <= 0.5) {
+                if (nh > 1e-7 && nh < 1e-3 * nr && rmax <= 0.5) {
                     STAT(4);
                     for (k = 0; k < rows; k++) rh[k] = r[k] + h[k];
                     chord_step(n, rows, J, LU, piv, rh, step);
@@ -1606,12 +1690,14 @@ enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
  * about q0 (least rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0)
  * or MTK_E_RANGE (*bad). */
 static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, const double *q0,
-                      const double *start, int warm, const opt_t *o, double *q, int *iters, double *res,
+                      const double *start, int warm, int far, const opt_t *o, double *q, int *iters, double *res,
                       double *res0, int *singular, int *bad, int *held, int *how)
 {
     int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
     int tables = 0;
-    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], W0[3 * MTK_MAX_AXES], r0s[6];
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], W0[3 * MTK_MAX_AXES], B0[6 * MTK_MAX_AXES], r0s[6];
+    double *Bs = B0, *Ws = W0;   /* the axes' angular velocities and the bracket columns (second_order:
+                                  * far starts only, NULL otherwise) */
     const double *rs;
     const double *Jq0 = differs ? NULL : J0;
     const prep_t *Pj;
@@ -1624,7 +1710,10 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
      * residual at start.  With an axis held the rigid Jacobian stays (the least-squares point
      * the reference defines, mtcomp._solver). */
     Pj = P->geo ? P : Pr;
-    rc = jacobian(Pj, start, tg, ORIENTATION_SCALE, J0, r0s, W0);
+    far = far && P->nrot > 0;   /* (linear axes alone: the second-order term is the tables' µrad slopes
+                                 * times the step, and the chord step after the first is exact) */
+    rc = jacobian(Pj, start, tg, ORIENTATION_SCALE, J0, r0s, far ? W0 : NULL, far ? B0 : NULL);
+    if (!far) Bs = Ws = NULL;
     if (rc) return rc;
     rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
@@ -1641,7 +1730,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
                 memcpy(hs, attempt ? q0 : start, n * sizeof(double));
                 hs[hold] = q0[hold];
                 same = !memcmp(hs, start, n * sizeof(double));  /* else J0, rs were taken elsewhere */
-                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same && Pj == Pr ? J0 : NULL, W0, same ? rs : NULL, qt, o->tol,
+                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same && Pj == Pr ? J0 : NULL, Ws, Bs, same ? rs : NULL, qt, o->tol,
                              o->max_iter, iters, r, &sing);
                 if (rc) return rc;
                 if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG
@@ -1654,14 +1743,14 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
         }
     }
     if (differs && warm) {
-        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, W0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, Ws, Bs, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
             goto accept;
         }
     }
-    rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, q0, Jq0, W0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
+    rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, q0, Jq0, Ws, Bs, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
@@ -1671,7 +1760,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     }
     if (differs && !warm) {
         /* continuation: the previous pose's correction keeps the branch the path is on */
-        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, W0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, Ws, Bs, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
@@ -1703,7 +1792,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(seed, q0, n * sizeof(double));
             seed[sa[s]] += va[s];
             if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             et = sing ? INFINITY : maxabs(r, rows);
             for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
@@ -2228,7 +2317,8 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
             c->warm = 1;
             goto limits;
         }
-        rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, &o, q, &it, &res, &res0,
+        rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, !(c->have_prev && c->warm), &o, q,
+                        &it, &res, &res0,
                         &singular, &bad, &held, &how);
         if (iters) *iters = it;
         if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
@@ -2459,7 +2549,8 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             for (k = 0; k < nax; k++) start[k] = qr[k] + (o->continuation && have_prev && have_geo ? dgeo[k] : 0.0);
             seeded = 1;
         }
-        rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), &so, qo, &it, resi, &r0, &sing,
+        rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), seeded || !(have_prev && warm), &so, qo,
+                        &it, resi, &r0, &sing,
                         &bad, &held, &how);
         csc_ok = 0;
         have_geo = 0;
