@@ -2229,6 +2229,13 @@ static void rigid_errors(const mtk_errors *e, mtk_errors *rigid)
 
 static void make_target(const prep_t *Pi, const double *q, target_t *tg)
 {
+    if (Pi->mode != 3) {
+        /* up to two rotary axes: the residual and the closed forms take the position and the
+         * tool direction alone (fwd_pv on vectors); R is not read */
+        fwd_pv(Pi, q, tg->p, tg->v);
+        eye(tg->R);
+        return;
+    }
     fwd(Pi, q, tg->p, tg->R, 0, NULL);
     mat_vec(tg->R, Pi->m->tool_axis, tg->v);
 }
