@@ -170,7 +170,6 @@ def main(argv=None):
     # `mtcomp compensate` end to end (bench_gcode's child run: read, parse, travel checks, retarget,
     # rewrite, the forward-model check of every block, atomic write), beside the path before the
     # compiled tokenizer and the verification from emitted values in the same run
-    import tempfile
     import bench_gcode
     n_lines = 200_000
     with tempfile.TemporaryDirectory() as tmp:
