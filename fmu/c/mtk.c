@@ -97,6 +97,15 @@ static void rotvec(const double w[3], double R[9])
 }
 
 /* Rotation about unit vector u by angle (rad). */
+static inline void axis_rotation_sc(const double u[3], double s, double c, double R[9])
+{
+    double C = 1.0 - c;
+    double x = u[0], y = u[1], z = u[2];
+    R[0] = c + x * x * C;     R[1] = x * y * C - z * s; R[2] = x * z * C + y * s;
+    R[3] = y * x * C + z * s; R[4] = c + y * y * C;     R[5] = y * z * C - x * s;
+    R[6] = z * x * C - y * s; R[7] = z * y * C + x * s; R[8] = c + z * z * C;
+}
+
 static inline void axis_rotation(const double u[3], double ang, double R[9])
 {
     double c = cos(ang), s = sin(ang), C = 1.0 - c;
@@ -497,6 +506,8 @@ typedef struct {
                                        * dot products ap.u1, ap.u12, u1.(u2 x ap), u12.(u2 x ap) */
     double aa, u2a, K[4];
     double r2, iden;                  /* a.a - (u2.a)^2, 1 / (1 - (u1.u2)^2) */
+    double sc_ref[MTK_MAX_AXES][3];   /* per rotary axis an angle (rad) taken by sin and cos, and
+                                       * those (axis_sincos; NAN: none yet) */
     double wmax[MTK_MAX_AXES];        /* bound of |W_i|, the angular velocity of axis i per deg or mm:
                                        * DEG for a rotary axis, plus the steepest slope of its table's
                                        * angles (the second-order bounds of iterate) */
@@ -585,6 +596,7 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
     for (i = 0, k = 0; i < m->n_axes; i++)
         if (m->rotary[i]) P->rot_idx[k++] = i;
+    for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
     for (i = 0; i < m->n_axes; i++) {
         double w = m->rotary[i] ? DEG : 0.0;
         if (P->tab[i]) {
@@ -772,6 +784,30 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
     return MTK_OK;
 }
 
+/* sin and cos of rotary axis i's angle a (rad) from those of the last angle taken directly for
+ * the axis: the iterates of one pose and the poses of a path lie within 1e-2 rad of it, and a =
+ * ref + d by the angle sum with the series of sin d and cos d (truncation below 1e-23); else sin
+ * and cos, remembered.  (Deterministic: the reference depends only on the poses before in the
+ * batch's chunk.) */
+static inline void axis_sincos(const prep_t *P, int i, double a, double *s, double *c)
+{
+    prep_t *Q = (prep_t *)P;   /* (the prepared model's scratch, like the tables' hints) */
+    double d = a - Q->sc_ref[i][0];
+    if (fabs(d) < 1e-2) {
+        double d2 = d * d;
+        double sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)));
+        double cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
+        *s = Q->sc_ref[i][1] * cd + Q->sc_ref[i][2] * sd;
+        *c = Q->sc_ref[i][2] * cd - Q->sc_ref[i][1] * sd;
+        return;
+    }
+    *s = sin(a);
+    *c = cos(a);
+    Q->sc_ref[i][0] = a;
+    Q->sc_ref[i][1] = *s;
+    Q->sc_ref[i][2] = *c;
+}
+
 /* The position and the tool direction of fwd alone (tables held at their ends, no range check),
  * on vectors from the tool end: each axis' motion G = E N (the error motion after the nominal
  * one) or N E applied to the tool point and, without its translation, to the tool direction; a
@@ -803,7 +839,8 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
         }
         if (m->rotary[i]) {
             const double *c = P->c[i], *u = P->ueff[i];
-            double a = q[i] * DEG + P->zero[i], sn = sin(a), cs = cos(a);
+            double sn, cs;
+            axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
             for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
             turn(u, sn, cs, y, y);
             for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
@@ -1014,7 +1051,11 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
         int grot = m->rotary[i];      /* Rg differs from the identity (skipped in the products) */
         if (m->rotary[i]) {
             const double *c = P->c[i];
-            axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            {
+                double sn, cs;
+                axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+                axis_rotation_sc(P->ueff[i], sn, cs, Rg);
+            }
             for (k = 0; k < 3; k++) {
                 tg3[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
                 w[k] = P->ueff[i][k] * DEG;
