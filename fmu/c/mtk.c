@@ -714,9 +714,34 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
 }
 
+/* sin and cos of rotary axis i's angle a (rad) from those of the last angle taken directly for
+ * the axis: the iterates of one pose and the poses of a path lie within 1e-2 rad of it, and a =
+ * ref + d by the angle sum with the series of sin d and cos d (truncation below 1e-23); else sin
+ * and cos, remembered.  (Deterministic: the reference depends only on the poses before in the
+ * batch's chunk.) */
+static inline void axis_sincos(const prep_t *P, int i, double a, double *s, double *c)
+{
+    prep_t *Q = (prep_t *)P;   /* (the prepared model's scratch, like the tables' hints) */
+    double d = a - Q->sc_ref[i][0];
+    if (fabs(d) < 1e-2) {
+        double d2 = d * d;
+        double sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)));
+        double cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
+        *s = Q->sc_ref[i][1] * cd + Q->sc_ref[i][2] * sd;
+        *c = Q->sc_ref[i][2] * cd - Q->sc_ref[i][1] * sd;
+        return;
+    }
+    *s = sin(a);
+    *c = cos(a);
+    Q->sc_ref[i][0] = a;
+    Q->sc_ref[i][1] = *s;
+    Q->sc_ref[i][2] = *c;
+}
+
 /* Pose of the tool in the real workpiece frame (mtcomp.kinematics.forward).  A table range
- * violation (strict) returns MTK_E_RANGE with the axis in *bad. */
-static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int strict, int *bad)
+ * violation (strict) returns MTK_E_RANGE with the axis in *bad.  iter: an evaluation of the
+ * iteration (the rotary sines and cosines by axis_sincos), else the plain forward model. */
+static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int strict, int *bad, int iter)
 {
     const mtk_model *m = P->m;
     double t[3] = {0, 0, 0};
@@ -726,7 +751,13 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
         int grot = 0;
         if (m->rotary[i]) {
             const double *c = P->c[i];
-            axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            if (iter) {
+                double sn, cs;
+                axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+                axis_rotation_sc(P->ueff[i], sn, cs, Rg);
+            } else {
+                axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            }
             for (k = 0; k < 3; k++)
                 tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
             grot = 1;
@@ -782,30 +813,6 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
         mat_mul(P->RwT, R, R);
     }
     return MTK_OK;
-}
-
-/* sin and cos of rotary axis i's angle a (rad) from those of the last angle taken directly for
- * the axis: the iterates of one pose and the poses of a path lie within 1e-2 rad of it, and a =
- * ref + d by the angle sum with the series of sin d and cos d (truncation below 1e-23); else sin
- * and cos, remembered.  (Deterministic: the reference depends only on the poses before in the
- * batch's chunk.) */
-static inline void axis_sincos(const prep_t *P, int i, double a, double *s, double *c)
-{
-    prep_t *Q = (prep_t *)P;   /* (the prepared model's scratch, like the tables' hints) */
-    double d = a - Q->sc_ref[i][0];
-    if (fabs(d) < 1e-2) {
-        double d2 = d * d;
-        double sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)));
-        double cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
-        *s = Q->sc_ref[i][1] * cd + Q->sc_ref[i][2] * sd;
-        *c = Q->sc_ref[i][2] * cd - Q->sc_ref[i][1] * sd;
-        return;
-    }
-    *s = sin(a);
-    *c = cos(a);
-    Q->sc_ref[i][0] = a;
-    Q->sc_ref[i][1] = *s;
-    Q->sc_ref[i][2] = *c;
 }
 
 /* The position and the tool direction of fwd alone (tables held at their ends, no range check),
@@ -891,7 +898,7 @@ int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double
     int bad = -1, rc;
     double Rl[9];
     prepare(m, e, 1, &P);
-    rc = fwd(&P, q, p, R ? R : Rl, 1, &bad);
+    rc = fwd(&P, q, p, R ? R : Rl, 1, &bad, 0);
     if (rc) range_message(m, bad, q[bad], err);
     return rc;
 }
@@ -918,7 +925,7 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
             for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
         return MTK_OK;
     }
-    rc = fwd(P, q, p, R, strict, bad);
+    rc = fwd(P, q, p, R, strict, bad, 1);
     if (rc) return rc;
     for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
     if (P->mode == 2) {
@@ -2277,7 +2284,7 @@ static void make_target(const prep_t *Pi, const double *q, target_t *tg)
         eye(tg->R);
         return;
     }
-    fwd(Pi, q, tg->p, tg->R, 0, NULL);
+    fwd(Pi, q, tg->p, tg->R, 0, NULL, 0);
     mat_vec(tg->R, Pi->m->tool_axis, tg->v);
 }
 
@@ -2464,7 +2471,7 @@ long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const do
     double Rl[9];
     prepare(m, e, 1, &P);
     for (i = 0; i < n; i++) {
-        if (fwd(&P, q + i * nax, p + 3 * i, R ? R + 9 * i : Rl, strict, bad_axis) != MTK_OK) return i;
+        if (fwd(&P, q + i * nax, p + 3 * i, R ? R + 9 * i : Rl, strict, bad_axis, 0) != MTK_OK) return i;
     }
     return -1;
 }
