@@ -1497,6 +1497,23 @@ static double second_order_bound(const prep_t *P, const double *pn, const int *i
     return 2.0 * b;
 }
 
+/* A lower bound of second_order_bound from J's entries alone (no lengths, no table intervals):
+ * the columns' largest components for their lengths and the terms with P_j A_w and wo w_j A_w
+ * only.  Above LINEAR_BOUND the bound is not taken (tried on the first step of a linearisation,
+ * which along a path is mostly beyond it; the later steps are mostly within). */
+static double second_order_floor(const prep_t *P, const double *J, const double *qlin, const double *q,
+                                 const double *s, double wo)
+{
+    int n = P->n, j;
+    double Aw = 0.0, b = 0.0;
+    for (j = 0; j < n; j++) Aw += P->wmax[j] * (fabs(q[j] - qlin[j]) + 0.5 * fabs(s[j]));
+    for (j = 0; j < n; j++) {
+        double pl = fmax(fabs(J[j]), fmax(fabs(J[n + j]), fabs(J[2 * n + j])));
+        b += fabs(s[j]) * (pl + wo * P->wmax[j]);
+    }
+    return 2.0 * b * Aw;
+}
+
 /* Largest bound (mm) of second_order_bound at which a step is taken without an evaluation: half
  * the resolution of the iteration itself, which stops at steps below tol = 1e-10 mm or deg
  * (residuals of about 1e-10 mm). */
@@ -1522,7 +1539,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], W[3 * MTK_MAX_AXES], B[6 * MTK_MAX_AXES], nr,
            qlin[MTK_MAX_AXES];
     double pn[MTK_MAX_AXES];
-    int piv[MTK_MAX_AXES], ilin[MTK_MAX_AXES], bounded, have_pn = 0;
+    int piv[MTK_MAX_AXES], ilin[MTK_MAX_AXES], bounded, have_pn = 0, lin;
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
@@ -1583,7 +1600,9 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
             memcpy(qn, q, n * sizeof(double));
             memcpy(rn, r, rows * sizeof(double));
-            if (smax >= tol && bounded && !(inner == 0 && linear_exact(P, q, step)) && !have_pn) {
+            lin = smax >= tol && bounded && inner == 0 && linear_exact(P, q, step);
+            if (smax >= tol && bounded && !lin && !have_pn &&
+                (inner > 0 || second_order_floor(P, J, qlin, q, step, wo) <= LINEAR_BOUND)) {
                 column_lengths(P, J, pn);
                 for (i = 0; i < n; i++) {
                     const mtk_table *t = P->tab[i];
@@ -1592,8 +1611,8 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
                 }
                 have_pn = 1;
             }
-            if (smax >= tol && bounded && ((inner == 0 && linear_exact(P, q, step)) ||
-                                           second_order_bound(P, pn, ilin, qlin, q, step, wo) <= LINEAR_BOUND)) {
+            if (smax >= tol && bounded && (lin || (have_pn && second_order_bound(P, pn, ilin, qlin, q, step, wo)
+                                                       <= LINEAR_BOUND))) {
                 /* Newton or chord step on the full model's Jacobian so small that the model is
                  * linear over it to below 1e-11 mm: the residual after it is the linear
                  * prediction, no evaluation (a warm start along a path ends here, and a random
