@@ -417,17 +417,17 @@ bad:
     return MTK_E_FORMAT;
 }
 
-/* Interval [lo, lo + 1] of the table holding q (pos[0] < q < pos[n-1]): on an evenly spaced
- * grid by one multiplication, else from *hint (the iterates of one pose and the poses of a path
- * stay in or next to the same interval), else by bisection. */
+/* Interval [lo, lo + 1] of the table holding q (pos[0] < q < pos[n-1]): *hint if it holds q (the
+ * iterates of one pose and the poses of a path stay in the same interval), else on an evenly
+ * spaced grid by one multiplication, else by bisection. */
 static inline int table_interval(const mtk_table *t, double q, int *hint)
 {
-    int lo = (int)((q - t->p0) * t->inv_h), hi;   /* (pos[0] < q < pos[n-1]: no overflow) */
+    int lo = *hint, hi;
+    if (lo >= 0 && lo < t->n - 1 && t->pos[lo] <= q && q < t->pos[lo + 1]) return lo;
+    lo = (int)((q - t->p0) * t->inv_h);   /* (pos[0] < q < pos[n-1]: no overflow) */
     if (lo > t->n - 2) lo = t->n - 2;
     if (lo < 0) lo = 0;
     if (t->pos[lo] <= q && q < t->pos[lo + 1]) { *hint = lo; return lo; }
-    lo = *hint;
-    if (lo >= 0 && lo < t->n - 1 && t->pos[lo] <= q && q < t->pos[lo + 1]) return lo;
     lo = 0;
     hi = t->n - 1;
     while (hi - lo > 1) {
