@@ -353,3 +353,28 @@ def test_steps_taken_without_an_evaluation_put_the_tool_on_the_ideal_pose(name):
             assert np.max(np.abs(real.R @ a - ideal.R @ a)) <= 1e-11
         assert np.max(np.abs(qc - retarget(m, cmds, E, backend="numpy", check=False))) <= 1e-9
         assert np.max(np.abs(qc - cmds)) > 1e-3
+
+
+@pytest.mark.parametrize("name", ["robonano-a0ib", "vmc-moving-column"])
+def test_unevenly_spaced_tables_agree_with_numpy(name):
+    """The kernel finds a table interval from the previous one (the hint), then by one
+    multiplication on an evenly spaced grid, then by bisection: with knots spaced unevenly (the
+    grid guess mostly wrong) the forward model and the compensation still agree with numpy."""
+    from mtcomp.errors import AxisErrorTable, component_names
+    m = load_machine(name)
+    rng = np.random.default_rng(21)
+    base = random_errors(m, rng, wp_angle=0.05 if m.n_rotary else 0.5)
+    tables = {}
+    for a in m.axes:
+        lo, hi = a.limits
+        pos = np.sort(np.concatenate([[lo, hi], rng.uniform(lo, hi, 13)]))
+        pos = lo + (hi - lo) * ((pos - lo) / (hi - lo)) ** 2   # crowded at the low end
+        vals = {c: rng.uniform(-50e-6 if j > 2 else -0.05, 50e-6 if j > 2 else 0.05, pos.size)
+                for j, c in enumerate(component_names(a.name))}
+        tables[a.name] = AxisErrorTable(a.name, pos, vals)
+    E = ErrorSet(base.tool, base.workpiece, GeometricErrors(tables, base.geometric.location))
+    q = random_commands(m, 400, rng, span=0.3)
+    assert np.max(np.abs(forward(m, q, E, backend="c").p - forward(m, q, E, backend="numpy").p)) <= 1e-12
+    qc = retarget(m, q, E, backend="c", check=False)
+    assert np.max(np.abs(qc - retarget(m, q, E, backend="numpy", check=False))) <= 1e-9
+    assert np.max(np.abs(forward(m, qc, E).p - forward(m, q).p)) <= 5e-10
