@@ -871,6 +871,9 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
     }
 }
 
+/* Counters of a test build (-DMTK_STATS, gcc; one thread), printed at exit: forward evaluations of
+ * the iteration, Jacobian passes, steps, steps taken under the second-order bound, corrected first
+ * steps, poses iterated (docs/benchmarks.md's counts). */
 #ifdef MTK_STATS
 long mtk_stat[8];
 #include <stdio.h>
