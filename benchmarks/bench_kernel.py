@@ -2,13 +2,19 @@
 numpy reference implementation of the same algorithm, in CPU and wall time, in the same run.
 Writes the "kernel" section of docs/benchmarks.md with the targets of the compiled-kernel issue.
 
-    python benchmarks/bench_kernel.py [--points 200000] [--numpy-points 40000]
+    python benchmarks/bench_kernel.py [--points 200000] [--numpy-points 40000] [--previous REV]
+
+--previous REV: the kernel of git revision REV (its fmu/c sources, compiled here) timed on the same
+poses with tables, a column beside the current kernel's.
 """
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -60,19 +66,44 @@ def tilted_blank_program(n):
     return q
 
 
+def previous_kernel(rev, tmp):
+    """The kernel library of git revision `rev` (its sources from git, compiled into tmp)."""
+    root = Path(__file__).resolve().parent.parent
+    src = Path(tmp) / "src"
+    src.mkdir()
+    for name in _kernel.SOURCES:
+        blob = subprocess.run(["git", "show", f"{rev}:fmu/c/{name}"], cwd=root, capture_output=True, check=True)
+        (src / name).write_bytes(blob.stdout)
+    lib = _kernel.compile_library(Path(tmp) / ("libmtk-previous" + _kernel._SUFFIX), src)
+    return _kernel._bind(ctypes.CDLL(str(lib)))
+
+
+def solve_with(lib, m, errors, q):
+    """retarget(check=False) through another kernel library (the model cache holds the current
+    library's models: emptied before and after)."""
+    _kernel._models.clear()
+    try:
+        return _kernel.solve(lib, m, errors, q, tol=1e-10, max_iter=60, pole_tolerance=0.2, continuation=True)[0]
+    finally:
+        _kernel._models.clear()
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--points", type=int, default=200_000)
     ap.add_argument("--numpy-points", type=int, default=40_000)
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--previous", metavar="REV", help="also time the kernel of this git revision (tables)")
     a = ap.parse_args(argv)
+    tmpdir = tempfile.TemporaryDirectory()
+    prev = previous_kernel(a.previous, tmpdir.name) if a.previous else None
     if not _kernel.available():
         sys.exit("the compiled kernel is unavailable (no C compiler): nothing to compare")
     rng = np.random.default_rng(3)
     N, Nn = a.points, a.numpy_points
     rows = []  # (case, machine, C CPU rate, C wall rate, numpy CPU rate, numpy wall rate, max |C - numpy|)
 
-    def case(label, mname, fn_c, fn_n, n_c, n_n, compare=True):
+    def case(label, mname, fn_c, fn_n, n_c, n_n, compare=True, fn_prev=None):
         cc, cw, qc = timed(fn_c, repeat=5)  # (best of 5: the machine is shared, CPU time suffers too)
         os.environ["MTCOMP_THREADS"] = "1"  # the same batch on one thread: the threads' gain in wall time
         try:
@@ -82,10 +113,18 @@ def main(argv=None):
         assert np.array_equal(q1, qc), "one thread and several must give the same bits"
         nc, nw, qn = timed(fn_n, repeat=1)
         diff = float(np.max(np.abs(qc[:n_n] - qn))) if compare else float("nan")
-        rows.append((label, mname, n_c / cc, n_c / cw, n_n / nc, n_n / nw, diff, n_c / c1, n_c / w1))
+        pc = float("nan")
+        if fn_prev is not None:
+            os.environ["MTCOMP_THREADS"] = "1"   # (CPU time: the threads do not change it)
+            try:
+                pc = n_c / timed(fn_prev, repeat=3)[0]
+            finally:
+                os.environ.pop("MTCOMP_THREADS")
+        rows.append((label, mname, n_c / cc, n_c / cw, n_n / nc, n_n / nw, diff, n_c / c1, n_c / w1, pc))
         print(f"{label:48s} {mname:18s} C {n_c / cc:>12,.0f}/s CPU ({n_c / cw:>12,.0f}/s wall; 1 thread "
               f"{n_c / c1:>12,.0f} CPU, {n_c / w1:>12,.0f} wall)  numpy "
-              f"{n_n / nc:>10,.0f}/s CPU  |C-numpy| {diff:.1e}", flush=True)
+              f"{n_n / nc:>10,.0f}/s CPU  |C-numpy| {diff:.1e}" + (f"  previous {pc:,.0f}/s CPU" if pc == pc else ""),
+              flush=True)
 
     for name in ("robonano-ui", "robonano-a0ib", "vmc-moving-column"):
         m = load_machine(name)
@@ -105,11 +144,13 @@ def main(argv=None):
                  lambda: retarget(m, qp[:Nn], ROTATED, check=False, backend="numpy"), N, Nn)
         case("retarget, tables on all axes + setting + location", name,
              lambda: retarget(m, q, geo, check=False, backend="c"),
-             lambda: retarget(m, q[:Nn // 4], geo, check=False, backend="numpy"), N, Nn // 4)
+             lambda: retarget(m, q[:Nn // 4], geo, check=False, backend="numpy"), N, Nn // 4,
+             fn_prev=(lambda: solve_with(prev, m, geo, q)) if prev else None)
         qt = path_commands(m, N)
         case("  same, along a path (warm start)", name,
              lambda: retarget(m, qt, geo, check=False, backend="c"),
-             lambda: retarget(m, qt[:Nn // 4], geo, check=False, backend="numpy"), N, Nn // 4)
+             lambda: retarget(m, qt[:Nn // 4], geo, check=False, backend="numpy"), N, Nn // 4,
+             fn_prev=(lambda: solve_with(prev, m, geo, qt)) if prev else None)
         case("forward, tables on all axes + setting + location", name,
              lambda: forward(m, q, geo, backend="c").p,
              lambda: forward(m, q[:Nn], geo, backend="numpy").p, N, Nn)
@@ -127,9 +168,8 @@ def main(argv=None):
     singular_s = len(qs) / rows[-2][2]
 
     # `mtcomp compensate` end to end (bench_gcode's child run: read, parse, travel checks, retarget,
-    # rewrite, the forward-model check of every block, atomic write), beside the path before the
-    # compiled tokenizer and the verification from emitted values in the same run
-    import tempfile
+    # rewrite, the written words read back, the forward-model check of every block, atomic write),
+    # beside the path without the compiled text library in the same run
     import bench_gcode
     n_lines = 200_000
     with tempfile.TemporaryDirectory() as tmp:
@@ -166,23 +206,27 @@ def main(argv=None):
           "time in brackets for the kernel; random poses within 30 % of each travel unless a path. "
           "Setting errors: tool (0.35, -0.2, 0.15) mm, workpiece (30, -20, 10) µm; rotation "
           "(0.02, -0.03, 0.15) deg; tables: 15-point random tables on every axis with location "
-          "errors and setting errors. The last column is the largest difference of the commands "
-          "(mm or deg) between the kernel and numpy.", "",
-          "| case | machine | kernel, poses/s CPU (wall) | kernel on 1 thread, CPU (wall) | numpy, poses/s CPU | max difference |",
-          "|---|---|---|---|---|---|"]
+          "errors and setting errors. \"max difference\" is the largest difference of the commands "
+          "(mm or deg) between the kernel and numpy." + (
+              f" The previous kernel (git {a.previous}, compiled in this run) on the same poses with tables, "
+              "beside the current one." if prev else ""), "",
+          "| case | machine | kernel, poses/s CPU (wall) | kernel on 1 thread, CPU (wall) | numpy, poses/s CPU | max difference |"
+          + (f" previous kernel ({a.previous}), CPU |" if prev else ""),
+          "|---|---|---|---|---|---|" + ("---|" if prev else "")]
     for r in rows:
         md.append(f"| {r[0].strip()} | {r[1].strip()} | {r[2]:,.0f} ({r[3]:,.0f}) | {r[7]:,.0f} ({r[8]:,.0f}) | "
-                  f"{r[4]:,.0f} | {r[6]:.1e} |")
+                  f"{r[4]:,.0f} | {r[6]:.1e} |" + ((f" {r[9]:,.0f} |" if r[9] == r[9] else " |") if prev else ""))
     md += ["", f"`mtcomp compensate` end to end ({comp['lines']:,} lines, robonano-a0ib, setting errors; "
-           "bench_gcode.py's child run: read, parse, travel checks, retarget, rewrite, the forward-model "
-           "check of every compensated block, atomic write): "
+           "bench_gcode.py's child run: read, parse, travel checks, retarget, rewrite, the written "
+           "words read back and checked, the forward-model check of every compensated block, atomic "
+           "write): "
            f"{comp['lines'] / comp['cpu']:,.0f} lines/s CPU ({comp['lines'] / comp['wall']:,.0f} wall), "
-           f"peak {comp['maxrss_mb']:.0f} MB; the path before the compiled tokenizer and the verification from "
-           f"emitted values, in the same run: {comp_old['lines'] / comp_old['cpu']:,.0f} lines/s CPU. The check "
-           "takes the positions only (`kinematics.forward_position`: the kernel writes no orientations) in "
-           "chunks; the kernel's share (three forward passes and the retarget) is about 14 % of the CPU "
-           "time (cProfile at 200,000 lines), parsing (twice: the input, and the emitted values) and "
-           "rewriting most of the rest (the G-code reader and writer; their figures are in the gcode block).",
+           f"peak {comp['maxrss_mb']:.0f} MB; without the compiled text library (numpy tokenizer, output "
+           f"parsed again for the check), in the same run: {comp_old['lines'] / comp_old['cpu']:,.0f} "
+           "lines/s CPU. The check takes the positions only (`kinematics.forward_position`: the kernel "
+           "writes no orientations) in chunks; parsing the input and rewriting take most of the time "
+           "(the G-code reader and writer; their figures, the profile and the 1 M-line run are in the "
+           "gcode block).",
            "", "Targets of the compiled-kernel issue (CPU time, minimum over the machines):", "",
            "| path | target | measured | |", "|---|---|---|---|"]
     six = rate("retarget, rigid + workpiece rotation (closed form)", "robonano-ui")
@@ -223,19 +267,31 @@ def main(argv=None):
            "closed-form solution plus the previous pose's correction beyond it (the tables' part); then "
            "one analytic Jacobian pass of the full model (the tables' slopes and the location "
            "errors in it) at the start, which also gives the residual there, then Newton steps on the normal "
-           "equations, each checked by a forward evaluation (on machines with up to two rotary axes the "
-           "position and tool direction only, turned on vectors from the tool end). Counted in a test build: "
-           "per random pose 4.1 forward evaluations (the target included) and 3.7 steps on a0ib, 3.7 and 3.1 "
-           "on ui, 3.0 and 2.0 on the 3-axis machine (4.7, 4.0, 3.1 evaluations from the previous pose's "
-           "correction); along the benchmark's path 1.6, 2.0 and 1.5 evaluations "
-           "(rotary axes sweeping up to 0.01 deg per pose: most steps are beyond the 1e-5 deg and 1e-4 mm "
-           "inside one table interval below which a Newton step is taken without an evaluation, the model "
-           "being linear over it to below 1e-11 mm). perf on random a0ib poses: forward evaluations about 30 % "
-           "of the kernel's time, the Jacobian pass 18 %, the normal-equation steps 15 %, the iteration's "
-           "bookkeeping 10 %, sincos 5 %. "
+           "equations (on machines with up to two rotary axes the residual from the position and tool "
+           "direction only, turned on vectors from the tool end). Two things cut the forward evaluations: "
+           "from such a far start the first step solves the quadratic model of the chain (its second "
+           "derivatives from the same pass: d2p/dq_i dq_j = W_i x P_j, the earlier axis' angular velocity "
+           "crossed with the later axis' column, and on the diagonal of a table axis its twist's own rate), "
+           "which leaves about 1e-9 mm rather than 1e-6 mm; and a step is taken without evaluating the "
+           "model after it where a bound on those second derivatives (the axes' angular velocities, the "
+           "columns' lengths over the box the steps span, all tables within one interval) keeps the "
+           "linear prediction within 5e-11 mm. The rotary sines and cosines of the iteration come from the "
+           "axis' last directly taken angle by the angle sum where within 1e-2 rad (the iterates of a pose, "
+           "the poses of a path). Counted in a test build (3,000 poses): per random pose "
+           "1.5 forward evaluations after the Jacobian pass on a0ib, 1.6 on ui, 1.0 on the 3-axis "
+           "machine (the previous kernel, same poses: 3.1, 2.6, 2.0), plus the ideal target's; along the "
+           "benchmark's path 0.0, 1.0 and 0.0 (unchanged). In instructions per pose (callgrind, same "
+           "poses; random, then path) 16,600 and 8,100 on a0ib, 23,800 and 14,900 on ui, 6,300 and 4,000 "
+           "on the 3-axis machine, against 17,600 and 8,400, 23,900 and 15,400, 6,900 and 3,900 before: "
+           "most of the evaluations saved are spent again on the wider Jacobian pass (the angular "
+           "velocities and bracket columns the quadratic model needs; the pass is about a third of the "
+           "kernel's instructions), the second-order terms and the bound. The CPU-time change is in the "
+           "previous kernel's column (same run, same poses; the machine is shared, so a change of a "
+           "few per cent is within its noise). The 2 M/s target needs about 2,500 instructions per pose at "
+           "this machine's rate, six times fewer than the iteration takes: the forward evaluations "
+           "and the Jacobian pass in SIMD across poses, not done. "
            f"With tables the 2 M/s target is met on random poses on {met_random}, along the path on "
-           f"{met_path}; the rest needs the Jacobian pass and the forward evaluations in SIMD across "
-           "poses, not done. Threads: a batch is cut into chunks of 4,096 poses that do not "
+           f"{met_path}. Threads: a batch is cut into chunks of 4,096 poses that do not "
            "depend on the number of threads (each chunk after the first takes up the path from the 16 "
            "poses before it), run on min(cores, chunks) threads started in C (MTCOMP_THREADS "
            "overrides); one thread and two give the same bits (asserted in this run). The CPU-time "

@@ -97,6 +97,15 @@ static void rotvec(const double w[3], double R[9])
 }
 
 /* Rotation about unit vector u by angle (rad). */
+static inline void axis_rotation_sc(const double u[3], double s, double c, double R[9])
+{
+    double C = 1.0 - c;
+    double x = u[0], y = u[1], z = u[2];
+    R[0] = c + x * x * C;     R[1] = x * y * C - z * s; R[2] = x * z * C + y * s;
+    R[3] = y * x * C + z * s; R[4] = c + y * y * C;     R[5] = y * z * C - x * s;
+    R[6] = z * x * C - y * s; R[7] = z * y * C + x * s; R[8] = c + z * z * C;
+}
+
 static inline void axis_rotation(const double u[3], double ang, double R[9])
 {
     double c = cos(ang), s = sin(ang), C = 1.0 - c;
@@ -154,15 +163,36 @@ int mtk_axis_index(const mtk_model *m, char axis_name)
     return -1;
 }
 
+static void table_free(mtk_table *t)
+{
+    free(t->pos); free(t->val); free(t->coef); free(t);
+}
+
+/* The per-interval values and slopes of a loaded table (coef, p0, inv_h); MTK_E_IO without memory. */
+static int table_finish(mtk_table *t)
+{
+    int i, k;
+    t->coef = (double *)malloc((size_t)(t->n - 1) * 12 * sizeof(double));
+    if (!t->coef) return MTK_E_IO;
+    for (i = 0; i < t->n - 1; i++) {
+        double inv = 1.0 / (t->pos[i + 1] - t->pos[i]), *c = t->coef + 12 * i;
+        for (k = 0; k < 6; k++) {
+            c[k] = t->val[6 * i + k];
+            c[6 + k] = (t->val[6 * i + 6 + k] - t->val[6 * i + k]) * inv;
+        }
+    }
+    t->p0 = t->pos[0];
+    t->inv_h = (t->n - 1) / (t->pos[t->n - 1] - t->pos[0]);
+    return MTK_OK;
+}
+
 void mtk_free(mtk_model *m)
 {
     int i;
     if (!m) return;
     for (i = 0; i < MTK_MAX_AXES; i++) {
         if (m->table[i]) {
-            free(m->table[i]->pos);
-            free(m->table[i]->val);
-            free(m->table[i]);
+            table_free(m->table[i]);
         }
     }
     free(m->cache);
@@ -368,8 +398,13 @@ int mtk_load_table(mtk_model *m, const char *axis_name, const char *path, char *
         free(t->pos); free(t->val); free(t);
         return MTK_E_FORMAT;
     }
+    if (table_finish(t) != MTK_OK) {
+        seterr(err, "out of memory");
+        table_free(t);
+        return MTK_E_IO;
+    }
     if (m->table[idx]) {
-        free(m->table[idx]->pos); free(m->table[idx]->val); free(m->table[idx]);
+        table_free(m->table[idx]);
     }
     m->table[idx] = t;
     return MTK_OK;
@@ -382,12 +417,17 @@ bad:
     return MTK_E_FORMAT;
 }
 
-/* Interval [lo, lo + 1] of the table holding q (pos[0] < q < pos[n-1]), starting from *hint:
- * the iterates of one pose and the poses of a path stay in or next to the same interval. */
+/* Interval [lo, lo + 1] of the table holding q (pos[0] < q < pos[n-1]): *hint if it holds q (the
+ * iterates of one pose and the poses of a path stay in the same interval), else on an evenly
+ * spaced grid by one multiplication, else by bisection. */
 static inline int table_interval(const mtk_table *t, double q, int *hint)
 {
     int lo = *hint, hi;
     if (lo >= 0 && lo < t->n - 1 && t->pos[lo] <= q && q < t->pos[lo + 1]) return lo;
+    lo = (int)((q - t->p0) * t->inv_h);   /* (pos[0] < q < pos[n-1]: no overflow) */
+    if (lo > t->n - 2) lo = t->n - 2;
+    if (lo < 0) lo = 0;
+    if (t->pos[lo] <= q && q < t->pos[lo + 1]) { *hint = lo; return lo; }
     lo = 0;
     hi = t->n - 1;
     while (hi - lo > 1) {
@@ -405,7 +445,8 @@ static inline int table_eval_hint(const mtk_table *t, double q, double d[3], dou
                                   int strict, int *hint)
 {
     int lo, k;
-    double f, inv;
+    double f;
+    const double *c;
     if (isnan(q)) {
         if (strict) return MTK_E_RANGE;
         for (k = 0; k < 3; k++) d[k] = e[k] = NAN;
@@ -421,13 +462,11 @@ static inline int table_eval_hint(const mtk_table *t, double q, double d[3], dou
     }
     lo = table_interval(t, q, hint);
     f = q - t->pos[lo];
-    inv = 1.0 / (t->pos[lo + 1] - t->pos[lo]);
+    c = t->coef + 12 * lo;
     for (k = 0; k < 3; k++) {
-        double s = (t->val[6 * lo + 6 + k] - t->val[6 * lo + k]) * inv;
-        double se = (t->val[6 * lo + 9 + k] - t->val[6 * lo + 3 + k]) * inv;
-        d[k] = s * f + t->val[6 * lo + k];
-        e[k] = se * f + t->val[6 * lo + 3 + k];
-        if (dd) { dd[k] = s; de[k] = se; }
+        d[k] = c[6 + k] * f + c[k];
+        e[k] = c[9 + k] * f + c[3 + k];
+        if (dd) { dd[k] = c[6 + k]; de[k] = c[9 + k]; }
     }
     return MTK_OK;
 }
@@ -467,6 +506,11 @@ typedef struct {
                                        * dot products ap.u1, ap.u12, u1.(u2 x ap), u12.(u2 x ap) */
     double aa, u2a, K[4];
     double r2, iden;                  /* a.a - (u2.a)^2, 1 / (1 - (u1.u2)^2) */
+    double sc_ref[MTK_MAX_AXES][3];   /* per rotary axis an angle (rad) taken by sin and cos, and
+                                       * those (axis_sincos; NAN: none yet) */
+    double wmax[MTK_MAX_AXES];        /* bound of |W_i|, the angular velocity of axis i per deg or mm:
+                                       * DEG for a rotary axis, plus the steepest slope of its table's
+                                       * angles (the second-order bounds of iterate) */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
@@ -552,6 +596,22 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
     for (i = 0, k = 0; i < m->n_axes; i++)
         if (m->rotary[i]) P->rot_idx[k++] = i;
+    for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
+    for (i = 0; i < m->n_axes; i++) {
+        double w = m->rotary[i] ? DEG : 0.0;
+        if (P->tab[i]) {
+            const mtk_table *t = P->tab[i];
+            double smax = 0.0;
+            int j;
+            for (j = 0; j < t->n - 1; j++) {
+                const double *c = t->coef + 12 * j + 9;
+                double sl = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+                smax = sl > smax ? sl : smax;
+            }
+            w += smax;
+        }
+        P->wmax[i] = w;
+    }
     for (k = 0; k < 3; k++) P->tp[k] = m->tool_point[k] + (e ? e->tool[k] : 0.0);
     if (e && (e->wp_t[0] != 0.0 || e->wp_t[1] != 0.0 || e->wp_t[2] != 0.0 ||
               e->wp_a[0] != 0.0 || e->wp_a[1] != 0.0 || e->wp_a[2] != 0.0)) {
@@ -654,9 +714,34 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
 }
 
+/* sin and cos of rotary axis i's angle a (rad) from those of the last angle taken directly for
+ * the axis: the iterates of one pose and the poses of a path lie within 1e-2 rad of it, and a =
+ * ref + d by the angle sum with the series of sin d and cos d (truncation below 1e-23); else sin
+ * and cos, remembered.  (Deterministic: the reference depends only on the poses before in the
+ * batch's chunk.) */
+static inline void axis_sincos(const prep_t *P, int i, double a, double *s, double *c)
+{
+    prep_t *Q = (prep_t *)P;   /* (the prepared model's scratch, like the tables' hints) */
+    double d = a - Q->sc_ref[i][0];
+    if (fabs(d) < 1e-2) {
+        double d2 = d * d;
+        double sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)));
+        double cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
+        *s = Q->sc_ref[i][1] * cd + Q->sc_ref[i][2] * sd;
+        *c = Q->sc_ref[i][2] * cd - Q->sc_ref[i][1] * sd;
+        return;
+    }
+    *s = sin(a);
+    *c = cos(a);
+    Q->sc_ref[i][0] = a;
+    Q->sc_ref[i][1] = *s;
+    Q->sc_ref[i][2] = *c;
+}
+
 /* Pose of the tool in the real workpiece frame (mtcomp.kinematics.forward).  A table range
- * violation (strict) returns MTK_E_RANGE with the axis in *bad. */
-static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int strict, int *bad)
+ * violation (strict) returns MTK_E_RANGE with the axis in *bad.  iter: an evaluation of the
+ * iteration (the rotary sines and cosines by axis_sincos), else the plain forward model. */
+static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int strict, int *bad, int iter)
 {
     const mtk_model *m = P->m;
     double t[3] = {0, 0, 0};
@@ -666,7 +751,13 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
         int grot = 0;
         if (m->rotary[i]) {
             const double *c = P->c[i];
-            axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            if (iter) {
+                double sn, cs;
+                axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+                axis_rotation_sc(P->ueff[i], sn, cs, Rg);
+            } else {
+                axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            }
             for (k = 0; k < 3; k++)
                 tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
             grot = 1;
@@ -755,7 +846,8 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
         }
         if (m->rotary[i]) {
             const double *c = P->c[i], *u = P->ueff[i];
-            double a = q[i] * DEG + P->zero[i], sn = sin(a), cs = cos(a);
+            double sn, cs;
+            axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
             for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
             turn(u, sn, cs, y, y);
             for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
@@ -779,6 +871,22 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
     }
 }
 
+/* Counters of a test build (-DMTK_STATS, gcc; one thread), printed at exit: forward evaluations of
+ * the iteration, Jacobian passes, steps, steps taken under the second-order bound, corrected first
+ * steps, poses iterated (docs/benchmarks.md's counts). */
+#ifdef MTK_STATS
+long mtk_stat[8];
+#include <stdio.h>
+__attribute__((destructor)) static void mtk_stat_print(void)
+{
+    fprintf(stderr, "STATS res %ld jac %ld steps %ld acc %ld corr %ld poses %ld\n", mtk_stat[0], mtk_stat[1],
+            mtk_stat[2], mtk_stat[3], mtk_stat[4], mtk_stat[5]);
+}
+#define STAT(i) (mtk_stat[i]++)
+#else
+#define STAT(i) ((void)0)
+#endif
+
 static void range_message(const mtk_model *m, int i, double q, char *err)
 {
     char msg[MTK_ERRLEN];
@@ -793,7 +901,7 @@ int mtk_forward(const mtk_model *m, const mtk_errors *e, const double *q, double
     int bad = -1, rc;
     double Rl[9];
     prepare(m, e, 1, &P);
-    rc = fwd(&P, q, p, R ? R : Rl, 1, &bad);
+    rc = fwd(&P, q, p, R ? R : Rl, 1, &bad, 0);
     if (rc) range_message(m, bad, q[bad], err);
     return rc;
 }
@@ -811,6 +919,7 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
 {
     double p[3], R[9];
     int k, rc;
+    STAT(0);
     if (!strict && P->mode != 3) {   /* position and tool direction only */
         double v[3];
         fwd_pv(P, q, p, v);
@@ -819,7 +928,7 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
             for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
         return MTK_OK;
     }
-    rc = fwd(P, q, p, R, strict, bad);
+    rc = fwd(P, q, p, R, strict, bad, 1);
     if (rc) return rc;
     for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
     if (P->mode == 2) {
@@ -900,10 +1009,24 @@ static inline void pose_residual(const prep_t *P, const double p[3], const doubl
     }
 }
 
+/* E = T^T Rw^T R (mode 3): the real tool frame R (machine frame) seen from the target's T, for
+ * orientation_column. */
+static inline void orientation_frame(const prep_t *P, const double R[9], const target_t *tg, double E[9])
+{
+    double X[9];
+    int r, c;
+    mat_mul(P->RwT, R, X);
+    for (r = 0; r < 3; r++)
+        for (c = 0; c < 3; c++)
+            E[3 * r + c] = tg->R[r] * X[c] + tg->R[3 + r] * X[3 + c] + tg->R[6 + r] * X[6 + c];
+}
+
 /* Column i of the orientation rows of the Jacobian for an axis turning about w (workpiece-side
  * direction in the machine frame): the tool vector's rate w x v (mode 2), or the small rotation
- * of T^T Rw^T [w]x R, half the vee of its antisymmetric part (mode 3).  Shared by both passes. */
-static inline void orientation_column(const prep_t *P, const double w[3], const double R[9],
+ * of dM = T^T Rw^T [w]x R, half the vee of its antisymmetric part (mode 3).  With u = T^T Rw^T w,
+ * dM = [u]x E (E from orientation_frame), and [u]x E - ([u]x E)^T = [(tr E I - E) u]x: the
+ * column is wo (tr E u - E u) / 2, no 3x3 product per axis.  Shared by both passes. */
+static inline void orientation_column(const prep_t *P, const double w[3], const double E[9],
                                       const double v[3], const target_t *tg, double wo, double *J,
                                       int n, int i)
 {
@@ -914,31 +1037,35 @@ static inline void orientation_column(const prep_t *P, const double w[3], const 
         mat_vec(P->RwT, c, dv);
         for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * dv[k];
     } else if (P->mode == 3) {
-        double W[9] = {0, -w[2], w[1], w[2], 0, -w[0], -w[1], w[0], 0}, dR[9], dM[9];
-        int r, c;
-        mat_mul(W, R, dR);
-        mat_mul(P->RwT, dR, dR);
-        for (r = 0; r < 3; r++)
-            for (c = 0; c < 3; c++)
-                dM[3 * r + c] = tg->R[r] * dR[c] + tg->R[3 + r] * dR[3 + c] + tg->R[6 + r] * dR[6 + c];
-        J[3 * n + i] = wo * 0.5 * (dM[7] - dM[5]);
-        J[4 * n + i] = wo * 0.5 * (dM[2] - dM[6]);
-        J[5 * n + i] = wo * 0.5 * (dM[3] - dM[1]);
+        double wp[3], u[3], Eu[3], tr = E[0] + E[4] + E[8];
+        const double *T = tg->R;
+        mat_vec(P->RwT, w, wp);
+        for (k = 0; k < 3; k++) u[k] = T[k] * wp[0] + T[3 + k] * wp[1] + T[6 + k] * wp[2];
+        mat_vec(E, u, Eu);
+        for (k = 0; k < 3; k++) J[(3 + k) * n + i] = wo * 0.5 * (tr * u[k] - Eu[k]);
     }
 }
 
-static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0)
+
+static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, double wo, double *J, double *r0,
+                         double *Wo, double *Bo)
 {
     const mtk_model *m = P->m;
     double W[MTK_MAX_AXES][3], V[MTK_MAX_AXES][3], T[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
-    int n = P->n, i, k;
+    double WB[MTK_MAX_AXES][3], VB[MTK_MAX_AXES][3];   /* the bracket twists (second_order) */
+    double E[9];
+    int n = P->n, i, k, anyb = 0;
     eye(R);
     for (i = 0; i < n; i++) {
         double Rg[9], tg3[3], w[3], vv[3];
         int grot = m->rotary[i];      /* Rg differs from the identity (skipped in the products) */
         if (m->rotary[i]) {
             const double *c = P->c[i];
-            axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
+            {
+                double sn, cs;
+                axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+                axis_rotation_sc(P->ueff[i], sn, cs, Rg);
+            }
             for (k = 0; k < 3; k++) {
                 tg3[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
                 w[k] = P->ueff[i][k] * DEG;
@@ -964,6 +1091,9 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             }
             cross(de, lp, x);
             for (k = 0; k < 3; k++) ve[k] = dd[k] - x[k];
+            /* The axis' twist xi_A + Ad_A xi_B (A, B: the nominal and the error motion in their
+             * order) turns with A along the axis: d xi / dq = [xi_A, Ad_A xi_B], the bracket
+             * (w1 x w2, w1 x v2 - w2 x v1), kept in WB, VB for the diagonal second derivative */
             if (m->tool_side[i] == m->rotary[i]) {      /* E . N */
                 if (grot) {
                     mat_vec(Re, w, a);
@@ -972,6 +1102,15 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
                     a[0] = a[1] = a[2] = x[0] = x[1] = x[2] = 0.0;
                 }
                 mat_vec(Re, vv, b);
+                if (Bo) {
+                    double v2[3], c1[3], c2[3];
+                    for (k = 0; k < 3; k++) v2[k] = b[k] + x[k];
+                    cross(we, a, WB[i]);
+                    cross(we, v2, c1);
+                    cross(a, ve, c2);
+                    for (k = 0; k < 3; k++) VB[i][k] = c1[k] - c2[k];
+                    anyb = 1;
+                }
                 for (k = 0; k < 3; k++) { w[k] = we[k] + a[k]; vv[k] = ve[k] + b[k] + x[k]; }
                 mat_vec(Re, tg3, b);
                 for (k = 0; k < 3; k++) tg3[k] = b[k] + te[k];
@@ -980,18 +1119,45 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
                 mat_vec(Rg, we, a);
                 mat_vec(Rg, ve, b);
                 cross(tg3, a, x);
+                if (Bo) {
+                    double v2[3], c1[3], c2[3];
+                    for (k = 0; k < 3; k++) v2[k] = b[k] + x[k];
+                    cross(w, a, WB[i]);
+                    cross(w, v2, c1);
+                    cross(a, vv, c2);
+                    for (k = 0; k < 3; k++) VB[i][k] = c1[k] - c2[k];
+                    anyb = 1;
+                }
                 for (k = 0; k < 3; k++) { w[k] += a[k]; vv[k] += b[k] + x[k]; }
                 mat_vec(Rg, te, b);
                 for (k = 0; k < 3; k++) tg3[k] += b[k];
                 mat_mul(Rg, Re, Rg);
             } else {                                     /* N . E, N a translation */
                 cross(tg3, we, x);
+                if (Bo) {   /* [(0, u), (we, .)] = (0, -we x u) */
+                    WB[i][0] = WB[i][1] = WB[i][2] = 0.0;
+                    cross(we, vv, VB[i]);
+                    for (k = 0; k < 3; k++) VB[i][k] = -VB[i][k];
+                    anyb = 1;
+                }
                 for (k = 0; k < 3; k++) { w[k] += we[k]; vv[k] += ve[k] + x[k]; tg3[k] += te[k]; }
                 memcpy(Rg, Re, sizeof Rg);
             }
             grot = 1;
         }
+        if (Bo) {
+            if (P->tab[i]) {
+                double tmp[3];
+                mat_vec(R, WB[i], tmp);
+                memcpy(WB[i], tmp, sizeof tmp);
+                mat_vec(R, VB[i], tmp);
+                memcpy(VB[i], tmp, sizeof tmp);
+            } else {
+                for (k = 0; k < 3; k++) WB[i][k] = VB[i][k] = 0.0;
+            }
+        }
         mat_vec(R, w, W[i]);
+        if (Wo) mat_vec(P->RwT, W[i], Wo + 3 * i);
         mat_vec(R, vv, V[i]);
         memcpy(T[i], t, sizeof t);
         {
@@ -1005,6 +1171,7 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
     for (k = 0; k < 3; k++) p[k] += t[k];
     mat_vec(R, m->tool_axis, v);
     if (r0) pose_residual(P, p, R, v, tg, wo, r0);
+    if (P->mode == 3) orientation_frame(P, R, tg, E);
     for (i = 0; i < n; i++) {
         double dp[3], dpr[3], d[3], *w = W[i];
         for (k = 0; k < 3; k++) d[k] = p[k] - T[i][k];
@@ -1012,7 +1179,20 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
         for (k = 0; k < 3; k++) dp[k] += V[i][k];
         mat_vec(P->RwT, dp, dpr);
         for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
-        orientation_column(P, w, R, v, tg, wo, J, n, i);
+        orientation_column(P, w, E, v, tg, wo, J, n, i);
+        if (Bo) {
+            /* the bracket twist's column: the diagonal term's part beyond W_i x P_i */
+            if (anyb && P->tab[i]) {
+                for (k = 0; k < 3; k++) d[k] = p[k] - T[i][k];
+                cross(WB[i], d, dp);
+                for (k = 0; k < 3; k++) dp[k] += VB[i][k];
+                mat_vec(P->RwT, dp, dpr);
+                for (k = 0; k < 3; k++) Bo[k * n + i] = dpr[k];
+                orientation_column(P, WB[i], E, v, tg, wo, Bo, n, i);
+            } else {
+                for (k = 0; k < P->rows; k++) Bo[k * n + i] = 0.0;
+            }
+        }
     }
     return MTK_OK;
 }
@@ -1023,12 +1203,14 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
  * centre c_w = R_pre c + t_pre along w, dp = w x (p - c_w) and dR = [w]x R (per rad), all in
  * the nominal workpiece frame and then turned into the real one by Rw^T.  The rigid model has
  * no tables and no location errors (prepare with geo = 0). */
-static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J, double *r0)
+static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, double wo, double *J, double *r0,
+                    double *Wo, double *Bo)
 {
     const mtk_model *m = Pr->m;
-    double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3];
+    STAT(1);
+    double Rpre[MTK_MAX_AXES][9], tpre[MTK_MAX_AXES][3], R[9], t[3] = {0, 0, 0}, p[3], v[3], E[9];
     int n = Pr->n, i, k, ident = 1;
-    if (Pr->geo) return jacobian_full(Pr, q, tg, wo, J, r0);  /* the full model (see solve_pose) */
+    if (Pr->geo) return jacobian_full(Pr, q, tg, wo, J, r0, Wo, Bo);  /* the full model (see solve_pose) */
     eye(R);
     for (i = 0; i < n; i++) {
         memcpy(Rpre[i], R, sizeof R);
@@ -1060,9 +1242,17 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
     if (r0) /* the residual of this (rigid) model at q from the same pass: the caller's model is
              * the rigid one (no tables, no location errors) */
         pose_residual(Pr, p, R, v, tg, wo, r0);
+    if (Pr->mode == 3) orientation_frame(Pr, R, tg, E);
     for (i = 0; i < n; i++) {
         double w[3], dp[3], dpr[3];
         mat_vec(Rpre[i], Pr->ueff[i], w);
+        if (Bo)
+            for (k = 0; k < Pr->rows; k++) Bo[k * n + i] = 0.0;
+        if (Wo) {
+            double wd[3] = {w[0] * DEG, w[1] * DEG, w[2] * DEG};
+            if (m->rotary[i]) mat_vec(Pr->RwT, wd, Wo + 3 * i);
+            else Wo[3 * i] = Wo[3 * i + 1] = Wo[3 * i + 2] = 0.0;
+        }
         if (!m->rotary[i]) {
             mat_vec(Pr->RwT, w, dpr);
             for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
@@ -1083,13 +1273,13 @@ static int jacobian(const prep_t *Pr, const double *q, const target_t *tg, doubl
             mat_vec(Pr->RwT, dp, dpr);
             for (k = 0; k < 3; k++) J[k * n + i] = dpr[k];
         }
-        orientation_column(Pr, w, R, v, tg, wo, J, n, i);
+        orientation_column(Pr, w, E, v, tg, wo, J, n, i);
     }
     return MTK_OK;
 }
 
 /* A = J^T J + lambda I, LU-factored in place with partial pivoting (the multipliers below the
- * diagonal, piv the row order); 0 if singular.  Factored once per linearisation, each chord step
+ * diagonal, the reciprocals of U's diagonal on it, piv the row order); 0 if singular.  Factored once per linearisation, each chord step
  * then solves for one right-hand side (normal_step) rather than forming A^-1 J^T for all rows. */
 MTK_INLINE int normal_factor(int n, int rows, const double *J, double *A, int *piv)
 {
@@ -1119,6 +1309,7 @@ MTK_INLINE int normal_factor(int n, int rows, const double *J, double *A, int *p
             for (j = c + 1; j < n; j++) A[r * n + j] -= f * A[c * n + j];
         }
     }
+    for (c = 0; c < n; c++) A[c * n + c] = 1.0 / A[c * n + c];   /* (the steps multiply) */
     return 1;
 }
 
@@ -1141,22 +1332,30 @@ MTK_INLINE void normal_step(int n, int rows, const double *J, const double *LU, 
     for (i = n - 1; i >= 0; i--) {
         double s = y[i];
         for (j = i + 1; j < n; j++) s -= LU[i * n + j] * x[j];
-        x[i] = s / LU[i * n + i];
+        x[i] = s * LU[i * n + i];
     }
 }
 
 /* Factors of A = J^T J + lambda I (normal_factor) of the Jacobian J at q, the columns of frozen
  * axes zeroed.  Returns 0 if A is singular. */
 static int linearise(const prep_t *Pr, const double *q, const target_t *tg, double wo, const int *freeze,
-                     const double *J0, double *LU, int *piv, double *J, int *rc)
+                     const double *J0, const double *W0, const double *B0, double *LU, int *piv, double *J,
+                     double *W, double *B, int *rc)
 {
     int n = Pr->n, rows = Pr->rows, j, k;
     if (J0) {  /* the Jacobian at q already taken (weight ORIENTATION_SCALE) */
         memcpy(J, J0, (size_t)rows * n * sizeof(double));
-        for (k = 3 * n; k < rows * n; k++) J[k] *= wo / ORIENTATION_SCALE;
+        if (W0) memcpy(W, W0, (size_t)3 * n * sizeof(double));
+        else W[0] = NAN;   /* not taken: no second-order correction */
+        if (B0) memcpy(B, B0, (size_t)rows * n * sizeof(double));
+        else B[0] = NAN;   /* not taken (second_order leaves the brackets out) */
+        for (k = 3 * n; k < rows * n; k++) {
+            J[k] *= wo / ORIENTATION_SCALE;
+            if (B0) B[k] *= wo / ORIENTATION_SCALE;
+        }
         *rc = MTK_OK;
     } else {
-        *rc = jacobian(Pr, q, tg, wo, J, NULL);
+        *rc = jacobian(Pr, q, tg, wo, J, NULL, W, B);
         if (*rc) return 0;
     }
     if (freeze)
@@ -1202,6 +1401,127 @@ static int linear_exact(const prep_t *P, const double *q, const double *step)
     return 1;
 }
 
+/* Second-order term of the residual along a step: r(q - s) = r(q) - J s + h + O(s^3) with
+ * h = 1/2 sum_ij s_i s_j d2r/dq_i dq_j.  For a serial chain the mixed derivative of a point is
+ * the earlier axis' angular velocity crossed with the later axis' velocity of the point,
+ * d2p/dq_i dq_j = W_i x P_j (i <= j; the spatial twists of the axes after i turn with it; on the
+ * diagonal of an axis with a table also its twist's own rate, the bracket column B_j of
+ * jacobian_full: 1/2 s_j^2 B_j), and
+ * the same for the tool direction (mode 2: its columns O_j = W_j x v); the orientation rows of
+ * mode 3 (the skew part of T^T R) have 1/2 O_i x O_j (O_j = T^T W_j) at a small residual, and no
+ * diagonal term.  So h = sum_j s_j A_j x col_j with A_j = sum_{i<j} s_i W_i + s_j W_j / 2 (mode
+ * 3: 1/2 sum_{i<j} s_i s_j O_i x O_j).  J: the columns (position rows, then the orientation rows
+ * times wo), W (n x 3): the axes' angular velocities in the workpiece frame, per deg or mm.
+ * (The tables' own curvature within an interval and the rates of the error motions' twists are
+ * of the order of their µrad angles relative to these: the term improves a step, it is not used
+ * as a bound.) */
+static void second_order(const prep_t *P, const double *J, const double *W, const double *B, const double *s,
+                         double wo, double *h)
+{
+    int n = P->n, i, j, k;
+    double A[3] = {0, 0, 0}, S[3] = {0, 0, 0};
+    for (k = 0; k < P->rows; k++) h[k] = 0.0;
+    for (j = 0; j < n; j++) {
+        double a[3], col[3], c[3];
+        if (s[j] == 0.0) continue;
+        for (k = 0; k < 3; k++) a[k] = A[k] + 0.5 * s[j] * W[3 * j + k];
+        for (k = 0; k < 3; k++) col[k] = J[k * n + j];
+        cross(a, col, c);
+        for (k = 0; k < 3; k++) h[k] += s[j] * c[k];
+        if (P->mode == 2) {
+            for (k = 0; k < 3; k++) col[k] = J[(3 + k) * n + j];
+            cross(a, col, c);
+            for (k = 0; k < 3; k++) h[3 + k] += s[j] * c[k];
+        } else if (P->mode == 3) {
+            /* 1/(2 wo) (sum_{i<j} s_i Jo_i) x s_j Jo_j */
+            for (k = 0; k < 3; k++) col[k] = J[(3 + k) * n + j];
+            cross(S, col, c);
+            for (k = 0; k < 3; k++) h[3 + k] += s[j] * c[k] * (0.5 / wo);
+            for (k = 0; k < 3; k++) S[k] += s[j] * col[k];
+        }
+        for (k = 0; k < 3; k++) A[k] += s[j] * W[3 * j + k];
+        if (P->tab[j] && !isnan(B[0]))   /* the tables' bracket column: d xi_j / dq_j applied */
+            for (k = 0; k < P->rows; k++) h[k] += 0.5 * s[j] * s[j] * B[k * n + j];
+    }
+    (void)i;
+}
+
+/* Bound of the error of the chord prediction r(q - s) = r(q) - J s, with J taken at qlin and
+ * every table axis within one interval over qlin, q and q - s (the model smooth there).  With
+ * D_i = |q_i - qlin_i| + |s_i| (the box about qlin holding both segments), w_i = wmax_i and p_i
+ * the length of J's position column i at qlin:
+ *     |r(q - s) - r(q) + J s| <= sum_ij M_ij (|q_i - qlin_i| + |s_i| / 2) |s_j|,
+ *     M_ij = 2 (w_i P_j + w_j P_i + wo w_i w_j),
+ * the second derivatives of all rows bounded by second_order's expressions (|W_i x P_j| <=
+ * w_i |P_j|, the orientation rows' by wo w_i w_j), the factor 2 for the tables' twists turning
+ * with their axis and their curvature (both of the order of their µrad angles relative to
+ * these).  P_j bounds the column's length over the box: |dP_j/dq_i| <= w_i P_j + w_j P_i gives,
+ * with e = sum_i w_i D_i and Q = sum_i P_i D_i <= (sum_i p_i D_i) / (1 - 2 e),
+ * P_j = (p_j + w_j Q) / (1 - e).  So the bound is 2 sum_j |s_j| (P_j A_w + w_j A_p + wo w_j A_w)
+ * with A_w = sum_i w_i a_i, A_p = sum_i P_i a_i, a_i = |q_i - qlin_i| + |s_i| / 2.  pn: the
+ * lengths p_j; ilin: each table axis' interval at qlin (-1: at or beyond an end).  Returns
+ * INFINITY where the conditions do not hold. */
+static void column_lengths(const prep_t *P, const double *J, double *pn)
+{
+    int n = P->n, j;
+    for (j = 0; j < n; j++)
+        pn[j] = sqrt(J[j] * J[j] + J[n + j] * J[n + j] + J[2 * n + j] * J[2 * n + j]);
+}
+
+static double second_order_bound(const prep_t *P, const double *pn, const int *ilin, const double *qlin,
+                                 const double *q, const double *s, double wo)
+{
+    int n = P->n, i;
+    double a[MTK_MAX_AXES], D[MTK_MAX_AXES], e = 0.0, T = 0.0, Q, Aw = 0.0, Ap = 0.0, b = 0.0;
+    for (i = 0; i < n; i++) {
+        const mtk_table *t = P->tab[i];
+        double qn = q[i] - s[i], d = fabs(q[i] - qlin[i]);
+        if (t) {
+            int lo = ilin[i];
+            if (lo < 0) return INFINITY;
+            if (!(t->pos[lo] <= q[i] && q[i] < t->pos[lo + 1] && t->pos[lo] <= qn && qn < t->pos[lo + 1]))
+                return INFINITY;
+        }
+        a[i] = d + 0.5 * fabs(s[i]);
+        D[i] = d + fabs(s[i]);
+        e += P->wmax[i] * D[i];
+        T += pn[i] * D[i];
+    }
+    if (!(e <= 0.01)) return INFINITY;
+    Q = T / (1.0 - 2.0 * e);
+    for (i = 0; i < n; i++) {
+        double Pb = (pn[i] + P->wmax[i] * Q) / (1.0 - e);
+        D[i] = Pb;   /* (reused: the column bounds) */
+        Aw += P->wmax[i] * a[i];
+        Ap += Pb * a[i];
+    }
+    for (i = 0; i < n; i++)
+        b += fabs(s[i]) * (D[i] * Aw + P->wmax[i] * Ap + wo * P->wmax[i] * Aw);
+    return 2.0 * b;
+}
+
+/* A lower bound of second_order_bound from J's entries alone (no lengths, no table intervals):
+ * the columns' largest components for their lengths and the terms with P_j A_w and wo w_j A_w
+ * only.  Above LINEAR_BOUND the bound is not taken (tried on the first step of a linearisation,
+ * which along a path is mostly beyond it; the later steps are mostly within). */
+static double second_order_floor(const prep_t *P, const double *J, const double *qlin, const double *q,
+                                 const double *s, double wo)
+{
+    int n = P->n, j;
+    double Aw = 0.0, b = 0.0;
+    for (j = 0; j < n; j++) Aw += P->wmax[j] * (fabs(q[j] - qlin[j]) + 0.5 * fabs(s[j]));
+    for (j = 0; j < n; j++) {
+        double pl = fmax(fabs(J[j]), fmax(fabs(J[n + j]), fabs(J[2 * n + j])));
+        b += fabs(s[j]) * (pl + wo * P->wmax[j]);
+    }
+    return 2.0 * b * Aw;
+}
+
+/* Largest bound (mm) of second_order_bound at which a step is taken without an evaluation: half
+ * the resolution of the iteration itself, which stops at steps below tol = 1e-10 mm or deg
+ * (residuals of about 1e-10 mm). */
+#define LINEAR_BOUND 5e-11
+
 /* With a held axis, rotary axes within this (deg) of where the Jacobian was taken do not make it
  * stale (its orientation rows depend on the rotary angles alone): the bias of the least-squares point it
  * leaves is below 1e-10 deg for the orientation residuals the pole tolerance admits (a warm start
@@ -1214,12 +1534,15 @@ static int linear_exact(const prep_t *P, const double *q, const double *step)
  * the iterations to *iters.  A singular Jacobian ends the attempt with *singular set.  J0, r0: the
  * rigid Jacobian and the residual at seed if already known (NULL: evaluated here). */
 static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double wo, const int *freeze,
-                   const double *seed, const double *J0, const double *r0, double *q, double tol, int max_iter,
-                   int *iters, double *r, int *singular)
+                   const double *seed, const double *J0, const double *W0, const double *B0, const double *r0,
+                   double *q, double tol,
+                   int max_iter, int *iters, double *r, int *singular)
 {
     int n = P->n, rows = P->rows, i, k, it = 0, rc = MTK_OK, done = 0;
-    double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], nr, qlin[MTK_MAX_AXES];
-    int piv[MTK_MAX_AXES];
+    double LU[MTK_MAX_AXES * MTK_MAX_AXES], J[6 * MTK_MAX_AXES], W[3 * MTK_MAX_AXES], B[6 * MTK_MAX_AXES], nr,
+           qlin[MTK_MAX_AXES];
+    double pn[MTK_MAX_AXES];
+    int piv[MTK_MAX_AXES], ilin[MTK_MAX_AXES], bounded, have_pn = 0, lin;
     *singular = 0;
     memcpy(q, seed, n * sizeof(double));
     if (r0) {  /* the residual at seed already known (weight ORIENTATION_SCALE) */
@@ -1232,20 +1555,43 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
     while (!done && it < max_iter) {
         int inner, slow = 0;
         memcpy(qlin, q, n * sizeof(double));
-        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, LU, piv, J, &rc)) {
+        if (!linearise(Pr, q, tg, wo, freeze, it == 0 ? J0 : NULL, W0, B0, LU, piv, J, W, B, &rc)) {
             *iters += it;
             if (rc) return rc;
             *singular = 1;
             return MTK_OK;
         }
+        /* J the Jacobian of the evaluated model itself (not the rigid one's; no axis held): its
+         * second-order term corrects the first step, and a chord step whose second-order bound
+         * is below LINEAR_BOUND needs no evaluation */
+        bounded = (Pr == P || !P->geo) && !freeze;
+        have_pn = 0;   /* column lengths and intervals at qlin: taken when first needed */
         for (inner = 0; inner < 8; inner++) {
             double step[MTK_MAX_AXES], qn[MTK_MAX_AXES], rn[6], nn = nr, big = 0.0, scale, stepped = 0.0,
                    smax = 0.0, rstep = 0.0;
             int bt;
             it++;
+            STAT(2);
             /* damped least squares: no component along a null direction of J (an axis the
              * orientation leaves free keeps the seed's value), no bias of the solution */
             chord_step(n, rows, J, LU, piv, r, step);
+            if (inner == 0 && bounded && nr > 1e-4 && !isnan(W[0])) {
+                /* Newton on the quadratic model r - J s + h(s) = 0: s = J+ (r + h(J+ r)), where
+                 * the quadratic term is a small part of the residual and the rotary steps below
+                 * 0.5 deg (the error left is then of third order, rather than second; far from
+                 * the solution or near a pole the plain step).  Where the term is below 1e-7 mm
+                 * the plain chord step already ends the iteration with one evaluation. */
+                double h[6], rh[6], nh, rmax = 0.0;
+                for (i = 0; i < n; i++)
+                    if (P->m->rotary[i] && fabs(step[i]) > rmax) rmax = fabs(step[i]);
+                second_order(P, J, W, B, step, wo, h);
+                nh = norm(h, rows);
+                if (nh > 1e-7 && nh < 1e-3 * nr && rmax <= 0.5) {
+                    STAT(4);
+                    for (k = 0; k < rows; k++) rh[k] = r[k] + h[k];
+                    chord_step(n, rows, J, LU, piv, rh, step);
+                }
+            }
             for (i = 0; i < n; i++) {
                 if (freeze && freeze[i]) { step[i] = 0.0; continue; }
                 if (P->m->rotary[i] && fabs(step[i]) > big) big = fabs(step[i]);
@@ -1257,10 +1603,24 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
             memcpy(qn, q, n * sizeof(double));
             memcpy(rn, r, rows * sizeof(double));
-            if (smax >= tol && (Pr == P || !P->geo) && !freeze && inner == 0 && linear_exact(P, q, step)) {
-                /* Newton step on the full model's Jacobian so small that the model is linear
-                 * over it to below 1e-11 mm: the residual after it is the linear prediction, no
-                 * evaluation (a warm start along a path ends here) */
+            lin = smax >= tol && bounded && inner == 0 && linear_exact(P, q, step);
+            if (smax >= tol && bounded && !lin && !have_pn &&
+                (inner > 0 || second_order_floor(P, J, qlin, q, step, wo) <= LINEAR_BOUND)) {
+                column_lengths(P, J, pn);
+                for (i = 0; i < n; i++) {
+                    const mtk_table *t = P->tab[i];
+                    ilin[i] = t && qlin[i] > t->pos[0] && qlin[i] < t->pos[t->n - 1] ?
+                              table_interval(t, qlin[i], (int *)&P->hint[i]) : -1;
+                }
+                have_pn = 1;
+            }
+            if (smax >= tol && bounded && (lin || (have_pn && second_order_bound(P, pn, ilin, qlin, q, step, wo)
+                                                       <= LINEAR_BOUND))) {
+                /* Newton or chord step on the full model's Jacobian so small that the model is
+                 * linear over it to below 1e-11 mm: the residual after it is the linear
+                 * prediction, no evaluation (a warm start along a path ends here, and a random
+                 * pose once its residual is below about 1e-9 mm) */
+                STAT(3);
                 for (i = 0; i < n; i++) qn[i] = q[i] - step[i];
                 for (k = 0; k < rows; k++) {
                     double sk = r[k];
@@ -1400,12 +1760,14 @@ enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
  * about q0 (least rotary change).  Returns MTK_OK, MTK_E_CONVERGE (*res0: the attempt from q0)
  * or MTK_E_RANGE (*bad). */
 static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, const double *q0,
-                      const double *start, int warm, const opt_t *o, double *q, int *iters, double *res,
+                      const double *start, int warm, int far, const opt_t *o, double *q, int *iters, double *res,
                       double *res0, int *singular, int *bad, int *held, int *how)
 {
     int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
     int tables = 0;
-    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], r0s[6];
+    double r[6], racc[6], qt[MTK_MAX_AXES], J0[6 * MTK_MAX_AXES], W0[3 * MTK_MAX_AXES], B0[6 * MTK_MAX_AXES], r0s[6];
+    double *Bs = B0, *Ws = W0;   /* the axes' angular velocities and the bracket columns (second_order:
+                                  * far starts only, NULL otherwise) */
     const double *rs;
     const double *Jq0 = differs ? NULL : J0;
     const prep_t *Pj;
@@ -1418,7 +1780,10 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
      * residual at start.  With an axis held the rigid Jacobian stays (the least-squares point
      * the reference defines, mtcomp._solver). */
     Pj = P->geo ? P : Pr;
-    rc = jacobian(Pj, start, tg, ORIENTATION_SCALE, J0, r0s);
+    far = far && P->nrot > 0;   /* (linear axes alone: the second-order term is the tables' µrad slopes
+                                 * times the step, and the chord step after the first is exact) */
+    rc = jacobian(Pj, start, tg, ORIENTATION_SCALE, J0, r0s, far ? W0 : NULL, far ? B0 : NULL);
+    if (!far) Bs = Ws = NULL;
     if (rc) return rc;
     rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
@@ -1435,7 +1800,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
                 memcpy(hs, attempt ? q0 : start, n * sizeof(double));
                 hs[hold] = q0[hold];
                 same = !memcmp(hs, start, n * sizeof(double));  /* else J0, rs were taken elsewhere */
-                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same && Pj == Pr ? J0 : NULL, same ? rs : NULL, qt, o->tol,
+                rc = iterate(P, Pr, tg, WO_HELD, freeze, hs, same && Pj == Pr ? J0 : NULL, Ws, Bs, same ? rs : NULL, qt, o->tol,
                              o->max_iter, iters, r, &sing);
                 if (rc) return rc;
                 if (!sing && maxabs(r, 3) < CONVERGED && orientation_angle(P, r + 3, WO_HELD) <= o->pole_tol * DEG
@@ -1448,14 +1813,14 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
         }
     }
     if (differs && warm) {
-        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, Ws, Bs, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
             goto accept;
         }
     }
-    rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, q0, Jq0, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
+    rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, q0, Jq0, Ws, Bs, differs ? NULL : rs, qt, o->tol, o->max_iter, iters, r, &sing);
     if (rc) return rc;
     *singular = sing;
     *res0 = sing ? INFINITY : maxabs(r, rows);
@@ -1465,7 +1830,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     }
     if (differs && !warm) {
         /* continuation: the previous pose's correction keeps the branch the path is on */
-        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, rs, qt, o->tol, o->max_iter, iters, r, &sing);
+        rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, start, J0, Ws, Bs, rs, qt, o->tol, o->max_iter, iters, r, &sing);
         if (rc) return rc;
         if (!sing && maxabs(r, rows) < CONVERGED && in_ranges(P, qt)) {
             *how = HOW_WARM;
@@ -1497,7 +1862,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
             memcpy(seed, q0, n * sizeof(double));
             seed[sa[s]] += va[s];
             if (sb[s] >= 0) seed[sb[s]] += vb[s];
-            rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
+            rc = iterate(P, Pj, tg, ORIENTATION_SCALE, NULL, seed, NULL, NULL, NULL, NULL, qt, o->tol, o->max_iter, iters, r, &sing);
             if (rc) return rc;
             et = sing ? INFINITY : maxabs(r, rows);
             for (k = 0; k < P->nrot; k++) change += fabs(qt[P->rot_idx[k]] - q0[P->rot_idx[k]]);
@@ -1934,7 +2299,14 @@ static void rigid_errors(const mtk_errors *e, mtk_errors *rigid)
 
 static void make_target(const prep_t *Pi, const double *q, target_t *tg)
 {
-    fwd(Pi, q, tg->p, tg->R, 0, NULL);
+    if (Pi->mode != 3) {
+        /* up to two rotary axes: the residual and the closed forms take the position and the
+         * tool direction alone (fwd_pv on vectors); R is not read */
+        fwd_pv(Pi, q, tg->p, tg->v);
+        eye(tg->R);
+        return;
+    }
+    fwd(Pi, q, tg->p, tg->R, 0, NULL, 0);
     mat_vec(tg->R, Pi->m->tool_axis, tg->v);
 }
 
@@ -2022,7 +2394,8 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
             c->warm = 1;
             goto limits;
         }
-        rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, &o, q, &it, &res, &res0,
+        rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, !(c->have_prev && c->warm), &o, q,
+                        &it, &res, &res0,
                         &singular, &bad, &held, &how);
         if (iters) *iters = it;
         if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
@@ -2100,8 +2473,12 @@ int mtk_model_set_table(mtk_model *m, int axis, int n, const double *pos, const 
     memcpy(t->pos, pos, n * sizeof(double));
     memcpy(t->val, val, 6 * n * sizeof(double));
     t->n = n;
+    if (table_finish(t) != MTK_OK) {
+        table_free(t);
+        return MTK_E_IO;
+    }
     if (m->table[axis]) {
-        free(m->table[axis]->pos); free(m->table[axis]->val); free(m->table[axis]);
+        table_free(m->table[axis]);
     }
     m->table[axis] = t;
     return MTK_OK;
@@ -2116,7 +2493,7 @@ long mtk_forward_batch(const mtk_model *m, const mtk_errors *e, long n, const do
     double Rl[9];
     prepare(m, e, 1, &P);
     for (i = 0; i < n; i++) {
-        if (fwd(&P, q + i * nax, p + 3 * i, R ? R + 9 * i : Rl, strict, bad_axis) != MTK_OK) return i;
+        if (fwd(&P, q + i * nax, p + 3 * i, R ? R + 9 * i : Rl, strict, bad_axis, 0) != MTK_OK) return i;
     }
     return -1;
 }
@@ -2170,6 +2547,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         int *statusi, *infoi;
         target_t tg;
         int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
+        STAT(5);
         if (i < skip) {
             if (!o->continuation || (!p_t && P.closed)) continue;   /* nothing to take up */
             qo = q_in; resi = &res_in; statusi = &status_in; infoi = &info_in;
@@ -2248,7 +2626,8 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             for (k = 0; k < nax; k++) start[k] = qr[k] + (o->continuation && have_prev && have_geo ? dgeo[k] : 0.0);
             seeded = 1;
         }
-        rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), &so, qo, &it, resi, &r0, &sing,
+        rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), seeded || !(have_prev && warm), &so, qo,
+                        &it, resi, &r0, &sing,
                         &bad, &held, &how);
         csc_ok = 0;
         have_geo = 0;

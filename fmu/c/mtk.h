@@ -26,6 +26,10 @@ typedef struct {
     int n;                  /* number of rows */
     double *pos;            /* (n) axis position, mm or deg, strictly increasing */
     double *val;            /* (n*6) components EX?, EY?, EZ? (mm), EA?, EB?, EC? (rad) */
+    double *coef;           /* ((n-1)*12) per interval: the six values at its start, then their
+                             * slopes per mm or deg (set by the loaders: no division per lookup) */
+    double p0, inv_h;       /* first position and (n-1)/span: the interval of an evenly spaced
+                             * table by one multiplication (checked against pos) */
 } mtk_table;
 
 typedef struct {
