@@ -93,3 +93,44 @@ def test_lag_and_transport_delay_on_one_clock_names_both():
         if e.name == "servo_lag":
             assert abs(e.params["kv_per_s"] * 0.012 - 1) < 0.1
     assert not res.unexplained
+
+
+def test_a_real_glitch_beside_a_lag_is_still_named():
+    # the slack must not take up an effect that is there: a quadrant glitch of 4 µm after every
+    # reversal (its own shape, 30 ms) beside a servo lag of 12 ms on the same axis
+    rng = np.random.default_rng(7)
+    t = np.arange(0, 14, H)
+    cmd = _moves(rng, t)
+    v = np.gradient(cmd, H)
+    d = np.sign(v)
+    moving = np.abs(v) > 1e-3
+    idx = np.flatnonzero(moving)
+    last = np.maximum.accumulate(np.where(moving, np.arange(len(t)), 0))
+    dirn = d[last]
+    rev = idx[1:][d[idx[1:]] != d[idx[:-1]]]
+    glitch = np.zeros_like(t)
+    for i in rev:
+        s = (t[i:] - t[i]) / 0.03
+        glitch[i:] += -0.004 * dirn[i] * s * np.exp(1 - s) * (s < 20)
+    act = _euler_lag(cmd, 0.012) + glitch
+    sim = {"t": np.arange(0, 14, 1 / 500)}
+    rec = {"t": np.arange(0.1, 13.9, 1 / 200)}
+    sim["u_axis"] = np.interp(sim["t"], t, cmd)
+    rec["u_axis"] = np.interp(rec["t"], t, act) + rng.normal(0, 2e-4, len(rec["t"]))
+    res = diagnose(sim, rec, same_clock=True)
+    assert sorted(res.names) == ["quadrant_glitch", "servo_lag"], res.log
+
+
+def test_strided_first_order_is_the_full_filter_every_s_th_sample():
+    # the selection's thermal responses: the filter composed over s steps must equal the
+    # full recursion read every s-th sample, a step in the driver included
+    from mtcomp.diagnose.effects.base import first_order, first_order_strided
+    rng = np.random.default_rng(1)
+    u = np.cumsum(rng.normal(size=4001))
+    u[1500:] += 50.0
+    for tau in (0.001, 0.05, 30.0):
+        for s in (2, 3, 8):
+            full = first_order(u, 0.002, tau)[::s]
+            part = first_order_strided(u, 0.002, tau, s)
+            assert len(part) == len(full)
+            assert np.max(np.abs(part - full)) < 1e-9 * np.ptp(full)
