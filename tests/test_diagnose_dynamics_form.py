@@ -42,7 +42,7 @@ def _euler_lag(u, tau):
     return y
 
 
-def _case(kind, seed, tau=0.012, delay=0.004):
+def _case(kind, seed, tau=0.012, delay=0.004, clock=0.0):
     rng = np.random.default_rng(seed)
     t = np.arange(0, 14, H)
     sim = {"t": np.arange(0, 14, 1 / 500)}
@@ -56,7 +56,7 @@ def _case(kind, seed, tau=0.012, delay=0.004):
         else:  # lag and transport delay
             act = np.interp(t - delay, t, _euler_lag(cmd, tau))
         sim[name] = np.interp(sim["t"], t, cmd)
-        rec[name] = np.interp(rec["t"], t, act) + rng.normal(0, 2e-4, len(rec["t"]))
+        rec[name] = np.interp(rec["t"] - clock, t, act) + rng.normal(0, 2e-4, len(rec["t"]))
     return sim, rec
 
 
@@ -70,6 +70,16 @@ def test_following_error_x_minus_tau_v_is_a_servo_lag_and_nothing_else():
     assert not res.unexplained
     for o in res.outputs:
         assert res.fit["holdout_rms_after"][o] < 1.5 * res.noise_floor[o]
+
+
+def test_x_minus_tau_v_on_another_clock_keeps_the_lag_out_of_the_clock():
+    # REC's clock 0.3 s apart: before, the alignment took clock + lag (a shift fits x - tau v
+    # better than a first-order filter) and two quadrant glitches took up the rest
+    sim, rec = _case("x_minus_tau_v", 4, clock=0.3)
+    res = diagnose(sim, rec)
+    assert abs(res.alignment["clock_offset_s"] - 0.3) < 1e-3
+    assert res.names == ["servo_lag", "servo_lag"]
+    assert not res.unexplained
 
 
 @pytest.mark.parametrize("seed", [1, 3])
