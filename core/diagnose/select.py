@@ -346,6 +346,59 @@ def _conflicts(c: Candidate, model: list) -> bool:
     return False
 
 
+DYNAMIC = ("servo_lag", "time_offset")
+
+
+class DynamicsSlack(Candidate):
+    """Not an effect: the first and second time derivatives of SIM on outputs that already
+    carry a named dynamic effect (servo lag, time offset), as free columns.
+
+    A lag or delay whose form differs a little from the library's (x - tau v, a lag of higher
+    order, a lag beside a transport delay) leaves a residual of second order, about tau^2 times
+    the acceleration; an effect of another kind (a quadrant glitch, a scale or pitch error) can
+    take up part of that and pass every test on held-out data.  Such an effect is kept only if
+    it still improves the held-out error materially with these columns beside it: what it
+    explains must be more than model error of the dynamics already named.  Never reported."""
+
+    def __init__(self, outputs):
+        super().__init__("dynamics_slack", tuple(outputs), ("t",), 2 * len(outputs))
+
+    def build(self, ctx, eta):
+        from .effects import sim_derivative
+        return None, [{o: sim_derivative(ctx, o, k)} for o in self.outputs for k in (1, 2)]
+
+
+def _slack(model: list, c: Candidate):
+    """Slack columns for testing `c` beside `model`, or None when c is itself dynamic or none
+    of its outputs carries a named dynamic effect."""
+    if c.name in DYNAMIC:
+        return None
+    dyn = {o for m in model for mm in getattr(m, "members", [m]) if mm.name in DYNAMIC
+           for o in mm.outputs}
+    outs = [o for o in c.outputs if o in dyn]
+    return DynamicsSlack(outs) if outs else None
+
+
+def _own_gain(ctx: Context, c: Candidate, oof_without: np.ndarray, oof_with: np.ndarray) -> float:
+    """Relative decrease of the held-out error on c's own outputs."""
+    own = np.zeros(ctx.N, bool)
+    for o in c.outputs:
+        own[ctx.slices[o]] = True
+    s0 = float(oof_without[own] @ oof_without[own])
+    return 1.0 - float(oof_with[own] @ oof_with[own]) / s0 if s0 > 0 else 0.0
+
+
+def beyond_dynamics(ctx: Context, c: Candidate, rest: list, rest_etas: list, c_eta, folds: int):
+    """Held-out gain of `c` on its outputs over `rest` with the dynamics slack beside both
+    (None when no slack applies)."""
+    sl = _slack(rest, c)
+    if sl is None:
+        return None
+    _, o0 = cross_validate(ctx, rest + [sl], list(rest_etas) + [np.zeros(0)], folds)
+    _, o1 = cross_validate(ctx, rest + [sl, c], list(rest_etas) + [np.zeros(0), c_eta], folds)
+    return _own_gain(ctx, c, o0, o1)
+
+
 def _screen_rows(ctx: Context, limit: int) -> np.ndarray:
     step = max(1, int(math.ceil(ctx.n / limit)))
     m = np.zeros(ctx.n, bool)
@@ -409,8 +462,13 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             if gain > 0:
                 scored.append((gain - dk * nlog, c, swap))
         scored.sort(key=lambda g: -g[0])
+        top = scored[:st.top]
+        # a delay beside lags already named cannot show its gain when screened alone (shifting
+        # SIM without shifting the lags' predictions): it is always tried jointly
+        if any(m.name == "servo_lag" for m in model) and not any(m.name == "time_offset" for m in model):
+            top += [g for g in scored[st.top:] if g[1].name == "time_offset"][:1]
         trials = []
-        for _, c, swap in scored[:st.top]:
+        for _, c, swap in top:
             keep = [i for i in range(len(model)) if i != swap]
             m_new = [model[i] for i in keep] + [c]
             e_new = [etas[i] for i in keep] + [coarse_cache[c.label]]
@@ -437,7 +495,7 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
         trials = sorted(((bic(f.rss, f.n_rows, f.k, neff) - b_cur, c, swap, m_new, f)
                          for c, swap, m_new, f in trials), key=lambda g: g[0])
         accepted = False
-        for dbic, c, swap, m_new, f in trials[:3]:
+        for dbic, c, swap, m_new, f in trials[:4]:
             if dbic > -st.bic_threshold:
                 break
             contrib = f.contrib[-1]
@@ -462,6 +520,14 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
                 gain = min(gain, gain_own)
                 log.append(f"step {step + 1}: {c.label} rejected: held-out error "
                            f"{-100 * gain:+.1f} %")
+                continue
+            keep = [i for i in range(len(model)) if i != swap]
+            g2 = beyond_dynamics(ctx, c, [model[i] for i in keep], [etas[i] for i in keep],
+                                 f.etas[-1], st.folds)
+            if g2 is not None and g2 < st.cv_min_gain:
+                log.append(f"step {step + 1}: {c.label} rejected: held-out error {-100 * g2:+.1f} % "
+                           "beside the dynamics' second-order slack (model error of the lag or "
+                           "delay already named, not an effect)")
                 continue
             what = "added" if swap is None else f"replaces {model[swap].label}"
             log.append(f"step {step + 1}: {c.label} {what}: dBIC {dbic:.1f}, held-out error "
@@ -503,6 +569,24 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
             evidence.pop(model[i].label, None)
             model, etas, cur = model[:i] + model[i + 1:], etas[:i] + etas[i + 1:], f
             changed = True
+    # backward pass on held-out error: every kept effect that is not itself a lag or delay must
+    # still earn its place beside the others and the dynamics' second-order slack (an effect
+    # chosen before the lag or delay it now only corrects would otherwise stay)
+    changed = True
+    while changed and len(model) > 1:
+        changed = False
+        for i, c in enumerate(model):
+            rest, rest_etas = model[:i] + model[i + 1:], etas[:i] + etas[i + 1:]
+            g2 = beyond_dynamics(ctx, c, rest, rest_etas, etas[i], st.folds)
+            if g2 is not None and g2 < st.cv_min_gain:
+                log.append(f"backward (held out): {c.label} dropped: held-out error "
+                           f"{-100 * g2:+.1f} % beside the dynamics' second-order slack")
+                evidence.pop(c.label, None)
+                model, etas = rest, rest_etas
+                cur = fit(ctx, model, etas, max_nfev=st.max_nfev)
+                etas = list(cur.etas)
+                changed = True
+                break
     final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else cur
     return final, evidence, log
 

@@ -19,7 +19,8 @@ Signatures and parameters (documented for users in docs/diagnose.md):
   other sign (negative width B < 0, ISO 230-2 reversal value B negative): the error leads the
   command, the control over-compensating its backlash; reported in those words.
 - servo_lag: r = F_{1/kv}[p] - p, p the simulated axis position: a first-order position loop
-  of gain kv (1/s); the steady following error is v/kv.
+  of gain kv (1/s); the steady following error is v/kv.  Also in its linear (steady-state)
+  form r = -v/kv, for loops that are not exactly first order.
 - periodic_pitch_error: r = A sin(2 pi p / L) + B cos(2 pi p / L), L the screw lead (mm).
 - scale_error: r = s * p (s dimensionless, about the axis zero).
 - squareness: r_o = g * p_j, p_j the position of another linear axis (g in rad, reported in deg).
@@ -42,8 +43,8 @@ from ..align import Aligned
 from .base import (LIN_AXIS, ROT_AXIS, Candidate, Context, _se, backlash_play,  # noqa: F401
                    below_rounding, direction_of_motion, first_order, legendre_cols, rot,
                    visited_spacing)
-from .dynamic import (ServoLag, ServoLagDerivative, ServoLagHermite, ThermalDirect, ThermalDrift,  # noqa: F401
-                      TimeOffset)
+from .dynamic import (ServoLag, ServoLagDerivative, ServoLagHermite, ServoLagRate,  # noqa: F401
+                      ThermalDirect, ThermalDrift, TimeOffset, sim_derivative)
 from .friction import Backlash, Friction, QuadrantGlitch, StickSlip  # noqa: F401
 from .geometric import (EncoderCyclic, PeriodicPitch, PivotOffset, ScaleError,  # noqa: F401
                         Squareness, Straightness, WorkpieceSetting, position_step)
@@ -91,6 +92,13 @@ class Group(Candidate):
             out.append(np.asarray(beta[i:i + m.n_lin]))
             i += m.n_lin
         return out
+
+    def implausible(self, ctx, eta, beta):
+        for m, e, b in zip(self.members, self.split_eta(eta), self.split_beta(beta)):
+            why = m.implausible(ctx, e, b)
+            if why:
+                return f"{m.label}: {why}"
+        return None
 
     def bounds(self, ctx):
         lo, hi = [], []
@@ -165,6 +173,8 @@ def candidates(al: Aligned) -> list[Candidate]:
         if o in moving:
             out += [Backlash(o), Backlash(o, sign=-1), ServoLag(o), ScaleError(o)]
             if not al.at_rest:
+                out.append(ServoLagRate(o))
+            if not al.at_rest:
                 qg = QuadrantGlitch(o)
                 if qg._reversals(Context(al, al.rows(max(1, al.n // 2000))))[2] >= 2:
                     out += [qg, StickSlip(o)]
@@ -216,6 +226,9 @@ def candidates(al: Aligned) -> list[Candidate]:
         # it is, so the lags of all axes are also tried as one group
         if len(lags) >= 2:
             out.append(Group(lags))
+        rate_lags = [c for c in out if type(c) is ServoLagRate]
+        if len(rate_lags) >= 2:
+            out.append(Group(rate_lags))
     if al.at_rest:
         out = [c for c in out if c.name in AT_REST]
     return out

@@ -32,6 +32,38 @@ def first_order(u: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return y
 
 
+def first_order_strided(u: np.ndarray, dt: float, tau: float, s: int) -> np.ndarray:
+    """first_order(u, dt, tau)[::s], exactly, at about 1/s of the cost of the recursion.
+
+    s steps of the ramp-invariant recursion y[k] = a y[k-1] + b0 u[k] + b1 u[k-1] compose to
+    y[k+s] = a^s y[k] + sum_j w_j u[k+s-j]: a short FIR filter of the fine input (np.convolve)
+    read every s-th sample, then a first-order recursion on the strided sequence.  Used while
+    selecting on every s-th grid sample: the driver still enters at every grid sample."""
+    from scipy.signal import lfilter
+    u = np.asarray(u, float)
+    if s <= 1:
+        return first_order(u, dt, tau)
+    x = dt / tau
+    if x > 50:
+        return u[::s].copy()
+    a = math.exp(-x)
+    c = x / 2 - x * x / 6 + x ** 3 / 24 if x < 1e-3 else 1.0 - (-math.expm1(-x)) / x
+    b0, b1 = c, (1.0 - a) - c
+    j = np.arange(1, s)
+    w = np.empty(s + 1)
+    w[0] = b0
+    w[1:s] = b0 * a ** j + b1 * a ** (j - 1)
+    w[s] = b1 * a ** (s - 1)
+    M = len(range(0, len(u), s))
+    g = np.convolve(u, w)[s::s][:M - 1]
+    A = a ** s
+    y0 = u[0]  # steady state before the start, as in first_order
+    if M == 1:
+        return np.array([y0])
+    y, _ = lfilter([1.0], [1.0, -A], g, zi=np.array([A * y0]))
+    return np.concatenate([[y0], y])
+
+
 def direction_of_motion(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarray:
     """+1/-1 for the direction of the last significant motion of a position signal.
 

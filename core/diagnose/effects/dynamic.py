@@ -7,7 +7,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Candidate, _se, first_order  # noqa: F401
+from .base import Candidate, _se, first_order, first_order_strided  # noqa: F401
+
+
+def _stride(ctx) -> int:
+    """s when ctx's rows are every s-th grid sample from the first (a selection context on a
+    recording without gaps), else 1."""
+    s = getattr(ctx, "_stride", None)
+    if s is None:
+        idx, n = ctx.idx, ctx.al.n
+        s = 1
+        if not ctx.full and len(idx) > 1 and idx[0] == 0:
+            k = int(idx[1] - idx[0])
+            if k > 1 and len(idx) == len(range(0, n, k)) and np.all(np.diff(idx) == k):
+                s = k
+        ctx._stride = s
+    return s
 
 
 # responses of drivers to first-order lags, for the alignment being diagnosed (one at a time)
@@ -33,23 +48,35 @@ class ThermalDrift(Candidate):
         if _RESPONSES["al"] is not ctx.al:  # the response is on the full grid: one per alignment
             _RESPONSES["al"], _RESPONSES["d"] = ctx.al, {}
         cache = _RESPONSES["d"]
-        key = (self.inputs[0], float(eta[0]))
+        s = _stride(ctx)
+        key = (self.inputs[0], float(eta[0]), s)
         hit = cache.get(key)
         if hit is None:
             if len(cache) > 48:  # 2 arrays per entry of the full grid
                 cache.clear()
-            hit = cache[key] = self._response(ctx, math.exp(eta[0]))
+            hit = cache[key] = self._response(ctx, math.exp(eta[0]), s)
         y, tr = hit
+        if s > 1 and len(y) != ctx.n:  # a sparse driver: filtered on the full grid
+            y, tr = y[ctx.idx], tr[ctx.idx]
         o = self.outputs[0]
         return None, [{o: y}, {o: tr}, {o: np.ones_like(y)}]
 
-    def _response(self, ctx, tau):
+    def _response(self, ctx, tau, s=1):
+        """(response, initial transient) on the full grid, or with s > 1 on every s-th grid
+        sample (a selection context on a uniform stride; the driver still enters at every
+        grid sample, exactly)."""
         al = ctx.al
         sig = al.signals[self.inputs[0]]
         u = sig.values
         tn, vn = sig.native if sig.native else (al.t, u)
         dt_native = float(np.median(np.diff(tn)))
-        m = int(np.clip(math.ceil(al.dt / dt_native), 1, max(1, 200_000 // al.n)))
+        # (a driver sampled at the grid's own rate gives a ratio of 1 + rounding: m = 1)
+        m = int(np.clip(math.ceil(al.dt / dt_native - 1e-6), 1, max(1, 200_000 // al.n)))
+        if s > 1 and m == 1:
+            # most of the cost of a long recording with many inputs: the filter of every
+            # driver at every trial time constant
+            y = first_order_strided(u, al.dt, tau, s) - u[0]
+            return y, np.exp(-(al.t[::s] - al.t[0]) / tau)
         if m > 1:
             # a sparse grid: filter the driver as it was sampled (a spindle-speed step smeared
             # over one coarse step would shift the response by half a step)
@@ -147,9 +174,15 @@ class ServoLag(Candidate):
         m = int(np.clip(math.ceil(al.dt / h_want), 4, max(4, 400_000 // al.n)))
         h = al.dt / m
         warm = int(min(max(al.t[0] - al.sim_span[0], 0.0), 20 * tau) / h)
-        k = np.arange(-warm, (al.n - 1) * m + 1)
-        tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
-        pf = al.sim_spline[o](tf)
+        # SIM on the fine grid depends on (m, warm) only, not on tau itself: evaluated once
+        # for the many time constants a fit tries
+        key = (id(al), m, warm)
+        pf = self._fine.get(key) if hasattr(self, "_fine") else None
+        if pf is None:
+            k = np.arange(-warm, (al.n - 1) * m + 1)
+            tf = al.t[0] + (al.t[-1] - al.t[0]) * k / ((al.n - 1) * m)
+            pf = al.sim_spline[o](tf)
+            self._fine = {key: pf}  # one entry: a long recording's fine grid is large
         y = first_order(pf, h, tau)[warm::m] - al.sim[o]
         return {o: y}, []
 
@@ -260,3 +293,46 @@ class ServoLagHermite(ServoLag):
         kv = math.exp(eta[0])
         s = _se(cov_eta, 0)
         return {"kv_per_s": kv, "tau_s": 1.0 / kv}, {"kv_per_s": kv * s, "tau_s": s / kv}
+
+
+def sim_derivative(ctx, o: str, order: int) -> np.ndarray:
+    """The `order`-th time derivative of SIM's output `o` at the grid times (full grid), by
+    central differences of SIM's interpolant over half of SIM's own sample step (the
+    interpolant's derivative at SIM's rate, not the grid's: a coarse grid must not smooth it)."""
+    al = ctx.al
+    h = 0.5 / max(al.rates["sim"], 1e-9)
+    f, t = al.sim_spline[o], al.t
+    if order == 1:
+        return (f(t + h) - f(t - h)) / (2 * h)
+    if order == 2:
+        return (f(t + h) - 2 * f(t) + f(t - h)) / (h * h)
+    raise ValueError(order)
+
+
+class ServoLagRate(ServoLagDerivative):
+    """Servo lag of a position or angle in its steady-state form: the following error of a
+    position loop of gain kv is -v/kv, r = -tau v (tau = 1/kv, linear), v SIM's velocity.
+
+    The first-order term of the filtered form F_tau[p] - p.  Beside it because a loop whose
+    dynamics are not exactly first order (velocity feed-forward, a second-order drive, a
+    controller that reports x - tau v) still has a following error proportional to velocity,
+    and the filtered form would leave its own tau^2 a on such a signal for other effects to
+    take up."""
+
+    def __init__(self, output):
+        Candidate.__init__(self, "servo_lag", (output,), (output,), 1)
+
+    def build(self, ctx, eta):
+        o = self.outputs[0]
+        return None, [{o: -sim_derivative(ctx, o, 1)}]
+
+    def implausible(self, ctx, eta, beta):
+        # as for the filtered form: a lag shorter than half of the finer file's sample step
+        # cannot be told from a pure delay (a clock offset left over), and a negative one is a
+        # lead, not a lag
+        tau = float(beta[0]) if len(beta) else 0.0
+        short = 0.5 / max(ctx.al.rates["sim"], ctx.al.rates["rec"])
+        if tau < short:
+            return (f"time constant {tau * 1e3:.3g} ms below half the finer sample step "
+                    f"({short * 1e3:.3g} ms): not told from a delay")
+        return None

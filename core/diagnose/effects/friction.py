@@ -233,7 +233,11 @@ class StickSlip(QuadrantGlitch):
                 pp = al.sim_spline[o](tt)
                 p_rev[j] = pp.min() if dn[c] > 0 else pp.max()
             D = np.where(k >= 0, np.abs(al.sim[o] - p_rev[np.clip(k, 0, None)]) if len(t_rev) else 0.0, 0.0)
-            self._prev = (k, D, len(t_rev))
+            # k is nondecreasing in time: segment j is one slice of the grid (found once; a
+            # mask per reversal and per evaluation was most of the cost of a long recording)
+            j = np.arange(len(t_rev))
+            self._prev = (k, D, len(t_rev), np.searchsorted(k, j, side="left"),
+                          np.searchsorted(k, j, side="right"))
         return self._prev
 
     def bounds(self, ctx):
@@ -242,27 +246,28 @@ class StickSlip(QuadrantGlitch):
                 [math.log(0.2 * span), math.log(max(1.0, 4 * ctx.al.dt))])
 
     def build(self, ctx, eta):
-        k, D, nrev = self._segments(ctx)
+        k, D, nrev, lo, hi = self._segments(ctx)
         d = ctx.direction(self.outputs[0])
         delta, tau = math.exp(eta[0]), math.exp(eta[1])
         t = ctx.al.t
         shape = np.zeros_like(D)
         for j in range(nrev):
-            seg = np.flatnonzero(k == j)
-            if not len(seg):
+            a, e = int(lo[j]), int(hi[j])
+            if e <= a:
                 continue
-            broken = np.flatnonzero(D[seg] >= delta)
+            Ds = D[a:e]
+            broken = np.flatnonzero(Ds >= delta)
             if not len(broken):
-                shape[seg] = D[seg]
+                shape[a:e] = Ds
                 continue
-            b = broken[0]
-            shape[seg[:b]] = D[seg[:b]]
+            b = int(broken[0])
+            shape[a:a + b] = Ds[:b]
             # the breakaway instant, between two samples: where D crosses delta
-            tb = t[seg[b]]
-            if b > 0 and D[seg[b]] > D[seg[b - 1]]:
-                f = (delta - D[seg[b - 1]]) / (D[seg[b]] - D[seg[b - 1]])
-                tb = t[seg[b - 1]] + f * (t[seg[b]] - t[seg[b - 1]])
-            shape[seg[b:]] = delta * np.exp(-np.minimum((t[seg[b:]] - tb) / tau, 700.0))
+            tb = t[a + b]
+            if b > 0 and Ds[b] > Ds[b - 1]:
+                f = (delta - Ds[b - 1]) / (Ds[b] - Ds[b - 1])
+                tb = t[a + b - 1] + f * (t[a + b] - t[a + b - 1])
+            shape[a + b:e] = delta * np.exp(-np.minimum((t[a + b:e] - tb) / tau, 700.0))
         return {self.outputs[0]: -d * shape}, []
 
     def coarse(self, ctx, resid, rows):
