@@ -261,8 +261,12 @@ def interpret(text, name="main"):
             # initial level (G98) or at R (G99)
             r_word = arcw.get("R", r_word)
             z_word = ax.pop("Z", z_word)
-            for a, v in ax.items():
-                pos[a] = (None if v is None else _plus(v * s, off(a))) if absolute else _plus(pos[a], v * s)
+            # repeats (Fanuc K, LinuxCNC/Haas L): the hole drilled that many times; in G91 the
+            # X Y increments are taken again before each (Haas's variable peck has K with I J)
+            reps = int(wd.get("L", wd.get("K", 1) if not ("I" in wd or "J" in wd) else 1))
+            for _ in range(reps):
+                for a, v in ax.items():
+                    pos[a] = (None if v is None else _plus(v * s, off(a))) if absolute else _plus(pos[a], v * s)
             r_lvl = _plus(r_word * s, off("Z")) if absolute else (None if zinit is None else zinit + r_word * s)
             pos["Z"] = zinit if retract == 98 else r_lvl
             blocks.append((n, ref(pos), cycle, None))

@@ -73,8 +73,70 @@ def test_cycles_needing_control_parameters_are_refused_when_not_rigid(code):
 def test_cycle_refusals():
     with pytest.raises(InputError, match=r":2: canned cycle G81 without an R level"):
         gcode.parse("G90 G0 X0 Y0 Z10.\nG81 X5. Z-3.\n", axes=XYZ)
-    with pytest.raises(InputError, match=r":2: repeat count K"):
-        gcode.parse("G90 G0 X0 Y0 Z10.\nG81 X5. Z-3. R1. K3\n", axes=XYZ)
+    for words, what in (("K0", "repeat count K0 in a canned cycle .the cycle data stored"),
+                        ("L0", "repeat count L0"), ("K2.5", "repeat count K2.5 in a canned cycle: a whole"),
+                        ("K2 L2", "two repeat counts")):
+        with pytest.raises(InputError, match=rf":2: {what}"):
+            gcode.parse(f"G90 G0 X0 Y0 Z10.\nG81 X5. Z-3. R1. {words}\n", axes=XYZ)
+    # L outside a cycle is still no repeat count (a Siemens call or a word not read)
+    with pytest.raises(InputError, match=r":2: L3: a Siemens subprogram call"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG1 X5. L3\n", axes=XYZ)
+
+
+# -- repeat counts: Fanuc K, LinuxCNC and Haas L (issue 20 follow-up)
+
+ROW = "G90 G0 X0 Y0 Z10.\nG91 G99 G81 X5. Y1. Z-5. R-8. K3 F100\nX-2. L2\nG90 G80\nG0 Y20.\n"
+
+
+@pytest.mark.parametrize("letter", ["K", "L"])
+def test_repeats_in_g91_step_the_hole_each_time(letter):
+    """G91 with K3 (Fanuc) or L3 (LinuxCNC, Haas): three holes 5 mm apart, the block ending at
+    the last; the next block continues from there (before: refused)."""
+    text = ROW.replace("K3", letter + "3").replace("L2", letter + "2")
+    p = gcode.parse(text, axes=XYZ)
+    assert p.cycle_repeat.tolist() == [1, 3, 2, 1]
+    assert np.allclose(p.position, [[0, 0, 10], [15, 3, 2], [11, 3, 2], [11, 20, 2]])
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+
+
+def test_repeats_in_g90_drill_the_same_hole():
+    text = "G90 G0 X0 Y0 Z10.\nG98 G81 X5. Y5. Z-3. R2. L3 F100\nX8. K2\nG80\n"
+    p = gcode.parse(text, axes=XYZ)
+    assert np.allclose(p.position[1:], [[5, 5, 10], [8, 5, 10]])
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003])
+    assert out.splitlines()[1:3] == ["G98 G81 X5.001000 Y5.002000 Z-2.997000 R2.003000 L3 F100",
+                                     "X8.001000 K2"]
+    with pytest.raises(InputError, match=r":2: canned cycle G81 with repeat count 3: the correction "
+                                         "is not the same"):
+        gcode.rewrite(p, tilt)
+
+
+def test_repeats_in_g91_keep_their_step_under_a_rigid_shift_and_later_blocks_follow():
+    """The step of a G91 repeat is unchanged by a shift common to the block before and every
+    hole; a block after it that gets an inserted word gets the position after all repeats."""
+    p = gcode.parse(ROW, axes=XYZ)
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003])
+    assert out.splitlines()[1:3] == ROW.splitlines()[1:3]            # increments as written
+    q = gcode.parse(out, axes=XYZ)
+    assert np.allclose(q.position, p.position + [0.001, 0.002, 0.003])
+
+    def far(q):            # X corrected only beyond Y 10: the holes see no correction
+        q = q.copy()
+        q[:, 0] += 0.004 * (q[:, 1] > 10)
+        return q
+    out = gcode.rewrite(p, far)
+    assert out.splitlines()[4] == "G0 X11.004000 Y20."              # after 3 + 2 repeats
+
+
+def test_repeats_in_g91_whose_correction_changes_are_refused():
+    p = gcode.parse(ROW, axes=XYZ)
+
+    def scale(q):          # X grows with X: every hole has its own correction
+        q = q.copy()
+        q[:, 0] *= 1.0001
+        return q
+    with pytest.raises(InputError, match=r":2: canned cycle repeat count 3 in G91: the correction"):
+        gcode.rewrite(p, scale)
 
 
 def test_cycle_run_starting_before_the_pose_is_known_is_left_as_written():

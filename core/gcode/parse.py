@@ -243,6 +243,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     g10_line[gline[cat == 12]] = True
     if badlet.any() and g10_line.any():
         badlet &= ~((wlet == _ascii("L")) & g10_line[wline])      # G10 L: the data kind
+    if badlet.any() and (cat == 11).any():
+        # L in a canned cycle block: the repeat count (LinuxCNC, Haas), read with the cycles
+        cev = np.full(n_lines, -1, np.int64)
+        cev[gline[np.isin(cat, (0,))]] = 0
+        cev[gline[g10 == 800]] = 0
+        cev[gline[cat == 11]] = 1
+        in_cycle = _ffill(cev, cev >= 0, 0) == 1
+        badlet &= ~((wlet == _ascii("L")) & in_cycle[wline])
     if badlet.any():
         i = int(np.argmax(badlet))
         c = chr(65 + wlet[i])
@@ -485,6 +493,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
     cyc_zw = np.full(n_lines, -1, np.int64)
     cyc_rw = np.full(n_lines, -1, np.int64)
+    repeat_line = None
     if (cycle_line > 0).any():
         in_cyc = cycle_line[wline] > 0
         if g10_line.any() or g68_line.any():
@@ -494,10 +503,17 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         zc = axes.index("Z")
         zi = np.flatnonzero(in_cyc & (wcol == zc))
         ri = np.flatnonzero(in_cyc & (wlet == _ascii("R")))
-        ki = np.flatnonzero(in_cyc & ((wlet == _ascii("K")) | (wlet == _ascii("L"))))
+        # repeat counts: Fanuc K, LinuxCNC and Haas L (a K beside I or J is Haas's variable
+        # peck, refused with the I J words below)
+        ij_line = np.zeros(n_lines, bool)
+        ij_line[wline[np.isin(wlet, (_ascii("I"), _ascii("J")))]] = True
+        ki = np.flatnonzero(in_cyc & (((wlet == _ascii("K")) & ~ij_line[wline]) |
+                                      (wlet == _ascii("L"))))
         if len(ki):
-            _fail(f"repeat count {chr(65 + wlet[ki[0]])} in a canned cycle: not supported",
-                  wline[ki[0]], filename)
+            repeat_line = _cycle_repeats(ki, wline, wlet, value, wcol, axes, n_lines,
+                                         incr_line, filename)
+            wcol = wcol.copy()
+            wcol[ki] = -1
         cyc_zw[wline[zi]], cyc_rw[wline[ri]] = zi, ri
         wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
     axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
@@ -592,6 +608,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             if c in LINEAR or c in ARC_WORDS:
                 vals[:, k] *= lin_scale
     present = col_word[:, :n_ax] >= 0
+    cycle_repeat = np.ones(nblk, np.int32)
+    if repeat_line is not None:
+        cycle_repeat = repeat_line[blines].astype(np.int32)
+        # G91: the hole steps by the increment at each repeat, the block ends at the last
+        step = (cycle_repeat > 1) & incremental
+        if step.any():
+            vals[step, :n_ax] *= cycle_repeat[step, None]
     polar = polar_xy = None
     pres_pos = present
     if (g10 == 160).any():
@@ -709,6 +732,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   inch_g20_words=g20, inch_f_words=finch,
                   axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
+                  cycle_repeat=cycle_repeat,
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
                   tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
@@ -938,6 +962,42 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
                         start_vec[zk:zk + 1])[:, 0]
         position[:, zk] = col
     return position, data
+
+
+#: largest canned cycle repeat count read (Fanuc K: 1-9999)
+MAX_REPEATS = 9999
+
+
+def _cycle_repeats(ki, wline, wlet, value, wcol, axes, n_lines, incr_line, filename):
+    """Repeat count per line (1 where none) from the K (Fanuc) or L (LinuxCNC, Haas) words
+    ``ki`` of canned cycle blocks: the hole is drilled that many times, in G91 stepping by the
+    block's X Y increments each time.  K0/L0 (Fanuc: the cycle data stored without drilling;
+    Haas: no hole at that block) is refused: whether the tool still moves to the block's X Y
+    differs between controls and manuals, and no position is guessed."""
+    rep = np.ones(n_lines, np.int64)
+    seen = {}
+    for i in ki.tolist():
+        ln, c, v = int(wline[i]), chr(65 + int(wlet[i])), float(value[i])
+        if ln in seen:
+            _fail(f"two repeat counts ({seen[ln]} and {c}) in one canned cycle block", ln, filename)
+        seen[ln] = c
+        if v == 0:
+            _fail(f"repeat count {c}0 in a canned cycle (the cycle data stored without a hole): "
+                  "not read, since controls differ on whether the tool moves to the block's "
+                  "X Y; write the cycle at its first hole", ln, filename)
+        if v != int(v) or not 1 <= v <= MAX_REPEATS:
+            _fail(f"repeat count {c}{v:g} in a canned cycle: a whole number 1-{MAX_REPEATS} "
+                  "expected", ln, filename)
+        rep[ln] = int(v)
+    if (rep > 1).any():
+        # in G91 the X Y words step at each repeat; other axes in such a block are not read
+        other = [k for k, a in enumerate(axes) if a not in "XYZ"]
+        sel = (rep[wline] > 1) & incr_line[wline] & np.isin(wcol, other)
+        if sel.any():
+            j = int(np.argmax(sel))
+            _fail(f"axis word {axes[int(wcol[j])]} in a repeated canned cycle block in G91: "
+                  "only X Y step at each repeat; not read", wline[j], filename)
+    return rep
 
 
 def _map_codes(vals, mapping):

@@ -411,6 +411,10 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     off = np.asarray(program.offset)
     offc = np.rint(off / res).astype(np.int64) if off.any() else None
     Cc = _control_counts(program, res, offc)
+    from . import repeats                     # G91 cycle blocks drilled n times (K/L)
+    rep_rows = repeats.stepped_rows(program)
+    if len(rep_rows):
+        Cc = repeats.control_counts(program, Cc, res, rep_rows)
     dK = np.rint((Qt[:nk] - P[kk]) / res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
@@ -433,6 +437,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                              int(line[j]))
         kn_edit = kn.copy()
         kn_edit[expanded] = False                 # written out as new lines instead
+        if len(rep_rows):                         # their words stay (or the program is refused)
+            kn_edit[repeats.check(program, transform, rep_rows, kn, kk, dK, res, row_lines)] = False
 
     keep = np.ones(len(ak), bool)
     arc_cols = None
@@ -856,6 +862,13 @@ def _cycle_edits(ctx, program, cb, delta, dE, new, res, fm, inc_):
             _cycle_shift(ctx, p, rows, dE[sel, zk], res[zk], (dz, mz), letter_z, letter_r, inc_)
             continue
         code = int(cyc[rows[0]])
+        rep = p.cycle_repeat
+        if rep is not None and (np.asarray(rep)[rows] > 1).any():
+            bad = rows[np.argmax(np.asarray(rep)[rows] > 1)]
+            raise InputError(f"canned cycle G{int(cyc[bad])} with repeat count {int(rep[bad])}: the "
+                             "correction is not the same at the hole's levels (not a rigid shift), "
+                             "and repeated holes are not written out as moves", p.filename,
+                             int(p.line[bad]))
         if any(int(cyc[k]) not in _EXPANDABLE for k in rows):
             bad = next(k for k in rows if int(cyc[k]) not in _EXPANDABLE)
             raise InputError(f"canned cycle G{int(cyc[bad])}: the correction is not the same at the "
