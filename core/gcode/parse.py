@@ -341,9 +341,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if len(mi6):
         change_line = np.zeros(n_lines, bool)
         change_line[wline[mi6]] = True
+    dyn_len = None
+    if (tool_l == 431).any():
+        dyn_len = _g43_1_lengths(tool_l, mot_l, inch_line, incr_line, axes, wline, wlet, value,
+                                 n_lines, filename)
+        notes.append("G43.1 (LinuxCNC dynamic tool length) on line(s) "
+                     f"{', '.join(str(int(x) + 1) for x in np.flatnonzero(tool_l == 431)[:5])}: "
+                     "its Z word is the tool length (not a move), read as G43 with it")
     offsets_line, tlen_line, offset_assumed, tip_line, gauge_line = offsets_per_line(
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
-        first_motion, n_lines, filename, notes, written, change_line)
+        first_motion, n_lines, filename, notes, written, change_line, dyn_len)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
     if (tool_l == 434).any() and not tcp:
         _fail("G43.4: G43.4 tool centre point: X Y Z are the tool tip, not axis positions; "
@@ -477,6 +484,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         wcol = np.where(g68_line[wline], np.int8(-1), wcol)      # centre and angle, not moves
     if g10_line.any():
         wcol = np.where(g10_line[wline], np.int8(-1), wcol)      # G10 words are data
+    if dyn_len is not None:
+        wcol = np.where(~np.isnan(dyn_len)[wline], np.int8(-1), wcol)   # G43.1 Z: a length
     if (g10 == 160).any() and (len(nm_w) or g10_line.any()) and {"X", "Y"} <= set(axes):
         # under G16 the X Y words of G10/G28/G30/G52/G53/G92 would be polar too, or not,
         # depending on the control: not read
@@ -962,6 +971,31 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
                         start_vec[zk:zk + 1])[:, 0]
         position[:, zk] = col
     return position, data
+
+
+def _g43_1_lengths(tool_l, mot_l, inch_line, incr_line, axes, wline, wlet, value, n_lines,
+                   filename):
+    """Per line the tool length (mm) set by LinuxCNC's ``G43.1 Z<len>``, NaN elsewhere.  Only
+    Z is read (X and other axes are lathe or special offsets), in G90 (LinuxCNC takes the
+    value as it is; whether every control does so in G91 is not established, so it is
+    refused), not in a block with a motion code (its axis words would be claimed twice)."""
+    out = np.full(n_lines, np.nan)
+    for L in np.flatnonzero(tool_l == 431).tolist():
+        i = np.flatnonzero(wline == L)
+        ax = {chr(65 + int(wlet[j])): float(value[j]) for j in i
+              if chr(65 + int(wlet[j])) in axes or chr(65 + int(wlet[j])) in "XYZUVWABC"}
+        if mot_l[L] >= 0:
+            _fail("G43.1 in a block with a motion code: its axis words are the tool offsets, "
+                  "not a move; write G43.1 in a block of its own", L, filename)
+        if set(ax) != {"Z"}:
+            _fail("G43.1 without Z, or with other axis words "
+                  f"({' '.join(sorted(set(ax) - {'Z'})) or 'none'}): only the Z tool length "
+                  "(G43.1 Z<length>) is read", L, filename)
+        if incr_line[L]:
+            _fail("G43.1 in G91: not read (the length is read as an absolute value only in "
+                  "G90); write it in G90", L, filename)
+        out[L] = ax["Z"] * (INCH if inch_line[L] else 1.0)
+    return out
 
 
 #: largest canned cycle repeat count read (Fanuc K: 1-9999)
