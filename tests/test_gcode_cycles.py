@@ -247,3 +247,25 @@ def test_haas_bolt_hole_patterns_are_refused_by_name(line, what):
     text = "G90 G0 X0 Y0 Z1.\nG81 Z-1. R.1 F10.\n" + line + "\nG80\n"
     with pytest.raises(InputError, match=rf"h.nc:3: {what}"):
         gcode.parse(text, axes=("X", "Y", "Z"), filename="h.nc")
+
+
+@pytest.mark.parametrize("retract, dist, r, z_after", [("G99", "G90", "R2.", 2.0), ("G98", "G90", "R2.", 10.0),
+                                                       ("G99", "G91", "R-4.", 6.0)])
+def test_block_after_a_cycle_starts_at_its_return_level(retract, dist, r, z_after):
+    """After a G99 cycle the tool stands at R: a later block whose Z word is inserted (the Z
+    correction changes along X) gets R plus its correction, not the Z from before the cycle
+    (before: G0 X20. Z10.001000, a rapid to the old level), and a G91 arc after it is written
+    from there."""
+    def f(q):
+        q = q.copy()
+        q[:, 2] += 0.001 * (q[:, 0] > 10)
+        return q
+    text = (f"G90 G0 X0 Y0 Z10.\n{dist} {retract} G81 X5. Y5. Z-3. {r} F100\nG80\nG0 X20.\n"
+            "G91 G2 X2. Y0 I1. J0 F100\n")
+    p = gcode.parse(text, axes=XYZ)
+    assert p.position[2, 2] == pytest.approx(z_after)
+    out = gcode.rewrite(p, f)
+    q = gcode.parse(out, axes=XYZ)
+    assert np.allclose(q.position[:3], f(p.position[:3]), atol=1e-9)
+    assert np.allclose(q.position[-1], f(p.position[-1:])[0], atol=1e-9)
+    assert np.allclose(q.position[2:, 2], z_after + 0.001)           # every block after it

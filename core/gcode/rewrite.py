@@ -411,10 +411,10 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     off = np.asarray(program.offset)
     offc = np.rint(off / res).astype(np.int64) if off.any() else None
     Cc = _control_counts(program, res, offc)
-    from . import repeats                     # G91 cycle blocks drilled n times (K/L)
-    rep_rows = repeats.stepped_rows(program)
-    if len(rep_rows):
-        Cc = repeats.control_counts(program, Cc, res, rep_rows)
+    from . import cycle_counts                 # canned cycles: return levels, K/L repeats
+    rep_rows = cycle_counts.stepped_rows(program)
+    if cyc.any():
+        Cc = cycle_counts.control_counts(program, Cc, res, rep_rows, offc)
     dK = np.rint((Qt[:nk] - P[kk]) / res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
@@ -438,7 +438,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         kn_edit = kn.copy()
         kn_edit[expanded] = False                 # written out as new lines instead
         if len(rep_rows):                         # their words stay (or the program is refused)
-            kn_edit[repeats.check(program, transform, rep_rows, kn, kk, dK, res, row_lines)] = False
+            kn_edit[cycle_counts.check(program, transform, rep_rows, kn, kk, dK, res, row_lines)] = False
 
     keep = np.ones(len(ak), bool)
     arc_cols = None

@@ -1,6 +1,11 @@
-"""Repeated canned cycle holes (Fanuc ``K``, LinuxCNC and Haas ``L``) in G91.
+"""Where the control stands after canned cycle blocks, in the rewrite's control counts.
 
-A cycle block with a repeat count n in G91 drills n holes, stepping by its X Y increments
+`rewrite._control_counts` reads every axis word once, and a cycle block's Z is no axis word
+(it is the depth).  Here the cycle blocks get the Z level the control leaves them at (G98: the
+initial level, G99: the R level, as `Program.position`), carried into later blocks until Z is
+written absolutely, and the repeats below their further steps.
+
+Repeated canned cycle holes (Fanuc ``K``, LinuxCNC and Haas ``L``) in G91: a cycle block with a repeat count n in G91 drills n holes, stepping by its X Y increments
 before each: the control runs the one block n times.  `Program.position` holds its last hole;
 the rewrite's control counts (`rewrite._control_counts`, which read each word once) get the
 n - 1 further steps here, so that later blocks start where the control stands.  The block's
@@ -38,17 +43,20 @@ def _steps(program: Program, rows) -> np.ndarray:
     return v * np.where(inch[:, None] & lin[None, :], INCH, 1.0)
 
 
-def control_counts(program: Program, Cc: np.ndarray, res: np.ndarray, rows) -> np.ndarray:
-    """``Cc`` ((N + 1, n_axes) control counts, each word read once) with the n - 1 further
-    steps of the repeated G91 blocks ``rows`` added to them and to every later block until
-    the axis gets an absolute word."""
+def control_counts(program: Program, Cc: np.ndarray, res: np.ndarray, rows,
+                   offc=None) -> np.ndarray:
+    """``Cc`` ((N + 1, n_axes) control counts, each word read once) with the cycle blocks'
+    return levels in Z and the n - 1 further steps of the repeated G91 blocks ``rows``, both
+    carried into every later block until the axis gets an absolute word."""
     N, n_ax = len(program), program.n_axes
+    cw = np.asarray(program.col_word)[:, :n_ax]
+    isabs = (cw >= 0) & ~np.asarray(program.incremental)[:, None]
+    out = _return_levels(program, Cc, res, isabs, offc)
+    if not len(rows):
+        return out
     rep = np.asarray(program.cycle_repeat)
     ex = np.zeros((N, n_ax))
     ex[rows] = np.rint(_steps(program, rows) / res) * (rep[rows, None] - 1)
-    cw = np.asarray(program.col_word)[:, :n_ax]
-    isabs = (cw >= 0) & ~np.asarray(program.incremental)[:, None]
-    out = Cc.copy()
     for k in range(n_ax):
         if not ex[:, k].any():
             continue
@@ -56,6 +64,45 @@ def control_counts(program: Program, Cc: np.ndarray, res: np.ndarray, rows) -> n
         idx = np.where(isabs[:, k], np.arange(N), -1)
         np.maximum.accumulate(idx, out=idx)
         out[1:, k] += cum - np.where(idx >= 0, cum[np.maximum(idx, 0)], 0.0)
+    return out
+
+
+def _return_levels(program: Program, Cc, res, isabs, offc):
+    """Z counts after each cycle block: the initial level (G98, where Z stood before the run)
+    or the R level (G99: the R word in G90, in the block's frame; in G91 the initial level
+    plus R), and after it as the later words move Z from there."""
+    zk = program.axes.index("Z")
+    cyc = np.asarray(program.cycle)
+    data = np.asarray(program.cycle_data)
+    inc = np.asarray(program.incremental)
+    rz = res[zk]
+    N = len(program)
+    col = Cc[:, zk]                           # the words' reading (row 0: the start)
+    last_abs = np.where(isabs[:, zk], np.arange(N), -1)
+    np.maximum.accumulate(last_abs, out=last_abs)
+    cb = np.flatnonzero(cyc > 0)
+    dl = np.zeros(len(cb))                    # per cycle block: its end minus the words' reading
+
+    def z_after(j):                           # the control's Z after block j (-1: the start)
+        if j < 0:
+            return col[0]
+        i = int(np.searchsorted(cb, j, side="right")) - 1
+        return col[1 + j] + (dl[i] if i >= 0 and cb[i] > last_abs[j] else 0.0)
+    for i, k in enumerate(cb.tolist()):
+        zinit = z_after(int(data[k, 6]) - 1)
+        if data[k, 5] == 98:
+            end = zinit
+        elif inc[k]:
+            end = zinit + np.rint(data[k, 3] / rz)
+        else:
+            end = np.rint(data[k, 3] / rz) + (offc[k, zk] if offc is not None else 0)
+        dl[i] = end - col[1 + k]
+    ci = np.searchsorted(cb, np.arange(N), side="right") - 1
+    after = (ci >= 0) & (cb[np.maximum(ci, 0)] > last_abs)
+    out = Cc.copy()
+    with np.errstate(invalid="ignore"):
+        out[1:, zk] = col[1:] + np.where(after, dl[np.maximum(ci, 0)], 0.0)
+    out[1:, zk][~np.asarray(program.axis_known)[:, zk]] = np.nan
     return out
 
 
