@@ -268,6 +268,8 @@ def interpret(text, name="main"):
             # repeats (Fanuc K, LinuxCNC/Haas L): the hole drilled that many times; in G91 the
             # X Y increments are taken again before each (Haas's variable peck has K with I J)
             reps = int(wd.get("L", wd.get("K", 1) if not ("I" in wd or "J" in wd) else 1))
+            if reps == 0:
+                continue                           # K0/L0: R and Z stored, no hole, no move
             for _ in range(reps):
                 for a, v in ax.items():
                     pos[a] = (None if v is None else _plus(v * s, off(a))) if absolute else _plus(pos[a], v * s)

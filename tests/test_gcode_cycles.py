@@ -269,3 +269,29 @@ def test_block_after_a_cycle_starts_at_its_return_level(retract, dist, r, z_afte
     assert np.allclose(q.position[:3], f(p.position[:3]), atol=1e-9)
     assert np.allclose(q.position[-1], f(p.position[-1:])[0], atol=1e-9)
     assert np.allclose(q.position[2:, 2], z_after + 0.001)           # every block after it
+
+
+def test_k0_stores_the_cycle_data_for_the_holes_after_it():
+    """Fanuc K0 / Haas L0 without X Y: the R level and depth are stored, no hole and no move
+    there; the next blocks drill with them (before: refused)."""
+    text = "G90 G0 X0 Y0 Z10.\nG99 G81 Z-3. R2. F100 K0\nX5. Y5.\nX10.\nG80\nG0 X20.\n"
+    p = gcode.parse(text, axes=XYZ)
+    assert p.line.tolist() == [1, 3, 4, 6]                      # the K0 line is no block
+    assert np.allclose(p.position, [[0, 0, 10], [5, 5, 2], [10, 5, 2], [20, 5, 2]])
+    assert np.allclose(p.cycle_data[1, :3], [10, 2, -3])
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003])
+    # the K0 line stays; the first hole gets the shifted levels
+    assert out.splitlines()[1:3] == ["G99 G81 Z-3. R2. F100 K0", "X5.001000 Y5.002000 R2.003000 Z-2.997000"]
+    q = gcode.parse(out, axes=XYZ)
+    assert np.allclose(q.cycle_data[1:3, 1:3], [[2.003, -2.997]] * 2)
+    # written out as moves: no hole at the K0 line, two holes after it
+    w = gcode.parse(gcode.rewrite(p, tilt), axes=XYZ)
+    assert not w.cycle.any()
+    bottoms = w.position[np.isclose(w.position[:, 2], -3.0), :2]
+    assert np.allclose(bottoms, tilt(np.array([[5, 5, -3.], [10, 5, -3.]]))[:, :2], atol=1e-6)
+    # a G80 between the K0 line and the holes cancels the stored data
+    with pytest.raises(InputError, match=r":4: canned cycle G81 without an R level"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG81 Z-3. R2. K0\nG80\nG81 X5.\n", axes=XYZ)
+    with pytest.raises(InputError, match=r":2: repeat count L0 .* with P: not read"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG82 Z-3. R2. P200 L0\nX5.\n", axes=XYZ)

@@ -544,6 +544,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                       "variable peck I J K, boring shift I J): not supported", wline[j], filename)
             _fail(f"arc word {chr(65 + wlet[j])} outside G2/G3", wline[j], filename)
     block = has_motion | (has_arcw & np.isin(mode_line, (2, 3))) | (cyc_zw >= 0) | (cyc_rw >= 0)
+    k0_lines = np.zeros(0, np.int64)
+    if repeat_line is not None and (repeat_line == 0).any():
+        # K0/L0: the cycle's R and Z stored for the next holes, no hole and no move here
+        k0_lines = np.flatnonzero(repeat_line == 0)
+        block[k0_lines] = False
+        k0_cancel = np.zeros(n_lines, np.int64)          # G80 and G0-G3 lines, counted
+        k0_cancel[gline[(g10 == 800) | (cat == 0)]] = 1
+        k0_cancel = np.cumsum(k0_cancel)
     if len(bd_lines):
         bdl = bd_lines[block[bd_lines] | (np.bincount(gline, minlength=n_lines)[bd_lines] > 0)]
         if len(bdl):
@@ -710,9 +718,21 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if (cycle > 0).any():
         g80n = np.cumsum(np.isin(np.arange(n_lines), gline[g10 == 800]))[blines]
         cut = np.r_[True, np.diff(g80n) > 0]          # a G80 between two blocks ends a run
+        seeds = None
+        if len(k0_lines):
+            # a K0 line's words count for the next block if no G80 or G0-G3 comes between
+            cancel = k0_cancel
+            seeds = np.full((nblk, 2), np.nan)
+            nxt = np.searchsorted(blines, k0_lines)
+            for L, j in zip(k0_lines.tolist(), nxt.tolist()):
+                if j < nblk and cancel[blines[j]] == cancel[L] and cycle[j] > 0:
+                    sc = INCH if inch_line[L] else 1.0
+                    for col_, w in ((0, cyc_rw[L]), (1, cyc_zw[L])):
+                        if w >= 0:
+                            seeds[j, col_] = value[w] * sc
         position, cyc_data = _cycles(axes, blines, cycle, cut, retract_line[blines], cyc_zw[blines],
                                      cyc_rw[blines], value, inch, incremental, vals[:, :n_ax],
-                                     present, offset, start_vec, position, filename)
+                                     present, offset, start_vec, position, filename, seeds)
     ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
     radius = vals[:, n_ax + 3].copy()
@@ -926,7 +946,7 @@ def _absolute(vals, present, incremental, offset, start_vec):
 
 
 def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental, vals, present, offset,
-            start_vec, position, filename):
+            start_vec, position, filename, seeds=None):
     """Canned cycle blocks: per block the initial level, R level and depth (reference frame,
     mm; NaN where unknown) and the block's end Z (initial level for G98, R level for G99).
     Runs of holes are taken in order, since each run's initial level is where the last left Z.
@@ -948,6 +968,9 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
         zinit = position[s - 1, zk] if s > 0 else start_vec[zk]
         r_word = z_word = np.nan
         for j in range(s, e + 1):
+            if seeds is not None:                  # R Z stored by K0/L0 lines before it (mm)
+                r_word = seeds[j, 0] if np.isfinite(seeds[j, 0]) else r_word
+                z_word = seeds[j, 1] if np.isfinite(seeds[j, 1]) else z_word
             if rw[j] >= 0:
                 r_word = value[rw[j]] * scale[j]
             if zw[j] >= 0:
@@ -1016,9 +1039,19 @@ def _cycle_repeats(ki, wline, wlet, value, wcol, axes, n_lines, incr_line, filen
             _fail(f"two repeat counts ({seen[ln]} and {c}) in one canned cycle block", ln, filename)
         seen[ln] = c
         if v == 0:
-            _fail(f"repeat count {c}0 in a canned cycle (the cycle data stored without a hole): "
-                  "not read, since controls differ on whether the tool moves to the block's "
-                  "X Y; write the cycle at its first hole", ln, filename)
+            # the cycle data stored, no hole: read where the block names no position (X Y)
+            # nor a peck or dwell (which the written-out moves would need from this line)
+            i = np.flatnonzero(wline == ln)
+            other = [chr(65 + int(wlet[j])) for j in i
+                     if (0 <= wcol[j] < len(axes) and axes[int(wcol[j])] != "Z")
+                     or chr(65 + int(wlet[j])) in "PQ"]
+            if other:
+                _fail(f"repeat count {c}0 in a canned cycle (the cycle data stored without a "
+                      f"hole) with {' '.join(other)}: not read, since controls differ on whether "
+                      "the tool moves to the block's X Y (and a stored P or Q is not carried "
+                      "into written-out moves); write the cycle at its first hole", ln, filename)
+            rep[ln] = 0
+            continue
         if v != int(v) or not 1 <= v <= MAX_REPEATS:
             _fail(f"repeat count {c}{v:g} in a canned cycle: a whole number 1-{MAX_REPEATS} "
                   "expected", ln, filename)
