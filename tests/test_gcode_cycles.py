@@ -115,8 +115,10 @@ def test_repeats_in_g91_keep_their_step_under_a_rigid_shift_and_later_blocks_fol
     """The step of a G91 repeat is unchanged by a shift common to the block before and every
     hole; a block after it that gets an inserted word gets the position after all repeats."""
     p = gcode.parse(ROW, axes=XYZ)
-    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003])
+    info = {}
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003], info=info)
     assert out.splitlines()[1:3] == ROW.splitlines()[1:3]            # increments as written
+    assert info["cycles_kept"] == 5                                  # holes: 3 + 2
     q = gcode.parse(out, axes=XYZ)
     assert np.allclose(q.position, p.position + [0.001, 0.002, 0.003])
 

@@ -858,7 +858,8 @@ def _cycle_edits(ctx, program, cb, delta, dE, new, res, fm, inc_):
         sel = np.flatnonzero(run_id == r)
         rows = cb[sel]
         if rigid[sel].all():
-            report["kept"] += len(rows)
+            # holes: a block repeated by K/L drills that many
+            report["kept"] += int(np.asarray(p.cycle_repeat)[rows].sum()) if p.cycle_repeat is not None else len(rows)
             _cycle_shift(ctx, p, rows, dE[sel, zk], res[zk], (dz, mz), letter_z, letter_r, inc_)
             continue
         code = int(cyc[rows[0]])
