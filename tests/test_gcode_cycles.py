@@ -297,3 +297,31 @@ def test_k0_stores_the_cycle_data_for_the_holes_after_it():
         gcode.parse("G90 G0 X0 Y0 Z10.\nG81 Z-3. R2. K0\nG80\nG81 X5.\n", axes=XYZ)
     with pytest.raises(InputError, match=r":2: repeat count L0 .* with P: not read"):
         gcode.parse("G90 G0 X0 Y0 Z10.\nG82 Z-3. R2. P200 L0\nX5.\n", axes=XYZ)
+
+
+def test_g91_levels_follow_the_hole_when_its_z_correction_differs_from_the_initial_level():
+    """In G91 R is counted from the initial level (where Z stood before the run, with that
+    block's correction) and the depth from R: a hole whose Z correction differs gets its own R
+    word, so R and the bottom are the compensated ones (before: R and Z kept, the hole off by
+    the difference of the corrections, 2 µm deep here).  G98 returns to the initial level the
+    control holds, and the rewrite continues from there."""
+    def f(q):
+        q = q.copy()
+        q[:, 0] += 0.001 * (q[:, 0] > 25)
+        q[:, 2] += 0.002 * (q[:, 0] > 25)
+        return q
+    text = ("G90 G0 X20. Y0 Z20.\nG91 G99 G81 X2. Z-5. R-12. F100\nX6.\nG98 X2.\nG90 G80\n"
+            "G91 G0 Z1.\nG90\n")
+    p = gcode.parse(text, axes=XYZ)
+    out = gcode.rewrite(p, f)
+    q = gcode.parse(out, axes=XYZ)
+    # R level and bottom of each hole: the programmed ones plus the correction at the hole
+    want_r = f(np.c_[p.position[1:4, :2], p.cycle_data[1:4, 1]])
+    want_b = f(np.c_[p.position[1:4, :2], p.cycle_data[1:4, 2]])
+    assert np.allclose(q.cycle_data[1:4, 1], want_r[:, 2], atol=1e-9)
+    assert np.allclose(q.cycle_data[1:4, 2], want_b[:, 2], atol=1e-9)
+    assert out.splitlines()[2] == "X6.001000 R-11.998000"
+    # the G98 hole ends at the initial level the control holds (20, the block before the run
+    # had no correction); the G91 move after it starts there and ends compensated
+    assert q.position[3, 2] == pytest.approx(20.0)
+    assert q.position[-1, 2] == pytest.approx(f(p.position[-1:])[0, 2])
