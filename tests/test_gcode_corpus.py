@@ -138,7 +138,7 @@ def interpret(text, name="main"):
     cycle, retract, zinit, r_word, z_word = 0, 98, None, None, None
     wcs = {}                                   # G54.. -> {axis: value} set by G10 L2
     cur_wcs, ref_wcs = 54, None
-    lengths, tool_mode, h, t_loaded = {}, 49, None, None
+    lengths, tool_mode, h, t_loaded, dyn_len = {}, 49, None, None, 0.0
     rot = None                                 # (angle, centre) under G68
     g92 = {}                                   # G92 shift per axis; None: set where unknown
     polar, pr, pa = False, None, None          # G16: radius and angle words (modal in G16)
@@ -170,6 +170,8 @@ def interpret(text, name="main"):
                 tool_mode = int(v)
                 if v != 49 and "H" not in wd:
                     h = t_loaded                   # LinuxCNC: the loaded tool
+            elif v == 43.1:                        # LinuxCNC: the length is the Z word
+                tool_mode, dyn_len = 43.1, wd["Z"] * s
             if 54 <= v <= 59:
                 cur_wcs = int(v)
             if v == 68:
@@ -202,13 +204,15 @@ def interpret(text, name="main"):
                 polar, pr, pa = True, None, None
             elif v == 15:
                 polar = False
-        if 68 in g:
-            continue
+        if 68 in g or 43.1 in g:
+            continue                               # no move (G43.1 Z: a length)
 
         def off(a, with92=True):
             o = wcs.get(cur_wcs, {}).get(a, 0.0) - wcs.get(ref_wcs or cur_wcs, {}).get(a, 0.0)
             if a == "Z" and tool_mode in (43, 44):
                 o += (1 if tool_mode == 43 else -1) * (lengths.get((h, 10), 0.0) + lengths.get((h, 11), 0.0))
+            if a == "Z" and tool_mode == 43.1:
+                o += dyn_len
             if with92 and a in g92:
                 o = None if g92[a] is None else o + g92[a]
             return o
@@ -261,8 +265,14 @@ def interpret(text, name="main"):
             # initial level (G98) or at R (G99)
             r_word = arcw.get("R", r_word)
             z_word = ax.pop("Z", z_word)
-            for a, v in ax.items():
-                pos[a] = (None if v is None else _plus(v * s, off(a))) if absolute else _plus(pos[a], v * s)
+            # repeats (Fanuc K, LinuxCNC/Haas L): the hole drilled that many times; in G91 the
+            # X Y increments are taken again before each (Haas's variable peck has K with I J)
+            reps = int(wd.get("L", wd.get("K", 1) if not ("I" in wd or "J" in wd) else 1))
+            if reps == 0:
+                continue                           # K0/L0: R and Z stored, no hole, no move
+            for _ in range(reps):
+                for a, v in ax.items():
+                    pos[a] = (None if v is None else _plus(v * s, off(a))) if absolute else _plus(pos[a], v * s)
             r_lvl = _plus(r_word * s, off("Z")) if absolute else (None if zinit is None else zinit + r_word * s)
             pos["Z"] = zinit if retract == 98 else r_lvl
             blocks.append((n, ref(pos), cycle, None))

@@ -73,8 +73,72 @@ def test_cycles_needing_control_parameters_are_refused_when_not_rigid(code):
 def test_cycle_refusals():
     with pytest.raises(InputError, match=r":2: canned cycle G81 without an R level"):
         gcode.parse("G90 G0 X0 Y0 Z10.\nG81 X5. Z-3.\n", axes=XYZ)
-    with pytest.raises(InputError, match=r":2: repeat count K"):
-        gcode.parse("G90 G0 X0 Y0 Z10.\nG81 X5. Z-3. R1. K3\n", axes=XYZ)
+    for words, what in (("K0", "repeat count K0 in a canned cycle .the cycle data stored"),
+                        ("L0", "repeat count L0"), ("K2.5", "repeat count K2.5 in a canned cycle: a whole"),
+                        ("K2 L2", "two repeat counts")):
+        with pytest.raises(InputError, match=rf":2: {what}"):
+            gcode.parse(f"G90 G0 X0 Y0 Z10.\nG81 X5. Z-3. R1. {words}\n", axes=XYZ)
+    # L outside a cycle is still no repeat count (a Siemens call or a word not read)
+    with pytest.raises(InputError, match=r":2: L3: a Siemens subprogram call"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG1 X5. L3\n", axes=XYZ)
+
+
+# -- repeat counts: Fanuc K, LinuxCNC and Haas L (issue 20 follow-up)
+
+ROW = "G90 G0 X0 Y0 Z10.\nG91 G99 G81 X5. Y1. Z-5. R-8. K3 F100\nX-2. L2\nG90 G80\nG0 Y20.\n"
+
+
+@pytest.mark.parametrize("letter", ["K", "L"])
+def test_repeats_in_g91_step_the_hole_each_time(letter):
+    """G91 with K3 (Fanuc) or L3 (LinuxCNC, Haas): three holes 5 mm apart, the block ending at
+    the last; the next block continues from there (before: refused)."""
+    text = ROW.replace("K3", letter + "3").replace("L2", letter + "2")
+    p = gcode.parse(text, axes=XYZ)
+    assert p.cycle_repeat.tolist() == [1, 3, 2, 1]
+    assert np.allclose(p.position, [[0, 0, 10], [15, 3, 2], [11, 3, 2], [11, 20, 2]])
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+
+
+def test_repeats_in_g90_drill_the_same_hole():
+    text = "G90 G0 X0 Y0 Z10.\nG98 G81 X5. Y5. Z-3. R2. L3 F100\nX8. K2\nG80\n"
+    p = gcode.parse(text, axes=XYZ)
+    assert np.allclose(p.position[1:], [[5, 5, 10], [8, 5, 10]])
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003])
+    assert out.splitlines()[1:3] == ["G98 G81 X5.001000 Y5.002000 Z-2.997000 R2.003000 L3 F100",
+                                     "X8.001000 K2"]
+    with pytest.raises(InputError, match=r":2: canned cycle G81 with repeat count 3: the correction "
+                                         "is not the same"):
+        gcode.rewrite(p, tilt)
+
+
+def test_repeats_in_g91_keep_their_step_under_a_rigid_shift_and_later_blocks_follow():
+    """The step of a G91 repeat is unchanged by a shift common to the block before and every
+    hole; a block after it that gets an inserted word gets the position after all repeats."""
+    p = gcode.parse(ROW, axes=XYZ)
+    info = {}
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003], info=info)
+    assert out.splitlines()[1:3] == ROW.splitlines()[1:3]            # increments as written
+    assert info["cycles_kept"] == 5                                  # holes: 3 + 2
+    q = gcode.parse(out, axes=XYZ)
+    assert np.allclose(q.position, p.position + [0.001, 0.002, 0.003])
+
+    def far(q):            # X corrected only beyond Y 10: the holes see no correction
+        q = q.copy()
+        q[:, 0] += 0.004 * (q[:, 1] > 10)
+        return q
+    out = gcode.rewrite(p, far)
+    assert out.splitlines()[4] == "G0 X11.004000 Y20."              # after 3 + 2 repeats
+
+
+def test_repeats_in_g91_whose_correction_changes_are_refused():
+    p = gcode.parse(ROW, axes=XYZ)
+
+    def scale(q):          # X grows with X: every hole has its own correction
+        q = q.copy()
+        q[:, 0] *= 1.0001
+        return q
+    with pytest.raises(InputError, match=r":2: canned cycle repeat count 3 in G91: the correction"):
+        gcode.rewrite(p, scale)
 
 
 def test_cycle_run_starting_before_the_pose_is_known_is_left_as_written():
@@ -185,3 +249,79 @@ def test_haas_bolt_hole_patterns_are_refused_by_name(line, what):
     text = "G90 G0 X0 Y0 Z1.\nG81 Z-1. R.1 F10.\n" + line + "\nG80\n"
     with pytest.raises(InputError, match=rf"h.nc:3: {what}"):
         gcode.parse(text, axes=("X", "Y", "Z"), filename="h.nc")
+
+
+@pytest.mark.parametrize("retract, dist, r, z_after", [("G99", "G90", "R2.", 2.0), ("G98", "G90", "R2.", 10.0),
+                                                       ("G99", "G91", "R-4.", 6.0)])
+def test_block_after_a_cycle_starts_at_its_return_level(retract, dist, r, z_after):
+    """After a G99 cycle the tool stands at R: a later block whose Z word is inserted (the Z
+    correction changes along X) gets R plus its correction, not the Z from before the cycle
+    (before: G0 X20. Z10.001000, a rapid to the old level), and a G91 arc after it is written
+    from there."""
+    def f(q):
+        q = q.copy()
+        q[:, 2] += 0.001 * (q[:, 0] > 10)
+        return q
+    text = (f"G90 G0 X0 Y0 Z10.\n{dist} {retract} G81 X5. Y5. Z-3. {r} F100\nG80\nG0 X20.\n"
+            "G91 G2 X2. Y0 I1. J0 F100\n")
+    p = gcode.parse(text, axes=XYZ)
+    assert p.position[2, 2] == pytest.approx(z_after)
+    out = gcode.rewrite(p, f)
+    q = gcode.parse(out, axes=XYZ)
+    assert np.allclose(q.position[:3], f(p.position[:3]), atol=1e-9)
+    assert np.allclose(q.position[-1], f(p.position[-1:])[0], atol=1e-9)
+    assert np.allclose(q.position[2:, 2], z_after + 0.001)           # every block after it
+
+
+def test_k0_stores_the_cycle_data_for_the_holes_after_it():
+    """Fanuc K0 / Haas L0 without X Y: the R level and depth are stored, no hole and no move
+    there; the next blocks drill with them (before: refused)."""
+    text = "G90 G0 X0 Y0 Z10.\nG99 G81 Z-3. R2. F100 K0\nX5. Y5.\nX10.\nG80\nG0 X20.\n"
+    p = gcode.parse(text, axes=XYZ)
+    assert p.line.tolist() == [1, 3, 4, 6]                      # the K0 line is no block
+    assert np.allclose(p.position, [[0, 0, 10], [5, 5, 2], [10, 5, 2], [20, 5, 2]])
+    assert np.allclose(p.cycle_data[1, :3], [10, 2, -3])
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+    out = gcode.rewrite(p, lambda q: q + [0.001, 0.002, 0.003])
+    # the K0 line stays; the first hole gets the shifted levels
+    assert out.splitlines()[1:3] == ["G99 G81 Z-3. R2. F100 K0", "X5.001000 Y5.002000 R2.003000 Z-2.997000"]
+    q = gcode.parse(out, axes=XYZ)
+    assert np.allclose(q.cycle_data[1:3, 1:3], [[2.003, -2.997]] * 2)
+    # written out as moves: no hole at the K0 line, two holes after it
+    w = gcode.parse(gcode.rewrite(p, tilt), axes=XYZ)
+    assert not w.cycle.any()
+    bottoms = w.position[np.isclose(w.position[:, 2], -3.0), :2]
+    assert np.allclose(bottoms, tilt(np.array([[5, 5, -3.], [10, 5, -3.]]))[:, :2], atol=1e-6)
+    # a G80 between the K0 line and the holes cancels the stored data
+    with pytest.raises(InputError, match=r":4: canned cycle G81 without an R level"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG81 Z-3. R2. K0\nG80\nG81 X5.\n", axes=XYZ)
+    with pytest.raises(InputError, match=r":2: repeat count L0 .* with P: not read"):
+        gcode.parse("G90 G0 X0 Y0 Z10.\nG82 Z-3. R2. P200 L0\nX5.\n", axes=XYZ)
+
+
+def test_g91_levels_follow_the_hole_when_its_z_correction_differs_from_the_initial_level():
+    """In G91 R is counted from the initial level (where Z stood before the run, with that
+    block's correction) and the depth from R: a hole whose Z correction differs gets its own R
+    word, so R and the bottom are the compensated ones (before: R and Z kept, the hole off by
+    the difference of the corrections, 2 µm deep here).  G98 returns to the initial level the
+    control holds, and the rewrite continues from there."""
+    def f(q):
+        q = q.copy()
+        q[:, 0] += 0.001 * (q[:, 0] > 25)
+        q[:, 2] += 0.002 * (q[:, 0] > 25)
+        return q
+    text = ("G90 G0 X20. Y0 Z20.\nG91 G99 G81 X2. Z-5. R-12. F100\nX6.\nG98 X2.\nG90 G80\n"
+            "G91 G0 Z1.\nG90\n")
+    p = gcode.parse(text, axes=XYZ)
+    out = gcode.rewrite(p, f)
+    q = gcode.parse(out, axes=XYZ)
+    # R level and bottom of each hole: the programmed ones plus the correction at the hole
+    want_r = f(np.c_[p.position[1:4, :2], p.cycle_data[1:4, 1]])
+    want_b = f(np.c_[p.position[1:4, :2], p.cycle_data[1:4, 2]])
+    assert np.allclose(q.cycle_data[1:4, 1], want_r[:, 2], atol=1e-9)
+    assert np.allclose(q.cycle_data[1:4, 2], want_b[:, 2], atol=1e-9)
+    assert out.splitlines()[2] == "X6.001000 R-11.998000"
+    # the G98 hole ends at the initial level the control holds (20, the block before the run
+    # had no correction); the G91 move after it starts there and ends compensated
+    assert q.position[3, 2] == pytest.approx(20.0)
+    assert q.position[-1, 2] == pytest.approx(f(p.position[-1:])[0, 2])

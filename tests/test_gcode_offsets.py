@@ -310,3 +310,36 @@ def test_haas_g154_and_g110_work_offsets(tmp_path):
     f.write_text('[G130]\nX = 1.0\n')
     with pytest.raises(InputError, match=r"G154 P<n>"):
         read_offsets(f, XYZ)
+
+
+# -- LinuxCNC G43.1 dynamic tool length (issue 20 follow-up)
+
+G431 = "G21 G90\nG0 X0 Y0 Z10\nG43.1 Z25.5\nG0 Z5\nG1 Z-1 F100\nG43.1 Z20\nG1 Z-2\nG49\nG0 Z30\n"
+
+
+def test_g43_1_reads_its_z_word_as_the_tool_length():
+    """G43.1 Z<len>: the tool length is the Z word (no move), as G43 with that length until
+    the next G43.1 or G49 (before: "unknown G code G43.1")."""
+    p = gcode.parse(G431, axes=XYZ)
+    assert p.line.tolist() == [2, 4, 5, 7, 9]                 # the G43.1 lines are no blocks
+    assert np.allclose(p.position[:, 2], [10, 30.5, 24.5, 18, 30])
+    assert np.allclose(p.tool_tip, [0, 25.5, 25.5, 20, 20])    # after G49: the last length
+    assert any("G43.1" in n for n in p.notes)
+    assert gcode.rewrite(p, lambda q: q.copy()) == G431
+    out = gcode.rewrite(p, lambda q: q + [0, 0, 0.001])
+    assert out.splitlines()[2] == "G43.1 Z25.5"              # a length, not rewritten
+    assert out.splitlines()[3] == "G0 Z5.001000"
+    # inch: the length in inch
+    q = gcode.parse("G20 G90\nG0 X0 Y0 Z1.\nG43.1 Z2.\nG0 Z0.5\n", axes=XYZ)
+    assert q.position[-1, 2] == pytest.approx(2.5 * 25.4)
+
+
+@pytest.mark.parametrize("line, what", [
+    ("G43.1", "G43.1 without Z, or with other axis words .none."),
+    ("G43.1 X2. Z30.", "G43.1 without Z, or with other axis words .X."),
+    ("G91 G43.1 Z30.", "G43.1 in G91: not read"),
+    ("G0 G43.1 Z30.", "G43.1 in a block with a motion code"),
+])
+def test_g43_1_forms_not_read_are_refused(line, what):
+    with pytest.raises(InputError, match=rf"d.ngc:2: {what}"):
+        gcode.parse("G90 G0 X0 Y0 Z10\n" + line + "\nG0 Z5\n", axes=XYZ, filename="d.ngc")

@@ -21,7 +21,9 @@ _G_ARC_DIST = {901: 90, 911: 91}
 #: are the tool tip in the workpiece frame and the rotary angles, gcode.tcp)
 #: Haas G234 (TCPC, tool centre point control, cancelled by G49) is its G43.4: the words are
 #: the tool tip in the work frame and the rotary angles
-_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434, 2340: 434}
+#: LinuxCNC G43.1 Z<len> (dynamic tool length): the length is the block's Z word, not a table
+#: entry; read as G43 with that length (G49 cancels)
+_G_TOOL = {430: 43, 440: 44, 490: 49, 434: 434, 2340: 434, 431: 431}
 #: canned drilling cycles (hole at X Y, R level, depth Z; G98 back to the initial level, G99
 #: to R)
 _G_CYCLE = {730: 73, 740: 74, 760: 76, **{g: g // 10 for g in range(810, 900, 10)}}

@@ -128,7 +128,7 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
 
 def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths,
                      events, first_motion, n_lines, filename, notes, written=None,
-                     change_line=None):
+                     change_line=None, dyn_len=None):
     """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
     (the work offset in effect at the first motion block, ``first_motion``): work offset minus
     the reference one, plus +/- the tool length along Z for G43/G44; and per line the tool
@@ -141,7 +141,8 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     ``change_line`` (n_lines,) bool: the tool changes (M6 lines; default: the T words); the tool
     loaded is the last T word. Also returned: per line the tool tip (mm along -tool axis from
     the gauge point) and whether the tool in the spindle has an unknown length there (after a
-    change, before its G43: its tip taken at the gauge point)."""
+    change, before its G43: its tip taken at the gauge point).  ``dyn_len`` (n_lines,): the
+    length (mm) LinuxCNC's G43.1 Z sets on its lines (tool_l 431), NaN elsewhere: G43 with it."""
     n_ax = len(axes)
     off = np.zeros((n_lines, n_ax))
     assumed = []
@@ -204,7 +205,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     if tset.any():
         # G43/G44/G43.4 without H: the loaded tool T (LinuxCNC)
         h_line = h_line.copy()
-        noh = tset & (tool_l != 49) & np.isnan(h_line)
+        noh = tset & (tool_l != 49) & (tool_l != 431) & np.isnan(h_line)
         if noh.any():
             tmod = _ffill(t_line, ~np.isnan(t_line), np.nan)
             tmod = _renumber(tmod, h_of_tool)
@@ -215,7 +216,12 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         hmodal = _ffill(h_line, ~np.isnan(h_line), np.nan)
         mode = _ffill(tool_l, tset, 49)
         active = mode != 49
-        L, unknown = _lengths_per_line(hmodal, active, lengths, tev, filename)
+        L, unknown = _lengths_per_line(hmodal, active & (mode != 431), lengths, tev, filename)
+        if (mode == 431).any():
+            # G43.1 Z<len>: the length its block gives, until G43/G44/G49 or the next G43.1
+            dl = _ffill(np.where(tool_l == 431, dyn_len, np.nan), tset, np.nan)
+            L = np.where(mode == 431, dl, L)
+            mode = np.where(mode == 431, 43, mode)
         if unknown:
             notes.append(f"tool length offsets H{', H'.join(map(str, unknown))} not given: taken as "
                          "0 mm (the compensation then evaluates the errors at the programmed tool "

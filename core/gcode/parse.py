@@ -243,6 +243,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     g10_line[gline[cat == 12]] = True
     if badlet.any() and g10_line.any():
         badlet &= ~((wlet == _ascii("L")) & g10_line[wline])      # G10 L: the data kind
+    if badlet.any() and (cat == 11).any():
+        # L in a canned cycle block: the repeat count (LinuxCNC, Haas), read with the cycles
+        cev = np.full(n_lines, -1, np.int64)
+        cev[gline[np.isin(cat, (0,))]] = 0
+        cev[gline[g10 == 800]] = 0
+        cev[gline[cat == 11]] = 1
+        in_cycle = _ffill(cev, cev >= 0, 0) == 1
+        badlet &= ~((wlet == _ascii("L")) & in_cycle[wline])
     if badlet.any():
         i = int(np.argmax(badlet))
         c = chr(65 + wlet[i])
@@ -333,9 +341,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if len(mi6):
         change_line = np.zeros(n_lines, bool)
         change_line[wline[mi6]] = True
+    dyn_len = None
+    if (tool_l == 431).any():
+        dyn_len = _g43_1_lengths(tool_l, mot_l, inch_line, incr_line, axes, wline, wlet, value,
+                                 n_lines, filename)
+        notes.append("G43.1 (LinuxCNC dynamic tool length) on line(s) "
+                     f"{', '.join(str(int(x) + 1) for x in np.flatnonzero(tool_l == 431)[:5])}: "
+                     "its Z word is the tool length (not a move), read as G43 with it")
     offsets_line, tlen_line, offset_assumed, tip_line, gauge_line = offsets_per_line(
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
-        first_motion, n_lines, filename, notes, written, change_line)
+        first_motion, n_lines, filename, notes, written, change_line, dyn_len)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
     if (tool_l == 434).any() and not tcp:
         _fail("G43.4: G43.4 tool centre point: X Y Z are the tool tip, not axis positions; "
@@ -469,6 +484,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         wcol = np.where(g68_line[wline], np.int8(-1), wcol)      # centre and angle, not moves
     if g10_line.any():
         wcol = np.where(g10_line[wline], np.int8(-1), wcol)      # G10 words are data
+    if dyn_len is not None:
+        wcol = np.where(~np.isnan(dyn_len)[wline], np.int8(-1), wcol)   # G43.1 Z: a length
     if (g10 == 160).any() and (len(nm_w) or g10_line.any()) and {"X", "Y"} <= set(axes):
         # under G16 the X Y words of G10/G28/G30/G52/G53/G92 would be polar too, or not,
         # depending on the control: not read
@@ -485,6 +502,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
     cyc_zw = np.full(n_lines, -1, np.int64)
     cyc_rw = np.full(n_lines, -1, np.int64)
+    repeat_line = None
     if (cycle_line > 0).any():
         in_cyc = cycle_line[wline] > 0
         if g10_line.any() or g68_line.any():
@@ -494,10 +512,17 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         zc = axes.index("Z")
         zi = np.flatnonzero(in_cyc & (wcol == zc))
         ri = np.flatnonzero(in_cyc & (wlet == _ascii("R")))
-        ki = np.flatnonzero(in_cyc & ((wlet == _ascii("K")) | (wlet == _ascii("L"))))
+        # repeat counts: Fanuc K, LinuxCNC and Haas L (a K beside I or J is Haas's variable
+        # peck, refused with the I J words below)
+        ij_line = np.zeros(n_lines, bool)
+        ij_line[wline[np.isin(wlet, (_ascii("I"), _ascii("J")))]] = True
+        ki = np.flatnonzero(in_cyc & (((wlet == _ascii("K")) & ~ij_line[wline]) |
+                                      (wlet == _ascii("L"))))
         if len(ki):
-            _fail(f"repeat count {chr(65 + wlet[ki[0]])} in a canned cycle: not supported",
-                  wline[ki[0]], filename)
+            repeat_line = _cycle_repeats(ki, wline, wlet, value, wcol, axes, n_lines,
+                                         incr_line, filename)
+            wcol = wcol.copy()
+            wcol[ki] = -1
         cyc_zw[wline[zi]], cyc_rw[wline[ri]] = zi, ri
         wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
     axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
@@ -519,6 +544,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                       "variable peck I J K, boring shift I J): not supported", wline[j], filename)
             _fail(f"arc word {chr(65 + wlet[j])} outside G2/G3", wline[j], filename)
     block = has_motion | (has_arcw & np.isin(mode_line, (2, 3))) | (cyc_zw >= 0) | (cyc_rw >= 0)
+    k0_lines = np.zeros(0, np.int64)
+    if repeat_line is not None and (repeat_line == 0).any():
+        # K0/L0: the cycle's R and Z stored for the next holes, no hole and no move here
+        k0_lines = np.flatnonzero(repeat_line == 0)
+        block[k0_lines] = False
+        k0_cancel = np.zeros(n_lines, np.int64)          # G80 and G0-G3 lines, counted
+        k0_cancel[gline[(g10 == 800) | (cat == 0)]] = 1
+        k0_cancel = np.cumsum(k0_cancel)
     if len(bd_lines):
         bdl = bd_lines[block[bd_lines] | (np.bincount(gline, minlength=n_lines)[bd_lines] > 0)]
         if len(bdl):
@@ -592,6 +625,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             if c in LINEAR or c in ARC_WORDS:
                 vals[:, k] *= lin_scale
     present = col_word[:, :n_ax] >= 0
+    cycle_repeat = np.ones(nblk, np.int32)
+    if repeat_line is not None:
+        cycle_repeat = repeat_line[blines].astype(np.int32)
+        # G91: the hole steps by the increment at each repeat, the block ends at the last
+        step = (cycle_repeat > 1) & incremental
+        if step.any():
+            vals[step, :n_ax] *= cycle_repeat[step, None]
     polar = polar_xy = None
     pres_pos = present
     if (g10 == 160).any():
@@ -678,9 +718,21 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if (cycle > 0).any():
         g80n = np.cumsum(np.isin(np.arange(n_lines), gline[g10 == 800]))[blines]
         cut = np.r_[True, np.diff(g80n) > 0]          # a G80 between two blocks ends a run
+        seeds = None
+        if len(k0_lines):
+            # a K0 line's words count for the next block if no G80 or G0-G3 comes between
+            cancel = k0_cancel
+            seeds = np.full((nblk, 2), np.nan)
+            nxt = np.searchsorted(blines, k0_lines)
+            for L, j in zip(k0_lines.tolist(), nxt.tolist()):
+                if j < nblk and cancel[blines[j]] == cancel[L] and cycle[j] > 0:
+                    sc = INCH if inch_line[L] else 1.0
+                    for col_, w in ((0, cyc_rw[L]), (1, cyc_zw[L])):
+                        if w >= 0:
+                            seeds[j, col_] = value[w] * sc
         position, cyc_data = _cycles(axes, blines, cycle, cut, retract_line[blines], cyc_zw[blines],
                                      cyc_rw[blines], value, inch, incremental, vals[:, :n_ax],
-                                     present, offset, start_vec, position, filename)
+                                     present, offset, start_vec, position, filename, seeds)
     ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
     radius = vals[:, n_ax + 3].copy()
@@ -709,6 +761,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   inch_g20_words=g20, inch_f_words=finch,
                   axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
+                  cycle_repeat=cycle_repeat,
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
                   known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
                   tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
@@ -893,7 +946,7 @@ def _absolute(vals, present, incremental, offset, start_vec):
 
 
 def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental, vals, present, offset,
-            start_vec, position, filename):
+            start_vec, position, filename, seeds=None):
     """Canned cycle blocks: per block the initial level, R level and depth (reference frame,
     mm; NaN where unknown) and the block's end Z (initial level for G98, R level for G99).
     Runs of holes are taken in order, since each run's initial level is where the last left Z.
@@ -915,6 +968,9 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
         zinit = position[s - 1, zk] if s > 0 else start_vec[zk]
         r_word = z_word = np.nan
         for j in range(s, e + 1):
+            if seeds is not None:                  # R Z stored by K0/L0 lines before it (mm)
+                r_word = seeds[j, 0] if np.isfinite(seeds[j, 0]) else r_word
+                z_word = seeds[j, 1] if np.isfinite(seeds[j, 1]) else z_word
             if rw[j] >= 0:
                 r_word = value[rw[j]] * scale[j]
             if zw[j] >= 0:
@@ -938,6 +994,77 @@ def _cycles(axes, blines, cycle, cut, retract, zw, rw, value, inch, incremental,
                         start_vec[zk:zk + 1])[:, 0]
         position[:, zk] = col
     return position, data
+
+
+def _g43_1_lengths(tool_l, mot_l, inch_line, incr_line, axes, wline, wlet, value, n_lines,
+                   filename):
+    """Per line the tool length (mm) set by LinuxCNC's ``G43.1 Z<len>``, NaN elsewhere.  Only
+    Z is read (X and other axes are lathe or special offsets), in G90 (LinuxCNC takes the
+    value as it is; whether every control does so in G91 is not established, so it is
+    refused), not in a block with a motion code (its axis words would be claimed twice)."""
+    out = np.full(n_lines, np.nan)
+    for L in np.flatnonzero(tool_l == 431).tolist():
+        i = np.flatnonzero(wline == L)
+        ax = {chr(65 + int(wlet[j])): float(value[j]) for j in i
+              if chr(65 + int(wlet[j])) in axes or chr(65 + int(wlet[j])) in "XYZUVWABC"}
+        if mot_l[L] >= 0:
+            _fail("G43.1 in a block with a motion code: its axis words are the tool offsets, "
+                  "not a move; write G43.1 in a block of its own", L, filename)
+        if set(ax) != {"Z"}:
+            _fail("G43.1 without Z, or with other axis words "
+                  f"({' '.join(sorted(set(ax) - {'Z'})) or 'none'}): only the Z tool length "
+                  "(G43.1 Z<length>) is read", L, filename)
+        if incr_line[L]:
+            _fail("G43.1 in G91: not read (the length is read as an absolute value only in "
+                  "G90); write it in G90", L, filename)
+        out[L] = ax["Z"] * (INCH if inch_line[L] else 1.0)
+    return out
+
+
+#: largest canned cycle repeat count read (Fanuc K: 1-9999)
+MAX_REPEATS = 9999
+
+
+def _cycle_repeats(ki, wline, wlet, value, wcol, axes, n_lines, incr_line, filename):
+    """Repeat count per line (1 where none) from the K (Fanuc) or L (LinuxCNC, Haas) words
+    ``ki`` of canned cycle blocks: the hole is drilled that many times, in G91 stepping by the
+    block's X Y increments each time.  K0/L0 (Fanuc: the cycle data stored without drilling;
+    Haas: no hole at that block) is refused: whether the tool still moves to the block's X Y
+    differs between controls and manuals, and no position is guessed."""
+    rep = np.ones(n_lines, np.int64)
+    seen = {}
+    for i in ki.tolist():
+        ln, c, v = int(wline[i]), chr(65 + int(wlet[i])), float(value[i])
+        if ln in seen:
+            _fail(f"two repeat counts ({seen[ln]} and {c}) in one canned cycle block", ln, filename)
+        seen[ln] = c
+        if v == 0:
+            # the cycle data stored, no hole: read where the block names no position (X Y)
+            # nor a peck or dwell (which the written-out moves would need from this line)
+            i = np.flatnonzero(wline == ln)
+            other = [chr(65 + int(wlet[j])) for j in i
+                     if (0 <= wcol[j] < len(axes) and axes[int(wcol[j])] != "Z")
+                     or chr(65 + int(wlet[j])) in "PQ"]
+            if other:
+                _fail(f"repeat count {c}0 in a canned cycle (the cycle data stored without a "
+                      f"hole) with {' '.join(other)}: not read, since controls differ on whether "
+                      "the tool moves to the block's X Y (and a stored P or Q is not carried "
+                      "into written-out moves); write the cycle at its first hole", ln, filename)
+            rep[ln] = 0
+            continue
+        if v != int(v) or not 1 <= v <= MAX_REPEATS:
+            _fail(f"repeat count {c}{v:g} in a canned cycle: a whole number 1-{MAX_REPEATS} "
+                  "expected", ln, filename)
+        rep[ln] = int(v)
+    if (rep > 1).any():
+        # in G91 the X Y words step at each repeat; other axes in such a block are not read
+        other = [k for k, a in enumerate(axes) if a not in "XYZ"]
+        sel = (rep[wline] > 1) & incr_line[wline] & np.isin(wcol, other)
+        if sel.any():
+            j = int(np.argmax(sel))
+            _fail(f"axis word {axes[int(wcol[j])]} in a repeated canned cycle block in G91: "
+                  "only X Y step at each repeat; not read", wline[j], filename)
+    return rep
 
 
 def _map_codes(vals, mapping):

@@ -67,6 +67,9 @@ class Program:
     cycle_data: np.ndarray           # (N, 7) cycles: initial level, R level, depth (mm,
                                      # reference frame), R and Z word values, G98/G99, first
                                      # block of the run
+    cycle_repeat: np.ndarray = None  # (N,) canned cycle repeat count (Fanuc K, LinuxCNC/Haas L;
+                                     # 1 without): the hole drilled that many times, in G91
+                                     # stepping by the block's X Y words (position: the last)
     idle_axes: tuple = ()
     arc_tol: float = 0.02            # mm: accepted radius difference (start/end) of arcs
     notes: tuple = ()                # what was read with an assumption or passed uncompensated

@@ -411,6 +411,10 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     off = np.asarray(program.offset)
     offc = np.rint(off / res).astype(np.int64) if off.any() else None
     Cc = _control_counts(program, res, offc)
+    from . import cycle_counts                 # canned cycles: return levels, K/L repeats
+    rep_rows = cycle_counts.stepped_rows(program)
+    if cyc.any():
+        Cc = cycle_counts.control_counts(program, Cc, res, rep_rows, offc)
     dK = np.rint((Qt[:nk] - P[kk]) / res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
@@ -424,8 +428,13 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     if len(cb):
         no_z[cb] = True                           # a cycle's Z word is its depth
         dE = dK[np.searchsorted(kk, cb)].astype(np.int64)
+        # the correction the initial level got (the block before the run; the start: none)
+        before = np.asarray(program.cycle_data)[cb, 6].astype(np.int64) - 1
+        dz0 = np.zeros(len(cb), np.int64)
+        sel_ = before >= 0
+        dz0[sel_] = dK[np.searchsorted(kk, before[sel_]), program.axes.index("Z")]
         expanded = _cycle_edits(ctx, program, cb, cyc_delta, dE, new, res, fm,
-                                inc_=np.asarray(program.incremental))
+                                inc_=np.asarray(program.incremental), dz0=dz0)
         if program.cutter is not None and len(expanded) and (np.asarray(program.cutter)[expanded] > 0).any():
             j = int(expanded[np.argmax(np.asarray(program.cutter)[expanded] > 0)])
             raise InputError("this canned cycle must be written out as moves, but cutter radius "
@@ -433,6 +442,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                              int(line[j]))
         kn_edit = kn.copy()
         kn_edit[expanded] = False                 # written out as new lines instead
+        if len(rep_rows):                         # their words stay (or the program is refused)
+            kn_edit[cycle_counts.check(program, transform, rep_rows, kn, kk, dK, res, row_lines)] = False
 
     keep = np.ones(len(ak), bool)
     arc_cols = None
@@ -830,7 +841,7 @@ def _cycle_points(program: Program, kn):
     return cb, pts
 
 
-def _cycle_edits(ctx, program, cb, delta, dE, new, res, fm, inc_):
+def _cycle_edits(ctx, program, cb, delta, dE, new, res, fm, inc_, dz0=None):
     """Canned cycles under the transform.  Where the correction is the same at the hole's
     levels (a rigid shift there) the cycle stays: X Y as for any block, R and the depth Z shifted
     by the correction (G90) or kept (G91, relative).  Elsewhere the holes of the run are written
@@ -852,10 +863,22 @@ def _cycle_edits(ctx, program, cb, delta, dE, new, res, fm, inc_):
         sel = np.flatnonzero(run_id == r)
         rows = cb[sel]
         if rigid[sel].all():
-            report["kept"] += len(rows)
-            _cycle_shift(ctx, p, rows, dE[sel, zk], res[zk], (dz, mz), letter_z, letter_r, inc_)
+            # holes: a block repeated by K/L drills that many
+            report["kept"] += int(np.asarray(p.cycle_repeat)[rows].sum()) if p.cycle_repeat is not None else len(rows)
+            d0 = dz0[sel] if dz0 is not None else np.zeros(len(sel), np.int64)
+            _cycle_shift(ctx, p, rows, dE[sel, zk], res[zk], (dz, mz), letter_z, letter_r, inc_, d0)
+            # G98 returns to the initial level the control has (its block's correction)
+            g98 = data[rows, 5] == 98
+            new[rows[g98], zk] -= dE[sel[g98], zk] - d0[g98]
             continue
         code = int(cyc[rows[0]])
+        rep = p.cycle_repeat
+        if rep is not None and (np.asarray(rep)[rows] > 1).any():
+            bad = rows[np.argmax(np.asarray(rep)[rows] > 1)]
+            raise InputError(f"canned cycle G{int(cyc[bad])} with repeat count {int(rep[bad])}: the "
+                             "correction is not the same at the hole's levels (not a rigid shift), "
+                             "and repeated holes are not written out as moves", p.filename,
+                             int(p.line[bad]))
         if any(int(cyc[k]) not in _EXPANDABLE for k in rows):
             bad = next(k for k in rows if int(cyc[k]) not in _EXPANDABLE)
             raise InputError(f"canned cycle G{int(cyc[bad])}: the correction is not the same at the "
@@ -868,7 +891,7 @@ def _cycle_edits(ctx, program, cb, delta, dE, new, res, fm, inc_):
     return np.asarray(expanded, np.int64)
 
 
-def _cycle_shift(ctx, p, rows, dzc, rz, fmt, letter_z, letter_r, inc_):
+def _cycle_shift(ctx, p, rows, dzc, rz, fmt, letter_z, letter_r, inc_, dz0=None):
     """Rigid case: R and depth words shifted by the Z correction in G90 (inserted where the
     block relies on the modal value and the correction changed)."""
     wv = np.asarray(p.w_value)
@@ -879,8 +902,10 @@ def _cycle_shift(ctx, p, rows, dzc, rz, fmt, letter_z, letter_r, inc_):
     _, last_end, _ = ctx.anchors
     for i, k in enumerate(rows):
         for w, col, letter, val in ((cr[i], 3, letter_r, data[k, 3]), (cz[i], 4, letter_z, data[k, 4])):
-            # G90: shifted by the correction; G91 (relative to the initial or R level): as written
-            want = int(np.rint(val / rz) + (0 if inc_[k] else dzc[i]))
+            # G90: shifted by the correction; G91: R from the initial level, shifted by the
+            # difference of the corrections there and at the hole; Z (from R) as written
+            shift = dzc[i] if not inc_[k] else (dzc[i] - dz0[i] if col == 3 and dz0 is not None else 0)
+            want = int(np.rint(val / rz) + shift)
             if w >= 0:
                 if want != int(np.rint(wv[w] * scale / rz)):
                     _replace_number(ctx, w, want, fmt)
