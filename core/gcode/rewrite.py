@@ -475,7 +475,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     wv = np.asarray(program.w_value)
     # G16 polar blocks: their X Y are written as radius and angle (gcode.polar)
     from .polar import polar_edits
-    pmask = polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc,
+    pmask = polar_edits(ctx, program, cw, kn_edit, prev, new, res, fm, offc,
                         expanded if len(cb) else np.zeros(0, np.int64), _column_edits)
     nz_any = bool(no_z.any())
     for k, a in enumerate(axes):
