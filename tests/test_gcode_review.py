@@ -58,6 +58,17 @@ PROGRAMS = {
                        "G1\tX2 (a) Y2 F100   \n(only) \nG1 X3;Y7\nM30\n"),
     # no spaces with M S T words; -0 in every spelling; LF and CRLF mixed
     "tight_mst": "G21G90\r\nG0X1Y1Z1M3S1000\nG1X2F100T1\r\nG1Y2.M8\nG1 X-0. Y-0 Z-0.000\nG1 X-.0\nM30\n",
+    # G16 at G55 in inch; G16 under G43 with a G10 tool length
+    "polar_g55_inch": ("G20 G90 G17\nG10 L2 P1 X0 Y0 Z0\nG10 L2 P2 X0.5 Y0.25 Z0\nG54 G0 X0 Y0 Z0.2\n"
+                       "G55\nG16\nG0 X0.4 Y15.\nG1 Z-0.01 F5.\nX0.5\nY75.\nG15\nG54 G0 X0.1 Y0.1\nM30\n"),
+    "polar_g43": ("G21 G90 G17\nG10 L10 P1 R20.\nG43 H1 G0 X0 Y0 Z5\nG16\nG1 X10 Y0 Z-1 F100\n"
+                  "Y90 Z-1\nG15\nG49 G0 Z10\nM30\n"),
+    # G92 then G91 increments from the shifted origin; a LinuxCNC tool table entry by G10 L1
+    "g92_g91": "G21 G90\nG0 X5 Y5 Z5\nG92 X0 Y0\nG91 G1 X1 F100\nY1\nG90 X2 Y2\nG92.1\nG0 X0 Y0\nM30\n",
+    "g10_l1": "G21 G90\nG10 L1 P4 Z20.5\nT4 M6\nG43 H4\nG0 X1 Y1 Z10\nG1 Z-1 F100\nG49\nG0 X2\nM30\n",
+    # G68 rotation with an arc in the rotated frame
+    "g68": ("G21 G90 G17\nG0 X0 Y0 Z5\nG68 X10 Y0 R30\nG1 X15 Y0 F100\nG1 X15 Y5\n"
+            "G2 X10 Y10 I-5 J0\nG69\nG0 X0 Y0\nM30\n"),
     # Haas G154 P work offsets switched against G54, with the offsets given by G10 L20
     "haas_g154": (
         "G20 G90\nG54 G0 X0.1 Y0.1 Z0.5\n"
@@ -70,8 +81,8 @@ INTERPRETED = [k for k in PROGRAMS if k != "haas_g154"]
 G154_OFFSETS = {"G54": {"X": 12.7, "Y": 12.7, "Z": 0.0}, "G154 P7": {"X": 25.4, "Y": 25.4, "Z": 0.0}}
 ERR = ErrorSet(workpiece=WorkpieceSetting((0.0123, -0.0071, 0.0042), (0.0, 0.0, 0.03)))
 #: linearised under the tilt (arcs out of their plane): other line numbers
-TILT_REFUSED = set()
-TILT_LINEARISED = {"fanuc_inch_g91", "haas_tight", "linuxcnc_crlf"}
+TILT_REFUSED = {"polar_g55_inch": r"r.nc:8: the compensation moves X or Y in a block under G16"}
+TILT_LINEARISED = {"fanuc_inch_g91", "haas_tight", "linuxcnc_crlf", "g68"}
 #: a tilt too: the 5-axis machine answers it with B, the 3-axis one with X Y Z only
 TILT = ErrorSet(workpiece=WorkpieceSetting((0.0123, -0.0071, 0.0042), (0.02, -0.015, 0.03)))
 MACHINES = {"3axis": ("vmc-moving-column", None), "5axis": ("robonano-a0ib", {"B": 0.0, "C": 0.0})}
@@ -125,7 +136,12 @@ def test_written_positions_land_where_the_program_meant(name, mach, err, monkeyp
     start = MACHINES[mach][1] or {}
     text = PROGRAMS[name]
     ERR = {"rotz": globals()["ERR"], "tilt": TILT}[err]
-    if err == "tilt" and (name in TILT_REFUSED or name in TILT_LINEARISED):
+    if err == "tilt" and name in TILT_REFUSED:
+        # a Z move under G16 that the tilt turns into an X Y Z move
+        with pytest.raises(InputError, match=TILT_REFUSED[name]):
+            _comp(text, m, ERR, MACHINES[mach][1])
+        return
+    if err == "tilt" and name in TILT_LINEARISED:
         pytest.skip("test_linearised_arcs_stay_on_the_programmed_path")
     out, rep = _comp(text, m, ERR, MACHINES[mach][1], monkeypatch, "")
     out_py, _ = _comp(text, m, ERR, MACHINES[mach][1], monkeypatch, "python")
