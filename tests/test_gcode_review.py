@@ -268,24 +268,32 @@ def test_g52_local_shift_under_a_rotation():
         assert abs(float(words["Y"]) - want[1]) <= 0.5e-4 + 1e-12
 
 
-def test_g154_work_offsets_under_a_translation():
-    """Haas G154 P7 against G54 (offsets given): a translation of the workpiece moves every
-    written word by the translation, in inch, at both work offsets."""
+def test_g154_and_g116_work_offsets_under_a_rotation():
+    """Haas G154 P7 (and its other name G116) against G54, offsets given: every block's point,
+    followed in the G54 frame through the offset switches (a word not written keeps the
+    axis where it stands, so in the other frame it reads differently), is the rotated and
+    translated programmed point, to the inch increment."""
     m = load_machine("vmc-moving-column")
-    text = PROGRAMS["haas_g154"]
-    e = ErrorSet(workpiece=WorkpieceSetting((0.0254, -0.0508, 0.00254), (0.0, 0.0, 0.0)))
-    out, rep = compensate_program(text, m, e, filename="r.nc", work_offsets=G154_OFFSETS)
-    assert rep["compensated"].all()
-    shift = {"X": 0.001, "Y": -0.002, "Z": 0.0001}
-    state_in, state_out = {}, {}
-    for a, b in zip(text.split("\n"), out.split("\n")):
-        win = dict(re.findall(r"([XYZ])([-\d.]+)", a))
-        wout = dict(re.findall(r"([XYZ])([-\d.]+)", b))
-        state_in.update({k: float(v) for k, v in win.items()})
-        state_out.update({k: float(v) for k, v in wout.items()})
-        if win:
-            for k in state_out:
-                assert abs(state_out[k] - state_in[k] - shift[k]) < 1e-9, (a, b)
+    t = np.radians(0.03)
+    R = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    tr = np.array(ERR.workpiece.translation[:2])
+    g116 = {"G54": G154_OFFSETS["G54"], "G154 P7": G154_OFFSETS["G154 P7"]}
+    for text in (PROGRAMS["haas_g154"], PROGRAMS["haas_g154"].replace("G154 P7", "G116")):
+        out, rep = compensate_program(text, m, ERR, filename="r.nc", work_offsets=g116)
+        assert rep["compensated"].all()
+        pos_in, pos_out, off = {}, {}, np.zeros(2)
+        for a, b in zip(text.split("\n"), out.split("\n")):
+            if "G154" in a or "G116" in a:
+                off = np.array([12.7, 12.7])          # G154 P7 less G54, mm
+            elif "G54" in a:
+                off = np.zeros(2)
+            for pos, line in ((pos_in, a), (pos_out, b)):
+                for k, v in re.findall(r"([XY])([-\d.]+)", line):
+                    pos[k] = float(v) * 25.4 + off["XY".index(k)]
+            if re.search(r"[XY]", a):
+                want = R @ np.array([pos_in["X"], pos_in["Y"]]) + tr
+                got = np.array([pos_out["X"], pos_out["Y"]])
+                assert np.abs(got - want).max() <= 0.5 * 2.54e-4 + 1e-9, (a, b, got - want)
 
 
 _PLANE_AXES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
