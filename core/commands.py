@@ -562,7 +562,30 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                              filename=f"{filename} (compensated output)")
     # the output block that ends each input block (linearised arcs add lines after their block)
     idx = np.searchsorted(after_prog.line, out_line, side="right") - 1
-    return np.asarray(after_prog.position)[idx]
+    got = np.asarray(after_prog.position)[idx]
+    # what the control reads must be what was computed: the output's words rounded to their
+    # counts and G91 increments summed count by count, as the control does (and as the emitted
+    # counts are); within a count, as a G16 angle rounded to its increment moves the point by
+    # up to one count (gcode.polar)
+    if "emitted" in info and out_line is not None:
+        from .gcode.rewrite import _control_counts
+        r = np.asarray(info["emitted_resolution"], float)
+        off = np.asarray(after_prog.offset)
+        offc = np.rint(off / r).astype(np.int64) if off.any() else None
+        back = _control_counts(after_prog, r, offc)[1:][idx]
+        want = np.asarray(info["emitted"], float)
+        # (canned cycle blocks: their emitted row is the cycle's own end level, not the
+        # position the parser gives the block)
+        kn = np.asarray(info["compensated"], bool) & (np.asarray(prog.cycle) == 0)
+        with np.errstate(invalid="ignore"):
+            bad = kn & ~(np.abs(back - want) <= 1.0).all(axis=1)
+        if bad.any():
+            j = int(np.argmax(bad))
+            raise InputError(f"internal error, the written program is not what was computed: "
+                             f"its block reads back as counts {back[j].tolist()}, not "
+                             f"{want[j].tolist()}; refusing to write it", filename,
+                             int(prog.line[j]))
+    return got
 
 
 def _sha256(path) -> str:

@@ -74,16 +74,19 @@ def _ffill(v, isset):
     return np.where(idx >= 0, v[np.maximum(idx, 0)], np.nan)
 
 
-def polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc, expanded, column_edits):
+def polar_edits(ctx, program, cw, kn_edit, prev, new, res, fm, offc, expanded, column_edits):
     """Write the compensated points of the polar blocks as radius and angle words (edits into
-    ``ctx`` through ``column_edits``).  ``new`` (N, n_axes): the compensated positions in counts
-    of ``res`` (reference frame, ``offc`` the blocks' offsets in counts).  Returns the (N, n_axes)
+    ``ctx`` through ``column_edits``).  ``prev``, ``new`` (N, n_axes): where the control stands
+    before and after each block, compensated, in counts of ``res`` (reference frame, ``offc`` the blocks' offsets in counts).  Returns the (N, n_axes)
     mask of the cells handled here (the X and Y of the polar blocks), or None."""
     pol = program.polar
-    if pol is None or not np.asarray(pol).any():
+    if pol is None:
         return None
     pol = np.asarray(pol)
     line = np.asarray(program.line)
+    _refuse_cartesian_moves_under_g16(program, pol, kn_edit, prev, new)
+    if not pol.any():
+        return None
     if len(expanded) and pol[expanded].any():
         j = int(expanded[np.argmax(pol[expanded])])
         raise InputError("this canned cycle must be written out as moves, but it stands under G16 "
@@ -109,6 +112,9 @@ def polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc, expanded, column_
     rep_r, ins_r, rep_t, ins_t = [], [], [], []
     r_out = t_out = None                        # what the control holds in the output
     a_in = np.nan                               # the input's modal angle (deg)
+    r_neg = False                               # the input's modal radius is negative
+    on16, sec = _g16_state(program)
+    section_start = np.r_[True, sec[1:] != sec[:-1]]
     kn_edit = np.asarray(kn_edit)
     for j in np.flatnonzero(pol).tolist():
         wr, wt = int(cw[j, ix]), int(cw[j, iy])
@@ -116,12 +122,18 @@ def polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc, expanded, column_
         orig_t = int(np.rint(wv[wt] / unit)) if wt >= 0 else None
         if wt >= 0:
             a_in = float(wv[wt])
+        if wr >= 0:
+            r_neg = bool(wv[wr] < 0)
+        elif section_start[j]:
+            r_neg = False
         if not kn_edit[j]:
             r_out = orig_r if orig_r is not None else r_out
             t_out = orig_t if orig_t is not None else t_out
             continue
-        ang = th[j] + 360.0 * np.round((a_in - th[j]) / 360.0)      # keep the programmed turn
-        rc, tc = int(np.rint(rr[j] / rxy[0])), int(np.rint(ang / unit))
+        # a negative radius (the point opposite the angle) stays negative, with its angle
+        rj, tj = (-rr[j], th[j] + 180.0) if r_neg else (rr[j], th[j])
+        ang = tj + 360.0 * np.round((a_in - tj) / 360.0)            # keep the programmed turn
+        rc, tc = int(np.rint(rj / rxy[0])), int(np.rint(ang / unit))
         r_cnt[j], t_cnt[j] = rc, tc
         for orig, c, rep, ins, prev in ((orig_r, rc, rep_r, ins_r, r_out),
                                         (orig_t, tc, rep_t, ins_t, t_out)):
@@ -149,3 +161,35 @@ def polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc, expanded, column_
     mask = np.zeros((N, len(axes)), bool)
     mask[pol, ix] = mask[pol, iy] = True
     return mask
+
+
+def _g16_state(program):
+    """Per block: G16 in effect after its line's G15/G16 words, and the number of the G16 that
+    set it (the sections of `read_polar`), from the program's words."""
+    wl, wlet, wv = (np.asarray(x) for x in (program.w_line, program.w_letter, program.w_value))
+    sel = (wlet == ord("G") - 65) & np.isin(wv, (15.0, 16.0))
+    ev = np.full(program.n_lines, -1, np.int64)
+    ev[wl[sel & (wv == 15.0)]] = 0
+    ev[wl[sel & (wv == 16.0)]] = 1
+    bl = np.asarray(program.line) - 1
+    on16 = _ffill(ev.astype(float), ev >= 0)[bl] == 1
+    return on16, np.cumsum(ev == 1)[bl]
+
+
+def _refuse_cartesian_moves_under_g16(program, pol, kn_edit, prev, new):
+    """A block under G16 that writes neither X nor Y, where the compensated point moves in X or
+    Y (a tilt turning a Z move into an XYZ move): its X Y words would be a radius and an angle,
+    not coordinates.  Refused, naming the line (writing polar words there would also fix the
+    section's modal radius and angle where the program had not)."""
+    axes = program.axes
+    ix, iy = axes.index("X"), axes.index("Y")
+    on16, _ = _g16_state(program)
+    moves = (new[:, ix] != prev[:, ix]) | (new[:, iy] != prev[:, iy])
+    bad = on16 & ~pol & np.asarray(kn_edit) & moves
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise InputError("the compensation moves X or Y in a block under G16 polar coordinates "
+                         "that writes neither (a tilt of the workpiece or a correction that is not "
+                         "rigid): its X Y words would be a radius and an angle; refusing (write "
+                         "the block's radius and angle, or the section without G16)",
+                         program.filename, int(np.asarray(program.line)[j]))

@@ -211,6 +211,43 @@ def _control_counts(program: Program, res: np.ndarray, offc=None, words=None) ->
     return Cc
 
 
+def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
+    """G91 axis words of exactly half a count of the resolution (X0.00005 at 0.0001 mm): the
+    control rounds them up, to even or down depending on the control, and the difference adds
+    up block after block, so the position where a compensated word is written later need not
+    be one the program gives.  Up to two of them on an axis since its last absolute word (at
+    most a count apart) are read as mtcomp's count model rounds them (to even); a third is
+    refused naming the line (under a correction that changes nothing the program passes
+    unchanged)."""
+    inc = np.asarray(program.incremental)
+    if not inc.any():
+        return
+    cw, wv, inch = np.asarray(program.col_word), np.asarray(program.w_value), np.asarray(program.inch)
+    N = len(inc)
+    for k, a in enumerate(program.axes):
+        w = cw[:, k]
+        pres = w >= 0
+        if not (pres & inc).any():
+            continue
+        v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
+        v = v * np.where(inch & (a in LINEAR), INCH, 1.0) / res[k]
+        tie = pres & inc & (np.abs(np.abs(v - np.trunc(v)) - 0.5) < 1e-6)
+        if not tie.any():
+            continue
+        c = np.cumsum(tie)
+        last_abs = np.where(pres & ~inc, np.arange(N), -1)
+        np.maximum.accumulate(last_abs, out=last_abs)
+        run = c - np.where(last_abs >= 0, c[np.maximum(last_abs, 0)], 0)
+        if (run > 2).any():
+            j = int(np.argmax(run > 2))
+            raise InputError(f"G91 increments such as {a}{wv[w[j]]:g} are half a count of the axis "
+                             f"resolution {res[k]:g}: controls round them differently (up, to "
+                             "even, down) and the difference adds up block after block, so the "
+                             "compensated positions after them would not be ones the program "
+                             "gives; write increments in whole counts", program.filename,
+                             int(program.line[j]))
+
+
 def read_back_counts(program: Program, info: dict, data, out_line) -> np.ndarray | None:
     """Where the control stands after each block of the *written* program, in counts of
     ``info["emitted_resolution"]`` (N, n_axes; NaN where unknown): the axis words found again
@@ -416,6 +453,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     if cyc.any():
         Cc = cycle_counts.control_counts(program, Cc, res, rep_rows, offc)
     dK = np.rint((Qt[:nk] - P[kk]) / res)
+    if dK.any():
+        _refuse_half_count_increments(program, res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
     Cc[1 + kk] += dK
@@ -486,7 +525,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     wv = np.asarray(program.w_value)
     # G16 polar blocks: their X Y are written as radius and angle (gcode.polar)
     from .polar import polar_edits
-    pmask = polar_edits(ctx, program, cw, kn_edit, new, res, fm, offc,
+    pmask = polar_edits(ctx, program, cw, kn_edit, prev, new, res, fm, offc,
                         expanded if len(cb) else np.zeros(0, np.int64), _column_edits)
     nz_any = bool(no_z.any())
     for k, a in enumerate(axes):
