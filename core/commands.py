@@ -137,6 +137,31 @@ def _travel_check(machine, prog, filename, P=None):
                              f"{ax.name} on {machine.name}", filename, int(prog.line[j]))
 
 
+def _at_tool_tip(machine, length: float):
+    """The machine with its tool point moved ``length`` mm (G43 H length, the block's
+    `Program.tool_tip`) from the gauge point along the tool axis to the tool tip: NC words
+    under G43 are the axes' positions, and the errors' rotations (a tilted workpiece, the
+    axes' angular errors) must be corrected where the tool cuts, at the tip, not at the gauge
+    point (length x angle apart: 8.7 µm for 25 mm and 0.02 deg)."""
+    if not length:
+        return machine
+    import dataclasses
+    tp = np.asarray(machine.tool_point, float) - float(length) * np.asarray(machine.tool_axis, float)
+    return dataclasses.replace(machine, tool_point=tuple(float(v) for v in tp))
+
+
+def _by_tool(tip, rows):
+    """Split ``rows`` (slice or index array into the blocks of the chunk) by the tool tip
+    length of each: (length, sub-selection) pairs; one pair without G43 lengths."""
+    t = tip[rows]
+    if not len(t) or (t == t[0]).all():
+        return [(float(t[0]) if len(t) else 0.0, rows)]
+    idx = np.arange(len(t)) if isinstance(rows, slice) else np.asarray(rows)
+    if isinstance(rows, slice):
+        idx = idx + rows.start
+    return [(float(v), idx[t == v]) for v in np.unique(t)]
+
+
 def _three_axis_hint(machine, prog) -> str:
     rot = [machine.axis_names[i] for i in machine.rotary_indices]
     if rot and not np.asarray(prog.present)[:, list(machine.rotary_indices)].any():
@@ -209,6 +234,15 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         res_lin = max([a.resolution for a in machine.axes if a.kind == "linear"] or [0.0])
         tol = max(tol, 2 * 2.54 * res_lin)
     tcp = np.asarray(prog.tcp)
+    # G43/G44 lengths: the model's tool point is the tip of the block's tool (_at_tool_tip)
+    tip = np.where(tcp, 0.0, np.nan_to_num(np.asarray(prog.tool_tip, float)))
+    lengths = bool(tip.any())
+    tools = {}
+
+    def at_tip(length):
+        if length not in tools:
+            tools[length] = _at_tool_tip(machine, length)
+        return tools[length]
     _travel_check(machine, prog, filename,
                   _axis_positions(machine, prog, to_reference(prog, prog.position)))
     hint = _three_axis_hint(machine, prog)
@@ -218,8 +252,9 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         lines = calls[-1]
         out = np.empty_like(q)
         # rows of G43.4 blocks are tool-tip words: compensated through the TCP transform
-        if tcp.any():
+        if tcp.any() or lengths:
             blk = np.clip(np.searchsorted(prog.line, lines), 0, max(len(prog) - 1, 0))
+        if tcp.any():
             on = tcp[blk] & (prog.line[blk] == lines)
             sels = (np.flatnonzero(~on), np.flatnonzero(on))
         else:                                   # (slices: no index arrays, no gathered copies)
@@ -234,6 +269,11 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                     if on is not None and on[rows[0]]:
                         out[rows] = gtcp.compensate_words(machine, q[rows],
                                                           prog.tool_length[blk[rows]], errors)
+                    elif lengths:
+                        # (an arc's interior points take the tool of the block they belong to)
+                        rr = np.arange(len(q))[rows]
+                        for length, sub in _by_tool(tip[blk], rr):
+                            out[sub] = retarget(at_tip(length), q[sub], errors)
                     else:
                         out[rows] = retarget(machine, q[rows], errors)
                 except (LimitError, ConvergenceError, TableRangeError) as exc:
@@ -288,10 +328,20 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
         rows = kk[s:s + CHUNK]
         on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
         r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
-        if len(rows[~on]):
+        if len(rows[~on]) and not lengths:
             target = forward_position(machine, P[r])     # (positions only: no orientations built)
             before[s:s + CHUNK][~on] = norm(forward_position(machine, P[r], errors) - target)
             after[s:s + CHUNK][~on] = norm(forward_position(machine, emitted[r], errors) - target)
+        elif len(rows[~on]):
+            # at the tip of each block's tool, where the transform put it
+            b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
+            pos = np.flatnonzero(~on)
+            for length, sub in _by_tool(tip, rows[~on]):
+                mt = at_tip(length)
+                target = forward_position(mt, P[sub])
+                k = pos[np.isin(rows[~on], sub)]
+                b_out[k] = norm(forward_position(mt, P[sub], errors) - target)
+                a_out[k] = norm(forward_position(mt, emitted[sub], errors) - target)
         if on.any():
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
@@ -572,7 +622,14 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
         r = np.asarray(info["emitted_resolution"], float)
         off = np.asarray(after_prog.offset)
         offc = np.rint(off / r).astype(np.int64) if off.any() else None
-        back = _control_counts(after_prog, r, offc)[1:][idx]
+        back = _control_counts(after_prog, r, offc)
+        if np.asarray(after_prog.cycle).any():
+            # the cycles' return levels and the further holes of K/L repeats, as the rewrite
+            # counts them (gcode.cycle_counts)
+            from .gcode import cycle_counts
+            back = cycle_counts.control_counts(after_prog, back, r,
+                                               cycle_counts.stepped_rows(after_prog), offc)
+        back = back[1:][idx]
         want = np.asarray(info["emitted"], float)
         # (canned cycle blocks: their emitted row is the cycle's own end level, not the
         # position the parser gives the block)

@@ -128,11 +128,14 @@ def _plus(a, b):
     return None if a is None or b is None else a + b
 
 
-def interpret(text, name="main"):
+def interpret(text, name="main", tips=False):
     """Blocks of a program as a control runs them, one line at a time: ((file, line), position
     per axis in the reference frame or None where the program has not fixed it, motion, arc
     centre in the plane or None).  Work offsets and tool lengths come from G10 in the program;
-    positions are in the frame of the work offset in effect at the first motion block."""
+    positions are in the frame of the work offset in effect at the first motion block.
+    ``tips``: also return, per block, how far the tool tip is below the gauge point along Z
+    (mm: the length of the last G43 H, -length for G44, the G43.1 Z; kept after G49, as the
+    tool stays in the spindle), as ``(blocks, tip_lengths)``."""
     pos = dict.fromkeys(AXES)                  # word frame: word + offset when written
     mode, absolute, inch, plane, centre_abs = None, True, False, 17, False
     cycle, retract, zinit, r_word, z_word = 0, 98, None, None, None
@@ -142,7 +145,7 @@ def interpret(text, name="main"):
     rot = None                                 # (angle, centre) under G68
     g92 = {}                                   # G92 shift per axis; None: set where unknown
     polar, pr, pa = False, None, None          # G16: radius and angle words (modal in G16)
-    blocks = []
+    blocks, tip_of, tip = [], [], 0.0
     for n, raw in _execution_order(text, name):
         line = raw.lstrip("\ufeff")
         line = re.sub(r"\([^)]*\)", " ", line).split(";")[0]
@@ -204,6 +207,10 @@ def interpret(text, name="main"):
                 polar, pr, pa = True, None, None
             elif v == 15:
                 polar = False
+        if tool_mode in (43, 44):
+            tip = (1 if tool_mode == 43 else -1) * (lengths.get((h, 10), 0.0) + lengths.get((h, 11), 0.0))
+        elif tool_mode == 43.1:
+            tip = dyn_len
         if 68 in g or 43.1 in g:
             continue                               # no move (G43.1 Z: a length)
 
@@ -276,6 +283,7 @@ def interpret(text, name="main"):
             r_lvl = _plus(r_word * s, off("Z")) if absolute else (None if zinit is None else zinit + r_word * s)
             pos["Z"] = zinit if retract == 98 else r_lvl
             blocks.append((n, ref(pos), cycle, None))
+            tip_of.append(tip)
             continue
         start = dict(pos)
         for a, v in ax.items():
@@ -291,6 +299,7 @@ def interpret(text, name="main"):
             if start[u] is None or start[v_] is None:
                 # from where the axes stand: the control knows the centre, the program does not
                 blocks.append((n, ref(pos), mode, None))
+                tip_of.append(tip)
                 continue
             if "R" in arcw:
                 su, sv, eu, ev, r = start[u], start[v_], pos[u], pos[v_], arcw["R"] * s
@@ -305,7 +314,8 @@ def interpret(text, name="main"):
             if rot is not None:
                 centre = _rot(rot[0], (rot[1][0] + off(u), rot[1][1] + off(v_)), *centre)
         blocks.append((n, ref(pos), mode, centre))
-    return blocks
+        tip_of.append(tip)
+    return (blocks, tip_of) if tips else blocks
 
 
 def _read(text, name="main", **kw):

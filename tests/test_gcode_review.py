@@ -98,6 +98,14 @@ def _comp(text, machine, errors, start, monkeypatch=None, tokenizer="", **kw):
             monkeypatch.delenv("MTCOMP_TOKENIZER")
 
 
+def _at_tip(m, length):
+    """The machine with its tool point at the tip of a tool ``length`` mm long (along the
+    tool axis from the gauge point)."""
+    import dataclasses
+    tp = np.asarray(m.tool_point) - length * np.asarray(m.tool_axis)
+    return dataclasses.replace(m, tool_point=tuple(tp))
+
+
 def _full(m, pos, rot):
     """The interpreter's X Y Z with the rotary axes `rot`, in the machine's order."""
     return np.array([pos[a] if a in AXES else rot[a] for a in m.axis_names], float)
@@ -146,7 +154,7 @@ def test_written_positions_land_where_the_program_meant(name, mach, err, monkeyp
     out, rep = _comp(text, m, ERR, MACHINES[mach][1], monkeypatch, "")
     out_py, _ = _comp(text, m, ERR, MACHINES[mach][1], monkeypatch, "python")
     assert out_py == out
-    before, after = interpret(text), interpret(out)
+    (before, tips), after = interpret(text, tips=True), interpret(out)
     assert [b[0] for b in after] == [b[0] for b in before]
     kn = rep["compensated"]
     assert len(kn) == len(before)
@@ -162,10 +170,11 @@ def test_written_positions_land_where_the_program_meant(name, mach, err, monkeyp
             assert lines_out[n[1] - 1] == lines_in[n[1] - 1], n
             continue
         q0, q1 = _full(m, p0, rot0[j]), _full(m, p1, rot1[j])
-        # (the axis positions, G43 length included, as docs/gcode.md says the transform sees
-        # them: under a tilt the tool tip is off by the length times the tilt)
-        want = forward_position(m, q0[None])[0]
-        got = forward_position(m, q1[None], ERR)[0]
+        # (the axis positions, G43 length included; the tool cuts at its tip, the length below
+        # the gauge point: that point must land where the program meant, under a tilt too)
+        mt = _at_tip(m, tips[j])
+        want = forward_position(mt, q0[None])[0]
+        got = forward_position(mt, q1[None], ERR)[0]
         assert np.abs(got - want).max() <= tol, (n, got - want)
     # lines without motion keep every byte
     moved = {b[0][1] for b in before}
@@ -348,21 +357,22 @@ def test_linearised_arcs_stay_on_the_programmed_path(name, mach):
         return
     out, rep = _comp(text, m, TILT, MACHINES[mach][1])
     assert rep["linearised"] > 0
-    before, after = interpret(text), interpret(out)
+    (before, tips0), (after, tips1) = interpret(text, tips=True), interpret(out, tips=True)
     rot1 = _rotary(out, after, start)
     # the plane of each input block, as the interpreter's modal G17/G18/G19 (these programs: 17,
     # but for the G18 arc of none of them)
     planes = [17] * len(before)
-    known = [b for b in after if all(b[1][a] is not None for a in AXES)]
-    q = np.array([_full(m, b[1], rot1[after.index(b)]) for b in known])
-    pts = forward_position(m, q, TILT)
+    known = [i for i, b in enumerate(after) if all(b[1][a] is not None for a in AXES)]
+    # at the tool tip (the G43 length below the gauge point), where the tool cuts
+    pts = np.array([forward_position(_at_tip(m, tips1[i]),
+                                     _full(m, after[i][1], rot1[i])[None], TILT)[0] for i in known])
     res = max(a.resolution for a in m.axes if a.kind == "linear")
     tol = rep["chordal_tol"] + 4 * 2.54 * res
     # the forward model's tool point is in the workpiece frame: the nominal point of the same
     # axis positions with no errors is the programmed point
     nominal = [b for b in before if all(b[1][a] is not None for a in AXES)]
-    qn = np.array([_full(m, b[1], start) for b in nominal])
-    pn = forward_position(m, qn)
+    pn = np.array([forward_position(_at_tip(m, tips0[i]), _full(m, b[1], start)[None])[0]
+                   for i, b in enumerate(before) if all(b[1][a] is not None for a in AXES)])
     nb = [(n, dict(zip(AXES, p)), mode, c) for (n, _, mode, c), p in zip(nominal, pn)]
     d = _path_distance(pts, nb, planes)
     assert d.max() <= tol, (d.max(), tol)
@@ -371,10 +381,6 @@ def test_linearised_arcs_stay_on_the_programmed_path(name, mach):
         assert np.linalg.norm(pts - p, axis=1).min() <= tol
 
 
-@pytest.mark.xfail(strict=True, reason="the transform sees the axis positions with the G43 length "
-                   "added along Z (docs/gcode.md), so a workpiece tilt is corrected at the gauge "
-                   "point, not at the tool tip: the tip is off by length x tilt (8.8 µm for "
-                   "25 mm and 0.02 deg); to be decided by the lead")
 def test_tool_tip_lands_on_the_programmed_point_under_a_tilt_with_g43():
     """On a 3-axis machine the tool stays along Z: its tip is the axis position less the G43
     length.  Under a workpiece tilt the tip must land on the programmed point."""
