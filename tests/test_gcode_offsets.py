@@ -118,6 +118,29 @@ def test_g10_extended_offsets_only_with_g54_1():
         gcode.parse("G10 L20 P1 X0 Y0\nG0 X1.\n", axes=XYZ)
 
 
+def test_g10_l20_sets_haas_g154_offsets():
+    # Haas: G10 L20 P<n> sets G154 P<n> (G110..G129 are G154 P1..P20); was read as G54.1 P<n>,
+    # so the program's G154 P7 had no offset and was refused
+    text = "G10 L20 P7 X50. Y0 Z0\nG154 P7 G90 G0 X1. Y0 Z0\nG54 X1.\n"
+    p = gcode.parse(text, axes=XYZ, work_offsets={"G54": (0, 0, 0)})
+    assert np.allclose(p.position[:, 0], [1, -49])
+    text = "G10 L20 P3 X20. Y0 Z0\nG112 G90 G0 X1. Y0 Z0\nG54 X1.\n"      # G112 = G154 P3
+    p = gcode.parse(text, axes=XYZ, work_offsets={"G54": (0, 0, 0)})
+    assert np.allclose(p.position[:, 0], [1, -19])
+    with pytest.raises(InputError, match=r":1: G10 in a program with both G54.1 P \(Fanuc\) and G154"):
+        gcode.parse("G10 L20 P1 X0 Y0 Z0\nG54.1 P1 G0 X1. Y0 Z0\nG154 P1 X2.\n", axes=XYZ)
+
+
+def test_work_offsets_by_haas_names_and_misspelt_names():
+    # the Python API's work_offsets: G116 is G154 P7 (was ignored without a word); a name that is
+    # no work offset is refused naming it
+    text = "G116 G90 G0 X1. Y0 Z0\nG54 X1.\n"
+    p = gcode.parse(text, axes=XYZ, work_offsets={"G54": (0, 0, 0), "G116": (30, 0, 0)})
+    assert np.allclose(p.position[:, 0], [1, -29])
+    with pytest.raises(InputError, match=r"work offset 'G45': expected G54..G59"):
+        gcode.parse(text, axes=XYZ, work_offsets={"G45": (0, 0, 0), "G116": (30, 0, 0)})
+
+
 def test_g10_tool_lengths():
     # Fanuc memory C: L10 geometry, L11 wear (G91 adds); LinuxCNC: L1 P<tool> Z
     text = ("G10 L10 P1 R50.\nG10 L11 P1 R-0.02\nG90 G0 X0 Y0 Z100.\nG43 H1 Z10.\n"

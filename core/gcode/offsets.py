@@ -71,7 +71,9 @@ def axis_vector(vec, axes):
 
 def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
     """G10 blocks as events ``(line, kind, number, values, incremental)``: kind "wcs" (number: a
-    work offset key 54000..59000 or 541000 + P, values (n_axes,) NaN where not written) or
+    work offset key 54000..59000, or 541000 + P / 154000 + P for L20 where ``uses_g541`` is
+    541 / 154: the program's G54.1 P or Haas G154 P offsets; 0: neither, L20 refused;
+    values (n_axes,) NaN where not written) or
     "geo"/"wear" (number: H, values: length mm) or "amb" (G10 L1 P R: a tool length on Fanuc
     memory A, a radius on LinuxCNC; refused if that H is used).  ``words[line]`` is a list of
     (letter, value)."""
@@ -105,9 +107,10 @@ def g10_events(lines, words, axes, inch_line, incr_line, uses_g541, filename):
                 key = (53 + P) * 1000 if P else 0
             else:
                 if not uses_g541:
-                    fail("L20 sets the G54.1 P offsets on Fanuc controls but the offset from the "
-                         "current position on LinuxCNC; the program does not use G54.1: not read")
-                key = 541000 + P
+                    fail("L20 sets the G54.1 P offsets on Fanuc controls (G154 P on Haas) but the "
+                         "offset from the current position on LinuxCNC; the program uses neither "
+                         "G54.1 nor G154: not read")
+                key = (154000 if uses_g541 == 154 else 541000) + P
             out.append((int(ln), "wcs", key, vals, inc))
         elif L in (10, 11) and "R" in w:
             out.append((int(ln), "geo" if L == 10 else "wear", P, w["R"] * scale, inc))
@@ -156,7 +159,15 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     keys = np.where((wcs_l >= 110) & (wcs_l <= 129), 154000 + wcs_l - 109, keys)
     table = {}
     for key, vec in dict(work_offsets or {}).items():
-        table[str(key).upper().replace(" ", "")] = axis_vector(vec, axes)
+        name = str(key).upper().replace(" ", "")
+        m = re.fullmatch(r"G(\d+)", name)
+        if m and 110 <= int(m.group(1)) <= 129:
+            name = f"G154P{int(m.group(1)) - 109}"             # Haas: G110..G129 = G154 P1..P20
+        elif not re.fullmatch(r"G5[4-9]|G54\.1P\d+|G154P\d+", name):
+            # (a misspelt name would otherwise leave its offset unused without a word)
+            raise InputError(f"work offset {str(key)!r}: expected G54..G59, 'G54.1 P<n>', "
+                             "'G154 P<n>' or G110..G129", field="work_offsets")
+        table[name] = axis_vector(vec, axes)
     if wset.any() or wev:
         used = list(dict.fromkeys(keys[wset].tolist())) or [54000]
         cur = _ffill(keys, wset, used[0])

@@ -330,8 +330,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         words = {int(ln): [] for ln in gl}
         for i in sel.tolist():
             words[int(wline[i])].append((chr(65 + int(wlet[i])), float(value[i])))
-        events = g10_events(gl, words, axes, inch_line, incr_line, bool((wcs_l == 541).any()),
-                            filename)
+        # G10 L20 P<n>: G54.1 P<n> on Fanuc, G154 P<n> on Haas (the program's own work offset
+        # codes tell which; Haas G110..G129 are G154 P1..P20)
+        haas = bool(((wcs_l == 154) | ((wcs_l >= 110) & (wcs_l <= 129))).any())
+        fanuc = bool((wcs_l == 541).any())
+        if haas and fanuc and g10_line.any():
+            _fail("G10 in a program with both G54.1 P (Fanuc) and G154 P (Haas) work offsets: "
+                  "which of them G10 L20 sets depends on the control", int(np.argmax(g10_line)),
+                  filename)
+        events = g10_events(gl, words, axes, inch_line, incr_line,
+                            541 if fanuc else 154 if haas else 0, filename)
         notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
                      + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
     # tool changes: the M6 lines (T only preselects); a program without M6 changes at its T words
