@@ -117,6 +117,9 @@ def make_seeds(s: Path) -> dict:
     shutil.copy(ROOT / "examples/programs/groove5x.nc", s / "groove5x.nc")
     shutil.copy(ROOT / "examples/errors/setting-example.toml", s / "setting.toml")
     (s / "small5.nc").write_text(SMALL5)
+    # dialect features: G16 polar words, cycle repeat counts (Fanuc K, LinuxCNC L), G43.1
+    for name in ("fanuc_polar.nc", "fanuc_repeat.nc", "linuxcnc_repeat.ngc", "linuxcnc_g43_1.ngc"):
+        shutil.copy(ROOT / "tests/data/nc" / name, s / name)
     (s / "arcs.nc").write_text(ARCS)
     (s / "zero.toml").write_text("# no errors\n")
     (s / "g43.nc").write_text(G43)
@@ -152,7 +155,8 @@ def make_seeds(s: Path) -> dict:
                                              for i, r in enumerate(recs)))
     return {
         # name: (seed file or files, file name in the input folder, command line, extra files to place beside)
-        "nc-program": ([s / "small5.nc", s / "arcs.nc", s / "groove5x.nc"], "p.nc",
+        "nc-program": ([s / "small5.nc", s / "arcs.nc", s / "groove5x.nc", s / "fanuc_polar.nc",
+                        s / "fanuc_repeat.nc", s / "linuxcnc_repeat.ngc", s / "linuxcnc_g43_1.ngc"], "p.nc",
                        ["compensate", "{f}", "-m", "robonano-a0ib", "-e", "{s}/zero.toml", "-o", "{o}/out.nc"], []),
         "errors-toml": (s / "setting.toml", "e.toml",
                         ["compensate", "{s}/small5.nc", "-m", "robonano-a0ib", "-e", "{f}", "-o", "{o}/out.nc"],
