@@ -534,6 +534,32 @@ static inline void rotvec_fast(const double w[3], double R[9])
     R[5] = -a * w[0] + b * w[1] * w[2]; R[7] = a * w[0] + b * w[1] * w[2];
 }
 
+/* Angular velocity (in the frame before the rotation) of R(w) = rotvec(w) as w moves at dw:
+ * dR R^T = [J(w) dw]x with J(w) = I + b [w]x + c [w]x^2, b = (1 - cos t) / t^2, c = (t - sin t) / t^3
+ * (the left Jacobian of the rotation vector; series below 1e-3 rad, truncation below 1e-24).
+ * Not dw alone: that is first order in the angles, and the Jacobian's error e |dw| (µrad angles times
+ * their slopes, times the lever to the tool) would enter the steps taken without an evaluation. */
+static inline void rotvec_rate(const double w[3], const double dw[3], double out[3])
+{
+    double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], b, c, x[3], y[3];
+    int k;
+    if (t2 < 1e-6) {
+        b = 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0);
+        c = 1.0 / 6.0 - t2 / 120.0 * (1.0 - t2 / 42.0);
+    } else {
+        double th = sqrt(t2);
+        b = (1.0 - cos(th)) / t2;
+        c = (th - sin(th)) / (t2 * th);
+    }
+    x[0] = w[1] * dw[2] - w[2] * dw[1];
+    x[1] = w[2] * dw[0] - w[0] * dw[2];
+    x[2] = w[0] * dw[1] - w[1] * dw[0];
+    y[0] = w[1] * x[2] - w[2] * x[1];
+    y[1] = w[2] * x[0] - w[0] * x[2];
+    y[2] = w[0] * x[1] - w[1] * x[0];
+    for (k = 0; k < 3; k++) out[k] = dw[k] + b * x[k] + c * y[k];
+}
+
 static int n_rotary(const mtk_model *m)
 {
     int i, n = 0;
@@ -980,8 +1006,9 @@ static double norm(const double *r, int rows)
  * (tables held at their ends), in one pass: each axis' motion G_i(q_i) is a rigid motion whose
  * derivative is a twist (w_i, v_i) in the frame before it, dG_i G_i^-1 = ([w_i]x, v_i): a rotary
  * axis turns about the line through its centre c, (u, c x u) per rad; a linear axis moves along
- * u, (0, u); an error motion E = (Re, te) with te = loc + d - Re loc has, to first order in its
- * µrad angles e, the twist (e', d' - e' x (loc + d)).  Products compose by the adjoint,
+ * u, (0, u); an error motion E = (Re, te) with te = loc + d - Re loc has the twist
+ * (we, d' - we x (loc + d)), we = J(e) e' (rotvec_rate; e' alone is exact to first order in the
+ * angles only).  Products compose by the adjoint,
  * tw(A B) = tw(A) + (Ra w_b, Ra v_b + ta x Ra w_b).  With (Rpre, tpre) the chain before axis i,
  * the column is dp = W x (p - tpre) + Rpre v_i, dR = [W]x R, W = Rpre w_i.  (Written by hand:
  * the kernel's own model; the numpy reference takes finite differences.) */
@@ -1087,9 +1114,9 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             for (k = 0; k < 3; k++) {
                 te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
                 lp[k] = loc[k] + d[k];
-                we[k] = de[k];
             }
-            cross(de, lp, x);
+            rotvec_rate(ang, de, we);
+            cross(we, lp, x);
             for (k = 0; k < 3; k++) ve[k] = dd[k] - x[k];
             /* The axis' twist xi_A + Ad_A xi_B (A, B: the nominal and the error motion in their
              * order) turns with A along the axis: d xi / dq = [xi_A, Ad_A xi_B], the bracket
