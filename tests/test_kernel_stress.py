@@ -85,3 +85,148 @@ def test_steps_without_evaluation_under_large_table_angles(seed):
     d /= np.linalg.norm(d)
     q = np.array([-150.1, -50.2, -100.3]) + 0.2 * np.outer(np.arange(200), d)
     _check(m, q, E, label=f"seed {seed}")
+
+
+# --------------------------------------------------------------------- grids, knots and table ends
+
+#: Steepest slopes of a real error table: 10 µm and 20 µrad per mm on a linear axis, 1 µm and
+#: 5 µrad per deg on a rotary one (a table twice as steep as its travel is not a machine: the
+#: corrected position is then not unique).
+SLOPE_LIN = np.array([10e-3] * 3 + [20e-6] * 3)
+SLOPE_ROT = np.array([1e-3] * 3 + [5e-6] * 3)
+
+
+def _curved_tables(m, rng, n_knots=41, uneven=True, trans=30e-3, ang=60e-6, rot_span=None):
+    """Tables on every axis over its travel with large curvature: values alternating in sign knot
+    to knot (second differences of up to 4x the amplitude, as steep as SLOPE_* allows), knots
+    crowded unevenly (spacings from a fraction of a mm to tens of mm)."""
+    tabs = {}
+    for a in m.axes:
+        lo, hi = a.limits if rot_span is None or not a.is_rotary else rot_span
+        if uneven:
+            u = np.sort(rng.uniform(0.0, 1.0, n_knots - 2))
+            pos = lo + (hi - lo) * np.concatenate([[0.0], u ** 2, [1.0]])
+            pos = np.unique(pos)
+        else:
+            pos = np.linspace(lo, hi, n_knots)
+        sign = (-1.0) ** np.arange(pos.size)
+        gap = np.diff(pos)
+        gap = np.minimum(np.concatenate([[gap[0]], gap]), np.concatenate([gap, [gap[-1]]]))
+        amp = np.minimum(np.array([trans] * 3 + [ang] * 3)[None, :],
+                         0.5 * gap[:, None] * (SLOPE_ROT if a.is_rotary else SLOPE_LIN)[None, :])
+        vals = sign[:, None] * rng.uniform(0.3, 1.0, (pos.size, 6)) * amp
+        tabs[a.name] = _table(a.name, pos, vals)
+    return tabs
+
+
+def _errors_with(m, tabs, rng, wp_angle=0.05):
+    base = random_errors(m, rng, wp_angle=wp_angle if m.n_rotary else 0.5)
+    return ErrorSet(base.tool, base.workpiece, GeometricErrors(tabs, base.geometric.location))
+
+
+PRESETS = ["robonano-ui", "robonano-a0ib", "vmc-moving-column"]
+
+
+def _mid_commands(m, n, rng, span=0.3):
+    lo = np.array([20.0 if a.is_rotary else a.limits[0] * span for a in m.axes])
+    hi = np.array([50.0 if a.is_rotary else a.limits[1] * span for a in m.axes])
+    return rng.uniform(lo, hi, (n, m.n_axes))
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_poses_on_knots_of_uneven_curved_tables(name):
+    """Programmed poses exactly on knots (every axis at once, and one axis at a time), at the
+    first and last knot of a rotary table spanning less than the travel, and paths whose every
+    pose lies on a knot: the iterates start in the interval right of the knot and the solution
+    lies left or right of it."""
+    m = load_machine(name)
+    rng = np.random.default_rng(31)
+    tabs = _curved_tables(m, rng)
+    E = _errors_with(m, tabs, rng)
+    q = _mid_commands(m, 300, rng)
+    for k, a in enumerate(m.axes):
+        pos = tabs[a.name].position
+        inner = pos[(pos > (20.0 if a.is_rotary else 0.3 * a.limits[0])) &
+                    (pos < (50.0 if a.is_rotary else 0.3 * a.limits[1]))]
+        if inner.size:
+            q[:100, k] = rng.choice(inner, 100)            # all axes on knots
+            q[100 + 30 * k:130 + 30 * k, k] = rng.choice(inner, 30)
+    _check(m, q, E, label="knots")
+    # a path stepping from knot to knot on one axis at a time, then back (reversal on a knot)
+    for k, a in enumerate(m.axes):
+        pos = tabs[a.name].position
+        sel = pos[(pos > (0.0 if a.is_rotary else 0.2 * a.limits[0])) &
+                  (pos < (60.0 if a.is_rotary else 0.2 * a.limits[1]))][:40]
+        path = np.repeat(_mid_commands(m, 1, rng), 2 * sel.size, axis=0)
+        path[:, k] = np.concatenate([sel, sel[::-1]])
+        _check(m, path, E, label=f"knot path {a.name}")
+
+
+@pytest.mark.parametrize("name", ["robonano-a0ib", "vmc-moving-column"])
+def test_table_ends_and_beyond_the_last_knot(name):
+    """Poses at the first and last knot, where the correction pushes the axis outward (beyond
+    the table: both backends raise TableRangeError naming the same axis and pose) or inward."""
+    from mtcomp.errors import TableRangeError
+    m = load_machine(name)
+    rng = np.random.default_rng(41)
+    tabs = _curved_tables(m, rng, rot_span=(-30.0, 80.0))
+    E = _errors_with(m, tabs, rng)
+    lin = [k for k, a in enumerate(m.axes) if not a.is_rotary][0]
+    name_l = m.axes[lin].name
+    lo, hi = tabs[name_l].range
+    base = _mid_commands(m, 1, rng)[0]
+    outcomes = {}
+    for end in (lo, hi):
+        q = np.repeat(base[None], 3, axis=0)
+        q[1, lin] = end
+        res = {}
+        for be in ("c", "numpy"):
+            try:
+                res[be] = retarget(m, q, E, backend=be, check=False)
+            except TableRangeError as exc:
+                res[be] = (exc.axis, exc.index)
+        assert type(res["c"]) is type(res["numpy"]), (end, res)
+        if isinstance(res["c"], tuple):
+            assert res["c"] == res["numpy"] == (name_l, 1)
+        else:
+            _assert_true_pose(m, q, E, res["c"])
+            assert np.max(np.abs(res["c"] - res["numpy"])) <= PARITY
+        outcomes[end] = isinstance(res["c"], tuple)
+    # inside by more than the correction (setting errors up to 1 mm each): exact
+    q = np.repeat(base[None], 50, axis=0)
+    q[:25, lin] = lo + np.geomspace(3.0, 8.0, 25)
+    q[25:, lin] = hi - np.geomspace(3.0, 8.0, 25)
+    _check(m, q, E, label="near ends")
+    # a program beyond the last knot is the reference's error, not a silent hold of the end values
+    q[3, lin] = hi + 1e-3
+    for be in ("c", "numpy"):
+        with pytest.raises(TableRangeError) as exc:
+            retarget(m, q, E, backend=be, check=False)
+        assert exc.value.axis == name_l and exc.value.index == 3
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_paths_crossing_a_knot_every_pose_and_reversing(name):
+    """Knots every 0.05 mm (0.05 deg) over a stretch, a path of 0.07 mm (deg) steps crossing one
+    at almost every pose, then back over the same stretch with a reversal every 7 poses: the
+    previous interval (the hint) is wrong at almost every lookup."""
+    m = load_machine(name)
+    rng = np.random.default_rng(51)
+    tabs = {}
+    for a in m.axes:
+        lo, hi = a.limits
+        pos = np.concatenate([[lo], np.arange(-3.0, 30.0, 0.05), [hi]])
+        vals = (-1.0) ** np.arange(pos.size)[:, None] * rng.uniform(0.3, 1, (pos.size, 6)) \
+            * np.array([2e-4] * 3 + [2e-6] * 3)   # 4 µm per mm, 40 µrad per mm
+        tabs[a.name] = _table(a.name, pos, vals)
+    E = _errors_with(m, tabs, rng)
+    n = 400
+    s = 0.07 * np.arange(n)
+    zig = np.abs(((np.arange(n) + 3) % 14) - 7) * 0.07     # forth and back every 7 poses
+    q = np.empty((2 * n, m.n_axes))
+    for k, a in enumerate(m.axes):
+        q[:n, k] = 0.013 * (k + 1) + s * (0.5 + 0.1 * k) % 25.0
+        q[n:, k] = 5.0 + 0.021 * k + zig * (1 + 0.3 * k)
+        if a.is_rotary and a.name == "B" and name == "robonano-a0ib":
+            q[:, k] += 10.0   # away from the pole (its own test)
+    _check(m, q, E, label="crossing")
