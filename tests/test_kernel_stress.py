@@ -230,3 +230,154 @@ def test_paths_crossing_a_knot_every_pose_and_reversing(name):
         if a.is_rotary and a.name == "B" and name == "robonano-a0ib":
             q[:, k] += 10.0   # away from the pole (its own test)
     _check(m, q, E, label="crossing")
+
+
+# --------------------------------------------------------------------- rotary angles
+
+DEG_PER_RAD = 180.0 / np.pi
+
+
+def _rotary_path(m, n, rng, rot_values):
+    """A path with the linear axes moving slowly and the rotary axes given per pose (dict)."""
+    q = np.repeat(_mid_commands(m, 1, rng), n, axis=0)
+    for k, a in enumerate(m.axes):
+        if not a.is_rotary:
+            q[:, k] += np.linspace(0.0, 2.0, n) * (0.3 + 0.2 * k)
+        elif a.name in rot_values:
+            q[:, k] = rot_values[a.name]
+    return q
+
+
+@pytest.mark.parametrize("name", ["robonano-a0ib", "robonano-ui"])
+def test_rotary_angles_through_180_and_360(name):
+    """C through +-180 deg (continuously, and as a program that wraps from 179.99 to -179.99), up
+    to 359 and down to -359 deg; on the head A through +-180 too.  The C table spans the whole
+    travel, so its knots sit at the wrap."""
+    m = load_machine(name)
+    rng = np.random.default_rng(61)
+    tabs = _curved_tables(m, rng, uneven=False, n_knots=145)   # C: a knot every 5 deg
+    E = _errors_with(m, tabs, rng)
+    n = 240
+    t = np.linspace(0.0, 1.0, n)
+    cases = {
+        "C through 180": {"C": 170.0 + 20.0 * t},
+        "C through -180": {"C": -170.0 - 20.0 * t},
+        "C wraps": {"C": np.where(t < 0.5, 179.9 + 0.18 * t, -179.99 + 0.18 * (t - 0.5))},
+        "C to 359": {"C": 340.0 + 19.0 * t},
+        "C to -359": {"C": -340.0 - 19.0 * t},
+    }
+    if name == "robonano-ui":
+        cases["A through 180"] = {"A": 175.0 + 10.0 * t, "B": 30.0 + 0 * t}
+        cases["A through -180"] = {"A": -175.0 - 10.0 * t, "B": -30.0 + 0 * t}
+    for label, rot in cases.items():
+        if "B" not in rot:
+            rot = dict(rot, B=25.0 + 5.0 * t)   # away from the poles
+        _check(m, _rotary_path(m, n, rng, rot), E, label=label)
+
+
+@pytest.mark.parametrize("name", ["robonano-a0ib", "robonano-ui"])
+def test_rotary_steps_about_the_sincos_switch(name):
+    """The kernel takes a rotary angle's sine and cosine by the angle sum from a reference angle
+    within 1e-2 rad, else directly (and makes it the reference): steps of 1e-2 rad and a hair
+    below and above, a slow drift away from the reference over many poses, and an oscillation
+    about the switch's distance."""
+    m = load_machine(name)
+    rng = np.random.default_rng(71)
+    E = _errors_with(m, _curved_tables(m, rng), rng)
+    sw = 1e-2 * DEG_PER_RAD
+    n = 200
+    k = np.arange(n)
+    cases = {
+        "at": 20.0 + sw * k * 0.25,
+        "below": 20.0 + (sw * (1 - 1e-9)) * k * 0.25,
+        "above": 20.0 + (sw * (1 + 1e-9)) * k * 0.25,
+        "one switch per pose": 20.0 + (sw * (1 + 1e-12)) * k,
+        "drift": 20.0 + 1e-4 * k ** 1.5,
+        "oscillation": 20.0 + sw * (1 + 1e-7 * (-1) ** k) * (k % 2),
+    }
+    for label, c in cases.items():
+        _check(m, _rotary_path(m, n, rng, {"C": c, "B": 25.0 + 0.3 * np.sin(0.1 * k)}), E, label=label)
+
+
+# --------------------------------------------------------------------- steps about the thresholds
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_steps_just_under_and_over_the_no_evaluation_thresholds(name):
+    """Program steps that make the corrections change by about what the kernel takes without an
+    evaluation (linear steps of 1e-4 mm, rotary steps of 1e-5 deg, within one table interval):
+    steps of 0.9, 1, 1.1, 10 and 100 times those, at the far ends of the travels (the largest
+    levers) and with tool and workpiece offsets of 1 mm."""
+    m = load_machine(name)
+    rng = np.random.default_rng(81)
+    E = _errors_with(m, _curved_tables(m, rng, uneven=False), rng)
+    mult = np.array([0.9, 1.0, 1.1, 10.0, 100.0, 0.99, 1.01])
+    n = 350
+    q = np.empty((n, m.n_axes))
+    for k, a in enumerate(m.axes):
+        unit = 1e-5 if a.is_rotary else 1e-4
+        steps = unit * mult[(np.arange(n) + k) % mult.size] * rng.choice([-1.0, 1.0], n)
+        if a.is_rotary:
+            start = 35.0 if a.name != "B" else 40.0
+        else:
+            start = 0.9 * a.limits[1] if k % 2 else 0.9 * a.limits[0]
+        q[:, k] = start + np.cumsum(steps)
+    _check(m, q, E, label="thresholds")
+
+
+# --------------------------------------------------------------------- poles
+
+@pytest.mark.parametrize("name,pole", [("robonano-a0ib", 0.0), ("robonano-ui", 90.0)])
+def test_near_pole_poses_with_tables(name, pole):
+    """B at, inside and just outside the pole tolerance (0.2 deg) of the pole, with tables and a
+    blank tilted by 0.01 deg: the position is exact (held pole axis: the tool direction is then
+    met in least squares, so within the tolerance; else exactly), the commands those of numpy."""
+    m = load_machine(name)
+    b = [k for k, a in enumerate(m.axes) if a.name == "B"][0]
+    rng = np.random.default_rng(91)
+    E = _errors_with(m, _curved_tables(m, rng), rng, wp_angle=0.01)
+    offs = np.array([0.0, 1e-9, 1e-6, 0.1, 0.19, 0.199, 0.2, 0.201, 0.21, 0.3, 1.0])
+    offs = np.concatenate([offs, -offs[1:]])
+    q = np.repeat(_mid_commands(m, 1, rng), offs.size * 4, axis=0)
+    q[:, b] = pole + np.tile(offs, 4)
+    q += np.repeat(rng.uniform(-0.5, 0.5, (4, m.n_axes)), offs.size, axis=0) * \
+        np.array([0.0 if a.name == "B" else 1.0 for a in m.axes])
+    for cont in (False, True):
+        qc = retarget(m, q, E, backend="c", check=False, continuation=cont)
+        ideal, real = forward(m, q, backend="numpy"), forward(m, qc, E, backend="numpy")
+        assert np.max(np.abs(real.p - ideal.p)) <= 1e-9
+        a = np.asarray(m.tool_axis, dtype=float)
+        ang = np.degrees(np.arccos(np.clip(np.sum((real.R @ a) * (ideal.R @ a), axis=1), -1, 1)))
+        assert np.max(ang) <= 0.2
+        far = np.abs(q[:, b] - pole) > 0.5   # beyond the tolerance: exact
+        assert np.max(np.abs(real.R[far] @ a - ideal.R[far] @ a)) <= DIR_TOL
+        if not cont:
+            qn = retarget(m, q, E, backend="numpy", check=False, continuation=False)
+            assert np.max(np.abs(qc - qn)) <= PARITY
+
+
+# --------------------------------------------------------------------- threads and chunks
+
+def test_threads_and_chunk_boundaries_on_a_knot_crossing_path(monkeypatch):
+    """Two chunks and a bit (4,096 poses each) of a path crossing knots of steep tables, on 1 and
+    2 threads: the same bits, and every pose on the ideal pose, also the ones after a chunk
+    boundary (started from the run-in before it)."""
+    m = load_machine("robonano-a0ib")
+    rng = np.random.default_rng(101)
+    E = _errors_with(m, _curved_tables(m, rng), rng)
+    n = 2 * _kernel.CHUNK + 50
+    t = np.linspace(0.0, 1.0, n)
+    q = np.empty((n, 5))
+    q[:, 0] = 10.0 + 40.0 * t          # C
+    q[:, 1] = 20.0 + 10.0 * np.sin(9 * t)   # B
+    q[:, 2] = -30.0 + 60.0 * t         # X
+    q[:, 3] = 10.0 * np.cos(17 * t)    # Y (reverses)
+    q[:, 4] = -5.0 + 3.0 * t           # Z
+    out = {}
+    for th in ("1", "2"):
+        monkeypatch.setenv("MTCOMP_THREADS", th)
+        out[th] = retarget(m, q, E, backend="c", check=False)
+    assert np.array_equal(out["1"], out["2"])
+    _assert_true_pose(m, q, E, out["1"], label="chunked")
+    edge = np.r_[_kernel.CHUNK - 20:_kernel.CHUNK + 20, 2 * _kernel.CHUNK - 20:2 * _kernel.CHUNK + 20]
+    qn = retarget(m, q[edge], E, backend="numpy", check=False)
+    assert np.max(np.abs(out["1"][edge] - qn)) <= PARITY

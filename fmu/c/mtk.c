@@ -1776,6 +1776,28 @@ static int in_ranges(const prep_t *P, const double *q)
     return 1;
 }
 
+/* The pole axis as the reference decides it (mtcomp._solver._pole_axis): from the rigid model's
+ * orientation columns at the programmed q0, not from J0 (the full model's at start, which may be
+ * q0 plus the previous correction or the rigid closed form).  J0 settles it where no axis is near
+ * the tolerance: the unit columns turn by at most the rotary distance of start from q0, and by the
+ * tables' and location errors' angles (well below 1e-2 rad); only near a pole is the rigid
+ * Jacobian at q0 taken.  (At the tolerance's edge the two decided differently: C and numpy
+ * disagreed by up to 0.25 deg within a band of about 0.02 deg about it.) */
+static int pole_at_q0(const prep_t *Pr, const prep_t *Pj, const target_t *tg, const double *q0,
+                      const double *start, const double *J0, double pole_sin)
+{
+    double dev = 0.0, J[6 * MTK_MAX_AXES];
+    int k;
+    for (k = 0; k < Pr->nrot; k++) {
+        double d = fabs(start[Pr->rot_idx[k]] - q0[Pr->rot_idx[k]]);
+        if (!(d <= dev)) dev = d;
+    }
+    if (Pj == Pr && dev == 0.0) return pole_axis(Pr, J0, pole_sin);
+    if (dev < 10.0 && pole_axis(Pj, J0, pole_sin + 2.0 * dev * DEG + 1e-2) < 0) return -1;
+    if (jacobian(Pr, q0, tg, ORIENTATION_SCALE, J, NULL, NULL, NULL)) return -1;
+    return pole_axis(Pr, J, pole_sin);
+}
+
 /* How a pose was solved (solve_pose's *how) */
 enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
 
@@ -1814,7 +1836,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     if (rc) return rc;
     rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
-        int hold = pole_axis(Pj, J0, o->pole_sin);
+        int hold = pole_at_q0(Pr, Pj, tg, q0, start, J0, o->pole_sin);
         if (hold >= 0) {
             /* The pole axis keeps its programmed value (not the path's: a pole stretch does not
              * depend on what came before it); the others start from `start`, and again from q0
