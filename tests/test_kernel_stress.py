@@ -381,3 +381,28 @@ def test_threads_and_chunk_boundaries_on_a_knot_crossing_path(monkeypatch):
     edge = np.r_[_kernel.CHUNK - 20:_kernel.CHUNK + 20, 2 * _kernel.CHUNK - 20:2 * _kernel.CHUNK + 20]
     qn = retarget(m, q[edge], E, backend="numpy", check=False)
     assert np.max(np.abs(out["1"][edge] - qn)) <= PARITY
+
+
+@pytest.mark.parametrize("name,pole", [("robonano-a0ib", 0.0), ("robonano-ui", 90.0)])
+def test_pole_decision_with_repeated_programmed_angles_and_new_targets(name, pole):
+    """The kernel decides the pole axis once while the programmed rotary angles and the target
+    orientation stay the same: given targets (compensate) whose orientations change from pose to
+    pose under the same programmed angles (in stretches, inside and outside the tolerance) get
+    each their own decision, the reference's."""
+    from mtcomp.kinematics import compensate
+    m = load_machine(name)
+    b = [k for k, a in enumerate(m.axes) if a.name == "B"][0]
+    rng = np.random.default_rng(111)
+    E = _errors_with(m, _curved_tables(m, rng), rng, wp_angle=0.01)
+    n = 8
+    q0 = np.repeat(_mid_commands(m, 1, rng), n, axis=0)
+    q0[:, b] = pole + np.repeat([0.19, 0.21, 0.1, 0.3], n // 4)   # (at 0.2 exactly: a tie by rounding)
+    qt = q0.copy()
+    qt[:, b] = pole + np.where(np.arange(n) % 2, 0.05, 0.5) + rng.uniform(-0.03, 0.03, n)
+    target = forward(m, qt, backend="numpy")
+    for cont in (False, True):
+        qc = compensate(m, target, E, q0, backend="c", continuation=cont)
+        real = forward(m, qc, E, backend="numpy")
+        assert np.max(np.abs(real.p - target.p)) <= 1e-9
+        if not cont:
+            assert np.max(np.abs(qc - compensate(m, target, E, q0, backend="numpy"))) <= PARITY
