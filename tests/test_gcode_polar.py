@@ -165,3 +165,11 @@ def test_generated_polar_programs_identity_and_translation():
             assert np.abs(err).max() <= 1e-6, text
             checked += int(ok.sum())
     assert checked > 50                       # the test reaches polar blocks
+
+
+def test_polar_words_beyond_the_counts_are_refused_naming_the_line():
+    # found by fuzzing: an angle word of 1e20 deg overflowed the count conversion (OverflowError)
+    text = "G90 G17 G0 X0 Y0 Z5.\nG16\nG0 X40. Y99999999999999999999\nG15\n"
+    p = gcode.parse(text, axes=XYZ)
+    with pytest.raises(InputError, match=r":3: polar words \(G16\) too large for the resolution"):
+        gcode.rewrite(p, lambda q: q.copy())

@@ -67,7 +67,7 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
     nowhere = np.isnan(prev[r_, u]) | np.isnan(prev[r_, v])
     if nowhere.any():
         keep = ~nowhere
-        k, u, v, w, iu, iv, prev, end = (x[keep] for x in (k, u, v, w, iu, iv, prev, end))
+        k, u, v, w, iu, iv, iw, prev, end = (x[keep] for x in (k, u, v, w, iu, iv, iw, prev, end))
         r_ = np.arange(len(k))
         if not len(k):
             return

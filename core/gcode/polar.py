@@ -118,6 +118,10 @@ def polar_edits(ctx, program, cw, kn_edit, prev, new, res, fm, offc, expanded, c
     kn_edit = np.asarray(kn_edit)
     for j in np.flatnonzero(pol).tolist():
         wr, wt = int(cw[j, ix]), int(cw[j, iy])
+        if (wr >= 0 and not abs(wv[wr] * sc[j] / rxy[0]) < 2.0**52) or \
+                (wt >= 0 and not abs(wv[wt] / unit) < 2.0**52):
+            raise InputError("polar words (G16) too large for the resolution (more than 2**52 "
+                             "counts)", program.filename, int(line[j]))
         orig_r = int(np.rint(wv[wr] * sc[j] / rxy[0])) if wr >= 0 else None
         orig_t = int(np.rint(wv[wt] / unit)) if wt >= 0 else None
         if wt >= 0:
@@ -133,6 +137,9 @@ def polar_edits(ctx, program, cw, kn_edit, prev, new, res, fm, offc, expanded, c
         # a negative radius (the point opposite the angle) stays negative, with its angle
         rj, tj = (-rr[j], th[j] + 180.0) if r_neg else (rr[j], th[j])
         ang = tj + 360.0 * np.round((a_in - tj) / 360.0)            # keep the programmed turn
+        if not (abs(rj / rxy[0]) < 2.0**52 and abs(ang / unit) < 2.0**52):
+            raise InputError("polar words (G16) too large for the resolution (more than 2**52 "
+                             "counts)", program.filename, int(line[j]))
         rc, tc = int(np.rint(rj / rxy[0])), int(np.rint(ang / unit))
         r_cnt[j], t_cnt[j] = rc, tc
         for orig, c, rep, ins, prev in ((orig_r, rc, rep_r, ins_r, r_out),
