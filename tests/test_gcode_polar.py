@@ -173,3 +173,14 @@ def test_polar_words_beyond_the_counts_are_refused_naming_the_line():
     p = gcode.parse(text, axes=XYZ)
     with pytest.raises(InputError, match=r":3: polar words \(G16\) too large for the resolution"):
         gcode.rewrite(p, lambda q: q.copy())
+
+
+def test_radius_zero_keeps_its_angle_words_under_zero_errors():
+    # found by fuzzing: holes at radius 0 (the origin) with angles 60..300 came back as Y0 and
+    # Y360 (the angle of the origin taken as 0): not byte-identical under zero errors
+    text = ("G90 G17 G0 X0 Y0 Z50.\nG16\nG98 G81 X0 Y0. Z-3. R2. F150\nY60.\nY120.\nY180.\n"
+            "Y240.\nY300.\nG15 G80\n")
+    p = gcode.parse(text, axes=XYZ)
+    assert gcode.rewrite(p, lambda q: q.copy()) == text
+    out = gcode.rewrite(p, lambda q: q + D)                  # moved off the origin: written
+    assert out != text and np.abs(control_points(out) - D[:2]).max() <= 1e-6

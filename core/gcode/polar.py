@@ -137,6 +137,9 @@ def polar_edits(ctx, program, cw, kn_edit, prev, new, res, fm, offc, expanded, c
         # a negative radius (the point opposite the angle) stays negative, with its angle
         rj, tj = (-rr[j], th[j] + 180.0) if r_neg else (rr[j], th[j])
         ang = tj + 360.0 * np.round((a_in - tj) / 360.0)            # keep the programmed turn
+        if np.rint(rj / rxy[0]) == 0 and np.isfinite(a_in):
+            # at the origin (radius 0 in counts) the angle places nothing: keep the program's
+            ang = a_in
         if not (abs(rj / rxy[0]) < 2.0**52 and abs(ang / unit) < 2.0**52):
             raise InputError("polar words (G16) too large for the resolution (more than 2**52 "
                              "counts)", program.filename, int(line[j]))
