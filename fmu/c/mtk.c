@@ -508,8 +508,6 @@ typedef struct {
     double r2, iden;                  /* a.a - (u2.a)^2, 1 / (1 - (u1.u2)^2) */
     double sc_ref[MTK_MAX_AXES][3];   /* per rotary axis an angle (rad) taken by sin and cos, and
                                        * those (axis_sincos; NAN: none yet) */
-    int pole_ok, pole_hold;           /* pole_at_q0's last decision (pole_ok: made) for the rotary */
-    double pole_q[MTK_MAX_AXES], pole_R[9], pole_thr;   /* angles pole_q, target R and threshold */
     double wmax[MTK_MAX_AXES];        /* bound of |W_i|, the angular velocity of axis i per deg or mm:
                                        * DEG for a rotary axis, plus the steepest slope of its table's
                                        * angles (the second-order bounds of iterate) */
@@ -538,26 +536,24 @@ static inline void rotvec_fast(const double w[3], double R[9])
 
 /* Angular velocity (in the frame before the rotation) of R(w) = rotvec(w) as w moves at dw:
  * dR R^T = [J(w) dw]x with J(w) = I + b [w]x + c [w]x^2, b = (1 - cos t) / t^2, c = (t - sin t) / t^3
- * (the left Jacobian of the rotation vector).  Below 1e-3 rad (the µrad angles of error tables)
- * dw + (w x dw) / 2: the terms left out are below t^2 / 6 < 2e-7 of dw's.  Not dw alone: that is
- * exact to first order in the angles only, and the Jacobian's error |w| |dw| / 2 (µrad angles
- * times their slopes, times the lever to the tool) entered the steps taken without an evaluation. */
+ * (the left Jacobian of the rotation vector; series below 1e-3 rad, truncation below 1e-24).
+ * Not dw alone: that is first order in the angles, and the Jacobian's error e |dw| (µrad angles times
+ * their slopes, times the lever to the tool) would enter the steps taken without an evaluation. */
 static inline void rotvec_rate(const double w[3], const double dw[3], double out[3])
 {
     double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], b, c, x[3], y[3];
     int k;
-    x[0] = w[1] * dw[2] - w[2] * dw[1];
-    x[1] = w[2] * dw[0] - w[0] * dw[2];
-    x[2] = w[0] * dw[1] - w[1] * dw[0];
     if (t2 < 1e-6) {
-        for (k = 0; k < 3; k++) out[k] = dw[k] + 0.5 * x[k];
-        return;
-    }
-    {
+        b = 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0);
+        c = 1.0 / 6.0 - t2 / 120.0 * (1.0 - t2 / 42.0);
+    } else {
         double th = sqrt(t2);
         b = (1.0 - cos(th)) / t2;
         c = (th - sin(th)) / (t2 * th);
     }
+    x[0] = w[1] * dw[2] - w[2] * dw[1];
+    x[1] = w[2] * dw[0] - w[0] * dw[2];
+    x[2] = w[0] * dw[1] - w[1] * dw[0];
     y[0] = w[1] * x[2] - w[2] * x[1];
     y[1] = w[2] * x[0] - w[0] * x[2];
     y[2] = w[0] * x[1] - w[1] * x[0];
@@ -1780,41 +1776,6 @@ static int in_ranges(const prep_t *P, const double *q)
     return 1;
 }
 
-/* The pole axis as the reference decides it (mtcomp._solver._pole_axis): from the rigid model's
- * orientation columns at the programmed q0, not from J0 (the full model's at start, which may be
- * q0 plus the previous correction or the rigid closed form).  J0 settles it where no axis is near
- * the tolerance: the unit columns turn by at most the rotary distance of start from q0, and by the
- * tables' and location errors' angles (well below 1e-2 rad); only near a pole is the rigid
- * Jacobian at q0 taken.  (At the tolerance's edge the two decided differently: C and numpy
- * disagreed by up to 0.25 deg within a band of about 0.02 deg about it.) */
-static int pole_at_q0(const prep_t *Pr, const prep_t *Pj, const target_t *tg, const double *q0,
-                      const double *start, const double *J0, double pole_sin)
-{
-    double dev = 0.0, J[6 * MTK_MAX_AXES];
-    int k;
-    for (k = 0; k < Pr->nrot; k++) {
-        double d = fabs(start[Pr->rot_idx[k]] - q0[Pr->rot_idx[k]]);
-        if (!(d <= dev)) dev = d;
-    }
-    if (Pj == Pr && dev == 0.0) return pole_axis(Pr, J0, pole_sin);
-    if (dev < 10.0 && pole_axis(Pj, J0, pole_sin + 2.0 * dev * DEG + 1e-2) < 0) return -1;
-    {
-        /* The rigid model's orientation columns depend on the rotary angles and the target's
-         * orientation alone: a program that keeps them (a 3-axis program at a pole) decides once. */
-        prep_t *Q = (prep_t *)Pr;   /* (the prepared model's scratch, like the tables' hints) */
-        int same = Q->pole_ok && Q->pole_thr == pole_sin && !memcmp(Q->pole_R, tg->R, sizeof Q->pole_R);
-        for (k = 0; k < Pr->nrot && same; k++) same = Q->pole_q[k] == q0[Pr->rot_idx[k]];
-        if (same) return Q->pole_hold;
-        if (jacobian(Pr, q0, tg, ORIENTATION_SCALE, J, NULL, NULL, NULL)) return -1;
-        Q->pole_hold = pole_axis(Pr, J, pole_sin);
-        Q->pole_ok = 1;
-        Q->pole_thr = pole_sin;
-        memcpy(Q->pole_R, tg->R, sizeof Q->pole_R);
-        for (k = 0; k < Pr->nrot; k++) Q->pole_q[k] = q0[Pr->rot_idx[k]];
-        return Q->pole_hold;
-    }
-}
-
 /* How a pose was solved (solve_pose's *how) */
 enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
 
@@ -1853,7 +1814,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     if (rc) return rc;
     rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
-        int hold = pole_at_q0(Pr, Pj, tg, q0, start, J0, o->pole_sin);
+        int hold = pole_axis(Pj, J0, o->pole_sin);
         if (hold >= 0) {
             /* The pole axis keeps its programmed value (not the path's: a pole stretch does not
              * depend on what came before it); the others start from `start`, and again from q0
