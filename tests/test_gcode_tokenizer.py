@@ -211,8 +211,8 @@ def test_compiled_number_formatter_same_texts(counts, decimals):
         assert (t[:1] == b"-") == (v < 0) and int(t.replace(b".", b"")) == v
 
 
-def _control_counts_both(prog, res, offc=None, words=None):
-    rw = __import__("importlib").import_module("mtcomp.gcode.rewrite")
+def _on_both_paths(fn):
+    """[fn() on the compiled path, fn() on the numpy path]; an InputError gives its message."""
     out = []
     for python in (False, True):
         with pytest.MonkeyPatch.context() as mp:
@@ -221,10 +221,15 @@ def _control_counts_both(prog, res, offc=None, words=None):
             else:
                 mp.delenv("MTCOMP_TOKENIZER", raising=False)
             try:
-                out.append(rw._control_counts(prog, res, offc, words=words))
+                out.append(fn())
             except InputError as exc:
                 out.append(str(exc))
     return out
+
+
+def _control_counts_both(prog, res, offc=None, words=None):
+    rw = __import__("importlib").import_module("mtcomp.gcode.rewrite")
+    return _on_both_paths(lambda: rw._control_counts(prog, res, offc, words=words))
 
 
 @pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
@@ -339,20 +344,9 @@ def test_read_back_words_against_a_python_reader(lines):
 
 def _rewrite_both(text, machine_axes=AXES):
     """Parse and rewrite (translation + small rotation) with the compiled and the numpy paths."""
-    out = []
-    for python in (False, True):
-        with pytest.MonkeyPatch.context() as mp:
-            if python:
-                mp.setenv("MTCOMP_TOKENIZER", "python")
-            else:
-                mp.delenv("MTCOMP_TOKENIZER", raising=False)
-            try:
-                prog = gcode.parse(text, axes=machine_axes, filename="p.nc")
-                shift = np.array([0.0123456, -0.0045, 0.002, 0.0, 0.001])[:len(machine_axes)]
-                out.append(gcode.rewrite(prog, lambda q: q + shift))
-            except InputError as exc:
-                out.append(str(exc))
-    return out
+    shift = np.array([0.0123456, -0.0045, 0.002, 0.0, 0.001])[:len(machine_axes)]
+    return _on_both_paths(lambda: gcode.rewrite(gcode.parse(text, axes=machine_axes, filename="p.nc"),
+                                                lambda q: q + shift))
 
 
 @pytest.mark.parametrize("i", range(len(CORPUS)), ids=[p.name for p in CORPUS_FILES])
