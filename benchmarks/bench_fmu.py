@@ -341,7 +341,7 @@ def main() -> None:
         "target), makes one pass of the full model's analytic Jacobian (table slopes and location "
         "errors in it) that also gives the residual at the warm start (the previous step's "
         "correction), and solves the 5x5 normal equations; the Newton step is then taken without "
-        "evaluating the model again, as the model is linear over it to below 1e-11 mm (a step under "
+        "evaluating the model again, as the model is linear over it to about 1e-10 mm, below the 5e-10 mm check (a step under "
         "1e-5 deg and 1e-4 mm within one table interval).",
         "",
         "Targets of the compiled-kernel issue (CPU time):",

@@ -1404,9 +1404,11 @@ static void chord_step(int n, int rows, const double *J, const double *LU, const
     else normal_step(n, rows, J, LU, piv, r, x);
 }
 
-/* Largest steps (deg, mm) over which the model is linear to below 1e-11 mm: the rotation about a
- * rotary axis deviates from its tangent by L th^2 / 2 (1e-11 mm at 500 mm for 1e-5 deg), a linear
- * step couples with it and with the tables' µrad angles by products below 1e-11 mm. */
+/* Largest steps (deg, mm) over which the model is linear to about 1e-10 mm, below the 5e-10 mm
+ * the results are checked to: the rotation about a rotary axis deviates from its tangent by
+ * L th^2 / 2 (under 1e-11 mm at 500 mm for 1e-5 deg); a linear step's products with that turn
+ * (1e-4 mm x 1.7e-7 rad) and with the tables' changing µrad angles add a few 1e-11 mm (the worst
+ * case found by the stress tests' estimate: about 7e-11 mm). */
 #define LINEAR_ROTARY 1e-5
 #define LINEAR_LINEAR 1e-4
 
@@ -1644,7 +1646,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             if (smax >= tol && bounded && (lin || (have_pn && second_order_bound(P, pn, ilin, qlin, q, step, wo)
                                                        <= LINEAR_BOUND))) {
                 /* Newton or chord step on the full model's Jacobian so small that the model is
-                 * linear over it to below 1e-11 mm: the residual after it is the linear
+                 * linear over it to about 1e-10 mm: the residual after it is the linear
                  * prediction, no evaluation (a warm start along a path ends here, and a random
                  * pose once its residual is below about 1e-9 mm) */
                 STAT(3);
