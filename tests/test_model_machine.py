@@ -208,6 +208,25 @@ def test_quadrant_glitch_is_the_diagnosis_spike_after_each_reversal(machine, tmp
     assert t[k_peak] == pytest.approx(0.2 + tau) and err[k_peak] == pytest.approx(A, rel=1e-12)
 
 
+def _fmu_refuses(fmu, bad, good):
+    """Through fmpy: fmi2SetReal of each (name, value) in ``bad`` fails (fmi2Error), and the
+    in-range ``good`` (name, value) is accepted."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="m")
+    slave.instantiate(loggingOn=True, callbacks=None)
+    try:
+        for name, value in bad:
+            with pytest.raises(Exception):
+                slave.setReal([vr[name]], [value])
+        slave.setReal([vr[good[0]]], [good[1]])
+    finally:
+        slave.freeInstance()
+
+
 def test_encoder_cyclic_error_is_the_diagnosis_form_on_the_actual_position(machine, tmp_path):
     """Ideal servo, X at 5 mm/s: the actual position is the command plus a1 sin(2 pi q/P +
     phi1) + a2 sin(4 pi q/P + phi2) (the diagnosis' encoder_cyclic_error, phases in deg) with
@@ -229,21 +248,8 @@ def test_encoder_cyclic_error_is_the_diagnosis_form_on_the_actual_position(machi
         build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(encoder_a1=(1.5, 0, 0)))
     with pytest.raises(MtcompError, match=r"encoder\.period\.Y"):
         build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(encoder_period=(0, -1.0, 0)))
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-    fmu = tmp_path / "m.fmu"
-    md = read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
-                      instanceName="m")
-    slave.instantiate(loggingOn=True, callbacks=None)
-    try:
-        for name, value in (("encoder.period.X", -0.02), ("encoder.a2.Y", 2.0), ("encoder.phase1.Z", 800.0)):
-            with pytest.raises(Exception):
-                slave.setReal([vr[name]], [value])
-        slave.setReal([vr["encoder.phase2.Z"]], [-700.0])      # in range: accepted
-    finally:
-        slave.freeInstance()
+    _fmu_refuses(tmp_path / "m.fmu", (("encoder.period.X", -0.02), ("encoder.a2.Y", 2.0),
+                                       ("encoder.phase1.Z", 800.0)), ("encoder.phase2.Z", -700.0))
     (tmp_path / "d.toml").write_text('[parameters]\n"encoder.period.X" = -0.02\n')
     with pytest.raises(InputError, match="encoder.period.X"):
         load_dynamics(tmp_path / "d.toml", machine)
@@ -283,26 +289,12 @@ def test_velocity_friction_out_of_range_is_refused_by_name(machine, tmp_path):
     """The FMU refuses (fmi2Error) a viscous loss beyond +-1 (the axis would run backwards) and a
     negative smoothing speed set through fmpy; the build refuses such start values naming the
     parameter, and so does the dynamics file."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
     from mtcomp._io import MtcompError
     from mtcomp.model.dynamics import load_dynamics
     with pytest.raises(MtcompError, match=r"velfriction\.viscous\.X"):
         build_machine_fmu(machine, tmp_path / "bad.fmu", dynamics=MachineDynamics(velfriction_viscous=(1.5, 0, 0)))
-    fmu = build_machine_fmu(machine, tmp_path / "m.fmu")
-    md = read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu)), modelIdentifier=md.coSimulation.modelIdentifier,
-                      instanceName="m")
-    slave.instantiate(loggingOn=True, callbacks=None)
-    try:
-        for name, value in (("velfriction.viscous.X", 1.5), ("velfriction.vs.Y", -1.0)):
-            with pytest.raises(Exception):
-                slave.setReal([vr[name]], [value])
-        slave.setReal([vr["velfriction.coulomb.Z"]], [0.5])      # in range: accepted
-    finally:
-        slave.freeInstance()
+    _fmu_refuses(build_machine_fmu(machine, tmp_path / "m.fmu"),
+                 (("velfriction.viscous.X", 1.5), ("velfriction.vs.Y", -1.0)), ("velfriction.coulomb.Z", 0.5))
     (tmp_path / "d.toml").write_text('[parameters]\n"velfriction.viscous.X" = 1.5\n')
     with pytest.raises(InputError, match="velfriction.viscous.X"):
         load_dynamics(tmp_path / "d.toml", machine)
