@@ -2545,8 +2545,8 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     mtk_errors rigid, zero;
     opt_t so;
     long i, failed = 0;
-    int nax = m->n_axes, k, have_prev = 0, warm = 0;
-    double corr[MTK_MAX_AXES];
+    int nax = m->n_axes, k, have_prev = 0, warm = 0, have_prev2 = 0, held_prev = -1;
+    double corr[MTK_MAX_AXES], corr2[MTK_MAX_AXES];
     if (!e) {
         mtk_errors_zero(&zero);
         e = &zero;
@@ -2626,6 +2626,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 }
                 csc_ok = 1;
                 have_prev = 1;
+                have_prev2 = 0;
                 warm = 1;
                 continue;
             }
@@ -2638,12 +2639,29 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             make_target(&Pi, qa, &tg);
         }
         memcpy(start, qa, nax * sizeof(double));
-        if (o->continuation && have_prev)
-            for (k = 0; k < nax; k++) start[k] += corr[k];
+        if (o->continuation && have_prev) {
+            double x = 0.0;
+            if (have_prev2 && i > 1 && near_previous(&P, qa, qa - nax)) {
+                /* along a path the correction changes smoothly with the program: the previous
+                 * segment's change of it, scaled by this segment's projection on that one, leaves
+                 * a start error of second order in the step (within a table interval) rather
+                 * than of first, and the Newton step from it is then small enough to be taken
+                 * without an evaluation (linear_exact) */
+                const double *q1 = qa - nax, *q2 = qa - 2 * nax;
+                double num = 0.0, den = 0.0;
+                for (k = 0; k < nax; k++) {
+                    num += (qa[k] - q1[k]) * (q1[k] - q2[k]);
+                    den += (q1[k] - q2[k]) * (q1[k] - q2[k]);
+                }
+                if (den > 0.0 && num > 0.0 && num <= 2.0 * den) x = num / den;
+            }
+            for (k = 0; k < nax; k++) start[k] += corr[k] + x * (corr[k] - corr2[k]);
+        }
         if (P.closed_rot && !fast_rot &&
             closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_sin, qo)) {
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
+            have_prev2 = 0;
             warm = 1;
             continue;
         }
@@ -2666,14 +2684,22 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         }
         if (rc == MTK_OK) {
             *infoi = held;
-            for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
+            /* (the previous correction kept for the extrapolation where this pose followed it
+             * on the same branch, without a held axis: both solutions of one smooth branch) */
+            have_prev2 = have_prev && warm && how != HOW_SEED && held < 0 && held_prev < 0 &&
+                         near_previous(&P, qa, qa - nax);
+            for (k = 0; k < nax; k++) {
+                corr2[k] = corr[k];
+                corr[k] = qo[k] - qa[k];
+            }
+            held_prev = held;
             have_prev = 1;
             warm = how != HOW_SEED;
         } else {
             *statusi = rc;
             *infoi = bad;
             if (rc == MTK_E_CONVERGE) *resi = r0;
-            have_prev = 0;
+            have_prev = have_prev2 = 0;
             failed += i >= skip;
         }
     }
