@@ -2634,6 +2634,15 @@ static int path_step(const prep_t *P, const target_t *tg, const double *start, c
     }
     if (residual(P, start, tg, r, ORIENTATION_SCALE, 0, NULL) != MTK_OK) return 0;
     chord_step(n, rows, J, LU, piv, r, s);
+    for (i = 0; i < n; i++)
+        if (fabs(s[i]) >= o->tol) break;
+    if (i == n) {
+        /* a step below the tolerance is convergence, as in iterate: start kept to the bit */
+        if (!in_ranges(P, start) || !(maxabs(r, rows) < CONVERGED)) return 0;
+        memcpy(q, start, n * sizeof(double));
+        *res = maxabs(r, rows);
+        return 1;
+    }
     if (!(second_order_bound(P, pn, ilin, qlin, start, s, ORIENTATION_SCALE) <= LINEAR_BOUND)) return 0;
     for (i = 0; i < n; i++) qn[i] = start[i] - s[i];
     for (k = 0; k < rows; k++) {
@@ -2658,7 +2667,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     long i, failed = 0;
     int nax = m->n_axes, k, have_prev = 0, warm = 0, chain = 0, held_prev = -1, have_lin = 0, fresh = 0, lin_try, lin_miss = 0,
         lin_wait = 0;
-    double corr[MTK_MAX_AXES], corr2[MTK_MAX_AXES], corr3[MTK_MAX_AXES];
+    double corr[MTK_MAX_AXES] = {0}, corr2[MTK_MAX_AXES] = {0}, corr3[MTK_MAX_AXES] = {0};
     /* the path's linearisation (path_linearisation): the Jacobian at the start of the last pose
      * solved afresh, its factors, column lengths and table intervals, and where it was taken */
     double Jl[6 * MTK_MAX_AXES], LUl[MTK_MAX_AXES * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
@@ -2760,7 +2769,12 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             double w1 = 1.0, w2 = 0.0, w3 = 0.0;
             if (chain >= 2 && i > 1 && near_previous(&P, qa, qa - nax))
                 path_weights(qa, nax, chain >= 3 && i > 2, &w1, &w2, &w3);
-            for (k = 0; k < nax; k++) start[k] += w1 * corr[k] + w2 * corr2[k] + w3 * corr3[k];
+            /* on the differences of the corrections: where they do not change (an axis the
+             * errors leave alone, a rotary axis held over a pass) the start is the last one's
+             * to the bit */
+            for (k = 0; k < nax; k++)
+                start[k] += corr[k] - (w2 != 0.0 ? (w2 + w3) * (corr[k] - corr2[k]) : 0.0) -
+                            (w3 != 0.0 ? w3 * (corr2[k] - corr3[k]) : 0.0);
         }
         if (P.closed_rot && !fast_rot &&
             closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_sin, qo)) {
