@@ -486,6 +486,8 @@ typedef struct {
     double c[MTK_MAX_AXES][3];        /* rotary centre with its location offset, mm */
     double zero[MTK_MAX_AXES];        /* zero-position error of a rotary axis, rad */
     const mtk_table *tab[MTK_MAX_AXES];
+    int loc0[MTK_MAX_AXES];           /* the axis' error motion acts about the origin (loc = 0):
+                                       * its translation is the table's alone */
     int hint[MTK_MAX_AXES];           /* last table interval per axis (table_interval) */
     double tp[3];                     /* tool point + tool setting offset, mm */
     int wp;                           /* workpiece pose differs from identity */
@@ -622,6 +624,8 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
     for (i = 0, k = 0; i < m->n_axes; i++)
         if (m->rotary[i]) P->rot_idx[k++] = i;
+    for (i = 0; i < m->n_axes; i++)
+        P->loc0[i] = m->loc[i][0] == 0.0 && m->loc[i][1] == 0.0 && m->loc[i][2] == 0.0;
     for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
     for (i = 0; i < m->n_axes; i++) {
         double w = m->rotary[i] ? DEG : 0.0;
@@ -798,8 +802,10 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
                 return MTK_E_RANGE;
             }
             rotvec_fast(ang, Re);
-            for (k = 0; k < 3; k++)
-                te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+            if (P->loc0[i]) memcpy(te, d, sizeof te);
+            else
+                for (k = 0; k < 3; k++)
+                    te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
             /* The error motion belongs to the moving body of a linear axis and to the
              * non-rotating body of a rotary axis: it stands before the nominal motion for a
              * workpiece-side linear or a tool-side rotary axis (docs/model.md). */
@@ -862,8 +868,10 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
             const double *loc = m->loc[i];
             table_eval_hint(P->tab[i], q[i], dd, ang, NULL, NULL, 0, (int *)&P->hint[i]);
             rotvec_fast(ang, Re);
-            for (k = 0; k < 3; k++)
-                te[k] = loc[k] + dd[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+            if (P->loc0[i]) memcpy(te, dd, sizeof te);
+            else
+                for (k = 0; k < 3; k++)
+                    te[k] = loc[k] + dd[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
             if (!e_after) {
                 mat_vec(Re, x, y);
                 for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
@@ -1111,9 +1119,14 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             const double *loc = m->loc[i];
             table_eval_hint(P->tab[i], q[i], d, ang, dd, de, 0, (int *)&P->hint[i]);
             rotvec_fast(ang, Re);
-            for (k = 0; k < 3; k++) {
-                te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
-                lp[k] = loc[k] + d[k];
+            if (P->loc0[i]) {
+                memcpy(te, d, sizeof te);
+                memcpy(lp, d, sizeof lp);
+            } else {
+                for (k = 0; k < 3; k++) {
+                    te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+                    lp[k] = loc[k] + d[k];
+                }
             }
             rotvec_rate(ang, de, we);
             cross(we, lp, x);
