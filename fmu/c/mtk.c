@@ -2604,11 +2604,11 @@ static void path_weights(const double *qa, int nax, int three, double *w1, doubl
     }
 }
 
-/* Keeps the Jacobian J (at q, weight ORIENTATION_SCALE) of a pose solved afresh for the poses
+/* The Jacobian J (at q, weight ORIENTATION_SCALE) of a pose solved afresh, prepared for the poses
  * after it along the path: its normal equations' factors, column lengths and table intervals at
  * q (second_order_bound's).  0 where the normal matrix is singular. */
 static int path_linearisation(const prep_t *P, const double *q, const double *J, double *LU, int *piv,
-                              double *pn, int *ilin, double *qlin)
+                              double *pn, int *ilin)
 {
     int n = P->n, rows = P->rows, i, ok;
     if (n == 5 && rows == 6) ok = normal_factor(5, 6, J, LU, piv);
@@ -2620,7 +2620,6 @@ static int path_linearisation(const prep_t *P, const double *q, const double *J,
         const mtk_table *t = P->tab[i];
         ilin[i] = t && q[i] > t->pos[0] && q[i] < t->pos[t->n - 1] ? table_interval(t, q[i], (int *)&P->hint[i]) : -1;
     }
-    memcpy(qlin, q, n * sizeof(double));
     return 1;
 }
 
@@ -2679,7 +2678,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     opt_t so;
     long i, failed = 0;
     int nax = m->n_axes, k, have_prev = 0, warm = 0, chain = 0, held_prev = -1, have_lin = 0, fresh = 0, lin_try, lin_miss = 0,
-        lin_wait = 0;
+        lin_wait = 0, lin_ready = 0;
     double corr[MTK_MAX_AXES] = {0}, corr2[MTK_MAX_AXES] = {0}, corr3[MTK_MAX_AXES] = {0};
     /* the path's linearisation (path_linearisation): the Jacobian at the start of the last pose
      * solved afresh, its factors, column lengths and table intervals, and where it was taken */
@@ -2809,6 +2808,10 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         lin_try = !seeded && have_lin && o->continuation && have_prev && warm && held_prev < 0 && i > 0 &&
                   lin_wait == 0 && near_previous(&P, qa, qa - nax);
         if (lin_wait > 0) lin_wait--;
+        if (lin_try && !lin_ready) {   /* (factored when first needed: not for random poses) */
+            lin_ready = path_linearisation(&P, qlin, Jl, LUl, pivl, pnl, ilinl);
+            have_lin = lin_try = lin_ready;
+        }
         if (lin_try && path_step(&P, &tg, start, &so, Jl, LUl, pivl, pnl, ilinl, qlin, qo, resi)) {
             /* (the previous poses' Jacobian: no pass, no factorisation, one evaluation) */
             rc = MTK_OK;
@@ -2844,9 +2847,11 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 corr2[k] = corr[k];
                 corr[k] = qo[k] - qa[k];
             }
-            if (fresh)   /* the Jacobian at this pose's start, for the poses after it */
-                have_lin = P.mode != 3 && how != HOW_SEED && held < 0 && o->continuation &&
-                           path_linearisation(&P, start, Jl, LUl, pivl, pnl, ilinl, qlin);
+            if (fresh) {   /* the Jacobian at this pose's start (in Jl), for the poses after it */
+                have_lin = P.mode != 3 && how != HOW_SEED && held < 0 && o->continuation;
+                lin_ready = 0;
+                memcpy(qlin, start, nax * sizeof(double));
+            }
             held_prev = held;
             have_prev = 1;
             warm = how != HOW_SEED;
