@@ -411,3 +411,46 @@ def test_pole_decision_with_repeated_programmed_angles_and_new_targets(name, pol
         assert np.max(np.abs(real.p - target.p)) <= 1e-9
         if not cont:
             assert np.max(np.abs(qc - compensate(m, target, E, q0, backend="numpy"))) <= PARITY
+
+
+# --------------------------------------------------------------------- paths on an earlier Jacobian
+
+@pytest.mark.parametrize("name", ["robonano-a0ib", "vmc-moving-column"])
+def test_paths_solved_on_an_earlier_poses_jacobian(name):
+    """Along a fine path (machines with up to two rotary axes) a pose is solved on the Jacobian of
+    an earlier pose: its residual evaluated, the chord step taken where the second-order bound
+    keeps the model linear over it.  A path sweeping every axis through steep curved tables and
+    their knots, with the step length changing, a stop and a reversal (a0ib: B from 3 deg
+    through the pole at 0 to -3 deg, where the pole test of the earlier Jacobian must hand the
+    poses near it back): each pose on the ideal pose (held ones: the position, the tool within
+    the pole tolerance), the same commands as the poses solved one by one, on 1 thread as on 2."""
+    m = load_machine(name)
+    rng = np.random.default_rng(131)
+    E = _errors_with(m, _curved_tables(m, rng), rng, wp_angle=0.01 if m.n_rotary else 0.3)
+    n = 3000
+    t = np.concatenate([np.linspace(0.0, 0.4, 1200), np.full(10, 0.4), np.linspace(0.4, 1.0, 1200),
+                        np.linspace(1.0, 0.7, n - 2410)])
+    q = np.empty((t.size, m.n_axes))
+    for k, a in enumerate(m.axes):
+        lo, hi = a.limits
+        if a.is_rotary:
+            q[:, k] = 3.0 - 6.0 * t if a.name == "B" else 20.0 + 50.0 * t
+        else:
+            q[:, k] = 0.5 * (lo + hi) + 0.02 * (hi - lo) * np.sin(3.0 * (k + 1) * t)
+    qc = retarget(m, q, E, backend="c", check=False)
+    ideal, real = forward(m, q, backend="numpy"), forward(m, qc, E, backend="numpy")
+    assert np.max(np.abs(real.p - ideal.p)) <= POS_TOL
+    if m.n_rotary:
+        b = [k for k, a in enumerate(m.axes) if a.name == "B"][0]
+        a = np.asarray(m.tool_axis, dtype=float)
+        ang = np.degrees(np.arccos(np.clip(np.sum((real.R @ a) * (ideal.R @ a), axis=1), -1, 1)))
+        assert np.max(ang) <= 0.2
+        far = np.abs(q[:, b]) > 0.5
+        assert np.max(np.abs(real.R[far] @ a - ideal.R[far] @ a)) <= DIR_TOL
+        clear = np.abs(np.abs(q[:, b]) - 0.2) > 0.05   # (at the tolerance either decision is right)
+    else:
+        clear = np.ones(len(q), dtype=bool)
+    one = retarget(m, q, E, backend="c", check=False, continuation=False)
+    assert np.max(np.abs(qc - one)[clear]) <= PARITY
+    qn = retarget(m, q[::10], E, backend="numpy", check=False)
+    assert np.max(np.abs(qc[::10] - qn)[clear[::10]]) <= PARITY

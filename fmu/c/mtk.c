@@ -486,6 +486,8 @@ typedef struct {
     double c[MTK_MAX_AXES][3];        /* rotary centre with its location offset, mm */
     double zero[MTK_MAX_AXES];        /* zero-position error of a rotary axis, rad */
     const mtk_table *tab[MTK_MAX_AXES];
+    int loc0[MTK_MAX_AXES];           /* the axis' error motion acts about the origin (loc = 0):
+                                       * its translation is the table's alone */
     int hint[MTK_MAX_AXES];           /* last table interval per axis (table_interval) */
     double tp[3];                     /* tool point + tool setting offset, mm */
     int wp;                           /* workpiece pose differs from identity */
@@ -622,6 +624,8 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
     for (i = 0, k = 0; i < m->n_axes; i++)
         if (m->rotary[i]) P->rot_idx[k++] = i;
+    for (i = 0; i < m->n_axes; i++)
+        P->loc0[i] = m->loc[i][0] == 0.0 && m->loc[i][1] == 0.0 && m->loc[i][2] == 0.0;
     for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
     for (i = 0; i < m->n_axes; i++) {
         double w = m->rotary[i] ? DEG : 0.0;
@@ -798,8 +802,10 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
                 return MTK_E_RANGE;
             }
             rotvec_fast(ang, Re);
-            for (k = 0; k < 3; k++)
-                te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+            if (P->loc0[i]) memcpy(te, d, sizeof te);
+            else
+                for (k = 0; k < 3; k++)
+                    te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
             /* The error motion belongs to the moving body of a linear axis and to the
              * non-rotating body of a rotary axis: it stands before the nominal motion for a
              * workpiece-side linear or a tool-side rotary axis (docs/model.md). */
@@ -862,8 +868,10 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
             const double *loc = m->loc[i];
             table_eval_hint(P->tab[i], q[i], dd, ang, NULL, NULL, 0, (int *)&P->hint[i]);
             rotvec_fast(ang, Re);
-            for (k = 0; k < 3; k++)
-                te[k] = loc[k] + dd[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+            if (P->loc0[i]) memcpy(te, dd, sizeof te);
+            else
+                for (k = 0; k < 3; k++)
+                    te[k] = loc[k] + dd[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
             if (!e_after) {
                 mat_vec(Re, x, y);
                 for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
@@ -1111,9 +1119,14 @@ static int jacobian_full(const prep_t *P, const double *q, const target_t *tg, d
             const double *loc = m->loc[i];
             table_eval_hint(P->tab[i], q[i], d, ang, dd, de, 0, (int *)&P->hint[i]);
             rotvec_fast(ang, Re);
-            for (k = 0; k < 3; k++) {
-                te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
-                lp[k] = loc[k] + d[k];
+            if (P->loc0[i]) {
+                memcpy(te, d, sizeof te);
+                memcpy(lp, d, sizeof lp);
+            } else {
+                for (k = 0; k < 3; k++) {
+                    te[k] = loc[k] + d[k] - (Re[3 * k] * loc[0] + Re[3 * k + 1] * loc[1] + Re[3 * k + 2] * loc[2]);
+                    lp[k] = loc[k] + d[k];
+                }
             }
             rotvec_rate(ang, de, we);
             cross(we, lp, x);
@@ -1721,9 +1734,10 @@ static double orientation_angle(const prep_t *P, const double *r, double wo)
  * sin(pole_tol) of what the other rotary axes do (C at B = 0 on a B-C table turns the tool about
  * itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of several, the last
  * in the chain (mtcomp.kinematics._pole_axis).  J: the rigid Jacobian at q (ORIENTATION_SCALE). */
-static int pole_axis(const prep_t *Pr, const double *J, double thr)
+static int pole_axis_margin(const prep_t *Pr, const double *J, double thr, double *margin)
 {
     int n = Pr->n, a, b, j, k, hold = -1;
+    double least = INFINITY;
     double col[MTK_MAX_AXES][3];
     for (a = 0; a < Pr->nrot; a++)
         for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / (ORIENTATION_SCALE * DEG);
@@ -1749,9 +1763,19 @@ static int pole_axis(const prep_t *Pr, const double *J, double thr)
             double d = v[0] * basis[k][0] + v[1] * basis[k][1] + v[2] * basis[k][2];
             for (j = 0; j < 3; j++) v[j] -= d * basis[k][j];
         }
-        if (sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) < thr) hold = Pr->rot_idx[a];
+        {
+            double len = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            if (len < thr) hold = Pr->rot_idx[a];
+            if (len < least) least = len;
+        }
     }
+    if (margin) *margin = least;
     return hold;
+}
+
+static int pole_axis(const prep_t *Pr, const double *J, double thr)
+{
+    return pole_axis_margin(Pr, J, thr, NULL);
 }
 
 typedef struct {
@@ -1790,7 +1814,7 @@ enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
  * or MTK_E_RANGE (*bad). */
 static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, const double *q0,
                       const double *start, int warm, int far, const opt_t *o, double *q, int *iters, double *res,
-                      double *res0, int *singular, int *bad, int *held, int *how)
+                      double *res0, int *singular, int *bad, int *held, int *how, double *Jout)
 {
     int n = P->n, rows = P->rows, sing = 0, rc, k, differs = memcmp(start, q0, n * sizeof(double)) != 0;
     int tables = 0;
@@ -1911,6 +1935,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
 accept:
     memcpy(q, qt, n * sizeof(double));
     memcpy(racc, r, rows * sizeof(double));
+    if (Jout) memcpy(Jout, J0, (size_t)rows * n * sizeof(double));   /* (the Jacobian at start) */
 strict:
     /* Strict check: a converged command outside an error table's range is an error.  Inside the
      * ranges the iteration's residual (tables held at their ends) is the strict one, so the
@@ -2425,7 +2450,7 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
         }
         rc = solve_pose(&c->P, &c->Pr, &tg, q_prog, start, c->have_prev && c->warm, !(c->have_prev && c->warm), &o, q,
                         &it, &res, &res0,
-                        &singular, &bad, &held, &how);
+                        &singular, &bad, &held, &how, NULL);
         if (iters) *iters = it;
         if (residual_out) *residual_out = rc == MTK_E_CONVERGE ? res0 : res;
         c->have_prev = rc == MTK_OK;
@@ -2537,6 +2562,113 @@ static int near_previous(const prep_t *P, const double *q, const double *qp)
     return 1;
 }
 
+/* Weights of the previous poses' corrections (c1 the last) in the start of the pose qa along a
+ * path: the correction changes smoothly with the program, and extrapolated from the poses before
+ * (a parabola through three, a line through two, in the distance along the path) the start is
+ * within the third (second) power of the step of the solution inside a table interval, rather
+ * than the first: the Newton step from it is then small enough to be taken without an
+ * evaluation.  Three poses where the last two segments are about as long as this one and point
+ * about the same way, else two where this segment's projection on the last is within twice its
+ * length, else the last correction alone (w1 = 1). */
+static void path_weights(const double *qa, int nax, int three, double *w1, double *w2, double *w3)
+{
+    const double *q1 = qa - nax, *q2 = qa - 2 * nax;
+    double dd = 0.0, d11 = 0.0, d1 = 0.0, d00 = 0.0, d10 = 0.0;
+    int k;
+    for (k = 0; k < nax; k++) {
+        double a = qa[k] - q1[k], b = q1[k] - q2[k];
+        dd += a * a;
+        d1 += a * b;
+        d11 += b * b;
+        if (three) {
+            double c = q2[k] - q2[k - nax];
+            d00 += c * c;
+            d10 += b * c;
+        }
+    }
+    *w1 = 1.0; *w2 = *w3 = 0.0;
+    if (!(d11 > 0.0) || !(d1 > 0.0) || d1 > 2.0 * d11) return;
+    if (three && d00 > 0.0 && d1 * d1 >= 0.98 * dd * d11 && d10 * d10 >= 0.98 * d11 * d00 && d10 > 0.0 &&
+        dd <= 4.0 * d11 && d11 <= 4.0 * dd && d00 <= 4.0 * d11 && d11 <= 4.0 * d00) {
+        /* Lagrange through the corrections at distances -h1 - h0, -h1, 0, taken at h */
+        double h = sqrt(dd), h1 = sqrt(d11), h0 = sqrt(d00);
+        *w1 = (h + h1) * (h + h1 + h0) / (h1 * (h1 + h0));
+        *w2 = -h * (h + h1 + h0) / (h1 * h0);
+        *w3 = h * (h + h1) / ((h1 + h0) * h0);
+        return;
+    }
+    {
+        double x = d1 / d11;
+        *w1 = 1.0 + x;
+        *w2 = -x;
+    }
+}
+
+/* The Jacobian J (at q, weight ORIENTATION_SCALE) of a pose solved afresh, prepared for the poses
+ * after it along the path: its normal equations' factors, column lengths and table intervals at
+ * q (second_order_bound's).  0 where the normal matrix is singular. */
+static int path_linearisation(const prep_t *P, const double *q, const double *J, double *LU, int *piv,
+                              double *pn, int *ilin)
+{
+    int n = P->n, rows = P->rows, i, ok;
+    if (n == 5 && rows == 6) ok = normal_factor(5, 6, J, LU, piv);
+    else if (n == 3 && rows == 3) ok = normal_factor(3, 3, J, LU, piv);
+    else ok = normal_factor(n, rows, J, LU, piv);
+    if (!ok) return 0;
+    column_lengths(P, J, pn);
+    for (i = 0; i < n; i++) {
+        const mtk_table *t = P->tab[i];
+        ilin[i] = t && q[i] > t->pos[0] && q[i] < t->pos[t->n - 1] ? table_interval(t, q[i], (int *)&P->hint[i]) : -1;
+    }
+    return 1;
+}
+
+/* One pose along a path solved on the Jacobian J of an earlier pose (taken at qlin; machines
+ * with up to two rotary axes, no axis held): the residual at start evaluated, the chord step on
+ * J's factors, and the step taken where second_order_bound keeps the model's departure from the
+ * linear prediction over it within LINEAR_BOUND (the same test as the chord steps of iterate)
+ * and the predicted residual is converged.  Not at a pole: the pole test of solve_pose on J,
+ * with a margin for the rotary axes' turn since qlin.  Returns 1 with the commands in q and the
+ * residual in *res, else 0 (solve_pose then solves the pose; nothing is changed). */
+static int path_step(const prep_t *P, const target_t *tg, const double *start, const opt_t *o, const double *J,
+                     const double *LU, const int *piv, const double *pn, const int *ilin, const double *qlin,
+                     double *q, double *res)
+{
+    int n = P->n, rows = P->rows, i, k;
+    double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], turned = 0.0;
+    if (P->mode == 3) return 0;
+    for (i = 0; i < n; i++)
+        if (P->m->rotary[i]) turned += fabs(start[i] - qlin[i]) * DEG;
+    if (o->pole_tol > 0.0 && P->mode == 2) {
+        double margin;
+        if (pole_axis_margin(P, J, o->pole_sin, &margin) >= 0 || !(margin > o->pole_sin + 4.0 * turned + 1e-3))
+            return 0;
+    }
+    if (residual(P, start, tg, r, ORIENTATION_SCALE, 0, NULL) != MTK_OK) return 0;
+    chord_step(n, rows, J, LU, piv, r, s);
+    for (i = 0; i < n; i++)
+        if (fabs(s[i]) >= o->tol) break;
+    if (i == n) {
+        /* a step below the tolerance is convergence, as in iterate: start kept to the bit */
+        if (!in_ranges(P, start) || !(maxabs(r, rows) < CONVERGED)) return 0;
+        memcpy(q, start, n * sizeof(double));
+        *res = maxabs(r, rows);
+        return 1;
+    }
+    if (!(second_order_bound(P, pn, ilin, qlin, start, s, ORIENTATION_SCALE) <= LINEAR_BOUND)) return 0;
+    for (i = 0; i < n; i++) qn[i] = start[i] - s[i];
+    for (k = 0; k < rows; k++) {
+        double sk = r[k];
+        for (i = 0; i < n; i++) sk -= J[k * n + i] * s[i];
+        r[k] = sk;
+    }
+    if (!in_ranges(P, qn) || !(maxabs(r, rows) < CONVERGED)) return 0;
+    memcpy(q, qn, n * sizeof(double));
+    *res = maxabs(r, rows);
+    STAT(3);
+    return 1;
+}
+
 /* Shared loop of the two batch entries: targets either given (p_t, R_t) or the ideal poses of q0. */
 static long batch(const mtk_model *m, const mtk_errors *e, long n, const double *p_t, const double *R_t,
                   const double *q0, double *q, const mtk_options *o, double *res, int *status, int *info)
@@ -2545,8 +2677,13 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
     mtk_errors rigid, zero;
     opt_t so;
     long i, failed = 0;
-    int nax = m->n_axes, k, have_prev = 0, warm = 0;
-    double corr[MTK_MAX_AXES];
+    int nax = m->n_axes, k, have_prev = 0, warm = 0, chain = 0, held_prev = -1, have_lin = 0, fresh = 0, lin_try, lin_miss = 0,
+        lin_wait = 0, lin_ready = 0;
+    double corr[MTK_MAX_AXES] = {0}, corr2[MTK_MAX_AXES] = {0}, corr3[MTK_MAX_AXES] = {0};
+    /* the path's linearisation (path_linearisation): the Jacobian at the start of the last pose
+     * solved afresh, its factors, column lengths and table intervals, and where it was taken */
+    double Jl[6 * MTK_MAX_AXES], LUl[MTK_MAX_AXES * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
+    int pivl[MTK_MAX_AXES], ilinl[MTK_MAX_AXES];
     if (!e) {
         mtk_errors_zero(&zero);
         e = &zero;
@@ -2626,6 +2763,8 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 }
                 csc_ok = 1;
                 have_prev = 1;
+                chain = 1;
+                have_lin = 0;
                 warm = 1;
                 continue;
             }
@@ -2638,12 +2777,23 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             make_target(&Pi, qa, &tg);
         }
         memcpy(start, qa, nax * sizeof(double));
-        if (o->continuation && have_prev)
-            for (k = 0; k < nax; k++) start[k] += corr[k];
+        if (o->continuation && have_prev) {
+            double w1 = 1.0, w2 = 0.0, w3 = 0.0;
+            if (chain >= 2 && i > 1 && near_previous(&P, qa, qa - nax))
+                path_weights(qa, nax, chain >= 3 && i > 2, &w1, &w2, &w3);
+            /* on the differences of the corrections: where they do not change (an axis the
+             * errors leave alone, a rotary axis held over a pass) the start is the last one's
+             * to the bit */
+            for (k = 0; k < nax; k++)
+                start[k] += corr[k] - (w2 != 0.0 ? (w2 + w3) * (corr[k] - corr2[k]) : 0.0) -
+                            (w3 != 0.0 ? w3 * (corr2[k] - corr3[k]) : 0.0);
+        }
         if (P.closed_rot && !fast_rot &&
             closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_sin, qo)) {
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
+            chain = 1;
+            have_lin = 0;
             warm = 1;
             continue;
         }
@@ -2655,9 +2805,31 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             for (k = 0; k < nax; k++) start[k] = qr[k] + (o->continuation && have_prev && have_geo ? dgeo[k] : 0.0);
             seeded = 1;
         }
-        rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), seeded || !(have_prev && warm), &so, qo,
-                        &it, resi, &r0, &sing,
-                        &bad, &held, &how);
+        lin_try = !seeded && have_lin && o->continuation && have_prev && warm && held_prev < 0 && i > 0 &&
+                  lin_wait == 0 && near_previous(&P, qa, qa - nax);
+        if (lin_wait > 0) lin_wait--;
+        if (lin_try && !lin_ready) {   /* (factored when first needed: not for random poses) */
+            lin_ready = path_linearisation(&P, qlin, Jl, LUl, pivl, pnl, ilinl);
+            have_lin = lin_try = lin_ready;
+        }
+        if (lin_try && path_step(&P, &tg, start, &so, Jl, LUl, pivl, pnl, ilinl, qlin, qo, resi)) {
+            /* (the previous poses' Jacobian: no pass, no factorisation, one evaluation) */
+            rc = MTK_OK;
+            held = -1;
+            how = HOW_WARM;
+            fresh = 0;
+            lin_miss = 0;
+        } else {
+            if (lin_try) {
+                /* a path too coarse or too curved for it (the evaluation is lost): tried again
+                 * on the next pose, then after 1, 3, 7, 15 poses while it fails */
+                lin_miss = lin_miss < 5 ? lin_miss + 1 : 5;
+                lin_wait = (1 << (lin_miss - 1)) - 1;
+            }
+            rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), seeded || !(have_prev && warm),
+                            &so, qo, &it, resi, &r0, &sing, &bad, &held, &how, P.mode != 3 ? Jl : NULL);
+            fresh = 1;
+        }
         csc_ok = 0;
         have_geo = 0;
         if (rc == MTK_OK && seeded) {
@@ -2666,14 +2838,28 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         }
         if (rc == MTK_OK) {
             *infoi = held;
-            for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
+            /* the corrections of the poses before kept for the extrapolation while each followed
+             * the one before on the same branch without a held axis (one smooth branch) */
+            chain = have_prev && warm && how != HOW_SEED && held < 0 && held_prev < 0 && i > 0 &&
+                    near_previous(&P, qa, qa - nax) ? (chain < 3 ? chain + 1 : 3) : 1;
+            for (k = 0; k < nax; k++) {
+                corr3[k] = corr2[k];
+                corr2[k] = corr[k];
+                corr[k] = qo[k] - qa[k];
+            }
+            if (fresh) {   /* the Jacobian at this pose's start (in Jl), for the poses after it */
+                have_lin = P.mode != 3 && how != HOW_SEED && held < 0 && o->continuation;
+                lin_ready = 0;
+                memcpy(qlin, start, nax * sizeof(double));
+            }
+            held_prev = held;
             have_prev = 1;
             warm = how != HOW_SEED;
         } else {
             *statusi = rc;
             *infoi = bad;
             if (rc == MTK_E_CONVERGE) *resi = r0;
-            have_prev = 0;
+            have_prev = chain = have_lin = 0;
             failed += i >= skip;
         }
     }
