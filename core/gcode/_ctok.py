@@ -110,6 +110,16 @@ def load():
     lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
                                        vp, vp, vp, vp, vp]
     lib.mtc_control_counts.restype = i64
+    lib.mtc_line_starts.argtypes = [vp, i64, vp]
+    lib.mtc_line_starts.restype = None
+    lib.mtc_ffill.argtypes = [vp, vp, i64, i64, vp, vp]
+    lib.mtc_ffill.restype = None
+    lib.mtc_word_lines.argtypes = [vp, vp, i64, i64, vp, vp]
+    lib.mtc_word_lines.restype = i64
+    lib.mtc_scatter.argtypes = [vp, vp, vp, i64, vp, i64, i64, vp, vp]
+    lib.mtc_scatter.restype = i64
+    lib.mtc_absolute.argtypes = [i64, i64, vp, i64, vp, i64, vp, vp, i64, vp, vp]
+    lib.mtc_absolute.restype = None
     _lib = lib
     return lib
 
@@ -372,3 +382,100 @@ def read_back_applies(w_line, w_letter, w_value, axes: str, block_line, col_word
         bl.ctypes.data if len(bl) else dummy.ctypes.data, cw.ctypes.data if cw.size else dummy.ctypes.data,
         cw.shape[1] if cw.ndim == 2 else 0, len(axes), len(bl)))
     return None if got < 0 else bool(got)
+
+
+# ---- block building of parse: the twins of numpy passes in parse.py (same values, same bits;
+# tests/test_gcode_blocks.py holds every array of the parsed program to the numpy path's)
+
+def line_starts(b: np.ndarray, n_lines: int):
+    """int64 start of every line of the bytes `b` (``n_lines`` = line feeds + 1), or None."""
+    lib = load()
+    if lib is None or not b.flags.c_contiguous:
+        return None
+    out = np.empty(n_lines, np.int64)
+    lib.mtc_line_starts(b.ctypes.data, len(b), out.ctypes.data)
+    return out
+
+
+def ffill(values: np.ndarray, isset: np.ndarray, default):
+    """``parse._ffill`` for int64, float64 and bool values (a default of the same kind), or
+    None (another kind, or no library)."""
+    lib = load()
+    if lib is None or values.ndim != 1 or len(isset) != len(values):
+        return None
+    dt = values.dtype
+    if dt == np.float64 and isinstance(default, (float, int, np.floating)) and not isinstance(default, bool):
+        d = np.array([default], np.float64)
+    elif dt == np.int64 and isinstance(default, (int, np.integer)) and not isinstance(default, bool):
+        d = np.array([default], np.int64)
+    elif dt == np.bool_ and isinstance(default, (bool, np.bool_)):
+        d = np.array([default], np.bool_)
+    else:
+        return None
+    values = np.ascontiguousarray(values)
+    isset = np.ascontiguousarray(isset, np.bool_)
+    out = np.empty(len(values), dt)
+    lib.mtc_ffill(values.ctypes.data, isset.ctypes.data, len(values), dt.itemsize,
+                  d.ctypes.data, out.ctypes.data)
+    return out
+
+
+def word_lines(wcol: np.ndarray, wline: np.ndarray, n_ax: int, n_lines: int):
+    """(has_motion, has_arc, number of arc words): per line whether it holds an axis word
+    (column < n_ax) or an arc word, or None."""
+    lib = load()
+    if lib is None or wcol.dtype != np.int8 or wline.dtype != np.int32:
+        return None
+    wcol, wline = np.ascontiguousarray(wcol), np.ascontiguousarray(wline)
+    hm, ha = np.zeros(n_lines, bool), np.zeros(n_lines, bool)
+    n_arc = lib.mtc_word_lines(wcol.ctypes.data, wline.ctypes.data, len(wcol), n_ax,
+                               hm.ctypes.data, ha.ctypes.data)
+    return hm, ha, int(n_arc)
+
+
+def scatter(wcol, wline, value, blk_of_line, nblk: int, ncol: int):
+    """(col_word int32 (nblk, ncol), vals float64 (nblk, ncol)): the words in block columns
+    (-1 and NaN where none), or None (no library, or a word on a line that is no block)."""
+    lib = load()
+    if (lib is None or wcol.dtype != np.int8 or wline.dtype != np.int32
+            or value.dtype != np.float64 or blk_of_line.dtype != np.int64):
+        return None
+    wcol, wline = np.ascontiguousarray(wcol), np.ascontiguousarray(wline)
+    value, blk_of_line = np.ascontiguousarray(value), np.ascontiguousarray(blk_of_line)
+    col_word = np.empty((nblk, ncol), np.int32)
+    vals = np.empty((nblk, ncol), np.float64)
+    bad = lib.mtc_scatter(wcol.ctypes.data, wline.ctypes.data, value.ctypes.data, len(wcol),
+                          blk_of_line.ctypes.data, nblk, ncol, col_word.ctypes.data,
+                          vals.ctypes.data)
+    return None if bad >= 0 else (col_word, vals)
+
+
+def _row_stride(a: np.ndarray, dtype):
+    """Row stride in elements of a 2-D array whose rows are contiguous, else None."""
+    if a.dtype != dtype or a.ndim != 2 or (a.shape[1] > 1 and a.strides[1] != a.itemsize):
+        return None
+    if a.shape[0] > 1 and (a.strides[0] % a.itemsize or a.strides[0] <= 0):
+        return None
+    return a.strides[0] // a.itemsize if a.shape[0] > 1 else a.shape[1]
+
+
+def absolute(vals, present, incremental, offset, use_off: bool, start_vec):
+    """``parse._absolute`` (positions, (n, n_axes) float64), or None."""
+    lib = load()
+    if lib is None:
+        return None
+    n, n_ax = present.shape
+    vs, ps = _row_stride(vals, np.float64), _row_stride(present, np.bool_)
+    if vs is None or ps is None or vals.shape != (n, n_ax):
+        return None
+    incremental = np.ascontiguousarray(incremental, np.bool_)
+    offset = np.ascontiguousarray(offset, np.float64)
+    start_vec = np.ascontiguousarray(start_vec, np.float64)
+    if incremental.shape != (n,) or offset.shape != (n, n_ax) or start_vec.shape != (n_ax,):
+        return None
+    position = np.empty((n, n_ax))
+    if n and n_ax:
+        lib.mtc_absolute(n, n_ax, vals.ctypes.data, vs, present.ctypes.data, ps,
+                         incremental.ctypes.data, offset.ctypes.data, int(bool(use_off)),
+                         start_vec.ctypes.data, position.ctypes.data)
+    return position

@@ -10,6 +10,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <math.h>
 
 static inline int is_letter(uint8_t c) { return (uint8_t)((c | 32) - 97) < 26; }
 /* + - . and digits (43..57 without ',' and '/') */
@@ -328,7 +329,7 @@ static int seek_line(const uint8_t *c, int64_t n, int64_t want, int64_t *i, int6
 int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_t n_lines,
                        const int8_t *col, int64_t n_cols, double *val)
 {
-    const double nan = __builtin_nan("");     /* positive, as numpy.nan */
+    const double nan = NAN;     /* positive, as numpy.nan */
     uint8_t cls[256];
     int8_t colof[256];
     read_tables(col, cls, colof);
@@ -539,4 +540,107 @@ int64_t mtc_read_back_applies(const int32_t *w_line, const int8_t *w_letter, con
         if (count != have) return 0;
     }
     return 1;
+}
+
+/* ---- block building of parse (the twins of numpy passes in parse.py; same values, same bits) */
+
+/* Line starts: 0 and every byte after a line feed (`out` holds count(10) + 1). */
+void mtc_line_starts(const uint8_t *b, int64_t n, int64_t *out)
+{
+    int64_t k = 0;
+    out[k++] = 0;
+    const uint8_t *p = b, *end = b + n;
+    while (p < end) {
+        const uint8_t *q = memchr(p, 10, (size_t)(end - p));
+        if (!q) break;
+        out[k++] = (int64_t)(q - b) + 1;
+        p = q + 1;
+    }
+}
+
+/* Forward fill (parse._ffill): out[i] = values[j] for the last j <= i with isset[j], else
+ * `dflt`.  `size`: bytes per value (1, 8); a plain copy, so any 1- or 8-byte type. */
+void mtc_ffill(const void *values, const uint8_t *isset, int64_t n, int64_t size,
+               const void *dflt, void *out)
+{
+    if (size == 8) {
+        const uint64_t *v = values;
+        uint64_t *o = out, cur = *(const uint64_t *)dflt;
+        for (int64_t i = 0; i < n; i++) {
+            if (isset[i]) cur = v[i];
+            o[i] = cur;
+        }
+    } else {
+        const uint8_t *v = values;
+        uint8_t *o = out, cur = *(const uint8_t *)dflt;
+        for (int64_t i = 0; i < n; i++) {
+            if (isset[i]) cur = v[i];
+            o[i] = cur;
+        }
+    }
+}
+
+/* Per line: whether it has an axis word (column 0..n_ax-1) and an arc word (column >= n_ax),
+ * from each word's column (-1: none) and line.  Returns the number of arc words. */
+int64_t mtc_word_lines(const int8_t *wcol, const int32_t *wline, int64_t nw, int64_t n_ax,
+                       uint8_t *has_motion, uint8_t *has_arc)
+{
+    int64_t n_arc = 0;
+    for (int64_t i = 0; i < nw; i++) {
+        int c = wcol[i];
+        if (c < 0) continue;
+        if (c < n_ax) has_motion[wline[i]] = 1;
+        else { has_arc[wline[i]] = 1; n_arc++; }
+    }
+    return n_arc;
+}
+
+/* The words' scatter into block columns: col_word[b, c] = i and vals[b, c] = value[i] for
+ * every word i with a column c >= 0 on the line of block b = blk_of_line[wline[i]]; -1 and
+ * NaN elsewhere (written here).  Returns -1, or the first word whose line is no block (the
+ * caller then takes the numpy path, which decides what that means). */
+int64_t mtc_scatter(const int8_t *wcol, const int32_t *wline, const double *value, int64_t nw,
+                    const int64_t *blk_of_line, int64_t nblk, int64_t ncol, int32_t *col_word,
+                    double *vals)
+{
+    const double nan = NAN;
+    for (int64_t j = 0; j < nblk * ncol; j++) {
+        col_word[j] = -1;
+        vals[j] = nan;
+    }
+    for (int64_t i = 0; i < nw; i++) {
+        int c = wcol[i];
+        if (c < 0) continue;
+        int64_t b = blk_of_line[wline[i]];
+        if (b < 0) return i;
+        col_word[b * ncol + c] = (int32_t)i;
+        vals[b * ncol + c] = value[i];
+    }
+    return -1;
+}
+
+/* Absolute positions (parse._absolute), axis by axis, in the order of numpy's operations:
+ * cum = cumsum(where(present & incremental, v, 0)), then at a row after the last absolute
+ * word j: (v[j] - cum[j] (+ offset[j])) + cum, before any: start + cum.  Strides in elements
+ * (the value and presence arrays are column slices of wider arrays). */
+void mtc_absolute(int64_t n, int64_t n_ax, const double *vals, int64_t vs, const uint8_t *present,
+                  int64_t ps, const uint8_t *incremental, const double *offset, int64_t use_off,
+                  const double *start, double *position)
+{
+    for (int64_t k = 0; k < n_ax; k++) {
+        double cum = 0.0, base = 0.0;
+        int have = 0;
+        for (int64_t i = 0; i < n; i++) {
+            int pres = present[i * ps + k] != 0;
+            double v = vals[i * vs + k];
+            double inc = pres && incremental[i] ? v : 0.0;
+            cum = i ? cum + inc : inc;
+            if (pres && !incremental[i]) {
+                base = v - cum;
+                if (use_off) base += offset[i * n_ax + k];
+                have = 1;
+            }
+            position[i * n_ax + k] = (have ? base : start[k]) + cum;
+        }
+    }
 }

@@ -20,6 +20,9 @@ from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word
 
 def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
     """Forward fill: the last set value at or before each index (``default`` before any)."""
+    out = _ctok.ffill(values, isset, default)            # compiled, where built: one pass
+    if out is not None:
+        return out
     idx = np.where(isset, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     out = values[np.maximum(idx, 0)]
@@ -61,9 +64,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     data = text.encode("utf-8", "surrogateescape")
     b = np.frombuffer(data, np.uint8)
     nbytes = len(b)
-    nl = np.flatnonzero(b == 10)
-    line_start = np.concatenate(([0], nl + 1)).astype(np.int64)
-    line_end = np.concatenate((nl, [nbytes])).astype(np.int64)
+    line_start = _ctok.line_starts(b, data.count(b"\n") + 1)
+    if line_start is None:
+        nl = np.flatnonzero(b == 10)
+        line_start = np.concatenate(([0], nl + 1)).astype(np.int64)
+        del nl
+    line_end = np.empty_like(line_start)
+    line_end[:-1] = line_start[1:] - 1
+    line_end[-1] = nbytes
     n_lines = len(line_start)
 
     def line_of(pos):
@@ -86,7 +94,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             np.add.at(mark, sp[:, 1], -1)
             code[np.cumsum(mark[:-1], dtype=np.int8).view(bool)] = 32
     bd_lines = np.zeros(0, np.int64)
-    slash = np.flatnonzero(code == 47)
+    slash = np.flatnonzero(code == 47) if b"/" in data else ()
     if len(slash):
         # block delete: '/' as the first non-blank character of a line
         ls = line_start[line_of(slash)]
@@ -533,16 +541,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             wcol[ki] = -1
         cyc_zw[wline[zi]], cyc_rw[wline[ri]] = zi, ri
         wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
-    axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
-    arc_w = np.flatnonzero(wcol >= n_ax)
-    if len(axis_w) and dwell_line.any():
+    wl = _ctok.word_lines(wcol, wline, n_ax, n_lines)    # compiled: one pass, no index arrays
+    if wl is not None:
+        has_motion, has_arcw, n_arc = wl
+        arc_w = np.flatnonzero(wcol >= n_ax) if n_arc else ()
+    else:
+        axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
+        arc_w = np.flatnonzero(wcol >= n_ax)
+        has_motion = np.zeros(n_lines, bool)
+        has_motion[wline[axis_w]] = True
+        has_arcw = np.zeros(n_lines, bool)
+        has_arcw[wline[arc_w]] = True
+        del axis_w
+    if dwell_line.any() and (has_motion & dwell_line).any():
+        axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
         dw = dwell_line[wline[axis_w]]
-        if dw.any():
-            _fail("axis word in a G4 dwell block", wline[axis_w[np.argmax(dw)]], filename)
-    has_motion = np.zeros(n_lines, bool)
-    has_motion[wline[axis_w]] = True
-    has_arcw = np.zeros(n_lines, bool)
-    has_arcw[wline[arc_w]] = True
+        _fail("axis word in a G4 dwell block", wline[axis_w[np.argmax(dw)]], filename)
     if len(arc_w):
         notarc = ~np.isin(mode_line[wline[arc_w]], (2, 3))
         if notarc.any():
@@ -569,10 +583,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     nblk = len(blines)
     blk_of_line = np.full(n_lines, -1, np.int64)
     blk_of_line[blines] = np.arange(nblk)
-    col_word = np.full((nblk, n_ax + 4), -1, np.int32)
-    cw = np.flatnonzero(wcol >= 0)
-    col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
-    del cw, wcol
+    sc = _ctok.scatter(wcol, wline, value, blk_of_line, nblk, n_ax + 4)   # compiled, one pass
+    if sc is not None:
+        col_word, vals = sc
+    else:
+        vals = None
+        col_word = np.full((nblk, n_ax + 4), -1, np.int32)
+        cw = np.flatnonzero(wcol >= 0)
+        col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
+        del cw
+    del sc, wcol
 
     motion = mode_line[blines]
     tcp = tcp_line[blines]
@@ -625,8 +645,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     del (mot_l, pla_l, dis_l, wcs_l, acm_l, tool_l, nonmove_l, feedm_l, dwell_line, g50_line,
          p_line, h_line, incr_line, plane_line, mode_line, cyc_l, cyc_w, ev, rl, fval, fset,
          feed_line, blk_of_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
-    vals = value[np.maximum(col_word, 0)]
-    vals[col_word < 0] = np.nan
+    if vals is None:
+        vals = value[np.maximum(col_word, 0)]
+        vals[col_word < 0] = np.nan
     if inch.any():
         lin_scale = np.where(inch, INCH, 1.0)
         for k, c in enumerate(cols):
@@ -935,9 +956,12 @@ def _absolute(vals, present, incremental, offset, start_vec):
     (work offset, local shift, tool length); an increment adds to the position before; an axis
     not written stays.  An absolute NaN makes the axis unknown until its next absolute word."""
     n, n_ax = present.shape
+    use_off = bool(offset.any())
+    position = _ctok.absolute(vals, present, incremental, offset, use_off, start_vec)
+    if position is not None:                  # compiled, where built: one pass per axis
+        return position
     position = np.empty((n, n_ax))
     rows = np.arange(n)
-    use_off = bool(offset.any())
     for k in range(n_ax):
         pres = present[:, k]
         v = vals[:, k]
