@@ -83,7 +83,7 @@ def load():
     vp, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.mtc_count.argtypes = [vp, i64, vp, vp]
     lib.mtc_count.restype = None
-    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 10
+    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 11
     lib.mtc_tokenise.restype = None
     lib.mtc_splice.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64, vp]
     lib.mtc_splice.restype = None
@@ -138,8 +138,10 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
 def tokenise(code: np.ndarray):
     """Same as ``tokens._tokenise`` (int32 instead of int64 positions: letter positions, run starts and ends, point of each run,
     runs with two points, line of each letter, sign_at, bad_at) plus the value of every run
-    (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks)
-    and per letter A-Z the first 0-based line where it appears twice (-1: none).
+    (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks),
+    per letter A-Z the first 0-based line where it appears twice (-1: none) and two checks
+    of parse's (int64): whether every run starts right after its letter (as many of each),
+    the first run with two points or no digit (-1: none).
     None if the compiled tokenizer is not available."""
     lib = load()
     if lib is None:
@@ -159,10 +161,11 @@ def tokenise(code: np.ndarray):
     value = np.empty(R, np.float64)
     sign_at, bad_at = ctypes.c_int64(), ctypes.c_int64()
     dup = np.empty(26, np.int32)
+    checks = np.empty(2, np.int64)
     lib.mtc_tokenise(ptr, n, lp.ctypes.data, wline.ctypes.data, rs.ctypes.data, re_.ctypes.data,
                      dot.ctypes.data, two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
-                     ctypes.byref(bad_at), dup.ctypes.data)
-    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup
+                     ctypes.byref(bad_at), dup.ctypes.data, checks.ctypes.data)
+    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup, checks
 
 
 def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total: int):

@@ -77,11 +77,15 @@ static double number(const uint8_t *c, int64_t s, int64_t e, int64_t dot)
  * *sign_at: first '+'/'-' preceded by a number character (-1: none); *bad_at: first byte that is
  * no letter, number character or blank (-1: none); dup_line[26]: per letter a-z the first
  * 0-based line where it appears twice (-1: none).  Arrays sized by mtc_count; positions are
- * int32 (the caller refuses programs of 2 GB and more). */
+ * int32 (the caller refuses programs of 2 GB and more).  checks[0]: 1 if every run starts
+ * right after the letter of the same index and there are as many of each (parse's test for
+ * blanks or missing numbers), checks[1]: the first run with more than one point or without a
+ * digit (-1: none), as parse's `badnum`. */
 void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int32_t *rs,
                   int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
-                  int64_t *bad_at, int32_t *dup_line)
+                  int64_t *bad_at, int32_t *dup_line, int64_t *checks)
 {
+    int64_t adjacent = 1, badnum = -1;
     /* classes: 0 other, 1 blank, 2 letter, 3 number character, 4 newline */
     uint8_t cls[256];
     for (int k = 0; k < 256; k++)
@@ -110,6 +114,11 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
                 break;
             }
             nr++;
+            if (nr >= nl || lp[nr] != s - 1) adjacent = 0;
+            {
+                int64_t ndig = (i - s) - (d >= 0) - (c[s] == '-' || c[s] == '+');
+                if (badnum < 0 && (pts > 1 || ndig < 1)) badnum = nr;
+            }
             rs[nr] = (int32_t)s;
             re[nr] = (int32_t)i;
             dot[nr] = (int32_t)d;
@@ -140,6 +149,8 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
     }
     *sign_at = sg;
     *bad_at = bad;
+    checks[0] = adjacent && nr + 1 == nl;
+    checks[1] = badnum;
 }
 
 /* Comments become blanks in `code` (a copy of `d`): "( ... )" closed on its line without a

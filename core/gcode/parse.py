@@ -108,8 +108,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
     tok = _ctok.tokenise(code)               # compiled one-pass tokenizer, where built
     if tok is None:
-        tok = _tokenise(code, line_start) + (None, None)
-    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line = tok
+        tok = _tokenise(code, line_start) + (None, None, None)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line, checks = tok
     del tok
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
@@ -119,7 +119,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         if siemens and ch in "=(,)":
             _fail(siemens, ln, filename)
         _fail(f"unexpected character {ch!r}: {hint}", ln, filename)
-    if len(rs) != len(lp) or np.any(rs != lp + 1):
+    # (checks: the compiled tokenizer's answers to the two tests below, made on the way)
+    if (not checks[0]) if checks is not None else (len(rs) != len(lp) or np.any(rs != lp + 1)):
         # blanks between a letter and its number ("X 10") are read, on the same line
         ok = len(rs) == len(lp) and bool(np.all(rs > lp)) and bool(np.all(rs[:-1] < lp[1:]))
         if ok:
@@ -134,11 +135,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         i = int(np.searchsorted(rs, sign_at, side="right") - 1)
         _fail(f"malformed number {_word_text(data, lp[i], re_[i])!r}: a sign may only "
               "lead the number", wline[i], filename)
-    first_ch = code[rs]
-    ndig = (re_ - rs) - (dot_of_run >= 0) - ((first_ch == 43) | (first_ch == 45))
-    badnum = twodots | (ndig < 1)
-    if badnum.any():
-        i = int(np.argmax(badnum))
+    first_ch = code[rs] if value is None else None
+    if checks is None:
+        ndig = (re_ - rs) - (dot_of_run >= 0) - ((first_ch == 43) | (first_ch == 45))
+        badnum = twodots | (ndig < 1)
+        first_bad = int(np.argmax(badnum)) if badnum.any() else -1
+        del ndig, badnum
+    else:
+        first_bad = int(checks[1])
+    if first_bad >= 0:
+        i = first_bad
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
     if value is None:
@@ -152,7 +158,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if nbytes >= 2**31 - 1:
         raise InputError("programs of 2 GB and more are not supported", file=filename)
     lp, re_ = lp.astype(np.int32, copy=False), re_.astype(np.int32, copy=False)
-    del code, rs, dot_of_run, twodots, first_ch, ndig, badnum
+    del code, rs, dot_of_run, twodots, first_ch
 
     G, M = _ascii("G"), _ascii("M")
     # -- duplicate addresses in one block (G and M may repeat)
