@@ -425,7 +425,14 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     kk = np.flatnonzero(kn)
     nk = len(kk)
     cb, cyc_pts = _cycle_points(program, kn)
-    Q = np.vstack([P[kk], samp, cyc_pts])
+    # (filled in place: no gathered copy of the positions when every block is compensated)
+    Q = np.empty((nk + len(samp) + len(cyc_pts), n_ax))
+    if nk == N:
+        Q[:nk] = P
+    else:
+        np.take(P, kk, axis=0, out=Q[:nk])
+    Q[nk:nk + len(samp)] = samp
+    Q[nk + len(samp):] = cyc_pts
     rotated = has_rotation(program)
     if row_lines is not None or rotated:
         rl = np.concatenate([line[kk], np.repeat(line[ak], 4 * _n_samples(geo) - 1)
@@ -452,14 +459,19 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     rep_rows = cycle_counts.stepped_rows(program)
     if cyc.any():
         Cc = cycle_counts.control_counts(program, Cc, res, rep_rows, offc)
-    dK = np.rint((Qt[:nk] - P[kk]) / res)
+    dK = np.subtract(Qt[:nk], P if nk == N else P[kk])         # (in place: no temporaries)
+    np.divide(dK, res, out=dK)
+    np.rint(dK, out=dK)
     if dK.any():
         _refuse_half_count_increments(program, res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
-    Cc[1 + kk] += dK
+    if nk == N:
+        Cc[1:] += dK
+    else:
+        Cc[1 + kk] += dK
     del Qt
-    C = np.nan_to_num(Cc, nan=0.0).astype(np.int64)
+    C = np.nan_to_num(Cc, copy=False, nan=0.0).astype(np.int64)    # (Cc is this function's own)
     del Cc
     prev, new = C[:N], C[1:]
     no_z = np.zeros(N, bool)
