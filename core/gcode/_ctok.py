@@ -472,9 +472,12 @@ def absolute(vals, present, incremental, offset, use_off: bool, start_vec):
     if vs is None or ps is None or vals.shape != (n, n_ax):
         return None
     incremental = np.ascontiguousarray(incremental, np.bool_)
-    offset = np.ascontiguousarray(offset, np.float64)
+    if offset.shape != (n, n_ax):
+        return None
+    # (without offsets they are not read: a zero view is not copied into a full array)
+    offset = np.ascontiguousarray(offset, np.float64) if use_off else np.zeros((1, n_ax))
     start_vec = np.ascontiguousarray(start_vec, np.float64)
-    if incremental.shape != (n,) or offset.shape != (n, n_ax) or start_vec.shape != (n_ax,):
+    if incremental.shape != (n,) or start_vec.shape != (n_ax,):
         return None
     position = np.empty((n, n_ax))
     if n and n_ax:

@@ -622,7 +622,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
     cl = cutter_line[blines]
     cutter = np.where(cl == 40, 0, np.where(cl > 100, cl // 10, cl)).astype(np.int8)
-    cutter_radius = np.full(nblk, np.nan)
+    # constant columns are read-only broadcast views (no memory: 8 MB each at 1 M blocks)
+    cutter_radius = np.broadcast_to(np.float64(np.nan), (nblk,))
     if (cl > 100).any():
         # G41.1/G42.1 D<diameter>: the radius is the D word of the line that switched it on
         d_val = letter_value("D")
@@ -641,7 +642,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         d_val = letter_value("D")
         cutter_d = _ffill(d_val, ~np.isnan(d_val), np.nan)[blines]
     else:
-        cutter_d = np.full(nblk, np.nan)
+        cutter_d = np.broadcast_to(np.float64(np.nan), (nblk,))
     inverse_time = _ffill(feedm_l == 93, feedm_l >= 0, False)[blines]
     plane = plane_line[blines]
     incremental = incr_line[blines]
@@ -708,7 +709,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     idle = np.isnan(start_vec) & ~written
     start_vec[idle] = 0.0
     idle_axes = tuple(a for a, i in zip(axes, idle) if i)
-    offset = offsets_line[blines] if offsets_line.any() else np.zeros((nblk, n_ax))
+    # no offsets (the common case): a read-only view of zeros, no (N, n_axes) array
+    zero_offset = np.broadcast_to(np.zeros(n_ax), (nblk, n_ax))
+    offset = offsets_line[blines] if offsets_line.any() else zero_offset
     position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos, incremental,
                           offset, start_vec)
     cancel92 = gline[np.isin(g10, (921, 922))]
@@ -794,7 +797,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
                   arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
                   inch_g20_words=g20, inch_f_words=finch,
-                  axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
+                  axis_known=axis_known, start_known=start_known, offset=offset if offset is zero_offset else np.nan_to_num(offset),
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_repeat=cycle_repeat,
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
