@@ -589,16 +589,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     nblk = len(blines)
     blk_of_line = np.full(n_lines, -1, np.int64)
     blk_of_line[blines] = np.arange(nblk)
-    sc = _ctok.scatter(wcol, wline, value, blk_of_line, nblk, n_ax + 4)   # compiled, one pass
-    if sc is not None:
-        col_word, vals = sc
-    else:
-        vals = None
-        col_word = np.full((nblk, n_ax + 4), -1, np.int32)
-        cw = np.flatnonzero(wcol >= 0)
-        col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
-        del cw
-    del sc, wcol
 
     motion = mode_line[blines]
     tcp = tcp_line[blines]
@@ -615,6 +605,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     feed_blk = np.isin(mode_line[blines], (1, 2, 3)) | (cycle_line[blines] > 0)
     notes.extend(tool_change_warnings(tool_l, h_line, t_line if change_line is None else change_line,
                                       blines[feed_blk]))
+    motion_word = mot_w[blines]
+    g20 = uni_w[(uni_l == 20)]
+    del tlen_line, tip_line, gauge_line, t_line, feed_blk, mot_w, uni_w, uni_l   # (peak memory)
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -651,7 +644,18 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # the per-line state is in the block arrays now: free it before the positions (peak memory)
     del (mot_l, pla_l, dis_l, wcs_l, acm_l, tool_l, nonmove_l, feedm_l, dwell_line, g50_line,
          p_line, h_line, incr_line, plane_line, mode_line, cyc_l, cyc_w, ev, rl, fval, fset,
-         feed_line, blk_of_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
+         feed_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
+    # the words into block columns (after the per-line state is freed: peak memory)
+    sc = _ctok.scatter(wcol, wline, value, blk_of_line, nblk, n_ax + 4)   # compiled, one pass
+    if sc is not None:
+        col_word, vals = sc
+    else:
+        vals = None
+        col_word = np.full((nblk, n_ax + 4), -1, np.int32)
+        cw = np.flatnonzero(wcol >= 0)
+        col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
+        del cw
+    del sc, wcol, blk_of_line
     if vals is None:
         vals = value[np.maximum(col_word, 0)]
         vals[col_word < 0] = np.nan
@@ -742,6 +746,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos,
                                   incremental, offset, start_vec)
 
+    del offsets_line
     if rot_events:
         reset_lines, reset_cols, position = _rotation_known(
             axes, rot_events, blines, position, offset, res_ax, reset_lines, reset_cols,
@@ -771,6 +776,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         position, cyc_data = _cycles(axes, blines, cycle, cut, retract_line[blines], cyc_zw[blines],
                                      cyc_rw[blines], value, inch, incremental, vals[:, :n_ax],
                                      present, offset, start_vec, position, filename, seeds)
+    del cycle_line, retract_line, cyc_zw, cyc_rw
     ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
     radius = vals[:, n_ax + 3].copy()
@@ -787,8 +793,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     start_known = np.isfinite(start_vec)
     position[~axis_known] = 0.0
     start_vec = np.where(start_known, start_vec, 0.0)
-    motion_word = mot_w[blines]
-    g20 = uni_w[(uni_l == 20)]
     finch = fi[inch_line[wline[fi]]]
     arrays = dict(line_start=line_start, line_end=line_end, w_letter=wlet, w_value=value,
                   w_line=wline, w_pos=lp, w_num=w_num, w_end=re_, line=blines + 1, position=position,
