@@ -110,6 +110,8 @@ def load():
     lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
                                        vp, vp, vp, vp, vp]
     lib.mtc_control_counts.restype = i64
+    lib.mtc_count_byte.argtypes = [vp, i64, i64]
+    lib.mtc_count_byte.restype = i64
     lib.mtc_line_starts.argtypes = [vp, i64, vp]
     lib.mtc_line_starts.restype = None
     lib.mtc_ffill.argtypes = [vp, vp, i64, i64, vp, vp]
@@ -390,12 +392,13 @@ def read_back_applies(w_line, w_letter, w_value, axes: str, block_line, col_word
 # ---- block building of parse: the twins of numpy passes in parse.py (same values, same bits;
 # tests/test_gcode_blocks.py holds every array of the parsed program to the numpy path's)
 
-def line_starts(b: np.ndarray, n_lines: int):
-    """int64 start of every line of the bytes `b` (``n_lines`` = line feeds + 1), or None."""
+def line_starts(b: np.ndarray):
+    """int64 start of every line of the bytes `b` (0 and every byte after a line feed), or
+    None."""
     lib = load()
-    if lib is None or not b.flags.c_contiguous:
+    if lib is None or not b.flags.c_contiguous or b.dtype != np.uint8:
         return None
-    out = np.empty(n_lines, np.int64)
+    out = np.empty(lib.mtc_count_byte(b.ctypes.data, len(b), 10) + 1, np.int64)
     lib.mtc_line_starts(b.ctypes.data, len(b), out.ctypes.data)
     return out
 

@@ -555,6 +555,19 @@ int64_t mtc_read_back_applies(const int32_t *w_line, const int8_t *w_letter, con
 
 /* ---- block building of parse (the twins of numpy passes in parse.py; same values, same bits) */
 
+/* Number of bytes equal to `byte` (vectorised: 32-bit counters in blocks). */
+int64_t mtc_count_byte(const uint8_t *b, int64_t n, int64_t byte)
+{
+    int64_t total = 0;
+    for (int64_t i0 = 0; i0 < n; i0 += 1 << 20) {
+        int64_t i1 = n - i0 > (1 << 20) ? i0 + (1 << 20) : n;
+        uint32_t c = 0;
+        for (int64_t i = i0; i < i1; i++) c += b[i] == (uint8_t)byte;
+        total += c;
+    }
+    return total;
+}
+
 /* Line starts: 0 and every byte after a line feed (`out` holds count(10) + 1). */
 void mtc_line_starts(const uint8_t *b, int64_t n, int64_t *out)
 {

@@ -64,7 +64,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     data = text.encode("utf-8", "surrogateescape")
     b = np.frombuffer(data, np.uint8)
     nbytes = len(b)
-    line_start = _ctok.line_starts(b, data.count(b"\n") + 1)
+    line_start = _ctok.line_starts(b)
     if line_start is None:
         nl = np.flatnonzero(b == 10)
         line_start = np.concatenate(([0], nl + 1)).astype(np.int64)

@@ -227,7 +227,12 @@ def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
     for k, a in enumerate(program.axes):
         w = cw[:, k]
         pres = w >= 0
-        if not (pres & inc).any():
+        rows = np.flatnonzero(pres & inc)
+        if not len(rows):
+            continue
+        # the increments alone first (a few rows of most programs): the same values as below
+        vi = wv[w[rows]] * np.where(inch[rows] & (a in LINEAR), INCH, 1.0) / res[k]
+        if not (np.abs(np.abs(vi - np.trunc(vi)) - 0.5) < 1e-6).any():
             continue
         v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
         v = v * np.where(inch & (a in LINEAR), INCH, 1.0) / res[k]
