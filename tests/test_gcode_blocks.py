@@ -171,3 +171,14 @@ def test_word_scatter_falls_back_where_a_word_has_no_block():
     cw, v = _ctok.scatter(wcol, wline, value, blk, 2, 9)
     assert cw.tolist() == [[0, 1] + [-1] * 7, [-1, -1, 3] + [-1] * 6]
     assert v[1, 2] == 4.0 and np.isnan(v[1, 0]) and np.isnan(v[0, 2])
+
+
+@pytest.mark.parametrize("mode", ["c", "python"])
+def test_two_codes_of_one_group_refused_at_the_first_such_line(mode, monkeypatch):
+    """The duplicate test reads neighbouring G words (text order): the first group in the
+    order the parser checks them (motion before distance mode), its first such line."""
+    text = "G1 X0\nG90 G91 X1\nG1 X2\nG0 G1 X3\nG2 G3 X4 R5\n"
+    got = _parse(text, AXIS_SETS[0], mode, monkeypatch)
+    assert got == "InputError: p.nc:4: two motion (G0 G1 G2 G3) G codes in one block"
+    got = _parse("G1 X0\nG90 G91 X1\nG17 G18 G19\nG91 G90\n", AXIS_SETS[0], mode, monkeypatch)
+    assert got == "InputError: p.nc:3: two plane (G17 G18 G19) G codes in one block"

@@ -284,22 +284,26 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         _fail(what, wline[i], filename)
 
 
-    def per_line(catid, mapping, label):
+    def per_line(catid, mapping, label, words=False):
+        """Per line the category's code (-1: none) and, if ``words``, its word index."""
         sel = cat == catid
-        lines_, vals, words = gline[sel], g10[sel], gi[sel]
-        cnt = np.bincount(lines_, minlength=n_lines)
-        if np.any(cnt > 1):
-            ln = int(np.argmax(cnt > 1))
-            _fail(f"two {label} G codes in one block", ln, filename)
+        lines_, vals = gline[sel], g10[sel]
+        # the words are in text order: a line with two codes shows as equal neighbours, the
+        # first such pair at the smallest such line
+        twice = np.flatnonzero(lines_[1:] == lines_[:-1])
+        if len(twice):
+            _fail(f"two {label} G codes in one block", int(lines_[twice[0]]), filename)
         out = np.full(n_lines, -1, np.int64)
-        wout = np.full(n_lines, -1, np.int64)
         out[lines_] = _map_codes(vals, mapping)
-        wout[lines_] = words
+        if not words:
+            return out, None
+        wout = np.full(n_lines, -1, np.int64)
+        wout[lines_] = gi[sel]
         return out, wout
 
-    mot_l, mot_w = per_line(0, _G_MOTION, "motion (G0 G1 G2 G3)")
+    mot_l, mot_w = per_line(0, _G_MOTION, "motion (G0 G1 G2 G3)", words=True)
     pla_l, _ = per_line(2, _G_PLANE, "plane (G17 G18 G19)")
-    uni_l, uni_w = per_line(3, _G_UNITS, "unit (G20 G21)")
+    uni_l, uni_w = per_line(3, _G_UNITS, "unit (G20 G21)", words=True)
     dis_l, _ = per_line(4, _G_DIST, "distance mode (G90 G91)")
     wcs_l, _ = per_line(5, _G_WCS, "work coordinate system")
     acm_l, _ = per_line(7, _G_ARC_DIST, "arc centre mode (G90.1 G91.1)")
@@ -394,7 +398,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     mode_line = _ffill(mot_l, mot_l >= 0, -1)
     # canned cycles: set by G73..G89, cancelled by G80 or a G0-G3 code (the G0/G1 mode from
     # before the cycle then continues, as on Fanuc controls)
-    cyc_l, cyc_w = per_line(11, _G_CYCLE, "canned cycle")
+    cyc_l, _ = per_line(11, _G_CYCLE, "canned cycle")
     both = (cyc_l >= 0) & (mot_l >= 0)
     if both.any():
         _fail("a motion code and a canned cycle in one block", int(np.argmax(both)), filename)
@@ -643,7 +647,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     feed = feed_line[blines]
     # the per-line state is in the block arrays now: free it before the positions (peak memory)
     del (mot_l, pla_l, dis_l, wcs_l, acm_l, tool_l, nonmove_l, feedm_l, dwell_line, g50_line,
-         p_line, h_line, incr_line, plane_line, mode_line, cyc_l, cyc_w, ev, rl, fval, fset,
+         p_line, h_line, incr_line, plane_line, mode_line, cyc_l, ev, rl, fval, fset,
          feed_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
     # the words into block columns (after the per-line state is freed: peak memory)
     sc = _ctok.scatter(wcol, wline, value, blk_of_line, nblk, n_ax + 4)   # compiled, one pass
