@@ -162,15 +162,17 @@ def test_absolute_positions_same_bits_as_numpy():
 
 
 def test_word_scatter_falls_back_where_a_word_has_no_block():
-    wcol = np.array([0, 1, -1, 2], np.int8)
-    wline = np.array([0, 0, 1, 2], np.int32)
-    value = np.array([1.0, 2.0, 3.0, 4.0])
+    wcol = np.array([0, 1, -1, 2, 6], np.int8)
+    wline = np.array([0, 0, 1, 2, 2], np.int32)
+    value = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
     blk = np.array([0, -1, -1], np.int64)
-    assert _ctok.scatter(wcol, wline, value, blk, 1, 9) is None
+    assert _ctok.scatter(wcol, wline, value, blk, 1, 9, 5) is None
     blk = np.array([0, -1, 1], np.int64)
-    cw, v = _ctok.scatter(wcol, wline, value, blk, 2, 9)
-    assert cw.tolist() == [[0, 1] + [-1] * 7, [-1, -1, 3] + [-1] * 6]
-    assert v[1, 2] == 4.0 and np.isnan(v[1, 0]) and np.isnan(v[0, 2])
+    cw, v, arc = _ctok.scatter(wcol, wline, value, blk, 2, 9, 5)
+    assert cw.tolist() == [[0, 1] + [-1] * 7, [-1, -1, 3, -1, -1, -1, 4, -1, -1]]
+    assert v.shape == (2, 5) and arc.shape == (2, 4)
+    assert v[1, 2] == 4.0 and np.isnan(v[1, 0]) and np.isnan(v[0, 2]) and v[0, 1] == 2.0
+    assert arc[1, 1] == 5.0 and np.isnan(arc[0]).all() and np.isnan(arc[1, [0, 2, 3]]).all()
 
 
 @pytest.mark.parametrize("mode", ["c", "python"])

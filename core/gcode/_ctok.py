@@ -118,7 +118,7 @@ def load():
     lib.mtc_ffill.restype = None
     lib.mtc_word_lines.argtypes = [vp, vp, i64, i64, vp, vp]
     lib.mtc_word_lines.restype = i64
-    lib.mtc_scatter.argtypes = [vp, vp, vp, i64, vp, i64, i64, vp, vp]
+    lib.mtc_scatter.argtypes = [vp, vp, vp, i64, vp, i64, i64, i64, vp, vp, vp]
     lib.mtc_scatter.restype = i64
     lib.mtc_absolute.argtypes = [i64, i64, vp, i64, vp, i64, vp, vp, i64, vp, vp]
     lib.mtc_absolute.restype = None
@@ -439,9 +439,10 @@ def word_lines(wcol: np.ndarray, wline: np.ndarray, n_ax: int, n_lines: int):
     return hm, ha, int(n_arc)
 
 
-def scatter(wcol, wline, value, blk_of_line, nblk: int, ncol: int):
-    """(col_word int32 (nblk, ncol), vals float64 (nblk, ncol)): the words in block columns
-    (-1 and NaN where none), or None (no library, or a word on a line that is no block)."""
+def scatter(wcol, wline, value, blk_of_line, nblk: int, ncol: int, n_ax: int):
+    """(col_word int32 (nblk, ncol), values float64 (nblk, n_ax) of the columns below n_ax,
+    values (nblk, ncol - n_ax) of the others): the words in block columns (-1 and NaN where
+    none), or None (no library, or a word on a line that is no block)."""
     lib = load()
     if (lib is None or wcol.dtype != np.int8 or wline.dtype != np.int32
             or value.dtype != np.float64 or blk_of_line.dtype != np.int64):
@@ -449,11 +450,11 @@ def scatter(wcol, wline, value, blk_of_line, nblk: int, ncol: int):
     wcol, wline = np.ascontiguousarray(wcol), np.ascontiguousarray(wline)
     value, blk_of_line = np.ascontiguousarray(value), np.ascontiguousarray(blk_of_line)
     col_word = np.empty((nblk, ncol), np.int32)
-    vals = np.empty((nblk, ncol), np.float64)
+    vax, varc = np.empty((nblk, n_ax)), np.empty((nblk, ncol - n_ax))
     bad = lib.mtc_scatter(wcol.ctypes.data, wline.ctypes.data, value.ctypes.data, len(wcol),
-                          blk_of_line.ctypes.data, nblk, ncol, col_word.ctypes.data,
-                          vals.ctypes.data)
-    return None if bad >= 0 else (col_word, vals)
+                          blk_of_line.ctypes.data, nblk, ncol, n_ax, col_word.ctypes.data,
+                          vax.ctypes.data, varc.ctypes.data)
+    return None if bad >= 0 else (col_word, vax, varc)
 
 
 def _row_stride(a: np.ndarray, dtype):

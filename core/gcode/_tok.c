@@ -619,26 +619,28 @@ int64_t mtc_word_lines(const int8_t *wcol, const int32_t *wline, int64_t nw, int
     return n_arc;
 }
 
-/* The words' scatter into block columns: col_word[b, c] = i and vals[b, c] = value[i] for
- * every word i with a column c >= 0 on the line of block b = blk_of_line[wline[i]]; -1 and
- * NaN elsewhere (written here).  Returns -1, or the first word whose line is no block (the
- * caller then takes the numpy path, which decides what that means). */
+/* The words' scatter into block columns: col_word[b, c] = i and the value[i] for every word
+ * i with a column c >= 0 on the line of block b = blk_of_line[wline[i]]: columns below n_ax
+ * into vax[b, c] (n_ax per row), the others into varc[b, c - n_ax]; -1 and NaN elsewhere
+ * (written here).  Returns -1, or the first word whose line is no block (the caller then
+ * takes the numpy path, which decides what that means). */
 int64_t mtc_scatter(const int8_t *wcol, const int32_t *wline, const double *value, int64_t nw,
-                    const int64_t *blk_of_line, int64_t nblk, int64_t ncol, int32_t *col_word,
-                    double *vals)
+                    const int64_t *blk_of_line, int64_t nblk, int64_t ncol, int64_t n_ax,
+                    int32_t *col_word, double *vax, double *varc)
 {
     const double nan = NAN;
-    for (int64_t j = 0; j < nblk * ncol; j++) {
-        col_word[j] = -1;
-        vals[j] = nan;
-    }
+    int64_t na = ncol - n_ax;
+    for (int64_t j = 0; j < nblk * ncol; j++) col_word[j] = -1;
+    for (int64_t j = 0; j < nblk * n_ax; j++) vax[j] = nan;
+    for (int64_t j = 0; j < nblk * na; j++) varc[j] = nan;
     for (int64_t i = 0; i < nw; i++) {
         int c = wcol[i];
         if (c < 0) continue;
         int64_t b = blk_of_line[wline[i]];
         if (b < 0) return i;
         col_word[b * ncol + c] = (int32_t)i;
-        vals[b * ncol + c] = value[i];
+        if (c < n_ax) vax[b * n_ax + c] = value[i];
+        else varc[b * na + c - n_ax] = value[i];
     }
     return -1;
 }

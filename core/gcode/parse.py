@@ -650,24 +650,27 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
          p_line, h_line, incr_line, plane_line, mode_line, cyc_l, ev, rl, fval, fset,
          feed_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
     # the words into block columns (after the per-line state is freed: peak memory)
-    sc = _ctok.scatter(wcol, wline, value, blk_of_line, nblk, n_ax + 4)   # compiled, one pass
+    # vax: the axis words' values per block (NaN: none), varc: I J K R (compiled: two arrays,
+    # neither above the allocator's heap reuse size at 1 M blocks)
+    sc = _ctok.scatter(wcol, wline, value, blk_of_line, nblk, n_ax + 4, n_ax)   # one pass
     if sc is not None:
-        col_word, vals = sc
+        col_word, vax, varc = sc
     else:
-        vals = None
         col_word = np.full((nblk, n_ax + 4), -1, np.int32)
         cw = np.flatnonzero(wcol >= 0)
         col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
         del cw
-    del sc, wcol, blk_of_line
-    if vals is None:
         vals = value[np.maximum(col_word, 0)]
         vals[col_word < 0] = np.nan
+        vax, varc = vals[:, :n_ax], vals[:, n_ax:]
+        del vals
+    del sc, wcol, blk_of_line
     if inch.any():
         lin_scale = np.where(inch, INCH, 1.0)
         for k, c in enumerate(cols):
             if c in LINEAR or c in ARC_WORDS:
-                vals[:, k] *= lin_scale
+                col = vax[:, k] if k < n_ax else varc[:, k - n_ax]
+                col *= lin_scale                   # (a view: in place)
     present = col_word[:, :n_ax] >= 0
     cycle_repeat = np.ones(nblk, np.int32)
     if repeat_line is not None:
@@ -675,7 +678,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         # G91: the hole steps by the increment at each repeat, the block ends at the last
         step = (cycle_repeat > 1) & incremental
         if step.any():
-            vals[step, :n_ax] *= cycle_repeat[step, None]
+            vax[step] *= cycle_repeat[step, None]
     polar = polar_xy = None
     pres_pos = present
     if (g10 == 160).any():
@@ -695,8 +698,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             # the positions see the point (NaN where a word is not known yet: unknown)
             ix, iy = axes.index("X"), axes.index("Y")
             sc = np.where(inch, INCH, 1.0)
-            vals[polar, ix] = polar_xy[polar, 0] * sc[polar]
-            vals[polar, iy] = polar_xy[polar, 1] * sc[polar]
+            vax[polar, ix] = polar_xy[polar, 0] * sc[polar]
+            vax[polar, iy] = polar_xy[polar, 1] * sc[polar]
             pres_pos = present.copy()
             pres_pos[polar, ix] = pres_pos[polar, iy] = True
             notes.append(f"G16 polar coordinates on line(s) "
@@ -720,7 +723,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # no offsets (the common case): a read-only view of zeros, no (N, n_axes) array
     zero_offset = np.broadcast_to(np.zeros(n_ax), (nblk, n_ax))
     offset = offsets_line[blines] if offsets_line.any() else zero_offset
-    position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos, incremental,
+    position = _positions(blines, reset_lines, reset_cols, vax, pres_pos, incremental,
                           offset, start_vec)
     cancel92 = gline[np.isin(g10, (921, 922))]
     if len(g92_w):
@@ -747,14 +750,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                     g92[k] = new92
             offsets_line[L:] += delta
             offset = offsets_line[blines]
-            position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos,
+            position = _positions(blines, reset_lines, reset_cols, vax, pres_pos,
                                   incremental, offset, start_vec)
 
     del offsets_line
     if rot_events:
         reset_lines, reset_cols, position = _rotation_known(
             axes, rot_events, blines, position, offset, res_ax, reset_lines, reset_cols,
-            lambda rl, rc: _positions(blines, rl, rc, vals[:, :n_ax], pres_pos, incremental,
+            lambda rl, rc: _positions(blines, rl, rc, vax, pres_pos, incremental,
                                       offset, start_vec))
     rotation = None
     if rot_events:
@@ -778,13 +781,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                         if w >= 0:
                             seeds[j, col_] = value[w] * sc
         position, cyc_data = _cycles(axes, blines, cycle, cut, retract_line[blines], cyc_zw[blines],
-                                     cyc_rw[blines], value, inch, incremental, vals[:, :n_ax],
+                                     cyc_rw[blines], value, inch, incremental, vax,
                                      present, offset, start_vec, position, filename, seeds)
     del cycle_line, retract_line, cyc_zw, cyc_rw
-    ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
+    ijk = np.nan_to_num(varc[:, :3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
-    radius = vals[:, n_ax + 3].copy()
-    del vals
+    radius = varc[:, 3].copy()
+    del vax, varc
     arc_centre = np.full((nblk, 3), np.nan)
     arc_sweep = np.full(nblk, np.nan)
     is_arc = (motion == 2) | (motion == 3)
