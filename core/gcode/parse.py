@@ -18,6 +18,15 @@ from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
 
 
+def _all_columns(a: np.ndarray) -> np.ndarray:
+    """``a.all(axis=1)`` of a (rows, few columns) bool array, column by column (numpy's
+    reduction along a short last axis is several times slower)."""
+    out = a[:, 0].copy()
+    for k in range(1, a.shape[1]):
+        out &= a[:, k]
+    return out
+
+
 def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
     """Forward fill: the last set value at or before each index (``default`` before any)."""
     out = _ctok.ffill(values, isset, default)            # compiled, where built: one pass
@@ -606,7 +615,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     tool_length = tlen_line[blines]
     tool_tip = tip_line[blines]
     tool_unknown = gauge_line[blines]
-    feed_blk = np.isin(mode_line[blines], (1, 2, 3)) | (cycle_line[blines] > 0)
+    mb = mode_line[blines]
+    feed_blk = (mb >= 1) & (mb <= 3) | (cycle_line[blines] > 0)     # G1 G2 G3 or a cycle
+    del mb
     notes.extend(tool_change_warnings(tool_l, h_line, t_line if change_line is None else change_line,
                                       blines[feed_blk]))
     motion_word = mot_w[blines]
@@ -715,7 +726,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if not (arc_tol >= 0 and np.isfinite(arc_tol)):
         raise ValueError(f"arc_tol must be a finite number >= 0, got {arc_tol}")
     start_vec = _start_vector(start, axes)
-    written = present.any(axis=0)
+    written = np.count_nonzero(present, axis=0) > 0
     written |= np.isin(np.arange(n_ax), reset_cols)
     idle = np.isnan(start_vec) & ~written
     start_vec[idle] = 0.0
@@ -812,7 +823,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_repeat=cycle_repeat,
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
-                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
+                  known=_all_columns(axis_known) if n_ax else np.ones(nblk, bool),
                   tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
                   tool_unknown=tool_unknown, cutter=cutter, cutter_d=cutter_d,
                   cutter_radius=cutter_radius, polar=polar, polar_xy=polar_xy)

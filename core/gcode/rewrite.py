@@ -663,9 +663,8 @@ def _call_transform(transform, q):
     out = np.asarray(transform(q.copy()), dtype=float)
     if out.shape != q.shape:
         raise ValueError(f"transform returned shape {out.shape}, expected {q.shape}")
-    fin = np.isfinite(out).all(axis=1)
-    if not fin.all():
-        i = int(np.argmax(~fin))
+    if not np.isfinite(out).all():
+        i = int(np.argmax(~np.isfinite(out).all(axis=1)))
         raise ValueError(f"transform returned a non-finite value for point {i}: {q[i]}")
     return out
 
