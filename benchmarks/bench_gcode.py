@@ -448,7 +448,7 @@ the run, so wall clock is inflated by other processes).
 
 | step | time (cpu) | rate |
 |---|---|---|
-| parse, compiled tokenizer (best of 3 runs, interleaved with the next row) | {c_parse:.2f} s ({w_parse:.2f} s) | {rate(n, c_parse)} lines/s |
+| parse, compiled tokenizer and block building (best of 3 runs, interleaved with the next row) | {c_parse:.2f} s ({w_parse:.2f} s) | {rate(n, c_parse)} lines/s |
 | parse, numpy tokenizer (`MTCOMP_TOKENIZER=python`, the fallback; best of 3) | {c_parse_np:.2f} s ({w_parse_np:.2f} s) | {rate(n, c_parse_np)} lines/s |
 | subprogram expansion (`gcode.flow.expand`: the program as the body of a subprogram called once) | {c_fl:.2f} s ({w_fl:.2f} s) | {rate(n, c_fl)} lines/s |
 | rewrite, translation (G-code work only) | {c_rw:.2f} s ({w_rw:.2f} s) | {rate(n, c_rw)} lines/s |
@@ -486,10 +486,12 @@ kernel {c_ks:.2f} s and the G-code side of the rewrite (decisions, number format
 {mb:.0f} MB. The compiled tokenizer (`core/gcode/_tok.c`, through ctypes: one pass over the
 bytes for comments, words, number syntax and the values of the {len(prog.w_value):,} numbers;
 the numpy fallback needs about fifteen byte-wise passes; each number's value is read while
-the run is scanned) is about a tenth of the parse; the
-rest is numpy over words and blocks (duplicate addresses, G-code categories, modal fills, the
-scatter of the words into block columns, absolute positions), and the first large allocations
-of a process pay page faults (a first parse costs up to twice the best one). `mtcomp
+the run is scanned) is about a third of the parse; the sequential passes of the block
+building are C as well (line starts, forward fills of the modal state, the scatter of the
+words into block columns, absolute positions: `mtc_ffill`, `mtc_scatter`, `mtc_absolute`); the
+rest is numpy over words and lines (duplicate addresses, G-code groups, letters, refusals,
+the per-line state), and the first large allocations of a process pay page faults (a first
+parse costs up to twice the best one). `mtcomp
 compensate` adds to parse + rewrite the travel checks, the read-back of the written words and
 three forward evaluations per block for its report (nominal, with errors before and after, in
 chunks of 200,000 blocks, from the positions read back); the old path parsed the written
@@ -501,8 +503,9 @@ same bytes). With the library allocator's defaults a third to a half
 of the CPU time of `mtcomp compensate` is system time (page faults, and huge-page compaction
 on a loaded machine, on fresh large arrays); the CLI reuses freed arrays from the heap
 (`mtcomp._heap`), which the bench's compensate runs do as the CLI. The 1 M lines/s target
-needs the block building of the parse in C (or the whole path in chunks that stay in the
-cache): not done.
+needs more than the compiled block building: SIMD scanning in the tokenizer and the
+read-back, a compiled builder of the per-line state, and the whole path in chunks that stay in
+the cache (page faults follow the peak): not done.
 The compensation kernel belongs to
 `mtcomp.kinematics`; the geometric-table path is its iterative solver. cProfile of parse +
 rewrite with retarget, top functions by own time:
