@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import random
+import re
 import sys
 from pathlib import Path
 
@@ -184,3 +185,40 @@ def test_two_codes_of_one_group_refused_at_the_first_such_line(mode, monkeypatch
     assert got == "InputError: p.nc:4: two motion (G0 G1 G2 G3) G codes in one block"
     got = _parse("G1 X0\nG90 G91 X1\nG17 G18 G19\nG91 G90\n", AXIS_SETS[0], mode, monkeypatch)
     assert got == "InputError: p.nc:3: two plane (G17 G18 G19) G codes in one block"
+
+
+def test_number_runs_of_every_length_same_tokens_and_bits_as_numpy(monkeypatch):
+    """The tokenizer's eight-bytes-at-a-time path for the common run ([sign] up to 7 digits
+    [. up to 7 digits]) and its byte loop for the others (8 digits and more, two points,
+    inner signs, runs near the end of the text) against the numpy tokenizer: every integer
+    and fraction length 0-9, signs, each ending, and the whole program's arrays."""
+    from mtcomp.gcode.textops import parse_decimals
+    from mtcomp.gcode.tokens import _tokenise
+    rng = random.Random(11)
+    words = []
+    for k1 in range(10):
+        for k2 in [None] + list(range(10)):
+            for sign in ("", "-", "+"):
+                ip = "".join(rng.choice("0123456789") for _ in range(k1))
+                fp = "" if k2 is None else "." + "".join(rng.choice("0123456789") for _ in range(k2))
+                words.append(sign + ip + fp)
+    ends = [" ", "\n", "X", "(", "\t", ";", ""]
+    text = "".join(f"X{w}{ends[i % len(ends)]}" if ends[i % len(ends)] != "" else f"X{w} "
+                   for i, w in enumerate(words)) + "Y1.5\nZ-2"
+    code = np.frombuffer(text.encode(), np.uint8).copy()
+    ls = np.concatenate(([0], np.flatnonzero(code == 10) + 1))
+    c, p = _ctok.tokenise(code), _tokenise(code, ls)
+    for k in range(6):
+        assert np.array_equal(c[k], p[k]), k
+    assert c[6:8] == p[6:8]
+    good = [i for i in range(len(c[1]))
+            if re.fullmatch(rb"[+-]?(\d+\.?\d*|\.\d+)", code[c[1][i]:c[2][i]].tobytes())]
+    assert len(good) > 300
+    ref = parse_decimals(code, p[1][good], p[2][good], p[3][good])
+    assert np.array_equal(c[8][good].view(np.int64), ref.view(np.int64))
+    # a valid program of such words: every array the same on the compiled and numpy paths
+    valid = "\n".join("G1 " + " ".join(f"{a}{w}" for a, w in zip("XYZBC", chunk))
+                      for chunk in zip(*[iter([w for w in words if re.fullmatch(r"[+-]?(\d+\.?\d*|\.\d+)", w)])] * 5))
+    a_ = _parse(valid, AXIS_SETS[0], "c", monkeypatch)
+    assert not isinstance(a_, str)
+    assert_same_program(a_, _parse(valid, AXIS_SETS[0], "python", monkeypatch))

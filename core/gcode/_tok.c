@@ -17,6 +17,41 @@ static inline int is_letter(uint8_t c) { return (uint8_t)((c | 32) - 97) < 26; }
 static inline int is_num(uint8_t c) { return (uint8_t)(c - 43) < 15 && c != 44 && c != 47; }
 static inline int is_blank(uint8_t c) { return c == 32 || (uint8_t)(c - 9) < 5; }
 
+/* Eight bytes at p as a little-endian word (memcpy: no alignment needed). */
+static inline uint64_t load8(const uint8_t *p)
+{
+    uint64_t x;
+    memcpy(&x, p, 8);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    x = __builtin_bswap64(x);
+#endif
+    return x;
+}
+
+/* Number of leading digit bytes (0..8) of the eight bytes x (first byte lowest).  A byte is a
+ * digit if its xor with '0' is 0..9: high nibble zero and +6 not carrying into it; a carry
+ * from a non-digit byte only reaches the bytes after it. */
+static inline int digit_run8(uint64_t x)
+{
+    uint64_t a = x ^ 0x3030303030303030ULL;
+    uint64_t bad = (a | (a + 0x0606060606060606ULL)) & 0xF0F0F0F0F0F0F0F0ULL;
+    return bad ? __builtin_ctzll(bad) >> 3 : 8;
+}
+
+/* Value of the first k (1..7) bytes of x, all digits, as an integer (the bytes after them
+ * replaced by leading '0's; the usual three multiply-shift steps over eight digits). */
+static inline uint64_t digits_value8(uint64_t x, int k)
+{
+    x = (x << (8 * (8 - k))) | (0x3030303030303030ULL >> (8 * k));
+    x -= 0x3030303030303030ULL;
+    x = (x * 10) + (x >> 8);
+    x = (((x & 0x000000FF000000FFULL) * 0x000F424000000064ULL) +
+         (((x >> 16) & 0x000000FF000000FFULL) * 0x0000271000000001ULL)) >> 32;
+    return x;
+}
+
+static const uint64_t POW10I[9] = {1, 10, 100, 1000, 10000, 100000, 1000000, 10000000, 100000000};
+
 static const double POW10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
                                  1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
 
@@ -98,6 +133,43 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
     while (i < n) {
         uint8_t ch = c[i];
         uint8_t k = cls[ch];
+        if (k == 3) {
+            /* the common run first, eight bytes at a time: [sign] up to 7 digits [. up to 7
+             * digits], ended by no number character; the same integer mantissa, value and
+             * bookkeeping as the byte loop below, which takes every other run */
+            int64_t j0 = i + (ch == '-' || ch == '+');
+            if (j0 + 17 <= n) {
+                uint64_t x = load8(c + j0);
+                int k1 = digit_run8(x);
+                if (k1 < 8) {
+                    int64_t e = j0 + k1, d = -1;
+                    uint64_t m = k1 ? digits_value8(x, k1) : 0;
+                    int k2 = 0;
+                    if (c[e] == '.') {
+                        uint64_t y = load8(c + e + 1);
+                        k2 = digit_run8(y);
+                        d = e;
+                        if (k2 < 8) {
+                            m = m * POW10I[k2] + (k2 ? digits_value8(y, k2) : 0);
+                            e += 1 + k2;
+                        }
+                    }
+                    uint8_t t = c[e];
+                    if (k2 < 8 && k1 + k2 > 0 && t != '.' && t != '-' && t != '+') {
+                        nr++;
+                        if (nr >= nl || lp[nr] != i - 1) adjacent = 0;
+                        rs[nr] = (int32_t)i;
+                        re[nr] = (int32_t)e;
+                        dot[nr] = (int32_t)d;
+                        two[nr] = 0;
+                        double v = (double)m / POW10[k2];
+                        value[nr] = ch == '-' ? -v : v;
+                        i = e;
+                        continue;
+                    }
+                }
+            }
+        }
         if (k == 3) {
             /* one number run, its value read on the way (the same arithmetic as number()) */
             int64_t s = i, d = -1;
