@@ -137,13 +137,14 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
     return True
 
 
-def tokenise(code: np.ndarray):
+def tokenise(code: np.ndarray, full: bool = False):
     """Same as ``tokens._tokenise`` (int32 instead of int64 positions: letter positions, run starts and ends, point of each run,
     runs with two points, line of each letter, sign_at, bad_at) plus the value of every run
     (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks),
     per letter A-Z the first 0-based line where it appears twice (-1: none) and two checks
     of parse's (int64): whether every run starts right after its letter (as many of each),
-    the first run with two points or no digit (-1: none).
+    the first run with two points or no digit (-1: none).  Without ``full`` the points of the
+    runs and the two-point flags are None (the two checks stand for them).
     None if the compiled tokenizer is not available."""
     lib = load()
     if lib is None:
@@ -158,14 +159,16 @@ def tokenise(code: np.ndarray):
         return None                          # int32 positions; parse refuses such programs
     lp = np.empty(L, np.int32)
     wline = np.empty(L, np.int32)
-    rs, re_, dot = np.empty(R, np.int32), np.empty(R, np.int32), np.empty(R, np.int32)
-    two = np.zeros(R, bool)
+    rs, re_ = np.empty(R, np.int32), np.empty(R, np.int32)
+    dot = np.empty(R, np.int32) if full else None
+    two = np.zeros(R, bool) if full else None
     value = np.empty(R, np.float64)
     sign_at, bad_at = ctypes.c_int64(), ctypes.c_int64()
     dup = np.empty(26, np.int32)
     checks = np.empty(2, np.int64)
     lib.mtc_tokenise(ptr, n, lp.ctypes.data, wline.ctypes.data, rs.ctypes.data, re_.ctypes.data,
-                     dot.ctypes.data, two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
+                     None if dot is None else dot.ctypes.data,
+                     None if two is None else two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
                      ctypes.byref(bad_at), dup.ctypes.data, checks.ctypes.data)
     return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup, checks
 

@@ -115,7 +115,7 @@ static double number(const uint8_t *c, int64_t s, int64_t e, int64_t dot)
  * int32 (the caller refuses programs of 2 GB and more).  checks[0]: 1 if every run starts
  * right after the letter of the same index and there are as many of each (parse's test for
  * blanks or missing numbers), checks[1]: the first run with more than one point or without a
- * digit (-1: none), as parse's `badnum`. */
+ * digit (-1: none), as parse's `badnum`.  dot and two may be NULL (not written). */
 void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int32_t *rs,
                   int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
                   int64_t *bad_at, int32_t *dup_line, int64_t *checks)
@@ -160,8 +160,8 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
                         if (nr >= nl || lp[nr] != i - 1) adjacent = 0;
                         rs[nr] = (int32_t)i;
                         re[nr] = (int32_t)e;
-                        dot[nr] = (int32_t)d;
-                        two[nr] = 0;
+                        if (dot) dot[nr] = (int32_t)d;
+                        if (two) two[nr] = 0;
                         double v = (double)m / POW10[k2];
                         value[nr] = ch == '-' ? -v : v;
                         i = e;
@@ -193,8 +193,8 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
             }
             rs[nr] = (int32_t)s;
             re[nr] = (int32_t)i;
-            dot[nr] = (int32_t)d;
-            two[nr] = (uint8_t)(pts > 1);
+            if (dot) dot[nr] = (int32_t)d;
+            if (two) two[nr] = (uint8_t)(pts > 1);
             int64_t flen = d >= 0 ? i - d - 1 : 0, ilen = nd - flen;
             if (!inner && pts <= 1 && ilen <= 8 && flen <= 8 && nd <= 15) {
                 double v = (double)m / POW10[flen];
