@@ -222,3 +222,41 @@ def test_number_runs_of_every_length_same_tokens_and_bits_as_numpy(monkeypatch):
     a_ = _parse(valid, AXIS_SETS[0], "c", monkeypatch)
     assert not isinstance(a_, str)
     assert_same_program(a_, _parse(valid, AXIS_SETS[0], "python", monkeypatch))
+
+
+def _splice_reference(orig: bytes, edits) -> bytes:
+    """The edits (pos, stop, text), sorted and not overlapping, applied by joining pieces."""
+    out, prev = [], 0
+    for p, e, t in edits:
+        out += [orig[prev:p], t]
+        prev = max(prev, e)
+    return b"".join(out + [orig[prev:]])
+
+
+@pytest.mark.parametrize("seed_", range(4))
+def test_in_place_splice_same_bytes_as_joining_pieces(seed_):
+    """The compiled splice moves the kept segments inside the output buffer (towards the start
+    front to back, towards the end back to front): growing, shrinking and mixed programs of
+    edits, inserts at one position, removals up to the end, against joining the pieces."""
+    from mtcomp.gcode.textops import splice
+    rng = random.Random(seed_)
+    for case in range(150):
+        n = rng.choice([0, 1, 5, 40, 300, 2000])
+        orig = bytes(rng.choice(b"XYZ0123456789. \n") for _ in range(n))
+        bias = rng.choice(["grow", "shrink", "mixed"])
+        edits, p = [], 0
+        while p <= n and len(edits) < rng.choice([1, 3, 30, 200]):
+            p = min(n, p + rng.randint(0, 25))
+            w = rng.randint(0, 6) if bias != "grow" else rng.randint(0, 1)
+            e = min(n, p + w)
+            k = rng.randint(0, 2) if bias == "shrink" else rng.randint(0, 12)
+            edits.append((p, e, bytes(rng.choice(b"ABC-") for _ in range(k))))
+            p = e if e > p else p
+            if p >= n and rng.random() < 0.5:
+                break
+        src = b"".join(t for _, _, t in edits)
+        off = np.cumsum([0] + [len(t) for _, _, t in edits])[:-1]
+        got = splice(np.frombuffer(orig, np.uint8), np.array([e[0] for e in edits]),
+                     np.array([e[1] for e in edits]), np.arange(len(edits)),
+                     np.frombuffer(src, np.uint8), off, np.array([len(t) for _, _, t in edits]))
+        assert bytes(got) == _splice_reference(orig, edits), (seed_, case)

@@ -87,6 +87,8 @@ def load():
     lib.mtc_tokenise.restype = None
     lib.mtc_splice.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64, vp]
     lib.mtc_splice.restype = None
+    lib.mtc_splice_inplace.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64]
+    lib.mtc_splice_inplace.restype = i64
     lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_blank_comments.restype = i64
     lib.mtc_format_size.argtypes = [vp, i64, i64]
@@ -188,6 +190,23 @@ def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total
                    len(arrs[0]), out.ctypes.data)
     del out
     return ba
+
+
+def splice_inplace(buf: bytearray, n_orig: int, src: np.ndarray, pos, stop, src_off, src_len) -> bool:
+    """`splice` within ``buf`` (its first ``n_orig`` bytes the original; room for the result):
+    the result is then its first (original size - removed + inserted) bytes.  False without
+    the library (or out of memory): nothing changed."""
+    lib = load()
+    if lib is None:
+        return False
+    src = np.ascontiguousarray(src, np.uint8)
+    arrs = [np.ascontiguousarray(a, np.int64) for a in (pos, stop, src_off, src_len)]
+    view = np.frombuffer(buf, np.uint8) if len(buf) else np.zeros(1, np.uint8)
+    dummy = np.zeros(1, np.uint8)
+    ok = lib.mtc_splice_inplace(view.ctypes.data, n_orig, src.ctypes.data if len(src) else dummy.ctypes.data,
+                                *(a.ctypes.data for a in arrs), len(arrs[0])) == 0
+    del view                                 # (the bytearray stays resizable)
+    return ok
 
 
 def format_counts(counts, decimals: int):

@@ -279,6 +279,40 @@ void mtc_splice(const uint8_t *orig, int64_t n_orig, const uint8_t *src, const i
     if (n_orig > prev) memcpy(out + o, orig + prev, (size_t)(n_orig - prev));
 }
 
+/* mtc_splice in place: `buf` holds the n_orig original bytes and has room for max(n_orig,
+ * total), total the result's size.  Each kept segment of the original moves to its place
+ * (those moving towards the start front to back, then those moving towards the end back to
+ * front: neither overwrites a segment still to move nor one already placed), then the
+ * inserted texts go into the gaps.  Returns 0, or -1 if out of memory (nothing changed). */
+int64_t mtc_splice_inplace(uint8_t *buf, int64_t n_orig, const uint8_t *src, const int64_t *pos,
+                           const int64_t *stop, const int64_t *src_off, const int64_t *src_len,
+                           int64_t m)
+{
+    int64_t *a = malloc((size_t)(m + 1) * 3 * sizeof(int64_t));
+    if (!a) return -1;
+    int64_t *from = a, *to = a + m + 1, *len = a + 2 * (m + 1);
+    int64_t prev = 0, o = 0;
+    for (int64_t i = 0; i <= m; i++) {          /* segment i before edit i; m: the tail */
+        int64_t e = i < m ? pos[i] : n_orig;
+        from[i] = prev;
+        len[i] = e > prev ? e - prev : 0;
+        to[i] = o;
+        o += len[i];
+        if (i < m) {
+            o += src_len[i] > 0 ? src_len[i] : 0;
+            if (stop[i] > prev) prev = stop[i];
+        }
+    }
+    for (int64_t i = 0; i <= m; i++)
+        if (len[i] && to[i] < from[i]) memmove(buf + to[i], buf + from[i], (size_t)len[i]);
+    for (int64_t i = m; i >= 0; i--)
+        if (len[i] && to[i] > from[i]) memmove(buf + to[i], buf + from[i], (size_t)len[i]);
+    for (int64_t i = 0; i < m; i++)
+        if (src_len[i] > 0) memcpy(buf + to[i] + len[i], src + src_off[i], (size_t)src_len[i]);
+    free(a);
+    return 0;
+}
+
 /* Number formatting of the rewrite (the twin of textops.format_counts): the fixed-point text of
  * counts[i] * 10**-d, without exponent, with a point always and a '-' only below zero, packed
  * one after the other.  mtc_format_size gives the total size; mtc_format writes the texts into
