@@ -248,23 +248,33 @@ def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: boo
     ru = resource.getrusage(resource.RUSAGE_SELF)
     return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0,
             "sys": ru.ru_stime - ru0.ru_stime, "maxrss_mb": peak_rss_mb(),
+            "faults": ru.ru_minflt - ru0.ru_minflt,
             "lines": rep["lines"], "after_max_nm": rep["after_max"] * 1e6}
 
 
-def run_child(path_in: str, path_out: str, fn: str = "end_to_end", *extra) -> dict:
-    """The end-to-end run in a fresh interpreter so its peak memory is its own."""
+def run_child(path_in: str, path_out: str, fn: str = "end_to_end", *extra, pythonpath=None) -> dict:
+    """The end-to-end run in a fresh interpreter so its peak memory is its own (``pythonpath``:
+    a directory put first on the child's path, e.g. one holding another version's ``mtcomp``)."""
     code = ("import json, sys; sys.path.insert(0, %r); import bench_gcode as b; "
             "print(json.dumps(b.%s(%r, %r%s)))" % (str(Path(__file__).resolve().parent), fn,
                                                   path_in, path_out,
                                                   "".join(f", {e!r}" for e in extra)))
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    env = None
+    if pythonpath:
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [str(pythonpath)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else [])))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env=env)
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def compensate_only(n_lines: int, rounds: int = 2) -> int:
+def compensate_only(n_lines: int, rounds: int = 2, baseline=None) -> int:
     """`mtcomp compensate` end to end three ways, interleaved, ``rounds`` times: a quick run
     (under a minute at 1 M lines and one round on 2 idle cores) for the compensate rows of
-    docs/benchmarks.md."""
+    docs/benchmarks.md.  ``baseline``: a directory holding another version of the package as
+    ``mtcomp`` (for instance ``git archive <commit> core`` unpacked, with ``mtcomp`` a link to
+    its ``core``), run as a fourth child in each round: the version before a change, measured
+    in the same run."""
     text = generate(n_lines)
     with tempfile.TemporaryDirectory() as tmp:
         pin, pout = os.path.join(tmp, "in.nc"), os.path.join(tmp, "out.nc")
@@ -272,13 +282,17 @@ def compensate_only(n_lines: int, rounds: int = 2) -> int:
         del text
         outs = {}
         for rnd in range(rounds):
-            for name, extra in (("new", (False, True)), ("new, allocator defaults", (False, False)),
-                                ("old", (True, False))):
-                r = run_child(pin, pout, "compensate_e2e", *extra)
+            runs = [("new", (False, True), None), ("new, allocator defaults", (False, False), None),
+                    ("old", (True, False), None)]
+            if baseline:
+                runs.insert(1, ("baseline tree", (False, True), baseline))
+            for name, extra, path in runs:
+                r = run_child(pin, pout, "compensate_e2e", *extra, pythonpath=path)
                 with open(pout, "rb") as fh:
                     outs.setdefault(name, fh.read())
                 print(f"round {rnd + 1} {name:24s} cpu {r['cpu']:.2f} s (sys {r['sys']:.2f} s) wall {r['wall']:.2f} s "
                       f"{r['lines'] / r['cpu']:>10,.0f} lines/s cpu  peak {r['maxrss_mb']:.0f} MB  "
+                      f"faults {r.get('faults', 0):,}  "
                       f"after {r['after_max_nm']:.3f} nm", flush=True)
         print(f"same output on all paths: {len(set(outs.values())) == 1}; load average {os.getloadavg()[0]:.1f}")
     return 0
@@ -294,9 +308,12 @@ def main(argv=None) -> int:
                     help="only `mtcomp compensate` end to end (new path, new path with the allocator's "
                          "defaults, old path; interleaved, --rounds times), printed; docs not written")
     ap.add_argument("--rounds", type=int, default=2, help="rounds of --compensate-only (default 2)")
+    ap.add_argument("--baseline", metavar="DIR",
+                    help="with --compensate-only: also run the package found as DIR/mtcomp (another "
+                         "version, e.g. the commit before a change) in each round")
     args = ap.parse_args(argv)
     if args.compensate_only:
-        return compensate_only(args.lines, args.rounds)
+        return compensate_only(args.lines, args.rounds, args.baseline)
     from mtcomp.kinematics import retarget
     from mtcomp.machine import load_machine
     m = load_machine(MACHINE)
@@ -431,7 +448,7 @@ the run, so wall clock is inflated by other processes).
 
 | step | time (cpu) | rate |
 |---|---|---|
-| parse, compiled tokenizer (best of 3 runs, interleaved with the next row) | {c_parse:.2f} s ({w_parse:.2f} s) | {rate(n, c_parse)} lines/s |
+| parse, compiled tokenizer and block building (best of 3 runs, interleaved with the next row) | {c_parse:.2f} s ({w_parse:.2f} s) | {rate(n, c_parse)} lines/s |
 | parse, numpy tokenizer (`MTCOMP_TOKENIZER=python`, the fallback; best of 3) | {c_parse_np:.2f} s ({w_parse_np:.2f} s) | {rate(n, c_parse_np)} lines/s |
 | subprogram expansion (`gcode.flow.expand`: the program as the body of a subprogram called once) | {c_fl:.2f} s ({w_fl:.2f} s) | {rate(n, c_fl)} lines/s |
 | rewrite, translation (G-code work only) | {c_rw:.2f} s ({w_rw:.2f} s) | {rate(n, c_rw)} lines/s |
@@ -469,10 +486,12 @@ kernel {c_ks:.2f} s and the G-code side of the rewrite (decisions, number format
 {mb:.0f} MB. The compiled tokenizer (`core/gcode/_tok.c`, through ctypes: one pass over the
 bytes for comments, words, number syntax and the values of the {len(prog.w_value):,} numbers;
 the numpy fallback needs about fifteen byte-wise passes; each number's value is read while
-the run is scanned) is about a tenth of the parse; the
-rest is numpy over words and blocks (duplicate addresses, G-code categories, modal fills, the
-scatter of the words into block columns, absolute positions), and the first large allocations
-of a process pay page faults (a first parse costs up to twice the best one). `mtcomp
+the run is scanned) is about a third of the parse; the sequential passes of the block
+building are C as well (line starts, forward fills of the modal state, the scatter of the
+words into block columns, absolute positions: `mtc_ffill`, `mtc_scatter`, `mtc_absolute`); the
+rest is numpy over words and lines (duplicate addresses, G-code groups, letters, refusals,
+the per-line state), and the first large allocations of a process pay page faults (a first
+parse costs up to twice the best one). `mtcomp
 compensate` adds to parse + rewrite the travel checks, the read-back of the written words and
 three forward evaluations per block for its report (nominal, with errors before and after, in
 chunks of 200,000 blocks, from the positions read back); the old path parsed the written
@@ -484,8 +503,9 @@ same bytes). With the library allocator's defaults a third to a half
 of the CPU time of `mtcomp compensate` is system time (page faults, and huge-page compaction
 on a loaded machine, on fresh large arrays); the CLI reuses freed arrays from the heap
 (`mtcomp._heap`), which the bench's compensate runs do as the CLI. The 1 M lines/s target
-needs the block building of the parse in C (or the whole path in chunks that stay in the
-cache): not done.
+needs more than the compiled block building: SIMD scanning in the tokenizer and the
+read-back, a compiled builder of the per-line state, and the whole path in chunks that stay in
+the cache (page faults follow the peak): not done.
 The compensation kernel belongs to
 `mtcomp.kinematics`; the geometric-table path is its iterative solver. cProfile of parse +
 rewrite with retarget, top functions by own time:

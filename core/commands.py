@@ -602,7 +602,9 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                              f"{exc.args[0]}; refusing to write it", filename,
                              None if j is None else int(prog.line[j])) from None
         if ok:
-            return np.asarray(info["emitted"], float) * np.asarray(info["emitted_resolution"])
+            out = np.array(info["emitted"], float)       # (always a new array: scaled in place)
+            out *= np.asarray(info["emitted_resolution"])
+            return out
     from . import gcode
     if new_text is None:
         new_text = bytes(data).decode("utf-8", "surrogateescape")

@@ -286,19 +286,31 @@ def test_a_corrupted_written_number_is_caught_and_nothing_returned(monkeypatch):
         monkeypatch.undo()
     # a word the splice inserts on the wrong line is caught as well: the Y word inserted into
     # "X0.001 Z-0.0005 C1." (line 6) goes to the end of line 5 instead
-    real = _ctok.splice
+    # (both compiled splices: in place in the output buffer, and into a new one)
+    real, real_inplace = _ctok.splice, _ctok.splice_inplace
 
-    def misplaced(orig, src, pos, stop, src_off, src_len, total):
+    def misplace(orig, pos, stop, src_off, src_len):
         pos, stop, src_off, src_len = (np.array(a) for a in (pos, stop, src_off, src_len))
         nl = np.flatnonzero(np.asarray(orig) == 10)
         ins = (pos == stop) & (pos > nl[4]) & (pos < nl[5])
         assert ins.any()
         pos[ins] = stop[ins] = nl[4]
         o = np.argsort(pos, kind="stable")
-        return real(orig, src, pos[o], stop[o], src_off[o], src_len[o], total)
-    monkeypatch.setattr(_ctok, "splice", misplaced)
-    with pytest.raises(InputError, match="not what was computed"):
-        compensate_program(_CORRUPT_PROG, m, e)
+        return pos[o], stop[o], src_off[o], src_len[o]
+
+    def misplaced(orig, src, pos, stop, src_off, src_len, total):
+        return real(orig, src, *misplace(orig, pos, stop, src_off, src_len), total)
+
+    def misplaced_inplace(buf, n_orig, src, pos, stop, src_off, src_len):
+        orig = np.frombuffer(bytes(buf[:n_orig]), np.uint8)
+        return real_inplace(buf, n_orig, src, *misplace(orig, pos, stop, src_off, src_len))
+    for name, fn in (("splice_inplace", misplaced_inplace), ("splice", misplaced)):
+        monkeypatch.setattr(_ctok, name, fn)
+        if name == "splice":                     # the other path: no in-place splice
+            monkeypatch.setattr(_ctok, "splice_inplace", lambda *a: False)
+        with pytest.raises(InputError, match="not what was computed"):
+            compensate_program(_CORRUPT_PROG, m, e)
+        monkeypatch.undo()
 
 
 def test_a_corrupted_written_number_shows_in_the_check_without_the_compiled_reader(monkeypatch):

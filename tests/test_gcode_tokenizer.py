@@ -69,7 +69,7 @@ def test_tokens_and_values_bit_for_bit_with_long_and_odd_numbers():
             "X12-3 N5- G-.\n").encode()
     code = np.frombuffer(text, np.uint8).copy()
     ls = np.concatenate(([0], np.flatnonzero(code == 10) + 1))
-    c = _ctok.tokenise(code)
+    c = _ctok.tokenise(code, full=True)
     p = _tokenise(code, ls)
     for k in range(6):
         assert np.array_equal(c[k], p[k]), k

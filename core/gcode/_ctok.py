@@ -83,10 +83,12 @@ def load():
     vp, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.mtc_count.argtypes = [vp, i64, vp, vp]
     lib.mtc_count.restype = None
-    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 10
+    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 11
     lib.mtc_tokenise.restype = None
     lib.mtc_splice.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64, vp]
     lib.mtc_splice.restype = None
+    lib.mtc_splice_inplace.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64]
+    lib.mtc_splice_inplace.restype = i64
     lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_blank_comments.restype = i64
     lib.mtc_format_size.argtypes = [vp, i64, i64]
@@ -110,6 +112,18 @@ def load():
     lib.mtc_control_counts.argtypes = [i64, i64, vp, vp, i64, vp, vp, vp, vp, ctypes.c_double,
                                        vp, vp, vp, vp, vp]
     lib.mtc_control_counts.restype = i64
+    lib.mtc_count_byte.argtypes = [vp, i64, i64]
+    lib.mtc_count_byte.restype = i64
+    lib.mtc_line_starts.argtypes = [vp, i64, vp]
+    lib.mtc_line_starts.restype = None
+    lib.mtc_ffill.argtypes = [vp, vp, i64, i64, vp, vp]
+    lib.mtc_ffill.restype = None
+    lib.mtc_word_lines.argtypes = [vp, vp, i64, i64, vp, vp]
+    lib.mtc_word_lines.restype = i64
+    lib.mtc_scatter.argtypes = [vp, vp, vp, i64, vp, i64, i64, i64, vp, vp, vp]
+    lib.mtc_scatter.restype = i64
+    lib.mtc_absolute.argtypes = [i64, i64, vp, i64, vp, i64, vp, vp, i64, vp, vp]
+    lib.mtc_absolute.restype = None
     _lib = lib
     return lib
 
@@ -125,11 +139,14 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
     return True
 
 
-def tokenise(code: np.ndarray):
+def tokenise(code: np.ndarray, full: bool = False):
     """Same as ``tokens._tokenise`` (int32 instead of int64 positions: letter positions, run starts and ends, point of each run,
     runs with two points, line of each letter, sign_at, bad_at) plus the value of every run
-    (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks)
-    and per letter A-Z the first 0-based line where it appears twice (-1: none).
+    (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks),
+    per letter A-Z the first 0-based line where it appears twice (-1: none) and two checks
+    of parse's (int64): whether every run starts right after its letter (as many of each),
+    the first run with two points or no digit (-1: none).  Without ``full`` the points of the
+    runs and the two-point flags are None (the two checks stand for them).
     None if the compiled tokenizer is not available."""
     lib = load()
     if lib is None:
@@ -144,15 +161,18 @@ def tokenise(code: np.ndarray):
         return None                          # int32 positions; parse refuses such programs
     lp = np.empty(L, np.int32)
     wline = np.empty(L, np.int32)
-    rs, re_, dot = np.empty(R, np.int32), np.empty(R, np.int32), np.empty(R, np.int32)
-    two = np.zeros(R, bool)
+    rs, re_ = np.empty(R, np.int32), np.empty(R, np.int32)
+    dot = np.empty(R, np.int32) if full else None
+    two = np.zeros(R, bool) if full else None
     value = np.empty(R, np.float64)
     sign_at, bad_at = ctypes.c_int64(), ctypes.c_int64()
     dup = np.empty(26, np.int32)
+    checks = np.empty(2, np.int64)
     lib.mtc_tokenise(ptr, n, lp.ctypes.data, wline.ctypes.data, rs.ctypes.data, re_.ctypes.data,
-                     dot.ctypes.data, two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
-                     ctypes.byref(bad_at), dup.ctypes.data)
-    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup
+                     None if dot is None else dot.ctypes.data,
+                     None if two is None else two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
+                     ctypes.byref(bad_at), dup.ctypes.data, checks.ctypes.data)
+    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup, checks
 
 
 def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total: int):
@@ -170,6 +190,23 @@ def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total
                    len(arrs[0]), out.ctypes.data)
     del out
     return ba
+
+
+def splice_inplace(buf: bytearray, n_orig: int, src: np.ndarray, pos, stop, src_off, src_len) -> bool:
+    """`splice` within ``buf`` (its first ``n_orig`` bytes the original; room for the result):
+    the result is then its first (original size - removed + inserted) bytes.  False without
+    the library (or out of memory): nothing changed."""
+    lib = load()
+    if lib is None:
+        return False
+    src = np.ascontiguousarray(src, np.uint8)
+    arrs = [np.ascontiguousarray(a, np.int64) for a in (pos, stop, src_off, src_len)]
+    view = np.frombuffer(buf, np.uint8) if len(buf) else np.zeros(1, np.uint8)
+    dummy = np.zeros(1, np.uint8)
+    ok = lib.mtc_splice_inplace(view.ctypes.data, n_orig, src.ctypes.data if len(src) else dummy.ctypes.data,
+                                *(a.ctypes.data for a in arrs), len(arrs[0])) == 0
+    del view                                 # (the bytearray stays resizable)
+    return ok
 
 
 def format_counts(counts, decimals: int):
@@ -372,3 +409,105 @@ def read_back_applies(w_line, w_letter, w_value, axes: str, block_line, col_word
         bl.ctypes.data if len(bl) else dummy.ctypes.data, cw.ctypes.data if cw.size else dummy.ctypes.data,
         cw.shape[1] if cw.ndim == 2 else 0, len(axes), len(bl)))
     return None if got < 0 else bool(got)
+
+
+# ---- block building of parse: the twins of numpy passes in parse.py (same values, same bits;
+# tests/test_gcode_blocks.py holds every array of the parsed program to the numpy path's)
+
+def line_starts(b: np.ndarray):
+    """int64 start of every line of the bytes `b` (0 and every byte after a line feed), or
+    None."""
+    lib = load()
+    if lib is None or not b.flags.c_contiguous or b.dtype != np.uint8:
+        return None
+    out = np.empty(lib.mtc_count_byte(b.ctypes.data, len(b), 10) + 1, np.int64)
+    lib.mtc_line_starts(b.ctypes.data, len(b), out.ctypes.data)
+    return out
+
+
+def ffill(values: np.ndarray, isset: np.ndarray, default):
+    """``parse._ffill`` for int64, float64 and bool values (a default of the same kind), or
+    None (another kind, or no library)."""
+    lib = load()
+    if lib is None or values.ndim != 1 or len(isset) != len(values):
+        return None
+    dt = values.dtype
+    if dt == np.float64 and isinstance(default, (float, int, np.floating)) and not isinstance(default, bool):
+        d = np.array([default], np.float64)
+    elif dt == np.int64 and isinstance(default, (int, np.integer)) and not isinstance(default, bool):
+        d = np.array([default], np.int64)
+    elif dt == np.bool_ and isinstance(default, (bool, np.bool_)):
+        d = np.array([default], np.bool_)
+    else:
+        return None
+    values = np.ascontiguousarray(values)
+    isset = np.ascontiguousarray(isset, np.bool_)
+    out = np.empty(len(values), dt)
+    lib.mtc_ffill(values.ctypes.data, isset.ctypes.data, len(values), dt.itemsize,
+                  d.ctypes.data, out.ctypes.data)
+    return out
+
+
+def word_lines(wcol: np.ndarray, wline: np.ndarray, n_ax: int, n_lines: int):
+    """(has_motion, has_arc, number of arc words): per line whether it holds an axis word
+    (column < n_ax) or an arc word, or None."""
+    lib = load()
+    if lib is None or wcol.dtype != np.int8 or wline.dtype != np.int32:
+        return None
+    wcol, wline = np.ascontiguousarray(wcol), np.ascontiguousarray(wline)
+    hm, ha = np.zeros(n_lines, bool), np.zeros(n_lines, bool)
+    n_arc = lib.mtc_word_lines(wcol.ctypes.data, wline.ctypes.data, len(wcol), n_ax,
+                               hm.ctypes.data, ha.ctypes.data)
+    return hm, ha, int(n_arc)
+
+
+def scatter(wcol, wline, value, blk_of_line, nblk: int, ncol: int, n_ax: int):
+    """(col_word int32 (nblk, ncol), values float64 (nblk, n_ax) of the columns below n_ax,
+    values (nblk, ncol - n_ax) of the others): the words in block columns (-1 and NaN where
+    none), or None (no library, or a word on a line that is no block)."""
+    lib = load()
+    if (lib is None or wcol.dtype != np.int8 or wline.dtype != np.int32
+            or value.dtype != np.float64 or blk_of_line.dtype != np.int64):
+        return None
+    wcol, wline = np.ascontiguousarray(wcol), np.ascontiguousarray(wline)
+    value, blk_of_line = np.ascontiguousarray(value), np.ascontiguousarray(blk_of_line)
+    col_word = np.empty((nblk, ncol), np.int32)
+    vax, varc = np.empty((nblk, n_ax)), np.empty((nblk, ncol - n_ax))
+    bad = lib.mtc_scatter(wcol.ctypes.data, wline.ctypes.data, value.ctypes.data, len(wcol),
+                          blk_of_line.ctypes.data, nblk, ncol, n_ax, col_word.ctypes.data,
+                          vax.ctypes.data, varc.ctypes.data)
+    return None if bad >= 0 else (col_word, vax, varc)
+
+
+def _row_stride(a: np.ndarray, dtype):
+    """Row stride in elements of a 2-D array whose rows are contiguous, else None."""
+    if a.dtype != dtype or a.ndim != 2 or (a.shape[1] > 1 and a.strides[1] != a.itemsize):
+        return None
+    if a.shape[0] > 1 and (a.strides[0] % a.itemsize or a.strides[0] <= 0):
+        return None
+    return a.strides[0] // a.itemsize if a.shape[0] > 1 else a.shape[1]
+
+
+def absolute(vals, present, incremental, offset, use_off: bool, start_vec):
+    """``parse._absolute`` (positions, (n, n_axes) float64), or None."""
+    lib = load()
+    if lib is None:
+        return None
+    n, n_ax = present.shape
+    vs, ps = _row_stride(vals, np.float64), _row_stride(present, np.bool_)
+    if vs is None or ps is None or vals.shape != (n, n_ax):
+        return None
+    incremental = np.ascontiguousarray(incremental, np.bool_)
+    if offset.shape != (n, n_ax):
+        return None
+    # (without offsets they are not read: a zero view is not copied into a full array)
+    offset = np.ascontiguousarray(offset, np.float64) if use_off else np.zeros((1, n_ax))
+    start_vec = np.ascontiguousarray(start_vec, np.float64)
+    if incremental.shape != (n,) or start_vec.shape != (n_ax,):
+        return None
+    position = np.empty((n, n_ax))
+    if n and n_ax:
+        lib.mtc_absolute(n, n_ax, vals.ctypes.data, vs, present.ctypes.data, ps,
+                         incremental.ctypes.data, offset.ctypes.data, int(bool(use_off)),
+                         start_vec.ctypes.data, position.ctypes.data)
+    return position

@@ -10,11 +10,47 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <math.h>
 
 static inline int is_letter(uint8_t c) { return (uint8_t)((c | 32) - 97) < 26; }
 /* + - . and digits (43..57 without ',' and '/') */
 static inline int is_num(uint8_t c) { return (uint8_t)(c - 43) < 15 && c != 44 && c != 47; }
 static inline int is_blank(uint8_t c) { return c == 32 || (uint8_t)(c - 9) < 5; }
+
+/* Eight bytes at p as a little-endian word (memcpy: no alignment needed). */
+static inline uint64_t load8(const uint8_t *p)
+{
+    uint64_t x;
+    memcpy(&x, p, 8);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    x = __builtin_bswap64(x);
+#endif
+    return x;
+}
+
+/* Number of leading digit bytes (0..8) of the eight bytes x (first byte lowest).  A byte is a
+ * digit if its xor with '0' is 0..9: high nibble zero and +6 not carrying into it; a carry
+ * from a non-digit byte only reaches the bytes after it. */
+static inline int digit_run8(uint64_t x)
+{
+    uint64_t a = x ^ 0x3030303030303030ULL;
+    uint64_t bad = (a | (a + 0x0606060606060606ULL)) & 0xF0F0F0F0F0F0F0F0ULL;
+    return bad ? __builtin_ctzll(bad) >> 3 : 8;
+}
+
+/* Value of the first k (1..7) bytes of x, all digits, as an integer (the bytes after them
+ * replaced by leading '0's; the usual three multiply-shift steps over eight digits). */
+static inline uint64_t digits_value8(uint64_t x, int k)
+{
+    x = (x << (8 * (8 - k))) | (0x3030303030303030ULL >> (8 * k));
+    x -= 0x3030303030303030ULL;
+    x = (x * 10) + (x >> 8);
+    x = (((x & 0x000000FF000000FFULL) * 0x000F424000000064ULL) +
+         (((x >> 16) & 0x000000FF000000FFULL) * 0x0000271000000001ULL)) >> 32;
+    return x;
+}
+
+static const uint64_t POW10I[9] = {1, 10, 100, 1000, 10000, 100000, 1000000, 10000000, 100000000};
 
 static const double POW10[23] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11,
                                  1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
@@ -76,11 +112,15 @@ static double number(const uint8_t *c, int64_t s, int64_t e, int64_t dot)
  * *sign_at: first '+'/'-' preceded by a number character (-1: none); *bad_at: first byte that is
  * no letter, number character or blank (-1: none); dup_line[26]: per letter a-z the first
  * 0-based line where it appears twice (-1: none).  Arrays sized by mtc_count; positions are
- * int32 (the caller refuses programs of 2 GB and more). */
+ * int32 (the caller refuses programs of 2 GB and more).  checks[0]: 1 if every run starts
+ * right after the letter of the same index and there are as many of each (parse's test for
+ * blanks or missing numbers), checks[1]: the first run with more than one point or without a
+ * digit (-1: none), as parse's `badnum`.  dot and two may be NULL (not written). */
 void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int32_t *rs,
                   int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
-                  int64_t *bad_at, int32_t *dup_line)
+                  int64_t *bad_at, int32_t *dup_line, int64_t *checks)
 {
+    int64_t adjacent = 1, badnum = -1;
     /* classes: 0 other, 1 blank, 2 letter, 3 number character, 4 newline */
     uint8_t cls[256];
     for (int k = 0; k < 256; k++)
@@ -93,6 +133,43 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
     while (i < n) {
         uint8_t ch = c[i];
         uint8_t k = cls[ch];
+        if (k == 3) {
+            /* the common run first, eight bytes at a time: [sign] up to 7 digits [. up to 7
+             * digits], ended by no number character; the same integer mantissa, value and
+             * bookkeeping as the byte loop below, which takes every other run */
+            int64_t j0 = i + (ch == '-' || ch == '+');
+            if (j0 + 17 <= n) {
+                uint64_t x = load8(c + j0);
+                int k1 = digit_run8(x);
+                if (k1 < 8) {
+                    int64_t e = j0 + k1, d = -1;
+                    uint64_t m = k1 ? digits_value8(x, k1) : 0;
+                    int k2 = 0;
+                    if (c[e] == '.') {
+                        uint64_t y = load8(c + e + 1);
+                        k2 = digit_run8(y);
+                        d = e;
+                        if (k2 < 8) {
+                            m = m * POW10I[k2] + (k2 ? digits_value8(y, k2) : 0);
+                            e += 1 + k2;
+                        }
+                    }
+                    uint8_t t = c[e];
+                    if (k2 < 8 && k1 + k2 > 0 && t != '.' && t != '-' && t != '+') {
+                        nr++;
+                        if (nr >= nl || lp[nr] != i - 1) adjacent = 0;
+                        rs[nr] = (int32_t)i;
+                        re[nr] = (int32_t)e;
+                        if (dot) dot[nr] = (int32_t)d;
+                        if (two) two[nr] = 0;
+                        double v = (double)m / POW10[k2];
+                        value[nr] = ch == '-' ? -v : v;
+                        i = e;
+                        continue;
+                    }
+                }
+            }
+        }
         if (k == 3) {
             /* one number run, its value read on the way (the same arithmetic as number()) */
             int64_t s = i, d = -1;
@@ -109,10 +186,15 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
                 break;
             }
             nr++;
+            if (nr >= nl || lp[nr] != s - 1) adjacent = 0;
+            {
+                int64_t ndig = (i - s) - (d >= 0) - (c[s] == '-' || c[s] == '+');
+                if (badnum < 0 && (pts > 1 || ndig < 1)) badnum = nr;
+            }
             rs[nr] = (int32_t)s;
             re[nr] = (int32_t)i;
-            dot[nr] = (int32_t)d;
-            two[nr] = (uint8_t)(pts > 1);
+            if (dot) dot[nr] = (int32_t)d;
+            if (two) two[nr] = (uint8_t)(pts > 1);
             int64_t flen = d >= 0 ? i - d - 1 : 0, ilen = nd - flen;
             if (!inner && pts <= 1 && ilen <= 8 && flen <= 8 && nd <= 15) {
                 double v = (double)m / POW10[flen];
@@ -139,6 +221,8 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
     }
     *sign_at = sg;
     *bad_at = bad;
+    checks[0] = adjacent && nr + 1 == nl;
+    checks[1] = badnum;
 }
 
 /* Comments become blanks in `code` (a copy of `d`): "( ... )" closed on its line without a
@@ -193,6 +277,40 @@ void mtc_splice(const uint8_t *orig, int64_t n_orig, const uint8_t *src, const i
         if (stop[i] > prev) prev = stop[i];
     }
     if (n_orig > prev) memcpy(out + o, orig + prev, (size_t)(n_orig - prev));
+}
+
+/* mtc_splice in place: `buf` holds the n_orig original bytes and has room for max(n_orig,
+ * total), total the result's size.  Each kept segment of the original moves to its place
+ * (those moving towards the start front to back, then those moving towards the end back to
+ * front: neither overwrites a segment still to move nor one already placed), then the
+ * inserted texts go into the gaps.  Returns 0, or -1 if out of memory (nothing changed). */
+int64_t mtc_splice_inplace(uint8_t *buf, int64_t n_orig, const uint8_t *src, const int64_t *pos,
+                           const int64_t *stop, const int64_t *src_off, const int64_t *src_len,
+                           int64_t m)
+{
+    int64_t *a = malloc((size_t)(m + 1) * 3 * sizeof(int64_t));
+    if (!a) return -1;
+    int64_t *from = a, *to = a + m + 1, *len = a + 2 * (m + 1);
+    int64_t prev = 0, o = 0;
+    for (int64_t i = 0; i <= m; i++) {          /* segment i before edit i; m: the tail */
+        int64_t e = i < m ? pos[i] : n_orig;
+        from[i] = prev;
+        len[i] = e > prev ? e - prev : 0;
+        to[i] = o;
+        o += len[i];
+        if (i < m) {
+            o += src_len[i] > 0 ? src_len[i] : 0;
+            if (stop[i] > prev) prev = stop[i];
+        }
+    }
+    for (int64_t i = 0; i <= m; i++)
+        if (len[i] && to[i] < from[i]) memmove(buf + to[i], buf + from[i], (size_t)len[i]);
+    for (int64_t i = m; i >= 0; i--)
+        if (len[i] && to[i] > from[i]) memmove(buf + to[i], buf + from[i], (size_t)len[i]);
+    for (int64_t i = 0; i < m; i++)
+        if (src_len[i] > 0) memcpy(buf + to[i] + len[i], src + src_off[i], (size_t)src_len[i]);
+    free(a);
+    return 0;
 }
 
 /* Number formatting of the rewrite (the twin of textops.format_counts): the fixed-point text of
@@ -328,7 +446,7 @@ static int seek_line(const uint8_t *c, int64_t n, int64_t want, int64_t *i, int6
 int64_t mtc_read_words(const uint8_t *c, int64_t n, const int64_t *lines, int64_t n_lines,
                        const int8_t *col, int64_t n_cols, double *val)
 {
-    const double nan = __builtin_nan("");     /* positive, as numpy.nan */
+    const double nan = NAN;     /* positive, as numpy.nan */
     uint8_t cls[256];
     int8_t colof[256];
     read_tables(col, cls, colof);
@@ -539,4 +657,122 @@ int64_t mtc_read_back_applies(const int32_t *w_line, const int8_t *w_letter, con
         if (count != have) return 0;
     }
     return 1;
+}
+
+/* ---- block building of parse (the twins of numpy passes in parse.py; same values, same bits) */
+
+/* Number of bytes equal to `byte` (vectorised: 32-bit counters in blocks). */
+int64_t mtc_count_byte(const uint8_t *b, int64_t n, int64_t byte)
+{
+    int64_t total = 0;
+    for (int64_t i0 = 0; i0 < n; i0 += 1 << 20) {
+        int64_t i1 = n - i0 > (1 << 20) ? i0 + (1 << 20) : n;
+        uint32_t c = 0;
+        for (int64_t i = i0; i < i1; i++) c += b[i] == (uint8_t)byte;
+        total += c;
+    }
+    return total;
+}
+
+/* Line starts: 0 and every byte after a line feed (`out` holds count(10) + 1). */
+void mtc_line_starts(const uint8_t *b, int64_t n, int64_t *out)
+{
+    int64_t k = 0;
+    out[k++] = 0;
+    const uint8_t *p = b, *end = b + n;
+    while (p < end) {
+        const uint8_t *q = memchr(p, 10, (size_t)(end - p));
+        if (!q) break;
+        out[k++] = (int64_t)(q - b) + 1;
+        p = q + 1;
+    }
+}
+
+/* Forward fill (parse._ffill): out[i] = values[j] for the last j <= i with isset[j], else
+ * `dflt`.  `size`: bytes per value (1, 8); a plain copy, so any 1- or 8-byte type. */
+void mtc_ffill(const void *values, const uint8_t *isset, int64_t n, int64_t size,
+               const void *dflt, void *out)
+{
+    if (size == 8) {
+        const uint64_t *v = values;
+        uint64_t *o = out, cur = *(const uint64_t *)dflt;
+        for (int64_t i = 0; i < n; i++) {
+            if (isset[i]) cur = v[i];
+            o[i] = cur;
+        }
+    } else {
+        const uint8_t *v = values;
+        uint8_t *o = out, cur = *(const uint8_t *)dflt;
+        for (int64_t i = 0; i < n; i++) {
+            if (isset[i]) cur = v[i];
+            o[i] = cur;
+        }
+    }
+}
+
+/* Per line: whether it has an axis word (column 0..n_ax-1) and an arc word (column >= n_ax),
+ * from each word's column (-1: none) and line.  Returns the number of arc words. */
+int64_t mtc_word_lines(const int8_t *wcol, const int32_t *wline, int64_t nw, int64_t n_ax,
+                       uint8_t *has_motion, uint8_t *has_arc)
+{
+    int64_t n_arc = 0;
+    for (int64_t i = 0; i < nw; i++) {
+        int c = wcol[i];
+        if (c < 0) continue;
+        if (c < n_ax) has_motion[wline[i]] = 1;
+        else { has_arc[wline[i]] = 1; n_arc++; }
+    }
+    return n_arc;
+}
+
+/* The words' scatter into block columns: col_word[b, c] = i and the value[i] for every word
+ * i with a column c >= 0 on the line of block b = blk_of_line[wline[i]]: columns below n_ax
+ * into vax[b, c] (n_ax per row), the others into varc[b, c - n_ax]; -1 and NaN elsewhere
+ * (written here).  Returns -1, or the first word whose line is no block (the caller then
+ * takes the numpy path, which decides what that means). */
+int64_t mtc_scatter(const int8_t *wcol, const int32_t *wline, const double *value, int64_t nw,
+                    const int64_t *blk_of_line, int64_t nblk, int64_t ncol, int64_t n_ax,
+                    int32_t *col_word, double *vax, double *varc)
+{
+    const double nan = NAN;
+    int64_t na = ncol - n_ax;
+    for (int64_t j = 0; j < nblk * ncol; j++) col_word[j] = -1;
+    for (int64_t j = 0; j < nblk * n_ax; j++) vax[j] = nan;
+    for (int64_t j = 0; j < nblk * na; j++) varc[j] = nan;
+    for (int64_t i = 0; i < nw; i++) {
+        int c = wcol[i];
+        if (c < 0) continue;
+        int64_t b = blk_of_line[wline[i]];
+        if (b < 0) return i;
+        col_word[b * ncol + c] = (int32_t)i;
+        if (c < n_ax) vax[b * n_ax + c] = value[i];
+        else varc[b * na + c - n_ax] = value[i];
+    }
+    return -1;
+}
+
+/* Absolute positions (parse._absolute), axis by axis, in the order of numpy's operations:
+ * cum = cumsum(where(present & incremental, v, 0)), then at a row after the last absolute
+ * word j: (v[j] - cum[j] (+ offset[j])) + cum, before any: start + cum.  Strides in elements
+ * (the value and presence arrays are column slices of wider arrays). */
+void mtc_absolute(int64_t n, int64_t n_ax, const double *vals, int64_t vs, const uint8_t *present,
+                  int64_t ps, const uint8_t *incremental, const double *offset, int64_t use_off,
+                  const double *start, double *position)
+{
+    for (int64_t k = 0; k < n_ax; k++) {
+        double cum = 0.0, base = 0.0;
+        int have = 0;
+        for (int64_t i = 0; i < n; i++) {
+            int pres = present[i * ps + k] != 0;
+            double v = vals[i * vs + k];
+            double inc = pres && incremental[i] ? v : 0.0;
+            cum = i ? cum + inc : inc;
+            if (pres && !incremental[i]) {
+                base = v - cum;
+                if (use_off) base += offset[i * n_ax + k];
+                have = 1;
+            }
+            position[i * n_ax + k] = (have ? base : start[k]) + cum;
+        }
+    }
 }

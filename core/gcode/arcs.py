@@ -43,7 +43,9 @@ def _arc_geometry(axes, position, start_vec, motion, plane, ijk, ijk_present, ra
         _fail(f"circular interpolation needs axis {missing}, which the machine does not have",
               blines[k[0]], filename)
     u, v, w, iu, iv, iw = cols
-    prev = np.vstack([start_vec[None, :], position])[k]        # start of each arc
+    # start of each arc: the block before's end, the start before the first (rows taken, not
+    # a copy of every position)
+    prev = np.where((k > 0)[:, None], position[np.maximum(k - 1, 0)], start_vec[None, :])
     end = position[k]
     r_ = np.arange(len(k))
     # axes other than the plane and its normal must not move during an arc
@@ -181,7 +183,8 @@ def _arc_params(program: Program, ak) -> _ArcGeo:
     cols, _ = _plane_cols(program.axes, np.asarray(program.plane)[ak])
     u, v, w, iu, iv, _ = cols
     P = np.asarray(program.position)
-    S = np.vstack([program.start[None, :], P])[ak]
+    ak = np.asarray(ak)
+    S = np.where((ak > 0)[:, None], P[np.maximum(ak - 1, 0)], np.asarray(program.start)[None, :])
     E = P[ak]
     r_ = np.arange(len(ak))
     centre = np.asarray(program.arc_centre)[ak]

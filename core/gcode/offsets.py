@@ -38,6 +38,10 @@ from .codes import INCH, LINEAR
 
 
 def _ffill(values, isset, default):
+    from . import _ctok
+    out = _ctok.ffill(values, isset, default)            # compiled, where built: one pass
+    if out is not None:
+        return out
     idx = np.where(isset, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     return np.where(idx >= 0, values[np.maximum(idx, 0)], default)
@@ -153,10 +157,15 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     tev = [e for e in events if e[1] != "wcs"]
     # -- work offsets
     wset = wcs_l >= 0
-    pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
-    keys = wcs_l * 1000 + np.where((wcs_l == 541) | (wcs_l == 154), pnum, 0)
+    keys = wcs_l * 1000
+    with_p = (wcs_l == 541) | (wcs_l == 154)
+    if with_p.any():                      # (P numbers read only where a code takes one)
+        pnum = np.clip(np.nan_to_num(p_line, nan=1), 0, 999).astype(np.int64)
+        keys = keys + np.where(with_p, pnum, 0)
     # Haas G110..G129 are G154 P1..P20
-    keys = np.where((wcs_l >= 110) & (wcs_l <= 129), 154000 + wcs_l - 109, keys)
+    haas = (wcs_l >= 110) & (wcs_l <= 129)
+    if haas.any():
+        keys = np.where(haas, 154000 + wcs_l - 109, keys)
     table = {}
     for key, vec in dict(work_offsets or {}).items():
         name = str(key).upper().replace(" ", "")

@@ -18,8 +18,20 @@ from .textops import parse_decimals
 from .tokens import _ascii, _comment_spans, _fail, _tokenise, _word_error, _word_text
 
 
+def _all_columns(a: np.ndarray) -> np.ndarray:
+    """``a.all(axis=1)`` of a (rows, few columns) bool array, column by column (numpy's
+    reduction along a short last axis is several times slower)."""
+    out = a[:, 0].copy()
+    for k in range(1, a.shape[1]):
+        out &= a[:, k]
+    return out
+
+
 def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
     """Forward fill: the last set value at or before each index (``default`` before any)."""
+    out = _ctok.ffill(values, isset, default)            # compiled, where built: one pass
+    if out is not None:
+        return out
     idx = np.where(isset, np.arange(len(values)), -1)
     np.maximum.accumulate(idx, out=idx)
     out = values[np.maximum(idx, 0)]
@@ -61,9 +73,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     data = text.encode("utf-8", "surrogateescape")
     b = np.frombuffer(data, np.uint8)
     nbytes = len(b)
-    nl = np.flatnonzero(b == 10)
-    line_start = np.concatenate(([0], nl + 1)).astype(np.int64)
-    line_end = np.concatenate((nl, [nbytes])).astype(np.int64)
+    line_start = _ctok.line_starts(b)
+    if line_start is None:
+        nl = np.flatnonzero(b == 10)
+        line_start = np.concatenate(([0], nl + 1)).astype(np.int64)
+        del nl
+    line_end = np.empty_like(line_start)
+    line_end[:-1] = line_start[1:] - 1
+    line_end[-1] = nbytes
     n_lines = len(line_start)
 
     def line_of(pos):
@@ -86,7 +103,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             np.add.at(mark, sp[:, 1], -1)
             code[np.cumsum(mark[:-1], dtype=np.int8).view(bool)] = 32
     bd_lines = np.zeros(0, np.int64)
-    slash = np.flatnonzero(code == 47)
+    slash = np.flatnonzero(code == 47) if b"/" in data else ()
     if len(slash):
         # block delete: '/' as the first non-blank character of a line
         ls = line_start[line_of(slash)]
@@ -100,8 +117,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
     tok = _ctok.tokenise(code)               # compiled one-pass tokenizer, where built
     if tok is None:
-        tok = _tokenise(code, line_start) + (None, None)
-    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line = tok
+        tok = _tokenise(code, line_start) + (None, None, None)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line, checks = tok
     del tok
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
@@ -111,7 +128,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         if siemens and ch in "=(,)":
             _fail(siemens, ln, filename)
         _fail(f"unexpected character {ch!r}: {hint}", ln, filename)
-    if len(rs) != len(lp) or np.any(rs != lp + 1):
+    # (checks: the compiled tokenizer's answers to the two tests below, made on the way)
+    if (not checks[0]) if checks is not None else (len(rs) != len(lp) or np.any(rs != lp + 1)):
         # blanks between a letter and its number ("X 10") are read, on the same line
         ok = len(rs) == len(lp) and bool(np.all(rs > lp)) and bool(np.all(rs[:-1] < lp[1:]))
         if ok:
@@ -126,11 +144,16 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         i = int(np.searchsorted(rs, sign_at, side="right") - 1)
         _fail(f"malformed number {_word_text(data, lp[i], re_[i])!r}: a sign may only "
               "lead the number", wline[i], filename)
-    first_ch = code[rs]
-    ndig = (re_ - rs) - (dot_of_run >= 0) - ((first_ch == 43) | (first_ch == 45))
-    badnum = twodots | (ndig < 1)
-    if badnum.any():
-        i = int(np.argmax(badnum))
+    first_ch = code[rs] if value is None else None
+    if checks is None:
+        ndig = (re_ - rs) - (dot_of_run >= 0) - ((first_ch == 43) | (first_ch == 45))
+        badnum = twodots | (ndig < 1)
+        first_bad = int(np.argmax(badnum)) if badnum.any() else -1
+        del ndig, badnum
+    else:
+        first_bad = int(checks[1])
+    if first_bad >= 0:
+        i = first_bad
         _fail(f"malformed number in word {_word_text(data, lp[i], re_[i])!r}: expected "
               "digits with at most one decimal point", wline[i], filename)
     if value is None:
@@ -144,7 +167,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if nbytes >= 2**31 - 1:
         raise InputError("programs of 2 GB and more are not supported", file=filename)
     lp, re_ = lp.astype(np.int32, copy=False), re_.astype(np.int32, copy=False)
-    del code, rs, dot_of_run, twodots, first_ch, ndig, badnum
+    del code, rs, dot_of_run, twodots, first_ch
 
     G, M = _ascii("G"), _ascii("M")
     # -- duplicate addresses in one block (G and M may repeat)
@@ -270,22 +293,26 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         _fail(what, wline[i], filename)
 
 
-    def per_line(catid, mapping, label):
+    def per_line(catid, mapping, label, words=False):
+        """Per line the category's code (-1: none) and, if ``words``, its word index."""
         sel = cat == catid
-        lines_, vals, words = gline[sel], g10[sel], gi[sel]
-        cnt = np.bincount(lines_, minlength=n_lines)
-        if np.any(cnt > 1):
-            ln = int(np.argmax(cnt > 1))
-            _fail(f"two {label} G codes in one block", ln, filename)
+        lines_, vals = gline[sel], g10[sel]
+        # the words are in text order: a line with two codes shows as equal neighbours, the
+        # first such pair at the smallest such line
+        twice = np.flatnonzero(lines_[1:] == lines_[:-1])
+        if len(twice):
+            _fail(f"two {label} G codes in one block", int(lines_[twice[0]]), filename)
         out = np.full(n_lines, -1, np.int64)
-        wout = np.full(n_lines, -1, np.int64)
         out[lines_] = _map_codes(vals, mapping)
-        wout[lines_] = words
+        if not words:
+            return out, None
+        wout = np.full(n_lines, -1, np.int64)
+        wout[lines_] = gi[sel]
         return out, wout
 
-    mot_l, mot_w = per_line(0, _G_MOTION, "motion (G0 G1 G2 G3)")
+    mot_l, mot_w = per_line(0, _G_MOTION, "motion (G0 G1 G2 G3)", words=True)
     pla_l, _ = per_line(2, _G_PLANE, "plane (G17 G18 G19)")
-    uni_l, uni_w = per_line(3, _G_UNITS, "unit (G20 G21)")
+    uni_l, uni_w = per_line(3, _G_UNITS, "unit (G20 G21)", words=True)
     dis_l, _ = per_line(4, _G_DIST, "distance mode (G90 G91)")
     wcs_l, _ = per_line(5, _G_WCS, "work coordinate system")
     acm_l, _ = per_line(7, _G_ARC_DIST, "arc centre mode (G90.1 G91.1)")
@@ -380,7 +407,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     mode_line = _ffill(mot_l, mot_l >= 0, -1)
     # canned cycles: set by G73..G89, cancelled by G80 or a G0-G3 code (the G0/G1 mode from
     # before the cycle then continues, as on Fanuc controls)
-    cyc_l, cyc_w = per_line(11, _G_CYCLE, "canned cycle")
+    cyc_l, _ = per_line(11, _G_CYCLE, "canned cycle")
     both = (cyc_l >= 0) & (mot_l >= 0)
     if both.any():
         _fail("a motion code and a canned cycle in one block", int(np.argmax(both)), filename)
@@ -533,16 +560,22 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             wcol[ki] = -1
         cyc_zw[wline[zi]], cyc_rw[wline[ri]] = zi, ri
         wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
-    axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
-    arc_w = np.flatnonzero(wcol >= n_ax)
-    if len(axis_w) and dwell_line.any():
+    wl = _ctok.word_lines(wcol, wline, n_ax, n_lines)    # compiled: one pass, no index arrays
+    if wl is not None:
+        has_motion, has_arcw, n_arc = wl
+        arc_w = np.flatnonzero(wcol >= n_ax) if n_arc else ()
+    else:
+        axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
+        arc_w = np.flatnonzero(wcol >= n_ax)
+        has_motion = np.zeros(n_lines, bool)
+        has_motion[wline[axis_w]] = True
+        has_arcw = np.zeros(n_lines, bool)
+        has_arcw[wline[arc_w]] = True
+        del axis_w
+    if dwell_line.any() and (has_motion & dwell_line).any():
+        axis_w = np.flatnonzero((wcol >= 0) & (wcol < n_ax))
         dw = dwell_line[wline[axis_w]]
-        if dw.any():
-            _fail("axis word in a G4 dwell block", wline[axis_w[np.argmax(dw)]], filename)
-    has_motion = np.zeros(n_lines, bool)
-    has_motion[wline[axis_w]] = True
-    has_arcw = np.zeros(n_lines, bool)
-    has_arcw[wline[arc_w]] = True
+        _fail("axis word in a G4 dwell block", wline[axis_w[np.argmax(dw)]], filename)
     if len(arc_w):
         notarc = ~np.isin(mode_line[wline[arc_w]], (2, 3))
         if notarc.any():
@@ -569,10 +602,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     nblk = len(blines)
     blk_of_line = np.full(n_lines, -1, np.int64)
     blk_of_line[blines] = np.arange(nblk)
-    col_word = np.full((nblk, n_ax + 4), -1, np.int32)
-    cw = np.flatnonzero(wcol >= 0)
-    col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
-    del cw, wcol
 
     motion = mode_line[blines]
     tcp = tcp_line[blines]
@@ -586,9 +615,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     tool_length = tlen_line[blines]
     tool_tip = tip_line[blines]
     tool_unknown = gauge_line[blines]
-    feed_blk = np.isin(mode_line[blines], (1, 2, 3)) | (cycle_line[blines] > 0)
+    mb = mode_line[blines]
+    feed_blk = (mb >= 1) & (mb <= 3) | (cycle_line[blines] > 0)     # G1 G2 G3 or a cycle
+    del mb
     notes.extend(tool_change_warnings(tool_l, h_line, t_line if change_line is None else change_line,
                                       blines[feed_blk]))
+    motion_word = mot_w[blines]
+    g20 = uni_w[(uni_l == 20)]
+    del tlen_line, tip_line, gauge_line, t_line, feed_blk, mot_w, uni_w, uni_l   # (peak memory)
     if inch_line[blines].any() and not inch_line[blines].all():
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
@@ -596,7 +630,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
     cl = cutter_line[blines]
     cutter = np.where(cl == 40, 0, np.where(cl > 100, cl // 10, cl)).astype(np.int8)
-    cutter_radius = np.full(nblk, np.nan)
+    # constant columns are read-only broadcast views (no memory: 8 MB each at 1 M blocks)
+    cutter_radius = np.broadcast_to(np.float64(np.nan), (nblk,))
     if (cl > 100).any():
         # G41.1/G42.1 D<diameter>: the radius is the D word of the line that switched it on
         d_val = letter_value("D")
@@ -615,7 +650,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         d_val = letter_value("D")
         cutter_d = _ffill(d_val, ~np.isnan(d_val), np.nan)[blines]
     else:
-        cutter_d = np.full(nblk, np.nan)
+        cutter_d = np.broadcast_to(np.float64(np.nan), (nblk,))
     inverse_time = _ffill(feedm_l == 93, feedm_l >= 0, False)[blines]
     plane = plane_line[blines]
     incremental = incr_line[blines]
@@ -623,15 +658,30 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     feed = feed_line[blines]
     # the per-line state is in the block arrays now: free it before the positions (peak memory)
     del (mot_l, pla_l, dis_l, wcs_l, acm_l, tool_l, nonmove_l, feedm_l, dwell_line, g50_line,
-         p_line, h_line, incr_line, plane_line, mode_line, cyc_l, cyc_w, ev, rl, fval, fset,
-         feed_line, blk_of_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
-    vals = value[np.maximum(col_word, 0)]
-    vals[col_word < 0] = np.nan
+         p_line, h_line, incr_line, plane_line, mode_line, cyc_l, ev, rl, fval, fset,
+         feed_line, block, has_motion, has_arcw, gi, cat, cut_l, cutter_line)
+    # the words into block columns (after the per-line state is freed: peak memory)
+    # vax: the axis words' values per block (NaN: none), varc: I J K R (compiled: two arrays,
+    # neither above the allocator's heap reuse size at 1 M blocks)
+    sc = _ctok.scatter(wcol, wline, value, blk_of_line, nblk, n_ax + 4, n_ax)   # one pass
+    if sc is not None:
+        col_word, vax, varc = sc
+    else:
+        col_word = np.full((nblk, n_ax + 4), -1, np.int32)
+        cw = np.flatnonzero(wcol >= 0)
+        col_word[blk_of_line[wline[cw]], wcol[cw]] = cw
+        del cw
+        vals = value[np.maximum(col_word, 0)]
+        vals[col_word < 0] = np.nan
+        vax, varc = vals[:, :n_ax], vals[:, n_ax:]
+        del vals
+    del sc, wcol, blk_of_line
     if inch.any():
         lin_scale = np.where(inch, INCH, 1.0)
         for k, c in enumerate(cols):
             if c in LINEAR or c in ARC_WORDS:
-                vals[:, k] *= lin_scale
+                col = vax[:, k] if k < n_ax else varc[:, k - n_ax]
+                col *= lin_scale                   # (a view: in place)
     present = col_word[:, :n_ax] >= 0
     cycle_repeat = np.ones(nblk, np.int32)
     if repeat_line is not None:
@@ -639,7 +689,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         # G91: the hole steps by the increment at each repeat, the block ends at the last
         step = (cycle_repeat > 1) & incremental
         if step.any():
-            vals[step, :n_ax] *= cycle_repeat[step, None]
+            vax[step] *= cycle_repeat[step, None]
     polar = polar_xy = None
     pres_pos = present
     if (g10 == 160).any():
@@ -659,8 +709,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             # the positions see the point (NaN where a word is not known yet: unknown)
             ix, iy = axes.index("X"), axes.index("Y")
             sc = np.where(inch, INCH, 1.0)
-            vals[polar, ix] = polar_xy[polar, 0] * sc[polar]
-            vals[polar, iy] = polar_xy[polar, 1] * sc[polar]
+            vax[polar, ix] = polar_xy[polar, 0] * sc[polar]
+            vax[polar, iy] = polar_xy[polar, 1] * sc[polar]
             pres_pos = present.copy()
             pres_pos[polar, ix] = pres_pos[polar, iy] = True
             notes.append(f"G16 polar coordinates on line(s) "
@@ -676,13 +726,15 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if not (arc_tol >= 0 and np.isfinite(arc_tol)):
         raise ValueError(f"arc_tol must be a finite number >= 0, got {arc_tol}")
     start_vec = _start_vector(start, axes)
-    written = present.any(axis=0)
+    written = np.count_nonzero(present, axis=0) > 0
     written |= np.isin(np.arange(n_ax), reset_cols)
     idle = np.isnan(start_vec) & ~written
     start_vec[idle] = 0.0
     idle_axes = tuple(a for a, i in zip(axes, idle) if i)
-    offset = offsets_line[blines] if offsets_line.any() else np.zeros((nblk, n_ax))
-    position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos, incremental,
+    # no offsets (the common case): a read-only view of zeros, no (N, n_axes) array
+    zero_offset = np.broadcast_to(np.zeros(n_ax), (nblk, n_ax))
+    offset = offsets_line[blines] if offsets_line.any() else zero_offset
+    position = _positions(blines, reset_lines, reset_cols, vax, pres_pos, incremental,
                           offset, start_vec)
     cancel92 = gline[np.isin(g10, (921, 922))]
     if len(g92_w):
@@ -709,13 +761,14 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                     g92[k] = new92
             offsets_line[L:] += delta
             offset = offsets_line[blines]
-            position = _positions(blines, reset_lines, reset_cols, vals[:, :n_ax], pres_pos,
+            position = _positions(blines, reset_lines, reset_cols, vax, pres_pos,
                                   incremental, offset, start_vec)
 
+    del offsets_line
     if rot_events:
         reset_lines, reset_cols, position = _rotation_known(
             axes, rot_events, blines, position, offset, res_ax, reset_lines, reset_cols,
-            lambda rl, rc: _positions(blines, rl, rc, vals[:, :n_ax], pres_pos, incremental,
+            lambda rl, rc: _positions(blines, rl, rc, vax, pres_pos, incremental,
                                       offset, start_vec))
     rotation = None
     if rot_events:
@@ -739,12 +792,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                         if w >= 0:
                             seeds[j, col_] = value[w] * sc
         position, cyc_data = _cycles(axes, blines, cycle, cut, retract_line[blines], cyc_zw[blines],
-                                     cyc_rw[blines], value, inch, incremental, vals[:, :n_ax],
+                                     cyc_rw[blines], value, inch, incremental, vax,
                                      present, offset, start_vec, position, filename, seeds)
-    ijk = np.nan_to_num(vals[:, n_ax:n_ax + 3])
+    del cycle_line, retract_line, cyc_zw, cyc_rw
+    ijk = np.nan_to_num(varc[:, :3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
-    radius = vals[:, n_ax + 3].copy()
-    del vals
+    radius = varc[:, 3].copy()
+    del vax, varc
     arc_centre = np.full((nblk, 3), np.nan)
     arc_sweep = np.full(nblk, np.nan)
     is_arc = (motion == 2) | (motion == 3)
@@ -757,8 +811,6 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     start_known = np.isfinite(start_vec)
     position[~axis_known] = 0.0
     start_vec = np.where(start_known, start_vec, 0.0)
-    motion_word = mot_w[blines]
-    g20 = uni_w[(uni_l == 20)]
     finch = fi[inch_line[wline[fi]]]
     arrays = dict(line_start=line_start, line_end=line_end, w_letter=wlet, w_value=value,
                   w_line=wline, w_pos=lp, w_num=w_num, w_end=re_, line=blines + 1, position=position,
@@ -767,11 +819,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   ijk_present=ijk_present, radius=radius, arc_centre=arc_centre,
                   arc_sweep=arc_sweep, col_word=col_word, motion_word=motion_word,
                   inch_g20_words=g20, inch_f_words=finch,
-                  axis_known=axis_known, start_known=start_known, offset=np.nan_to_num(offset),
+                  axis_known=axis_known, start_known=start_known, offset=offset if offset is zero_offset else np.nan_to_num(offset),
                   ijk_absolute=ijk_absolute, inverse_time=inverse_time, cycle=cycle.astype(np.int8),
                   cycle_repeat=cycle_repeat,
                   cycle_data=cyc_data if cyc_data is not None else np.zeros((nblk, 0)),
-                  known=axis_known.all(axis=1) if n_ax else np.ones(nblk, bool),
+                  known=_all_columns(axis_known) if n_ax else np.ones(nblk, bool),
                   tcp=tcp, tool_length=tool_length, rotation=rotation, tool_tip=tool_tip,
                   tool_unknown=tool_unknown, cutter=cutter, cutter_d=cutter_d,
                   cutter_radius=cutter_radius, polar=polar, polar_xy=polar_xy)
@@ -935,9 +987,12 @@ def _absolute(vals, present, incremental, offset, start_vec):
     (work offset, local shift, tool length); an increment adds to the position before; an axis
     not written stays.  An absolute NaN makes the axis unknown until its next absolute word."""
     n, n_ax = present.shape
+    use_off = bool(offset.any())
+    position = _ctok.absolute(vals, present, incremental, offset, use_off, start_vec)
+    if position is not None:                  # compiled, where built: one pass per axis
+        return position
     position = np.empty((n, n_ax))
     rows = np.arange(n)
-    use_off = bool(offset.any())
     for k in range(n_ax):
         pres = present[:, k]
         v = vals[:, k]

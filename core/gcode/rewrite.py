@@ -227,7 +227,12 @@ def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
     for k, a in enumerate(program.axes):
         w = cw[:, k]
         pres = w >= 0
-        if not (pres & inc).any():
+        rows = np.flatnonzero(pres & inc)
+        if not len(rows):
+            continue
+        # the increments alone first (a few rows of most programs): the same values as below
+        vi = wv[w[rows]] * np.where(inch[rows] & (a in LINEAR), INCH, 1.0) / res[k]
+        if not (np.abs(np.abs(vi - np.trunc(vi)) - 0.5) < 1e-6).any():
             continue
         v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
         v = v * np.where(inch & (a in LINEAR), INCH, 1.0) / res[k]
@@ -425,7 +430,14 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     kk = np.flatnonzero(kn)
     nk = len(kk)
     cb, cyc_pts = _cycle_points(program, kn)
-    Q = np.vstack([P[kk], samp, cyc_pts])
+    # (filled in place: no gathered copy of the positions when every block is compensated)
+    Q = np.empty((nk + len(samp) + len(cyc_pts), n_ax))
+    if nk == N:
+        Q[:nk] = P
+    else:
+        np.take(P, kk, axis=0, out=Q[:nk])
+    Q[nk:nk + len(samp)] = samp
+    Q[nk + len(samp):] = cyc_pts
     rotated = has_rotation(program)
     if row_lines is not None or rotated:
         rl = np.concatenate([line[kk], np.repeat(line[ak], 4 * _n_samples(geo) - 1)
@@ -452,14 +464,19 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     rep_rows = cycle_counts.stepped_rows(program)
     if cyc.any():
         Cc = cycle_counts.control_counts(program, Cc, res, rep_rows, offc)
-    dK = np.rint((Qt[:nk] - P[kk]) / res)
+    dK = np.subtract(Qt[:nk], P if nk == N else P[kk])         # (in place: no temporaries)
+    np.divide(dK, res, out=dK)
+    np.rint(dK, out=dK)
     if dK.any():
         _refuse_half_count_increments(program, res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
-    Cc[1 + kk] += dK
+    if nk == N:
+        Cc[1:] += dK
+    else:
+        Cc[1 + kk] += dK
     del Qt
-    C = np.nan_to_num(Cc, nan=0.0).astype(np.int64)
+    C = np.nan_to_num(Cc, copy=False, nan=0.0).astype(np.int64)    # (Cc is this function's own)
     del Cc
     prev, new = C[:N], C[1:]
     no_z = np.zeros(N, bool)
@@ -646,9 +663,8 @@ def _call_transform(transform, q):
     out = np.asarray(transform(q.copy()), dtype=float)
     if out.shape != q.shape:
         raise ValueError(f"transform returned shape {out.shape}, expected {q.shape}")
-    fin = np.isfinite(out).all(axis=1)
-    if not fin.all():
-        i = int(np.argmax(~fin))
+    if not np.isfinite(out).all():
+        i = int(np.argmax(~np.isfinite(out).all(axis=1)))
         raise ValueError(f"transform returned a non-finite value for point {i}: {q[i]}")
     return out
 

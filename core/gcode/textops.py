@@ -134,9 +134,12 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     stop, sub = np.asarray(stop), np.asarray(sub)
     src_off, src_len = np.asarray(src_off), np.asarray(src_len)
     # the copy lives in a bytearray, returned as it is when every edit is in place (no copy
-    # into bytes: the output of a large program is tens of MB)
-    ba = bytearray(len(orig))
-    out = np.frombuffer(ba, np.uint8) if len(orig) else np.zeros(0, np.uint8)
+    # into bytes: the output of a large program is tens of MB); room for the result, so that
+    # the compiled splice works in place (one output buffer at the peak, not two)
+    n_orig = len(orig)
+    total = n_orig - int((stop - pos).sum(dtype=np.int64)) + int(src_len.sum(dtype=np.int64))
+    ba = bytearray(max(n_orig, total))
+    out = np.frombuffer(ba, np.uint8, count=n_orig) if n_orig else np.zeros(0, np.uint8)
     out[:] = orig
     from ._ctok import overwrite_same
     rest = overwrite_same(out, src, pos, stop, src_off, src_len)     # compiled: one pass
@@ -162,6 +165,7 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
         if progress is not None:
             progress(len(out), len(out))
         del out                               # the bytearray's only view: it stays resizable
+        del ba[n_orig:]                       # (room left by removals with no insertion)
         return ba
     pos, stop, sub = pos.astype(np.int64), stop.astype(np.int64), sub.astype(np.int64)
     src_off, src_len = src_off.astype(np.int64), src_len.astype(np.int64)
@@ -172,7 +176,14 @@ def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
     prev_end = np.concatenate([[0], np.maximum.accumulate(stop)[:-1]])
     if np.any(pos < prev_end):
         raise AssertionError("overlapping edits")  # a programming error, never user input
-    n_orig = len(out)
+    from ._ctok import splice_inplace
+    del out
+    if splice_inplace(ba, n_orig, src, pos, stop, src_off, src_len):    # compiled, in place
+        del ba[total:]
+        if progress is not None:
+            progress(total, total)
+        return ba
+    out = np.frombuffer(ba, np.uint8, count=n_orig) if n_orig else np.zeros(0, np.uint8)
     tail = int(stop.max())
     npieces = 2 * len(pos) + 1
     if npieces * 64 < n_orig:
