@@ -287,6 +287,32 @@ def bic(rss: float, n_rows: int, k: int, neff: float) -> float:
     return neff * math.log(max(rss, 1e-300) / n_rows) + k * math.log(neff)
 
 
+def bic_per_output(ctx: Context, f: "Fit", neff: float) -> float:
+    """BIC with a residual variance of its own per output (fitted on all rows).
+
+    The pooled `bic` takes one variance for every output: a large mismatch left on one output
+    (an effect outside the library, single-sample spikes of a logger) then swamps the evidence
+    for an effect on another output, whose RSS is a small part of the total.  With a variance
+    per output each output's log-likelihood counts on its own.  The effective sample size is
+    shared out over the outputs in proportion to their rows."""
+    total = 0.0
+    for sl in ctx.slices.values():
+        r = f.resid[sl]
+        n_o = max(len(r), 1)
+        total += neff * n_o / ctx.N * math.log(max(float(r @ r), 1e-300) / n_o)
+    return total + f.k * math.log(neff)
+
+
+def delta_bic(ctx: Context, f: "Fit", cur: "Fit", neff: float) -> float:
+    """BIC change from `cur` to `f`: the stronger of the pooled and the per-output evidence
+    (the pooled test keeps every decision it made before; the per-output one adds the effects
+    that a mismatch on another output hid)."""
+    d_pool = bic(f.rss, f.n_rows, f.k, neff) - bic(cur.rss, cur.n_rows, cur.k, neff)
+    if len(ctx.slices) < 2:
+        return d_pool
+    return min(d_pool, bic_per_output(ctx, f, neff) - bic_per_output(ctx, cur, neff))
+
+
 def blocks(n: int, folds: int) -> list[np.ndarray]:
     edges = np.linspace(0, n, folds + 1).astype(int)
     return [np.arange(edges[i], edges[i + 1]) for i in range(folds)]
@@ -491,8 +517,7 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
         # one effective sample size for every BIC (from the noise, not from what is left of the
         # effects): values computed with different N_eff would not be comparable
         neff = n_effective(ctx)
-        b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
-        trials = sorted(((bic(f.rss, f.n_rows, f.k, neff) - b_cur, c, swap, m_new, f)
+        trials = sorted(((delta_bic(ctx, f, cur, neff), c, swap, m_new, f)
                          for c, swap, m_new, f in trials), key=lambda g: g[0])
         accepted = False
         for dbic, c, swap, m_new, f in trials[:4]:
@@ -555,12 +580,11 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
     while changed and len(model) > 1:
         changed = False
         neff = n_effective(ctx)
-        b_full = bic(cur.rss, cur.n_rows, cur.k, neff)
         worst = None
         for i, c in enumerate(model):
             sub = model[:i] + model[i + 1:]
             f = fit(ctx, sub, etas[:i] + etas[i + 1:], max_nfev=st.max_nfev)
-            d = bic(f.rss, f.n_rows, f.k, neff) - b_full
+            d = -delta_bic(ctx, cur, f, neff)  # rise of BIC without it, by the measure that kept it
             if d < st.bic_threshold and (worst is None or d < worst[0]):
                 worst = (d, i, f)
         if worst is not None:
@@ -588,6 +612,18 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
                 changed = True
                 break
     final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else cur
+    # the longer final fit may carry a parameter to where it is no longer plausible (a time
+    # constant run into its bound): such an effect is not identified and goes
+    while model:
+        bad = [(i, w) for i, c in enumerate(model)
+               for w in [c.implausible(ctx, final.etas[i], final.betas[i])] if w]
+        if not bad:
+            break
+        i, why = bad[0]
+        log.append(f"final: {model[i].label} dropped: {why}")
+        evidence.pop(model[i].label, None)
+        model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
+        final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
     return final, evidence, log
 
 
@@ -622,6 +658,8 @@ def _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows, coarse_cache, evi
         if best is None:
             break
         d, i, c, f = best
+        if c.implausible(ctx, f.etas[-1], f.betas[-1]):
+            break  # an exchange never brings in what the forward steps would refuse
         m_new = model[:i] + model[i + 1:] + [c]
         cv_new, _ = cross_validate(ctx, m_new, f.etas, st.folds)
         if cv_new > cv_cur * (1.0 + st.cv_min_gain):

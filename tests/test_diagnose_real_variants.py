@@ -1,0 +1,42 @@
+"""Diagnosis of real recordings unlike the one it was developed on (excerpts of the UMich CNC
+runs: a 300-sample sub-range, accelerations as outputs): what a new user would point it at."""
+from pathlib import Path
+
+from mtcomp.diagnose import diagnose
+
+DATA = Path(__file__).parent / "data" / "umich"
+
+
+def _ratio(res, o):
+    return res.fit["holdout_rms_after"][o] / res.fit["holdout_rms_before"][o]
+
+
+def test_a_large_unexplained_mismatch_on_one_axis_does_not_hide_the_lags_of_the_others():
+    # Z holds a mismatch 40x its noise floor that no effect explains; pooled over the axes,
+    # its residual swamped the evidence for the lags of X and Y (the old answer: servo lag on
+    # Z only, X and Y "unexplained" with a held-out ratio of 1.00 although their residuals
+    # follow the commanded acceleration with r = -0.9)
+    d = DATA / "exp01_rows150-450"
+    res = diagnose(d / "sim.csv", d / "rec.csv")
+    lags = {e.outputs[0]: e for e in res.effects if e.name == "servo_lag" and len(e.outputs) == 1}
+    assert {"vx", "vy", "vz"} <= set(lags), res.summary()
+    for o in ("vx", "vy", "vz"):
+        # a position-loop time constant of a few ms, as on the whole runs
+        assert 0.003 < lags[o].params["tau_s"] < 0.015, lags[o].params
+        assert _ratio(res, o) < 0.75, (o, _ratio(res, o))
+    assert "explained by noise" not in res.summary()
+
+
+def test_accelerations_as_outputs_get_no_lag_fitted_into_its_bound():
+    # measured against commanded acceleration at 10 Hz: the old answer was a servo lag with
+    # kv = 0.5 1/s (tau = 2 s, the slowest the fit allowed), an unidentified parameter named as
+    # physics (brought in by the exchange pass and the final refit, past the forward checks)
+    d = DATA / "exp04_acc"
+    res = diagnose(d / "sim.csv", d / "rec.csv")
+    assert res.alignment["columns"]["ax"]["kind"] == "acceleration"
+    for e in res.effects:
+        if e.name == "servo_lag":
+            assert e.params["kv_per_s"] > 1.0, (e.params, res.log)
+    for o in res.outputs:
+        assert _ratio(res, o) <= 1.0, (o, _ratio(res, o))
+    assert "explained by noise" not in res.summary()
