@@ -40,3 +40,18 @@ def test_accelerations_as_outputs_get_no_lag_fitted_into_its_bound():
     for o in res.outputs:
         assert _ratio(res, o) <= 1.0, (o, _ratio(res, o))
     assert "explained by noise" not in res.summary()
+
+
+def test_an_effect_that_held_out_data_do_not_support_is_not_named():
+    # 150 samples in which Z moves in one block of the five only: without that block its lag's
+    # time constant is anywhere, and the old answer named a lag on Z at the bound of its range
+    # whose held-out error (every parameter refitted without the block) was 1.06x no model
+    d = DATA / "exp06_rows864-1014"
+    res = diagnose(d / "sim.csv", d / "rec.csv")
+    for e in res.effects:
+        for o in e.outputs:
+            assert _ratio(res, o) <= 1.0, (e.name, o, _ratio(res, o), res.log)
+    lags = {e.outputs[0] for e in res.effects if e.name == "servo_lag"}
+    assert {"vx", "vy"} <= lags, res.summary()
+    # what is left on Z is said, not called noise
+    assert "vz" in [u["output"] for u in res.unexplained]

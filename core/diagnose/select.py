@@ -624,6 +624,22 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
         evidence.pop(model[i].label, None)
         model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
         final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
+    # held out as reported, every parameter refitted without the block: an effect that leaves
+    # all of its outputs worse than no model at all is not supported by the data (an axis that
+    # moves in one block only: without that block its time constant is anywhere)
+    while model:
+        _, oof = cross_validate(ctx, model, final.etas, st.folds, max_nfev=10, betas=final.betas)
+        worse = {o for o, sl in ctx.slices.items()
+                 if float(oof[sl] @ oof[sl]) > float(ctx.z0[sl] @ ctx.z0[sl])}
+        drop = [i for i, c in enumerate(model) if set(c.outputs) <= worse]
+        if not drop:
+            break
+        i = drop[0]
+        log.append(f"final: {model[i].label} dropped: held out with every parameter refitted, "
+                   f"{', '.join(model[i].outputs)} worse than without any effect")
+        evidence.pop(model[i].label, None)
+        model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
+        final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
     return final, evidence, log
 
 

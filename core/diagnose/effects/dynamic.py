@@ -208,7 +208,9 @@ class ServoLag(Candidate):
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         kv = math.exp(eta[0])
-        return {"kv_per_s": kv}, {"kv_per_s": kv * _se(cov_eta, 0)}
+        s = _se(cov_eta, 0)
+        # the time constant beside the gain, as every form of the lag reports it
+        return {"kv_per_s": kv, "tau_s": 1.0 / kv}, {"kv_per_s": kv * s, "tau_s": s / kv}
 
 
 class TimeOffset(Candidate):
