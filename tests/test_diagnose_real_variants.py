@@ -55,3 +55,36 @@ def test_an_effect_that_held_out_data_do_not_support_is_not_named():
     assert {"vx", "vy"} <= lags, res.summary()
     # what is left on Z is said, not called noise
     assert "vz" in [u["output"] for u in res.unexplained]
+
+
+def test_joint_names_pair_a_rate_with_its_commanded_derivative(tmp_path):
+    # a robot's convention: joint rates q1..q3 [deg/s] and the commanded accelerations q1dd..
+    # (also written qdd1, ddq1, q1_ddot). The real UMich velocities under such names (a lag is
+    # the same whatever the unit): the old answer paired no acceleration with its rate and,
+    # at 10 Hz, named only a delay on all three (held out 0.81-0.97)
+    import csv
+    src = DATA / "exp06"
+    names = {"vx": "q1", "vy": "q2", "vz": "q3", "ax_cmd": "qdd1", "ay_cmd": "q2dd",
+             "az_cmd": "q3_ddot"}
+
+    def convert(name):
+        with open(src / name, newline="") as f:
+            rows = list(csv.reader(f))
+        keep = [i for i, h in enumerate(rows[0]) if h == "t[s]" or h.split("[")[0] in names]
+        head = []
+        for i in keep:
+            h = rows[0][i]
+            base = h.split("[")[0]
+            head.append(h if base == "t" else names[base] + h[len(base):].replace("mm", "deg"))
+        (tmp_path / name).write_text("\n".join(",".join(r[i] for i in keep)
+                                               for r in [head] + rows[1:]) + "\n")
+    convert("sim.csv")
+    convert("rec.csv")
+    res = diagnose(tmp_path / "sim.csv", tmp_path / "rec.csv")
+    assert res.alignment["columns"]["q1"]["kind"] == "angular_velocity"
+    lags = {e.outputs[0]: e for e in res.effects if e.name == "servo_lag"}
+    assert set(lags) == {"q1", "q2", "q3"}, res.summary()
+    accel = {"q1": "qdd1", "q2": "q2dd", "q3": "q3_ddot"}
+    for o, e in lags.items():
+        assert accel[o] in e.inputs, e.inputs
+        assert 0.003 < e.params["tau_s"] < 0.015
