@@ -88,3 +88,37 @@ def test_joint_names_pair_a_rate_with_its_commanded_derivative(tmp_path):
     for o, e in lags.items():
         assert accel[o] in e.inputs, e.inputs
         assert 0.003 < e.params["tau_s"] < 0.015
+
+
+def test_rate_names_with_words_of_role_keep_their_quantity():
+    # a unit-less `ax_cmd` (the UMich excerpt's commanded acceleration without its unit) was
+    # taken as a length, `vx_act` too, and `a_x` as an angular acceleration of the A axis
+    from mtcomp.diagnose.data import kind_from_name as k
+    for n in ("vx_cmd", "vx_act", "cmd_vx", "vx1_cmd", "v_x_cmd", "ActualVx"):
+        assert k(n) == "velocity", n
+    for n in ("ax_cmd", "ax_act", "act_ax", "a_x", "a_x_cmd", "ay1"):
+        assert k(n) == "acceleration", n
+    assert k("va_cmd") == "angular_velocity"
+    # a spindle's acceleration is not a speed (no kind holds rpm/s)
+    assert k("S_acc") == "other" and k("spindle_accel") == "other"
+    # unchanged: axes, spindle speeds, temperatures
+    assert [k(n) for n in ("x_cmd", "a_cmd", "S", "spindle_speed", "temp_ax")] == \
+        ["length", "angle", "speed", "speed", "temperature"]
+
+
+def test_umich_excerpt_without_units_in_the_headers(tmp_path):
+    # the same files with the units stripped from the headers: every column's quantity from its
+    # name (reported), the lags found as with the units
+    for name in ("sim.csv", "rec.csv"):
+        lines = (DATA / "exp06" / name).read_text().splitlines()
+        head = ",".join(h.split("[")[0] for h in lines[0].split(","))
+        (tmp_path / name).write_text("\n".join([head] + lines[1:]) + "\n")
+    res = diagnose(tmp_path / "sim.csv", tmp_path / "rec.csv")
+    cols = res.alignment["columns"]
+    assert cols["ax_cmd"]["kind"] == "acceleration" and cols["ax_cmd"]["kind_from"] == "name"
+    assert cols["vx"]["kind"] == "velocity"
+    lags = {e.outputs[0] for e in res.effects if e.name == "servo_lag"}
+    assert lags == {"vx", "vy", "vz"}, res.summary()
+    for e in res.effects:
+        if e.name == "servo_lag":
+            assert any(i.endswith("_cmd") for i in e.inputs), e.inputs
