@@ -513,6 +513,7 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
                     f = f2
             trials.append((c, swap, m_new, f))
         if not trials:
+            log.append(f"step {step + 1}: no candidate lowers the residual")
             break
         # one effective sample size for every BIC (from the noise, not from what is left of the
         # effects): values computed with different N_eff would not be comparable
@@ -520,8 +521,12 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
         trials = sorted(((delta_bic(ctx, f, cur, neff), c, swap, m_new, f)
                          for c, swap, m_new, f in trials), key=lambda g: g[0])
         accepted = False
-        for dbic, c, swap, m_new, f in trials[:4]:
+        for k_t, (dbic, c, swap, m_new, f) in enumerate(trials[:4]):
             if dbic > -st.bic_threshold:
+                if k_t == 0:
+                    # said, so that "nothing named" reads as too little evidence, not as no idea
+                    log.append(f"step {step + 1}: best candidate {c.label}: BIC change "
+                               f"{dbic:+.1f} (a fall of at least {st.bic_threshold:g} needed)")
                 break
             contrib = f.contrib[-1]
             snr = float(np.sqrt(np.mean(contrib ** 2) * len(ctx.outputs) / len(c.outputs)))
