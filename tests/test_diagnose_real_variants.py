@@ -122,3 +122,30 @@ def test_umich_excerpt_without_units_in_the_headers(tmp_path):
     for e in res.effects:
         if e.name == "servo_lag":
             assert any(i.endswith("_cmd") for i in e.inputs), e.inputs
+
+
+def test_unix_time_in_ms_and_us_is_read(tmp_path):
+    # loggers count Unix time in ms or us: 1.7e12 ms was refused as an absurd value before its
+    # unit was applied; the same excerpt on such clocks gives the same diagnosis
+    base = diagnose(DATA / "exp06" / "sim.csv", DATA / "exp06" / "rec.csv")
+    for unit, scale in (("ms", 1e3), ("us", 1e6)):
+        for name in ("sim.csv", "rec.csv"):
+            lines = (DATA / "exp06" / name).read_text().splitlines()
+            out = [f"t[{unit}]," + lines[0].split(",", 1)[1]]
+            for ln in lines[1:]:
+                t, rest = ln.split(",", 1)
+                out.append(f"{1_701_500_000 * scale + round(float(t) * scale):.0f},{rest}")
+            (tmp_path / f"{unit}_{name}").write_text("\n".join(out) + "\n")
+        res = diagnose(tmp_path / f"{unit}_sim.csv", tmp_path / f"{unit}_rec.csv")
+        assert res.names == base.names
+        for a, b in zip(res.effects, base.effects):
+            for k, v in b.params.items():
+                assert abs(a.params[k] - v) <= 1e-6 * max(abs(v), 1e-9), (unit, k)
+    # without a unit such a count is refused, and the message says what to write
+    import pytest
+    from mtcomp._io import InputError
+    for name in ("sim.csv", "rec.csv"):
+        text = (tmp_path / f"ms_{name}").read_text().replace("t[ms]", "timestamp", 1)
+        (tmp_path / f"nu_{name}").write_text(text)
+    with pytest.raises(InputError, match=r"timestamp\[ms\]"):
+        diagnose(tmp_path / "nu_sim.csv", tmp_path / "nu_rec.csv")
