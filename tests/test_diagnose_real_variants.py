@@ -149,3 +149,22 @@ def test_unix_time_in_ms_and_us_is_read(tmp_path):
         (tmp_path / f"nu_{name}").write_text(text)
     with pytest.raises(InputError, match=r"timestamp\[ms\]"):
         diagnose(tmp_path / "nu_sim.csv", tmp_path / "nu_rec.csv")
+
+
+def test_every_command_actual_pair_at_once():
+    # what a new user does with the source file: every Command* column in SIM, every Actual*
+    # column (and some drive signals) in REC, the source's names without units: 12 outputs
+    # (positions, velocities, accelerations of X, Y, Z and the spindle S1). Before, nothing was
+    # named: the spindle's mismatch (58x its noise, outside the library) filled every trial of
+    # the first step, and the commanded accelerations, now outputs themselves, were not offered
+    # to the velocities' lags
+    d = DATA / "exp06_all_columns"
+    res = diagnose(d / "sim.csv", d / "rec.csv")
+    assert len(res.outputs) == 12
+    lags = {e.outputs[0]: e for e in res.effects if e.name == "servo_lag"}
+    assert {"Y1_ActualVelocity", "Z1_ActualVelocity"} <= set(lags), res.summary()
+    for o, e in lags.items():
+        if o.endswith("Velocity"):
+            assert 0.003 < e.params["tau_s"] < 0.015, (o, e.params)
+            assert _ratio(res, o) < 0.85
+    assert "explained by noise" not in res.summary()

@@ -204,8 +204,10 @@ def candidates(al: Aligned) -> list[Candidate]:
             continue
         # servo lag through a logged commanded derivative of the same axis when there is one
         dk = _DERIV.get(al.kinds[o])
-        all_d = [k for k, s in sig.items() if dk and s.kind == dk and s.source == "sim"
-                 and np.ptp(s.values) > 0]
+        # SIM's side of another output counts too: a commanded acceleration compared with the
+        # measured one is still the command the velocity loop followed
+        all_d = [k for k, s in sig.items() if dk and s.kind == dk and s.source in ("sim", "sim-output")
+                 and k != o and np.ptp(s.values) > 0]
         n_rate = sum(al.kinds[r] == al.kinds[o] for r in rates)
         derivs = [k for k in all_d if _pairs_with(sig[o], o, sig[k], k, n_rate, len(all_d))]
         out += ([c for d in derivs for c in (ServoLagDerivative(o, d), ServoLagHermite(o, d))]
