@@ -2,8 +2,10 @@
 
     python benchmarks/diagnose_umich.py DATA_DIR [--no-docs]
 
-DATA_DIR holds experiment_01/04/06/11.csv of the "CNC Mill Tool Wear" data set (public
-domain; University of Michigan SMART lab).  Each run is converted as in
+DATA_DIR holds experiment_NN.csv files of the "CNC Mill Tool Wear" data set (public
+domain; University of Michigan SMART lab): the development set 01/04/06/11, or any other runs
+of the set (every experiment_*.csv found is diagnosed; the docs are updated only for the
+development set).  Each run is converted as in
 tests/data/umich/make_excerpt.py (SIM = commanded velocity, acceleration and position;
 REC = measured velocity, outputs vx, vy, vz in mm/s at 10 Hz) and diagnosed.  Writes the
 table and the figure of run 06 into docs/diagnose.md (section `diagnose-umich`).
@@ -21,14 +23,19 @@ sys.path.insert(0, str(HERE.parent / "tests" / "data" / "umich"))
 RUNS = ("01", "04", "06", "11")
 
 
-def run(data_dir: Path, valid_only: bool = False):
+def runs_in(data_dir: Path) -> tuple:
+    """The run numbers of the experiment_NN.csv files in `data_dir`, in order."""
+    return tuple(sorted(p.stem.split("_", 1)[1] for p in Path(data_dir).glob("experiment_*.csv")))
+
+
+def run(data_dir: Path, valid_only: bool = False, runs=RUNS):
     """Diagnosis of every run, on all rows or on the rows the source's rule says are valid
     (make_excerpt.VALID_ROWS, given as `--where` conditions)."""
     from make_excerpt import VALID_ROWS, convert
     from mtcomp.diagnose import diagnose
     out = {}
     with tempfile.TemporaryDirectory() as d:
-        for r in RUNS:
+        for r in runs:
             src = data_dir / f"experiment_{r}.csv"
             convert(src, Path(d) / r)
             out[r] = diagnose(Path(d) / r / "sim.csv", Path(d) / r / "rec.csv",
@@ -96,15 +103,16 @@ def main(argv=None) -> int:
     ap.add_argument("data_dir", type=Path)
     ap.add_argument("--no-docs", action="store_true")
     a = ap.parse_args(argv)
-    results = run(a.data_dir)
-    valid = run(a.data_dir, valid_only=True)
+    runs = runs_in(a.data_dir) or RUNS
+    results = run(a.data_dir, runs=runs)
+    valid = run(a.data_dir, valid_only=True, runs=runs)
     md = ("All rows:\n\n" + markdown(results) + "\n\nValid rows only (the source's rule: rows where M1_CURRENT_FEEDRATE reads 50 or "
           "X1_ActualPosition reads 198, or with no program running, are removed):\n\n"
           + markdown(valid) + "\n\n" + comparison(results, valid))
     print(md)
     for r, res in valid.items():
         print(f"--- run {r}, valid rows\n{res.summary()}\n")
-    if not a.no_docs:
+    if not a.no_docs and runs == RUNS:
         from _report import update_section
         update_section("diagnose-umich", md, doc=HERE.parent / "docs" / "diagnose.md")
         results["06"].plot(HERE.parent / "docs" / "diagnose_umich06.png")

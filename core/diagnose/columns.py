@@ -83,6 +83,13 @@ def kind_from_name(key: str) -> str:
     words = _tokens(key)
     if _TEMP.match(low) and not _LINEAR.match(low):
         return "temperature"
+    rate = _rate_word(words)
+    if rate:
+        # `vx_cmd`, `cmd_vx`, `vx1_act`, `v_x`, `ax_cmd`, `a_x`: a rate of an axis, whatever
+        # words of role stand beside it (before, the axis letter in `vx`/`ax` made them lengths,
+        # and `a_x` an angular acceleration of the A axis)
+        which, letter = rate
+        return _DERIVED["angle" if letter in "abc" else "length"][0 if which == "v" else 1]
     base = "angle" if _ROTARY.match(low) or _JOINT.match(low) else "length"
     has_axis = bool(_LINEAR.match(low) or _ROTARY.match(low) or _JOINT.match(low)
                     or _axis_in_words(words))
@@ -93,7 +100,9 @@ def kind_from_name(key: str) -> str:
         if "spindle" not in words and (has_axis or re.match(r"^v_?[xyzabc]", low)):
             return _DERIVED["angle" if re.match(r"^v_?[abc]", low) else base][0]
     if _SPEED.match(low) and not (_axis_in_words(words) and not {"speed", "rpm", "n"} & set(words)):
-        return "speed"
+        # a spindle's acceleration (`S_acc`, `spindle_accel`) is not a speed: no kind of the
+        # library holds rpm/s, so it stays a generic input
+        return "other" if set(words) & _ACC_WORDS else "speed"
     if _axis_in_words(words) in tuple("xyz") and len(words) <= 3:
         return "length"
     if _LINEAR.match(low):
@@ -113,6 +122,20 @@ def kind_from_name(key: str) -> str:
         # `Pos_Act`, `act_pos`, `Istposition_B`: a rotary axis letter makes it an angle
         return "angle" if _axis_in_words(words) in ("a", "b", "c") else "length"
     return "other"
+
+
+def _rate_word(words) -> tuple[str, str] | None:
+    """('v' or 'a', axis letter) when the name holds a rate of an axis: a word `vx`, `va`, `ax`
+    (an acceleration only of a linear axis: `ab`, `ac` say nothing), or starts `v`/`a` then a
+    single axis letter (`v_x_cmd`, `a_y`)."""
+    for w in words:
+        if len(w) == 2 and w[0] == "v" and w[1] in "xyzuvwabc":
+            return "v", w[1]
+        if len(w) == 2 and w[0] == "a" and w[1] in "xyzuvw":
+            return "a", w[1]
+    if len(words) >= 2 and words[0] in ("v", "a") and len(words[1]) == 1 and words[1] in "xyzuvw":
+        return words[0], words[1]
+    return None
 
 
 def _axis_in_words(words) -> str | None:

@@ -249,7 +249,9 @@ def read_table(path: str | Path, role: str = "file", units: dict | None = None,
         t, origin = _time_stamps(cells, tab.source, tab.lines, tc.header)
         tunit = None
     else:
-        t = tab.numbers(tkey)
+        # loggers count Unix time in ms or us (1.7e12 ms): the bound on a reading does not
+        # apply before the unit is known; the time in s is checked against it below
+        t = tab.numbers(tkey, max_abs=1e19)
         tunit = tc.unit
     cols = [(tc.header, tkey, tunit)]
     data = [t]
@@ -362,8 +364,9 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
         columns[key] = Column(key, hdr, kind, cunit, v, q * abs(fac), src, present)
     if np.any(np.abs(t) > MAX_ABS):
         r = int(np.argmax(np.abs(t) > MAX_ABS))
-        raise InputError(f"time {t[r]:g} s is out of range", path, linenos[r] if linenos else None,
-                         field=tkey)
+        raise InputError(f"time {t[r]:g} s is out of range (a count of ms or us since 1970 "
+                         f"needs its unit in the header, e.g. {tkey}[ms])", path,
+                         linenos[r] if linenos else None, field=tkey)
     dt = np.diff(t)
     if np.any(dt < 0):
         i = int(np.argmax(dt < 0))

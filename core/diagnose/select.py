@@ -287,6 +287,32 @@ def bic(rss: float, n_rows: int, k: int, neff: float) -> float:
     return neff * math.log(max(rss, 1e-300) / n_rows) + k * math.log(neff)
 
 
+def bic_per_output(ctx: Context, f: "Fit", neff: float) -> float:
+    """BIC with a residual variance of its own per output (fitted on all rows).
+
+    The pooled `bic` takes one variance for every output: a large mismatch left on one output
+    (an effect outside the library, single-sample spikes of a logger) then swamps the evidence
+    for an effect on another output, whose RSS is a small part of the total.  With a variance
+    per output each output's log-likelihood counts on its own.  The effective sample size is
+    shared out over the outputs in proportion to their rows."""
+    total = 0.0
+    for sl in ctx.slices.values():
+        r = f.resid[sl]
+        n_o = max(len(r), 1)
+        total += neff * n_o / ctx.N * math.log(max(float(r @ r), 1e-300) / n_o)
+    return total + f.k * math.log(neff)
+
+
+def delta_bic(ctx: Context, f: "Fit", cur: "Fit", neff: float) -> float:
+    """BIC change from `cur` to `f`: the stronger of the pooled and the per-output evidence
+    (the pooled test keeps every decision it made before; the per-output one adds the effects
+    that a mismatch on another output hid)."""
+    d_pool = bic(f.rss, f.n_rows, f.k, neff) - bic(cur.rss, cur.n_rows, cur.k, neff)
+    if len(ctx.slices) < 2:
+        return d_pool
+    return min(d_pool, bic_per_output(ctx, f, neff) - bic_per_output(ctx, cur, neff))
+
+
 def blocks(n: int, folds: int) -> list[np.ndarray]:
     edges = np.linspace(0, n, folds + 1).astype(int)
     return [np.arange(edges[i], edges[i + 1]) for i in range(folds)]
@@ -417,131 +443,168 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
     evidence = {}
     coarse_cache = {}
     for step in range(st.max_effects):
-        scored = []
-        r_s = cur.resid
-        rss_s = float(r_s[srows] @ r_s[srows])
-        nlog = math.log(max(srows.sum(), 2))
-        for c in cands:
-            if c in model:
-                continue
-            # a candidate that conflicts with one chosen effect may replace it (translation ->
-            # translation and rotation, squareness -> straightness): greedy steps are not final
-            conf = [i for i, m in enumerate(model) if _conflicts(c, [m])]
-            if len(conf) > 1 or (conf and hasattr(c, "members")):
-                continue
-            swap = conf[0] if conf else None
-            base = r_s if swap is None else r_s + cur.contrib[swap]
-            offs = []
-            if c.name == "servo_lag" and swap is None:
-                # a time offset chosen earlier may hold what this lag explains (they agree to
-                # first order): screen the lag on the residual without it, jointly with the
-                # offset refitted, so that the two share the delay (alone, a lag cannot take
-                # over the offset's part of the delay on the outputs it does not lag)
-                for j, m in enumerate(model):
-                    if m.name == "time_offset" and j != swap:
-                        base = base + cur.contrib[j]
-                        offs.append(j)
-            eta0 = c.coarse(ctx, base, srows)
-            if offs:
-                f1 = fit(ctx, [model[j] for j in offs] + [c], [etas[j] for j in offs] + [eta0],
-                         srows, max_nfev=15, target=base)
-                coarse_cache[c.label] = f1.etas[-1]
-            else:
-                f1 = fit(ctx, [c], [eta0], srows, max_nfev=15, target=base)
-                coarse_cache[c.label] = f1.etas[0]
-            dk = c.n_params() - (model[swap].n_params() if swap is not None else 0)
-            rss1 = f1.rss
-            if base is not r_s and swap is None:
-                # outside the candidate's outputs the residual stays what it is now
-                mine = np.zeros(ctx.N, bool)
-                for o in set(c.outputs).union(*(model[j].outputs for j in offs)):
-                    mine[ctx.slices[o]] = True
-                rm, ro = srows & mine, srows & ~mine
-                rss1 = float(f1.resid[rm] @ f1.resid[rm]) + float(r_s[ro] @ r_s[ro])
-            gain = rss_s - rss1
-            if gain > 0:
-                scored.append((gain - dk * nlog, c, swap))
-        scored.sort(key=lambda g: -g[0])
-        top = scored[:st.top]
-        # a delay beside lags already named cannot show its gain when screened alone (shifting
-        # SIM without shifting the lags' predictions): it is always tried jointly
-        if any(m.name == "servo_lag" for m in model) and not any(m.name == "time_offset" for m in model):
-            top += [g for g in scored[st.top:] if g[1].name == "time_offset"][:1]
-        trials = []
-        for _, c, swap in top:
-            keep = [i for i in range(len(model)) if i != swap]
-            m_new = [model[i] for i in keep] + [c]
-            e_new = [etas[i] for i in keep] + [coarse_cache[c.label]]
-            f = fit(ctx, m_new, e_new, max_nfev=st.max_nfev)
-            # multi-start: a time offset chosen before a lag took up what the lag explains (a
-            # delay and a lag agree to first order, and the cross-correlation peak includes the
-            # lag); restart it from no offset
-            restart = [j for j, m in enumerate(m_new[:-1]) if m.name == "time_offset"]
-            if restart and c.name in ("servo_lag", "quadrant_glitch", "backlash"):
-                e2 = list(e_new)
-                for j in restart:
-                    lo, hi = m_new[j].bounds(ctx)
-                    e2[j] = np.array([float(np.clip(0.0, lo[0], hi[0]))])
-                f2 = fit(ctx, m_new, e2, max_nfev=st.max_nfev)
-                if f2.rss < f.rss:
-                    f = f2
-            trials.append((c, swap, m_new, f))
-        if not trials:
-            break
-        # one effective sample size for every BIC (from the noise, not from what is left of the
-        # effects): values computed with different N_eff would not be comparable
-        neff = n_effective(ctx)
-        b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
-        trials = sorted(((bic(f.rss, f.n_rows, f.k, neff) - b_cur, c, swap, m_new, f)
-                         for c, swap, m_new, f in trials), key=lambda g: g[0])
+        # when every trial of a step is refused (held out, identifiability), the next
+        # candidates are tried: the best few may all belong to one output whose mismatch no
+        # effect explains, and must not end the selection for the others
+        skip = set()
         accepted = False
-        for dbic, c, swap, m_new, f in trials[:4]:
-            if dbic > -st.bic_threshold:
+        for _round in range(3):
+            scored = []
+            r_s = cur.resid
+            rss_s = float(r_s[srows] @ r_s[srows])
+            nlog = math.log(max(srows.sum(), 2))
+            omask = {}
+            for o, sl in ctx.slices.items():
+                omask[o] = np.zeros(ctx.N, bool)
+                omask[o][sl] = True
+                omask[o] &= srows
+            for c in cands:
+                if c in model or c.label in skip:
+                    continue
+                # a candidate that conflicts with one chosen effect may replace it (translation ->
+                # translation and rotation, squareness -> straightness): greedy steps are not final
+                conf = [i for i, m in enumerate(model) if _conflicts(c, [m])]
+                if len(conf) > 1 or (conf and hasattr(c, "members")):
+                    continue
+                swap = conf[0] if conf else None
+                base = r_s if swap is None else r_s + cur.contrib[swap]
+                offs = []
+                if c.name == "servo_lag" and swap is None:
+                    # a time offset chosen earlier may hold what this lag explains (they agree to
+                    # first order): screen the lag on the residual without it, jointly with the
+                    # offset refitted, so that the two share the delay (alone, a lag cannot take
+                    # over the offset's part of the delay on the outputs it does not lag)
+                    for j, m in enumerate(model):
+                        if m.name == "time_offset" and j != swap:
+                            base = base + cur.contrib[j]
+                            offs.append(j)
+                eta0 = c.coarse(ctx, base, srows)
+                if offs:
+                    f1 = fit(ctx, [model[j] for j in offs] + [c], [etas[j] for j in offs] + [eta0],
+                             srows, max_nfev=15, target=base)
+                    coarse_cache[c.label] = f1.etas[-1]
+                else:
+                    f1 = fit(ctx, [c], [eta0], srows, max_nfev=15, target=base)
+                    coarse_cache[c.label] = f1.etas[0]
+                dk = c.n_params() - (model[swap].n_params() if swap is not None else 0)
+                rss1 = f1.rss
+                if base is not r_s and swap is None:
+                    # outside the candidate's outputs the residual stays what it is now
+                    mine = np.zeros(ctx.N, bool)
+                    for o in set(c.outputs).union(*(model[j].outputs for j in offs)):
+                        mine[ctx.slices[o]] = True
+                    rm, ro = srows & mine, srows & ~mine
+                    rss1 = float(f1.resid[rm] @ f1.resid[rm]) + float(r_s[ro] @ r_s[ro])
+                gain = rss_s - rss1
+                if gain > 0:
+                    # the same gain as log-likelihood with a variance per output (as
+                    # `bic_per_output`): on an output whose residual is small beside another's
+                    # it still counts
+                    touched = set(c.outputs).union(*(model[j].outputs for j in offs))
+                    if swap is not None:
+                        touched |= set(model[swap].outputs)
+                    ll = -dk * nlog
+                    for o in touched:
+                        m = omask[o]
+                        b0, b1 = float(r_s[m] @ r_s[m]), float(f1.resid[m] @ f1.resid[m])
+                        if b0 > 0 and b1 > 0:
+                            ll += m.sum() * math.log(b0 / b1)
+                    scored.append((gain - dk * nlog, c, swap, ll))
+            scored.sort(key=lambda g: -g[0])
+            top = [g[:3] for g in scored[:st.top]]
+            # the best two by that measure are tried too: the best few by the pooled gain may all
+            # belong to one output with a large mismatch that no effect explains
+            top += [g[:3] for g in sorted(scored[st.top:], key=lambda g: -g[3])[:2] if g[3] > 0]
+            # a delay beside lags already named cannot show its gain when screened alone (shifting
+            # SIM without shifting the lags' predictions): it is always tried jointly
+            if any(m.name == "servo_lag" for m in model) and not any(m.name == "time_offset" for m in model):
+                top += [g[:3] for g in scored[st.top:] if g[1].name == "time_offset"
+                        and g[:3] not in top][:1]
+            trials = []
+            for _, c, swap in top:
+                keep = [i for i in range(len(model)) if i != swap]
+                m_new = [model[i] for i in keep] + [c]
+                e_new = [etas[i] for i in keep] + [coarse_cache[c.label]]
+                f = fit(ctx, m_new, e_new, max_nfev=st.max_nfev)
+                # multi-start: a time offset chosen before a lag took up what the lag explains (a
+                # delay and a lag agree to first order, and the cross-correlation peak includes the
+                # lag); restart it from no offset
+                restart = [j for j, m in enumerate(m_new[:-1]) if m.name == "time_offset"]
+                if restart and c.name in ("servo_lag", "quadrant_glitch", "backlash"):
+                    e2 = list(e_new)
+                    for j in restart:
+                        lo, hi = m_new[j].bounds(ctx)
+                        e2[j] = np.array([float(np.clip(0.0, lo[0], hi[0]))])
+                    f2 = fit(ctx, m_new, e2, max_nfev=st.max_nfev)
+                    if f2.rss < f.rss:
+                        f = f2
+                trials.append((c, swap, m_new, f))
+            if not trials:
+                log.append(f"step {step + 1}: no candidate lowers the residual")
                 break
-            contrib = f.contrib[-1]
-            snr = float(np.sqrt(np.mean(contrib ** 2) * len(ctx.outputs) / len(c.outputs)))
-            if snr < st.min_effect_snr:
-                log.append(f"step {step + 1}: {c.label} rejected: RMS {snr:.2f} x noise")
-                continue
-            why = c.implausible(ctx, f.etas[-1], f.betas[-1])
-            if why:
-                log.append(f"step {step + 1}: {c.label} rejected: {why}")
-                continue
-            cv_new, oof_new = cross_validate(ctx, m_new, f.etas, st.folds)
-            gain = 1.0 - cv_new / cv_cur
-            # materiality on the effect's own outputs (one output with a tiny noise floor must
-            # not make every other output's effects look immaterial), and no loss overall
-            own = np.zeros(ctx.N, bool)
-            for o in c.outputs:
-                own[ctx.slices[o]] = True
-            sse_cur_own = float(oof_cur[own] @ oof_cur[own])
-            gain_own = 1.0 - float(oof_new[own] @ oof_new[own]) / sse_cur_own if sse_cur_own > 0 else 0.0
-            if gain_own < st.cv_min_gain or gain <= 0:
-                gain = min(gain, gain_own)
-                log.append(f"step {step + 1}: {c.label} rejected: held-out error "
-                           f"{-100 * gain:+.1f} %")
-                continue
-            keep = [i for i in range(len(model)) if i != swap]
-            g2 = beyond_dynamics(ctx, c, [model[i] for i in keep], [etas[i] for i in keep],
-                                 f.etas[-1], st.folds)
-            if g2 is not None and g2 < st.cv_min_gain:
-                log.append(f"step {step + 1}: {c.label} rejected: held-out error {-100 * g2:+.1f} % "
-                           "beside the dynamics' second-order slack (model error of the lag or "
-                           "delay already named, not an effect)")
-                continue
-            what = "added" if swap is None else f"replaces {model[swap].label}"
-            log.append(f"step {step + 1}: {c.label} {what}: dBIC {dbic:.1f}, held-out error "
-                       f"{-100 * gain:+.1f} %, RMS {snr:.1f} x noise")
-            if swap is not None:
-                evidence.pop(model[swap].label, None)
-            evidence[c.label] = {"delta_bic": round(float(dbic), 2),
-                                 "heldout_error_reduction": round(float(gain), 4),
-                                 "snr": round(snr, 2), "n_effective": round(float(neff), 1)}
-            model, etas, cur, cv_cur, oof_cur = m_new, list(f.etas), f, cv_new, oof_new
-            accepted = True
-            if progress:
-                progress(f"{what} {c.label}")
-            break
+            # one effective sample size for every BIC (from the noise, not from what is left of the
+            # effects): values computed with different N_eff would not be comparable
+            neff = n_effective(ctx)
+            trials = sorted(((delta_bic(ctx, f, cur, neff), c, swap, m_new, f)
+                             for c, swap, m_new, f in trials), key=lambda g: g[0])
+            accepted = False
+            for k_t, (dbic, c, swap, m_new, f) in enumerate(trials[:4]):
+                if dbic > -st.bic_threshold:
+                    if k_t == 0:
+                        # said, so that "nothing named" reads as too little evidence, not as no idea
+                        log.append(f"step {step + 1}: best candidate {c.label}: BIC change "
+                                   f"{dbic:+.1f} (a fall of at least {st.bic_threshold:g} needed)")
+                    break
+                contrib = f.contrib[-1]
+                snr = float(np.sqrt(np.mean(contrib ** 2) * len(ctx.outputs) / len(c.outputs)))
+                if snr < st.min_effect_snr:
+                    log.append(f"step {step + 1}: {c.label} rejected: RMS {snr:.2f} x noise")
+                    continue
+                why = c.implausible(ctx, f.etas[-1], f.betas[-1])
+                if why:
+                    log.append(f"step {step + 1}: {c.label} rejected: {why}")
+                    continue
+                cv_new, oof_new = cross_validate(ctx, m_new, f.etas, st.folds)
+                gain = 1.0 - cv_new / cv_cur
+                # materiality on the effect's own outputs (one output with a tiny noise floor must
+                # not make every other output's effects look immaterial), and no loss overall
+                own = np.zeros(ctx.N, bool)
+                for o in c.outputs:
+                    own[ctx.slices[o]] = True
+                sse_cur_own = float(oof_cur[own] @ oof_cur[own])
+                gain_own = 1.0 - float(oof_new[own] @ oof_new[own]) / sse_cur_own if sse_cur_own > 0 else 0.0
+                if gain_own < st.cv_min_gain or gain <= 0:
+                    gain = min(gain, gain_own)
+                    log.append(f"step {step + 1}: {c.label} rejected: held-out error "
+                               f"{-100 * gain:+.3g} %")
+                    continue
+                keep = [i for i in range(len(model)) if i != swap]
+                g2 = beyond_dynamics(ctx, c, [model[i] for i in keep], [etas[i] for i in keep],
+                                     f.etas[-1], st.folds)
+                if g2 is not None and g2 < st.cv_min_gain:
+                    log.append(f"step {step + 1}: {c.label} rejected: held-out error {-100 * g2:+.1f} % "
+                               "beside the dynamics' second-order slack (model error of the lag or "
+                               "delay already named, not an effect)")
+                    continue
+                what = "added" if swap is None else f"replaces {model[swap].label}"
+                log.append(f"step {step + 1}: {c.label} {what}: dBIC {dbic:.1f}, held-out error "
+                           f"{-100 * gain:+.1f} %, RMS {snr:.1f} x noise")
+                if swap is not None:
+                    evidence.pop(model[swap].label, None)
+                evidence[c.label] = {"delta_bic": round(float(dbic), 2),
+                                     "heldout_error_reduction": round(float(gain), 4),
+                                     "snr": round(snr, 2), "n_effective": round(float(neff), 1)}
+                model, etas, cur, cv_cur, oof_cur = m_new, list(f.etas), f, cv_new, oof_new
+                accepted = True
+                if progress:
+                    progress(f"{what} {c.label}")
+                break
+            if accepted:
+                break
+            refused = [g[1].label for g in trials[:4] if g[0] <= -st.bic_threshold]
+            if not refused:
+                break  # the best lacks the evidence: so do the rest
+            skip |= set(refused)
         if not accepted:
             break
     # exchange pass: greedy steps can pick a combination that mimics a simpler truth (a
@@ -555,12 +618,11 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
     while changed and len(model) > 1:
         changed = False
         neff = n_effective(ctx)
-        b_full = bic(cur.rss, cur.n_rows, cur.k, neff)
         worst = None
         for i, c in enumerate(model):
             sub = model[:i] + model[i + 1:]
             f = fit(ctx, sub, etas[:i] + etas[i + 1:], max_nfev=st.max_nfev)
-            d = bic(f.rss, f.n_rows, f.k, neff) - b_full
+            d = -delta_bic(ctx, cur, f, neff)  # rise of BIC without it, by the measure that kept it
             if d < st.bic_threshold and (worst is None or d < worst[0]):
                 worst = (d, i, f)
         if worst is not None:
@@ -588,6 +650,34 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
                 changed = True
                 break
     final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else cur
+    # the longer final fit may carry a parameter to where it is no longer plausible (a time
+    # constant run into its bound): such an effect is not identified and goes
+    while model:
+        bad = [(i, w) for i, c in enumerate(model)
+               for w in [c.implausible(ctx, final.etas[i], final.betas[i])] if w]
+        if not bad:
+            break
+        i, why = bad[0]
+        log.append(f"final: {model[i].label} dropped: {why}")
+        evidence.pop(model[i].label, None)
+        model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
+        final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
+    # held out as reported, every parameter refitted without the block: an effect that leaves
+    # all of its outputs worse than no model at all is not supported by the data (an axis that
+    # moves in one block only: without that block its time constant is anywhere)
+    while model:
+        _, oof = cross_validate(ctx, model, final.etas, st.folds, max_nfev=10, betas=final.betas)
+        worse = {o for o, sl in ctx.slices.items()
+                 if float(oof[sl] @ oof[sl]) > float(ctx.z0[sl] @ ctx.z0[sl])}
+        drop = [i for i, c in enumerate(model) if set(c.outputs) <= worse]
+        if not drop:
+            break
+        i = drop[0]
+        log.append(f"final: {model[i].label} dropped: held out with every parameter refitted, "
+                   f"{', '.join(model[i].outputs)} worse than without any effect")
+        evidence.pop(model[i].label, None)
+        model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
+        final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
     return final, evidence, log
 
 
@@ -622,6 +712,8 @@ def _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows, coarse_cache, evi
         if best is None:
             break
         d, i, c, f = best
+        if c.implausible(ctx, f.etas[-1], f.betas[-1]):
+            break  # an exchange never brings in what the forward steps would refuse
         m_new = model[:i] + model[i + 1:] + [c]
         cv_new, _ = cross_validate(ctx, m_new, f.etas, st.folds)
         if cv_new > cv_cur * (1.0 + st.cv_min_gain):

@@ -35,6 +35,7 @@ Signatures and parameters (documented for users in docs/diagnose.md):
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,11 +135,18 @@ _ROLE_WORDS = {"v", "vel", "velo", "velocity", "spd", "speed", "feed", "feedrate
                "nom", "meas", "measured", "des"}
 
 
+# the derivative marks of a joint coordinate in robotics: q, qd, qdd (or dq, ddq), q_dot, q_ddot
+_DOTS = {"d", "dd", "dot", "ddot"}
+_Q_DOTTED = re.compile(r"^d{0,2}qd{0,2}$")
+
+
 def _stem(key: str) -> str:
     """A name without the words that say which derivative or which side it is:
-    `spd_axis` and `acc_axis` -> 'axis', `X1_CommandVelocity` -> 'x1'."""
+    `spd_axis` and `acc_axis` -> 'axis', `X1_CommandVelocity` -> 'x1', `q1dd`, `qdd1`,
+    `ddq1` and `q1_ddot` -> 'q1'."""
     from ..columns import _tokens
-    return "".join(w for w in _tokens(key) if w not in _ROLE_WORDS)
+    return "".join("q" if _Q_DOTTED.match(w) else w for w in _tokens(key)
+                   if w not in _ROLE_WORDS and w not in _DOTS)
 
 
 def _pairs_with(sig_o, key_o: str, sig_d, key_d: str, n_rate_outs: int, n_derivs: int) -> bool:
@@ -196,8 +204,10 @@ def candidates(al: Aligned) -> list[Candidate]:
             continue
         # servo lag through a logged commanded derivative of the same axis when there is one
         dk = _DERIV.get(al.kinds[o])
-        all_d = [k for k, s in sig.items() if dk and s.kind == dk and s.source == "sim"
-                 and np.ptp(s.values) > 0]
+        # SIM's side of another output counts too: a commanded acceleration compared with the
+        # measured one is still the command the velocity loop followed
+        all_d = [k for k, s in sig.items() if dk and s.kind == dk and s.source in ("sim", "sim-output")
+                 and k != o and np.ptp(s.values) > 0]
         n_rate = sum(al.kinds[r] == al.kinds[o] for r in rates)
         derivs = [k for k in all_d if _pairs_with(sig[o], o, sig[k], k, n_rate, len(all_d))]
         out += ([c for d in derivs for c in (ServoLagDerivative(o, d), ServoLagHermite(o, d))]

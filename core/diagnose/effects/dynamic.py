@@ -190,9 +190,27 @@ class ServoLag(Candidate):
         lo, hi = self.bounds(ctx)
         return self._grid_best(ctx, resid, rows, np.linspace(lo[0], hi[0], 24))
 
+    def implausible(self, ctx, eta, beta):
+        # a gain at the slowest end of its range is not a measured gain: the fit ran into the
+        # bound (a time constant of seconds, as long as the recording allows), i.e. the data
+        # do not identify a lag; seen on a 10 Hz acceleration output, where the filter only
+        # smooths noise away
+        lo, hi = self.bounds(ctx)
+        e, edge = float(eta[0]), 0.02 * (hi[0] - lo[0])
+        if e <= lo[0] + edge:
+            return (f"time constant {math.exp(-e):.3g} s at the longest the data "
+                    "allow (the bound of the fit): not identified")
+        if type(self) is ServoLag and e >= hi[0] - edge:
+            # the shortest lag this form may take is the one a delay cannot mimic (bounds)
+            return (f"time constant {math.exp(-e) * 1e3:.3g} ms at the shortest the sampling "
+                    "tells from a delay (the bound of the fit): not identified")
+        return None
+
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         kv = math.exp(eta[0])
-        return {"kv_per_s": kv}, {"kv_per_s": kv * _se(cov_eta, 0)}
+        s = _se(cov_eta, 0)
+        # the time constant beside the gain, as every form of the lag reports it
+        return {"kv_per_s": kv, "tau_s": 1.0 / kv}, {"kv_per_s": kv * s, "tau_s": s / kv}
 
 
 class TimeOffset(Candidate):
