@@ -226,7 +226,8 @@ def _check_range(x, s, lo, hi, max_abs, unit, source, line, column):
 
 def parse_csv(text: str, source: str | os.PathLike = "<string>", *, required=(), allowed=None,
               case_sensitive: bool = True, delimiter: str | None = ",", pad: bool = False,
-              min_rows: int = 0, what: str = "table", decimal: str | None = ".") -> CsvTable:
+              min_rows: int = 0, what: str = "table", decimal: str | None = ".",
+              index_name: str | None = None) -> CsvTable:
     """Split CSV text into a checked `CsvTable`.
 
     required: column names that must be present; allowed: the only names accepted (None: any).
@@ -235,7 +236,9 @@ def parse_csv(text: str, source: str | os.PathLike = "<string>", *, required=(),
     rows shorter than the header (missing cells are empty).  min_rows: fewest data rows.
     decimal: "." or ","; None takes "," when the separator is not a comma and a data cell of
     the first rows is a number written with a decimal comma (``1,5``; spreadsheets of many
-    locales), else ".".  Numbers never have thousands separators."""
+    locales), else ".".  Numbers never have thousands separators.  index_name: the name given
+    to an unnamed FIRST column (the row index that pandas' ``to_csv`` and many loggers write
+    with an empty header cell); None: an unnamed column is an error, as every other one."""
     source = str(source)
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     comments: list[str] = []
@@ -278,6 +281,10 @@ def parse_csv(text: str, source: str | os.PathLike = "<string>", *, required=(),
     for i, h in enumerate(hcells):
         m = _HEADER_RE.match(h)
         name = m.group("name").strip() if m else ""
+        if not name and i == 0 and index_name is not None and not h.strip():
+            name = index_name
+            while name in (c.strip() for c in hcells[1:]):
+                name += "_"
         if not name:
             raise InputError(f"column {i + 1} of the header has no name (got {_show(h)})", source, hline)
         key = name if case_sensitive else name.lower()

@@ -120,9 +120,14 @@ def test_text_column_and_unknown_column(tmp_path):
     noise = 1e-4 * np.random.default_rng(0).normal(size=t.size)
     rec.write_text("t,x\n" + "".join(f"{a:.2f},{b + n + (0.5 if p == 'Prep' else 0):.6f}\n"
                                      for a, b, n, p in zip(t, x, noise, phase)))
-    # a text column is refused as a number unless the row filter names it
+    # a column of labels is no signal: left out with a note (the row filter may still use it)
+    plain = diagnose(sim, rec)
+    assert any("'phase'" in n and "holds text, not numbers" in n for n in plain.notes)
+    # a column of numbers with one word in it is a corrupt cell: refused, naming the line
+    bad = tmp_path / "bad.csv"
+    bad.write_text(rec.read_text().replace("\n1.00,", "\n1.00,abc\n1.005,", 1))
     with pytest.raises(InputError, match="expected a number"):
-        diagnose(sim, rec)
+        diagnose(sim, bad)
     res = diagnose(sim, rec, exclude_rows=["phase==Prep"])
     assert res.alignment["row_filter"]["sim_rows_removed"] == int((phase == "Prep").sum())
     assert any("'phase'" in n and "row filter only" in n for n in res.notes)

@@ -35,6 +35,10 @@ def register(subparsers) -> None:
     p.add_argument("--exclude-rows", action="append", metavar="'COL OP VALUE'",
                    help="remove the rows where this holds, e.g. --exclude-rows 'phase==Prep' "
                         "(repeatable: a row is removed when any holds)")
+    p.add_argument("--dt", type=float, metavar="S",
+                   help="logging period in s of a file without a time column (rows equally spaced, "
+                        "e.g. --dt 0.1 for a 10 Hz log; an unnamed first column is taken as the "
+                        "row index)")
     p.add_argument("--same-clock", action="store_true",
                    help="SIM and REC were logged on one clock: no clock offset is estimated, and a "
                         "common delay found is reported as a transport delay (time_offset), not "
@@ -72,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--model needs the machine: give --machine (SIM has no provenance "
                              "sidecar)", field="--machine")
     res = diagnose(args.sim, args.rec, outputs=args.output, inputs=args.input, units=units,
-                   where=args.where, exclude_rows=args.exclude_rows, same_clock=args.same_clock)
+                   where=args.where, exclude_rows=args.exclude_rows, same_clock=args.same_clock,
+                   dt=args.dt)
     if args.json:
         atomic_write(args.json, res.to_json() + "\n")
     if args.plot:

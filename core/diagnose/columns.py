@@ -194,6 +194,29 @@ _ROLE_WORDS = {"cmd", "command", "commanded", "set", "setpoint", "soll", "sollwe
                "value", "wert", "valeur", "val"}
 
 
+# the role words that say "what was asked for" and "what was measured" (a subset of the above;
+# `lin`, `rot`, `motor`, `load`, `value` say neither)
+_COMMAND_WORDS = {"cmd", "command", "commanded", "set", "setpoint", "soll", "sollwert", "nom",
+                  "nominal", "des", "desired", "ref", "reference", "target", "dem", "demand",
+                  "consigne", "cons", "sim", "simulated", "model"}
+_MEASURED_WORDS = {"act", "actual", "ist", "istwert", "meas", "measured", "fb", "feedback", "mes",
+                   "mesure", "mesuree", "reel", "reelle", "real", "rec", "recorded", "enc", "encoder",
+                   "scale"}
+
+
+def role(name: str) -> str | None:
+    """'command' or 'measured' when a column's name says which it is (``X1_CommandVelocity``,
+    ``x_act``, ``Istposition``), else None; a name with words of both roles says neither."""
+    words = set()
+    for w in _tokens(name):
+        for pre in ("ist", "soll"):
+            if w.startswith(pre) and len(w) > len(pre) + 2:
+                words.add(pre)
+        words.add(w)
+    cmd, meas = bool(words & _COMMAND_WORDS), bool(words & _MEASURED_WORDS)
+    return "command" if cmd and not meas else ("measured" if meas and not cmd else None)
+
+
 def stem(name: str) -> str:
     """A column's name without the words that say its role, lower case: what a command and its
     measurement have in common (``X_cmd`` / ``x_act`` -> 'x'; ``Pos_Act`` -> 'pos')."""

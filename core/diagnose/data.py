@@ -19,7 +19,7 @@ from .._io import InputError
 from ..csvtable import read_csv
 from . import rows as _rows
 from .columns import (_HEADER, INTERFACE_UNIT, KINDS, MOTION_KINDS, UNITS, _tokens,  # noqa: F401
-                      _unit_of, axis_letter, kind_from_name, stem)
+                      _unit_of, axis_letter, kind_from_name, role, stem)
 
 
 @dataclass(frozen=True)
@@ -107,6 +107,9 @@ def _quantum(values: np.ndarray) -> float:
         return q
     return 0.0
 
+
+# the name given to an unnamed first column (a row index), spelt so no logger's column has it
+_INDEX = "(row index)"
 
 # names of a time column other than `t` (English, German, French, Spanish, Italian; a logger's
 # "timestamp"), matched ignoring case
@@ -221,7 +224,7 @@ _TIME_UNITS = ("s", "ms", "us", "µs", "min", "h", "sec")
 
 
 def read_table(path: str | Path, role: str = "file", units: dict | None = None,
-               conditions=()) -> Table:
+               conditions=(), dt: float | None = None) -> Table:
     """Read one CSV file (header row; a time column; numbers) into a :class:`Table`.
 
     Read by the project's one table reader, `mtcomp.csvtable` (``#`` comments, ``,`` or else
@@ -232,46 +235,86 @@ def read_table(path: str | Path, role: str = "file", units: dict | None = None,
     InputError naming the file, line and column for a missing time column, a bad number, an
     absurd magnitude, a time that goes back, or an unknown unit on the time column.
     `conditions` (`mtcomp.diagnose.rows`) mark the rows the row filter removes; a column they
-    name may hold text (it then serves the filter only).
+    name may hold text (it then serves the filter only).  An unnamed first column is a row
+    index (pandas writes one): it is not a signal and is left out.  dt: the logging period in s
+    of a file without a time column (rows equally spaced; time = row index x dt, from the row
+    index column when there is one, so rows removed before keep their instants); with a time
+    column it is not used.
     """
-    tab = _units_row(read_csv(path, what=role, delimiter=None, decimal=None))
-    names = list(tab.names)
+    tab = _units_row(read_csv(path, what=role, delimiter=None, decimal=None, index_name=_INDEX))
+    index = _INDEX if tab.columns and tab.columns[0].name == _INDEX and not tab.columns[0].header.strip() \
+        else None
+    names = [n for n in tab.names if n != index]
     tkey = _time_key(names)
-    if tkey is None:
-        raise InputError("no time column `t` (expected a header like `t,x,y,...` with t in s)",
-                         tab.source, tab.header_line, field="t")
+    if tkey is None and index is not None and len(tab) and ":" in tab.rows[0][0]:
+        tkey, index = index, None   # an index of time stamps (a logger's or pandas' DatetimeIndex)
+    if tkey is None and dt is None:
+        raise InputError("no time column `t` (expected a header like `t,x,y,...` with t in s; for "
+                         "rows logged at a fixed period without a time column, give the period: "
+                         "--dt 0.1 for 10 Hz)", tab.source, tab.header_line, field="t")
     if len(tab) < 2:
         raise InputError("fewer than two data rows", tab.source)
-    tc = tab.col(tkey)
+    notes = []
     origin = None
-    cells = [r[tc.index] for r in tab.rows]
-    if cells and ":" in cells[0]:
-        t, origin = _time_stamps(cells, tab.source, tab.lines, tc.header)
-        tunit = None
+    if tkey is None:
+        if not (np.isfinite(dt) and dt > 0):
+            raise InputError(f"the logging period must be a positive number of s, got {dt!r}", field="--dt")
+        k = np.arange(len(tab), dtype=float)
+        src = "row number"
+        if index is not None:
+            try:
+                ix = tab.numbers(index)
+            except InputError:
+                ix = None   # an index of labels: the rows are counted
+            if ix is not None and np.all(ix == np.round(ix)) and np.all(np.diff(ix) > 0):
+                k, src = ix - ix[0], "row index column"
+        t, tkey = k * dt, "t"
+        notes.append(f"{Path(tab.source).name} has no time column: t = {src} x {dt:g} s (--dt)")
+        cols = [("t", "t", None)]
     else:
-        # loggers count Unix time in ms or us (1.7e12 ms): the bound on a reading does not
-        # apply before the unit is known; the time in s is checked against it below
-        t = tab.numbers(tkey, max_abs=1e19)
-        tunit = tc.unit
-    cols = [(tc.header, tkey, tunit)]
+        if dt is not None:
+            notes.append(f"--dt not used for {Path(tab.source).name}: it has a time column")
+        tc = tab.col(tkey)
+        cells = [r[tc.index] for r in tab.rows]
+        if cells and ":" in cells[0]:
+            t, origin = _time_stamps(cells, tab.source, tab.lines, tc.header)
+            tunit = None
+        else:
+            # loggers count Unix time in ms or us (1.7e12 ms): the bound on a reading does not
+            # apply before the unit is known; the time in s is checked against it below
+            t = tab.numbers(tkey, max_abs=1e19)
+            tunit = tc.unit
+        cols = [(tc.header, tkey, tunit)]
     data = [t]
     named = {(c.name, c.header): [r[c.index] for r in tab.rows] for c in tab.columns
              if any(_rows.matches(k, c.name, c.header) for k in conditions)}
     excluded, used = _rows.excluded(conditions, named, MISSING)
     text_notes = []
     for c in tab.columns:
-        if c.name == tkey:
+        if c.name == tkey or c.name == index:
             continue
         if (c.name, c.header) in named and _rows.is_text(named[(c.name, c.header)], MISSING):
             # a text column (a phase, a tool state) can only serve the row filter
             text_notes.append(f"column {c.name!r} of {Path(tab.source).name} holds text: it serves "
                               "the row filter only")
             continue
+        if _all_text([r[c.index] for r in tab.rows]):
+            # a column of labels (a phase, a tool state, a program name) is no signal; a column
+            # of numbers with a bad cell stays an error below
+            text_notes.append(f"column {c.name!r} of {Path(tab.source).name} holds text, not numbers: "
+                              "left out (--where can still filter rows by it)")
+            continue
         cols.append((c.header, c.name, c.unit))
         data.append(tab.numbers(c.name, empty=np.nan, missing=MISSING))
     out = _from_matrix(tab.source, cols, np.column_stack(data), list(tab.lines), tab.header_line,
                        units, origin=origin, excluded=excluded)
-    return replace(out, notes=tuple(text_notes) + out.notes, row_filter=tuple(used))
+    return replace(out, notes=tuple(notes) + tuple(text_notes) + out.notes, row_filter=tuple(used))
+
+
+def _all_text(cells) -> bool:
+    """Every present cell of a column is a word, not a number (a column of labels)."""
+    present = [c for c in cells if c.strip() and c.strip() not in MISSING]
+    return bool(present) and all(_rows.is_text([c], MISSING) for c in present)
 
 
 def _fill_missing(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, int]:
@@ -432,13 +475,14 @@ def table_from_arrays(data, name: str = "arrays", units: dict | None = None,
                    row_filter=tuple(used))
 
 
-def load(source, role: str, units: dict | None = None, conditions=()) -> Table:
+def load(source, role: str, units: dict | None = None, conditions=(), dt: float | None = None) -> Table:
     """Accept a path, a Table, or a mapping of arrays (e.g. a dict or a DataFrame).
-    `conditions`: the row filter (`mtcomp.diagnose.rows`), applied to paths and arrays."""
+    `conditions`: the row filter (`mtcomp.diagnose.rows`), applied to paths and arrays.
+    dt: the logging period of a file without a time column (`read_table`)."""
     if isinstance(source, Table):
         return source
     if isinstance(source, (str, Path)):
-        return read_table(source, role, units, conditions)
+        return read_table(source, role, units, conditions, dt)
     if hasattr(source, "to_dict") and hasattr(source, "columns"):  # DataFrame-like
         source = {c: np.asarray(source[c]) for c in source.columns}
     return table_from_arrays(source, role, units, conditions)
@@ -457,6 +501,52 @@ def common_clock(sim: Table, rec: Table) -> tuple[Table, Table, tuple]:
             return sim, rec, (f"{role}'s time stamps are counted from its first row (the other file "
                               "has times in s): the clock offset is left to the alignment",)
     return sim, rec, ()
+
+
+def split_log(tab: Table, outputs=None, inputs=None) -> tuple[Table, Table, tuple]:
+    """SIM and REC from one log holding both the commanded and the measured signals (SIM and REC
+    given as the same file).  SIM keeps the columns whose name says command (``X_cmd``,
+    ``X1_CommandVelocity``, ``Soll_X``), the SIM side of ``--output SIMCOL=RECCOL`` pairs and the
+    ``--input`` columns; REC the columns whose name says measurement (``X_act``, ``Ist_X``,
+    ``..._ActualVelocity``) and the REC side of the pairs.  A column whose name says neither
+    (a drive current, a bus voltage) is left out: as an input it would explain the
+    measurement by another measurement of the same motion.  Returns SIM, REC, notes."""
+    sim_keep, rec_keep = set(inputs or ()), set()
+    for o in outputs or ():
+        if "=" in o:
+            a, b = (x.strip() for x in o.split("=", 1))
+            sim_keep.add(a)
+            rec_keep.add(b)
+    sim_cols, rec_cols, left = {}, {}, []
+    for k, c in tab.columns.items():
+        r = role(k)
+        if k in rec_keep or (r == "measured" and k not in sim_keep):
+            rec_cols[k] = c
+        elif k in sim_keep or r == "command":
+            sim_cols[k] = c
+        else:
+            left.append(k)
+    # REC keeps the outputs only: a measured column compared with nothing would be an input,
+    # and another measurement of the same motion explains a residual without naming a cause
+    if outputs:
+        named = {(o.split("=", 1)[1] if "=" in o else o).strip() for o in outputs}
+        keep = {k for k in rec_cols if k in named}
+    else:
+        cmd_stems = {(stem(k), c.kind) for k, c in sim_cols.items()}
+        keep = {k for k, c in rec_cols.items() if (stem(k), c.kind) in cmd_stems}
+    left += [k for k in rec_cols if k not in keep]
+    rec_cols = {k: c for k, c in rec_cols.items() if k in keep}
+    if not rec_cols or not sim_cols:
+        raise InputError("SIM and REC are one file, but its column names do not say which "
+                         "signals were commanded and which measured: pair them, e.g. --output "
+                         "X_cmd=X_act", tab.path, field="--output")
+    notes = [f"one log for SIM and REC ({Path(tab.path).name}): commanded {', '.join(sim_cols)}; "
+             f"measured {', '.join(rec_cols)}; both on one clock"]
+    if left:
+        notes.append(f"left out (names that say no command, or measurements with no command to "
+                     f"compare with; --input COL uses one as an input): {', '.join(left)}")
+    return (replace(tab, columns=sim_cols), replace(tab, columns=rec_cols, notes=()),
+            tuple(notes))
 
 
 def pair_columns(sim: Table, rec: Table, outputs=None) -> tuple[Table, list | None, tuple]:

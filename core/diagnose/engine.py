@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -147,9 +148,20 @@ def _rms(a) -> float:
 UNEXPLAINED_RATIO = 3.0
 
 
+def _same_file(a, b) -> bool:
+    """SIM and REC are paths of one file."""
+    import os
+    if not (isinstance(a, (str, Path)) and isinstance(b, (str, Path))):
+        return False
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
              inputs=None, units=None, where=None, exclude_rows=None,
-             same_clock: bool = False) -> DiagnosisResult:
+             same_clock: bool = False, dt: float | None = None) -> DiagnosisResult:
     """Diagnose a simulation against a recording.
 
     sim, rec: CSV paths, or mappings header -> 1-D array (dict, DataFrame-like) with a `t`
@@ -160,15 +172,24 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     ``'phase==Prep'`` (`mtcomp.diagnose.rows`): only rows where every `where` holds and no
     `exclude_rows` does take part in the fit and the held-out RMS; nothing is interpolated across
     the rows removed.  same_clock: SIM and REC share one clock (no clock offset is estimated; a
-    common delay is reported as a transport delay, `time_offset`).  Raises mtcomp.InputError for
-    unusable input.
+    common delay is reported as a transport delay, `time_offset`).  dt: the logging period in s of
+    a CSV without a time column (rows equally spaced).  SIM and REC may be one file whose
+    commanded and actual columns are paired by `outputs` (``X_cmd=X_act``).  Raises
+    mtcomp.InputError for unusable input.
     """
     st = settings or Settings()
     say = progress or (lambda msg: None)
     conds = _rows.parse(where, exclude_rows)
-    S = _data.load(sim, "SIM", units, conds)
-    R = _data.load(rec, "REC", units, conds)
-    filter_notes = _row_filter_notes(conds, S, R)
+    one_log = _same_file(sim, rec)
+    S = _data.load(sim, "SIM", units, conds, dt)
+    R = S if one_log else _data.load(rec, "REC", units, conds, dt)
+    log_notes = ()
+    if one_log:
+        # the commanded and the measured signals of one log: split by the names' role words,
+        # and logged on one clock (no clock offset to estimate; a delay is the machine's)
+        S, R, log_notes = _data.split_log(S, outputs, inputs)
+        same_clock = True
+    filter_notes = _row_filter_notes(conds, S, R) + log_notes
     S, R, clock_notes = _data.common_clock(S, R)
     S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
     al = _align.align(S, R, outputs=outputs, inputs=inputs,
