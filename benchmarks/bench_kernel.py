@@ -5,7 +5,8 @@ Writes the "kernel" section of docs/benchmarks.md with the targets of the compil
     python benchmarks/bench_kernel.py [--points 200000] [--numpy-points 40000] [--previous REV]
 
 --previous REV: the kernel of git revision REV (its fmu/c sources, compiled here) timed on the same
-poses with tables, a column beside the current kernel's.
+poses through the same `retarget` call (every retarget row), a column beside the current kernel's:
+CPU rates on a shared machine drift from run to run, the ratio in one run does not.
 """
 from __future__ import annotations
 
@@ -78,14 +79,19 @@ def previous_kernel(rev, tmp):
     return _kernel._bind(ctypes.CDLL(str(lib)))
 
 
-def solve_with(lib, m, errors, q):
-    """retarget(check=False) through another kernel library (the model cache holds the current
-    library's models: emptied before and after)."""
-    _kernel._models.clear()
-    try:
-        return _kernel.solve(lib, m, errors, q, tol=1e-10, max_iter=60, pole_tolerance=0.2, continuation=True)[0]
-    finally:
+def with_library(lib, fn):
+    """fn() with `lib` as the kernel library of `retarget` and `forward` (the same Python path
+    around it as the current library's rows: a like-for-like baseline)."""
+    def run():
+        saved = _kernel._state.get("lib")
         _kernel._models.clear()
+        _kernel._state["lib"] = lib
+        try:
+            return fn()
+        finally:
+            _kernel._state["lib"] = saved
+            _kernel._models.clear()
+    return run
 
 
 def main(argv=None):
@@ -93,7 +99,7 @@ def main(argv=None):
     ap.add_argument("--points", type=int, default=200_000)
     ap.add_argument("--numpy-points", type=int, default=40_000)
     ap.add_argument("--no-write", action="store_true")
-    ap.add_argument("--previous", metavar="REV", help="also time the kernel of this git revision (tables)")
+    ap.add_argument("--previous", metavar="REV", help="also time the kernel of this git revision (every retarget row)")
     a = ap.parse_args(argv)
     tmpdir = tempfile.TemporaryDirectory()
     prev = previous_kernel(a.previous, tmpdir.name) if a.previous else None
@@ -131,26 +137,29 @@ def main(argv=None):
         q = random_commands(m, N, rng, span=0.3)
         geo = random_errors(m, rng, wp_angle=0.05 if m.n_rotary else 0.5)
         retarget(m, q[:10], RIGID, check=False)  # load the kernel before timing
-        case("retarget, setting errors (closed form)", name,
-             lambda: retarget(m, q, RIGID, check=False, backend="c"),
-             lambda: retarget(m, q[:Nn], RIGID, check=False, backend="numpy"), N, Nn)
+        def kernel(errs, qq):
+            return lambda: retarget(m, qq, errs, check=False, backend="c")
+
+        def before(errs, qq):
+            return with_library(prev, kernel(errs, qq)) if prev else None
+        case("retarget, setting errors (closed form)", name, kernel(RIGID, q),
+             lambda: retarget(m, q[:Nn], RIGID, check=False, backend="numpy"), N, Nn,
+             fn_prev=before(RIGID, q))
         if m.n_rotary:
-            case("retarget, rigid + workpiece rotation (closed form)", name,
-                 lambda: retarget(m, q, ROTATED, check=False, backend="c"),
-                 lambda: retarget(m, q[:Nn], ROTATED, check=False, backend="numpy"), N, Nn)
+            case("retarget, rigid + workpiece rotation (closed form)", name, kernel(ROTATED, q),
+                 lambda: retarget(m, q[:Nn], ROTATED, check=False, backend="numpy"), N, Nn,
+                 fn_prev=before(ROTATED, q))
             qp = path_commands(m, N)
-            case("  same, along a path (warm start)", name,
-                 lambda: retarget(m, qp, ROTATED, check=False, backend="c"),
-                 lambda: retarget(m, qp[:Nn], ROTATED, check=False, backend="numpy"), N, Nn)
-        case("retarget, tables on all axes + setting + location", name,
-             lambda: retarget(m, q, geo, check=False, backend="c"),
+            case("  same, along a path (warm start)", name, kernel(ROTATED, qp),
+                 lambda: retarget(m, qp[:Nn], ROTATED, check=False, backend="numpy"), N, Nn,
+                 fn_prev=before(ROTATED, qp))
+        case("retarget, tables on all axes + setting + location", name, kernel(geo, q),
              lambda: retarget(m, q[:Nn // 4], geo, check=False, backend="numpy"), N, Nn // 4,
-             fn_prev=(lambda: solve_with(prev, m, geo, q)) if prev else None)
+             fn_prev=before(geo, q))
         qt = path_commands(m, N)
-        case("  same, along a path (warm start)", name,
-             lambda: retarget(m, qt, geo, check=False, backend="c"),
+        case("  same, along a path (warm start)", name, kernel(geo, qt),
              lambda: retarget(m, qt[:Nn // 4], geo, check=False, backend="numpy"), N, Nn // 4,
-             fn_prev=(lambda: solve_with(prev, m, geo, qt)) if prev else None)
+             fn_prev=before(geo, qt))
         case("forward, tables on all axes + setting + location", name,
              lambda: forward(m, q, geo, backend="c").p,
              lambda: forward(m, q[:Nn], geo, backend="numpy").p, N, Nn)
@@ -208,8 +217,10 @@ def main(argv=None):
           "(0.02, -0.03, 0.15) deg; tables: 15-point random tables on every axis with location "
           "errors and setting errors. \"max difference\" is the largest difference of the commands "
           "(mm or deg) between the kernel and numpy." + (
-              f" The previous kernel (git {a.previous}, compiled in this run) on the same poses with tables, "
-              "beside the current one." if prev else ""), "",
+              f" The previous kernel (git {a.previous}, compiled in this run) on the same poses through the "
+              "same `retarget` call, on one thread, beside the current one: the machine's CPU rate drifts "
+              "between runs (the closed form on a0ib measured 9-12.5 M/s in different runs on this machine, "
+              "old and new kernels alike), the ratio in one run is the comparison." if prev else ""), "",
           "| case | machine | kernel, poses/s CPU (wall) | kernel on 1 thread, CPU (wall) | numpy, poses/s CPU | max difference |"
           + (f" previous kernel ({a.previous}), CPU |" if prev else ""),
           "|---|---|---|---|---|---|" + ("---|" if prev else "")]
