@@ -611,8 +611,8 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
     # workpiece rotation plus a squareness of the other axis reproduce one squareness); try
     # replacing each chosen effect by the best few candidates screened on what it explained
     if len(model) >= 2:
-        model, etas, cur, cv_cur = _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows,
-                                             coarse_cache, evidence, log)
+        model, etas, cur, cv_cur = _exchange(ctx, cands, model, etas, cur, cv_cur, oof_cur, st,
+                                             srows, coarse_cache, evidence, log)
     # backward pass: an effect that a later one made redundant goes
     changed = True
     while changed and len(model) > 1:
@@ -681,9 +681,17 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
     return final, evidence, log
 
 
-def _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows, coarse_cache, evidence, log):
-    """Replace one chosen effect by another candidate while that lowers BIC by the threshold."""
+def _exchange(ctx, cands, model, etas, cur, cv_cur, oof_cur, st, srows, coarse_cache, evidence,
+              log):
+    """Replace one chosen effect by another candidate while that lowers BIC by the threshold.
+
+    A replacement must also keep what the effect it replaces explained: the held-out error on
+    that effect's own outputs may not rise by more than `cv_min_gain`.  The pooled BIC and the
+    pooled held-out error are ruled by the outputs with the largest residuals; with many outputs
+    at once (a spindle's mismatch outside the library beside the axes' lags) they would trade a
+    lag that explains most of a small output's mismatch for a small gain on a large one."""
     nlog = math.log(max(srows.sum(), 2))
+    refused = set()
     for _ in range(3):
         neff = n_effective(ctx)
         b_cur = bic(cur.rss, cur.n_rows, cur.k, neff)
@@ -694,7 +702,7 @@ def _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows, coarse_cache, evi
             rss_base = float(base[srows] @ base[srows])
             scored = []
             for c in cands:
-                if c in model or _conflicts(c, rest):
+                if c in model or _conflicts(c, rest) or (e.label, c.label) in refused:
                     continue
                 eta0 = coarse_cache.get(c.label)
                 if eta0 is None:
@@ -715,11 +723,22 @@ def _exchange(ctx, cands, model, etas, cur, cv_cur, st, srows, coarse_cache, evi
         if c.implausible(ctx, f.etas[-1], f.betas[-1]):
             break  # an exchange never brings in what the forward steps would refuse
         m_new = model[:i] + model[i + 1:] + [c]
-        cv_new, _ = cross_validate(ctx, m_new, f.etas, st.folds)
+        cv_new, oof_new = cross_validate(ctx, m_new, f.etas, st.folds)
         if cv_new > cv_cur * (1.0 + st.cv_min_gain):
             break
+        # what the effect replaced explained on its own outputs must stay explained
+        own = np.zeros(ctx.N, bool)
+        for o in model[i].outputs:
+            own[ctx.slices[o]] = True
+        s_cur = float(oof_cur[own] @ oof_cur[own])
+        loss = float(oof_new[own] @ oof_new[own]) / s_cur - 1.0 if s_cur > 0 else 0.0
+        if loss > st.cv_min_gain:
+            log.append(f"exchange: {c.label} does not replace {model[i].label}: held-out error on "
+                       f"{', '.join(model[i].outputs)} {100 * loss:+.1f} %")
+            refused.add((model[i].label, c.label))
+            continue
         log.append(f"exchange: {c.label} replaces {model[i].label} (BIC {d:.1f})")
         old = evidence.pop(model[i].label, {})
         evidence[c.label] = dict(old, delta_bic_exchange=round(float(d), 2))
-        model, etas, cur, cv_cur = m_new, list(f.etas), f, cv_new
+        model, etas, cur, cv_cur, oof_cur = m_new, list(f.etas), f, cv_new, oof_new
     return model, etas, cur, cv_cur

@@ -28,6 +28,9 @@ def _stride(ctx) -> int:
 # responses of drivers to first-order lags, for the alignment being diagnosed (one at a time)
 _RESPONSES = {"al": None, "d": {}}
 
+# the slowest position-loop gain named a servo lag, 1/s (time constant 0.5 s)
+KV_MIN = 2.0
+
 
 class ThermalDrift(Candidate):
     nl_names = ("log_tau",)
@@ -160,7 +163,10 @@ class ServoLag(Candidate):
             # identifiable: a lag shorter than half of the finer file's sample step cannot be
             # told from a pure delay (time_offset), which then has to explain it
             hi = min(hi, 2.0 * max(ctx.al.rates["sim"], ctx.al.rates["rec"]))
-        return [math.log(max(0.5, 1.0 / ctx.duration))], [math.log(hi)]
+        # a position loop slower than kv = 2 1/s (a time constant over 0.5 s) is no servo lag of
+        # a machine axis, a stage or a joint (they run at 5-200 1/s): such a fit is a slow drift
+        # or another effect in the lag's clothes, and at this bound it is not named
+        return [math.log(max(KV_MIN, 1.0 / ctx.duration))], [math.log(hi)]
 
     def build(self, ctx, eta):
         # the filter runs on a finer grid from SIM's spline: the ramp-invariant step assumes the
@@ -259,6 +265,14 @@ class ServoLagDerivative(Candidate):
 
     def build(self, ctx, eta):
         return None, [{self.outputs[0]: -ctx.values(self.inputs[1])}]
+
+    def implausible(self, ctx, eta, beta):
+        # the filtered form's bound (KV_MIN), for the linear form's free time constant
+        tau = float(beta[0]) if len(beta) else 0.0
+        if tau > 1.0 / KV_MIN:
+            return (f"time constant {tau:.3g} s, longer than any servo loop's "
+                    f"({1.0 / KV_MIN:g} s): not a servo lag")
+        return None
 
     def physical(self, ctx, eta, beta, cov_eta, cov_beta):
         tau = float(beta[0])
