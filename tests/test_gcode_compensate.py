@@ -251,9 +251,9 @@ _CORRUPT_PROG = ("G90 G0 X0 Y0 Z10. B10. C0\nG1 Z0.5 F100\nX1. Y2. B12. C30.\nG3
                  "G91 G1 X0.01 Y-0.002\nX0.001 Z-0.0005 C1.\nG90 G1 X-3. Y4. Z1. B-10. C-90.\nM30\n")
 
 
-def _corrupting(fmt, at):
-    """A number formatter that writes one digit wrong: the last digit of the ``at``-th number
-    of its first call."""
+def _corrupting(fmt, at, back=1):
+    """A number formatter that writes one digit wrong: the ``back``-th digit from the end of the
+    ``at``-th number of its first call (its calls are counted in ``.calls``)."""
     calls = []
 
     def wrong(counts, decimals):
@@ -263,9 +263,10 @@ def _corrupting(fmt, at):
         calls.append(1)
         buf, off, ln = got
         buf = buf.copy()
-        k = int(off[at] + ln[at] - 1)
+        k = int(off[at] + ln[at] - back)
         buf[k] = ord("1") if buf[k] != ord("1") else ord("2")
         return buf, off, ln
+    wrong.calls = calls
     return wrong
 
 

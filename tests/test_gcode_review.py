@@ -18,6 +18,7 @@ from mtcomp.errors import ErrorSet, WorkpieceSetting
 from mtcomp.kinematics import forward_position
 from mtcomp.machine import load_machine
 
+from test_gcode_compensate import _corrupting
 from test_gcode_corpus import AXES, interpret
 
 PROGRAMS = {
@@ -224,23 +225,12 @@ def test_a_corrupted_polar_word_is_caught(tok, monkeypatch):
     compensate_program(text, m, ERR, filename="r.nc")
     mod, name = (rewrite, "format_counts") if tok == "python" or _ctok.load() is None \
         else (_ctok, "format_counts")
-    real = getattr(mod, name)
-    calls = []
-
-    def wrong(counts, decimals):
-        got = real(counts, decimals)
-        if got is None or calls:
-            return got
-        calls.append(1)
-        buf, off, ln = got
-        buf = buf.copy()
-        k = int(off[0] + ln[0] - 2)                 # the next-to-last digit of the first word
-        buf[k] = ord("1") if buf[k] != ord("1") else ord("2")
-        return buf, off, ln
+    # the next-to-last digit of the first word
+    wrong = _corrupting(getattr(mod, name), 0, back=2)
     monkeypatch.setattr(mod, name, wrong)
     with pytest.raises(InputError, match="not what was computed"):
         compensate_program(text, m, ERR, filename="r.nc")
-    assert calls
+    assert wrong.calls
 
 
 def test_g91_half_count_increments_are_refused_under_a_correction():
