@@ -207,24 +207,22 @@ _MEASURED_WORDS = {"act", "actual", "ist", "istwert", "meas", "measured", "fb", 
 def role(name: str) -> str | None:
     """'command' or 'measured' when a column's name says which it is (``X1_CommandVelocity``,
     ``x_act``, ``Istposition``), else None; a name with words of both roles says neither."""
-    words = set()
-    for w in _tokens(name):
-        for pre in ("ist", "soll"):
-            if w.startswith(pre) and len(w) > len(pre) + 2:
-                words.add(pre)
-        words.add(w)
+    words = {w for pair in _role_split(name) for w in pair if w}
     cmd, meas = bool(words & _COMMAND_WORDS), bool(words & _MEASURED_WORDS)
     return "command" if cmd and not meas else ("measured" if meas and not cmd else None)
+
+
+def _role_split(name: str) -> list[tuple[str, str | None]]:
+    """The name's lower-case words, a German compound's role prefix split off:
+    ``Istposition_X`` -> [('position', 'ist'), ('x', None)]."""
+    out = []
+    for w in _tokens(name):
+        pre = next((p for p in ("ist", "soll") if w.startswith(p) and len(w) > len(p) + 2), None)
+        out.append((w[len(pre):], pre) if pre else (w, None))
+    return out
 
 
 def stem(name: str) -> str:
     """A column's name without the words that say its role, lower case: what a command and its
     measurement have in common (``X_cmd`` / ``x_act`` -> 'x'; ``Pos_Act`` -> 'pos')."""
-    words = []
-    for w in _tokens(name):
-        for pre in ("ist", "soll"):  # German compounds: Istposition, Sollposition
-            if w.startswith(pre) and len(w) > len(pre) + 2:
-                w = w[len(pre):]
-        if w not in _ROLE_WORDS:
-            words.append(w)
-    return "_".join(words)
+    return "_".join(w for w, _ in _role_split(name) if w not in _ROLE_WORDS)
