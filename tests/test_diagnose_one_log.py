@@ -88,3 +88,29 @@ def test_one_log_from_the_command_line(tmp_path):
     # without --dt: one line naming the option, no traceback
     p = subprocess.run(args[:6] + ["--quiet"], capture_output=True, text=True)
     assert p.returncode == 2 and "--dt" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_one_log_under_other_names_units_and_quantisation(tmp_path):
+    """The same log written as another control would: German role words, m/min quantised to
+    0.001 m/min, time in ms, a drive current with no role word: the same lags."""
+    import csv
+    rows = list(csv.reader(RAW.open()))
+    h = rows[0]
+    ren = {"X1_CommandVelocity": "vx_soll[m/min]", "X1_ActualVelocity": "vx_ist[m/min]",
+           "Y1_CommandVelocity": "vy_soll[m/min]", "Y1_ActualVelocity": "vy_ist[m/min]",
+           "X1_CommandAcceleration": "ax_soll[mm/s^2]", "Y1_CommandAcceleration": "ay_soll[mm/s^2]",
+           "X1_OutputCurrent": "Strom_X"}
+    f = tmp_path / "log.csv"
+    lines = ["Zeit[ms]," + ",".join(ren.values())]
+    for i, r in enumerate(rows[1:]):
+        vals = [round(float(r[h.index(k)]) * 0.06, 3) if "Velocity" in k else float(r[h.index(k)])
+                for k in ren]
+        lines.append(f"{100 * i}," + ",".join(repr(v) for v in vals))
+    f.write_text("\n".join(lines) + "\n")
+    ref = diagnose(RAW, RAW, outputs=VEL, dt=0.1)
+    res = diagnose(f, f)
+    lag = {e.outputs[0]: e.params["tau_s"] for e in res.effects if e.name == "servo_lag"}
+    lag_ref = {e.outputs[0]: e.params["tau_s"] for e in ref.effects if e.name == "servo_lag"}
+    for o, r in (("vx_ist", "X1_ActualVelocity"), ("vy_ist", "Y1_ActualVelocity")):
+        assert lag[o] == pytest.approx(lag_ref[r], rel=0.15), (lag, lag_ref)
+    assert any("Strom_X" in n and "left out" in n for n in res.notes)
