@@ -298,7 +298,7 @@ def read_table(path: str | Path, role: str = "file", units: dict | None = None,
             text_notes.append(f"column {c.name!r} of {Path(tab.source).name} holds text: it serves "
                               "the row filter only")
             continue
-        if _all_text([r[c.index] for r in tab.rows]):
+        if _all_text(r[c.index] for r in tab.rows):
             # a column of labels (a phase, a tool state, a program name) is no signal; a column
             # of numbers with a bad cell stays an error below
             text_notes.append(f"column {c.name!r} of {Path(tab.source).name} holds text, not numbers: "
@@ -312,9 +312,15 @@ def read_table(path: str | Path, role: str = "file", units: dict | None = None,
 
 
 def _all_text(cells) -> bool:
-    """Every present cell of a column is a word, not a number (a column of labels)."""
-    present = [c for c in cells if c.strip() and c.strip() not in MISSING]
-    return bool(present) and all(_rows.is_text([c], MISSING) for c in present)
+    """Every present cell of a column is a word, not a number (a column of labels).  Lazy: a
+    column of numbers is settled by its first present cell."""
+    seen = False
+    for c in cells:
+        if c.strip() and c.strip() not in MISSING:
+            if not _rows.is_text([c], MISSING):
+                return False
+            seen = True
+    return seen
 
 
 def _fill_missing(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, int]:
