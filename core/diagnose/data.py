@@ -532,16 +532,6 @@ def split_log(tab: Table, outputs=None, inputs=None) -> tuple[Table, Table, tupl
             sim_cols[k] = c
         else:
             left.append(k)
-    # REC keeps the outputs only: a measured column compared with nothing would be an input,
-    # and another measurement of the same motion explains a residual without naming a cause
-    if outputs:
-        named = {(o.split("=", 1)[1] if "=" in o else o).strip() for o in outputs}
-        keep = {k for k in rec_cols if k in named}
-    else:
-        cmd_stems = {(stem(k), c.kind) for k, c in sim_cols.items()}
-        keep = {k for k, c in rec_cols.items() if (stem(k), c.kind) in cmd_stems}
-    left += [k for k in rec_cols if k not in keep]
-    rec_cols = {k: c for k, c in rec_cols.items() if k in keep}
     if not rec_cols or not sim_cols:
         raise InputError("SIM and REC are one file, but its column names do not say which "
                          "signals were commanded and which measured: pair them, e.g. --output "
@@ -549,10 +539,25 @@ def split_log(tab: Table, outputs=None, inputs=None) -> tuple[Table, Table, tupl
     notes = [f"one log for SIM and REC ({Path(tab.path).name}): commanded {', '.join(sim_cols)}; "
              f"measured {', '.join(rec_cols)}; both on one clock"]
     if left:
-        notes.append(f"left out (names that say no command, or measurements with no command to "
-                     f"compare with; --input COL uses one as an input): {', '.join(left)}")
+        notes.append(f"left out (their names say neither command nor measurement; --input COL "
+                     f"uses one as an input): {', '.join(left)}")
     return (replace(tab, columns=sim_cols), replace(tab, columns=rec_cols, notes=()),
             tuple(notes))
+
+
+def compared_only(rec: Table, outputs) -> tuple[Table, tuple]:
+    """REC of one log (`split_log`) after the pairing (`pair_columns`): the columns compared
+    only.  A measured column compared with nothing would be an input, and another measurement of
+    the same motion explains a residual without naming a cause."""
+    left = [k for k in rec.columns if k not in outputs]
+    if not left:
+        return rec, ()
+    if len(left) == len(rec.columns):
+        raise InputError("SIM and REC are one file, but no measured column pairs with a commanded "
+                         "one by name: pair them, e.g. --output X_cmd=X_act", rec.path, field="--output")
+    return (replace(rec, columns={k: c for k, c in rec.columns.items() if k not in left}),
+            (f"left out (measurements with no command to compare with; --input COL uses one as an "
+             f"input): {', '.join(left)}",))
 
 
 def pair_columns(sim: Table, rec: Table, outputs=None) -> tuple[Table, list | None, tuple]:

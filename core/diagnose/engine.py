@@ -192,6 +192,9 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     filter_notes = _row_filter_notes(conds, S, R) + log_notes
     S, R, clock_notes = _data.common_clock(S, R)
     S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
+    if one_log:
+        R, kept_notes = _data.compared_only(R, outputs or [k for k in R.columns if k in S.columns])
+        pair_notes += kept_notes
     al = _align.align(S, R, outputs=outputs, inputs=inputs,
                       notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes,
                       same_clock=same_clock)
