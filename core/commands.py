@@ -15,7 +15,7 @@ import numpy as np
 from ._io import InputError, atomic_write
 from .cliargs import positive_float
 from .errors import ErrorSet, TableRangeError, load_errors
-from .kinematics import ConvergenceError, LimitError, forward, forward_position, retarget
+from .kinematics import ConvergenceError, LimitError, deviations, forward, retarget
 from .machine import list_presets, load_machine
 from .progress import Progress
 
@@ -322,26 +322,21 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                                  tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
     before = np.empty(len(kk))
     after = np.empty(len(kk))
-    norm = lambda d: np.sqrt(np.einsum("ij,ij->i", d, d))  # noqa: E731
     every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
     for s in range(0, len(kk), CHUNK):
         rows = kk[s:s + CHUNK]
         on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
         r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
         if len(rows[~on]) and not lengths:
-            target = forward_position(machine, P[r])     # (positions only: no orientations built)
-            before[s:s + CHUNK][~on] = norm(forward_position(machine, P[r], errors) - target)
-            after[s:s + CHUNK][~on] = norm(forward_position(machine, emitted[r], errors) - target)
+            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = deviations(machine, P[r], emitted[r], errors)
         elif len(rows[~on]):
             # at the tip of each block's tool, where the transform put it
             b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
             pos = np.flatnonzero(~on)
             for length, sub in _by_tool(tip, rows[~on]):
                 mt = at_tip(length)
-                target = forward_position(mt, P[sub])
                 k = pos[np.isin(rows[~on], sub)]
-                b_out[k] = norm(forward_position(mt, P[sub], errors) - target)
-                a_out[k] = norm(forward_position(mt, emitted[sub], errors) - target)
+                b_out[k], a_out[k] = deviations(mt, P[sub], emitted[sub], errors)
         if on.any():
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)

@@ -2877,3 +2877,46 @@ long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const
 {
     return batch(m, e, n, p_t, R_t, q0, q, o, res, status, info);
 }
+
+/* The tool edge's distance (mm) from the ideal machine's at q_prog: at q_prog itself and at q_emit,
+ * both on the real machine (errors e).  The three positions of a pose on vectors (fwd_pv), the
+ * rotary sines and cosines of q_emit by the angle sum from those of q_prog (axis_sincos: the
+ * compensation moves a rotary axis by micro-degrees).  strict: a command outside an axis' table
+ * returns the pose (the axis in *bad_axis), as mtk_forward_batch does; -1 when all are done. */
+long mtk_check_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, const double *q_emit,
+                     double *before, double *after, int strict, int *bad_axis)
+{
+    prep_t P, Pi;
+    long i;
+    int nax = m->n_axes, k, tabs = 0;
+    prepare(m, e, 1, &P);
+    prepare(m, NULL, 0, &Pi);
+    for (k = 0; k < nax; k++) tabs |= P.tab[k] != NULL;
+    for (i = 0; i < n; i++) {
+        const double *qp = q_prog + i * nax, *qe = q_emit + i * nax;
+        double pt[3], pr[3], pe[3], v[3], db = 0.0, da = 0.0;
+        if (strict && tabs) {
+            for (k = 0; k < nax; k++) {
+                const mtk_table *t = P.tab[k];
+                if (t && (!(qp[k] >= t->pos[0] - 1e-12 && qp[k] <= t->pos[t->n - 1] + 1e-12) ||
+                          !(qe[k] >= t->pos[0] - 1e-12 && qe[k] <= t->pos[t->n - 1] + 1e-12))) {
+                    if (bad_axis) *bad_axis = k;
+                    return i;
+                }
+            }
+        }
+        fwd_pv(&Pi, qp, pt, v);
+        /* the real machine's rotary angles differ from the ideal's by its zero errors alone */
+        memcpy(P.sc_ref, Pi.sc_ref, sizeof P.sc_ref);
+        fwd_pv(&P, qp, pr, v);
+        fwd_pv(&P, qe, pe, v);
+        for (k = 0; k < 3; k++) {
+            double b = pr[k] - pt[k], a = pe[k] - pt[k];
+            db += b * b;
+            da += a * a;
+        }
+        before[i] = sqrt(db);
+        after[i] = sqrt(da);
+    }
+    return -1;
+}
