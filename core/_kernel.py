@@ -151,6 +151,9 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.mtk_forward_batch_mt.restype = c_long
     lib.mtk_forward_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, ctypes.c_int, _I,
                                          ctypes.c_int]
+    lib.mtk_check_batch_mt.restype = c_long
+    lib.mtk_check_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D, ctypes.c_int, _I,
+                                       ctypes.c_int]
     lib.mtk_compensate_batch_mt.restype = c_long
     lib.mtk_compensate_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D,
                                             ctypes.POINTER(_Options), _D, _I, _I, ctypes.c_int]
@@ -306,6 +309,22 @@ def forward(lib, machine, q: np.ndarray, errors, strict: bool, orientation: bool
     bad = lib.mtk_forward_batch_mt(m.ptr, ctypes.byref(e), n, _p(q), _p(p), None if R is None else _p(R),
                                    int(strict), ctypes.byref(bad_axis), threads())
     return p, R, int(bad) if bad >= 0 else -1
+
+
+def check(lib, machine, q_prog: np.ndarray, q_emit: np.ndarray, errors, strict: bool):
+    """(before (N,), after (N,), first bad index or -1): the real tool edge's distance (mm) from the
+    ideal one at q_prog, at q_prog and at q_emit (mtk_check_batch)."""
+    q_prog = np.ascontiguousarray(q_prog, dtype=float)
+    q_emit = np.ascontiguousarray(q_emit, dtype=float)
+    n = q_prog.shape[0]
+    before = np.empty(n)
+    after = np.empty(n)
+    m = model(lib, machine, errors)
+    e = c_errors(machine, errors)
+    bad_axis = ctypes.c_int(-1)
+    bad = lib.mtk_check_batch_mt(m.ptr, ctypes.byref(e), n, _p(q_prog), _p(q_emit), _p(before), _p(after),
+                                 int(strict), ctypes.byref(bad_axis), threads())
+    return before, after, int(bad) if bad >= 0 else -1
 
 
 def solve(lib, machine, errors, q0: np.ndarray, *, target=None, tol: float, max_iter: int,

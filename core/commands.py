@@ -15,7 +15,7 @@ import numpy as np
 from ._io import InputError, atomic_write
 from .cliargs import positive_float
 from .errors import ErrorSet, TableRangeError, load_errors
-from .kinematics import ConvergenceError, LimitError, forward, forward_position, retarget
+from .kinematics import ConvergenceError, LimitError, deviations, forward, retarget
 from .machine import list_presets, load_machine
 from .progress import Progress
 
@@ -322,26 +322,21 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                                  tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
     before = np.empty(len(kk))
     after = np.empty(len(kk))
-    norm = lambda d: np.sqrt(np.einsum("ij,ij->i", d, d))  # noqa: E731
     every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
     for s in range(0, len(kk), CHUNK):
         rows = kk[s:s + CHUNK]
         on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
         r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
         if len(rows[~on]) and not lengths:
-            target = forward_position(machine, P[r])     # (positions only: no orientations built)
-            before[s:s + CHUNK][~on] = norm(forward_position(machine, P[r], errors) - target)
-            after[s:s + CHUNK][~on] = norm(forward_position(machine, emitted[r], errors) - target)
+            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = deviations(machine, P[r], emitted[r], errors)
         elif len(rows[~on]):
             # at the tip of each block's tool, where the transform put it
             b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
             pos = np.flatnonzero(~on)
             for length, sub in _by_tool(tip, rows[~on]):
                 mt = at_tip(length)
-                target = forward_position(mt, P[sub])
                 k = pos[np.isin(rows[~on], sub)]
-                b_out[k] = norm(forward_position(mt, P[sub], errors) - target)
-                a_out[k] = norm(forward_position(mt, emitted[sub], errors) - target)
+                b_out[k], a_out[k] = deviations(mt, P[sub], emitted[sub], errors)
         if on.any():
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
@@ -573,6 +568,33 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
     return out
 
 
+def counts_to_values(counts, res) -> np.ndarray:
+    """The numbers (mm, deg) that words of ``counts`` (N, n_axes) steps of the axes' resolutions
+    ``res`` (n_axes; m * 10**-d, NaN where unknown) say, as a control reads them: the decimal
+    value correctly rounded, (count * m) / 10**d, an exact integer over an exact power of ten.
+    count * res is off by an ulp where res is no binary fraction (3050000 * 1e-5 is
+    30.500000000000004, the word C30.5 is 30.5), which would make an unchanged program differ
+    from itself by 1e-15."""
+    out = np.array(counts, float)                     # (always a new array: scaled in place)
+    res = np.broadcast_to(np.asarray(res, float), out.shape[-1:])
+    for j, r in enumerate(res):
+        col = out[..., j]
+        if not (np.isfinite(r) and r > 0):
+            col *= r
+            continue
+        for d in range(16):
+            m = r * 10.0 ** d
+            if abs(m - round(m)) <= 1e-9 * m:
+                break
+        if abs(m - round(m)) > 1e-9 * m or np.nanmax(np.abs(col), initial=0.0) * round(m) >= 2.0 ** 53:
+            col *= r                                  # not a decimal step: the product
+            continue
+        if round(m) != 1:
+            col *= float(round(m))
+        col /= 10.0 ** d
+    return out
+
+
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
                       tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
     """End position of every motion block of the rewritten program `new_text` (str, or its
@@ -602,9 +624,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                              f"{exc.args[0]}; refusing to write it", filename,
                              None if j is None else int(prog.line[j])) from None
         if ok:
-            out = np.array(info["emitted"], float)       # (always a new array: scaled in place)
-            out *= np.asarray(info["emitted_resolution"])
-            return out
+            return counts_to_values(info["emitted"], info["emitted_resolution"])
     from . import gcode
     if new_text is None:
         new_text = bytes(data).decode("utf-8", "surrogateescape")

@@ -247,6 +247,28 @@ def forward_position(machine: Machine, q, errors: ErrorSet | None = None, strict
     return forward(machine, q, errors, strict, backend="numpy").p
 
 
+def deviations(machine: Machine, q_prog, q_emit, errors: ErrorSet | None, strict: bool = True, *,
+               backend: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (N,) mm of the real tool edge (errors) from the ideal machine's at the programmed
+    commands q_prog: at q_prog (before compensation) and at the emitted commands q_emit (after).
+    The check of a compensated program: with the compiled kernel one pass that shares the rotary
+    sines and cosines of a pose's three positions, else three `forward_position` passes."""
+    q_prog = _as_commands(machine, q_prog)
+    q_emit = _as_commands(machine, q_emit)
+    if q_prog.shape != q_emit.shape:
+        raise ValueError(f"q_prog {q_prog.shape} and q_emit {q_emit.shape} differ in shape")
+    lib = _backend(backend)
+    if lib is not None:
+        from . import _kernel
+        before, after, bad = _kernel.check(lib, machine, q_prog, q_emit, errors, strict)
+        if bad < 0:
+            return before, after
+    target = forward_position(machine, q_prog, backend=backend)
+    norm = lambda d: np.sqrt(np.einsum("ij,ij->i", d, d))  # noqa: E731
+    return (norm(forward_position(machine, q_prog, errors, strict, backend=backend) - target),
+            norm(forward_position(machine, q_emit, errors, strict, backend=backend) - target))
+
+
 class SwingError(MtcompError):
     """The compensation would turn a rotary axis further in one block than allowed."""
 

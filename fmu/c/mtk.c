@@ -2877,3 +2877,86 @@ long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const
 {
     return batch(m, e, n, p_t, R_t, q0, q, o, res, status, info);
 }
+
+/* Two points a, b (mm, in the last tool-side frame) through the rigid chain at q (fwd_pv's
+ * motions without error motions, in place): on a prepared model without tables or location
+ * errors the ideal tool point and the real one (with the tool setting offset) share the chain. */
+static void chain_two(const prep_t *P, const double *q, double a[3], double b[3])
+{
+    const mtk_model *m = P->m;
+    int i, k;
+    for (i = P->n - 1; i >= 0; i--) {
+        if (m->rotary[i]) {
+            const double *c = P->c[i], *u = P->ueff[i];
+            double sn, cs, ya[3], yb[3];
+            axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+            for (k = 0; k < 3; k++) { ya[k] = a[k] - c[k]; yb[k] = b[k] - c[k]; }
+            turn(u, sn, cs, ya, ya);
+            turn(u, sn, cs, yb, yb);
+            for (k = 0; k < 3; k++) { a[k] = c[k] + ya[k]; b[k] = c[k] + yb[k]; }
+        } else {
+            for (k = 0; k < 3; k++) {
+                double t = q[i] * P->ueff[i][k];
+                a[k] += t;
+                b[k] += t;
+            }
+        }
+    }
+}
+
+/* The tool edge's distance (mm) from the ideal machine's at q_prog: at q_prog itself and at q_emit,
+ * both on the real machine (errors e).  The three positions of a pose on vectors (fwd_pv), the
+ * rotary sines and cosines of q_emit by the angle sum from those of q_prog (axis_sincos: the
+ * compensation moves a rotary axis by micro-degrees).  strict: a command outside an axis' table
+ * returns the pose (the axis in *bad_axis), as mtk_forward_batch does; -1 when all are done. */
+long mtk_check_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, const double *q_emit,
+                     double *before, double *after, int strict, int *bad_axis)
+{
+    prep_t P, Pi;
+    long i;
+    int nax = m->n_axes, k, tabs = 0;
+    prepare(m, e, 1, &P);
+    prepare(m, NULL, 0, &Pi);
+    for (k = 0; k < nax; k++) tabs |= P.tab[k] != NULL;
+    for (i = 0; i < n; i++) {
+        const double *qp = q_prog + i * nax, *qe = q_emit + i * nax;
+        double pt[3], pr[3], pe[3], v[3], db = 0.0, da = 0.0;
+        if (strict && tabs) {
+            for (k = 0; k < nax; k++) {
+                const mtk_table *t = P.tab[k];
+                if (t && (!(qp[k] >= t->pos[0] - 1e-12 && qp[k] <= t->pos[t->n - 1] + 1e-12) ||
+                          !(qe[k] >= t->pos[0] - 1e-12 && qe[k] <= t->pos[t->n - 1] + 1e-12))) {
+                    if (bad_axis) *bad_axis = k;
+                    return i;
+                }
+            }
+        }
+        if (!P.geo) {
+            /* setting errors alone: one chain for the ideal and the real tool point at q_prog */
+            double b[3];
+            memcpy(pt, m->tool_point, sizeof pt);
+            memcpy(b, P.tp, sizeof b);
+            chain_two(&P, qp, pt, b);
+            if (P.wp) {
+                for (k = 0; k < 3; k++) b[k] -= P.tw[k];
+                mat_vec(P.RwT, b, pr);
+            } else {
+                memcpy(pr, b, sizeof pr);
+            }
+        } else {
+            fwd_pv(&Pi, qp, pt, v);
+            /* the real machine's rotary angles differ from the ideal's by its zero errors alone */
+            memcpy(P.sc_ref, Pi.sc_ref, sizeof P.sc_ref);
+            fwd_pv(&P, qp, pr, v);
+        }
+        fwd_pv(&P, qe, pe, v);
+        for (k = 0; k < 3; k++) {
+            double b = pr[k] - pt[k], a = pe[k] - pt[k];
+            db += b * b;
+            da += a * a;
+        }
+        before[i] = sqrt(db);
+        after[i] = sqrt(da);
+    }
+    return -1;
+}

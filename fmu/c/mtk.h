@@ -133,6 +133,14 @@ long mtk_compensate_batch_mt(const mtk_model *m, const mtk_errors *e, long n, co
 /* Threads a batch of n poses runs on (threads as above). */
 int mtk_threads(long n, int threads);
 
+/* Verification of compensated commands: per pose the distance (mm) of the real tool edge from the
+ * ideal one at q_prog (before) and at q_emit (after); strict as mtk_forward_batch (returns the first
+ * pose with a command outside a table, the axis in *bad_axis, else -1). */
+long mtk_check_batch(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, const double *q_emit,
+                     double *before, double *after, int strict, int *bad_axis);
+long mtk_check_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, const double *q_emit,
+                        double *before, double *after, int strict, int *bad_axis, int threads);
+
 /* Portable strtok_r: next token of s (or of *save when s is NULL) delimited by any of delim. */
 char *mtk_tok(char *s, const char *delim, char **save);
 

@@ -25,7 +25,8 @@ typedef struct {
     const mtk_model *m;
     const mtk_errors *e;
     long n, nchunks;
-    int fwd, strict;
+    int fwd, strict;           /* fwd: 1 forward, 2 check (q0 the programmed, q the emitted commands;
+                                * p before, res after) */
     const double *q0, *p_t, *R_t;
     double *p, *R, *q, *res;
     const mtk_options *o;
@@ -62,7 +63,12 @@ static void *mt_work(void *arg)
     while ((k = take_chunk(j)) < j->nchunks) {
         long a = chunk_edge(j, k), b = chunk_edge(j, k + 1);
         if (b <= a) continue;
-        if (j->fwd) {
+        if (j->fwd == 2) {
+            int ax = -1;
+            long bad = mtk_check_batch(j->m, j->e, b - a, j->q0 + a * nax, j->q + a * nax, j->p + a, j->res + a,
+                                       j->strict, &ax);
+            if (bad >= 0 && (w->bad < 0 || a + bad < w->bad)) { w->bad = a + bad; w->bad_axis = ax; }
+        } else if (j->fwd) {
             int ax = -1;
             long bad = mtk_forward_batch(j->m, j->e, b - a, j->q0 + a * nax, j->p + 3 * a, j->R ? j->R + 9 * a : NULL,
                                          j->strict, &ax);
@@ -146,6 +152,16 @@ long mtk_forward_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const
     mt_job j;
     memset(&j, 0, sizeof j);
     j.m = m; j.e = e; j.n = n; j.fwd = 1; j.strict = strict; j.q0 = q; j.p = p; j.R = R;
+    return run_job(&j, threads, bad_axis);
+}
+
+long mtk_check_batch_mt(const mtk_model *m, const mtk_errors *e, long n, const double *q_prog, const double *q_emit,
+                        double *before, double *after, int strict, int *bad_axis, int threads)
+{
+    mt_job j;
+    memset(&j, 0, sizeof j);
+    j.m = m; j.e = e; j.n = n; j.fwd = 2; j.strict = strict; j.q0 = q_prog; j.q = (double *)q_emit;
+    j.p = before; j.res = after;
     return run_job(&j, threads, bad_axis);
 }
 
