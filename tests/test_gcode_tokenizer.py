@@ -133,6 +133,31 @@ def test_comment_blanking_same_spans(text):
     got = b.copy()
     assert _ctok.blank_comments(b, got, bom)
     assert got.tobytes() == ref.tobytes()
+    # the copy made in the blanking pass (parse's), comment bytes at every offset of its
+    # eight-byte steps
+    for lead in range(9):
+        pre = b" " * lead
+        data2 = data[:bom] + pre + data[bom:]
+        b2 = np.frombuffer(data2, np.uint8)
+        ref2 = b2.copy()
+        for s, e in _comment_spans(data2, b2, first=bom):
+            ref2[s:e] = 32
+        got2 = _ctok.copy_blank_comments(b2, bom)
+        assert got2.tobytes() == ref2.tobytes()
+
+
+@seed(5)
+@settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.text("G1X2.(;)%\n \t/", max_size=80), st.booleans())
+def test_comment_blanking_copy_same_as_spans(text, bom):
+    from mtcomp.gcode.tokens import _comment_spans
+    data = (b"\xef\xbb\xbf" if bom else b"") + text.encode("utf-8")
+    b = np.frombuffer(data, np.uint8)
+    first = 3 if bom else 0
+    ref = b.copy()
+    for s, e in _comment_spans(data, b, first=first):
+        ref[s:e] = 32
+    assert _ctok.copy_blank_comments(b, first).tobytes() == ref.tobytes()
 
 
 @pytest.mark.parametrize("text", ["G1 X1 Y2 Y3\nX1 X2\n", "X1 X2\nG1 Y1 Y2\n", "G1 G90 M3 M8 X1\nB1 b2\n",

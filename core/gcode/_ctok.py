@@ -91,6 +91,8 @@ def load():
     lib.mtc_splice_inplace.restype = i64
     lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_blank_comments.restype = i64
+    lib.mtc_copy_blank_comments.argtypes = [vp, vp, i64, i64]
+    lib.mtc_copy_blank_comments.restype = i64
     lib.mtc_format_size.argtypes = [vp, i64, i64]
     lib.mtc_format_size.restype = i64
     lib.mtc_format.argtypes = [vp, i64, i64, vp, vp, vp]
@@ -137,6 +139,20 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
         return False
     lib.mtc_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
     return True
+
+
+def copy_blank_comments(b: np.ndarray, first: int):
+    """A copy of the program bytes `b` (uint8) with their comments blanked as
+    `blank_comments` blanks them, made in the same pass (most eight-byte groups hold no comment
+    character and are copied at once); None without the compiled library."""
+    lib = load()
+    if lib is None:
+        return None
+    b = np.ascontiguousarray(b, np.uint8)
+    code = np.empty(len(b), np.uint8)
+    if len(b):
+        lib.mtc_copy_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
+    return code
 
 
 def tokenise(code: np.ndarray, full: bool = False):

@@ -88,10 +88,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- comments, % lines and block delete become blanks in a working copy; so does a UTF-8
     # byte-order mark (Windows editors write one)
-    code = b.copy()
     bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    code = _ctok.copy_blank_comments(b, bom)       # compiled: the copy and the blanking, one pass
+    spans = []
+    if code is None:
+        code = b.copy()
+        spans = _comment_spans(data, b, first=bom)
     code[:bom] = 32
-    spans = [] if _ctok.blank_comments(b, code, bom) else _comment_spans(data, b, first=bom)
     if spans:
         if len(spans) < 1 << 18:                  # slice assignments: cheap per comment
             for s, e in spans:
