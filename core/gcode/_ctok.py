@@ -98,6 +98,9 @@ def load():
     lib.mtc_format.argtypes = [vp, i64, i64, vp, vp, vp]
     lib.mtc_format.restype = None
     lib.mtc_overwrite.argtypes = [vp, vp, vp, vp, vp, i64]
+    lib.mtc_replace_edits.argtypes = [vp, i64, vp, i64, i64, i64, vp, i64, i64, vp, vp, i64, i64,
+                                      vp, vp, vp, vp, vp]
+    lib.mtc_replace_edits.restype = i64
     lib.mtc_overwrite.restype = None
     lib.mtc_axis_edits.argtypes = [i64, i64, i64, vp, vp, vp, vp, i64, vp, ctypes.c_double,
                                    ctypes.c_double, vp, vp, vp, vp, vp, vp, vp]
@@ -239,6 +242,38 @@ def format_counts(counts, decimals: int):
     off, ln = np.empty(n, np.int64), np.empty(n, np.int64)
     lib.mtc_format(counts.ctypes.data, n, d, buf.ctypes.data, off.ctypes.data, ln.ctypes.data)
     return buf, off, ln
+
+
+def replace_edits(counts, rows, mult: int, decimals: int, cw, col: int, w_num, w_end, base: int):
+    """The replacement edits of word column ``col`` in blocks ``rows`` (rewrite._column_edits):
+    (text buffer, pos, stop, off, len), the last four int32: the text of
+    ``counts[rows[i]] * mult`` at ``decimals`` (as `format_counts`) at ``buf[off[i] - base:]``,
+    ``len[i]`` bytes, replacing the text ``[pos[i], stop[i])`` of the block's word (``cw``
+    (N, columns) int32 word indices, ``w_num`` / ``w_end`` int32 spans).  None without the
+    library or where it does not apply (an offset beyond 32 bits): the caller's numpy path."""
+    lib = load()
+    if (lib is None or not 0 <= int(decimals) <= 18 or cw.dtype != np.int32 or cw.ndim != 2
+            or np.asarray(w_num).dtype != np.int32 or np.asarray(w_end).dtype != np.int32):
+        return None
+    counts = np.ascontiguousarray(counts, np.int64)
+    rows = np.ascontiguousarray(rows, np.int64)
+    cw = np.ascontiguousarray(cw)
+    w_num, w_end = np.ascontiguousarray(w_num), np.ascontiguousarray(w_end)
+    if counts.ndim != 1 or len(w_num) != len(w_end) or cw.shape[0] != len(counts):
+        return None
+    m, d = len(rows), int(decimals)
+    buf = np.empty(max(m * (d + 22), 1), np.uint8)       # (pages past the text never touched)
+    pos, stop, off, ln = (np.empty(m, np.int32) for _ in range(4))
+    dummy = np.zeros(1, np.int32)
+    ptr = lambda a: a.ctypes.data if a.size else dummy.ctypes.data  # noqa: E731
+    got = lib.mtc_replace_edits(ptr(counts), len(counts), ptr(rows), m, int(mult), d, ptr(cw),
+                                cw.shape[1], int(col), ptr(w_num), ptr(w_end), len(w_num),
+                                int(base), buf.ctypes.data, ptr(pos), ptr(stop), ptr(off), ptr(ln))
+    if got == -1 - m:
+        return None
+    if got < 0:
+        raise ValueError(f"replace_edits: row {rows[-1 - got]} out of range or without a word")
+    return buf[:got], pos, stop, off, ln
 
 
 def overwrite(out: np.ndarray, src: np.ndarray, pos, src_off, length) -> bool:

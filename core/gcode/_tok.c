@@ -404,6 +404,40 @@ void mtc_format(const int64_t *counts, int64_t n, int64_t d, uint8_t *buf, int64
     }
 }
 
+/* The replacement edits of one word column of the rewrite (rewrite._column_edits) in one pass,
+ * without gathered copies: for each of the m blocks rows[i], the text of counts[rows[i]] * mult
+ * at d decimals (as mtc_format of the product) packed into buf, its offset base + (where it
+ * starts in buf) in off[i] and its length in len[i], and the span of the block's word of column
+ * `col` (cw[rows[i] * stride + col], a word index) in the text: pos[i] = w_num[w], stop[i] =
+ * w_end[w].  buf holds m * (d + 22) bytes.  Returns the bytes written to buf, or -1 - i for the
+ * first row out of range or without a word (nothing to trust written), or -1 - m if an offset
+ * would not fit 32 bits. */
+int64_t mtc_replace_edits(const int64_t *counts, int64_t n_counts, const int64_t *rows, int64_t m,
+                          int64_t mult, int64_t d, const int32_t *cw, int64_t stride, int64_t col,
+                          const int32_t *w_num, const int32_t *w_end, int64_t n_words,
+                          int64_t base, uint8_t *buf, int32_t *pos, int32_t *stop, int32_t *off,
+                          int32_t *len)
+{
+    if (d < 0 || d > 18 || col < 0 || col >= stride || base < 0) return -1 - m;
+    if (base + m * (d + 22) > 2147483647) return -1 - m;
+    int64_t o = 0;
+    for (int64_t i = 0; i < m; i++) {
+        int64_t r = rows[i];
+        if (r < 0 || r >= n_counts) return -1 - i;
+        int32_t w = cw[r * stride + col];
+        if (w < 0 || w >= n_words) return -1 - i;
+        /* (the product wraps as numpy's int64 does) */
+        int64_t c = (int64_t)((uint64_t)counts[r] * (uint64_t)mult);
+        int k = format_one(c, (int)d, buf + o);
+        pos[i] = w_num[w];
+        stop[i] = w_end[w];
+        off[i] = (int32_t)(base + o);
+        len[i] = k;
+        o += k;
+    }
+    return o;
+}
+
 /* Replacements by texts of the same length, in place: out[pos[i] : pos[i] + len[i]] =
  * src[src_off[i] : ...] (the ranges do not overlap; the in-place step of textops.splice). */
 void mtc_overwrite(uint8_t *out, const uint8_t *src, const int64_t *pos, const int64_t *src_off,
@@ -454,6 +488,33 @@ static int64_t line_words(const uint8_t *c, int64_t n, int64_t i, const uint8_t 
         int64_t s = j, d = -1, nd = 0;
         uint64_t m = 0;
         if (j < n && (c[j] == '-' || c[j] == '+')) j++;
+        if (j + 17 <= n) {
+            /* the common number, eight bytes at a time as in mtc_tokenise: up to 7 digits
+             * [. up to 7 digits]; the loop below stops at the same byte with the same
+             * mantissa, and takes every other number */
+            uint64_t x = load8(c + j);
+            int k1 = digit_run8(x), k2 = 0;
+            if (k1 < 8) {
+                int64_t e = j + k1, dd = -1;
+                uint64_t mm = k1 ? digits_value8(x, k1) : 0;
+                if (c[e] == '.') {
+                    uint64_t y = load8(c + e + 1);
+                    k2 = digit_run8(y);
+                    dd = e;
+                    if (k2 < 8) {
+                        mm = mm * POW10I[k2] + (k2 ? digits_value8(y, k2) : 0);
+                        e += 1 + k2;
+                    }
+                }
+                if (k2 < 8) {
+                    if (k1 + k2 == 0 || is_num(c[e]) || v[cc] == v[cc]) { *bad = 1; return e; }
+                    double xv = (double)mm / POW10[k2];
+                    v[cc] = c[s] == '-' ? -xv : xv;
+                    j = e;
+                    continue;
+                }
+            }
+        }
         for (; j < n; j++) {
             unsigned dg = (unsigned)c[j] - '0';
             if (dg < 10) { m = m * 10 + dg; nd++; continue; }

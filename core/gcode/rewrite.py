@@ -672,11 +672,21 @@ def _call_transform(transform, q):
 def _column_edits(ctx, cw, col, letter: bytes, fmt: tuple, rep_rows, ins_rows, counts):
     """Replace the number of word column ``col`` in blocks ``rep_rows`` and insert the word
     into blocks ``ins_rows``; ``counts`` (N,) in resolution units."""
+    p = ctx.p
+    decimals, mult = fmt
+    if len(rep_rows):
+        # compiled: texts, offsets and word spans of the replacements in one pass (no gathered
+        # copies); the numpy path below without the library, and for the insertions
+        got = _ctok.replace_edits(counts, rep_rows, mult, decimals, cw, col, p.w_num, p.w_end,
+                                  ctx.edits.size)
+        if got is not None:
+            buf, pos, stop, off, ln = got
+            ctx.edits.add_buffer(buf)
+            ctx.edits.add(pos, stop, _SUB_REPLACE, off, ln)
+            rep_rows = rep_rows[:0]
     rows = np.concatenate([rep_rows, ins_rows])
     if not len(rows):
         return
-    p = ctx.p
-    decimals, mult = fmt
     # compiled formatter (same bytes), the numpy one without it or with MTCOMP_TOKENIZER=python
     buf, off, ln = _ctok.format_counts(counts[rows] * mult, decimals) or format_counts(counts[rows] * mult, decimals)
     off = off + ctx.edits.add_buffer(buf)
