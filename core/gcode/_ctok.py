@@ -99,8 +99,10 @@ def load():
     lib.mtc_format.restype = None
     lib.mtc_overwrite.argtypes = [vp, vp, vp, vp, vp, i64]
     lib.mtc_replace_edits.argtypes = [vp, i64, vp, i64, i64, i64, vp, i64, i64, vp, vp, i64, i64,
-                                      vp, vp, vp, vp, vp]
+                                      vp, i64, vp, vp, vp, vp]
     lib.mtc_replace_edits.restype = i64
+    lib.mtc_replace_size.argtypes = [vp, i64, vp, i64, i64, i64]
+    lib.mtc_replace_size.restype = i64
     lib.mtc_overwrite.restype = None
     lib.mtc_axis_edits.argtypes = [i64, i64, i64, vp, vp, vp, vp, i64, vp, ctypes.c_double,
                                    ctypes.c_double, vp, vp, vp, vp, vp, vp, vp]
@@ -262,13 +264,17 @@ def replace_edits(counts, rows, mult: int, decimals: int, cw, col: int, w_num, w
     if counts.ndim != 1 or len(w_num) != len(w_end) or cw.shape[0] != len(counts):
         return None
     m, d = len(rows), int(decimals)
-    buf = np.empty(max(m * (d + 22), 1), np.uint8)       # (pages past the text never touched)
-    pos, stop, off, ln = (np.empty(m, np.int32) for _ in range(4))
     dummy = np.zeros(1, np.int32)
     ptr = lambda a: a.ctypes.data if a.size else dummy.ctypes.data  # noqa: E731
+    size = lib.mtc_replace_size(ptr(counts), len(counts), ptr(rows), m, int(mult), d)
+    if size < 0:
+        raise ValueError("replace_edits: a row out of range")
+    buf = np.empty(max(size, 1), np.uint8)                 # (exactly the texts)
+    pos, stop, off, ln = (np.empty(m, np.int32) for _ in range(4))
     got = lib.mtc_replace_edits(ptr(counts), len(counts), ptr(rows), m, int(mult), d, ptr(cw),
                                 cw.shape[1], int(col), ptr(w_num), ptr(w_end), len(w_num),
-                                int(base), buf.ctypes.data, ptr(pos), ptr(stop), ptr(off), ptr(ln))
+                                int(base), buf.ctypes.data, size, ptr(pos), ptr(stop), ptr(off),
+                                ptr(ln))
     if got == -1 - m:
         return None
     if got < 0:

@@ -380,15 +380,29 @@ static inline int format_one(int64_t c, int d, uint8_t *o)
     return w;
 }
 
+static inline int64_t format_len(int64_t c, int64_t d)
+{
+    uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
+    int k = 1;
+    while (a >= 10) { a /= 10; k++; }
+    return (c < 0) + (k > d + 1 ? k : d + 1) + 1;
+}
+
 int64_t mtc_format_size(const int64_t *counts, int64_t n, int64_t d)
 {
     int64_t total = 0;
-    for (int64_t i = 0; i < n; i++) {
-        int64_t c = counts[i];
-        uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
-        int k = 1;
-        while (a >= 10) { a /= 10; k++; }
-        total += (c < 0) + (k > d + 1 ? k : d + 1) + 1;
+    for (int64_t i = 0; i < n; i++) total += format_len(counts[i], d);
+    return total;
+}
+
+/* The bytes mtc_replace_edits writes for the same rows (-1 for a row out of range). */
+int64_t mtc_replace_size(const int64_t *counts, int64_t n_counts, const int64_t *rows, int64_t m,
+                         int64_t mult, int64_t d)
+{
+    int64_t total = 0;
+    for (int64_t i = 0; i < m; i++) {
+        if (rows[i] < 0 || rows[i] >= n_counts) return -1;
+        total += format_len((int64_t)((uint64_t)counts[rows[i]] * (uint64_t)mult), d);
     }
     return total;
 }
@@ -409,17 +423,17 @@ void mtc_format(const int64_t *counts, int64_t n, int64_t d, uint8_t *buf, int64
  * at d decimals (as mtc_format of the product) packed into buf, its offset base + (where it
  * starts in buf) in off[i] and its length in len[i], and the span of the block's word of column
  * `col` (cw[rows[i] * stride + col], a word index) in the text: pos[i] = w_num[w], stop[i] =
- * w_end[w].  buf holds m * (d + 22) bytes.  Returns the bytes written to buf, or -1 - i for the
- * first row out of range or without a word (nothing to trust written), or -1 - m if an offset
- * would not fit 32 bits. */
+ * w_end[w].  buf holds n_buf bytes (mtc_replace_size: exactly the texts).  Returns the bytes
+ * written to buf, or -1 - i for the first row out of range or without a word (nothing to trust
+ * written), or -1 - m if the texts do not fit buf or an offset would not fit 32 bits. */
 int64_t mtc_replace_edits(const int64_t *counts, int64_t n_counts, const int64_t *rows, int64_t m,
                           int64_t mult, int64_t d, const int32_t *cw, int64_t stride, int64_t col,
                           const int32_t *w_num, const int32_t *w_end, int64_t n_words,
-                          int64_t base, uint8_t *buf, int32_t *pos, int32_t *stop, int32_t *off,
-                          int32_t *len)
+                          int64_t base, uint8_t *buf, int64_t n_buf, int32_t *pos, int32_t *stop,
+                          int32_t *off, int32_t *len)
 {
     if (d < 0 || d > 18 || col < 0 || col >= stride || base < 0) return -1 - m;
-    if (base + m * (d + 22) > 2147483647) return -1 - m;
+    if (base + n_buf > 2147483647) return -1 - m;
     int64_t o = 0;
     for (int64_t i = 0; i < m; i++) {
         int64_t r = rows[i];
@@ -428,6 +442,7 @@ int64_t mtc_replace_edits(const int64_t *counts, int64_t n_counts, const int64_t
         if (w < 0 || w >= n_words) return -1 - i;
         /* (the product wraps as numpy's int64 does) */
         int64_t c = (int64_t)((uint64_t)counts[r] * (uint64_t)mult);
+        if (o + format_len(c, d) > n_buf) return -1 - m;
         int k = format_one(c, (int)d, buf + o);
         pos[i] = w_num[w];
         stop[i] = w_end[w];

@@ -33,10 +33,11 @@ def _const(n: int, value, dtype) -> np.ndarray:
     return np.broadcast_to(np.array(value, dtype), (n,))
 
 
-def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """``a[idx]`` (a fresh array) of a per-line array; of a `_const` view without the gather."""
+def _take(a: np.ndarray, idx: np.ndarray, view: bool = False) -> np.ndarray:
+    """``a[idx]`` (a fresh array) of a per-line array; of a `_const` view without the gather,
+    and with ``view`` as a `_const` view itself."""
     if a.ndim == 1 and a.strides == (0,) and len(a) and len(idx):
-        return np.full(len(idx), a[0], a.dtype)
+        return _const(len(idx), a[0], a.dtype) if view else np.full(len(idx), a[0], a.dtype)
     return a[idx]
 
 
@@ -644,8 +645,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
             _fail(("canned cycle" if cycle_line[blines[j]] > 0 else f"arc G{motion[j]}")
                   + " under G43.4 tool centre point: not supported (CAM systems write linear "
                   "moves under TCP)", blines[j], filename)
-    tool_length = _take(tlen_line, blines)
-    tool_tip = _take(tip_line, blines)
+    # (no tool lengths, the common case: read-only views of 0, no memory, as offset below)
+    tool_length = _take(tlen_line, blines, view=True)
+    tool_tip = _take(tip_line, blines, view=True)
     tool_unknown = gauge_line[blines]
     mb = mode_line[blines]
     feed_blk = (mb >= 1) & (mb <= 3) | (_take(cycle_line, blines) > 0)     # G1 G2 G3 or a cycle
