@@ -93,6 +93,8 @@ def load():
     lib.mtc_blank_comments.restype = i64
     lib.mtc_copy_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_copy_blank_comments.restype = i64
+    lib.mtc_has_flow.argtypes = [vp, i64]
+    lib.mtc_has_flow.restype = i64
     lib.mtc_format_size.argtypes = [vp, i64, i64]
     lib.mtc_format_size.restype = i64
     lib.mtc_format.argtypes = [vp, i64, i64, vp, vp, vp]
@@ -144,6 +146,26 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
         return False
     lib.mtc_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
     return True
+
+
+def has_flow(text: str):
+    """``flow._HAS_FLOW.search(text) is not None`` in one compiled pass over the text's own
+    bytes (no copy), for an ASCII str; None without the library, for other texts, or where the
+    interpreter does not hand out its string data (the caller's search then)."""
+    lib = load()
+    if lib is None or not isinstance(text, str) or not text.isascii():
+        return None
+    api = getattr(ctypes, "pythonapi", None)
+    get = getattr(api, "PyUnicode_AsUTF8AndSize", None)
+    if get is None:
+        return None
+    # a compact ASCII str is its own UTF-8: the pointer to its data, nothing allocated
+    get.argtypes, get.restype = [ctypes.py_object, ctypes.POINTER(ctypes.c_ssize_t)], ctypes.c_void_p
+    size = ctypes.c_ssize_t()
+    ptr = get(text, ctypes.byref(size))
+    if not ptr or size.value != len(text):
+        return None
+    return bool(lib.mtc_has_flow(ptr, size.value))
 
 
 def copy_blank_comments(b: np.ndarray, first: int):

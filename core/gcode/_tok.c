@@ -305,6 +305,60 @@ int64_t mtc_copy_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int6
     return count;
 }
 
+/* Whether the ASCII text c[0:n] holds a match of gcode.flow's _HAS_FLOW pattern, searched
+ * as re.search does: "[Mm][ \t]*0*9[789](?![0-9.])" (an M97/M98/M99 word) or
+ * "[Oo][ \t]*(?:<[^>\n]*>|\d+)[ \t]*[Cc][Aa][Ll][Ll]" (an o-word call).  Each part of the
+ * pattern matches one way only (its classes are disjoint from what follows), so trying each M
+ * and O in turn is the search.  Eight bytes without M m O o are passed over at once. */
+static inline int is_digit(uint8_t c) { return (unsigned)c - '0' < 10; }
+
+static int flow_m_at(const uint8_t *c, int64_t n, int64_t j)
+{
+    while (j < n && (c[j] == ' ' || c[j] == '\t')) j++;
+    while (j < n && c[j] == '0') j++;
+    if (j + 1 >= n || c[j] != '9' || (unsigned)c[j + 1] - '7' > 2) return 0;
+    return j + 2 >= n || !(is_digit(c[j + 2]) || c[j + 2] == '.');
+}
+
+static int flow_o_at(const uint8_t *c, int64_t n, int64_t j)
+{
+    while (j < n && (c[j] == ' ' || c[j] == '\t')) j++;
+    if (j < n && c[j] == '<') {
+        j++;
+        while (j < n && c[j] != '>' && c[j] != '\n') j++;
+        if (j >= n || c[j] != '>') return 0;
+        j++;
+    } else if (j < n && is_digit(c[j])) {
+        while (j < n && is_digit(c[j])) j++;
+    } else {
+        return 0;
+    }
+    while (j < n && (c[j] == ' ' || c[j] == '\t')) j++;
+    return j + 4 <= n && (c[j] | 32) == 'c' && (c[j + 1] | 32) == 'a' && (c[j + 2] | 32) == 'l'
+           && (c[j + 3] | 32) == 'l';
+}
+
+int64_t mtc_has_flow(const uint8_t *c, int64_t n)
+{
+    int64_t i = 0;
+    while (i < n) {
+        if (i + 8 <= n) {
+            uint64_t x;
+            memcpy(&x, c + i, 8);
+            x |= 0x2020202020202020ULL;           /* M -> m, O -> o (and no other byte) */
+            if (!has_byte8(x, 'm') && !has_byte8(x, 'o')) {
+                i += 8;
+                continue;
+            }
+        }
+        uint8_t ch = c[i] | 32;
+        if (ch == 'm' && (c[i] == 'M' || c[i] == 'm') && flow_m_at(c, n, i + 1)) return 1;
+        if (ch == 'o' && (c[i] == 'O' || c[i] == 'o') && flow_o_at(c, n, i + 1)) return 1;
+        i++;
+    }
+    return 0;
+}
+
 /* Splice: out = orig with the m edits applied (sorted by position, removed ranges not
  * overlapping, checked by the caller): before edit i the original bytes up to pos[i], then
  * src[src_off[i] : src_off[i] + src_len[i]]; orig[pos[i]:stop[i]] is dropped.  `out` holds
