@@ -458,3 +458,28 @@ def test_replace_edits_same_as_the_formatter_and_the_gathers(counts, decimals, m
                                 w_end, base)
     with pytest.raises(ValueError):                  # a row out of range too
         _ctok.replace_edits(counts, np.array([n], np.int64), mult, decimals, cw, 1, w_num, w_end, base)
+
+
+@seed(24)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.integers(0, 30), st.integers(1, 6), st.randoms(use_true_random=False), st.booleans())
+def test_add_counts_same_as_numpy(N, n, rnd, every):
+    """mtc_add_counts: the rewrite's ``Cc[1 + kk] += dK; nan_to_num(Cc).astype(int64)`` to the
+    bit, with NaN cells (rows not known), all rows or a subset corrected; a sum that numpy
+    converts differently between platforms (infinite, beyond int64) is left to numpy (None)."""
+    Cc = np.array([[rnd.choice([np.nan, float(rnd.randint(-2**52, 2**52)), -0.0])
+                    for _ in range(n)] for _ in range(N + 1)])
+    kk = np.arange(N) if every else np.array(sorted(rnd.sample(range(N), rnd.randint(0, N))), np.int64)
+    dK = np.array([[float(rnd.randint(-1000, 1000)) for _ in range(n)] for _ in kk]).reshape(len(kk), n)
+    ref = Cc.copy()
+    ref[1 + kk] += dK
+    ref = np.nan_to_num(ref, nan=0.0).astype(np.int64)
+    before = Cc.copy()
+    got = _ctok.add_counts(Cc, dK, None if every else kk)
+    np.testing.assert_array_equal(got, ref)
+    assert got.dtype == np.int64 and np.array_equal(np.isnan(Cc), np.isnan(before))
+    if N:
+        for bad in (np.inf, -np.inf, 2.0**64, -2.0**65):
+            C2 = Cc.copy()
+            C2[1, 0] = bad
+            assert _ctok.add_counts(C2, dK, None if every else kk) is None

@@ -94,6 +94,8 @@ def load():
     lib.mtc_copy_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_copy_blank_comments.restype = i64
     lib.mtc_has_flow.argtypes = [vp, i64]
+    lib.mtc_add_counts.argtypes = [vp, i64, i64, vp, vp, i64, vp]
+    lib.mtc_add_counts.restype = i64
     lib.mtc_has_flow.restype = i64
     lib.mtc_format_size.argtypes = [vp, i64, i64]
     lib.mtc_format_size.restype = i64
@@ -146,6 +148,35 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
         return False
     lib.mtc_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
     return True
+
+
+def add_counts(Cc, dK, kk=None):
+    """The rewrite's int64 counts: ``Cc`` ((N + 1, n) float64) with the corrections ``dK``
+    ((m, n) float64) added to rows ``1 + kk`` (kk ascending int64; None: rows 1..N), NaN as 0
+    (numpy: ``Cc[1 + kk] += dK; nan_to_num(Cc).astype(int64)``), in one pass; Cc is not
+    changed.  None without the library or where a sum is infinite or beyond int64 (the
+    caller's numpy path)."""
+    lib = load()
+    if lib is None:
+        return None
+    Cc, dK = np.asarray(Cc), np.asarray(dK)
+    if (Cc.dtype != np.float64 or dK.dtype != np.float64 or Cc.ndim != 2 or dK.ndim != 2
+            or dK.shape[1] != Cc.shape[1]):
+        return None
+    Cc, dK = np.ascontiguousarray(Cc), np.ascontiguousarray(dK)
+    rows, n = Cc.shape
+    if kk is not None:
+        kk = np.ascontiguousarray(kk, np.int64)
+        if len(kk) != len(dK) or (len(kk) and (kk[0] < 0 or kk[-1] >= rows - 1)):
+            return None
+    out = np.empty((rows, n), np.int64)
+    if not out.size:
+        return out
+    dummy = np.zeros(1)
+    got = lib.mtc_add_counts(Cc.ctypes.data, rows, n, dK.ctypes.data if dK.size else dummy.ctypes.data,
+                             None if kk is None else (kk.ctypes.data if len(kk) else dummy.ctypes.data),
+                             len(dK), out.ctypes.data)
+    return out if got == 0 else None
 
 
 def has_flow(text: str):

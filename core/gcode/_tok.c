@@ -359,6 +359,35 @@ int64_t mtc_has_flow(const uint8_t *c, int64_t n)
     return 0;
 }
 
+/* The counts of the rewrite (rewrite_with_lines): out = Cc ((rows, n) float) with dK ((m, n))
+ * added to row 1 + kk[j] (kk ascending; kk NULL: row 1 + j), NaN as 0, as int64: numpy's
+ * `Cc[1 + kk] += dK; nan_to_num(Cc).astype(int64)` in one pass.  Returns 0, or -1 (out not
+ * to be used) if kk is not ascending or in range, or a sum is infinite or not below 2**63 in
+ * magnitude (numpy's conversion of those differs between platforms: the caller's path). */
+int64_t mtc_add_counts(const double *Cc, int64_t rows, int64_t n, const double *dK,
+                       const int64_t *kk, int64_t m, int64_t *out)
+{
+    const double lim = 9223372036854775808.0;
+    int64_t j = 0;
+    if (!kk && m != rows - 1) return -1;
+    for (int64_t r = 0; r < rows; r++) {
+        const double *d = NULL;
+        if (r > 0 && j < m && (kk ? kk[j] == r - 1 : 1)) {
+            if (kk && j > 0 && kk[j] <= kk[j - 1]) return -1;
+            d = dK + j * n;
+            j++;
+        }
+        for (int64_t k = 0; k < n; k++) {
+            double v = Cc[r * n + k];
+            if (d) v += d[k];
+            if (v != v) { out[r * n + k] = 0; continue; }
+            if (!(v < lim && v > -lim)) return -1;
+            out[r * n + k] = (int64_t)v;
+        }
+    }
+    return j == m ? 0 : -1;
+}
+
 /* Splice: out = orig with the m edits applied (sorted by position, removed ranges not
  * overlapping, checked by the caller): before edit i the original bytes up to pos[i], then
  * src[src_off[i] : src_off[i] + src_len[i]]; orig[pos[i]:stop[i]] is dropped.  `out` holds

@@ -450,10 +450,11 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         transform.blocks = np.searchsorted(line, rl)
     ns = len(samp)
     del samp
-    Qt = _call_transform(transform, Q) if len(Q) else Q
-    St = Qt[nk:nk + ns].copy()                                    # arc samples
-    cyc_delta = np.rint((Qt[nk + ns:] - Q[nk + ns:]) / res)     # cycle points: A, R, bottom
+    cyc_q = Q[nk + ns:].copy()                                  # (the transform gets Q itself)
+    Qt = _call_transform(transform, Q, own=True) if len(Q) else Q
     del Q
+    St = Qt[nk:nk + ns].copy()                                    # arc samples
+    cyc_delta = np.rint((Qt[nk + ns:] - cyc_q) / res)           # cycle points: A, R, bottom
     # new position = where the control reads the program + the rounded correction, so that a
     # transform that changes nothing changes no count (G91 increments finer than the resolution
     # included); rows not known stay where the program puts them
@@ -471,12 +472,15 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         _refuse_half_count_increments(program, res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
-    if nk == N:
-        Cc[1:] += dK
-    else:
-        Cc[1 + kk] += dK
     del Qt
-    C = np.nan_to_num(Cc, copy=False, nan=0.0).astype(np.int64)    # (Cc is this function's own)
+    # C = Cc with the corrections, NaN (rows not known) 0, as int64: compiled in one pass
+    C = _ctok.add_counts(Cc, dK, None if nk == N else kk)
+    if C is None:
+        if nk == N:
+            Cc[1:] += dK
+        else:
+            Cc[1 + kk] += dK
+        C = np.nan_to_num(Cc, copy=False, nan=0.0).astype(np.int64)    # (Cc is this function's own)
     del Cc
     prev, new = C[:N], C[1:]
     no_z = np.zeros(N, bool)
@@ -658,9 +662,11 @@ class _KeepIdle:
         return out
 
 
-def _call_transform(transform, q):
+def _call_transform(transform, q, own: bool = False):
+    """``transform(q)`` checked (shape, finite); ``own``: the caller does not read ``q`` again,
+    so the transform gets it itself (which it may change) instead of a copy."""
     q = np.ascontiguousarray(q, dtype=float)
-    out = np.asarray(transform(q.copy()), dtype=float)
+    out = np.asarray(transform(q if own else q.copy()), dtype=float)
     if out.shape != q.shape:
         raise ValueError(f"transform returned shape {out.shape}, expected {q.shape}")
     if not np.isfinite(out).all():
