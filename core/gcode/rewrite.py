@@ -224,12 +224,13 @@ def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
         return
     cw, wv, inch = np.asarray(program.col_word), np.asarray(program.w_value), np.asarray(program.inch)
     N = len(inc)
+    inc_rows = np.flatnonzero(inc)               # (few blocks in most programs: index those)
     for k, a in enumerate(program.axes):
         w = cw[:, k]
-        pres = w >= 0
-        rows = np.flatnonzero(pres & inc)
+        rows = inc_rows[w[inc_rows] >= 0]
         if not len(rows):
             continue
+        pres = w >= 0
         # the increments alone first (a few rows of most programs): the same values as below
         vi = wv[w[rows]] * np.where(inch[rows] & (a in LINEAR), INCH, 1.0) / res[k]
         if not (np.abs(np.abs(vi - np.trunc(vi)) - 0.5) < 1e-6).any():
