@@ -329,10 +329,9 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02, 
 
     # words of kept arcs: I J K (the two of the plane) or R
     N = len(program)
-    # (column-major: the rewrite reads them a column at a time, without copies)
-    a_counts = np.zeros((N, 4), np.int64, order="F")
-    a_rep = np.zeros((N, 4), bool, order="F")
-    a_ins = np.zeros((N, 4), bool, order="F")
+    a_counts = np.zeros((N, 4), np.int64)
+    a_rep = np.zeros((N, 4), bool)
+    a_ins = np.zeros((N, 4), bool)
     cw = np.asarray(program.col_word)
     for idx_c, cnt, orig in ((geo.iu, Iu, I0u), (geo.iv, Iv, I0v)):
         sel = keep & ~geo.rfmt
