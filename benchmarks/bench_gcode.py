@@ -496,10 +496,14 @@ compensate` adds to parse + rewrite the travel checks, the read-back of the writ
 three forward evaluations per block for its report (nominal, with errors before and after, in
 chunks of 200,000 blocks, from the positions read back); the old path parsed the written
 program a second time instead. The control counts (`mtc_control_counts`), the per-axis
-decisions (`mtc_axis_edits`), the number formatting of the rewrite (`mtc_format`), the in-place
-replacements of its splice (`mtc_overwrite_same`), the splice's gather and the read-back
-(`mtc_check_words`) are C too (`core/gcode/_tok.c`; numpy with `MTCOMP_TOKENIZER=python`,
-same bytes). With the library allocator's defaults a third to a half
+decisions (`mtc_axis_edits`), the rewrite's counts with their corrections (`mtc_add_counts`),
+the replaced words' texts, offsets and spans in one pass (`mtc_replace_edits`; inserted words
+through `mtc_format`), the in-place replacements of its splice (`mtc_overwrite_same`), the
+splice's gather, the read-back (`mtc_check_words`), the copy of the bytes with the comments
+blanked (`mtc_copy_blank_comments`) and the subprogram prefilter of `gcode.flow`
+(`mtc_has_flow`) are C too (`core/gcode/_tok.c`; numpy with `MTCOMP_TOKENIZER=python`, same
+bytes); the per-line state of G-code groups and letters a program never writes is a
+read-only view of one value (no memory, no page faults). With the library allocator's defaults a third to a half
 of the CPU time of `mtcomp compensate` is system time (page faults, and huge-page compaction
 on a loaded machine, on fresh large arrays); the CLI reuses freed arrays from the heap
 (`mtcomp._heap`), which the bench's compensate runs do as the CLI. The 1 M lines/s target

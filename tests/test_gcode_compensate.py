@@ -258,7 +258,7 @@ def _corrupting(fmt, at, back=1):
 
     def wrong(counts, decimals):
         got = fmt(counts, decimals)
-        if got is None or calls:
+        if got is None or calls or len(got[1]) <= at:
             return got
         calls.append(1)
         buf, off, ln = got
@@ -268,6 +268,39 @@ def _corrupting(fmt, at, back=1):
         return buf, off, ln
     wrong.calls = calls
     return wrong
+
+
+def _corrupting_edits(fn, at, back=1, calls=None):
+    """The same for the compiled replacement edits (`_ctok.replace_edits`, which formats the
+    numbers of the words it replaces): one digit of the ``at``-th text of its first call wrong.
+    ``calls``: a list shared with a `_corrupting` formatter (only the first call of either)."""
+    calls = [] if calls is None else calls
+
+    def wrong(*args, **kw):
+        got = fn(*args, **kw)
+        if got is None or calls or len(got[4]) <= at:
+            return got
+        calls.append(1)
+        buf, pos, stop, off, ln = got
+        buf = buf.copy()
+        k = int(off[at] - kw.get("base", args[-1]) + ln[at] - back)
+        buf[k] = ord("1") if buf[k] != ord("1") else ord("2")
+        return buf, pos, stop, off, ln
+    wrong.calls = calls
+    return wrong
+
+
+def corrupt_formatting(monkeypatch, mod, at, back=1):
+    """Patch the number formatter ``mod.format_counts`` and, in `_ctok`, the replacement edits,
+    so that the first number formatted (by either) at index ``at`` gets one digit wrong; returns
+    the list of corrupted calls."""
+    from mtcomp.gcode import _ctok
+    fmt = _corrupting(getattr(mod, "format_counts"), at, back)
+    monkeypatch.setattr(mod, "format_counts", fmt)
+    if mod is _ctok:
+        monkeypatch.setattr(_ctok, "replace_edits",
+                            _corrupting_edits(_ctok.replace_edits, at, back, fmt.calls))
+    return fmt.calls
 
 
 def test_a_corrupted_written_number_is_caught_and_nothing_returned(monkeypatch):
@@ -281,9 +314,10 @@ def test_a_corrupted_written_number_is_caught_and_nothing_returned(monkeypatch):
     good, rep = compensate_program(_CORRUPT_PROG, m, e)
     assert rep["after_max"] < 1e-6
     for at in (0, 2):
-        monkeypatch.setattr(_ctok, "format_counts", _corrupting(_ctok.format_counts, at))
+        calls = corrupt_formatting(monkeypatch, _ctok, at)
         with pytest.raises(InputError, match="not what was computed"):
             compensate_program(_CORRUPT_PROG, m, e)
+        assert calls
         monkeypatch.undo()
     # a word the splice inserts on the wrong line is caught as well: the Y word inserted into
     # "X0.001 Z-0.0005 C1." (line 6) goes to the end of line 5 instead

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, seed, settings
+from hypothesis import strategies as st
 
 from mtcomp import InputError, gcode
 from mtcomp.commands import compensate_program
@@ -186,9 +188,17 @@ def test_crlf_and_no_final_newline_fold_byte_exact(eol, last):
     assert out.count("\r\n") == (text.count("\r\n"))        # no line ending changed
 
 
-def test_has_flow_prefilter_agrees_with_the_plain_search():
-    # has_flow jumps to the M/O letters with str.find and tries the pattern there only: the
-    # same answer as the regex searched over the whole text, on the corpus and random texts
+@pytest.mark.parametrize("compiled", [True, False], ids=["compiled", "str.find"])
+def test_has_flow_prefilter_agrees_with_the_plain_search(compiled, monkeypatch):
+    # has_flow jumps to the M/O letters with str.find and tries the pattern there only (or,
+    # compiled, tries it at every M and O in one pass over the bytes): the same answer as the
+    # regex searched over the whole text, on the corpus and random texts
+    from mtcomp.gcode import _ctok
+    if compiled and _ctok.load() is None:
+        pytest.skip("no compiled tokenizer")
+    if not compiled:
+        monkeypatch.setattr(_ctok, "has_flow", lambda text: None)
+
     def plain(t):
         return flow._HAS_FLOW.search(t) is not None
     files = sorted(p for p in NC.rglob("*") if p.is_file())
@@ -211,3 +221,20 @@ def test_has_flow_prefilter_agrees_with_the_plain_search():
     # past the letter budget the plain search takes over: same answers
     many = "M3 " * (flow._FIND_HITS + 5)
     assert not flow.has_flow(many) and flow.has_flow(many + "M98 P1")
+
+
+@seed(23)
+@settings(max_examples=400, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.one_of(st.text("MmOo0789 .\t\n<>CcAaLlx", max_size=12),
+                          st.sampled_from(["M98", "m 097", "M99.", "M990", "o<a> call", "O12 CALL",
+                                           "o 3 cal", "M9 8", "O<x\n>call", "O 7\tcAlL", "M0098",
+                                           "M97", "M987"])), max_size=12),
+       st.integers(0, 16))
+def test_compiled_has_flow_is_the_regex_search(parts, lead):
+    """The compiled search on texts long enough for its eight-byte steps, at every alignment."""
+    from mtcomp.gcode import _ctok
+    if _ctok.load() is None:
+        pytest.skip("no compiled tokenizer")
+    t = "x" * lead + "".join(parts)
+    assert _ctok.has_flow(t) == (flow._HAS_FLOW.search(t) is not None), repr(t)
+    assert _ctok.has_flow(t + "é") is None              # not ASCII: the caller's search

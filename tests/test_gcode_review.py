@@ -18,7 +18,7 @@ from mtcomp.errors import ErrorSet, WorkpieceSetting
 from mtcomp.kinematics import forward_position
 from mtcomp.machine import load_machine
 
-from test_gcode_compensate import _corrupting
+from test_gcode_compensate import corrupt_formatting
 from test_gcode_corpus import AXES, interpret
 
 PROGRAMS = {
@@ -223,14 +223,12 @@ def test_a_corrupted_polar_word_is_caught(tok, monkeypatch):
     text = PROGRAMS["fanuc_polar_negative"]
     monkeypatch.setenv("MTCOMP_TOKENIZER", tok)
     compensate_program(text, m, ERR, filename="r.nc")
-    mod, name = (rewrite, "format_counts") if tok == "python" or _ctok.load() is None \
-        else (_ctok, "format_counts")
+    mod = rewrite if tok == "python" or _ctok.load() is None else _ctok
     # the next-to-last digit of the first word
-    wrong = _corrupting(getattr(mod, name), 0, back=2)
-    monkeypatch.setattr(mod, name, wrong)
+    calls = corrupt_formatting(monkeypatch, mod, 0, back=2)
     with pytest.raises(InputError, match="not what was computed"):
         compensate_program(text, m, ERR, filename="r.nc")
-    assert wrong.calls
+    assert calls
 
 
 def test_g91_half_count_increments_are_refused_under_a_correction():

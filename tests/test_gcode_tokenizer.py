@@ -133,6 +133,31 @@ def test_comment_blanking_same_spans(text):
     got = b.copy()
     assert _ctok.blank_comments(b, got, bom)
     assert got.tobytes() == ref.tobytes()
+    # the copy made in the blanking pass (parse's), comment bytes at every offset of its
+    # eight-byte steps
+    for lead in range(9):
+        pre = b" " * lead
+        data2 = data[:bom] + pre + data[bom:]
+        b2 = np.frombuffer(data2, np.uint8)
+        ref2 = b2.copy()
+        for s, e in _comment_spans(data2, b2, first=bom):
+            ref2[s:e] = 32
+        got2 = _ctok.copy_blank_comments(b2, bom)
+        assert got2.tobytes() == ref2.tobytes()
+
+
+@seed(5)
+@settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.text("G1X2.(;)%\n \t/", max_size=80), st.booleans())
+def test_comment_blanking_copy_same_as_spans(text, bom):
+    from mtcomp.gcode.tokens import _comment_spans
+    data = (b"\xef\xbb\xbf" if bom else b"") + text.encode("utf-8")
+    b = np.frombuffer(data, np.uint8)
+    first = 3 if bom else 0
+    ref = b.copy()
+    for s, e in _comment_spans(data, b, first=first):
+        ref[s:e] = 32
+    assert _ctok.copy_blank_comments(b, first).tobytes() == ref.tobytes()
 
 
 @pytest.mark.parametrize("text", ["G1 X1 Y2 Y3\nX1 X2\n", "X1 X2\nG1 Y1 Y2\n", "G1 G90 M3 M8 X1\nB1 b2\n",
@@ -319,7 +344,24 @@ def test_read_back_applies_same_compiled_and_numpy(i):
 def test_read_back_words_against_a_python_reader(lines):
     """mtc_read_words on arbitrary lines against a small reader written here: comments skipped,
     blanks between letter and number read, a bad or repeated word reported."""
-    text = "\n".join(lines) + "\n"
+    _read_words_as_the_reader(lines, "")
+
+
+@seed(21)
+@settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.lists(st.tuples(st.sampled_from("XYZxy"), st.sampled_from(["", "-", "+", " "]),
+                                   st.text("0123456789", max_size=9), st.sampled_from(["", ".", ".."]),
+                                   st.text("0123456789", max_size=9), st.sampled_from(["", " ", "-", "("]))
+                         .map("".join), max_size=4).map("".join), min_size=1, max_size=8))
+def test_read_back_numbers_eight_bytes_at_a_time_against_a_python_reader(lines):
+    """The same with numbers of 0-9 digits on either side of the point, followed by at least 17
+    bytes (a padding line), so that the eight-byte reading of the common number runs and
+    hands every other number to the byte loop at the same place."""
+    _read_words_as_the_reader(lines, " " * 24 + "\n")
+
+
+def _read_words_as_the_reader(lines, pad):
+    text = "\n".join(lines) + "\n" + pad
     want = np.arange(len(lines))
     got, bad = _ctok.read_words(text.encode(), want, "XYZ")
     ref_bad, ref = -1, np.full((len(lines), 3), np.nan)
@@ -380,3 +422,64 @@ def test_install_hook_builds_the_tokenizer_the_loader_looks_for():
         assert ns["tok_name"]() == _ctok.packaged_name(_ctok.source_hash())
     else:
         assert (Path(_ctok.__file__).parent / _ctok.packaged_name(_ctok.source_hash())).is_file()
+
+
+@seed(22)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.lists(st.integers(-2**52, 2**52), min_size=1, max_size=40), st.integers(0, 9),
+       st.sampled_from([1, 2, 5, 10]), st.integers(0, 1000), st.randoms(use_true_random=False))
+def test_replace_edits_same_as_the_formatter_and_the_gathers(counts, decimals, mult, base, rnd):
+    """mtc_replace_edits: the texts of the numpy formatter (textops.format_counts of the
+    products), the word spans gathered as rewrite._column_edits gathers them, offsets after
+    ``base``, on random rows of a word-column table with gaps."""
+    from mtcomp.gcode.textops import format_counts
+    n = len(counts)
+    counts = np.array(counts, np.int64)
+    cw = np.full((n, 3), -1, np.int32)
+    words = rnd.sample(range(3 * n), n)
+    cw[:, 1] = words
+    cw[::3, 1] = -1                                   # blocks without the word: not replaced
+    w_num = np.arange(3 * n, dtype=np.int32) * 7 + 1
+    w_end = w_num + np.array([rnd.randint(1, 6) for _ in range(3 * n)], np.int32)
+    rows = np.flatnonzero(cw[:, 1] >= 0)
+    rows = np.array(sorted(rnd.sample(list(rows), len(rows) // 2 + 1 if len(rows) else 0)), np.int64)
+    got = _ctok.replace_edits(counts, rows, mult, decimals, cw, 1, w_num, w_end, base)
+    buf, pos, stop, off, ln = got
+    rb, ro, rl = format_counts(counts[rows] * mult, decimals)
+    for i in range(len(rows)):
+        assert buf[off[i] - base:off[i] - base + ln[i]].tobytes() == rb[ro[i]:ro[i] + rl[i]].tobytes()
+    assert [d.dtype for d in (pos, stop, off, ln)] == [np.int32] * 4
+    np.testing.assert_array_equal(pos, w_num[cw[rows, 1]])
+    np.testing.assert_array_equal(stop, w_end[cw[rows, 1]])
+    assert len(buf) == int(rl.sum()) and (np.diff(off) == ln[:-1]).all()
+    if n >= 1 and (cw[:, 1] < 0).any():
+        with pytest.raises(ValueError):              # a row without a word is refused
+            _ctok.replace_edits(counts, np.flatnonzero(cw[:, 1] < 0), mult, decimals, cw, 1, w_num,
+                                w_end, base)
+    with pytest.raises(ValueError):                  # a row out of range too
+        _ctok.replace_edits(counts, np.array([n], np.int64), mult, decimals, cw, 1, w_num, w_end, base)
+
+
+@seed(24)
+@settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+@given(st.integers(0, 30), st.integers(1, 6), st.randoms(use_true_random=False), st.booleans())
+def test_add_counts_same_as_numpy(N, n, rnd, every):
+    """mtc_add_counts: the rewrite's ``Cc[1 + kk] += dK; nan_to_num(Cc).astype(int64)`` to the
+    bit, with NaN cells (rows not known), all rows or a subset corrected; a sum that numpy
+    converts differently between platforms (infinite, beyond int64) is left to numpy (None)."""
+    Cc = np.array([[rnd.choice([np.nan, float(rnd.randint(-2**52, 2**52)), -0.0])
+                    for _ in range(n)] for _ in range(N + 1)])
+    kk = np.arange(N) if every else np.array(sorted(rnd.sample(range(N), rnd.randint(0, N))), np.int64)
+    dK = np.array([[float(rnd.randint(-1000, 1000)) for _ in range(n)] for _ in kk]).reshape(len(kk), n)
+    ref = Cc.copy()
+    ref[1 + kk] += dK
+    ref = np.nan_to_num(ref, nan=0.0).astype(np.int64)
+    before = Cc.copy()
+    got = _ctok.add_counts(Cc, dK, None if every else kk)
+    np.testing.assert_array_equal(got, ref)
+    assert got.dtype == np.int64 and np.array_equal(np.isnan(Cc), np.isnan(before))
+    if N:
+        for bad in (np.inf, -np.inf, 2.0**64, -2.0**65):
+            C2 = Cc.copy()
+            C2[1, 0] = bad
+            assert _ctok.add_counts(C2, dK, None if every else kk) is None

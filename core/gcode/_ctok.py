@@ -91,11 +91,22 @@ def load():
     lib.mtc_splice_inplace.restype = i64
     lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_blank_comments.restype = i64
+    lib.mtc_copy_blank_comments.argtypes = [vp, vp, i64, i64]
+    lib.mtc_copy_blank_comments.restype = i64
+    lib.mtc_has_flow.argtypes = [vp, i64]
+    lib.mtc_add_counts.argtypes = [vp, i64, i64, vp, vp, i64, vp]
+    lib.mtc_add_counts.restype = i64
+    lib.mtc_has_flow.restype = i64
     lib.mtc_format_size.argtypes = [vp, i64, i64]
     lib.mtc_format_size.restype = i64
     lib.mtc_format.argtypes = [vp, i64, i64, vp, vp, vp]
     lib.mtc_format.restype = None
     lib.mtc_overwrite.argtypes = [vp, vp, vp, vp, vp, i64]
+    lib.mtc_replace_edits.argtypes = [vp, i64, vp, i64, i64, i64, vp, i64, i64, vp, vp, i64, i64,
+                                      vp, i64, vp, vp, vp, vp]
+    lib.mtc_replace_edits.restype = i64
+    lib.mtc_replace_size.argtypes = [vp, i64, vp, i64, i64, i64]
+    lib.mtc_replace_size.restype = i64
     lib.mtc_overwrite.restype = None
     lib.mtc_axis_edits.argtypes = [i64, i64, i64, vp, vp, vp, vp, i64, vp, ctypes.c_double,
                                    ctypes.c_double, vp, vp, vp, vp, vp, vp, vp]
@@ -137,6 +148,69 @@ def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
         return False
     lib.mtc_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
     return True
+
+
+def add_counts(Cc, dK, kk=None):
+    """The rewrite's int64 counts: ``Cc`` ((N + 1, n) float64) with the corrections ``dK``
+    ((m, n) float64) added to rows ``1 + kk`` (kk ascending int64; None: rows 1..N), NaN as 0
+    (numpy: ``Cc[1 + kk] += dK; nan_to_num(Cc).astype(int64)``), in one pass; Cc is not
+    changed.  None without the library or where a sum is infinite or beyond int64 (the
+    caller's numpy path)."""
+    lib = load()
+    if lib is None:
+        return None
+    Cc, dK = np.asarray(Cc), np.asarray(dK)
+    if (Cc.dtype != np.float64 or dK.dtype != np.float64 or Cc.ndim != 2 or dK.ndim != 2
+            or dK.shape[1] != Cc.shape[1]):
+        return None
+    Cc, dK = np.ascontiguousarray(Cc), np.ascontiguousarray(dK)
+    rows, n = Cc.shape
+    if kk is not None:
+        kk = np.ascontiguousarray(kk, np.int64)
+        if len(kk) != len(dK) or (len(kk) and (kk[0] < 0 or kk[-1] >= rows - 1)):
+            return None
+    out = np.empty((rows, n), np.int64)
+    if not out.size:
+        return out
+    dummy = np.zeros(1)
+    got = lib.mtc_add_counts(Cc.ctypes.data, rows, n, dK.ctypes.data if dK.size else dummy.ctypes.data,
+                             None if kk is None else (kk.ctypes.data if len(kk) else dummy.ctypes.data),
+                             len(dK), out.ctypes.data)
+    return out if got == 0 else None
+
+
+def has_flow(text: str):
+    """``flow._HAS_FLOW.search(text) is not None`` in one compiled pass over the text's own
+    bytes (no copy), for an ASCII str; None without the library, for other texts, or where the
+    interpreter does not hand out its string data (the caller's search then)."""
+    lib = load()
+    if lib is None or not isinstance(text, str) or not text.isascii():
+        return None
+    api = getattr(ctypes, "pythonapi", None)
+    get = getattr(api, "PyUnicode_AsUTF8AndSize", None)
+    if get is None:
+        return None
+    # a compact ASCII str is its own UTF-8: the pointer to its data, nothing allocated
+    get.argtypes, get.restype = [ctypes.py_object, ctypes.POINTER(ctypes.c_ssize_t)], ctypes.c_void_p
+    size = ctypes.c_ssize_t()
+    ptr = get(text, ctypes.byref(size))
+    if not ptr or size.value != len(text):
+        return None
+    return bool(lib.mtc_has_flow(ptr, size.value))
+
+
+def copy_blank_comments(b: np.ndarray, first: int):
+    """A copy of the program bytes `b` (uint8) with their comments blanked as
+    `blank_comments` blanks them, made in the same pass (most eight-byte groups hold no comment
+    character and are copied at once); None without the compiled library."""
+    lib = load()
+    if lib is None:
+        return None
+    b = np.ascontiguousarray(b, np.uint8)
+    code = np.empty(len(b), np.uint8)
+    if len(b):
+        lib.mtc_copy_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
+    return code
 
 
 def tokenise(code: np.ndarray, full: bool = False):
@@ -223,6 +297,42 @@ def format_counts(counts, decimals: int):
     off, ln = np.empty(n, np.int64), np.empty(n, np.int64)
     lib.mtc_format(counts.ctypes.data, n, d, buf.ctypes.data, off.ctypes.data, ln.ctypes.data)
     return buf, off, ln
+
+
+def replace_edits(counts, rows, mult: int, decimals: int, cw, col: int, w_num, w_end, base: int):
+    """The replacement edits of word column ``col`` in blocks ``rows`` (rewrite._column_edits):
+    (text buffer, pos, stop, off, len), the last four int32: the text of
+    ``counts[rows[i]] * mult`` at ``decimals`` (as `format_counts`) at ``buf[off[i] - base:]``,
+    ``len[i]`` bytes, replacing the text ``[pos[i], stop[i])`` of the block's word (``cw``
+    (N, columns) int32 word indices, ``w_num`` / ``w_end`` int32 spans).  None without the
+    library or where it does not apply (an offset beyond 32 bits): the caller's numpy path."""
+    lib = load()
+    if (lib is None or not 0 <= int(decimals) <= 18 or cw.dtype != np.int32 or cw.ndim != 2
+            or np.asarray(w_num).dtype != np.int32 or np.asarray(w_end).dtype != np.int32):
+        return None
+    counts = np.ascontiguousarray(counts, np.int64)
+    rows = np.ascontiguousarray(rows, np.int64)
+    cw = np.ascontiguousarray(cw)
+    w_num, w_end = np.ascontiguousarray(w_num), np.ascontiguousarray(w_end)
+    if counts.ndim != 1 or len(w_num) != len(w_end) or cw.shape[0] != len(counts):
+        return None
+    m, d = len(rows), int(decimals)
+    dummy = np.zeros(1, np.int32)
+    ptr = lambda a: a.ctypes.data if a.size else dummy.ctypes.data  # noqa: E731
+    size = lib.mtc_replace_size(ptr(counts), len(counts), ptr(rows), m, int(mult), d)
+    if size < 0:
+        raise ValueError("replace_edits: a row out of range")
+    buf = np.empty(max(size, 1), np.uint8)                 # (exactly the texts)
+    pos, stop, off, ln = (np.empty(m, np.int32) for _ in range(4))
+    got = lib.mtc_replace_edits(ptr(counts), len(counts), ptr(rows), m, int(mult), d, ptr(cw),
+                                cw.shape[1], int(col), ptr(w_num), ptr(w_end), len(w_num),
+                                int(base), buf.ctypes.data, size, ptr(pos), ptr(stop), ptr(off),
+                                ptr(ln))
+    if got == -1 - m:
+        return None
+    if got < 0:
+        raise ValueError(f"replace_edits: row {rows[-1 - got]} out of range or without a word")
+    return buf[:got], pos, stop, off, ln
 
 
 def overwrite(out: np.ndarray, src: np.ndarray, pos, src_off, length) -> bool:

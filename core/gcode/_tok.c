@@ -256,6 +256,138 @@ int64_t mtc_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int64_t f
     return count;
 }
 
+/* Whether any byte of the eight bytes x equals b (the classic zero-byte test on x ^ b*0x01..:
+ * exact as to whether there is one). */
+static inline int has_byte8(uint64_t x, uint8_t b)
+{
+    uint64_t v = x ^ (0x0101010101010101ULL * b);
+    return ((v - 0x0101010101010101ULL) & ~v & 0x8080808080808080ULL) != 0;
+}
+
+/* mtc_blank_comments and the copy before it in one pass: `code` (n bytes, written whole) gets
+ * the bytes of `d` with the same comments blanked.  Eight bytes without '(' ';' '%' are
+ * copied at once (most of a program: comments are rare); everything else goes byte by byte as
+ * in mtc_blank_comments.  Returns the number of comments. */
+int64_t mtc_copy_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int64_t first)
+{
+    int64_t i = 0, count = 0;
+    while (i < n) {
+        if (i + 8 <= n) {
+            uint64_t x;
+            memcpy(&x, d + i, 8);
+            if (!has_byte8(x, '(') && !has_byte8(x, ';') && !has_byte8(x, '%')) {
+                memcpy(code + i, &x, 8);
+                i += 8;
+                continue;
+            }
+        }
+        uint8_t ch = d[i];
+        if (ch == '(') {
+            int64_t j = i + 1;
+            while (j < n && d[j] != ')' && d[j] != '(' && d[j] != '\n') j++;
+            if (j < n && d[j] == ')') {
+                memset(code + i, 32, (size_t)(j + 1 - i));
+                count++;
+                i = j + 1;
+                continue;
+            }
+        } else if (ch == ';' || (ch == '%' && (i <= first || d[i - 1] == '\n'))) {
+            int64_t j = i;
+            while (j < n && d[j] != '\n') j++;
+            memset(code + i, 32, (size_t)(j - i));
+            count++;
+            i = j;
+            continue;
+        }
+        code[i] = ch;
+        i++;
+    }
+    return count;
+}
+
+/* Whether the ASCII text c[0:n] holds a match of gcode.flow's _HAS_FLOW pattern, searched
+ * as re.search does: "[Mm][ \t]*0*9[789](?![0-9.])" (an M97/M98/M99 word) or
+ * "[Oo][ \t]*(?:<[^>\n]*>|\d+)[ \t]*[Cc][Aa][Ll][Ll]" (an o-word call).  Each part of the
+ * pattern matches one way only (its classes are disjoint from what follows), so trying each M
+ * and O in turn is the search.  Eight bytes without M m O o are passed over at once. */
+static inline int is_digit(uint8_t c) { return (unsigned)c - '0' < 10; }
+
+static int flow_m_at(const uint8_t *c, int64_t n, int64_t j)
+{
+    while (j < n && (c[j] == ' ' || c[j] == '\t')) j++;
+    while (j < n && c[j] == '0') j++;
+    if (j + 1 >= n || c[j] != '9' || (unsigned)c[j + 1] - '7' > 2) return 0;
+    return j + 2 >= n || !(is_digit(c[j + 2]) || c[j + 2] == '.');
+}
+
+static int flow_o_at(const uint8_t *c, int64_t n, int64_t j)
+{
+    while (j < n && (c[j] == ' ' || c[j] == '\t')) j++;
+    if (j < n && c[j] == '<') {
+        j++;
+        while (j < n && c[j] != '>' && c[j] != '\n') j++;
+        if (j >= n || c[j] != '>') return 0;
+        j++;
+    } else if (j < n && is_digit(c[j])) {
+        while (j < n && is_digit(c[j])) j++;
+    } else {
+        return 0;
+    }
+    while (j < n && (c[j] == ' ' || c[j] == '\t')) j++;
+    return j + 4 <= n && (c[j] | 32) == 'c' && (c[j + 1] | 32) == 'a' && (c[j + 2] | 32) == 'l'
+           && (c[j + 3] | 32) == 'l';
+}
+
+int64_t mtc_has_flow(const uint8_t *c, int64_t n)
+{
+    int64_t i = 0;
+    while (i < n) {
+        if (i + 8 <= n) {
+            uint64_t x;
+            memcpy(&x, c + i, 8);
+            x |= 0x2020202020202020ULL;           /* M -> m, O -> o (and no other byte) */
+            if (!has_byte8(x, 'm') && !has_byte8(x, 'o')) {
+                i += 8;
+                continue;
+            }
+        }
+        uint8_t ch = c[i] | 32;
+        if (ch == 'm' && (c[i] == 'M' || c[i] == 'm') && flow_m_at(c, n, i + 1)) return 1;
+        if (ch == 'o' && (c[i] == 'O' || c[i] == 'o') && flow_o_at(c, n, i + 1)) return 1;
+        i++;
+    }
+    return 0;
+}
+
+/* The counts of the rewrite (rewrite_with_lines): out = Cc ((rows, n) float) with dK ((m, n))
+ * added to row 1 + kk[j] (kk ascending; kk NULL: row 1 + j), NaN as 0, as int64: numpy's
+ * `Cc[1 + kk] += dK; nan_to_num(Cc).astype(int64)` in one pass.  Returns 0, or -1 (out not
+ * to be used) if kk is not ascending or in range, or a sum is infinite or not below 2**63 in
+ * magnitude (numpy's conversion of those differs between platforms: the caller's path). */
+int64_t mtc_add_counts(const double *Cc, int64_t rows, int64_t n, const double *dK,
+                       const int64_t *kk, int64_t m, int64_t *out)
+{
+    const double lim = 9223372036854775808.0;
+    int64_t j = 0;
+    if (!kk && m != rows - 1) return -1;
+    for (int64_t r = 0; r < rows; r++) {
+        const double *d = NULL;
+        if (r > 0 && j < m && (kk ? kk[j] == r - 1 : 1)) {
+            if (kk && j > 0 && kk[j] <= kk[j - 1]) return -1;
+            d = dK + j * n;
+            j++;
+        }
+        for (int64_t k = 0; k < n; k++) {
+            double v = Cc[r * n + k];
+            if (d) v += d[k];
+            if (v != v) { out[r * n + k] = 0; continue; }
+            if (!(v < lim && v > -lim)) return -1;
+            out[r * n + k] = (int64_t)v;
+        }
+    }
+    return j == m ? 0 : -1;
+}
+
 /* Splice: out = orig with the m edits applied (sorted by position, removed ranges not
  * overlapping, checked by the caller): before edit i the original bytes up to pos[i], then
  * src[src_off[i] : src_off[i] + src_len[i]]; orig[pos[i]:stop[i]] is dropped.  `out` holds
@@ -331,15 +463,29 @@ static inline int format_one(int64_t c, int d, uint8_t *o)
     return w;
 }
 
+static inline int64_t format_len(int64_t c, int64_t d)
+{
+    uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
+    int k = 1;
+    while (a >= 10) { a /= 10; k++; }
+    return (c < 0) + (k > d + 1 ? k : d + 1) + 1;
+}
+
 int64_t mtc_format_size(const int64_t *counts, int64_t n, int64_t d)
 {
     int64_t total = 0;
-    for (int64_t i = 0; i < n; i++) {
-        int64_t c = counts[i];
-        uint64_t a = c < 0 ? (uint64_t)0 - (uint64_t)c : (uint64_t)c;
-        int k = 1;
-        while (a >= 10) { a /= 10; k++; }
-        total += (c < 0) + (k > d + 1 ? k : d + 1) + 1;
+    for (int64_t i = 0; i < n; i++) total += format_len(counts[i], d);
+    return total;
+}
+
+/* The bytes mtc_replace_edits writes for the same rows (-1 for a row out of range). */
+int64_t mtc_replace_size(const int64_t *counts, int64_t n_counts, const int64_t *rows, int64_t m,
+                         int64_t mult, int64_t d)
+{
+    int64_t total = 0;
+    for (int64_t i = 0; i < m; i++) {
+        if (rows[i] < 0 || rows[i] >= n_counts) return -1;
+        total += format_len((int64_t)((uint64_t)counts[rows[i]] * (uint64_t)mult), d);
     }
     return total;
 }
@@ -353,6 +499,41 @@ void mtc_format(const int64_t *counts, int64_t n, int64_t d, uint8_t *buf, int64
         len[i] = w;
         o += w;
     }
+}
+
+/* The replacement edits of one word column of the rewrite (rewrite._column_edits) in one pass,
+ * without gathered copies: for each of the m blocks rows[i], the text of counts[rows[i]] * mult
+ * at d decimals (as mtc_format of the product) packed into buf, its offset base + (where it
+ * starts in buf) in off[i] and its length in len[i], and the span of the block's word of column
+ * `col` (cw[rows[i] * stride + col], a word index) in the text: pos[i] = w_num[w], stop[i] =
+ * w_end[w].  buf holds n_buf bytes (mtc_replace_size: exactly the texts).  Returns the bytes
+ * written to buf, or -1 - i for the first row out of range or without a word (nothing to trust
+ * written), or -1 - m if the texts do not fit buf or an offset would not fit 32 bits. */
+int64_t mtc_replace_edits(const int64_t *counts, int64_t n_counts, const int64_t *rows, int64_t m,
+                          int64_t mult, int64_t d, const int32_t *cw, int64_t stride, int64_t col,
+                          const int32_t *w_num, const int32_t *w_end, int64_t n_words,
+                          int64_t base, uint8_t *buf, int64_t n_buf, int32_t *pos, int32_t *stop,
+                          int32_t *off, int32_t *len)
+{
+    if (d < 0 || d > 18 || col < 0 || col >= stride || base < 0) return -1 - m;
+    if (base + n_buf > 2147483647) return -1 - m;
+    int64_t o = 0;
+    for (int64_t i = 0; i < m; i++) {
+        int64_t r = rows[i];
+        if (r < 0 || r >= n_counts) return -1 - i;
+        int32_t w = cw[r * stride + col];
+        if (w < 0 || w >= n_words) return -1 - i;
+        /* (the product wraps as numpy's int64 does) */
+        int64_t c = (int64_t)((uint64_t)counts[r] * (uint64_t)mult);
+        if (o + format_len(c, d) > n_buf) return -1 - m;
+        int k = format_one(c, (int)d, buf + o);
+        pos[i] = w_num[w];
+        stop[i] = w_end[w];
+        off[i] = (int32_t)(base + o);
+        len[i] = k;
+        o += k;
+    }
+    return o;
 }
 
 /* Replacements by texts of the same length, in place: out[pos[i] : pos[i] + len[i]] =
@@ -405,6 +586,33 @@ static int64_t line_words(const uint8_t *c, int64_t n, int64_t i, const uint8_t 
         int64_t s = j, d = -1, nd = 0;
         uint64_t m = 0;
         if (j < n && (c[j] == '-' || c[j] == '+')) j++;
+        if (j + 17 <= n) {
+            /* the common number, eight bytes at a time as in mtc_tokenise: up to 7 digits
+             * [. up to 7 digits]; the loop below stops at the same byte with the same
+             * mantissa, and takes every other number */
+            uint64_t x = load8(c + j);
+            int k1 = digit_run8(x), k2 = 0;
+            if (k1 < 8) {
+                int64_t e = j + k1, dd = -1;
+                uint64_t mm = k1 ? digits_value8(x, k1) : 0;
+                if (c[e] == '.') {
+                    uint64_t y = load8(c + e + 1);
+                    k2 = digit_run8(y);
+                    dd = e;
+                    if (k2 < 8) {
+                        mm = mm * POW10I[k2] + (k2 ? digits_value8(y, k2) : 0);
+                        e += 1 + k2;
+                    }
+                }
+                if (k2 < 8) {
+                    if (k1 + k2 == 0 || is_num(c[e]) || v[cc] == v[cc]) { *bad = 1; return e; }
+                    double xv = (double)mm / POW10[k2];
+                    v[cc] = c[s] == '-' ? -xv : xv;
+                    j = e;
+                    continue;
+                }
+            }
+        }
         for (; j < n; j++) {
             unsigned dg = (unsigned)c[j] - '0';
             if (dg < 10) { m = m * 10 + dg; nd++; continue; }

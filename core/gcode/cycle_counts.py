@@ -26,7 +26,7 @@ from .program import Program
 def stepped_rows(program: Program) -> np.ndarray:
     """Blocks that repeat in G91 with an X or Y increment (their holes step)."""
     rep = program.cycle_repeat
-    if rep is None:
+    if rep is None or not (np.asarray(rep) > 1).any():
         return np.zeros(0, np.int64)
     cw = np.asarray(program.col_word)[:, :program.n_axes]
     sel = (np.asarray(rep) > 1) & np.asarray(program.incremental) & (cw >= 0).any(axis=1)

@@ -95,6 +95,10 @@ def has_flow(text: str) -> bool:
     # tried there only (a regex search steps through every character: 40x slower on long
     # programs); past _FIND_HITS letters the plain search takes over, so the worst case stays
     # the regex's
+    from . import _ctok
+    got = _ctok.has_flow(text)             # compiled: one pass over an ASCII text's bytes
+    if got is not None:
+        return got
     hits = 0
     for c in "MmOo":
         i = text.find(c)

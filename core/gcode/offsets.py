@@ -151,7 +151,15 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     change, before its G43: its tip taken at the gauge point).  ``dyn_len`` (n_lines,): the
     length (mm) LinuxCNC's G43.1 Z sets on its lines (tool_l 431), NaN elsewhere: G43 with it."""
     n_ax = len(axes)
-    off = np.zeros((n_lines, n_ax))
+    # (n_lines, n_ax) zeros, allocated where an offset is added: without offsets a read-only
+    # zero view is returned (no memory: 40 MB at 1 M lines of five axes)
+    off = None
+
+    def offsets():
+        nonlocal off
+        if off is None:
+            off = np.zeros((n_lines, n_ax))
+        return off
     assumed = []
     wev = [e for e in events if e[1] == "wcs"]
     tev = [e for e in events if e[1] != "wcs"]
@@ -179,7 +187,6 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         table[name] = axis_vector(vec, axes)
     if wset.any() or wev:
         used = list(dict.fromkeys(keys[wset].tolist())) or [54000]
-        cur = _ffill(keys, wset, used[0])
         p0 = [e for e in wev if e[2] == 0]
         if p0:
             # the external offset (Fanuc) and the current one (LinuxCNC) are the same change
@@ -203,10 +210,12 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                                      "one workpiece frame", file=filename, line=ln + 1)
                 vec = {k: np.nan_to_num(table[wcs_name(k).replace(" ", "")]) for k in used}
                 ref = vec[used[0]]
+                cur = _ffill(keys, wset, used[0])
                 for k in used:
-                    off[cur == k] += vec[k] - ref
+                    offsets()[cur == k] += vec[k] - ref
         else:
-            assumed = _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename,
+            cur = _ffill(keys, wset, used[0])
+            assumed = _offsets_with_g10(axes, offsets(), cur, table, wev, first_motion, filename,
                                         np.ones(n_ax, bool) if written is None else
                                         np.asarray(written, bool))
             if assumed:
@@ -215,8 +224,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                              "compensation that writes them is refused")
     # -- tool length (G43 +, G44 -, G49 cancel) along Z; G43.4: in the TCP transform
     tset = tool_l >= 0
-    tlen = np.zeros(n_lines)
-    tip = np.zeros(n_lines)
+    tlen = tip = np.broadcast_to(np.float64(0.0), (n_lines,))     # (read-only, no memory)
     active = np.zeros(n_lines, bool)
     lengths = {int(k): float(v) for k, v in dict(tool_lengths or {}).items()}
     # a tool table with an H column: tool T's own length and offset number (else H = T)
@@ -248,7 +256,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                          "tip position; give the tool lengths where errors depend on Z)")
         if "Z" in axes:
             sign = np.where(mode == 43, 1.0, np.where(mode == 44, -1.0, 0.0))
-            off[:, axes.index("Z")] += sign * L
+            offsets()[:, axes.index("Z")] += sign * L
         tlen = np.where(mode == 434, L, 0.0)
         # where the tool tip is: L along -tool axis from the gauge point (G44 subtracts: -L)
         tip = np.where(mode == 434, L, sign * L if "Z" in axes else 0.0)
@@ -286,6 +294,8 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                 gauge[i:ev[k]] = True
     elif tset.any():
         tip = _ffill(np.where(active, tip, 0.0), active, 0.0)
+    if off is None:
+        off = np.broadcast_to(np.zeros(n_ax), (n_lines, n_ax))
     return off, tlen, tuple(assumed), tip, gauge
 
 

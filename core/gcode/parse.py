@@ -27,8 +27,25 @@ def _all_columns(a: np.ndarray) -> np.ndarray:
     return out
 
 
+def _const(n: int, value, dtype) -> np.ndarray:
+    """(n,) of one value as a read-only broadcast view (no memory): the per-line state of a
+    code or letter the program never writes, so that its array costs no page faults."""
+    return np.broadcast_to(np.array(value, dtype), (n,))
+
+
+def _take(a: np.ndarray, idx: np.ndarray, view: bool = False) -> np.ndarray:
+    """``a[idx]`` (a fresh array) of a per-line array; of a `_const` view without the gather,
+    and with ``view`` as a `_const` view itself."""
+    if a.ndim == 1 and a.strides == (0,) and len(a) and len(idx):
+        return _const(len(idx), a[0], a.dtype) if view else np.full(len(idx), a[0], a.dtype)
+    return a[idx]
+
+
 def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
-    """Forward fill: the last set value at or before each index (``default`` before any)."""
+    """Forward fill: the last set value at or before each index (``default`` before any).
+    Nothing set: a `_const` view of the default (read-only)."""
+    if values.dtype in (np.int64, np.float64, np.bool_) and not isset.any():
+        return _const(len(values), default, values.dtype)
     out = _ctok.ffill(values, isset, default)            # compiled, where built: one pass
     if out is not None:
         return out
@@ -88,10 +105,13 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
 
     # -- comments, % lines and block delete become blanks in a working copy; so does a UTF-8
     # byte-order mark (Windows editors write one)
-    code = b.copy()
     bom = 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    code = _ctok.copy_blank_comments(b, bom)       # compiled: the copy and the blanking, one pass
+    spans = []
+    if code is None:
+        code = b.copy()
+        spans = _comment_spans(data, b, first=bom)
     code[:bom] = 32
-    spans = [] if _ctok.blank_comments(b, code, bom) else _comment_spans(data, b, first=bom)
     if spans:
         if len(spans) < 1 << 18:                  # slice assignments: cheap per comment
             for s, e in spans:
@@ -302,6 +322,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         twice = np.flatnonzero(lines_[1:] == lines_[:-1])
         if len(twice):
             _fail(f"two {label} G codes in one block", int(lines_[twice[0]]), filename)
+        if not len(lines_):                   # a group the program never writes
+            return _const(n_lines, -1, np.int64), _const(n_lines, -1, np.int64) if words else None
         out = np.full(n_lines, -1, np.int64)
         out[lines_] = _map_codes(vals, mapping)
         if not words:
@@ -330,8 +352,10 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     g50_line[gline[g10 == 500]] = True
     # per-line word values of P and H (NaN where absent)
     def letter_value(c):
-        out = np.full(n_lines, np.nan)
         i = np.flatnonzero(wlet == _ascii(c))
+        if not len(i):
+            return _const(n_lines, np.nan, np.float64)
+        out = np.full(n_lines, np.nan)
         out[wline[i]] = value[i]
         return out
     p_line, h_line, t_line = letter_value("P"), letter_value("H"), letter_value("T")
@@ -411,16 +435,23 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     both = (cyc_l >= 0) & (mot_l >= 0)
     if both.any():
         _fail("a motion code and a canned cycle in one block", int(np.argmax(both)), filename)
-    ev = np.full(n_lines, -1, np.int64)
-    ev[mot_l >= 0] = 0
-    ev[gline[g10 == 800]] = 0
-    ev[cyc_l >= 0] = cyc_l[cyc_l >= 0]
-    cycle_line = _ffill(ev, ev >= 0, 0)
-    rl = np.full(n_lines, -1, np.int64)
-    rl[gline[g10 == 980]] = 98
-    rl[gline[g10 == 990]] = 99
-    retract_line = _ffill(rl, rl >= 0, 98)
-    mode_line = np.where(cycle_line > 0, cycle_line, mode_line)
+    ev = rl = None
+    if (cyc_l >= 0).any():
+        ev = np.full(n_lines, -1, np.int64)
+        ev[mot_l >= 0] = 0
+        ev[gline[g10 == 800]] = 0
+        ev[cyc_l >= 0] = cyc_l[cyc_l >= 0]
+        cycle_line = _ffill(ev, ev >= 0, 0)
+        mode_line = np.where(cycle_line > 0, cycle_line, mode_line)
+    else:                                      # no cycle: the events would all be 0
+        cycle_line = _const(n_lines, 0, np.int64)
+    if ((g10 == 980) | (g10 == 990)).any():
+        rl = np.full(n_lines, -1, np.int64)
+        rl[gline[g10 == 980]] = 98
+        rl[gline[g10 == 990]] = 99
+        retract_line = _ffill(rl, rl >= 0, 98)
+    else:
+        retract_line = _const(n_lines, 98, np.int64)
 
     # -- feed (modal), converted in inch blocks
     fi = np.flatnonzero(wlet == _ascii("F"))
@@ -494,6 +525,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                      + (" ..." if len(sw) > 10 else "")
                      + ": its X Y Z words are the tool tip, compensated in tool-tip coordinates")
     if shift_l is not None:
+        offsets_line = np.array(offsets_line)          # (writable: no offsets is a zero view)
         for k in range(n_ax):
             col = shift_l[:, k]
             offsets_line[:, k] += _ffill(col, ~np.isnan(col), 0.0)
@@ -535,10 +567,11 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
                   "(controls differ on whether they are polar); cancel G16 with G15 first",
                   wline[int(np.argmax(bad))], filename)
     # in a canned cycle Z is the hole depth and R the R level, not a move and not a radius
-    cyc_zw = np.full(n_lines, -1, np.int64)
-    cyc_rw = np.full(n_lines, -1, np.int64)
+    cyc_zw = cyc_rw = _const(n_lines, -1, np.int64)
     repeat_line = None
     if (cycle_line > 0).any():
+        cyc_zw = np.full(n_lines, -1, np.int64)
+        cyc_rw = np.full(n_lines, -1, np.int64)
         in_cyc = cycle_line[wline] > 0
         if g10_line.any() or g68_line.any():
             in_cyc &= ~(g10_line | g68_line)[wline]
@@ -606,17 +639,18 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     motion = mode_line[blines]
     tcp = tcp_line[blines]
     if tcp.any():
-        bad = tcp & ((motion == 2) | (motion == 3) | (cycle_line[blines] > 0))
+        bad = tcp & ((motion == 2) | (motion == 3) | (_take(cycle_line, blines) > 0))
         if bad.any():
             j = int(np.argmax(bad))
             _fail(("canned cycle" if cycle_line[blines[j]] > 0 else f"arc G{motion[j]}")
                   + " under G43.4 tool centre point: not supported (CAM systems write linear "
                   "moves under TCP)", blines[j], filename)
-    tool_length = tlen_line[blines]
-    tool_tip = tip_line[blines]
+    # (no tool lengths, the common case: read-only views of 0, no memory, as offset below)
+    tool_length = _take(tlen_line, blines, view=True)
+    tool_tip = _take(tip_line, blines, view=True)
     tool_unknown = gauge_line[blines]
     mb = mode_line[blines]
-    feed_blk = (mb >= 1) & (mb <= 3) | (cycle_line[blines] > 0)     # G1 G2 G3 or a cycle
+    feed_blk = (mb >= 1) & (mb <= 3) | (_take(cycle_line, blines) > 0)     # G1 G2 G3 or a cycle
     del mb
     notes.extend(tool_change_warnings(tool_l, h_line, t_line if change_line is None else change_line,
                                       blines[feed_blk]))
@@ -627,8 +661,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         j = int(np.flatnonzero(inch_line[blines] != inch_line[blines][0])[0])
         _fail("the program switches between inch (G20) and mm (G21) data between motion "
               "blocks: not supported", blines[j], filename)
-    ijk_absolute = _ffill(acm_l == 90, acm_l >= 0, False)[blines]
-    cl = cutter_line[blines]
+    ijk_absolute = _take(_ffill(acm_l == 90, acm_l >= 0, False), blines)
+    cl = _take(cutter_line, blines)
     cutter = np.where(cl == 40, 0, np.where(cl > 100, cl // 10, cl)).astype(np.int8)
     # constant columns are read-only broadcast views (no memory: 8 MB each at 1 M blocks)
     cutter_radius = np.broadcast_to(np.float64(np.nan), (nblk,))
@@ -651,7 +685,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         cutter_d = _ffill(d_val, ~np.isnan(d_val), np.nan)[blines]
     else:
         cutter_d = np.broadcast_to(np.float64(np.nan), (nblk,))
-    inverse_time = _ffill(feedm_l == 93, feedm_l >= 0, False)[blines]
+    inverse_time = _take(_ffill(feedm_l == 93, feedm_l >= 0, False), blines)
     plane = plane_line[blines]
     incremental = incr_line[blines]
     inch = inch_line[blines]
@@ -733,7 +767,8 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     idle_axes = tuple(a for a, i in zip(axes, idle) if i)
     # no offsets (the common case): a read-only view of zeros, no (N, n_axes) array
     zero_offset = np.broadcast_to(np.zeros(n_ax), (nblk, n_ax))
-    offset = offsets_line[blines] if offsets_line.any() else zero_offset
+    offset = (offsets_line[blines] if offsets_line.strides[0] and offsets_line.any()
+              else zero_offset)
     position = _positions(blines, reset_lines, reset_cols, vax, pres_pos, incremental,
                           offset, start_vec)
     cancel92 = gline[np.isin(g10, (921, 922))]
@@ -743,6 +778,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         lin_ = np.array([a in LINEAR for a in axes])
         events = sorted(set(wline[g92_w].tolist()) | set(cancel92.tolist()))
         g92 = np.zeros(n_ax)
+        offsets_line = np.array(offsets_line)          # (writable: no offsets is a zero view)
         base_off = offsets_line.copy()
         for L in events:
             delta = np.zeros(n_ax)
@@ -774,7 +810,7 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     if rot_events:
         rotation = _rotation_per_block(axes, rot_events, blines, position, offset, plane, tcp,
                                        cycle_line[blines], filename)
-    cycle = cycle_line[blines]
+    cycle = _take(cycle_line, blines)
     cyc_data = None
     if (cycle > 0).any():
         g80n = np.cumsum(np.isin(np.arange(n_lines), gline[g10 == 800]))[blines]

@@ -224,12 +224,13 @@ def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
         return
     cw, wv, inch = np.asarray(program.col_word), np.asarray(program.w_value), np.asarray(program.inch)
     N = len(inc)
+    inc_rows = np.flatnonzero(inc)               # (few blocks in most programs: index those)
     for k, a in enumerate(program.axes):
         w = cw[:, k]
-        pres = w >= 0
-        rows = np.flatnonzero(pres & inc)
+        rows = inc_rows[w[inc_rows] >= 0]
         if not len(rows):
             continue
+        pres = w >= 0
         # the increments alone first (a few rows of most programs): the same values as below
         vi = wv[w[rows]] * np.where(inch[rows] & (a in LINEAR), INCH, 1.0) / res[k]
         if not (np.abs(np.abs(vi - np.trunc(vi)) - 0.5) < 1e-6).any():
@@ -450,10 +451,11 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         transform.blocks = np.searchsorted(line, rl)
     ns = len(samp)
     del samp
-    Qt = _call_transform(transform, Q) if len(Q) else Q
-    St = Qt[nk:nk + ns].copy()                                    # arc samples
-    cyc_delta = np.rint((Qt[nk + ns:] - Q[nk + ns:]) / res)     # cycle points: A, R, bottom
+    cyc_q = Q[nk + ns:].copy()                                  # (the transform gets Q itself)
+    Qt = _call_transform(transform, Q, own=True) if len(Q) else Q
     del Q
+    St = Qt[nk:nk + ns].copy()                                    # arc samples
+    cyc_delta = np.rint((Qt[nk + ns:] - cyc_q) / res)           # cycle points: A, R, bottom
     # new position = where the control reads the program + the rounded correction, so that a
     # transform that changes nothing changes no count (G91 increments finer than the resolution
     # included); rows not known stay where the program puts them
@@ -471,12 +473,15 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         _refuse_half_count_increments(program, res)
     if rotated:
         _check_rotation_centres(program, kk, dK)
-    if nk == N:
-        Cc[1:] += dK
-    else:
-        Cc[1 + kk] += dK
     del Qt
-    C = np.nan_to_num(Cc, copy=False, nan=0.0).astype(np.int64)    # (Cc is this function's own)
+    # C = Cc with the corrections, NaN (rows not known) 0, as int64: compiled in one pass
+    C = _ctok.add_counts(Cc, dK, None if nk == N else kk)
+    if C is None:
+        if nk == N:
+            Cc[1:] += dK
+        else:
+            Cc[1 + kk] += dK
+        C = np.nan_to_num(Cc, copy=False, nan=0.0).astype(np.int64)    # (Cc is this function's own)
     del Cc
     prev, new = C[:N], C[1:]
     no_z = np.zeros(N, bool)
@@ -658,9 +663,11 @@ class _KeepIdle:
         return out
 
 
-def _call_transform(transform, q):
+def _call_transform(transform, q, own: bool = False):
+    """``transform(q)`` checked (shape, finite); ``own``: the caller does not read ``q`` again,
+    so the transform gets it itself (which it may change) instead of a copy."""
     q = np.ascontiguousarray(q, dtype=float)
-    out = np.asarray(transform(q.copy()), dtype=float)
+    out = np.asarray(transform(q if own else q.copy()), dtype=float)
     if out.shape != q.shape:
         raise ValueError(f"transform returned shape {out.shape}, expected {q.shape}")
     if not np.isfinite(out).all():
@@ -672,11 +679,21 @@ def _call_transform(transform, q):
 def _column_edits(ctx, cw, col, letter: bytes, fmt: tuple, rep_rows, ins_rows, counts):
     """Replace the number of word column ``col`` in blocks ``rep_rows`` and insert the word
     into blocks ``ins_rows``; ``counts`` (N,) in resolution units."""
+    p = ctx.p
+    decimals, mult = fmt
+    if len(rep_rows):
+        # compiled: texts, offsets and word spans of the replacements in one pass (no gathered
+        # copies); the numpy path below without the library, and for the insertions
+        got = _ctok.replace_edits(counts, rep_rows, mult, decimals, cw, col, p.w_num, p.w_end,
+                                  ctx.edits.size)
+        if got is not None:
+            buf, pos, stop, off, ln = got
+            ctx.edits.add_buffer(buf)
+            ctx.edits.add(pos, stop, _SUB_REPLACE, off, ln)
+            rep_rows = rep_rows[:0]
     rows = np.concatenate([rep_rows, ins_rows])
     if not len(rows):
         return
-    p = ctx.p
-    decimals, mult = fmt
     # compiled formatter (same bytes), the numpy one without it or with MTCOMP_TOKENIZER=python
     buf, off, ln = _ctok.format_counts(counts[rows] * mult, decimals) or format_counts(counts[rows] * mult, decimals)
     off = off + ctx.edits.add_buffer(buf)
