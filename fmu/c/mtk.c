@@ -2606,13 +2606,16 @@ static void path_weights(const double *qa, int nax, int three, double *w1, doubl
 
 /* The Jacobian J (at q, weight ORIENTATION_SCALE) of a pose solved afresh, prepared for the poses
  * after it along the path: its normal equations' factors, column lengths and table intervals at
- * q (second_order_bound's).  0 where the normal matrix is singular. */
-static int path_linearisation(const prep_t *P, const double *q, const double *J, double *LU, int *piv,
-                              double *pn, int *ilin)
+ * q (second_order_bound's), and the pole margin of solve_pose's test on J (pole_axis_margin; -1
+ * where an axis is at a pole, INFINITY without the test): J is the same for every pose taken on
+ * it.  0 where the normal matrix is singular. */
+static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, const double *J, double *LU,
+                              int *piv, double *pn, int *ilin, double *margin)
 {
     int n = P->n, rows = P->rows, i, ok;
     if (n == 5 && rows == 6) ok = normal_factor(5, 6, J, LU, piv);
     else if (n == 3 && rows == 3) ok = normal_factor(3, 3, J, LU, piv);
+    else if (n == 6 && rows == 6) ok = normal_factor(6, 6, J, LU, piv);
     else ok = normal_factor(n, rows, J, LU, piv);
     if (!ok) return 0;
     column_lengths(P, J, pn);
@@ -2620,31 +2623,53 @@ static int path_linearisation(const prep_t *P, const double *q, const double *J,
         const mtk_table *t = P->tab[i];
         ilin[i] = t && q[i] > t->pos[0] && q[i] < t->pos[t->n - 1] ? table_interval(t, q[i], (int *)&P->hint[i]) : -1;
     }
+    *margin = INFINITY;
+    if (o->pole_tol > 0.0 && P->mode >= 2 && pole_axis_margin(P, J, o->pole_sin, margin) >= 0) *margin = -1.0;
     return 1;
 }
 
-/* One pose along a path solved on the Jacobian J of an earlier pose (taken at qlin; machines
- * with up to two rotary axes, no axis held): the residual at start evaluated, the chord step on
- * J's factors, and the step taken where second_order_bound keeps the model's departure from the
- * linear prediction over it within LINEAR_BOUND (the same test as the chord steps of iterate)
- * and the predicted residual is converged.  Not at a pole: the pole test of solve_pose on J,
- * with a margin for the rotary axes' turn since qlin.  Returns 1 with the commands in q and the
- * residual in *res, else 0 (solve_pose then solves the pose; nothing is changed). */
+/* One pose along a path solved on the Jacobian J of an earlier pose (taken at qlin against the
+ * target frame Tlin; no axis held): the residual at start evaluated, the chord step on J's
+ * factors, and the step taken where the model's departure from the linear prediction over it is
+ * bounded within LINEAR_BOUND (the same test as the chord steps of iterate) and the predicted
+ * residual is converged.  Returns 1 with the commands in q and the residual in *res, else 0
+ * (solve_pose then solves the pose; nothing is changed).
+ *
+ * The bound.  With r the residual against this pose's target T and J_T(x) its Jacobian,
+ *     r(q - s) - (r(q) - J s) = [r(q - s) - r(q) + J_T(qlin) s] + (J - J_T(qlin)) s.
+ * The first term is second_order_bound's (the second derivatives it bounds do not depend on the
+ * target: those of the position rows are the chain's, those of the orientation rows of mode 3
+ * are, with d2R/dq_i dq_j = [W_i]x [W_j]x R (i <= j), wo f(T^T Rw^T [W_i]x [W_j]x R) with
+ * f(A) = vee(A - A^T) / 2, |f(A)| <= |A|_F / sqrt 2 and |[a]x [b]x|_F <= sqrt 2 |a| |b|: at most
+ * wo w_i w_j for every T).  The second is zero on machines with up to two rotary axes (the
+ * position and tool-direction rows do not depend on the target).  With three (mode 3) the
+ * orientation column j of J_T(qlin) is wo f(T^T Rw^T [W_j]x R) at qlin, so J differs from it by
+ * wo f((Tlin - T)^T Rw^T [W_j]x R) in the orientation rows only, of length at most
+ * wo |Tlin - T|_F |W_j| / sqrt 2 (Rw, R rotations), and |W_j| <= 2 w_j (wmax; the factor 2 for
+ * the tables' rotation-vector rates, as in second_order_bound):
+ *     |(J - J_T(qlin)) s| <= sqrt 2 wo |Tlin - T|_F sum_j w_j |s_j|,
+ * about wo th w |s| for targets th (rad) apart: along a path (th under a degree, |s| about 1e-10
+ * mm or deg from the extrapolated start) orders of magnitude below LINEAR_BOUND.
+ *
+ * Not at a pole: the pole test of solve_pose on J (its margin from path_linearisation) with a
+ * margin for the columns' change since qlin: the rotary axes' turn (the orientation columns of
+ * later axes turn with earlier ones), and in mode 3 (columns wo/2 (tr M - M) T^T Rw^T W_j with
+ * M = T^T Rw^T R: a rotation of all columns by T^T, which leaves the margin as it is, and
+ * (tr M - M) / 2 within about the angle of M of the identity) the orientation residual's angles
+ * at qlin (philin, bounded by the caller) and at start. */
 static int path_step(const prep_t *P, const target_t *tg, const double *start, const opt_t *o, const double *J,
                      const double *LU, const int *piv, const double *pn, const int *ilin, const double *qlin,
-                     double *q, double *res)
+                     double margin, const double *Tlin, double philin, double *q, double *res)
 {
     int n = P->n, rows = P->rows, i, k;
-    double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], turned = 0.0;
-    if (P->mode == 3) return 0;
+    double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], turned = 0.0, frame = 0.0;
     for (i = 0; i < n; i++)
         if (P->m->rotary[i]) turned += fabs(start[i] - qlin[i]) * DEG;
-    if (o->pole_tol > 0.0 && P->mode == 2) {
-        double margin;
-        if (pole_axis_margin(P, J, o->pole_sin, &margin) >= 0 || !(margin > o->pole_sin + 4.0 * turned + 1e-3))
-            return 0;
-    }
+    if (o->pole_tol > 0.0 && P->mode >= 2 && !(margin > o->pole_sin + 4.0 * turned + 1e-3)) return 0;
     if (residual(P, start, tg, r, ORIENTATION_SCALE, 0, NULL) != MTK_OK) return 0;
+    if (o->pole_tol > 0.0 && P->mode == 3 &&
+        !(margin > o->pole_sin + 4.0 * turned + 4.0 * (philin + orientation_angle(P, r + 3, ORIENTATION_SCALE)) + 1e-3))
+        return 0;
     chord_step(n, rows, J, LU, piv, r, s);
     for (i = 0; i < n; i++)
         if (fabs(s[i]) >= o->tol) break;
@@ -2655,7 +2680,13 @@ static int path_step(const prep_t *P, const target_t *tg, const double *start, c
         *res = maxabs(r, rows);
         return 1;
     }
-    if (!(second_order_bound(P, pn, ilin, qlin, start, s, ORIENTATION_SCALE) <= LINEAR_BOUND)) return 0;
+    if (P->mode == 3) {
+        double dT = 0.0, ws = 0.0;
+        for (k = 0; k < 9; k++) dT += (tg->R[k] - Tlin[k]) * (tg->R[k] - Tlin[k]);
+        for (i = 0; i < n; i++) ws += P->wmax[i] * fabs(s[i]);
+        frame = sqrt(2.0 * dT) * ORIENTATION_SCALE * ws;
+    }
+    if (!(second_order_bound(P, pn, ilin, qlin, start, s, ORIENTATION_SCALE) + frame <= LINEAR_BOUND)) return 0;
     for (i = 0; i < n; i++) qn[i] = start[i] - s[i];
     for (k = 0; k < rows; k++) {
         double sk = r[k];
@@ -2681,8 +2712,11 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         lin_wait = 0, lin_ready = 0;
     double corr[MTK_MAX_AXES] = {0}, corr2[MTK_MAX_AXES] = {0}, corr3[MTK_MAX_AXES] = {0};
     /* the path's linearisation (path_linearisation): the Jacobian at the start of the last pose
-     * solved afresh, its factors, column lengths and table intervals, and where it was taken */
+     * solved afresh, its factors, column lengths, table intervals and pole margin, where it was
+     * taken, against which target frame, and a bound of the orientation residual's angle there
+     * (rad; path_step) */
     double Jl[6 * MTK_MAX_AXES], LUl[MTK_MAX_AXES * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
+    double Tl[9] = {0}, phil = 0.0, marginl = INFINITY;
     int pivl[MTK_MAX_AXES], ilinl[MTK_MAX_AXES];
     if (!e) {
         mtk_errors_zero(&zero);
@@ -2809,10 +2843,10 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                   lin_wait == 0 && near_previous(&P, qa, qa - nax);
         if (lin_wait > 0) lin_wait--;
         if (lin_try && !lin_ready) {   /* (factored when first needed: not for random poses) */
-            lin_ready = path_linearisation(&P, qlin, Jl, LUl, pivl, pnl, ilinl);
+            lin_ready = path_linearisation(&P, &so, qlin, Jl, LUl, pivl, pnl, ilinl, &marginl);
             have_lin = lin_try = lin_ready;
         }
-        if (lin_try && path_step(&P, &tg, start, &so, Jl, LUl, pivl, pnl, ilinl, qlin, qo, resi)) {
+        if (lin_try && path_step(&P, &tg, start, &so, Jl, LUl, pivl, pnl, ilinl, qlin, marginl, Tl, phil, qo, resi)) {
             /* (the previous poses' Jacobian: no pass, no factorisation, one evaluation) */
             rc = MTK_OK;
             held = -1;
@@ -2827,7 +2861,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 lin_wait = (1 << (lin_miss - 1)) - 1;
             }
             rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), seeded || !(have_prev && warm),
-                            &so, qo, &it, resi, &r0, &sing, &bad, &held, &how, P.mode != 3 ? Jl : NULL);
+                            &so, qo, &it, resi, &r0, &sing, &bad, &held, &how, Jl);
             fresh = 1;
         }
         csc_ok = 0;
@@ -2848,9 +2882,17 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 corr[k] = qo[k] - qa[k];
             }
             if (fresh) {   /* the Jacobian at this pose's start (in Jl), for the poses after it */
-                have_lin = P.mode != 3 && how != HOW_SEED && held < 0 && o->continuation;
+                have_lin = how != HOW_SEED && held < 0 && o->continuation;
                 lin_ready = 0;
                 memcpy(qlin, start, nax * sizeof(double));
+                if (P.mode == 3) {
+                    /* the orientation residual's angle at start: at most its angle at the
+                     * solution (|r| < sqrt 3 CONVERGED) plus the turn of the tool frame between
+                     * them, |W_k| <= 2 wmax_k per deg or mm (path_step's bound) */
+                    memcpy(Tl, tg.R, sizeof Tl);
+                    phil = 2.0 * CONVERGED / ORIENTATION_SCALE;
+                    for (k = 0; k < nax; k++) phil += 2.0 * P.wmax[k] * fabs(qo[k] - start[k]);
+                }
             }
             held_prev = held;
             have_prev = 1;
