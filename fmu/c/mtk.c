@@ -484,6 +484,7 @@ typedef struct {
     int rot_idx[MTK_MAX_AXES];
     double ueff[MTK_MAX_AXES][3];
     double c[MTK_MAX_AXES][3];        /* rotary centre with its location offset, mm */
+    int c0[MTK_MAX_AXES];             /* ... at the origin (the turn moves no point of the axis) */
     double zero[MTK_MAX_AXES];        /* zero-position error of a rotary axis, rad */
     const mtk_table *tab[MTK_MAX_AXES];
     int loc0[MTK_MAX_AXES];           /* the axis' error motion acts about the origin (loc = 0):
@@ -521,8 +522,8 @@ static inline void rotvec_fast(const double w[3], double R[9])
 {
     double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], a, b;
     if (t2 < 1e-6) {
-        a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0));
-        b = 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0));
+        a = 1.0 - t2 * (1.0 / 6.0) * (1.0 - t2 * (1.0 / 20.0) * (1.0 - t2 * (1.0 / 42.0)));
+        b = 0.5 - t2 * (1.0 / 24.0) * (1.0 - t2 * (1.0 / 30.0) * (1.0 - t2 * (1.0 / 56.0)));
     } else {
         double th = sqrt(t2);
         a = sin(th) / th;
@@ -624,8 +625,10 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
     for (i = 0, k = 0; i < m->n_axes; i++)
         if (m->rotary[i]) P->rot_idx[k++] = i;
-    for (i = 0; i < m->n_axes; i++)
+    for (i = 0; i < m->n_axes; i++) {
         P->loc0[i] = m->loc[i][0] == 0.0 && m->loc[i][1] == 0.0 && m->loc[i][2] == 0.0;
+        P->c0[i] = P->c[i][0] == 0.0 && P->c[i][1] == 0.0 && P->c[i][2] == 0.0;
+    }
     for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
     for (i = 0; i < m->n_axes; i++) {
         double w = m->rotary[i] ? DEG : 0.0;
@@ -755,8 +758,8 @@ static inline void axis_sincos(const prep_t *P, int i, double a, double *s, doub
     double d = a - Q->sc_ref[i][0];
     if (fabs(d) < 1e-2) {
         double d2 = d * d;
-        double sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)));
-        double cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
+        double sd = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))));
+        double cd = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0) * (1.0 - d2 * (1.0 / 56.0))));
         *s = Q->sc_ref[i][1] * cd + Q->sc_ref[i][2] * sd;
         *c = Q->sc_ref[i][2] * cd - Q->sc_ref[i][1] * sd;
         return;
@@ -788,8 +791,10 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
             } else {
                 axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
             }
-            for (k = 0; k < 3; k++)
-                tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
+            if (P->c0[i]) tg[0] = tg[1] = tg[2] = 0.0;
+            else
+                for (k = 0; k < 3; k++)
+                    tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
             grot = 1;
         } else {
             for (k = 0; k < 3; k++) tg[k] = q[i] * P->ueff[i][k];
@@ -847,19 +852,23 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
     return MTK_OK;
 }
 
-/* The position and the tool direction of fwd alone (tables held at their ends, no range check),
- * on vectors from the tool end: each axis' motion G = E N (the error motion after the nominal
- * one) or N E applied to the tool point and, without its translation, to the tool direction; a
- * rotary axis turns them by Rodrigues on the vector.  About half the arithmetic of the
- * matrix products (what the iteration's residual needs on machines with one or two rotary
- * axes). */
-static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
+/* The position and nd directions (given in dv in the tool's frame, turned in place) of fwd alone
+ * (tables held at their ends, no range check), on vectors from the tool end: each axis' motion
+ * G = E N (the error motion after the nominal one) or N E applied to the tool point and, without
+ * its translation, to the directions; a rotary axis turns them by Rodrigues on the vector.  About
+ * half the arithmetic of the matrix products (what the iteration's residual needs: the tool
+ * direction on machines with one or two rotary axes, two columns of the tool frame with three). */
+#if defined(__GNUC__)
+static inline __attribute__((always_inline))
+#else
+static inline
+#endif
+void fwd_dirs(const prep_t *P, const double *q, double p[3], double (*dv)[3], int nd)
 {
     const mtk_model *m = P->m;
-    double x[3], d[3];
-    int i, k;
+    double x[3];
+    int i, j, k;
     memcpy(x, P->tp, sizeof x);
-    memcpy(d, m->tool_axis, sizeof d);
     for (i = P->n - 1; i >= 0; i--) {
         double Re[9], te[3], y[3];
         int has_e = P->tab[i] != NULL, e_after = has_e && m->tool_side[i] == m->rotary[i];
@@ -875,7 +884,7 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
             if (!e_after) {
                 mat_vec(Re, x, y);
                 for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
-                mat_vec(Re, d, d);
+                for (j = 0; j < nd; j++) mat_vec(Re, dv[j], dv[j]);
             }
         }
         if (m->rotary[i]) {
@@ -885,24 +894,32 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
             for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
             turn(u, sn, cs, y, y);
             for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
-            turn(u, sn, cs, d, d);
+            for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
         } else {
             for (k = 0; k < 3; k++) x[k] += q[i] * P->ueff[i][k];
         }
         if (e_after) {
             mat_vec(Re, x, y);
             for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
-            mat_vec(Re, d, d);
+            for (j = 0; j < nd; j++) mat_vec(Re, dv[j], dv[j]);
         }
     }
     if (P->wp) {
         for (k = 0; k < 3; k++) x[k] -= P->tw[k];
         mat_vec(P->RwT, x, p);
-        mat_vec(P->RwT, d, v);
+        for (j = 0; j < nd; j++) mat_vec(P->RwT, dv[j], dv[j]);
     } else {
         memcpy(p, x, sizeof x);
-        memcpy(v, d, sizeof d);
     }
+}
+
+/* The position and the tool direction v of fwd alone (fwd_dirs). */
+static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
+{
+    double d[1][3];
+    memcpy(d[0], P->m->tool_axis, sizeof d[0]);
+    fwd_dirs(P, q, p, d, 1);
+    memcpy(v, d[0], sizeof d[0]);
 }
 
 /* Counters of a test build (-DMTK_STATS, gcc; one thread), printed at exit: forward evaluations of
@@ -960,6 +977,23 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
         for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
         if (P->mode == 2)
             for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
+        return MTK_OK;
+    }
+    if (!strict) {   /* mode 3: the first two columns of the tool frame, the third their cross product */
+        double X[2][3] = {{1, 0, 0}, {0, 1, 0}}, X2[3], M[3][3];
+        const double *T = tg->R;
+        int i, j;
+        fwd_dirs(P, q, p, X, 2);
+        cross(X[0], X[1], X2);
+        for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
+        for (i = 0; i < 3; i++)   /* M = T^T R, the entries of its skew part */
+            for (j = 0; j < 3; j++) {
+                const double *c = j < 2 ? X[j] : X2;
+                M[i][j] = T[i] * c[0] + T[3 + i] * c[1] + T[6 + i] * c[2];
+            }
+        r[3] = wo * 0.5 * (M[2][1] - M[1][2]);
+        r[4] = wo * 0.5 * (M[0][2] - M[2][0]);
+        r[5] = wo * 0.5 * (M[1][0] - M[0][1]);
         return MTK_OK;
     }
     rc = fwd(P, q, p, R, strict, bad, 1);
@@ -1529,10 +1563,13 @@ static double second_order_bound(const prep_t *P, const double *pn, const int *i
         e += P->wmax[i] * D[i];
         T += pn[i] * D[i];
     }
-    if (!(e <= 0.01)) return INFINITY;
+    /* (the column bounds hold for e < 1/2; e <= 0.05 keeps 1 - 2 e >= 0.9: along a path about 3 deg
+     * of rotary travel from qlin, rather than 0.6 deg at 0.01) */
+    if (!(e <= 0.05)) return INFINITY;
     Q = T / (1.0 - 2.0 * e);
+    e = 1.0 / (1.0 - e);   /* (reused) */
     for (i = 0; i < n; i++) {
-        double Pb = (pn[i] + P->wmax[i] * Q) / (1.0 - e);
+        double Pb = (pn[i] + P->wmax[i] * Q) * e;
         D[i] = Pb;   /* (reused: the column bounds) */
         Aw += P->wmax[i] * a[i];
         Ap += Pb * a[i];
@@ -2360,7 +2397,19 @@ static void make_target(const prep_t *Pi, const double *q, target_t *tg)
         eye(tg->R);
         return;
     }
-    fwd(Pi, q, tg->p, tg->R, 0, NULL, 0);
+    {
+        /* the tool frame's columns R e0, R e1 on vectors (fwd_dirs: the sines and cosines along a
+         * path by the angle sum), the third their cross product */
+        double X[2][3] = {{1, 0, 0}, {0, 1, 0}}, X2[3];
+        int k;
+        fwd_dirs(Pi, q, tg->p, X, 2);
+        cross(X[0], X[1], X2);
+        for (k = 0; k < 3; k++) {
+            tg->R[3 * k] = X[0][k];
+            tg->R[3 * k + 1] = X[1][k];
+            tg->R[3 * k + 2] = X2[k];
+        }
+    }
     mat_vec(tg->R, Pi->m->tool_axis, tg->v);
 }
 
@@ -2746,7 +2795,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         double *qo, start[MTK_MAX_AXES], r0 = 0.0, *resi;
         int *statusi, *infoi;
         target_t tg;
-        int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
+        int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED, near;
         STAT(5);
         if (i < skip) {
             if (!o->continuation || (!p_t && P.closed)) continue;   /* nothing to take up */
@@ -2811,9 +2860,10 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             make_target(&Pi, qa, &tg);
         }
         memcpy(start, qa, nax * sizeof(double));
+        near = i > 0 && near_previous(&P, qa, qa - nax);
         if (o->continuation && have_prev) {
             double w1 = 1.0, w2 = 0.0, w3 = 0.0;
-            if (chain >= 2 && i > 1 && near_previous(&P, qa, qa - nax))
+            if (chain >= 2 && i > 1 && near)
                 path_weights(qa, nax, chain >= 3 && i > 2, &w1, &w2, &w3);
             /* on the differences of the corrections: where they do not change (an axis the
              * errors leave alone, a rotary axis held over a pass) the start is the last one's
@@ -2832,7 +2882,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             continue;
         }
         seeded = 0;
-        if (seed_rigid && !(o->continuation && have_prev && warm && i > 0 && near_previous(&P, qa, qa - nax)) &&
+        if (seed_rigid && !(o->continuation && have_prev && warm && near) &&
             (Pr.closed_rot ? closed_rotation(&Pr, &tg, qa, qa, qa, so.pole_sin, qr) : closed_form(&Pr, qa, qr))) {
             /* with tables or location errors: start from the rigid model's closed-form solution
              * plus the previous pose's correction beyond it (the tables' part, µm and µrad) */
@@ -2840,7 +2890,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             seeded = 1;
         }
         lin_try = !seeded && have_lin && o->continuation && have_prev && warm && held_prev < 0 && i > 0 &&
-                  lin_wait == 0 && near_previous(&P, qa, qa - nax);
+                  lin_wait == 0 && near;
         if (lin_wait > 0) lin_wait--;
         if (lin_try && !lin_ready) {   /* (factored when first needed: not for random poses) */
             lin_ready = path_linearisation(&P, &so, qlin, Jl, LUl, pivl, pnl, ilinl, &marginl);
@@ -2874,8 +2924,8 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             *infoi = held;
             /* the corrections of the poses before kept for the extrapolation while each followed
              * the one before on the same branch without a held axis (one smooth branch) */
-            chain = have_prev && warm && how != HOW_SEED && held < 0 && held_prev < 0 && i > 0 &&
-                    near_previous(&P, qa, qa - nax) ? (chain < 3 ? chain + 1 : 3) : 1;
+            chain = have_prev && warm && how != HOW_SEED && held < 0 && held_prev < 0 && near ?
+                    (chain < 3 ? chain + 1 : 3) : 1;
             for (k = 0; k < nax; k++) {
                 corr3[k] = corr2[k];
                 corr2[k] = corr[k];
