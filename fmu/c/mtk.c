@@ -2654,19 +2654,28 @@ static void path_weights(const double *qa, int nax, int three, double *w1, doubl
 }
 
 /* The Jacobian J (at q, weight ORIENTATION_SCALE) of a pose solved afresh, prepared for the poses
- * after it along the path: its normal equations' factors, column lengths and table intervals at
- * q (second_order_bound's), and the pole margin of solve_pose's test on J (pole_axis_margin; -1
- * where an axis is at a pole, INFINITY without the test): J is the same for every pose taken on
- * it.  0 where the normal matrix is singular. */
-static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, const double *J, double *LU,
-                              int *piv, double *pn, int *ilin, double *margin)
+ * after it along the path: the matrix K (n x rows) of its chord step s = K r = (J^T J + lambda
+ * I)^-1 J^T r (the normal equations' factors applied to the unit residuals once, rather than to
+ * each pose's residual), column lengths and table intervals at q (second_order_bound's), and the
+ * pole margin of solve_pose's test on J (pole_axis_margin; -1 where an axis is at a pole,
+ * INFINITY without the test): J is the same for every pose taken on it.  0 where the normal
+ * matrix is singular. */
+static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, const double *J, double *K,
+                              double *pn, int *ilin, double *margin)
 {
-    int n = P->n, rows = P->rows, i, ok;
+    double LU[MTK_MAX_AXES * MTK_MAX_AXES];
+    int n = P->n, rows = P->rows, i, k, ok, piv[MTK_MAX_AXES];
     if (n == 5 && rows == 6) ok = normal_factor(5, 6, J, LU, piv);
     else if (n == 3 && rows == 3) ok = normal_factor(3, 3, J, LU, piv);
     else if (n == 6 && rows == 6) ok = normal_factor(6, 6, J, LU, piv);
     else ok = normal_factor(n, rows, J, LU, piv);
     if (!ok) return 0;
+    for (k = 0; k < rows; k++) {
+        double e[6] = {0, 0, 0, 0, 0, 0}, x[MTK_MAX_AXES];
+        e[k] = 1.0;
+        chord_step(n, rows, J, LU, piv, e, x);
+        for (i = 0; i < n; i++) K[i * rows + k] = x[i];
+    }
     column_lengths(P, J, pn);
     for (i = 0; i < n; i++) {
         const mtk_table *t = P->tab[i];
@@ -2675,6 +2684,28 @@ static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, 
     *margin = INFINITY;
     if (o->pole_tol > 0.0 && P->mode >= 2 && pole_axis_margin(P, J, o->pole_sin, margin) >= 0) *margin = -1.0;
     return 1;
+}
+
+/* y = A x for A (n x rows, row-major). */
+MTK_INLINE void mat_apply(int n, int rows, const double *A, const double *x, double *y)
+{
+    int i, k;
+    for (i = 0; i < n; i++) {
+        double s = 0.0;
+        for (k = 0; k < rows; k++) s += A[i * rows + k] * x[k];
+        y[i] = s;
+    }
+}
+
+/* r - J s in r (J: rows x n, row-major), the residual the linear model predicts after the step s. */
+MTK_INLINE void linear_prediction(int n, int rows, const double *J, const double *s, double *r)
+{
+    int i, k;
+    for (k = 0; k < rows; k++) {
+        double sk = r[k];
+        for (i = 0; i < n; i++) sk -= J[k * n + i] * s[i];
+        r[k] = sk;
+    }
 }
 
 /* One pose along a path solved on the Jacobian J of an earlier pose (taken at qlin against the
@@ -2707,8 +2738,8 @@ static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, 
  * (tr M - M) / 2 within about the angle of M of the identity) the orientation residual's angles
  * at qlin (philin, bounded by the caller) and at start. */
 static int path_step(const prep_t *P, const target_t *tg, const double *start, const opt_t *o, const double *J,
-                     const double *LU, const int *piv, const double *pn, const int *ilin, const double *qlin,
-                     double margin, const double *Tlin, double philin, double *q, double *res)
+                     const double *K, const double *pn, const int *ilin, const double *qlin, double margin,
+                     const double *Tlin, double philin, double *q, double *res)
 {
     int n = P->n, rows = P->rows, i, k;
     double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], turned = 0.0, frame = 0.0;
@@ -2719,7 +2750,11 @@ static int path_step(const prep_t *P, const target_t *tg, const double *start, c
     if (o->pole_tol > 0.0 && P->mode == 3 &&
         !(margin > o->pole_sin + 4.0 * turned + 4.0 * (philin + orientation_angle(P, r + 3, ORIENTATION_SCALE)) + 1e-3))
         return 0;
-    chord_step(n, rows, J, LU, piv, r, s);
+    /* the chord step K r (the usual shapes with constant sizes: unrolled by the compiler) */
+    if (n == 6 && rows == 6) mat_apply(6, 6, K, r, s);
+    else if (n == 5 && rows == 6) mat_apply(5, 6, K, r, s);
+    else if (n == 3 && rows == 3) mat_apply(3, 3, K, r, s);
+    else mat_apply(n, rows, K, r, s);
     for (i = 0; i < n; i++)
         if (fabs(s[i]) >= o->tol) break;
     if (i == n) {
@@ -2737,11 +2772,10 @@ static int path_step(const prep_t *P, const target_t *tg, const double *start, c
     }
     if (!(second_order_bound(P, pn, ilin, qlin, start, s, ORIENTATION_SCALE) + frame <= LINEAR_BOUND)) return 0;
     for (i = 0; i < n; i++) qn[i] = start[i] - s[i];
-    for (k = 0; k < rows; k++) {
-        double sk = r[k];
-        for (i = 0; i < n; i++) sk -= J[k * n + i] * s[i];
-        r[k] = sk;
-    }
+    if (n == 6 && rows == 6) linear_prediction(6, 6, J, s, r);
+    else if (n == 5 && rows == 6) linear_prediction(5, 6, J, s, r);
+    else if (n == 3 && rows == 3) linear_prediction(3, 3, J, s, r);
+    else linear_prediction(n, rows, J, s, r);
     if (!in_ranges(P, qn) || !(maxabs(r, rows) < CONVERGED)) return 0;
     memcpy(q, qn, n * sizeof(double));
     *res = maxabs(r, rows);
@@ -2764,9 +2798,9 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
      * solved afresh, its factors, column lengths, table intervals and pole margin, where it was
      * taken, against which target frame, and a bound of the orientation residual's angle there
      * (rad; path_step) */
-    double Jl[6 * MTK_MAX_AXES], LUl[MTK_MAX_AXES * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
+    double Jl[6 * MTK_MAX_AXES], Kl[6 * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
     double Tl[9] = {0}, phil = 0.0, marginl = INFINITY;
-    int pivl[MTK_MAX_AXES], ilinl[MTK_MAX_AXES];
+    int ilinl[MTK_MAX_AXES];
     if (!e) {
         mtk_errors_zero(&zero);
         e = &zero;
@@ -2893,10 +2927,10 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                   lin_wait == 0 && near;
         if (lin_wait > 0) lin_wait--;
         if (lin_try && !lin_ready) {   /* (factored when first needed: not for random poses) */
-            lin_ready = path_linearisation(&P, &so, qlin, Jl, LUl, pivl, pnl, ilinl, &marginl);
+            lin_ready = path_linearisation(&P, &so, qlin, Jl, Kl, pnl, ilinl, &marginl);
             have_lin = lin_try = lin_ready;
         }
-        if (lin_try && path_step(&P, &tg, start, &so, Jl, LUl, pivl, pnl, ilinl, qlin, marginl, Tl, phil, qo, resi)) {
+        if (lin_try && path_step(&P, &tg, start, &so, Jl, Kl, pnl, ilinl, qlin, marginl, Tl, phil, qo, resi)) {
             /* (the previous poses' Jacobian: no pass, no factorisation, one evaluation) */
             rc = MTK_OK;
             held = -1;
