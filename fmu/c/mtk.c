@@ -891,9 +891,11 @@ void fwd_dirs(const prep_t *P, const double *q, double p[3], double (*dv)[3], in
             const double *c = P->c[i], *u = P->ueff[i];
             double sn, cs;
             axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
-            for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
-            turn(u, sn, cs, y, y);
-            for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
+            if (!(P->c0[i] && x[0] == 0.0 && x[1] == 0.0 && x[2] == 0.0)) {   /* (else the point stays) */
+                for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
+                turn(u, sn, cs, y, y);
+                for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
+            }
             for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
         } else {
             for (k = 0; k < 3; k++) x[k] += q[i] * P->ueff[i][k];
@@ -2747,9 +2749,11 @@ static int path_step(const prep_t *P, const target_t *tg, const double *start, c
         if (P->m->rotary[i]) turned += fabs(start[i] - qlin[i]) * DEG;
     if (o->pole_tol > 0.0 && P->mode >= 2 && !(margin > o->pole_sin + 4.0 * turned + 1e-3)) return 0;
     if (residual(P, start, tg, r, ORIENTATION_SCALE, 0, NULL) != MTK_OK) return 0;
-    if (o->pole_tol > 0.0 && P->mode == 3 &&
-        !(margin > o->pole_sin + 4.0 * turned + 4.0 * (philin + orientation_angle(P, r + 3, ORIENTATION_SCALE)) + 1e-3))
-        return 0;
+    if (o->pole_tol > 0.0 && P->mode == 3) {
+        /* the angle at start, asin |r_o| / wo <= pi/2 |r_o| / wo <= pi/2 (|r_3| + |r_4| + |r_5|) / wo */
+        double phi = 1.5707963267948966 / ORIENTATION_SCALE * (fabs(r[3]) + fabs(r[4]) + fabs(r[5]));
+        if (!(margin > o->pole_sin + 4.0 * turned + 4.0 * (philin + phi) + 1e-3)) return 0;
+    }
     /* the chord step K r (the usual shapes with constant sizes: unrolled by the compiler) */
     if (n == 6 && rows == 6) mat_apply(6, 6, K, r, s);
     else if (n == 5 && rows == 6) mat_apply(5, 6, K, r, s);
