@@ -484,6 +484,7 @@ typedef struct {
     int rot_idx[MTK_MAX_AXES];
     double ueff[MTK_MAX_AXES][3];
     double c[MTK_MAX_AXES][3];        /* rotary centre with its location offset, mm */
+    int c0[MTK_MAX_AXES];             /* ... at the origin (the turn moves no point of the axis) */
     double zero[MTK_MAX_AXES];        /* zero-position error of a rotary axis, rad */
     const mtk_table *tab[MTK_MAX_AXES];
     int loc0[MTK_MAX_AXES];           /* the axis' error motion acts about the origin (loc = 0):
@@ -521,8 +522,8 @@ static inline void rotvec_fast(const double w[3], double R[9])
 {
     double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], a, b;
     if (t2 < 1e-6) {
-        a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0));
-        b = 0.5 - t2 / 24.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0));
+        a = 1.0 - t2 * (1.0 / 6.0) * (1.0 - t2 * (1.0 / 20.0) * (1.0 - t2 * (1.0 / 42.0)));
+        b = 0.5 - t2 * (1.0 / 24.0) * (1.0 - t2 * (1.0 / 30.0) * (1.0 - t2 * (1.0 / 56.0)));
     } else {
         double th = sqrt(t2);
         a = sin(th) / th;
@@ -624,8 +625,10 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
     }
     for (i = 0, k = 0; i < m->n_axes; i++)
         if (m->rotary[i]) P->rot_idx[k++] = i;
-    for (i = 0; i < m->n_axes; i++)
+    for (i = 0; i < m->n_axes; i++) {
         P->loc0[i] = m->loc[i][0] == 0.0 && m->loc[i][1] == 0.0 && m->loc[i][2] == 0.0;
+        P->c0[i] = P->c[i][0] == 0.0 && P->c[i][1] == 0.0 && P->c[i][2] == 0.0;
+    }
     for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
     for (i = 0; i < m->n_axes; i++) {
         double w = m->rotary[i] ? DEG : 0.0;
@@ -755,8 +758,8 @@ static inline void axis_sincos(const prep_t *P, int i, double a, double *s, doub
     double d = a - Q->sc_ref[i][0];
     if (fabs(d) < 1e-2) {
         double d2 = d * d;
-        double sd = d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0)));
-        double cd = 1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0)));
+        double sd = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0))));
+        double cd = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0) * (1.0 - d2 * (1.0 / 56.0))));
         *s = Q->sc_ref[i][1] * cd + Q->sc_ref[i][2] * sd;
         *c = Q->sc_ref[i][2] * cd - Q->sc_ref[i][1] * sd;
         return;
@@ -788,8 +791,10 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
             } else {
                 axis_rotation(P->ueff[i], q[i] * DEG + P->zero[i], Rg);
             }
-            for (k = 0; k < 3; k++)
-                tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
+            if (P->c0[i]) tg[0] = tg[1] = tg[2] = 0.0;
+            else
+                for (k = 0; k < 3; k++)
+                    tg[k] = c[k] - (Rg[3 * k] * c[0] + Rg[3 * k + 1] * c[1] + Rg[3 * k + 2] * c[2]);
             grot = 1;
         } else {
             for (k = 0; k < 3; k++) tg[k] = q[i] * P->ueff[i][k];
@@ -847,19 +852,23 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
     return MTK_OK;
 }
 
-/* The position and the tool direction of fwd alone (tables held at their ends, no range check),
- * on vectors from the tool end: each axis' motion G = E N (the error motion after the nominal
- * one) or N E applied to the tool point and, without its translation, to the tool direction; a
- * rotary axis turns them by Rodrigues on the vector.  About half the arithmetic of the
- * matrix products (what the iteration's residual needs on machines with one or two rotary
- * axes). */
-static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
+/* The position and nd directions (given in dv in the tool's frame, turned in place) of fwd alone
+ * (tables held at their ends, no range check), on vectors from the tool end: each axis' motion
+ * G = E N (the error motion after the nominal one) or N E applied to the tool point and, without
+ * its translation, to the directions; a rotary axis turns them by Rodrigues on the vector.  About
+ * half the arithmetic of the matrix products (what the iteration's residual needs: the tool
+ * direction on machines with one or two rotary axes, two columns of the tool frame with three). */
+#if defined(__GNUC__)
+static inline __attribute__((always_inline))
+#else
+static inline
+#endif
+void fwd_dirs(const prep_t *P, const double *q, double p[3], double (*dv)[3], int nd)
 {
     const mtk_model *m = P->m;
-    double x[3], d[3];
-    int i, k;
+    double x[3];
+    int i, j, k;
     memcpy(x, P->tp, sizeof x);
-    memcpy(d, m->tool_axis, sizeof d);
     for (i = P->n - 1; i >= 0; i--) {
         double Re[9], te[3], y[3];
         int has_e = P->tab[i] != NULL, e_after = has_e && m->tool_side[i] == m->rotary[i];
@@ -875,34 +884,44 @@ static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
             if (!e_after) {
                 mat_vec(Re, x, y);
                 for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
-                mat_vec(Re, d, d);
+                for (j = 0; j < nd; j++) mat_vec(Re, dv[j], dv[j]);
             }
         }
         if (m->rotary[i]) {
             const double *c = P->c[i], *u = P->ueff[i];
             double sn, cs;
             axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
-            for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
-            turn(u, sn, cs, y, y);
-            for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
-            turn(u, sn, cs, d, d);
+            if (!(P->c0[i] && x[0] == 0.0 && x[1] == 0.0 && x[2] == 0.0)) {   /* (else the point stays) */
+                for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
+                turn(u, sn, cs, y, y);
+                for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
+            }
+            for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
         } else {
             for (k = 0; k < 3; k++) x[k] += q[i] * P->ueff[i][k];
         }
         if (e_after) {
             mat_vec(Re, x, y);
             for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
-            mat_vec(Re, d, d);
+            for (j = 0; j < nd; j++) mat_vec(Re, dv[j], dv[j]);
         }
     }
     if (P->wp) {
         for (k = 0; k < 3; k++) x[k] -= P->tw[k];
         mat_vec(P->RwT, x, p);
-        mat_vec(P->RwT, d, v);
+        for (j = 0; j < nd; j++) mat_vec(P->RwT, dv[j], dv[j]);
     } else {
         memcpy(p, x, sizeof x);
-        memcpy(v, d, sizeof d);
     }
+}
+
+/* The position and the tool direction v of fwd alone (fwd_dirs). */
+static void fwd_pv(const prep_t *P, const double *q, double p[3], double v[3])
+{
+    double d[1][3];
+    memcpy(d[0], P->m->tool_axis, sizeof d[0]);
+    fwd_dirs(P, q, p, d, 1);
+    memcpy(v, d[0], sizeof d[0]);
 }
 
 /* Counters of a test build (-DMTK_STATS, gcc; one thread), printed at exit: forward evaluations of
@@ -960,6 +979,23 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
         for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
         if (P->mode == 2)
             for (k = 0; k < 3; k++) r[3 + k] = wo * (v[k] - tg->v[k]);
+        return MTK_OK;
+    }
+    if (!strict) {   /* mode 3: the first two columns of the tool frame, the third their cross product */
+        double X[2][3] = {{1, 0, 0}, {0, 1, 0}}, X2[3], M[3][3];
+        const double *T = tg->R;
+        int i, j;
+        fwd_dirs(P, q, p, X, 2);
+        cross(X[0], X[1], X2);
+        for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
+        for (i = 0; i < 3; i++)   /* M = T^T R, the entries of its skew part */
+            for (j = 0; j < 3; j++) {
+                const double *c = j < 2 ? X[j] : X2;
+                M[i][j] = T[i] * c[0] + T[3 + i] * c[1] + T[6 + i] * c[2];
+            }
+        r[3] = wo * 0.5 * (M[2][1] - M[1][2]);
+        r[4] = wo * 0.5 * (M[0][2] - M[2][0]);
+        r[5] = wo * 0.5 * (M[1][0] - M[0][1]);
         return MTK_OK;
     }
     rc = fwd(P, q, p, R, strict, bad, 1);
@@ -1529,10 +1565,13 @@ static double second_order_bound(const prep_t *P, const double *pn, const int *i
         e += P->wmax[i] * D[i];
         T += pn[i] * D[i];
     }
-    if (!(e <= 0.01)) return INFINITY;
+    /* (the column bounds hold for e < 1/2; e <= 0.05 keeps 1 - 2 e >= 0.9: along a path about 3 deg
+     * of rotary travel from qlin, rather than 0.6 deg at 0.01) */
+    if (!(e <= 0.05)) return INFINITY;
     Q = T / (1.0 - 2.0 * e);
+    e = 1.0 / (1.0 - e);   /* (reused) */
     for (i = 0; i < n; i++) {
-        double Pb = (pn[i] + P->wmax[i] * Q) / (1.0 - e);
+        double Pb = (pn[i] + P->wmax[i] * Q) * e;
         D[i] = Pb;   /* (reused: the column bounds) */
         Aw += P->wmax[i] * a[i];
         Ap += Pb * a[i];
@@ -2360,7 +2399,19 @@ static void make_target(const prep_t *Pi, const double *q, target_t *tg)
         eye(tg->R);
         return;
     }
-    fwd(Pi, q, tg->p, tg->R, 0, NULL, 0);
+    {
+        /* the tool frame's columns R e0, R e1 on vectors (fwd_dirs: the sines and cosines along a
+         * path by the angle sum), the third their cross product */
+        double X[2][3] = {{1, 0, 0}, {0, 1, 0}}, X2[3];
+        int k;
+        fwd_dirs(Pi, q, tg->p, X, 2);
+        cross(X[0], X[1], X2);
+        for (k = 0; k < 3; k++) {
+            tg->R[3 * k] = X[0][k];
+            tg->R[3 * k + 1] = X[1][k];
+            tg->R[3 * k + 2] = X2[k];
+        }
+    }
     mat_vec(tg->R, Pi->m->tool_axis, tg->v);
 }
 
@@ -2605,47 +2656,109 @@ static void path_weights(const double *qa, int nax, int three, double *w1, doubl
 }
 
 /* The Jacobian J (at q, weight ORIENTATION_SCALE) of a pose solved afresh, prepared for the poses
- * after it along the path: its normal equations' factors, column lengths and table intervals at
- * q (second_order_bound's).  0 where the normal matrix is singular. */
-static int path_linearisation(const prep_t *P, const double *q, const double *J, double *LU, int *piv,
-                              double *pn, int *ilin)
+ * after it along the path: the matrix K (n x rows) of its chord step s = K r = (J^T J + lambda
+ * I)^-1 J^T r (the normal equations' factors applied to the unit residuals once, rather than to
+ * each pose's residual), column lengths and table intervals at q (second_order_bound's), and the
+ * pole margin of solve_pose's test on J (pole_axis_margin; -1 where an axis is at a pole,
+ * INFINITY without the test): J is the same for every pose taken on it.  0 where the normal
+ * matrix is singular. */
+static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, const double *J, double *K,
+                              double *pn, int *ilin, double *margin)
 {
-    int n = P->n, rows = P->rows, i, ok;
+    double LU[MTK_MAX_AXES * MTK_MAX_AXES];
+    int n = P->n, rows = P->rows, i, k, ok, piv[MTK_MAX_AXES];
     if (n == 5 && rows == 6) ok = normal_factor(5, 6, J, LU, piv);
     else if (n == 3 && rows == 3) ok = normal_factor(3, 3, J, LU, piv);
+    else if (n == 6 && rows == 6) ok = normal_factor(6, 6, J, LU, piv);
     else ok = normal_factor(n, rows, J, LU, piv);
     if (!ok) return 0;
+    for (k = 0; k < rows; k++) {
+        double e[6] = {0, 0, 0, 0, 0, 0}, x[MTK_MAX_AXES];
+        e[k] = 1.0;
+        chord_step(n, rows, J, LU, piv, e, x);
+        for (i = 0; i < n; i++) K[i * rows + k] = x[i];
+    }
     column_lengths(P, J, pn);
     for (i = 0; i < n; i++) {
         const mtk_table *t = P->tab[i];
         ilin[i] = t && q[i] > t->pos[0] && q[i] < t->pos[t->n - 1] ? table_interval(t, q[i], (int *)&P->hint[i]) : -1;
     }
+    *margin = INFINITY;
+    if (o->pole_tol > 0.0 && P->mode >= 2 && pole_axis_margin(P, J, o->pole_sin, margin) >= 0) *margin = -1.0;
     return 1;
 }
 
-/* One pose along a path solved on the Jacobian J of an earlier pose (taken at qlin; machines
- * with up to two rotary axes, no axis held): the residual at start evaluated, the chord step on
- * J's factors, and the step taken where second_order_bound keeps the model's departure from the
- * linear prediction over it within LINEAR_BOUND (the same test as the chord steps of iterate)
- * and the predicted residual is converged.  Not at a pole: the pole test of solve_pose on J,
- * with a margin for the rotary axes' turn since qlin.  Returns 1 with the commands in q and the
- * residual in *res, else 0 (solve_pose then solves the pose; nothing is changed). */
+/* y = A x for A (n x rows, row-major). */
+MTK_INLINE void mat_apply(int n, int rows, const double *A, const double *x, double *y)
+{
+    int i, k;
+    for (i = 0; i < n; i++) {
+        double s = 0.0;
+        for (k = 0; k < rows; k++) s += A[i * rows + k] * x[k];
+        y[i] = s;
+    }
+}
+
+/* r - J s in r (J: rows x n, row-major), the residual the linear model predicts after the step s. */
+MTK_INLINE void linear_prediction(int n, int rows, const double *J, const double *s, double *r)
+{
+    int i, k;
+    for (k = 0; k < rows; k++) {
+        double sk = r[k];
+        for (i = 0; i < n; i++) sk -= J[k * n + i] * s[i];
+        r[k] = sk;
+    }
+}
+
+/* One pose along a path solved on the Jacobian J of an earlier pose (taken at qlin against the
+ * target frame Tlin; no axis held): the residual at start evaluated, the chord step on J's
+ * factors, and the step taken where the model's departure from the linear prediction over it is
+ * bounded within LINEAR_BOUND (the same test as the chord steps of iterate) and the predicted
+ * residual is converged.  Returns 1 with the commands in q and the residual in *res, else 0
+ * (solve_pose then solves the pose; nothing is changed).
+ *
+ * The bound.  With r the residual against this pose's target T and J_T(x) its Jacobian,
+ *     r(q - s) - (r(q) - J s) = [r(q - s) - r(q) + J_T(qlin) s] + (J - J_T(qlin)) s.
+ * The first term is second_order_bound's (the second derivatives it bounds do not depend on the
+ * target: those of the position rows are the chain's, those of the orientation rows of mode 3
+ * are, with d2R/dq_i dq_j = [W_i]x [W_j]x R (i <= j), wo f(T^T Rw^T [W_i]x [W_j]x R) with
+ * f(A) = vee(A - A^T) / 2, |f(A)| <= |A|_F / sqrt 2 and |[a]x [b]x|_F <= sqrt 2 |a| |b|: at most
+ * wo w_i w_j for every T).  The second is zero on machines with up to two rotary axes (the
+ * position and tool-direction rows do not depend on the target).  With three (mode 3) the
+ * orientation column j of J_T(qlin) is wo f(T^T Rw^T [W_j]x R) at qlin, so J differs from it by
+ * wo f((Tlin - T)^T Rw^T [W_j]x R) in the orientation rows only, of length at most
+ * wo |Tlin - T|_F |W_j| / sqrt 2 (Rw, R rotations), and |W_j| <= 2 w_j (wmax; the factor 2 for
+ * the tables' rotation-vector rates, as in second_order_bound):
+ *     |(J - J_T(qlin)) s| <= sqrt 2 wo |Tlin - T|_F sum_j w_j |s_j|,
+ * about wo th w |s| for targets th (rad) apart: along a path (th under a degree, |s| about 1e-10
+ * mm or deg from the extrapolated start) orders of magnitude below LINEAR_BOUND.
+ *
+ * Not at a pole: the pole test of solve_pose on J (its margin from path_linearisation) with a
+ * margin for the columns' change since qlin: the rotary axes' turn (the orientation columns of
+ * later axes turn with earlier ones), and in mode 3 (columns wo/2 (tr M - M) T^T Rw^T W_j with
+ * M = T^T Rw^T R: a rotation of all columns by T^T, which leaves the margin as it is, and
+ * (tr M - M) / 2 within about the angle of M of the identity) the orientation residual's angles
+ * at qlin (philin, bounded by the caller) and at start. */
 static int path_step(const prep_t *P, const target_t *tg, const double *start, const opt_t *o, const double *J,
-                     const double *LU, const int *piv, const double *pn, const int *ilin, const double *qlin,
-                     double *q, double *res)
+                     const double *K, const double *pn, const int *ilin, const double *qlin, double margin,
+                     const double *Tlin, double philin, double *q, double *res)
 {
     int n = P->n, rows = P->rows, i, k;
-    double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], turned = 0.0;
-    if (P->mode == 3) return 0;
+    double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], turned = 0.0, frame = 0.0;
     for (i = 0; i < n; i++)
         if (P->m->rotary[i]) turned += fabs(start[i] - qlin[i]) * DEG;
-    if (o->pole_tol > 0.0 && P->mode == 2) {
-        double margin;
-        if (pole_axis_margin(P, J, o->pole_sin, &margin) >= 0 || !(margin > o->pole_sin + 4.0 * turned + 1e-3))
-            return 0;
-    }
+    if (o->pole_tol > 0.0 && P->mode >= 2 && !(margin > o->pole_sin + 4.0 * turned + 1e-3)) return 0;
     if (residual(P, start, tg, r, ORIENTATION_SCALE, 0, NULL) != MTK_OK) return 0;
-    chord_step(n, rows, J, LU, piv, r, s);
+    if (o->pole_tol > 0.0 && P->mode == 3) {
+        /* the angle at start, asin |r_o| / wo <= pi/2 |r_o| / wo <= pi/2 (|r_3| + |r_4| + |r_5|) / wo */
+        double phi = 1.5707963267948966 / ORIENTATION_SCALE * (fabs(r[3]) + fabs(r[4]) + fabs(r[5]));
+        if (!(margin > o->pole_sin + 4.0 * turned + 4.0 * (philin + phi) + 1e-3)) return 0;
+    }
+    /* the chord step K r (the usual shapes with constant sizes: unrolled by the compiler) */
+    if (n == 6 && rows == 6) mat_apply(6, 6, K, r, s);
+    else if (n == 5 && rows == 6) mat_apply(5, 6, K, r, s);
+    else if (n == 3 && rows == 3) mat_apply(3, 3, K, r, s);
+    else mat_apply(n, rows, K, r, s);
     for (i = 0; i < n; i++)
         if (fabs(s[i]) >= o->tol) break;
     if (i == n) {
@@ -2655,13 +2768,18 @@ static int path_step(const prep_t *P, const target_t *tg, const double *start, c
         *res = maxabs(r, rows);
         return 1;
     }
-    if (!(second_order_bound(P, pn, ilin, qlin, start, s, ORIENTATION_SCALE) <= LINEAR_BOUND)) return 0;
-    for (i = 0; i < n; i++) qn[i] = start[i] - s[i];
-    for (k = 0; k < rows; k++) {
-        double sk = r[k];
-        for (i = 0; i < n; i++) sk -= J[k * n + i] * s[i];
-        r[k] = sk;
+    if (P->mode == 3) {
+        double dT = 0.0, ws = 0.0;
+        for (k = 0; k < 9; k++) dT += (tg->R[k] - Tlin[k]) * (tg->R[k] - Tlin[k]);
+        for (i = 0; i < n; i++) ws += P->wmax[i] * fabs(s[i]);
+        frame = sqrt(2.0 * dT) * ORIENTATION_SCALE * ws;
     }
+    if (!(second_order_bound(P, pn, ilin, qlin, start, s, ORIENTATION_SCALE) + frame <= LINEAR_BOUND)) return 0;
+    for (i = 0; i < n; i++) qn[i] = start[i] - s[i];
+    if (n == 6 && rows == 6) linear_prediction(6, 6, J, s, r);
+    else if (n == 5 && rows == 6) linear_prediction(5, 6, J, s, r);
+    else if (n == 3 && rows == 3) linear_prediction(3, 3, J, s, r);
+    else linear_prediction(n, rows, J, s, r);
     if (!in_ranges(P, qn) || !(maxabs(r, rows) < CONVERGED)) return 0;
     memcpy(q, qn, n * sizeof(double));
     *res = maxabs(r, rows);
@@ -2681,9 +2799,12 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         lin_wait = 0, lin_ready = 0;
     double corr[MTK_MAX_AXES] = {0}, corr2[MTK_MAX_AXES] = {0}, corr3[MTK_MAX_AXES] = {0};
     /* the path's linearisation (path_linearisation): the Jacobian at the start of the last pose
-     * solved afresh, its factors, column lengths and table intervals, and where it was taken */
-    double Jl[6 * MTK_MAX_AXES], LUl[MTK_MAX_AXES * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
-    int pivl[MTK_MAX_AXES], ilinl[MTK_MAX_AXES];
+     * solved afresh, its factors, column lengths, table intervals and pole margin, where it was
+     * taken, against which target frame, and a bound of the orientation residual's angle there
+     * (rad; path_step) */
+    double Jl[6 * MTK_MAX_AXES], Kl[6 * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
+    double Tl[9] = {0}, phil = 0.0, marginl = INFINITY;
+    int ilinl[MTK_MAX_AXES];
     if (!e) {
         mtk_errors_zero(&zero);
         e = &zero;
@@ -2712,7 +2833,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         double *qo, start[MTK_MAX_AXES], r0 = 0.0, *resi;
         int *statusi, *infoi;
         target_t tg;
-        int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED;
+        int it = 0, bad = -1, held = -1, sing = 0, rc, how = HOW_SEED, near;
         STAT(5);
         if (i < skip) {
             if (!o->continuation || (!p_t && P.closed)) continue;   /* nothing to take up */
@@ -2777,9 +2898,10 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             make_target(&Pi, qa, &tg);
         }
         memcpy(start, qa, nax * sizeof(double));
+        near = i > 0 && near_previous(&P, qa, qa - nax);
         if (o->continuation && have_prev) {
             double w1 = 1.0, w2 = 0.0, w3 = 0.0;
-            if (chain >= 2 && i > 1 && near_previous(&P, qa, qa - nax))
+            if (chain >= 2 && i > 1 && near)
                 path_weights(qa, nax, chain >= 3 && i > 2, &w1, &w2, &w3);
             /* on the differences of the corrections: where they do not change (an axis the
              * errors leave alone, a rotary axis held over a pass) the start is the last one's
@@ -2798,7 +2920,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             continue;
         }
         seeded = 0;
-        if (seed_rigid && !(o->continuation && have_prev && warm && i > 0 && near_previous(&P, qa, qa - nax)) &&
+        if (seed_rigid && !(o->continuation && have_prev && warm && near) &&
             (Pr.closed_rot ? closed_rotation(&Pr, &tg, qa, qa, qa, so.pole_sin, qr) : closed_form(&Pr, qa, qr))) {
             /* with tables or location errors: start from the rigid model's closed-form solution
              * plus the previous pose's correction beyond it (the tables' part, µm and µrad) */
@@ -2806,13 +2928,13 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             seeded = 1;
         }
         lin_try = !seeded && have_lin && o->continuation && have_prev && warm && held_prev < 0 && i > 0 &&
-                  lin_wait == 0 && near_previous(&P, qa, qa - nax);
+                  lin_wait == 0 && near;
         if (lin_wait > 0) lin_wait--;
         if (lin_try && !lin_ready) {   /* (factored when first needed: not for random poses) */
-            lin_ready = path_linearisation(&P, qlin, Jl, LUl, pivl, pnl, ilinl);
+            lin_ready = path_linearisation(&P, &so, qlin, Jl, Kl, pnl, ilinl, &marginl);
             have_lin = lin_try = lin_ready;
         }
-        if (lin_try && path_step(&P, &tg, start, &so, Jl, LUl, pivl, pnl, ilinl, qlin, qo, resi)) {
+        if (lin_try && path_step(&P, &tg, start, &so, Jl, Kl, pnl, ilinl, qlin, marginl, Tl, phil, qo, resi)) {
             /* (the previous poses' Jacobian: no pass, no factorisation, one evaluation) */
             rc = MTK_OK;
             held = -1;
@@ -2827,7 +2949,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 lin_wait = (1 << (lin_miss - 1)) - 1;
             }
             rc = solve_pose(&P, &Pr, &tg, qa, start, seeded || (have_prev && warm), seeded || !(have_prev && warm),
-                            &so, qo, &it, resi, &r0, &sing, &bad, &held, &how, P.mode != 3 ? Jl : NULL);
+                            &so, qo, &it, resi, &r0, &sing, &bad, &held, &how, Jl);
             fresh = 1;
         }
         csc_ok = 0;
@@ -2840,17 +2962,25 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
             *infoi = held;
             /* the corrections of the poses before kept for the extrapolation while each followed
              * the one before on the same branch without a held axis (one smooth branch) */
-            chain = have_prev && warm && how != HOW_SEED && held < 0 && held_prev < 0 && i > 0 &&
-                    near_previous(&P, qa, qa - nax) ? (chain < 3 ? chain + 1 : 3) : 1;
+            chain = have_prev && warm && how != HOW_SEED && held < 0 && held_prev < 0 && near ?
+                    (chain < 3 ? chain + 1 : 3) : 1;
             for (k = 0; k < nax; k++) {
                 corr3[k] = corr2[k];
                 corr2[k] = corr[k];
                 corr[k] = qo[k] - qa[k];
             }
             if (fresh) {   /* the Jacobian at this pose's start (in Jl), for the poses after it */
-                have_lin = P.mode != 3 && how != HOW_SEED && held < 0 && o->continuation;
+                have_lin = how != HOW_SEED && held < 0 && o->continuation;
                 lin_ready = 0;
                 memcpy(qlin, start, nax * sizeof(double));
+                if (P.mode == 3) {
+                    /* the orientation residual's angle at start: at most its angle at the
+                     * solution (|r| < sqrt 3 CONVERGED) plus the turn of the tool frame between
+                     * them, |W_k| <= 2 wmax_k per deg or mm (path_step's bound) */
+                    memcpy(Tl, tg.R, sizeof Tl);
+                    phil = 2.0 * CONVERGED / ORIENTATION_SCALE;
+                    for (k = 0; k < nax; k++) phil += 2.0 * P.wmax[k] * fabs(qo[k] - start[k]);
+                }
             }
             held_prev = held;
             have_prev = 1;
