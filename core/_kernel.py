@@ -151,9 +151,10 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
     lib.mtk_forward_batch_mt.restype = c_long
     lib.mtk_forward_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, ctypes.c_int, _I,
                                          ctypes.c_int]
-    lib.mtk_check_batch_mt.restype = c_long
-    lib.mtk_check_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D, ctypes.c_int, _I,
-                                       ctypes.c_int]
+    if hasattr(lib, "mtk_check_batch_mt"):   # (a library of an earlier version, as a bench's baseline, has none)
+        lib.mtk_check_batch_mt.restype = c_long
+        lib.mtk_check_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D, ctypes.c_int,
+                                           _I, ctypes.c_int]
     lib.mtk_compensate_batch_mt.restype = c_long
     lib.mtk_compensate_batch_mt.argtypes = [vp, ctypes.POINTER(_Errors), c_long, _D, _D, _D, _D,
                                             ctypes.POINTER(_Options), _D, _I, _I, ctypes.c_int]
