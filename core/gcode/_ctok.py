@@ -89,8 +89,6 @@ def load():
     lib.mtc_splice.restype = None
     lib.mtc_splice_inplace.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64]
     lib.mtc_splice_inplace.restype = i64
-    lib.mtc_blank_comments.argtypes = [vp, vp, i64, i64]
-    lib.mtc_blank_comments.restype = i64
     lib.mtc_copy_blank_comments.argtypes = [vp, vp, i64, i64]
     lib.mtc_copy_blank_comments.restype = i64
     lib.mtc_has_flow.argtypes = [vp, i64]
@@ -137,17 +135,6 @@ def load():
     lib.mtc_absolute.restype = None
     _lib = lib
     return lib
-
-
-def blank_comments(b: np.ndarray, code: np.ndarray, first: int) -> bool:
-    """Blank the comments of the program bytes `b` in `code` (its copy, C-contiguous uint8),
-    as ``tokens._comment_spans`` finds them.  False if the compiled tokenizer is not available
-    (nothing done)."""
-    lib = load()
-    if lib is None or not code.flags.c_contiguous:
-        return False
-    lib.mtc_blank_comments(b.ctypes.data, code.ctypes.data, len(b), int(first))
-    return True
 
 
 def add_counts(Cc, dK, kk=None):
@@ -201,8 +188,8 @@ def has_flow(text: str):
 
 def copy_blank_comments(b: np.ndarray, first: int):
     """A copy of the program bytes `b` (uint8) with their comments blanked as
-    `blank_comments` blanks them, made in the same pass (most eight-byte groups hold no comment
-    character and are copied at once); None without the compiled library."""
+    ``tokens._comment_spans`` finds them, made in the same pass (most eight-byte groups hold no
+    comment character and are copied at once); None without the compiled library."""
     lib = load()
     if lib is None:
         return None

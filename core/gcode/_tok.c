@@ -225,37 +225,6 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
     checks[1] = badnum;
 }
 
-/* Comments become blanks in `code` (a copy of `d`): "( ... )" closed on its line without a
- * nested '(' (an unclosed one stays, to be reported), ';' to the end of the line, and lines
- * starting with '%' (`first`: where the first line starts, after a byte-order mark).  The same
- * spans as tokens._comment_spans.  Returns the number of comments. */
-int64_t mtc_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int64_t first)
-{
-    int64_t i = 0, count = 0;
-    while (i < n) {
-        uint8_t ch = d[i];
-        if (ch == '(') {
-            int64_t j = i + 1;
-            while (j < n && d[j] != ')' && d[j] != '(' && d[j] != '\n') j++;
-            if (j < n && d[j] == ')') {
-                memset(code + i, 32, (size_t)(j + 1 - i));
-                count++;
-                i = j + 1;
-                continue;
-            }
-        } else if (ch == ';' || (ch == '%' && (i <= first || d[i - 1] == '\n'))) {
-            int64_t j = i;
-            while (j < n && d[j] != '\n') j++;
-            memset(code + i, 32, (size_t)(j - i));
-            count++;
-            i = j;
-            continue;
-        }
-        i++;
-    }
-    return count;
-}
-
 /* Whether any byte of the eight bytes x equals b (the classic zero-byte test on x ^ b*0x01..:
  * exact as to whether there is one). */
 static inline int has_byte8(uint64_t x, uint8_t b)
@@ -264,10 +233,12 @@ static inline int has_byte8(uint64_t x, uint8_t b)
     return ((v - 0x0101010101010101ULL) & ~v & 0x8080808080808080ULL) != 0;
 }
 
-/* mtc_blank_comments and the copy before it in one pass: `code` (n bytes, written whole) gets
- * the bytes of `d` with the same comments blanked.  Eight bytes without '(' ';' '%' are
- * copied at once (most of a program: comments are rare); everything else goes byte by byte as
- * in mtc_blank_comments.  Returns the number of comments. */
+/* The program bytes `d` copied into `code` (n bytes, written whole) with the comments blanked:
+ * "( ... )" closed on its line without a nested '(' (an unclosed one stays, to be reported),
+ * ';' to the end of the line, and lines starting with '%' (`first`: where the first line
+ * starts, after a byte-order mark); the same spans as tokens._comment_spans.  Eight bytes
+ * without '(' ';' '%' are copied at once (most of a program: comments are rare), everything
+ * else byte by byte.  Returns the number of comments. */
 int64_t mtc_copy_blank_comments(const uint8_t *d, uint8_t *code, int64_t n, int64_t first)
 {
     int64_t i = 0, count = 0;
@@ -646,7 +617,7 @@ static int seek_line(const uint8_t *c, int64_t n, int64_t want, int64_t *i, int6
 /* Read-back of the written program for the check of `mtcomp compensate`: for each wanted line
  * (0-based, ascending), the value of its word for every letter with a column in col[26] (-1:
  * not read) into val[i * n_cols + column]; NaN where the line has no such word.  Comments are
- * skipped as mtc_blank_comments finds them, blanks between a letter and its number are read
+ * skipped as mtc_copy_blank_comments finds them, blanks between a letter and its number are read
  * as the parser reads them.  Deliberately independent of the rewrite's bookkeeping (no word
  * positions, no edit list): it finds the words again in the bytes.  Returns -1, or the index
  * (into lines) of the first wanted line where a read letter has no well-formed number or
