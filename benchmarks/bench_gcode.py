@@ -493,8 +493,9 @@ rest is numpy over words and lines (duplicate addresses, G-code groups, letters,
 the per-line state), and the first large allocations of a process pay page faults (a first
 parse costs up to twice the best one). `mtcomp
 compensate` adds to parse + rewrite the travel checks, the read-back of the written words and
-three forward evaluations per block for its report (nominal, with errors before and after, in
-chunks of 200,000 blocks, from the positions read back); the old path parsed the written
+the tool edge's error before and after for every block for its report (one kernel pass per
+chunk of 200,000 blocks, `kinematics.deviations`: ideal and real at the programmed commands,
+real at the positions read back); the old path parsed the written
 program a second time instead. The control counts (`mtc_control_counts`), the per-axis
 decisions (`mtc_axis_edits`), the rewrite's counts with their corrections (`mtc_add_counts`),
 the replaced words' texts, offsets and spans in one pass (`mtc_replace_edits`; inserted words
