@@ -107,6 +107,34 @@ static double number(const uint8_t *c, int64_t s, int64_t e, int64_t dot)
     return v;
 }
 
+/* The common number run at c[j] (unsigned; the caller has checked j + 17 <= n), eight bytes at a
+ * time: up to 7 digits [. up to 7 digits].  1 with its end in *end, its point in *dot (-1:
+ * none), its number of digits in *nd and its value (the integer mantissa over an exact power
+ * of ten: correctly rounded, as strtod) in *value; 0 where a part has 8 digits or more (the
+ * callers' byte loops take those).  What follows the run is the caller's to judge. */
+static inline int common_number8(const uint8_t *c, int64_t j, int64_t *end, int64_t *dot, int *nd,
+                                 double *value)
+{
+    uint64_t x = load8(c + j);
+    int k1 = digit_run8(x), k2 = 0;
+    if (k1 >= 8) return 0;
+    int64_t e = j + k1, d = -1;
+    uint64_t m = k1 ? digits_value8(x, k1) : 0;
+    if (c[e] == '.') {
+        uint64_t y = load8(c + e + 1);
+        k2 = digit_run8(y);
+        if (k2 >= 8) return 0;
+        d = e;
+        m = m * POW10I[k2] + (k2 ? digits_value8(y, k2) : 0);
+        e += 1 + k2;
+    }
+    *end = e;
+    *dot = d;
+    *nd = k1 + k2;
+    *value = (double)m / POW10[k2];
+    return 1;
+}
+
 /* Letters (position, 0-based line), number runs [start, end) with the position of their point
  * (-1: none; the last one if several), whether they hold more than one point, and their value;
  * *sign_at: first '+'/'-' preceded by a number character (-1: none); *bad_at: first byte that is
@@ -138,35 +166,21 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
              * digits], ended by no number character; the same integer mantissa, value and
              * bookkeeping as the byte loop below, which takes every other run */
             int64_t j0 = i + (ch == '-' || ch == '+');
-            if (j0 + 17 <= n) {
-                uint64_t x = load8(c + j0);
-                int k1 = digit_run8(x);
-                if (k1 < 8) {
-                    int64_t e = j0 + k1, d = -1;
-                    uint64_t m = k1 ? digits_value8(x, k1) : 0;
-                    int k2 = 0;
-                    if (c[e] == '.') {
-                        uint64_t y = load8(c + e + 1);
-                        k2 = digit_run8(y);
-                        d = e;
-                        if (k2 < 8) {
-                            m = m * POW10I[k2] + (k2 ? digits_value8(y, k2) : 0);
-                            e += 1 + k2;
-                        }
-                    }
-                    uint8_t t = c[e];
-                    if (k2 < 8 && k1 + k2 > 0 && t != '.' && t != '-' && t != '+') {
-                        nr++;
-                        if (nr >= nl || lp[nr] != i - 1) adjacent = 0;
-                        rs[nr] = (int32_t)i;
-                        re[nr] = (int32_t)e;
-                        if (dot) dot[nr] = (int32_t)d;
-                        if (two) two[nr] = 0;
-                        double v = (double)m / POW10[k2];
-                        value[nr] = ch == '-' ? -v : v;
-                        i = e;
-                        continue;
-                    }
+            int64_t e, d;
+            int nd8;
+            double v;
+            if (j0 + 17 <= n && common_number8(c, j0, &e, &d, &nd8, &v)) {
+                uint8_t t = c[e];
+                if (nd8 > 0 && t != '.' && t != '-' && t != '+') {
+                    nr++;
+                    if (nr >= nl || lp[nr] != i - 1) adjacent = 0;
+                    rs[nr] = (int32_t)i;
+                    re[nr] = (int32_t)e;
+                    if (dot) dot[nr] = (int32_t)d;
+                    if (two) two[nr] = 0;
+                    value[nr] = ch == '-' ? -v : v;
+                    i = e;
+                    continue;
                 }
             }
         }
@@ -557,31 +571,17 @@ static int64_t line_words(const uint8_t *c, int64_t n, int64_t i, const uint8_t 
         int64_t s = j, d = -1, nd = 0;
         uint64_t m = 0;
         if (j < n && (c[j] == '-' || c[j] == '+')) j++;
-        if (j + 17 <= n) {
-            /* the common number, eight bytes at a time as in mtc_tokenise: up to 7 digits
-             * [. up to 7 digits]; the loop below stops at the same byte with the same
-             * mantissa, and takes every other number */
-            uint64_t x = load8(c + j);
-            int k1 = digit_run8(x), k2 = 0;
-            if (k1 < 8) {
-                int64_t e = j + k1, dd = -1;
-                uint64_t mm = k1 ? digits_value8(x, k1) : 0;
-                if (c[e] == '.') {
-                    uint64_t y = load8(c + e + 1);
-                    k2 = digit_run8(y);
-                    dd = e;
-                    if (k2 < 8) {
-                        mm = mm * POW10I[k2] + (k2 ? digits_value8(y, k2) : 0);
-                        e += 1 + k2;
-                    }
-                }
-                if (k2 < 8) {
-                    if (k1 + k2 == 0 || is_num(c[e]) || v[cc] == v[cc]) { *bad = 1; return e; }
-                    double xv = (double)mm / POW10[k2];
-                    v[cc] = c[s] == '-' ? -xv : xv;
-                    j = e;
-                    continue;
-                }
+        {
+            /* the common number as in mtc_tokenise; the loop below stops at the same byte with
+             * the same mantissa, and takes every other number */
+            int64_t e, dd;
+            int nd8;
+            double xv;
+            if (j + 17 <= n && common_number8(c, j, &e, &dd, &nd8, &xv)) {
+                if (nd8 == 0 || is_num(c[e]) || v[cc] == v[cc]) { *bad = 1; return e; }
+                v[cc] = c[s] == '-' ? -xv : xv;
+                j = e;
+                continue;
             }
         }
         for (; j < n; j++) {
