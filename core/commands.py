@@ -568,33 +568,6 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
     return out
 
 
-def counts_to_values(counts, res) -> np.ndarray:
-    """The numbers (mm, deg) that words of ``counts`` (N, n_axes) steps of the axes' resolutions
-    ``res`` (n_axes; m * 10**-d, NaN where unknown) say, as a control reads them: the decimal
-    value correctly rounded, (count * m) / 10**d, an exact integer over an exact power of ten.
-    count * res is off by an ulp where res is no binary fraction (3050000 * 1e-5 is
-    30.500000000000004, the word C30.5 is 30.5), which would make an unchanged program differ
-    from itself by 1e-15."""
-    out = np.array(counts, float)                     # (always a new array: scaled in place)
-    res = np.broadcast_to(np.asarray(res, float), out.shape[-1:])
-    for j, r in enumerate(res):
-        col = out[..., j]
-        if not (np.isfinite(r) and r > 0):
-            col *= r
-            continue
-        for d in range(16):
-            m = r * 10.0 ** d
-            if abs(m - round(m)) <= 1e-9 * m:
-                break
-        if abs(m - round(m)) > 1e-9 * m or np.nanmax(np.abs(col), initial=0.0) * round(m) >= 2.0 ** 53:
-            col *= r                                  # not a decimal step: the product
-            continue
-        if round(m) != 1:
-            col *= float(round(m))
-        col /= 10.0 ** d
-    return out
-
-
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
                       tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
     """End position of every motion block of the rewritten program `new_text` (str, or its
@@ -607,7 +580,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     apply (canned cycles, whose holes may be written out as new lines; linearised arcs; G92;
     G16 polar blocks, whose radius and angle words put the point up to a count from the
     emitted one; no compiled reader) are parsed back whole instead."""
-    from .gcode.rewrite import check_written
+    from .gcode.rewrite import check_written, emitted_values
     if not isinstance(new_text, str):                 # the written bytes (compensate_program)
         data, new_text = new_text, None
     else:
@@ -624,7 +597,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                              f"{exc.args[0]}; refusing to write it", filename,
                              None if j is None else int(prog.line[j])) from None
         if ok:
-            return counts_to_values(info["emitted"], info["emitted_resolution"])
+            return emitted_values(info)
     from . import gcode
     if new_text is None:
         new_text = bytes(data).decode("utf-8", "surrogateescape")

@@ -524,3 +524,80 @@ def test_header_inserted_into_bytes_as_into_text(text):
     buf = bytearray(text.encode("utf-8", "surrogateescape"))
     assert insert_header_bytes(buf, lines) == (at, added)
     assert bytes(buf) == want.encode("utf-8", "surrogateescape")
+
+
+def test_emitted_counts_are_the_decimal_numbers_the_words_say():
+    """3050000 steps of 1e-5 deg is the word C30.5, which a control reads as 30.5 (the product
+    3050000 * 1e-5 is 30.500000000000004); steps of 5e-4 mm; unknown axes stay NaN."""
+    from mtcomp.gcode.textops import decimal_values
+    counts = np.array([[3050000.0, 1500000.0, 3.0], [-123456789.0, 1.0, np.nan]])
+    got = decimal_values(counts, [5, 5, 4], [1, 1, 5], [1e-5, 1e-5, 5e-4])
+    words = [["30.5", "15.0", "0.0015"], ["-1234.56789", "0.00001", "nan"]]
+    assert got.tolist()[0] == [float(w) for w in words[0]]
+    assert got[1, :2].tolist() == [float(w) for w in words[1][:2]] and np.isnan(got[1, 2])
+    assert 3050000 * 1e-5 != 30.5          # (what the product gave)
+    # beyond 2**53 counts the decimal division is not exact either: the product is kept
+    big = decimal_values([[2.0 ** 54]], [6], [1], [1e-6])
+    assert big[0, 0] == 2.0 ** 54 * 1e-6
+    # a step written with extra zeros (5000 * 10**-7) is the same number
+    assert decimal_values([[7.0]], [7], [5000], [5e-4])[0, 0] == 0.0035
+
+
+def _values_by_search(counts, res):
+    """The emitted values as compensate recovered them before the rewrite handed over its
+    decimals: d and m searched from the float step (the reference for the parity test)."""
+    out = np.array(counts, float)
+    for j, r in enumerate(res):
+        col = out[..., j]
+        for d in range(16):
+            m = r * 10.0 ** d
+            if abs(m - round(m)) <= 1e-9 * m:
+                break
+        if abs(m - round(m)) > 1e-9 * m or np.nanmax(np.abs(col), initial=0.0) * round(m) >= 2.0 ** 53:
+            col *= r
+            continue
+        if round(m) != 1:
+            col *= float(round(m))
+        col /= 10.0 ** d
+    return out
+
+
+@pytest.mark.parametrize("inch", [False, True])
+@pytest.mark.parametrize("step", [1e-6, 5e-6, 1e-5, 2e-5, 1e-4, 5e-4, 2.5e-5, 1e-3, 1e-2, 0.1, 1e-7,
+                                  1e-8, 1e-9, 3e-7, 0.05, 1.0, 2.0, 125e-6])
+def test_emitted_values_are_those_of_the_step_search_for_every_resolution(step, inch):
+    """The rewrite hands over each axis' decimals and multiple (info): the emitted values are
+    the numbers the old search over powers of ten of the float step gave, bit for bit, for
+    mm and inch programs (inch words: one decimal more, 25.4 mm per inch)."""
+    from mtcomp.gcode.rewrite import emitted_values
+    text = ("G20 " if inch else "") + "G90 G0 X0 Y0 Z1.\nG1 X0.3 Y-0.7 Z0.5 F10.\n"
+    prog = gcode.parse(text, axes="XYZ")
+    info = {}
+    rng = np.random.default_rng(int(step * 1e9) + inch)
+    shift = rng.uniform(-0.5, 0.5, 3)
+    gcode.rewrite(prog, lambda q: q + shift, resolution={a: step for a in "XYZ"}, info=info,
+                  chordal_tol=1.0)
+    counts = np.vstack([info["emitted"], rng.integers(-10 ** 9, 10 ** 9, (200, 3)).astype(float),
+                        [[2.0 ** 53, 1.0, -1.0]]])
+    res = info["emitted_resolution"]
+    got = emitted_values(dict(info, emitted=counts))
+    want = _values_by_search(counts, res)
+    assert np.array_equal(got, want)
+
+
+def test_emitted_values_are_the_written_words():
+    """The compensated words read as exact decimal numbers (inch: times exactly 25.4) and
+    rounded once are the emitted values, bit for bit (mm and inch)."""
+    import re
+    from decimal import Decimal
+    from mtcomp.gcode.rewrite import emitted_values
+    for head, scale in (("", Decimal(1)), ("G20 ", Decimal("25.4"))):
+        text = head + "G90 G0 X0 Y0 Z1.\nG1 X0.3 Y-0.7 Z0.5 F10.\nX1.25 Y3.05 Z0.25\n"
+        prog = gcode.parse(text, axes="XYZ")
+        info = {}
+        out = gcode.rewrite(prog, lambda q: q + [0.0123456, -0.03, 0.0005], info=info,
+                            resolution={"X": 5e-6, "Y": 1e-6, "Z": 1e-4})
+        lines = out.splitlines()[1:]
+        words = [[float(Decimal(re.search(a + r"(-?[0-9.]+)", ln).group(1)) * scale) for a in "XYZ"]
+                 for ln in lines]
+        assert emitted_values(info)[1:].tolist() == words
