@@ -601,3 +601,99 @@ def test_emitted_values_are_the_written_words():
         words = [[float(Decimal(re.search(a + r"(-?[0-9.]+)", ln).group(1)) * scale) for a in "XYZ"]
                  for ln in lines]
         assert emitted_values(info)[1:].tolist() == words
+
+
+# -- the bytes path of `mtcomp compensate` (read, compensate and write the program's bytes)
+NC_FILES = sorted(p for p in (Path(__file__).parent / "data" / "nc").rglob("*") if p.is_file())
+
+
+@pytest.mark.parametrize("path", NC_FILES, ids=lambda p: p.name)
+def test_compensating_the_bytes_gives_the_bytes_of_compensating_the_text(path):
+    """compensate_program of a file's bytes returns the UTF-8 bytes of what it returns for
+    the text, the same report, or the same error (subprogram files: the expansion's text)."""
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.012, -0.004, 0.020)), WorkpieceSetting((0.010, 0.005, -0.003), (0, 0, 0)))
+    data, enc = gcode.read_program_bytes(path)
+    text = gcode.read_program(path)
+    assert enc == "utf-8" and data == text.encode("utf-8")
+    kw = dict(filename=str(path), start={"X": 0, "Y": 0, "Z": 50}, chordal_tol=1e-3,
+              provenance=[("SOURCE", path.name)], search_path=[str(path.parent / "subprograms")])
+    try:
+        want, rep_t = compensate_program(text, m, e, **kw)
+    except InputError as exc:
+        with pytest.raises(InputError) as got:
+            compensate_program(data, m, e, **kw)
+        assert str(got.value) == str(exc)
+        return
+    got, rep_b = compensate_program(data, m, e, **kw)
+    assert isinstance(want, str) and not isinstance(got, str)
+    assert bytes(got) == want.encode("utf-8")
+    assert rep_b["after_max"] == rep_t["after_max"] and rep_b["lines"] == rep_t["lines"]
+
+
+def test_non_ascii_programs_on_the_bytes_path(tmp_path):
+    """UTF-8 comments pass through the bytes path byte for byte (no decoding on the way); a
+    UTF-8 character in the code is refused naming the line, as from the text; a file that is
+    not UTF-8 with 8-bit bytes in comments only is read as Latin-1 and written back byte for
+    byte; `read_program_8bit` is the decoding of `read_program_bytes`."""
+    import re
+    from mtcomp.cli import main
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.002, -0.001, 0.0005)))
+    body = "(Fräser Ø6 — ok)\nG21 G90 G0 X1. Y2. Z5. ; Maß\nG1 Z-1. F100 (über)\nM30\n"
+    data = body.encode()
+    got, _ = compensate_program(data, m, e)
+    want, _ = compensate_program(body, m, e)
+    assert bytes(got) == want.encode() and "(Fräser Ø6 — ok)" in want and "(über)" in want
+    with pytest.raises(InputError, match=r"<string>:2: unexpected character") as b:
+        compensate_program("(ok)\nG0 X1. Yä2.\n".encode(), m, e)
+    with pytest.raises(InputError) as t:
+        compensate_program("(ok)\nG0 X1. Yä2.\n", m, e)
+    assert str(b.value) == str(t.value)
+    for raw, enc in ((data, "utf-8"), (body.encode("latin-1", "replace"), "latin-1"),
+                     (b"G1 X1\r\nG1 X2\r\n", "utf-8")):
+        src = tmp_path / "p.nc"
+        src.write_bytes(raw)
+        assert gcode.read_program_bytes(src) == (raw, enc)
+        assert gcode.read_program_8bit(src) == (raw.decode(enc), enc)
+        out = tmp_path / "o.nc"
+        assert main(["compensate", str(src), "-m", "vmc-moving-column", "-e",
+                     str(save_errors(e, tmp_path / "e.toml")), "-o", str(out)]) == 0
+        written = strip_header(out.read_bytes().decode(enc)).encode(enc)
+        # the comments, 8-bit bytes and line endings are where they were: only numbers moved
+        comments = re.compile(rb"\([^)]*\)|;[^\n]*|\r\n|[^\x00-\x7f]")
+        assert comments.findall(written) == comments.findall(raw)
+        assert written.count(b"\n") == raw.count(b"\n") and written != raw
+
+
+def test_parse_of_the_bytes_is_the_parse_of_the_text():
+    """gcode.parse reads a program's bytes as it reads its text (same arrays); the Program's
+    text is decoded only when asked for, and is the text."""
+    text = (Path(__file__).parent / "data" / "nc" / "fanuc_mill.nc").read_text() + "(ä ø)\n"
+    a = gcode.parse(text, axes="XYZ")
+    b = gcode.parse(text.encode(), axes="XYZ")
+    assert "text" not in b.__dict__
+    assert b.text == text and b.data == a.data
+    for f in ("line", "position", "motion", "w_value", "w_pos", "col_word", "known"):
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert b.lines == a.lines
+
+
+@pytest.mark.parametrize("text", ["G1 X1\n" * 3, "%\n(Mtcomp Compensated Program: x)\nG1\n",
+                                  "G1 X1.\n" * 20000 + "(mtcomp compensated program)\n",
+                                  "(é)\n(MTCOMP COMPENSATED PROGRAM)\n", "(é)\n(mtcomp compenſated program)\n",
+                                  "(é)\n" + "G1 X1.\n" * 20000 + "(MTCOMP COMPENSATED PROGRAM)\n"])
+def test_provenance_marker_and_flow_test_of_the_bytes_as_of_the_text(text):
+    from mtcomp.gcode import flow
+    from mtcomp.gcode.provenance import compensated_line
+    data = text.encode()
+    assert compensated_line(data) == compensated_line(text)
+    assert compensated_line(bytearray(data)) == compensated_line(text)
+    for t in (text, text + "M98 P12\n", text + "(ü) o<a> call\n"):
+        assert flow.has_flow(t.encode()) == flow.has_flow(t) == (flow._HAS_FLOW.search(t) is not None)
+
+
+def test_atomic_write_of_a_bytearray(tmp_path):
+    from mtcomp._io import atomic_write
+    p = atomic_write(tmp_path / "x.nc", bytearray(b"G1 X1\r\n\xe4"))
+    assert p.read_bytes() == b"G1 X1\r\n\xe4"
