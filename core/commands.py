@@ -184,7 +184,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     `errors` cuts what the program meant.
 
     text: the program's text, or its bytes as read from the file (`gcode.read_program_bytes`)
-    in ``encoding`` ("utf-8", or "latin-1" for 8-bit comments): the output is then bytes too
+    in ``encoding`` ("ascii", "utf-8", or "latin-1" for 8-bit comments): the output is then
+    bytes too
     (a bytes-like object, written as it is), nothing decoded or encoded on the way; the output
     of a text is text.
 
@@ -221,7 +222,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                 stock=stock, part=part, clearance=clearance, tolerance=tolerance,
                 warn_only=warn_only, cutter_radius=cutter_radius, cutter_offsets=cutter_offsets)
     as_text = isinstance(text, str)
-    if not as_text and codecs.lookup(encoding).name != "utf-8":
+    ascii = not as_text and codecs.lookup(encoding).name == "ascii"
+    if not as_text and not ascii and codecs.lookup(encoding).name != "utf-8":
         # 8-bit comments (Latin-1): read as their text, every byte one character, and written
         # back in the encoding, byte for byte
         new, report = compensate_program(bytes(text).decode(encoding), machine, errors,
@@ -229,12 +231,12 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
         return new.encode(encoding), report
     tol = _check_chordal_tol(machine, chordal_tol)
     check_errors_for_machine(errors, machine)
-    done = compensated_line(text)
+    done = compensated_line(text, ascii)
     if done is not None and not force:
         raise InputError("this program was already compensated by mtcomp (provenance header); "
                          "compensating it again would apply the errors twice: use the original "
                          "program, or --force", filename, done)
-    fl = flow.expand(text, filename, search=search_path)
+    fl = flow.expand(text, filename, search=search_path, ascii=ascii)
     if fl is not None:
         # (subprogram calls: the expansion is text)
         new, report = _compensate_flow(fl, machine, errors, **opts)
@@ -757,7 +759,7 @@ def _cmd_compensate(args) -> int:
     del data
     atomic_write(out, new_data)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
-    if encoding != "utf-8":
+    if encoding not in ("ascii", "utf-8"):
         print("note: the program is not UTF-8: its 8-bit comment characters were read as Latin-1 "
               "and written back byte for byte")
     if rep["deferred"]:

@@ -615,20 +615,22 @@ def test_compensating_the_bytes_gives_the_bytes_of_compensating_the_text(path):
     e = ErrorSet(ToolSetting((0.012, -0.004, 0.020)), WorkpieceSetting((0.010, 0.005, -0.003), (0, 0, 0)))
     data, enc = gcode.read_program_bytes(path)
     text = gcode.read_program(path)
-    assert enc == "utf-8" and data == text.encode("utf-8")
+    assert enc == ("ascii" if text.isascii() else "utf-8") and data == text.encode("utf-8")
     kw = dict(filename=str(path), start={"X": 0, "Y": 0, "Z": 50}, chordal_tol=1e-3,
               provenance=[("SOURCE", path.name)], search_path=[str(path.parent / "subprograms")])
     try:
         want, rep_t = compensate_program(text, m, e, **kw)
     except InputError as exc:
-        with pytest.raises(InputError) as got:
-            compensate_program(data, m, e, **kw)
-        assert str(got.value) == str(exc)
+        for encoding in {enc, "utf-8"}:
+            with pytest.raises(InputError) as got:
+                compensate_program(data, m, e, encoding=encoding, **kw)
+            assert str(got.value) == str(exc)
         return
-    got, rep_b = compensate_program(data, m, e, **kw)
-    assert isinstance(want, str) and not isinstance(got, str)
-    assert bytes(got) == want.encode("utf-8")
-    assert rep_b["after_max"] == rep_t["after_max"] and rep_b["lines"] == rep_t["lines"]
+    for encoding in {enc, "utf-8"}:            # (ASCII files: also without saying so)
+        got, rep_b = compensate_program(data, m, e, encoding=encoding, **kw)
+        assert isinstance(want, str) and not isinstance(got, str)
+        assert bytes(got) == want.encode("utf-8")
+        assert rep_b["after_max"] == rep_t["after_max"] and rep_b["lines"] == rep_t["lines"]
 
 
 def test_non_ascii_programs_on_the_bytes_path(tmp_path):
@@ -651,10 +653,11 @@ def test_non_ascii_programs_on_the_bytes_path(tmp_path):
         compensate_program("(ok)\nG0 X1. Yä2.\n", m, e)
     assert str(b.value) == str(t.value)
     for raw, enc in ((data, "utf-8"), (body.encode("latin-1", "replace"), "latin-1"),
-                     (b"G1 X1\r\nG1 X2\r\n", "utf-8")):
+                     (b"G1 X1\r\nG1 X2\r\n", "ascii")):
         src = tmp_path / "p.nc"
         src.write_bytes(raw)
         assert gcode.read_program_bytes(src) == (raw, enc)
+        enc = "utf-8" if enc == "ascii" else enc
         assert gcode.read_program_8bit(src) == (raw.decode(enc), enc)
         out = tmp_path / "o.nc"
         assert main(["compensate", str(src), "-m", "vmc-moving-column", "-e",
@@ -688,6 +691,9 @@ def test_provenance_marker_and_flow_test_of_the_bytes_as_of_the_text(text):
     from mtcomp.gcode.provenance import compensated_line
     data = text.encode()
     assert compensated_line(data) == compensated_line(text)
+    if text.isascii():
+        assert compensated_line(data, ascii=True) == compensated_line(text)
+        assert flow.has_flow(data, ascii=True) == flow.has_flow(text)
     assert compensated_line(bytearray(data)) == compensated_line(text)
     for t in (text, text + "M98 P12\n", text + "(ü) o<a> call\n"):
         assert flow.has_flow(t.encode()) == flow.has_flow(t) == (flow._HAS_FLOW.search(t) is not None)

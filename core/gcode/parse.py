@@ -1222,15 +1222,16 @@ _COMMENTS = re.compile(r"\([^)\n]*\)|;[^\n]*")
 
 def read_program_bytes(path) -> tuple[bytes, str]:
     """(bytes, encoding) of an NC program file, the bytes as they are on disk (nothing decoded:
-    `parse` and `mtcomp compensate` work on them): encoding "utf-8" where the file is UTF-8 (an
-    ASCII file is, without decoding it), else "latin-1" for a program that carries 8-bit
+    `parse` and `mtcomp compensate` work on them): encoding "ascii" where every byte is below
+    128 (also UTF-8: passed on, the readers of the bytes need not test it again), "utf-8"
+    where the file is UTF-8, else "latin-1" for a program that carries 8-bit
     characters in its comments only (``(FRÄSER Ø6)`` written by Windows CAM systems in Latin-1
     / cp1252); an 8-bit byte outside a comment is an InputError naming the line.  Otherwise
     as `read_program`."""
     from .._io import decode_text, read_bytes
     data = read_bytes(path, what="NC program", max_bytes=MAX_PROGRAM_BYTES)
     if data.isascii():
-        return data, "utf-8"
+        return data, "ascii"
     try:
         decode_text(data, path)
         return data, "utf-8"
@@ -1250,4 +1251,5 @@ def read_program_8bit(path) -> tuple[str, str]:
     provided no byte above 127 stands outside a comment (the program's words stay ASCII);
     write the output back with the same encoding to keep those bytes."""
     data, encoding = read_program_bytes(path)
+    encoding = "utf-8" if encoding == "ascii" else encoding
     return data.decode(encoding), encoding

@@ -12,11 +12,12 @@ _HEAD = 1 << 16
 _PROGRAM_NUMBER_RE = re.compile(r"\s*[Oo]\d|\s*:\d")
 
 
-def compensated_line(text: str | bytes) -> int | None:
+def compensated_line(text: str | bytes, ascii: bool = False) -> int | None:
     """1-based line of the provenance marker if the program (its text, or its bytes: UTF-8)
-    was written by mtcomp compensate."""
+    was written by mtcomp compensate.  ``ascii``: the bytes are known to be ASCII (not tested
+    again)."""
     if not isinstance(text, str):
-        if not text.isascii():
+        if not (ascii or text.isascii()):
             # (any case, in Unicode's sense, as for the text)
             return compensated_line(bytes(text).decode("utf-8", "surrogateescape"))
         rx, marker = _MARK_RE_B, MARKER.encode()
