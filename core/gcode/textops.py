@@ -133,17 +133,15 @@ def decimal_values(counts, decimals, multiples, resolution) -> np.ndarray:
     division is not exact either and the product with ``resolution[k]`` (the step as a float)
     is kept."""
     out = np.array(counts, float)                     # (always a new array: scaled in place)
-    steps = [decimal_step(d, m) for d, m in zip(decimals, multiples)]
-    mult = np.array([float(m) for _, m in steps])
-    div = np.array([_POW10[d] for d, _ in steps])
-    big = (np.nanmax(np.abs(out), axis=tuple(range(out.ndim - 1)), initial=0.0) * mult
-           >= 2.0 ** 53) if out.size else np.zeros(len(steps), bool)
-    # every column at once, row by row in the cache (the same two roundings per number)
-    if (mult != 1).any():
-        out *= mult
-    out /= div
-    for j in np.flatnonzero(big):
-        out[..., j] = np.asarray(counts, float)[..., j] * float(np.ravel(resolution)[j])
+    for j, (d, m) in enumerate(zip(decimals, multiples)):
+        d, m = decimal_step(d, m)
+        col = out[..., j]
+        if np.nanmax(np.abs(col), initial=0.0) * m >= 2.0 ** 53:
+            col *= float(np.ravel(resolution)[j])
+            continue
+        if m != 1:
+            col *= float(m)
+        col /= _POW10[d]
     return out
 
 
