@@ -218,8 +218,8 @@ def peak_rss_mb() -> float:
 
 
 def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: bool = True) -> dict:
-    """`mtcomp compensate` as the CLI runs it (read, compensate_program with setting errors,
-    verification through the forward model, atomic write; with the CLI's allocator settings,
+    """`mtcomp compensate` as the CLI runs it (read the bytes, compensate_program with setting
+    errors, verification through the forward model, atomic write of the bytes; with the CLI's allocator settings,
     mtcomp._heap, unless ``cli_heap`` is false).  ``old``: the path without the compiled text
     library (``MTCOMP_TOKENIZER=python``, as on a machine without a compiler), which is the path
     before the compiled tokenizer and the check from emitted values: numpy tokenizer, control
@@ -233,17 +233,26 @@ def compensate_e2e(path_in: str, path_out: str, old: bool = False, cli_heap: boo
         tune()
     from mtcomp._io import atomic_write
     from mtcomp.commands import compensate_program
-    from mtcomp.gcode import read_program
     from mtcomp.machine import load_machine
+    try:                                # the CLI's bytes path (a baseline package may lack it)
+        from mtcomp.gcode import read_program_bytes
+    except ImportError:
+        read_program_bytes = None
     m = load_machine(MACHINE)
     err = errors_setting()
     gcode.parse("G1 X0\n", axes=m.axis_names)             # compile/load the tokenizer first
     import resource
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     t0, c0 = time.perf_counter(), time.process_time()
-    text = read_program(path_in)
-    new_text, rep = compensate_program(text, m, err, filename=path_in, provenance=[("BENCH", "1")])
-    atomic_write(path_out, new_text)
+    if read_program_bytes is not None:
+        data, enc = read_program_bytes(path_in)
+        new, rep = compensate_program(data, m, err, filename=path_in, provenance=[("BENCH", "1")],
+                                      encoding=enc)
+    else:
+        from mtcomp.gcode import read_program
+        new, rep = compensate_program(read_program(path_in), m, err, filename=path_in,
+                                      provenance=[("BENCH", "1")])
+    atomic_write(path_out, new)
     import resource
     ru = resource.getrusage(resource.RUSAGE_SELF)
     return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0,

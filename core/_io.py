@@ -65,11 +65,13 @@ def atomic_path(path: str | os.PathLike):
         raise
 
 
-def atomic_write(path: str | os.PathLike, data: str | bytes) -> Path:
-    """Write text or bytes to `path` atomically (temp file in the same directory, fsync, rename)."""
+def atomic_write(path: str | os.PathLike, data: str | bytes | bytearray | memoryview) -> Path:
+    """Write text (UTF-8) or bytes (any bytes-like object) to `path` atomically (temp file in
+    the same directory, fsync, rename)."""
+    binary = not isinstance(data, str)
     with atomic_path(path) as tmp:
-        mode = "wb" if isinstance(data, bytes) else "w"
-        kw = {} if isinstance(data, bytes) else {"encoding": "utf-8", "newline": ""}
+        mode = "wb" if binary else "w"
+        kw = {} if binary else {"encoding": "utf-8", "newline": ""}
         with open(tmp, mode, **kw) as fh:
             fh.write(data)
             fh.flush()
@@ -82,11 +84,9 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> Path:
 MAX_TEXT_BYTES = 2 << 30
 
 
-def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str = "file",
-              encoding: str = "utf-8", max_bytes: int | None = None) -> str:
-    """Read a UTF-8 text file; a missing, binary, oversized or device file becomes an InputError
-    naming it.  newline="" keeps CR LF line endings byte for byte; newline=None turns CR LF and
-    CR into LF (as `open` does).  encoding="utf-8-sig" drops a byte-order mark."""
+def read_bytes(path: str | os.PathLike, *, what: str = "file", max_bytes: int | None = None) -> bytes:
+    """The bytes of a text file; a missing, binary (a NUL byte), oversized or device file
+    becomes an InputError naming it."""
     import stat
     limit = MAX_TEXT_BYTES if max_bytes is None else int(max_bytes)
     try:
@@ -98,8 +98,11 @@ def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str 
             raise InputError(f"{what} is a device, not a regular file", path)
         chunks, size = [], 0
         with open(path, "rb") as fh:
+            # a regular file in one read (no copy to join chunks), a pipe in chunks
+            first = min(st.st_size, limit) + 1 if stat.S_ISREG(st.st_mode) else 1 << 20
             while True:
-                chunk = fh.read(1 << 20)
+                chunk = fh.read(first)
+                first = 1 << 20
                 if not chunk:
                     break
                 nul = chunk.find(b"\0")
@@ -117,11 +120,24 @@ def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str 
         raise InputError(f"{what} cannot be read (permission denied)", path) from None
     except NotADirectoryError:
         raise InputError(f"{what} not found (a part of the path is a file)", path) from None
-    data = b"".join(chunks)
+    return chunks[0] if len(chunks) == 1 else b"".join(chunks)
+
+
+def decode_text(data: bytes, path, encoding: str = "utf-8") -> str:
+    """`data` decoded; bytes that are not `encoding` become an InputError naming `path` and the
+    byte."""
     try:
-        text = data.decode(encoding)
+        return data.decode(encoding)
     except UnicodeDecodeError as exc:
         raise InputError(f"not a text file (not UTF-8: {exc.reason} at byte {exc.start})", path) from None
+
+
+def read_text(path: str | os.PathLike, *, newline: str | None = None, what: str = "file",
+              encoding: str = "utf-8", max_bytes: int | None = None) -> str:
+    """Read a UTF-8 text file; a missing, binary, oversized or device file becomes an InputError
+    naming it.  newline="" keeps CR LF line endings byte for byte; newline=None turns CR LF and
+    CR into LF (as `open` does).  encoding="utf-8-sig" drops a byte-order mark."""
+    text = decode_text(read_bytes(path, what=what, max_bytes=max_bytes), path, encoding)
     if newline is None:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
     return text

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import codecs
 import hashlib
 import math
 import os
@@ -171,15 +172,22 @@ def _three_axis_hint(machine, prog) -> str:
     return ""
 
 
-def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = "<string>",
+def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename: str = "<string>",
                        chordal_tol: float | None = None, start=None, unknown: str = "defer",
                        provenance: list | None = None, force: bool = False, progress=None,
                        convert_inch: bool = False, tool_lengths=None, work_offsets=None,
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
                        tolerance: float = 5e-4, warn_only: bool = False, search_path=None,
-                       cutter_radius: float | None = None, cutter_offsets: dict | None = None):
+                       cutter_radius: float | None = None, cutter_offsets: dict | None = None,
+                       encoding: str = "utf-8"):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
+
+    text: the program's text, or its bytes as read from the file (`gcode.read_program_bytes`)
+    in ``encoding`` ("ascii", "utf-8", or "latin-1" for 8-bit comments): the output is then
+    bytes too
+    (a bytes-like object, written as it is), nothing decoded or encoded on the way; the output
+    of a text is text.
 
     chordal_tol (mm): tolerance for arcs that must be linearised (default 0.1 µm, at least twice
     the linear resolution).  start: known axis positions before the first block ({"X": ..}).
@@ -199,7 +207,7 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     correction at the tool centre by more than ``tolerance`` is refused (docs/gcode.md).
     search_path: directories where subprograms called but not in the program are looked for
     (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
-    Returns (new_text, report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
+    Returns (new program (text or bytes, as given), report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
     errors in mm before and after over the compensated blocks, from the forward model,
     ``verify``: the VerifyResult or None)."""
     from . import gcode
@@ -208,22 +216,31 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
     from .gcode.provenance import compensated_line, header_lines, insert_header_bytes
     from .gcode.rotation import to_reference
 
+    opts = dict(filename=filename, chordal_tol=chordal_tol, start=start, unknown=unknown,
+                provenance=provenance, progress=progress, convert_inch=convert_inch,
+                tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
+                stock=stock, part=part, clearance=clearance, tolerance=tolerance,
+                warn_only=warn_only, cutter_radius=cutter_radius, cutter_offsets=cutter_offsets)
+    as_text = isinstance(text, str)
+    ascii = not as_text and codecs.lookup(encoding).name == "ascii"
+    if not as_text and not ascii and codecs.lookup(encoding).name != "utf-8":
+        # 8-bit comments (Latin-1): read as their text, every byte one character, and written
+        # back in the encoding, byte for byte
+        new, report = compensate_program(bytes(text).decode(encoding), machine, errors,
+                                         force=force, search_path=search_path, **opts)
+        return new.encode(encoding), report
     tol = _check_chordal_tol(machine, chordal_tol)
     check_errors_for_machine(errors, machine)
-    done = compensated_line(text)
+    done = compensated_line(text, ascii)
     if done is not None and not force:
         raise InputError("this program was already compensated by mtcomp (provenance header); "
                          "compensating it again would apply the errors twice: use the original "
                          "program, or --force", filename, done)
-    fl = flow.expand(text, filename, search=search_path)
+    fl = flow.expand(text, filename, search=search_path, ascii=ascii)
     if fl is not None:
-        return _compensate_flow(fl, machine, errors, filename=filename, chordal_tol=chordal_tol,
-                                start=start, unknown=unknown, provenance=provenance,
-                                progress=progress, convert_inch=convert_inch,
-                                tool_lengths=tool_lengths, work_offsets=work_offsets,
-                                arc_tol=arc_tol, stock=stock, part=part, clearance=clearance,
-                                tolerance=tolerance, warn_only=warn_only,
-                                cutter_radius=cutter_radius, cutter_offsets=cutter_offsets)
+        # (subprogram calls: the expansion is text)
+        new, report = _compensate_flow(fl, machine, errors, **opts)
+        return (new if as_text else new.encode("utf-8", "surrogateescape")), report
     res = {a.name: a.resolution for a in machine.axes}
     prog = gcode.parse(text, axes=machine.axis_names, filename=filename, start=start,
                        convert_inch=convert_inch, resolution=res, tool_lengths=tool_lengths,
@@ -312,11 +329,9 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
                                                    out_line=out_line))
     info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
-    verified = new_text = None
+    verified = None
     if stock is not None or part is not None:
-        new_text = raw.decode("utf-8", "surrogateescape")
-        del raw
-        verified = verify_output(machine, new_text, errors, filename=filename, stock=stock,
+        verified = verify_output(machine, raw, errors, filename=filename, stock=stock,
                                  part=part, clearance=clearance, tolerance=tolerance,
                                  warn_only=warn_only, start=start, resolution=res,
                                  tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
@@ -342,7 +357,8 @@ def compensate_program(text: str, machine, errors: ErrorSet, *, filename: str = 
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
             before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
     n_lines, idle_axes, notes = prog.n_lines, prog.idle_axes, prog.notes
-    if new_text is None:
+    new_text = raw
+    if as_text:
         # the text last, with the program's arrays and bytes freed: its 57 MB (1 M lines) then
         # reuse their memory instead of raising the peak
         del P, emitted, prog, calls, tcp
@@ -510,7 +526,7 @@ def _travel_check_emitted(machine, emitted, kn, prog, filename):
 
 def verify_output(machine, text, errors, *, filename="<string>", stock=None, part=None,
                   clearance=0.2, tolerance=5e-4, warn_only=False, **parse_kw):
-    """Run the written program `text` through the forward model with `errors` (the real
+    """Run the written program `text` (str, or its bytes: UTF-8) through the forward model with `errors` (the real
     machine) and check it against stock (rapids, ``clearance``) and part (feeds, ``tolerance``)
     with mtcomp.verify, block by block.  Blocks where the program has not fixed every axis yet
     (deferred) are not checked; canned cycle blocks and the moves into them neither (their holes
@@ -532,7 +548,12 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
     arcs_all = program_arcs(machine, back, motion)
     position = to_reference(back, back.position)       # G68: where the axes go
     tcp, tlen = np.asarray(back.tcp, bool), np.asarray(back.tool_tip, float)
-    src = text.split("\n")
+    if isinstance(text, str):
+        src = text.split("\n")
+        line_text = src.__getitem__
+    else:                                              # bytes: the lines named decoded alone
+        src = bytes(text).split(b"\n")
+        line_text = lambda i: src[i].decode("utf-8", "surrogateescape")  # noqa: E731
     lines = np.asarray(back.line, int)
     kn = np.asarray(back.known)
     # runs of consecutive blocks with every axis known
@@ -543,7 +564,7 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
         res = verify_commands(machine, position[sl], motion[sl], stock=stock, part=part,
                               tcp=tcp[sl], tool_length=tlen[sl],
                               clearance=clearance, tolerance=tolerance, errors=errors,
-                              lines=lines[sl], texts=[src[ln - 1] if 0 < ln <= len(src) else ""
+                              lines=lines[sl], texts=[line_text(ln - 1) if 0 < ln <= len(src) else ""
                                                       for ln in lines[sl]],
                               arcs=tuple(x[sl] for x in arcs_all), name=filename,
                               raise_on_violation=False)
@@ -568,33 +589,6 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
     return out
 
 
-def counts_to_values(counts, res) -> np.ndarray:
-    """The numbers (mm, deg) that words of ``counts`` (N, n_axes) steps of the axes' resolutions
-    ``res`` (n_axes; m * 10**-d, NaN where unknown) say, as a control reads them: the decimal
-    value correctly rounded, (count * m) / 10**d, an exact integer over an exact power of ten.
-    count * res is off by an ulp where res is no binary fraction (3050000 * 1e-5 is
-    30.500000000000004, the word C30.5 is 30.5), which would make an unchanged program differ
-    from itself by 1e-15."""
-    out = np.array(counts, float)                     # (always a new array: scaled in place)
-    res = np.broadcast_to(np.asarray(res, float), out.shape[-1:])
-    for j, r in enumerate(res):
-        col = out[..., j]
-        if not (np.isfinite(r) and r > 0):
-            col *= r
-            continue
-        for d in range(16):
-            m = r * 10.0 ** d
-            if abs(m - round(m)) <= 1e-9 * m:
-                break
-        if abs(m - round(m)) > 1e-9 * m or np.nanmax(np.abs(col), initial=0.0) * round(m) >= 2.0 ** 53:
-            col *= r                                  # not a decimal step: the product
-            continue
-        if round(m) != 1:
-            col *= float(round(m))
-        col /= 10.0 ** d
-    return out
-
-
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
                       tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
     """End position of every motion block of the rewritten program `new_text` (str, or its
@@ -607,7 +601,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     apply (canned cycles, whose holes may be written out as new lines; linearised arcs; G92;
     G16 polar blocks, whose radius and angle words put the point up to a count from the
     emitted one; no compiled reader) are parsed back whole instead."""
-    from .gcode.rewrite import check_written
+    from .gcode.rewrite import check_written, emitted_values
     if not isinstance(new_text, str):                 # the written bytes (compensate_program)
         data, new_text = new_text, None
     else:
@@ -624,10 +618,10 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                              f"{exc.args[0]}; refusing to write it", filename,
                              None if j is None else int(prog.line[j])) from None
         if ok:
-            return counts_to_values(info["emitted"], info["emitted_resolution"])
+            return emitted_values(info)
     from . import gcode
     if new_text is None:
-        new_text = bytes(data).decode("utf-8", "surrogateescape")
+        new_text = bytes(data)                        # (a copy: the caller may edit its bytes)
     after_prog = gcode.parse(new_text, axes=prog.axes, start=start, resolution=res,
                              tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
                              tcp=True, rotation=True,
@@ -688,11 +682,12 @@ def _sha256(path) -> str:
 
 def _cmd_compensate(args) -> int:
     from . import __version__
-    from .gcode import read_program_8bit
+    from .gcode import read_program_bytes
     machine = load_machine(args.machine)
     errors = load_errors(args.errors, machine=machine)
     src = Path(args.program)
-    text, encoding = read_program_8bit(src)  # keeps CR LF (and 8-bit comments) byte for byte
+    # the bytes, compensated and written as bytes: CR LF and 8-bit comments stay byte for byte
+    data, encoding = read_program_bytes(src)
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
     if out.is_dir():
         raise InputError("the output is a directory; give a file name", str(out), field="-o")
@@ -753,17 +748,18 @@ def _cmd_compensate(args) -> int:
         if not (math.isfinite(args.tolerance) and args.tolerance >= 0):
             raise InputError(f"expected a tolerance >= 0 mm, got {args.tolerance}", field="--tolerance")
         options.append(f"verified clearance {args.clearance:g} mm" + (" warn-only" if args.warn_only else ""))
-    new_text, rep = compensate_program(text, machine, errors, filename=str(src), chordal_tol=tol,
+    new_data, rep = compensate_program(data, machine, errors, filename=str(src), chordal_tol=tol,
                                        start=start, unknown=args.unknown, provenance=provenance,
                                        force=args.force, progress=Progress("compensating", args.progress),
                                        tool_lengths=tools, work_offsets=offsets, arc_tol=arc_tol,
                                        stock=stock, part=part, clearance=args.clearance,
                                        tolerance=args.tolerance, warn_only=args.warn_only,
                                        search_path=search, cutter_radius=cutter_radius,
-                                       cutter_offsets=cutter_offsets)
-    atomic_write(out, new_text if encoding == "utf-8" else new_text.encode(encoding))
+                                       cutter_offsets=cutter_offsets, encoding=encoding)
+    del data
+    atomic_write(out, new_data)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
-    if encoding != "utf-8":
+    if encoding not in ("ascii", "utf-8"):
         print("note: the program is not UTF-8: its 8-bit comment characters were read as Latin-1 "
               "and written back byte for byte")
     if rep["deferred"]:

@@ -524,3 +524,182 @@ def test_header_inserted_into_bytes_as_into_text(text):
     buf = bytearray(text.encode("utf-8", "surrogateescape"))
     assert insert_header_bytes(buf, lines) == (at, added)
     assert bytes(buf) == want.encode("utf-8", "surrogateescape")
+
+
+def test_emitted_counts_are_the_decimal_numbers_the_words_say():
+    """3050000 steps of 1e-5 deg is the word C30.5, which a control reads as 30.5 (the product
+    3050000 * 1e-5 is 30.500000000000004); steps of 5e-4 mm; unknown axes stay NaN."""
+    from mtcomp.gcode.textops import decimal_values
+    counts = np.array([[3050000.0, 1500000.0, 3.0], [-123456789.0, 1.0, np.nan]])
+    got = decimal_values(counts, [5, 5, 4], [1, 1, 5], [1e-5, 1e-5, 5e-4])
+    words = [["30.5", "15.0", "0.0015"], ["-1234.56789", "0.00001", "nan"]]
+    assert got.tolist()[0] == [float(w) for w in words[0]]
+    assert got[1, :2].tolist() == [float(w) for w in words[1][:2]] and np.isnan(got[1, 2])
+    assert 3050000 * 1e-5 != 30.5          # (what the product gave)
+    # beyond 2**53 counts the decimal division is not exact either: the product is kept
+    big = decimal_values([[2.0 ** 54]], [6], [1], [1e-6])
+    assert big[0, 0] == 2.0 ** 54 * 1e-6
+    # a step written with extra zeros (5000 * 10**-7) is the same number
+    assert decimal_values([[7.0]], [7], [5000], [5e-4])[0, 0] == 0.0035
+
+
+def _values_by_search(counts, res):
+    """The emitted values as compensate recovered them before the rewrite handed over its
+    decimals: d and m searched from the float step (the reference for the parity test)."""
+    out = np.array(counts, float)
+    for j, r in enumerate(res):
+        col = out[..., j]
+        for d in range(16):
+            m = r * 10.0 ** d
+            if abs(m - round(m)) <= 1e-9 * m:
+                break
+        if abs(m - round(m)) > 1e-9 * m or np.nanmax(np.abs(col), initial=0.0) * round(m) >= 2.0 ** 53:
+            col *= r
+            continue
+        if round(m) != 1:
+            col *= float(round(m))
+        col /= 10.0 ** d
+    return out
+
+
+@pytest.mark.parametrize("inch", [False, True])
+@pytest.mark.parametrize("step", [1e-6, 5e-6, 1e-5, 2e-5, 1e-4, 5e-4, 2.5e-5, 1e-3, 1e-2, 0.1, 1e-7,
+                                  1e-8, 1e-9, 3e-7, 0.05, 1.0, 2.0, 125e-6])
+def test_emitted_values_are_those_of_the_step_search_for_every_resolution(step, inch):
+    """The rewrite hands over each axis' decimals and multiple (info): the emitted values are
+    the numbers the old search over powers of ten of the float step gave, bit for bit, for
+    mm and inch programs (inch words: one decimal more, 25.4 mm per inch)."""
+    from mtcomp.gcode.rewrite import emitted_values
+    text = ("G20 " if inch else "") + "G90 G0 X0 Y0 Z1.\nG1 X0.3 Y-0.7 Z0.5 F10.\n"
+    prog = gcode.parse(text, axes="XYZ")
+    info = {}
+    rng = np.random.default_rng(int(step * 1e9) + inch)
+    shift = rng.uniform(-0.5, 0.5, 3)
+    gcode.rewrite(prog, lambda q: q + shift, resolution={a: step for a in "XYZ"}, info=info,
+                  chordal_tol=1.0)
+    counts = np.vstack([info["emitted"], rng.integers(-10 ** 9, 10 ** 9, (200, 3)).astype(float),
+                        [[2.0 ** 53, 1.0, -1.0]]])
+    res = info["emitted_resolution"]
+    got = emitted_values(dict(info, emitted=counts))
+    want = _values_by_search(counts, res)
+    assert np.array_equal(got, want)
+
+
+def test_emitted_values_are_the_written_words():
+    """The compensated words read as exact decimal numbers (inch: times exactly 25.4) and
+    rounded once are the emitted values, bit for bit (mm and inch)."""
+    import re
+    from decimal import Decimal
+    from mtcomp.gcode.rewrite import emitted_values
+    for head, scale in (("", Decimal(1)), ("G20 ", Decimal("25.4"))):
+        text = head + "G90 G0 X0 Y0 Z1.\nG1 X0.3 Y-0.7 Z0.5 F10.\nX1.25 Y3.05 Z0.25\n"
+        prog = gcode.parse(text, axes="XYZ")
+        info = {}
+        out = gcode.rewrite(prog, lambda q: q + [0.0123456, -0.03, 0.0005], info=info,
+                            resolution={"X": 5e-6, "Y": 1e-6, "Z": 1e-4})
+        lines = out.splitlines()[1:]
+        words = [[float(Decimal(re.search(a + r"(-?[0-9.]+)", ln).group(1)) * scale) for a in "XYZ"]
+                 for ln in lines]
+        assert emitted_values(info)[1:].tolist() == words
+
+
+# -- the bytes path of `mtcomp compensate` (read, compensate and write the program's bytes)
+NC_FILES = sorted(p for p in (Path(__file__).parent / "data" / "nc").rglob("*") if p.is_file())
+
+
+@pytest.mark.parametrize("path", NC_FILES, ids=lambda p: p.name)
+def test_compensating_the_bytes_gives_the_bytes_of_compensating_the_text(path):
+    """compensate_program of a file's bytes returns the UTF-8 bytes of what it returns for
+    the text, the same report, or the same error (subprogram files: the expansion's text)."""
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.012, -0.004, 0.020)), WorkpieceSetting((0.010, 0.005, -0.003), (0, 0, 0)))
+    data, enc = gcode.read_program_bytes(path)
+    text = gcode.read_program(path)
+    assert enc == ("ascii" if text.isascii() else "utf-8") and data == text.encode("utf-8")
+    kw = dict(filename=str(path), start={"X": 0, "Y": 0, "Z": 50}, chordal_tol=1e-3,
+              provenance=[("SOURCE", path.name)], search_path=[str(path.parent / "subprograms")])
+    try:
+        want, rep_t = compensate_program(text, m, e, **kw)
+    except InputError as exc:
+        for encoding in {enc, "utf-8"}:
+            with pytest.raises(InputError) as got:
+                compensate_program(data, m, e, encoding=encoding, **kw)
+            assert str(got.value) == str(exc)
+        return
+    for encoding in {enc, "utf-8"}:            # (ASCII files: also without saying so)
+        got, rep_b = compensate_program(data, m, e, encoding=encoding, **kw)
+        assert isinstance(want, str) and not isinstance(got, str)
+        assert bytes(got) == want.encode("utf-8")
+        assert rep_b["after_max"] == rep_t["after_max"] and rep_b["lines"] == rep_t["lines"]
+
+
+def test_non_ascii_programs_on_the_bytes_path(tmp_path):
+    """UTF-8 comments pass through the bytes path byte for byte (no decoding on the way); a
+    UTF-8 character in the code is refused naming the line, as from the text; a file that is
+    not UTF-8 with 8-bit bytes in comments only is read as Latin-1 and written back byte for
+    byte; `read_program_8bit` is the decoding of `read_program_bytes`."""
+    import re
+    from mtcomp.cli import main
+    m = load_machine("vmc-moving-column")
+    e = ErrorSet(ToolSetting((0.002, -0.001, 0.0005)))
+    body = "(Fräser Ø6 — ok)\nG21 G90 G0 X1. Y2. Z5. ; Maß\nG1 Z-1. F100 (über)\nM30\n"
+    data = body.encode()
+    got, _ = compensate_program(data, m, e)
+    want, _ = compensate_program(body, m, e)
+    assert bytes(got) == want.encode() and "(Fräser Ø6 — ok)" in want and "(über)" in want
+    with pytest.raises(InputError, match=r"<string>:2: unexpected character") as b:
+        compensate_program("(ok)\nG0 X1. Yä2.\n".encode(), m, e)
+    with pytest.raises(InputError) as t:
+        compensate_program("(ok)\nG0 X1. Yä2.\n", m, e)
+    assert str(b.value) == str(t.value)
+    for raw, enc in ((data, "utf-8"), (body.encode("latin-1", "replace"), "latin-1"),
+                     (b"G1 X1\r\nG1 X2\r\n", "ascii")):
+        src = tmp_path / "p.nc"
+        src.write_bytes(raw)
+        assert gcode.read_program_bytes(src) == (raw, enc)
+        enc = "utf-8" if enc == "ascii" else enc
+        assert gcode.read_program_8bit(src) == (raw.decode(enc), enc)
+        out = tmp_path / "o.nc"
+        assert main(["compensate", str(src), "-m", "vmc-moving-column", "-e",
+                     str(save_errors(e, tmp_path / "e.toml")), "-o", str(out)]) == 0
+        written = strip_header(out.read_bytes().decode(enc)).encode(enc)
+        # the comments, 8-bit bytes and line endings are where they were: only numbers moved
+        comments = re.compile(rb"\([^)]*\)|;[^\n]*|\r\n|[^\x00-\x7f]")
+        assert comments.findall(written) == comments.findall(raw)
+        assert written.count(b"\n") == raw.count(b"\n") and written != raw
+
+
+def test_parse_of_the_bytes_is_the_parse_of_the_text():
+    """gcode.parse reads a program's bytes as it reads its text (same arrays); the Program's
+    text is decoded only when asked for, and is the text."""
+    text = (Path(__file__).parent / "data" / "nc" / "fanuc_mill.nc").read_text() + "(ä ø)\n"
+    a = gcode.parse(text, axes="XYZ")
+    b = gcode.parse(text.encode(), axes="XYZ")
+    assert "text" not in b.__dict__
+    assert b.text == text and b.data == a.data
+    for f in ("line", "position", "motion", "w_value", "w_pos", "col_word", "known"):
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert b.lines == a.lines
+
+
+@pytest.mark.parametrize("text", ["G1 X1\n" * 3, "%\n(Mtcomp Compensated Program: x)\nG1\n",
+                                  "G1 X1.\n" * 20000 + "(mtcomp compensated program)\n",
+                                  "(é)\n(MTCOMP COMPENSATED PROGRAM)\n", "(é)\n(mtcomp compenſated program)\n",
+                                  "(é)\n" + "G1 X1.\n" * 20000 + "(MTCOMP COMPENSATED PROGRAM)\n"])
+def test_provenance_marker_and_flow_test_of_the_bytes_as_of_the_text(text):
+    from mtcomp.gcode import flow
+    from mtcomp.gcode.provenance import compensated_line
+    data = text.encode()
+    assert compensated_line(data) == compensated_line(text)
+    if text.isascii():
+        assert compensated_line(data, ascii=True) == compensated_line(text)
+        assert flow.has_flow(data, ascii=True) == flow.has_flow(text)
+    assert compensated_line(bytearray(data)) == compensated_line(text)
+    for t in (text, text + "M98 P12\n", text + "(ü) o<a> call\n"):
+        assert flow.has_flow(t.encode()) == flow.has_flow(t) == (flow._HAS_FLOW.search(t) is not None)
+
+
+def test_atomic_write_of_a_bytearray(tmp_path):
+    from mtcomp._io import atomic_write
+    p = atomic_write(tmp_path / "x.nc", bytearray(b"G1 X1\r\n\xe4"))
+    assert p.read_bytes() == b"G1 X1\r\n\xe4"

@@ -197,7 +197,7 @@ def test_has_flow_prefilter_agrees_with_the_plain_search(compiled, monkeypatch):
     if compiled and _ctok.load() is None:
         pytest.skip("no compiled tokenizer")
     if not compiled:
-        monkeypatch.setattr(_ctok, "has_flow", lambda text: None)
+        monkeypatch.setattr(_ctok, "has_flow", lambda text, ascii=False: None)
 
     def plain(t):
         return flow._HAS_FLOW.search(t) is not None
@@ -216,6 +216,7 @@ def test_has_flow_prefilter_agrees_with_the_plain_search(compiled, monkeypatch):
             parts.insert(int(rng.integers(0, len(parts) + 1)), str(rng.choice(pieces)))
         t = "".join(parts)
         assert flow.has_flow(t) == plain(t), repr(t)
+        assert flow.has_flow(t.encode()) == plain(t), repr(t)      # (the bytes path)
         hit += plain(t)
     assert 300 < hit < 2700
     # past the letter budget the plain search takes over: same answers
@@ -238,3 +239,6 @@ def test_compiled_has_flow_is_the_regex_search(parts, lead):
     t = "x" * lead + "".join(parts)
     assert _ctok.has_flow(t) == (flow._HAS_FLOW.search(t) is not None), repr(t)
     assert _ctok.has_flow(t + "é") is None              # not ASCII: the caller's search
+    # the program's bytes, tested for ASCII or known to be
+    assert _ctok.has_flow(t.encode()) == _ctok.has_flow(t.encode(), True) == _ctok.has_flow(t)
+    assert _ctok.has_flow((t + "é").encode()) is None

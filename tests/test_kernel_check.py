@@ -89,18 +89,3 @@ def test_shapes_must_agree():
     m = load_machine("robonano-a0ib")
     with pytest.raises(ValueError, match="differ in shape"):
         deviations(m, np.zeros((3, 5)), np.zeros((2, 5)), ErrorSet(workpiece=WorkpieceSetting((0.01, 0, 0))))
-
-
-def test_emitted_counts_are_the_decimal_numbers_the_words_say():
-    """3050000 steps of 1e-5 deg is the word C30.5, which a control reads as 30.5 (the product
-    3050000 * 1e-5 is 30.500000000000004); steps of 5e-4 mm; unknown axes stay NaN."""
-    from mtcomp.commands import counts_to_values
-    counts = np.array([[3050000.0, 1500000.0, 3.0, 7.0], [-123456789.0, 1.0, -7.0, np.nan]])
-    got = counts_to_values(counts, [1e-5, 1e-5, 5e-4, np.nan])
-    words = [["30.5", "15.0", "0.0015"], ["-1234.56789", "0.00001", "-0.0035"]]
-    assert got[:, :3].tolist() == [[float(w) for w in row] for row in words]
-    assert np.isnan(got[:, 3]).all()
-    assert 3050000 * 1e-5 != 30.5          # (what the product gave)
-    # beyond 2**53 counts the decimal division is not exact either: the product is kept
-    big = counts_to_values([[2.0 ** 54]], [1e-6])
-    assert big[0, 0] == 2.0 ** 54 * 1e-6

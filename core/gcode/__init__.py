@@ -13,9 +13,9 @@ formatting), ``flow`` (M98/M97/M99 subprogram calls expanded in run order and fo
 plane), ``offsets`` (tool tables, offsets files, G10 in the program).  What is read, what is refused and why is described in docs/gcode.md.
 """
 from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
-from .parse import parse, read_program, read_program_8bit, write
+from .parse import parse, read_program, read_program_8bit, read_program_bytes, write
 from .program import Program
 from .rewrite import rewrite, rewrite_with_lines
 
 __all__ = ["ARC_WORDS", "CANONICAL", "INCH", "LINEAR", "Program", "parse", "read_program",
-           "read_program_8bit", "rewrite", "rewrite_with_lines", "write"]
+           "read_program_8bit", "read_program_bytes", "rewrite", "rewrite_with_lines", "write"]

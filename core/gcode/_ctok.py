@@ -166,13 +166,18 @@ def add_counts(Cc, dK, kk=None):
     return out if got == 0 else None
 
 
-def has_flow(text: str):
+def has_flow(text: str, ascii: bool = False):
     """``flow._HAS_FLOW.search(text) is not None`` in one compiled pass over the text's own
-    bytes (no copy), for an ASCII str; None without the library, for other texts, or where the
-    interpreter does not hand out its string data (the caller's search then)."""
+    bytes (no copy), for an ASCII str or ASCII bytes (``ascii``: bytes known to be ASCII, not
+    tested again); None without the library, for other
+    texts, or where the interpreter does not hand out its string data (the caller's search
+    then)."""
     lib = load()
-    if lib is None or not isinstance(text, str) or not text.isascii():
+    if lib is None or not (ascii and not isinstance(text, str) or text.isascii()):
         return None
+    if not isinstance(text, str):                 # bytes (ASCII): their own buffer
+        buf = np.frombuffer(text, np.uint8)
+        return bool(lib.mtc_has_flow(buf.ctypes.data, len(buf))) if len(buf) else False
     api = getattr(ctypes, "pythonapi", None)
     get = getattr(api, "PyUnicode_AsUTF8AndSize", None)
     if get is None:

@@ -88,17 +88,20 @@ def _mark(line, spans):
     return line
 
 
-def has_flow(text: str) -> bool:
-    """Whether the text has M97/M98/M99 words or o-word calls (possibly only in comments: a
-    quick test); the same answer as ``_HAS_FLOW.search(text)``."""
+def has_flow(text: str | bytes, ascii: bool = False) -> bool:
+    """Whether the text (or its bytes, UTF-8; ``ascii``: known to be ASCII) has M97/M98/M99
+    words or o-word calls (possibly only in comments: a quick test); the same answer as
+    ``_HAS_FLOW.search(text)``."""
     # every match starts at an M or an O: str.find jumps to those letters and the pattern is
     # tried there only (a regex search steps through every character: 40x slower on long
     # programs); past _FIND_HITS letters the plain search takes over, so the worst case stays
     # the regex's
     from . import _ctok
-    got = _ctok.has_flow(text)             # compiled: one pass over an ASCII text's bytes
+    got = _ctok.has_flow(text, ascii)      # compiled: one pass over an ASCII text's bytes
     if got is not None:
         return got
+    if not isinstance(text, str):
+        text = bytes(text).decode("utf-8", "surrogateescape")
     hits = 0
     for c in "MmOo":
         i = text.find(c)
@@ -147,7 +150,8 @@ def _oword(line):
     return name, m.group(4).lower(), m.group(5), (m.start(1), m.end(1))
 
 
-def expand(text: str, filename: str = "<string>", search=None) -> Flow | None:
+def expand(text: str | bytes, filename: str = "<string>", search=None,
+           ascii: bool = False) -> Flow | None:
     """The program as it runs, calls expanded; None when it has no M97/M98/M99 block.
     Raises InputError naming the line for flow it does not follow: M99 in the main program
     (a jump to its start), M99 P (return to a block number), a called program or block number
@@ -157,10 +161,14 @@ def expand(text: str, filename: str = "<string>", search=None) -> Flow | None:
     ``search``: directories where subprograms not in the file are looked for (Fanuc ``M98
     P1234``: a file named ``O1234``, ``1234`` or ``O01234`` with any extension; LinuxCNC
     ``o<name> call``: ``name.ngc``); None: only the file itself.  Such a file is read as if it
-    followed the program; `fold` then writes the calls out."""
+    followed the program; `fold` then writes the calls out.  ``text`` may be the program's
+    bytes (UTF-8; ``ascii``: known to be ASCII): decoded only where it has flow words (the
+    expansion is text)."""
     import os
-    if not has_flow(text):
+    if not has_flow(text, ascii):
         return None
+    if not isinstance(text, str):
+        text = bytes(text).decode("utf-8", "surrogateescape")
     lines = _lines(text)
     segments = [(0, str(filename))]
     main_len = len(lines)

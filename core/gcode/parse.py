@@ -55,11 +55,12 @@ def _ffill(values: np.ndarray, isset: np.ndarray, default) -> np.ndarray:
     return np.where(idx >= 0, out, default)
 
 
-def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<string>",
+def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<string>",
           convert_inch: bool = False, start=None, arc_tol: float | None = None,
           resolution=None, tool_lengths=None, work_offsets=None, tcp: bool = False,
           rotation: bool = False) -> Program:
-    """Read a Fanuc-style NC program (text) for a machine with the given axis letters.
+    """Read a Fanuc-style NC program (text, or its bytes: UTF-8, undecodable bytes kept) for a
+    machine with the given axis letters.
 
     ``start``: position of the axes before the first block, where the user knows it (mapping
     letter -> value, or a sequence over ``axes`` with NaN for unknown).  An axis the program
@@ -87,7 +88,9 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
         if len(a) != 1 or a not in CANONICAL:
             raise ValueError(f"axis names must be single letters out of {CANONICAL}, got {a!r}")
     n_ax = len(axes)
-    data = text.encode("utf-8", "surrogateescape")
+    # a str is worked on as its UTF-8 bytes (undecodable bytes it carries kept); bytes as they are
+    data = bytes(text) if isinstance(text, (bytearray, memoryview)) else (
+        text if isinstance(text, bytes) else text.encode("utf-8", "surrogateescape"))
     b = np.frombuffer(data, np.uint8)
     nbytes = len(b)
     line_start = _ctok.line_starts(b)
@@ -866,9 +869,12 @@ def parse(text: str, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: str = "<s
     for a in arrays.values():
         if a is not None:
             a.flags.writeable = False
-    return Program(filename=filename, axes=axes, text=text, data=data, idle_axes=idle_axes,
+    prog = Program(filename=filename, axes=axes, data=data, idle_axes=idle_axes,
                    offset_assumed=offset_assumed,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
+    if isinstance(text, str):
+        prog.__dict__["text"] = text            # (Program.text: the str given, not decoded again)
+    return prog
 
 
 def _carvera_shrink(lines, mot_l, wline, wlet, value, filename):
@@ -1214,24 +1220,36 @@ def read_program(path) -> str:
 _COMMENTS = re.compile(r"\([^)\n]*\)|;[^\n]*")
 
 
-def read_program_8bit(path) -> tuple[str, str]:
-    """(text, encoding) of an NC program file that may carry 8-bit characters in its comments
-    (``(FRÄSER Ø6)`` written by Windows CAM systems in Latin-1 / cp1252): UTF-8 where it is,
-    else Latin-1, every byte one character, provided no byte above 127 stands outside a
-    comment (the program's words stay ASCII); write the output back with the same encoding to
-    keep those bytes.  Otherwise as `read_program`."""
-    from .._io import read_text
+def read_program_bytes(path) -> tuple[bytes, str]:
+    """(bytes, encoding) of an NC program file, the bytes as they are on disk (nothing decoded:
+    `parse` and `mtcomp compensate` work on them): encoding "ascii" where every byte is below
+    128 (also UTF-8: passed on, the readers of the bytes need not test it again), "utf-8"
+    where the file is UTF-8, else "latin-1" for a program that carries 8-bit
+    characters in its comments only (``(FRÄSER Ø6)`` written by Windows CAM systems in Latin-1
+    / cp1252); an 8-bit byte outside a comment is an InputError naming the line.  Otherwise
+    as `read_program`."""
+    from .._io import decode_text, read_bytes
+    data = read_bytes(path, what="NC program", max_bytes=MAX_PROGRAM_BYTES)
+    if data.isascii():
+        return data, "ascii"
     try:
-        return read_program(path), "utf-8"
+        decode_text(data, path)
+        return data, "utf-8"
     except InputError as exc:
-        if "not UTF-8" not in str(exc):
-            raise
-        text = read_text(path, newline="", what="NC program", max_bytes=MAX_PROGRAM_BYTES,
-                         encoding="latin-1")
-        code = _COMMENTS.sub("", text)
+        code = _COMMENTS.sub("", data.decode("latin-1"))
         bad = re.search(r"[^\x00-\x7f]", code)
         if bad is None:
-            return text, "latin-1"
+            return data, "latin-1"
         # the line of the first 8-bit byte outside a comment (comments keep the line count)
         raise InputError(f"{str(exc).split(': ', 1)[-1]}; an 8-bit character outside a comment "
                          f"({bad.group()!r})", path, code.count("\n", 0, bad.start()) + 1) from None
+
+
+def read_program_8bit(path) -> tuple[str, str]:
+    """(text, encoding) of an NC program file that may carry 8-bit characters in its comments
+    (`read_program_bytes`): UTF-8 where it is, else Latin-1, every byte one character,
+    provided no byte above 127 stands outside a comment (the program's words stay ASCII);
+    write the output back with the same encoding to keep those bytes."""
+    data, encoding = read_program_bytes(path)
+    encoding = "utf-8" if encoding == "ascii" else encoding
+    return data.decode(encoding), encoding

@@ -1,14 +1,15 @@
-"""The parsed program: original text and per-block arrays."""
+"""The parsed program: original bytes (and text) and per-block arrays."""
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 @dataclass(frozen=True, eq=False)
 class Program:
-    """A parsed NC program: the original text and vectorised arrays of its motion blocks.
+    """A parsed NC program: the original bytes and vectorised arrays of its motion blocks.
 
     Per motion block (N rows, in program order): ``line`` 1-based source line, ``position``
     (N, n_axes) absolute modal end position in mm/deg (inch data converted), ``motion`` 0-3 for
@@ -26,8 +27,7 @@ class Program:
     """
     filename: str
     axes: tuple
-    text: str
-    data: bytes
+    data: bytes                      # the program's bytes (`text` is their UTF-8 reading)
     line_start: np.ndarray
     line_end: np.ndarray
     # words (W): address letter (0..25), value, line index (0-based), letter and number span
@@ -97,6 +97,12 @@ class Program:
                                      # angle (deg) from the work origin (gcode.polar)
     polar_xy: np.ndarray = None      # (N, 2) their point in the program frame and units (NaN
                                      # where a word is not known yet; elsewhere NaN)
+
+    @cached_property
+    def text(self) -> str:
+        """The program's text: its bytes read as UTF-8, undecodable bytes kept (surrogate
+        escapes), decoded when first asked for (a program parsed from a str has that str)."""
+        return self.data.decode("utf-8", "surrogateescape")
 
     @property
     def n_axes(self) -> int:

@@ -7,25 +7,36 @@ import re
 #: First header line; its presence marks a program mtcomp has compensated.
 MARKER = "MTCOMP COMPENSATED PROGRAM"
 _MARK_RE = re.compile(r"MTCOMP COMPENSATED PROGRAM", re.IGNORECASE)
+_MARK_RE_B = re.compile(rb"MTCOMP COMPENSATED PROGRAM", re.IGNORECASE)
 _HEAD = 1 << 16
 _PROGRAM_NUMBER_RE = re.compile(r"\s*[Oo]\d|\s*:\d")
 
 
-def compensated_line(text: str) -> int | None:
-    """1-based line of the provenance marker if the program was written by mtcomp compensate."""
+def compensated_line(text: str | bytes, ascii: bool = False) -> int | None:
+    """1-based line of the provenance marker if the program (its text, or its bytes: UTF-8)
+    was written by mtcomp compensate.  ``ascii``: the bytes are known to be ASCII (not tested
+    again)."""
+    if not isinstance(text, str):
+        if not (ascii or text.isascii()):
+            # (any case, in Unicode's sense, as for the text)
+            return compensated_line(bytes(text).decode("utf-8", "surrogateescape"))
+        rx, marker = _MARK_RE_B, MARKER.encode()
+        nl = b"\n"
+    else:
+        rx, marker, nl = _MARK_RE, MARKER, "\n"
     # mtcomp writes the header at the top: any case there; further down (a header pasted into
     # a longer program) the marker as written or all lower case, found by plain substring
     # search (a case-insensitive regex over a 40 MB program costs a third of a second)
-    m = _MARK_RE.search(text, 0, _HEAD)
+    m = rx.search(text, 0, _HEAD)
     if m is not None:
         at = m.start()
     else:
-        hits = [i for i in (text.find(MARKER, max(0, _HEAD - len(MARKER))),
-                            text.find(MARKER.lower(), max(0, _HEAD - len(MARKER)))) if i >= 0]
+        hits = [i for i in (text.find(marker, max(0, _HEAD - len(marker))),
+                            text.find(marker.lower(), max(0, _HEAD - len(marker)))) if i >= 0]
         if not hits:
             return None
         at = min(hits)
-    return text.count("\n", 0, at) + 1
+    return text.count(nl, 0, at) + 1
 
 
 def header_lines(items: list[tuple[str, str]]) -> list[str]:

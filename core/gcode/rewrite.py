@@ -11,7 +11,7 @@ from .codes import ARC_WORDS, CANONICAL, INCH, LINEAR
 from .program import Program, resolution_formats
 from . import _ctok
 from .rotation import has_rotation, to_reference, to_words
-from .textops import format_counts, splice
+from .textops import decimal_values, format_counts, splice
 from .tokens import _ascii
 
 
@@ -303,6 +303,14 @@ def _read_back_applies(p: Program, info: dict) -> bool:
                                np.count_nonzero(cw >= 0, axis=1)))
 
 
+def emitted_values(info: dict) -> np.ndarray:
+    """The emitted end positions ``info["emitted"]`` (counts) as the numbers the written words
+    say (N, n_axes; mm, deg): (count * m) / 10**d exactly, from the decimals and multiple the
+    rewrite formatted each axis with (`textops.decimal_values`)."""
+    return decimal_values(info["emitted"], info["emitted_decimals"], info["emitted_multiple"],
+                          info["emitted_resolution"])
+
+
 def check_written(program: Program, info: dict, data, out_line) -> bool | None:
     """Whether every compensated block (``info["compensated"]``) of the written program
     `data` reads back (`read_back_counts`) as the counts the rewrite emitted
@@ -348,7 +356,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     the block ends (after a linearised arc: its last segment line), so that the output can be
     compared block by block with the input.  ``info``, if a dict, receives what was done:
     ``deferred`` blocks, ``linearised`` arcs, canned cycle holes ``cycles_kept`` and
-    ``cycles_expanded``.  ``as_bytes``: the output as a bytes-like object (a bytearray where
+    ``cycles_expanded``, ``compensated`` blocks, and the counts the written words say:
+    ``emitted`` (N, n_axes) end positions in steps of ``emitted_resolution`` (mm, deg; float),
+    each step exactly ``emitted_multiple * 10**-emitted_decimals`` (per axis; `emitted_values`).  ``as_bytes``: the output as a bytes-like object (a bytearray where
     the compiled splice made it; the program's encoding, UTF-8 with its undecodable bytes
     kept) instead of str, so that a caller that edits it further or writes it saves a copy of
     the whole text."""
@@ -605,9 +615,14 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
         # the emitted end position of every block (counts of ``resolution``, reference frame):
         # what the control reads back from the written words (a linearised arc's last segment
         # ends at its end point); the caller can verify from these without re-reading the text
+        # the step of each axis as decimals and multiple (mm, deg): inch programs' linear
+        # words are steps of m * 10**-d inch, 254 * m * 10**-(d + 1) mm
+        dec_e = [int(d) + (1 if inch_prog and a in LINEAR else 0) for a, d in zip(axes, d_ax)]
+        mul_e = [int(m) * (254 if inch_prog and a in LINEAR else 1) for a, m in zip(axes, m_ax)]
         info.update(deferred=int(N - kn.sum()), linearised=int(len(lin)), compensated=kn,
                     cycles_kept=rep["kept"], cycles_expanded=rep["expanded"],
-                    emitted=new, emitted_resolution=res)
+                    emitted=new, emitted_resolution=res, emitted_decimals=dec_e,
+                    emitted_multiple=mul_e)
     ed = ctx.edits
     # the splice holds the output twice at its peak: free what the edits no longer need
     del dK, C

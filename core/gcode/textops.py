@@ -114,6 +114,37 @@ def format_counts(counts: np.ndarray, decimals: int) -> tuple[np.ndarray, np.nda
     return flat, offset, length
 
 
+def decimal_step(decimals: int, multiple: int) -> tuple[int, int]:
+    """The step ``multiple * 10**-decimals`` with the fewest decimals (5000 * 10**-7 ->
+    (4, 5)): the same number, the form `decimal_values` needs for its 2**53 bound."""
+    d, m = int(decimals), int(multiple)
+    while d > 0 and m % 10 == 0:
+        m //= 10
+        d -= 1
+    return d, m
+
+
+def decimal_values(counts, decimals, multiples, resolution) -> np.ndarray:
+    """The numbers (mm, deg) that words of ``counts`` (N, n_axes; NaN where unknown) steps of
+    ``multiples[k] * 10**-decimals[k]`` say, as a control reads them: the decimal value
+    correctly rounded, (count * m) / 10**d, an exact integer over an exact power of ten.
+    count * resolution is off by an ulp where the step is no binary fraction (3050000 * 1e-5
+    is 30.500000000000004, the word C30.5 is 30.5).  Where count * m reaches 2**53 the
+    division is not exact either and the product with ``resolution[k]`` (the step as a float)
+    is kept."""
+    out = np.array(counts, float)                     # (always a new array: scaled in place)
+    for j, (d, m) in enumerate(zip(decimals, multiples)):
+        d, m = decimal_step(d, m)
+        col = out[..., j]
+        if np.nanmax(np.abs(col), initial=0.0) * m >= 2.0 ** 53:
+            col *= float(np.ravel(resolution)[j])
+            continue
+        if m != 1:
+            col *= float(m)
+        col /= _POW10[d]
+    return out
+
+
 def splice(orig: np.ndarray, pos: np.ndarray, stop: np.ndarray, sub: np.ndarray,
            src: np.ndarray, src_off: np.ndarray, src_len: np.ndarray,
            chunk_bytes: int = 1 << 24, progress=None) -> bytes | bytearray:
