@@ -71,6 +71,38 @@ def test_header_in_semicolon_programs_and_crlf():
     assert strip_header(text) == "; siemens\r\nG0 X1\r\n"
 
 
+@pytest.mark.parametrize("body", [PROGRAM, "G21 G90\nG0 X0 Y0 Z-10.\nG1 X10. F100\nM30\n",
+                                  "(HEAD)\r\nG21 G90\r\nG0 X0 Y0 Z-10.\r\nM30", "%"])
+def test_header_goes_after_a_byte_order_mark(body):
+    """A program starting with a UTF-8 byte-order mark keeps it as its first character: the
+    header used to be inserted before it, which left the mark in the middle of the output (a
+    stray character to a control; the read-back refused it in some programs)."""
+    text = "\ufeff" + body
+    new, at, n = insert_header(text, ["MTCOMP COMPENSATED PROGRAM: X", "MACHINE m"])
+    assert new.startswith("\ufeff") and new.count("\ufeff") == 1
+    assert strip_header(new) == text
+    if body.startswith("%\n"):        # after % and the program number, as without the mark
+        assert new.splitlines()[:3] == ["\ufeff%", "O0042 (TEST)", "(MTCOMP COMPENSATED PROGRAM: X)"]
+    buf = bytearray(text.encode())
+    at_b, n_b = gcode.provenance.insert_header_bytes(buf, ["MTCOMP COMPENSATED PROGRAM: X", "MACHINE m"])
+    assert bytes(buf) == new.encode() and (at_b, n_b) == (at, n)
+
+
+def test_byte_order_mark_stays_first_through_the_cli(files, tmp_path):
+    prog, err = files
+    prog.write_bytes(b"\xef\xbb\xbf" + PROGRAM.encode())
+    zero = tmp_path / "zero.toml"
+    zero.write_text("")
+    out = tmp_path / "o.nc"
+    for e in (err, zero):
+        r = run("compensate", prog, "-m", "vmc-moving-column", "-e", e, "-o", out)
+        assert r.returncode == 0, r.stderr
+        data = out.read_bytes()
+        assert data.startswith(b"\xef\xbb\xbf%\nO0042 (TEST)\n(MTCOMP COMPENSATED PROGRAM")
+        assert data.count(b"\xef\xbb\xbf") == 1
+    assert strip_header(data.decode("utf-8")) == "\ufeff" + PROGRAM
+
+
 def test_arcs_on_a_machine_with_coarse_resolution_do_not_traceback(files, tmp_path):
     prog, err = files
     out = tmp_path / "o.nc"

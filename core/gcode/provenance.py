@@ -88,7 +88,10 @@ def _place_header(text: str, lines: list[str], semicolon: bool):
     def line(cut):                                     # the LF-terminated line at `cut`
         j = text.find("\n", cut)
         return text[cut:] if j < 0 else text[cut:j + 1]
-    at = cut = last = 0
+    at = last = 0
+    # a byte-order mark stays the first character of the file (the header after it: a mark
+    # in the middle of a program is a stray character to a control, and no longer a mark)
+    cut = 1 if text.startswith("\ufeff") else 0
     while cut < n and not line(cut).strip():
         last = len(line(cut))
         cut += last
@@ -110,7 +113,8 @@ def _place_header(text: str, lines: list[str], semicolon: bool):
     return (text[:cut] + block + text[cut:] if text else block), at, len(comments), (cut, block)
 
 
-_HEADER_LINE_RE = re.compile(r"^(\(|; )([A-Z0-9]+ |MTCOMP COMPENSATED PROGRAM)[^\n]*\n", re.MULTILINE)
+# (matched at a position: no "^", which would not match after a byte-order mark)
+_HEADER_LINE_RE = re.compile(r"(\(|; )([A-Z0-9]+ |MTCOMP COMPENSATED PROGRAM)[^\n]*\n")
 
 
 def strip_header(text: str) -> str:
@@ -119,7 +123,7 @@ def strip_header(text: str) -> str:
     at = compensated_line(text)
     if at is None:
         return text
-    start = 0
+    start = 1 if text.startswith("\ufeff") else 0      # (the header follows a byte-order mark)
     for _ in range(at - 1):
         start = text.index("\n", start) + 1
     end = start
