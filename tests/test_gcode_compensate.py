@@ -215,6 +215,19 @@ def test_tool_lengths_and_work_offsets_on_the_cli(tmp_path):
     assert r.returncode == 2 and "--tool-lengths" in r.stderr
 
 
+def test_travel_refusal_says_where_the_tool_length_comes_in(tmp_path):
+    """A G43 length added to Z that takes the axis outside its travel: the refusal names the
+    programmed position and the offset added to it (the number alone was not the word)."""
+    prog = tmp_path / "p.nc"
+    prog.write_text("G20 G90 G54\nG43 H1 Z1.0\nG1 X1. F10.\nM30\n")
+    err = save_errors(ErrorSet(ToolSetting((0.002, 0, 0.001))), tmp_path / "e.toml")
+    r = run("compensate", prog, "-m", "vmc-moving-column", "-e", err, "--tool-lengths", "1=100")
+    assert r.returncode == 2
+    assert (f"{prog}:2: Z 125.4 is outside the travel [-250, 50] of axis Z on vmc-moving-column "
+            "(programmed 25.4 mm plus 100 mm of tool length") in r.stderr
+    assert "Traceback" not in r.stderr
+
+
 def test_arc_tolerance_option(tmp_path):
     prog = tmp_path / "p.nc"
     prog.write_text("G90 G1 X10. Y0 Z0 F100\nG3 X0 Y10.05 I-10. J0\n")
