@@ -137,7 +137,8 @@ def _travel_check(machine, prog, filename, P=None):
             off = float(np.asarray(prog.offset)[j, k])
             # (travels are in the machine file's frame, whose origin is the program's: a G54 that
             # is not zero, or a G43 length added to Z, moves the axis position away from the word)
-            why = (f" (programmed {P[j, k] - off:g} mm plus {off:g} mm of tool length and work offset "
+            u = "deg" if ax.is_rotary else "mm"
+            why = (f" (programmed {P[j, k] - off:g} {u} plus {off:g} {u} of tool length and work offset "
                    "differences; the travels are those of the machine file, whose origin is the "
                    "program's origin: docs/machine-format.md)") if off else ""
             raise InputError(f"{ax.name} {P[j, k]:g} is outside the travel [{lo:g}, {hi:g}] of axis "
