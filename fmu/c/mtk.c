@@ -1432,10 +1432,11 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
         else W[0] = NAN;   /* not taken: no second-order correction */
         if (B0) memcpy(B, B0, (size_t)rows * n * sizeof(double));
         else B[0] = NAN;   /* not taken (second_order leaves the brackets out) */
-        for (k = 3 * n; k < rows * n; k++) {
-            J[k] *= wo / ORIENTATION_SCALE;
-            if (B0) B[k] *= wo / ORIENTATION_SCALE;
-        }
+        if (wo != ORIENTATION_SCALE)   /* (a held axis' weight; else the factor is 1) */
+            for (k = 3 * n; k < rows * n; k++) {
+                J[k] *= wo / ORIENTATION_SCALE;
+                if (B0) B[k] *= wo / ORIENTATION_SCALE;
+            }
         *rc = MTK_OK;
     } else {
         *rc = jacobian(Pr, q, tg, wo, J, NULL, W, B);
@@ -1599,7 +1600,10 @@ static double second_order_floor(const prep_t *P, const double *J, const double 
     double Aw = 0.0, b = 0.0;
     for (j = 0; j < n; j++) Aw += P->wmax[j] * (fabs(q[j] - qlin[j]) + 0.5 * fabs(s[j]));
     for (j = 0; j < n; j++) {
-        double pl = fmax(fabs(J[j]), fmax(fabs(J[n + j]), fabs(J[2 * n + j])));
+        /* (compares rather than fmax, a libm call here: a NaN entry fails the bound either way) */
+        double pl = fabs(J[j]), p1 = fabs(J[n + j]), p2 = fabs(J[2 * n + j]);
+        pl = p1 > pl ? p1 : pl;
+        pl = p2 > pl ? p2 : pl;
         b += fabs(s[j]) * (pl + wo * P->wmax[j]);
     }
     return 2.0 * b * Aw;
@@ -1688,7 +1692,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             /* Damping: rotary steps at most 20 deg (the whole step scaled), halved while the
              * residual does not fall.  A step below the tolerance is convergence: no evaluation
              * (at the rounding floor a trial cannot lower the residual). */
-            scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
+            scale = big > 20.0 ? 20.0 / big : 1.0;   /* (big is finite: rotary steps at most 20 deg) */
             memcpy(qn, q, n * sizeof(double));
             memcpy(rn, r, rows * sizeof(double));
             lin = smax >= tol && bounded && inner == 0 && linear_exact(P, q, step);
