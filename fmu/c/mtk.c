@@ -866,9 +866,10 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
 
 /* Axis i's nominal motion at q[i] applied in place, from the tool end, to np points x (mm: turned
  * about the axis' centre, or moved along it) and nd directions dv (turned only): the step of
- * fwd_dirs and of chain_two.  A point at the origin stays where a rotary axis turns about the
- * origin. */
-MTK_INLINE void axis_motion(const prep_t *P, int i, const double *q, double (*x)[3], int np, double (*dv)[3], int nd)
+ * fwd_dirs and of chain_two.  skip0: a point at the origin stays where a rotary axis turns about
+ * the origin (the turn left out; fwd_dirs' tool point on a head). */
+MTK_INLINE void axis_motion(const prep_t *P, int i, const double *q, double (*x)[3], int np, double (*dv)[3], int nd,
+                            int skip0)
 {
     int j, k;
     if (P->m->rotary[i]) {
@@ -876,15 +877,17 @@ MTK_INLINE void axis_motion(const prep_t *P, int i, const double *q, double (*x)
         double sn, cs, y[3];
         axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
         for (j = 0; j < np; j++) {
-            if (P->c0[i] && x[j][0] == 0.0 && x[j][1] == 0.0 && x[j][2] == 0.0) continue;
+            if (skip0 && P->c0[i] && x[j][0] == 0.0 && x[j][1] == 0.0 && x[j][2] == 0.0) continue;
             for (k = 0; k < 3; k++) y[k] = x[j][k] - c[k];
             turn(u, sn, cs, y, y);
             for (k = 0; k < 3; k++) x[j][k] = c[k] + y[k];
         }
         for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
     } else {
+        double t[3];
+        for (k = 0; k < 3; k++) t[k] = q[i] * P->ueff[i][k];
         for (j = 0; j < np; j++)
-            for (k = 0; k < 3; k++) x[j][k] += q[i] * P->ueff[i][k];
+            for (k = 0; k < 3; k++) x[j][k] += t[k];
     }
 }
 
@@ -912,7 +915,7 @@ MTK_INLINE void fwd_dirs(const prep_t *P, const double *q, double p[3], double (
                 for (j = 0; j < nd; j++) mat_vec(Re, dv[j], dv[j]);
             }
         }
-        axis_motion(P, i, q, (double (*)[3])x, 1, dv, nd);
+        axis_motion(P, i, q, (double (*)[3])x, 1, dv, nd, 1);
         if (e_after) {
             mat_vec(Re, x, y);
             for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
@@ -3025,7 +3028,7 @@ long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const
 static void chain_two(const prep_t *P, const double *q, double (*x)[3])
 {
     int i;
-    for (i = P->n - 1; i >= 0; i--) axis_motion(P, i, q, x, 2, NULL, 0);
+    for (i = P->n - 1; i >= 0; i--) axis_motion(P, i, q, x, 2, NULL, 0, 0);
 }
 
 /* The tool edge's distance (mm) from the ideal machine's at q_prog: at q_prog itself and at q_emit,
