@@ -859,11 +859,39 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
  * half the arithmetic of the matrix products (what the iteration's residual needs: the tool
  * direction on machines with one or two rotary axes, two columns of the tool frame with three). */
 #if defined(__GNUC__)
-static inline __attribute__((always_inline))
+#define MTK_INLINE static inline __attribute__((always_inline))
 #else
-static inline
+#define MTK_INLINE static inline
 #endif
-void fwd_dirs(const prep_t *P, const double *q, double p[3], double (*dv)[3], int nd)
+
+/* Axis i's nominal motion at q[i] applied in place, from the tool end, to np points x (mm: turned
+ * about the axis' centre, or moved along it) and nd directions dv (turned only): the step of
+ * fwd_dirs and of chain_two.  skip0: a point at the origin stays where a rotary axis turns about
+ * the origin (the turn left out; fwd_dirs' tool point on a head). */
+MTK_INLINE void axis_motion(const prep_t *P, int i, const double *q, double (*x)[3], int np, double (*dv)[3], int nd,
+                            int skip0)
+{
+    int j, k;
+    if (P->m->rotary[i]) {
+        const double *c = P->c[i], *u = P->ueff[i];
+        double sn, cs, y[3];
+        axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+        for (j = 0; j < np; j++) {
+            if (skip0 && P->c0[i] && x[j][0] == 0.0 && x[j][1] == 0.0 && x[j][2] == 0.0) continue;
+            for (k = 0; k < 3; k++) y[k] = x[j][k] - c[k];
+            turn(u, sn, cs, y, y);
+            for (k = 0; k < 3; k++) x[j][k] = c[k] + y[k];
+        }
+        for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
+    } else {
+        double t[3];
+        for (k = 0; k < 3; k++) t[k] = q[i] * P->ueff[i][k];
+        for (j = 0; j < np; j++)
+            for (k = 0; k < 3; k++) x[j][k] += t[k];
+    }
+}
+
+MTK_INLINE void fwd_dirs(const prep_t *P, const double *q, double p[3], double (*dv)[3], int nd)
 {
     const mtk_model *m = P->m;
     double x[3];
@@ -887,19 +915,7 @@ void fwd_dirs(const prep_t *P, const double *q, double p[3], double (*dv)[3], in
                 for (j = 0; j < nd; j++) mat_vec(Re, dv[j], dv[j]);
             }
         }
-        if (m->rotary[i]) {
-            const double *c = P->c[i], *u = P->ueff[i];
-            double sn, cs;
-            axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
-            if (!(P->c0[i] && x[0] == 0.0 && x[1] == 0.0 && x[2] == 0.0)) {   /* (else the point stays) */
-                for (k = 0; k < 3; k++) y[k] = x[k] - c[k];
-                turn(u, sn, cs, y, y);
-                for (k = 0; k < 3; k++) x[k] = c[k] + y[k];
-            }
-            for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
-        } else {
-            for (k = 0; k < 3; k++) x[k] += q[i] * P->ueff[i][k];
-        }
+        axis_motion(P, i, q, (double (*)[3])x, 1, dv, nd, 1);
         if (e_after) {
             mat_vec(Re, x, y);
             for (k = 0; k < 3; k++) x[k] = y[k] + te[k];
@@ -1018,12 +1034,6 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
     }
     return MTK_OK;
 }
-
-#if defined(__GNUC__)
-#define MTK_INLINE static inline __attribute__((always_inline))
-#else
-#define MTK_INLINE static inline
-#endif
 
 static int errors_zero(const mtk_model *m, const mtk_errors *e)
 {
@@ -1425,10 +1435,11 @@ static int linearise(const prep_t *Pr, const double *q, const target_t *tg, doub
         else W[0] = NAN;   /* not taken: no second-order correction */
         if (B0) memcpy(B, B0, (size_t)rows * n * sizeof(double));
         else B[0] = NAN;   /* not taken (second_order leaves the brackets out) */
-        for (k = 3 * n; k < rows * n; k++) {
-            J[k] *= wo / ORIENTATION_SCALE;
-            if (B0) B[k] *= wo / ORIENTATION_SCALE;
-        }
+        if (wo != ORIENTATION_SCALE)   /* (a held axis' weight; else the factor is 1) */
+            for (k = 3 * n; k < rows * n; k++) {
+                J[k] *= wo / ORIENTATION_SCALE;
+                if (B0) B[k] *= wo / ORIENTATION_SCALE;
+            }
         *rc = MTK_OK;
     } else {
         *rc = jacobian(Pr, q, tg, wo, J, NULL, W, B);
@@ -1592,7 +1603,10 @@ static double second_order_floor(const prep_t *P, const double *J, const double 
     double Aw = 0.0, b = 0.0;
     for (j = 0; j < n; j++) Aw += P->wmax[j] * (fabs(q[j] - qlin[j]) + 0.5 * fabs(s[j]));
     for (j = 0; j < n; j++) {
-        double pl = fmax(fabs(J[j]), fmax(fabs(J[n + j]), fabs(J[2 * n + j])));
+        /* (compares rather than fmax, a libm call here: a NaN entry fails the bound either way) */
+        double pl = fabs(J[j]), p1 = fabs(J[n + j]), p2 = fabs(J[2 * n + j]);
+        pl = p1 > pl ? p1 : pl;
+        pl = p2 > pl ? p2 : pl;
         b += fabs(s[j]) * (pl + wo * P->wmax[j]);
     }
     return 2.0 * b * Aw;
@@ -1681,7 +1695,7 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
             /* Damping: rotary steps at most 20 deg (the whole step scaled), halved while the
              * residual does not fall.  A step below the tolerance is convergence: no evaluation
              * (at the rounding floor a trial cannot lower the residual). */
-            scale = fmin(1.0, 20.0 / fmax(big, 1e-300));
+            scale = big > 20.0 ? 20.0 / big : 1.0;   /* (big is finite: rotary steps at most 20 deg) */
             memcpy(qn, q, n * sizeof(double));
             memcpy(rn, r, rows * sizeof(double));
             lin = smax >= tol && bounded && inner == 0 && linear_exact(P, q, step);
@@ -3008,30 +3022,13 @@ long mtk_compensate_batch(const mtk_model *m, const mtk_errors *e, long n, const
     return batch(m, e, n, p_t, R_t, q0, q, o, res, status, info);
 }
 
-/* Two points a, b (mm, in the last tool-side frame) through the rigid chain at q (fwd_pv's
- * motions without error motions, in place): on a prepared model without tables or location
+/* Two points x[0], x[1] (mm, in the last tool-side frame) through the rigid chain at q (fwd_dirs'
+ * nominal motions without error motions, in place): on a prepared model without tables or location
  * errors the ideal tool point and the real one (with the tool setting offset) share the chain. */
-static void chain_two(const prep_t *P, const double *q, double a[3], double b[3])
+static void chain_two(const prep_t *P, const double *q, double (*x)[3])
 {
-    const mtk_model *m = P->m;
-    int i, k;
-    for (i = P->n - 1; i >= 0; i--) {
-        if (m->rotary[i]) {
-            const double *c = P->c[i], *u = P->ueff[i];
-            double sn, cs, ya[3], yb[3];
-            axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
-            for (k = 0; k < 3; k++) { ya[k] = a[k] - c[k]; yb[k] = b[k] - c[k]; }
-            turn(u, sn, cs, ya, ya);
-            turn(u, sn, cs, yb, yb);
-            for (k = 0; k < 3; k++) { a[k] = c[k] + ya[k]; b[k] = c[k] + yb[k]; }
-        } else {
-            for (k = 0; k < 3; k++) {
-                double t = q[i] * P->ueff[i][k];
-                a[k] += t;
-                b[k] += t;
-            }
-        }
-    }
+    int i;
+    for (i = P->n - 1; i >= 0; i--) axis_motion(P, i, q, x, 2, NULL, 0, 0);
 }
 
 /* The tool edge's distance (mm) from the ideal machine's at q_prog: at q_prog itself and at q_emit,
@@ -3063,15 +3060,16 @@ long mtk_check_batch(const mtk_model *m, const mtk_errors *e, long n, const doub
         }
         if (!P.geo) {
             /* setting errors alone: one chain for the ideal and the real tool point at q_prog */
-            double b[3];
-            memcpy(pt, m->tool_point, sizeof pt);
-            memcpy(b, P.tp, sizeof b);
-            chain_two(&P, qp, pt, b);
+            double x[2][3];
+            memcpy(x[0], m->tool_point, sizeof x[0]);
+            memcpy(x[1], P.tp, sizeof x[1]);
+            chain_two(&P, qp, x);
+            memcpy(pt, x[0], sizeof pt);
             if (P.wp) {
-                for (k = 0; k < 3; k++) b[k] -= P.tw[k];
-                mat_vec(P.RwT, b, pr);
+                for (k = 0; k < 3; k++) x[1][k] -= P.tw[k];
+                mat_vec(P.RwT, x[1], pr);
             } else {
-                memcpy(pr, b, sizeof pr);
+                memcpy(pr, x[1], sizeof pr);
             }
         } else {
             fwd_pv(&Pi, qp, pt, v);
