@@ -88,3 +88,32 @@ def independent_forward(machine, q, errors):
     W = _h(Rw, errors.workpiece.translation)
     T = np.linalg.inv(W) @ T
     return (T @ np.append(tp, 1.0))[:3], T[:3, :3]
+
+
+def kernel_stats(tmp_path, script: str) -> dict:
+    """Counters of a test build of the kernel (-DMTK_STATS, printed at exit as ``STATS name
+    count ...``) after `script` has run in a child process on one thread; `script` is formatted
+    with ``tests`` (this directory, for imports) and ``lib`` (the test build's path).  Skips
+    without a C compiler."""
+    import os
+    import subprocess
+    import sys
+
+    import pytest
+
+    from mtcomp import _kernel
+    cc = _kernel.find_compiler()
+    if not cc:
+        pytest.skip("no C compiler")
+    src = _kernel.source_dir()
+    lib = tmp_path / ("libmtk-stats" + _kernel._SUFFIX)
+    if not lib.exists():
+        subprocess.run([cc, *_kernel.CFLAGS, "-DMTK_STATS",
+                        *(str(src / f) for f in _kernel.SOURCES if f.endswith(".c")),
+                        "-o", str(lib), "-lm"], check=True, capture_output=True)
+    tests = os.path.dirname(os.path.abspath(__file__))
+    run = subprocess.run([sys.executable, "-c", script.format(tests=tests, lib=str(lib))],
+                         capture_output=True, text=True, env=dict(os.environ, MTCOMP_THREADS="1"),
+                         check=True)
+    words = run.stderr.split("STATS", 1)[1].split()
+    return dict(zip(words[0::2], (int(w) for w in words[1::2])))

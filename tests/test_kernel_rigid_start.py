@@ -2,10 +2,6 @@
 (fmu/c/mtk.c, batch: seed_rigid): the setting errors and the workpiece rotation solved exactly, the
 iteration left with the tables' part.  Held to the numpy reference (which iterates from the
 programmed pose) near the tables' ends and near the poles, and counted in a test build."""
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -14,7 +10,7 @@ from mtcomp._io import MtcompError
 from mtcomp.kinematics import forward, retarget
 from mtcomp.machine import load_machine
 
-from _models import random_commands, random_errors
+from _models import kernel_stats, random_commands, random_errors
 
 PRESETS = ["robonano-ui", "robonano-a0ib", "vmc-moving-column"]
 
@@ -109,19 +105,8 @@ def test_a_random_pose_with_tables_takes_one_jacobian_pass_and_about_one_evaluat
     machine; measured 1.15, 1.23 and 1.02).  Started from the programmed pose (the setting errors and
     the blank rotation left to the iteration) the same poses take 2.7 and 3.7 evaluations on ui and
     a0ib, 1.2 on the 3-axis machine."""
-    cc = _kernel.find_compiler()
-    if not cc:
-        pytest.skip("no C compiler")
-    src = _kernel.source_dir()
-    lib = tmp_path / ("libmtk-stats" + _kernel._SUFFIX)
-    subprocess.run([cc, *_kernel.CFLAGS, "-DMTK_STATS", *(str(src / f) for f in _kernel.SOURCES if f.endswith(".c")),
-                    "-o", str(lib), "-lm"], check=True, capture_output=True)
-    tests = os.path.dirname(os.path.abspath(__file__))
     for name in PRESETS:
-        run = subprocess.run([sys.executable, "-c", _COUNT.format(tests=tests, lib=str(lib), name=name)],
-                             capture_output=True, text=True, env=dict(os.environ, MTCOMP_THREADS="1"), check=True)
-        words = run.stderr.split("STATS", 1)[1].split()
-        stats = dict(zip(words[0::2], (int(w) for w in words[1::2])))
+        stats = kernel_stats(tmp_path, _COUNT.replace("{name!r}", repr(name)))
         assert stats["poses"] == 1000, stats
         assert stats["jac"] == stats["poses"], (name, stats)
         assert stats["res"] < (1.6 if name.startswith("robonano") else 1.1) * stats["poses"], (name, stats)

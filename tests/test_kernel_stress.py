@@ -14,7 +14,7 @@ from mtcomp.errors import (AxisErrorTable, ErrorSet, GeometricErrors, ToolSettin
 from mtcomp.kinematics import forward, retarget
 from mtcomp.machine import load_machine
 
-from _models import random_errors
+from _models import kernel_stats, random_errors
 
 pytestmark = pytest.mark.skipif(not _kernel.available(), reason="no C compiler: the numpy reference runs alone")
 
@@ -477,7 +477,7 @@ sys.path.insert(0, {tests!r})
 from mtcomp import _kernel
 from mtcomp.kinematics import retarget
 from mtcomp.machine import load_machine
-from _models import random_errors
+from _models import kernel_stats, random_errors
 import test_kernel_stress as t
 _kernel._state["lib"] = _kernel._bind(ctypes.CDLL({lib!r}))
 m = load_machine("robonano-ui")
@@ -494,21 +494,7 @@ def test_three_rotary_axes_path_poses_are_taken_on_an_earlier_jacobian(tmp_path)
     poses, steps of about 1e-3 mm and deg through steep curved tables) are solved on an earlier
     pose's Jacobian too: counted in a test build (-DMTK_STATS: Jacobian passes and poses, printed
     at exit), fewer than one pass in five poses, where each pose took its own pass before."""
-    import os
-    import subprocess
-    import sys
-    cc = _kernel.find_compiler()
-    if not cc:
-        pytest.skip("no C compiler")
-    src = _kernel.source_dir()
-    lib = tmp_path / ("libmtk-stats" + _kernel._SUFFIX)
-    subprocess.run([cc, *_kernel.CFLAGS, "-DMTK_STATS", *(str(src / f) for f in _kernel.SOURCES if f.endswith(".c")),
-                    "-o", str(lib), "-lm"], check=True, capture_output=True)
-    tests = os.path.dirname(os.path.abspath(__file__))
-    run = subprocess.run([sys.executable, "-c", _COUNT.format(tests=tests, lib=str(lib))], capture_output=True,
-                         text=True, env=dict(os.environ, MTCOMP_THREADS="1"), check=True)
-    words = run.stderr.split("STATS", 1)[1].split()
-    stats = dict(zip(words[0::2], (int(w) for w in words[1::2])))
+    stats = kernel_stats(tmp_path, _COUNT)
     assert stats["poses"] == 2000
     assert stats["jac"] < stats["poses"] / 5, stats
 
