@@ -94,6 +94,8 @@ def mutate(text: str, rng: random.Random, pool: list[str]) -> str:
         elif pool:
             lines.insert(rng.randrange(len(lines) + 1), rng.choice(pool))
         text = "\n".join(lines)
+    if rng.random() < 0.05 and not text.startswith("\ufeff"):
+        text = "\ufeff" + text      # a byte-order mark in front, as some editors save programs
     return text
 
 
@@ -389,8 +391,12 @@ def campaign(per_surface: int, seed: int, timeout: float, surfaces: list[str] | 
                     outp = o / "out.nc"
                     # the compensated program carries mtcomp's provenance header: the rest must
                     # be the input byte for byte (zero errors)
-                    if not outp.exists() or (strip_header(outp.read_bytes().decode("utf-8"))
-                                             .encode("utf-8") != (d / fname).read_bytes()):
+                    # (and a byte-order mark stays the first bytes: the rest is then the input
+                    # even with the header in front of the mark, a stray character to a control)
+                    src = (d / fname).read_bytes()
+                    out = outp.read_bytes() if outp.exists() else None
+                    if out is None or (strip_header(out.decode("utf-8")).encode("utf-8") != src) or \
+                            (src.startswith(b"\xef\xbb\xbf") and not out.startswith(b"\xef\xbb\xbf")):
                         counts["silent_wrong"] += 1
                         bad = bad or f"identity changed {changed_block(d / fname, outp)}"
                 if bad:
