@@ -192,9 +192,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
 
     text: the program's text, or its bytes as read from the file (`gcode.read_program_bytes`)
     in ``encoding`` ("ascii", "utf-8", or "latin-1" for 8-bit comments): the output is then
-    bytes too
-    (a bytes-like object, written as it is), nothing decoded or encoded on the way; the output
-    of a text is text.
+    bytes too (a bytes-like object, written as it is), nothing decoded or encoded on the way;
+    the output of a text is text.
 
     chordal_tol (mm): tolerance for arcs that must be linearised (default 0.1 µm, at least twice
     the linear resolution).  start: known axis positions before the first block ({"X": ..}).
@@ -214,8 +213,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     correction at the tool centre by more than ``tolerance`` is refused (docs/gcode.md).
     search_path: directories where subprograms called but not in the program are looked for
     (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
-    Returns (new program (text or bytes, as given), report dict: blocks, lines, deferred blocks, idle axes, max/RMS tool-edge
-    errors in mm before and after over the compensated blocks, from the forward model,
+    Returns (new program (text or bytes, as given), report dict: blocks, lines, deferred
+    blocks, idle axes, max/RMS tool-edge errors in mm before and after over the compensated blocks, from the forward model,
     ``verify``: the VerifyResult or None)."""
     from . import gcode
     from .gcode import flow
@@ -229,8 +228,9 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                 stock=stock, part=part, clearance=clearance, tolerance=tolerance,
                 warn_only=warn_only, cutter_radius=cutter_radius, cutter_offsets=cutter_offsets)
     as_text = isinstance(text, str)
-    ascii = not as_text and codecs.lookup(encoding).name == "ascii"
-    if not as_text and not ascii and codecs.lookup(encoding).name != "utf-8":
+    codec = None if as_text else codecs.lookup(encoding).name
+    ascii = codec == "ascii"
+    if codec not in (None, "ascii", "utf-8"):
         # 8-bit comments (Latin-1): read as their text, every byte one character, and written
         # back in the encoding, byte for byte
         new, report = compensate_program(bytes(text).decode(encoding), machine, errors,
@@ -533,9 +533,9 @@ def _travel_check_emitted(machine, emitted, kn, prog, filename):
 
 def verify_output(machine, text, errors, *, filename="<string>", stock=None, part=None,
                   clearance=0.2, tolerance=5e-4, warn_only=False, **parse_kw):
-    """Run the written program `text` (str, or its bytes: UTF-8) through the forward model with `errors` (the real
-    machine) and check it against stock (rapids, ``clearance``) and part (feeds, ``tolerance``)
-    with mtcomp.verify, block by block.  Blocks where the program has not fixed every axis yet
+    """Run the written program `text` (str, or its bytes: UTF-8) through the forward model
+    with `errors` (the real machine) and check it against stock (rapids, ``clearance``) and
+    part (feeds, ``tolerance``) with mtcomp.verify, block by block.  Blocks where the program has not fixed every axis yet
     (deferred) are not checked; canned cycle blocks and the moves into them neither (their holes
     go into the stock by design).  Returns the VerifyResult; raises VerifyError naming the first
     failing block unless warn_only."""

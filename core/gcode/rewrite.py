@@ -358,7 +358,8 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     ``deferred`` blocks, ``linearised`` arcs, canned cycle holes ``cycles_kept`` and
     ``cycles_expanded``, ``compensated`` blocks, and the counts the written words say:
     ``emitted`` (N, n_axes) end positions in steps of ``emitted_resolution`` (mm, deg; float),
-    each step exactly ``emitted_multiple * 10**-emitted_decimals`` (per axis; `emitted_values`).  ``as_bytes``: the output as a bytes-like object (a bytearray where
+    each step exactly ``emitted_multiple * 10**-emitted_decimals`` (per axis;
+    `emitted_values`).  ``as_bytes``: the output as a bytes-like object (a bytearray where
     the compiled splice made it; the program's encoding, UTF-8 with its undecodable bytes
     kept) instead of str, so that a caller that edits it further or writes it saves a copy of
     the whole text."""
