@@ -528,7 +528,7 @@ def test_paths_solved_on_an_earlier_poses_jacobian(name):
     term for the target frame's turn since that pose) keeps the model linear over it.  A path
     sweeping every axis through steep curved tables and their knots, with the step length
     changing, a stop and a reversal, B through its pole (a0ib at 0 deg, ui at 90 deg, where the
-    pole test of the earlier Jacobian must hand the poses near it back): each pose on the ideal
+    pole test on each pose's target must hand the poses near it back): each pose on the ideal
     pose (held ones: the position, the tool within the pole tolerance; else the tool direction,
     and with three rotary axes the whole tool frame), the same commands as the poses solved one
     by one and as numpy's."""

@@ -511,17 +511,23 @@ typedef struct {
     double r2, iden;                  /* a.a - (u2.a)^2, 1 / (1 - (u1.u2)^2) */
     double sc_ref[MTK_MAX_AXES][3];   /* per rotary axis an angle (rad) taken by sin and cos, and
                                        * those (axis_sincos; NAN: none yet) */
+    int axal[MTK_MAX_AXES];           /* a rotary axis along +x, +y or +z (0, 1, 2: turn_axal), else -1 */
+    double qlo[MTK_MAX_AXES], qhi[MTK_MAX_AXES];   /* in_ranges: travel with its slack, within the
+                                                    * table's range (1e-12) where there is one */
     double wmax[MTK_MAX_AXES];        /* bound of |W_i|, the angular velocity of axis i per deg or mm:
                                        * DEG for a rotary axis, plus the steepest slope of its table's
                                        * angles (the second-order bounds of iterate) */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
- * µrad angles of error tables; truncation below 1e-24), sin/cos above. */
+ * µrad angles of error tables; truncation below 1e-18), sin/cos above. */
 static inline void rotvec_fast(const double w[3], double R[9])
 {
     double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], a, b;
-    if (t2 < 1e-6) {
+    if (t2 < 1e-8) {   /* (below 1e-4 rad, the usual table angles: truncation below 1e-18) */
+        a = 1.0 - t2 * (1.0 / 6.0);
+        b = 0.5 - t2 * (1.0 / 24.0);
+    } else if (t2 < 1e-6) {
         a = 1.0 - t2 * (1.0 / 6.0) * (1.0 - t2 * (1.0 / 20.0) * (1.0 - t2 * (1.0 / 42.0)));
         b = 0.5 - t2 * (1.0 / 24.0) * (1.0 - t2 * (1.0 / 30.0) * (1.0 - t2 * (1.0 / 56.0)));
     } else {
@@ -630,6 +636,20 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
         P->c0[i] = P->c[i][0] == 0.0 && P->c[i][1] == 0.0 && P->c[i][2] == 0.0;
     }
     for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
+    for (i = 0; i < m->n_axes; i++) {
+        const double *u = P->ueff[i];
+        const mtk_table *t = P->tab[i];
+        P->axal[i] = -1;
+        for (k = 0; k < 3 && m->rotary[i]; k++)
+            if (u[k] == 1.0 && u[(k + 1) % 3] == 0.0 && u[(k + 2) % 3] == 0.0) P->axal[i] = k;
+        P->qlo[i] = m->lo[i] - m->slack[i];
+        P->qhi[i] = m->hi[i] + m->slack[i];
+        if (t) {
+            double tl = t->pos[0] - 1e-12, th = t->pos[t->n - 1] + 1e-12;
+            if (tl > P->qlo[i]) P->qlo[i] = tl;
+            if (th < P->qhi[i]) P->qhi[i] = th;
+        }
+    }
     for (i = 0; i < m->n_axes; i++) {
         double w = m->rotary[i] ? DEG : 0.0;
         if (P->tab[i]) {
@@ -864,6 +884,16 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
 #define MTK_INLINE static inline
 #endif
 
+/* turn() about the coordinate axis al (0, 1, 2: +x, +y, +z) in place: the two components normal
+ * to it rotated, the third kept (a nominal axis: the ideal machine's, the rigid model's). */
+MTK_INLINE void turn_axal(int al, double sn, double cs, double x[3])
+{
+    const int a = al == 2 ? 0 : al + 1, b = al == 0 ? 2 : al - 1;   /* (al + 1, al + 2 mod 3) */
+    double xa = x[a], xb = x[b];
+    x[a] = xa * cs - xb * sn;
+    x[b] = xa * sn + xb * cs;
+}
+
 /* Axis i's nominal motion at q[i] applied in place, from the tool end, to np points x (mm: turned
  * about the axis' centre, or moved along it) and nd directions dv (turned only): the step of
  * fwd_dirs and of chain_two.  skip0: a point at the origin stays where a rotary axis turns about
@@ -876,13 +906,15 @@ MTK_INLINE void axis_motion(const prep_t *P, int i, const double *q, double (*x)
         const double *c = P->c[i], *u = P->ueff[i];
         double sn, cs, y[3];
         axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+        const int al = P->axal[i];
         for (j = 0; j < np; j++) {
             if (skip0 && P->c0[i] && x[j][0] == 0.0 && x[j][1] == 0.0 && x[j][2] == 0.0) continue;
             for (k = 0; k < 3; k++) y[k] = x[j][k] - c[k];
-            turn(u, sn, cs, y, y);
+            if (al >= 0) turn_axal(al, sn, cs, y); else turn(u, sn, cs, y, y);
             for (k = 0; k < 3; k++) x[j][k] = c[k] + y[k];
         }
-        for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
+        if (al >= 0) for (j = 0; j < nd; j++) turn_axal(al, sn, cs, dv[j]);
+        else for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
     } else {
         double t[3];
         for (k = 0; k < 3; k++) t[k] = q[i] * P->ueff[i][k];
@@ -1004,10 +1036,10 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
         fwd_dirs(P, q, p, X, 2);
         cross(X[0], X[1], X2);
         for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
-        for (i = 0; i < 3; i++)   /* M = T^T R, the entries of its skew part */
+        for (i = 0; i < 3; i++)   /* M = T^T R: the entries of its skew part (off the diagonal) */
             for (j = 0; j < 3; j++) {
                 const double *c = j < 2 ? X[j] : X2;
-                M[i][j] = T[i] * c[0] + T[3 + i] * c[1] + T[6 + i] * c[2];
+                if (i != j) M[i][j] = T[i] * c[0] + T[3 + i] * c[1] + T[6 + i] * c[2];
             }
         r[3] = wo * 0.5 * (M[2][1] - M[1][2]);
         r[4] = wo * 0.5 * (M[0][2] - M[2][0]);
@@ -1768,12 +1800,13 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
 static double maxabs(const double *r, int rows)
 {
     double s = 0.0;
-    int k;
-    for (k = 0; k < rows; k++) {
-        if (isnan(r[k])) return NAN;
-        if (fabs(r[k]) > s) s = fabs(r[k]);
+    int k, nan = 0;
+    for (k = 0; k < rows; k++) {   /* (no branch per row: a NaN anywhere is the result) */
+        double a = fabs(r[k]);
+        nan |= a != a;
+        s = a > s ? a : s;
     }
-    return s;
+    return nan ? NAN : s;
 }
 
 /* Angle (rad) of the orientation residual rows r (weight wo). */
@@ -1970,13 +2003,9 @@ static const double SEED_OFFSETS[3] = {90.0, -90.0, 180.0};
  * pose is kept only there (else the pose is solved afresh, as without a path). */
 static int in_ranges(const prep_t *P, const double *q)
 {
-    const mtk_model *m = P->m;
     int k;
-    for (k = 0; k < P->n; k++) {
-        const mtk_table *t = P->tab[k];
-        if (q[k] < m->lo[k] - m->slack[k] || q[k] > m->hi[k] + m->slack[k]) return 0;
-        if (t && !(q[k] >= t->pos[0] - 1e-12 && q[k] <= t->pos[t->n - 1] + 1e-12)) return 0;
-    }
+    for (k = 0; k < P->n; k++)   /* (NaN: out where there is a table, as the table's test) */
+        if (!(q[k] >= P->qlo[k] && q[k] <= P->qhi[k]) && (P->tab[k] || !isnan(q[k]))) return 0;
     return 1;
 }
 
