@@ -174,19 +174,13 @@ def _orientation_angle(r: np.ndarray, mode: int) -> np.ndarray:
     return 2.0 * np.arcsin(np.minimum(1.0, 0.5 * x)) if mode == 2 else np.arcsin(np.minimum(1.0, x))
 
 
-def _pole_axis(machine: Machine, target: Pose, errors, q: np.ndarray, pole_tolerance: float) -> np.ndarray:
-    """(N,) the rotary axis at a pole at q, or -1: an axis whose effect on the orientation lies
-    within sin(pole_tolerance) of what the other rotary axes do (C at B = 0 on a B-C table turns
-    the tool about itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of
-    several, the last in the chain.  Columns of the rigid model's Jacobian, as the chord
-    Jacobian's."""
-    mode = _orientation_mode(machine)
-    rigid = None if errors is None else ErrorSet(errors.tool, errors.workpiece)
+def _pole_axis_of(machine: Machine, cols: list, thr: float) -> np.ndarray:
+    """(N,) the rotary axis whose orientation column (cols[k] (N,3): rotary axis k's effect on the
+    orientation per rad) lies within thr (a sine) of the span of the others' (C at B = 0 on a B-C
+    table turns the tool about itself; A and C at B = 90 on an A-B-C head turn it about the same
+    line), or -1.  Of several, the last in the chain (mtk.c pole_axis_cols)."""
     rot = list(machine.rotary_indices)
-    J = _rigid_jacobian(machine, q, rigid, target, mode, 1.0)
-    cols = [J[:, 3:, k] * (180.0 / np.pi) for k in rot]
-    thr = np.sin(np.radians(pole_tolerance))
-    hold = np.full(len(q), -1)
+    hold = np.full(len(cols[0]), -1)
     for a, ka in enumerate(rot):
         basis = []
         for b in range(len(rot)):
@@ -202,6 +196,56 @@ def _pole_axis(machine: Machine, target: Pose, errors, q: np.ndarray, pole_toler
             v -= np.sum(v * e, axis=1)[:, None] * e
         hold = np.where(np.linalg.norm(v, axis=1) < thr, ka, hold)
     return hold
+
+
+def _pole_columns(machine: Machine, target: Pose, errors) -> list | None:
+    """The orientation columns the pole rule tests: those of the rigid model (nominal axes, the
+    workpiece setting's rotation Rw) at its exact solution for the target's orientation, so that
+    the decision depends on the target alone and on the real machine's distance from its pole.
+    The rigid orientation R(u1, th1) R(u2, th2) [R(u3, th3)] = Rw R_t; the columns' lengths and
+    mutual projections depend on th2 alone, found from v = Rw R_t a (a the tool axis, with three
+    rotary axes u3) as x = R(u2, th2) a = al u1 + be u2 + ga u1 x u2 (Paden-Kahan subproblem 2;
+    either sign of ga gives the same lengths and projections; ga^2 < 0, an orientation out of
+    reach: ga = 0).  Columns in the frame before the first turn: u1 x x, u2 x x (two rotary
+    axes), u1, u2, x (three), u1 x a (one).  None where the first two rotary axes are parallel
+    (mtk.c pole_columns)."""
+    rot = list(machine.rotary_indices)
+    n = len(target)
+    u = [np.asarray(machine.axes[k].direction, dtype=float) for k in rot]
+    ta = np.asarray(machine.tool_axis, dtype=float)
+    if len(rot) == 1:
+        return [np.broadcast_to(np.cross(u[0], ta), (n, 3)).copy()]
+    c = float(u[0] @ u[1])
+    if not 1.0 - c * c > 1e-6 or len(rot) > 3:
+        return None
+    Rw = errors.workpiece.matrix if errors is not None else np.eye(3)
+    a = u[2] if len(rot) == 3 else ta
+    v = (target.R @ a) @ Rw.T
+    iden = 1.0 / (1.0 - c * c)
+    u1v = v @ u[0]
+    u2a = float(u[1] @ a)
+    al = (u1v - c * u2a) * iden
+    be = (u2a - c * u1v) * iden
+    ga2 = (float(a @ a) - al * al - be * be - 2.0 * al * be * c) * iden
+    ga = np.sqrt(np.maximum(ga2, 0.0))
+    x = al[:, None] * u[0] + be[:, None] * u[1] + ga[:, None] * np.cross(u[0], u[1])
+    if len(rot) == 3:
+        return [np.broadcast_to(u[0], (n, 3)).copy(), np.broadcast_to(u[1], (n, 3)).copy(), x]
+    return [np.cross(u[0], x), np.cross(u[1], x)]
+
+
+def _pole_axis(machine: Machine, target: Pose, errors, q: np.ndarray, pole_tolerance: float) -> np.ndarray:
+    """(N,) the rotary axis held at a pole for each target, or -1 (_pole_axis_of on _pole_columns,
+    a sine of pole_tolerance deg).  Where those columns do not apply, the rigid model's Jacobian
+    columns at q (the programmed commands), as the chord Jacobian's (mtk.c pole_decision)."""
+    thr = np.sin(np.radians(pole_tolerance))
+    cols = _pole_columns(machine, target, errors)
+    if cols is None:
+        mode = _orientation_mode(machine)
+        rigid = None if errors is None else ErrorSet(errors.tool, errors.workpiece)
+        J = _rigid_jacobian(machine, q, rigid, target, mode, 1.0)
+        cols = [J[:, 3:, k] * (180.0 / np.pi) for k in machine.rotary_indices]
+    return _pole_axis_of(machine, cols, thr)
 
 
 #: Rotary offsets (deg) tried as new starting points where the iteration from the programmed

@@ -333,7 +333,9 @@ def compensate(machine: Machine, target: Pose, errors: ErrorSet | None = None, q
 
     Poles (pole_tolerance, deg; default POLE_TOLERANCE, 0 disables): where a rotary axis' effect
     on the orientation lies within the tolerance of what the other rotary axes do (C at B = 0 on
-    a B-C table, A and C at B = 90 on an A-B-C head), that axis keeps its programmed value, the
+    a B-C table, A and C at B = 90 on an A-B-C head) at the exact solution for the target's
+    orientation (the rigid model with the blank's rotation: the real machine's pole, decided by
+    the target alone, docs/model.md), that axis keeps its programmed value, the
     others meet the orientation in least squares and the position exactly, as controls hold
     the pole axis; this is kept if the orientation is then within pole_tolerance, so a small
     blank tilt never turns C by tens of degrees.  Otherwise the exact solution: from q0 (along a

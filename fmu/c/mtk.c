@@ -511,17 +511,23 @@ typedef struct {
     double r2, iden;                  /* a.a - (u2.a)^2, 1 / (1 - (u1.u2)^2) */
     double sc_ref[MTK_MAX_AXES][3];   /* per rotary axis an angle (rad) taken by sin and cos, and
                                        * those (axis_sincos; NAN: none yet) */
+    int axal[MTK_MAX_AXES];           /* a rotary axis along +x, +y or +z (0, 1, 2: turn_axal), else -1 */
+    double qlo[MTK_MAX_AXES], qhi[MTK_MAX_AXES];   /* in_ranges: travel with its slack, within the
+                                                    * table's range (1e-12) where there is one */
     double wmax[MTK_MAX_AXES];        /* bound of |W_i|, the angular velocity of axis i per deg or mm:
                                        * DEG for a rotary axis, plus the steepest slope of its table's
                                        * angles (the second-order bounds of iterate) */
 } prep_t;
 
 /* Rotation matrix of a small-or-large rotation vector w (rad): series below 1e-3 rad (the
- * µrad angles of error tables; truncation below 1e-24), sin/cos above. */
+ * µrad angles of error tables; truncation below 1e-18), sin/cos above. */
 static inline void rotvec_fast(const double w[3], double R[9])
 {
     double t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2], a, b;
-    if (t2 < 1e-6) {
+    if (t2 < 1e-8) {   /* (below 1e-4 rad, the usual table angles: truncation below 1e-18) */
+        a = 1.0 - t2 * (1.0 / 6.0);
+        b = 0.5 - t2 * (1.0 / 24.0);
+    } else if (t2 < 1e-6) {
         a = 1.0 - t2 * (1.0 / 6.0) * (1.0 - t2 * (1.0 / 20.0) * (1.0 - t2 * (1.0 / 42.0)));
         b = 0.5 - t2 * (1.0 / 24.0) * (1.0 - t2 * (1.0 / 30.0) * (1.0 - t2 * (1.0 / 56.0)));
     } else {
@@ -630,6 +636,20 @@ static void prepare(const mtk_model *m, const mtk_errors *e, int geo, prep_t *P)
         P->c0[i] = P->c[i][0] == 0.0 && P->c[i][1] == 0.0 && P->c[i][2] == 0.0;
     }
     for (i = 0; i < MTK_MAX_AXES; i++) P->sc_ref[i][0] = NAN;
+    for (i = 0; i < m->n_axes; i++) {
+        const double *u = P->ueff[i];
+        const mtk_table *t = P->tab[i];
+        P->axal[i] = -1;
+        for (k = 0; k < 3 && m->rotary[i]; k++)
+            if (u[k] == 1.0 && u[(k + 1) % 3] == 0.0 && u[(k + 2) % 3] == 0.0) P->axal[i] = k;
+        P->qlo[i] = m->lo[i] - m->slack[i];
+        P->qhi[i] = m->hi[i] + m->slack[i];
+        if (t) {
+            double tl = t->pos[0] - 1e-12, th = t->pos[t->n - 1] + 1e-12;
+            if (tl > P->qlo[i]) P->qlo[i] = tl;
+            if (th < P->qhi[i]) P->qhi[i] = th;
+        }
+    }
     for (i = 0; i < m->n_axes; i++) {
         double w = m->rotary[i] ? DEG : 0.0;
         if (P->tab[i]) {
@@ -864,6 +884,16 @@ static int fwd(const prep_t *P, const double *q, double p[3], double R[9], int s
 #define MTK_INLINE static inline
 #endif
 
+/* turn() about the coordinate axis al (0, 1, 2: +x, +y, +z) in place: the two components normal
+ * to it rotated, the third kept (a nominal axis: the ideal machine's, the rigid model's). */
+MTK_INLINE void turn_axal(int al, double sn, double cs, double x[3])
+{
+    const int a = al == 2 ? 0 : al + 1, b = al == 0 ? 2 : al - 1;   /* (al + 1, al + 2 mod 3) */
+    double xa = x[a], xb = x[b];
+    x[a] = xa * cs - xb * sn;
+    x[b] = xa * sn + xb * cs;
+}
+
 /* Axis i's nominal motion at q[i] applied in place, from the tool end, to np points x (mm: turned
  * about the axis' centre, or moved along it) and nd directions dv (turned only): the step of
  * fwd_dirs and of chain_two.  skip0: a point at the origin stays where a rotary axis turns about
@@ -876,13 +906,15 @@ MTK_INLINE void axis_motion(const prep_t *P, int i, const double *q, double (*x)
         const double *c = P->c[i], *u = P->ueff[i];
         double sn, cs, y[3];
         axis_sincos(P, i, q[i] * DEG + P->zero[i], &sn, &cs);
+        const int al = P->axal[i];
         for (j = 0; j < np; j++) {
             if (skip0 && P->c0[i] && x[j][0] == 0.0 && x[j][1] == 0.0 && x[j][2] == 0.0) continue;
             for (k = 0; k < 3; k++) y[k] = x[j][k] - c[k];
-            turn(u, sn, cs, y, y);
+            if (al >= 0) turn_axal(al, sn, cs, y); else turn(u, sn, cs, y, y);
             for (k = 0; k < 3; k++) x[j][k] = c[k] + y[k];
         }
-        for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
+        if (al >= 0) for (j = 0; j < nd; j++) turn_axal(al, sn, cs, dv[j]);
+        else for (j = 0; j < nd; j++) turn(u, sn, cs, dv[j], dv[j]);
     } else {
         double t[3];
         for (k = 0; k < 3; k++) t[k] = q[i] * P->ueff[i][k];
@@ -1004,10 +1036,10 @@ static int residual(const prep_t *P, const double *q, const target_t *tg, double
         fwd_dirs(P, q, p, X, 2);
         cross(X[0], X[1], X2);
         for (k = 0; k < 3; k++) r[k] = p[k] - tg->p[k];
-        for (i = 0; i < 3; i++)   /* M = T^T R, the entries of its skew part */
+        for (i = 0; i < 3; i++)   /* M = T^T R: the entries of its skew part (off the diagonal) */
             for (j = 0; j < 3; j++) {
                 const double *c = j < 2 ? X[j] : X2;
-                M[i][j] = T[i] * c[0] + T[3 + i] * c[1] + T[6 + i] * c[2];
+                if (i != j) M[i][j] = T[i] * c[0] + T[3 + i] * c[1] + T[6 + i] * c[2];
             }
         r[3] = wo * 0.5 * (M[2][1] - M[1][2]);
         r[4] = wo * 0.5 * (M[0][2] - M[2][0]);
@@ -1768,12 +1800,13 @@ static int iterate(const prep_t *P, const prep_t *Pr, const target_t *tg, double
 static double maxabs(const double *r, int rows)
 {
     double s = 0.0;
-    int k;
-    for (k = 0; k < rows; k++) {
-        if (isnan(r[k])) return NAN;
-        if (fabs(r[k]) > s) s = fabs(r[k]);
+    int k, nan = 0;
+    for (k = 0; k < rows; k++) {   /* (no branch per row: a NaN anywhere is the result) */
+        double a = fabs(r[k]);
+        nan |= a != a;
+        s = a > s ? a : s;
     }
-    return s;
+    return nan ? NAN : s;
 }
 
 /* Angle (rad) of the orientation residual rows r (weight wo). */
@@ -1783,17 +1816,16 @@ static double orientation_angle(const prep_t *P, const double *r, double wo)
     return P->mode == 2 ? 2.0 * asin(fmin(1.0, 0.5 * x)) : asin(fmin(1.0, x));
 }
 
-/* The rotary axis at a pole at q, or -1: an axis whose effect on the orientation lies within
- * sin(pole_tol) of what the other rotary axes do (C at B = 0 on a B-C table turns the tool about
- * itself; A and C at B = 90 on an A-B-C head turn it about the same line).  Of several, the last
- * in the chain (mtcomp.kinematics._pole_axis).  J: the rigid Jacobian at q (ORIENTATION_SCALE). */
-static int pole_axis_margin(const prep_t *Pr, const double *J, double thr, double *margin)
+/* The rotary axis at a pole, or -1, from the orientation columns col[a] of the rotary axes (their
+ * effect on the orientation per rad: w_a x v for the tool direction v, or w_a with the full
+ * orientation): an axis whose column lies within sin(pole_tol) = thr of the span of the others
+ * (C at B = 0 on a B-C table turns the tool about itself; A and C at B = 90 on an A-B-C head turn
+ * it about the same line).  Of several, the last in the chain (mtcomp._solver._pole_axis_of).
+ * *margin (if given): the least distance of a column from the others' span. */
+static int pole_axis_cols(const prep_t *Pr, double (*col)[3], double thr, double *margin)
 {
-    int n = Pr->n, a, b, j, k, hold = -1;
+    int a, b, j, k, hold = -1;
     double least = INFINITY;
-    double col[MTK_MAX_AXES][3];
-    for (a = 0; a < Pr->nrot; a++)
-        for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / (ORIENTATION_SCALE * DEG);
     for (a = 0; a < Pr->nrot; a++) {
         double basis[MTK_MAX_AXES][3], v[3];
         int nb = 0;
@@ -1826,9 +1858,135 @@ static int pole_axis_margin(const prep_t *Pr, const double *J, double thr, doubl
     return hold;
 }
 
-static int pole_axis(const prep_t *Pr, const double *J, double thr)
+/* pole_axis_cols on the orientation rows of a Jacobian J (weight ORIENTATION_SCALE, per deg). */
+static int pole_axis_margin(const prep_t *Pr, const double *J, double thr, double *margin)
 {
-    return pole_axis_margin(Pr, J, thr, NULL);
+    int n = Pr->n, a, j;
+    double col[MTK_MAX_AXES][3];
+    for (a = 0; a < Pr->nrot; a++)
+        for (j = 0; j < 3; j++) col[a][j] = J[(3 + j) * n + Pr->rot_idx[a]] / (ORIENTATION_SCALE * DEG);
+    return pole_axis_cols(Pr, col, thr, margin);
+}
+
+/* The orientation columns the pole rule tests (pole_axis_cols): those of the rigid model (the
+ * nominal axes, the workpiece setting's rotation Rw) at its exact solution for the target's
+ * orientation, so that the decision depends on the target pose alone (not on where an iteration
+ * starts, the path before, or the backend), and on the real machine's distance from its pole (a
+ * tilted blank moves the pole: the exact solution's sensitivity, about 1 / sin of that distance,
+ * is what holding the axis bounds; the held solution's orientation error is within the same
+ * distance).  The rigid orientation is R(u1, th1) R(u2, th2) [R(u3, th3)] = Rw R_t, of which the
+ * columns' lengths and mutual projections depend on th2 alone (the first turn rotates them all;
+ * the third turns w3 about itself), found from the target direction v = Rw R_t a (a the tool
+ * axis; with three rotary axes a = u3) as in closed_rot_core: x = R(u2, th2) a = al u1 + be u2 +
+ * ga u1 x u2, either sign of ga (the columns of the two solutions have the same lengths and
+ * projections).  Columns in the frame before the first turn: u1 x x, u2 x x (two rotary axes),
+ * u1, u2, x (three), u1 x a (one).  ga^2 < 0 (an orientation the rigid model cannot reach): the
+ * nearest, ga = 0.  Returns 0 (col not set) where the first two rotary axes are parallel. */
+static int pole_columns(const prep_t *P, const target_t *tg, double (*col)[3])
+{
+    const mtk_model *m = P->m;
+    const double *u1 = m->dir[P->rot_idx[0]], *u2, *a;
+    double v[3], w[3], x[3], c, iden, u1v, u2a, aa, al, be, ga2, ga;
+    int k;
+    if (P->nrot == 1) {
+        cross(u1, m->tool_axis, col[0]);
+        return 1;
+    }
+    u2 = m->dir[P->rot_idx[1]];
+    c = dot3(u1, u2);
+    if (!(1.0 - c * c > 1e-6)) return 0;
+    if (P->nrot == 3) {
+        double Mt[9];
+        a = m->dir[P->rot_idx[2]];
+        mat_mul(P->Rw, tg->R, Mt);
+        mat_vec(Mt, a, v);
+    } else {
+        a = m->tool_axis;
+        mat_vec(P->Rw, tg->v, v);
+    }
+    iden = 1.0 / (1.0 - c * c);
+    u1v = dot3(u1, v);
+    u2a = dot3(u2, a);
+    aa = dot3(a, a);
+    al = (u1v - c * u2a) * iden;
+    be = (u2a - c * u1v) * iden;
+    ga2 = (aa - al * al - be * be - 2.0 * al * be * c) * iden;
+    ga = ga2 > 0.0 ? sqrt(ga2) : 0.0;
+    cross(u1, u2, w);
+    for (k = 0; k < 3; k++) x[k] = al * u1[k] + be * u2[k] + ga * w[k];
+    if (P->nrot == 3) {
+        memcpy(col[0], u1, sizeof col[0]);
+        memcpy(col[1], u2, sizeof col[1]);
+        memcpy(col[2], x, sizeof col[2]);
+    } else {
+        cross(u1, x, col[0]);
+        cross(u2, x, col[1]);
+    }
+    return 1;
+}
+
+/* No rotary axis within lim (a sine) of the others' span on the rigid model's exact solution, from
+ * the invariants of pole_columns (u1.v, u2.a, t12 = u12.x = ga (1 - c^2), a.a; see closed_rot_core):
+ * with two rotary axes the columns' lengths and the distance of each from the other's line, with
+ * three (unit axes) the determinant, a lower bound of each column's distance from the others'
+ * span.  1: pole_decision holds no axis at a tolerance below lim. */
+static inline int pole_clear_inv(int nrot, double aa, double u1v, double u2a, double t12, double lim)
+{
+    double lim2 = lim * lim, n1, n2, nx;
+    if (nrot == 3) return t12 * t12 >= lim2;
+    n1 = aa - u1v * u1v;
+    n2 = aa - u2a * u2a;
+    nx = t12 * t12 * aa;
+    return n1 >= lim2 && n2 >= lim2 && nx >= lim2 * (n1 > n2 ? n1 : n2);
+}
+
+/* pole_clear_inv for a target: 1 where the pole rule certainly holds no axis at the tolerance
+ * whose sine is thr, 0 where it might (or the first two rotary axes are parallel). */
+static int pole_clear(const prep_t *P, const target_t *tg, double thr)
+{
+    const mtk_model *m = P->m;
+    const double *u1 = m->dir[P->rot_idx[0]], *u2, *a;
+    double v[3], w[3], c, iden, u1v, u2a, aa, al, be, ga2;
+    thr *= 1.0 + 1e-9;
+    if (P->nrot == 1) {
+        cross(u1, m->tool_axis, w);
+        return dot3(w, w) >= thr * thr;
+    }
+    if (P->nrot > 3) return 0;
+    u2 = m->dir[P->rot_idx[1]];
+    c = dot3(u1, u2);
+    if (!(1.0 - c * c > 1e-6)) return 0;
+    if (P->nrot == 3) {
+        double y[3];
+        a = m->dir[P->rot_idx[2]];
+        mat_vec(tg->R, a, y);
+        mat_vec(P->Rw, y, v);
+    } else {
+        a = m->tool_axis;
+        mat_vec(P->Rw, tg->v, v);
+    }
+    iden = 1.0 / (1.0 - c * c);
+    u1v = dot3(u1, v);
+    u2a = dot3(u2, a);
+    aa = dot3(a, a);
+    al = (u1v - c * u2a) * iden;
+    be = (u2a - c * u1v) * iden;
+    ga2 = (aa - al * al - be * be - 2.0 * al * be * c) * iden;
+    return pole_clear_inv(P->nrot, aa, u1v, u2a, (ga2 > 0.0 ? sqrt(ga2) : 0.0) * (1.0 - c * c), thr);
+}
+
+/* The pole axis the compensation holds for a target (mtcomp._solver._pole_axis), or -1: the test
+ * of pole_axis_cols on pole_columns; where those do not apply, on the rigid Jacobian at q0 (the
+ * programmed commands). */
+static int pole_decision(const prep_t *Pr, const target_t *tg, const double *q0, double thr)
+{
+    double col[MTK_MAX_AXES][3];
+    if (Pr->nrot > 3 || !pole_columns(Pr, tg, col)) {
+        double J[6 * MTK_MAX_AXES], r[6];
+        if (Pr->geo || jacobian(Pr, q0, tg, ORIENTATION_SCALE, J, r, NULL, NULL) != MTK_OK) return -1;
+        return pole_axis_margin(Pr, J, thr, NULL);
+    }
+    return pole_axis_cols(Pr, col, thr, NULL);
 }
 
 typedef struct {
@@ -1845,21 +2003,17 @@ static const double SEED_OFFSETS[3] = {90.0, -90.0, 180.0};
  * pose is kept only there (else the pose is solved afresh, as without a path). */
 static int in_ranges(const prep_t *P, const double *q)
 {
-    const mtk_model *m = P->m;
     int k;
-    for (k = 0; k < P->n; k++) {
-        const mtk_table *t = P->tab[k];
-        if (q[k] < m->lo[k] - m->slack[k] || q[k] > m->hi[k] + m->slack[k]) return 0;
-        if (t && !(q[k] >= t->pos[0] - 1e-12 && q[k] <= t->pos[t->n - 1] + 1e-12)) return 0;
-    }
+    for (k = 0; k < P->n; k++)   /* (NaN: out where there is a table, as the table's test) */
+        if (!(q[k] >= P->qlo[k] && q[k] <= P->qhi[k]) && (P->tab[k] || !isnan(q[k]))) return 0;
     return 1;
 }
 
 /* How a pose was solved (solve_pose's *how) */
 enum { HOW_HELD = 0, HOW_WARM = 1, HOW_Q0 = 2, HOW_SEED = 3 };
 
-/* Commands q for one target (mtcomp.kinematics.compensate for one point).  At a pole (checked
- * at `start`: q0, or q0 plus the previous pose's correction along a path) the pole axis is held
+/* Commands q for one target (mtcomp.kinematics.compensate for one point).  At a pole (of the
+ * rigid model at its exact solution for the target's orientation, pole_decision) the pole axis is held
  * at its programmed value and the result kept if the tool direction is then within pole_tol; else the exact solution
  * from start if warm (the previous pose on the branch nearest its program: a warm start costs
  * one iteration less and keeps the path's branch), from q0, from start, then from rotary seeds
@@ -1893,7 +2047,7 @@ static int solve_pose(const prep_t *P, const prep_t *Pr, const target_t *tg, con
     if (rc) return rc;
     rs = r0s;
     if (o->pole_tol > 0.0 && P->mode >= 2) {
-        int hold = pole_axis(Pj, J0, o->pole_sin);
+        int hold = pole_decision(Pr, tg, q0, o->pole_sin);
         if (hold >= 0) {
             /* The pole axis keeps its programmed value (not the path's: a pole stretch does not
              * depend on what came before it); the others start from `start`, and again from q0
@@ -2163,9 +2317,9 @@ static inline void rigid_position(const prep_t *P, const double *q, const double
 }
 
 /* The rotary axes' columns of the orientation rows (rotation rates w_i in the machine frame, for
- * the tool direction v: w_i x v) are this far (sine) from depending on each other at the angles
- * th (deg) before a pose is taken as regular: five times the pole tolerance, so that no pose the
- * iteration would solve with an axis held (mtk pole_axis at the start) gets here. */
+ * the tool direction v: w_i x v) are this far (sine) from depending on each other at the solution
+ * before a pose is taken as regular: five times the pole tolerance (the rule, pole_decision, holds
+ * an axis within one; between, the iteration solves the pose exactly). */
 #define CLOSED_POLE_MARGIN 5.0
 
 /* Largest change of a rotary axis (deg) the closed form takes: beyond it the iteration from the
@@ -2193,15 +2347,17 @@ static inline void rigid_position(const prep_t *P, const double *q, const double
  * Rw^T (p_nom - tw) equals p_t for dq_lin = A^-1 (Rw p_t + tw - p_nom(q_lin)).  A = D (the linear
  * axes' directions) where they precede the rotary axes, A = R D where they follow them (A^-1 =
  * D^-1 R^T: the right-hand side turned back), else its columns turned one by one.
- *   Pole test at the start angles (ss2: sine and cosine of the second rotary angle there): the
- * orientation columns w_i x v_s (mode 2) or w_i (mode 3) all carry the first axis' rotation,
- * which changes neither their lengths nor their determinant, so only the second angle enters.
+ *   Pole test on the solution (pole_columns: the rule's columns, x = R(u2, th2) a): |u1 x x|^2 =
+ * a.a - (u1.v)^2, |u2 x x|^2 = a.a - (u2.a)^2, |(u1 x x) x (u2 x x)|^2 = (u12.x)^2 a.a and
+ * det(u1, u2, x) = u12.x = ga (1 - c^2) (mode 3), the same for both solutions; where they pass,
+ * every column is further than CLOSED_POLE_MARGIN sin(pole_tol) from the others' span, so the
+ * rule (pole_decision) holds no axis.
  * Returns 0 (the iteration decides) near a pole (CLOSED_POLE_MARGIN times the pole tolerance),
  * for a change of a rotary axis above CLOSED_MAX_TURN, an unreachable orientation, or a result
  * outside a travel; else 1 with the commands in out and the sines and cosines of the rotary
  * angles in osc. */
 static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3], const double mb[3],
-                           const double *q0, const double ss2[2], const double *ref, const double (*rsc)[2],
+                           const double *q0, const double *ref, const double (*rsc)[2],
                            double pole_sin, double *out, double (*osc)[2])
 {
     const mtk_model *m = P->m;
@@ -2212,21 +2368,6 @@ static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3
     double w[3], al, be, ga2, ga, u1v, u2v, vw, th[2][3], best = INFINITY, sc[2][3][2];
     int k, br, pick = -1, ok[2];
     {
-        /* t = R(u2, start2) a: u1.t and u12.t from the constants of prepare; |u1 x t|^2 =
-         * a.a - (u1.t)^2, |u2 x t|^2 = a.a - (u2.a)^2, |(u1 x t) x (u2 x t)|^2 = (u12.t)^2 a.a and
-         * det(w1, w2, w3) = u12.t (mode 3) */
-        double lim2 = CLOSED_POLE_MARGIN * pole_sin, u1t, t12;
-        lim2 *= lim2;
-        u1t = P->K[0] * ss2[1] + P->K[2] * ss2[0] + c * P->u2a;
-        t12 = P->K[1] * ss2[1] + P->K[3] * ss2[0];
-        if (i3 < 0) {
-            double n1 = P->aa - u1t * u1t, n2 = P->r2, nx = t12 * t12 * P->aa;
-            if (n1 < lim2 || n2 < lim2 || nx < lim2 * (n1 > n2 ? n1 : n2)) return 0;
-        } else if (t12 * t12 < lim2) {
-            return 0;
-        }
-    }
-    {
         u1v = dot3(u1, v);
         u2v = dot3(u2, v);
         vw = dot3(P->u12, v);
@@ -2236,6 +2377,7 @@ static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3
         if (!(ga2 > 1e-12)) return 0;   /* unreachable, or the two solutions merge */
         ga = sqrt(ga2);
     }
+    if (!pole_clear_inv(P->nrot, P->aa, u1v, P->u2a, ga * (1.0 - c * c), CLOSED_POLE_MARGIN * pole_sin)) return 0;
     /* the second rotary angle of both solutions first (subproblem 1 for a into x about u2, its
      * components from the constants of prepare: y = x.(u2 x ap), c = ap.x, and |ap| |x - (u2.x)
      * u2| = a.a - (u2.a)^2 as |x| = |a|): a solution that turns it by more than CLOSED_MAX_TURN is
@@ -2371,20 +2513,18 @@ static inline void closed_ideal_target(const prep_t *P, const double *q, const d
     }
 }
 
-/* closed_rot_core for a target pose, the start and ref angles given as commands (deg). */
-static int closed_rotation(const prep_t *P, const target_t *tg, const double *q0, const double *start,
-                           const double *ref, double pole_sin, double *out)
+/* closed_rot_core for a target pose, the ref angles given as commands (deg). */
+static int closed_rotation(const prep_t *P, const target_t *tg, const double *q0, const double *ref, double pole_sin,
+                           double *out)
 {
-    double v[3], mb[3] = {0, 0, 0}, ss2[2], rsc[3][2], osc[3][2];
+    double v[3], mb[3] = {0, 0, 0}, rsc[3][2], osc[3][2];
     int r;
     closed_target(P, tg, v, mb);
-    ss2[0] = sin(start[P->rot_idx[1]] * DEG);
-    ss2[1] = cos(start[P->rot_idx[1]] * DEG);
     for (r = 0; r < P->nrot; r++) {
         rsc[r][0] = sin(ref[P->rot_idx[r]] * DEG);
         rsc[r][1] = cos(ref[P->rot_idx[r]] * DEG);
     }
-    return closed_rot_core(P, tg->p, v, mb, q0, ss2, ref, (const double (*)[2])rsc, pole_sin, out, osc);
+    return closed_rot_core(P, tg->p, v, mb, q0, ref, (const double (*)[2])rsc, pole_sin, out, osc);
 }
 
 static int limits(const mtk_model *m, const double *q)
@@ -2507,7 +2647,7 @@ int mtk_retarget(const mtk_model *m, const mtk_errors *e, const double *q_prog, 
         if (c->have_prev)
             for (k = 0; k < n; k++) start[k] += c->corr[k];
         if (c->P.closed_rot &&
-            closed_rotation(&c->P, &tg, q_prog, start, c->have_prev && c->warm ? start : q_prog, o.pole_sin, q)) {
+            closed_rotation(&c->P, &tg, q_prog, c->have_prev && c->warm ? start : q_prog, o.pole_sin, q)) {
             for (k = 0; k < n; k++) c->corr[k] = q[k] - q_prog[k];
             c->have_prev = 1;
             c->warm = 1;
@@ -2672,12 +2812,9 @@ static void path_weights(const double *qa, int nax, int three, double *w1, doubl
 /* The Jacobian J (at q, weight ORIENTATION_SCALE) of a pose solved afresh, prepared for the poses
  * after it along the path: the matrix K (n x rows) of its chord step s = K r = (J^T J + lambda
  * I)^-1 J^T r (the normal equations' factors applied to the unit residuals once, rather than to
- * each pose's residual), column lengths and table intervals at q (second_order_bound's), and the
- * pole margin of solve_pose's test on J (pole_axis_margin; -1 where an axis is at a pole,
- * INFINITY without the test): J is the same for every pose taken on it.  0 where the normal
- * matrix is singular. */
-static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, const double *J, double *K,
-                              double *pn, int *ilin, double *margin)
+ * each pose's residual), column lengths and table intervals at q (second_order_bound's): J is the
+ * same for every pose taken on it.  0 where the normal matrix is singular. */
+static int path_linearisation(const prep_t *P, const double *q, const double *J, double *K, double *pn, int *ilin)
 {
     double LU[MTK_MAX_AXES * MTK_MAX_AXES];
     int n = P->n, rows = P->rows, i, k, ok, piv[MTK_MAX_AXES];
@@ -2697,8 +2834,6 @@ static int path_linearisation(const prep_t *P, const opt_t *o, const double *q, 
         const mtk_table *t = P->tab[i];
         ilin[i] = t && q[i] > t->pos[0] && q[i] < t->pos[t->n - 1] ? table_interval(t, q[i], (int *)&P->hint[i]) : -1;
     }
-    *margin = INFINITY;
-    if (o->pole_tol > 0.0 && P->mode >= 2 && pole_axis_margin(P, J, o->pole_sin, margin) >= 0) *margin = -1.0;
     return 1;
 }
 
@@ -2747,27 +2882,16 @@ MTK_INLINE void linear_prediction(int n, int rows, const double *J, const double
  * about wo th w |s| for targets th (rad) apart: along a path (th under a degree, |s| about 1e-10
  * mm or deg from the extrapolated start) orders of magnitude below LINEAR_BOUND.
  *
- * Not at a pole: the pole test of solve_pose on J (its margin from path_linearisation) with a
- * margin for the columns' change since qlin: the rotary axes' turn (the orientation columns of
- * later axes turn with earlier ones), and in mode 3 (columns wo/2 (tr M - M) T^T Rw^T W_j with
- * M = T^T Rw^T R: a rotation of all columns by T^T, which leaves the margin as it is, and
- * (tr M - M) / 2 within about the angle of M of the identity) the orientation residual's angles
- * at qlin (philin, bounded by the caller) and at start. */
+ * Not where the pole rule might hold an axis (pole_clear on the pose's own target): such a pose
+ * is solved afresh by solve_pose, which decides. */
 static int path_step(const prep_t *P, const target_t *tg, const double *start, const opt_t *o, const double *J,
-                     const double *K, const double *pn, const int *ilin, const double *qlin, double margin,
-                     const double *Tlin, double philin, double *q, double *res)
+                     const double *K, const double *pn, const int *ilin, const double *qlin,
+                     const double *Tlin, double *q, double *res)
 {
     int n = P->n, rows = P->rows, i, k;
-    double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], turned = 0.0, frame = 0.0;
-    for (i = 0; i < n; i++)
-        if (P->m->rotary[i]) turned += fabs(start[i] - qlin[i]) * DEG;
-    if (o->pole_tol > 0.0 && P->mode >= 2 && !(margin > o->pole_sin + 4.0 * turned + 1e-3)) return 0;
+    double r[6], s[MTK_MAX_AXES], qn[MTK_MAX_AXES], frame = 0.0;
+    if (o->pole_tol > 0.0 && P->mode >= 2 && !pole_clear(P, tg, o->pole_sin)) return 0;
     if (residual(P, start, tg, r, ORIENTATION_SCALE, 0, NULL) != MTK_OK) return 0;
-    if (o->pole_tol > 0.0 && P->mode == 3) {
-        /* the angle at start, asin |r_o| / wo <= pi/2 |r_o| / wo <= pi/2 (|r_3| + |r_4| + |r_5|) / wo */
-        double phi = 1.5707963267948966 / ORIENTATION_SCALE * (fabs(r[3]) + fabs(r[4]) + fabs(r[5]));
-        if (!(margin > o->pole_sin + 4.0 * turned + 4.0 * (philin + phi) + 1e-3)) return 0;
-    }
     /* the chord step K r (the usual shapes with constant sizes: unrolled by the compiler) */
     if (n == 6 && rows == 6) mat_apply(6, 6, K, r, s);
     else if (n == 5 && rows == 6) mat_apply(5, 6, K, r, s);
@@ -2813,11 +2937,10 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         lin_wait = 0, lin_ready = 0;
     double corr[MTK_MAX_AXES] = {0}, corr2[MTK_MAX_AXES] = {0}, corr3[MTK_MAX_AXES] = {0};
     /* the path's linearisation (path_linearisation): the Jacobian at the start of the last pose
-     * solved afresh, its factors, column lengths, table intervals and pole margin, where it was
-     * taken, against which target frame, and a bound of the orientation residual's angle there
-     * (rad; path_step) */
+     * solved afresh, its factors, column lengths and table intervals, where it was taken, and
+     * against which target frame (path_step) */
     double Jl[6 * MTK_MAX_AXES], Kl[6 * MTK_MAX_AXES], pnl[MTK_MAX_AXES], qlin[MTK_MAX_AXES];
-    double Tl[9] = {0}, phil = 0.0, marginl = INFINITY;
+    double Tl[9] = {0};
     int ilinl[MTK_MAX_AXES];
     if (!e) {
         mtk_errors_zero(&zero);
@@ -2889,7 +3012,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 start[P.rot_idx[r]] = qa[P.rot_idx[r]] + (cont ? corr[P.rot_idx[r]] : 0.0);
             }
             closed_ideal_target(&P, qa, (const double (*)[2])scq, pt, v, mb);
-            if (closed_rot_core(&P, pt, v, mb, qa, scs[1], cont && warm ? start : qa,
+            if (closed_rot_core(&P, pt, v, mb, qa, cont && warm ? start : qa,
                                 (const double (*)[2])(cont && warm ? scs : scq), so.pole_sin, qo, osc)) {
                 for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
                 for (r = 0; r < P.nrot; r++) {   /* sin and cos of (th - qa) */
@@ -2925,7 +3048,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                             (w3 != 0.0 ? w3 * (corr2[k] - corr3[k]) : 0.0);
         }
         if (P.closed_rot && !fast_rot &&
-            closed_rotation(&P, &tg, qa, start, o->continuation && have_prev && warm ? start : qa, so.pole_sin, qo)) {
+            closed_rotation(&P, &tg, qa, o->continuation && have_prev && warm ? start : qa, so.pole_sin, qo)) {
             for (k = 0; k < nax; k++) corr[k] = qo[k] - qa[k];
             have_prev = 1;
             chain = 1;
@@ -2935,7 +3058,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
         }
         seeded = 0;
         if (seed_rigid && !(o->continuation && have_prev && warm && near) &&
-            (Pr.closed_rot ? closed_rotation(&Pr, &tg, qa, qa, qa, so.pole_sin, qr) : closed_form(&Pr, qa, qr))) {
+            (Pr.closed_rot ? closed_rotation(&Pr, &tg, qa, qa, so.pole_sin, qr) : closed_form(&Pr, qa, qr))) {
             /* with tables or location errors: start from the rigid model's closed-form solution
              * plus the previous pose's correction beyond it (the tables' part, µm and µrad) */
             for (k = 0; k < nax; k++) start[k] = qr[k] + (o->continuation && have_prev && have_geo ? dgeo[k] : 0.0);
@@ -2945,10 +3068,10 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                   lin_wait == 0 && near;
         if (lin_wait > 0) lin_wait--;
         if (lin_try && !lin_ready) {   /* (factored when first needed: not for random poses) */
-            lin_ready = path_linearisation(&P, &so, qlin, Jl, Kl, pnl, ilinl, &marginl);
+            lin_ready = path_linearisation(&P, qlin, Jl, Kl, pnl, ilinl);
             have_lin = lin_try = lin_ready;
         }
-        if (lin_try && path_step(&P, &tg, start, &so, Jl, Kl, pnl, ilinl, qlin, marginl, Tl, phil, qo, resi)) {
+        if (lin_try && path_step(&P, &tg, start, &so, Jl, Kl, pnl, ilinl, qlin, Tl, qo, resi)) {
             /* (the previous poses' Jacobian: no pass, no factorisation, one evaluation) */
             rc = MTK_OK;
             held = -1;
@@ -2987,14 +3110,7 @@ static long batch(const mtk_model *m, const mtk_errors *e, long n, const double 
                 have_lin = how != HOW_SEED && held < 0 && o->continuation;
                 lin_ready = 0;
                 memcpy(qlin, start, nax * sizeof(double));
-                if (P.mode == 3) {
-                    /* the orientation residual's angle at start: at most its angle at the
-                     * solution (|r| < sqrt 3 CONVERGED) plus the turn of the tool frame between
-                     * them, |W_k| <= 2 wmax_k per deg or mm (path_step's bound) */
-                    memcpy(Tl, tg.R, sizeof Tl);
-                    phil = 2.0 * CONVERGED / ORIENTATION_SCALE;
-                    for (k = 0; k < nax; k++) phil += 2.0 * P.wmax[k] * fabs(qo[k] - start[k]);
-                }
+                if (P.mode == 3) memcpy(Tl, tg.R, sizeof Tl);
             }
             held_prev = held;
             have_prev = 1;
