@@ -122,6 +122,13 @@ def _axis_positions(machine, prog, P):
     return Q
 
 
+def _reference(prog, P):
+    """`gcode.rotation.to_reference` of the positions P (N, n_axes), which is P itself (no
+    copy: 40 MB at 1 M blocks) where the program has no G68 rotation; read only."""
+    from .gcode.rotation import has_rotation, to_reference
+    return to_reference(prog, P) if has_rotation(prog) else P
+
+
 def _travel_check(machine, prog, filename, P=None):
     """Programmed positions outside an axis' travel: the control would refuse them too."""
     P = np.asarray(prog.position if P is None else P)
@@ -220,7 +227,6 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     from .gcode import flow
     from .gcode import tcp as gtcp
     from .gcode.provenance import compensated_line, header_lines, insert_header_bytes
-    from .gcode.rotation import to_reference
 
     opts = dict(filename=filename, chordal_tol=chordal_tol, start=start, unknown=unknown,
                 provenance=provenance, progress=progress, convert_inch=convert_inch,
@@ -268,7 +274,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
             tools[length] = _at_tool_tip(machine, length)
         return tools[length]
     _travel_check(machine, prog, filename,
-                  _axis_positions(machine, prog, to_reference(prog, prog.position)))
+                  _axis_positions(machine, prog, _reference(prog, prog.position)))
     hint = _three_axis_hint(machine, prog)
     calls = []
 
@@ -329,11 +335,11 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
     kk = np.flatnonzero(kn)
-    P = to_reference(prog, prog.position)            # G68: the positions the axes take
-    emitted = to_reference(prog, emitted_positions(prog, info, raw, filename=filename,
-                                                   start=start, res=res, tool_lengths=tool_lengths,
-                                                   work_offsets=work_offsets, arc_tol=arc_tol,
-                                                   out_line=out_line))
+    P = _reference(prog, prog.position)              # G68: the positions the axes take
+    emitted = _reference(prog, emitted_positions(prog, info, raw, filename=filename,
+                                                 start=start, res=res, tool_lengths=tool_lengths,
+                                                 work_offsets=work_offsets, arc_tol=arc_tol,
+                                                 out_line=out_line, consume=True))
     info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
     verified = None
@@ -597,7 +603,8 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
 
 
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
-                      tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
+                      tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None,
+                      consume: bool = False):
     """End position of every motion block of the rewritten program `new_text` (str, or its
     bytes; N, n_axes; mm, deg), as the control reads it back.  The axis words are found again
     in the written bytes on each block's output line and run through the input's modal state
@@ -607,7 +614,9 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     number would otherwise go to the machine unseen).  Programs where that reading does not
     apply (canned cycles, whose holes may be written out as new lines; linearised arcs; G92;
     G16 polar blocks, whose radius and angle words put the point up to a count from the
-    emitted one; no compiled reader) are parsed back whole instead."""
+    emitted one; no compiled reader) are parsed back whole instead.  ``consume``: the caller
+    gives up ``info["emitted"]`` (taken out of ``info``; where read back, the positions are
+    written over its memory: one (N, n_axes) array fewer at the peak)."""
     from .gcode.rewrite import check_written, emitted_values
     if not isinstance(new_text, str):                 # the written bytes (compensate_program)
         data, new_text = new_text, None
@@ -625,7 +634,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                              f"{exc.args[0]}; refusing to write it", filename,
                              None if j is None else int(prog.line[j])) from None
         if ok:
-            return emitted_values(info)
+            return emitted_values(info, consume=consume)
     from . import gcode
     if new_text is None:
         new_text = bytes(data)                        # (a copy: the caller may edit its bytes)

@@ -628,6 +628,15 @@ def test_emitted_values_are_those_of_the_step_search_for_every_resolution(step, 
     got = emitted_values(dict(info, emitted=counts))
     want = _values_by_search(counts, res)
     assert np.array_equal(got, want)
+    # consumed: written over the counts' own memory (float64 as given, int64 as the rewrite
+    # gives them; rows beyond a chunk of the conversion), the same bits
+    big = np.vstack([counts[:-1]] * 400 + [counts[-1:]])
+    want = _values_by_search(big, res)
+    for c in (big.copy(), np.rint(big).astype(np.int64)):
+        d = dict(info, emitted=c)
+        got = emitted_values(d, consume=True)
+        assert "emitted" not in d and np.shares_memory(got, c)
+        assert got.dtype == np.float64 and np.array_equal(got.view(np.int64), want.view(np.int64))
 
 
 def test_emitted_values_are_the_written_words():

@@ -124,15 +124,38 @@ def decimal_step(decimals: int, multiple: int) -> tuple[int, int]:
     return d, m
 
 
-def decimal_values(counts, decimals, multiples, resolution) -> np.ndarray:
+def _float_in_place(a):
+    """``a`` (a writable, C-contiguous int64 or float64 array, handed over by the caller) as
+    float64 over its own memory (int64 converted chunk by chunk, each chunk read before it is
+    written: the values of ``a.astype(float)``), or None for other arrays."""
+    if not (isinstance(a, np.ndarray) and a.flags.c_contiguous and a.flags.writeable):
+        return None
+    if a.dtype == np.float64:
+        return a
+    if a.dtype != np.int64:
+        return None
+    flat, out = a.reshape(-1), a.view(np.float64)
+    fout = out.reshape(-1)
+    step = 1 << 16
+    for s in range(0, len(flat), step):
+        fout[s:s + step] = flat[s:s + step].astype(np.float64)
+    return out
+
+
+def decimal_values(counts, decimals, multiples, resolution, inplace: bool = False) -> np.ndarray:
     """The numbers (mm, deg) that words of ``counts`` (N, n_axes; NaN where unknown) steps of
     ``multiples[k] * 10**-decimals[k]`` say, as a control reads them: the decimal value
     correctly rounded, (count * m) / 10**d, an exact integer over an exact power of ten.
     count * resolution is off by an ulp where the step is no binary fraction (3050000 * 1e-5
     is 30.500000000000004, the word C30.5 is 30.5).  Where count * m reaches 2**53 the
     division is not exact either and the product with ``resolution[k]`` (the step as a float)
-    is kept."""
-    out = np.array(counts, float)                     # (always a new array: scaled in place)
+    is kept.  ``inplace``: the result written over ``counts`` itself (an int64 array becomes
+    the float64 array of the same bytes, converted in chunks; a float64 array is scaled where it
+    is): no second (N, n_axes) array at the caller's peak; the caller must not use ``counts``
+    afterwards.  Other arrays, and without ``inplace``, a new array."""
+    out = _float_in_place(counts) if inplace else None
+    if out is None:
+        out = np.array(counts, float)                 # (always a new array: scaled in place)
     for j, (d, m) in enumerate(zip(decimals, multiples)):
         d, m = decimal_step(d, m)
         col = out[..., j]
