@@ -83,7 +83,7 @@ def load():
     vp, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.mtc_count.argtypes = [vp, i64, vp, vp]
     lib.mtc_count.restype = None
-    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 11
+    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 13
     lib.mtc_tokenise.restype = None
     lib.mtc_splice.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64, vp]
     lib.mtc_splice.restype = None
@@ -211,9 +211,10 @@ def tokenise(code: np.ndarray, full: bool = False):
     (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks),
     per letter A-Z the first 0-based line where it appears twice (-1: none) and two checks
     of parse's (int64): whether every run starts right after its letter (as many of each),
-    the first run with two points or no digit (-1: none).  Without ``full`` the points of the
-    runs and the two-point flags are None (the two checks stand for them).
-    None if the compiled tokenizer is not available."""
+    the first run with two points or no digit (-1: none); then each letter's index 0..25
+    (int8, A-Z in either case: parse's ``wlet``) and the number of words of each letter (26,
+    int64).  Without ``full`` the points of the runs and the two-point flags are None (the two
+    checks stand for them).  None if the compiled tokenizer is not available."""
     lib = load()
     if lib is None:
         return None
@@ -234,11 +235,14 @@ def tokenise(code: np.ndarray, full: bool = False):
     sign_at, bad_at = ctypes.c_int64(), ctypes.c_int64()
     dup = np.empty(26, np.int32)
     checks = np.empty(2, np.int64)
+    let, let_count = np.empty(L, np.int8), np.empty(26, np.int64)
     lib.mtc_tokenise(ptr, n, lp.ctypes.data, wline.ctypes.data, rs.ctypes.data, re_.ctypes.data,
                      None if dot is None else dot.ctypes.data,
                      None if two is None else two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
-                     ctypes.byref(bad_at), dup.ctypes.data, checks.ctypes.data)
-    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup, checks
+                     ctypes.byref(bad_at), dup.ctypes.data, checks.ctypes.data, let.ctypes.data,
+                     let_count.ctypes.data)
+    return (lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup, checks, let,
+            let_count)
 
 
 def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total: int):
