@@ -129,14 +129,33 @@ def _reference(prog, P):
     return to_reference(prog, P) if has_rotation(prog) else P
 
 
+def _columns_inside(machine, P):
+    """Per axis k whether every P[:, k] (N, n_axes; mm, deg) is within the axis' travel
+    widened by half its resolution, no NaN: the quick test before the travel checks look for
+    the first block outside (compiled: one pass over the rows; numpy: min and max per
+    column).  False for every axis of an empty P."""
+    from .gcode import _ctok
+    n_ax = len(machine.axes)
+    if not len(P):
+        return [False] * n_ax
+    lo = np.array([ax.limits[0] - 0.5 * ax.resolution for ax in machine.axes])
+    hi = np.array([ax.limits[1] + 0.5 * ax.resolution for ax in machine.axes])
+    P = np.asarray(P)
+    ok = _ctok.columns_within(P[:, :n_ax], lo, hi) if P.dtype == np.float64 else None
+    if ok is None:
+        ok = [bool(P[:, k].min() >= lo[k] and P[:, k].max() <= hi[k]) for k in range(n_ax)]
+    return [bool(x) for x in ok]
+
+
 def _travel_check(machine, prog, filename, P=None):
     """Programmed positions outside an axis' travel: the control would refuse them too."""
     P = np.asarray(prog.position if P is None else P)
+    inside = _columns_inside(machine, P)
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
-        if len(P) and P[:, k].min() >= lo - tol and P[:, k].max() <= hi + tol:
-            continue                             # (two passes; NaN anywhere: the full test)
+        if inside[k]:
+            continue                             # (NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((P[:, k] < lo - tol) | (P[:, k] > hi + tol)) & prog.axis_known[:, k])
         if len(bad):
@@ -523,11 +542,12 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
 def _travel_check_emitted(machine, emitted, kn, prog, filename):
     """The written end positions inside the travel (compensation can push a block that was
     just inside its axis' travel out of it)."""
+    inside = _columns_inside(machine, emitted)
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
-        if len(emitted) and emitted[:, k].min() >= lo - tol and emitted[:, k].max() <= hi + tol:
-            continue                             # (two passes; NaN anywhere: the full test)
+        if inside[k]:
+            continue                             # (NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
         if len(bad):

@@ -133,6 +133,8 @@ def load():
     lib.mtc_scatter.restype = i64
     lib.mtc_absolute.argtypes = [i64, i64, vp, i64, vp, i64, vp, vp, i64, vp, vp]
     lib.mtc_absolute.restype = None
+    lib.mtc_columns_within.argtypes = [vp, i64, i64, i64, vp, vp, vp]
+    lib.mtc_columns_within.restype = None
     _lib = lib
     return lib
 
@@ -617,3 +619,25 @@ def absolute(vals, present, incremental, offset, use_off: bool, start_vec):
                          incremental.ctypes.data, offset.ctypes.data, int(bool(use_off)),
                          start_vec.ctypes.data, position.ctypes.data)
     return position
+
+
+def columns_within(P, lo, hi):
+    """Per column k of P (rows, n_col) float64: whether ``P[:, k].min() >= lo[k] and
+    P[:, k].max() <= hi[k]`` (False where the column holds a NaN), in one pass over the rows;
+    None without the library or for arrays whose rows are not contiguous."""
+    lib = load()
+    if lib is None or not isinstance(P, np.ndarray) or P.ndim != 2:
+        return None
+    stride = _row_stride(P, np.float64)
+    if stride is None:
+        return None
+    n, n_col = P.shape
+    lo = np.ascontiguousarray(lo, np.float64).reshape(-1)
+    hi = np.ascontiguousarray(hi, np.float64).reshape(-1)
+    if lo.shape != (n_col,) or hi.shape != (n_col,):
+        return None
+    ok = np.zeros(n_col, bool)
+    if n_col:
+        lib.mtc_columns_within(P.ctypes.data, n, n_col, stride, lo.ctypes.data, hi.ctypes.data,
+                               ok.ctypes.data)
+    return ok
