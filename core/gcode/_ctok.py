@@ -135,6 +135,8 @@ def load():
     lib.mtc_absolute.restype = None
     lib.mtc_columns_within.argtypes = [vp, i64, i64, i64, vp, vp, vp]
     lib.mtc_columns_within.restype = None
+    lib.mtc_decimal_values.argtypes = [vp, i64, i64, i64, vp, vp, vp, vp]
+    lib.mtc_decimal_values.restype = None
     _lib = lib
     return lib
 
@@ -641,3 +643,28 @@ def columns_within(P, lo, hi):
         lib.mtc_columns_within(P.ctypes.data, n, n_col, stride, lo.ctypes.data, hi.ctypes.data,
                                ok.ctypes.data)
     return ok
+
+
+def decimal_values(counts, mult, p10, res, out=None):
+    """``textops.decimal_values`` of counts (n, n_col) int64 or float64, C order, with the
+    columns' multiples ``mult``, powers of ten ``p10`` and steps ``res`` (floats, as the numpy
+    path uses them) into ``out`` (float64 (n, n_col), C order; may be the memory of counts
+    itself; None: a new array); out, or None without the library or for other arrays."""
+    lib = load()
+    if (lib is None or not isinstance(counts, np.ndarray) or counts.ndim != 2
+            or counts.dtype not in (np.int64, np.float64) or not counts.flags.c_contiguous):
+        return None
+    n, n_col = counts.shape
+    if n_col > 64:
+        return None
+    if out is None:
+        out = np.empty((n, n_col))
+    if out.shape != (n, n_col) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        return None
+    cols = [np.ascontiguousarray(v, np.float64).reshape(-1) for v in (mult, p10, res)]
+    if any(c.shape != (n_col,) for c in cols):
+        return None
+    if n and n_col:
+        lib.mtc_decimal_values(counts.ctypes.data, int(counts.dtype == np.int64), n, n_col,
+                               *(c.ctypes.data for c in cols), out.ctypes.data)
+    return out

@@ -995,3 +995,42 @@ void mtc_columns_within(const double *P, int64_t n, int64_t n_col, int64_t strid
         for (int64_t k = k0; k < k1; k++) ok[k] = good[k - k0];
     }
 }
+
+/* textops.decimal_values over (n, n_col) rows, C order: out = counts as float64 (src int64 if
+ * is_int, else float64), then per column k: where max |value| (NaN skipped, 0 if none) times
+ * mult[k] reaches 2**53, value * res[k]; else (value * mult[k] where mult[k] != 1) / p10[k] --
+ * numpy's operations in its order, each rounded as numpy rounds it.  out may be src itself
+ * (each element read before it is written; through memcpy: no aliasing assumption). */
+void mtc_decimal_values(const void *src, int64_t is_int, int64_t n, int64_t n_col,
+                        const double *mult, const double *p10, const double *res, double *out)
+{
+    enum { MAXC = 64 };
+    double mx[MAXC];
+    int big[MAXC];
+    const unsigned char *s = (const unsigned char *)src;
+    if (n_col > MAXC) return;
+    for (int64_t k = 0; k < n_col; k++) mx[k] = 0.0;
+    for (int64_t i = 0; i < n * n_col; i += n_col) {
+        for (int64_t k = 0; k < n_col; k++) {
+            double x;
+            if (is_int) { int64_t c; memcpy(&c, s + 8 * (i + k), 8); x = (double)c; }
+            else memcpy(&x, s + 8 * (i + k), 8);
+            double a = fabs(x);
+            if (a > mx[k]) mx[k] = a;                      /* NaN: never greater */
+        }
+    }
+    for (int64_t k = 0; k < n_col; k++) big[k] = mx[k] * mult[k] >= 9007199254740992.0;
+    for (int64_t i = 0; i < n * n_col; i += n_col) {
+        for (int64_t k = 0; k < n_col; k++) {
+            double x;
+            if (is_int) { int64_t c; memcpy(&c, s + 8 * (i + k), 8); x = (double)c; }
+            else memcpy(&x, s + 8 * (i + k), 8);
+            if (big[k]) x = x * res[k];
+            else {
+                if (mult[k] != 1.0) x = x * mult[k];
+                x = x / p10[k];
+            }
+            memcpy((unsigned char *)out + 8 * (i + k), &x, 8);
+        }
+    }
+}

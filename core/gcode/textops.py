@@ -124,6 +124,23 @@ def decimal_step(decimals: int, multiple: int) -> tuple[int, int]:
     return d, m
 
 
+def _compiled_decimal_values(counts, steps, resolution, inplace: bool):
+    """`decimal_values` by the compiled pass (two passes over the rows, none per column), or
+    None (no library, counts not a C-ordered (N, n) int64/float64 array)."""
+    from . import _ctok
+    if not (isinstance(counts, np.ndarray) and counts.ndim == 2 and counts.flags.c_contiguous
+            and counts.dtype in (np.int64, np.float64) and counts.shape[1] == len(steps)):
+        return None
+    n_col = counts.shape[1]
+    out = None
+    if inplace and counts.flags.writeable:
+        out = counts.view(np.float64)
+    mult = [float(m) for _, m in steps]
+    p10 = [float(_POW10[d]) for d, _ in steps]
+    res = [float(np.ravel(resolution)[j]) for j in range(n_col)]
+    return _ctok.decimal_values(counts, mult, p10, res, out)
+
+
 def _float_in_place(a):
     """``a`` (a writable, C-contiguous int64 or float64 array, handed over by the caller) as
     float64 over its own memory (int64 converted chunk by chunk, each chunk read before it is
@@ -153,11 +170,14 @@ def decimal_values(counts, decimals, multiples, resolution, inplace: bool = Fals
     the float64 array of the same bytes, converted in chunks; a float64 array is scaled where it
     is): no second (N, n_axes) array at the caller's peak; the caller must not use ``counts``
     afterwards.  Other arrays, and without ``inplace``, a new array."""
+    steps = [decimal_step(d, m) for d, m in zip(decimals, multiples)]
+    got = _compiled_decimal_values(counts, steps, resolution, inplace)
+    if got is not None:
+        return got
     out = _float_in_place(counts) if inplace else None
     if out is None:
         out = np.array(counts, float)                 # (always a new array: scaled in place)
-    for j, (d, m) in enumerate(zip(decimals, multiples)):
-        d, m = decimal_step(d, m)
+    for j, (d, m) in enumerate(steps):
         col = out[..., j]
         if np.nanmax(np.abs(col), initial=0.0) * m >= 2.0 ** 53:
             col *= float(np.ravel(resolution)[j])
