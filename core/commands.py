@@ -286,6 +286,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     # G43/G44 lengths: the model's tool point is the tip of the block's tool (_at_tool_tip)
     tip = np.where(tcp, 0.0, np.nan_to_num(np.asarray(prog.tool_tip, float)))
     lengths = bool(tip.any())
+    if not lengths:
+        tip = None                               # (read only with lengths: 8 MB at 1 M blocks)
     tools = {}
 
     def at_tip(length):

@@ -230,11 +230,11 @@ def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
         rows = inc_rows[w[inc_rows] >= 0]
         if not len(rows):
             continue
-        pres = w >= 0
         # the increments alone first (a few rows of most programs): the same values as below
         vi = wv[w[rows]] * np.where(inch[rows] & (a in LINEAR), INCH, 1.0) / res[k]
         if not (np.abs(np.abs(vi - np.trunc(vi)) - 0.5) < 1e-6).any():
             continue
+        pres = w >= 0
         v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
         v = v * np.where(inch & (a in LINEAR), INCH, 1.0) / res[k]
         tie = pres & inc & (np.abs(np.abs(v - np.trunc(v)) - 0.5) < 1e-6)
@@ -599,6 +599,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                       np.flatnonzero(~pres & (v != pv) & kn_edit_k & ~(no_z & (a == "Z"))), target)
 
     _g92_edits(ctx, program, kk, dK, res, fm, inch_prog)
+    # the corrections, the compensated rows and the last axis' edit arrays are spent (80 MB at
+    # 1 M blocks, held through the arc words' edits otherwise)
+    dK = kk = got = target = rep = ins = None
 
     if arc_cols is not None:
         a_rep, a_ins, a_counts, a_fmt = arc_cols
@@ -629,7 +632,7 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                     emitted_multiple=mul_e)
     ed = ctx.edits
     # the splice holds the output twice at its peak: free what the edits no longer need
-    del dK, C
+    del C
     v = pv = target = wk = pres = ov = oc = differs = None      # the axis loop's last columns
     # and the arc words' (N, 4) columns, the last axis' edits, the compensated rows: their
     # edits are made (40-60 MB at 1 M blocks)
