@@ -122,14 +122,40 @@ def _axis_positions(machine, prog, P):
     return Q
 
 
+def _reference(prog, P):
+    """`gcode.rotation.to_reference` of the positions P (N, n_axes), which is P itself (no
+    copy: 40 MB at 1 M blocks) where the program has no G68 rotation; read only."""
+    from .gcode.rotation import has_rotation, to_reference
+    return to_reference(prog, P) if has_rotation(prog) else P
+
+
+def _columns_inside(machine, P):
+    """Per axis k whether every P[:, k] (N, n_axes; mm, deg) is within the axis' travel
+    widened by half its resolution, no NaN: the quick test before the travel checks look for
+    the first block outside (compiled: one pass over the rows; numpy: min and max per
+    column).  False for every axis of an empty P."""
+    from .gcode import _ctok
+    n_ax = len(machine.axes)
+    if not len(P):
+        return [False] * n_ax
+    lo = np.array([ax.limits[0] - 0.5 * ax.resolution for ax in machine.axes])
+    hi = np.array([ax.limits[1] + 0.5 * ax.resolution for ax in machine.axes])
+    P = np.asarray(P)
+    ok = _ctok.columns_within(P[:, :n_ax], lo, hi) if P.dtype == np.float64 else None
+    if ok is None:
+        ok = [bool(P[:, k].min() >= lo[k] and P[:, k].max() <= hi[k]) for k in range(n_ax)]
+    return [bool(x) for x in ok]
+
+
 def _travel_check(machine, prog, filename, P=None):
     """Programmed positions outside an axis' travel: the control would refuse them too."""
     P = np.asarray(prog.position if P is None else P)
+    inside = _columns_inside(machine, P)
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
-        if len(P) and P[:, k].min() >= lo - tol and P[:, k].max() <= hi + tol:
-            continue                             # (two passes; NaN anywhere: the full test)
+        if inside[k]:
+            continue                             # (NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((P[:, k] < lo - tol) | (P[:, k] > hi + tol)) & prog.axis_known[:, k])
         if len(bad):
@@ -220,7 +246,6 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     from .gcode import flow
     from .gcode import tcp as gtcp
     from .gcode.provenance import compensated_line, header_lines, insert_header_bytes
-    from .gcode.rotation import to_reference
 
     opts = dict(filename=filename, chordal_tol=chordal_tol, start=start, unknown=unknown,
                 provenance=provenance, progress=progress, convert_inch=convert_inch,
@@ -261,6 +286,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     # G43/G44 lengths: the model's tool point is the tip of the block's tool (_at_tool_tip)
     tip = np.where(tcp, 0.0, np.nan_to_num(np.asarray(prog.tool_tip, float)))
     lengths = bool(tip.any())
+    if not lengths:
+        tip = None                               # (read only with lengths: 8 MB at 1 M blocks)
     tools = {}
 
     def at_tip(length):
@@ -268,7 +295,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
             tools[length] = _at_tool_tip(machine, length)
         return tools[length]
     _travel_check(machine, prog, filename,
-                  _axis_positions(machine, prog, to_reference(prog, prog.position)))
+                  _axis_positions(machine, prog, _reference(prog, prog.position)))
     hint = _three_axis_hint(machine, prog)
     calls = []
 
@@ -329,11 +356,11 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     # end of linearised arcs) through the forward model with the errors, in chunks.
     kn = np.asarray(info["compensated"])
     kk = np.flatnonzero(kn)
-    P = to_reference(prog, prog.position)            # G68: the positions the axes take
-    emitted = to_reference(prog, emitted_positions(prog, info, raw, filename=filename,
-                                                   start=start, res=res, tool_lengths=tool_lengths,
-                                                   work_offsets=work_offsets, arc_tol=arc_tol,
-                                                   out_line=out_line))
+    P = _reference(prog, prog.position)              # G68: the positions the axes take
+    emitted = _reference(prog, emitted_positions(prog, info, raw, filename=filename,
+                                                 start=start, res=res, tool_lengths=tool_lengths,
+                                                 work_offsets=work_offsets, arc_tol=arc_tol,
+                                                 out_line=out_line, consume=True))
     info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
     verified = None
@@ -517,11 +544,12 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
 def _travel_check_emitted(machine, emitted, kn, prog, filename):
     """The written end positions inside the travel (compensation can push a block that was
     just inside its axis' travel out of it)."""
+    inside = _columns_inside(machine, emitted)
     for k, ax in enumerate(machine.axes):
         lo, hi = ax.limits
         tol = 0.5 * ax.resolution
-        if len(emitted) and emitted[:, k].min() >= lo - tol and emitted[:, k].max() <= hi + tol:
-            continue                             # (two passes; NaN anywhere: the full test)
+        if inside[k]:
+            continue                             # (NaN anywhere: the full test)
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(((emitted[:, k] < lo - tol) | (emitted[:, k] > hi + tol)) & kn)
         if len(bad):
@@ -597,7 +625,8 @@ def verify_output(machine, text, errors, *, filename="<string>", stock=None, par
 
 
 def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, res=None,
-                      tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None):
+                      tool_lengths=None, work_offsets=None, arc_tol=None, out_line=None,
+                      consume: bool = False):
     """End position of every motion block of the rewritten program `new_text` (str, or its
     bytes; N, n_axes; mm, deg), as the control reads it back.  The axis words are found again
     in the written bytes on each block's output line and run through the input's modal state
@@ -607,7 +636,9 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
     number would otherwise go to the machine unseen).  Programs where that reading does not
     apply (canned cycles, whose holes may be written out as new lines; linearised arcs; G92;
     G16 polar blocks, whose radius and angle words put the point up to a count from the
-    emitted one; no compiled reader) are parsed back whole instead."""
+    emitted one; no compiled reader) are parsed back whole instead.  ``consume``: the caller
+    gives up ``info["emitted"]`` (taken out of ``info``; where read back, the positions are
+    written over its memory: one (N, n_axes) array fewer at the peak)."""
     from .gcode.rewrite import check_written, emitted_values
     if not isinstance(new_text, str):                 # the written bytes (compensate_program)
         data, new_text = new_text, None
@@ -625,7 +656,7 @@ def emitted_positions(prog, info, new_text, *, filename="<string>", start=None, 
                              f"{exc.args[0]}; refusing to write it", filename,
                              None if j is None else int(prog.line[j])) from None
         if ok:
-            return emitted_values(info)
+            return emitted_values(info, consume=consume)
     from . import gcode
     if new_text is None:
         new_text = bytes(data)                        # (a copy: the caller may edit its bytes)

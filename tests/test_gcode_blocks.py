@@ -260,3 +260,32 @@ def test_in_place_splice_same_bytes_as_joining_pieces(seed_):
                      np.array([e[1] for e in edits]), np.arange(len(edits)),
                      np.frombuffer(src, np.uint8), off, np.array([len(t) for _, _, t in edits]))
         assert bytes(got) == _splice_reference(orig, edits), (seed_, case)
+
+
+def test_columns_within_is_numpys_min_and_max():
+    """The travel checks' quick test: per column min >= lo and max <= hi as numpy says it
+    (NaN anywhere: False), values on the bounds, infinities, -0.0, column slices of a wider
+    array, one row, many columns."""
+    rng = np.random.default_rng(11)
+    for n, n_col in ((1, 1), (7, 3), (3000, 5), (500, 70)):
+        wide = rng.uniform(-2, 2, (n, n_col + 2))
+        lo = rng.uniform(-2.5, -1.5, n_col)
+        hi = rng.uniform(1.5, 2.5, n_col)
+        for case in range(6):
+            P = wide.copy()
+            if case == 1:
+                P[rng.integers(0, n), rng.integers(0, n_col)] = np.nan
+            if case == 2:
+                P[rng.integers(0, n), rng.integers(0, n_col)] = rng.choice([np.inf, -np.inf])
+            if case == 3:                        # exactly on the bounds, and -0.0
+                P[0, :n_col], P[-1, :n_col] = lo, hi
+                P[n // 2, 0] = -0.0
+            if case == 4:
+                P = np.clip(P, -1.4, 1.4)        # everything inside
+            if case == 5:
+                P[:, :n_col] = np.where(rng.random((n, n_col)) < 0.01, np.nan, np.clip(P[:, :n_col], -1.4, 1.4))
+            view = P[:, 1:n_col + 1] if case % 2 else P[:, :n_col]
+            got = _ctok.columns_within(view, lo, hi)
+            want = [bool(view[:, k].min() >= lo[k] and view[:, k].max() <= hi[k]) for k in range(n_col)]
+            assert got.dtype == bool and got.tolist() == want, (n, n_col, case)
+    assert _ctok.columns_within(np.zeros((4, 3))[:, ::2], np.zeros(2), np.ones(2)) is None

@@ -628,6 +628,49 @@ def test_emitted_values_are_those_of_the_step_search_for_every_resolution(step, 
     got = emitted_values(dict(info, emitted=counts))
     want = _values_by_search(counts, res)
     assert np.array_equal(got, want)
+    # consumed: written over the counts' own memory (float64 as given, int64 as the rewrite
+    # gives them; rows beyond a chunk of the conversion), the same bits
+    big = np.vstack([counts[:-1]] * 400 + [counts[-1:]])
+    want = _values_by_search(big, res)
+    for c in (big.copy(), np.rint(big).astype(np.int64)):
+        d = dict(info, emitted=c)
+        got = emitted_values(d, consume=True)
+        assert "emitted" not in d and np.shares_memory(got, c)
+        assert got.dtype == np.float64 and np.array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def test_decimal_values_compiled_same_bits_as_numpy():
+    """The compiled pass of `textops.decimal_values` (both passes over the rows) against the
+    numpy path, bit for bit: int64 and float64 counts (NaN, infinities, -0.0, counts near and
+    beyond 2**53 / multiple: the columns that take the step instead), inch multiples, in place
+    (over the counts' memory) and into a new array."""
+    from mtcomp.gcode import _ctok, textops
+    rng = np.random.default_rng(21)
+    steps = ([6, 4, 5, 7, 3], [1, 254, 5, 1, 25])
+    res = np.array([1e-6, 254e-4, 5e-5, 1e-7, 0.025])
+    base = rng.integers(-10 ** 9, 10 ** 9, (5000, 5))
+    big = base.copy()
+    big[17, 1] = 2 ** 53 // 254 + 1                   # column 1: the step, not the division
+    big[99, 3] = -(2 ** 62)
+    for counts in (base, big, base.astype(float), big.astype(float)):
+        cases = [counts]
+        if counts.dtype == np.float64:
+            f = counts.copy()
+            f[rng.random(f.shape) < 0.01] = np.nan
+            f[3, 0], f[4, 2], f[5, 4] = np.inf, -np.inf, -0.0
+            g = f.copy()
+            g[:, 2] = np.nan                        # a column with nothing known
+            cases += [f, g]
+        for c in cases:
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(_ctok, "decimal_values", lambda *a, **k: None)
+                want = textops.decimal_values(c, *steps, res)
+            got = textops.decimal_values(c, *steps, res)
+            assert got.dtype == np.float64 and np.array_equal(got.view(np.int64), want.view(np.int64))
+            mine = c.copy()
+            got = textops.decimal_values(mine, *steps, res, inplace=True)
+            assert np.shares_memory(got, mine)
+            assert np.array_equal(got.view(np.int64), want.view(np.int64))
 
 
 def test_emitted_values_are_the_written_words():

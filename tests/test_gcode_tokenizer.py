@@ -74,6 +74,10 @@ def test_tokens_and_values_bit_for_bit_with_long_and_odd_numbers():
     for k in range(6):
         assert np.array_equal(c[k], p[k]), k
     assert c[6:8] == p[6:8] and c[6] >= 0
+    # each word's letter index (parse's wlet, either case) and the words per letter
+    wlet = ((code[p[0]] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
+    assert c[11].dtype == np.int8 and np.array_equal(c[11], wlet)
+    assert np.array_equal(c[12], np.bincount(wlet, minlength=26))
     # values of the runs that are numbers (the caller refuses the others before using them)
     good = [i for i in range(len(c[1])) if re.fullmatch(rb"[+-]?(\d+\.?\d*|\.\d+)", text[c[1][i]:c[2][i]])]
     ref = parse_decimals(code, p[1][good], p[2][good], p[3][good])

@@ -83,7 +83,7 @@ def load():
     vp, i64 = ctypes.c_void_p, ctypes.c_int64
     lib.mtc_count.argtypes = [vp, i64, vp, vp]
     lib.mtc_count.restype = None
-    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 11
+    lib.mtc_tokenise.argtypes = [vp] + [i64] + [vp] * 13
     lib.mtc_tokenise.restype = None
     lib.mtc_splice.argtypes = [vp, i64, vp, vp, vp, vp, vp, i64, vp]
     lib.mtc_splice.restype = None
@@ -133,6 +133,10 @@ def load():
     lib.mtc_scatter.restype = i64
     lib.mtc_absolute.argtypes = [i64, i64, vp, i64, vp, i64, vp, vp, i64, vp, vp]
     lib.mtc_absolute.restype = None
+    lib.mtc_columns_within.argtypes = [vp, i64, i64, i64, vp, vp, vp]
+    lib.mtc_columns_within.restype = None
+    lib.mtc_decimal_values.argtypes = [vp, i64, i64, i64, vp, vp, vp, vp]
+    lib.mtc_decimal_values.restype = None
     _lib = lib
     return lib
 
@@ -211,9 +215,10 @@ def tokenise(code: np.ndarray, full: bool = False):
     (float64, as ``parse_decimals``; meaningful only for runs that pass the caller's checks),
     per letter A-Z the first 0-based line where it appears twice (-1: none) and two checks
     of parse's (int64): whether every run starts right after its letter (as many of each),
-    the first run with two points or no digit (-1: none).  Without ``full`` the points of the
-    runs and the two-point flags are None (the two checks stand for them).
-    None if the compiled tokenizer is not available."""
+    the first run with two points or no digit (-1: none); then each letter's index 0..25
+    (int8, A-Z in either case: parse's ``wlet``) and the number of words of each letter (26,
+    int64).  Without ``full`` the points of the runs and the two-point flags are None (the two
+    checks stand for them).  None if the compiled tokenizer is not available."""
     lib = load()
     if lib is None:
         return None
@@ -234,11 +239,14 @@ def tokenise(code: np.ndarray, full: bool = False):
     sign_at, bad_at = ctypes.c_int64(), ctypes.c_int64()
     dup = np.empty(26, np.int32)
     checks = np.empty(2, np.int64)
+    let, let_count = np.empty(L, np.int8), np.empty(26, np.int64)
     lib.mtc_tokenise(ptr, n, lp.ctypes.data, wline.ctypes.data, rs.ctypes.data, re_.ctypes.data,
                      None if dot is None else dot.ctypes.data,
                      None if two is None else two.ctypes.data, value.ctypes.data, ctypes.byref(sign_at),
-                     ctypes.byref(bad_at), dup.ctypes.data, checks.ctypes.data)
-    return lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup, checks
+                     ctypes.byref(bad_at), dup.ctypes.data, checks.ctypes.data, let.ctypes.data,
+                     let_count.ctypes.data)
+    return (lp, rs, re_, dot, two, wline, sign_at.value, bad_at.value, value, dup, checks, let,
+            let_count)
 
 
 def splice(orig: np.ndarray, src: np.ndarray, pos, stop, src_off, src_len, total: int):
@@ -613,3 +621,50 @@ def absolute(vals, present, incremental, offset, use_off: bool, start_vec):
                          incremental.ctypes.data, offset.ctypes.data, int(bool(use_off)),
                          start_vec.ctypes.data, position.ctypes.data)
     return position
+
+
+def columns_within(P, lo, hi):
+    """Per column k of P (rows, n_col) float64: whether ``P[:, k].min() >= lo[k] and
+    P[:, k].max() <= hi[k]`` (False where the column holds a NaN), in one pass over the rows;
+    None without the library or for arrays whose rows are not contiguous."""
+    lib = load()
+    if lib is None or not isinstance(P, np.ndarray) or P.ndim != 2:
+        return None
+    stride = _row_stride(P, np.float64)
+    if stride is None:
+        return None
+    n, n_col = P.shape
+    lo = np.ascontiguousarray(lo, np.float64).reshape(-1)
+    hi = np.ascontiguousarray(hi, np.float64).reshape(-1)
+    if lo.shape != (n_col,) or hi.shape != (n_col,):
+        return None
+    ok = np.zeros(n_col, bool)
+    if n_col:
+        lib.mtc_columns_within(P.ctypes.data, n, n_col, stride, lo.ctypes.data, hi.ctypes.data,
+                               ok.ctypes.data)
+    return ok
+
+
+def decimal_values(counts, mult, p10, res, out=None):
+    """``textops.decimal_values`` of counts (n, n_col) int64 or float64, C order, with the
+    columns' multiples ``mult``, powers of ten ``p10`` and steps ``res`` (floats, as the numpy
+    path uses them) into ``out`` (float64 (n, n_col), C order; may be the memory of counts
+    itself; None: a new array); out, or None without the library or for other arrays."""
+    lib = load()
+    if (lib is None or not isinstance(counts, np.ndarray) or counts.ndim != 2
+            or counts.dtype not in (np.int64, np.float64) or not counts.flags.c_contiguous):
+        return None
+    n, n_col = counts.shape
+    if n_col > 64:
+        return None
+    if out is None:
+        out = np.empty((n, n_col))
+    if out.shape != (n, n_col) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        return None
+    cols = [np.ascontiguousarray(v, np.float64).reshape(-1) for v in (mult, p10, res)]
+    if any(c.shape != (n_col,) for c in cols):
+        return None
+    if n and n_col:
+        lib.mtc_decimal_values(counts.ctypes.data, int(counts.dtype == np.int64), n, n_col,
+                               *(c.ctypes.data for c in cols), out.ctypes.data)
+    return out

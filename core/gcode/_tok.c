@@ -143,10 +143,13 @@ static inline int common_number8(const uint8_t *c, int64_t j, int64_t *end, int6
  * int32 (the caller refuses programs of 2 GB and more).  checks[0]: 1 if every run starts
  * right after the letter of the same index and there are as many of each (parse's test for
  * blanks or missing numbers), checks[1]: the first run with more than one point or without a
- * digit (-1: none), as parse's `badnum`.  dot and two may be NULL (not written). */
+ * digit (-1: none), as parse's `badnum`.  let: each letter's index 0..25 (a-z, either case:
+ * parse's `wlet`), let_count[26]: the number of words of each letter.  dot, two, let and
+ * let_count may be NULL (not written). */
 void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int32_t *rs,
                   int32_t *re, int32_t *dot, uint8_t *two, double *value, int64_t *sign_at,
-                  int64_t *bad_at, int32_t *dup_line, int64_t *checks)
+                  int64_t *bad_at, int32_t *dup_line, int64_t *checks, int8_t *let,
+                  int64_t *let_count)
 {
     int64_t adjacent = 1, badnum = -1;
     /* classes: 0 other, 1 blank, 2 letter, 3 number character, 4 newline */
@@ -156,6 +159,7 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
     int64_t nl = 0, nr = -1, line = 0;
     uint32_t seen = 0;                  /* letters of the current line */
     for (int k = 0; k < 26; k++) dup_line[k] = -1;
+    if (let_count) for (int k = 0; k < 26; k++) let_count[k] = 0;
     int64_t sg = -1, bad = -1;
     int64_t i = 0;
     while (i < n) {
@@ -225,6 +229,8 @@ void mtc_tokenise(const uint8_t *c, int64_t n, int32_t *lp, int32_t *wline, int3
             seen |= bit;
             lp[nl] = (int32_t)(i - 1);
             wline[nl] = (int32_t)line;
+            if (let) let[nl] = (int8_t)((ch | 32) - 97);
+            if (let_count) let_count[(ch | 32) - 97]++;
             nl++;
         } else if (k == 4) {
             line++;
@@ -930,28 +936,101 @@ int64_t mtc_scatter(const int8_t *wcol, const int32_t *wline, const double *valu
     return -1;
 }
 
-/* Absolute positions (parse._absolute), axis by axis, in the order of numpy's operations:
+/* Absolute positions (parse._absolute), per axis in the order of numpy's operations:
  * cum = cumsum(where(present & incremental, v, 0)), then at a row after the last absolute
  * word j: (v[j] - cum[j] (+ offset[j])) + cum, before any: start + cum.  Strides in elements
- * (the value and presence arrays are column slices of wider arrays). */
+ * (the value and presence arrays are column slices of wider arrays).  One pass over the rows
+ * with every axis' running state (a pass per axis read each row's cache lines once per
+ * axis); each axis' arithmetic is the same sequence as its own pass. */
 void mtc_absolute(int64_t n, int64_t n_ax, const double *vals, int64_t vs, const uint8_t *present,
                   int64_t ps, const uint8_t *incremental, const double *offset, int64_t use_off,
                   const double *start, double *position)
 {
-    for (int64_t k = 0; k < n_ax; k++) {
-        double cum = 0.0, base = 0.0;
-        int have = 0;
+    enum { MAXAX = 32 };
+    double cum[MAXAX], base[MAXAX];
+    int have[MAXAX];
+    for (int64_t k0 = 0; k0 < n_ax; k0 += MAXAX) {       /* (more axes than that: in groups) */
+        int64_t k1 = n_ax - k0 < MAXAX ? n_ax : k0 + MAXAX;
+        for (int64_t k = k0; k < k1; k++) { cum[k - k0] = 0.0; base[k - k0] = 0.0; have[k - k0] = 0; }
         for (int64_t i = 0; i < n; i++) {
-            int pres = present[i * ps + k] != 0;
-            double v = vals[i * vs + k];
-            double inc = pres && incremental[i] ? v : 0.0;
-            cum = i ? cum + inc : inc;
-            if (pres && !incremental[i]) {
-                base = v - cum;
-                if (use_off) base += offset[i * n_ax + k];
-                have = 1;
+            int incr = incremental[i] != 0;
+            const double *v = vals + i * vs;
+            const uint8_t *pr = present + i * ps;
+            double *out = position + i * n_ax;
+            for (int64_t k = k0; k < k1; k++) {
+                int64_t q = k - k0;
+                int pres = pr[k] != 0;
+                double inc = pres && incr ? v[k] : 0.0;
+                cum[q] = i ? cum[q] + inc : inc;
+                if (pres && !incr) {
+                    base[q] = v[k] - cum[q];
+                    if (use_off) base[q] += offset[i * n_ax + k];
+                    have[q] = 1;
+                }
+                out[k] = (have[q] ? base[q] : start[k]) + cum[q];
             }
-            position[i * n_ax + k] = (have ? base : start[k]) + cum;
+        }
+    }
+}
+
+/* Per column k of the (n, n_col) rows of P (row stride `stride` elements): whether every value
+ * lies in [lo[k], hi[k]] (no NaN), into ok[k] (the travel checks' `P[:, k].min() >= lo and
+ * P[:, k].max() <= hi`, numpy's min and max propagating NaN), in one pass over the rows
+ * instead of two strided passes per column. */
+void mtc_columns_within(const double *P, int64_t n, int64_t n_col, int64_t stride,
+                        const double *lo, const double *hi, uint8_t *ok)
+{
+    enum { MAXC = 64 };
+    uint8_t good[MAXC];
+    for (int64_t k0 = 0; k0 < n_col; k0 += MAXC) {
+        int64_t k1 = n_col - k0 < MAXC ? n_col : k0 + MAXC;
+        for (int64_t k = k0; k < k1; k++) good[k - k0] = 1;
+        for (int64_t i = 0; i < n; i++) {
+            const double *row = P + i * stride;
+            for (int64_t k = k0; k < k1; k++) {
+                double x = row[k];
+                good[k - k0] &= (uint8_t)((x >= lo[k]) & (x <= hi[k]));   /* NaN: both false */
+            }
+        }
+        for (int64_t k = k0; k < k1; k++) ok[k] = good[k - k0];
+    }
+}
+
+/* textops.decimal_values over (n, n_col) rows, C order: out = counts as float64 (src int64 if
+ * is_int, else float64), then per column k: where max |value| (NaN skipped, 0 if none) times
+ * mult[k] reaches 2**53, value * res[k]; else (value * mult[k] where mult[k] != 1) / p10[k] --
+ * numpy's operations in its order, each rounded as numpy rounds it.  out may be src itself
+ * (each element read before it is written; through memcpy: no aliasing assumption). */
+void mtc_decimal_values(const void *src, int64_t is_int, int64_t n, int64_t n_col,
+                        const double *mult, const double *p10, const double *res, double *out)
+{
+    enum { MAXC = 64 };
+    double mx[MAXC];
+    int big[MAXC];
+    const unsigned char *s = (const unsigned char *)src;
+    if (n_col > MAXC) return;
+    for (int64_t k = 0; k < n_col; k++) mx[k] = 0.0;
+    for (int64_t i = 0; i < n * n_col; i += n_col) {
+        for (int64_t k = 0; k < n_col; k++) {
+            double x;
+            if (is_int) { int64_t c; memcpy(&c, s + 8 * (i + k), 8); x = (double)c; }
+            else memcpy(&x, s + 8 * (i + k), 8);
+            double a = fabs(x);
+            if (a > mx[k]) mx[k] = a;                      /* NaN: never greater */
+        }
+    }
+    for (int64_t k = 0; k < n_col; k++) big[k] = mx[k] * mult[k] >= 9007199254740992.0;
+    for (int64_t i = 0; i < n * n_col; i += n_col) {
+        for (int64_t k = 0; k < n_col; k++) {
+            double x;
+            if (is_int) { int64_t c; memcpy(&c, s + 8 * (i + k), 8); x = (double)c; }
+            else memcpy(&x, s + 8 * (i + k), 8);
+            if (big[k]) x = x * res[k];
+            else {
+                if (mult[k] != 1.0) x = x * mult[k];
+                x = x / p10[k];
+            }
+            memcpy((unsigned char *)out + 8 * (i + k), &x, 8);
         }
     }
 }

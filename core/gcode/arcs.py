@@ -323,7 +323,9 @@ def _arc_keep(program, geo: _ArcGeo, St, prev, new, res, fm, tol, arc_tol=0.02, 
             R1 = np.where(np.isfinite(rfit), np.rint(rfit / resu), 0).astype(np.int64) * sign.astype(np.int64)
         ru, rv = _r_centre(su, sv, eu, ev, R1 * resu, geo.dirs)
         c2u, c2v = np.where(geo.rfmt, ru, c2u), np.where(geo.rfmt, rv, c2v)
-    ok2 = ~ok1 & path_ok(c2u, c2v)
+    # (where the programmed words fit every arc, the usual case under a rigid correction, the
+    # second candidate's test is not run: its answer would be masked by ~ok1 everywhere)
+    ok2 = ~ok1 & path_ok(c2u, c2v) if not ok1.all() else np.zeros_like(ok1)
     keep = ok1 | ok2
     Iu, Iv, Rc = np.where(ok1, I0u, I1u), np.where(ok1, I0v, I1v), np.where(ok1, R0, R1)
 

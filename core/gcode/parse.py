@@ -33,6 +33,16 @@ def _const(n: int, value, dtype) -> np.ndarray:
     return np.broadcast_to(np.array(value, dtype), (n,))
 
 
+def _nan_to_zero(a: np.ndarray) -> np.ndarray:
+    """``np.nan_to_num(a)`` (a new array): NaN -> 0 in one masked copy, numpy's own where a
+    value is infinite (it replaces those by the largest floats; a check, not a pass per kind)."""
+    out = a.copy()
+    np.copyto(out, 0.0, where=np.isnan(out))
+    if np.isinf(out).any():
+        return np.nan_to_num(a)
+    return out
+
+
 def _take(a: np.ndarray, idx: np.ndarray, view: bool = False) -> np.ndarray:
     """``a[idx]`` (a fresh array) of a per-line array; of a `_const` view without the gather,
     and with ``view`` as a `_const` view itself."""
@@ -140,8 +150,8 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
     # characters (in chunks that fit the cache; chunks end at line breaks so no word is split)
     tok = _ctok.tokenise(code)               # compiled one-pass tokenizer, where built
     if tok is None:
-        tok = _tokenise(code, line_start) + (None, None, None)
-    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line, checks = tok
+        tok = _tokenise(code, line_start) + (None, None, None, None, None)
+    lp, rs, re_, dot_of_run, twodots, wline, sign_at, bad_at, value, dup_line, checks, wlet, lcount = tok
     del tok
     if bad_at >= 0:
         ch = data[bad_at:bad_at + 1].decode("latin-1")
@@ -160,7 +170,9 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
             ok = bool(np.all(line_of(rs[gap]) == wline[gap]))
         if not ok:
             _word_error(code, lp, rs, re_, line_of, filename)
-    wlet = ((code[lp] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
+    if wlet is None:                         # (the compiled tokenizer gives both)
+        wlet = ((code[lp] | np.uint8(32)) - np.uint8(97)).astype(np.int8)
+        lcount = np.bincount(wlet, minlength=26)
 
     # -- number syntax: sign only first, at most one point, at least one digit
     if sign_at >= 0:
@@ -279,7 +291,8 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
         allowed.add("X")                     # G4 X dwell time
     known = np.zeros(26, bool)
     known[[_ascii(c) for c in allowed]] = True
-    badlet = ~known[wlet]
+    # (the letters' counts: no pass over the words where every letter is known)
+    badlet = ~known[wlet] if lcount[~known].any() else np.zeros(1, bool)
     if badlet.any():
         # E is the tolerance of Haas G187 (smoothness), nowhere else
         g187 = np.zeros(n_lines, bool)
@@ -355,7 +368,7 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
     g50_line[gline[g10 == 500]] = True
     # per-line word values of P and H (NaN where absent)
     def letter_value(c):
-        i = np.flatnonzero(wlet == _ascii(c))
+        i = np.flatnonzero(wlet == _ascii(c)) if lcount[_ascii(c)] else ()
         if not len(i):
             return _const(n_lines, np.nan, np.float64)
         out = np.full(n_lines, np.nan)
@@ -397,8 +410,8 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
         notes.append(f"G10 on line(s) {', '.join(str(int(x) + 1) for x in gl[:5])}"
                      + (" ..." if len(gl) > 5 else "") + ": offsets set as the control does")
     # tool changes: the M6 lines (T only preselects); a program without M6 changes at its T words
-    mi6 = np.flatnonzero(wlet == M)
-    mi6 = mi6[np.rint(value[mi6]) == 6]
+    m_words = np.flatnonzero(wlet == M) if lcount[M] else np.zeros(0, np.int64)   # (read again below)
+    mi6 = m_words[np.rint(value[m_words]) == 6]
     change_line = None
     if len(mi6):
         change_line = np.zeros(n_lines, bool)
@@ -422,7 +435,7 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
                 else np.zeros(n_lines, bool))
 
     # -- M codes
-    mi = np.flatnonzero(wlet == M)
+    mi = m_words
     if len(mi):
         mref = np.isin(np.rint(value[mi]).astype(np.int64), list(_M_REFUSED))
         if mref.any():
@@ -763,7 +776,7 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
     if not (arc_tol >= 0 and np.isfinite(arc_tol)):
         raise ValueError(f"arc_tol must be a finite number >= 0, got {arc_tol}")
     start_vec = _start_vector(start, axes)
-    written = np.count_nonzero(present, axis=0) > 0
+    written = present.any(axis=0)
     written |= np.isin(np.arange(n_ax), reset_cols)
     idle = np.isnan(start_vec) & ~written
     start_vec[idle] = 0.0
@@ -834,7 +847,7 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
                                      cyc_rw[blines], value, inch, incremental, vax,
                                      present, offset, start_vec, position, filename, seeds)
     del cycle_line, retract_line, cyc_zw, cyc_rw
-    ijk = np.nan_to_num(varc[:, :3])
+    ijk = _nan_to_zero(varc[:, :3])
     ijk_present = col_word[:, n_ax:n_ax + 3] >= 0
     radius = varc[:, 3].copy()
     del vax, varc
@@ -1029,7 +1042,8 @@ def _absolute(vals, present, incremental, offset, start_vec):
     (work offset, local shift, tool length); an increment adds to the position before; an axis
     not written stays.  An absolute NaN makes the axis unknown until its next absolute word."""
     n, n_ax = present.shape
-    use_off = bool(offset.any())
+    # (a broadcast view of one row, the usual zero offset: that row only)
+    use_off = bool((offset[:1] if offset.ndim == 2 and offset.strides[0] == 0 else offset).any())
     position = _ctok.absolute(vals, present, incremental, offset, use_off, start_vec)
     if position is not None:                  # compiled, where built: one pass per axis
         return position

@@ -230,11 +230,11 @@ def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
         rows = inc_rows[w[inc_rows] >= 0]
         if not len(rows):
             continue
-        pres = w >= 0
         # the increments alone first (a few rows of most programs): the same values as below
         vi = wv[w[rows]] * np.where(inch[rows] & (a in LINEAR), INCH, 1.0) / res[k]
         if not (np.abs(np.abs(vi - np.trunc(vi)) - 0.5) < 1e-6).any():
             continue
+        pres = w >= 0
         v = np.where(pres, wv[np.maximum(w, 0)], 0.0)
         v = v * np.where(inch & (a in LINEAR), INCH, 1.0) / res[k]
         tie = pres & inc & (np.abs(np.abs(v - np.trunc(v)) - 0.5) < 1e-6)
@@ -303,12 +303,15 @@ def _read_back_applies(p: Program, info: dict) -> bool:
                                np.count_nonzero(cw >= 0, axis=1)))
 
 
-def emitted_values(info: dict) -> np.ndarray:
+def emitted_values(info: dict, consume: bool = False) -> np.ndarray:
     """The emitted end positions ``info["emitted"]`` (counts) as the numbers the written words
     say (N, n_axes; mm, deg): (count * m) / 10**d exactly, from the decimals and multiple the
-    rewrite formatted each axis with (`textops.decimal_values`)."""
-    return decimal_values(info["emitted"], info["emitted_decimals"], info["emitted_multiple"],
-                          info["emitted_resolution"])
+    rewrite formatted each axis with (`textops.decimal_values`).  ``consume``: the counts are
+    taken out of ``info`` and the values written over their memory (one (N, n_axes) array
+    fewer at the peak of `mtcomp compensate`)."""
+    counts = info.pop("emitted") if consume else info["emitted"]
+    return decimal_values(counts, info["emitted_decimals"], info["emitted_multiple"],
+                          info["emitted_resolution"], inplace=consume)
 
 
 def check_written(program: Program, info: dict, data, out_line) -> bool | None:
@@ -596,6 +599,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                       np.flatnonzero(~pres & (v != pv) & kn_edit_k & ~(no_z & (a == "Z"))), target)
 
     _g92_edits(ctx, program, kk, dK, res, fm, inch_prog)
+    # the corrections, the compensated rows and the last axis' edit arrays are spent (80 MB at
+    # 1 M blocks, held through the arc words' edits otherwise)
+    dK = kk = got = target = rep = ins = None
 
     if arc_cols is not None:
         a_rep, a_ins, a_counts, a_fmt = arc_cols
@@ -626,8 +632,11 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
                     emitted_multiple=mul_e)
     ed = ctx.edits
     # the splice holds the output twice at its peak: free what the edits no longer need
-    del dK, C
+    del C
     v = pv = target = wk = pres = ov = oc = differs = None      # the axis loop's last columns
+    # and the arc words' (N, 4) columns, the last axis' edits, the compensated rows: their
+    # edits are made (40-60 MB at 1 M blocks)
+    arc_cols = a_rep = a_ins = a_counts = got = rep = ins = kk = seg = inner_pts = None
     ctx._anch = ctx._spaced = None
     text = ed.apply(ctx.data, progress=progress)
     if not as_bytes:

@@ -124,17 +124,60 @@ def decimal_step(decimals: int, multiple: int) -> tuple[int, int]:
     return d, m
 
 
-def decimal_values(counts, decimals, multiples, resolution) -> np.ndarray:
+def _compiled_decimal_values(counts, steps, resolution, inplace: bool):
+    """`decimal_values` by the compiled pass (two passes over the rows, none per column), or
+    None (no library, counts not a C-ordered (N, n) int64/float64 array)."""
+    from . import _ctok
+    if not (isinstance(counts, np.ndarray) and counts.ndim == 2 and counts.flags.c_contiguous
+            and counts.dtype in (np.int64, np.float64) and counts.shape[1] == len(steps)):
+        return None
+    n_col = counts.shape[1]
+    out = None
+    if inplace and counts.flags.writeable:
+        out = counts.view(np.float64)
+    mult = [float(m) for _, m in steps]
+    p10 = [float(_POW10[d]) for d, _ in steps]
+    res = [float(np.ravel(resolution)[j]) for j in range(n_col)]
+    return _ctok.decimal_values(counts, mult, p10, res, out)
+
+
+def _float_in_place(a):
+    """``a`` (a writable, C-contiguous int64 or float64 array, handed over by the caller) as
+    float64 over its own memory (int64 converted chunk by chunk, each chunk read before it is
+    written: the values of ``a.astype(float)``), or None for other arrays."""
+    if not (isinstance(a, np.ndarray) and a.flags.c_contiguous and a.flags.writeable):
+        return None
+    if a.dtype == np.float64:
+        return a
+    if a.dtype != np.int64:
+        return None
+    flat, out = a.reshape(-1), a.view(np.float64)
+    fout = out.reshape(-1)
+    step = 1 << 16
+    for s in range(0, len(flat), step):
+        fout[s:s + step] = flat[s:s + step].astype(np.float64)
+    return out
+
+
+def decimal_values(counts, decimals, multiples, resolution, inplace: bool = False) -> np.ndarray:
     """The numbers (mm, deg) that words of ``counts`` (N, n_axes; NaN where unknown) steps of
     ``multiples[k] * 10**-decimals[k]`` say, as a control reads them: the decimal value
     correctly rounded, (count * m) / 10**d, an exact integer over an exact power of ten.
     count * resolution is off by an ulp where the step is no binary fraction (3050000 * 1e-5
     is 30.500000000000004, the word C30.5 is 30.5).  Where count * m reaches 2**53 the
     division is not exact either and the product with ``resolution[k]`` (the step as a float)
-    is kept."""
-    out = np.array(counts, float)                     # (always a new array: scaled in place)
-    for j, (d, m) in enumerate(zip(decimals, multiples)):
-        d, m = decimal_step(d, m)
+    is kept.  ``inplace``: the result written over ``counts`` itself (an int64 array becomes
+    the float64 array of the same bytes, converted in chunks; a float64 array is scaled where it
+    is): no second (N, n_axes) array at the caller's peak; the caller must not use ``counts``
+    afterwards.  Other arrays, and without ``inplace``, a new array."""
+    steps = [decimal_step(d, m) for d, m in zip(decimals, multiples)]
+    got = _compiled_decimal_values(counts, steps, resolution, inplace)
+    if got is not None:
+        return got
+    out = _float_in_place(counts) if inplace else None
+    if out is None:
+        out = np.array(counts, float)                 # (always a new array: scaled in place)
+    for j, (d, m) in enumerate(steps):
         col = out[..., j]
         if np.nanmax(np.abs(col), initial=0.0) * m >= 2.0 ** 53:
             col *= float(np.ravel(resolution)[j])
