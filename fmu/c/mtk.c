@@ -2326,6 +2326,38 @@ static inline void rigid_position(const prep_t *P, const double *q, const double
  * start might settle on another solution, and it is left to decide. */
 #define CLOSED_MAX_TURN 10.0
 
+/* Largest |y / x| (x > 0) small_atan2 takes by its series: tan(10.2 deg), above tan(CLOSED_MAX_TURN)
+ * with room for the rounding of the candidates' test. */
+#define SMALL_ATAN_MAX 0.18
+
+/* atan2(y, x) (rad) for the turns the closed form takes, a few degrees at most from the
+ * reference angle: for x > 0 and |t| <= SMALL_ATAN_MAX, t = y / x, the alternating series of
+ * atan(t), else atan2.  Its truncation after t^(2n+1)/(2n+1) is below t^(2n+3)/(2n+3), relative
+ * to atan(t) >= 0.98 t: after t^9 for t^2 < 1e-4 (the usual turns, below 0.6 deg) below
+ * 1e-20 / 11, after t^21 for t^2 <= 0.0324 below 0.0324^11 / 23 < 2e-18; with the rounding of t
+ * and of the last sum, within about 1 ulp of atan2 (y = 0 gives 0 of y's sign, as atan2).  A
+ * tenth of atan2's instructions. */
+static inline double small_atan2(double y, double x)
+{
+    double t = y / x;
+    if (x > 0.0 && fabs(t) <= SMALL_ATAN_MAX) {   /* (not y = x = inf: t is NaN) */
+        double t2 = t * t, s;
+        if (t2 < 1e-4)
+            s = -1.0 / 3 + t2 * (1.0 / 5 + t2 * (-1.0 / 7 + t2 * (1.0 / 9)));
+        else
+            s = -1.0 / 3 + t2 * (1.0 / 5 + t2 * (-1.0 / 7 + t2 * (1.0 / 9 + t2 * (-1.0 / 11 + t2 * (1.0 / 13 +
+                t2 * (-1.0 / 15 + t2 * (1.0 / 17 + t2 * (-1.0 / 19 + t2 * (1.0 / 21)))))))));
+        return t2 == 0.0 ? t : t + t * t2 * s;   /* (t = -0: -0, as atan2) */
+    }
+    return atan2(y, x);
+}
+
+/* small_atan2 for the tests (its accuracy against atan2 over its whole domain). */
+double mtk_small_atan2(double y, double x)
+{
+    return small_atan2(y, x);
+}
+
 /* Closed form of retarget/compensate for rigid setting errors with a workpiece rotation on a
  * machine with two or three rotary axes (P->closed_rot): the rigid model's orientation depends
  * on the rotary angles alone, R = R(u1, th1) R(u2, th2) [R(u3, th3)], and its tool position is
@@ -2409,7 +2441,7 @@ static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3
                                                      * y and c are small and r2 off by their rounding) */
             sc[br][1][0] = y2[br] * ir;
             sc[br][1][1] = c2[br] * ir;
-            th[br][1] = ref[i2] + atan2(Y2[br], X2[br]) / DEG;
+            th[br][1] = ref[i2] + small_atan2(Y2[br], X2[br]) / DEG;
             /* subproblem 1 for x into v about u1: y = u1.(x x v), c = x.v - (u1.x)(u1.v) */
             y = be * vw + g * (c * u1v - u2v);
             cc = al * u1v + be * u2v + g * vw - (al + be * c) * u1v;
@@ -2418,7 +2450,7 @@ static int closed_rot_core(const prep_t *P, const double pt[3], const double v[3
             sc[br][0][1] = cc * ir;
             Y = y * rsc[0][1] - cc * rsc[0][0];
             X = cc * rsc[0][1] + y * rsc[0][0];
-            th[br][0] = ref[i1] + atan2(Y, X) / DEG;
+            th[br][0] = ref[i1] + small_atan2(Y, X) / DEG;
             if (i3 >= 0) {
                 /* R3 = (R1 R2)^T Mt: turn b by R3 and compare with (R1 R2)^T Mt b */
                 double t[3];
