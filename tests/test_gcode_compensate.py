@@ -870,3 +870,17 @@ def test_midblock_refusal_through_the_cli_writes_nothing(tmp_path):
     r = run("compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out)
     assert r.returncode != 0 and not out.exists()
     assert "Traceback" not in r.stderr and "sweep.nc:96" in r.stderr and "mid-block" in r.stderr
+
+
+def test_workpiece_setting_five_axis_mode_has_the_mid_block_check():
+    """Paper 001's own rewrite (`mtcomp workpiece-setting compensate --mode 5axis`) solves the
+    same poses: the same block is refused, with the same figures; a tilt beyond the pole
+    tolerance passes."""
+    from mtcomp.setting.workpiece import compensate_text
+    m = load_machine("robonano-a0ib")
+    with pytest.raises(InputError) as exc:
+        compensate_text(m, _pole_sweep(), WorkpieceSetting((0, 0, 0), (0.19, 0.0, 0.0)), mode="5axis",
+                        filename="sweep.nc")
+    assert exc.value.line == 96 and "1.801 mm" in str(exc.value) and "turns C by 69.77" in str(exc.value)
+    new, n = compensate_text(m, _pole_sweep(), WorkpieceSetting((0, 0, 0), (0.3, 0.0, 0.0)), mode="5axis")
+    assert n == 202 and new.count("\n") == 202
