@@ -196,6 +196,96 @@ def _by_tool(tip, rows):
     return [(float(v), idx[t == v]) for v in np.unique(t)]
 
 
+def _midblock_check(machine, prog, P, emitted, kn, kk, before_end, errors, tip, at_tip, tolerance,
+                    filename):
+    """Refuse a compensated program whose tool path leaves the programmed one between the end
+    points of a block by more than the uncompensated program does there plus the errors it
+    corrects at the block's ends (before_end: the uncompensated error of the blocks kk, mm) plus
+    ``tolerance`` mm.
+
+    The check of the end points cannot see it: the control interpolates a G0/G1 block's axes
+    linearly (no tool centre point control), so where the correction of a rotary axis changes
+    much from one block to the next (at the end of a pole axis' hold, or where the solution
+    changes branch) the tool sweeps an arc between two correct end points.  Tested at the middle
+    of every linear block whose rotary axes move (programmed or emitted) and whose block before
+    it is compensated too, with the same tool and no tool centre point control: the real machine
+    at the mean of the emitted commands against the ideal machine at the mean of the programmed
+    ones.  Blocks whose rotary axes stand still keep their rotary correction, and the model is
+    then affine in the linear axes up to the tables' curvature (second order, nm), so they are
+    not evaluated.  Arcs are solved point by point by the compensation itself.
+      The allowance: the corrections at the two ends are each about as large as the error they
+    remove there, and between the ends the control moves them linearly, so the tool can be off
+    by up to about that much more than uncompensated where the rotary axes turn much (a 330 deg
+    turn of C in one block of setting errors of 20 µm: 1.2 µm more), without anything wrong in
+    the solution; a correction that changes its rotary branch or leaves a pole axis' hold within
+    one block puts the tool off by the sagitta of the turn (1.8 mm for 70 deg at 10 mm from the
+    axis), far beyond it."""
+    rot = list(machine.rotary_indices)
+    n = len(kn)
+    if not rot or n < 2:
+        return
+    # (masks over the pairs (i-1, i) from slices of the columns: no gathered copies of the
+    # positions, which are 40 MB at 1 M blocks)
+    tcp = np.asarray(prog.tcp, bool)
+    ok = kn[1:] & kn[:-1] & (np.asarray(prog.motion)[1:] <= 1) & (np.asarray(prog.cycle)[1:] == 0)
+    if tcp.any():
+        ok &= ~tcp[1:] & ~tcp[:-1]
+    if tip is not None:
+        ok &= tip[1:] == tip[:-1]
+    moving = np.zeros(n - 1, bool)
+    for k in rot:
+        moving |= P[1:, k] != P[:-1, k]
+        moving |= emitted[1:, k] != emitted[:-1, k]
+    ok &= moving
+    b = np.flatnonzero(ok) + 1
+    every = len(kk) == n                         # every block compensated: kk is the identity
+    for s in range(0, len(b), CHUNK):
+        rows = b[s:s + CHUNK]
+        run = len(rows) and rows[-1] - rows[0] == len(rows) - 1     # consecutive: slices
+        sl = slice(int(rows[0]), int(rows[-1]) + 1) if run else rows
+        sl0 = slice(sl.start - 1, sl.stop - 1) if run else rows - 1
+        qp = np.add(P[sl0], P[sl])
+        qp *= 0.5
+        qe = np.add(emitted[sl0], emitted[sl])
+        qe *= 0.5
+        before = np.empty(len(rows))
+        after = np.empty(len(rows))
+        groups = _by_tool(tip, rows) if tip is not None else [(0.0, None)]
+        for length, sub in groups:
+            if sub is None:
+                before[:], after[:] = deviations(at_tip(length), qp, qe, errors)
+            else:
+                k = np.searchsorted(rows, sub)
+                before[k], after[k] = deviations(at_tip(length), qp[k], qe[k], errors)
+        pos = rows if every else np.searchsorted(kk, rows)
+        ends = np.maximum(before_end[pos - 1], before_end[pos])
+        bad = np.flatnonzero(~(after <= before + ends + tolerance))
+        if not len(bad):
+            continue
+        j = int(bad[0])
+        i = int(rows[j])
+        turn = np.abs((emitted[i, rot] - emitted[i - 1, rot]) - (P[i, rot] - P[i - 1, rot]))
+        r = int(np.argmax(turn))
+        ax = machine.axes[rot[r]].name
+        raise InputError(
+            f"mid-block the compensated tool path would leave the programmed one by "
+            f"{_length_text(after[j])} (the uncompensated program: {_length_text(before[j])} there, "
+            f"{_length_text(ends[j])} at the block's ends; accepted: the sum of the two plus "
+            f"{_length_text(tolerance)}): the correction turns {ax} "
+            f"by {turn[r]:.4f} deg within this block ({ax} {emitted[i - 1, rot[r]]:.4f} -> "
+            f"{emitted[i, rot[r]]:.4f} deg as compensated, {P[i - 1, rot[r]]:.4f} -> {P[i, rot[r]]:.4f} "
+            "as programmed), and the control turns it linearly between the end points; near a "
+            "pole of the real machine the exact solution swings the pole axis (docs/gcode.md, "
+            "'Mid-block check'). Refusing; alternatives: position-only compensation with the "
+            "rotary axes as programmed (`mtcomp workpiece-setting compensate --mode 3axis`), or a "
+            "program that passes the pole in one held stretch", filename, int(prog.line[i]))
+
+
+def _length_text(mm: float) -> str:
+    """A length for a message: mm from 0.1 mm, else µm."""
+    return f"{mm:.3f} mm" if mm >= 0.1 else f"{mm * 1e3:.3f} µm"
+
+
 def _three_axis_hint(machine, prog) -> str:
     rot = [machine.axis_names[i] for i in machine.rotary_indices]
     if rot and not np.asarray(prog.present)[:, list(machine.rotary_indices)].any():
@@ -232,7 +322,10 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     (mm) from the stock, its feeds stay within ``tolerance`` (mm) of the part; a violation
     raises VerifyError naming the block, unless ``warn_only`` (then it is in the report).
     Every emitted end position is checked against the travel of its axis (arcs: their interior
-    points are solved for and checked by the compensation itself).
+    points are solved for and checked by the compensation itself).  A linear block whose middle
+    (axes interpolated linearly) leaves the programmed path by more than the uncompensated
+    program does there, plus ``tolerance``, is refused (InputError naming its line: a rotary
+    correction that turns much within one block, at the end of a pole axis' hold).
     cutter_radius (mm) / cutter_offsets ({D number: radius mm}): the tool radius of blocks
     under G41/G42 (the option wins; default gcode.cutter.DEFAULT_RADIUS, noted): their
     correction is evaluated at the programmed contour, and a block where that differs from the
@@ -390,6 +483,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
             before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
+    _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
+                    filename)
     n_lines, idle_axes, notes = prog.n_lines, prog.idle_axes, prog.notes
     new_text = raw
     if as_text:
@@ -896,7 +991,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "gouge it by more than --tolerance")
     p.add_argument("--clearance", type=float, default=0.2, help="rapid clearance, mm (default 0.2)")
     p.add_argument("--tolerance", type=float, default=5e-4,
-                   help="allowed depth of feed moves into the part, mm (default 0.0005)")
+                   help="allowed depth of feed moves into the part, and how much further than "
+                        "the uncompensated program a block's middle may leave the programmed path, "
+                        "mm (default 0.0005)")
     p.add_argument("--warn-only", action="store_true",
                    help="write the program even if the verification fails (report the blocks)")
     p.add_argument("--progress", action="store_true", default=None, help="show a progress bar")

@@ -791,3 +791,96 @@ def test_atomic_write_of_a_bytearray(tmp_path):
     from mtcomp._io import atomic_write
     p = atomic_write(tmp_path / "x.nc", bytearray(b"G1 X1\r\n\xe4"))
     assert p.read_bytes() == b"G1 X1\r\n\xe4"
+
+
+# --------------------------------------------------------------------- mid-block check
+
+def _pole_sweep() -> str:
+    """B from -1 to 1 deg in 0.01 deg steps at C = 0, X10 Y0 Z-20: through the B = 0 pole of the
+    B-C table of robonano-a0ib."""
+    lines = ["G90 G0 C0 B-1. X10. Y0 Z-20."]
+    lines += [f"G1 B{b:.3f} F100" for b in np.arange(-1.0, 1.0001, 0.01)]
+    return "\n".join(lines) + "\n"
+
+
+def _midblock_deviation(m, errors, qa, qb):
+    """Largest distance (mm) of the real tool tip, axes interpolated linearly from qa to qb (the
+    written commands), from the ideal machine's straight segment between the programmed ends:
+    the numpy forward model at 41 points of the block, independent of the check."""
+    from mtcomp.kinematics import forward
+    t = np.linspace(0.0, 1.0, 41)[:, None]
+    return t, forward(m, qa + t * (qb - qa), errors, backend="numpy").p
+
+
+def test_rotary_jump_at_the_end_of_a_pole_hold_is_refused():
+    """A blank tilted 0.19 deg about X (inside the 0.2 deg pole tolerance): the real pole is
+    0.19 deg off the programmed one, the exact solution before the hold turns C to 69.8 deg and
+    the held one keeps C = 0, so one G1 block turns C by 69.8 deg. Its end points are right (the
+    end-point check passed it); the tool in between is 1.8 mm off the programmed path, which the
+    forward model at 41 points of the written block shows independently."""
+    m = load_machine("robonano-a0ib")
+    text = _pole_sweep()
+    E = ErrorSet(workpiece=WorkpieceSetting((0, 0, 0), (0.19, 0.0, 0.0)))
+    with pytest.raises(InputError) as exc:
+        compensate_program(text, m, E, filename="sweep.nc")
+    msg = str(exc.value)
+    assert exc.value.line == 96 and "mid-block" in msg and "turns C by 69.77" in msg
+    assert "1.801 mm" in msg and "\n" not in msg
+    # the written block, as the end-point solutions give it (the line before the hold and the
+    # first held line): C B X Y Z
+    from mtcomp.kinematics import forward, retarget
+    Pq = np.array([[0.0, -0.07, 10.0, 0.0, -20.0], [0.0, -0.06, 10.0, 0.0, -20.0]])
+    Q = retarget(m, Pq, E, backend="numpy")
+    assert abs(Q[0, 0] - 69.7751) < 1e-3 and abs(Q[1, 0]) < 1e-9
+    t, real = _midblock_deviation(m, E, Q[0], Q[1])
+    ideal = forward(m, Pq, backend="numpy").p
+    off = np.linalg.norm(real - (ideal[0] + t * (ideal[1] - ideal[0])), axis=1)
+    assert off[[0, -1]].max() < 1e-6 and 1.7 < off.max() < 1.9
+
+
+@pytest.mark.parametrize("tilt", [0.0, 0.3])
+def test_sweep_through_the_pole_is_kept_where_no_block_jumps(tilt):
+    """No tilt (the programmed pole, C held as programmed) or a tilt beyond the pole tolerance
+    (never held, C turns smoothly, at most about 2 deg a block): accepted, and in every written
+    block the tool stays within 0.5 µm more than the uncompensated program of the programmed
+    path at 41 points (numpy forward model)."""
+    from mtcomp.kinematics import forward
+    m = load_machine("robonano-a0ib")
+    text = _pole_sweep()
+    E = ErrorSet(workpiece=WorkpieceSetting((0, 0, 0), (tilt, 0.0, 0.0)))
+    out, rep = compensate_program(text, m, E, filename="sweep.nc")
+    assert rep["after_max"] < 1e-5
+    P = gcode.parse(text, axes=m.axis_names).position
+    Q = gcode.parse(out, axes=m.axis_names).position
+    worst = 0.0
+    for i in range(1, len(P)):
+        t, real = _midblock_deviation(m, E, Q[i - 1], Q[i])
+        _, unc = _midblock_deviation(m, E, P[i - 1], P[i])
+        ideal = forward(m, P[i - 1] + t * (P[i] - P[i - 1]), backend="numpy").p
+        worst = max(worst, float(np.max(np.linalg.norm(real - ideal, axis=1)
+                                        - np.linalg.norm(unc - ideal, axis=1))))
+    assert worst < 5e-4
+
+
+def test_midblock_refusal_through_the_cli_writes_nothing(tmp_path):
+    prog = tmp_path / "sweep.nc"
+    prog.write_text(_pole_sweep())
+    err = save_errors(ErrorSet(workpiece=WorkpieceSetting((0, 0, 0), (0.19, 0.0, 0.0))), tmp_path / "e.toml")
+    out = tmp_path / "o.nc"
+    r = run("compensate", prog, "-m", "robonano-a0ib", "-e", err, "-o", out)
+    assert r.returncode != 0 and not out.exists()
+    assert "Traceback" not in r.stderr and "sweep.nc:96" in r.stderr and "mid-block" in r.stderr
+
+
+def test_workpiece_setting_five_axis_mode_has_the_mid_block_check():
+    """Paper 001's own rewrite (`mtcomp workpiece-setting compensate --mode 5axis`) solves the
+    same poses: the same block is refused, with the same figures; a tilt beyond the pole
+    tolerance passes."""
+    from mtcomp.setting.workpiece import compensate_text
+    m = load_machine("robonano-a0ib")
+    with pytest.raises(InputError) as exc:
+        compensate_text(m, _pole_sweep(), WorkpieceSetting((0, 0, 0), (0.19, 0.0, 0.0)), mode="5axis",
+                        filename="sweep.nc")
+    assert exc.value.line == 96 and "1.801 mm" in str(exc.value) and "turns C by 69.77" in str(exc.value)
+    new, n = compensate_text(m, _pole_sweep(), WorkpieceSetting((0, 0, 0), (0.3, 0.0, 0.0)), mode="5axis")
+    assert n == 202 and new.count("\n") == 202

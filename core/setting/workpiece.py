@@ -214,8 +214,10 @@ def compensate_text(machine, text: str, pose: WorkpieceSetting, *, mode: str = "
     # validate every block with its line number before any text is produced
     lines = np.asarray(prog.line)
     if (known & ~tcp).any():
-        compensate_commands(machine, q_all[known & ~tcp], pose, mode, lines=lines[known & ~tcp],
-                            source=filename)
+        sel = known & ~tcp
+        q_out = compensate_commands(machine, q_all[sel], pose, mode, lines=lines[sel], source=filename)
+        if mode == "5axis":
+            _midblock(machine, prog, q_all, q_out, sel, pose, filename)
     if (tcp & known).any():
         _tcp_checked(machine, words[tcp & known], tlen[tcp & known], pose, mode,
                      lines[tcp & known], filename)
@@ -237,6 +239,23 @@ def compensate_text(machine, text: str, pose: WorkpieceSetting, *, mode: str = "
 
     new = gcode.rewrite(prog, transform, resolution=res, chordal_tol=chordal_tol, row_lines=calls)
     return new, len(prog)
+
+
+def _midblock(machine, prog, q_all, q_out, sel, pose, filename):
+    """The mid-block check of `mtcomp compensate` (docs/gcode.md) on the 5-axis mode's commands:
+    a linear block whose middle, axes interpolated linearly, leaves the programmed path by more
+    than the uncompensated program there plus the error corrected at its ends is refused
+    (InputError naming its line).  q_out: the compensated commands of the blocks `sel`."""
+    from ..commands import _midblock_check
+    from ..errors import ErrorSet
+    from ..kinematics import deviations
+    errors = ErrorSet(workpiece=pose)
+    emitted = q_all.copy()
+    emitted[sel] = q_out
+    kk = np.flatnonzero(sel)
+    before_end = deviations(machine, q_all[kk], emitted[kk], errors)[0]
+    _midblock_check(machine, prog, q_all, emitted, sel, kk, before_end, errors, None,
+                    lambda length: machine, 5e-4, filename)
 
 
 def compensate_program(machine, path, pose: WorkpieceSetting, out, *, mode: str = "auto",
