@@ -1868,6 +1868,43 @@ static int pole_axis_margin(const prep_t *Pr, const double *J, double thr, doubl
     return pole_axis_cols(Pr, col, thr, margin);
 }
 
+/* Paden-Kahan subproblem 2 of the rigid model for a target's orientation, shared by
+ * pole_columns and pole_clear: v = Rw R_t a, x = al u1 + be u2 + ga u1 x u2 (ga >= 0; 0 where the
+ * orientation is out of reach).  Returns 0 where the first two rotary axes are parallel (two or
+ * three rotary axes only). */
+typedef struct {
+    const double *u1, *u2, *a;
+    double c, u1v, u2a, aa, al, be, ga;
+} pole_sp_t;
+
+static int pole_subproblem(const prep_t *P, const target_t *tg, pole_sp_t *s)
+{
+    const mtk_model *m = P->m;
+    double v[3], iden, ga2;
+    s->u1 = m->dir[P->rot_idx[0]];
+    s->u2 = m->dir[P->rot_idx[1]];
+    s->c = dot3(s->u1, s->u2);
+    if (!(1.0 - s->c * s->c > 1e-6)) return 0;
+    if (P->nrot == 3) {
+        double Mt[9];
+        s->a = m->dir[P->rot_idx[2]];
+        mat_mul(P->Rw, tg->R, Mt);
+        mat_vec(Mt, s->a, v);
+    } else {
+        s->a = m->tool_axis;
+        mat_vec(P->Rw, tg->v, v);
+    }
+    iden = 1.0 / (1.0 - s->c * s->c);
+    s->u1v = dot3(s->u1, v);
+    s->u2a = dot3(s->u2, s->a);
+    s->aa = dot3(s->a, s->a);
+    s->al = (s->u1v - s->c * s->u2a) * iden;
+    s->be = (s->u2a - s->c * s->u1v) * iden;
+    ga2 = (s->aa - s->al * s->al - s->be * s->be - 2.0 * s->al * s->be * s->c) * iden;
+    s->ga = ga2 > 0.0 ? sqrt(ga2) : 0.0;
+    return 1;
+}
+
 /* The orientation columns the pole rule tests (pole_axis_cols): those of the rigid model (the
  * nominal axes, the workpiece setting's rotation Rw) at its exact solution for the target's
  * orientation, so that the decision depends on the target pose alone (not on where an iteration
@@ -1884,43 +1921,23 @@ static int pole_axis_margin(const prep_t *Pr, const double *J, double thr, doubl
  * nearest, ga = 0.  Returns 0 (col not set) where the first two rotary axes are parallel. */
 static int pole_columns(const prep_t *P, const target_t *tg, double (*col)[3])
 {
-    const mtk_model *m = P->m;
-    const double *u1 = m->dir[P->rot_idx[0]], *u2, *a;
-    double v[3], w[3], x[3], c, iden, u1v, u2a, aa, al, be, ga2, ga;
+    pole_sp_t s;
+    double w[3], x[3];
     int k;
     if (P->nrot == 1) {
-        cross(u1, m->tool_axis, col[0]);
+        cross(P->m->dir[P->rot_idx[0]], P->m->tool_axis, col[0]);
         return 1;
     }
-    u2 = m->dir[P->rot_idx[1]];
-    c = dot3(u1, u2);
-    if (!(1.0 - c * c > 1e-6)) return 0;
+    if (!pole_subproblem(P, tg, &s)) return 0;
+    cross(s.u1, s.u2, w);
+    for (k = 0; k < 3; k++) x[k] = s.al * s.u1[k] + s.be * s.u2[k] + s.ga * w[k];
     if (P->nrot == 3) {
-        double Mt[9];
-        a = m->dir[P->rot_idx[2]];
-        mat_mul(P->Rw, tg->R, Mt);
-        mat_vec(Mt, a, v);
-    } else {
-        a = m->tool_axis;
-        mat_vec(P->Rw, tg->v, v);
-    }
-    iden = 1.0 / (1.0 - c * c);
-    u1v = dot3(u1, v);
-    u2a = dot3(u2, a);
-    aa = dot3(a, a);
-    al = (u1v - c * u2a) * iden;
-    be = (u2a - c * u1v) * iden;
-    ga2 = (aa - al * al - be * be - 2.0 * al * be * c) * iden;
-    ga = ga2 > 0.0 ? sqrt(ga2) : 0.0;
-    cross(u1, u2, w);
-    for (k = 0; k < 3; k++) x[k] = al * u1[k] + be * u2[k] + ga * w[k];
-    if (P->nrot == 3) {
-        memcpy(col[0], u1, sizeof col[0]);
-        memcpy(col[1], u2, sizeof col[1]);
+        memcpy(col[0], s.u1, sizeof col[0]);
+        memcpy(col[1], s.u2, sizeof col[1]);
         memcpy(col[2], x, sizeof col[2]);
     } else {
-        cross(u1, x, col[0]);
-        cross(u2, x, col[1]);
+        cross(s.u1, x, col[0]);
+        cross(s.u2, x, col[1]);
     }
     return 1;
 }
@@ -1944,35 +1961,15 @@ static inline int pole_clear_inv(int nrot, double aa, double u1v, double u2a, do
  * whose sine is thr, 0 where it might (or the first two rotary axes are parallel). */
 static int pole_clear(const prep_t *P, const target_t *tg, double thr)
 {
-    const mtk_model *m = P->m;
-    const double *u1 = m->dir[P->rot_idx[0]], *u2, *a;
-    double v[3], w[3], c, iden, u1v, u2a, aa, al, be, ga2;
+    pole_sp_t s;
     thr *= 1.0 + 1e-9;
     if (P->nrot == 1) {
-        cross(u1, m->tool_axis, w);
+        double w[3];
+        cross(P->m->dir[P->rot_idx[0]], P->m->tool_axis, w);
         return dot3(w, w) >= thr * thr;
     }
-    if (P->nrot > 3) return 0;
-    u2 = m->dir[P->rot_idx[1]];
-    c = dot3(u1, u2);
-    if (!(1.0 - c * c > 1e-6)) return 0;
-    if (P->nrot == 3) {
-        double y[3];
-        a = m->dir[P->rot_idx[2]];
-        mat_vec(tg->R, a, y);
-        mat_vec(P->Rw, y, v);
-    } else {
-        a = m->tool_axis;
-        mat_vec(P->Rw, tg->v, v);
-    }
-    iden = 1.0 / (1.0 - c * c);
-    u1v = dot3(u1, v);
-    u2a = dot3(u2, a);
-    aa = dot3(a, a);
-    al = (u1v - c * u2a) * iden;
-    be = (u2a - c * u1v) * iden;
-    ga2 = (aa - al * al - be * be - 2.0 * al * be * c) * iden;
-    return pole_clear_inv(P->nrot, aa, u1v, u2a, (ga2 > 0.0 ? sqrt(ga2) : 0.0) * (1.0 - c * c), thr);
+    if (P->nrot > 3 || !pole_subproblem(P, tg, &s)) return 0;
+    return pole_clear_inv(P->nrot, s.aa, s.u1v, s.u2a, s.ga * (1.0 - s.c * s.c), thr);
 }
 
 /* The pole axis the compensation holds for a target (mtcomp._solver._pole_axis), or -1: the test
