@@ -21,6 +21,10 @@ from .machine import list_presets, load_machine
 from .progress import Progress
 
 CHUNK = 200_000
+#: Default tolerance (mm) of the output checks: feeds into the part, a cutter-compensated
+#: block's correction, and a block's middle beyond the uncompensated program (mid-block check).
+TOLERANCE = 5e-4
+
 #: Default chordal tolerance for linearised arcs (mm), raised to twice the coarsest linear axis
 #: resolution on machines where 0.1 µm cannot be represented.
 CHORDAL_TOL = 1e-4
@@ -215,7 +219,7 @@ def _midblock_check(machine, prog, P, emitted, kn, kk, before_end, errors, tip, 
     not evaluated.  Arcs are solved point by point by the compensation itself.
       The allowance: the corrections at the two ends are each about as large as the error they
     remove there, and between the ends the control moves them linearly, so the tool can be off
-    by up to about that much more than uncompensated where the rotary axes turn much (a 330 deg
+    by up to about that much more than uncompensated where the rotary axes turn much (a 325 deg
     turn of C in one block of setting errors of 20 µm: 1.2 µm more), without anything wrong in
     the solution; a correction that changes its rotary branch or leaves a pole axis' hold within
     one block puts the tool off by the sagitta of the turn (1.8 mm for 70 deg at 10 mm from the
@@ -300,7 +304,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                        provenance: list | None = None, force: bool = False, progress=None,
                        convert_inch: bool = False, tool_lengths=None, work_offsets=None,
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
-                       tolerance: float = 5e-4, warn_only: bool = False, search_path=None,
+                       tolerance: float = TOLERANCE, warn_only: bool = False, search_path=None,
                        cutter_radius: float | None = None, cutter_offsets: dict | None = None,
                        encoding: str = "utf-8"):
     """Rewrite an NC program written for the ideal machine so that the real machine with
@@ -655,7 +659,7 @@ def _travel_check_emitted(machine, emitted, kn, prog, filename):
 
 
 def verify_output(machine, text, errors, *, filename="<string>", stock=None, part=None,
-                  clearance=0.2, tolerance=5e-4, warn_only=False, **parse_kw):
+                  clearance=0.2, tolerance=TOLERANCE, warn_only=False, **parse_kw):
     """Run the written program `text` (str, or its bytes: UTF-8) through the forward model
     with `errors` (the real machine) and check it against stock (rapids, ``clearance``) and
     part (feeds, ``tolerance``) with mtcomp.verify, block by block.  Blocks where the program has not fixed every axis yet
@@ -990,7 +994,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--part", help="STEP of the finished part: feed moves of the output must not "
                                   "gouge it by more than --tolerance")
     p.add_argument("--clearance", type=float, default=0.2, help="rapid clearance, mm (default 0.2)")
-    p.add_argument("--tolerance", type=float, default=5e-4,
+    p.add_argument("--tolerance", type=float, default=TOLERANCE,
                    help="allowed depth of feed moves into the part, and how much further than "
                         "the uncompensated program a block's middle may leave the programmed path, "
                         "mm (default 0.0005)")

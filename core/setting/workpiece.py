@@ -246,7 +246,7 @@ def _midblock(machine, prog, q_all, q_out, sel, pose, filename):
     a linear block whose middle, axes interpolated linearly, leaves the programmed path by more
     than the uncompensated program there plus the error corrected at its ends is refused
     (InputError naming its line).  q_out: the compensated commands of the blocks `sel`."""
-    from ..commands import _midblock_check
+    from ..commands import TOLERANCE, _midblock_check
     from ..errors import ErrorSet
     from ..kinematics import deviations
     errors = ErrorSet(workpiece=pose)
@@ -255,7 +255,7 @@ def _midblock(machine, prog, q_all, q_out, sel, pose, filename):
     kk = np.flatnonzero(sel)
     before_end = deviations(machine, q_all[kk], emitted[kk], errors)[0]
     _midblock_check(machine, prog, q_all, emitted, sel, kk, before_end, errors, None,
-                    lambda length: machine, 5e-4, filename)
+                    lambda length: machine, TOLERANCE, filename)
 
 
 def compensate_program(machine, path, pose: WorkpieceSetting, out, *, mode: str = "auto",
