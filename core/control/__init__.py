@@ -1,0 +1,90 @@
+"""Compensation into the control: the controls' own compensation tables and kinematic parameters.
+
+`export_control` writes, for one control (linuxcnc, fanuc, siemens, heidenhain), the files that
+control reads -- pitch tables per direction of approach, straightness where the control has a
+cross-axis table, rotary-axis locations as the parameters of its 5-axis transformation -- plus
+``remainder.toml``, the errors the control cannot hold (for the NC rewrite).  `import_control`
+reads such a folder back into an `ErrorSet` (and the reversal tables), so a shop's existing
+tables can start a calibration.  Formats, sources and limits: docs/control.md.
+"""
+from __future__ import annotations
+
+import importlib
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .._io import InputError
+from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, check_for_machine, load_errors, save_errors
+from ..machine import Machine, load_machine
+from .common import ControlLimitError, ExportResult, merge_errors, split_errors, write_files
+
+__all__ = ["CONTROLS", "export_control", "import_control", "ControlLimitError", "ExportResult",
+           "REMAINDER"]
+
+CONTROLS = ("linuxcnc", "fanuc", "siemens", "heidenhain")
+REMAINDER = "remainder.toml"
+
+
+def _module(control: str):
+    if control not in CONTROLS:
+        raise InputError(f"unknown control {control!r}; expected one of {', '.join(CONTROLS)}", field="--control")
+    return importlib.import_module(f"{__name__}.{control}")
+
+
+def export_texts(control: str, machine: Machine | str, errors: ErrorSet, reversal: dict | None = None):
+    """(files {name: text}, ExportResult without files): everything computed, nothing written."""
+    machine = load_machine(machine)
+    check_for_machine(errors, machine)
+    mod = _module(control)
+    split = split_errors(machine, errors, reversal)
+    files, held_loc, held, notes = mod.export(machine, split)
+    left = {k: v for k, v in split.location.items() if k not in held_loc}
+    rest_g = split.rest.geometric
+    tables = dict(rest_g.tables)
+    # every control here holds the pitch tables; straightness goes back where it has no table
+    for (ax, d), (pos, v) in split.straightness.items():
+        if not getattr(mod, "HOLDS_STRAIGHTNESS", False):
+            tables[ax] = _with(tables.get(ax), ax, pos, {f"E{d}{ax}": v})
+    loc = dict(rest_g.location)
+    loc.update(left)
+    remainder = ErrorSet(split.rest.tool, split.rest.workpiece, GeometricErrors(tables, loc))
+    return files, ExportResult(mod.NAME, (), tuple(held), remainder, tuple(notes))
+
+
+def _with(table, ax, pos, vals):
+    if table is None:
+        return AxisErrorTable(ax, pos, vals)
+    if not np.array_equal(table.position, pos):
+        raise InputError(f"components of axis {ax} on different positions", field=ax)
+    return AxisErrorTable(ax, pos, {**dict(table.values), **vals})
+
+
+def export_control(control: str, machine: Machine | str, errors: ErrorSet | str | os.PathLike,
+                   directory: str | os.PathLike, reversal: dict | None = None) -> ExportResult:
+    """Write the control's files and remainder.toml into `directory` (every file atomically,
+    all computed and checked against the control's limits before the first is written)."""
+    machine = load_machine(machine)
+    if not isinstance(errors, ErrorSet):
+        errors = load_errors(errors, machine)
+    files, res = export_texts(control, machine, errors, reversal)
+    written = list(write_files(directory, files))
+    written.append(save_errors(res.remainder, Path(directory) / REMAINDER,
+                               meta={"written_by": f"mtcomp control export --control {control}",
+                                     "what": "errors the control's files do not hold: for the NC rewrite"}))
+    return ExportResult(res.control, tuple(written), res.held, res.remainder, res.notes, res.figures)
+
+
+def import_control(control: str, machine: Machine | str, directory: str | os.PathLike,
+                   remainder: bool = True) -> tuple[ErrorSet, dict]:
+    """(ErrorSet, {axis: ReversalTable}) from a folder of the control's files; remainder.toml is
+    added when present (and `remainder`)."""
+    machine = load_machine(machine)
+    d = Path(directory)
+    if not d.is_dir():
+        raise InputError("expected a folder of the control's files", d)
+    mod = _module(control)
+    pitch, straight, location = mod.read(machine, d)
+    rest = load_errors(d / REMAINDER, machine) if remainder and (d / REMAINDER).exists() else None
+    return merge_errors(pitch, straight, location, rest)

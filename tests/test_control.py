@@ -1,0 +1,147 @@
+"""mtcomp control export|import: the controls' own files, their limits, and exact round trips."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mtcomp._io import InputError
+from mtcomp.control import CONTROLS, ControlLimitError, export_control, import_control
+from mtcomp.control.synthetic import grid_errors
+from mtcomp.errors import AxisErrorTable, ErrorSet, GeometricErrors, load_errors
+from mtcomp.machine import list_presets
+
+PRESETS = ("robonano-a0ib", "robonano-ui", "vmc-moving-column")
+
+
+def _same(a: ErrorSet, b: ErrorSet):
+    """Exact equality of the geometric parts (every float bit for bit)."""
+    ga, gb = a.geometric, b.geometric
+    assert dict(ga.location) == dict(gb.location)
+    assert set(ga.tables) == set(gb.tables)
+    for ax in ga.tables:
+        ta, tb = ga.tables[ax], gb.tables[ax]
+        assert np.array_equal(ta.position, tb.position), ax
+        assert set(ta.values) == set(tb.values), (ax, sorted(ta.values), sorted(tb.values))
+        for k in ta.values:
+            assert np.array_equal(ta.values[k], tb.values[k]), (ax, k, ta.values[k] - tb.values[k])
+
+
+def test_presets_are_the_three():
+    assert set(PRESETS) <= set(list_presets())
+
+
+@pytest.mark.parametrize("control", CONTROLS)
+@pytest.mark.parametrize("preset", PRESETS)
+def test_round_trip_exact(tmp_path, control, preset):
+    errors, rev = grid_errors(preset, seed=7)
+    res = export_control(control, preset, errors, tmp_path, rev)
+    back, rev_back = import_control(control, preset, tmp_path)
+    _same(errors, back)
+    assert set(rev_back) == set(rev)
+    for ax, r in rev.items():
+        assert np.array_equal(rev_back[ax].reversal_i, r.reversal_i), ax
+    # and the control's files alone hold the pitch tables exactly (nothing of them in the remainder)
+    rem = res.remainder.geometric
+    for ax, t in rem.tables.items():
+        assert f"E{ax}{ax}" not in t.values
+
+
+@pytest.mark.parametrize("control", CONTROLS)
+def test_export_of_import_is_byte_identical(tmp_path, control):
+    errors, rev = grid_errors("robonano-a0ib", seed=3)
+    export_control(control, "robonano-a0ib", errors, tmp_path / "a", rev)
+    back, rev_back = import_control(control, "robonano-a0ib", tmp_path / "a")
+    export_control(control, "robonano-a0ib", back, tmp_path / "b", rev_back)
+    for f in sorted((tmp_path / "a").iterdir()):
+        if f.suffix != ".toml":
+            assert f.read_bytes() == (tmp_path / "b" / f.name).read_bytes(), f.name
+
+
+def _pitch_only(preset, axis, position, values):
+    return ErrorSet(geometric=GeometricErrors({axis: AxisErrorTable(axis, position, {f"E{axis}{axis}": values})}))
+
+
+def test_linuxcnc_comp_file_is_what_linuxcnc_reads(tmp_path):
+    """Three numbers per line, no header (LinuxCNC stops at the first other line), trims = -error."""
+    pos = np.array([-10.0, 0.0, 10.0])
+    e = _pitch_only("vmc-moving-column", "X", pos, np.array([0.0012, 0.0, -0.0005]))
+    export_control("linuxcnc", "vmc-moving-column", e, tmp_path)
+    lines = (tmp_path / "x.comp").read_text().splitlines()
+    assert lines == ["-10.0 -0.0012 -0.0012", "0.0 0.0000 0.0000", "10.0 0.0005 0.0005"]
+    ini = (tmp_path / "linuxcnc-comp.ini").read_text()
+    assert "[JOINT_0]\nCOMP_FILE = x.comp\nCOMP_FILE_TYPE = 1" in ini
+
+
+def test_linuxcnc_refuses_more_than_256_points(tmp_path):
+    pos = np.linspace(-300, 300, 257)
+    e = _pitch_only("vmc-moving-column", "X", pos, np.zeros(257))
+    with pytest.raises(ControlLimitError, match=r"X pitch.*257 points.*at most 256"):
+        export_control("linuxcnc", "vmc-moving-column", e, tmp_path / "out")
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_fanuc_tapes(tmp_path):
+    """Incremental values per point, reference point at machine zero, magnification, bidirectional block."""
+    pos = np.array([-60.0, -30.0, 0.0, 30.0, 60.0])
+    err = np.array([0.0003, 0.0001, 0.0, -0.0004, -0.0010])       # mm; corrections -3 -1 0 4 10 (0.1 µm)
+    e = _pitch_only("vmc-moving-column", "X", pos, err)
+    export_control("fanuc", "vmc-moving-column", e, tmp_path)
+    prm = (tmp_path / "fanuc-params.txt").read_text().splitlines()
+    assert "N3620A1P2" in prm and "N3621A1P0" in prm and "N3622A1P4" in prm
+    assert "N3623A1P1" in prm and "N3624A1P300000" in prm      # 30 mm in 0.1 µm units
+    assert (tmp_path / "fanuc-pitch.txt").read_text().split() == [
+        "%", "N10000P0", "N10001P2", "N10002P1", "N10003P4", "N10004P6", "%"]
+    # a change of 10 units over one interval needs magnification 2 (values within +-7)
+    e2 = _pitch_only("vmc-moving-column", "X", pos, np.array([0.0, 0.0, 0.0, -0.0010, -0.0020]))
+    export_control("fanuc", "vmc-moving-column", e2, tmp_path / "m")
+    assert "N3623A1P2" in (tmp_path / "m" / "fanuc-params.txt").read_text().splitlines()
+
+
+def test_fanuc_refuses_by_name(tmp_path):
+    pos = np.array([-60.0, -30.0, 0.0, 30.0, 60.0])
+    steep = _pitch_only("vmc-moving-column", "X", pos, np.array([0.0, 0.0, 0.0, 0.1, 0.2]))
+    with pytest.raises(ControlLimitError, match=r"X pitch.*changes by 1000 detection units.*at most 7 x"):
+        export_control("fanuc", "vmc-moving-column", steep, tmp_path)
+    uneven = _pitch_only("vmc-moving-column", "X", np.array([-60.0, -20.0, 0.0, 30.0]), np.zeros(4))
+    with pytest.raises(ControlLimitError, match=r"X pitch.*not equally spaced"):
+        export_control("fanuc", "vmc-moving-column", uneven, tmp_path)
+    no_zero = _pitch_only("vmc-moving-column", "X", np.array([10.0, 40.0, 70.0]), np.zeros(3))
+    with pytest.raises(ControlLimitError, match=r"X pitch.*point at the reference position"):
+        export_control("fanuc", "vmc-moving-column", no_zero, tmp_path)
+    assert not list(tmp_path.iterdir())
+
+
+def test_remainder_holds_what_the_control_cannot(tmp_path):
+    errors, rev = grid_errors("robonano-a0ib", seed=1)
+    res = export_control("linuxcnc", "robonano-a0ib", errors, tmp_path, rev)
+    rem = load_errors(tmp_path / "remainder.toml")
+    assert "EYX" in rem.geometric.tables["X"].values           # no straightness in LinuxCNC
+    assert "EA0C" in rem.geometric.location                      # trt kinematics has no tilts
+    assert "EX0C" not in rem.geometric.location                  # ... but the C axis position
+    assert "x-rot-point" in (tmp_path / "linuxcnc-kins.hal").read_text()
+    assert "stays for the NC rewrite" in res.summary()
+
+
+def test_cli_round_trip_and_refusal(tmp_path):
+    from mtcomp.errors import save_errors
+    from mtcomp.cli import main
+    errors, rev = grid_errors("vmc-moving-column", seed=2)
+    src = tmp_path / "e.toml"
+    save_errors(errors, src)
+    files = []
+    for ax, r in rev.items():
+        (tmp_path / f"{ax}_reversal.csv").write_text(r.to_csv())
+        files += ["--reversal", str(tmp_path / f"{ax}_reversal.csv")]
+    assert main(["control", "export", "--control", "fanuc", "--machine", "vmc-moving-column",
+                 "--errors", str(src), *files, "-o", str(tmp_path / "f")]) == 0
+    assert main(["control", "import", "--control", "fanuc", "--machine", "vmc-moving-column",
+                 str(tmp_path / "f"), "-o", str(tmp_path / "back.toml")]) == 0
+    _same(errors, load_errors(tmp_path / "back.toml"))
+    assert (tmp_path / "back_X_reversal.csv").exists()
+    bad = subprocess.run([sys.executable, "-m", "mtcomp", "control", "export", "--control", "fanuc",
+                          "--machine", "vmc-moving-column", "--errors", str(tmp_path / "nope.toml"),
+                          "-o", str(tmp_path / "g")], capture_output=True, text=True)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "nope.toml" in bad.stderr
