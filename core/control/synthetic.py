@@ -69,6 +69,6 @@ def grid_errors(machine: Machine | str, seed: int = 0, reversal: bool = True) ->
             for c in "XYZ":
                 if c != "XYZ"["ABC".index(a.name)]:
                     loc[f"E{c}0{a.name}"] = int(rng.integers(-50, 51)) / _Q
-            for c in "ABC":
-                loc[f"E{c}0{a.name}"] = int(rng.integers(-40, 41)) * 1e-6
+            for c in "ABC":     # tilts and zero error: whole 0.00001 deg (0.17 µrad)
+                loc[f"E{c}0{a.name}"] = float(np.radians(int(rng.integers(-40, 41)) / 100_000))
     return ErrorSet(geometric=GeometricErrors(tables, loc)), rev
