@@ -54,3 +54,34 @@ def test_linuxcnc_commands_equal_the_model(tmp_path):
         assert err.max() <= 1e-4, (a, err.max(), int(np.argmax(err)))
         # the trims are 32-bit floats in LinuxCNC: far below 0.1 µm
         assert err.max() < 1e-8
+
+
+def test_linuxcnc_trt_kinematics_pins_equal_the_model(tmp_path):
+    """robonano-a0ib on xyzbc-trt-kins with the exported pins (C axis and B axis positions off by
+    8.7 to 21 µm): for tool-centre-point moves to the ideal tool points of five poses, the joints
+    LinuxCNC commands equal mtcomp's compensated axis commands (kinematics.retarget) to 0.1 µm.
+    This LinuxCNC's trt kinematics turns B and C opposite to the machine file's (ISO 841, tool
+    relative to workpiece) senses: the program's and joints' B and C are the negated angles."""
+    from mtcomp.errors import ErrorSet, GeometricErrors
+    from mtcomp.kinematics import forward, retarget
+    m = load_machine("robonano-a0ib")
+    errors = ErrorSet(geometric=GeometricErrors({}, {"EX0C": 0.0123, "EY0C": -0.0087,
+                                                     "EX0B": 0.0211, "EZ0B": -0.0154}))
+    export_control("linuxcnc", m, errors, tmp_path / "export")
+    hal = (tmp_path / "export" / "linuxcnc-kins.hal").read_text()
+    assert "setp xyzbc-trt-kins.x-rot-point 0.012300" in hal
+    q = np.array([[0, 0, 10, 5, 20], [30, 0, 10, 5, 20], [0, 20, 10, 5, 20],
+                  [45, -30, -20, 8, 10], [-120, 60, 30, -10, -20]], float)      # C B X Y Z
+    w = forward(m, q).p                                # the ideal tool points on the workpiece
+    prog = "G21 G90 G94\n" + "".join(f"G1 F20000 X{p[0]:.6f} Y{p[1]:.6f} Z{p[2]:.6f} B{-b:g} C{-c:g}\nG4 P0.3\n"
+                                     for (c, b, *_), p in zip(q, w)) + "M2\n"
+    lim = {a.name: a.limits for a in m.axes}
+    data, log = run_sim(tmp_path / "sim", "XYZBC", None, lim, prog, kins="xyzbc-trt-kins", hal=hal, timeout=150)
+    pos, vel = data[:, :, 0], data[:, :, 2]
+    still = np.all(vel == 0, axis=1)
+    ends = np.nonzero(still[:-1] & ~still[1:])[0][1:].tolist() + [len(pos) - 1]
+    assert len(ends) == len(q), log[-2000:]
+    qc = retarget(m, q, errors)
+    expected = np.column_stack([qc[:, 2], qc[:, 3], qc[:, 4], -qc[:, 1], -qc[:, 0]])
+    assert np.max(np.abs(qc - q)) > 0.02              # the pins move the joints by up to 24 µm
+    assert np.max(np.abs(pos[ends] - expected)) <= 1e-4, (pos[ends] - expected) * 1e3

@@ -123,6 +123,9 @@ def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
         held_lines.append(f"{kins} pins: {', '.join(sorted(held)) or 'nominal locations'}")
         notes.append(f"{kins} models neither tilts of the rotary axes nor their zero errors: those stay "
                      "for the NC rewrite")
+        notes.append(f"{kins} (LinuxCNC 2.9) turns {kins[3].upper()} and C opposite to the machine file's senses "
+                     "unless its conventional-directions pin (later versions) is set: programs and joints "
+                     "then carry the negated angles")
     elif split.location:
         notes.append("LinuxCNC ships no kinematics module with adjustable pivots for this axis chain "
                      "(trt kinematics: tilting table carrying a C table): the rotary axis location errors "

@@ -5,10 +5,10 @@ it reads mtcomp's files.
 `run_sim` writes a configuration (INI, HAL file, tool table, the program and a driver), starts
 `linuxcnc` with the driver as its DISPLAY program -- the driver runs under the system Python,
 whose `linuxcnc` module ships with LinuxCNC, switches the machine on, runs the program in auto
-mode and records `joint.N.pos-cmd`, `motor-pos-cmd`, `vel-cmd`, `backlash-corr` and
-`backlash-filt` every servo period with the `sampler` component and `halsampler` -- and returns
+mode and records `joint.N.pos-cmd`, `motor-pos-cmd`, `vel-cmd` and `backlash-corr` every servo
+period with the `sampler` component and `halsampler` -- and returns
 the samples when LinuxCNC has shut down (it does so when the driver exits; a timeout kills it).
-Motor feedback is looped back (no hardware); homing is not required (NO_FORCE_HOMING).
+Motor feedback is looped back (no hardware); every joint is homed where it stands (0).
 `model_corrections` gives mtcomp's model of the same commands: the trims of the comp files,
 linear between nominal positions, held beyond them, forward trim while the joint moves up and
 reverse trim while it moves down (src/emc/motion/control.c compute_screw_comp).
@@ -26,8 +26,9 @@ import numpy as np
 
 __all__ = ["available", "run_sim", "model_corrections", "PINS"]
 
-# sampled per joint: pos-cmd (mm), then x SCALE: motor-pos-cmd - pos-cmd, vel-cmd, backlash-corr, backlash-filt
-PINS = ("pos-cmd", "motor-minus-pos", "vel-cmd", "backlash-corr", "backlash-filt")
+# sampled per joint: pos-cmd (mm), then x SCALE: motor-pos-cmd - pos-cmd, vel-cmd, backlash-corr
+# (the sampler takes at most 21 pins: 4 per joint for up to 5 joints)
+PINS = ("pos-cmd", "motor-minus-pos", "vel-cmd", "backlash-corr")
 SCALE = 1e6
 SYSTEM_PYTHON = "/usr/bin/python3"
 
@@ -48,6 +49,10 @@ def wait(cond, t=20.0):
 wait(lambda: s.task_state == linuxcnc.STATE_ESTOP)
 c.state(linuxcnc.STATE_ESTOP_RESET); wait(lambda: s.task_state == linuxcnc.STATE_ESTOP_RESET)
 c.state(linuxcnc.STATE_ON); wait(lambda: s.task_state == linuxcnc.STATE_ON)
+c.mode(linuxcnc.MODE_MANUAL); wait(lambda: s.task_mode == linuxcnc.MODE_MANUAL)
+n = int(ini.find("KINS", "JOINTS"))
+c.home(-1)          # HOME_SEARCH_VEL = 0: every joint is homed where it stands
+wait(lambda: all(s.homed[:n]))
 c.mode(linuxcnc.MODE_AUTO); wait(lambda: s.task_mode == linuxcnc.MODE_AUTO)
 c.program_open(prog); wait(lambda: s.file != "")
 with open(out, "w") as fh:
@@ -74,7 +79,8 @@ def available() -> bool:
     return r.returncode == 0
 
 
-def _ini(letters: str, comp: dict, limits: dict, samples: Path, program: Path, driver: Path) -> str:
+def _ini(letters: str, comp: dict, limits: dict, samples: Path, program: Path, driver: Path,
+         kins: str = "trivkins") -> str:
     j = len(letters)
     lines = ["[EMC]", "VERSION = 1.1", "MACHINE = mtcomp-comp-check", "DEBUG = 0",
              "[DISPLAY]", f"DISPLAY = {driver}",
@@ -87,30 +93,32 @@ def _ini(letters: str, comp: dict, limits: dict, samples: Path, program: Path, d
              "[TRAJ]", f"COORDINATES = {' '.join(letters)}", "LINEAR_UNITS = mm", "ANGULAR_UNITS = degree",
              "MAX_LINEAR_VELOCITY = 1000", "DEFAULT_LINEAR_VELOCITY = 100", "NO_FORCE_HOMING = 1",
              "POSITION_FILE = position.txt",
-             "[KINS]", f"KINEMATICS = trivkins coordinates={letters}", f"JOINTS = {j}"]
+             "[KINS]", f"KINEMATICS = {kins} coordinates={letters}", f"JOINTS = {j}"]
     for i, a in enumerate(letters):
         lo, hi = limits[a]
         common = [f"MIN_LIMIT = {lo - 1}", f"MAX_LIMIT = {hi + 1}", "MAX_VELOCITY = 1000",
                   "MAX_ACCELERATION = 4000"]
         lines += [f"[AXIS_{a}]", *common,
-                  f"[JOINT_{i}]", "TYPE = LINEAR", "HOME = 0", "FERROR = 10", "MIN_FERROR = 10", *common]
+                  f"[JOINT_{i}]", f"TYPE = {'ANGULAR' if a in 'ABC' else 'LINEAR'}", "HOME = 0",
+                  "HOME_OFFSET = 0", "HOME_SEARCH_VEL = 0", "HOME_LATCH_VEL = 0", "HOME_SEQUENCE = 0", "FERROR = 10", "MIN_FERROR = 10", *common]
         if a in comp:
             lines += [f"COMP_FILE = {comp[a]}", "COMP_FILE_TYPE = 1", "BACKLASH = 0.0"]
     return "\n".join(lines) + "\n"
 
 
-def _hal(n: int) -> str:
+def _hal(n: int, extra: str = "") -> str:
     """Motion, loopback feedback, and the sampler.  halsampler prints 6 decimals: every pin
     but pos-cmd is sampled times SCALE (scale / sum2 components), so the trims are recorded to
     1e-12 mm and the velocity's sign survives at a standstill's edge."""
     cfg = "f" * (len(PINS) * n)
     lines = ["loadrt [KINS]KINEMATICS",
              "loadrt [EMCMOT]EMCMOT servo_period_nsec=[EMCMOT]SERVO_PERIOD num_joints=[KINS]JOINTS",
-             f"loadrt scale count={3 * n}", f"loadrt sum2 count={n}",
+             f"loadrt scale count={2 * n}", f"loadrt sum2 count={n}",
              f"loadrt sampler depth=20000 cfg={cfg}",
              "addf motion-command-handler servo-thread", "addf motion-controller servo-thread"]
-    lines += [f"addf scale.{k} servo-thread" for k in range(3 * n)]
+    lines += [f"addf scale.{k} servo-thread" for k in range(2 * n)]
     lines += [f"addf sum2.{j} servo-thread" for j in range(n)]
+    lines += [ln for ln in extra.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     lines += ["addf sampler.0 servo-thread",
               "net estop-loop iocontrol.0.user-enable-out => iocontrol.0.emc-enable-in"]
     k = 0
@@ -120,25 +128,27 @@ def _hal(n: int) -> str:
                   f"net p{j} joint.{j}.pos-cmd => sum2.{j}.in1 sampler.0.pin.{base}",
                   f"setp sum2.{j}.gain0 {SCALE:g}", f"setp sum2.{j}.gain1 {-SCALE:g}",
                   f"net d{j} sum2.{j}.out => sampler.0.pin.{base + 1}"]
-        for i, p in enumerate(("vel-cmd", "backlash-corr", "backlash-filt")):
+        for i, p in enumerate(("vel-cmd", "backlash-corr")):
             lines += [f"net {p}{j} joint.{j}.{p} => scale.{k}.in", f"setp scale.{k}.gain {SCALE:g}",
                       f"net {p}{j}s scale.{k}.out => sampler.0.pin.{base + 2 + i}"]
             k += 1
     return "\n".join(lines) + "\n"
 
 
-def run_sim(workdir: str | os.PathLike, letters: str, comp_dir: str | os.PathLike, limits: dict,
-            program: str, timeout: float = 180.0) -> tuple[np.ndarray, str]:
+def run_sim(workdir: str | os.PathLike, letters: str, comp_dir: str | os.PathLike | None, limits: dict,
+            program: str, timeout: float = 180.0, kins: str = "trivkins",
+            hal: str = "") -> tuple[np.ndarray, str]:
     """Run `program` (G-code text) on a trivkins machine with joints `letters` whose comp files
-    are in `comp_dir` (<letter>.comp as `mtcomp control export --control linuxcnc` writes).
+    are in `comp_dir` (<letter>.comp as `mtcomp control export --control linuxcnc` writes), with
+    kinematics module `kins` (its pins set by `hal`, e.g. the exported linuxcnc-kins.hal).
     Returns (samples (T, joints, len(PINS)) in mm and mm/s, LinuxCNC's log).  Stops LinuxCNC by
     itself."""
     d = Path(workdir)
     d.mkdir(parents=True, exist_ok=True)
     comp = {}
     for a in letters:
-        f = Path(comp_dir) / f"{a.lower()}.comp"
-        if f.exists():
+        f = Path(comp_dir or d) / f"{a.lower()}.comp"
+        if comp_dir is not None and f.exists():
             shutil.copy(f, d / f.name)
             comp[a] = f.name
     (d / "prog.ngc").write_text(program)
@@ -146,10 +156,10 @@ def run_sim(workdir: str | os.PathLike, letters: str, comp_dir: str | os.PathLik
     (d / "driver.py").chmod(0o755)      # run as the DISPLAY program: linuxcnc puts -ini first
     (d / "sim.tbl").write_text("T1 P1 Z0 D0 ;\n")
     (d / "sim.var").write_text("")
-    (d / "sim.hal").write_text(_hal(len(letters)))
+    (d / "sim.hal").write_text(_hal(len(letters), hal))
     samples = d / "samples.txt"
     ini = d / "sim.ini"
-    ini.write_text(_ini(letters, comp, limits, samples, d / "prog.ngc", d / "driver.py"))
+    ini.write_text(_ini(letters, comp, limits, samples, d / "prog.ngc", d / "driver.py", kins))
     env = dict(os.environ)
     env.pop("DISPLAY", None)
     env["HOME"] = str(d)              # linuxcnc_print.txt / linuxcnc_debug.txt go there
