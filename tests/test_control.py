@@ -145,3 +145,39 @@ def test_cli_round_trip_and_refusal(tmp_path):
                           "--machine", "vmc-moving-column", "--errors", str(tmp_path / "nope.toml"),
                           "-o", str(tmp_path / "g")], capture_output=True, text=True)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and "nope.toml" in bad.stderr
+
+
+def test_linuxcnc_reads_comp_file_type_0(tmp_path):
+    """Type 0 files hold nominal, actual forward, actual reverse positions: trims = nominal - actual."""
+    (tmp_path / "linuxcnc-comp.ini").write_text("[JOINT_0]\nCOMP_FILE = x.comp\nCOMP_FILE_TYPE = 0\n")
+    (tmp_path / "x.comp").write_text("-10.0 -10.0012 -10.0010\n0.0 0.0 0.0\n10.0 10.0005 10.0007\n")
+    errors, rev = import_control("linuxcnc", "vmc-moving-column", tmp_path)
+    exx = errors.geometric.tables["X"].values["EXX"]
+    assert np.allclose(exx, [-0.0011, 0.0, 0.0006], atol=1e-12)     # mean of the two directions
+    assert np.allclose(rev["X"].reversal_i, [-0.0002, 0.0, -0.0002], atol=1e-12)
+
+
+def test_siemens_and_heidenhain_refuse_by_name(tmp_path):
+    many = _pitch_only("vmc-moving-column", "X", np.arange(-1000, 1001) * 3 / 10, np.zeros(2001))
+    with pytest.raises(ControlLimitError, match=r"X pitch.*2001 points.*at most 2000"):
+        export_control("siemens", "vmc-moving-column", many, tmp_path / "s")
+    with pytest.raises(ControlLimitError, match=r"X.COM.*2001 points.*at most 256"):
+        export_control("heidenhain", "vmc-moving-column", many, tmp_path / "h")
+    assert not (tmp_path / "s").exists() and not (tmp_path / "h").exists()
+
+
+def test_siemens_cec_tables(tmp_path):
+    """Bidirectional pitch as two tables (direction 1 and -1), straightness EYX as input X1 -> output Y1."""
+    errors, rev = grid_errors("vmc-moving-column", seed=9)
+    export_control("siemens", "vmc-moving-column", errors, tmp_path, rev)
+    text = (tmp_path / "siemens-cec.ini").read_text().splitlines()
+    assert text[0] == "%_N_NC_CEC_INI" and text[-1] == "M17"
+    assert '$AN_CEC_INPUT_AXIS[0]="X1"' in text and "$AN_CEC_DIRECTION[0]=1" in text
+    assert "$AN_CEC_DIRECTION[1]=-1" in text
+    ins = {ln.split("=")[0][len("$AN_CEC_INPUT_AXIS"):]: ln.split("=")[1] for ln in text if ln.startswith("$AN_CEC_INPUT_AXIS")}
+    outs = {ln.split("=")[0][len("$AN_CEC_OUTPUT_AXIS"):]: ln.split("=")[1] for ln in text if ln.startswith("$AN_CEC_OUTPUT_AXIS")}
+    assert ('"X1"', '"Y1"') in {(ins[k], outs[k]) for k in ins}
+    eyx = errors.geometric.tables["X"].values["EYX"]
+    t = next(k for k in ins if ins[k] == '"X1"' and outs[k] == '"Y1"')
+    first = float(next(ln for ln in text if ln.startswith(f"$AN_CEC[{t[1:-1]},0]=")).split("=")[1])
+    assert first == -eyx[0]                              # the correction is the error's negative

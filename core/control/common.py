@@ -158,7 +158,7 @@ def equal_steps(position: np.ndarray, q: Quantum, what: str) -> tuple[int, int, 
     n = q.count(position)
     if not np.array_equal(q.value(n), np.asarray(position, float)):
         i = int(np.argmax(q.value(n) != position))
-        raise ControlLimitError(f"position {position[i]!r} is not a whole number of "
+        raise ControlLimitError(f"position {float(position[i])!r} is not a whole number of "
                                 f"{q.text(1)} increments", field=what)
     d = np.diff(n)
     if d.size == 0 or np.any(d != d[0]):
