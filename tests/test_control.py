@@ -33,10 +33,13 @@ def test_presets_are_the_three():
     assert set(PRESETS) <= set(list_presets())
 
 
+@pytest.mark.parametrize("reversal", (True, False), ids=("bidirectional", "mean"))
 @pytest.mark.parametrize("control", CONTROLS)
 @pytest.mark.parametrize("preset", PRESETS)
-def test_round_trip_exact(tmp_path, control, preset):
-    errors, rev = grid_errors(preset, seed=7)
+def test_round_trip_exact(tmp_path, control, preset, reversal):
+    """Without reversal, EXX is not 0 at the reference position: Fanuc leaves that constant to
+    the program (remainder.toml) and the import adds it back exactly."""
+    errors, rev = grid_errors(preset, seed=7, reversal=reversal)
     res = export_control(control, preset, errors, tmp_path, rev)
     back, rev_back = import_control(control, preset, tmp_path)
     _same(errors, back)
@@ -181,3 +184,37 @@ def test_siemens_cec_tables(tmp_path):
     t = next(k for k in ins if ins[k] == '"X1"' and outs[k] == '"Y1"')
     first = float(next(ln for ln in text if ln.startswith(f"$AN_CEC[{t[1:-1]},0]=")).split("=")[1])
     assert first == -eyx[0]                              # the correction is the error's negative
+
+
+@pytest.mark.parametrize("control", CONTROLS)
+def test_remainder_after_the_control_is_the_export_remainder(tmp_path, control):
+    """Errors minus what the control's files hold = what the export left for the program: nothing
+    is compensated twice, nothing is lost."""
+    from mtcomp.control import remainder_after
+    errors, _ = grid_errors("robonano-a0ib", seed=11, reversal=False)   # EXX not 0 at the reference
+    res = export_control(control, "robonano-a0ib", errors, tmp_path)
+    held, _ = import_control(control, "robonano-a0ib", tmp_path, remainder=False)
+    rest, notes = remainder_after("robonano-a0ib", errors, held)
+    a, b = rest.geometric, res.remainder.geometric
+    assert dict(a.location) == dict(b.location) and set(a.tables) == set(b.tables)
+    for ax, t in a.tables.items():
+        assert set(t.values) == set(b.tables[ax].values), ax
+        for k, v in t.values.items():     # Fanuc's constant at the reference: one rounding of a difference
+            assert np.allclose(v, b.tables[ax].values[k], rtol=0, atol=1e-15), (ax, k)
+    assert not notes
+
+
+def test_cli_remainder(tmp_path, capsys):
+    from mtcomp.cli import main
+    from mtcomp.errors import save_errors
+    errors, _ = grid_errors("vmc-moving-column", seed=12, reversal=False)
+    save_errors(errors, tmp_path / "e.toml")
+    export_control("siemens", "vmc-moving-column", errors, tmp_path / "ctl")
+    (tmp_path / "ctl" / "remainder.toml").unlink()            # a shop's folder: the control's files only
+    assert main(["control", "remainder", "--control", "siemens", "--machine", "vmc-moving-column",
+                 "--errors", str(tmp_path / "e.toml"), "--control-has", str(tmp_path / "ctl"),
+                 "-o", str(tmp_path / "rest.toml")]) == 0
+    rest = load_errors(tmp_path / "rest.toml")
+    t = rest.geometric.tables["X"].values
+    assert "EXX" not in t and "EYX" not in t and "EAX" in t          # pitch and straightness are the control's
+    assert "the control holds for axis X" in capsys.readouterr().out

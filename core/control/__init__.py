@@ -39,7 +39,7 @@ def export_texts(control: str, machine: Machine | str, errors: ErrorSet, reversa
     check_for_machine(errors, machine)
     mod = _module(control)
     split = split_errors(machine, errors, reversal)
-    files, held_loc, held, notes = mod.export(machine, split)
+    files, held_loc, held, notes, left_tables = mod.export(machine, split)
     left = {k: v for k, v in split.location.items() if k not in held_loc}
     rest_g = split.rest.geometric
     tables = dict(rest_g.tables)
@@ -47,6 +47,8 @@ def export_texts(control: str, machine: Machine | str, errors: ErrorSet, reversa
     for (ax, d), (pos, v) in split.straightness.items():
         if not getattr(mod, "HOLDS_STRAIGHTNESS", False):
             tables[ax] = _with(tables.get(ax), ax, pos, {f"E{d}{ax}": v})
+    for ax, (pos, vals) in left_tables.items():       # parts of a table the control cannot hold
+        tables[ax] = _with(tables.get(ax), ax, pos, vals)
     loc = dict(rest_g.location)
     loc.update(left)
     remainder = ErrorSet(split.rest.tool, split.rest.workpiece, GeometricErrors(tables, loc))
@@ -88,3 +90,33 @@ def import_control(control: str, machine: Machine | str, directory: str | os.Pat
     pitch, straight, location = mod.read(machine, d)
     rest = load_errors(d / REMAINDER, machine) if remainder and (d / REMAINDER).exists() else None
     return merge_errors(pitch, straight, location, rest)
+
+
+def remainder_after(machine: Machine | str, errors: ErrorSet, held: ErrorSet) -> tuple[ErrorSet, list]:
+    """What a program must still correct when the control already compensates `held` (e.g. the
+    import of its existing tables): errors - held, component by component, with `held`'s tables
+    interpolated at the error tables' positions and held at their ends (as the controls do).
+
+    `errors` are the machine's errors with the control's compensation off; components that come
+    out exactly 0 are dropped.  Returns (ErrorSet, notes)."""
+    machine = load_machine(machine)
+    g, h = errors.geometric, held.geometric
+    notes, tables = [], {}
+    for ax in sorted(set(g.tables) | set(h.tables), key="XYZUVWABC".index):
+        te, th = g.tables.get(ax), h.tables.get(ax)
+        pos = te.position if te is not None else th.position
+        vals = {k: np.asarray(v, float) for k, v in (te.values.items() if te is not None else ())}
+        if th is not None:
+            if te is not None and (th.range[0] > pos[0] or th.range[1] < pos[-1]):
+                notes.append(f"axis {ax}: the control's table covers {th.range[0]:g} .. {th.range[1]:g}, "
+                             f"the errors {pos[0]:g} .. {pos[-1]:g}: its end values are taken beyond")
+            for k, v in th.values.items():
+                vals[k] = vals.get(k, 0.0) - np.interp(pos, th.position, v)
+        vals = {k: v for k, v in vals.items() if np.any(v != 0)}
+        if vals:
+            tables[ax] = AxisErrorTable(ax, pos, vals)
+    loc = dict(g.location)
+    for k, v in h.location.items():
+        loc[k] = loc.get(k, 0.0) - v
+    loc = {k: v for k, v in loc.items() if v != 0}
+    return ErrorSet(errors.tool, errors.workpiece, GeometricErrors(tables, loc)), notes

@@ -248,7 +248,19 @@ def merge_errors(pitch: dict, straightness: dict, location: dict, remainder: Err
         vals[name] = vals[name] + v if name in vals else v
     rev = {}
     for ax, p in pitch.items():
-        add(ax, p.position, _positioning_name(ax), p.mean)
+        name = _positioning_name(ax)
+        prior = tables.get(ax, (None, {}))[1].get(name)
+        if prior is not None and p.counts is not None:
+            # a part the control left to the program (Fanuc's constant at the reference): add it in
+            # the control's increments, so that the sum is the float the export started from
+            q, cu, cd = p.counts
+            k = np.rint(error_to_control(ax, prior) * 2 * q.scale).astype(np.int64)
+            if np.array_equal(control_to_error(ax, k / (2 * q.scale)), prior):
+                tables[ax][1][name] = control_to_error(ax, (cu + cd + k) / (2 * q.scale))
+                if p.bidirectional:
+                    rev[ax] = ReversalTable(ax, p.position, p.half, -p.half)
+                continue
+        add(ax, p.position, name, p.mean)
         if p.bidirectional:
             h = p.half
             rev[ax] = ReversalTable(ax, p.position, h, -h)

@@ -30,7 +30,8 @@ import numpy as np
 
 from .._io import InputError
 from ..machine import Machine
-from .common import ControlLimitError, PitchTable, Quantum, Split, equal_steps, error_to_control
+from .common import (ControlLimitError, PitchTable, Quantum, Split, control_to_error, equal_steps,
+                     error_to_control)
 
 NAME = "fanuc"
 N_POINTS = 1024          # compensation point numbers 0 .. 1023 (all axes together)
@@ -65,11 +66,12 @@ def _magnify(cu: np.ndarray, cd: np.ndarray, what: str) -> tuple[int, np.ndarray
                             f"{MAX_VALUE * MAX_MAGNIFICATION}: use a smaller interval", field=what)
 
 
-def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
+def export(machine: Machine, split: Split) -> tuple[dict, set, list, list, dict]:
+    """(files, location names held, what is held, notes, tables left for the program)."""
     numbers = axis_numbers(machine)
     params: dict[int, dict[int, int]] = {k: {} for k in (3605, 3620, 3621, 3622, 3623, 3624, 3626, 3627)}
     data: dict[int, int] = {}
-    held, notes = [], []
+    held, notes, left = [], [], {}
     nxt = 0
     for ax in sorted(split.pitch, key=_ORDER.index):
         p = split.pitch[ax]
@@ -86,7 +88,8 @@ def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
         if cu[r] != 0:
             notes.append(f"{ax}: the positive-direction correction at the reference position "
                          f"({q.text(cu[r])} {machine.axis(ax).unit}) belongs to the reference position "
-                         f"(grid shift, parameter 1850): it is left out of the table")
+                         f"(grid shift, parameter 1850): it is left out of the table, for the program")
+            left[ax] = (p.position, {f"E{ax}{ax}": np.full(m, float(control_to_error(ax, q.value(cu[r]))))})
         cd = cd - cu[r]
         cu = cu - cu[r]
         mag, cu, cd = _magnify(cu, cd, what)
@@ -127,7 +130,7 @@ def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
     if split.location:
         notes.append("Fanuc's tool centre point machine parameters are not exported: the rotary axis location "
                      "errors stay for the NC rewrite")
-    return files, set(), held, notes
+    return files, set(), held, notes, left
 
 
 _WORD = re.compile(r"([NAP])(-?\d+)")

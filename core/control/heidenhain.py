@@ -70,7 +70,7 @@ def _signed(n: int, q: Quantum) -> str:
     return t if t.startswith("-") else "+" + t
 
 
-def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
+def export(machine: Machine, split: Split) -> tuple[dict, set, list, list, dict]:
     files, held, notes = {}, [], []
     inputs = sorted({ax for ax in split.pitch} | {ax for ax, _ in split.straightness},
                     key="XYZUVWABC".index)
@@ -133,7 +133,7 @@ def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
         files[KIN] = _table_text(KIN, ["NR", "KEY", "AXIS", "COORD"],
                                  [[str(i), k, ax or "-", c or "-"] for i, (k, ax, c) in enumerate(rows)])
         held.append(f"{KIN}: pivots, tilts and zero errors of {', '.join(a.name for a in rot)}")
-    return files, held_loc, held, notes
+    return files, held_loc, held, notes, {}
 
 
 def read(machine: Machine, directory: Path) -> tuple[dict, dict, dict]:

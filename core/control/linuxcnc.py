@@ -95,7 +95,7 @@ def _pins(machine: Machine, kins: str, location: dict) -> tuple[dict, set]:
     return pins, held
 
 
-def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
+def export(machine: Machine, split: Split) -> tuple[dict, set, list, list, dict]:
     """(files {name: text}, location names held, what is held, notes)."""
     letters = joint_letters(machine)
     kins = kinematics(machine)
@@ -132,7 +132,7 @@ def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
                      "stay for the NC rewrite")
     if split.straightness:
         notes.append("LinuxCNC compensates each joint along itself only: straightness stays for the NC rewrite")
-    return files, held, held_lines, notes
+    return files, held, held_lines, notes, {}
 
 
 def _read_comp(machine: Machine, path: Path, axis: str) -> PitchTable:

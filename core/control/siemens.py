@@ -80,7 +80,7 @@ def _direction(axis, location: dict) -> np.ndarray:
     return d + np.cross(e, d)
 
 
-def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
+def export(machine: Machine, split: Split) -> tuple[dict, set, list, list, dict]:
     lines = ["%_N_NC_CEC_INI"]
     held, notes, t = [], [], 0
     out_sum: dict[str, float] = {}
@@ -141,7 +141,7 @@ def export(machine: Machine, split: Split) -> tuple[dict, set, list, list]:
     elif split.location:
         notes.append("TRAORI is exported for a swivel table (two rotary axes carrying the workpiece) only: "
                      "the rotary axis location errors stay for the NC rewrite")
-    return files, held_loc, held, notes
+    return files, held_loc, held, notes, {}
 
 
 _ASSIGN = re.compile(r"^\$(AN_CEC\w*|MC_TRAFO\w*?)(?:\[([^\]]*)\])?\s*=\s*(.+)$")
