@@ -49,7 +49,9 @@ def test_round_trip_exact(tmp_path, control, preset, reversal):
     # and the control's files alone hold the pitch tables exactly (nothing of them in the remainder)
     rem = res.remainder.geometric
     for ax, t in rem.tables.items():
-        assert f"E{ax}{ax}" not in t.values
+        v = t.values.get(f"E{ax}{ax}")
+        # only Fanuc leaves something of a pitch table: its constant at the reference position
+        assert v is None or (control == "fanuc" and not reversal and np.ptp(v) == 0 and v[0] != 0), ax
 
 
 @pytest.mark.parametrize("control", CONTROLS)
