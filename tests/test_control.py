@@ -220,3 +220,31 @@ def test_cli_remainder(tmp_path, capsys):
     t = rest.geometric.tables["X"].values
     assert "EXX" not in t and "EYX" not in t and "EAX" in t          # pitch and straightness are the control's
     assert "the control holds for axis X" in capsys.readouterr().out
+
+
+def test_export_reports_its_rounding(tmp_path):
+    """Off-grid errors: the export says by how much the control's increments round them."""
+    pos = np.array([-60.0, -30.0, 0.0, 30.0, 60.0])
+    e = _pitch_only("vmc-moving-column", "X", pos, np.array([0.00031, 0.00012, 0.0, -0.00044, -0.00104]))
+    res = export_control("heidenhain", "vmc-moving-column", e, tmp_path)      # 0.1 µm increments
+    fig = res.figures["largest rounding to the control's increments"]
+    assert fig.startswith("0.0400 µm")
+    res = export_control("siemens", "vmc-moving-column", e, tmp_path / "s")
+    assert res.figures["largest rounding to the control's increments"].startswith("0.0400 µm")
+    errors, rev = grid_errors("robonano-a0ib", seed=7)
+    res = export_control("linuxcnc", "robonano-a0ib", errors, tmp_path / "l", rev)
+    assert res.figures["largest rounding to the control's increments"].startswith("0.0000 µm")
+
+
+def test_import_refuses_broken_files_by_name(tmp_path):
+    errors, rev = grid_errors("vmc-moving-column", seed=3)
+    for control in ("siemens", "fanuc"):
+        export_control(control, "vmc-moving-column", errors, tmp_path / control, rev)
+    cec = tmp_path / "siemens" / "siemens-cec.ini"
+    cec.write_text("\n".join(ln for ln in cec.read_text().splitlines() if not ln.startswith("$AN_CEC_MIN[0]")))
+    with pytest.raises(InputError, match=r"siemens-cec.ini \[AN_CEC_MIN\[0\]\]: missing"):
+        import_control("siemens", "vmc-moving-column", tmp_path / "siemens")
+    prm = tmp_path / "fanuc" / "fanuc-params.txt"
+    prm.write_text("\n".join(ln for ln in prm.read_text().splitlines() if not ln.startswith("N3624")))
+    with pytest.raises(InputError, match=r"fanuc-params.txt \[3624\]: axis 1 \(X\) has No.3620 but no No.3624"):
+        import_control("fanuc", "vmc-moving-column", tmp_path / "fanuc")

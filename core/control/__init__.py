@@ -75,7 +75,41 @@ def export_control(control: str, machine: Machine | str, errors: ErrorSet | str 
     written.append(save_errors(res.remainder, Path(directory) / REMAINDER,
                                meta={"written_by": f"mtcomp control export --control {control}",
                                      "what": "errors the control's files do not hold: for the NC rewrite"}))
-    return ExportResult(res.control, tuple(written), res.held, res.remainder, res.notes, res.figures)
+    # read back what was written: the rounding to the control's increments, as figures
+    back, back_rev = import_control(control, machine, directory)
+    return ExportResult(res.control, tuple(written), res.held, res.remainder, res.notes,
+                        rounding_figures(errors, reversal, back, back_rev))
+
+
+def rounding_figures(errors: ErrorSet, reversal: dict | None, back: ErrorSet, back_rev: dict) -> dict:
+    """Largest difference between the errors exported and read back: translational (µm) and
+    angular (µrad) table components and location errors, and the reversal (µm)."""
+    lin = ang = 0.0
+    for ax, t in errors.geometric.tables.items():
+        tb = back.geometric.tables.get(ax)
+        for k, v in t.values.items():
+            w = tb.values.get(k) if tb is not None else None
+            d = float(np.max(np.abs(v - (w if w is not None else 0.0))))
+            if k[1] in "XYZ":
+                lin = max(lin, d)
+            else:
+                ang = max(ang, d)
+    for k, v in errors.geometric.location.items():
+        d = abs(v - back.geometric.location.get(k, 0.0))
+        if k[1] in "XYZ":
+            lin = max(lin, d)
+        else:
+            ang = max(ang, d)
+    rev = 0.0
+    for ax, r in (reversal or {}).items():
+        b = back_rev.get(ax)
+        t = errors.geometric.tables[ax].position
+        want = np.interp(t, r.position, r.reversal_i)
+        got = b.reversal_i if b is not None else np.zeros(t.size)
+        rev = max(rev, float(np.max(np.abs(want - got))))
+    return {"largest rounding to the control's increments":
+            f"{lin * 1e3:.4f} µm (tables and locations), {ang * 1e6:.4f} µrad (angles), "
+            f"{rev * 1e3:.4f} µm (reversal)"}
 
 
 def import_control(control: str, machine: Machine | str, directory: str | os.PathLike,

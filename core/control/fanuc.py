@@ -169,8 +169,14 @@ def read(machine: Machine, directory: Path) -> tuple[dict, dict, dict]:
             raise InputError(f"axis {a}, but machine {machine.name} has {len(numbers)} axes", tape, field="3620")
         ax = by_number[a]
         q = Quantum.of(machine.axis(ax).resolution)
+        for no in (3621, 3622, 3623, 3624):
+            if a not in params.get(no, {}):
+                raise InputError(f"axis {a} ({ax}) has No.3620 but no No.{no}", tape, field=str(no))
         lo, hi = params[3621][a], params[3622][a]
         mag, step = params[3623][a], params[3624][a]
+        if not (lo <= ref <= hi) or step <= 0:
+            raise InputError(f"axis {a} ({ax}): expected No.3621 <= No.3620 <= No.3622 and No.3624 > 0",
+                             tape, field="3620")
         m = hi - lo + 1
         r = ref - lo
 
@@ -179,7 +185,10 @@ def read(machine: Machine, directory: Path) -> tuple[dict, dict, dict]:
             c = np.cumsum(v) - v[0]
             return c - c[r] + at_ref
         cu = table(lo, 0)
-        cd = table(params[3626][a], params[3627][a]) if params.get(3605, {}).get(a, 0) & 1 else cu
+        bi = params.get(3605, {}).get(a, 0) & 1
+        if bi and (a not in params.get(3626, {}) or a not in params.get(3627, {})):
+            raise InputError(f"axis {a} ({ax}): No.3605#0 = 1 but no No.3626 / No.3627", tape, field="3626")
+        cd = table(params[3626][a], params[3627][a]) if bi else cu
         pos = q.value((np.arange(m) - r) * step)
         pitch[ax] = PitchTable.from_counts(ax, pos, q, cu, cd)
     return pitch, {}, {}

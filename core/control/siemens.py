@@ -170,15 +170,30 @@ def read(machine: Machine, directory: Path) -> tuple[dict, dict, dict]:
     tables = sorted({int(k[1]) for k in a if k[0] == "AN_CEC_INPUT_AXIS"})
     pitch_parts: dict = {}
     straight = {}
-    for t in tables:
+    def get(name, index):
+        if (name, index) not in a:
+            raise InputError(f"missing ${name}[{index}]", path, field=f"{name}[{index}]")
+        return a[(name, index)]
+
+    def number(name, index):
+        v = get(name, index)
         try:
-            inp, out = names[a[("AN_CEC_INPUT_AXIS", str(t))]], names[a[("AN_CEC_OUTPUT_AXIS", str(t))]]
-        except KeyError as exc:
-            raise InputError(f"table {t}: axis {exc} is not one of {', '.join(names)}", path) from None
+            return float(v)
+        except ValueError:
+            raise InputError(f"expected a number, got {v!r}", path, field=f"{name}[{index}]") from None
+    for t in tables:
+        ti, to = get("AN_CEC_INPUT_AXIS", str(t)), get("AN_CEC_OUTPUT_AXIS", str(t))
+        if ti not in names or to not in names:
+            bad = ti if ti not in names else to
+            raise InputError(f"table {t}: axis {bad!r} is not one of {', '.join(names)}", path)
+        inp, out = names[ti], names[to]
         qi, qo = Quantum.of(machine.axis(inp).resolution), Quantum.of(machine.axis(out).resolution)
-        lo, hi, step = (int(qi.count(float(a[(f"AN_CEC_{k}", str(t))]))) for k in ("MIN", "MAX", "STEP"))
+        lo, hi, step = (int(qi.count(number(f"AN_CEC_{k}", str(t)))) for k in ("MIN", "MAX", "STEP"))
+        if step <= 0 or hi <= lo or (hi - lo) % step:
+            raise InputError(f"table {t}: MAX - MIN must be a positive multiple of STEP", path,
+                             field=f"AN_CEC_STEP[{t}]")
         m = (hi - lo) // step + 1
-        vals = np.array([int(qo.count(float(a[("AN_CEC", f"{t},{i}")]))) for i in range(m)], np.int64)
+        vals = np.array([int(qo.count(number("AN_CEC", f"{t},{i}"))) for i in range(m)], np.int64)
         pos = qi.value(lo + step * np.arange(m))
         direction = int(a.get(("AN_CEC_DIRECTION", str(t)), "0"))
         if inp == out:
