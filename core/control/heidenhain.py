@@ -27,8 +27,7 @@ import numpy as np
 
 from .._io import InputError
 from ..machine import Machine
-from .common import (ControlLimitError, PitchTable, Quantum, Split, control_to_error,
-                     error_to_control)
+from .common import ControlLimitError, PitchTable, Quantum, Split, error_to_control
 
 NAME = "heidenhain"
 HOLDS_STRAIGHTNESS = True

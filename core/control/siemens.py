@@ -30,7 +30,7 @@ import numpy as np
 
 from .._io import InputError
 from ..machine import Machine
-from .common import ControlLimitError, PitchTable, Quantum, Split, equal_steps, error_to_control, control_to_error
+from .common import ControlLimitError, PitchTable, Quantum, Split, equal_steps, error_to_control
 
 NAME = "siemens"
 HOLDS_STRAIGHTNESS = True
