@@ -41,7 +41,12 @@ def test_linuxcnc_commands_equal_the_model(tmp_path):
         lo, hi = lim[a]
         prog += f"G1 {a}{lo:g}\nG1 {a}{hi:g}\nG1 {a}{lo:g}\nG1 {a}0\n"
     prog += "M2\n"
-    data, log = run_sim(tmp_path / "sim", "XYZ", tmp_path / "export", lim, prog, timeout=150)
+    # the comp files with the exported INI entries ([KINS], [JOINT_n] COMP_FILE, COMP_FILE_TYPE, BACKLASH)
+    fragment = (tmp_path / "export" / "linuxcnc-comp.ini").read_text()
+    data, log = run_sim(tmp_path / "sim", "XYZ", tmp_path / "export", lim, prog, timeout=150,
+                        ini_fragment=fragment)
+    ini = (tmp_path / "sim" / "sim.ini").read_text()
+    assert ini.count("COMP_FILE_TYPE = 1") == 3 and "KINEMATICS = trivkins coordinates=XYZ" in ini
     assert len(data) > 1000, log[-2000:]
     for j, a in enumerate("XYZ"):
         pos, motor_minus_pos, vel = data[:, j, 0], data[:, j, 1], data[:, j, 2]

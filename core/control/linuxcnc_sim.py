@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["available", "run_sim", "model_corrections", "PINS"]
+__all__ = ["available", "run_sim", "model_corrections", "merge_ini", "PINS"]
 
 # sampled per joint: pos-cmd (mm), then x SCALE: motor-pos-cmd - pos-cmd, vel-cmd, backlash-corr
 # (the sampler takes at most 21 pins: 4 per joint for up to 5 joints)
@@ -106,6 +106,43 @@ def _ini(letters: str, comp: dict, limits: dict, samples: Path, program: Path, d
     return "\n".join(lines) + "\n"
 
 
+def merge_ini(base: str, fragment: str) -> str:
+    """`base` INI text with every key of `fragment` (e.g. the exported linuxcnc-comp.ini) set in its
+    section: an existing key is replaced, a new one appended to the section (or a new section)."""
+    frag: dict[str, dict[str, str]] = {}
+    sect = None
+    for line in fragment.splitlines():
+        t = line.strip()
+        if t.startswith("[") and t.endswith("]"):
+            sect = t
+            frag.setdefault(sect, {})
+        elif sect and "=" in t and not t.startswith(("#", ";")):
+            k, v = (x.strip() for x in t.split("=", 1))
+            frag[sect][k] = v
+    out, sect, done = [], None, set()
+
+    def flush():
+        if sect in frag:
+            out.extend(f"{k} = {v}" for k, v in frag[sect].items() if (sect, k) not in done)
+    for line in base.splitlines():
+        t = line.strip()
+        if t.startswith("[") and t.endswith("]"):
+            flush()
+            sect = t
+        elif sect in frag and "=" in t:
+            k = t.split("=", 1)[0].strip()
+            if k in frag[sect]:
+                line = f"{k} = {frag[sect][k]}"
+                done.add((sect, k))
+        out.append(line)
+    flush()
+    seen = {ln.strip() for ln in base.splitlines()}
+    for sct, kv in frag.items():
+        if sct not in seen:
+            out += [sct, *(f"{k} = {v}" for k, v in kv.items())]
+    return "\n".join(out) + "\n"
+
+
 def _hal(n: int, extra: str = "") -> str:
     """Motion, loopback feedback, and the sampler.  halsampler prints 6 decimals: every pin
     but pos-cmd is sampled times SCALE (scale / sum2 components), so the trims are recorded to
@@ -137,10 +174,12 @@ def _hal(n: int, extra: str = "") -> str:
 
 def run_sim(workdir: str | os.PathLike, letters: str, comp_dir: str | os.PathLike | None, limits: dict,
             program: str, timeout: float = 180.0, kins: str = "trivkins",
-            hal: str = "") -> tuple[np.ndarray, str]:
+            hal: str = "", ini_fragment: str | None = None) -> tuple[np.ndarray, str]:
     """Run `program` (G-code text) on a trivkins machine with joints `letters` whose comp files
     are in `comp_dir` (<letter>.comp as `mtcomp control export --control linuxcnc` writes), with
-    kinematics module `kins` (its pins set by `hal`, e.g. the exported linuxcnc-kins.hal).
+    kinematics module `kins` (its pins set by `hal`, e.g. the exported linuxcnc-kins.hal); with
+    `ini_fragment` (the exported linuxcnc-comp.ini) its entries are merged into the INI, so the
+    joints take their COMP_FILE, COMP_FILE_TYPE and BACKLASH from it.
     Returns (samples (T, joints, len(PINS)) in mm and mm/s, LinuxCNC's log).  Stops LinuxCNC by
     itself."""
     d = Path(workdir)
@@ -148,7 +187,7 @@ def run_sim(workdir: str | os.PathLike, letters: str, comp_dir: str | os.PathLik
     comp = {}
     for a in letters:
         f = Path(comp_dir or d) / f"{a.lower()}.comp"
-        if comp_dir is not None and f.exists():
+        if comp_dir is not None and ini_fragment is None and f.exists():
             shutil.copy(f, d / f.name)
             comp[a] = f.name
     (d / "prog.ngc").write_text(program)
@@ -159,7 +198,12 @@ def run_sim(workdir: str | os.PathLike, letters: str, comp_dir: str | os.PathLik
     (d / "sim.hal").write_text(_hal(len(letters), hal))
     samples = d / "samples.txt"
     ini = d / "sim.ini"
-    ini.write_text(_ini(letters, comp, limits, samples, d / "prog.ngc", d / "driver.py", kins))
+    text = _ini(letters, comp, limits, samples, d / "prog.ngc", d / "driver.py", kins)
+    if ini_fragment is not None:
+        for f in Path(comp_dir).glob("*.comp"):
+            shutil.copy(f, d / f.name)
+        text = merge_ini(text, ini_fragment)
+    ini.write_text(text)
     env = dict(os.environ)
     env.pop("DISPLAY", None)
     env["HOME"] = str(d)              # linuxcnc_print.txt / linuxcnc_debug.txt go there
