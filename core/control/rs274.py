@@ -24,7 +24,7 @@ import numpy as np
 __all__ = ["available", "canonical_moves", "mtcomp_moves", "compare", "Comparison"]
 
 _CALL = re.compile(r"^\s*\d+\s+N\S*\s+(STRAIGHT_TRAVERSE|STRAIGHT_FEED|ARC_FEED|SELECT_PLANE|"
-                   r"USE_TOOL_LENGTH_OFFSET)\((.*)\)\s*$")
+                   r"USE_TOOL_LENGTH_OFFSET|USE_LENGTH_UNITS)\((.*)\)\s*$")
 TOL = 0.5e-4 + 1e-9          # mm (deg): half of rs274's last printed digit
 
 
@@ -39,10 +39,18 @@ def _plane_order(plane: str) -> tuple[int, int, int]:
 
 def canonical_moves(path: str | os.PathLike, subroutine_path: str | os.PathLike | None = None,
                     timeout: float = 30.0) -> np.ndarray:
+    """(M, 6) end points, see `canonical_moves_and_tolerance`."""
+    return canonical_moves_and_tolerance(path, subroutine_path, timeout)[0]
+
+
+def canonical_moves_and_tolerance(path: str | os.PathLike, subroutine_path: str | os.PathLike | None = None,
+                                  timeout: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
     """(M, 6) end points X Y Z A B C of rs274's motion calls for a program file, of the gauge
-    point: the canonical (tool tip) position plus the tool length offset in force.  Runs rs274 in a
+    point: the canonical (tool tip) position plus the tool length offset in force, in mm (rs274
+    prints inch programs in inch).  Runs rs274 in a
     temporary folder with a tool table of tools 1..99 (length 0) and, when given, the folder of
-    subroutine files; raises RuntimeError with rs274's message when it stops on an error."""
+    subroutine files; raises RuntimeError with rs274's message when it stops on an error.
+    Also returns (M,) the half printed digit of each point in mm: TOL, or 25.4 TOL in inch."""
     path = Path(path).resolve()
     with tempfile.TemporaryDirectory(prefix="mtcomp-rs274-") as tmp:
         tbl = Path(tmp) / "tool.tbl"
@@ -53,7 +61,7 @@ def canonical_moves(path: str | os.PathLike, subroutine_path: str | os.PathLike 
         out = subprocess.run(["rs274", "-i", str(ini), "-t", str(tbl), "-g", str(path)], cwd=tmp,
                              capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL)
     text = out.stdout + out.stderr
-    moves, plane, tlo = [], "CANON_PLANE_XY", np.zeros(6)
+    moves, tols, plane, tlo, unit = [], [], "CANON_PLANE_XY", np.zeros(6), 1.0
     for line in text.splitlines():
         m = _CALL.match(line)
         if not m:
@@ -62,9 +70,12 @@ def canonical_moves(path: str | os.PathLike, subroutine_path: str | os.PathLike 
         if kind == "SELECT_PLANE":
             plane = args.strip()
             continue
+        if kind == "USE_LENGTH_UNITS":           # rs274 prints in the program's units: mm here
+            unit = 25.4 if "INCH" in args else 1.0
+            continue
         if kind == "USE_TOOL_LENGTH_OFFSET":     # "x y z, a b c, u v w"
             t = [float(x) for x in args.replace(",", " ").split()]
-            tlo = np.array(t[:6])
+            tlo = np.array(t[:6]) * [unit, unit, unit, 1, 1, 1]
             continue
         v = [float(x) for x in args.split(",")]
         if kind == "ARC_FEED":
@@ -72,14 +83,15 @@ def canonical_moves(path: str | os.PathLike, subroutine_path: str | os.PathLike 
             i1, i2, i3 = _plane_order(plane)
             xyz = [0.0] * 3
             xyz[i1], xyz[i2], xyz[i3] = e1, e2, e3
-            moves.append(np.array(xyz + v[6:9]) + tlo)
+            moves.append(np.array(xyz + v[6:9]) * [unit, unit, unit, 1, 1, 1] + tlo)
         else:
-            moves.append(np.array(v[:6]) + tlo)
+            moves.append(np.array(v[:6]) * [unit, unit, unit, 1, 1, 1] + tlo)
+        tols.append(TOL * unit)
     if out.returncode != 0 or re.search(r"^(.*[Ee]rror|Requested tool|Unable to open)", text, re.M):
         bad = [ln for ln in text.splitlines() if "rror" in ln or "Requested" in ln or "Unable" in ln]
         if bad:
             raise RuntimeError(f"rs274 stopped on {path.name}: {bad[0].strip()}")
-    return np.asarray(moves, float).reshape(-1, 6)
+    return np.asarray(moves, float).reshape(-1, 6), np.asarray(tols, float)
 
 
 def _cycle_points(prog, row: int, before: np.ndarray) -> list[np.ndarray]:
@@ -111,9 +123,16 @@ def _cycle_points(prog, row: int, before: np.ndarray) -> list[np.ndarray]:
 
 def mtcomp_moves(path: str | os.PathLike, axes=("X", "Y", "Z", "A", "B", "C"),
                  subroutine_path: str | os.PathLike | None = None) -> np.ndarray:
+    """(N, 6) end points, see `mtcomp_moves_and_start`."""
+    return mtcomp_moves_and_start(path, axes, subroutine_path)[0]
+
+
+def mtcomp_moves_and_start(path: str | os.PathLike, axes=("X", "Y", "Z", "A", "B", "C"),
+                           subroutine_path: str | os.PathLike | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(N, 6) end points over X Y Z A B C of mtcomp's reading of a program file: `position` (the
     gauge point: tool lengths applied; program frame, so the programs compared set no work
-    offsets), canned cycles expanded into their points."""
+    offsets), canned cycles expanded into their points; and (6,) the start position (0 where
+    the program has not fixed an axis, as rs274 starts)."""
     from ..gcode import flow, parse, read_program
     path = Path(path)
     text = read_program(path)
@@ -134,22 +153,26 @@ def mtcomp_moves(path: str | os.PathLike, axes=("X", "Y", "Z", "A", "B", "C"),
             cur = ref[i]
     cols = [axes.index(a) if a in axes else None for a in "XYZABC"]
     arr = np.asarray(out, float).reshape(-1, len(axes))
-    return np.column_stack([arr[:, c] if c is not None else np.zeros(len(arr)) for c in cols])
+    start = np.array([float(prog.start[c]) if c is not None else 0.0 for c in cols])
+    return np.column_stack([arr[:, c] if c is not None else np.zeros(len(arr)) for c in cols]), start
+
+
+def _dedupe_mask(p: np.ndarray) -> np.ndarray:
+    keep = np.ones(len(p), bool)
+    if len(p):
+        keep[1:] = np.any(np.abs(np.diff(p, axis=0)) > TOL, axis=1)
+    return keep
 
 
 def _dedupe(p: np.ndarray) -> np.ndarray:
-    if len(p) == 0:
-        return p
-    keep = np.ones(len(p), bool)
-    keep[1:] = np.any(np.abs(np.diff(p, axis=0)) > TOL, axis=1)
-    return p[keep]
+    return p[_dedupe_mask(p)]
 
 
-def _on_segment(x, a, b) -> bool:
+def _on_segment(x, a, b, tol: float = TOL) -> bool:
     d = b - a
     n = float(d @ d)
     t = 0.0 if n == 0 else float(np.clip((x - a) @ d / n, 0.0, 1.0))
-    return bool(np.max(np.abs(a + t * d - x)) <= TOL)
+    return bool(np.max(np.abs(a + t * d - x)) <= tol)
 
 
 @dataclass(frozen=True)
@@ -172,21 +195,24 @@ class Comparison:
 def compare(path: str | os.PathLike, axes=("X", "Y", "Z", "A", "B", "C"),
             subroutine_path: str | os.PathLike | None = None, tol: float = 0.0) -> Comparison:
     """Line mtcomp's reading of a program up with rs274's (module docstring).  `tol` adds the
-    program's resolution to the print tolerance."""
-    ours = _dedupe(mtcomp_moves(path, axes, subroutine_path))
-    theirs = _dedupe(canonical_moves(path, subroutine_path))
-    lim = TOL + tol
+    program's resolution to the print tolerance (half of rs274's last digit, in inch for inch
+    programs)."""
+    ours, start = mtcomp_moves_and_start(path, axes, subroutine_path)
+    ours = _dedupe(ours)
+    theirs, tols = canonical_moves_and_tolerance(path, subroutine_path)
+    keep = _dedupe_mask(theirs)
+    theirs, tols = theirs[keep], tols[keep]
     j, matched, extra, worst, first = 0, 0, 0, 0.0, ""
-    last = None
+    last = start          # a block without axis words is a move to where the axes are (rs274)
     for i, p in enumerate(ours):
         k = j
-        while k < len(theirs) and np.max(np.abs(theirs[k] - p)) > lim:
+        while k < len(theirs) and np.max(np.abs(theirs[k] - p)) > tols[k] + tol:
             k += 1
         if k == len(theirs):
             first = first or f"mtcomp point {i} {np.round(p, 4).tolist()} not in rs274's sequence after its point {j}"
             continue
-        for x in theirs[j:k]:
-            if last is None or not _on_segment(x, last, p):
+        for x, t in zip(theirs[j:k], tols[j:k]):
+            if not _on_segment(x, last, p, t + tol):
                 extra += 1
                 first = first or f"rs274 point {np.round(x, 4).tolist()} off the path before mtcomp point {i}"
         worst = max(worst, float(np.max(np.abs(theirs[k] - p))))
