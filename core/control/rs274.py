@@ -87,10 +87,12 @@ def canonical_moves_and_tolerance(path: str | os.PathLike, subroutine_path: str 
         else:
             moves.append(np.array(v[:6]) * [unit, unit, unit, 1, 1, 1] + tlo)
         tols.append(TOL * unit)
-    if out.returncode != 0 or re.search(r"^(.*[Ee]rror|Requested tool|Unable to open)", text, re.M):
-        bad = [ln for ln in text.splitlines() if "rror" in ln or "Requested" in ln or "Unable" in ln]
-        if bad:
-            raise RuntimeError(f"rs274 stopped on {path.name}: {bad[0].strip()}")
+    # rs274's own messages are the lines that are not numbered canonical calls (a COMMENT may
+    # say "error" too)
+    msgs = [ln.strip() for ln in text.splitlines() if ln.strip() and not re.match(r"^\s*\d+\s+N", ln)]
+    bad = [m for m in msgs if re.search(r"[Ee]rror|Requested tool|Unable to open|not found", m)]
+    if bad:
+        raise RuntimeError(f"rs274 stopped on {path.name}: {bad[0]}")
     return np.asarray(moves, float).reshape(-1, 6), np.asarray(tols, float)
 
 
