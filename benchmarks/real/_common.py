@@ -121,20 +121,23 @@ def progress(source: str, case: str, n: int, total: int) -> None:
     print(f"[{source}] {n}/{total} {case}", flush=True)
 
 
-def stop_and_measure(targets, readings, approach: float, move_s: float = 2.0, dwell_s: float = 2.0,
+def stop_and_measure(targets, readings, approach, move_s: float = 2.0, dwell_s: float = 2.0,
                      rate_hz: float = 20.0):
-    """SIM and REC of a stop-and-measure run (ISO 230-2 style) from the visited targets in
-    their order and the reading taken at rest at each: SIM moves linearly from target to
-    target (`approach` mm before the first one, so the first reading's direction is known) and
-    rests; REC holds one reading at the end of each dwell.  Returns (sim_t, sim_p, rec_t)."""
+    """SIM and REC instants of a stop-and-measure run (ISO 230-2 style, or a CMM visiting
+    features) from the visited targets in their order: SIM moves linearly from target to target
+    (starting `approach` before the first one, so the first reading's direction is known) and
+    rests; REC holds one reading at the end of each dwell.  `targets` is (n,) for one axis or
+    (n, k) for k axes (then `approach` is a k-vector or a number).  Returns (sim_t, sim_p,
+    rec_t); sim_p has the shape of the targets' rows."""
     targets = np.asarray(targets, float)
-    prev = targets[0] - approach
+    prev = targets[0] - np.asarray(approach, float)
     ts, ps, tr = [], [], []
     t = 0.0
     n_move, n_dwell = int(move_s * rate_hz), int(dwell_s * rate_hz)
+    frac = np.arange(n_move) / n_move
     for p in targets:
         ts.extend(t + np.arange(n_move) / rate_hz)
-        ps.extend(np.linspace(prev, p, n_move, endpoint=False))
+        ps.extend(prev + np.multiply.outer(frac, p - prev))
         ts.extend(t + move_s + np.arange(n_dwell) / rate_hz)
         ps.extend([p] * n_dwell)
         tr.append(t + move_s + dwell_s * 0.9)
