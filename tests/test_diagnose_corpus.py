@@ -32,10 +32,14 @@ def test_manifest_split_follows_its_rule_and_names_existing_converters():
         # the rules written in the manifest: held out when sha1(family) mod 3 == 0, or (rule
         # "balance") when added while fewer than a third of the sources were held out
         held = int(hashlib.sha1(m["family"].encode()).hexdigest(), 16) % 3 == 0
-        if m.get("rule", "hash") == "hash":
+        rule = m.get("rule", "hash")
+        if rule == "hash":
             assert (m["split"] == "heldout") == held, src
+        elif rule == "family":     # a later source of a family keeps the family's split
+            first = next(v for v in man.values() if v["family"] == m["family"])
+            assert m["split"] == first["split"], src
         else:
-            assert m["split"] == "heldout", src
+            assert rule == "balance" and m["split"] == "heldout", src
     held_out = sum(m["split"] == "heldout" for m in man.values())
     assert len(man) / 4 <= held_out <= len(man) / 2
 
@@ -137,6 +141,10 @@ def test_score_nothing_expected_means_nothing_named():
     assert run.score(truth, _res({"z": []}, {"z": 1.0}, {"z": 1.0}))["ok"]
     assert not run.score(truth, _res({"z": ["scale_error"]}, {"z": 1.0}, {"z": 0.2}))["ok"]
     assert not run.score(truth, {"error": "exit 2", "seconds": 0.1})["ok"]
+    # a zero offset the truth calls acceptable may be named where nothing else is expected
+    offset = {"expected": {"x": []}, "acceptable": {"x": ["workpiece_setting"]}}
+    assert run.score(offset, _res({"x": ["workpiece_setting"]}, {"x": 1.0}, {"x": 0.9}))["ok"]
+    assert not run.score(offset, _res({"x": ["backlash"]}, {"x": 1.0}, {"x": 0.5}))["ok"]
 
 
 REPORT = """

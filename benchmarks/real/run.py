@@ -115,7 +115,8 @@ def score(truth: dict, res: dict) -> dict:
     ratio = (a / b) ** 0.5 if b > 0 else float("nan")
     nothing = all(not v for v in exp.values())
     if nothing:
-        ok = not any(named.values())
+        # nothing beyond the instrument: nothing named but what the truth calls acceptable
+        ok = all(n <= set(acc.get(o, [])) for o, n in named.items())
     else:
         ok = sets and ratio <= 0.5
     return {"ok": bool(ok), "set_ok": bool(sets), "ratio": ratio,
