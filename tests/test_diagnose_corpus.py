@@ -147,6 +147,17 @@ def test_score_nothing_expected_means_nothing_named():
     assert not run.score(offset, _res({"x": ["backlash"]}, {"x": 1.0}, {"x": 0.5}))["ok"]
 
 
+def test_score_unexplained_needs_no_name_and_the_flag():
+    truth = {"expected": {"q1": []}, "unexplained": ["q1"]}
+    flagged = _res({"q1": []}, {"q1": 1.0}, {"q1": 1.0})
+    flagged["unexplained"] = [{"output": "q1"}]
+    assert run.score(truth, flagged)["ok"]
+    assert not run.score(truth, _res({"q1": []}, {"q1": 1.0}, {"q1": 1.0}))["ok"]   # said nothing
+    named = _res({"q1": ["servo_lag"]}, {"q1": 1.0}, {"q1": 0.9})
+    named["unexplained"] = [{"output": "q1"}]
+    assert not run.score(truth, named)["ok"]
+
+
 REPORT = """
 ## Target Position 15 Positive and Negative Direction
 

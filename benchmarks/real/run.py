@@ -13,7 +13,9 @@ and their figures are reported apart.
 A case is right when, for every output, the set of named effects is the expected one (or one of
 its alternatives), plus at most effects the truth calls acceptable; and when the held-out RMS of
 all outputs together is at least halved (RMS after / before <= 0.5) or, where the truth is
-"nothing beyond the instrument's resolution", nothing is named.  `--docs` writes the per-source
+"nothing beyond the instrument's resolution", nothing is named (but acceptable extras); where
+the truth lists outputs as `unexplained` (no effect of the library describes them), nothing may
+be named on them and the result must list them as unexplained.  `--docs` writes the per-source
 table into docs/diagnose.md between the markers of the section "Real corpus".
 """
 from __future__ import annotations
@@ -104,9 +106,16 @@ def score(truth: dict, res: dict) -> dict:
     named = named_per_output(res)
     exp, acc = truth.get("expected", {}), truth.get("acceptable", {})
     alt = truth.get("alternatives", {})
+    unexp_truth = set(truth.get("unexplained", []))
+    unexp_res = {u["output"] for u in res.get("unexplained", [])}
     per = {}
     for o, want in exp.items():
-        per[o] = set_ok(named.get(o, set()), want, acc.get(o, []), alt.get(o, []))
+        if o in unexp_truth:
+            # no effect of the library fits: nothing named (but acceptable extras) and the
+            # output said to be unexplained
+            per[o] = named.get(o, set()) <= set(acc.get(o, [])) and o in unexp_res
+        else:
+            per[o] = set_ok(named.get(o, set()), want, acc.get(o, []), alt.get(o, []))
     # an effect named on an output the truth does not list is wrong
     extra = {o: n for o, n in named.items() if o not in exp and n}
     sets = all(per.values()) and not extra and bool(exp)
@@ -114,7 +123,9 @@ def score(truth: dict, res: dict) -> dict:
     a = sum(v ** 2 for v in res["fit"]["holdout_rms_after"].values())
     ratio = (a / b) ** 0.5 if b > 0 else float("nan")
     nothing = all(not v for v in exp.values())
-    if nothing:
+    if unexp_truth:
+        ok = sets
+    elif nothing:
         # nothing beyond the instrument: nothing named but what the truth calls acceptable
         ok = all(n <= set(acc.get(o, [])) for o, n in named.items())
     else:
