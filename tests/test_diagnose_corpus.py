@@ -239,3 +239,8 @@ def test_umich_excerpt_case_is_diagnosed_right(tmp_path):
     assert not v["error"], v["error"]
     assert v["set_ok"], v["named"]
     assert v["ratio"] <= 0.5
+
+
+def test_error_lines_in_the_table_name_only_the_case_files():
+    msg = "mtcomp diagnose: error: /some/where/corpus/src/case/rec.csv [t]: fewer than 8 samples"
+    assert run.short_error(msg) == "rec.csv [t]: fewer than 8 samples"

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -74,10 +75,15 @@ def diagnose(folder: Path, truth: dict, timeout: float) -> dict:
         dt = time.perf_counter() - t0
         if p.returncode != 0 or not out.exists():
             msg = (p.stderr or p.stdout).strip().splitlines()
-            return {"error": msg[-1] if msg else f"exit {p.returncode}", "seconds": dt}
+            return {"error": short_error(msg[-1]) if msg else f"exit {p.returncode}", "seconds": dt}
         res = json.loads(out.read_text())
         res["seconds"] = dt
         return res
+
+
+def short_error(msg: str) -> str:
+    """The CLI's error line without the corpus folder (it names only the case's files)."""
+    return re.sub(r"\S*/((?:sim|rec)\.csv)", r"\1", msg).replace("mtcomp diagnose: error: ", "")
 
 
 def named_per_output(res: dict) -> dict:
@@ -135,8 +141,9 @@ def score(truth: dict, res: dict) -> dict:
             "seconds": res["seconds"], "unexplained": [u["output"] for u in res.get("unexplained", [])]}
 
 
-def fmt_effects(d: dict) -> str:
-    parts = [f"{o}: {', '.join(v) if v else '-'}" for o, v in d.items()]
+def fmt_effects(d: dict, unexplained=()) -> str:
+    parts = [f"{o}: {', '.join(v) if v else ('unexplained' if o in unexplained else '-')}"
+             for o, v in d.items()]
     return "; ".join(parts) if parts else "-"
 
 
@@ -144,8 +151,9 @@ def case_table(rows) -> str:
     lines = ["| split | source | case | expected | named | held-out after/before | right set | right |",
              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['split']} | {r['source']} | {r['case']} | {fmt_effects(r['expected'])} | "
-                     + (f"error: {r['error']}" if r["error"] else fmt_effects(r["named"]))
+        lines.append(f"| {r['split']} | {r['source']} | {r['case']} | "
+                     f"{fmt_effects(r['expected'], r.get('truth_unexplained', []))} | "
+                     + (f"error: {short_error(r['error'])}" if r["error"] else fmt_effects(r["named"]))
                      + f" | {r['ratio']:.2f} | {'yes' if r['set_ok'] else 'no'} | {'yes' if r['ok'] else 'no'} |")
     return "\n".join(lines)
 
@@ -157,12 +165,16 @@ def source_table(rows, man) -> str:
     for r in rows:
         by.setdefault(r["source"], []).append(r)
     for s, rs in by.items():
-        effects = sorted({e for r in rs for v in r["expected"].values() for e in v} or {"nothing"})
-        if any(not any(r["expected"].values()) for r in rs):
-            effects.append("nothing (some cases)")
+        effects = sorted({e for r in rs for v in r["expected"].values() for e in v})
+        n_unexp = sum(bool(r.get("truth_unexplained")) for r in rs)
+        n_none = sum(not any(r["expected"].values()) and not r.get("truth_unexplained") for r in rs)
+        if n_none:
+            effects.append(f"nothing beyond resolution ({n_none} case{'s' * (n_none > 1)})")
+        if n_unexp:
+            effects.append(f"unexplained, no library effect ({n_unexp} case{'s' * (n_unexp > 1)})")
         m = man.get(s, {})
         lines.append(f"| {s} | {m.get('split', '?')} | {m.get('licence', rs[0]['licence'])} | {len(rs)} | "
-                     f"{', '.join(sorted(set(effects)))} | {m.get('evidence', '')} | "
+                     f"{', '.join(effects)} | {m.get('evidence', '')} | "
                      f"{sum(r['set_ok'] for r in rs)}/{len(rs)} | {sum(r['ok'] for r in rs)}/{len(rs)} |")
     return "\n".join(lines)
 
@@ -176,7 +188,8 @@ def summary(rows) -> str:
         srcs = sorted({r["source"] for r in rs})
         out.append(f"- {split}: {len(rs)} cases from {len(srcs)} sources; right effect set "
                    f"{sum(r['set_ok'] for r in rs)}/{len(rs)}, right set and held-out error at least "
-                   f"halved (or nothing named where nothing is expected) "
+                   f"halved (where nothing is expected: nothing named; where no library effect fits: nothing "
+                   f"named and the output flagged unexplained) "
                    f"**{sum(r['ok'] for r in rs)}/{len(rs)}** "
                    f"({100 * sum(r['ok'] for r in rs) / len(rs):.0f} %)")
     return "\n".join(out)
@@ -203,6 +216,8 @@ def main(argv=None) -> int:
     p.add_argument("--json", help="write every case's verdict to this file")
     p.add_argument("--docs", action="store_true", help="write the tables into docs/diagnose.md")
     p.add_argument("--timeout", type=float, default=900.0, help="seconds per case")
+    p.add_argument("--from-json", help="rebuild the tables from the verdicts of an earlier run "
+                                       "(--json) instead of diagnosing again")
     a = p.parse_args(argv)
     if not a.corpus:
         p.error("give --corpus or set MTCOMP_REAL_CORPUS")
@@ -217,11 +232,20 @@ def main(argv=None) -> int:
         todo.append((src, case, folder, truth))
     rows = []
     t0 = time.perf_counter()
+    if a.from_json:
+        old = {(r["source"], r["case"]): r for r in json.loads(Path(a.from_json).read_text())}
+        for src, case, folder, truth in todo:
+            if (src, case) in old:
+                r = old[(src, case)]
+                r.update(split=man[src]["split"], expected=truth.get("expected", {}),
+                         truth_unexplained=truth.get("unexplained", []))
+                rows.append(r)
+        todo = []
     for i, (src, case, folder, truth) in enumerate(todo, 1):
         res = diagnose(folder, truth, a.timeout)
         v = score(truth, res)
         row = {"source": src, "case": case, "split": man[src]["split"], "licence": truth.get("licence", ""),
-               "expected": truth.get("expected", {}), **v}
+               "expected": truth.get("expected", {}), "truth_unexplained": truth.get("unexplained", []), **v}
         rows.append(row)
         print(f"[{i}/{len(todo)} {time.perf_counter() - t0:6.0f} s] {man[src]['split']:7s} {src}/{case}: "
               f"named {fmt_effects(v['named']) if not v['error'] else 'ERROR ' + v['error']} | "
