@@ -155,7 +155,10 @@ def closed_forms(meas) -> dict[str, tuple]:
     if len(b) >= 3 and b[0].angles[1] == 0:
         g1, g2, g3 = b[:3]
         th2, th3 = g2.angles[1], g3.angles[1]
-        dep = [_mean_finite([get(g, f, "depth") for f in ("start", "end")]) for g in (g1, g2, g3)]
+        # measured depth minus the programmed depth's excess over the reference groove's
+        # (designed plans cut inclined grooves deeper, tool_design.b_depth)
+        dep = [_mean_finite([get(g, f, "depth") for f in ("start", "end")]) - (g.depth - g1.depth)
+               for g in (g1, g2, g3)]
         if np.all(np.isfinite(dep)):
             out["B_depth"] = tuple(map(float, b_depth_closed_form(th2, th3, *dep)))
         lat = [_mean_finite([get(g, f, "u") for f in ("start", "end")]) - g.start[0] for g in (g1, g2, g3)]

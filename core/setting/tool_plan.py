@@ -104,6 +104,7 @@ class PlanOptions:
     triangle_side: float = 6.0      # C test
     spacing: float = 2.0            # between B grooves
     b_angles: tuple[float, ...] = (0.0, 10.0, -10.0)   # theta_1 .. theta_n; the first is the reference
+    b_depths: tuple[float, ...] = ()   # programmed depth per B groove (default: depth for all), mm
     c_angles: tuple[float, ...] = (0.0, 120.0, 240.0)
     a_angles: tuple[float, ...] = (0.0, 180.0)
     a_tilt: float = 90.0            # B angle that lays the tool axis along X for the A test
@@ -131,6 +132,9 @@ class PlanOptions:
             raise InputError("the B test needs at least two distinct inclinations", field="b_angles")
         if "C" in self.tests and len(set(a % 360 for a in self.c_angles)) != len(self.c_angles):
             raise InputError("C angles must be distinct", field="c_angles")
+        if self.b_depths and (len(self.b_depths) != len(self.b_angles)
+                              or not all(np.isfinite(d) and d > 0 for d in self.b_depths)):
+            raise InputError("expected one positive depth per B inclination", field="b_depths")
         if self.safe < self.clearance:
             raise InputError("safe retract must be at least the clearance", field="safe")
 
@@ -222,7 +226,8 @@ def make_plan(machine, options: PlanOptions | None = None) -> Plan:
         for k, b in enumerate(o.b_angles):
             u = u0 + k * o.spacing
             grooves.append(Groove(f"B{_fmt_angle(b, True)}", "B", "top", (0.0, float(b), 0.0),
-                                  (float(u), float(v0)), (float(u), float(v0 + o.length)), D))
+                                  (float(u), float(v0)), (float(u), float(v0 + o.length)),
+                                  float(o.b_depths[k]) if o.b_depths else D))
     ids = [g.id for g in grooves]
     if len(set(ids)) != len(ids):
         raise InputError("two grooves would get the same id (repeated angles)", field="angles")
