@@ -36,9 +36,13 @@ def cmd_plan(args) -> int:
     from .bowls import plan_bowls, plan_to_dict, probing_program, roughing_program
     if not args.clearance >= 0:
         raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
-    plan = plan_bowls(args.bowls, blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
-                      depth=args.depth, probe_radius=args.probe_radius, touches=args.touches,
-                      positions=_positions(args.positions) if args.positions else None)
+    from .bowl_design import design_bowl_plan
+    designed = design_bowl_plan(args.bowls, criterion=args.criterion, probe_sigma=args.probe_sigma,
+                                target_sigma=args.target_sigma, touches=args.touches,
+                                blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
+                                depth=args.depth, probe_radius=args.probe_radius,
+                                positions=_positions(args.positions) if args.positions else None)
+    plan = designed.plan
     aim = None
     if args.aim:
         from ..errors import load_errors
@@ -57,6 +61,7 @@ def cmd_plan(args) -> int:
     print(f"{len(plan.bowls)} bowls R{plan.tool_radius:g} depth {plan.depth:g} mm, "
           f"{len(plan.directions)} touches each with probe R{plan.probe_radius:g}: "
           f"{out}, {rough}, {probe}")
+    print(designed.summary())
     for res in checks:
         print(res.summary())
     return 0
@@ -226,7 +231,15 @@ def register(subparsers) -> None:
     a.add_argument("--depth", type=float, default=1.0, help="bowl depth, mm (1.0, <= radius)")
     a.add_argument("--probe-radius", type=float, default=0.5, help="probe tip radius, mm (0.5)")
     a.add_argument("--touches", type=int, default=9, help="touches per bowl (9)")
-    a.add_argument("--positions", help="explicit bowl positions 'x,y;x,y;...' mm")
+    a.add_argument("--positions", help="explicit bowl positions 'x,y;x,y;...' mm (default: chosen by --criterion)")
+    a.add_argument("--criterion", choices=("D", "A"), default="D",
+                   help="optimal-design criterion over the workpiece setting's covariance for the bowl positions "
+                        "and touch rings: D (log det, default) or A (trace, angles at the blank's corner)")
+    a.add_argument("--target-sigma", type=float, default=None,
+                   help="required 1-sigma of dx, dy, dz and of each angle at the blank's corner, mm: touches "
+                        "are added until it is met (refused if it cannot be)")
+    a.add_argument("--probe-sigma", type=float, default=0.0005,
+                   help="probe noise the design assumes, mm (default 0.0005)")
     a.add_argument("-o", "--out", required=True, help="plan TOML to write")
     a.add_argument("--roughing", help="roughing program (default <plan>-roughing.nc)")
     a.add_argument("--probing", help="probing program (default <plan>-probing.nc)")
