@@ -75,6 +75,9 @@ def cmd_probe(args) -> int:
     v = _floats(args.pose, 6, "pose")
     pose = WorkpieceSetting(tuple(v[:3]), tuple(v[3:]))
     t = virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed))
+    if args.probe_error or args.lobing:
+        from .probe_cal import apply_probe_model
+        t = apply_probe_model(t, radius_error=args.probe_error, lobe_amplitude=args.lobing)
     write_touches(t, args.out)
     print(f"{len(t.bowl)} virtual touches -> {args.out}")
     return 0
@@ -84,15 +87,21 @@ def cmd_fit(args) -> int:
     from .._io import atomic_write, dump_toml
     from .bowls import fit_bowls, load_plan, read_touches
     from .frame import frame_from_bowls
+    from .probe_cal import fit_with_probe, load_calibration
     plan = load_plan(args.plan)
     touches = read_touches(args.touches)
+    cal = load_calibration(args.probe) if args.probe else None
     radius = plan.tool_radius if args.fix_radius else args.bowl_radius
     known = set(map(int, touches.bowl)) <= set(plan.ids)
-    fit = fit_bowls(touches, plan.probe_radius, probe_sigma=args.probe_sigma, bowl_radius=radius,
-                    shared_radius=not args.radius_per_bowl, k=args.k,
-                    bowls=plan.ids if known else None)
-    est = frame_from_bowls(fit, plan, method=args.method, file=args.touches, reference=args.reference,
-                           runout=args.runout)
+    fit, est = fit_with_probe(touches, plan, cal,
+                              fit_kw=dict(probe_sigma=args.probe_sigma, bowl_radius=radius,
+                                          shared_radius=not args.radius_per_bowl, k=args.k,
+                                          bowls=plan.ids if known else None),
+                              frame_kw=dict(method=args.method, file=args.touches, reference=args.reference,
+                                            runout=args.runout))
+    if cal is not None:
+        print(f"touches corrected with the probe calibration {args.probe} (effective radius "
+              f"{cal.effective_radius:.6f} ± {cal.effective_radius_sigma * 1e3:.3f} µm, nominal {plan.probe_radius:g} mm)")
     print(fit.summary())
     print(est.summary())
     _warn(fit.warnings)
@@ -105,9 +114,43 @@ def cmd_fit(args) -> int:
                             for f in fit.fits]
         rep["probe_sigma_mm"] = fit.sigma
         atomic_write(args.report, dump_toml(rep))
-    est.save(args.out, meta={"source": "mtcomp workpiece-setting fit", "plan": str(args.plan),
-                             "touches": str(args.touches), "method": est.method})
+    meta = {"source": "mtcomp workpiece-setting fit", "plan": str(args.plan),
+            "touches": str(args.touches), "method": est.method}
+    meta["probe_calibration"] = str(args.probe) if args.probe else "none: dz carries the probe's radius error"
+    est.save(args.out, meta=meta)
     print(f"workpiece setting -> {args.out}")
+    return 0
+
+
+def cmd_probe_sphere(args) -> int:
+    import numpy as np
+    from .bowls import Touches, write_touches
+    from .probe_cal import sphere_directions, virtual_sphere_touches
+    if not args.touches >= 1:
+        raise InputError(f"expected at least one touch, got {args.touches}", field="--touches")
+    P, A = virtual_sphere_touches(args.sphere_diameter, args.probe_radius, sphere_directions(args.touches),
+                                  centre=_floats(args.centre, 3, "centre"), noise=args.noise, rng=args.seed,
+                                  axial=args.axial, lobes=args.lobes, lobe_amplitude=args.lobing)
+    write_touches(Touches(bowl=np.zeros(len(P), int), points=P, approach=A), args.out)
+    print(f"{len(P)} virtual touches on a {args.sphere_diameter:g} mm sphere -> {args.out}")
+    return 0
+
+
+def cmd_probe_calibrate(args) -> int:
+    from .bowls import read_touches
+    from .probe_cal import calibrate_probe, plot_calibration, save_calibration
+    t = read_touches(args.touches)
+    cal = calibrate_probe(t.points, t.approach, args.sphere_diameter, args.probe_radius, harmonics=args.harmonics,
+                          sigma=args.probe_sigma, diameter_sigma=args.diameter_sigma, axial=args.axial_term,
+                          source=str(args.touches))
+    fig = plot_calibration(cal) if args.png else None
+    print(cal.summary())
+    save_calibration(cal, args.out)
+    print(f"probe calibration -> {args.out}")
+    if fig is not None:
+        from .._io import save_figure
+        save_figure(fig, args.png)
+        print(f"wrote {args.png}")
     return 0
 
 
@@ -254,6 +297,9 @@ def register(subparsers) -> None:
     a.add_argument("--pose", required=True, help="true pose dx,dy,dz,a,b,c (mm, deg)")
     a.add_argument("--noise", type=float, default=0.0, help="probe noise 1 sigma, mm (0)")
     a.add_argument("--seed", type=int, default=0)
+    a.add_argument("--probe-error", type=float, default=0.0,
+                   help="the real probe's effective radius minus the plan's, mm (ball radius and pre-travel; 0)")
+    a.add_argument("--lobing", type=float, default=0.0, help="the real probe's 3-lobe pre-travel amplitude, mm (0)")
     a.add_argument("-o", "--out", required=True, help="touches CSV to write")
     a.set_defaults(func=cmd_probe)
 
@@ -277,9 +323,37 @@ def register(subparsers) -> None:
                    help="measured radial run-out of the ball end mill that cut the bowls, mm (0): its bias "
                         "on the bowls' bottom points is removed")
     a.add_argument("--k", type=float, default=5.0, help="outlier threshold in sigma (5)")
+    a.add_argument("--probe", help="probe calibration TOML from 'probe-calibrate': touches are corrected for the "
+                                   "effective radius and lobing first (without it dz carries the probe's radius error)")
     a.add_argument("-o", "--out", required=True, help="errors TOML to write (mtcomp format)")
     a.add_argument("--report", help="also write a report TOML (covariance, residuals)")
     a.set_defaults(func=cmd_fit)
+
+    a = sub.add_parser("probe-calibrate", help="probe effective radius and lobing from touches on a reference sphere")
+    a.add_argument("touches", help="touches CSV on the sphere (bowl,x,y,z,ax,ay,az; the bowl column is ignored)")
+    a.add_argument("--sphere-diameter", type=float, required=True, help="certified sphere diameter, mm")
+    a.add_argument("--diameter-sigma", type=float, default=0.0, help="its 1-sigma, mm (certificate; default 0)")
+    a.add_argument("--probe-radius", type=float, required=True, help="nominal probe ball radius, mm")
+    a.add_argument("--harmonics", type=int, default=3, help="azimuthal lobing harmonics 2..K (default K = 3)")
+    a.add_argument("--probe-sigma", type=float, help="probe noise 1 sigma, mm (default: from the residuals)")
+    a.add_argument("--axial-term", action="store_true",
+                   help="also fit axial minus lateral pre-travel (needs touches well below the equator)")
+    a.add_argument("--png", help="plot of the effective radius against the approach direction")
+    a.add_argument("-o", "--out", required=True, help="probe calibration TOML to write (for fit --probe)")
+    a.set_defaults(func=cmd_probe_calibrate)
+
+    a = sub.add_parser("probe-sphere", help="virtual touches on a reference sphere (for probe-calibrate)")
+    a.add_argument("--sphere-diameter", type=float, default=25.0, help="sphere diameter, mm (25)")
+    a.add_argument("--probe-radius", type=float, required=True, help="true effective probe radius, mm")
+    a.add_argument("--axial", type=float, default=0.0, help="axial minus lateral pre-travel, mm (0)")
+    a.add_argument("--lobing", type=float, default=0.0, help="lobing amplitude, mm (0)")
+    a.add_argument("--lobes", type=int, default=3, help="number of lobes (3)")
+    a.add_argument("--touches", type=int, default=49, help="touches, pole then rings of 8 to the equator (49)")
+    a.add_argument("--centre", default="0,0,0", help="sphere centre x,y,z mm")
+    a.add_argument("--noise", type=float, default=0.0, help="probe noise 1 sigma, mm (0)")
+    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("-o", "--out", required=True, help="touches CSV to write")
+    a.set_defaults(func=cmd_probe_sphere)
 
     a = sub.add_parser("compensate", help="transform an NC program for the measured setting")
     a.add_argument("program", help="NC program (G-code)")
