@@ -212,7 +212,7 @@ class GroovingMeasurements:
 
 def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = None, seed=None, *,
                       plan: Plan | None = None, compensation=None, frame_offset: float = 0.0,
-                      frame_rotation: float = 0.0, frame_scale: float = 0.0) -> GroovingMeasurements:
+                      frame_rotation: float = 0.0, frame_scale: float = 0.0, drift=None) -> GroovingMeasurements:
     """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
     (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
     Gaussian noise of `noise` (default 1 µm on positions and depths) from `seed`.  plan: default
@@ -223,6 +223,9 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
     a uniform random angle in +-frame_rotation deg (about the face origin; `estimate(...,
     fit_rotation=True)` removes it).  frame_scale: relative scale error of the microscope's (u, v)
     readings (magnification), the same for every test (`estimate(..., fit_scale=True)` removes it).
+    drift: (3,) mm, the tool's thermal drift against the workpiece (workpiece frame) over the whole
+    procedure, linear in the cutting order (`tool_plan.cutting_times`): each groove lies shifted
+    by tau * drift.
     Raises MtcompError if a groove would not be cut (depth <= 0): increase the depth of cut."""
     from ..machine import load_machine
     m = load_machine(machine)
@@ -244,13 +247,19 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
     for t in plan.tests():
         a = rng.uniform(-frame_rotation, frame_rotation) if frame_rotation else 0.0
         turn[t] = rotation_matrix_xyz((0.0, 0.0, a))[:2, :2]     # in-plane turn of the face frame
+    from .tool_plan import cutting_times
+    tau = cutting_times(plan)
+    drift = np.zeros(3) if drift is None else np.asarray(drift, float)
+    if drift.shape != (3,) or not np.all(np.isfinite(drift)) or np.abs(drift).max() > 1.0:
+        raise InputError(f"expected a drift of three finite mm values below 1 mm, got {drift!r}", field="drift")
     pts = []
     for gid, feat in plan.features():
         c = cuts[gid]
         test = c.groove.test
-        u, v = ((1.0 + frame_scale) * (turn[test] @ np.asarray(c.point(feat))) + origin[test]
+        shift = plan.face_of(c.groove).basis @ (tau[gid] * drift)      # (du, dv, ddepth)
+        u, v = ((1.0 + frame_scale) * (turn[test] @ (np.asarray(c.point(feat)) + shift[:2])) + origin[test]
                 + rng.normal(0.0, noise.position, 2))
-        d = c.depth + rng.normal(0.0, noise.depth)
+        d = c.depth + shift[2] + rng.normal(0.0, noise.depth)
         pts.append(PointMeasurement(gid, feat, float(u), float(v), float(d)))
     # Noise-free synthesis still needs finite weights: use the machine's resolution scale.
     return GroovingMeasurements(plan, tuple(pts), noise.position or 1e-6, noise.depth or 1e-6, "<simulated>")

@@ -87,6 +87,9 @@ def register(subparsers) -> None:
                     help="rotary axis location errors the plan must make observable besides the tool offset: "
                          "'auto' (report which are, default), 'none', or names like EX0C,EY0C (refused with the "
                          "reason if the tests cannot see them)")
+    pl.add_argument("--repeat-first", action="store_true",
+                    help="cut the first groove again at the end (ISO 230-3): 'estimate' then fits the tool's drift "
+                         "against the workpiece over the procedure and reports it")
     pl.add_argument("--no-png", action="store_true", help="skip the layout drawing")
     pl.add_argument("--clearance", type=float, default=0.2,
                     help="the programs are verified on their plates: rapids keep this clearance, mm (0.2)")
@@ -108,6 +111,9 @@ def register(subparsers) -> None:
                     help="random microscope frame rotation per test, uniform in +-this, deg (default 0)")
     si.add_argument("--frame-scale", type=float, default=0.0,
                     help="microscope scale (magnification) error of the u, v readings, relative (default 0)")
+    si.add_argument("--drift", type=float, nargs=3, default=None, metavar=("DX", "DY", "DZ"),
+                    help="thermal drift of the tool against the workpiece over the procedure, mm, workpiece frame "
+                         "(linear in the cutting order; default none)")
     si.add_argument("--compensation", help="errors TOML the programs are compensated for (cut compensated grooves)")
     si.add_argument("-o", "--output", required=True, help="filled measurement sheet (CSV)")
     si.add_argument("--png", help="layout with the predicted grooves")
@@ -144,7 +150,7 @@ def _plan(args) -> int:
     kw = {} if args.b_angles is None else {"b_angles": args.b_angles}
     opts = PlanOptions(tests=args.tests, depth=args.depth, length=args.length, triangle_side=args.triangle_side,
                        spacing=args.spacing, feed=args.feed, plunge_feed=args.plunge_feed,
-                       tip_angle=args.tip_angle, **kw)
+                       tip_angle=args.tip_angle, repeat_first=args.repeat_first, **kw)
     if args.b_angles is None:
         designed = design_plan(m, opts, criterion=args.criterion, sigma_pos=args.sigma_pos,
                                sigma_depth=args.sigma_depth, target_sigma=args.target_sigma,
@@ -204,7 +210,7 @@ def _simulate(args) -> int:
     truth = ErrorSet(tool=ToolSetting(tuple(args.offset)), geometric=GeometricErrors(location=args.location))
     meas = simulate_grooving(m, truth, MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
                              plan=plan, compensation=comp, frame_offset=args.frame_offset,
-                             frame_rotation=args.frame_rotation, frame_scale=args.frame_scale)
+                             frame_rotation=args.frame_rotation, frame_scale=args.frame_scale, drift=args.drift)
     text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, location {args.location} mm, "
                                   f"sigma pos {args.sigma_pos} mm, "
                                   f"depth {args.sigma_depth} mm, seed {args.seed}")

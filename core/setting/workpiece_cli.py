@@ -74,7 +74,15 @@ def cmd_probe(args) -> int:
     plan = load_plan(args.plan)
     v = _floats(args.pose, 6, "pose")
     pose = WorkpieceSetting(tuple(v[:3]), tuple(v[3:]))
-    t = virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed))
+    if args.repeat_first or args.drift:
+        from .bowl_drift import apply_drift, probe_with_repeat
+        drift = _floats(args.drift, 3, "drift") if args.drift else [0.0, 0.0, 0.0]
+        if args.repeat_first:
+            t = probe_with_repeat(pose, plan, args.noise, args.seed, drift)
+        else:
+            t = apply_drift(virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed)), drift)
+    else:
+        t = virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed))
     if args.probe_error or args.lobing:
         from .probe_cal import apply_probe_model
         t = apply_probe_model(t, radius_error=args.probe_error, lobe_amplitude=args.lobing)
@@ -93,17 +101,29 @@ def cmd_fit(args) -> int:
     cal = load_calibration(args.probe) if args.probe else None
     radius = plan.tool_radius if args.fix_radius else args.bowl_radius
     known = set(map(int, touches.bowl)) <= set(plan.ids)
-    fit, est = fit_with_probe(touches, plan, cal,
-                              fit_kw=dict(probe_sigma=args.probe_sigma, bowl_radius=radius,
-                                          shared_radius=not args.radius_per_bowl, k=args.k,
-                                          bowls=plan.ids if known else None),
-                              frame_kw=dict(method=args.method, file=args.touches, reference=args.reference,
-                                            runout=args.runout))
+    fit_kw = dict(probe_sigma=args.probe_sigma, bowl_radius=radius, shared_radius=not args.radius_per_bowl,
+                  k=args.k, bowls=plan.ids if known else None)
+    frame_kw = dict(method=args.method, file=args.touches, reference=args.reference, runout=args.runout)
+    from .bowl_drift import fit_with_drift, visits
+    drift = None
+    if any(len(v) >= 2 for v in visits(touches).values()):
+        # a bowl touched again at the end: fit and remove the drift over the probing
+        from dataclasses import replace as _replace
+        from .probe_cal import UNCALIBRATED_NOTE, corrected_touches
+        t = corrected_touches(touches, cal, plan.probe_radius) if cal is not None else touches
+        sigma = args.probe_sigma if args.probe_sigma is not None else fit_bowls(t, plan.probe_radius, **fit_kw).sigma
+        fit, est, drift = fit_with_drift(t, plan, sigma, fit_kw=fit_kw, frame_kw=frame_kw)
+        if cal is None:
+            est = _replace(est, warnings=tuple(est.warnings) + (UNCALIBRATED_NOTE,))
+    else:
+        fit, est = fit_with_probe(touches, plan, cal, fit_kw=fit_kw, frame_kw=frame_kw)
     if cal is not None:
         print(f"touches corrected with the probe calibration {args.probe} (effective radius "
               f"{cal.effective_radius:.6f} ± {cal.effective_radius_sigma * 1e3:.3f} µm, nominal {plan.probe_radius:g} mm)")
     print(fit.summary())
     print(est.summary())
+    if drift is not None:
+        print(drift.summary())
     _warn(fit.warnings)
     _warn(est.warnings)
     if args.report:
@@ -117,6 +137,8 @@ def cmd_fit(args) -> int:
     meta = {"source": "mtcomp workpiece-setting fit", "plan": str(args.plan),
             "touches": str(args.touches), "method": est.method}
     meta["probe_calibration"] = str(args.probe) if args.probe else "none: dz carries the probe's radius error"
+    if drift is not None:
+        meta["drift_mm"] = [float(v) for v in drift.value]
     est.save(args.out, meta=meta)
     print(f"workpiece setting -> {args.out}")
     return 0
@@ -300,6 +322,9 @@ def register(subparsers) -> None:
     a.add_argument("--probe-error", type=float, default=0.0,
                    help="the real probe's effective radius minus the plan's, mm (ball radius and pre-travel; 0)")
     a.add_argument("--lobing", type=float, default=0.0, help="the real probe's 3-lobe pre-travel amplitude, mm (0)")
+    a.add_argument("--repeat-first", action="store_true",
+                   help="touch the first bowl again at the end (then 'fit' estimates the drift over the probing)")
+    a.add_argument("--drift", help="drift of the probe against the blank over the probing dx,dy,dz mm (linear)")
     a.add_argument("-o", "--out", required=True, help="touches CSV to write")
     a.set_defaults(func=cmd_probe)
 
