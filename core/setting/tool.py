@@ -380,12 +380,18 @@ def paper_offset() -> tuple[float, float, float]:
 #: What the virtual reproduction of paper 000's Table 1 takes from the paper and what it assumes.
 PAPER_ASSUMPTIONS = (
     "from the paper: the four original distances of Table 1 (A: 490.04, 680.12 µm; C: 108.97, 852.81 µm), "
-    "the test patterns (two grooves sharing a start at A = 0 and 180; a triangle at C = 0, 120, 240 deg), "
-    "a 90 deg V tool, 1 nm / 0.00001 deg resolution",
+    "the test patterns as the text describes them (two grooves sharing a start point cut at A = 0, the same two "
+    "after A is turned by 180 deg; a 'triangle shape' for C; B grooves at inclinations theta), a 90 deg V tool, "
+    "1 nm / 0.00001 deg resolution",
+    "mtcomp's reading, not the paper's text: the A grooves are cut on a side face with B = 90 deg (the text says "
+    "'fed on X-Y plane', where A = 180 would turn the tool away from the surface); the triangle's sides are cut "
+    "at C = 0, 120, 240 deg (the text says 'triangle shape' only); the B reference groove at B = 0 (the text "
+    "lists A = theta_1, B = theta_2, B = theta_3)",
     "assumed: the A distances come from the tool offset against the A axis and the C distances from the offset "
     "against the C axis; the difference between the two is a C axis line off the A/B centre (EX0C, EY0C), solved so "
     "that all four distances are met exactly (the paper gives no signs: the smallest C offset of the four sign "
-    "choices is taken)",
+    "choices is taken); four values and four unknowns (t_x, t_y, EX0C, EY0C), so the match of the original "
+    "distances is exact by construction and tests nothing",
     "assumed: t_z = 0.2 mm (Table 1 has no B result), EZ0A = 0, the groove lengths, layout and depth of cut of "
     "mtcomp's default plan, a laser confocal microscope with 1 µm (1 sigma) noise on positions and depths and no "
     "scale error, a perfectly rigid machine with no other geometric errors",
