@@ -70,5 +70,14 @@ def test_cli_repeat_and_drift(tmp_path, capsys):
     assert main(["tool-setting", "simulate", "--plan", str(tmp_path / "plan.toml"), "--offset", "0.34006", "0.24502",
                  "0.2", "--drift", "0", "0.002", "0", "--seed", "4", "-o", str(tmp_path / "m.csv")]) == 0
     capsys.readouterr()
-    assert main(["tool-setting", "estimate", str(tmp_path / "m.csv")]) == 0
+    assert main(["tool-setting", "estimate", str(tmp_path / "m.csv"), "--report", str(tmp_path / "r.txt")]) == 0
     assert "drift over the procedure" in capsys.readouterr().out
+    # the repeat is no side of the C triangle: the predicted C distance is the closing gap's
+    from mtcomp.setting.tool import load_plan, read_measurements
+    from mtcomp.setting.tool_estimate import predicted_residuals
+    plan = load_plan(tmp_path / "plan.toml")
+    e = estimate(M, read_measurements(tmp_path / "m.csv", plan))
+    base = design_plan(M).plan
+    e0 = estimate(M, simulate_grooving(M, TRUTH, MicroscopeNoise(0.001, 0.001), 4, plan=base))
+    assert predicted_residuals(M, plan, e)["C"] == pytest.approx(predicted_residuals(M, base, e0)["C"], rel=0.1)
+    assert "C test" in (tmp_path / "r.txt").read_text()

@@ -33,6 +33,8 @@ from .tool_model import COMPONENTS
 from .tool_plan import Groove, Plan, PlanOptions, make_plan, groove_width
 
 CRITERIA = ("D", "A")
+#: Least angle (deg) between a tilted V tool's flank and the surface for a groove worth measuring.
+MIN_FLANK = 15.0
 
 
 def _nuisance_names(plan: Plan) -> list[str]:
@@ -88,7 +90,7 @@ def b_depth(depth: float, theta, expected_offset: float):
     return np.ceil((depth + extra) * 1e3 - 1e-9) / 1e3
 
 
-def feasible_b_angles(machine, options: PlanOptions, min_flank: float = 15.0, step: float = 1.0,
+def feasible_b_angles(machine, options: PlanOptions, min_flank: float = MIN_FLANK, step: float = 1.0,
                       expected_offset: float = 0.5) -> np.ndarray:
     """B inclinations (deg, non-zero, on a `step` grid) a V tool can cut on the plate: both flanks at
     least `min_flank` deg from the surface, B within its travel, and the groove, programmed
@@ -139,7 +141,7 @@ class DesignedPlan:
 
 
 def design_plan(machine, options: PlanOptions | None = None, *, criterion: str = "D", sigma_pos: float = 0.001,
-                sigma_depth: float = 0.001, target_sigma: float | None = None, min_flank: float = 15.0,
+                sigma_depth: float = 0.001, target_sigma: float | None = None, min_flank: float = MIN_FLANK,
                 max_b: int = 8, expected_offset: float = 0.5) -> DesignedPlan:
     """A plan whose B inclinations minimise the criterion ("D": log det, "A": trace of the
     parameters' covariance) with B = 0 as the reference groove, each inclined groove programmed

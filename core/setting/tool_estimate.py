@@ -140,7 +140,7 @@ def closed_forms(meas) -> dict[str, tuple]:
                     dv.append(get(g1, f, "v") - get(g0, f, "v"))
             if du and np.all(np.isfinite(du)):
                 out["A"] = a_closed_form(float(np.mean(du)), float(np.mean(dv)))
-    c = [g for g in plan.grooves if g.test == "C"]
+    c = [g for g in plan.grooves if g.test == "C" and g.id not in repeated_grooves(plan)]
     if len(c) >= 2:
         ests = []
         for k in range(len(c)):
@@ -657,8 +657,10 @@ def suggest_grooves(machine, meas, candidates=None, top: int = 3, names=None) ->
         if b:
             have = {g.angles[1] for g in b}
             last = b[-1]
-            for th in (5, -5, 10, -10, 15, -15, 20, -20, 30, -30, 45, -45):
-                if float(th) not in have:
+            from .tool_design import MIN_FLANK
+            lim = plan.options.tip_angle / 2 - MIN_FLANK    # a flatter flank cuts no second edge
+            for th in (5, -5, 10, -10, 15, -15, 20, -20, 25, -25, 30, -30):
+                if float(th) not in have and abs(th) <= lim:
                     du = plan.options.spacing if plan.options.spacing else 2.0
                     candidates.append(replace(last, id=f"B{th:+g}*", angles=(0.0, float(th), 0.0),
                                               start=(last.start[0] + du, last.start[1]),
@@ -722,7 +724,8 @@ def predicted_residuals(machine, plan: Plan, est: ToolSettingEstimate) -> dict:
         _, J = _rows_for(m, plan, [(g0.id, "start"), (g1.id, "start")], names=names)
         D = J[1, :2] - J[0, :2]
         out["A"] = tuple(np.sqrt(np.diag(D @ cov @ D.T)))
-    c = [g for g in plan.grooves if g.test == "C"]
+    rep = repeated_grooves(plan)        # a drift repeat is no side of the triangle
+    c = [g for g in plan.grooves if g.test == "C" and g.id not in rep]
     if len(c) >= 2:
         _, J = _rows_for(m, plan, [(c[0].id, "start"), (c[-1].id, "end")], names=names)
         D = J[0, :2] - J[1, :2]
