@@ -59,3 +59,11 @@ def test_cli(tmp_path, capsys):
                  "0.0005", "-o", str(tmp_path / "e.toml")]) == 0
     out = capsys.readouterr().out
     assert "drift over the probing (from bowl 1 visited twice)" in out
+
+
+def test_probing_program_repeats_the_first_bowl(tmp_path):
+    assert main(["workpiece-setting", "plan", "-o", str(tmp_path / "p.toml"), "--repeat-first"]) == 0
+    nc = (tmp_path / "p-probing.nc").read_text()
+    assert nc.count("G31") == 4 * 9 and nc.count("(BOWL 1") == 2 and "(BOWL 1 AGAIN: DRIFT CHECK)" in nc
+    # the repeated visit comes last, after bowls 2 and 3
+    assert nc.index("(BOWL 3)") < nc.index("(BOWL 1 AGAIN")

@@ -52,7 +52,7 @@ def cmd_plan(args) -> int:
     probe = Path(args.probing) if args.probing else out.with_name(out.stem + "-probing.nc")
     # all texts first, then the files: an error leaves nothing behind
     texts = [(out, dump_toml(plan_to_dict(plan))), (rough, roughing_program(plan)),
-             (probe, probing_program(plan, aim=aim))]
+             (probe, probing_program(plan, aim=aim, repeat_first=args.repeat_first))]
     # both programs verified on the blank before anything is written (issue 14)
     from .blank_check import verify_plan_programs
     checks = verify_plan_programs(plan, texts[1][1], texts[2][1], clearance=args.clearance)
@@ -305,6 +305,9 @@ def register(subparsers) -> None:
                         "are added until it is met (refused if it cannot be)")
     a.add_argument("--probe-sigma", type=float, default=0.0005,
                    help="probe noise the design assumes, mm (default 0.0005)")
+    a.add_argument("--repeat-first", action="store_true",
+                   help="the probing program touches the first bowl again at the end: 'fit' then estimates and "
+                        "removes the drift over the probing")
     a.add_argument("-o", "--out", required=True, help="plan TOML to write")
     a.add_argument("--roughing", help="roughing program (default <plan>-roughing.nc)")
     a.add_argument("--probing", help="probing program (default <plan>-probing.nc)")
