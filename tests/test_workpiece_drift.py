@@ -67,3 +67,13 @@ def test_probing_program_repeats_the_first_bowl(tmp_path):
     assert nc.count("G31") == 4 * 9 and nc.count("(BOWL 1") == 2 and "(BOWL 1 AGAIN: DRIFT CHECK)" in nc
     # the repeated visit comes last, after bowls 2 and 3
     assert nc.index("(BOWL 3)") < nc.index("(BOWL 1 AGAIN")
+
+
+def test_virtual_cell_with_drift():
+    from mtcomp.setting.cellsim import CellConfig, simulate_cell
+    kw = dict(trials=12, seed=3, probe_drift=(0.0, 0.0, 0.002))
+    drifted = simulate_cell(CellConfig(**kw))
+    repeated = simulate_cell(CellConfig(repeat_first=True, **kw))
+    # a z drift of 2 µm over the probing reads as height and tilt; the widths move by -15 dz
+    assert abs(np.mean(drifted.pose_error[:, 2])) > 0.0005
+    assert abs(np.mean(repeated.pose_error[:, 2])) < 0.0003

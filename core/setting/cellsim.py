@@ -173,7 +173,10 @@ class CellConfig:
     default) or "centre" (fitted centres against nominal-radius design centres).
     microscope_scale: relative scale error of the width measurement (0.001 = +0.1 %).
     runout_known: the run-out is measured (e.g. with a dial gauge on the ball) and passed to the
-    frame fit, which removes its bias on the bowls' bottoms."""
+    frame fit, which removes its bias on the bowls' bottoms.
+    probe_drift: (3,) mm, drift of the probe against the blank over the probing (linear in the
+    touch order, `bowl_drift`); repeat_first: the first bowl is touched again at the end and the
+    fit estimates and removes the drift."""
     machine: str = "robonano-a0ib"
     plan: object = None
     robot: RobotPlacement = field(default_factory=RobotPlacement)
@@ -190,6 +193,8 @@ class CellConfig:
     reference: str = "bottom"
     microscope_scale: float = 0.0
     runout_known: bool = False
+    probe_drift: tuple = (0.0, 0.0, 0.0)
+    repeat_first: bool = False
 
 
 @dataclass(frozen=True)
@@ -289,6 +294,7 @@ def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResul
     """Run the virtual cell Monte Carlo (see module docstring); progress(i, n) is called per trial."""
     from ..kinematics import forward
     from ..machine import load_machine
+    from .bowl_drift import apply_drift, fit_with_drift, probe_with_repeat
     from .bowls import fit_bowls, plan_bowls, virtual_probe
     from .frame import frame_from_bowls
     from .workpiece import compensate_commands
@@ -316,12 +322,17 @@ def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResul
         true = config.robot.sample(rng)
         off = (rng.normal(0.0, config.bowl_position_sigma, (len(plan.bowls), 3))
                if config.bowl_position_sigma > 0 else None)
-        touches = virtual_probe(true, plan, config.probe_sigma, rng, cutter_radius_error=config.cutter_radius_error,
-                                runout=config.runout, bowl_offsets=off)
-        fit = fit_bowls(touches, plan.probe_radius, probe_sigma=config.probe_sigma or None,
-                        bowl_radius=config.bowl_radius, shared_radius=config.shared_radius)
-        est = frame_from_bowls(fit, plan, reference=config.reference,
-                               runout=config.runout if config.runout_known else 0.0)
+        bowl_kw = dict(cutter_radius_error=config.cutter_radius_error, runout=config.runout, bowl_offsets=off)
+        fit_kw = dict(probe_sigma=config.probe_sigma or None, bowl_radius=config.bowl_radius,
+                      shared_radius=config.shared_radius)
+        frame_kw = dict(reference=config.reference, runout=config.runout if config.runout_known else 0.0)
+        if config.repeat_first:
+            touches = probe_with_repeat(true, plan, config.probe_sigma, rng, config.probe_drift, **bowl_kw)
+            fit, est, _ = fit_with_drift(touches, plan, config.probe_sigma or 1e-6, fit_kw, frame_kw)
+        else:
+            touches = apply_drift(virtual_probe(true, plan, config.probe_sigma, rng, **bowl_kw), config.probe_drift)
+            fit = fit_bowls(touches, plan.probe_radius, **fit_kw)
+            est = frame_from_bowls(fit, plan, **frame_kw)
         perr.append(np.r_[est.pose.translation, est.pose.angles]
                     - np.r_[true.translation, true.angles])
         q_new = compensate_commands(machine, q_nom, est.pose, config.mode)

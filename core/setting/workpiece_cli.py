@@ -266,7 +266,8 @@ def cmd_simulate(args) -> int:
                      seed=args.seed, bowl_radius=args.bowl_radius,
                      shared_radius=not args.radius_per_bowl, cutter_radius_error=args.cutter_radius_error,
                      runout=args.runout, bowl_position_sigma=args.bowl_position_sigma,
-                     reference=args.reference, microscope_scale=args.microscope_scale)
+                     reference=args.reference, microscope_scale=args.microscope_scale,
+                     probe_drift=tuple(_floats(args.probe_drift, 3, "probe-drift")), repeat_first=args.repeat_first)
 
     def progress(i, n):
         if sys.stderr.isatty() and (i % 50 == 0 or i == n):
@@ -432,6 +433,10 @@ def register(subparsers) -> None:
                    help="relative scale error of the width measurement (0)")
     a.add_argument("--reference", choices=("bottom", "centre"), default="bottom",
                    help="bowl height from bottom points (default) or centres")
+    a.add_argument("--probe-drift", default="0,0,0",
+                   help="drift of the probe against the blank over the probing dx,dy,dz mm (linear; 0,0,0)")
+    a.add_argument("--repeat-first", action="store_true",
+                   help="touch the first bowl again at the end and remove the fitted drift")
     a.add_argument("--mode", choices=("3axis", "5axis"), default="3axis")
     a.add_argument("-o", "--out", help="markdown table to write")
     a.add_argument("--png", help="PNG plot to write")
