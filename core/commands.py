@@ -306,7 +306,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
                        tolerance: float = TOLERANCE, warn_only: bool = False, search_path=None,
                        cutter_radius: float | None = None, cutter_offsets: dict | None = None,
-                       encoding: str = "utf-8"):
+                       encoding: str = "utf-8", reversal: dict | None = None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -336,6 +336,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     correction at the tool centre by more than ``tolerance`` is refused (docs/gcode.md).
     search_path: directories where subprograms called but not in the program are looked for
     (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
+    reversal: {axis: mtcomp.geometric.reversal.ReversalTable}: also correct each position for the
+    direction it is approached in (docs/geometric.md, reversal); the report's errors leave it out.
     Returns (new program (text or bytes, as given), report dict: blocks, lines, deferred
     blocks, idle axes, max/RMS tool-edge errors in mm before and after over the compensated blocks, from the forward model,
     ``verify``: the VerifyResult or None)."""
@@ -366,6 +368,9 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                          "compensating it again would apply the errors twice: use the original "
                          "program, or --force", filename, done)
     fl = flow.expand(text, filename, search=search_path, ascii=ascii)
+    if fl is not None and reversal:
+        raise InputError("direction-dependent (reversal) compensation of programs with subprogram calls is "
+                         "not supported", filename)
     if fl is not None:
         # (subprogram calls: the expansion is text)
         new, report = _compensate_flow(fl, machine, errors, **opts)
@@ -433,6 +438,9 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                 done += rows.stop - rows.start if isinstance(rows, slice) else len(rows)
                 if progress:
                     progress(done, len(q))
+        if reversal:   # direction of approach: mtcomp.geometric.reversal
+            from .geometric.reversal import direction_corrections
+            out += direction_corrections(out, machine.axis_names, reversal, lines, ends_first=len(calls) == 1)
         return out
 
     info = {}
@@ -885,6 +893,7 @@ def _cmd_compensate(args) -> int:
         if not (math.isfinite(args.tolerance) and args.tolerance >= 0):
             raise InputError(f"expected a tolerance >= 0 mm, got {args.tolerance}", field="--tolerance")
         options.append(f"verified clearance {args.clearance:g} mm" + (" warn-only" if args.warn_only else ""))
+    from .geometric.reversal import load_reversal
     new_data, rep = compensate_program(data, machine, errors, filename=str(src), chordal_tol=tol,
                                        start=start, unknown=args.unknown, provenance=provenance,
                                        force=args.force, progress=Progress("compensating", args.progress),
@@ -892,7 +901,8 @@ def _cmd_compensate(args) -> int:
                                        stock=stock, part=part, clearance=args.clearance,
                                        tolerance=args.tolerance, warn_only=args.warn_only,
                                        search_path=search, cutter_radius=cutter_radius,
-                                       cutter_offsets=cutter_offsets, encoding=encoding)
+                                       cutter_offsets=cutter_offsets, encoding=encoding,
+                                       reversal=load_reversal(args.reversal or ()) or None)
     del data
     atomic_write(out, new_data)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
@@ -986,6 +996,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="directories searched, after the program's own, for subprograms in other "
                         "files (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written "
                         "out in the output")
+    p.add_argument("--reversal", nargs="+", metavar="CSV",
+                   help="reversal tables (<axis>_reversal.csv of 'geometric build' or 'geometric reversal'): "
+                        "each position is also corrected for the direction it is approached in")
     p.add_argument("--force", action="store_true",
                    help="compensate a program that mtcomp has already compensated")
     p.add_argument("--stock", help="verify the output against this stock (workpiece frame): "

@@ -88,7 +88,7 @@ def test_non_positive_spacing(tmp_path, capsys, flag):
 
 @pytest.mark.parametrize("args,flag", [(["--step", "0"], "--step"), (["--step", "-5"], "--step"),
                                        (["--noise", "-1", "0", "0"], "--noise"),
-                                       (["--reversal", "-2"], "--reversal")])
+                                       (["--reversal", "nan"], "--reversal")])
 def test_simulate_refuses_bad_spacing_and_noise(tmp_path, capsys, args, flag):
     assert run(["geometric", "simulate", *args, "-o", str(tmp_path / "s.toml")]) == 2
     assert f"[{flag}]" in capsys.readouterr().out

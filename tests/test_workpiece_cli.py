@@ -100,7 +100,8 @@ def test_second_pass_probing_program_is_aimed_at_the_coarse_pose(tmp_path):
     from mtcomp.errors import save_errors
     coarse = tmp_path / "coarse.toml"
     save_errors(ErrorSet(workpiece=WorkpieceSetting((0.8, -0.3, 0.0), (0.0, 0.0, 0.0))), coarse)
-    _planned(tmp_path, "--aim", str(coarse), "--probing", str(tmp_path / "second.nc"))
+    _planned(tmp_path, "--aim", str(coarse), "--probing", str(tmp_path / "second.nc"),
+             "--positions=-7,-7;7,-7;-7,7")
     text = (tmp_path / "second.nc").read_text()
     assert "G00 X-6.2 Y-7.3 Z5" in text and "G00 X7.8 Y-7.3 Z5" in text
 

@@ -70,6 +70,9 @@ def register(subparsers) -> None:
                                    "--truth (or the model): box:x0,y0,z0,x1,y1,z1 (mm), plane:Z or a STEP file")
     s.add_argument("--clearance", type=float, default=0.2,
                    help="with --stock: clearance every rapid keeps from it, mm (0.2)")
+    s.add_argument("--reversal", nargs="+", metavar="CSV",
+                   help="reversal tables (<stem>_<axis>_reversal.csv of 'build'): the program and the report "
+                        "are corrected per direction of approach, the residual given per direction")
     s.add_argument("-o", "--output", required=True, help="output directory")
     s.set_defaults(func=_table)
 
@@ -79,7 +82,9 @@ def register(subparsers) -> None:
     s.add_argument("--step", type=float, default=5.0, help="run target spacing, mm")
     s.add_argument("--noise", type=float, nargs=3, metavar=("LIN_UM", "STRAIGHT_UM", "ANG_URAD"),
                    default=(0.1, 0.2, 0.2), help="reading noise, 1 sigma (µm, µm, µrad)")
-    s.add_argument("--reversal", type=float, default=2.0, help="reversal of positioning runs, µm")
+    s.add_argument("--reversal", type=float, default=2.0,
+                   help="reversal B = x_up - x_down of the positioning runs, µm (negative: ordinary backlash, "
+                        "moving up lags; default 2)")
     s.add_argument("-o", "--output", required=True,
                    help="measurement set TOML to write; the true errors go to <stem>_truth.toml")
     s.set_defaults(func=_simulate)
@@ -139,10 +144,18 @@ def _build(args: argparse.Namespace) -> int:
     # largest 1-sigma of each component (mm or rad) and the squareness sigmas, for the record
     unc = {f"geometric.{k}": float(max(v) if hasattr(v, "__len__") else v)
            for k, v in res.uncertainty.items()}
+    out = Path(args.output)
+    rev = res.reversal()
+    # the direction-dependent part the (bidirectional-mean) tables leave out, one CSV per axis
+    texts = {out.with_name(f"{out.stem}_{ax}_reversal.csv"): t.to_csv() for ax, t in rev.items()}
     save_errors(res.errors, args.output, uncertainty=unc,
-                meta={"source": "mtcomp geometric build", "measurement_set": Path(args.set).name})
+                meta={"source": "mtcomp geometric build", "measurement_set": Path(args.set).name,
+                      "reversal": ", ".join(p.name for p in texts) or "none"})
+    from .._io import atomic_write
+    for path, text in texts.items():
+        atomic_write(path, text)
     print(res.summary(), end="")
-    print(f"written: {args.output}")
+    print(f"written: {args.output}" + "".join(f", {p}" for p in texts))
     return 0
 
 
@@ -195,7 +208,9 @@ def _table(args: argparse.Namespace) -> int:
         raise InputError("--stock verifies the program of --program: give one", field="--stock")
     if not args.clearance >= 0:
         raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
-    program = _rewrite_program(args, model) if args.program else None
+    from .reversal import load_reversal
+    rev = load_reversal(args.reversal or ())
+    program = _rewrite_program(args, model, rev) if args.program else None
     check = None
     if program is not None and args.stock:
         # the corrected program as the real machine runs it (issue 14: every emitted program is
@@ -203,8 +218,8 @@ def _table(args: argparse.Namespace) -> int:
         from ..verify import parse_stock, verify_program
         check = verify_program(machine, program[1], filename=program[0], stock=parse_stock(args.stock),
                                clearance=args.clearance, errors=truth, retracts=True)
-    lat = comptables.lattice_table(machine, model, args.lattice_step)
-    rep = comptables.compensation_report(machine, truth, model, lat)
+    lat = comptables.lattice_table(machine, model, args.lattice_step, reversal=rev)
+    rep = comptables.compensation_report(machine, truth, model, lat, reversal_truth=rev or None)
     atomic_write(out / "lattice.csv", lat.to_csv())
     files = comptables.write_iso_tables(model.geometric, out, "comp")
     atomic_write(out / "residual.txt", rep.summary())
@@ -220,7 +235,7 @@ def _table(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rewrite_program(args: argparse.Namespace, model):
+def _rewrite_program(args: argparse.Namespace, model, reversal=None):
     """Corrected commands as an NC program, through the core's program rewriting (tables held
     at their end values just beyond the travel, as in the other compensation forms).
     Returns (file name, text, message)."""
@@ -231,7 +246,8 @@ def _rewrite_program(args: argparse.Namespace, model):
     src = Path(args.program)
     text = read_program(src)
     machine = load_machine(args.machine)
-    new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src))
+    new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src),
+                                       reversal=reversal or None)
     msg = (f"{src}: {rep['blocks']} motion blocks; model tool-edge error max "
            f"{rep['before_max'] * 1e3:.3f} µm before, {rep['after_max'] * 1e3:.4f} µm after")
     return src.stem + "_comp" + src.suffix, new_text, msg
@@ -242,9 +258,9 @@ def _simulate(args: argparse.Namespace) -> int:
     from . import synthetic, tables
     if not args.step > 0:
         raise InputError("must be positive", field="--step")
-    if not (min(args.noise) >= 0 and args.reversal >= 0):
-        raise InputError(f"noise and reversal must be >= 0, got {args.noise} and {args.reversal}",
-                         field="--noise" if min(args.noise) < 0 else "--reversal")
+    if not (min(args.noise) >= 0 and abs(args.reversal) < 1000):
+        raise InputError(f"noise must be >= 0 and the reversal a finite number of µm, got {args.noise} and "
+                         f"{args.reversal}", field="--noise" if not min(args.noise) >= 0 else "--reversal")
     machine = _linear_machine(args.machine, three=False)
     syn = synthetic.make_synthetic(machine, seed=args.seed, run_step=args.step,
                                    min_wavelength=250.0)

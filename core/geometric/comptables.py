@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import io
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +28,7 @@ import numpy as np
 from .._io import InputError, atomic_write
 from ..errors import AxisErrorTable, ErrorSet, GeometricErrors
 from ..machine import Machine, load_machine
+from .reversal import direction_terms
 from .volumetric import volume_grid
 
 __all__ = ["extend_tables", "corrected_commands", "LatticeTable", "lattice_table",
@@ -69,6 +70,7 @@ class LatticeTable:
     axes: tuple
     nodes: tuple
     correction: np.ndarray
+    reversal: dict = field(default_factory=dict)   # {axis: ReversalTable}: direction-dependent part
 
     def interpolate(self, q) -> np.ndarray:
         """Trilinear interpolation of the corrections at commands q (N,3); q outside the lattice
@@ -79,9 +81,12 @@ class LatticeTable:
         f = RegularGridInterpolator(self.nodes, self.correction, method="linear")
         return f(qc)
 
-    def apply(self, q) -> np.ndarray:
+    def apply(self, q, directions=None) -> np.ndarray:
+        """Corrected commands for q (N,3); with reversal tables, each row also corrected for the
+        direction it is approached in: directions (N,3) of +1 / -1 per axis (default +1)."""
         q = np.atleast_2d(np.asarray(q, float))
-        return q + self.interpolate(q)
+        out = q + self.interpolate(q)
+        return out + direction_terms(self.axes, self.reversal, q, directions, -1.0)
 
     def to_csv(self) -> str:
         """CSV: header comments (axes, node counts, origin and spacing), then one row per node:
@@ -154,9 +159,12 @@ class LatticeTable:
         return cls(axes, tuple(nodes), corr)
 
 
-def lattice_table(machine: Machine | str, errors: ErrorSet, step: float | tuple = 50.0) -> LatticeTable:
+def lattice_table(machine: Machine | str, errors: ErrorSet, step: float | tuple = 50.0,
+                  reversal: dict | None = None) -> LatticeTable:
     """Lattice of command corrections over the whole travel, nodes every `step` mm (the travel
-    ends are nodes), from the exact model's inverse at each node."""
+    ends are nodes), from the exact model's inverse at each node.  reversal: {axis:
+    ReversalTable} kept beside it (the lattice holds the bidirectional mean; controls apply the
+    direction-dependent part as bidirectional pitch tables, `ReversalTable.fanuc_pitch`)."""
     machine = load_machine(machine)
     if machine.n_axes != 3 or machine.n_rotary:
         raise ValueError("the 3-D lattice table is for 3-axis machines with linear axes")
@@ -164,7 +172,7 @@ def lattice_table(machine: Machine | str, errors: ErrorSet, step: float | tuple 
     nodes = tuple(np.unique(q[:, i]) for i in range(3))
     corr = corrected_commands(machine, errors, q) - q
     shape = tuple(n.size for n in nodes)
-    return LatticeTable(machine.axis_names, nodes, corr.reshape(shape + (3,)))
+    return LatticeTable(machine.axis_names, nodes, corr.reshape(shape + (3,)), dict(reversal or {}))
 
 
 def write_iso_tables(geometric: GeometricErrors, directory: str | os.PathLike,
@@ -179,13 +187,21 @@ def write_iso_tables(geometric: GeometricErrors, directory: str | os.PathLike,
     return out
 
 
-def residuals(machine: Machine | str, truth: ErrorSet, q_programmed, q_commanded) -> np.ndarray:
-    """Tool-tip error (N,3) mm of the real machine (`truth`) at the commanded positions, relative
-    to the programmed (ideal) tool position."""
+def residuals(machine: Machine | str, truth: ErrorSet, q_programmed, q_commanded, reversal: dict | None = None,
+              directions=None) -> np.ndarray:
+    """Tool-tip error (N,3) mm of the real machine (`truth`, and its reversal {axis:
+    ReversalTable} with rows approached in `directions`, (N, n) of +1 / -1) at the commanded
+    positions, relative to the programmed (ideal) tool position.  A linear axis' reversal moves
+    the tool along the axis' direction (ISO 841: the tool's motion relative to the workpiece)."""
     from ..kinematics import forward
     machine = load_machine(machine)
-    return (forward(machine, q_commanded, extend_tables(truth)).p
-            - forward(machine, q_programmed).p)
+    p = forward(machine, q_commanded, extend_tables(truth)).p - forward(machine, q_programmed).p
+    if reversal:
+        dev = direction_terms(machine.axis_names, reversal, q_commanded, directions, 1.0)
+        for k, ax in enumerate(machine.axes):
+            if ax.name in reversal:
+                p = p + dev[:, k:k + 1] * np.asarray(ax.direction, float)[None, :]
+    return p
 
 
 @dataclass(frozen=True)
@@ -204,10 +220,14 @@ class CompensationReport:
 
 def compensation_report(machine: Machine | str, truth: ErrorSet, model: ErrorSet,
                         lattice: LatticeTable | None = None, q=None, n_random: int = 5000,
-                        step: float = 25.0, seed: int = 0) -> CompensationReport:
+                        step: float = 25.0, seed: int = 0, reversal_truth: dict | None = None,
+                        reversal_model: dict | None = None) -> CompensationReport:
     """Residual error without compensation, with model-based compensation (`model` tables,
     exact inverse) and with the lattice, at the grid points (every `step` mm) plus `n_random`
-    random points of the travel (between lattice nodes, where interpolation errs most)."""
+    random points of the travel (between lattice nodes, where interpolation errs most).
+    With reversal_truth ({axis: ReversalTable} of the real machine) every figure is given for
+    every point approached in the positive and in the negative direction of all axes, and
+    reversal_model (default: the lattice's) adds the direction-dependent correction."""
     machine = load_machine(machine)
     if q is None:
         rng = np.random.default_rng(seed)
@@ -219,11 +239,25 @@ def compensation_report(machine: Machine | str, truth: ErrorSet, model: ErrorSet
     def fig(r):
         m = np.linalg.norm(r, axis=1)
         return float(m.max()), float(np.sqrt(np.mean(m**2)))
-    figures = {"uncompensated": fig(residuals(machine, truth, q, q)),
-               "model-based (corrected commands)": fig(
-                   residuals(machine, truth, q, corrected_commands(machine, model, q)))}
-    lstep = float("nan")
-    if lattice is not None:
-        figures["3-D lattice (trilinear)"] = fig(residuals(machine, truth, q, lattice.apply(q)))
-        lstep = float(np.mean(np.diff(lattice.nodes[0])))
+    lstep = float(np.mean(np.diff(lattice.nodes[0]))) if lattice is not None else float("nan")
+    if not reversal_truth:
+        figures = {"uncompensated": fig(residuals(machine, truth, q, q)),
+                   "model-based (corrected commands)": fig(
+                       residuals(machine, truth, q, corrected_commands(machine, model, q)))}
+        if lattice is not None:
+            figures["3-D lattice (trilinear)"] = fig(residuals(machine, truth, q, lattice.apply(q)))
+        return CompensationReport(len(q), figures, lstep)
+    rev_model = reversal_model if reversal_model is not None else (lattice.reversal if lattice is not None else {})
+    figures = {}
+    base = corrected_commands(machine, model, q)
+    for sgn, word in ((1.0, "moving +"), (-1.0, "moving -")):
+        d = np.full(q.shape, sgn)
+        figures[f"uncompensated, {word}"] = fig(residuals(machine, truth, q, q, reversal_truth, d))
+        figures[f"model-based, mean tables, {word}"] = fig(residuals(machine, truth, q, base, reversal_truth, d))
+        if rev_model:
+            qc = base + direction_terms(machine.axis_names, rev_model, q, d, -1.0)
+            figures[f"model-based + reversal, {word}"] = fig(residuals(machine, truth, q, qc, reversal_truth, d))
+        if lattice is not None:
+            figures[f"3-D lattice{' + reversal' if rev_model else ''}, {word}"] = fig(
+                residuals(machine, truth, q, lattice.apply(q, d), reversal_truth, d))
     return CompensationReport(len(q), figures, lstep)

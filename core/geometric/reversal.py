@@ -30,7 +30,8 @@ import numpy as np
 from .._io import InputError, atomic_write
 from .iso230_2 import Iso2302Result
 
-__all__ = ["ReversalTable", "reversal_table", "MODES"]
+__all__ = ["ReversalTable", "reversal_table", "MODES", "approach_directions", "machining_order",
+           "direction_corrections", "direction_terms", "load_reversal"]
 
 MODES = ("bidirectional", "backlash", "mean")
 
@@ -90,6 +91,34 @@ class ReversalTable:
     def compensate(self, x, direction, mode: str = "bidirectional") -> np.ndarray:
         """Compensated commands for programmed positions x (mm) approached in `direction`."""
         return np.asarray(x, float) + self.correction(x, direction, mode)
+
+    @property
+    def half(self) -> np.ndarray:
+        """B_i / 2, mm: the direction-dependent part of the deviation (+ moving up, − moving down)
+        about the bidirectional mean that the component tables carry."""
+        return 0.5 * self.reversal_i
+
+    @classmethod
+    def from_csv(cls, path: str | os.PathLike, axis: str | None = None) -> "ReversalTable":
+        """Read a table written by `to_csv` (columns position, dev_up, dev_down, more ignored;
+        mm); the axis from the header comment unless given.  Errors name file, line, column."""
+        from ..csvtable import read_csv
+        tab = read_csv(path, what="reversal table", min_rows=2)
+        need = ("position", "dev_up", "dev_down")
+        missing = [c for c in need if not tab.has(c)]
+        if missing:
+            raise tab.error(f"header must contain {','.join(need)}; missing {','.join(missing)}")
+        pos = tab.numbers("position", unit="mm")
+        if np.any(np.diff(pos) <= 0):
+            r = int(np.argmax(np.diff(pos) <= 0)) + 1
+            raise tab.error("positions must grow from row to row", r, "position")
+        up, dn = tab.numbers("dev_up", unit="mm", max_abs=1.0), tab.numbers("dev_down", unit="mm", max_abs=1.0)
+        if axis is None:
+            import re
+            head = Path(path).read_text(errors="replace").splitlines()[:1]
+            m = re.search(r"of axis (\S+):", head[0]) if head else None
+            axis = m.group(1) if m and m.group(1) != "?" else ""
+        return cls(axis, pos, up, dn, str(path))
 
     def to_csv(self) -> str:
         """position, mean deviation up / down, reversal B_i, correction up / down; mm."""
@@ -162,3 +191,94 @@ def reversal_table(result: Iso2302Result) -> ReversalTable:
     r = result.run
     return ReversalTable(r.axis, np.asarray(r.target, float).copy(), np.asarray(result.mean_up).copy(),
                          np.asarray(result.mean_down).copy(), r.source)
+
+
+# ---------------------------------------------------------------------------------------------
+# Direction of approach of programmed positions, and the direction-dependent correction
+
+def machining_order(lines, ends_first: bool = True) -> np.ndarray:
+    """Order (N,) in which the rows handed to a compensation transform are reached: by program
+    line; within one line its interior points (arc samples, cycle points) in the order given,
+    and, when the block's end point is among the rows (``ends_first``: every line's first row is
+    its end, as `gcode.rewrite_with_lines` hands them over), that end last."""
+    lines = np.asarray(lines)
+    n = len(lines)
+    is_end = np.zeros(n, bool)
+    if ends_first and n:
+        _, first = np.unique(lines, return_index=True)
+        is_end[first] = True
+    return np.lexsort((np.arange(n), is_end, lines))
+
+
+def approach_directions(x, initial: float = 1.0) -> np.ndarray:
+    """+1 / −1 (N,): the direction each position of the sequence x (mm) is approached in: the
+    sign of the move into it; a row the axis does not move to keeps the direction before it (the
+    lost motion stays taken up that way); rows before the axis' first move take `initial`, the
+    direction the slide is assumed to have last moved in before the sequence (+1: as after a
+    reference run or a positive approach; the state before a program is not in the program)."""
+    x = np.asarray(x, float)
+    s = np.sign(np.diff(x, prepend=x[:1] if x.size else x))
+    moved = np.flatnonzero(s)
+    if not moved.size:
+        return np.full(x.shape, float(initial))
+    idx = np.where(s != 0, np.arange(s.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    d = s[idx]
+    d[:moved[0]] = initial
+    return d
+
+
+def direction_terms(axes, reversal: dict, q, directions, sign: float) -> np.ndarray:
+    """(N, n) mm: sign * d B_i(x)/2 on every axis with a reversal table (`ReversalTable`), d the
+    direction of approach per row and axis ((N, n) of +1 / -1, default +1).  sign = +1 gives the
+    deviation a machine with that reversal adds, -1 the command correction that removes it."""
+    q = np.atleast_2d(np.asarray(q, float))
+    out = np.zeros_like(q)
+    d = np.ones_like(q) if directions is None else np.broadcast_to(np.asarray(directions, float), q.shape)
+    names = list(axes)
+    for ax, tab in (reversal or {}).items():
+        if ax not in names:
+            raise InputError(f"reversal table of axis {ax}, but the axes are {' '.join(names)}", field="reversal")
+        k = names.index(ax)
+        out[:, k] = sign * d[:, k] * np.interp(q[:, k], tab.position, tab.half)
+    return out
+
+
+def direction_corrections(q, axis_names, reversal: dict, lines=None, ends_first: bool = True,
+                          initial: float = 1.0) -> np.ndarray:
+    """Command corrections (N, n_axes) mm for the direction of approach: −d B_i(x)/2 on every axis
+    with a reversal table (`ReversalTable`, by axis name), B_i interpolated linearly and held
+    beyond the ends.  q: the commands after the bidirectional-mean correction, i.e. where each
+    slide must go; d: the direction each row is reached in, from q in machining order
+    (`machining_order` of the rows' program lines, or as given).
+
+    Why q and not the programmed positions: an axis the program holds still still moves by the
+    mean correction of the others' errors (straightness: tens of µm), and each such move is a
+    reversal for the play.  This is the exact inverse of a play (backlash) of lost motion −B_i:
+    to bring the slide up to y the command goes to y + b/2, down to y − b/2, and it stays where
+    it was while y stays (tested against a play operator written out).  Added to the mean
+    correction it equals ISO 230-2's bidirectional correction (`ReversalTable.correction`)."""
+    q = np.atleast_2d(np.asarray(q, float))
+    if not len(q):
+        return np.zeros_like(q)
+    order = machining_order(lines, ends_first) if lines is not None else np.arange(len(q))
+    d = np.ones_like(q)
+    names = list(axis_names)
+    for ax in reversal:
+        k = names.index(ax) if ax in names else None
+        if k is not None:      # (an unknown axis is refused by direction_terms)
+            d[order, k] = approach_directions(q[order, k], initial)
+    return direction_terms(axis_names, reversal, q, d, -1.0)
+
+
+def load_reversal(paths) -> dict:
+    """{axis: ReversalTable} from reversal CSVs (`ReversalTable.to_csv`); an axis twice is an error."""
+    out = {}
+    for p in paths:
+        t = ReversalTable.from_csv(p)
+        if not t.axis:
+            raise InputError("the reversal table names no axis (header '... of axis X: ...')", p)
+        if t.axis in out:
+            raise InputError(f"a second reversal table for axis {t.axis} (first: {out[t.axis].source})", p)
+        out[t.axis] = t
+    return out

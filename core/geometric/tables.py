@@ -127,8 +127,8 @@ class BuildResult:
             if ax in self.iso:
                 r = self.iso[ax]
                 lines.append(f"    ISO 230-2 of the positioning run: A = {r.A * 1e3:.3f} µm, "
-                             f"B = {r.B * 1e3:.3f} µm (mean reversal {r.B_mean * 1e3:+.3f} µm, not in the "
-                             f"table: see 'mtcomp geometric reversal'), R = {r.R * 1e3:.3f} µm")
+                             f"B = {r.B * 1e3:.3f} µm (mean reversal {r.B_mean * 1e3:+.3f} µm: the table holds the "
+                             f"bidirectional mean, the reversal table the rest), R = {r.R * 1e3:.3f} µm")
         for name, v in g.location.items():
             u = self.uncertainty.get(name)
             su = f" +- {u * 1e6:.3f}" if u is not None else ""

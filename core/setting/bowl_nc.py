@@ -84,13 +84,15 @@ def _aim_rt(aim):
     return pose_matrix(aim)
 
 
-def probing_program(plan: BowlPlan, aim=None) -> str:
+def probing_program(plan: BowlPlan, aim=None, repeat_first: bool = False) -> str:
     """Probing program for the ultraprecision machine (rotary axes at 0), probe-centre positions.
 
     For each bowl: rapid to safe height over the sphere centre, feed down to the sphere centre
     (in air or inside the bowl, h <= R), then for each touch a feed to the start point, a skip move
     (G31) along the approach direction, and a feed back to the sphere centre.  The controller logs
     the probe centre at trigger; together with bowl id and approach that is the touches CSV.
+    repeat_first: visit the first bowl again at the end (its touches a second time), so that
+    `fit` sees and removes the drift over the probing (`bowl_drift`).
     """
     R, t = _aim_rt(aim)
 
@@ -106,9 +108,10 @@ def probing_program(plan: BowlPlan, aim=None) -> str:
     by_bowl: dict[int, list] = {}
     for mv in moves:
         by_bowl.setdefault(mv[0], []).append(mv)
-    for b, c in zip(plan.bowls, plan.centres):
+    order = list(zip(plan.bowls, plan.centres))
+    for k, (b, c) in enumerate(order + order[:1] if repeat_first else order):
         cm = R @ c + t
-        out.append(f"(BOWL {b.id})")
+        out.append(f"(BOWL {b.id})" if k < len(order) else f"(BOWL {b.id} AGAIN: DRIFT CHECK)")
         out.append(f"G00 X{_a(cm[0])} Y{_a(cm[1])} Z{_a(plan.safe_z)}")
         out.append(f"G01 Z{_a(cm[2])} F{_f(plan.probe_feed * 4)}")
         for _, j, s, e, d in by_bowl[b.id]:

@@ -101,8 +101,9 @@ def _default_positions(n: int, blank, edge_distance: float) -> list[tuple[float,
     return spots[:n]
 
 
-def default_directions(m: int, rim_polar: float, margin: float = 12.0) -> np.ndarray:
-    """m contact directions: one at the bottom plus two rings (outer ring `margin` deg below the rim)."""
+def default_directions(m: int, rim_polar: float, margin: float = 12.0, inner: float = 0.5) -> np.ndarray:
+    """m contact directions: one at the bottom plus two rings (outer ring `margin` deg below the rim,
+    inner ring at `inner` times the outer ring's polar angle)."""
     if m < 1:
         raise InputError(f"touches per bowl must be >= 1, got {m}", field="touches")
     outer = rim_polar - margin
@@ -112,7 +113,10 @@ def default_directions(m: int, rim_polar: float, margin: float = 12.0) -> np.nda
     dirs = [(0.0, 0.0, -1.0)]
     rest = m - 1
     n1, n2 = rest // 2, rest - rest // 2
-    for count, polar, phase in ((n1, outer / 2, 0.0), (n2, outer, 0.5)):
+    if not 0 < inner < 1:
+        raise InputError(f"inner ring must lie between the bottom and the outer ring (0 < inner < 1), got {inner}",
+                         field="inner")
+    for count, polar, phase in ((n1, outer * inner, 0.0), (n2, outer, 0.5)):
         for k in range(count):
             az = 2 * math.pi * (k + phase) / count
             th = math.radians(polar)
@@ -124,7 +128,8 @@ def plan_bowls(n: int = 3, *, blank=(20.0, 20.0, 5.0), tool_radius: float = 2.0,
                depth: float = 1.0, probe_radius: float = 0.5, touches: int = 9,
                positions=None, edge_distance: float = 3.0, margin: float = 0.5,
                keepout_radius: float = 3.0,
-               clearance: float = 0.2, overtravel: float = 0.1, safe_z: float = 5.0) -> BowlPlan:
+               clearance: float = 0.2, overtravel: float = 0.1, safe_z: float = 5.0,
+               inner: float = 0.5) -> BowlPlan:
     """Plan n >= 3 bowls on a blank and the probing touches; all lengths in mm.
 
     `positions` ((n, 2) mm) overrides the automatic placement (corners, then edge midpoints, axes
@@ -173,7 +178,7 @@ def plan_bowls(n: int = 3, *, blank=(20.0, 20.0, 5.0), tool_radius: float = 2.0,
                                  f"(centres {math.hypot(a.x - b.x, a.y - b.y):.3f} mm apart, need "
                                  f"{2 * opening + margin:.3f})", field="positions")
     rim = math.degrees(math.acos((tool_radius - depth) / tool_radius))
-    dirs = default_directions(touches, rim)
+    dirs = default_directions(touches, rim, inner=inner)
     plan = BowlPlan(bowls=bowls, blank=blank, tool_radius=float(tool_radius), depth=float(depth),
                     probe_radius=float(probe_radius),
                     directions=tuple(tuple(float(v) for v in d) for d in dirs),

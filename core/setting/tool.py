@@ -212,7 +212,7 @@ class GroovingMeasurements:
 
 def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = None, seed=None, *,
                       plan: Plan | None = None, compensation=None, frame_offset: float = 0.0,
-                      frame_rotation: float = 0.0, frame_scale: float = 0.0) -> GroovingMeasurements:
+                      frame_rotation: float = 0.0, frame_scale: float = 0.0, drift=None) -> GroovingMeasurements:
     """Synthetic microscope measurements of the grooves cut with the true `tool_setting`
     (ToolSetting, ErrorSet or offset (3,) mm): every point of the plan's measurement sheet, with
     Gaussian noise of `noise` (default 1 µm on positions and depths) from `seed`.  plan: default
@@ -223,6 +223,9 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
     a uniform random angle in +-frame_rotation deg (about the face origin; `estimate(...,
     fit_rotation=True)` removes it).  frame_scale: relative scale error of the microscope's (u, v)
     readings (magnification), the same for every test (`estimate(..., fit_scale=True)` removes it).
+    drift: (3,) mm, the tool's thermal drift against the workpiece (workpiece frame) over the whole
+    procedure, linear in the cutting order (`tool_plan.cutting_times`): each groove lies shifted
+    by tau * drift.
     Raises MtcompError if a groove would not be cut (depth <= 0): increase the depth of cut."""
     from ..machine import load_machine
     m = load_machine(machine)
@@ -244,13 +247,19 @@ def simulate_grooving(machine, tool_setting, noise: MicroscopeNoise | None = Non
     for t in plan.tests():
         a = rng.uniform(-frame_rotation, frame_rotation) if frame_rotation else 0.0
         turn[t] = rotation_matrix_xyz((0.0, 0.0, a))[:2, :2]     # in-plane turn of the face frame
+    from .tool_plan import cutting_times
+    tau = cutting_times(plan)
+    drift = np.zeros(3) if drift is None else np.asarray(drift, float)
+    if drift.shape != (3,) or not np.all(np.isfinite(drift)) or np.abs(drift).max() > 1.0:
+        raise InputError(f"expected a drift of three finite mm values below 1 mm, got {drift!r}", field="drift")
     pts = []
     for gid, feat in plan.features():
         c = cuts[gid]
         test = c.groove.test
-        u, v = ((1.0 + frame_scale) * (turn[test] @ np.asarray(c.point(feat))) + origin[test]
+        shift = plan.face_of(c.groove).basis @ (tau[gid] * drift)      # (du, dv, ddepth)
+        u, v = ((1.0 + frame_scale) * (turn[test] @ (np.asarray(c.point(feat)) + shift[:2])) + origin[test]
                 + rng.normal(0.0, noise.position, 2))
-        d = c.depth + rng.normal(0.0, noise.depth)
+        d = c.depth + shift[2] + rng.normal(0.0, noise.depth)
         pts.append(PointMeasurement(gid, feat, float(u), float(v), float(d)))
     # Noise-free synthesis still needs finite weights: use the machine's resolution scale.
     return GroovingMeasurements(plan, tuple(pts), noise.position or 1e-6, noise.depth or 1e-6, "<simulated>")
@@ -371,12 +380,18 @@ def paper_offset() -> tuple[float, float, float]:
 #: What the virtual reproduction of paper 000's Table 1 takes from the paper and what it assumes.
 PAPER_ASSUMPTIONS = (
     "from the paper: the four original distances of Table 1 (A: 490.04, 680.12 µm; C: 108.97, 852.81 µm), "
-    "the test patterns (two grooves sharing a start at A = 0 and 180; a triangle at C = 0, 120, 240 deg), "
-    "a 90 deg V tool, 1 nm / 0.00001 deg resolution",
+    "the test patterns as the text describes them (two grooves sharing a start point cut at A = 0, the same two "
+    "after A is turned by 180 deg; a 'triangle shape' for C; B grooves at inclinations theta), a 90 deg V tool, "
+    "1 nm / 0.00001 deg resolution",
+    "mtcomp's reading, not the paper's text: the A grooves are cut on a side face with B = 90 deg (the text says "
+    "'fed on X-Y plane', where A = 180 would turn the tool away from the surface); the triangle's sides are cut "
+    "at C = 0, 120, 240 deg (the text says 'triangle shape' only); the B reference groove at B = 0 (the text "
+    "lists A = theta_1, B = theta_2, B = theta_3)",
     "assumed: the A distances come from the tool offset against the A axis and the C distances from the offset "
     "against the C axis; the difference between the two is a C axis line off the A/B centre (EX0C, EY0C), solved so "
     "that all four distances are met exactly (the paper gives no signs: the smallest C offset of the four sign "
-    "choices is taken)",
+    "choices is taken); four values and four unknowns (t_x, t_y, EX0C, EY0C), so the match of the original "
+    "distances is exact by construction and tests nothing",
     "assumed: t_z = 0.2 mm (Table 1 has no B result), EZ0A = 0, the groove lengths, layout and depth of cut of "
     "mtcomp's default plan, a laser confocal microscope with 1 µm (1 sigma) noise on positions and depths and no "
     "scale error, a perfectly rigid machine with no other geometric errors",

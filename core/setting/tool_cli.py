@@ -62,8 +62,24 @@ def register(subparsers) -> None:
     pl.add_argument("--length", type=float, default=4.0, help="A and B groove length, mm (default 4)")
     pl.add_argument("--triangle-side", type=float, default=6.0, help="C triangle side, mm (default 6)")
     pl.add_argument("--spacing", type=float, default=2.0, help="B groove spacing, mm (default 2)")
-    pl.add_argument("--b-angles", type=_floats, default=(0.0, 10.0, -10.0),
-                    help="B inclinations, deg, the first is the reference (default 0,10,-10)")
+    pl.add_argument("--b-angles", type=_floats, default=None,
+                    help="B inclinations, deg, the first is the reference (default: chosen by --criterion "
+                         "within the B travel, the tool's flanks and the plate)")
+    pl.add_argument("--criterion", choices=("D", "A"), default="D",
+                    help="optimal-design criterion over the estimator's covariance: D (log det, default) or "
+                         "A (trace)")
+    pl.add_argument("--target-sigma", type=float, default=None,
+                    help="required 1-sigma of every estimated error, mm: B grooves are added until it is met "
+                         "(refused, with what limits it, if the plate cannot)")
+    pl.add_argument("--sigma-pos", type=float, default=0.001,
+                    help="microscope position sigma the design assumes, mm (default 0.001)")
+    pl.add_argument("--sigma-depth", type=float, default=0.001,
+                    help="microscope depth sigma the design assumes, mm (default 0.001)")
+    pl.add_argument("--expected-offset", type=float, default=0.5,
+                    help="largest tool setting offset expected in the XZ plane, mm: inclined B grooves are "
+                         "programmed deeper by 2 r sin(|B|/2) so they are cut whatever the offset (default 0.5)")
+    pl.add_argument("--min-flank", type=float, default=15.0,
+                    help="least angle between a tilted V tool's flank and the surface, deg (default 15)")
     pl.add_argument("--feed", type=float, default=50.0, help="cutting feed, mm/min (default 50)")
     pl.add_argument("--plunge-feed", type=float, default=5.0, help="plunge feed, mm/min (default 5)")
     pl.add_argument("--tip-angle", type=float, default=90.0, help="V tool included angle, deg (default 90)")
@@ -71,6 +87,9 @@ def register(subparsers) -> None:
                     help="rotary axis location errors the plan must make observable besides the tool offset: "
                          "'auto' (report which are, default), 'none', or names like EX0C,EY0C (refused with the "
                          "reason if the tests cannot see them)")
+    pl.add_argument("--repeat-first", action="store_true",
+                    help="cut the first groove again at the end (ISO 230-3): 'estimate' then fits the tool's drift "
+                         "against the workpiece over the procedure and reports it")
     pl.add_argument("--no-png", action="store_true", help="skip the layout drawing")
     pl.add_argument("--clearance", type=float, default=0.2,
                     help="the programs are verified on their plates: rapids keep this clearance, mm (0.2)")
@@ -92,6 +111,9 @@ def register(subparsers) -> None:
                     help="random microscope frame rotation per test, uniform in +-this, deg (default 0)")
     si.add_argument("--frame-scale", type=float, default=0.0,
                     help="microscope scale (magnification) error of the u, v readings, relative (default 0)")
+    si.add_argument("--drift", type=float, nargs=3, default=None, metavar=("DX", "DY", "DZ"),
+                    help="thermal drift of the tool against the workpiece over the procedure, mm, workpiece frame "
+                         "(linear in the cutting order; default none)")
     si.add_argument("--compensation", help="errors TOML the programs are compensated for (cut compensated grooves)")
     si.add_argument("-o", "--output", required=True, help="filled measurement sheet (CSV)")
     si.add_argument("--png", help="layout with the predicted grooves")
@@ -124,10 +146,22 @@ def _plan(args) -> int:
     from ..machine import load_machine
     from .tool_plan import PlanOptions, make_plan, write_plan
     m = load_machine(args.machine)
+    from .tool_design import design_plan, predicted_covariance
+    kw = {} if args.b_angles is None else {"b_angles": args.b_angles}
     opts = PlanOptions(tests=args.tests, depth=args.depth, length=args.length, triangle_side=args.triangle_side,
-                       spacing=args.spacing, b_angles=args.b_angles, feed=args.feed, plunge_feed=args.plunge_feed,
-                       tip_angle=args.tip_angle)
-    plan = make_plan(m, opts)
+                       spacing=args.spacing, feed=args.feed, plunge_feed=args.plunge_feed,
+                       tip_angle=args.tip_angle, repeat_first=args.repeat_first, **kw)
+    if args.b_angles is None:
+        designed = design_plan(m, opts, criterion=args.criterion, sigma_pos=args.sigma_pos,
+                               sigma_depth=args.sigma_depth, target_sigma=args.target_sigma,
+                               min_flank=args.min_flank, expected_offset=args.expected_offset)
+        plan = designed.plan
+    else:
+        plan = make_plan(m, opts)
+        names, cov = predicted_covariance(m, plan, args.sigma_pos, args.sigma_depth)
+        from .tool_design import DesignedPlan, _checked
+        designed = _checked(DesignedPlan(plan, names, cov, "given", args.sigma_pos, args.sigma_depth, (),
+                                         args.target_sigma), False)
     if Path(args.machine).exists():
         # a machine file, not a preset: record where it is so simulate/estimate find it
         from dataclasses import replace
@@ -143,6 +177,7 @@ def _plan(args) -> int:
     files = write_plan(m, plan, args.outdir, png=not args.no_png, clearance=args.clearance,
                        report=checks.update)
     print(f"{len(plan.grooves)} grooves ({', '.join(plan.ids)}) for machine {m.name}")
+    print(designed.summary())
     print(obs.summary())
     for res in checks.values():
         print(res.summary())
@@ -175,7 +210,7 @@ def _simulate(args) -> int:
     truth = ErrorSet(tool=ToolSetting(tuple(args.offset)), geometric=GeometricErrors(location=args.location))
     meas = simulate_grooving(m, truth, MicroscopeNoise(args.sigma_pos, args.sigma_depth), args.seed,
                              plan=plan, compensation=comp, frame_offset=args.frame_offset,
-                             frame_rotation=args.frame_rotation, frame_scale=args.frame_scale)
+                             frame_rotation=args.frame_rotation, frame_scale=args.frame_scale, drift=args.drift)
     text = measurements_csv(meas, f"simulated: offset {tuple(args.offset)} mm, location {args.location} mm, "
                                   f"sigma pos {args.sigma_pos} mm, "
                                   f"depth {args.sigma_depth} mm, seed {args.seed}")

@@ -19,7 +19,7 @@ import numpy as np
 from .._io import InputError
 from ..errors import rotation_matrix_xyz
 from .tool_model import COMPONENTS, against_axes, errors_from_parameters, observable_parameters, parameter_jacobian
-from .tool_plan import Plan, commands_for_points
+from .tool_plan import Plan, commands_for_points, repeated_grooves
 
 #: Warn when a component's 1-sigma exceeds this multiple of the coarsest measurement sigma: the
 #: geometry then amplifies the instrument noise more than tenfold.
@@ -140,7 +140,7 @@ def closed_forms(meas) -> dict[str, tuple]:
                     dv.append(get(g1, f, "v") - get(g0, f, "v"))
             if du and np.all(np.isfinite(du)):
                 out["A"] = a_closed_form(float(np.mean(du)), float(np.mean(dv)))
-    c = [g for g in plan.grooves if g.test == "C"]
+    c = [g for g in plan.grooves if g.test == "C" and g.id not in repeated_grooves(plan)]
     if len(c) >= 2:
         ests = []
         for k in range(len(c)):
@@ -155,7 +155,10 @@ def closed_forms(meas) -> dict[str, tuple]:
     if len(b) >= 3 and b[0].angles[1] == 0:
         g1, g2, g3 = b[:3]
         th2, th3 = g2.angles[1], g3.angles[1]
-        dep = [_mean_finite([get(g, f, "depth") for f in ("start", "end")]) for g in (g1, g2, g3)]
+        # measured depth minus the programmed depth's excess over the reference groove's
+        # (designed plans cut inclined grooves deeper, tool_design.b_depth)
+        dep = [_mean_finite([get(g, f, "depth") for f in ("start", "end")]) - (g.depth - g1.depth)
+               for g in (g1, g2, g3)]
         if np.all(np.isfinite(dep)):
             out["B_depth"] = tuple(map(float, b_depth_closed_form(th2, th3, *dep)))
         lat = [_mean_finite([get(g, f, "u") for f in ("start", "end")]) - g.start[0] for g in (g1, g2, g3)]
@@ -410,6 +413,11 @@ class ToolSettingEstimate:
             where = f" (line {self.lines[worst]})" if self.lines[worst] else ""
             lines.append(f"  largest normalised residual: {self.normalized[worst]:+.2f} at "
                          f"{self.labels[worst]}{where}")
+        if "drift:x" in self.nuisance:
+            dv = [self.nuisance[k] * um for k in DRIFT_NAMES]
+            ds = [self.nuisance_sigma.get(k, np.nan) * um for k in DRIFT_NAMES]
+            lines.append("  drift over the procedure (tool against workpiece, workpiece frame, from the repeated "
+                         "groove): " + ", ".join(f"{c} {v:+.3f} ± {e:.3f} µm" for c, v, e in zip("xyz", dv, ds)))
         scales = [k for k in self.nuisance if k.endswith(":scale")]
         if scales:
             lines.append("  microscope scale error: " + "; ".join(
@@ -451,8 +459,28 @@ def _location_names(m, plan, locations, known) -> tuple[tuple, dict]:
     return names, {}
 
 
+DRIFT_NAMES = ("drift:x", "drift:y", "drift:z")
+
+
+def with_drift(d: Design, plan) -> Design:
+    """The design with a linear drift of the tool against the workpiece over the procedure
+    (workpiece frame, mm over the whole cutting order, `tool_plan.cutting_times`) as three more
+    nuisance columns: a groove point cut at tau moves by B_f (tau * drift).  A repeated groove
+    (`tool_plan.repeated_grooves`) makes it observable: its only difference from the first cut is
+    the drift between them."""
+    from dataclasses import replace
+    from .tool_plan import cutting_times
+    tau = cutting_times(plan)
+    cols = np.zeros((d.y.size, 3))
+    for r in range(d.y.size):
+        gid = d.labels[r].split(" ")[0]
+        g = plan.groove(gid)
+        cols[r] = tau[gid] * plan.face_of(g).basis[d.comp[r]]
+    return replace(d, N=np.hstack([d.N, cols]), nuisance_names=d.nuisance_names + DRIFT_NAMES)
+
+
 def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, known=None,
-             locations="auto", fit_scale: bool = False) -> ToolSettingEstimate:
+             locations="auto", fit_scale: bool = False, drift="auto") -> ToolSettingEstimate:
     """Weighted least-squares tool setting error and rotary-axis location errors from a
     GroovingMeasurements (any grooves, any angles), with covariance (known measurement sigmas,
     not rescaled by chi2), residuals, the setting error against each tested axis, closed-form
@@ -468,7 +496,11 @@ def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, kno
     (magnification, in `nuisance` as "<test>:scale", relative), seen from the programmed groove
     lengths and spacings; it costs precision on t (mostly t_z, from the B grooves' positions).
     known: ErrorSet of already known geometric / workpiece setting errors, included in the
-    model (estimated location errors are increments over its values)."""
+    model (estimated location errors are increments over its values).
+    drift: "auto" (default) fits a linear drift of the tool against the workpiece over the
+    procedure when the plan repeats a groove (`with_drift`; reported among the nuisance values as
+    drift:x, drift:y, drift:z, mm), True always (grooves at equal angles in other directions see
+    it too, less well), None never."""
     from ..errors import ToolSetting
     from ..machine import load_machine
     from scipy import stats
@@ -477,6 +509,8 @@ def estimate(machine, meas, closed: bool = True, fit_rotation: bool = False, kno
     names = COMPONENTS + locs
     P = len(names)
     d = build_design(m, meas, known, names)
+    if drift is True or (drift == "auto" and repeated_grooves(meas.plan)):
+        d = with_drift(d, meas.plan)
     frame_tests = tuple(t for t in dict.fromkeys(d.tests)
                         if f"{t}:u" in d.nuisance_names and f"{t}:v" in d.nuisance_names)
     rot_tests = tuple((t, "rot") for t in frame_tests if fit_rotation)
@@ -623,8 +657,10 @@ def suggest_grooves(machine, meas, candidates=None, top: int = 3, names=None) ->
         if b:
             have = {g.angles[1] for g in b}
             last = b[-1]
-            for th in (5, -5, 10, -10, 15, -15, 20, -20, 30, -30, 45, -45):
-                if float(th) not in have:
+            from .tool_design import MIN_FLANK
+            lim = plan.options.tip_angle / 2 - MIN_FLANK    # a flatter flank cuts no second edge
+            for th in (5, -5, 10, -10, 15, -15, 20, -20, 25, -25, 30, -30):
+                if float(th) not in have and abs(th) <= lim:
                     du = plan.options.spacing if plan.options.spacing else 2.0
                     candidates.append(replace(last, id=f"B{th:+g}*", angles=(0.0, float(th), 0.0),
                                               start=(last.start[0] + du, last.start[1]),
@@ -688,7 +724,8 @@ def predicted_residuals(machine, plan: Plan, est: ToolSettingEstimate) -> dict:
         _, J = _rows_for(m, plan, [(g0.id, "start"), (g1.id, "start")], names=names)
         D = J[1, :2] - J[0, :2]
         out["A"] = tuple(np.sqrt(np.diag(D @ cov @ D.T)))
-    c = [g for g in plan.grooves if g.test == "C"]
+    rep = repeated_grooves(plan)        # a drift repeat is no side of the triangle
+    c = [g for g in plan.grooves if g.test == "C" and g.id not in rep]
     if len(c) >= 2:
         _, J = _rows_for(m, plan, [(c[0].id, "start"), (c[-1].id, "end")], names=names)
         D = J[0, :2] - J[1, :2]

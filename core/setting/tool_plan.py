@@ -104,6 +104,9 @@ class PlanOptions:
     triangle_side: float = 6.0      # C test
     spacing: float = 2.0            # between B grooves
     b_angles: tuple[float, ...] = (0.0, 10.0, -10.0)   # theta_1 .. theta_n; the first is the reference
+    b_depths: tuple[float, ...] = ()   # programmed depth per B groove (default: depth for all), mm
+    repeat_first: bool = False      # cut the plan's first groove again at the end (drift, ISO 230-3)
+    repeat_shift: tuple[float, float] = (0.0, -6.6)   # where the repeat lies against the first, mm
     c_angles: tuple[float, ...] = (0.0, 120.0, 240.0)
     a_angles: tuple[float, ...] = (0.0, 180.0)
     a_tilt: float = 90.0            # B angle that lays the tool axis along X for the A test
@@ -131,6 +134,9 @@ class PlanOptions:
             raise InputError("the B test needs at least two distinct inclinations", field="b_angles")
         if "C" in self.tests and len(set(a % 360 for a in self.c_angles)) != len(self.c_angles):
             raise InputError("C angles must be distinct", field="c_angles")
+        if self.b_depths and (len(self.b_depths) != len(self.b_angles)
+                              or not all(np.isfinite(d) and d > 0 for d in self.b_depths)):
+            raise InputError("expected one positive depth per B inclination", field="b_depths")
         if self.safe < self.clearance:
             raise InputError("safe retract must be at least the clearance", field="safe")
 
@@ -222,13 +228,38 @@ def make_plan(machine, options: PlanOptions | None = None) -> Plan:
         for k, b in enumerate(o.b_angles):
             u = u0 + k * o.spacing
             grooves.append(Groove(f"B{_fmt_angle(b, True)}", "B", "top", (0.0, float(b), 0.0),
-                                  (float(u), float(v0)), (float(u), float(v0 + o.length)), D))
+                                  (float(u), float(v0)), (float(u), float(v0 + o.length)),
+                                  float(o.b_depths[k]) if o.b_depths else D))
+    if o.repeat_first and grooves:
+        g0 = grooves[0]
+        sh = np.asarray(o.repeat_shift, float)
+        grooves.append(replace(g0, id=g0.id + "r", start=tuple(float(x) for x in np.round(np.add(g0.start, sh), 9)),
+                               end=tuple(float(x) for x in np.round(np.add(g0.end, sh), 9))))
     ids = [g.id for g in grooves]
     if len(set(ids)) != len(ids):
         raise InputError("two grooves would get the same id (repeated angles)", field="angles")
     plan = Plan(m.name, o, tuple(grooves))
     _check_on_plate(plan)
     return plan
+
+
+def cutting_times(plan: Plan) -> dict:
+    """{groove id: tau}: when each groove is cut, as a fraction of the procedure (0 the first, 1 the
+    last), taking the plan's order as the cutting order (the programs run test by test in it)."""
+    n = len(plan.grooves)
+    return {g.id: (k / (n - 1) if n > 1 else 0.0) for k, g in enumerate(plan.grooves)}
+
+
+def repeated_grooves(plan: Plan) -> tuple:
+    """Ids of grooves that repeat an earlier one (same test, face, angles, depth and cutting
+    direction, another place): their difference shows the drift between the two cuts."""
+    seen, out = [], []
+    for g in plan.grooves:
+        key = (g.test, g.face, g.angles, g.depth, tuple(np.round(g.direction, 9)))
+        if key in seen:
+            out.append(g.id)
+        seen.append(key)
+    return tuple(out)
 
 
 def _check_on_plate(plan: Plan) -> None:

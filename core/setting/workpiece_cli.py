@@ -36,9 +36,13 @@ def cmd_plan(args) -> int:
     from .bowls import plan_bowls, plan_to_dict, probing_program, roughing_program
     if not args.clearance >= 0:
         raise InputError(f"expected a clearance >= 0 mm, got {args.clearance}", field="--clearance")
-    plan = plan_bowls(args.bowls, blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
-                      depth=args.depth, probe_radius=args.probe_radius, touches=args.touches,
-                      positions=_positions(args.positions) if args.positions else None)
+    from .bowl_design import design_bowl_plan
+    designed = design_bowl_plan(args.bowls, criterion=args.criterion, probe_sigma=args.probe_sigma,
+                                target_sigma=args.target_sigma, touches=args.touches,
+                                blank=_floats(args.blank, 3, "blank"), tool_radius=args.tool_radius,
+                                depth=args.depth, probe_radius=args.probe_radius,
+                                positions=_positions(args.positions) if args.positions else None)
+    plan = designed.plan
     aim = None
     if args.aim:
         from ..errors import load_errors
@@ -48,7 +52,7 @@ def cmd_plan(args) -> int:
     probe = Path(args.probing) if args.probing else out.with_name(out.stem + "-probing.nc")
     # all texts first, then the files: an error leaves nothing behind
     texts = [(out, dump_toml(plan_to_dict(plan))), (rough, roughing_program(plan)),
-             (probe, probing_program(plan, aim=aim))]
+             (probe, probing_program(plan, aim=aim, repeat_first=args.repeat_first))]
     # both programs verified on the blank before anything is written (issue 14)
     from .blank_check import verify_plan_programs
     checks = verify_plan_programs(plan, texts[1][1], texts[2][1], clearance=args.clearance)
@@ -57,6 +61,7 @@ def cmd_plan(args) -> int:
     print(f"{len(plan.bowls)} bowls R{plan.tool_radius:g} depth {plan.depth:g} mm, "
           f"{len(plan.directions)} touches each with probe R{plan.probe_radius:g}: "
           f"{out}, {rough}, {probe}")
+    print(designed.summary())
     for res in checks:
         print(res.summary())
     return 0
@@ -69,7 +74,18 @@ def cmd_probe(args) -> int:
     plan = load_plan(args.plan)
     v = _floats(args.pose, 6, "pose")
     pose = WorkpieceSetting(tuple(v[:3]), tuple(v[3:]))
-    t = virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed))
+    if args.repeat_first or args.drift:
+        from .bowl_drift import apply_drift, probe_with_repeat
+        drift = _floats(args.drift, 3, "drift") if args.drift else [0.0, 0.0, 0.0]
+        if args.repeat_first:
+            t = probe_with_repeat(pose, plan, args.noise, args.seed, drift)
+        else:
+            t = apply_drift(virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed)), drift)
+    else:
+        t = virtual_probe(pose, plan, args.noise, np.random.default_rng(args.seed))
+    if args.probe_error or args.lobing:
+        from .probe_cal import apply_probe_model
+        t = apply_probe_model(t, radius_error=args.probe_error, lobe_amplitude=args.lobing)
     write_touches(t, args.out)
     print(f"{len(t.bowl)} virtual touches -> {args.out}")
     return 0
@@ -79,17 +95,35 @@ def cmd_fit(args) -> int:
     from .._io import atomic_write, dump_toml
     from .bowls import fit_bowls, load_plan, read_touches
     from .frame import frame_from_bowls
+    from .probe_cal import fit_with_probe, load_calibration
     plan = load_plan(args.plan)
     touches = read_touches(args.touches)
+    cal = load_calibration(args.probe) if args.probe else None
     radius = plan.tool_radius if args.fix_radius else args.bowl_radius
     known = set(map(int, touches.bowl)) <= set(plan.ids)
-    fit = fit_bowls(touches, plan.probe_radius, probe_sigma=args.probe_sigma, bowl_radius=radius,
-                    shared_radius=not args.radius_per_bowl, k=args.k,
-                    bowls=plan.ids if known else None)
-    est = frame_from_bowls(fit, plan, method=args.method, file=args.touches, reference=args.reference,
-                           runout=args.runout)
+    fit_kw = dict(probe_sigma=args.probe_sigma, bowl_radius=radius, shared_radius=not args.radius_per_bowl,
+                  k=args.k, bowls=plan.ids if known else None)
+    frame_kw = dict(method=args.method, file=args.touches, reference=args.reference, runout=args.runout)
+    from .bowl_drift import fit_with_drift, visits
+    drift = None
+    if any(len(v) >= 2 for v in visits(touches).values()):
+        # a bowl touched again at the end: fit and remove the drift over the probing
+        from dataclasses import replace as _replace
+        from .probe_cal import UNCALIBRATED_NOTE, corrected_touches
+        t = corrected_touches(touches, cal, plan.probe_radius) if cal is not None else touches
+        sigma = args.probe_sigma if args.probe_sigma is not None else fit_bowls(t, plan.probe_radius, **fit_kw).sigma
+        fit, est, drift = fit_with_drift(t, plan, sigma, fit_kw=fit_kw, frame_kw=frame_kw)
+        if cal is None:
+            est = _replace(est, warnings=tuple(est.warnings) + (UNCALIBRATED_NOTE,))
+    else:
+        fit, est = fit_with_probe(touches, plan, cal, fit_kw=fit_kw, frame_kw=frame_kw)
+    if cal is not None:
+        print(f"touches corrected with the probe calibration {args.probe} (effective radius "
+              f"{cal.effective_radius:.6f} ± {cal.effective_radius_sigma * 1e3:.3f} µm, nominal {plan.probe_radius:g} mm)")
     print(fit.summary())
     print(est.summary())
+    if drift is not None:
+        print(drift.summary())
     _warn(fit.warnings)
     _warn(est.warnings)
     if args.report:
@@ -100,9 +134,45 @@ def cmd_fit(args) -> int:
                             for f in fit.fits]
         rep["probe_sigma_mm"] = fit.sigma
         atomic_write(args.report, dump_toml(rep))
-    est.save(args.out, meta={"source": "mtcomp workpiece-setting fit", "plan": str(args.plan),
-                             "touches": str(args.touches), "method": est.method})
+    meta = {"source": "mtcomp workpiece-setting fit", "plan": str(args.plan),
+            "touches": str(args.touches), "method": est.method}
+    meta["probe_calibration"] = str(args.probe) if args.probe else "none: dz carries the probe's radius error"
+    if drift is not None:
+        meta["drift_mm"] = [float(v) for v in drift.value]
+    est.save(args.out, meta=meta)
     print(f"workpiece setting -> {args.out}")
+    return 0
+
+
+def cmd_probe_sphere(args) -> int:
+    import numpy as np
+    from .bowls import Touches, write_touches
+    from .probe_cal import sphere_directions, virtual_sphere_touches
+    if not args.touches >= 1:
+        raise InputError(f"expected at least one touch, got {args.touches}", field="--touches")
+    P, A = virtual_sphere_touches(args.sphere_diameter, args.probe_radius, sphere_directions(args.touches),
+                                  centre=_floats(args.centre, 3, "centre"), noise=args.noise, rng=args.seed,
+                                  axial=args.axial, lobes=args.lobes, lobe_amplitude=args.lobing)
+    write_touches(Touches(bowl=np.zeros(len(P), int), points=P, approach=A), args.out)
+    print(f"{len(P)} virtual touches on a {args.sphere_diameter:g} mm sphere -> {args.out}")
+    return 0
+
+
+def cmd_probe_calibrate(args) -> int:
+    from .bowls import read_touches
+    from .probe_cal import calibrate_probe, plot_calibration, save_calibration
+    t = read_touches(args.touches)
+    cal = calibrate_probe(t.points, t.approach, args.sphere_diameter, args.probe_radius, harmonics=args.harmonics,
+                          sigma=args.probe_sigma, diameter_sigma=args.diameter_sigma, axial=args.axial_term,
+                          source=str(args.touches))
+    fig = plot_calibration(cal) if args.png else None
+    print(cal.summary())
+    save_calibration(cal, args.out)
+    print(f"probe calibration -> {args.out}")
+    if fig is not None:
+        from .._io import save_figure
+        save_figure(fig, args.png)
+        print(f"wrote {args.png}")
     return 0
 
 
@@ -196,7 +266,8 @@ def cmd_simulate(args) -> int:
                      seed=args.seed, bowl_radius=args.bowl_radius,
                      shared_radius=not args.radius_per_bowl, cutter_radius_error=args.cutter_radius_error,
                      runout=args.runout, bowl_position_sigma=args.bowl_position_sigma,
-                     reference=args.reference, microscope_scale=args.microscope_scale)
+                     reference=args.reference, microscope_scale=args.microscope_scale,
+                     probe_drift=tuple(_floats(args.probe_drift, 3, "probe-drift")), repeat_first=args.repeat_first)
 
     def progress(i, n):
         if sys.stderr.isatty() and (i % 50 == 0 or i == n):
@@ -226,7 +297,18 @@ def register(subparsers) -> None:
     a.add_argument("--depth", type=float, default=1.0, help="bowl depth, mm (1.0, <= radius)")
     a.add_argument("--probe-radius", type=float, default=0.5, help="probe tip radius, mm (0.5)")
     a.add_argument("--touches", type=int, default=9, help="touches per bowl (9)")
-    a.add_argument("--positions", help="explicit bowl positions 'x,y;x,y;...' mm")
+    a.add_argument("--positions", help="explicit bowl positions 'x,y;x,y;...' mm (default: chosen by --criterion)")
+    a.add_argument("--criterion", choices=("D", "A"), default="D",
+                   help="optimal-design criterion over the workpiece setting's covariance for the bowl positions "
+                        "and touch rings: D (log det, default) or A (trace, angles at the blank's corner)")
+    a.add_argument("--target-sigma", type=float, default=None,
+                   help="required 1-sigma of dx, dy, dz and of each angle at the blank's corner, mm: touches "
+                        "are added until it is met (refused if it cannot be)")
+    a.add_argument("--probe-sigma", type=float, default=0.0005,
+                   help="probe noise the design assumes, mm (default 0.0005)")
+    a.add_argument("--repeat-first", action="store_true",
+                   help="the probing program touches the first bowl again at the end: 'fit' then estimates and "
+                        "removes the drift over the probing")
     a.add_argument("-o", "--out", required=True, help="plan TOML to write")
     a.add_argument("--roughing", help="roughing program (default <plan>-roughing.nc)")
     a.add_argument("--probing", help="probing program (default <plan>-probing.nc)")
@@ -241,6 +323,12 @@ def register(subparsers) -> None:
     a.add_argument("--pose", required=True, help="true pose dx,dy,dz,a,b,c (mm, deg)")
     a.add_argument("--noise", type=float, default=0.0, help="probe noise 1 sigma, mm (0)")
     a.add_argument("--seed", type=int, default=0)
+    a.add_argument("--probe-error", type=float, default=0.0,
+                   help="the real probe's effective radius minus the plan's, mm (ball radius and pre-travel; 0)")
+    a.add_argument("--lobing", type=float, default=0.0, help="the real probe's 3-lobe pre-travel amplitude, mm (0)")
+    a.add_argument("--repeat-first", action="store_true",
+                   help="touch the first bowl again at the end (then 'fit' estimates the drift over the probing)")
+    a.add_argument("--drift", help="drift of the probe against the blank over the probing dx,dy,dz mm (linear)")
     a.add_argument("-o", "--out", required=True, help="touches CSV to write")
     a.set_defaults(func=cmd_probe)
 
@@ -264,9 +352,37 @@ def register(subparsers) -> None:
                    help="measured radial run-out of the ball end mill that cut the bowls, mm (0): its bias "
                         "on the bowls' bottom points is removed")
     a.add_argument("--k", type=float, default=5.0, help="outlier threshold in sigma (5)")
+    a.add_argument("--probe", help="probe calibration TOML from 'probe-calibrate': touches are corrected for the "
+                                   "effective radius and lobing first (without it dz carries the probe's radius error)")
     a.add_argument("-o", "--out", required=True, help="errors TOML to write (mtcomp format)")
     a.add_argument("--report", help="also write a report TOML (covariance, residuals)")
     a.set_defaults(func=cmd_fit)
+
+    a = sub.add_parser("probe-calibrate", help="probe effective radius and lobing from touches on a reference sphere")
+    a.add_argument("touches", help="touches CSV on the sphere (bowl,x,y,z,ax,ay,az; the bowl column is ignored)")
+    a.add_argument("--sphere-diameter", type=float, required=True, help="certified sphere diameter, mm")
+    a.add_argument("--diameter-sigma", type=float, default=0.0, help="its 1-sigma, mm (certificate; default 0)")
+    a.add_argument("--probe-radius", type=float, required=True, help="nominal probe ball radius, mm")
+    a.add_argument("--harmonics", type=int, default=3, help="azimuthal lobing harmonics 2..K (default K = 3)")
+    a.add_argument("--probe-sigma", type=float, help="probe noise 1 sigma, mm (default: from the residuals)")
+    a.add_argument("--axial-term", action="store_true",
+                   help="also fit axial minus lateral pre-travel (needs touches well below the equator)")
+    a.add_argument("--png", help="plot of the effective radius against the approach direction")
+    a.add_argument("-o", "--out", required=True, help="probe calibration TOML to write (for fit --probe)")
+    a.set_defaults(func=cmd_probe_calibrate)
+
+    a = sub.add_parser("probe-sphere", help="virtual touches on a reference sphere (for probe-calibrate)")
+    a.add_argument("--sphere-diameter", type=float, default=25.0, help="sphere diameter, mm (25)")
+    a.add_argument("--probe-radius", type=float, required=True, help="true effective probe radius, mm")
+    a.add_argument("--axial", type=float, default=0.0, help="axial minus lateral pre-travel, mm (0)")
+    a.add_argument("--lobing", type=float, default=0.0, help="lobing amplitude, mm (0)")
+    a.add_argument("--lobes", type=int, default=3, help="number of lobes (3)")
+    a.add_argument("--touches", type=int, default=49, help="touches, pole then rings of 8 to the equator (49)")
+    a.add_argument("--centre", default="0,0,0", help="sphere centre x,y,z mm")
+    a.add_argument("--noise", type=float, default=0.0, help="probe noise 1 sigma, mm (0)")
+    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("-o", "--out", required=True, help="touches CSV to write")
+    a.set_defaults(func=cmd_probe_sphere)
 
     a = sub.add_parser("compensate", help="transform an NC program for the measured setting")
     a.add_argument("program", help="NC program (G-code)")
@@ -317,6 +433,10 @@ def register(subparsers) -> None:
                    help="relative scale error of the width measurement (0)")
     a.add_argument("--reference", choices=("bottom", "centre"), default="bottom",
                    help="bowl height from bottom points (default) or centres")
+    a.add_argument("--probe-drift", default="0,0,0",
+                   help="drift of the probe against the blank over the probing dx,dy,dz mm (linear; 0,0,0)")
+    a.add_argument("--repeat-first", action="store_true",
+                   help="touch the first bowl again at the end and remove the fitted drift")
     a.add_argument("--mode", choices=("3axis", "5axis"), default="3axis")
     a.add_argument("-o", "--out", help="markdown table to write")
     a.add_argument("--png", help="PNG plot to write")
