@@ -1,0 +1,33 @@
+"""Bed meshes of Creality printer (nozzle strain-gauge probe, 5x5 or 6x6 grid) from its Klipper configuration backups
+(AlexBinkovskyy/CrealityBackUps; printer.cfg and Klipper's printer-<date>.cfg backups; no licence stated: the data
+stay out of the repository).
+
+    python benchmarks/real/klipper_creality_mesh.py --src SNAPSHOT --out CORPUS
+
+Every distinct saved `[bed_mesh default]` (the newest four) is one case: the probe's readings
+at rest on a grid of the bed, against a flat bed in the gantry's plane.  The expected effects
+(tilt: squareness of z; form: straightness of z) follow from each mesh's own figures by the
+rule in _klipper_mesh.py, fixed before any diagnosis ran on them.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import Snapshot, cli  # noqa: E402
+from _klipper_mesh import convert_repo  # noqa: E402
+
+SOURCE = "klipper_creality_mesh"
+URL = "https://github.com/AlexBinkovskyy/CrealityBackUps"
+
+
+def convert(snap: Snapshot, out: Path) -> list:
+    return convert_repo(SOURCE, snap, out, rel="printer.cfg", url=URL, authors="AlexBinkovskyy",
+                        licence="none stated (not redistributed)", printer="a Creality printer (nozzle strain-gauge probe, 5x5 or 6x6 grid)",
+                        use_backups=True)
+
+
+if __name__ == "__main__":
+    src, out = cli(SOURCE, __doc__)
+    convert(Snapshot(src), out)

@@ -1,0 +1,31 @@
+"""Bed meshes of Creality K1C (strain-gauge nozzle probe, prtouch_v2) from its Klipper configuration backups
+(2wenty2wo/k1c-klipper-backup2, printer.cfg; no licence stated: the data stay out of the repository).
+
+    python benchmarks/real/klipper_k1c_mesh.py --src SNAPSHOT --out CORPUS
+
+Every distinct saved `[bed_mesh default]` in the file's history is one case: the probe's
+readings at rest on a grid of the bed, against a flat bed in the gantry's plane.  The expected
+effects (tilt: squareness of z; form: straightness of z) follow from each mesh's own figures by
+the rule in _klipper_mesh.py, fixed before any diagnosis ran on them.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import Snapshot, cli  # noqa: E402
+from _klipper_mesh import convert_repo  # noqa: E402
+
+SOURCE = "klipper_k1c_mesh"
+URL = "https://github.com/2wenty2wo/k1c-klipper-backup2"
+
+
+def convert(snap: Snapshot, out: Path) -> list:
+    return convert_repo(SOURCE, snap, out, rel="printer.cfg", url=URL, authors="2wenty2wo",
+                        licence="none stated (not redistributed)", printer="a Creality K1C (strain-gauge nozzle probe, prtouch_v2)")
+
+
+if __name__ == "__main__":
+    src, out = cli(SOURCE, __doc__)
+    convert(Snapshot(src), out)
