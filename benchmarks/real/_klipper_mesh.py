@@ -155,9 +155,12 @@ def convert_repo(source: str, snap, out, *, rel: str, url: str, authors: str, li
                  printer: str, limit: int = 4, use_backups: bool = False) -> list:
     """Write one case per distinct mesh (newest `limit`) of `rel` in the snapshot's history and,
     with `use_backups`, of Klipper's backup files at HEAD."""
-    found = history(snap.path, rel)
+    if not snap.git:   # a checked-out folder: its one version of the file
+        found = [(snap.head(), "undated", snap.read(rel))]
+    else:
+        found = history(snap.path, rel)
     files = {}
-    if use_backups:
+    if use_backups and snap.git:
         bk, files = backups(snap.path)
         found = bk + found
     meshes = distinct_meshes(found, limit)
