@@ -252,7 +252,7 @@ MESH = DATA / "real" / "grumat_bed_mesh" / "printer_cfg_bed_mesh_0ac6978.txt"
 
 
 def test_bed_mesh_excerpt_physics_a_bowed_bed_on_the_probes_step_lattice():
-    import _klipper_mesh as km
+    import klipper_bed_mesh as km
     points, x0, x1, y0, y1 = km.parse_mesh(MESH.read_text())
     assert points.shape == (5, 5) and (x0, x1, y0, y1) == (25.0, 225.0, 25.0, 225.0)
     # every reading is a whole number of 0.625 µm: half the 1.25 µm lattice of this printer's Z
@@ -271,7 +271,7 @@ def test_bed_mesh_excerpt_physics_a_bowed_bed_on_the_probes_step_lattice():
 
 
 def test_bed_mesh_rule_thresholds():
-    import _klipper_mesh as km
+    import klipper_bed_mesh as km
     base = {"tilt_x_mm": 0.0, "tilt_y_mm": 0.0, "form_ptv_mm": 0.0}
     assert km.expected_sets(base) == ([], ["workpiece_setting"])
     assert km.expected_sets({**base, "form_ptv_mm": 0.03}) == ([], ["straightness", "workpiece_setting"])
@@ -281,11 +281,11 @@ def test_bed_mesh_rule_thresholds():
 
 
 def test_bed_mesh_converter_visits_the_grid_row_by_row_and_rests_at_each_point(tmp_path):
-    import grumat_bed_mesh
+    import klipper_bed_mesh
     snap = tmp_path / "snap" / "backup"
     snap.mkdir(parents=True)
     (snap / "printer.cfg").write_text("[printer]\nkinematics: corexy\n\n" + MESH.read_text())
-    done = grumat_bed_mesh.convert(_common.Snapshot(tmp_path / "snap"), tmp_path / "corpus")
+    done = klipper_bed_mesh.convert("grumat_bed_mesh", _common.Snapshot(tmp_path / "snap"), tmp_path / "corpus")
     assert len(done) == 1
     case = tmp_path / "corpus" / "grumat_bed_mesh" / done[0]
     hs, sim = read_csv(case / "sim.csv")
@@ -307,12 +307,12 @@ def test_bed_mesh_converter_visits_the_grid_row_by_row_and_rests_at_each_point(t
 
 
 def _klipper_points(path):
-    import _klipper_mesh as km
+    import klipper_bed_mesh as km
     return km.parse_mesh(path.read_text())[0]
 
 
 def test_bed_mesh_parser_refuses_ragged_or_incomplete_blocks():
-    import _klipper_mesh as km
+    import klipper_bed_mesh as km
     text = MESH.read_text()
     assert km.parse_mesh("[printer]\n") is None
     assert km.parse_mesh(text.replace("#*# max_y = 225.0", "")) is None

@@ -1,6 +1,13 @@
-"""Shared steps of the converters of Klipper bed meshes (printer.cfg's SAVE_CONFIG block
-`[bed_mesh default]`): every distinct mesh in the history of a printer's configuration
-repository becomes one case.
+"""Bed meshes of 3D printers from their Klipper configuration repositories (printer.cfg's
+SAVE_CONFIG block `[bed_mesh default]`): every distinct mesh in the history of a printer's
+configuration (the newest four) becomes one case.  One converter for the six printer sources of
+the manifest:
+
+    python benchmarks/real/klipper_bed_mesh.py --source NAME --src SNAPSHOT --out CORPUS
+
+(NAME: a key of SOURCES below; the snapshot is that source's repository.)  Only grumat's
+repository states a licence (MIT: a short excerpt is committed under
+tests/data/real/grumat_bed_mesh/); the data of the others stay out of the repository.
 
 A mesh is what the printer's Z probe read at rest on a grid of the bed: the probe visits the
 grid row by row (x alternating direction, y stepping), stops, and reads the height of the bed
@@ -18,13 +25,19 @@ that makers give for such probes (about 0.005 mm standard deviation).
 """
 from __future__ import annotations
 
+import argparse
 import hashlib
+import os
 import re
 import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 
-from _common import case_dir, progress, stop_and_measure, write_csv, write_truth
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import (Snapshot, case_dir, progress, stop_and_measure, write_csv,  # noqa: E402
+                     write_truth)
 
 EXPECT_MM, ACCEPT_MM = 0.05, 0.02
 
@@ -194,3 +207,49 @@ def convert_repo(source: str, snap, out, *, rel: str, url: str, authors: str, li
                     facts=fig)
         names.append(case)
     return names
+
+
+NONE = "none stated (not redistributed)"
+# source -> the repository, its file, who wrote it, the licence and the printer
+SOURCES = {
+    "klipper_voron24_mesh": dict(repo="0x3333/klipper_voron2.4", authors="Tercio Gaudencio Filho (0x3333)",
+                                 licence=NONE, printer="a Voron 2.4 (inductive probe, bed trammed by quad gantry levelling)"),
+    "klipper_k1c_mesh": dict(repo="2wenty2wo/k1c-klipper-backup2", authors="2wenty2wo", licence=NONE,
+                             printer="a Creality K1C (strain-gauge nozzle probe, prtouch_v2)"),
+    "klipper_neptune4_mesh": dict(repo="AlexWH10/Klipper_Backup_Neptune_4", authors="AlexWH10", licence=NONE,
+                                  printer="an Elegoo Neptune 4 (inductive probe, 11x11 grid)", use_backups=True),
+    "klipper_creality_mesh": dict(repo="AlexBinkovskyy/CrealityBackUps", authors="AlexBinkovskyy", licence=NONE,
+                                  printer="a Creality printer (nozzle strain-gauge probe, 5x5 or 6x6 grid)",
+                                  use_backups=True),
+    "klipper_v2465_mesh": dict(repo="Alexander-T-Moss/V2.2465-AutoBackup", authors="Alexander T. Moss",
+                               licence=NONE, printer="a Voron 2.4 (serial V2.2465; 9x9 grid)", use_backups=True),
+    "grumat_bed_mesh": dict(repo="grumat/voron-trident-250_config", authors="grumat", licence="MIT",
+                            printer="grumat's Voron Trident 250 (inductive probe, 5x5 grid)",
+                            rel="backup/printer.cfg"),
+}
+
+
+def convert(source: str, snap: Snapshot, out) -> list:
+    """The cases of one source of SOURCES from its snapshot."""
+    m = SOURCES[source]
+    return convert_repo(source, snap, out, rel=m.get("rel", "printer.cfg"),
+                        url=f"https://github.com/{m['repo']}", authors=m["authors"],
+                        licence=m["licence"], printer=m["printer"],
+                        use_backups=m.get("use_backups", False))
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description="Klipper bed meshes -> real-corpus cases")
+    p.add_argument("--source", required=True, choices=sorted(SOURCES))
+    p.add_argument("--src", help="the source's snapshot (or MTCOMP_REAL_SRC_<SOURCE>)")
+    p.add_argument("--out", default=os.environ.get("MTCOMP_REAL_CORPUS"),
+                   help="corpus folder (or MTCOMP_REAL_CORPUS)")
+    a = p.parse_args(argv)
+    src = a.src or os.environ.get(f"MTCOMP_REAL_SRC_{a.source.upper()}")
+    if not src or not a.out:
+        p.error("give --src and --out")
+    convert(a.source, Snapshot(Path(src)), Path(a.out))
+
+
+if __name__ == "__main__":
+    main()
