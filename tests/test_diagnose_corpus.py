@@ -285,7 +285,8 @@ def test_bed_mesh_converter_visits_the_grid_row_by_row_and_rests_at_each_point(t
     snap = tmp_path / "snap" / "backup"
     snap.mkdir(parents=True)
     (snap / "printer.cfg").write_text("[printer]\nkinematics: corexy\n\n" + MESH.read_text())
-    done = klipper_bed_mesh.convert("grumat_bed_mesh", _common.Snapshot(tmp_path / "snap"), tmp_path / "corpus")
+    done = klipper_bed_mesh.convert("grumat_bed_mesh", _common.Snapshot(tmp_path / "snap"),
+                                    tmp_path / "corpus")
     assert len(done) == 1
     case = tmp_path / "corpus" / "grumat_bed_mesh" / done[0]
     hs, sim = read_csv(case / "sim.csv")
@@ -296,7 +297,8 @@ def test_bed_mesh_converter_visits_the_grid_row_by_row_and_rests_at_each_point(t
     # zigzag), y steps by 50 mm after each row of five
     at = np.searchsorted(sim[:, 0], rec[:, 0])
     xy = sim[at, 1:3]
-    assert np.allclose(xy[:5, 0], [25, 75, 125, 175, 225]) and np.allclose(xy[5:10, 0], [225, 175, 125, 75, 25])
+    assert np.allclose(xy[:5, 0], [25, 75, 125, 175, 225])
+    assert np.allclose(xy[5:10, 0], [225, 175, 125, 75, 25])
     assert np.allclose(xy[::5, 1], [25, 75, 125, 175, 225])
     points = _klipper_points(MESH)
     assert np.allclose(rec[:5, 1], points[0]) and np.allclose(rec[5:10, 1], points[1][::-1])

@@ -212,20 +212,24 @@ def convert_repo(source: str, snap, out, *, rel: str, url: str, authors: str, li
 NONE = "none stated (not redistributed)"
 # source -> the repository, its file, who wrote it, the licence and the printer
 SOURCES = {
-    "klipper_voron24_mesh": dict(repo="0x3333/klipper_voron2.4", authors="Tercio Gaudencio Filho (0x3333)",
-                                 licence=NONE, printer="a Voron 2.4 (inductive probe, bed trammed by quad gantry levelling)"),
-    "klipper_k1c_mesh": dict(repo="2wenty2wo/k1c-klipper-backup2", authors="2wenty2wo", licence=NONE,
-                             printer="a Creality K1C (strain-gauge nozzle probe, prtouch_v2)"),
-    "klipper_neptune4_mesh": dict(repo="AlexWH10/Klipper_Backup_Neptune_4", authors="AlexWH10", licence=NONE,
-                                  printer="an Elegoo Neptune 4 (inductive probe, 11x11 grid)", use_backups=True),
-    "klipper_creality_mesh": dict(repo="AlexBinkovskyy/CrealityBackUps", authors="AlexBinkovskyy", licence=NONE,
-                                  printer="a Creality printer (nozzle strain-gauge probe, 5x5 or 6x6 grid)",
-                                  use_backups=True),
-    "klipper_v2465_mesh": dict(repo="Alexander-T-Moss/V2.2465-AutoBackup", authors="Alexander T. Moss",
-                               licence=NONE, printer="a Voron 2.4 (serial V2.2465; 9x9 grid)", use_backups=True),
-    "grumat_bed_mesh": dict(repo="grumat/voron-trident-250_config", authors="grumat", licence="MIT",
-                            printer="grumat's Voron Trident 250 (inductive probe, 5x5 grid)",
-                            rel="backup/printer.cfg"),
+    "klipper_voron24_mesh": dict(
+        repo="0x3333/klipper_voron2.4", authors="Tercio Gaudencio Filho (0x3333)", licence=NONE,
+        printer="a Voron 2.4 (inductive probe, bed trammed by quad gantry levelling)"),
+    "klipper_k1c_mesh": dict(
+        repo="2wenty2wo/k1c-klipper-backup2", authors="2wenty2wo", licence=NONE,
+        printer="a Creality K1C (strain-gauge nozzle probe, prtouch_v2)"),
+    "klipper_neptune4_mesh": dict(
+        repo="AlexWH10/Klipper_Backup_Neptune_4", authors="AlexWH10", licence=NONE,
+        printer="an Elegoo Neptune 4 (inductive probe, 11x11 grid)", use_backups=True),
+    "klipper_creality_mesh": dict(
+        repo="AlexBinkovskyy/CrealityBackUps", authors="AlexBinkovskyy", licence=NONE,
+        printer="a Creality printer (nozzle strain-gauge probe, 5x5 or 6x6 grid)", use_backups=True),
+    "klipper_v2465_mesh": dict(
+        repo="Alexander-T-Moss/V2.2465-AutoBackup", authors="Alexander T. Moss", licence=NONE,
+        printer="a Voron 2.4 (serial V2.2465; 9x9 grid)", use_backups=True),
+    "grumat_bed_mesh": dict(
+        repo="grumat/voron-trident-250_config", authors="grumat", licence="MIT",
+        printer="grumat's Voron Trident 250 (inductive probe, 5x5 grid)", rel="backup/printer.cfg"),
 }
 
 
