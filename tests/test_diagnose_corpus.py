@@ -244,3 +244,79 @@ def test_umich_excerpt_case_is_diagnosed_right(tmp_path):
 def test_error_lines_in_the_table_name_only_the_case_files():
     msg = "mtcomp diagnose: error: /some/where/corpus/src/case/rec.csv [t]: fewer than 8 samples"
     assert run.short_error(msg) == "rec.csv [t]: fewer than 8 samples"
+
+
+# --- Klipper bed meshes (five printers, and grumat's Trident: held out) -----------------------
+
+MESH = DATA / "real" / "grumat_bed_mesh" / "printer_cfg_bed_mesh_0ac6978.txt"
+
+
+def test_bed_mesh_excerpt_physics_a_bowed_bed_on_the_probes_step_lattice():
+    import klipper_bed_mesh as km
+    points, x0, x1, y0, y1 = km.parse_mesh(MESH.read_text())
+    assert points.shape == (5, 5) and (x0, x1, y0, y1) == (25.0, 225.0, 25.0, 225.0)
+    # every reading is a whole number of 0.625 µm: half the 1.25 µm lattice of this printer's Z
+    # (the probe-accuracy excerpt of the same printer), as a mean of two probes would be
+    k = points / 0.000625
+    assert np.allclose(k, np.round(k), atol=1e-6)
+    fig = km.mesh_figures(points, x0, x1, y0, y1)
+    # the bed is bowed more than it is tilted: the form about the best plane is about twice the
+    # larger tilt across the grid, and both are far above a probe's few micrometres
+    assert 0.060 < fig["form_ptv_mm"] < 0.072
+    assert 0.030 < fig["tilt_x_mm"] < 0.040 and 0.020 < fig["tilt_y_mm"] < 0.030
+    # a plane plus its residual gives the readings back
+    assert fig["points"] == 25 and abs(fig["mean_mm"] - points.mean()) < 1e-12
+    # the rule fixed in the converter: form above 0.05 mm expected, tilt 0.02-0.05 mm acceptable
+    assert km.expected_sets(fig) == (["straightness"], ["squareness", "workpiece_setting"])
+
+
+def test_bed_mesh_rule_thresholds():
+    import klipper_bed_mesh as km
+    base = {"tilt_x_mm": 0.0, "tilt_y_mm": 0.0, "form_ptv_mm": 0.0}
+    assert km.expected_sets(base) == ([], ["workpiece_setting"])
+    assert km.expected_sets({**base, "form_ptv_mm": 0.03}) == ([], ["straightness", "workpiece_setting"])
+    assert km.expected_sets({**base, "tilt_y_mm": -1.5})[0] == ["squareness"]
+    assert km.expected_sets({**base, "tilt_x_mm": 0.2, "form_ptv_mm": 0.3}) == (
+        ["squareness", "straightness"], ["workpiece_setting"])
+
+
+def test_bed_mesh_converter_visits_the_grid_row_by_row_and_rests_at_each_point(tmp_path):
+    import klipper_bed_mesh
+    snap = tmp_path / "snap" / "backup"
+    snap.mkdir(parents=True)
+    (snap / "printer.cfg").write_text("[printer]\nkinematics: corexy\n\n" + MESH.read_text())
+    done = klipper_bed_mesh.convert("grumat_bed_mesh", _common.Snapshot(tmp_path / "snap"),
+                                    tmp_path / "corpus")
+    assert len(done) == 1
+    case = tmp_path / "corpus" / "grumat_bed_mesh" / done[0]
+    hs, sim = read_csv(case / "sim.csv")
+    hr, rec = read_csv(case / "rec.csv")
+    assert hs == ["t[s]", "x[mm]", "y[mm]", "z[mm]"] and hr == ["t[s]", "z[mm]"]
+    assert len(rec) == 25 and np.all(sim[:, 3] == 0.0)
+    # where each reading is taken SIM rests on its grid point; rows go +x, then -x (Klipper's
+    # zigzag), y steps by 50 mm after each row of five
+    at = np.searchsorted(sim[:, 0], rec[:, 0])
+    xy = sim[at, 1:3]
+    assert np.allclose(xy[:5, 0], [25, 75, 125, 175, 225])
+    assert np.allclose(xy[5:10, 0], [225, 175, 125, 75, 25])
+    assert np.allclose(xy[::5, 1], [25, 75, 125, 175, 225])
+    points = _klipper_points(MESH)
+    assert np.allclose(rec[:5, 1], points[0]) and np.allclose(rec[5:10, 1], points[1][::-1])
+    with open(case / "truth.toml", "rb") as f:
+        truth = tomllib.load(f)
+    assert truth["licence"] == "MIT" and truth["expected"] == {"z": ["straightness"]}
+    assert truth["facts"]["points"] == 25
+
+
+def _klipper_points(path):
+    import klipper_bed_mesh as km
+    return km.parse_mesh(path.read_text())[0]
+
+
+def test_bed_mesh_parser_refuses_ragged_or_incomplete_blocks():
+    import klipper_bed_mesh as km
+    text = MESH.read_text()
+    assert km.parse_mesh("[printer]\n") is None
+    assert km.parse_mesh(text.replace("#*# max_y = 225.0", "")) is None
+    ragged = text.replace("-0.036875\n", "\n", 1)
+    assert km.parse_mesh(ragged) is None
