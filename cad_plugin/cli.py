@@ -168,7 +168,7 @@ def cmd_toolpath(args) -> int:
     opts = P.PostOptions(program_number=args.program_number, tcp=args.tcp,
                          line_numbers=not args.no_line_numbers, spindle=args.spindle,
                          line_start=args.line_start, line_step=args.line_step,
-                         line_wrap=args.line_wrap, tool_length=args.g43,
+                         line_max=args.line_max, tool_length=args.g43, retract=args.retract,
                          rotary_feed=args.rotary_feed, plunge_feed=args.plunge_feed,
                          coolant=args.coolant, probe_log=args.probe_log, **extra)
     text = P.post(machine, linked, q_linked, opts, errors=errors,
@@ -326,12 +326,16 @@ def register(subparsers) -> None:
     t.add_argument("--png", help="PNG: virtual check (pyramid) or toolpath and axes plot")
     t.add_argument("--errors", help="errors TOML: compensate the program for these errors")
     t.add_argument("--tcp", action="store_true", help="G43.4 tool-centre-point output")
-    t.add_argument("--program-number", type=int, default=1000)
+    t.add_argument("--program-number", type=int, default=1000,
+                   help="O number, 1..7999 (O8000-O9999: the control's protected and macro programs)")
     t.add_argument("--no-line-numbers", action="store_true")
     t.add_argument("--line-start", type=int, help="first N number (default: the step)")
     t.add_argument("--line-step", type=int, default=10, help="N increment (default 10)")
-    t.add_argument("--line-wrap", type=int, default=99999,
-                   help="largest N before numbering starts again (default 99999; 0: never)")
+    t.add_argument("--line-max", type=int, default=99999,
+                   help="largest N the control takes (default 99999); N numbers never repeat: the "
+                        "step shrinks, or the program has none, when the blocks do not fit")
+    t.add_argument("--retract", choices=("G28", "G53", "none"), default="G28",
+                   help="Z retract before the tool change and M30: G91 G28 Z0. (default) or G53 G00 Z0.")
     t.add_argument("--g43", action="store_true",
                    help="G43 H<tool> with the first move (machine-axes output; length in H)")
     t.add_argument("--rotary-feed", default="tool-tip", choices=("tool-tip", "inverse-time", "axes"),
