@@ -88,7 +88,8 @@ def _cosim(args) -> int:
                      rapid=args.rapid, spindle_speed=args.spindle_speed, compiler=args.compiler,
                      progress=Progress("cosim (without, then with compensation)"))
     csv_path = res.to_csv(prefix.with_name(prefix.name + ".csv"), full=args.full_csv)
-    png_path = res.plot(prefix.with_name(prefix.name + ".png"))
+    png_path = prefix.with_name(prefix.name + ".png")
+    res.plot(png_path)
     print(res.summary())
     rows = "every step" if args.full_csv else f"every {res.default_stride()}. step; --full-csv for all"
     print(f"wrote {csv_path} ({rows}) and {png_path}")
