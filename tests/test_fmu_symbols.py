@@ -124,3 +124,32 @@ def test_two_fmus_loaded_rtld_global_in_one_process_both_run(fmus, tmp_path, ver
     assert runs["global"] == runs["local"]
     out = json.loads(runs["global"])
     assert {"machine", "comp"} <= set(out) and len(out["comp"]["time"]) >= 5
+
+
+MINGW_OBJDUMP = shutil.which("x86_64-w64-mingw32-objdump")
+
+
+def _dll_exports(dll: Path) -> list[str]:
+    """Names of the export table as `objdump -p` prints it (one `[n] ... name` line each)."""
+    out = subprocess.run([MINGW_OBJDUMP, "-p", str(dll)], capture_output=True, text=True, check=True).stdout
+    part = out.split("[Ordinal/Name Pointer] Table", 1)[1]
+    names = []
+    for line in part.splitlines()[1:]:
+        if not re.match(r"\s*\[\s*\d+\]", line):
+            break
+        names.append(line.split()[-1])
+    return names
+
+
+@pytest.mark.skipif(shutil.which("x86_64-w64-mingw32-gcc") is None or MINGW_OBJDUMP is None,
+                    reason="mingw-w64 not installed")
+@pytest.mark.parametrize("version", [2, 3])
+def test_win64_dlls_export_only_the_fmi_functions_of_their_version(tmp_path, version):
+    fmu = build_compensator_fmu("robonano-a0ib", tmp_path / "w.fmu", compiler="cc", fmi_version=version,
+                                windows=True)
+    plat = "win64" if version == 2 else "x86_64-windows"
+    with zipfile.ZipFile(fmu) as z:
+        z.extract(f"binaries/{plat}/mtcomp_compensator.dll", tmp_path)
+    names = _dll_exports(tmp_path / "binaries" / plat / "mtcomp_compensator.dll")
+    assert names and f"fmi{version}DoStep" in names
+    assert [n for n in names if not re.fullmatch(rf"fmi{version}[A-Z]\w*", n)] == []
