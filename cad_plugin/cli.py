@@ -170,7 +170,8 @@ def cmd_toolpath(args) -> int:
                          line_start=args.line_start, line_step=args.line_step,
                          line_max=args.line_max, tool_length=args.g43, retract=args.retract,
                          rotary_feed=args.rotary_feed, plunge_feed=args.plunge_feed,
-                         coolant=args.coolant, probe_log=args.probe_log, **extra)
+                         coolant=args.coolant, probe_log=args.probe_log,
+                         protected_macro=args.protected_macro, **extra)
     text = P.post(machine, linked, q_linked, opts, errors=errors,
                   errors_name=Path(args.errors).name if args.errors else "")
     t3 = time.perf_counter()
@@ -185,7 +186,8 @@ def cmd_toolpath(args) -> int:
         part = ShapeStock.from_step(args.part)
     log("verification")
     try:
-        ver = verify_program(machine, text, filename=str(args.out), stock=stock, part=part,
+        ver = verify_program(machine, P.motion_view(text, args.protected_macro), filename=str(args.out),
+                             stock=stock, part=part,
                              clearance=args.clearance, errors=errors,
                              tool_radius=path.tool.radius if path.tool.kind != "vtool" else 0.0,
                              raise_on_violation=not args.warn_only)
@@ -347,6 +349,9 @@ def register(subparsers) -> None:
                                       "{tool} {work_offset} {spindle})")
     t.add_argument("--tool-change", help="tool change blocks (default 'T{tool} M06')")
     t.add_argument("--postamble", help="blocks before M30")
+    t.add_argument("--protected-macro", type=int, default=9810, metavar="P",
+                   help="probe-bowls: positioning moves near the part as G65 P<P> protected moves "
+                        "(default 9810, Renishaw Inspection Plus; 0: plain G01)")
     t.add_argument("--probe-log", action="store_true",
                    help="probe-bowls: record skip positions with POPEN/DPRNT (read_skip_log)")
     t.add_argument("--spindle", type=float, help="spindle speed, rpm (rotating tools)")

@@ -389,6 +389,23 @@ def _number(body: list[str], options: PostOptions) -> tuple[list[str], str | Non
     return [f"N{first + step * k} {b}" for k, b in enumerate(body)], None
 
 
+def motion_view(text: str, protected_macro: int = 9810) -> str:
+    """The program as a straight-line motion reader sees it: a protected positioning call
+    ``G65 P<macro> X Y Z F`` becomes the ``G01 X Y Z F`` move the macro makes, and the
+    missed-touch check after each G31 (``#104=...``, ``IF[...]THEN#3000=...``), which moves
+    nothing, becomes an empty line (line numbers stay those of the program).  What `mtcomp.verify` checks of a probing program."""
+    out = []
+    call = re.compile(rf"^(N\d+\s+)?G65\s+P{int(protected_macro)}\b\s*")
+    skip = re.compile(r"^(N\d+\s+)?(#104=|IF\[#104)")
+    for line in text.splitlines():
+        if skip.match(line):
+            out.append("")   # kept as an empty line: errors keep the program's line numbers
+            continue
+        m = call.match(line)
+        out.append(f"{m.group(1) or ''}G01 {line[m.end():]}" if m else line)
+    return "\n".join(out) + "\n"
+
+
 def _g31_end_points(program: str, letters) -> list[dict]:
     """End points {X, Y, Z: mm} of the G31 blocks of a posted program, in order (modal axis
     words carried from the blocks before; macro and comment text ignored)."""

@@ -141,3 +141,32 @@ def test_read_skip_log_refuses_a_g31_end_point_as_a_touch(probing):
     good = "\n".join(lines[:3])
     assert len(P.read_skip_log(good, m, probe.radius).bowl) == 2
     assert len(P.read_skip_log(re.sub(r"  D[ -][\d.]+", "", good), m, probe.radius, program=text).bowl) == 2
+
+
+def test_cli_probing_program_with_and_without_the_protected_macro(tmp_path, capsys):
+    from mtcomp.cli import main
+    out = tmp_path / "probe.nc"
+    assert main(["cad", "toolpath", "probe-bowls", "-m", "robonano-a0ib", "-o", str(out)]) == 0
+    text = out.read_text()
+    assert "G65 P9810 " in text and "THEN#3000=91" in text and "G91 G28 Z0." in text
+    assert main(["cad", "toolpath", "probe-bowls", "-m", "robonano-a0ib", "-o", str(out),
+                 "--protected-macro", "0"]) == 0
+    assert "G65" not in out.read_text() and "THEN#3000=91" in out.read_text()
+    assert main(["cad", "toolpath", "probe-bowls", "-m", "robonano-a0ib", "-o", str(out),
+                 "--program-number", "9810"]) == 2
+    assert "program number must be 1..7999" in capsys.readouterr().err
+
+
+def test_motion_view_keeps_line_numbers_and_turns_protected_calls_into_their_moves(probing):
+    m, tp, q, probe = probing
+    text = P.post(m, tp, q)
+    view = P.motion_view(text)
+    a, b = text.splitlines(), view.splitlines()
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        if re.match(r"N\d+ G65 P9810 ", x):
+            assert y == x.replace("G65 P9810 ", "G01 ")
+        elif "#104" in x:
+            assert y == ""
+        else:
+            assert y == x
