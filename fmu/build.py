@@ -581,13 +581,13 @@ def cache_dir() -> Path | None:
 def _binaries_key(root: Path, identifier: str, compiler: str, windows: bool) -> str:
     """Hash of everything that determines the binaries: the archive's sources (the C files,
     headers and build description; the machine, errors and GUID live in resources/ and the
-    modelDescription, not in the binary), the identifier, the compiler route and targets."""
+    modelDescription, not in the binary), the identifier, the compiler route, flags and targets."""
     import platform as _pf
     h = hashlib.sha256()
     for f in sorted((root / "sources").rglob("*")):
         if f.is_file():
             h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
-    for part in (identifier, compiler, f"win64={windows}", sys.platform, _pf.machine(),
+    for part in (identifier, compiler, " ".join(HIDDEN), f"win64={windows}", sys.platform, _pf.machine(),
                  os.environ.get("CC", ""), str(shutil.which(WIN64_CC) if windows else "")):
         h.update(part.encode() + b"\0")
     return h.hexdigest()[:32]
