@@ -58,4 +58,24 @@ class BuildWithKernel(build_py):
                   "it is built on first use or the numpy tokenizer runs")
 
 
-setup(cmdclass={"build_py": BuildWithKernel})
+try:   # setuptools >= 70.1 has bdist_wheel; older ones take it from the wheel package
+    from setuptools.command.bdist_wheel import bdist_wheel
+except ImportError:  # pragma: no cover
+    from wheel.bdist_wheel import bdist_wheel
+
+
+class PlatformWheel(bdist_wheel):
+    """The wheel carries the compiled kernel and tokenizer (ELF on Linux) when a compiler was
+    found: tag it for this platform, not py3-none-any.  They are loaded with ctypes, so they
+    depend on no Python ABI: py3-none-<platform>.  Without them (no compiler) the wheel is pure."""
+
+    def finalize_options(self):
+        super().finalize_options()
+        self.root_is_pure = False
+
+    def get_tag(self):
+        _, _, plat = super().get_tag()
+        return "py3", "none", plat
+
+
+setup(cmdclass={"build_py": BuildWithKernel, "bdist_wheel": PlatformWheel})

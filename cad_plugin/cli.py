@@ -168,9 +168,10 @@ def cmd_toolpath(args) -> int:
     opts = P.PostOptions(program_number=args.program_number, tcp=args.tcp,
                          line_numbers=not args.no_line_numbers, spindle=args.spindle,
                          line_start=args.line_start, line_step=args.line_step,
-                         line_wrap=args.line_wrap, tool_length=args.g43,
+                         line_max=args.line_max, tool_length=args.g43, retract=args.retract,
                          rotary_feed=args.rotary_feed, plunge_feed=args.plunge_feed,
-                         coolant=args.coolant, probe_log=args.probe_log, **extra)
+                         coolant=args.coolant, probe_log=args.probe_log,
+                         protected_macro=args.protected_macro, **extra)
     text = P.post(machine, linked, q_linked, opts, errors=errors,
                   errors_name=Path(args.errors).name if args.errors else "")
     t3 = time.perf_counter()
@@ -185,7 +186,8 @@ def cmd_toolpath(args) -> int:
         part = ShapeStock.from_step(args.part)
     log("verification")
     try:
-        ver = verify_program(machine, text, filename=str(args.out), stock=stock, part=part,
+        ver = verify_program(machine, P.motion_view(text, args.protected_macro), filename=str(args.out),
+                             stock=stock, part=part,
                              clearance=args.clearance, errors=errors,
                              tool_radius=path.tool.radius if path.tool.kind != "vtool" else 0.0,
                              raise_on_violation=not args.warn_only)
@@ -326,12 +328,16 @@ def register(subparsers) -> None:
     t.add_argument("--png", help="PNG: virtual check (pyramid) or toolpath and axes plot")
     t.add_argument("--errors", help="errors TOML: compensate the program for these errors")
     t.add_argument("--tcp", action="store_true", help="G43.4 tool-centre-point output")
-    t.add_argument("--program-number", type=int, default=1000)
+    t.add_argument("--program-number", type=int, default=1000,
+                   help="O number, 1..7999 (O8000-O9999: the control's protected and macro programs)")
     t.add_argument("--no-line-numbers", action="store_true")
     t.add_argument("--line-start", type=int, help="first N number (default: the step)")
     t.add_argument("--line-step", type=int, default=10, help="N increment (default 10)")
-    t.add_argument("--line-wrap", type=int, default=99999,
-                   help="largest N before numbering starts again (default 99999; 0: never)")
+    t.add_argument("--line-max", type=int, default=99999,
+                   help="largest N the control takes (default 99999); N numbers never repeat: the "
+                        "step shrinks, or the program has none, when the blocks do not fit")
+    t.add_argument("--retract", choices=("G28", "G53", "none"), default="G28",
+                   help="Z retract before the tool change and M30: G91 G28 Z0. (default) or G53 G00 Z0.")
     t.add_argument("--g43", action="store_true",
                    help="G43 H<tool> with the first move (machine-axes output; length in H)")
     t.add_argument("--rotary-feed", default="tool-tip", choices=("tool-tip", "inverse-time", "axes"),
@@ -343,6 +349,9 @@ def register(subparsers) -> None:
                                       "{tool} {work_offset} {spindle})")
     t.add_argument("--tool-change", help="tool change blocks (default 'T{tool} M06')")
     t.add_argument("--postamble", help="blocks before M30")
+    t.add_argument("--protected-macro", type=int, default=9810, metavar="P",
+                   help="probe-bowls: positioning moves near the part as G65 P<P> protected moves "
+                        "(default 9810, Renishaw Inspection Plus; 0: plain G01)")
     t.add_argument("--probe-log", action="store_true",
                    help="probe-bowls: record skip positions with POPEN/DPRNT (read_skip_log)")
     t.add_argument("--spindle", type=float, help="spindle speed, rpm (rotating tools)")

@@ -488,7 +488,17 @@ def _copy_sources(kind: str, src_dir: Path, fmi_version: int = 2) -> tuple[str, 
     ccode = Path(fmpy.__file__).parent / "c-code"
     for h in FMI2_HEADERS + (FMI3_HEADERS if fmi_version == 3 else ()):
         shutil.copyfile(ccode / h, src_dir / h)
+    # model.h reads the FMI version from here: an FMI 3 binary keeps its FMI 2 layer unexported,
+    # whoever compiles the sources (this build, `fmpy compile`, an importer's own toolchain).
+    (src_dir / "mtcomp_fmi.h").write_text(f"#define MTCOMP_FMI_VERSION {fmi_version}\n", encoding="ascii")
     return files
+
+
+# Only the FMI functions leave the binary: with the kernel's and the model's functions exported, a
+# second mtcomp FMU loaded with RTLD_GLOBAL in the same process would have its calls bound to the
+# first one's copies (another model's value references).  The FMI headers mark the fmi2*/fmi3*
+# functions visibility("default"); everything else is hidden.
+HIDDEN = ("-fvisibility=hidden",)
 
 
 def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
@@ -511,7 +521,7 @@ def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
         platform = fmpy.platform if md.fmiVersion == "2.0" else fmpy.platform_tuple
         out = unzipdir / "binaries" / platform / f"{ident}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}"
         out.parent.mkdir(parents=True, exist_ok=True)
-        cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", "-I", str(unzipdir / "sources"), *files, "-o", str(out), "-lm"]
+        cmd = [cc, "-shared", "-fPIC", "-O2", "-std=c99", *HIDDEN, "-I", str(unzipdir / "sources"), *files, "-o", str(out), "-lm"]
         try:
             run = subprocess.run(cmd, capture_output=True, text=True)
         except OSError as exc:
@@ -526,7 +536,8 @@ def _compile(unzipdir: Path, compiler: str = "cmake") -> None:
     source_dir = Path(fmpy.__file__).parent / "c-code"
     with tempfile.TemporaryDirectory(prefix="mtcomp-fmu-build-") as bd:
         # -lm at the end of the link line: the kernel uses libm and plain C hosts may not load it.
-        create_cmake_settings(unzipdir, bd, cmake_options={"CMAKE_C_STANDARD_LIBRARIES:STRING": "-lm"})
+        create_cmake_settings(unzipdir, bd, cmake_options={"CMAKE_C_STANDARD_LIBRARIES:STRING": "-lm",
+                                                           "CMAKE_C_VISIBILITY_PRESET:STRING": "hidden"})
         for cmd in (["cmake", "-S", str(source_dir), "-B", bd],
                     ["cmake", "--build", bd, "--target", "install", "--config", "Release"]):
             run = subprocess.run(cmd, capture_output=True, text=True)
@@ -570,13 +581,13 @@ def cache_dir() -> Path | None:
 def _binaries_key(root: Path, identifier: str, compiler: str, windows: bool) -> str:
     """Hash of everything that determines the binaries: the archive's sources (the C files,
     headers and build description; the machine, errors and GUID live in resources/ and the
-    modelDescription, not in the binary), the identifier, the compiler route and targets."""
+    modelDescription, not in the binary), the identifier, the compiler route, flags and targets."""
     import platform as _pf
     h = hashlib.sha256()
     for f in sorted((root / "sources").rglob("*")):
         if f.is_file():
             h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
-    for part in (identifier, compiler, f"win64={windows}", sys.platform, _pf.machine(),
+    for part in (identifier, compiler, " ".join(HIDDEN), f"win64={windows}", sys.platform, _pf.machine(),
                  os.environ.get("CC", ""), str(shutil.which(WIN64_CC) if windows else "")):
         h.update(part.encode() + b"\0")
     return h.hexdigest()[:32]

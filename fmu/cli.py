@@ -65,8 +65,10 @@ def _ssp(args) -> int:
     true = _errors(args.errors)
     ident = _errors(args.compensate) if args.compensate else true
     with tempfile.TemporaryDirectory(prefix="mtcomp-ssp-") as td:
-        c = build_compensator_fmu(args.machine, Path(td) / "compensator.fmu", ident, compiler=args.compiler)
-        m = build_machine_fmu(args.machine, Path(td) / "machine.fmu", true, _dynamics(args), compiler=args.compiler)
+        c = build_compensator_fmu(args.machine, Path(td) / "compensator.fmu", ident, compiler=args.compiler,
+                                  fmi_version=args.fmi)
+        m = build_machine_fmu(args.machine, Path(td) / "machine.fmu", true, _dynamics(args), compiler=args.compiler,
+                              fmi_version=args.fmi)
         out = write_ssp(args.output, c, m, layout=args.layout, commands=commands)
     print(f"wrote {out}")
     return 0
@@ -88,7 +90,8 @@ def _cosim(args) -> int:
                      rapid=args.rapid, spindle_speed=args.spindle_speed, compiler=args.compiler,
                      progress=Progress("cosim (without, then with compensation)"))
     csv_path = res.to_csv(prefix.with_name(prefix.name + ".csv"), full=args.full_csv)
-    png_path = res.plot(prefix.with_name(prefix.name + ".png"))
+    png_path = prefix.with_name(prefix.name + ".png")
+    res.plot(png_path)
     print(res.summary())
     rows = "every step" if args.full_csv else f"every {res.default_stride()}. step; --full-csv for all"
     print(f"wrote {csv_path} ({rows}) and {png_path}")
@@ -131,6 +134,9 @@ def register(subparsers) -> None:
     s.add_argument("--layout", choices=("components", "system"), default="components",
                    help="components: for fmpy, libcosim and ecos (default); system: open inputs and machine "
                         "outputs as system connectors, for fmucontainer and fmpy (docs/fmu.md)")
+    s.add_argument("--fmi", type=int, choices=(2, 3), default=2,
+                   help="FMI version of both FMUs (default 2; 3 runs in ecos, not in fmpy's simulate_ssp "
+                        "or libcosim 0.0.6)")
     s.add_argument("--compiler", choices=("cmake", "cc"), default="cmake")
     _dyn_args(s)
     s.set_defaults(func=_ssp)

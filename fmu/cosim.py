@@ -19,6 +19,11 @@ from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 from . import build as _b
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["interpolate_program", "cosimulate", "CosimResult", "FmuRunner", "run_machine", "MachineRun"]
 
 _PLANES = {17: ("X", "Y", "Z"), 18: ("Z", "X", "Y"), 19: ("Y", "Z", "X")}
@@ -318,7 +323,7 @@ class CosimResult:
         np.savetxt(buf, data, delimiter=",", header=",".join(cols), comments="", fmt="%.12g")
         return atomic_write(path, buf.getvalue())
 
-    def figure(self):
+    def figure(self) -> Figure:
         """matplotlib Figure (no pyplot, no backend change) of the tool edge error over time, µm:
         with and without compensation (G0 rapids shaded), and the compensated error beside its
         servo lag / backlash part."""
@@ -347,16 +352,13 @@ class CosimResult:
         a2.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
         return fig
 
-    def plot(self, path=None, *, dpi: int = 110):
-        """Write the figure of `figure()` as PNG to `path` (atomically) and return the path;
-        without a path return the Figure."""
-        from .._io import atomic_path
+    def plot(self, path=None, *, dpi: int = 110) -> Figure:
+        """The Figure of `figure()`, written as PNG to `path` (atomically) only when one is given."""
+        from .._io import save_figure
         fig = self.figure()
-        if path is None:
-            return fig
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png", dpi=dpi)
-        return Path(path)
+        if path is not None:
+            save_figure(fig, path, dpi=dpi)
+        return fig
 
 
 class CosimFailed(MtcompError):

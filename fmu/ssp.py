@@ -18,19 +18,42 @@ SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
 
-__all__ = ["write_ssp", "LAYOUTS"]
+__all__ = ["write_ssp", "LAYOUTS", "ssc_type", "bound_parameters", "fmpy_parameter_set"]
+
+# SSP 1.0 connector types of FMI variable types: SSP 1.0 knows Real, Integer, Boolean, String and
+# Enumeration only, so an FMI 3.0 Float64 connector is an ssc:Real (an ssc:Float64 fails the
+# schema: fmpy "This element is not expected", libcosim refuses the file).
+_SSC_TYPES = {"Real": "Real", "Float64": "Real", "Float32": "Real", "Integer": "Integer",
+              **{f"{s}Int{n}": "Integer" for s in ("", "U") for n in (8, 16, 32, 64)},
+              "Boolean": "Boolean", "String": "String", "Enumeration": "Enumeration"}
+
+
+def ssc_type(fmi_type: str) -> str:
+    """SSP 1.0 connector type (ssc:...) of an FMI 2.0 or 3.0 variable type."""
+    try:
+        return _SSC_TYPES[fmi_type]
+    except KeyError:
+        raise InputError(f"FMI type {fmi_type} has no SSP 1.0 connector type", field="connector") from None
+
+
+def _unit(v) -> str | None:
+    """The variable's unit (FMI 2.0: on the variable or its declared type; FMI 3.0 the same)."""
+    return getattr(v, "unit", None) or getattr(getattr(v, "declaredType", None), "unit", None)
 
 
 def _connector(conns, v) -> None:
     c = ET.SubElement(conns, f"{{{SSD}}}Connector", {"name": v.name, "kind": v.causality})
-    attrs = {"unit": v.unit} if v.type == "Real" and getattr(v, "unit", None) else {}
-    ET.SubElement(c, f"{{{SSC}}}{v.type}", attrs)
+    kind = ssc_type(v.type)
+    attrs = {"unit": _unit(v)} if kind == "Real" and _unit(v) else {}
+    ET.SubElement(c, f"{{{SSC}}}{kind}", attrs)
 
 
 def _units(root, used: set[str]) -> None:
     """<ssd:Units>: every unit a connector names, with its SI base (SSP requires the definition
     of each unit used; the same definitions as the FMUs' UnitDefinitions)."""
     from .build import UNITS
+    if not used:
+        return   # an empty <ssd:Units/> is not allowed
     units = ET.SubElement(root, f"{{{SSD}}}Units")
     for name in sorted(used):
         base, factor, offset, _ = UNITS[name]
@@ -88,8 +111,8 @@ def write_ssp(path, compensator_fmu, machine_fmu, *, name: str = "mtcomp-cosim",
         conns = ET.SubElement(comp, f"{{{SSD}}}Connectors")
         for v in variables:
             _connector(conns, v)
-            if v.type == "Real" and getattr(v, "unit", None):
-                used_units.add(v.unit)
+            if ssc_type(v.type) == "Real" and _unit(v):
+                used_units.add(_unit(v))
 
     system_layout = layout == "system"
     open_c = [v for v in mdc.modelVariables if v.causality == "input"] if system_layout else []
@@ -148,3 +171,33 @@ def write_ssp(path, compensator_fmu, machine_fmu, *, name: str = "mtcomp-cosim",
             zf.write(compensator_fmu, "resources/compensator.fmu")
             zf.write(machine_fmu, "resources/machine.fmu")
     return path
+
+
+def bound_parameters(ssp_path, parameter_set: str | None = None) -> dict[str, float | int | str]:
+    """The values an SSP's parameter bindings give its components: {"<component>.<parameter>":
+    value}, from the inline ssv:ParameterSet elements (of the set named `parameter_set`, or all).
+    fmpy's simulate_ssp does not apply SSD bindings: hand these to it (`fmpy_parameter_set`)."""
+    ns = {"ssd": SSD, "ssv": SSV}
+    with zipfile.ZipFile(ssp_path) as z:
+        root = ET.fromstring(z.read("SystemStructure.ssd"))
+    out: dict = {}
+    for comp in root.iter(f"{{{SSD}}}Component"):
+        for ps in comp.findall("ssd:ParameterBindings/ssd:ParameterBinding/ssd:ParameterValues/ssv:ParameterSet", ns):
+            if parameter_set is not None and ps.get("name") != parameter_set:
+                continue
+            for p in ps.findall("ssv:Parameters/ssv:Parameter", ns):
+                for el in p:
+                    kind, value = el.tag.split("}")[1], el.get("value")
+                    out[f"{comp.get('name')}.{p.get('name')}"] = (
+                        float(value) if kind in ("Real", "Float64", "Float32") else
+                        int(value) if kind.startswith(("Integer", "Int", "UInt", "Enumeration")) else
+                        value.lower() == "true" if kind == "Boolean" else value)
+    return out
+
+
+def fmpy_parameter_set(values: dict):
+    """`values` ({"<component>.<parameter>": value}, e.g. from `bound_parameters`) in the form
+    fmpy's simulate_ssp takes as `parameter_set=` (an object with `.parameters`, each with
+    `.name` and `.value`; it does not accept a dict)."""
+    from types import SimpleNamespace
+    return SimpleNamespace(parameters=[SimpleNamespace(name=k, value=v) for k, v in values.items()])

@@ -91,8 +91,8 @@ def test_figure_leaves_the_callers_backend_and_pyplot_alone(lagging, tmp_path):
     assert type(fig).__name__ == "Figure"
     labels = [ax.get_ylabel() for ax in fig.axes]
     assert all("µm" in lab for lab in labels) and not any("(um)" in lab for lab in labels)
-    png = res.plot(tmp_path / "err.png")
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert isinstance(res.plot(tmp_path / "err.png"), type(fig))
+    assert (tmp_path / "err.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert isinstance(res.plot(), type(fig))
     assert matplotlib.get_backend() == before
     if not had_pyplot:

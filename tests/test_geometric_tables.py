@@ -197,8 +197,8 @@ def test_lattice_and_iso_tables_round_trip(tmp_path, vmc, clean):
 
 
 def test_volumetric_map_png_and_figures(tmp_path, truth_map):
-    p = vol.plot_map(truth_map, tmp_path / "m.png")
-    assert p.read_bytes()[:4] == b"\x89PNG"
+    vol.plot_map(truth_map, tmp_path / "m.png")
+    assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
     s = truth_map.stats()
     mag = np.linalg.norm(truth_map.exact, axis=1)
     assert s["max"] == pytest.approx(mag.max()) and s["rms"] == pytest.approx(np.sqrt(np.mean(mag**2)))

@@ -379,8 +379,8 @@ def test_report_and_errors_file(plan, tmp_path):
     text = te.report_text(M, meas, est)
     assert "t_z" in text and "±" in text and "after compensation" in text and "against C" in text
     assert " um" not in text
-    png = te.plot_report(M, meas, est, tmp_path / "r.png")
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    te.plot_report(M, meas, est, tmp_path / "r.png")
+    assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 # ---------------------------------------------------------------------------------- properties

@@ -38,6 +38,15 @@ def register(subparsers) -> None:
     _cycle_options(c)
     c.set_defaults(func=_serve)
 
+    m = sub.add_parser("map", help="export the register map (CSV or JSON) for the PLC program",
+                       description="The register map the server uses, as CSV (one row per field) or "
+                                   "JSON (fields plus the codes of states, commands, faults).")
+    m.add_argument("--format", choices=("csv", "json"), default="csv", help="output format (default csv)")
+    m.add_argument("--word-order", choices=("big", "little"), default="big",
+                   help="word order of 32-bit values the server is started with (default big)")
+    m.add_argument("-o", "--output", help="file to write (default: standard output)")
+    m.set_defaults(func=_map)
+
     q = sub.add_parser("plc-sim", help="play the PLC and the loading robot against a server")
     q.add_argument("--host", default="127.0.0.1")
     q.add_argument("--port", type=int, default=5020)
@@ -212,6 +221,18 @@ def _serve(args) -> int:
         await server.stop()
 
     asyncio.run(main())
+    return 0
+
+
+def _map(args) -> int:
+    import sys
+    from .._io import atomic_write
+    from .registers import register_map_csv, register_map_json
+    text = (register_map_json if args.format == "json" else register_map_csv)(args.word_order)
+    if args.output:
+        atomic_write(args.output, text)
+    else:
+        sys.stdout.write(text)
     return 0
 
 

@@ -131,6 +131,16 @@ def is_go(res: CellResult, cfg: CellConfig) -> bool:
     return nogo_bits(res, cfg) == 0
 
 
+def _same_or_successor(first, peer) -> bool:
+    """`peer` is the connection `first`, or a later one from the same address after `first`
+    closed. Peers are the server's connection tokens (attributes ``address`` and ``closed``);
+    anything else compares by identity only."""
+    if first is peer:
+        return True
+    addr = getattr(first, "address", None)
+    return addr is not None and addr == getattr(peer, "address", None) and getattr(first, "closed", False)
+
+
 class Cycle:
     """State machine + journal + register image. Create, `await start()`, `await stop()`."""
 
@@ -149,6 +159,7 @@ class Cycle:
         self._hb_task: asyncio.Task | None = None
         self._pool: ThreadPoolExecutor | None = None
         self._readers: list = []                # connections that read the presented result
+        self._owner = None                      # connection that started the running/presented job
         self.publish_latency: list[float] = []  # s from step return to registers (benchmarks)
         img = self.image
         img.set("cmd_seq_echo", rec.cmd_seq)
@@ -241,13 +252,16 @@ class Cycle:
         if peer is None:
             return True
         for r in self._readers:
-            if r is peer:
-                return True
-            addr = getattr(r, "address", None)
-            if addr is not None and addr == getattr(peer, "address", None) and \
-                    getattr(r, "closed", False):
+            if _same_or_successor(r, peer):
                 return True
         return False
+
+    def owns_job(self, peer) -> bool:
+        """The result belongs to the connection that started the job (START): only that
+        connection, or after it closed a connection from its address, may ACK it. A second
+        allowed client (an HMI, a diagnostic tool) may read the result but cannot take it away
+        from the PLC. No owner (client mode, or a job resumed after a restart): any peer."""
+        return peer is None or self._owner is None or _same_or_successor(self._owner, peer)
 
     def plc_write(self, address: int, values: list[int], peer=None) -> tuple[int, str] | None:
         """Apply a PLC write; returns (Modbus exception code, reason) to refuse it, else None.
@@ -295,6 +309,7 @@ class Cycle:
                 self.journal.append("start", cmd_seq=seq, status=0, job=job)
                 self._job_no += 1
                 self._job = job
+                self._owner = peer
                 img.set("job_no", job["job_no"])
                 img.set("fault_code", 0)
                 self._set_state(State.MEASURING)
@@ -307,8 +322,11 @@ class Cycle:
                     return self._reject(cmd, seq, CommandStatus.BAD_ACK_SEQ)
                 if not self.may_ack(peer):
                     return self._reject(cmd, seq, CommandStatus.NOT_READ)
+                if not self.owns_job(peer):
+                    return self._reject(cmd, seq, CommandStatus.NOT_OWNER)
                 self.journal.append("ack", cmd_seq=seq, status=0, result_seq=ack)
                 self._presented = None
+                self._owner = None
                 self._set_state(State.IDLE)
             elif cmd == Command.RESET:
                 if state == State.FAULT:

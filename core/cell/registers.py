@@ -50,6 +50,8 @@ class CommandStatus(IntEnum):
     BAD_PROGRAM_ID = 4     # START with program id 0, or its compensated number out of range
     JOURNAL_DOWN = 5       # the journal cannot be written: nothing is accepted
     NOT_READ = 6           # ACK from a connection that has not read the presented result
+    NOT_OWNER = 7          # ACK from another connection than the one that started the job,
+                           # while that one is still open
 
 
 class Fault(IntEnum):
@@ -241,3 +243,58 @@ def check_plc_write(address: int, values) -> tuple[int, str] | None:
 
 
 _FIELD_AT = {f.address: f for f in _FIELDS}
+
+
+# -- the map as a table for PLC programmers ----------------------------------------------------
+
+MAP_COLUMNS = ("name", "address", "plc_address", "registers", "type", "iec_type", "access",
+               "unit", "min", "max", "description")
+_IEC = {"u16": "UINT", "u32": "UDINT", "f32": "REAL"}
+
+
+def register_map(word_order: str = "big") -> list[dict]:
+    """The register map, one row per field, from the table the server uses (`FIELDS`).
+
+    `address` is the zero-based protocol address, `plc_address` the 4xxxx notation
+    (40001 = address 0); `access` is "rw" for the PLC -> mtcomp block (the PLC writes it),
+    "r" for the mtcomp -> PLC block; 32-bit values span `registers` = 2 in `word_order`."""
+    _check_order(word_order)
+    rows = []
+    for f in _FIELDS:
+        rng_lo = f.lo if f.lo is not None else (0 if f.kind != "f32" else None)
+        rng_hi = f.hi if f.hi is not None else {"u16": 0xFFFF, "u32": 0xFFFFFFFF}.get(f.kind)
+        rows.append({"name": f.name, "address": f.address, "plc_address": 40001 + f.address,
+                     "registers": f.size, "type": f.kind, "iec_type": _IEC[f.kind],
+                     "access": "rw" if f.plc_writes else "r", "unit": f.unit,
+                     "min": rng_lo, "max": rng_hi, "description": f.doc})
+    return rows
+
+
+def _enum_table(enum) -> dict:
+    return {m.name: int(m) for m in enum}
+
+
+def register_map_json(word_order: str = "big") -> str:
+    """The map as JSON: version, word order, blocks, fields and the codes of every enumeration."""
+    import json
+    doc = {"map_version": MAP_VERSION, "word_order": word_order,
+           "byte_order": "big (Modbus)", "function_codes": {"read": [3, 4, 23], "write": [6, 16, 23]},
+           "plc_block": {"start": PLC_BLOCK[0], "count": PLC_BLOCK[1] - PLC_BLOCK[0]},
+           "out_block": {"start": OUT_BLOCK[0], "count": OUT_BLOCK[1] - OUT_BLOCK[0]},
+           "fields": register_map(word_order),
+           "enums": {"state": _enum_table(State), "command": _enum_table(Command),
+                     "cmd_status": _enum_table(CommandStatus), "fault_code": _enum_table(Fault),
+                     "nogo_bits": _enum_table(NoGo)}}
+    return json.dumps(doc, indent=2) + "\n"
+
+
+def register_map_csv(word_order: str = "big") -> str:
+    """The map as CSV (one header row, then one row per field; empty cells for no limit)."""
+    import csv
+    import io
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=MAP_COLUMNS, lineterminator="\n")
+    w.writeheader()
+    for row in register_map(word_order):
+        w.writerow({k: ("" if v is None else v) for k, v in row.items()})
+    return buf.getvalue()

@@ -121,6 +121,9 @@ class CellServer:
         """Exception code to answer a request with before pymodbus handles it, or None."""
         if unit not in (self.unit_id, ANY_UNIT):
             return self._refuse(conn, 0x0B, f"unit id {unit} (this server is {self.unit_id})")
+        if fc >= 0x80:   # pymodbus decodes these as exception responses and fails on them
+            return self._refuse(conn, 0x01, f"function code 0x{fc:02X} (an exception response, "
+                                            "not a request)")
         if fc not in ANSWERED_FCS:
             return self._refuse(conn, 0x01, f"function code {fc} (registers only: 3, 4, 6, 16, 23)")
         if fc in WRITE_FCS and not self.peer_allowed(conn):
@@ -190,7 +193,7 @@ def _server_class(base):
             pdu = self.last_pdu
             if not pdu:
                 return
-            code = self.server.cell.screen(self, pdu.function_code & 0x7F, pdu.dev_id)
+            code = self.server.cell.screen(self, pdu.function_code, pdu.dev_id)
             if code is not None:
                 rsp = ExceptionResponse(pdu.function_code & 0x7F, code)
                 rsp.transaction_id, rsp.dev_id = pdu.transaction_id, pdu.dev_id

@@ -34,6 +34,11 @@ import numpy as np
 
 from .._io import InputError, atomic_write, save_figure
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["PositioningRun", "Iso2302Result", "read_run_csv", "evaluate", "plot", "write_report",
            "run_to_csv"]
 
@@ -313,8 +318,9 @@ def run_to_csv(run: PositioningRun) -> str:
     return buf.getvalue()
 
 
-def plot(result: Iso2302Result, path: str | os.PathLike, title: str | None = None) -> Path:
-    """Draw the standard's figure (mean deviations ± 2s per direction, figures A, B, E, M, R) to PNG."""
+def plot(result: Iso2302Result, path: str | os.PathLike | None = None, title: str | None = None) -> Figure:
+    """The standard's figure (mean deviations ± 2s per direction, figures A, B, E, M, R) as a
+    matplotlib Figure; written as PNG to `path` only when one is given."""
     from matplotlib.figure import Figure
 
     um = 1e3
@@ -342,8 +348,9 @@ def plot(result: Iso2302Result, path: str | os.PathLike, title: str | None = Non
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8)
     ax.grid(True, lw=0.3)
     fig.tight_layout()
-    save_figure(fig, path)
-    return Path(path)
+    if path is not None:
+        save_figure(fig, path)
+    return fig
 
 
 def write_report(result: Iso2302Result, stem: str | os.PathLike) -> dict[str, Path]:
@@ -355,5 +362,6 @@ def write_report(result: Iso2302Result, stem: str | os.PathLike) -> dict[str, Pa
                                   result.positions_csv()),
         "figures": atomic_write(stem.with_name(stem.name + "_figures.csv"), result.figures_csv()),
     }
-    out["plot"] = plot(result, stem.with_name(stem.name + ".png"))
+    out["plot"] = stem.with_name(stem.name + ".png")
+    plot(result, out["plot"])
     return out

@@ -82,7 +82,8 @@ def synthetic_study(machine: Machine | str = "vmc-moving-column", seed: int = 0,
         files["ISO 230-2 report"] = iso230_2.write_report(build.iso[first],
                                                           d / f"iso230-2_{first}")["text"]
         files["errors"] = save_errors(build.errors, d / "geometric.toml")
-        files["volumetric map"] = volumetric.plot_map(tmap, d / "volumetric.png")
+        volumetric.plot_map(tmap, d / "volumetric.png")
+        files["volumetric map"] = d / "volumetric.png"
         from .._io import atomic_write
         files["lattice"] = atomic_write(d / "lattice.csv", lat.to_csv())
         files["ISO 230-1 tables"] = comptables.write_iso_tables(build.geometric, d, "comp")[0].parent

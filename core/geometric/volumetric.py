@@ -19,6 +19,11 @@ from ..errors import ErrorSet
 from ..machine import Machine, load_machine
 from . import first_order
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["volume_grid", "VolumetricMap", "error_map", "plot_map", "compare"]
 
 
@@ -138,9 +143,9 @@ def compare(a: VolumetricMap, b: VolumetricMap) -> dict:
     return {"max": float(d.max()), "rms": float(np.sqrt(np.mean(d**2)))}
 
 
-def plot_map(vmap: VolumetricMap, path: str | os.PathLike, levels: int = 3,
-             title: str | None = None) -> Path:
-    """PNG of the volumetric error: |e| and the (ex, ey) arrows in XY planes at several Z levels,
+def plot_map(vmap: VolumetricMap, path: str | os.PathLike | None = None, levels: int = 3,
+             title: str | None = None) -> Figure:
+    """Figure (PNG at `path` only when given) of the volumetric error: |e| and the (ex, ey) arrows in XY planes at several Z levels,
     and the exact minus first-order difference; for 3-axis maps on a regular grid."""
     from matplotlib.figure import Figure
 
@@ -178,5 +183,6 @@ def plot_map(vmap: VolumetricMap, path: str | os.PathLike, levels: int = 3,
     s = vmap.stats()
     fig.suptitle(title or f"Volumetric error of {vmap.machine}: max {s['max'] * 1e3:.2f} µm, "
                  f"RMS {s['rms'] * 1e3:.2f} µm")
-    save_figure(fig, path)
-    return Path(path)
+    if path is not None:
+        save_figure(fig, path)
+    return fig

@@ -25,6 +25,11 @@ import numpy as np
 from .._io import InputError
 from ..errors import ErrorSet, WorkpieceSetting
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["PAPER_TABLE1", "Pyramid", "RobotPlacement", "CellConfig", "finishing_commands",
            "measure_pyramid", "simulate_cell", "CellResult", "PAPER_ASSUMPTIONS", "paper_reproduction"]
 
@@ -257,8 +262,9 @@ class CellResult:
                 "arcsec.")
         return head + "\n".join(lines) + foot + "\n"
 
-    def plot(self, path) -> None:
-        """PNG: width and angle distributions with and without compensation, paper values marked."""
+    def plot(self, path=None) -> Figure:
+        """Figure (PNG at `path` only when given): width and angle distributions with and
+        without compensation, paper values marked."""
         from matplotlib.figure import Figure
         from .._io import save_figure
         fig = Figure(figsize=(13, 4))
@@ -287,7 +293,9 @@ class CellResult:
                      f"{ang} deg (target {PAPER_TARGET['angle']:g})", fontsize=10)
         ax[2].legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2)
         fig.tight_layout()
-        save_figure(fig, path, dpi=110)
+        if path is not None:
+            save_figure(fig, path, dpi=110)
+        return fig
 
 
 def simulate_cell(config: CellConfig = CellConfig(), progress=None) -> CellResult:

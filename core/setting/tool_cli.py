@@ -260,7 +260,8 @@ def _estimate(args) -> int:
     for t, txt in progs.items():
         written.append(atomic_write(Path(args.nc_dir) / f"tool_setting_{t}_compensated.nc", txt))
     if args.png:
-        written.append(plot_report(m, meas, est, args.png))
+        plot_report(m, meas, est, args.png)
+        written.append(args.png)
     for f in written:
         print(f"wrote {f}")
     return 0

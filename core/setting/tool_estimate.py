@@ -21,6 +21,11 @@ from ..errors import rotation_matrix_xyz
 from .tool_model import COMPONENTS, against_axes, errors_from_parameters, observable_parameters, parameter_jacobian
 from .tool_plan import Plan, commands_for_points, repeated_grooves
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 #: Warn when a component's 1-sigma exceeds this multiple of the coarsest measurement sigma: the
 #: geometry then amplifies the instrument noise more than tenfold.
 ILL_CONDITIONED_FACTOR = 10.0
@@ -755,8 +760,8 @@ def report_text(machine, meas, est: ToolSettingEstimate) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot_report(machine, meas, est: ToolSettingEstimate, path):
-    """Report figure (PNG): every estimated parameter with 3-sigma bars, normalised residuals, and
+def plot_report(machine, meas, est: ToolSettingEstimate, path=None) -> Figure:
+    """Report figure (a Figure; PNG at `path` only when given): every estimated parameter with 3-sigma bars, normalised residuals, and
     the predicted grooves before/after compensation on each face."""
     from matplotlib.figure import Figure
     from pathlib import Path
@@ -801,6 +806,6 @@ def plot_report(machine, meas, est: ToolSettingEstimate, path):
         ax.set_xlabel("u [mm]")
         ax.set_ylabel("v [mm]")
     fig.tight_layout()
-    path = Path(path)
-    save_figure(fig, path, dpi=100)
-    return path
+    if path is not None:
+        save_figure(fig, path, dpi=100)
+    return fig

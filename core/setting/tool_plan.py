@@ -29,6 +29,11 @@ import numpy as np
 from .._io import InputError, MtcompError, atomic_write, dump_toml, load_toml
 from .. import validate as _validate
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 TESTS = ("A", "B", "C")
 FEATURES = ("start", "end")
 
@@ -584,12 +589,13 @@ def write_plan(machine, plan: Plan, outdir: str | os.PathLike, png: bool = True,
     files.update({f"tool_setting_{t}.nc": txt for t, txt in progs.items()})
     written = [atomic_write(outdir / name, txt) for name, txt in files.items()]
     if png:
-        written.append(plot_layout(plan, outdir / "layout.png"))
+        plot_layout(plan, outdir / "layout.png")
+        written.append(outdir / "layout.png")
     return written
 
 
-def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
-    """Layout drawing (PNG): plate outline, nominal grooves with their ids and widths, and, if
+def plot_layout(plan: Plan, path=None, cuts=None, title: str | None = None) -> Figure:
+    """Layout drawing (a Figure; PNG at `path` only when given): plate outline, nominal grooves with their ids and widths, and, if
     given, the predicted real grooves `cuts` (from `mtcomp.setting.tool.cut_grooves`)."""
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
@@ -628,6 +634,6 @@ def plot_layout(plan: Plan, path, cuts=None, title: str | None = None) -> Path:
     fig.suptitle(title or f"tool-setting grooving plan, machine {plan.machine} "
                  f"(D = {plan.options.depth:g} mm, tip {plan.options.tip_angle:g} deg)", fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    save_figure(fig, path, dpi=110)
-    return path
+    if path is not None:
+        save_figure(fig, path, dpi=110)
+    return fig

@@ -82,6 +82,7 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
     UNUSED(categories);
     if (!inst) return fmi2Error;
     inst->logging = loggingOn ? 1 : 0;
+    inst->api = "fmi2";
     return fmi2OK;
 }
 
@@ -139,7 +140,8 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     UNUSED(stopTime);
     if (!inst) return fmi2Error;
     if (inst->st.mode != MODE_INSTANTIATED) {
-        inst_log(inst, fmi2Error, "logStatusError", "fmi2SetupExperiment is only allowed after fmi2Instantiate");
+        inst_log(inst, fmi2Error, "logStatusError", "%s", inst->api[3] == '3' ? "fmi3EnterInitializationMode called twice or too late"
+                 : "fmi2SetupExperiment is only allowed after fmi2Instantiate");
         return fmi2Error;
     }
     if (!isfinite(startTime)) {
@@ -155,7 +157,7 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c)
     Instance *inst = (Instance *)c;
     if (!inst) return fmi2Error;
     if (inst->st.mode != MODE_INSTANTIATED) {
-        inst_log(inst, fmi2Error, "logStatusError", "fmi2EnterInitializationMode called twice or too late");
+        inst_log(inst, fmi2Error, "logStatusError", "%sEnterInitializationMode called twice or too late", inst->api);
         return fmi2Error;
     }
     inst->st.mode = MODE_INIT;
@@ -168,7 +170,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c)
     fmi2Status s;
     if (!inst) return fmi2Error;
     if (inst->st.mode != MODE_INIT) {
-        inst_log(inst, fmi2Error, "logStatusError", "fmi2ExitInitializationMode outside initialization mode");
+        inst_log(inst, fmi2Error, "logStatusError", "%sExitInitializationMode outside initialization mode", inst->api);
         return fmi2Error;
     }
     s = check_parameters(inst);
@@ -424,7 +426,7 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate state, size_
 {
     UNUSED(state);
     if (!size) {
-        inst_log((Instance *)c, fmi2Error, "logStatusError", "fmi2SerializedFMUstateSize: size is NULL");
+        inst_log((Instance *)c, fmi2Error, "logStatusError", "%sSerializedFMUstateSize: size is NULL", c ? ((Instance *)c)->api : "fmi2");
         return fmi2Error;
     }
     *size = sizeof(ModelState);
@@ -560,7 +562,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
     UNUSED(noSetFMUStatePriorToCurrentPoint);
     if (!inst) return fmi2Error;
     if (inst->st.mode != MODE_STEP) {
-        inst_log(inst, fmi2Error, "logStatusError", "fmi2DoStep outside step mode (initialisation failed or not done)");
+        inst_log(inst, fmi2Error, "logStatusError", "%sDoStep outside step mode (initialisation failed or not done)", inst->api);
         return fmi2Error;
     }
     if (!(communicationStepSize > 0.0) || !isfinite(communicationStepSize)) {
@@ -573,7 +575,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
         return fmi2Error;
     }
     if (fabs(currentCommunicationPoint - inst->st.time) > 1e-9 * (1.0 + fabs(inst->st.time))) {
-        inst_log(inst, fmi2Error, "logStatusError", "fmi2DoStep at t=%g but the FMU is at t=%g",
+        inst_log(inst, fmi2Error, "logStatusError", "%sDoStep at t=%g but the FMU is at t=%g", inst->api,
                  currentCommunicationPoint, inst->st.time);
         return fmi2Error;
     }

@@ -110,6 +110,7 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     c = fmi2Instantiate(instanceName, fmi2CoSimulation, instantiationToken, uri, &w->fmi2, visible, loggingOn);
     free(uri);
     if (!c) free(w);
+    else ((Instance *)c)->api = "fmi3";
     return c;
 }
 

@@ -12,7 +12,56 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "mtcomp_fmi.h"   /* written by the build: MTCOMP_FMI_VERSION, the FMI version of this binary */
+#if MTCOMP_FMI_VERSION == 3
+/* An FMI 3.0 binary runs the FMI 2.0 layer (fmi2_base.c) internally: its functions are declared
+ * here without the export attribute fmi2Functions.h gives them, so that the binary exports only
+ * fmi3* functions (a DLL exports only what is marked dllexport; -fvisibility=hidden on ELF). */
+#include "fmi2TypesPlatform.h"
+#include "fmi2FunctionTypes.h"
+#define fmi2Version "2.0"
+#if defined(__GNUC__) && !defined(_WIN32)
+#define FMI2_INTERNAL __attribute__((visibility("hidden")))
+#else
+#define FMI2_INTERNAL
+#endif
+FMI2_INTERNAL fmi2GetTypesPlatformTYPE fmi2GetTypesPlatform;
+FMI2_INTERNAL fmi2GetVersionTYPE fmi2GetVersion;
+FMI2_INTERNAL fmi2SetDebugLoggingTYPE fmi2SetDebugLogging;
+FMI2_INTERNAL fmi2InstantiateTYPE fmi2Instantiate;
+FMI2_INTERNAL fmi2FreeInstanceTYPE fmi2FreeInstance;
+FMI2_INTERNAL fmi2SetupExperimentTYPE fmi2SetupExperiment;
+FMI2_INTERNAL fmi2EnterInitializationModeTYPE fmi2EnterInitializationMode;
+FMI2_INTERNAL fmi2ExitInitializationModeTYPE fmi2ExitInitializationMode;
+FMI2_INTERNAL fmi2TerminateTYPE fmi2Terminate;
+FMI2_INTERNAL fmi2ResetTYPE fmi2Reset;
+FMI2_INTERNAL fmi2GetRealTYPE fmi2GetReal;
+FMI2_INTERNAL fmi2GetIntegerTYPE fmi2GetInteger;
+FMI2_INTERNAL fmi2GetBooleanTYPE fmi2GetBoolean;
+FMI2_INTERNAL fmi2GetStringTYPE fmi2GetString;
+FMI2_INTERNAL fmi2SetRealTYPE fmi2SetReal;
+FMI2_INTERNAL fmi2SetIntegerTYPE fmi2SetInteger;
+FMI2_INTERNAL fmi2SetBooleanTYPE fmi2SetBoolean;
+FMI2_INTERNAL fmi2SetStringTYPE fmi2SetString;
+FMI2_INTERNAL fmi2GetFMUstateTYPE fmi2GetFMUstate;
+FMI2_INTERNAL fmi2SetFMUstateTYPE fmi2SetFMUstate;
+FMI2_INTERNAL fmi2FreeFMUstateTYPE fmi2FreeFMUstate;
+FMI2_INTERNAL fmi2SerializedFMUstateSizeTYPE fmi2SerializedFMUstateSize;
+FMI2_INTERNAL fmi2SerializeFMUstateTYPE fmi2SerializeFMUstate;
+FMI2_INTERNAL fmi2DeSerializeFMUstateTYPE fmi2DeSerializeFMUstate;
+FMI2_INTERNAL fmi2GetDirectionalDerivativeTYPE fmi2GetDirectionalDerivative;
+FMI2_INTERNAL fmi2SetRealInputDerivativesTYPE fmi2SetRealInputDerivatives;
+FMI2_INTERNAL fmi2GetRealOutputDerivativesTYPE fmi2GetRealOutputDerivatives;
+FMI2_INTERNAL fmi2DoStepTYPE fmi2DoStep;
+FMI2_INTERNAL fmi2CancelStepTYPE fmi2CancelStep;
+FMI2_INTERNAL fmi2GetStatusTYPE fmi2GetStatus;
+FMI2_INTERNAL fmi2GetRealStatusTYPE fmi2GetRealStatus;
+FMI2_INTERNAL fmi2GetIntegerStatusTYPE fmi2GetIntegerStatus;
+FMI2_INTERNAL fmi2GetBooleanStatusTYPE fmi2GetBooleanStatus;
+FMI2_INTERNAL fmi2GetStringStatusTYPE fmi2GetStringStatus;
+#else
 #include "fmi2Functions.h"
+#endif
 #include "mtk.h"
 
 #define MODEL_NR 320      /* Real value references 0..319 */
@@ -49,6 +98,7 @@ typedef struct Instance {
     char guid[MODEL_GUIDLEN];  /* this FMU's GUID as written in resources/start.txt ("": unknown) */
     const fmi2CallbackFunctions *cb;
     int logging;
+    const char *api;           /* "fmi2" or "fmi3": the prefix of the function names in log messages */
     mtk_model *kin;            /* loaded at exit of initialisation, read-only afterwards */
 } Instance;
 
