@@ -342,7 +342,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     from . import gcode
     from .gcode import flow
     from .gcode import tcp as gtcp
-    from .gcode.provenance import compensated_line, header_lines, insert_header_bytes
+    from .gcode.provenance import check_nc_write, header_lines, insert_header_bytes
 
     opts = dict(filename=filename, chordal_tol=chordal_tol, start=start, unknown=unknown,
                 provenance=provenance, progress=progress, convert_inch=convert_inch,
@@ -360,11 +360,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
         return new.encode(encoding), report
     tol = _check_chordal_tol(machine, chordal_tol)
     check_errors_for_machine(errors, machine)
-    done = compensated_line(text, ascii)
-    if done is not None and not force:
-        raise InputError("this program was already compensated by mtcomp (provenance header); "
-                         "compensating it again would apply the errors twice: use the original "
-                         "program, or --force", filename, done)
+    check_nc_write(text, filename=filename, force=force)
     fl = flow.expand(text, filename, search=search_path, ascii=ascii)
     if fl is not None:
         # (subprogram calls: the expansion is text)
@@ -460,12 +456,6 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                                                  out_line=out_line, consume=True))
     info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
-    verified = None
-    if stock is not None or part is not None:
-        verified = verify_output(machine, raw, errors, filename=filename, stock=stock,
-                                 part=part, clearance=clearance, tolerance=tolerance,
-                                 warn_only=warn_only, start=start, resolution=res,
-                                 tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
     before = np.empty(len(kk))
     after = np.empty(len(kk))
     every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
@@ -487,8 +477,16 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
             before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
+    _refuse_residuals(machine, prog, kk, after, tolerance, filename,
+                      info.get("read_deviation"))
     _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
                     filename)
+    verified = None
+    if stock is not None or part is not None:
+        verified = verify_output(machine, raw, errors, filename=filename, stock=stock,
+                                 part=part, clearance=clearance, tolerance=tolerance,
+                                 warn_only=warn_only, start=start, resolution=res,
+                                 tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
     n_lines, idle_axes, notes = prog.n_lines, prog.idle_axes, prog.notes
     new_text = raw
     if as_text:
@@ -506,6 +504,40 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
               "verify": verified, "flow": None, "compensated": kn, "cutter": cut}
     return new_text, report
+
+
+def residual_limit(machine, tolerance: float) -> float:
+    """Largest tool-edge error (mm) a compensated block may keep at its end: ``tolerance``, or
+    the error the written numbers' rounding alone can leave (half a resolution step on every
+    linear axis) if that is larger."""
+    half = [a.resolution / 2 for a in machine.axes if a.kind == "linear"]
+    return max(float(tolerance), math.sqrt(sum(h * h for h in half)) * (1 + 1e-9))
+
+
+def _refuse_residuals(machine, prog, kk, after, tolerance, filename, carried=None):
+    """Nothing over tolerance leaves the command: a compensated block whose tool edge, with the
+    numbers as written run through the forward model, misses the programmed one by more than
+    `residual_limit` is refused by line (whatever produced it: a canned cycle or an increment
+    taken from a position that was not known, a table, a solver that stopped short)."""
+    limit = residual_limit(machine, tolerance)
+    # (plus what the program itself carries where the control reads its words: G91 increments
+    # finer than a count drift from the exact sum whether compensated or not)
+    lim = limit if carried is None else limit + np.asarray(carried)[kk]
+    bad = np.flatnonzero(~(after <= lim))                 # (NaN is over, too)
+    if not len(bad):
+        return
+    i = int(bad[np.argmax(np.nan_to_num(after[bad], nan=np.inf))])
+    first = int(bad[0])
+    line = int(prog.line[kk[first]])
+    worst = "" if i == first else (f"; worst {after[i] * 1e3:.4g} µm at line "
+                                   f"{int(prog.line[kk[i]])}")
+    idle = [a for a in (prog.idle_axes or ()) if a in "XYZUVW"]
+    hint = (f" (the program never writes {' '.join(idle)}, so no correction can be written "
+            "for it: give --start to state where it stands)" if idle else "")
+    raise InputError(f"the compensated block misses the programmed tool edge by "
+                     f"{after[first] * 1e3:.4g} µm, more than the tolerance "
+                     f"{limit * 1e3:.4g} µm ({len(bad)} block(s){worst}){hint}; nothing written",
+                     filename, line)
 
 
 def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filename):
@@ -828,6 +860,9 @@ def _cmd_compensate(args) -> int:
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
     if out.is_dir():
         raise InputError("the output is a directory; give a file name", str(out), field="-o")
+    from .gcode.provenance import check_nc_write
+    # (the header itself is checked by compensate_program)
+    check_nc_write(None, output=out, inputs=(src, args.errors))
     tol = None if args.chordal_tol is None else args.chordal_tol * 1e-3
     arc_tol = None
     if args.arc_tol is not None:

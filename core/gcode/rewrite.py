@@ -211,6 +211,37 @@ def _control_counts(program: Program, res: np.ndarray, offc=None, words=None) ->
     return Cc
 
 
+def _read_deviation(program: Program, Cc: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """(N,) mm: how far the control's reading of the program as written (each word rounded to
+    its count, G91 increments summed count by count) stands from the parsed positions, over
+    the linear axes: the part of a block's tool-edge error the program itself carries (G91
+    increments finer than a count), which no compensation removes.  NaN -> 0."""
+    P = np.asarray(program.position)
+    lin = [k for k, a in enumerate(program.axes) if a in LINEAR]
+    out = np.zeros(len(P))
+    for s in range(0, len(P), 1 << 18):
+        d = Cc[1 + s:1 + s + (1 << 18), lin] * res[lin] - P[s:s + (1 << 18), lin]
+        out[s:s + len(d)] = np.sqrt(np.nansum(d * d, axis=1))
+    return out
+
+
+def _refuse_unread_counts(program: Program, Cc: np.ndarray, kk, every: bool) -> None:
+    """A compensated block must have a control reading (counts) for every axis: where the
+    parser knows the position but the counts are NaN, the words would be written relative to
+    0 (a retract written as no move).  Refused naming the line instead."""
+    rows = Cc[1:] if every else Cc[1 + kk]
+    bad = np.isnan(rows).any(axis=1)
+    if not bad.any():
+        return
+    j = int(np.argmax(bad))
+    i = j if every else int(kk[j])
+    axes = " ".join(a for a, b in zip(program.axes, np.isnan(rows[j])) if b)
+    raise InputError(f"where the control stands in {axes} after this block cannot be read from "
+                     "the words before it (a canned cycle or an increment from a position not "
+                     "known): state the start position (--start)", program.filename,
+                     int(program.line[i]))
+
+
 def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
     """G91 axis words of exactly half a count of the resolution (X0.00005 at 0.0001 mm): the
     control rounds them up, to even or down depending on the control, and the difference adds
@@ -480,6 +511,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     rep_rows = cycle_counts.stepped_rows(program)
     if cyc.any():
         Cc = cycle_counts.control_counts(program, Cc, res, rep_rows, offc)
+    _refuse_unread_counts(program, Cc, kk, nk == N)
+    if info is not None:
+        info["read_deviation"] = _read_deviation(program, Cc, res)
     dK = np.subtract(Qt[:nk], P if nk == N else P[kk])         # (in place: no temporaries)
     np.divide(dK, res, out=dK)
     np.rint(dK, out=dK)

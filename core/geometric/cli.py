@@ -70,6 +70,8 @@ def register(subparsers) -> None:
                                    "--truth (or the model): box:x0,y0,z0,x1,y1,z1 (mm), plane:Z or a STEP file")
     s.add_argument("--clearance", type=float, default=0.2,
                    help="with --stock: clearance every rapid keeps from it, mm (0.2)")
+    s.add_argument("--force", action="store_true",
+                   help="rewrite a --program that mtcomp has already compensated")
     s.add_argument("-o", "--output", required=True, help="output directory")
     s.set_defaults(func=_table)
 
@@ -231,7 +233,12 @@ def _rewrite_program(args: argparse.Namespace, model):
     src = Path(args.program)
     text = read_program(src)
     machine = load_machine(args.machine)
-    new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src))
+    from ..gcode.provenance import check_nc_write, writer_items
+    check_nc_write(None, output=Path(args.output) / (src.stem + "_comp" + src.suffix), inputs=(src,))
+    new_text, rep = compensate_program(
+        text, machine, extend_tables(model), filename=str(src), force=getattr(args, "force", False),
+        provenance=writer_items("geometric table --program", errors=args.errors,
+                                machine=machine.name, source=src))
     msg = (f"{src}: {rep['blocks']} motion blocks; model tool-edge error max "
            f"{rep['before_max'] * 1e3:.3f} µm before, {rep['after_max'] * 1e3:.4f} µm after")
     return src.stem + "_comp" + src.suffix, new_text, msg
