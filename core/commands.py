@@ -389,6 +389,18 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
         return tools[length]
     _travel_check(machine, prog, filename,
                   _axis_positions(machine, prog, _reference(prog, prog.position)))
+    from .gcode.frame import machine_frame
+    mf = machine_frame(machine, prog, errors, filename)
+
+    def solve(m, qq):                  # retarget, in the machine frame (docs/gcode.md)
+        if mf is None:
+            return retarget(m, qq, errors)
+        return mf.from_machine(retarget(m, mf.to_machine(qq), mf.errors))
+
+    def dev(m, a, b):                  # deviations, in the machine frame
+        if mf is None:
+            return deviations(m, a, b, errors)
+        return deviations(m, mf.to_machine(a), mf.to_machine(b), mf.errors)
     hint = _three_axis_hint(machine, prog)
     calls = []
 
@@ -417,9 +429,9 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                         # (an arc's interior points take the tool of the block they belong to)
                         rr = np.arange(len(q))[rows]
                         for length, sub in _by_tool(tip[blk], rr):
-                            out[sub] = retarget(at_tip(length), q[sub], errors)
+                            out[sub] = solve(at_tip(length), q[sub])
                     else:
-                        out[rows] = retarget(machine, q[rows], errors)
+                        out[rows] = solve(machine, q[rows])
                 except (LimitError, ConvergenceError, TableRangeError) as exc:
                     i = int(np.arange(len(q))[rows][getattr(exc, "index", 0)])
                     line = int(lines[i]) if 0 <= i < len(lines) else None
@@ -464,7 +476,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
         on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
         r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
         if len(rows[~on]) and not lengths:
-            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = deviations(machine, P[r], emitted[r], errors)
+            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = dev(machine, P[r], emitted[r])
         elif len(rows[~on]):
             # at the tip of each block's tool, where the transform put it
             b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
@@ -472,15 +484,19 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
             for length, sub in _by_tool(tip, rows[~on]):
                 mt = at_tip(length)
                 k = pos[np.isin(rows[~on], sub)]
-                b_out[k], a_out[k] = deviations(mt, P[sub], emitted[sub], errors)
+                b_out[k], a_out[k] = dev(mt, P[sub], emitted[sub])
         if on.any():
             r = rows[on]
             b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
             before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
     _refuse_residuals(machine, prog, kk, after, tolerance, filename,
                       info.get("read_deviation"))
-    _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
-                    filename)
+    if mf is None:
+        _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
+                        filename)
+    else:
+        _midblock_check(machine, prog, mf.to_machine(P), mf.to_machine(emitted), kn, kk, before,
+                        mf.errors, tip, at_tip, tolerance, filename)
     verified = None
     if stock is not None or part is not None:
         verified = verify_output(machine, raw, errors, filename=filename, stock=stock,

@@ -427,7 +427,8 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
         notes.append("G43.1 (LinuxCNC dynamic tool length) on line(s) "
                      f"{', '.join(str(int(x) + 1) for x in np.flatnonzero(tool_l == 431)[:5])}: "
                      "its Z word is the tool length (not a move), read as G43 with it")
-    offsets_line, tlen_line, offset_assumed, tip_line, gauge_line = offsets_per_line(
+    frame_line = int(np.argmax(wcs_l >= 0)) + 1 if (wcs_l >= 0).any() else 0
+    offsets_line, tlen_line, offset_assumed, tip_line, gauge_line, frame = offsets_per_line(
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
         first_motion, n_lines, filename, notes, written, change_line, dyn_len)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
@@ -887,7 +888,7 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
         if a is not None:
             a.flags.writeable = False
     prog = Program(filename=filename, axes=axes, data=data, idle_axes=idle_axes,
-                   offset_assumed=offset_assumed,
+                   offset_assumed=offset_assumed, frame=frame, frame_line=frame_line,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
     if isinstance(text, str):
         prog.__dict__["text"] = text            # (Program.text: the str given, not decoded again)
