@@ -157,7 +157,9 @@ class ShapeStock:
             raise InputError(f"cannot read STEP: {exc}", p) from None
         return cls(shape, p.name)
 
-    def distance(self, pts: np.ndarray) -> np.ndarray:
+    def distance(self, pts: np.ndarray, progress=None) -> np.ndarray:
+        """Signed distance (mm, negative inside) of points (N, 3).  ``progress(done, total)``
+        is called as the points near the solid are evaluated (they take the time)."""
         from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
         from OCP.BRepClass3d import BRepClass3d_SolidClassifier
         from OCP.BRepExtrema import BRepExtrema_DistShapeShape
@@ -167,13 +169,39 @@ class ShapeStock:
         d = self.box.distance(pts)
         near = np.nonzero(d < self.far)[0]
         classifier = BRepClass3d_SolidClassifier(self.shape)
-        for i in near:
+        # the solid loaded once, each point as the second shape: 1.7x faster than a new
+        # BRepExtrema_DistShapeShape per point (310 against 530 µs per point, 15 faces)
+        ext = BRepExtrema_DistShapeShape()
+        ext.LoadS1(self._boundary())
+        for k, i in enumerate(near.tolist()):
             p = gp_Pnt(*map(float, pts[i]))
-            ext = BRepExtrema_DistShapeShape(self.shape, BRepBuilderAPI_MakeVertex(p).Vertex())
+            ext.LoadS2(BRepBuilderAPI_MakeVertex(p).Vertex())
+            ext.Perform()
             dist = ext.Value()
             classifier.Perform(p, 1e-7)
             d[i] = -dist if classifier.State() == TopAbs_IN else dist
+            if progress is not None and k % 256 == 0:
+                progress(k, len(near))
+        if progress is not None:
+            progress(len(near), len(near))
         return d
+
+    def _boundary(self):
+        """The solid's boundary (its shells as one compound): the distance from a point inside
+        a solid to the solid is 0, so the depth of a gouge is the distance to the boundary (with
+        the solid itself every point tool inside read -0 and no gouge was ever found)."""
+        from OCP.BRep import BRep_Builder
+        from OCP.TopAbs import TopAbs_SHELL
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopoDS import TopoDS_Compound
+        comp, builder = TopoDS_Compound(), BRep_Builder()
+        builder.MakeCompound(comp)
+        ex, n = TopExp_Explorer(self.shape, TopAbs_SHELL), 0
+        while ex.More():
+            builder.Add(comp, ex.Current())
+            ex.Next()
+            n += 1
+        return comp if n else self.shape
 
     def describe(self) -> str:
         return f"solid {self.name} ({self.box.describe()})"
@@ -500,7 +528,7 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
                     step: float = 0.005, lines=None, texts=None, arcs=None, name: str = "program",
                     raise_on_violation: bool = True, tcp=False,
                     rapid_rates=None, retracts: bool = False, tool_length=None,
-                    tcp_rapids: str = "both", known=None) -> VerifyResult:
+                    tcp_rapids: str = "both", known=None, progress=None) -> VerifyResult:
     """Verify axis commands q (N, n_axes) mm/deg with per-block motion codes (N,) (0 rapid,
     1 feed, 2 probe, 3 feed on an arc).
 
@@ -627,7 +655,7 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
                               tool_length=L, space="tip", lines=lines)
         n_samples += len(pts)
         if len(pts):
-            dist = part.distance(pts) - tool_radius
+            dist = _part_distance(part, pts, progress) - tool_radius
             min_p = float(dist.min())
             violations += worst_per_block(pts, owner, dist, dist < -tolerance, "gouge")
     violations.sort(key=lambda v: v.block)
@@ -639,6 +667,17 @@ def verify_commands(machine, q, motion, *, stock=None, clearance: float = 0.1, p
                           + (f" (and {len(violations) - 1} more blocks)" if len(violations) > 1 else ""),
                           res)
     return res
+
+
+def _part_distance(part, pts, progress):
+    """part.distance(pts), with progress where the part takes it (ShapeStock: about 0.3 ms per
+    point near the solid, minutes for a finishing program)."""
+    if progress is not None:
+        try:
+            return part.distance(pts, progress=progress)
+        except TypeError:                  # (stocks without progress: analytic, fast)
+            pass
+    return part.distance(pts)
 
 
 def _departs(pts: np.ndarray, dist: np.ndarray, clearance: float, step: float) -> bool:
@@ -808,6 +847,10 @@ def verify_program(machine, text: str, *, filename: str = "<string>", tool_lengt
     q, motion, lines, texts, arcs, tcp, length, known, unknown = program_commands(
         machine, text, filename, tool_lengths, work_offsets)
     kw.setdefault("name", filename)
+    if kw.get("part") is not None and "progress" not in kw:
+        # the part check takes minutes on a finishing program: a bar on a terminal's stderr
+        from .progress import Progress
+        kw["progress"] = Progress(f"verify {filename}: feed moves against the part")
     warning = gauge_point_warning(lines, unknown)
     raise_on_violation = kw.pop("raise_on_violation", True)
     try:

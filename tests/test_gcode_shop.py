@@ -243,3 +243,21 @@ def test_verify_without_part_says_rapids_only_and_checks_cycle_holes(tmp_path, r
     src.write_text("G90 G0 X0 Y0 Z10.\nG99 G81 X1. Y1. Z-2. R-1. F100\nG80\nG0 Z10.\n")
     r = run("verify", src, "-m", "vmc-moving-column", "--stock", BOX)
     assert r.returncode == 2 and "line 2" in r.stdout and "FAIL" in r.stdout
+
+
+def test_the_part_check_shows_progress_and_finds_a_gouge():
+    """--part: the distance to a STEP solid takes about 0.3 ms per sample; the check reports
+    its progress (here into a buffer) and still finds the block that cuts 0.1 mm into it."""
+    import io
+
+    import cadquery as cq
+
+    from mtcomp.progress import Progress
+    from mtcomp.verify import ShapeStock, verify_program
+    part = ShapeStock(cq.Workplane().box(4, 4, 2).translate((0, 0, -1)), "part")
+    text = "G90 G0 X-3. Y0 Z1.\nG1 Z0 F100\nX-1.\nZ-0.1\nX1.\nG0 Z1.\n"
+    buf = io.StringIO()
+    res = verify_program(load_machine("vmc-moving-column"), text, part=part,
+                         raise_on_violation=False, progress=Progress("part", True, buf))
+    assert "100.0%" in buf.getvalue()
+    assert [v.line for v in res.violations] == [4, 5] and res.min_part == pytest.approx(-0.1)

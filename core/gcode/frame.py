@@ -62,8 +62,10 @@ def wcs_text(prog) -> str:
 def machine_frame(machine, prog, errors, filename: str = "<string>") -> MachineFrame | None:
     """The machine frame of `prog` for `errors`, or None where nothing depends on it (no
     geometric errors, or the program origin at the machine zero).  Refused (InputError naming
-    the line of the work offset code) where geometric errors are given and the program names a
-    work offset whose value is not given for an axis it moves."""
+    the line of the work offset code) where error tables are given and the program names a
+    work offset whose value is not given for an axis it moves.  With location errors only, an
+    offset not given is taken as 0 (the machine file's origin is the program's: location
+    errors such as squareness change with the origin only by a constant, as before)."""
     if errors is None or errors.geometric.is_zero:
         return None
     frame = getattr(prog, "frame", None)
@@ -71,7 +73,7 @@ def machine_frame(machine, prog, errors, filename: str = "<string>") -> MachineF
     base = np.zeros(n) if frame is None else np.asarray(frame, float)[:n].copy()
     written = np.asarray(prog.present).any(axis=0) if len(prog) else np.zeros(n, bool)
     missing = [a for a, v, w in zip(machine.axis_names, base, written) if w and not np.isfinite(v)]
-    if missing:
+    if missing and errors.geometric.tables:
         name = wcs_text(prog)
         raise InputError(f"the geometric errors are in machine coordinates, and the value of "
                          f"{name} ({' '.join(missing)}), where this program's origin lies on the "
