@@ -448,7 +448,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     # decoding to text at the end (a 1 M-line program is 57 MB: each copy counts at the peak)
     raw, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
                                              unknown=unknown, row_lines=calls, info=info,
-                                             as_bytes=True)
+                                             as_bytes=True, arc_tol=tolerance)
     raw = raw if isinstance(raw, bytearray) else bytearray(raw)
     kn = np.asarray(info["compensated"])
     cut = _cutter_check(machine, prog, errors, kn, cutter_radius, cutter_offsets, tolerance,

@@ -77,3 +77,24 @@ def test_a_named_work_offset_not_given_is_refused_with_geometric_errors():
     compensate_program(BODY, M, e)
     # G10 in the program gives it
     compensate_program("G10 L2 P2 X50. Y0 Z0\nG55\n" + BODY, M, e)
+
+
+def test_arcs_stay_arcs_within_the_tolerance_and_lines_are_the_same_bytes():
+    """Under tables and squareness an arc's corrected path is no exact circle: kept within
+    --tolerance (0.5 µm) it stays an arc; with the tolerance at the chordal one (0.2 µm) more
+    arcs are linearised, and their lines (compiled formatter, all arcs at once) read back onto
+    the end points the rewrite emitted (compensate's own read-back check)."""
+    e = ErrorSet(ToolSetting((0.002, -0.001, 0.0005)), geometric=_x_table())
+    rng = np.random.default_rng(3)
+    lines, x = ["G90 G17 G0 X-280. Y0 Z5.", "G1 Z-1. F300"], -280.0
+    for i in range(30):
+        r = float(rng.uniform(2, 8))
+        lines.append(f"G{2 + i % 2} X{x + 2 * r:.4f} Y0 I{r:.4f} J0")
+        x += 2 * r
+        lines.append(f"G1 X{x + 1:.4f} Y0")
+        x += 1
+    text = "\n".join(lines) + "\n"
+    _, wide = compensate_program(text, M, e)
+    out, narrow = compensate_program(text, M, e, tolerance=2e-4)
+    assert narrow["linearised"] > wide["linearised"]
+    assert out.count("\n") > text.count("\n") + 10 * narrow["linearised"]
