@@ -468,35 +468,10 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                                                  out_line=out_line, consume=True))
     info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
-    before = np.empty(len(kk))
-    after = np.empty(len(kk))
-    every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
-    for s in range(0, len(kk), CHUNK):
-        rows = kk[s:s + CHUNK]
-        on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
-        r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
-        if len(rows[~on]) and not lengths:
-            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = dev(machine, P[r], emitted[r])
-        elif len(rows[~on]):
-            # at the tip of each block's tool, where the transform put it
-            b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
-            pos = np.flatnonzero(~on)
-            for length, sub in _by_tool(tip, rows[~on]):
-                mt = at_tip(length)
-                k = pos[np.isin(rows[~on], sub)]
-                b_out[k], a_out[k] = dev(mt, P[sub], emitted[sub])
-        if on.any():
-            r = rows[on]
-            b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
-            before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
-    _refuse_residuals(machine, prog, kk, after, tolerance, filename,
-                      info.get("read_deviation"))
-    if mf is None:
-        _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
-                        filename)
-    else:
-        _midblock_check(machine, prog, mf.to_machine(P), mf.to_machine(emitted), kn, kk, before,
-                        mf.errors, tip, at_tip, tolerance, filename)
+    before, after = _edge_errors(machine, prog, P, emitted, kk, kn, tcp, tip, at_tip, dev,
+                                 errors)
+    _output_checks(machine, prog, P, emitted, kn, kk, before, after, errors, mf, tip, at_tip,
+                   tolerance, filename, info.get("read_deviation"))
     verified = None
     if stock is not None or part is not None:
         verified = verify_output(machine, raw, errors, filename=filename, stock=stock,
@@ -520,6 +495,50 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
               "verify": verified, "flow": None, "compensated": kn, "cutter": cut}
     return new_text, report
+
+
+def _edge_errors(machine, prog, P, emitted, kk, kn, tcp, tip, at_tip, dev, errors):
+    """Tool-edge error (mm) of every compensated block ``kk`` before (the programmed positions
+    P on the machine with the errors) and after (the written ones, ``emitted``), from the
+    forward model, in chunks: at the tip of each block's tool (G43 lengths, ``tip``), G43.4
+    blocks at their tool tip (gcode.tcp).  ``dev``: `deviations` in the machine frame."""
+    from .gcode import tcp as gtcp
+    before = np.empty(len(kk))
+    after = np.empty(len(kk))
+    every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
+    for s in range(0, len(kk), CHUNK):
+        rows = kk[s:s + CHUNK]
+        on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
+        r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
+        if len(rows[~on]) and tip is None:
+            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = dev(machine, P[r], emitted[r])
+        elif len(rows[~on]):
+            # at the tip of each block's tool, where the transform put it
+            b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
+            pos = np.flatnonzero(~on)
+            for length, sub in _by_tool(tip, rows[~on]):
+                mt = at_tip(length)
+                k = pos[np.isin(rows[~on], sub)]
+                b_out[k], a_out[k] = dev(mt, P[sub], emitted[sub])
+        if on.any():
+            r = rows[on]
+            b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
+            before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
+    return before, after
+
+
+def _output_checks(machine, prog, P, emitted, kn, kk, before, after, errors, mf, tip, at_tip,
+                   tolerance, filename, carried):
+    """The checks of the written program that refuse it (nothing written): every block's
+    tool edge within the tolerance (`_refuse_residuals`), and every block's middle
+    (`_midblock_check`, in the machine frame ``mf`` where there is one)."""
+    _refuse_residuals(machine, prog, kk, after, tolerance, filename, carried)
+    if mf is None:
+        _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
+                        filename)
+    else:
+        _midblock_check(machine, prog, mf.to_machine(P), mf.to_machine(emitted), kn, kk, before,
+                        mf.errors, tip, at_tip, tolerance, filename)
 
 
 def residual_limit(machine, tolerance: float) -> float:
