@@ -366,8 +366,9 @@ def shop_errors(kind: str):
                     geometric=GeometricErrors(tables, {"EC0Y": 2e-5}))
 
 
-def shop_run(path_in: str, path_out: str, kind: str) -> dict:
-    """`compensate_program` of the shop program with ``kind`` errors (CPU, wall, lines out)."""
+def shop_run(path_in: str, path_out: str, kind: str, keep=None) -> dict:
+    """`compensate_program` of the shop program with ``kind`` errors (CPU, wall, lines out);
+    ``keep``: arc_keep_tol (mm), where the tree has it."""
     from mtcomp._io import atomic_write
     from mtcomp.commands import compensate_program
     from mtcomp.machine import load_machine
@@ -375,6 +376,8 @@ def shop_run(path_in: str, path_out: str, kind: str) -> dict:
     err = shop_errors(kind)
     gcode.parse("G1 X0\n", axes=m.axis_names)
     kw = {"work_offsets": {"G54": {"X": 0.0, "Y": 0.0, "Z": 0.0}}}
+    if keep is not None:
+        kw["arc_keep_tol"] = keep
     t0, c0 = time.perf_counter(), time.process_time()
     with open(path_in, "rb") as fh:
         data = fh.read()
@@ -400,12 +403,13 @@ def shop(n_lines: int, baseline=None, report: bool = True) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         pin, pout = os.path.join(tmp, "in.nc"), os.path.join(tmp, "out.nc")
         Path(pin).write_text(text, encoding="utf-8", newline="")
-        for name, path in [("new", None)] + ([("old", baseline)] if baseline else []):
-            res = {k: run_child(pin, pout, "shop_run", k, pythonpath=path) for k in ("setting", "tables")}
-            s, t = res["setting"], res["tables"]
+        runs = [("new", None, None), ("new, --arc-keep-tol 0.5 µm", None, 5e-4)]
+        for name, path, keep in runs + ([("old", baseline, None)] if baseline else []):
+            s = run_child(pin, pout, "shop_run", "setting", keep, pythonpath=path)
+            t = run_child(pin, pout, "shop_run", "tables", keep, pythonpath=path)
             ratio = t["cpu"] / s["cpu"]
             grow = t.get("lines_out", float("nan")) / t.get("lines_in", float("nan"))
-            line = (f"{name:4s} setting only: cpu {s['cpu']:.2f} s wall {s['wall']:.2f} s; tables + "
+            line = (f"{name} setting only: cpu {s['cpu']:.2f} s wall {s['wall']:.2f} s; tables + "
                     f"squareness: cpu {t['cpu']:.2f} s wall {t['wall']:.2f} s ({ratio:.2f}x), "
                     f"output {grow:.2f}x the input's lines, {t.get('linearised', '-')} arcs "
                     f"linearised, after {t.get('after_max_nm', float('nan')):.2f} nm, peak "

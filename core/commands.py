@@ -306,7 +306,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
                        tolerance: float = TOLERANCE, warn_only: bool = False, search_path=None,
                        cutter_radius: float | None = None, cutter_offsets: dict | None = None,
-                       encoding: str = "utf-8"):
+                       encoding: str = "utf-8", arc_keep_tol: float | None = None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -334,6 +334,9 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     under G41/G42 (the option wins; default gcode.cutter.DEFAULT_RADIUS, noted): their
     correction is evaluated at the programmed contour, and a block where that differs from the
     correction at the tool centre by more than ``tolerance`` is refused (docs/gcode.md).
+    arc_keep_tol (mm): an arc stays G2/G3 where its corrected path is a circle within this
+    (default: the chordal tolerance, so that kept arcs are as accurate as linearised ones; a
+    larger value, up to ``tolerance``, keeps more arcs at that accuracy: issue 31).
     search_path: directories where subprograms called but not in the program are looked for
     (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
     Returns (new program (text or bytes, as given), report dict: blocks, lines, deferred
@@ -345,6 +348,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     from .gcode.provenance import check_nc_write, header_lines, insert_header_bytes
 
     opts = dict(filename=filename, chordal_tol=chordal_tol, start=start, unknown=unknown,
+                arc_keep_tol=arc_keep_tol,
                 provenance=provenance, progress=progress, convert_inch=convert_inch,
                 tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
                 stock=stock, part=part, clearance=clearance, tolerance=tolerance,
@@ -448,7 +452,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     # decoding to text at the end (a 1 M-line program is 57 MB: each copy counts at the peak)
     raw, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
                                              unknown=unknown, row_lines=calls, info=info,
-                                             as_bytes=True, arc_tol=tolerance)
+                                             as_bytes=True, arc_tol=arc_keep_tol)
     raw = raw if isinstance(raw, bytearray) else bytearray(raw)
     kn = np.asarray(info["compensated"])
     cut = _cutter_check(machine, prog, errors, kn, cutter_radius, cutter_offsets, tolerance,
@@ -927,6 +931,12 @@ def _cmd_compensate(args) -> int:
         options.append("subprogram-path " + args.subprogram_path)
     if args.force:
         options.append("force")
+    keep = None if args.arc_keep_tol is None else args.arc_keep_tol * 1e-3
+    if keep is not None:
+        if keep > args.tolerance:
+            raise InputError(f"expected at most --tolerance ({args.tolerance * 1e3:g} µm), got "
+                             f"{args.arc_keep_tol:g} µm", field="--arc-keep-tol")
+        options.append(f"arc-keep-tol {keep:g} mm")
     cutter_radius = args.cutter_radius
     if cutter_radius is not None:
         if not (math.isfinite(cutter_radius) and cutter_radius >= 0):
@@ -962,7 +972,8 @@ def _cmd_compensate(args) -> int:
                                        stock=stock, part=part, clearance=args.clearance,
                                        tolerance=args.tolerance, warn_only=args.warn_only,
                                        search_path=search, cutter_radius=cutter_radius,
-                                       cutter_offsets=cutter_offsets, encoding=encoding)
+                                       cutter_offsets=cutter_offsets, encoding=encoding,
+                                       arc_keep_tol=keep)
     del data
     atomic_write(out, new_data)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
@@ -1037,6 +1048,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chordal-tol", type=positive_float, default=None, metavar="UM",
                    help="chordal tolerance for linearised arcs in µm (default 0.1, at least twice "
                         "the linear axis resolution)")
+    p.add_argument("--arc-keep-tol", type=positive_float, default=None, metavar="UM",
+                   help="keep an arc as G2/G3 where its corrected path is a circle within this, "
+                        "µm (default: the chordal tolerance; at most --tolerance)")
     p.add_argument("--arc-tol", type=float, default=None, metavar="UM",
                    help="largest accepted difference of an arc's radius at its start and end, in "
                         "µm (default 20, 50.8 in inch programs, as LinuxCNC); within it the arc is "

@@ -80,9 +80,9 @@ def test_a_named_work_offset_not_given_is_refused_with_geometric_errors():
 
 
 def test_arcs_stay_arcs_within_the_tolerance_and_lines_are_the_same_bytes():
-    """Under tables and squareness an arc's corrected path is no exact circle: kept within
-    --tolerance (0.5 µm) it stays an arc; with the tolerance at the chordal one (0.2 µm) more
-    arcs are linearised, and their lines (compiled formatter, all arcs at once) read back onto
+    """Under tables and squareness an arc's corrected path is no exact circle: with
+    --arc-keep-tol 0.5 µm more arcs stay arcs; at the default (the chordal tolerance, 0.2 µm)
+    more are linearised, and their lines (compiled formatter, all arcs at once) read back onto
     the end points the rewrite emitted (compensate's own read-back check)."""
     e = ErrorSet(ToolSetting((0.002, -0.001, 0.0005)), geometric=_x_table())
     rng = np.random.default_rng(3)
@@ -94,7 +94,7 @@ def test_arcs_stay_arcs_within_the_tolerance_and_lines_are_the_same_bytes():
         lines.append(f"G1 X{x + 1:.4f} Y0")
         x += 1
     text = "\n".join(lines) + "\n"
-    _, wide = compensate_program(text, M, e)
-    out, narrow = compensate_program(text, M, e, tolerance=2e-4)
+    _, wide = compensate_program(text, M, e, arc_keep_tol=5e-4)
+    out, narrow = compensate_program(text, M, e)
     assert narrow["linearised"] > wide["linearised"]
     assert out.count("\n") > text.count("\n") + 10 * narrow["linearised"]

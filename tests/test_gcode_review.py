@@ -343,9 +343,7 @@ def test_linearised_arcs_stay_on_the_programmed_path(name, mach):
         with pytest.raises(InputError, match="moves B, whose work offsets the program does not"):
             _comp(text, m, TILT, MACHINES[mach][1])
         return
-    # (arcs are kept within --tolerance, default 0.5 µm, issue 31: here within the chordal
-    # tolerance, so that this program's arcs are linearised as the test needs)
-    out, rep = _comp(text, m, TILT, MACHINES[mach][1], tolerance=2e-4)
+    out, rep = _comp(text, m, TILT, MACHINES[mach][1])
     assert rep["linearised"] > 0
     (before, tips0), (after, tips1) = interpret(text, tips=True), interpret(out, tips=True)
     rot1 = _rotary(out, after, start)

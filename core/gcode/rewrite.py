@@ -873,9 +873,27 @@ def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol, offc=None):
                np.array([pc[2] for pc in pieces]), offs, lens)
 
 
-def _segment_lines(ctx, lin, seg: _Segments, new, d_ax, m_ax, inc, offc, at_line):
-    """The new lines of every linearised arc at once: per arc the text (bytes: each line
-    preceded by its line ending) and the number of lines.  A line per segment point after the
+def _segment_lines(ctx, lin, seg: _Segments, new, d_ax, m_ax, inc, offc, at_line,
+                   chunk: int = 100_000):
+    """The new lines of every linearised arc: per arc the text (bytes: each line preceded by
+    its line ending) and the number of lines, formatted for groups of arcs of about ``chunk``
+    lines at once (the group's arrays are a few dozen bytes per line: bounded memory)."""
+    lin = np.asarray(lin)
+    lines = np.asarray(seg.count, np.int64) + 1
+    group = np.cumsum(lines) // max(int(chunk), 1)
+    cuts = np.flatnonzero(np.r_[True, group[1:] != group[:-1], True])
+    texts, counts = [], []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        sub = _Segments(None, np.asarray(seg.first)[a:b], np.asarray(seg.count)[a:b], seg.counts)
+        t, n = _segment_lines_group(ctx, lin[a:b], sub, new, d_ax, m_ax, inc, offc,
+                                    at_line[a:b])
+        texts += t
+        counts.append(n)
+    return texts, (np.concatenate(counts) if counts else np.zeros(0, np.int64))
+
+
+def _segment_lines_group(ctx, lin, seg: _Segments, new, d_ax, m_ax, inc, offc, at_line):
+    """`_segment_lines` of a group of arcs at once.  A line per segment point after the
     first, with the words of the axes that move (G91: the increments; else the positions in
     the block's frame), each number through the compiled formatter where built."""
     p = ctx.p
