@@ -307,6 +307,131 @@ def compensate_only(n_lines: int, rounds: int = 2, baseline=None) -> int:
     return 0
 
 
+# ------------------------------------------------------- issue 31: shop program on a VMC
+SHOP_MACHINE = "vmc-moving-column"
+
+
+def generate_shop(n_lines: int, seed: int = 1) -> str:
+    """A 3-axis program for vmc-moving-column of about n_lines lines under G54: G1 blocks of a
+    random walk in X Y Z, every 10th block a G2/G3 arc (radius 2-20 mm, quarter to half turn,
+    IJ format), N numbers."""
+    rng = np.random.default_rng(seed)
+    out = ["%", "O3001 (BENCHMARK 3-AXIS SHOP PROGRAM, GENERATED)", "G90 G17 G21 G54 G94",
+           "G0 X0 Y0 Z10.", "G1 Z-1. F800."]
+    x = y = 0.0
+    z = -1.0
+    n = 1
+    steps = rng.normal(0, 1.5, (n_lines, 3))
+    turns = rng.uniform(0.25, 0.5, n_lines) * np.pi
+    radii = rng.uniform(2, 20, n_lines)
+    dirs = rng.integers(0, 2, n_lines)
+    start = rng.uniform(0, 2 * np.pi, n_lines)
+    while len(out) < n_lines - 2:
+        if n % 10 == 0:
+            r, a0, t = radii[n], start[n], turns[n] * (1 if dirs[n] else -1)
+            cx, cy = x - r * np.cos(a0), y - r * np.sin(a0)
+            x0, y0 = x, y
+            x, y = round(cx + r * np.cos(a0 + t), 4), round(cy + r * np.sin(a0 + t), 4)
+            out.append(f"N{n} G{3 if dirs[n] else 2} X{x:.4f} Y{y:.4f} I{cx - x0:.4f} J{cy - y0:.4f}")
+            out.append("G1")
+        else:
+            x = round(float(np.clip(x + steps[n, 0], -250, 250)), 4)
+            y = round(float(np.clip(y + steps[n, 1], -150, 150)), 4)
+            z = round(float(np.clip(z + 0.05 * steps[n, 2], -5, -0.5)), 4)
+            out.append(f"N{n} X{x:.4f} Y{y:.4f} Z{z:.4f}")
+        n += 1
+    out += ["G0 Z10.", "M30", "%"]
+    return "\n".join(out) + "\n"
+
+
+def shop_errors(kind: str):
+    """"setting": a tool offset and a blank translation; "tables": those plus X Y Z tables
+    (up to 5 µm, 20 µrad) and squareness EC0Y 20 µrad."""
+    from mtcomp.errors import AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting
+    from mtcomp.errors import component_names
+    from mtcomp.machine import load_machine
+    base = ErrorSet(tool=ToolSetting((0.012, -0.004, 0.020)),
+                    workpiece=WorkpieceSetting((0.010, 0.005, -0.003), (0.0, 0.0, 0.0)))
+    if kind == "setting":
+        return base
+    m = load_machine(SHOP_MACHINE)
+    rng = np.random.default_rng(4)
+    tables = {}
+    for ax in m.axes:
+        pos = np.linspace(ax.limits[0] - 10, ax.limits[1] + 10, 57)
+        vals = {name: (5e-3 if name[1] in "XYZ" else 2e-5) * np.sin(pos / 23.0 + rng.uniform(0, 6))
+                * rng.uniform(0.3, 1) for name in component_names(ax.name)}
+        tables[ax.name] = AxisErrorTable(ax.name, pos, vals)
+    return ErrorSet(tool=base.tool, workpiece=base.workpiece,
+                    geometric=GeometricErrors(tables, {"EC0Y": 2e-5}))
+
+
+def shop_run(path_in: str, path_out: str, kind: str, keep=None) -> dict:
+    """`compensate_program` of the shop program with ``kind`` errors (CPU, wall, lines out);
+    ``keep``: arc_keep_tol (mm), where the tree has it."""
+    from mtcomp._io import atomic_write
+    from mtcomp.commands import compensate_program
+    from mtcomp.machine import load_machine
+    m = load_machine(SHOP_MACHINE)
+    err = shop_errors(kind)
+    gcode.parse("G1 X0\n", axes=m.axis_names)
+    kw = {"work_offsets": {"G54": {"X": 0.0, "Y": 0.0, "Z": 0.0}}}
+    if keep is not None:
+        kw["arc_keep_tol"] = keep
+    t0, c0 = time.perf_counter(), time.process_time()
+    with open(path_in, "rb") as fh:
+        data = fh.read()
+    try:
+        new, rep = compensate_program(data, m, err, filename=path_in, provenance=[("BENCH", "1")],
+                                      **kw)
+    except Exception as exc:                       # (a refusal is a result too)
+        return {"cpu": time.process_time() - c0, "wall": time.perf_counter() - t0,
+                "error": str(exc)[:200], "maxrss_mb": peak_rss_mb()}
+    atomic_write(path_out, new)
+    return {"cpu": time.process_time() - c0, "wall": time.perf_counter() - t0,
+            "lines_out": bytes(new).count(b"\n"), "lines_in": data.count(b"\n"),
+            "linearised": rep["linearised"], "after_max_nm": rep["after_max"] * 1e6,
+            "maxrss_mb": peak_rss_mb()}
+
+
+def shop(n_lines: int, baseline=None, report: bool = True) -> int:
+    """Issue 31's acceptance figure: a 3-axis program with arcs every 10th block, setting
+    errors only against tables + squareness, CPU and output lines, new tree and (``baseline``)
+    the old one, in the same run."""
+    text = generate_shop(n_lines)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        pin, pout = os.path.join(tmp, "in.nc"), os.path.join(tmp, "out.nc")
+        Path(pin).write_text(text, encoding="utf-8", newline="")
+        runs = [("new", None, None), ("new, --arc-keep-tol 0.5 µm", None, 5e-4)]
+        for name, path, keep in runs + ([("old", baseline, None)] if baseline else []):
+            s = run_child(pin, pout, "shop_run", "setting", keep, pythonpath=path)
+            t = run_child(pin, pout, "shop_run", "tables", keep, pythonpath=path)
+            ratio = t["cpu"] / s["cpu"]
+            grow = t.get("lines_out", float("nan")) / t.get("lines_in", float("nan"))
+            line = (f"{name} setting only: cpu {s['cpu']:.2f} s wall {s['wall']:.2f} s; tables + "
+                    f"squareness: cpu {t['cpu']:.2f} s wall {t['wall']:.2f} s ({ratio:.2f}x), "
+                    f"output {grow:.2f}x the input's lines, {t.get('linearised', '-')} arcs "
+                    f"linearised, after {t.get('after_max_nm', float('nan')):.2f} nm, peak "
+                    f"{t['maxrss_mb']:.0f} MB" + (f"; error: {t['error']}" if "error" in t else ""))
+            print(line, flush=True)
+            rows.append((name, s, t, ratio, grow))
+    if report:
+        body = ["## Shop programs: tables and arcs (issue 31)", "",
+                f"A {n_lines:,}-line 3-axis program on {SHOP_MACHINE} under G54, an arc every "
+                "10th block (`python benchmarks/bench_gcode.py --shop --lines N --baseline DIR`, "
+                "the old tree as DIR/mtcomp, in the same run), `compensate_program` CPU time. "
+                "Goal of the issue: tables + squareness <= 3x setting only, output <= 1.5x the "
+                "input's lines. " + machine_line(), "",
+                "| tree | setting only CPU | tables + squareness CPU | ratio | output lines / input | arcs linearised | after max |",
+                "|---|---|---|---|---|---|---|"]
+        for name, s, t, ratio, grow in rows:
+            body.append(f"| {name} | {s['cpu']:.2f} s | {t['cpu']:.2f} s | {ratio:.2f}x | {grow:.2f} | "
+                        f"{t.get('linearised', '-')} | {t.get('after_max_nm', float('nan')):.2f} nm |")
+        update_section("gcode-shop", "\n".join(body) + "\n")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--lines", type=int, default=1_000_000)
@@ -317,12 +442,16 @@ def main(argv=None) -> int:
                     help="only `mtcomp compensate` end to end (new path, new path with the allocator's "
                          "defaults, old path; interleaved, --rounds times), printed; docs not written")
     ap.add_argument("--rounds", type=int, default=2, help="rounds of --compensate-only (default 2)")
+    ap.add_argument("--shop", action="store_true",
+                    help="issue 31: 3-axis program with arcs, setting errors vs tables (--lines)")
     ap.add_argument("--baseline", metavar="DIR",
                     help="with --compensate-only: also run the package found as DIR/mtcomp (another "
                          "version, e.g. the commit before a change) in each round")
     args = ap.parse_args(argv)
     if args.compensate_only:
         return compensate_only(args.lines, args.rounds, args.baseline)
+    if args.shop:
+        return shop(args.lines, args.baseline, report=not args.no_report)
     from mtcomp.kinematics import retarget
     from mtcomp.machine import load_machine
     m = load_machine(MACHINE)

@@ -247,6 +247,11 @@ def post(machine, path: Toolpath, q: np.ndarray | None = None, options: PostOpti
             "(OUTPUT " + ("TOOL CENTRE POINT G43.4" if options.tcp else "MACHINE AXES")
             + ", " + _clean(comp) + ")",
             f"({len(path)} POSES FROM MTCOMP CAD_PLUGIN)"]
+    if errors is not None:
+        # the provenance marker: `mtcomp compensate` and every other writer refuse this
+        # program unless --force (its axes already carry the errors' correction)
+        from ..gcode.provenance import header_lines
+        head += [f"({ln})" for ln in header_lines([("ERRORS", _clean(errors_name or "given"))])]
     if options.comment:
         head.append(f"({_clean(options.comment)})")
     if options.probe_log and probing:

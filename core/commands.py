@@ -306,7 +306,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                        arc_tol: float | None = None, stock=None, part=None, clearance: float = 0.2,
                        tolerance: float = TOLERANCE, warn_only: bool = False, search_path=None,
                        cutter_radius: float | None = None, cutter_offsets: dict | None = None,
-                       encoding: str = "utf-8", reversal: dict | None = None):
+                       encoding: str = "utf-8", reversal: dict | None = None,
+                       arc_keep_tol: float | None = None):
     """Rewrite an NC program written for the ideal machine so that the real machine with
     `errors` cuts what the program meant.
 
@@ -334,6 +335,9 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     under G41/G42 (the option wins; default gcode.cutter.DEFAULT_RADIUS, noted): their
     correction is evaluated at the programmed contour, and a block where that differs from the
     correction at the tool centre by more than ``tolerance`` is refused (docs/gcode.md).
+    arc_keep_tol (mm): an arc stays G2/G3 where its corrected path is a circle within this
+    (default: the chordal tolerance, so that kept arcs are as accurate as linearised ones; a
+    larger value, up to ``tolerance``, keeps more arcs at that accuracy: issue 31).
     search_path: directories where subprograms called but not in the program are looked for
     (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
     reversal: {axis: mtcomp.geometric.reversal.ReversalTable}: also correct each position for the
@@ -344,9 +348,10 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     from . import gcode
     from .gcode import flow
     from .gcode import tcp as gtcp
-    from .gcode.provenance import compensated_line, header_lines, insert_header_bytes
+    from .gcode.provenance import check_nc_write, header_lines, insert_header_bytes
 
     opts = dict(filename=filename, chordal_tol=chordal_tol, start=start, unknown=unknown,
+                arc_keep_tol=arc_keep_tol,
                 provenance=provenance, progress=progress, convert_inch=convert_inch,
                 tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol,
                 stock=stock, part=part, clearance=clearance, tolerance=tolerance,
@@ -362,11 +367,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
         return new.encode(encoding), report
     tol = _check_chordal_tol(machine, chordal_tol)
     check_errors_for_machine(errors, machine)
-    done = compensated_line(text, ascii)
-    if done is not None and not force:
-        raise InputError("this program was already compensated by mtcomp (provenance header); "
-                         "compensating it again would apply the errors twice: use the original "
-                         "program, or --force", filename, done)
+    check_nc_write(text, filename=filename, force=force)
     fl = flow.expand(text, filename, search=search_path, ascii=ascii)
     if fl is not None and reversal:
         raise InputError("direction-dependent (reversal) compensation of programs with subprogram calls is "
@@ -398,6 +399,18 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
         return tools[length]
     _travel_check(machine, prog, filename,
                   _axis_positions(machine, prog, _reference(prog, prog.position)))
+    from .gcode.frame import machine_frame
+    mf = machine_frame(machine, prog, errors, filename)
+
+    def solve(m, qq):                  # retarget, in the machine frame (docs/gcode.md)
+        if mf is None:
+            return retarget(m, qq, errors)
+        return mf.from_machine(retarget(m, mf.to_machine(qq), mf.errors))
+
+    def dev(m, a, b):                  # deviations, in the machine frame
+        if mf is None:
+            return deviations(m, a, b, errors)
+        return deviations(m, mf.to_machine(a), mf.to_machine(b), mf.errors)
     hint = _three_axis_hint(machine, prog)
     calls = []
 
@@ -426,9 +439,9 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                         # (an arc's interior points take the tool of the block they belong to)
                         rr = np.arange(len(q))[rows]
                         for length, sub in _by_tool(tip[blk], rr):
-                            out[sub] = retarget(at_tip(length), q[sub], errors)
+                            out[sub] = solve(at_tip(length), q[sub])
                     else:
-                        out[rows] = retarget(machine, q[rows], errors)
+                        out[rows] = solve(machine, q[rows])
                 except (LimitError, ConvergenceError, TableRangeError) as exc:
                     i = int(np.arange(len(q))[rows][getattr(exc, "index", 0)])
                     line = int(lines[i]) if 0 <= i < len(lines) else None
@@ -448,7 +461,7 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     # decoding to text at the end (a 1 M-line program is 57 MB: each copy counts at the peak)
     raw, out_line = gcode.rewrite_with_lines(prog, transform, resolution=res, chordal_tol=tol,
                                              unknown=unknown, row_lines=calls, info=info,
-                                             as_bytes=True)
+                                             as_bytes=True, arc_tol=arc_keep_tol)
     raw = raw if isinstance(raw, bytearray) else bytearray(raw)
     kn = np.asarray(info["compensated"])
     cut = _cutter_check(machine, prog, errors, kn, cutter_radius, cutter_offsets, tolerance,
@@ -468,35 +481,16 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                                                  out_line=out_line, consume=True))
     info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
+    before, after = _edge_errors(machine, prog, P, emitted, kk, kn, tcp, tip, at_tip, dev,
+                                 errors)
+    _output_checks(machine, prog, P, emitted, kn, kk, before, after, errors, mf, tip, at_tip,
+                   tolerance, filename, info.get("read_deviation"))
     verified = None
     if stock is not None or part is not None:
         verified = verify_output(machine, raw, errors, filename=filename, stock=stock,
                                  part=part, clearance=clearance, tolerance=tolerance,
                                  warn_only=warn_only, start=start, resolution=res,
                                  tool_lengths=tool_lengths, work_offsets=work_offsets, arc_tol=arc_tol)
-    before = np.empty(len(kk))
-    after = np.empty(len(kk))
-    every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
-    for s in range(0, len(kk), CHUNK):
-        rows = kk[s:s + CHUNK]
-        on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
-        r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
-        if len(rows[~on]) and not lengths:
-            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = deviations(machine, P[r], emitted[r], errors)
-        elif len(rows[~on]):
-            # at the tip of each block's tool, where the transform put it
-            b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
-            pos = np.flatnonzero(~on)
-            for length, sub in _by_tool(tip, rows[~on]):
-                mt = at_tip(length)
-                k = pos[np.isin(rows[~on], sub)]
-                b_out[k], a_out[k] = deviations(mt, P[sub], emitted[sub], errors)
-        if on.any():
-            r = rows[on]
-            b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
-            before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
-    _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
-                    filename)
     n_lines, idle_axes, notes = prog.n_lines, prog.idle_axes, prog.notes
     new_text = raw
     if as_text:
@@ -514,6 +508,84 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
               "after_max": float(after.max(initial=0)), "after_rms": rms(after),
               "verify": verified, "flow": None, "compensated": kn, "cutter": cut}
     return new_text, report
+
+
+def _edge_errors(machine, prog, P, emitted, kk, kn, tcp, tip, at_tip, dev, errors):
+    """Tool-edge error (mm) of every compensated block ``kk`` before (the programmed positions
+    P on the machine with the errors) and after (the written ones, ``emitted``), from the
+    forward model, in chunks: at the tip of each block's tool (G43 lengths, ``tip``), G43.4
+    blocks at their tool tip (gcode.tcp).  ``dev``: `deviations` in the machine frame."""
+    from .gcode import tcp as gtcp
+    before = np.empty(len(kk))
+    after = np.empty(len(kk))
+    every = len(kk) == len(kn)                   # every block compensated: slices, no gathers
+    for s in range(0, len(kk), CHUNK):
+        rows = kk[s:s + CHUNK]
+        on = tcp[rows] if tcp.any() else np.zeros(len(rows), bool)
+        r = slice(s, s + len(rows)) if every and not on.any() else rows[~on]
+        if len(rows[~on]) and tip is None:
+            before[s:s + CHUNK][~on], after[s:s + CHUNK][~on] = dev(machine, P[r], emitted[r])
+        elif len(rows[~on]):
+            # at the tip of each block's tool, where the transform put it
+            b_out, a_out = before[s:s + CHUNK], after[s:s + CHUNK]
+            pos = np.flatnonzero(~on)
+            for length, sub in _by_tool(tip, rows[~on]):
+                mt = at_tip(length)
+                k = pos[np.isin(rows[~on], sub)]
+                b_out[k], a_out[k] = dev(mt, P[sub], emitted[sub])
+        if on.any():
+            r = rows[on]
+            b, a = gtcp.tip_errors(machine, P[r], emitted[r], prog.tool_length[r], errors)
+            before[s:s + CHUNK][on], after[s:s + CHUNK][on] = b, a
+    return before, after
+
+
+def _output_checks(machine, prog, P, emitted, kn, kk, before, after, errors, mf, tip, at_tip,
+                   tolerance, filename, carried):
+    """The checks of the written program that refuse it (nothing written): every block's
+    tool edge within the tolerance (`_refuse_residuals`), and every block's middle
+    (`_midblock_check`, in the machine frame ``mf`` where there is one)."""
+    _refuse_residuals(machine, prog, kk, after, tolerance, filename, carried)
+    if mf is None:
+        _midblock_check(machine, prog, P, emitted, kn, kk, before, errors, tip, at_tip, tolerance,
+                        filename)
+    else:
+        _midblock_check(machine, prog, mf.to_machine(P), mf.to_machine(emitted), kn, kk, before,
+                        mf.errors, tip, at_tip, tolerance, filename)
+
+
+def residual_limit(machine, tolerance: float) -> float:
+    """Largest tool-edge error (mm) a compensated block may keep at its end: ``tolerance``, or
+    the error the written numbers' rounding alone can leave (half a resolution step on every
+    linear axis) if that is larger."""
+    half = [a.resolution / 2 for a in machine.axes if a.kind == "linear"]
+    return max(float(tolerance), math.sqrt(sum(h * h for h in half)) * (1 + 1e-9))
+
+
+def _refuse_residuals(machine, prog, kk, after, tolerance, filename, carried=None):
+    """Nothing over tolerance leaves the command: a compensated block whose tool edge, with the
+    numbers as written run through the forward model, misses the programmed one by more than
+    `residual_limit` is refused by line (whatever produced it: a canned cycle or an increment
+    taken from a position that was not known, a table, a solver that stopped short)."""
+    limit = residual_limit(machine, tolerance)
+    # (plus what the program itself carries where the control reads its words: G91 increments
+    # finer than a count drift from the exact sum whether compensated or not)
+    lim = limit if carried is None else limit + np.asarray(carried)[kk]
+    bad = np.flatnonzero(~(after <= lim))                 # (NaN is over, too)
+    if not len(bad):
+        return
+    i = int(bad[np.argmax(np.nan_to_num(after[bad], nan=np.inf))])
+    first = int(bad[0])
+    line = int(prog.line[kk[first]])
+    worst = "" if i == first else (f"; worst {after[i] * 1e3:.4g} µm at line "
+                                   f"{int(prog.line[kk[i]])}")
+    idle = [a for a in (prog.idle_axes or ()) if a in "XYZUVW"]
+    hint = (f" (the program never writes {' '.join(idle)}, so no correction can be written "
+            "for it: give --start to state where it stands)" if idle else "")
+    raise InputError(f"the compensated block misses the programmed tool edge by "
+                     f"{after[first] * 1e3:.4g} µm, more than the tolerance "
+                     f"{limit * 1e3:.4g} µm ({len(bad)} block(s){worst}){hint}; nothing written",
+                     filename, line)
 
 
 def _cutter_check(machine, prog, errors, kn, radius, offsets, tolerance, filename):
@@ -836,6 +908,9 @@ def _cmd_compensate(args) -> int:
     out = Path(args.output) if args.output else src.with_name(src.stem + "_comp" + src.suffix)
     if out.is_dir():
         raise InputError("the output is a directory; give a file name", str(out), field="-o")
+    from .gcode.provenance import check_nc_write
+    # (the header itself is checked by compensate_program)
+    check_nc_write(None, output=out, inputs=(src, args.errors))
     tol = None if args.chordal_tol is None else args.chordal_tol * 1e-3
     arc_tol = None
     if args.arc_tol is not None:
@@ -865,6 +940,12 @@ def _cmd_compensate(args) -> int:
         options.append("subprogram-path " + args.subprogram_path)
     if args.force:
         options.append("force")
+    keep = None if args.arc_keep_tol is None else args.arc_keep_tol * 1e-3
+    if keep is not None:
+        if keep > args.tolerance:
+            raise InputError(f"expected at most --tolerance ({args.tolerance * 1e3:g} µm), got "
+                             f"{args.arc_keep_tol:g} µm", field="--arc-keep-tol")
+        options.append(f"arc-keep-tol {keep:g} mm")
     cutter_radius = args.cutter_radius
     if cutter_radius is not None:
         if not (math.isfinite(cutter_radius) and cutter_radius >= 0):
@@ -902,7 +983,8 @@ def _cmd_compensate(args) -> int:
                                        tolerance=args.tolerance, warn_only=args.warn_only,
                                        search_path=search, cutter_radius=cutter_radius,
                                        cutter_offsets=cutter_offsets, encoding=encoding,
-                                       reversal=load_reversal(args.reversal or ()) or None)
+                                       reversal=load_reversal(args.reversal or ()) or None,
+                                       arc_keep_tol=keep)
     del data
     atomic_write(out, new_data)
     print(f"{src}: {rep['lines']} lines, {rep['blocks']} motion blocks on {machine.name} -> {out}")
@@ -977,6 +1059,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--chordal-tol", type=positive_float, default=None, metavar="UM",
                    help="chordal tolerance for linearised arcs in µm (default 0.1, at least twice "
                         "the linear axis resolution)")
+    p.add_argument("--arc-keep-tol", type=positive_float, default=None, metavar="UM",
+                   help="keep an arc as G2/G3 where its corrected path is a circle within this, "
+                        "µm (default: the chordal tolerance; at most --tolerance)")
     p.add_argument("--arc-tol", type=float, default=None, metavar="UM",
                    help="largest accepted difference of an arc's radius at its start and end, in "
                         "µm (default 20, 50.8 in inch programs, as LinuxCNC); within it the arc is "

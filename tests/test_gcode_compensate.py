@@ -741,7 +741,7 @@ def test_non_ascii_programs_on_the_bytes_path(tmp_path):
         compensate_program("(ok)\nG0 X1. Yä2.\n", m, e)
     assert str(b.value) == str(t.value)
     for raw, enc in ((data, "utf-8"), (body.encode("latin-1", "replace"), "latin-1"),
-                     (b"G1 X1\r\nG1 X2\r\n", "ascii")):
+                     (b"G1 X1 Y0 Z0\r\nG1 X2\r\n", "ascii")):
         src = tmp_path / "p.nc"
         src.write_bytes(raw)
         assert gcode.read_program_bytes(src) == (raw, enc)

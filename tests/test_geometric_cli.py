@@ -55,7 +55,8 @@ def test_simulate_build_map_table(tmp_path, capsys):
     from mtcomp.machine import load_machine
     m = load_machine("vmc-moving-column")
     raw = (tmp_path / "comp" / "part_comp.nc").read_bytes()
-    assert raw.count(b"\r\n") == 3 and raw.count(b"\n") == 3          # CR LF kept
+    # CR LF kept, on the 3 blocks and the 6 lines of the provenance header (issue 31)
+    assert raw.count(b"\r\n") == 9 and raw.count(b"\n") == 9
     new = gcode.parse(raw.decode(), axes=m.axis_names)
     want = np.array([[10, 20, -30], [250, -150, -200], [-280, 180, 0]], float)
     assert np.abs(new.position - want).max() > 1e-3          # the commands did move
@@ -141,11 +142,12 @@ def test_table_program_is_verified_against_the_stock(tmp_path, capsys):
     argv = ["geometric", "table", str(err), "--program", str(prog), "--lattice-step", "200",
             "--stock", "box:-200,-200,-100,200,200,0", "-o", str(out)]
     assert run(argv) == 2
-    assert "part_comp.nc: line 7 (G0 X-99.99" in capsys.readouterr().out and not out.exists()
+    # (line 13 of the written program: 7 after its 6 lines of provenance header, issue 31)
+    assert "part_comp.nc: line 13 (G0 X-99.99" in capsys.readouterr().out and not out.exists()
     prog.write_text(good)
     assert run(argv) == 0
     text = capsys.readouterr().out
     assert "passed" in text and "1 rapid(s) start closer" in text
-    assert "min rapid clearance 300 µm at line 3" in text      # the 0.3 mm approach, errors compensated
+    assert "min rapid clearance 300 µm at line 9" in text      # the 0.3 mm approach (after the 6 header lines)
     assert run(argv[:-4] + ["-o", str(tmp_path / "c2")]) == 0
     assert "not verified against a stock" in capsys.readouterr().out

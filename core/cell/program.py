@@ -266,6 +266,11 @@ def write_program(machine, source: Path, target: Path, pose, *, source_id: int, 
         raise CellFault(Fault.PROGRAM_FAILED,
                         f"{source} is itself a compensated program (the cell wrote it for part "
                         f"{mark.part_id}): compensate the part program, not its output")
+    from ..gcode.provenance import check_nc_write
+    try:
+        check_nc_write(text, filename=str(source), output=target, inputs=(source,))
+    except InputError as exc:
+        raise CellFault(Fault.PROGRAM_FAILED, f"{exc}") from None
     _check_replaceable(target, out_id)
     try:
         new, n_src = compensate_text(machine, text, pose, filename=str(source), mode=mode)

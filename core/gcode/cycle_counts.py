@@ -81,13 +81,25 @@ def _return_levels(program: Program, Cc, res, isabs, offc):
     last_abs = np.where(isabs[:, zk], np.arange(N), -1)
     np.maximum.accumulate(last_abs, out=last_abs)
     cb = np.flatnonzero(cyc > 0)
-    dl = np.zeros(len(cb))                    # per cycle block: its end minus the words' reading
+    # the G91 Z increments read since each block: a level the cycle sets (G99 with R in G90)
+    # is where Z stands whatever came before, so later blocks are that level plus the
+    # increments since (col + dl is NaN where Z was not known before the cycle; a NaN here
+    # once read as 0 and wrote a 50 mm retract as no move, issue 31)
+    wz = np.asarray(program.col_word)[:, zk]
+    wv = np.asarray(program.w_value)
+    incz = np.where((wz >= 0) & inc, wv[np.maximum(wz, 0)], 0.0)
+    if zk < len(program.axes) and program.axes[zk] in LINEAR:
+        incz = incz * np.where(np.asarray(program.inch), INCH, 1.0)
+    cum = np.cumsum(np.rint(incz / rz))
+    end_at = np.zeros(len(cb))                # per cycle block: the level it leaves Z at
 
     def z_after(j):                           # the control's Z after block j (-1: the start)
         if j < 0:
             return col[0]
         i = int(np.searchsorted(cb, j, side="right")) - 1
-        return col[1 + j] + (dl[i] if i >= 0 and cb[i] > last_abs[j] else 0.0)
+        if i >= 0 and cb[i] > last_abs[j]:
+            return end_at[i] + cum[j] - cum[cb[i]]
+        return col[1 + j]
     for i, k in enumerate(cb.tolist()):
         zinit = z_after(int(data[k, 6]) - 1)
         if data[k, 5] == 98:
@@ -96,12 +108,12 @@ def _return_levels(program: Program, Cc, res, isabs, offc):
             end = zinit + np.rint(data[k, 3] / rz)
         else:
             end = np.rint(data[k, 3] / rz) + (offc[k, zk] if offc is not None else 0)
-        dl[i] = end - col[1 + k]
+        end_at[i] = end
     ci = np.searchsorted(cb, np.arange(N), side="right") - 1
     after = (ci >= 0) & (cb[np.maximum(ci, 0)] > last_abs)
     out = Cc.copy()
-    with np.errstate(invalid="ignore"):
-        out[1:, zk] = col[1:] + np.where(after, dl[np.maximum(ci, 0)], 0.0)
+    c0 = np.maximum(ci, 0)
+    out[1:, zk] = np.where(after, end_at[c0] + cum - cum[cb[c0]], col[1:])
     out[1:, zk][~np.asarray(program.axis_known)[:, zk]] = np.nan
     return out
 

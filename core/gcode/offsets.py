@@ -139,7 +139,9 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
     """Per line (n_lines, n_axes) the offset from program coordinates to the reference frame
     (the work offset in effect at the first motion block, ``first_motion``): work offset minus
     the reference one, plus +/- the tool length along Z for G43/G44; and per line the tool
-    length of G43.4 blocks.  Offsets not given are unknown: where only one is used and no G10
+    length of G43.4 blocks.  Also returned, last: the reference work offset's own value
+    (n_axes,), where the program origin lies in machine coordinates (NaN: not given; zeros
+    where the program names no work offset and no G54 is given).  Offsets not given are unknown: where only one is used and no G10
     changes it, the difference is 0; otherwise the program is refused naming the line.
     Tool lengths not given are taken as 0 and noted.  ``written`` (n_axes,): the axes the
     program writes; an unknown offset of an axis it never writes is harmless (the control does
@@ -161,6 +163,7 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
             off = np.zeros((n_lines, n_ax))
         return off
     assumed = []
+    frame = np.full(n_ax, np.nan)         # the reference work offset's own value (machine frame)
     wev = [e for e in events if e[1] == "wcs"]
     tev = [e for e in events if e[1] != "wcs"]
     # -- work offsets
@@ -200,6 +203,11 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                                  file=filename, line=p0[0][0] + 1)
             wev = [(e[0], e[1], used[0] if e[2] == 0 else e[2], e[3], e[4]) for e in wev]
         if not wev:
+            cur0 = _ffill(keys, wset, used[0])
+            fm = min(max(int(first_motion), 0), n_lines - 1) if n_lines else 0
+            given = table.get(wcs_name(int(cur0[fm]) if n_lines else used[0]).replace(" ", ""))
+            if given is not None:
+                frame = np.asarray(given, float)
             if len(used) > 1:
                 missing = [wcs_name(k) for k in used if wcs_name(k).replace(" ", "") not in table]
                 if missing:
@@ -215,9 +223,9 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
                     offsets()[cur == k] += vec[k] - ref
         else:
             cur = _ffill(keys, wset, used[0])
-            assumed = _offsets_with_g10(axes, offsets(), cur, table, wev, first_motion, filename,
-                                        np.ones(n_ax, bool) if written is None else
-                                        np.asarray(written, bool))
+            assumed, frame = _offsets_with_g10(axes, offsets(), cur, table, wev, first_motion,
+                                               filename, np.ones(n_ax, bool) if written is None
+                                               else np.asarray(written, bool))
             if assumed:
                 notes.append(f"work offsets of {' '.join(assumed)} (axes the program does not "
                              "write) are not all set: their differences taken as 0; a "
@@ -296,7 +304,11 @@ def offsets_per_line(axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, 
         tip = _ffill(np.where(active, tip, 0.0), active, 0.0)
     if off is None:
         off = np.broadcast_to(np.zeros(n_ax), (n_lines, n_ax))
-    return off, tlen, tuple(assumed), tip, gauge
+    if not (wset.any() or wev):
+        # no work offset named: G54 if given, else the machine file's origin is the program's
+        given = table.get("G54")
+        frame = np.asarray(given, float) if given is not None else np.zeros(n_ax)
+    return off, tlen, tuple(assumed), tip, gauge, frame
 
 
 def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, written):
@@ -352,7 +364,8 @@ def _offsets_with_g10(axes, off, cur, table, wev, first_motion, filename, writte
         if c >= first_motion:
             assumed |= {a for a, s in zip(axes, same) if not s}
         off[c:end] += np.where(same, val - ref[3], 0.0)
-    return [a for a in axes if a in assumed]
+    frame = np.array([v if sy is None else np.nan for sy, v in zip(ref[2], ref[3])], float)
+    return [a for a in axes if a in assumed], frame
 
 
 def tool_change_warnings(tool_l, h_line, change, feed_lines, limit=5) -> list:

@@ -224,9 +224,13 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
             _fail(f"address {chr(65 + int(sl[j]))} appears twice in one block", int(sw[j]), filename)
         del order, sl, sw, dup
 
+    _refuse_huge_whole_numbers(wlet, value, wline, data, lp, re_, filename)
+
     # -- G codes
     gi = np.flatnonzero(wlet == G)
-    g10 = np.rint(value[gi] * 10).astype(np.int64)
+    # (clipped: a G code of 300 digits is a finite float but no int64; any code that large is
+    # refused below as unknown, by its text)
+    g10 = np.rint(np.clip(value[gi], -1e9, 1e9) * 10).astype(np.int64)
     nonint = np.abs(value[gi] * 10 - g10) > 1e-6
     # 0 motion 1 dwell 2 plane 3 units 4 dist 5 wcs 6 harmless 7 arc centre mode 8 tool length
     # 9 axis words that are not moves 10 feed mode
@@ -423,7 +427,8 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
         notes.append("G43.1 (LinuxCNC dynamic tool length) on line(s) "
                      f"{', '.join(str(int(x) + 1) for x in np.flatnonzero(tool_l == 431)[:5])}: "
                      "its Z word is the tool length (not a move), read as G43 with it")
-    offsets_line, tlen_line, offset_assumed, tip_line, gauge_line = offsets_per_line(
+    frame_line = int(np.argmax(wcs_l >= 0)) + 1 if (wcs_l >= 0).any() else 0
+    offsets_line, tlen_line, offset_assumed, tip_line, gauge_line, frame = offsets_per_line(
         axes, wcs_l, p_line, tool_l, h_line, t_line, work_offsets, tool_lengths, events,
         first_motion, n_lines, filename, notes, written, change_line, dyn_len)
     # G43.4 tool centre point mode per line (modal until G43/G44/G49)
@@ -437,7 +442,7 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
     # -- M codes
     mi = m_words
     if len(mi):
-        mref = np.isin(np.rint(value[mi]).astype(np.int64), list(_M_REFUSED))
+        mref = np.isin(np.rint(np.clip(value[mi], -1e9, 1e9)).astype(np.int64), list(_M_REFUSED))
         if mref.any():
             j = mi[int(np.argmax(mref))]
             _fail(_M_REFUSED[int(round(value[j]))] + "; refusing rather than guessing", wline[j], filename)
@@ -883,11 +888,29 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
         if a is not None:
             a.flags.writeable = False
     prog = Program(filename=filename, axes=axes, data=data, idle_axes=idle_axes,
-                   offset_assumed=offset_assumed,
+                   offset_assumed=offset_assumed, frame=frame, frame_line=frame_line,
                    arc_tol=float(arc_tol), notes=tuple(notes), **arrays)
     if isinstance(text, str):
         prog.__dict__["text"] = text            # (Program.text: the str given, not decoded again)
     return prog
+
+
+#: addresses of whole numbers (tool, length and radius offsets, program and sequence numbers,
+#: M codes, repeat counts): A=0 ... Z=25
+_WHOLE_ADDRESSES = np.array([ord(c) - 65 for c in "DHLMNOT"])
+
+
+def _refuse_huge_whole_numbers(wlet, value, wline, data, lp, re_, filename):
+    """A whole-number address beyond 2**31 is no register of any control (and overflowed the
+    integer conversions further on with a RuntimeWarning): refused naming the word."""
+    big = np.flatnonzero(np.abs(value) >= 2.0 ** 31)
+    if not len(big):
+        return
+    big = big[np.isin(wlet[big], _WHOLE_ADDRESSES)]
+    if len(big):
+        i = int(big[0])
+        _fail(f"number in word {_word_text(data, lp[i], min(re_[i], lp[i] + 20))!r}... is too "
+              "large for an address of whole numbers (at most 2**31 - 1)", wline[i], filename)
 
 
 def _carvera_shrink(lines, mot_l, wline, wlet, value, filename):

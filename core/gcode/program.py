@@ -76,6 +76,10 @@ class Program:
     tcp: np.ndarray = None           # (N,) G43.4 tool centre point block: X Y Z are the tool tip
     tool_length: np.ndarray = None   # (N,) mm, tool length (H) of G43.4 blocks, 0 elsewhere
     offset_assumed: tuple = ()       # axes whose work offset differences were taken as 0
+    frame: np.ndarray = None         # (n_axes,) the reference work offset's own value: where
+                                     # the program origin is in machine coordinates (mm, deg;
+                                     # NaN not given; zeros where no work offset is named)
+    frame_line: int = 0              # line of the first work offset code (0: none)
     rotation: np.ndarray = None      # (N, 5) G68: angle deg (0: none), centre in program
                                      # coordinates, G68 line, block giving the centre (-1: words);
                                      # position is then in the unrotated word frame

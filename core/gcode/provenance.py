@@ -6,8 +6,10 @@ import re
 
 #: First header line; its presence marks a program mtcomp has compensated.
 MARKER = "MTCOMP COMPENSATED PROGRAM"
-_MARK_RE = re.compile(r"MTCOMP COMPENSATED PROGRAM", re.IGNORECASE)
-_MARK_RE_B = re.compile(rb"MTCOMP COMPENSATED PROGRAM", re.IGNORECASE)
+#: The cell's marker line (``(MTCOMP-CELL O1100 FROM O0100 PART ..)``, mtcomp.cell.program) is
+#: its provenance header: a program carrying it is compensated too.
+_MARK_RE = re.compile(r"MTCOMP COMPENSATED PROGRAM|\(MTCOMP-CELL O\d", re.IGNORECASE)
+_MARK_RE_B = re.compile(rb"MTCOMP COMPENSATED PROGRAM|\(MTCOMP-CELL O\d", re.IGNORECASE)
 _HEAD = 1 << 16
 _PROGRAM_NUMBER_RE = re.compile(r"\s*[Oo]\d|\s*:\d")
 
@@ -136,3 +138,72 @@ def strip_header(text: str) -> str:
 
 
 _KEYS = {"VERSION", "ERRORS", "MACHINE", "DATE", "SOURCE", "OPTIONS"}
+
+
+# ------------------------------------------------------------------- the rule for every writer
+def check_nc_write(text: str | bytes | None = None, *, filename: str = "<string>",
+                   output=None, inputs=(), force: bool = False, what: str = "compensate") -> None:
+    """The one provenance rule for every command that writes an NC program (compensate,
+    workpiece-setting compensate, geometric table --program, model compensate, the CAM post,
+    the cell): refuse, before any work, (a) an output path that is one of the inputs (the
+    source would be overwritten: no ``--force`` lifts this) and (b) a source program that
+    carries mtcomp's provenance header, unless ``force`` (its errors would be applied twice).
+
+    text: the source program (text or bytes; None: no source program, only the paths checked).
+    output / inputs: paths (None entries ignored).  Raises InputError naming the file (and the
+    header's line)."""
+    from .._io import InputError
+    if output is not None:
+        out = _canonical(output)
+        for src in inputs:
+            if src is not None and _canonical(src) == out:
+                raise InputError("the output is the input: writing it would overwrite the source "
+                                 "program; give another output file", str(output), field="-o")
+    if text is None or force:
+        return
+    done = compensated_line(text)
+    if done is not None:
+        raise InputError(f"this program was already compensated by mtcomp (provenance header); "
+                         f"to {what} it would apply errors on top of the ones it was "
+                         f"compensated for: use the original program, or --force", filename, done)
+
+
+def _canonical(path):
+    """A path as the file system resolves it (symbolic links, '..', a second name of the same
+    file by hard link: device and inode)."""
+    import os
+    p = os.path.realpath(os.fspath(path))
+    try:
+        st = os.stat(p)
+        return ("inode", st.st_dev, st.st_ino)
+    except OSError:
+        return ("path", os.path.normcase(p))
+
+
+def stamp(text: str, items: list[tuple[str, str]]) -> str:
+    """``text`` with mtcomp's provenance header (`header_lines` of ``items``) inserted where
+    controls expect comments (`insert_header`)."""
+    return insert_header(text, header_lines(items))[0]
+
+
+def writer_items(command: str, *, errors=None, machine: str | None = None, source=None,
+                 options: str = "") -> list[tuple[str, str]]:
+    """The header items every writer of NC gives (`stamp`): mtcomp's version and the
+    command, the errors file with its SHA-256, the machine, the date (UTC), the source program
+    and the options."""
+    import hashlib
+    from datetime import datetime, timezone
+    from pathlib import Path
+    from .. import __version__
+    items = [("VERSION", f"mtcomp {__version__} {command}")]
+    if errors is not None:
+        h = hashlib.sha256(Path(errors).read_bytes()).hexdigest()
+        items.append(("ERRORS", f"{Path(errors).name} SHA256 {h}"))
+    if machine:
+        items.append(("MACHINE", machine))
+    items.append(("DATE", datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")))
+    if source is not None:
+        items.append(("SOURCE", Path(source).name))
+    if options:
+        items.append(("OPTIONS", options))
+    return items

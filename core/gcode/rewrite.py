@@ -211,6 +211,37 @@ def _control_counts(program: Program, res: np.ndarray, offc=None, words=None) ->
     return Cc
 
 
+def _read_deviation(program: Program, Cc: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """(N,) mm: how far the control's reading of the program as written (each word rounded to
+    its count, G91 increments summed count by count) stands from the parsed positions, over
+    the linear axes: the part of a block's tool-edge error the program itself carries (G91
+    increments finer than a count), which no compensation removes.  NaN -> 0."""
+    P = np.asarray(program.position)
+    lin = [k for k, a in enumerate(program.axes) if a in LINEAR]
+    out = np.zeros(len(P))
+    for s in range(0, len(P), 1 << 18):
+        d = Cc[1 + s:1 + s + (1 << 18), lin] * res[lin] - P[s:s + (1 << 18), lin]
+        out[s:s + len(d)] = np.sqrt(np.nansum(d * d, axis=1))
+    return out
+
+
+def _refuse_unread_counts(program: Program, Cc: np.ndarray, kk, every: bool) -> None:
+    """A compensated block must have a control reading (counts) for every axis: where the
+    parser knows the position but the counts are NaN, the words would be written relative to
+    0 (a retract written as no move).  Refused naming the line instead."""
+    rows = Cc[1:] if every else Cc[1 + kk]
+    bad = np.isnan(rows).any(axis=1)
+    if not bad.any():
+        return
+    j = int(np.argmax(bad))
+    i = j if every else int(kk[j])
+    axes = " ".join(a for a, b in zip(program.axes, np.isnan(rows[j])) if b)
+    raise InputError(f"where the control stands in {axes} after this block cannot be read from "
+                     "the words before it (a canned cycle or an increment from a position not "
+                     "known): state the start position (--start)", program.filename,
+                     int(program.line[i]))
+
+
 def _refuse_half_count_increments(program: Program, res: np.ndarray) -> None:
     """G91 axis words of exactly half a count of the resolution (X0.00005 at 0.0001 mm): the
     control rounds them up, to even or down depending on the control, and the difference adds
@@ -354,7 +385,8 @@ def _unknown_axes(program: Program, k: int) -> str:
 def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.ndarray], *,
                        resolution=None, chordal_tol: float = 1e-4, progress=None,
                        unknown: str = "defer", row_lines: list | None = None,
-                       info: dict | None = None, as_bytes: bool = False):
+                       info: dict | None = None, as_bytes: bool = False,
+                       arc_tol: float | None = None):
     """`rewrite`, also returning for every motion block the 1-based line of the output where
     the block ends (after a linearised arc: its last segment line), so that the output can be
     compared block by block with the input.  ``info``, if a dict, receives what was done:
@@ -365,7 +397,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     `emitted_values`).  ``as_bytes``: the output as a bytes-like object (a bytearray where
     the compiled splice made it; the program's encoding, UTF-8 with its undecodable bytes
     kept) instead of str, so that a caller that edits it further or writes it saves a copy of
-    the whole text."""
+    the whole text.  ``arc_tol`` (mm): how far the compensated path may leave the circle the
+    control runs for an arc to stay an arc (default: ``chordal_tol``; `mtcomp compensate`
+    gives its ``--tolerance``)."""
     axes = program.axes
     n_ax = len(axes)
     if unknown not in ("defer", "refuse"):
@@ -480,6 +514,9 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     rep_rows = cycle_counts.stepped_rows(program)
     if cyc.any():
         Cc = cycle_counts.control_counts(program, Cc, res, rep_rows, offc)
+    _refuse_unread_counts(program, Cc, kk, nk == N)
+    if info is not None:
+        info["read_deviation"] = _read_deviation(program, Cc, res)
     dK = np.subtract(Qt[:nk], P if nk == N else P[kk])         # (in place: no temporaries)
     np.divide(dK, res, out=dK)
     np.rint(dK, out=dK)
@@ -523,7 +560,10 @@ def rewrite_with_lines(program: Program, transform: Callable[[np.ndarray], np.nd
     keep = np.ones(len(ak), bool)
     arc_cols = None
     if geo is not None:
-        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, fm, chordal_tol, program.arc_tol, offc)
+        # an arc stays an arc where the compensated path is one within ``arc_tol`` (default:
+        # the chordal tolerance); the others are linearised at the chordal tolerance
+        keep, arc_cols = _arc_keep(program, geo, St, prev, new, res, fm,
+                                   max(chordal_tol, arc_tol or 0.0), program.arc_tol, offc)
     del St
     lin = ak[~keep]
     cutter = program.cutter
@@ -790,6 +830,7 @@ def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol, offc=None):
     line_start, line_end = np.asarray(p.line_start), np.asarray(p.line_end)
     dtol = max(int(d_ax[axes.index(a)]) for a in "XYZ" if a in axes)
     pieces = []                      # (pos, stop, sub, bytes)
+    at_line = []                     # per arc: (end of its line, line ending, word separator)
     for j, k in enumerate(lin):
         sp = " " if spaced[k] else ""
         g = int(motion[k])
@@ -810,30 +851,19 @@ def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol, offc=None):
                 pieces.append((s, wend[wi], _SUB_REPLACE, b""))
         pieces.append((last_end[k], last_end[k], _SUB_COMMENT,
                        f"{sp}(G{g} LINEARISED, CHORDAL TOLERANCE {tol:.{dtol}f} MM)".encode()))
-        # later segment points as new lines
+        # later segment points as new lines: placed after the loop, formatted for all arcs at
+        # once (_segment_lines; the per-word Python formatting was 86-89 % of a run with tables)
         le = line_end[p.line[k] - 1]
         eol = "\n"
         if le > line_start[p.line[k] - 1] and data[le - 1] == 13:
             le -= 1
             eol = "\r\n"
-        n_in = seg.count[j]
-        pts = [seg.counts[seg.first[j] + i] for i in range(n_in)] + [new[k]]
-        last = pts[0] if n_in > 0 else None
-        if last is None:
-            continue
-        lines = []
-        for ptc in pts[1:]:
-            diff = ptc - last
-            if not diff.any():
-                continue
-            vals = diff if inc[k] else (ptc if offc is None else ptc - offc[k])
-            words = [f"{ctx.letter(axes[a])}{_fmt(vals[a] * int(m_ax[a]), int(d_ax[a]))}"
-                     for a in range(n_ax) if diff[a]]
-            lines.append(sp.join(words))
-            last = ptc
-        if lines:
-            pieces.append((le, le, _SUB_LINES, "".join(eol + ln for ln in lines).encode()))
-            ctx.added_lines[k] = len(lines)
+        at_line.append((le, eol, sp))
+    texts, n_lines = _segment_lines(ctx, lin, seg, new, d_ax, m_ax, inc, offc, at_line)
+    for j, k in enumerate(lin):
+        if n_lines[j]:
+            pieces.append((at_line[j][0], at_line[j][0], _SUB_LINES, texts[j]))
+            ctx.added_lines[k] = int(n_lines[j])
     if pieces:
         buf = b"".join(pc[3] for pc in pieces)
         base = ed.add_buffer(np.frombuffer(buf, np.uint8))
@@ -841,6 +871,123 @@ def _linearise_edits(ctx, lin, seg: _Segments, new, d_ax, m_ax, tol, offc=None):
         offs = base + np.cumsum(lens) - lens
         ed.add(np.array([pc[0] for pc in pieces]), np.array([pc[1] for pc in pieces]),
                np.array([pc[2] for pc in pieces]), offs, lens)
+
+
+def _segment_lines(ctx, lin, seg: _Segments, new, d_ax, m_ax, inc, offc, at_line,
+                   chunk: int = 100_000):
+    """The new lines of every linearised arc: per arc the text (bytes: each line preceded by
+    its line ending) and the number of lines, formatted for groups of arcs of about ``chunk``
+    lines at once (the group's arrays are a few dozen bytes per line: bounded memory)."""
+    lin = np.asarray(lin)
+    lines = np.asarray(seg.count, np.int64) + 1
+    group = np.cumsum(lines) // max(int(chunk), 1)
+    cuts = np.flatnonzero(np.r_[True, group[1:] != group[:-1], True])
+    texts, counts = [], []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        sub = _Segments(None, np.asarray(seg.first)[a:b], np.asarray(seg.count)[a:b], seg.counts)
+        t, n = _segment_lines_group(ctx, lin[a:b], sub, new, d_ax, m_ax, inc, offc,
+                                    at_line[a:b])
+        texts += t
+        counts.append(n)
+    return texts, (np.concatenate(counts) if counts else np.zeros(0, np.int64))
+
+
+def _segment_lines_group(ctx, lin, seg: _Segments, new, d_ax, m_ax, inc, offc, at_line):
+    """`_segment_lines` of a group of arcs at once.  A line per segment point after the
+    first, with the words of the axes that move (G91: the increments; else the positions in
+    the block's frame), each number through the compiled formatter where built."""
+    p = ctx.p
+    n_ax = len(p.axes)
+    m = len(lin)
+    npts = np.asarray(seg.count, np.int64) + 1             # interior points and the end
+    if not m or not npts.sum():
+        return [b""] * m, np.zeros(m, np.int64)
+    owner = np.repeat(np.arange(m), npts)
+    start = np.cumsum(npts) - npts
+    idx = np.arange(len(owner)) - np.repeat(start, npts)   # 0 .. npts-1 within the arc
+    pts = np.empty((len(owner), n_ax), np.int64)
+    inner = idx < np.repeat(npts - 1, npts)
+    pts[inner] = seg.counts[np.repeat(seg.first, npts)[inner] + idx[inner]]
+    pts[~inner] = new[np.asarray(lin)]
+    # lines: points 1.. of each arc against the point before (a point equal to it is no line)
+    li = np.flatnonzero(idx > 0)
+    diff = pts[li] - pts[li - 1]
+    moves = diff != 0
+    keep = moves.any(axis=1)
+    li, diff, moves = li[keep], diff[keep], moves[keep]
+    arc = owner[li]
+    k_of = np.asarray(lin)[arc]
+    incr = np.asarray(inc)[k_of]
+    vals = np.where(incr[:, None], diff, pts[li] if offc is None else pts[li] - offc[k_of])
+    n_lines = np.bincount(arc, minlength=m)
+    # the pieces of the text, in order: per line its ending, then per moving axis the separator
+    # (not before the first word), the letter and the number
+    chunks = []                          # byte buffers; pieces index into their concatenation
+    base = 0
+
+    def buffer(b: bytes | np.ndarray) -> int:
+        nonlocal base
+        b = np.frombuffer(b, np.uint8) if isinstance(b, bytes) else b
+        chunks.append(b)
+        base += len(b)
+        return base - len(b)
+    eols = [at_line[j][1].encode() for j in range(m)]
+    seps = [at_line[j][2].encode() for j in range(m)]
+    eol_off = {e: buffer(e) for e in set(eols)}
+    sep_off = {sp: buffer(sp) for sp in set(seps)}
+    line_eol = np.array([eol_off[eols[j]] for j in range(m)], np.int64)[arc]
+    line_eol_len = np.array([len(eols[j]) for j in range(m)], np.int64)[arc]
+    line_sep = np.array([sep_off[seps[j]] for j in range(m)], np.int64)[arc]
+    line_sep_len = np.array([len(seps[j]) for j in range(m)], np.int64)[arc]
+    L = len(li)
+    # per (line, axis): letter, number; order within a line: axes in program order
+    word_off = np.zeros((L, n_ax), np.int64)
+    word_len = np.zeros((L, n_ax), np.int64)
+    let_off = np.zeros((L, n_ax), np.int64)
+    for a in range(n_ax):
+        rows = np.flatnonzero(moves[:, a])
+        if not len(rows):
+            continue
+        d = int(d_ax[a])
+        got = _ctok.format_counts(vals[rows, a] * int(m_ax[a]), d) or \
+            format_counts(vals[rows, a] * int(m_ax[a]), d)
+        buf, off, ln = got
+        b0 = buffer(np.asarray(buf, np.uint8))
+        word_off[rows, a] = b0 + off
+        word_len[rows, a] = ln
+        let_off[rows, a] = buffer(ctx.letter(p.axes[a]).encode())
+    # the pieces: (line, slot) with slot 0 the line ending, then 3 per axis (sep, letter, number)
+    first_word = np.argmax(moves, axis=1)
+    src = np.zeros((L, 1 + 3 * n_ax), np.int64)
+    ln_ = np.zeros((L, 1 + 3 * n_ax), np.int64)
+    src[:, 0], ln_[:, 0] = line_eol, line_eol_len
+    for a in range(n_ax):
+        mv = moves[:, a]
+        sep = mv & (first_word != a)
+        src[:, 1 + 3 * a] = line_sep
+        ln_[:, 1 + 3 * a] = np.where(sep, line_sep_len, 0)
+        src[:, 2 + 3 * a] = let_off[:, a]
+        ln_[:, 2 + 3 * a] = np.where(mv, 1, 0)
+        src[:, 3 + 3 * a] = word_off[:, a]
+        ln_[:, 3 + 3 * a] = np.where(mv, word_len[:, a], 0)
+    src, ln_ = src.ravel(), ln_.ravel()
+    pool = np.concatenate(chunks)
+    # the byte indices into the pool: runs of consecutive indices, one per piece, by a
+    # cumulative sum of steps (np.repeat with varying counts costs twice as much)
+    nz = ln_ > 0
+    s_, l_ = src[nz], ln_[nz]
+    total = int(l_.sum())
+    gather = np.ones(total, np.int64)
+    st = np.cumsum(l_) - l_
+    gather[st[0]] = s_[0]
+    gather[st[1:]] = s_[1:] - (s_[:-1] + l_[:-1] - 1)
+    np.cumsum(gather, out=gather)
+    text = pool[gather].tobytes()
+    # per arc: its lines' bytes
+    line_bytes = ln_.reshape(L, -1).sum(axis=1)
+    arc_bytes = np.bincount(arc, weights=line_bytes, minlength=m).astype(np.int64)
+    cut = np.concatenate([[0], np.cumsum(arc_bytes)])
+    return [text[cut[j]:cut[j + 1]] for j in range(m)], n_lines
 
 
 def _restore_modal_arcs(ctx, lin):

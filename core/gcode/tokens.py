@@ -54,8 +54,16 @@ def _word_text(data: bytes, s, e) -> str:
 
 def _word_error(code, lp, rs, re_, line_of, filename):
     """Find the first token that is not letter+number and say what it is."""
-    ok_letter = np.isin(lp + 1, rs)
-    ok_run = np.isin(rs - 1, lp)
+    # blanks between a letter and its number are read ("X 1.5"): a letter is followed, and a
+    # number run preceded, by its partner at the next / previous character that is no blank
+    # (a plain lp + 1 test named the X of "X 1.5 Y - 2.5" as the bad word, issue 31)
+    nb = np.flatnonzero((code != 32) & (code != 9))
+    nxt = np.searchsorted(nb, lp, side="right")
+    nxt = np.where(nxt < len(nb), nb[np.minimum(nxt, len(nb) - 1)], -1)
+    prv = np.searchsorted(nb, rs, side="left") - 1
+    prv = np.where(prv >= 0, nb[np.maximum(prv, 0)], -1)
+    ok_letter = np.isin(nxt, rs)
+    ok_run = np.isin(prv, lp)
     p1 = lp[np.argmax(~ok_letter)] if (~ok_letter).any() else None
     p2 = rs[np.argmax(~ok_run)] if (~ok_run).any() else None
     if p1 is not None and (p2 is None or p1 < p2):
@@ -78,7 +86,14 @@ def _word_error(code, lp, rs, re_, line_of, filename):
         else:
             what = f"address {word} without a number"
         _fail(what, line_of(p1), filename)
-    e = re_[np.searchsorted(rs, p2)]
+    j = int(np.searchsorted(rs, p2))
+    e = re_[j]
+    if j > 0 and re_[j - 1] - rs[j - 1] == 1 and code[rs[j - 1]] in (43, 45) and ok_run[j - 1]:
+        # a sign standing alone before the number: "Y - 2.5"
+        a = int(lp[np.searchsorted(lp, rs[j - 1]) - 1])
+        _fail(f"malformed number in word {bytes(code[a:e]).decode('latin-1')!r}: a blank between "
+              "the sign and the digits (expected the sign right before them, as Y-2.5)",
+              line_of(p2), filename)
     _fail(f"number {bytes(code[p2:e]).decode('latin-1')!r} without an address letter",
           line_of(p2), filename)
 

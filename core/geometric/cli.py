@@ -73,6 +73,8 @@ def register(subparsers) -> None:
     s.add_argument("--reversal", nargs="+", metavar="CSV",
                    help="reversal tables (<stem>_<axis>_reversal.csv of 'build'): the program and the report "
                         "are corrected per direction of approach, the residual given per direction")
+    s.add_argument("--force", action="store_true",
+                   help="rewrite a --program that mtcomp has already compensated")
     s.add_argument("-o", "--output", required=True, help="output directory")
     s.set_defaults(func=_table)
 
@@ -246,8 +248,13 @@ def _rewrite_program(args: argparse.Namespace, model, reversal=None):
     src = Path(args.program)
     text = read_program(src)
     machine = load_machine(args.machine)
-    new_text, rep = compensate_program(text, machine, extend_tables(model), filename=str(src),
-                                       reversal=reversal or None)
+    from ..gcode.provenance import check_nc_write, writer_items
+    check_nc_write(None, output=Path(args.output) / (src.stem + "_comp" + src.suffix), inputs=(src,))
+    new_text, rep = compensate_program(
+        text, machine, extend_tables(model), filename=str(src), force=getattr(args, "force", False),
+        provenance=writer_items("geometric table --program", errors=args.errors,
+                                machine=machine.name, source=src),
+        reversal=reversal or None)
     msg = (f"{src}: {rep['blocks']} motion blocks; model tool-edge error max "
            f"{rep['before_max'] * 1e3:.3f} µm before, {rep['after_max'] * 1e3:.4f} µm after")
     return src.stem + "_comp" + src.suffix, new_text, msg

@@ -253,6 +253,7 @@ def register_compensate(sub) -> None:
     c.add_argument("--errors", metavar="E.toml", help="the machine's known errors, added to the model's "
                    "(the diagnosis fitted what they lacked)")
     c.add_argument("--no-geometric", action="store_true", help="leave the geometric and setting errors out")
+    c.add_argument("--force", action="store_true", help="compensate a program mtcomp has already compensated")
     c.add_argument("--no-backlash", action="store_true", help="no reversal compensation")
     c.add_argument("--no-servo", action="store_true", help="no servo-lag feed-forward")
     c.add_argument("--no-friction", action="store_true", help="no reversal spikes for the friction breakaway, no lead for the quadrant glitch")
@@ -289,13 +290,16 @@ def run_compensate(args: argparse.Namespace) -> int:
     if not (args.rapid > 0 and args.rapid < float("inf")):
         raise InputError(f"expected a rapid rate > 0 mm/min, got {args.rapid}", field="--rapid")
     src = Path(args.program)
+    from ..gcode.provenance import check_nc_write
+    check_nc_write(None, output=args.output, inputs=(src, args.errors))
     text = read_text(src, what="NC program")
     prov = [("VERSION", f"mtcomp {__version__}"), ("MACHINE", m.name), ("SOURCE", src.name),
             ("MODEL", Path(args.model).name)]
     new, rep = compensate_with_model(text, m, None if args.no_geometric else errors, dyn,
                                      backlash=not args.no_backlash, servo=not args.no_servo,
                                      friction=not args.no_friction, thermal=not args.no_thermal,
-                                     delay=not args.no_delay, encoder=not args.no_encoder, rapid=args.rapid, filename=str(src), provenance=prov)
+                                     delay=not args.no_delay, encoder=not args.no_encoder, rapid=args.rapid, filename=str(src), provenance=prov,
+                                     force=args.force)
     atomic_write(args.output, new)
     print(f"{src} -> {args.output}: {rep.summary()}")
     if rep.thermal_control is not None:

@@ -347,7 +347,8 @@ def _no_errors(e: ErrorSet) -> bool:
 def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dynamics: ModelDynamics | None = None,
                           *, geometric: bool = True, backlash: bool = True, servo: bool = True,
                           friction: bool = True, thermal: bool = True, delay: bool = True,
-                          encoder: bool = True, rapid: float = 3000.0, filename: str = "<string>", provenance=None) -> tuple:
+                          encoder: bool = True, rapid: float = 3000.0, filename: str = "<string>", provenance=None,
+                          force: bool = False) -> tuple:
     """Rewrite an NC program for the machine the model describes: geometric and setting
     `errors` (when `geometric`), then the `dynamics` thermal offsets (`thermal`: spindle- or
     time-driven drift subtracted along the program; a drift driven by a logged temperature is
@@ -359,7 +360,7 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
     the G0 rate (mm/min) the control runs, for the sampling.  With every new switch off (or
     nothing of it in the model) the output is the one without them, byte for byte."""
     from ..commands import compensate_program
-    from ..gcode.provenance import compensated_line, header_lines
+    from ..gcode.provenance import check_nc_write, header_lines
     machine = load_machine(machine)
     n = machine.n_axes
     bl = tuple(float(v) for v in dynamics.backlash) if (dynamics and backlash and any(dynamics.backlash)) else None
@@ -377,16 +378,13 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
     th_ctl = control_parameters(tm, machine) if th_name == "temperature" else None
     th_pred = tm if th_name in ("spindle_speed", "time") else None
     lead = dynamics.delay if (th_pred is not None and delay and dynamics.delay) else None
-    done = compensated_line(text)
-    if done is not None:
-        raise InputError("this program was already compensated by mtcomp (provenance header): use the original "
-                         "program", filename, done)
+    check_nc_write(text, filename=filename, force=force)
     sampled = (bl is not None or kv is not None or fr is not None or gl is not None or th_pred is not None
                or enc is not None)
     rep_geo: dict = {}
     geo = bool(geometric and errors is not None and not _no_errors(errors))
     if geo:
-        text, rep_geo = compensate_program(text, machine, errors, filename=filename,
+        text, rep_geo = compensate_program(text, machine, errors, filename=filename, force=force,
                                            provenance=None if sampled else list(provenance or []))
     extra = dict(friction=fr, thermal=th_name, delay=lead, thermal_control=th_ctl, glitch=gl, encoder=enc)
     if not sampled:

@@ -207,6 +207,10 @@ def cmd_compensate(args) -> int:
                          args.errors, field=other[0].strip("[]"))
     stock, source = _blank(args)
     text = gcode.read_program(args.program)
+    from ..gcode.provenance import check_nc_write, stamp, writer_items
+    check_nc_write(text, filename=str(args.program), output=args.out,
+                   inputs=(args.program, args.errors, args.plan), force=args.force,
+                   what="transform it for the workpiece setting")
     from ..commands import parse_tool_lengths
     tools = parse_tool_lengths(args.tool_lengths)
     new, n = compensate_text(machine, text, errors.workpiece, mode=args.mode, filename=str(args.program),
@@ -226,6 +230,9 @@ def cmd_compensate(args) -> int:
                               "(--warn-only writes it anyway)", res)
     else:
         _warn(["program not verified: give --plan (the blank of a bowl plan) or --stock"])
+    new = stamp(new, writer_items("workpiece-setting compensate", errors=args.errors,
+                                  machine=machine.name, source=args.program,
+                                  options=f"mode {args.mode}" + ("; force" if args.force else "")))
     atomic_write(args.out, new)
     print(f"wrote {args.out}")
     return 0
@@ -406,6 +413,8 @@ def register(subparsers) -> None:
                    help="write the program even if the verification fails (prints the failures)")
     a.add_argument("--no-verify", action="store_true", help="do not look for the plan of the fit")
     a.add_argument("-o", "--out", required=True, help="program to write")
+    a.add_argument("--force", action="store_true",
+                   help="transform a program that mtcomp has already compensated")
     a.set_defaults(func=cmd_compensate)
 
     a = sub.add_parser("simulate", help="virtual cell Monte Carlo of paper 001's pyramid")
