@@ -341,7 +341,8 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
     search_path: directories where subprograms called but not in the program are looked for
     (M98 P1234: O1234[.ext]; o<name> call: name.ngc); they are written out in the output.
     reversal: {axis: mtcomp.geometric.reversal.ReversalTable}: also correct each position for the
-    direction it is approached in (docs/geometric.md, reversal); the report's errors leave it out.
+    direction it is approached in (docs/geometric.md, reversal); the checks and the report's
+    errors after compensation run the machine with that lost motion (the before errors without it).
     Returns (new program (text or bytes, as given), report dict: blocks, lines, deferred
     blocks, idle axes, max/RMS tool-edge errors in mm before and after over the compensated blocks, from the forward model,
     ``verify``: the VerifyResult or None)."""
@@ -481,6 +482,11 @@ def compensate_program(text: str | bytes, machine, errors: ErrorSet, *, filename
                                                  out_line=out_line, consume=True))
     info.pop("emitted", None)
     _travel_check_emitted(machine, _axis_positions(machine, prog, emitted), kn, prog, filename)
+    if reversal:
+        # the checks run the machine as it is, lost motion included: a command corrected for
+        # its direction of approach is meant to be half a reversal off, the slide is not
+        from .geometric.reversal import played_positions
+        emitted = played_positions(emitted, machine.axis_names, reversal)
     before, after = _edge_errors(machine, prog, P, emitted, kk, kn, tcp, tip, at_tip, dev,
                                  errors)
     _output_checks(machine, prog, P, emitted, kn, kk, before, after, errors, mf, tip, at_tip,

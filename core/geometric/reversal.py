@@ -271,6 +271,24 @@ def direction_corrections(q, axis_names, reversal: dict, lines=None, ends_first:
     return direction_terms(axis_names, reversal, q, d, -1.0)
 
 
+def played_positions(q, axis_names, reversal: dict, initial: float = 1.0) -> np.ndarray:
+    """Where the slides of a machine with these reversals stand (N, n_axes) mm for the commands q
+    reached in row order: q + d B_i(x)/2 on every axis with a table, d the direction each row is
+    approached in (the play model whose inverse is `direction_corrections`).  What the checks of
+    a compensated program run through the forward model: a command corrected for the direction
+    of approach is meant to be half a reversal off, the slide is not."""
+    q = np.atleast_2d(np.asarray(q, float))
+    if not len(q) or not reversal:
+        return q
+    d = np.ones_like(q)
+    names = list(axis_names)
+    for ax in reversal:
+        if ax in names:
+            k = names.index(ax)
+            d[:, k] = approach_directions(q[:, k], initial)
+    return q + direction_terms(axis_names, reversal, q, d, 1.0)
+
+
 def load_reversal(paths) -> dict:
     """{axis: ReversalTable} from reversal CSVs (`ReversalTable.to_csv`); an axis twice is an error."""
     out = {}
