@@ -28,6 +28,7 @@ COMMAND_MODULES = [
     "mtcomp.diagnose.cli",        # diagnose
     "mtcomp.model.cli",           # model export|simulate|resimulate
     "mtcomp.demo",                # demo
+    "mtcomp.fleet.cli",           # fleet diagnose|report
 ]
 
 
