@@ -183,7 +183,8 @@ def _free_port() -> int:
 @pytest.fixture
 def cluster():
     """A scheduler and two single-threaded workers (no nanny: a SIGKILL ends the worker for
-    good); every process is killed at the end."""
+    good); every process is killed at the end, and stops by itself if the test process dies
+    (the scheduler after 10 min without a client, the workers 60 s after the scheduler)."""
     dask = str(Path(sys.executable).with_name("dask"))
     port = _free_port()
     addr = f"tcp://127.0.0.1:{port}"
@@ -196,9 +197,10 @@ def cluster():
         procs.append(p)
         return p
     try:
-        start("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")
+        start("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard",
+              "--idle-timeout", "600")
         workers = [start("worker", addr, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny",
-                         "--no-dashboard") for _ in range(2)]
+                         "--no-dashboard", "--death-timeout", "60") for _ in range(2)]
         from distributed import Client
         with Client(addr, timeout="60s") as c:
             c.wait_for_workers(2, timeout=120)
@@ -266,3 +268,27 @@ def test_acceptance_fleet_20x10(tmp_path, cluster):
     run_with_kill(src, ds2, addr, workers, len(fleet.nights))
     assert len(list(ds2.glob(f"machine=*/date=*/{PART}"))) == len(fleet.nights)
     assert _rows(ds2) == _rows(ds)
+
+
+def test_skip_done_runs_only_the_changed_night(small, tmp_path, capsys):
+    """--skip-done: nothing to do on an up-to-date dataset (no cluster started); a recording
+    edited after its night was diagnosed is diagnosed again, and only it."""
+    fleet, src, ds_local = small
+    src2, ds = tmp_path / "src", tmp_path / "ds"
+    shutil.copytree(src, src2)
+    shutil.copytree(ds_local, ds)
+    # the rows name the files they came from: the copy's nights are "done" only by content
+    assert main(["fleet", "diagnose", str(src), "-o", str(ds), "--same-clock", "--skip-done"]) == 0
+    assert f"{len(fleet.nights)} night(s) already done, skipped" in capsys.readouterr().out
+    n = fleet.nights[0]
+    rec = src / n.machine / n.date / "rec.csv"
+    rec2 = src2 / n.machine / n.date / "rec.csv"
+    rec2.write_text(rec.read_text() + "# a comment line: same data, other bytes\n")
+    before = {p: p.stat().st_mtime_ns for p in ds.glob(f"machine=*/date=*/{PART}")}
+    assert main(["fleet", "diagnose", str(src2), "-o", str(ds), "--same-clock", "--skip-done",
+                 "--workers", "1"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("1 machine-nights diagnosed")
+    assert f"{len(fleet.nights) - 1} night(s) already done" in out
+    changed = [p for p in ds.glob(f"machine=*/date=*/{PART}") if p.stat().st_mtime_ns != before[p]]
+    assert changed == [ds / f"machine={n.machine}" / f"date={n.date}" / PART]

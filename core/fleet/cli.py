@@ -42,6 +42,10 @@ def register(subparsers) -> None:
                    help="as for mtcomp diagnose")
     d.add_argument("--dt", type=positive_float, metavar="S", help="as for mtcomp diagnose")
     d.add_argument("--same-clock", action="store_true", help="as for mtcomp diagnose")
+    d.add_argument("--skip-done", action="store_true",
+                   help="skip the nights DATASET already holds from the same files (SHA-256), "
+                        "options and mtcomp version without error: a nightly run over the whole "
+                        "SOURCE diagnoses only what is new or changed")
     d.add_argument("--progress", action="store_true",
                    help="show progress even when stderr is not a terminal")
     d.add_argument("--quiet", action="store_true", help="do not print the summary")
@@ -84,7 +88,8 @@ def run_diagnose(args) -> int:
     require()
     jobs = plan(args.source, _defaults(args))
     prog = Progress("fleet diagnose", enabled=True if args.progress else None)
-    run = run_fleet(jobs, args.out, scheduler=args.scheduler, workers=args.workers, progress=prog)
+    run = run_fleet(jobs, args.out, scheduler=args.scheduler, workers=args.workers, progress=prog,
+                    skip_done=args.skip_done)
     if not args.quiet:
         print(run.summary())
     return 1 if run.errors else 0

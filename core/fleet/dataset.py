@@ -50,7 +50,7 @@ def schema():
         ("mtcomp_version", pa.string()),
         ("numpy_version", pa.string()),
         ("scipy_version", pa.string()),
-        ("cpu_s", pa.float64()),          # CPU time of the night's diagnosis on its worker
+        ("cpu_s", pa.float64()),          # CPU time of the night's diagnosis (its thread)
         ("wall_s", pa.float64()),
     ])
 
@@ -79,6 +79,24 @@ def write_night(root, machine: str, date: str, rows: list[dict]) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     return dest / PART
+
+
+SIGNATURE = ("sim_sha256", "rec_sha256", "options", "mtcomp_version", "status")
+
+
+def signature(root, machine: str, date: str):
+    """What a written night was diagnosed from: (sim hashes, rec hashes, options, mtcomp version,
+    status) when its partition holds one such tuple, else None."""
+    import pyarrow.parquet as pq
+    f = partition_dir(root, machine, date) / PART
+    if not f.is_file():
+        return None
+    try:
+        t = pq.read_table(f, columns=list(SIGNATURE)).to_pylist()
+    except Exception:  # noqa: BLE001 - an unreadable partition is not done: diagnose it again
+        return None
+    sigs = {tuple(r[k] for k in SIGNATURE) for r in t}
+    return sigs.pop() if len(sigs) == 1 else None
 
 
 def clean_tmp(root) -> None:

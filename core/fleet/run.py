@@ -54,10 +54,13 @@ class FleetRun:
     errors: list = field(default_factory=list)   # (machine, date, reason)
     workers: int = 0
     wall_s: float = 0.0
+    skipped: int = 0                             # nights already done (skip_done)
 
     def summary(self) -> str:
         s = (f"{self.nights} machine-nights diagnosed on {self.workers} worker(s) in "
              f"{self.wall_s:.1f} s: {self.rows} rows in {self.dataset}")
+        if self.skipped:
+            s += f"; {self.skipped} night(s) already done, skipped"
         if self.errors:
             s += f"\n{len(self.errors)} night(s) failed:" + "".join(
                 f"\n  {m} {d}: {r}" for m, d, r in self.errors)
@@ -79,18 +82,31 @@ def _client(stack: ExitStack, scheduler: str | None, workers: int | None):
     # one single-threaded worker process per core: the diagnosis holds the GIL for much of its
     # work, and one BLAS thread per process gives the same bits on every worker
     cluster = stack.enter_context(LocalCluster(
-        n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+        n_workers=n, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
         silence_logs=logging.ERROR))
     return stack.enter_context(Client(cluster, set_as_default=False))
 
 
+def is_done(out, job) -> bool:
+    """The night's partition was diagnosed, without error, from the same files (SHA-256), with
+    the same options and by this version of mtcomp."""
+    from .night import common_columns
+    sig = dataset.signature(out, job.machine, job.date)
+    if sig is None or sig[-1] != "ok":
+        return False
+    c = common_columns(job)
+    return sig[:-1] == (c["sim_sha256"], c["rec_sha256"], c["options"], c["mtcomp_version"])
+
+
 def run_fleet(jobs, out, scheduler: str | None = None, workers: int | None = None,
-              progress=None) -> FleetRun:
+              progress=None, skip_done: bool = False) -> FleetRun:
     """Diagnose `jobs` (source.Job) on a Dask cluster and write DATASET `out`.
 
     scheduler: address of a running scheduler (tcp://HOST:8786); None starts an embedded
     LocalCluster of `workers` processes (default: one per core).  progress(done, total) is
-    called as nights finish.  Nights already in `out` are replaced, others are left alone.
+    called as nights finish.  Nights already in `out` are replaced, others are left alone;
+    with skip_done, a night already diagnosed from the same files and options is not run again
+    (a nightly run over the whole history then diagnoses only the new nights).
     """
     require()
     from distributed import as_completed
@@ -102,6 +118,12 @@ def run_fleet(jobs, out, scheduler: str | None = None, workers: int | None = Non
     dataset.clean_tmp(out)
     run = FleetRun(out)
     t0 = time.perf_counter()
+    if skip_done:
+        todo = [j for j in jobs if not is_done(out, j)]
+        run.skipped = len(jobs) - len(todo)
+        jobs = todo
+    if not jobs:
+        return run
     say = progress or (lambda done, total: None)
     with ExitStack() as stack:
         client = _client(stack, scheduler, workers)
