@@ -114,8 +114,11 @@ def run_fleet(jobs, out, scheduler: str | None = None, workers: int | None = Non
     from distributed.scheduler import KilledWorker
     jobs = list(jobs)
     out = Path(out)
-    out.mkdir(exist_ok=True)
-    dataset.clean_tmp(out)
+    if out.exists() and not out.is_dir():
+        from .._io import InputError
+        raise InputError("exists and is not a folder (expected the dataset's folder)", out,
+                         field="--out")
+    dataset.clean_tmp(out)     # the folder itself is made by the first night written
     run = FleetRun(out)
     t0 = time.perf_counter()
     if skip_done:
