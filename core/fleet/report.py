@@ -88,8 +88,14 @@ def warning_rows(tr: Trends) -> list[list]:
     return rows
 
 
-def html(tr: Trends, source: str = "") -> str:
-    """The report as one self-contained HTML page."""
+# above this many machines only those with a warning get a figure (a page stays readable and
+# its size bounded: about 50 kB per figure); every machine keeps its table
+MAX_FIGURES = 50
+
+
+def html(tr: Trends, source: str = "", max_figures: int = MAX_FIGURES) -> str:
+    """The report as one self-contained HTML page: figures for every machine when there are
+    at most `max_figures`, else for the machines with a warning."""
     from .._io import save_figure
     from ..htmlreport import Section, render
     sections = []
@@ -100,8 +106,12 @@ def html(tr: Trends, source: str = "") -> str:
            f"mean of up to {tr.limits.window} earlier nights since the last change, beyond "
            f"{tr.limits.k:g} combined σ (widened by the night-to-night scatter where larger); "
            f"{len(tr.limits.rules)} limit rule(s).")
-    s.verdict(not tr.warnings, f"{len(tr.warnings)} warning(s) on "
-                               f"{len({w.machine for w in tr.warnings})} machine(s)")
+    warned = {w.machine for w in tr.warnings}
+    every = len(tr.machines) <= max_figures
+    if not every:
+        s.text(f"{len(tr.machines)} machines: figures only for the {len(warned)} with a warning; "
+               "every machine has its table.")
+    s.verdict(not tr.warnings, f"{len(tr.warnings)} warning(s) on {len(warned)} machine(s)")
     if tr.errors:
         s.verdict(False, f"{len(tr.errors)} machine-night(s) could not be diagnosed")
     sections.append(s)
@@ -124,9 +134,10 @@ def html(tr: Trends, source: str = "") -> str:
                           [[x.output, f"{x.effect}.{x.parameter}", len(x.dates), x.dates[-1],
                             f"{_fmt(x.values[-1], x.unit)} ± {_fmt(x.sigmas[-1], x.unit)}",
                             _fmt(x.values[0], x.unit)] for x in mine])
-            png = Path(tmp) / f"{len(sections)}.png"
-            save_figure(machine_figure(tr, m), png, dpi=72)
-            sec.figure(png, f"{m}: each parameter by night; band ±1σ, bars ±2σ, red rings: warnings, "
-                            "dashed: limits")
+            if every or m in warned:
+                png = Path(tmp) / f"{len(sections)}.png"
+                save_figure(machine_figure(tr, m), png, dpi=72)
+                sec.figure(png, f"{m}: each parameter by night; band ±1σ, bars ±2σ, red rings: "
+                                "warnings, dashed: limits")
             sections.append(sec)
         return render("Fleet: machine parameters over time", source, sections)
