@@ -242,8 +242,9 @@ def test_without_dask_says_how_to_install(argv, tmp_path):
     assert "Traceback" not in p.stderr
 
 
-def _write_synthetic(ds, machines=3, nights=4, step=("m2", 2)):
-    """Rows made as a worker makes them, from NightResults with a kv that steps once."""
+def _write_synthetic(ds, machines=3, nights=4, step=("m2", 2), misfit=("m1", 3)):
+    """Rows made as a worker makes them, from NightResults with a kv that steps once on one
+    machine, and jumps on one night of another whose diagnosis left x unexplained."""
     from mtcomp.fleet.adapter import EffectRow, NightResult
     from mtcomp.fleet.dataset import write_night
     from mtcomp.fleet.night import rows_of
@@ -251,13 +252,16 @@ def _write_synthetic(ds, machines=3, nights=4, step=("m2", 2)):
         m = f"m{i + 1}"
         for k in range(nights):
             kv = 40.0 + i + 0.001 * (-1) ** k + (8.0 if (m, k) >= step and m == step[0] else 0.0)
+            bad = (m, k) == misfit
+            kv += 1.0 if bad else 0.0
             res = NightResult(
                 outputs=("x", "y"), units={"x": "mm", "y": "mm"},
                 effects=(EffectRow("servo_lag", ("y",), {"kv_per_s": kv, "tau_s": 1 / kv},
                                    {"kv_per_s": 0.002, "tau_s": 0.002 / kv ** 2}),),
                 rms_before={"x": 1e-3, "y": 0.2}, rms_after={"x": 1e-3, "y": 3e-4},
                 holdout_before={"x": 1e-3, "y": 0.2}, holdout_after={"x": 1e-3, "y": 3e-4},
-                noise_floor={"x": 3e-4, "y": 3e-4}, unexplained=("x",), samples=600)
+                noise_floor={"x": 3e-4, "y": 3e-4}, unexplained=("x",) if bad else (),
+                samples=600)
             write_night(ds, m, f"2026-01-0{k + 1}", rows_of(res, {"status": "ok"}))
 
 
@@ -270,15 +274,20 @@ def test_report_cli_from_a_written_dataset(tmp_path, capsys):
     ds = tmp_path / "ds"
     _write_synthetic(ds)
     t = read(ds).to_pylist()
-    none, = {(r["effect"], r["output"], r["unexplained"]) for r in t if r["effect"] == "none"}
-    assert none == ("none", "x", True)
+    bad = [r for r in t if (r["machine"], r["date"]) == ("m1", "2026-01-04")]
+    assert {(r["effect"], r["output"], r["unexplained"], r["night_unexplained"]) for r in bad} == \
+        {("none", "x", True, "x"), ("servo_lag", "y", False, "x")}
     kv = [r for r in t if r["parameter"] == "kv_per_s"]
     assert {r["unit"] for r in kv} == {"1/s"} and kv[0]["holdout_gain"] == pytest.approx(1 - 3e-4 / 0.2)
     out = tmp_path / "r.html"
     assert main(["fleet", "report", str(ds), "-o", str(out)]) == 1
     said = capsys.readouterr().out
+    # m2's step warns; m1's jump of 500 sigma on a night not explained does not
     assert "warning: m2 2026-01-03 y servo_lag.kv_per_s: change" in said
     assert said.count("warning:") == 1
+    tr = trends(read(ds))
+    assert tr.unexplained == (("m1", "2026-01-04", "x", "servo_lag(y)"),)
+    assert "Nights not explained" in out.read_text()
     assert out.read_text().count("data:image/png;base64,") == 3
     page = html(trends(read(ds)), max_figures=2)
     assert page.count("data:image/png;base64,") == 1 and "figures only for the 1 with a warning" in page
@@ -286,6 +295,7 @@ def test_report_cli_from_a_written_dataset(tmp_path, capsys):
     lim = tmp_path / "l.toml"
     lim.write_text('[[limit]]\nparameter = "kv_per_s"\nmax = 45.0\n')
     assert main(["fleet", "report", str(ds), "-o", str(out), "--limits", str(lim), "--quiet"]) == 1
-    tr = trends(read(ds), __import__("mtcomp.fleet.trend", fromlist=["x"]).load_limits(lim))
+    from mtcomp.fleet.trend import load_limits
+    tr = trends(read(ds), load_limits(lim))
     assert [(w.machine, w.date) for w in tr.warnings if w.kind == "limit"] == \
         [("m2", "2026-01-03"), ("m2", "2026-01-04")]

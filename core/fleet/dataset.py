@@ -39,7 +39,8 @@ def schema():
         ("holdout_rms_after", pa.float64()),
         ("holdout_gain", pa.float64()),   # 1 - holdout_rms_after / holdout_rms_before
         ("noise_floor", pa.float64()),
-        ("unexplained", pa.bool_()),      # residual still > 3x the noise floor
+        ("unexplained", pa.bool_()),      # residual still > 3x the noise floor (the row's outputs)
+        ("night_unexplained", pa.string()),  # outputs of the night left unexplained, "x,z"
         ("samples", pa.int64()),
         ("status", pa.string()),          # "ok" or the reason the night failed
         ("sim_files", pa.string()),       # ';'-joined paths as given

@@ -81,6 +81,7 @@ def rows_of(res: NightResult, common: dict) -> list[dict]:
                 "holdout_gain": 1.0 - after / before if before > 0 else float("nan"),
                 "noise_floor": _rms(res.noise_floor, outputs),
                 "unexplained": any(o in res.unexplained for o in outputs),
+                "night_unexplained": ",".join(sorted(res.unexplained)),
                 "samples": res.samples, "status": "ok"}
     covered = set()
     for e in res.effects:

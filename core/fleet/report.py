@@ -42,6 +42,9 @@ def machine_figure(tr: Trends, machine: str):
                         color="tab:blue", alpha=0.25, lw=0, label="±1σ")
         ax.errorbar(x, v, yerr=[2 * b for b in e], fmt="o-", ms=3, lw=1, color="tab:blue",
                     elinewidth=0.6, capsize=0)
+        odd = [(xi, vi) for i, (xi, vi) in enumerate(zip(x, v)) if not s.night_explained(i)]
+        if odd:
+            ax.plot(*zip(*odd), "s", ms=7, mfc="white", mec="0.4", label="not explained")
         hot = [(xi, vi) for xi, vi, d in zip(x, v, s.dates)
                if (d, s.parameter, s.output, s.effect) in warned]
         if hot:
@@ -105,7 +108,8 @@ def html(tr: Trends, source: str = "", max_figures: int = MAX_FIGURES) -> str:
            f"{len(tr.series)} parameter series. Change test: a night against the inverse-variance "
            f"mean of up to {tr.limits.window} earlier nights since the last change, beyond "
            f"{tr.limits.k:g} combined σ (widened by the night-to-night scatter where larger); "
-           f"{len(tr.limits.rules)} limit rule(s).")
+           f"{len(tr.limits.rules)} limit rule(s). {len(tr.unexplained)} night(s) not explained "
+           "(not in the change test).")
     warned = {w.machine for w in tr.warnings}
     every = len(tr.machines) <= max_figures
     if not every:
@@ -120,6 +124,15 @@ def html(tr: Trends, source: str = "", max_figures: int = MAX_FIGURES) -> str:
         w.table(["machine", "night", "output", "parameter", "kind", "value ± 1σ", "why"],
                 warning_rows(tr))
         sections.append(w)
+    if tr.unexplained:
+        u = Section("Nights not explained")
+        u.text("The diagnosis left these outputs' residual above 3x their noise floor: the model "
+               "named does not describe the recording (an effect the library lacks, or effects "
+               "the recording could not tell apart). Their parameters are shown (grey squares) "
+               "but take no part in the change test.")
+        u.table(["machine", "night", "outputs unexplained", "effects named"],
+                [list(x) for x in tr.unexplained])
+        sections.append(u)
     if tr.errors:
         e = Section("Nights not diagnosed")
         e.table(["machine", "night", "reason"], [list(x) for x in tr.errors])

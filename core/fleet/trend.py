@@ -12,6 +12,12 @@ with its 1-sigma.  Two tests warn:
   so a step warns once and a steady growth every night it grows by more than the band.
 - **limit**: a value outside [min, max] of a rule in the limits TOML.
 
+A night whose diagnosis left some output unexplained (its residual above 3x the noise floor:
+an effect missing from the model, or a model chosen wrongly on a recording that could not tell
+two effects apart) is listed apart and takes no part in the change test, neither as the night
+tested nor in a reference: its parameters were fitted with a model that does not describe the
+recording, and their sigmas do not hold.  Limits still apply to it.
+
 Parameters that describe the recording rather than the machine (the state at the start,
 `initial_*`, and a level, `offset_*`, except a time offset's) and parameters fixed by the model
 (sigma exactly 0) are not trended; a servo lag is trended by kv (its tau_s is 1/kv).
@@ -130,6 +136,10 @@ class Series:
     dates: tuple
     values: tuple
     sigmas: tuple
+    explained: tuple = ()    # per date: the night's diagnosis explained every output
+
+    def night_explained(self, i: int) -> bool:
+        return self.explained[i] if self.explained else True
 
     @property
     def label(self) -> str:
@@ -163,6 +173,7 @@ class Trends:
     series: tuple
     warnings: tuple
     errors: tuple          # (machine, date, reason) of nights that failed
+    unexplained: tuple     # (machine, date, outputs, effects) of nights not fully explained
     machines: tuple
     dates: tuple
     limits: Limits = field(default_factory=Limits)
@@ -178,9 +189,33 @@ def trended(effect: str, parameter: str, sigma: float) -> bool:
     return not sigma == 0.0
 
 
+def _columns(table) -> dict:
+    return table.to_pydict() if hasattr(table, "to_pydict") else dict(table)
+
+
+def unexplained_nights(table) -> list[tuple]:
+    """(machine, date, outputs left unexplained, effects named) of the nights whose diagnosis
+    left some output's residual above 3x its noise floor."""
+    cols = _columns(table)
+    nights: dict = {}
+    per_night = cols.get("night_unexplained") or [None] * len(cols["machine"])
+    for m, d, e, o, u, nu in zip(cols["machine"], cols["date"], cols["effect"], cols["output"],
+                                 cols["unexplained"], per_night):
+        outs, effs = nights.setdefault((m, d), (set(), set()))
+        if e not in ("none", "error"):
+            effs.add(f"{e}({o})")
+        if nu is not None:
+            outs.update(x for x in nu.split(",") if x)
+        elif u:   # a dataset written before night_unexplained: the row's outputs
+            outs.update(o.split(","))
+    return [(m, d, ",".join(sorted(o)), ", ".join(sorted(e)))
+            for (m, d), (o, e) in sorted(nights.items()) if o]
+
+
 def series_of(table) -> list[Series]:
     """The trended series of a dataset table (pyarrow Table or a mapping of columns)."""
-    cols = table.to_pydict() if hasattr(table, "to_pydict") else dict(table)
+    cols = _columns(table)
+    bad = {(m, d) for m, d, _, _ in unexplained_nights(cols)}
     groups: dict = {}
     for m, d, e, o, p, u, v, s in zip(cols["machine"], cols["date"], cols["effect"], cols["output"],
                                       cols["parameter"], cols["unit"], cols["value"], cols["sigma"]):
@@ -191,7 +226,7 @@ def series_of(table) -> list[Series]:
     for (m, e, o, p, u), byd in sorted(groups.items()):
         ds = sorted(byd)
         out.append(Series(m, e, o, p, u, tuple(ds), tuple(byd[d][0] for d in ds),
-                          tuple(byd[d][1] for d in ds)))
+                          tuple(byd[d][1] for d in ds), tuple((m, d) not in bad for d in ds)))
     return out
 
 
@@ -210,8 +245,8 @@ def _reference(ref: list) -> tuple[float, float, float]:
 def change_warnings(s: Series, k: float, window: int) -> list[Warn]:
     out = []
     ref: list = []
-    for d, x, sx in zip(s.dates, s.values, s.sigmas):
-        if not (math.isfinite(sx) and sx > 0):
+    for i, (d, x, sx) in enumerate(zip(s.dates, s.values, s.sigmas)):
+        if not (math.isfinite(sx) and sx > 0) or not s.night_explained(i):
             continue
         if ref:
             mean, sm, birge = _reference(ref[-window:])
@@ -245,8 +280,8 @@ def trends(table, limits: Limits | None = None) -> Trends:
         warns += change_warnings(s, limits.k, limits.window)
         warns += limit_warnings(s, limits.rules)
     warns.sort(key=lambda w: (w.machine, w.date, w.output, w.parameter, w.kind))
-    cols = table.to_pydict() if hasattr(table, "to_pydict") else dict(table)
+    cols = _columns(table)
     errors = sorted({(m, d, st) for m, d, e, st in zip(cols["machine"], cols["date"], cols["effect"],
                                                        cols["status"]) if e == "error"})
-    return Trends(tuple(series), tuple(warns), tuple(errors), tuple(sorted(set(cols["machine"]))),
-                  tuple(sorted(set(cols["date"]))), limits)
+    return Trends(tuple(series), tuple(warns), tuple(errors), tuple(unexplained_nights(cols)),
+                  tuple(sorted(set(cols["machine"]))), tuple(sorted(set(cols["date"]))), limits)
