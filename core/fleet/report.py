@@ -26,7 +26,9 @@ def machine_figure(tr: Trends, machine: str):
     warnings (red ring) and the limits (dashed red).  Returns a matplotlib Figure."""
     import datetime as dt
     from matplotlib.figure import Figure
-    series = [s for s in tr.series if s.machine == machine]
+    # a series seen only on nights not explained is in the table of those nights, not drawn
+    series = [s for s in tr.series if s.machine == machine
+              and any(s.night_explained(i) for i in range(len(s.dates)))]
     n = max(len(series), 1)
     ncol = min(3, n)
     nrow = math.ceil(n / ncol)

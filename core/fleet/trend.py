@@ -19,7 +19,8 @@ tested nor in a reference: its parameters were fitted with a model that does not
 recording, and their sigmas do not hold.  Limits still apply to it.
 
 Parameters that describe the recording rather than the machine (the state at the start,
-`initial_*`, and a level, `offset_*`, except a time offset's) and parameters fixed by the model
+`initial_*`, a level, `offset_*`, except a time offset's, and the span of positions a profile was
+fitted over, `range_*`) and parameters fixed by the model
 (sigma exactly 0) are not trended; a servo lag is trended by kv (its tau_s is 1/kv).
 """
 from __future__ import annotations
@@ -182,7 +183,7 @@ class Trends:
 def trended(effect: str, parameter: str, sigma: float) -> bool:
     if (effect, parameter) in DERIVED:
         return False
-    if parameter.startswith("initial_"):
+    if parameter.startswith(("initial_", "range_")):
         return False
     if parameter.startswith("offset_") and effect != "time_offset":
         return False
