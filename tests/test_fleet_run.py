@@ -292,3 +292,32 @@ def test_skip_done_runs_only_the_changed_night(small, tmp_path, capsys):
     assert f"{len(fleet.nights) - 1} night(s) already done" in out
     changed = [p for p in ds.glob(f"machine=*/date=*/{PART}") if p.stat().st_mtime_ns != before[p]]
     assert changed == [ds / f"machine={n.machine}" / f"date={n.date}" / PART]
+
+
+def test_scheduler_without_workers_is_an_error(tmp_path, monkeypatch, capsys):
+    """A scheduler with no worker: a clear error naming --scheduler, nothing written (the tasks
+    would otherwise wait for ever)."""
+    import mtcomp.fleet.run as fr
+    src = write_fleet(make_fleet(FleetSpec(machines=1, nights=1)), tmp_path / "src")
+    monkeypatch.setattr(fr, "WAIT_FOR_WORKERS_S", 3.0)
+    port = _free_port()
+    p = subprocess.Popen([str(Path(sys.executable).with_name("dask")), "scheduler", "--host",
+                          "127.0.0.1", "--port", str(port), "--no-dashboard", "--idle-timeout", "300"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        from distributed import Client
+        deadline = time.monotonic() + 120
+        while True:     # wait until it listens
+            try:
+                with Client(f"tcp://127.0.0.1:{port}", timeout="5s"):
+                    break
+            except OSError:
+                assert time.monotonic() < deadline
+        rc = main(["fleet", "diagnose", str(src), "-o", str(tmp_path / "ds"), "--same-clock",
+                   "--scheduler", f"tcp://127.0.0.1:{port}"])
+    finally:
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+    assert rc == 2
+    assert "[--scheduler]: the Dask scheduler" in capsys.readouterr().err
+    assert not (tmp_path / "ds").exists()

@@ -21,6 +21,7 @@ from . import dataset
 from .night import run_job
 
 INSTALL = "pip install 'mtcomp[fleet]'"
+WAIT_FOR_WORKERS_S = 120.0
 
 
 class FleetUnavailable(MtcompError):
@@ -70,14 +71,21 @@ class FleetRun:
 def _client(stack: ExitStack, scheduler: str | None, workers: int | None):
     from distributed import Client, LocalCluster
     if scheduler:
+        from .._io import InputError
         try:
-            return stack.enter_context(Client(scheduler, timeout="20s", set_as_default=False))
+            client = stack.enter_context(Client(scheduler, timeout="20s", set_as_default=False))
         except (OSError, TimeoutError, ValueError) as exc:
-            from .._io import InputError
             raise InputError(f"cannot connect to the Dask scheduler {scheduler!r}: "
                              f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__} "
                              "(expected tcp://HOST:PORT of a running `dask scheduler`)",
                              field="--scheduler") from None
+        try:   # tasks sent to a scheduler without workers would wait for ever
+            client.wait_for_workers(1, timeout=WAIT_FOR_WORKERS_S)
+        except TimeoutError:
+            raise InputError(f"the Dask scheduler {scheduler!r} has no worker after "
+                             f"{WAIT_FOR_WORKERS_S:g} s (start some: dask worker {scheduler})",
+                             field="--scheduler") from None
+        return client
     n = workers or os.cpu_count() or 1
     # one single-threaded worker process per core: the diagnosis holds the GIL for much of its
     # work, and one BLAS thread per process gives the same bits on every worker
