@@ -4,7 +4,7 @@ the nodes a plant of 1,000 machines x 100 MB of recordings per night would need.
 A. Throughput.  A generated fleet (mtcomp.fleet.generate, default 4 machines x 5 nights of 12 s
    at 50 Hz) is diagnosed (1) serially in this process with plain `diagnose` (the baseline),
    (2) by run_fleet on a local Dask cluster of 1 worker process, (3) of 2 worker processes
-   (single-threaded, as the embedded cluster).  Wall time, the workers' CPU time (summed from the
+   (single-threaded, without the workers' statistical profiler, as the embedded cluster).  Wall time, the workers' CPU time (summed from the
    dataset's cpu_s), nights per hour, the speed-up 2 vs 1 worker, and each worker's peak RSS.
    The load average is printed beside: on a shared machine the wall times say as much about the
    neighbours as about the code.
@@ -51,8 +51,10 @@ def _on_cluster(jobs, out, workers: int) -> dict:
     from distributed import Client, LocalCluster
     from mtcomp.fleet.dataset import read
     from mtcomp.fleet.run import run_fleet
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR) as cluster, \
+    import dask
+    with dask.config.set({"distributed.worker.profile.enabled": False}), \
+            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                         dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR) as cluster, \
             Client(cluster) as client:
         load0 = os.getloadavg()[0]
         run = run_fleet(jobs, out, scheduler=cluster.scheduler_address)
@@ -93,6 +95,8 @@ def part_a(machines: int, nights: int) -> dict:
 _ONE = r"""
 import json, resource, sys, time
 from mtcomp.diagnose import diagnose
+# the diagnosis' lazy imports, before the clock starts (a worker pays them once, not per night)
+import mtcomp.diagnose.engine, mtcomp.diagnose.report, scipy.optimize, scipy.signal, scipy.interpolate
 c0, w0 = time.process_time(), time.perf_counter()
 res = diagnose(sys.argv[1], sys.argv[2], same_clock=True)
 print(json.dumps({"cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
