@@ -29,6 +29,7 @@ COMMAND_MODULES = [
     "mtcomp.model.cli",           # model export|simulate|resimulate
     "mtcomp.demo",                # demo
     "mtcomp.control.cli",         # control export|import
+    "mtcomp.fleet.cli",           # fleet diagnose|report
 ]
 
 
