@@ -34,6 +34,7 @@ from mtcomp.model.simulate import Signals, simulate  # noqa: E402
 M = "vmc-moving-column"
 H = 2e-3
 NOISE = 2e-4
+COMPLETE = True     # --no-complete: the loop as the diagnosis leaves it
 PROGRAM = "G90 G1 F1200\nX0 Y0 Z0\nX20 Y5\nX-20 Y-10\nX15 Y10\nX-15 Y-5\nX0 Y0\n"
 
 
@@ -79,7 +80,9 @@ def one_case(name, truth, thermal, max_feed, wd: Path) -> dict:
     from mtcomp.model.loop import close_loop
     nominal = simulate(PROGRAM, M, step=H, compiler="cc")
     rec = truth_run(PROGRAM, truth, thermal)
-    lr = close_loop(rec, nominal, program=PROGRAM, machine=M, step=H, do_prune=True, compiler="cc")
+    lr = close_loop(rec, nominal, program=PROGRAM, machine=M, step=H, do_prune=True, compiler="cc",
+                    do_complete=COMPLETE)
+    print("\n".join(lr.prune_log))
     res = lr.result
     ratio = {o: res.heldout_rms["after"][o] / NOISE for o in res.rec}
     folder = wd / name.split()[0]
@@ -141,7 +144,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--max-feed", type=float, default=None)
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--no-complete", action="store_true")
     a = ap.parse_args(argv)
+    global COMPLETE
+    COMPLETE = not a.no_complete
     rows, wall, cpu = run_judged(a.max_feed)
     lines = table(rows, a.max_feed, wall, cpu)
     print("\n".join(lines))

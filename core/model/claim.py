@@ -58,26 +58,38 @@ def claim_band(program: str, compensated: str, machine, errors: ErrorSet, dynami
                draws: int = 8, seed: int = 0, rapid: float = 3000.0, compiler: str = "cmake") -> dict:
     """{"max"|"rms": (low, high) mm} of the part error of the compensated program on machines
     drawn from the model (dynamics: compensate.ModelDynamics; sigmas: model_sigmas), and
-    "draws": the number of draws (0 when no parameter has a sigma: the band is the claim)."""
+    "draws": the number of draws (0 when no parameter has a sigma: the band is the claim),
+    "unidentified": the parameters left out of the draws (sigma above their value)."""
     from .compensate import model_dynamics, part_error
     from .simulate import simulate
     from .thermal_comp import spindle_profile
     machine = load_machine(machine)
     rng = np.random.default_rng(seed)
     used = {k: s for k, s in sigmas.items() if k in dynamics.params or k.startswith("location.")}
+    # a parameter whose sigma exceeds its value was not identified by the fit: drawing it would
+    # run machines far outside anything the data allow (or the FMU's ranges); listed apart
+    loc = errors.geometric.location
+    vague = sorted(k for k, s in used.items()
+                   if s > abs(dynamics.params.get(k, loc.get(k[len("location."):], 0.0) if k.startswith("location.")
+                                                  else 0.0)))
+    used = {k: s for k, s in used.items() if k not in vague}
     if not used:
         draws = 0
     figs = {"max": [], "rms": []}
     sp = spindle_profile(compensated, machine, dynamics.step, rapid=rapid)
+    from .._io import MtcompError
     for _ in range(max(draws, 1)):
         err, params = _drawn(errors, dynamics.params, used, rng, machine) if draws else (errors, dynamics.params)
         dyn = model_dynamics(params, machine, dynamics.step).machine_dynamics(machine)
-        sig = simulate(compensated, machine, err, dyn, step=dynamics.step, compiler=compiler,
-                       spindle_speed=np.abs(sp) if np.any(sp) else 0.0)
+        try:
+            sig = simulate(compensated, machine, err, dyn, step=dynamics.step, compiler=compiler,
+                           spindle_speed=np.abs(sp) if np.any(sp) else 0.0)
+        except MtcompError:     # a draw outside the FMU's ranges
+            continue
         pe = part_error(program, sig, machine, rapid=rapid)
         figs["max"].append(pe["max"])
         figs["rms"].append(pe["rms"])
-    out = {"draws": draws}
+    out = {"draws": draws, "unidentified": vague}
     for k, v in figs.items():
         v = np.asarray(v)
         lo, hi = float(v.min()), float(v.max())

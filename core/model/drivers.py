@@ -84,7 +84,7 @@ def resolve(params: dict, *, sim_spindle=0.0, sim_temperature=None, rec=None) ->
     logged); rec: REC's path, or {driver: (column, t, values)} (recording_drivers)."""
     rec_d = recording_drivers(rec) if isinstance(rec, (str, Path)) else dict(rec or {})
     spindle, temp, sources = sim_spindle, sim_temperature, {}
-    if np.ndim(sim_spindle) > 0 or (sim_spindle is not None and float(sim_spindle) != 0.0):
+    if callable(sim_spindle) or np.ndim(sim_spindle) > 0 or (sim_spindle is not None and float(sim_spindle) != 0.0):
         sources["spindle_speed"] = "SIM"
     if sim_temperature is not None:
         sources["temperature"] = "SIM"
