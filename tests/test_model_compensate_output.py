@@ -75,3 +75,23 @@ def test_no_single_block_spikes():
     u[5:] = 1.0                                      # a step of 1 mm
     v, n = limit_speed(u, 1.0, 60 * 0.25)            # 0.25 mm per step at most
     assert n == 3 and np.allclose(np.diff(v[:, 0])[:8], [0, 0, 0, 0, 0.25, 0.25, 0.25, 0.25])
+
+
+def test_unidentified_parameters_are_not_compensated(tmp_path):
+    """A fitted quadrant glitch of -4.4 µm +/- 120 mm peaking 0.8 ms +/- 3 s after the reversal
+    (what the loop left on the lag + backlash case): not identified, so not compensated (it put
+    a 2 µm spike into the compensated path at every reversal of Y), and named in the report."""
+    from mtcomp.model.compensate import read_model
+    base = '[parameters]\n"backlash.X" = 0.003\n"backlash.Y" = 0.003\n'
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "dynamics.toml").write_text("step_s = 0.001\n" + base)
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "dynamics.toml").write_text(
+        "step_s = 0.001\n" + base + '"glitch.height.Y" = -0.0044\n"glitch.time.Y" = 0.00078\n'
+        '[uncertainty]\n"backlash.X" = 0.0002\n"glitch.height.Y" = 120.0\n"glitch.time.Y" = 3.1\n')
+    _, da = read_model(tmp_path / "a", M)
+    _, db = read_model(tmp_path / "b", M)
+    assert db.unidentified == ("glitch.height.Y", "glitch.time.Y") and db.glitch(M) is None
+    ta, _ = compensate_with_model(PROGRAM, M, None, da)
+    tb, rep = compensate_with_model(PROGRAM, M, None, db)
+    assert ta == tb and "not identified" in rep.summary() and "glitch.height.Y" in rep.summary()

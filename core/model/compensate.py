@@ -52,6 +52,7 @@ class ModelDynamics:
     kv: tuple
     step: float
     params: dict = field(default_factory=dict, compare=False)
+    unidentified: tuple = ()     # parameters left out: their sigma exceeds their value
 
     def machine_dynamics(self, machine):
         """The mtcomp.fmu.build.MachineDynamics the model describes (no noise)."""
@@ -117,7 +118,7 @@ def read_model(outdir, machine) -> tuple:
         raise InputError("expected a model folder written by `mtcomp model export`", d)
     check_model_machine(d, machine, what="the model's compensation")
     errors = load_errors(d / "errors.toml", machine=machine) if (d / "errors.toml").is_file() else ErrorSet()
-    params, step = {}, 1e-3
+    params, step, vague = {}, 1e-3, ()
     if (d / "dynamics.toml").is_file():
         params = load_dynamics(d / "dynamics.toml", machine)
         data = parse_toml(read_text(d / "dynamics.toml", what="dynamics file"), d / "dynamics.toml")
@@ -125,7 +126,37 @@ def read_model(outdir, machine) -> tuple:
         if isinstance(s, bool) or not isinstance(s, (int, float)) or not (math.isfinite(s) and s > 0):
             raise InputError(f"expected a step in s > 0, got {s!r}", d / "dynamics.toml", field="step_s")
         step = float(s)
-    return errors, model_dynamics(params, machine, step)
+        params, vague = _identified(params, data.get("uncertainty"))
+    md = model_dynamics(params, machine, step)
+    return errors, ModelDynamics(md.backlash, md.kv, md.step, md.params, vague)
+
+
+# effects whose parameters come in pairs: one unidentified parameter leaves the effect out
+_PAIRS = {"glitch.height.": "glitch.time.", "glitch.time.": "glitch.height.",
+          "friction.breakaway.": "friction.tau.", "friction.tau.": "friction.breakaway."}
+
+
+def _identified(params: dict, unc) -> tuple:
+    """(params, left out): a compensation does not act on a parameter the fit did not identify
+    (its sigma exceeds its value: a quadrant glitch of -4.4 µm +/- 120 mm, peaking 0.8 ms +/- 3 s
+    after the reversal, wrote a 2 µm spike into every reversal).  Its effect is set to 0 (both
+    parameters of a glitch or a breakaway) and named in the report."""
+    if not isinstance(unc, dict):
+        return params, ()
+    out = dict(params)
+    vague = []
+    for k, sg in unc.items():
+        v = params.get(k)
+        if v is None or isinstance(sg, bool) or not isinstance(sg, (int, float)) or not sg > abs(float(v)):
+            continue
+        if k.startswith(("servo.kv.", "backlash.", "glitch.", "friction.", "encoder.a", "delay")):
+            vague.append(k)
+            zero = k
+            for a, b in _PAIRS.items():
+                if k.startswith(a) and (a.startswith("glitch.time") or a.startswith("friction.tau")):
+                    zero = b + k[len(a):]     # a time constant: the effect's height goes to 0
+            out[zero] = 0.0
+    return out, tuple(sorted(vague))
 
 
 def model_dynamics(params: dict, machine, step: float) -> ModelDynamics:
@@ -408,6 +439,7 @@ class CompensationReport:
     max_feed: float | None = None     # mm/min: no written feed above it
     limited: int = 0                  # samples whose correction was spread (limit_speed)
     servo_needs: float | None = None  # mm/min: the feed the servo feed-forward needed, left out above max_feed
+    unidentified: tuple = ()          # model parameters left out (sigma above their value)
 
     def summary(self) -> str:
         th = None
@@ -432,6 +464,8 @@ class CompensationReport:
             if self.limited:
                 tail += (f" ({self.limited} samples' corrections spread over the next steps to stay below it: "
                          "raise it with --max-feed)")
+        if self.unidentified:
+            tail += f"; left out, not identified by the fit (sigma above the value): {', '.join(self.unidentified)}"
         if self.servo_needs:
             tail += (f"; servo feed-forward NOT applied: it needs feeds up to F{self.servo_needs:.0f}, above "
                      f"F{self.max_feed:g} (give --max-feed {math.ceil(self.servo_needs)} to apply it)")
@@ -542,7 +576,7 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
                           feed_resolution=feed_resolution)
     blocks = sum(1 for ln in new.splitlines() if ln and ln[0] in machine.axis_names)
     return new, CompensationReport(geo, bl, kv, h, blocks, rep_geo, **extra, max_feed=fmax, limited=limited,
-                                   servo_needs=servo_needs)
+                                   servo_needs=servo_needs, unidentified=dynamics.unidentified)
 
 
 def encoder_commands(w: np.ndarray, encoder) -> np.ndarray:
