@@ -83,6 +83,10 @@ def register(subparsers) -> None:
                    help="refit the exported scalars (kv, backlash, friction, delay, thermal, location, setting) through the "
                         "machine model on "
                         "the training samples (needs --diagnosis; a co-simulation per evaluation: slow)")
+    r.add_argument("--complete", action="store_true",
+                   help="add the backlash of every reversing linear axis the model lacks and refit every scalar through "
+                        "the machine model; kept only when training samples the fit did not see agree (needs "
+                        "--diagnosis; slow)")
     r.add_argument("--plot", metavar="OUT.png")
     r.add_argument("--json", metavar="OUT.json")
     r.set_defaults(func=run_resimulate)
@@ -234,11 +238,11 @@ def run_resimulate(args: argparse.Namespace) -> int:
     if args.diagnosis:
         from .export import read_diagnosis
         noise = read_diagnosis(args.diagnosis).get("noise_floor")
-    if args.prune or args.refine:
+    if args.prune or args.refine or args.complete:
         from .export import export_model, write_export
         from .simulate import prune, read_recording, refine
         if not args.diagnosis:
-            raise InputError("--prune and --refine need --diagnosis DIAG.json", field="--diagnosis")
+            raise InputError("--prune, --refine and --complete need --diagnosis DIAG.json", field="--diagnosis")
         t_rec, rec = read_recording(args.rec)
         log: list = []
         kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
@@ -250,6 +254,11 @@ def run_resimulate(args: argparse.Namespace) -> int:
             ex = prune(ex, t_rec, rec, **kw)
         if args.refine:
             ex = refine(ex, t_rec, rec, stride=4, **kw)
+        if args.complete:
+            from ..fmu.cosim import interpolate_program
+            from .complete import complete
+            q = interpolate_program(program, machine, step)[1]
+            ex = complete(ex, t_rec, rec, q=q, stride=4, **kw)
         model = write_export(ex, args.model)
         print("\n".join(log))
     res, _, _ = resimulate(model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,

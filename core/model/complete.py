@@ -52,10 +52,38 @@ def complete(ex, t_rec, rec: dict, *, program, machine, q, log: list | None = No
         return ex
     sub: list = []
     out = refine(cand, t_rec, rec, program=program, machine=machine, log=sub, **kw)
-    if out is cand:     # refused: nothing changed but the added effects
+    if out is not cand:
+        # an added backlash the refit leaves within 2 sigma of 0 is not kept
+        added = {f"backlash.{a}" for a in reversing_axes(machine, q)} - {p.name for p in ex.params}
+        keep = [i for i, m in enumerate(out.mapped)
+                if not (m.params and all(p.name in added and (p.sigma is None or abs(p.value) < 2 * p.sigma)
+                                         for p in m.params))]
+        if len(keep) < len(out.mapped):
+            out = out.subset(keep)
+    # judged against the model as it came (not the start with 1 µm plays added)
+    better = out is not cand and _validation(out, t_rec, rec, program, machine, kw) < \
+        _validation(ex, t_rec, rec, program, machine, kw)
+    if not better:
         if log is not None:
-            log.append("completion refused: " + "; ".join(sub))
+            log.append("completion refused: the validation error does not fall below the model's as it came; "
+                       + "; ".join(s for s in sub if s.startswith("refine")))
         return ex
     if log is not None:
         log += ["completion: " + s for s in sub]
     return out
+
+
+def _validation(model, t_rec, rec, program, machine, kw) -> float:
+    """The error on the validation samples (simulate._split) of the re-simulated model."""
+    from dataclasses import replace
+
+    from ..errors import ErrorSet
+    from ..fmu.build import MachineDynamics
+    from .simulate import _score, _split
+    t_rec = np.asarray(t_rec, float)
+    _, val, _ = _split(t_rec, kw.get("train_until"))
+    base_dyn = replace(kw.get("dynamics") or MachineDynamics(), noise=0.0)
+    return _score(model, t_rec, rec, val, program=program, machine=load_machine(machine),
+                  base_err=kw.get("errors") or ErrorSet(), base_dyn=base_dyn, step=kw["step"],
+                  spindle_speed=kw.get("spindle_speed", 0.0), temperature=kw.get("temperature"),
+                  nf=dict(kw.get("noise_floor") or {}), compiler=kw.get("compiler", "cmake"))
