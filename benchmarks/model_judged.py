@@ -160,7 +160,7 @@ def main(argv=None):
                        "compensation, the independent simulator, the claim's band of 6 draws): "
                        f"{wall:.0f} s wall, {cpu:.0f} s CPU "
                        f"(`benchmarks/model_judged.py{' --max-feed ' + format(a.max_feed, 'g') if a.max_feed else ''}`"
-                       f"{'' if COMPLETE else ', --no-complete'}). Baseline in the same session: the loop without "
+                       f"{'' if COMPLETE else ', --no-complete'}). Baseline, measured just before on the same machine: the loop without "
                        "the completion, 100 s wall, 23 s CPU (the completion's refit through the FMU is 3/4 of "
                        "the CPU). Wall time on a machine shared by several jobs (load 13-15).",
                        root / "benchmarks.md")
