@@ -17,6 +17,8 @@ from mtcomp.model.compensate import (ModelDynamics, backlash_offsets, compensate
                                      feed_forward, read_model, sampled_program)
 
 M = "vmc-moving-column"
+# the feed the servo feed-forward may use (asked: the default is the program\'s fastest move)
+FAST = 60000.0
 STEP = 1e-3
 # lines, corners, reversals of X and Y and a full circle (G2 must be cancelled by G1)
 PROGRAM = """G90 G1 F300
@@ -134,7 +136,7 @@ def errors_by_switch():
     out = {}
     for name, kw in (("none", None), ("geometric", dict(backlash=False, servo=False)),
                      ("+backlash", dict(servo=False)), ("+servo", {})):
-        text = PROGRAM if kw is None else compensate_with_model(PROGRAM, M, TRUE_ERRORS, model, **kw)[0]
+        text = PROGRAM if kw is None else compensate_with_model(PROGRAM, M, TRUE_ERRORS, model, **kw, max_feed=FAST)[0]
         sig = simulate(text, M, TRUE_ERRORS, dyn, step=STEP, compiler="cc")
         pe = part_error(PROGRAM, sig, M)
         out[name] = (pe["max"], pe["rms"])
@@ -160,7 +162,7 @@ def test_geometric_switch_alone_on_a_machine_with_geometric_errors_only():
     from mtcomp.model.compensate import part_error
     from mtcomp.model.simulate import simulate
     before = part_error(PROGRAM, simulate(PROGRAM, M, TRUE_ERRORS, None, step=STEP, compiler="cc"), M)
-    text, rep = compensate_with_model(PROGRAM, M, TRUE_ERRORS, None)
+    text, rep = compensate_with_model(PROGRAM, M, TRUE_ERRORS, None, max_feed=FAST)
     assert rep.geometric and rep.step is None                   # no sampling without dynamics
     after = part_error(PROGRAM, simulate(text, M, TRUE_ERRORS, None, step=STEP, compiler="cc"), M)
     # squareness 150 µrad over +-10 mm: 1.3 µm max; compensated to the axis resolution (0.1 µm:
@@ -202,7 +204,7 @@ def test_backlash_on_a_single_axis_reversal(tmp_path):
     (d / "dynamics.toml").write_text('step_s = 0.001\n[parameters]\n"backlash.X" = 0.002\n')
     errors, dyn = read_model(d, M)
     prog = "G90 G1 F600\nX0 Y0 Z0\nX5\nX-5\nX0\n"
-    text, rep = compensate_with_model(prog, M, errors, dyn)
+    text, rep = compensate_with_model(prog, M, errors, dyn, max_feed=FAST)
     assert not rep.geometric and rep.backlash == (0.002, 0.0, 0.0) and rep.kv is None
     machine = MachineDynamics(backlash=(0.002, 0.0, 0.0))
     before = part_error(prog, simulate(prog, M, None, machine, step=1e-3, compiler="cc"), M)
@@ -215,7 +217,11 @@ def test_cli_compensate_switches_and_bad_input(tmp_path):
     _model_folder(tmp_path / "model")
     (tmp_path / "p.nc").write_text(PROGRAM)
     base = ("model", "compensate", "p.nc", "--model", "model", "--machine", M)
-    r = _cli(tmp_path, *base, "-o", "all.nc")
+    r = _cli(tmp_path, *base, "-o", "safe.nc")
+    assert r.returncode == 0, r.stderr
+    # by default no feed above the program's F300: the servo feed-forward is left out, and said so
+    assert "servo feed-forward NOT applied" in r.stdout and "--max-feed" in r.stdout
+    r = _cli(tmp_path, *base, "--max-feed", FAST, "-o", "all.nc")
     assert r.returncode == 0, r.stderr
     assert "geometric" in r.stdout and "backlash" in r.stdout and "feed-forward" in r.stdout
     text = (tmp_path / "all.nc").read_text()
@@ -227,11 +233,11 @@ def test_cli_compensate_switches_and_bad_input(tmp_path):
     assert "feed-forward" not in geo
     # the library gives the same program
     errors, dyn = read_model(tmp_path / "model", M)
-    same, _ = compensate_with_model(PROGRAM, M, errors, dyn, filename="p.nc")
+    same, _ = compensate_with_model(PROGRAM, M, errors, dyn, filename="p.nc", max_feed=FAST)
     body = lambda s: [ln for ln in s.splitlines() if not ln.startswith("(")]  # noqa: E731
     assert body(same) == body(text)
     # --cosim: the part error on the model's machine, switch by switch (the model is the truth here)
-    r = _cli(tmp_path, *base, "--cosim", "-o", "all2.nc")
+    r = _cli(tmp_path, *base, "--cosim", "--max-feed", FAST, "-o", "all2.nc")
     assert r.returncode == 0, r.stderr
     pe = {ln.split()[1]: (float(ln.split()[3]), float(ln.split()[6])) for ln in r.stdout.splitlines()
           if ln.strip().startswith("compensation ")}

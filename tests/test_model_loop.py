@@ -606,14 +606,17 @@ def test_encoder_cyclic_error_compensation_is_exact_to_second_order():
     dyn = model_dynamics({"encoder.period.X": P, "encoder.a1.X": a1, "encoder.phase1.X": 40.0, "encoder.a2.X": a2,
                           "encoder.phase2.X": -60.0, "encoder.period.Y": P, "encoder.a1.Y": 5e-4,
                           "encoder.phase1.Y": 0.0}, M, step)
-    text, rep = compensate_with_model(prog, M, None, dyn)
+    # the correction's slope (2 pi a1 / P = 6 %) needs feeds a little above the program's F60: asked
+    text, rep = compensate_with_model(prog, M, None, dyn, max_feed=120.0)
     assert rep.encoder is not None and "encoder cyclic error" in rep.summary()
     ideal = simulate(prog, M, None, None, step=step, compiler="cc").p
     before = simulate(prog, M, None, dyn.machine_dynamics(M), step=step, compiler="cc").p
     after = simulate(text, M, None, dyn.machine_dynamics(M), step=step, compiler="cc").p
     assert np.abs(before - ideal).max() > 1e-3
     bound = 2 * np.pi / P * (a1 + 2 * a2) * (a1 + a2)
-    assert np.abs(after - ideal)[1:].max() <= bound + 0.5e-4
-    assert np.sqrt(np.mean((after - ideal)[1:] ** 2)) < 0.1 * np.sqrt(np.mean((before - ideal) ** 2))
-    text, rep = compensate_with_model(prog, M, None, dyn, encoder=False)
+    # from row 10 on: the first move to the corrected start (about 1 µm) runs at the allowed
+    # feed, not at F100000 as before, and its half step is taken back over the next blocks
+    assert np.abs(after - ideal)[10:].max() <= bound + 0.5e-4
+    assert np.sqrt(np.mean((after - ideal)[10:] ** 2)) < 0.1 * np.sqrt(np.mean((before - ideal) ** 2))
+    text, rep = compensate_with_model(prog, M, None, dyn, encoder=False, max_feed=120.0)
     assert text == prog and rep.encoder is None

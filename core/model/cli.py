@@ -83,6 +83,10 @@ def register(subparsers) -> None:
                    help="refit the exported scalars (kv, backlash, friction, delay, thermal, location, setting) through the "
                         "machine model on "
                         "the training samples (needs --diagnosis; a co-simulation per evaluation: slow)")
+    r.add_argument("--complete", action="store_true",
+                   help="add the backlash of every reversing linear axis the model lacks and refit every scalar through "
+                        "the machine model; kept only when training samples the fit did not see agree (needs "
+                        "--diagnosis; slow)")
     r.add_argument("--plot", metavar="OUT.png")
     r.add_argument("--json", metavar="OUT.json")
     r.set_defaults(func=run_resimulate)
@@ -128,9 +132,26 @@ def _driver_starts(spindle, temperature) -> dict:
     import numpy as np
     out = {}
     for name, v in (("spindle_speed", spindle), ("temperature", temperature)):
-        if v is not None:
+        if v is not None and not callable(v):
             out[name] = float(np.ravel(v)[0])
     return out
+
+
+def _recorded_drivers(rec_path, spindle, temperature) -> tuple:
+    """(spindle speed, temperature, {driver: value at the start}) for the re-simulation: REC's
+    driver columns (mtcomp.model.drivers.recording_drivers, as functions of t) over SIM's."""
+    import numpy as np
+
+    from .drivers import recording_drivers
+    starts = _driver_starts(spindle, temperature)
+    for name, (_, t, v) in recording_drivers(rec_path).items():
+        fn = (lambda tt, t=t, v=v: np.interp(tt, t, v))
+        starts[name] = float(v[0])
+        if name == "spindle_speed":
+            spindle = fn
+        else:
+            temperature = fn
+    return spindle, temperature, starts
 
 
 def _read_drivers(path) -> dict:
@@ -210,26 +231,34 @@ def run_resimulate(args: argparse.Namespace) -> int:
         errors = load_errors(args.errors, machine=machine) if args.errors else None
     if program is None:
         raise InputError("the provenance names no program: give --program", field="--program")
+    from .identity import check_model_machine
+    check_model_machine(args.model, machine, what="model resimulate")
+    spindle, temp, starts = _recorded_drivers(args.rec, spindle, temp)
     model, noise = args.model, None
     if args.diagnosis:
         from .export import read_diagnosis
         noise = read_diagnosis(args.diagnosis).get("noise_floor")
-    if args.prune or args.refine:
+    if args.prune or args.refine or args.complete:
         from .export import export_model, write_export
         from .simulate import prune, read_recording, refine
         if not args.diagnosis:
-            raise InputError("--prune and --refine need --diagnosis DIAG.json", field="--diagnosis")
+            raise InputError("--prune, --refine and --complete need --diagnosis DIAG.json", field="--diagnosis")
         t_rec, rec = read_recording(args.rec)
         log: list = []
         kw = dict(program=program, machine=machine, errors=errors, dynamics=dyn, step=step, spindle_speed=spindle,
                   temperature=temp, train_until=args.heldout_from, noise_floor=noise, log=log)
-        ex = export_model(args.diagnosis, machine, None, step=step, drivers=_driver_starts(spindle, temp),
+        ex = export_model(args.diagnosis, machine, None, step=step, drivers=starts,
                           servo_interpolation=bool(getattr(dyn, "interpolation", 0)),
                           velocity_peaks=_velocity_peaks(args.sim) if args.sim else None)
         if args.prune:
             ex = prune(ex, t_rec, rec, **kw)
         if args.refine:
             ex = refine(ex, t_rec, rec, stride=4, **kw)
+        if args.complete:
+            from ..fmu.cosim import interpolate_program
+            from .complete import complete
+            q = interpolate_program(program, machine, step)[1]
+            ex = complete(ex, t_rec, rec, q=q, stride=4, **kw)
         model = write_export(ex, args.model)
         print("\n".join(log))
     res, _, _ = resimulate(model, args.rec, program=program, machine=machine, errors=errors, dynamics=dyn,
@@ -266,6 +295,11 @@ def register_compensate(sub) -> None:
                    "at the time the axes act (t + transport delay)")
     c.add_argument("--rapid", type=float, default=3000.0, metavar="MM_PER_MIN",
                    help="the G0 rate of the control, for the sampling (default 3000)")
+    c.add_argument("--max-feed", type=float, metavar="MM_PER_MIN",
+                   help="highest feed the sampled program may write (default: the program's fastest move, rapids at "
+                        "--rapid included): corrections that need more are spread over the next steps")
+    c.add_argument("--feed-resolution", type=float, default=0.001, metavar="MM_PER_MIN",
+                   help="the control's feed resolution: feeds are written as multiples of it (default 0.001)")
     c.add_argument("--cosim", action="store_true",
                    help="co-simulate the machine the model describes (machine FMU) with the program uncompensated, "
                         "compensated for the geometric errors only, + backlash, + servo, + friction, + thermal "
@@ -287,8 +321,9 @@ def run_compensate(args: argparse.Namespace) -> int:
     errors, dyn = read_model(args.model, m)
     if args.errors:
         errors = combine_errors(load_errors(args.errors, machine=m), errors, m)
-    if not (args.rapid > 0 and args.rapid < float("inf")):
-        raise InputError(f"expected a rapid rate > 0 mm/min, got {args.rapid}", field="--rapid")
+    for name, v in (("--rapid", args.rapid), ("--max-feed", args.max_feed), ("--feed-resolution", args.feed_resolution)):
+        if v is not None and not (v > 0 and v < float("inf")):
+            raise InputError(f"expected a feed > 0 mm/min, got {v}", field=name)
     src = Path(args.program)
     from ..gcode.provenance import check_nc_write
     check_nc_write(None, output=args.output, inputs=(src, args.errors))
@@ -299,7 +334,8 @@ def run_compensate(args: argparse.Namespace) -> int:
                                      backlash=not args.no_backlash, servo=not args.no_servo,
                                      friction=not args.no_friction, thermal=not args.no_thermal,
                                      delay=not args.no_delay, encoder=not args.no_encoder, rapid=args.rapid, filename=str(src), provenance=prov,
-                                     force=args.force)
+                                     force=args.force, max_feed=args.max_feed,
+                                     feed_resolution=args.feed_resolution)
     atomic_write(args.output, new)
     print(f"{src} -> {args.output}: {rep.summary()}")
     if rep.thermal_control is not None:
@@ -309,10 +345,17 @@ def run_compensate(args: argparse.Namespace) -> int:
         print(f"thermal drift driven by a logged temperature: not in the program; the control's parameters -> {ctl}")
     if args.cosim:
         from .compensate import compare_compensations
-        pe = compare_compensations(text, m, errors, dyn, rapid=args.rapid, filename=str(src))
+        pe = compare_compensations(text, m, errors, dyn, rapid=args.rapid, filename=str(src), max_feed=args.max_feed)
         print("part error on the model's machine (distance of the tool edge from the programmed path, feed "
               "moves; reach: of the programmed points from the tool edge's path):")
         for k, v in pe.items():
             print(f"  compensation {k:<10} max {v['max'] * 1e3:9.4f} µm   RMS {v['rms'] * 1e3:9.4f} µm   "
                   f"reach {v['reach'] * 1e3:9.4f} µm")
+        from .claim import claim_band, model_sigmas
+        band = claim_band(text, new, m, errors, dyn, model_sigmas(args.model), rapid=args.rapid)
+        res_um = min(a.resolution for a in m.axes if not a.is_rotary) * 1e3
+        print(f"  the written program, with the model's uncertainty ({band['draws']} draws of its parameters): "
+              f"max {band['max'][0] * 1e3:.4f}..{band['max'][1] * 1e3:.4f} µm, RMS {band['rms'][0] * 1e3:.4f}.."
+              f"{band['rms'][1] * 1e3:.4f} µm (coordinates written at {res_um:g} µm; physics the model lacks is "
+              "not in this band)")
     return 0

@@ -52,6 +52,7 @@ class ModelDynamics:
     kv: tuple
     step: float
     params: dict = field(default_factory=dict, compare=False)
+    unidentified: tuple = ()     # parameters left out: their sigma exceeds their value
 
     def machine_dynamics(self, machine):
         """The mtcomp.fmu.build.MachineDynamics the model describes (no noise)."""
@@ -110,12 +111,14 @@ def read_model(outdir, machine) -> tuple:
     no errors, no dynamics; step from dynamics.toml, default 1 ms)."""
     from .._io import parse_toml, read_text
     from .dynamics import load_dynamics
+    from .identity import check_model_machine
     machine = load_machine(machine)
     d = Path(outdir)
     if not d.is_dir():
         raise InputError("expected a model folder written by `mtcomp model export`", d)
+    check_model_machine(d, machine, what="the model's compensation")
     errors = load_errors(d / "errors.toml", machine=machine) if (d / "errors.toml").is_file() else ErrorSet()
-    params, step = {}, 1e-3
+    params, step, vague = {}, 1e-3, ()
     if (d / "dynamics.toml").is_file():
         params = load_dynamics(d / "dynamics.toml", machine)
         data = parse_toml(read_text(d / "dynamics.toml", what="dynamics file"), d / "dynamics.toml")
@@ -123,7 +126,37 @@ def read_model(outdir, machine) -> tuple:
         if isinstance(s, bool) or not isinstance(s, (int, float)) or not (math.isfinite(s) and s > 0):
             raise InputError(f"expected a step in s > 0, got {s!r}", d / "dynamics.toml", field="step_s")
         step = float(s)
-    return errors, model_dynamics(params, machine, step)
+        params, vague = _identified(params, data.get("uncertainty"))
+    md = model_dynamics(params, machine, step)
+    return errors, ModelDynamics(md.backlash, md.kv, md.step, md.params, vague)
+
+
+# effects whose parameters come in pairs: one unidentified parameter leaves the effect out
+_PAIRS = {"glitch.height.": "glitch.time.", "glitch.time.": "glitch.height.",
+          "friction.breakaway.": "friction.tau.", "friction.tau.": "friction.breakaway."}
+
+
+def _identified(params: dict, unc) -> tuple:
+    """(params, left out): a compensation does not act on a parameter the fit did not identify
+    (its sigma exceeds its value: a quadrant glitch of -4.4 µm +/- 120 mm, peaking 0.8 ms +/- 3 s
+    after the reversal, wrote a 2 µm spike into every reversal).  Its effect is set to 0 (both
+    parameters of a glitch or a breakaway) and named in the report."""
+    if not isinstance(unc, dict):
+        return params, ()
+    out = dict(params)
+    vague = []
+    for k, sg in unc.items():
+        v = params.get(k)
+        if v is None or isinstance(sg, bool) or not isinstance(sg, (int, float)) or not sg > abs(float(v)):
+            continue
+        if k.startswith(("servo.kv.", "backlash.", "glitch.", "friction.", "encoder.a", "delay")):
+            vague.append(k)
+            zero = k
+            for a, b in _PAIRS.items():
+                if k.startswith(a) and (a.startswith("glitch.time") or a.startswith("friction.tau")):
+                    zero = b + k[len(a):]     # a time constant: the effect's height goes to 0
+            out[zero] = 0.0
+    return out, tuple(sorted(vague))
 
 
 def model_dynamics(params: dict, machine, step: float) -> ModelDynamics:
@@ -249,45 +282,132 @@ def _spindle_words(v: float) -> str:
     return f"S{abs(v):.15g} {'M3' if v > 0 else 'M4'}"
 
 
-def sampled_program(u: np.ndarray, step: float, machine, *, header=(), spindle=None, start=None) -> str:
+def coordinate_text(value: float, resolution: float) -> str:
+    """A coordinate at the control's resolution: the nearest multiple of `resolution`, written
+    with the decimals that represent that multiple exactly (a 0.1 µm axis: 4 decimals; a
+    0.079 µm one: 6), so that what is written is what the control runs."""
+    k = round(float(value) / resolution)
+    return f"{k * resolution:.{_decimals(resolution)}f}"
+
+
+def _decimals(resolution: float) -> int:
+    d = max(0, int(math.ceil(-math.log10(resolution) - 1e-9)))
+    while d < 12 and abs(round(resolution, d) - resolution) > 1e-6 * resolution:
+        d += 1
+    return d
+
+
+def _quantised(v: np.ndarray, res: np.ndarray) -> np.ndarray:
+    return np.round(np.asarray(v, float) / res) * res
+
+
+def feed_text(f: float, resolution: float) -> str:
+    """A feed (mm/min) at the control's feed resolution."""
+    k = max(1, round(f / resolution))
+    return f"{k * resolution:.{_decimals(resolution)}f}"
+
+
+def _block_feed(length: float, want: float, fmax: float, resolution: float) -> str:
+    """The feed (text) of a block of `length` mm that should last `want` s: a multiple of the
+    resolution, at most fmax, and rounded so that the block lasts at least `want` (the written
+    program then never runs ahead of the sample clock: it is late by less than one block's
+    rounding, which the next block takes back)."""
+    kmax = max(1, math.floor(fmax / resolution + 1e-9))
+    f = length / want * 60.0 if want > 0 else fmax
+    k = min(kmax, max(1, math.floor(f / resolution)))
+    return feed_text(k * resolution, resolution)
+
+
+def program_max_feed(w: np.ndarray, step: float) -> float:
+    """The largest path speed (mm/min, all axes as the control measures F) of the sampled
+    program w (K, n): its fastest move, rapids at the rapid rate included."""
+    if len(w) < 2:
+        return 0.0
+    return float(np.max(np.sqrt(np.sum(np.diff(w, axis=0) ** 2, axis=1)))) / step * 60.0
+
+
+def limit_speed(u: np.ndarray, step: float, max_feed: float) -> tuple:
+    """(commands, samples limited): u (K, n) followed at a path speed of at most max_feed
+    (mm/min, over all axes as the control measures F) per step: where a correction asks for a
+    faster move (the servo feed-forward's lead building up at a start or a corner, its jump at
+    a backlash reversal), the command moves toward it at max_feed and catches up over the next
+    steps instead of in one: no feed above max_feed and no single-block spike.  Where the
+    program itself runs at max_feed the lead cannot be built (a lag compensation needs a faster
+    command than the motion): the count says how often the limit acted.  Steps are appended at
+    the end (at rest, until it has caught up) so that the program ends where it should.
+    (Tried and dropped: limiting only the correction u - w beside the nominal motion w; it
+    keeps a stale lead after each corner and measured worse on the servo + backlash case.)"""
+    vmax = max_feed / 60.0 * step * (1.0 + 1e-9)
+    u = np.asarray(u, float)
+    if not np.any(np.sqrt(np.sum(np.diff(u, axis=0) ** 2, axis=1)) > vmax):
+        return u, 0
+    out = np.empty((len(u) + 10000, u.shape[1]))
+    out[0] = cur = u[0].copy()
+    limited = 0
+    k = 1
+    while k < len(out):
+        tgt = u[min(k, len(u) - 1)]
+        dv = tgt - cur
+        n = math.sqrt(float(dv @ dv))
+        if n > vmax:
+            dv = dv * (vmax / n)
+            limited += 1
+        cur = cur + dv
+        out[k] = cur
+        k += 1
+        if k >= len(u) and n <= vmax:
+            break
+    return out[:k], limited
+
+
+def sampled_program(u: np.ndarray, step: float, machine, *, header=(), spindle=None, start=None,
+                    max_feed: float | None = None, feed_resolution: float = 0.001) -> str:
     """NC text (G90 G94 G1 blocks) that the interpolator runs through the commands u (K, n)
     sampled every `step` s: each block lasts its samples' time (F = length / duration, mm/min,
-    lengths over all axes as the control measures them); collinear runs merged.  spindle: (K,)
-    signed speed (1/min, + M3, - M4, 0 stopped) per sample, written as S/M3/M4/M5 words on the
-    block that runs the sample where it changes (None or all 0: no spindle words).  start: where
-    the program starts (n,); when u[0] is elsewhere (a thermal offset at t = 0) the first block
-    goes there at F100000, so that it takes no time of the sample clock (< 1e-9 s per µm)."""
+    lengths over all axes as the control measures them); collinear runs merged.  Coordinates
+    are multiples of each axis' resolution, feeds multiples of feed_resolution (mm/min): the
+    rounding of each block's time is carried into the next block's feed, so that the blocks'
+    times add up to the sample clock within one step (error diffusion), and no feed is above
+    max_feed (default: the fastest of u).  spindle: (K,) signed speed (1/min, + M3, - M4, 0
+    stopped) per sample, written as S/M3/M4/M5 words on the block that runs the sample where it
+    changes (None or all 0: no spindle words).  start: where the program starts (n,); when
+    u[0] is elsewhere (a thermal offset at t = 0) the first block goes there at max_feed (its
+    time, a fraction of a step for a correction of a few µm, is taken from the blocks after)."""
     machine = load_machine(machine)
-    res = machine.resolutions
+    res = np.asarray(machine.resolutions, float)
+    fmax = float(max_feed) if max_feed else max(program_max_feed(u, step), feed_resolution)
     sp = None if spindle is None or not np.any(spindle) else np.asarray(spindle, float)
     changes = np.flatnonzero(np.diff(sp)) + 1 if sp is not None else np.zeros(0, int)
     keep = _merge(u, 0.25 * res, breaks=changes - 1)
     pending = {int(c): _spindle_words(sp[c]) for c in changes}
-    dec = [a.decimals for a in machine.axes]
     names = machine.axis_names
     lines = [f"({h})" for h in header]
     lines.append("G90 G94 G1")
-    fmt = lambda j, v: f"{names[j]}{v:.{dec[j]}f}"  # noqa: E731
+    fmt = lambda j, v: f"{names[j]}{coordinate_text(v, res[j])}"  # noqa: E731
     first = " " + _spindle_words(sp[0]) if sp is not None and sp[0] != 0 else ""
-    moved = start is not None and any(round(float(a), d) != round(float(b), d) for a, b, d in zip(u[0], start, dec))
-    lines.append(" ".join(fmt(j, u[0, j]) for j in range(len(names))) + (" F100000" if moved else " F1000") + first)
+    q0 = _quantised(u[0], res)
+    late = 0.0     # s: the written blocks' time minus the sample clock, carried into the next feed
+    if start is not None:
+        move = float(np.sqrt(np.sum((q0 - _quantised(start, res)) ** 2)))
+        late = move / fmax * 60.0
+    lines.append(" ".join(fmt(j, u[0, j]) for j in range(len(names))) + f" F{feed_text(fmax, feed_resolution)}"
+                 + first)
     # The first block moves from the program's start (the parse takes unknown axes at 0, the
-    # sampled program starts where the original did) and must take no time: the interpolator
-    # skips zero-length moves.  Written positions are rounded: feeds use the rounded lengths.
-    prev = np.array([round(v, d) for v, d in zip(u[0], dec)])
+    # sampled program starts where the original did); the interpolator skips zero-length moves.
+    prev = q0
     a = keep[0]
     for b in keep[1:]:
-        p = np.array([round(v, d) for v, d in zip(u[b], dec)])
+        p = _quantised(u[b], res)
         length = float(np.sqrt(np.sum((p - prev) ** 2)))
         spw = pending.pop(a + 1, None)
         if length == 0:
             if spw:
                 lines.append(spw)   # the spindle change still acts before the next move
             continue        # the interpolator skips zero-length moves: its time goes to the next block
-        f = length / ((b - a) * step) * 60.0
+        ftxt = _block_feed(length, (b - a) * step - late, fmax, feed_resolution)
+        late += length / float(ftxt) * 60.0 - (b - a) * step
         words = [fmt(j, u[b, j]) for j in range(len(names)) if p[j] != prev[j]]
-        # 15 digits: the block times add up over thousands of blocks to the sample clock
-        lines.append(" ".join(words) + f" F{f:.15g}" + (" " + spw if spw else ""))
+        lines.append(" ".join(words) + f" F{ftxt}" + (" " + spw if spw else ""))
         prev, a = p, b
     lines.append("M30")
     return "\n".join(lines) + "\n"
@@ -316,6 +436,10 @@ class CompensationReport:
     thermal_control: dict | None = None
     glitch: tuple | None = None
     encoder: tuple | None = None
+    max_feed: float | None = None     # mm/min: no written feed above it
+    limited: int = 0                  # samples whose correction was spread (limit_speed)
+    servo_needs: float | None = None  # mm/min: the feed the servo feed-forward needed, left out above max_feed
+    unidentified: tuple = ()          # model parameters left out (sigma above their value)
 
     def summary(self) -> str:
         th = None
@@ -335,6 +459,16 @@ class CompensationReport:
                  + " µm)" if self.encoder else None, th]
         what = "; ".join(p for p in parts if p) or "nothing"
         tail = f" (sampled every {self.step * 1e3:g} ms)" if self.step else ""
+        if self.max_feed:
+            tail += f"; feeds at most F{self.max_feed:g}"
+            if self.limited:
+                tail += (f" ({self.limited} samples' corrections spread over the next steps to stay below it: "
+                         "raise it with --max-feed)")
+        if self.unidentified:
+            tail += f"; left out, not identified by the fit (sigma above the value): {', '.join(self.unidentified)}"
+        if self.servo_needs:
+            tail += (f"; servo feed-forward NOT applied: it needs feeds up to F{self.servo_needs:.0f}, above "
+                     f"F{self.max_feed:g} (give --max-feed {math.ceil(self.servo_needs)} to apply it)")
         return f"compensated: {what}; {self.blocks} blocks{tail}"
 
 
@@ -348,7 +482,8 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
                           *, geometric: bool = True, backlash: bool = True, servo: bool = True,
                           friction: bool = True, thermal: bool = True, delay: bool = True,
                           encoder: bool = True, rapid: float = 3000.0, filename: str = "<string>", provenance=None,
-                          force: bool = False) -> tuple:
+                          force: bool = False, max_feed: float | None = None,
+                          feed_resolution: float = 0.001) -> tuple:
     """Rewrite an NC program for the machine the model describes: geometric and setting
     `errors` (when `geometric`), then the `dynamics` thermal offsets (`thermal`: spindle- or
     time-driven drift subtracted along the program; a drift driven by a logged temperature is
@@ -358,7 +493,12 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
     time the axes act (t + transport delay); `encoder`: the encoder cyclic error r of each axis
     is subtracted from its targets, w - r(w) (encoder_commands: exact to second order).  Returns (new_text, CompensationReport).  rapid:
     the G0 rate (mm/min) the control runs, for the sampling.  With every new switch off (or
-    nothing of it in the model) the output is the one without them, byte for byte."""
+    nothing of it in the model) the output is the one without them, byte for byte.
+
+    The sampled program keeps the original's timeline (within one step), writes coordinates at
+    each axis' resolution and feeds at feed_resolution (mm/min), and has no feed above max_feed
+    (mm/min; default: the program's fastest move, rapids at `rapid` included): corrections
+    that would need a faster move are spread over the next steps (limit_speed)."""
     from ..commands import compensate_program
     from ..gcode.provenance import check_nc_write, header_lines
     machine = load_machine(machine)
@@ -396,6 +536,9 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
     prog = parse(text, axes=machine.axis_names, filename=filename)
     _, w = interpolate_program(prog, machine, h, rapid=rapid)
     w0 = w[0].copy()
+    fmax = float(max_feed) if max_feed else program_max_feed(w, h)
+    if not (fmax > 0 and math.isfinite(fmax)):
+        raise InputError(f"expected a maximum feed > 0 mm/min, got {max_feed!r}", field="max_feed")
     sp = spindle_profile(prog, machine, h, rapid=rapid)
     if th_pred is not None:
         from .thermal_comp import predicted_temperature, thermal_correction, thermal_offsets
@@ -405,17 +548,33 @@ def compensate_with_model(text: str, machine, errors: ErrorSet | None = None, dy
         w = encoder_commands(w, enc)
     w = _glitch_and_friction(w, h, gl, fr, bl)
     u = w + (backlash_offsets(w, bl) if bl else 0.0)
+    servo_needs = None
     if kv:
-        u = feed_forward(u, kv, h, dynamics.interpolation)
+        # one step at rest at the end: the feed-forward takes the lead back there (without it
+        # the program ended on the last moving sample, its command v/kv past the end point)
+        uf = feed_forward(np.vstack([u, u[-1:]]), kv, h, dynamics.interpolation)
+        need = program_max_feed(uf, h)
+        if need > fmax * (1 + 1e-6):
+            # the lead a first-order servo needs is built by a faster command than the motion:
+            # above the allowed feed it is left out (spread, it would lag behind every corner
+            # and leave the program late by 1/kv at its end), and said so
+            servo_needs, kv = need, None
+        else:
+            u = uf
     what = ", ".join(x for x, on in (("geometric and setting errors", geo), ("backlash", bl),
                                      ("servo feed-forward", kv), ("friction reversal spikes", fr),
                                      ("quadrant glitch lead", gl), ("encoder cyclic error", enc),
                                      (f"thermal offsets ({th_name})", th_pred),
                                      (f"at the axes' time (delay {lead:g} s)" if lead else "", lead)) if on)
     items = list(provenance or []) + [("DYNAMICS", f"{what}; sampled every {h:g} s; G0 as G1 at {rapid:g} mm/min")]
-    new = sampled_program(u, h, machine, header=header_lines(items), spindle=sp, start=w0)
+    u, limited = limit_speed(u, h, fmax)
+    if sp is not None and len(sp) < len(u):
+        sp = np.concatenate([sp, np.full(len(u) - len(sp), sp[-1])])
+    new = sampled_program(u, h, machine, header=header_lines(items), spindle=sp, start=w0, max_feed=fmax,
+                          feed_resolution=feed_resolution)
     blocks = sum(1 for ln in new.splitlines() if ln and ln[0] in machine.axis_names)
-    return new, CompensationReport(geo, bl, kv, h, blocks, rep_geo, **extra)
+    return new, CompensationReport(geo, bl, kv, h, blocks, rep_geo, **extra, max_feed=fmax, limited=limited,
+                                   servo_needs=servo_needs, unidentified=dynamics.unidentified)
 
 
 def encoder_commands(w: np.ndarray, encoder) -> np.ndarray:
@@ -549,7 +708,8 @@ def compensation_stages(dynamics: ModelDynamics | None, machine) -> list:
 
 
 def compare_compensations(text: str, machine, errors: ErrorSet, dynamics: ModelDynamics, *,
-                          rapid: float = 3000.0, compiler: str = "cmake", filename: str = "<string>") -> dict:
+                          rapid: float = 3000.0, compiler: str = "cmake", filename: str = "<string>",
+                          max_feed: float | None = None) -> dict:
     """Co-simulate the program on the machine the model describes (errors, dynamics; no noise)
     uncompensated and compensated stage by stage (`compensation_stages`: geometric only,
     + backlash, + servo feed-forward, + friction reversal spikes, + thermal offsets); the
@@ -562,7 +722,7 @@ def compare_compensations(text: str, machine, errors: ErrorSet, dynamics: ModelD
     out = {}
     for name, kw in compensation_stages(dynamics, machine):
         prog = text if kw is None else compensate_with_model(text, machine, errors, dynamics, rapid=rapid,
-                                                             filename=filename, **kw)[0]
+                                                             filename=filename, max_feed=max_feed, **kw)[0]
         sp = spindle_profile(prog, machine, dynamics.step, rapid=rapid)
         sig = simulate(prog, machine, errors, dyn, step=dynamics.step, compiler=compiler,
                        spindle_speed=np.abs(sp) if np.any(sp) else 0.0)

@@ -312,8 +312,9 @@ def _manifest(machine, mapped, unmapped, step) -> str:
     for e, why in unmapped:
         eff.append({"name": str(e.get("name")), "output": str(e.get("output", "")),
                     "status": "dropped" if why.startswith("dropped") else "no home", "reason": why})
-    data = {"machine": machine.name, "files": {"errors": "errors.toml", "dynamics": "dynamics.toml",
-                                               "ssp_parameter_set": "machine.ssv"}}
+    from .identity import manifest_fields
+    data = {"machine": machine.name, **manifest_fields(machine),
+            "files": {"errors": "errors.toml", "dynamics": "dynamics.toml", "ssp_parameter_set": "machine.ssv"}}
     if step:
         data["step_s"] = float(step)
     data["effect"] = eff

@@ -25,13 +25,16 @@ class LoopResult:
 
 def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None, dynamics=None, step: float,
                train: float = 0.6, outputs=None, do_prune: bool = True, do_refine: bool = False,
-               refine_stride: int = 4, workdir=None, compiler: str = "cmake") -> LoopResult:
+               refine_stride: int = 4, workdir=None, compiler: str = "cmake", do_complete: bool = False) -> LoopResult:
     """Diagnose REC against the nominal SIM on the first `train` fraction of the samples, export
     the effects into the model, prune them through the model on the same samples (and with
     do_refine refit their scalars through it, every `refine_stride`-th training sample),
     re-simulate and compare on the rest (held out).  errors/dynamics: the nominal model's.
     outputs: the outputs to diagnose (default: x, y, z); velocity outputs v<AXIS> (the axes'
-    actual velocities) are written to both CSVs when named, and compared in the re-simulation."""
+    actual velocities) are written to both CSVs when named, and compared in the re-simulation.
+    do_complete: try the backlash of every reversing axis the model lacks, refitted through the
+    model with everything else and kept only when samples the fit did not see agree
+    (mtcomp.model.complete)."""
     from ..diagnose import diagnose
     from .export import export_model
     machine = load_machine(machine)
@@ -66,6 +69,11 @@ def close_loop(rec: Signals, nominal: Signals, *, program, machine, errors=None,
             ex = refine(ex, rec.t, rec_out, program=program, machine=machine, errors=errors, dynamics=dynamics,
                         step=step, train_until=t_split, noise_floor=diag.noise_floor, compiler=compiler,
                         stride=refine_stride, log=log, **drv)
+        if do_complete:
+            from .complete import complete
+            ex = complete(ex, rec.t, rec_out, program=program, machine=machine, q=rec.q, log=log, errors=errors,
+                          dynamics=dynamics, step=step, train_until=t_split, noise_floor=diag.noise_floor,
+                          compiler=compiler, stride=refine_stride, **drv)
         from dataclasses import replace
 
         from ..errors import ErrorSet

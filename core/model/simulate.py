@@ -18,6 +18,7 @@ import numpy as np
 from .._io import InputError, atomic_write, dump_toml, parse_toml, read_text
 from ..errors import AxisErrorTable, ErrorSet, GeometricErrors, ToolSetting, WorkpieceSetting, load_errors
 from ..machine import load_machine
+from .floor import INCOMPLETE, floor_of, where_incomplete
 
 OUTPUTS = ("x", "y", "z")
 DRIVER_COLUMNS = {"spindle_speed": "spindle_speed [rpm]", "temperature": "temperature [degC]"}
@@ -266,23 +267,42 @@ class ResimResult:
     blocks: tuple
     heldout_from: float | None
     noise_floor: dict = field(default_factory=dict)
+    floor: dict = field(default_factory=dict)        # {output: floor.Floor}
+    incomplete: dict = field(default_factory=dict)   # {output: where the excess is} above 3x the floor
+    notes: tuple = ()                                # drivers used, effects not re-simulated
+
+    def ratio(self, o: str) -> float:
+        """Held-out RMS of REC - updated model over the floor of output o (nan without a floor)."""
+        fl = self.floor.get(o)
+        return self.heldout_rms["after"][o] / fl.total if fl is not None and fl.total > 0 else float("nan")
 
     def summary(self) -> str:
         lines = ["re-simulation with the diagnosed model: RMS of REC - model"
                  + (f" (held out: t >= {self.heldout_from:g} s)" if self.heldout_from is not None else "")]
         for o in self.rec:
             f = _um if o in OUTPUTS else _velocity_formatter(o)
-            nf = self.noise_floor.get(o)
-            nfs = f", noise floor {f(nf)}" if nf else ""
+            fl = self.floor.get(o)
+            nfs = ""
+            if fl is not None:
+                nfs = (f"; floor {f(fl.total)} (noise {f(fl.noise)} from {fl.noise_source}, quantisation "
+                       f"{f(fl.quantisation)}, resampling {f(fl.interpolation)}): {self.ratio(o):.2f}x")
             lines.append(f"  {o}: original {f(self.rms['before'][o])} -> updated {f(self.rms['after'][o])}; "
                          f"held out {f(self.heldout_rms['before'][o])} -> {f(self.heldout_rms['after'][o])}"
                          + nfs)
+        lines += [f"  {n}" for n in self.notes]
+        for o, where in self.incomplete.items():
+            lines.append(f"  MODEL INCOMPLETE on {o}: the re-simulated residual is {self.ratio(o):.1f}x its floor "
+                         f"(above {INCOMPLETE:g}x); {where}")
+        if self.floor and not self.incomplete:
+            lines.append(f"  every output within {INCOMPLETE:g}x its floor")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
         return {"rms": self.rms, "heldout_rms": self.heldout_rms, "block_rms": self.block_rms,
                 "blocks": [list(b) for b in self.blocks], "heldout_from": self.heldout_from,
-                "noise_floor": self.noise_floor}
+                "noise_floor": self.noise_floor, "floor": {o: f.to_dict() for o, f in self.floor.items()},
+                "ratio_to_floor": {o: self.ratio(o) for o in self.floor}, "incomplete": self.incomplete,
+                "notes": list(self.notes)}
 
     def figure(self):
         """REC - original model (left) and REC - updated model (right) per output over time, in
@@ -351,9 +371,10 @@ def _rms(a) -> float:
 
 
 def compare(t_rec, rec: dict, sim: Signals, updated: Signals, *, heldout_from: float | None = None,
-            n_blocks: int = 5, noise_floor: dict | None = None) -> ResimResult:
+            n_blocks: int = 5, noise_floor: dict | None = None, notes=()) -> ResimResult:
     """Interpolate both models onto REC's times (REC is assumed on the simulation's clock) and
-    report the RMS of REC - model per output."""
+    report the RMS of REC - model per output, beside each output's floor (floor.Floor: noise,
+    REC's quantisation, the resampling) and, above 3x the floor, where the model falls short."""
     t_rec = np.asarray(t_rec, float)
     keep = (t_rec >= sim.t[0]) & (t_rec <= sim.t[-1])
     if keep.sum() < 2:
@@ -371,19 +392,40 @@ def compare(t_rec, rec: dict, sim: Signals, updated: Signals, *, heldout_from: f
     idx = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, n_blocks - 1)
     brms = {k: {o: [_rms((r[o] - m[o])[idx == b]) for b in range(n_blocks)] for o in r}
             for k, m in (("before", s), ("after", u))}
-    return ResimResult(t, r, s, u, rms, hrms, brms, blocks, heldout_from, dict(noise_floor or {}))
+    nf = dict(noise_floor or {})
+    floors = {o: floor_of(t, r[o], updated.t, updated.output(o), nf.get(o)) for o in r}
+    incomplete = {o: where_incomplete(t[held], (r[o] - u[o])[held], floors[o].total) for o in r
+                  if floors[o].total > 0 and hrms["after"][o] > INCOMPLETE * floors[o].total}
+    return ResimResult(t, r, s, u, rms, hrms, brms, blocks, heldout_from, nf, floors, incomplete, tuple(notes))
 
 
-def _updated_model(model, machine, base_err, base_dyn, combine):
+def _updated_model(model, machine, base_err, base_dyn, combine, skipped=None):
     from .dynamics import apply_dynamics, load_dynamics
+    from .identity import check_model_machine
     if hasattr(model, "dynamics_values"):
+        if model.machine != machine.name:
+            raise InputError(f"the model was exported for machine {model.machine}, not for {machine.name}: "
+                             "the re-simulation refuses to apply one machine's model to another", field="machine")
         fit_err, fit_dyn = model.errors, model.dynamics_values
     else:
         d = Path(model)
+        check_model_machine(d, machine, what="the re-simulation")
         fit_err = load_errors(d / "errors.toml", machine=machine)
         fit_dyn = load_dynamics(d / "dynamics.toml", machine)
+    if skipped:
+        from .drivers import without
+        fit_dyn = without(fit_dyn, skipped)
     new_err = combine_errors(base_err, fit_err, machine) if combine else fit_err
     return new_err, apply_dynamics(base_dyn, fit_dyn, machine, combine=combine)
+
+
+def model_dynamics_values(model, machine) -> dict:
+    """{FMU parameter: value} of the model's dynamics (a ModelExport or a model folder)."""
+    from .dynamics import load_dynamics
+    if hasattr(model, "dynamics_values"):
+        return dict(model.dynamics_values)
+    p = Path(model) / "dynamics.toml"
+    return load_dynamics(p, machine) if p.is_file() else {}
 
 
 def _training_residual(model, t_rec, rec, keep_t, *, program, machine, base_err, base_dyn, step, spindle_speed,
@@ -400,6 +442,31 @@ def _training_residual(model, t_rec, rec, keep_t, *, program, machine, base_err,
     return np.concatenate(parts)
 
 
+def _score(model, t_rec, rec, mask, *, program, machine, base_err, base_dyn, step, spindle_speed, temperature,
+           nf, compiler) -> float:
+    """Sum over outputs of mean square (REC - re-simulation) / noise floor^2 on the samples of
+    `mask` (a (K,) bool over REC's times)."""
+    e, d = _updated_model(model, machine, base_err, base_dyn, True)
+    sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, temperature=temperature,
+                   compiler=compiler)
+    keep = mask & (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
+    tot = 0.0
+    for o, v in rec.items():
+        m = np.interp(t_rec[keep], sig.t, sig.output(o))
+        tot += float(np.mean((np.asarray(v, float)[keep] - m) ** 2)) / (nf.get(o) or 1.0) ** 2
+    return tot
+
+
+def _split(t_rec, train_until):
+    """(fit mask, validation mask, cut): the samples before train_until (all without it) split
+    at 70 % of their span: the fit sees the first part, the later part judges it.  The samples
+    from train_until on stay unseen by both, so the reported held-out error stays honest."""
+    t_rec = np.asarray(t_rec, float)
+    end = float(t_rec[-1]) + 1.0 if train_until is None else float(train_until)
+    cut = float(t_rec[0]) + 0.7 * (min(end, float(t_rec[-1])) - float(t_rec[0]))
+    return t_rec < cut, (t_rec >= cut) & (t_rec < end), cut
+
+
 def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None, step: float,
            spindle_speed=0.0, train_until: float | None = None, noise_floor: dict | None = None,
            compiler: str = "cmake", stride: int = 1, log: list | None = None, temperature=None):
@@ -411,7 +478,9 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     Why: the diagnosis fits its own effect models; where they differ from the FMU's physics
     (a servo lag seen with a latency the model has no home for) its values are biased for the
     model.  The refitted sigmas are the least-squares covariance scaled by the residual
-    variance.  stride: use every n-th training sample (speed)."""
+    variance.  stride: use every n-th training sample (speed).  The fit uses the first 70 %
+    of the training span; the refit is returned only when it lowers the error on the rest
+    (`_split`), else `ex` itself (logged: "refine rejected")."""
     from dataclasses import replace
 
     from scipy.optimize import least_squares
@@ -428,10 +497,10 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     base_err = errors or ErrorSet()
     base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
     t_rec = np.asarray(t_rec, float)
+    train, held, cut = _split(t_rec, train_until)
     keep_t = np.zeros(len(t_rec), bool)
     keep_t[::max(1, int(stride))] = True
-    if train_until is not None:
-        keep_t &= t_rec < train_until
+    keep_t &= train
     nf = dict(noise_floor or {})
     x0 = np.array([p.value for p in params])
     scale = np.array([p.sigma if p.sigma and math.isfinite(p.sigma) and p.sigma > 0 else max(abs(p.value), 1e-9) * 1e-3
@@ -462,9 +531,20 @@ def refine(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None
     vals = x0 + sol.x * scale
     out = ex.with_values({p.name: float(v) for p, v in zip(params, vals)},
                          {p.name: float(s) for p, s in zip(params, sig)})
+    # accepted only when it lowers the error on samples the fit did not see: a refit that
+    # chases the training noise or a structural mismatch (backlash 2.67 -> 14.2 µm) is refused
+    kw = dict(program=program, machine=machine, base_err=base_err, base_dyn=base_dyn, step=step,
+              spindle_speed=spindle_speed, temperature=temperature, nf=nf, compiler=compiler)
+    before, after = _score(ex, t_rec, rec, held, **kw), _score(out, t_rec, rec, held, **kw)
+    if not after < before:
+        if log is not None:
+            log.append(f"refine rejected: the validation error (t >= {cut:g} s, not fitted) would rise from {before:.4g} "
+                       f"to {after:.4g}; the diagnosis' values kept")
+        return ex
     if log is not None:
         for p, v, s in zip(params, vals, sig):
             log.append(f"refined {p.name}: {p.value:.6g} -> {v:.6g} +/- {s:.2g} {p.unit}")
+        log.append(f"refine accepted: validation error (t >= {cut:g} s, not fitted) {before:.4g} -> {after:.4g}")
     return out
 
 
@@ -472,8 +552,9 @@ def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None,
           spindle_speed=0.0, train_until: float | None = None, noise_floor: dict | None = None,
           compiler: str = "cmake", log: list | None = None, temperature=None):
     """Backward elimination through the machine model itself: drop each exported effect (last
-    first) whose removal does not raise the training error of the re-simulation (samples with
-    t < train_until; all when None), sum over outputs of mean square / noise floor^2.
+    first) whose removal does not raise the error of the re-simulation on the first 70 % of the
+    training samples (t < train_until; all when None), sum over outputs of mean square / noise
+    floor^2; then put back each dropped effect that lowers the error on the other 30 %.
 
     Why: the diagnosis fits its own effect models to REC - SIM; where they differ from the
     machine model's physics (e.g. the FMU's servo holds the command over each step), it can add
@@ -488,19 +569,12 @@ def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None,
     base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
     t_rec = np.asarray(t_rec, float)
     nf = dict(noise_floor or {})
+    train, held, _ = _split(t_rec, train_until)
+    kw = dict(program=program, machine=machine, base_err=base_err, base_dyn=base_dyn, step=step,
+              spindle_speed=spindle_speed, temperature=temperature, nf=nf, compiler=compiler)
 
-    def score(model):
-        e, d = _updated_model(model, machine, base_err, base_dyn, True)
-        sig = simulate(program, machine, e, d, step=step, spindle_speed=spindle_speed, temperature=temperature,
-                       compiler=compiler)
-        keep = (t_rec >= sig.t[0]) & (t_rec <= sig.t[-1])
-        if train_until is not None:
-            keep &= t_rec < train_until
-        tot = 0.0
-        for o, v in rec.items():
-            m = np.interp(t_rec[keep], sig.t, sig.output(o))
-            tot += float(np.mean((np.asarray(v, float)[keep] - m) ** 2)) / (nf.get(o) or 1.0) ** 2
-        return tot
+    def score(model, mask=train):
+        return _score(model, t_rec, rec, mask, **kw)
 
     keep = list(range(len(ex.mapped)))
     current = score(ex)
@@ -514,30 +588,65 @@ def prune(ex, t_rec, rec: dict, *, program, machine, errors=None, dynamics=None,
                 log.append(f"dropped {m.effect} on {m.output}: training error {sc:.4g} without it (was higher with it)")
         elif log is not None:
             log.append(f"kept {m.effect} on {m.output}: training error rises to {sc:.4g} without it (from {current:.4g})")
+    if len(keep) < len(ex.mapped) and held.any():
+        # never drop an effect the samples the elimination did not see keep: each dropped one
+        # is put back when it lowers the validation error (a real 4 µm backlash was dropped on
+        # the fitted samples alone)
+        h_cur = score(ex.subset(keep), held)
+        for i in range(len(ex.mapped)):
+            if i in keep:
+                continue
+            trial = sorted(keep + [i])
+            h = score(ex.subset(trial), held)
+            if h < h_cur:
+                keep, h_cur = trial, h
+                if log is not None:
+                    m = ex.mapped[i]
+                    log.append(f"put back {m.effect} on {m.output}: the validation error falls to {h:.4g} with it")
     return ex.subset(keep) if len(keep) < len(ex.mapped) else ex
 
 
 def resimulate(model, rec, *, program, machine, errors: ErrorSet | None = None, dynamics=None,
                step: float, spindle_speed=0.0, heldout_from: float | None = None,
                combine: bool = True, workdir=None, compiler: str = "cmake", noise_floor: dict | None = None,
-               temperature=None):
+               temperature=None, rec_drivers: dict | None = None):
     """Rebuild the machine FMU with the fitted parameters and re-run the co-simulation.
 
     model: a ModelExport or the folder `mtcomp model export` wrote.  rec: REC CSV path or
     (t, {output: values}).  program/machine/errors/dynamics/step: what made the original SIM
     (errors and dynamics the base model).  The recording's sensor noise is not re-simulated:
-    both runs use the base dynamics with noise 0.  Returns (ResimResult, original Signals,
+    both runs use the base dynamics with noise 0.  Drivers (spindle speed, temperature): REC's
+    columns (a REC path; or rec_drivers {driver: (column, t, values)} with an in-memory REC)
+    before SIM's (spindle_speed, temperature); a thermal drift whose driver is in neither is
+    left out and named in the result's notes (mtcomp.model.drivers).  Returns (ResimResult, original Signals,
     updated Signals)."""
     from dataclasses import replace
 
     from ..fmu.build import MachineDynamics
+    from .drivers import resolve
     machine = load_machine(machine)
     base_err = errors or ErrorSet()
     base_dyn = replace(dynamics or MachineDynamics(), noise=0.0)
-    new_err, new_dyn = _updated_model(model, machine, base_err, base_dyn, combine)
+    _updated_model(model, machine, base_err, base_dyn, combine)     # refuses another machine's model first
     t_rec, rec_v = read_recording(rec) if isinstance(rec, (str, Path)) else rec
-    kw = dict(step=step, spindle_speed=spindle_speed, temperature=temperature, compiler=compiler)
+    drv = resolve(model_dynamics_values(model, machine), sim_spindle=spindle_speed, sim_temperature=temperature,
+                  rec=rec if isinstance(rec, (str, Path)) else rec_drivers)
+    new_err, new_dyn = _updated_model(model, machine, base_err, base_dyn, combine, drv.skipped)
+    kw = dict(step=step, spindle_speed=drv.spindle_speed, temperature=drv.temperature, compiler=compiler)
     sim = simulate(program, machine, base_err, base_dyn, workdir=None if workdir is None else Path(workdir) / "base", **kw)
     upd = simulate(program, machine, new_err, new_dyn,
                    workdir=None if workdir is None else Path(workdir) / "updated", **kw)
-    return compare(t_rec, rec_v, sim, upd, heldout_from=heldout_from, noise_floor=noise_floor), sim, upd
+    notes = drv.notes + tuple(not_in_model(model))
+    return compare(t_rec, rec_v, sim, upd, heldout_from=heldout_from, noise_floor=noise_floor, notes=notes), sim, upd
+
+
+def not_in_model(model) -> list:
+    """Report lines for the diagnosed effects the model has no home for (not re-simulated)."""
+    if hasattr(model, "unmapped"):
+        return [f"{e.get('name')} on {e.get('output')}: NOT re-simulated ({why})" for e, why in model.unmapped]
+    p = Path(model) / "model.toml"
+    if not p.is_file():
+        return []
+    data = parse_toml(read_text(p, what="model manifest"), p)
+    return [f"{e.get('name')} on {e.get('output')}: NOT re-simulated ({e.get('reason', e.get('status'))})"
+            for e in data.get("effect", []) if isinstance(e, dict) and e.get("status") != "in the model"]

@@ -47,6 +47,7 @@ def bind_parameter_set(ssp_in, ssv_path, ssp_out, *, component: str = "machine",
     comp = next((c for c in root.iter(f"{{{SSD}}}Component") if c.get("name") == component), None)
     if comp is None:
         raise InputError(f"the SSP has no component {component!r}", ssp_in)
+    _check_component_machine(entries, comp, ssv_root, Path(ssv_path), Path(ssp_in))
     pbs = comp.find(f"{{{SSD}}}ParameterBindings")
     if pbs is None:
         pbs = ET.Element(f"{{{SSD}}}ParameterBindings")
@@ -68,3 +69,51 @@ def bind_parameter_set(ssp_in, ssv_path, ssp_out, *, component: str = "machine",
             for n, data in entries.items():
                 zf.writestr(n, data)
     return out
+
+
+def _component_fmu(entries: dict, comp, ssp_in: Path) -> zipfile.ZipFile | None:
+    """The component's FMU (a zip inside the SSP archive), None when the SSP does not hold it."""
+    import io
+    src = comp.get("source") or ""
+    if src not in entries:
+        return None
+    try:
+        return zipfile.ZipFile(io.BytesIO(entries[src]))
+    except zipfile.BadZipFile:
+        raise InputError(f"{src} in the SSP archive is not an FMU (zip)", ssp_in) from None
+
+
+def _check_component_machine(entries: dict, comp, ssv_root, ssv_path: Path, ssp_in: Path) -> None:
+    """Refuse to bind a parameter set to the FMU of another machine: the machine the model was
+    exported for (model.toml beside the .ssv) must be the one the component's FMU simulates
+    (its resources/machine.txt: name, axes, chain), and every parameter of the set must be one
+    of the FMU's (an unknown name would be ignored by the importer, silently)."""
+    from .identity import identity_from_resource, identity_of_model, mismatch
+    fmu = _component_fmu(entries, comp, ssp_in)
+    if fmu is None:
+        return
+    with fmu:
+        names = set(fmu.namelist())
+        target = (identity_from_resource(fmu.read("resources/machine.txt").decode("utf-8", "replace"))
+                  if "resources/machine.txt" in names else None)
+        md = fmu.read("modelDescription.xml") if "modelDescription.xml" in names else None
+    model = identity_of_model(ssv_path.parent)
+    if model is not None and target is not None:
+        diff = mismatch(model, target)
+        if diff:
+            raise InputError(f"the parameter set was exported for machine {model.describe()}, but the SSP's "
+                             f"{comp.get('name')} component simulates {target.describe()} ({'; '.join(diff)}): "
+                             "refusing to bind one machine's model to another", ssv_path, field="machine")
+    if md is None:
+        return
+    try:
+        mroot = ET.fromstring(md)
+    except ET.ParseError:
+        raise InputError(f"the {comp.get('name')} FMU's modelDescription.xml is not valid XML", ssp_in) from None
+    # FMI 2 ScalarVariable, FMI 3 Float64/Int32/...: every variable element carries its causality
+    params = {v.get("name") for v in mroot.iter() if v.get("causality") == "parameter"}
+    unknown = sorted(p.get("name") for p in ssv_root.iter(f"{{{SSV}}}Parameter") if p.get("name") not in params)
+    if unknown:
+        raise InputError(f"the SSP's {comp.get('name')} FMU has no parameter {', '.join(unknown[:5])}"
+                         + (f" (and {len(unknown) - 5} more)" if len(unknown) > 5 else "")
+                         + ": the set belongs to another machine's model", ssv_path, field="machine")

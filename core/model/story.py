@@ -152,6 +152,12 @@ class Story:
         return fig
 
 
+# The story asks for the servo feed-forward (`model compensate --max-feed`): by default the
+# compensation writes no feed above the program's fastest, and the lag's lead needs more
+# (docs/model-loop.md, "What model compensate writes").  1 m/s: the machine's rapid range.
+ASKED_FEED = 60000.0
+
+
 def run_story(out, *, quick: bool = False, seed: int = 7, step: float = 2e-3, compiler: str = "cc",
               dynamics: bool = True) -> Story:
     """Run the loop end to end into folder `out` (created): sim.csv and rec.csv with their
@@ -190,7 +196,8 @@ def run_story(out, *, quick: bool = False, seed: int = 7, step: float = 2e-3, co
     part = {}
     # the stages of `model compensate --cosim`: + friction / + thermal too if the updated model had them
     for name, kw in compensation_stages(dyn_m, MACHINE):
-        text = program if kw is None else compensate_with_model(program, MACHINE, lr.export.errors, dyn_m, **kw)[0]
+        text = program if kw is None else compensate_with_model(program, MACHINE, lr.export.errors, dyn_m,
+                                                                max_feed=ASKED_FEED, **kw)[0]
         if kw is not None:
             (out / f"part-{name.strip('+')}.nc").write_text(text)
         sig = simulate(text, MACHINE, true_err, true_dyn, step=step, compiler=compiler)
@@ -247,7 +254,8 @@ def run_dynamics_story(out, *, seed: int = 7, step: float = 2e-3, compiler: str 
     for name, kw in (("none", None), ("friction", dict(friction=True, thermal=False)),
                      ("thermal", dict(friction=False, thermal=True)), ("friction+thermal", dict(friction=True,
                                                                                                   thermal=True))):
-        text = program if kw is None else compensate_with_model(program, MACHINE, lr.export.errors, dyn_m, **kw)[0]
+        text = program if kw is None else compensate_with_model(program, MACHINE, lr.export.errors, dyn_m,
+                                                                max_feed=ASKED_FEED, **kw)[0]
         if kw is not None:
             (out / f"circle-{name.replace('+', '-')}.nc").write_text(text)
         s2 = np.abs(spindle_profile(text, MACHINE, step))
