@@ -167,6 +167,46 @@ def _um(v_mm: float) -> str:
     return f"{v_mm * 1e6:.0f} nm"
 
 
+def cosim_cutting(co: dict) -> tuple[float, float]:
+    """The co-simulation's headline figure, defined once for stdout, summary and stage 4: the
+    maximum tool-edge error against the programmed point (workpiece frame, mm) over the samples
+    with the tool on the part (cutting moves only; moves in the air are reported apart), without
+    and with the compensator."""
+    u, c, _ = co["split"]["cutting"]
+    return u, c
+
+
+def diagnosis_verdict(dg: dict) -> tuple[bool, str]:
+    """Stage 6's verdict, the same in the summary and the stage: right only when the effects
+    named are exactly the hidden one on its output (an extra name is a false positive, a missing
+    one a miss; both make it wrong, with the reason said)."""
+    res, truth = dg["res"], dg["truth"]
+    named = [(e.name, e.output) for e in res.effects]
+    want = (truth["name"], truth["axis"].lower())
+    extra = [f"{n} on {o}" for n, o in named if (n, o.lower()) != want]
+    missed = [] if any((n, o.lower()) == want for n, o in named) else [f"{want[0]} on {want[1]}"]
+    said = ", ".join(f"{n} on {o}" for n, o in named) or "nothing"
+    why = ""
+    if extra:
+        why += f"; extra (not hidden, a false positive): {', '.join(extra)}"
+    if missed:
+        why += f"; missed: {', '.join(missed)}"
+    return not extra and not missed, f"named: {said}{why}"
+
+
+def alignment_rows(res) -> list[list]:
+    """What the alignment of REC onto SIM absorbed, as rows of the effects table (not a note):
+    the clock offset between the two files (not a machine effect, but it changes the residual
+    as much as one)."""
+    al = res.alignment
+    off = al.get("clock_offset_s")
+    if off is None:
+        return []
+    unc = al.get("clock_offset_uncertainty_s") or 0.0
+    return [["clock offset (alignment, not a machine effect)", ", ".join(res.outputs),
+             f"REC's clock = SIM's {off * 1e3:+.4f} ms (±{unc * 1e3:.2g} ms)"]]
+
+
 def summary_rows(r: dict) -> list[list]:
     """The report's opening table: per stage the machine, what was hidden, what was measured,
     the error before and after, and the paper's value beside it."""
@@ -189,10 +229,9 @@ def summary_rows(r: dict) -> list[list]:
                  f"blank off by {_um(np.abs(c['true_pose'][:3]).max())}, "
                  f"{np.abs(c['true_pose'][3:]).max() * 3600:.0f}″",
                  f"{_um(d[:3].max())}, {d[3:].max() * 3600:.1f}″ (probing)", "–"])
-    co = r["cosim"]
-    cut_u, cut_c, n_cut = co["split"]["cutting"]
+    cut_u, cut_c = cosim_cutting(r["cosim"])
     rows.append(["4 co-simulation (FMUs)", "robonano-a0ib", "the same blank pose only",
-                 "tool-edge error while cutting", f"{cut_u * 1e3:.2f} µm", f"{cut_c * 1e3:.3f} µm", "–"])
+                 "tool-edge error, max while cutting", f"{cut_u * 1e3:.2f} µm", f"{cut_c * 1e3:.3f} µm", "–"])
     p = r["pyramid"]
     from .setting.cellsim import PAPER_TABLE1, PAPER_TARGET
     pw = [PAPER_TABLE1[f"W{i + 1}"] - PAPER_TARGET["width"] for i in range(4)]
@@ -202,12 +241,12 @@ def summary_rows(r: dict) -> list[list]:
                  f"{max(abs(x) for x in pw):.1f} µm (compensated)"])
     dg = r["diagnose"]
     res = dg["res"]
-    named = ", ".join(e.name for e in res.effects) or "nothing"
+    ok, said = diagnosis_verdict(dg)
     fit = res.fit
     rows.append(["6 diagnosis (recording vs simulation)", "vmc-moving-column",
                  f"{dg['truth']['name']} {dg['truth']['value_mm'] * 1e3:g} µm on {dg['truth']['axis']}",
-                 f"named: {named}", f"RMS {fit['rms_before']['x'] * 1e3:.2f} µm (x)",
-                 f"{fit['holdout_rms_after']['x'] * 1e3:.3f} µm held out", "–"])
+                 f"{'✔' if ok else '✘'} {said}", f"RMS {fit['rms_before']['x'] * 1e3:.2f} µm (x, all samples)",
+                 f"{fit['holdout_rms_after']['x'] * 1e3:.3f} µm (x, held out)", "–"])
     if "loop" in r:
         st = r["loop"]["story"]
         pe = st.part
@@ -216,7 +255,7 @@ def summary_rows(r: dict) -> list[list]:
                          st.truth["servo.kv.X"], st.truth["backlash.X"] * 1e3, st.truth["location.EC0Y"] * 1e6),
                      f"re-simulation − recording {st.loop.result.heldout_rms['after']['x'] * 1e6:.1f} nm RMS "
                      "held out (noise 20 nm)",
-                     f"part error {_um(pe['geometric']['max'])} (geometric only)",
+                     f"part error max {_um(pe['geometric']['max'])} (geometric only)",
                      f"{_um(pe['+servo']['max'])} (+ diagnosed dynamics)", "–"])
         if st.dynamics is not None:
             sd = st.dynamics
@@ -227,8 +266,8 @@ def summary_rows(r: dict) -> list[list]:
                              sd.truth["friction.breakaway.X"] * 1e3, sd.truth["thermal.drift.z"] * 1e3),
                          f"re-simulation − recording {sd.loop.result.heldout_rms['after'][worst] * 1e6:.1f} nm RMS "
                          f"held out on {worst}",
-                         f"part error {_um(pd['none']['max'])} (uncompensated)",
-                         f"{_um(pd['friction+thermal']['max'])} (friction + thermal compensated)", "–"])
+                         f"{_um(pd['none']['dev'])} from the ideal machine's run, max (uncompensated)",
+                         f"{_um(pd['friction+thermal']['dev'])} (friction + thermal compensated)", "–"])
     return rows
 
 
@@ -247,12 +286,14 @@ def pe_dyn_ok(part: dict) -> bool:
             and d["friction+thermal"] < min(d["friction"], d["thermal"]))
 
 
-def write_report(out: Path, r: dict, quick: bool, times: dict) -> Path:
+def write_report(out: Path, r: dict, quick: bool, times: dict, wall: float | None = None,
+                 cpu: float | None = None) -> Path:
     from .htmlreport import Section, render
     from .setting.cellsim import PAPER_TABLE1, PAPER_TARGET
     from .setting.tool import PAPER_COMPENSATED, PAPER_ORIGINAL
     S = []
-    total = sum(times.values())
+    total = wall if wall is not None else sum(times.values())
+    cpu_note = f", {cpu:.1f} s CPU in both processes" if cpu is not None else ""
     s = Section("Summary")
     s.table(["stage", "machine", "hidden (the truth)", "measured", "error before", "error after",
              "paper"], summary_rows(r))
@@ -260,7 +301,7 @@ def write_report(out: Path, r: dict, quick: bool, times: dict) -> Path:
            "and compensates with what it measured; the error after compensation is what the "
            "measurement left. The stages use different machines, as the papers do: the tool setting "
            f"runs on the 6-axis robonano-ui (paper 000), the cell on the 5-axis robonano-a0ib (paper "
-           f"001), the diagnosis on a 3-axis machining centre. Total time {total:.1f} s "
+           f"001), the diagnosis on a 3-axis machining centre. Total time {total:.1f} s wall{cpu_note} "
            f"({'quick' if quick else 'full'} run).")
     if "verify" in r:
         v = r["verify"]
@@ -326,7 +367,9 @@ def write_report(out: Path, r: dict, quick: bool, times: dict) -> Path:
     s.text("Machine: robonano-a0ib. Error sources: only the workpiece setting error of stage 3 (the "
            "machine FMU has the hidden pose, the compensator FMU the probed one); no geometric errors, "
            "no servo dynamics.")
-    s.table(["run", "max while cutting (µm)", "max in the air (µm)", "RMS, all (µm)"],
+    s.text("Figures: tool-edge error against the programmed point in the workpiece frame; \"while "
+           "cutting\" counts the samples with the tool on the part, \"in the air\" the others.")
+    s.table(["run", "max while cutting (µm)", "max in the air (µm)", "RMS, all samples (µm)"],
             [["without compensation", sp["cutting"][0] * 1e3, sp["air"][0] * 1e3, co.rms_uncompensated * 1e3],
              ["with the compensator FMU", sp["cutting"][1] * 1e3, sp["air"][1] * 1e3, co.rms_compensated * 1e3],
              ["the cell's rewritten program (forward model)", r["cosim"]["cell_program_max"] * 1e3, "", ""]])
@@ -362,15 +405,13 @@ def write_report(out: Path, r: dict, quick: bool, times: dict) -> Path:
     s.text("Machine: vmc-moving-column (3 axes). Error sources: a concealed backlash on X and 20 nm (1σ) "
            "noise in the \"recording\" (a co-simulation with machine dynamics, its own clock, 2.5 ms "
            "samples), none in the simulation.")
-    named = [e.name for e in res.effects]
-    ok = dg["truth"]["name"] in named
+    ok, said = diagnosis_verdict(dg)
     s.verdict(ok, f"concealed effect: {dg['truth']['name']} of {dg['truth']['value_mm'] * 1e3:g} µm on "
-              f"{dg['truth']['axis']}; named: {', '.join(named) or 'nothing'}")
+              f"{dg['truth']['axis']}; {said}")
     rows = [[e.name, e.output, ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())] for e in res.effects]
-    if rows:
-        s.table(["effect", "output", "parameters (mm)"], rows)
+    s.table(["effect", "output", "parameters (mm, s)"], rows + alignment_rows(res))
     fit = res.fit
-    s.table(["output", "RMS before (µm)", "after, fitted (µm)", "after, held out (µm)"],
+    s.table(["output", "RMS before, all samples (µm)", "after, fitted (µm)", "after, held out (µm)"],
             [[o, fit["rms_before"][o] * 1e3, fit["rms_after"][o] * 1e3, fit["holdout_rms_after"][o] * 1e3]
              for o in res.outputs])
     s.figure(dg["png"], "recording − simulation before and after the named effects (µm); dashed: the "
@@ -426,7 +467,10 @@ def write_report(out: Path, r: dict, quick: bool, times: dict) -> Path:
                                                 "with friction or thermal compensation alone and with both")
         S.append(s)
     s = Section("Timing")
-    s.table(["stage", "s"], [[k, v] for k, v in times.items()] + [["total", total]])
+    s.text("Each stage's own time; the diagnosis and the closed loop run in a second process beside "
+           "the other stages, so the total (wall clock, up to the report) is less than their sum.")
+    s.table(["stage", "s"], [[k, v] for k, v in times.items()] + [["total (wall)", total]]
+            + ([["CPU, both processes", cpu]] if cpu is not None else []))
     S.append(s)
     html = render("mtcomp demo: a virtual ultraprecision cell, end to end",
                   f"{'quick run' if quick else 'full run'}; every number on this page was computed in this run "

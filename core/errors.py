@@ -160,6 +160,11 @@ class AxisErrorTable:
     def __setattr__(self, *_):  # immutable like the frozen dataclasses (arrays are read-only too)
         raise AttributeError("AxisErrorTable is frozen")
 
+    def __reduce__(self):
+        # pickled by its constructor's arguments (a mappingproxy cannot be pickled): what runs
+        # in another process (the demo's second process, Dask workers) gets an equal table
+        return (AxisErrorTable, (self.axis, np.array(self.position), {k: np.array(v) for k, v in self.values.items()}))
+
     def __repr__(self):
         return f"AxisErrorTable({self.axis!r}, {self.position.size} points {self.range}, {sorted(self.values)})"
 
@@ -265,6 +270,10 @@ class GeometricErrors:
             loc[k] = _location_value(k, v, None, f"location.{k}")
         object.__setattr__(self, "tables", MappingProxyType(tables))
         object.__setattr__(self, "location", MappingProxyType(loc))
+
+    def __reduce__(self):
+        # by value, like AxisErrorTable: a mappingproxy cannot be pickled
+        return (GeometricErrors, (dict(self.tables), dict(self.location)))
 
     @property
     def is_zero(self) -> bool:

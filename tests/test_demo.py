@@ -64,6 +64,8 @@ def test_demo_quick(tmp_path):
     assert html.count("data:image/png;base64,") >= 5
     # The compensated program the cell wrote exists and differs from the nominal one.
     assert (out / "nc" / "O1100.nc").read_text() != (out / "nc" / "O0100.nc").read_text()
+    # One definition per figure: the summary, the stages and stdout agree (issue 37).
+    check_report_agrees_with_itself(html, r.stdout)
 
 
 def test_plots_leave_the_callers_backend_alone(tmp_path):
@@ -120,3 +122,77 @@ def test_demo_out_onto_a_file_is_a_clean_error(tmp_path, capsys):
     assert "existing file" in err and "Traceback" not in err and afile.read_text() == "keep me"
     assert main(["demo", "--quick", "--out", str(tmp_path / "no" / "such")]) == 2
     assert not (tmp_path / "no").exists()
+
+
+# --------------------------------------------------------------------------- one figure, one definition
+def _diag_stub(named, axis_of=None):
+    from types import SimpleNamespace
+    eff = [SimpleNamespace(name=n, output=(axis_of or {}).get(n, "x"), params={}) for n in named]
+    res = SimpleNamespace(effects=eff, outputs=("x", "y", "z"),
+                          alignment={"clock_offset_s": -0.25, "clock_offset_uncertainty_s": 3e-8})
+    return {"res": res, "truth": {"name": "backlash", "axis": "X", "value_mm": 0.004}}
+
+
+def test_diagnosis_verdict_is_right_only_for_exactly_what_was_hidden():
+    """Issue 37: stage 6 showed ✔ for "named: backlash, quadrant_glitch" when only a backlash
+    was hidden. An extra name is a false positive (✘ with the reason), a backlash on the wrong
+    axis a miss."""
+    from mtcomp.demo_report import diagnosis_verdict
+    ok, said = diagnosis_verdict(_diag_stub(["backlash"]))
+    assert ok and said == "named: backlash on x"
+    ok, said = diagnosis_verdict(_diag_stub(["backlash", "quadrant_glitch"]))
+    assert not ok and "extra (not hidden, a false positive): quadrant_glitch on x" in said
+    ok, said = diagnosis_verdict(_diag_stub(["backlash"], {"backlash": "y"}))
+    assert not ok and "missed: backlash on x" in said
+    ok, said = diagnosis_verdict(_diag_stub([]))
+    assert not ok and said.startswith("named: nothing")
+
+
+def test_alignment_is_a_row_of_the_effects_table():
+    """What the clock alignment absorbed is shown beside the effects, with its value, not only
+    in a note."""
+    from mtcomp.demo_report import alignment_rows
+    rows = alignment_rows(_diag_stub(["backlash"])["res"])
+    assert len(rows) == 1 and rows[0][0].startswith("clock offset") and "-250.0000 ms" in rows[0][2]
+
+
+def _cells(html_table: str) -> list[list[str]]:
+    import re
+    rows = re.findall(r"<tr>(.*?)</tr>", html_table)
+    return [re.findall(r"<t[dh]>(.*?)</t[dh]>", r) for r in rows]
+
+
+def check_report_agrees_with_itself(html: str, stdout: str) -> None:
+    """Every summary figure equals the stage's own figure under the same definition, and the
+    command's stdout says the same (issue 37's four contradictions)."""
+    import html as H
+    import re
+    first = html.index("<h2>Summary</h2>")
+    summary = html[first:html.index("<h2>", first + 1)]
+    rows = {r[0]: [H.unescape(c) for c in r] for r in _cells(summary) if r and r[0][:1].isdigit()}
+    # co-simulation: stdout, summary and stage 4 give the max while cutting
+    r4 = rows["4 co-simulation (FMUs)"]
+    m = re.search(r"max while cutting ([\d.]+) µm without, ([\d.]+) µm with", stdout)
+    assert m, stdout
+    assert r4[4] == f"{m.group(1)} µm" and r4[5] == f"{m.group(2)} µm", (r4, m.groups())
+    s4 = html[html.index("<h2>4. "):]
+    s4 = s4[:s4.index("<h2>", 5)]
+    stage_rows = {r[0]: r for r in _cells(s4)}
+    assert abs(float(stage_rows["without compensation"][1]) - float(m.group(1))) <= 0.006
+    assert abs(float(stage_rows["with the compensator FMU"][1]) - float(m.group(2))) <= 0.0006
+    # diagnosis: the summary's mark and words are the stage's verdict
+    r6 = rows["6 diagnosis (recording vs simulation)"]
+    s6 = html[html.index("<h2>6. "):]
+    s6 = H.unescape(s6[:s6.index("<h2>", 5)])
+    mark, said = r6[3][0], r6[3][2:]
+    assert said in s6 and (mark == "✔") == ('class="ok"' in s6.split(said)[0][-300:])
+    assert ("extra" in said or "missed" in said) == (mark == "✘")
+    assert "clock offset (alignment, not a machine effect)" in s6
+    m6 = re.search(r"diagnosis: (right|WRONG): (.*)", stdout)
+    assert m6 and m6.group(2) == said and (m6.group(1) == "right") == (mark == "✔")
+    # friction and thermal: one figure (deviation from the ideal machine's run, max) in both places
+    key = "7 loop closed: friction, thermal drift"
+    if key in rows:
+        before, after = rows[key][4].split(" from the ideal")[0], rows[key][5].split(" (")[0]
+        s7 = H.unescape(html[html.index("<h2>7. "):])
+        assert f"drops from {before} to {after} with both compensated" in s7, (before, after)
