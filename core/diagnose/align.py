@@ -62,6 +62,8 @@ class Aligned:
     # output's cell was missing; those samples take no part in fits, noise floors or RMS
     valid: np.ndarray | None = None
     same_clock: bool = False          # SIM and REC share one clock (no clock offset estimated)
+    # several recordings of one machine laid end to end (recordings.join): where each lies
+    recordings: tuple = ()
 
     @property
     def n(self) -> int:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +14,7 @@ from . import rows as _rows
 from .._io import InputError
 from .effects import Context, candidates
 from .locate import Mismatch, conditions, empirical_dependence, locate
-from .select import Settings, cross_validate, fit, joint_covariance, model_columns, n_effective, select
+from .select import Settings, fit, heldout_neutral, joint_covariance, model_columns, n_effective, select
 
 
 @dataclass(frozen=True)
@@ -148,6 +148,24 @@ def _rms(a) -> float:
 UNEXPLAINED_RATIO = 3.0
 
 
+def _per_recording(al, ctx, oof) -> dict:
+    """Held-out RMS before and after per recording and output (each recording predicted by the
+    model fitted on the others), output units."""
+    out = {}
+    for r in al.recordings:
+        inr = (ctx.idx >= r.start) & (ctx.idx < r.stop)
+        d = {"holdout_rms_before": {}, "holdout_rms_after": {}}
+        for o in al.outputs:
+            sl = ctx.slices[o]
+            d["holdout_rms_before"][o] = _rms(ctx.z0[sl][inr] * ctx.sigma[o])
+            d["holdout_rms_after"][o] = _rms(oof[sl][inr] * ctx.sigma[o])
+        b = sum(v ** 2 for v in d["holdout_rms_before"].values())
+        a = sum(v ** 2 for v in d["holdout_rms_after"].values())
+        d["ratio"] = (a / b) ** 0.5 if b > 0 else float("nan")
+        out[r.name] = d
+    return out
+
+
 def _same_file(a, b) -> bool:
     """SIM and REC are paths of one file."""
     import os
@@ -157,6 +175,65 @@ def _same_file(a, b) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def _pairs(sim, rec) -> tuple[list, list]:
+    """SIM and REC as equally long lists of sources: one each, lists of several (one machine's
+    recordings), or two folders whose CSV files of the same name are paired."""
+    def many(x):
+        return isinstance(x, (list, tuple))
+    if not many(sim) and not many(rec) and isinstance(sim, (str, Path)) and Path(sim).is_dir():
+        if not (isinstance(rec, (str, Path)) and Path(rec).is_dir()):
+            raise InputError(f"--sim {sim} is a folder: --rec must be a folder too", field="--rec")
+        a = {p.name: p for p in sorted(Path(sim).glob("*.csv"))}
+        b = {p.name: p for p in sorted(Path(rec).glob("*.csv"))}
+        both = sorted(set(a) & set(b))
+        if not both:
+            raise InputError(f"no CSV file of the same name in {sim} and {rec} (SIM and REC of one "
+                             "recording are paired by their file name)", field="--rec")
+        return [a[k] for k in both], [b[k] for k in both]
+    sims = list(sim) if many(sim) else [sim]
+    recs = list(rec) if many(rec) else [rec]
+    if len(sims) != len(recs) or not sims:
+        raise InputError(f"{len(sims)} SIM and {len(recs)} REC sources: give one --rec for each "
+                         "--sim, in the same order", field="--rec")
+    return sims, recs
+
+
+def _recording_names(sims, recs) -> list:
+    """A short distinct name per recording: REC's file name, or its folder and name."""
+    def nm(x, i):
+        return Path(x).name if isinstance(x, (str, Path)) else f"recording {i + 1}"
+    names = [nm(r, i) for i, r in enumerate(recs)]
+    if len(set(names)) < len(names):
+        names = [(Path(r).parent.name if isinstance(r, (str, Path)) else f"recording {i + 1}")
+                 for i, r in enumerate(recs)]
+    if len(set(names)) < len(names):
+        names = [f"recording {i + 1}" for i in range(len(recs))]
+    return names
+
+
+def _aligned_pair(sim, rec, conds, outputs, inputs, units, same_clock, dt):
+    """Load one SIM/REC pair and put it on its grid: (Aligned, SIM table, REC table, same_clock)."""
+    one_log = _same_file(sim, rec)
+    S = _data.load(sim, "SIM", units, conds, dt)
+    R = S if one_log else _data.load(rec, "REC", units, conds, dt)
+    log_notes = ()
+    if one_log:
+        # the commanded and the measured signals of one log: split by the names' role words,
+        # and logged on one clock (no clock offset to estimate; a delay is the machine's)
+        S, R, log_notes = _data.split_log(S, outputs, inputs)
+        same_clock = True
+    filter_notes = _row_filter_notes(conds, S, R) + log_notes
+    S, R, clock_notes = _data.common_clock(S, R)
+    S, outs, pair_notes = _data.pair_columns(S, R, outputs)
+    if one_log:
+        R, kept_notes = _data.compared_only(R, outs or [k for k in R.columns if k in S.columns])
+        pair_notes += kept_notes
+    al = _align.align(S, R, outputs=outs, inputs=inputs,
+                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes,
+                      same_clock=same_clock)
+    return al, S, R, same_clock
 
 
 def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
@@ -180,24 +257,17 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     st = settings or Settings()
     say = progress or (lambda msg: None)
     conds = _rows.parse(where, exclude_rows)
-    one_log = _same_file(sim, rec)
-    S = _data.load(sim, "SIM", units, conds, dt)
-    R = S if one_log else _data.load(rec, "REC", units, conds, dt)
-    log_notes = ()
-    if one_log:
-        # the commanded and the measured signals of one log: split by the names' role words,
-        # and logged on one clock (no clock offset to estimate; a delay is the machine's)
-        S, R, log_notes = _data.split_log(S, outputs, inputs)
-        same_clock = True
-    filter_notes = _row_filter_notes(conds, S, R) + log_notes
-    S, R, clock_notes = _data.common_clock(S, R)
-    S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
-    if one_log:
-        R, kept_notes = _data.compared_only(R, outputs or [k for k in R.columns if k in S.columns])
-        pair_notes += kept_notes
-    al = _align.align(S, R, outputs=outputs, inputs=inputs,
-                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes,
-                      same_clock=same_clock)
+    sims, recs = _pairs(sim, rec)
+    pairs = [_aligned_pair(s, r, conds, outputs, inputs, units, same_clock, dt)
+             for s, r in zip(sims, recs)]
+    if len(pairs) > 1:
+        from .recordings import join
+        names = _recording_names(sims, recs)
+        al = join([p[0] for p in pairs], names)
+        st = replace(st, folds=len(pairs))
+    else:
+        al = pairs[0][0]
+    _, S, R, same_clock = pairs[0]
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
@@ -269,7 +339,8 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                              "REC(t) = SIM(t - delay) is a delay of the machine or its loop, not a "
                              "clock offset"), rms))
             continue
-        if c.name == "time_offset" and (al.clock_offset or set(c.outputs) <= lagged):
+        if c.name == "time_offset" and (al.clock_offset or set(c.outputs) <= lagged
+                                        or any(r.clock_offset_s for r in al.recordings)):
             # the clocks were aligned: what is left of the offset refines that alignment (a
             # latency on top of another clock start cannot be told from it).  Likewise a common
             # delay of outputs that all lag: a transport delay and a first-order lag agree to
@@ -294,12 +365,12 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     oof = np.array(ctx.z0, copy=True)
     if final.cands:
         # held-out prediction: fold models fitted on the selection subset without the block,
-        # evaluated on every sample of the block
-        # every parameter, the nonlinear ones (time constants, leads, widths) included, is
-        # refitted without the held-out block (bounded, from the full fit's values)
+        # evaluated on every sample of the block; every parameter, the nonlinear ones (time
+        # constants, leads, widths) included, is refitted without the held-out block from the
+        # candidates' own neutral starts (never from the values fitted on all samples)
         folds = []
-        cross_validate(ctx_sel, final.cands, final.etas, st.folds, fits=folds, max_nfev=10,
-                       betas=final.betas)
+        heldout_neutral(ctx_sel, final.cands, st.folds, fits=folds,
+                        beta_default=np.concatenate(final.betas) if final.betas else None)
         starts = [f.extra["held"][0] for f in folds] + [np.inf]
         for i, f in enumerate(folds):
             inblk = (ctx.t >= starts[i]) & (ctx.t < starts[i + 1])
@@ -324,6 +395,8 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         fitd["rms_after"][o] = _rms(after)
         fitd["holdout_rms_before"][o] = _rms(before)
         fitd["holdout_rms_after"][o] = _rms(oof[sl] * sig[o])
+    if al.recordings:
+        fitd["recordings"] = _per_recording(al, ctx, oof)
     cond = {o: conditions(al, o, al.rec[o] - al.sim[o], sig[o]) for o in al.outputs}
     unexplained = []
     for o in al.outputs:
@@ -350,6 +423,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                  "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
                  "folds": st.folds, "quantum": dict(al.quantum), "at_rest": al.at_rest,
                  "same_clock": bool(same_clock),
+                 "recordings": [r.to_dict() for r in al.recordings],
                  "interpolation": {o: v[0] for o, v in al.interp.items()},
                  "interpolation_error": {o: v[1] for o, v in al.interp.items()},
                  "columns": {k: {"role": r[0], "kind": r[1], "unit": r[2], "kind_from": r[3]}
