@@ -337,3 +337,38 @@ def null_case(kind: str, seed: int = 0, duration: float = 20.0) -> Case:
         rec = {"t": t_rec, **{k: v + rng.normal(0, 20e-6, len(t_rec)) for k, v in p.items()}}
         return Case(sim, rec, (), 20e-6, {"duration": duration, "sim_rate": 10.0, "rec_rate": 25.0})
     raise ValueError(f"unknown null case {kind!r} (expected one of {', '.join(NULL_KINDS)})")
+
+
+def polyline_case(effect: tuple | None = None, seed: int = 0, duration: float = 40.0,
+                  sim_rate: float = 10.0, rec_rate: float = 25.0, noise: float = 20e-6,
+                  corner_dt: float | None = 0.1) -> Case:
+    """G1 moves (piecewise linear, corners at multiples of `corner_dt`) simulated at `sim_rate`
+    and recorded at `rec_rate` with one effect (name, params): backlash on x, servo_lag on y
+    (first-order lag on a 100x finer grid), scale_error on y; or none."""
+    rng = np.random.default_rng(20_000 + seed)
+    path = polyline_axes(rng, duration, corner_dt)
+    t_sim = np.arange(0.0, duration, 1.0 / sim_rate)
+    t_rec = np.arange(0.0, duration, 1.0 / rec_rate)
+    dtf = 1.0 / rec_rate / 100.0
+    tf = np.arange(-2.0, duration + 1.0, dtf)
+    pf = path(tf)
+    errf = {k: np.zeros_like(tf) for k in "xyz"}
+    truth = ()
+    if effect is not None:
+        name, p = effect
+        if name == "backlash":
+            first = np.sign(pf["x"][np.flatnonzero(np.diff(pf["x"]))[0] + 1] - pf["x"][0]) or 1.0
+            errf["x"] = _play(pf["x"], p["backlash_mm"], first) - pf["x"]
+        elif name == "servo_lag":
+            errf["y"] = _first_order(pf["y"], dtf, 1.0 / p["kv_per_s"]) - pf["y"]
+        elif name == "scale_error":
+            errf["y"] = p["scale"] * pf["y"]
+        else:
+            raise ValueError(f"polyline_case: no effect {name!r}")
+        truth = ((name, ("x",) if name == "backlash" else ("y",), dict(p)),)
+    sim = {"t": t_sim, **path(t_sim)}
+    rec = {"t": t_rec}
+    for k in "xyz":
+        rec[k] = (np.interp(t_rec, tf, pf[k] + errf[k]) + rng.normal(0, noise, len(t_rec)))
+    return Case(sim, rec, truth, noise, {"duration": duration, "sim_rate": sim_rate,
+                                          "rec_rate": rec_rate})

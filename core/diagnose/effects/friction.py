@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Candidate, _se, backlash_play, direction_of_motion  # noqa: F401
+from .base import Candidate, _se, backlash_play, coarse_native, direction_of_motion, step_direction  # noqa: F401
 
 
 class Backlash(Candidate):
@@ -87,6 +87,16 @@ class Backlash(Candidate):
             return {o: self.sign * backlash_play(ctx.values(o), b, ctx.direction(o))}, first
         # a grid coarser than SIM: the reversal positions come from SIM as sampled (on a 10 Hz
         # grid the sample before a reversal can be far from where the axis turned)
+        if not hasattr(self, "_prev") and coarse_native(ctx.al, sig.native[0]):
+            # SIM coarser than the grid: each step of SIM has its own direction; the axis
+            # turned at the sample where the step's direction changed (a G1 corner)
+            tn, vn = sig.native
+            vn = np.asarray(vn, float)
+            ds = step_direction(vn)
+            ch = np.flatnonzero(ds[1:] != ds[:-1]) + 1      # first step of a new direction
+            k = np.searchsorted(tn[ch], ctx.al.t, side="left") - 1 if len(ch) else np.full(ctx.al.n, -1)
+            self._prev = (np.where(k >= 0, vn[ch[np.clip(k, 0, None)]] if len(ch) else 0.0, np.nan),
+                          ctx.direction(o), float(ds[0]))
         if not hasattr(self, "_prev"):
             tn, vn = sig.native
             vn = np.asarray(vn, float)
