@@ -13,7 +13,7 @@ from . import data as _data
 from . import rows as _rows
 from .._io import InputError
 from .effects import Context, candidates
-from .locate import Mismatch, conditions, empirical_dependence, locate
+from .locate import Mismatch, conditions, empirical_dependence, local_flags, locate
 from .select import Settings, fit, heldout_neutral, joint_covariance, model_columns, n_effective, select
 
 
@@ -62,6 +62,7 @@ class DiagnosisResult:
     log: tuple
     unexplained: tuple = ()  # per output whose residual stays > 3x its noise floor: dicts
     notes: tuple = ()        # alignment and column decisions, in words
+    local: tuple = ()        # spans whose local residual exceeds 3x the floor (locate.local_flags)
     t: np.ndarray = field(repr=False, default=None)
     rec: dict = field(repr=False, default=None)
     sim: dict = field(repr=False, default=None)
@@ -79,6 +80,7 @@ class DiagnosisResult:
             "mismatch": [m.to_dict() for m in self.mismatch],
             "effects": [e.to_dict() for e in self.effects],
             "unexplained": list(self.unexplained),
+            "local": list(self.local),
             "fit": self.fit,
             "alignment": {k: v for k, v in self.alignment.items() if k not in ("sim", "rec")},
             "notes": list(self.notes),
@@ -230,10 +232,32 @@ def _aligned_pair(sim, rec, conds, outputs, inputs, units, same_clock, dt):
     if one_log:
         R, kept_notes = _data.compared_only(R, outs or [k for k in R.columns if k in S.columns])
         pair_notes += kept_notes
-    al = _align.align(S, R, outputs=outs, inputs=inputs,
-                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes,
-                      same_clock=same_clock)
+    _refuse_unknown_units(S, R, outs)
+    from .mistakes import time_scale_hint
+    hint = time_scale_hint(S.t, R.t)
+    try:
+        al = _align.align(S, R, outputs=outs, inputs=inputs,
+                          notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes
+                          + pair_notes + ((hint,) if hint else ()), same_clock=same_clock)
+    except InputError as e:
+        if hint:
+            raise InputError(f"{e.what}; {hint}", e.file, e.line, field=e.field) from None
+        raise
     return al, S, R, same_clock
+
+
+def _refuse_unknown_units(S, R, outs) -> None:
+    """A compared column must have a unit the diagnosis understands: a unit it does not know
+    is refused by name (an input with one is kept as written)."""
+    keys = outs or [k for k in R.columns if k in S.columns]
+    for tab in (S, R):
+        for k in keys:
+            c = tab.columns.get(k)
+            if c is not None and c.kind == "other" and c.kind_from in ("unit", "option") and c.unit:
+                raise InputError(f"unknown unit {c.unit!r} of compared column {k!r} (expected a "
+                                 "length, angle, velocity or acceleration unit: mm, um, nm, inch, "
+                                 "deg, rad, arcmin, arcsec, mm/s, deg/s, mm/s^2, or a resolution "
+                                 "like 0.1um for counts)", tab.path, field=c.header)
 
 
 def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
@@ -368,9 +392,13 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         # evaluated on every sample of the block; every parameter, the nonlinear ones (time
         # constants, leads, widths) included, is refitted without the held-out block from the
         # candidates' own neutral starts (never from the values fitted on all samples)
-        folds = []
-        heldout_neutral(ctx_sel, final.cands, st.folds, fits=folds,
-                        beta_default=np.concatenate(final.betas) if final.betas else None)
+        # the selection's last judgement of the chosen model is this prediction (the same
+        # model on the same rows): reused
+        folds = chosen.extra.get("heldout_folds")
+        if not folds or [c.label for c in folds[0].cands] != [c.label for c in final.cands]:
+            folds = []
+            heldout_neutral(ctx_sel, final.cands, st.folds, fits=folds,
+                            beta_default=np.concatenate(final.betas) if final.betas else None)
         starts = [f.extra["held"][0] for f in folds] + [np.inf]
         for i, f in enumerate(folds):
             inblk = (ctx.t >= starts[i]) & (ctx.t < starts[i + 1])
@@ -397,12 +425,36 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         fitd["holdout_rms_after"][o] = _rms(oof[sl] * sig[o])
     if al.recordings:
         fitd["recordings"] = _per_recording(al, ctx, oof)
+    from .noise import check_residual
+    fitd["whiteness"] = {}
+    white_notes = ()
+    for o in al.outputs:
+        w = check_residual(oof[ctx.slices[o]] * sig[o], al.kinds[o],
+                          al.sim[o][rows] if al.kinds[o] == "angle" else None)
+        fitd["whiteness"][o] = {k: v for k, v in w.items() if k != "reasons"}
+        if not w["white"] and fitd["holdout_rms_after"][o] > 1.5 * floor[o]:
+            white_notes += (f"{o}: what is left is not white noise ({'; '.join(w['reasons'])}): "
+                            "structure the effects do not explain, whatever its size against the "
+                            "noise floor",)
+    from .mistakes import value_scale_notes
+    unit_notes = value_scale_notes(al, fitd["rms_after"])
     cond = {o: conditions(al, o, al.rec[o] - al.sim[o], sig[o]) for o in al.outputs}
     unexplained = []
+    floor_notes = ()
     for o in al.outputs:
         sl = ctx.slices[o]
         after = full(final.resid[sl] * sig[o], o)
         worst = max(fitd["rms_after"][o], fitd["holdout_rms_after"][o])
+        # SIM evaluated between its samples is known to its interpolation error only: the floor
+        # a fit can reach is the noise and that resampling error together
+        resample = float(al.interp.get(o, ("", 0.0))[1] or 0.0)
+        total = math.hypot(floor[o], resample)
+        if UNEXPLAINED_RATIO * floor[o] < worst <= UNEXPLAINED_RATIO * total:
+            floor_notes += (f"{o}: the residual ({worst:.3g} {al.units[o]}) is at the resampling "
+                            f"floor: the noise ({floor[o]:.3g}) and SIM's interpolation error "
+                            f"between its samples ({resample:.3g}) together; SIM's samples are too "
+                            "far apart to tell more, not an unexplained effect",)
+            continue
         if worst > UNEXPLAINED_RATIO * floor[o]:
             spans = locate(al, max_spans=3, resid={o: after}, only=(o,))
             unexplained.append({
@@ -412,6 +464,12 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                 "correlates": conditions(al, o, after, floor[o]),
                 "empirical": empirical_dependence(al, o, full(oof[sl] * sig[o], o)),
                 "interpolation_error": al.interp.get(o, ("", 0.0))[1]})
+    local = []
+    for o in al.outputs:
+        if any(u["output"] == o for u in unexplained):
+            continue
+        local += local_flags(al, o, full(oof[ctx.slices[o]] * sig[o], o), floor[o],
+                             UNEXPLAINED_RATIO)
     # the recording-wide conditions of an output belong to the words of each of its spans
     mism = [Mismatch(m.output, m.t_start, m.t_end,
                      m.where + "".join(f"; overall: {c}" for c in cond[m.output]), m.rms)
@@ -435,8 +493,8 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     return DiagnosisResult(
         outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
-        conditions=cond, log=tuple(log), unexplained=tuple(unexplained),
-        notes=tuple(al.notes) + latency_note + tuple(
+        conditions=cond, log=tuple(log), unexplained=tuple(unexplained), local=tuple(local),
+        notes=unit_notes + floor_notes + white_notes + tuple(al.notes) + latency_note + tuple(
             f"column {k!r} taken as {r[1]} ({r[2] or 'no unit'}) from its name: give the unit "
             f"in the header (e.g. {k}[{r[2] or 'unit'}]) or with --unit {k}=UNIT"
             for k, r in al.roles.items() if r[3] == "name" and r[1] != "other"),

@@ -755,6 +755,9 @@ def at_bound(ctx: Context, c: Candidate, eta) -> str | None:
     return None
 
 
+COARSE_ROWS = 2000
+
+
 def neutral_fit(ctx: Context, cands: list, train: np.ndarray, max_nfev: int,
                 beta_default=None) -> Fit:
     """Fit `cands` on the rows `train` only (a boolean mask over the stacked rows), every
@@ -763,8 +766,16 @@ def neutral_fit(ctx: Context, cands: list, train: np.ndarray, max_nfev: int,
     leave, then all jointly)."""
     r = np.array(ctx.z0, copy=True)
     etas = []
+    # the starting grids on at most about COARSE_ROWS training rows per output (a start, not
+    # the estimate: the joint fit below uses every training row)
+    step = max(1, int(math.ceil(train.sum() / len(ctx.outputs) / COARSE_ROWS)))
+    sparse = train.copy()
+    if step > 1:
+        keep = np.zeros(ctx.n, bool)
+        keep[::step] = True
+        sparse &= np.tile(keep, len(ctx.outputs))
     for c in cands:
-        eta0 = c.coarse(ctx, r, train)
+        eta0 = c.coarse(ctx, r, sparse)
         f1 = fit(ctx, [c], [eta0], train, max_nfev=min(15, max_nfev), target=r)
         etas.append(f1.etas[0])
         r = f1.resid
@@ -812,7 +823,9 @@ def honest_gate(ctx: Context, cands: list, model: list, final: "Fit", st: Settin
     judged again.  Returns (model, final fit)."""
     while model:
         bd = np.concatenate(final.betas) if final.betas else None
-        oof = heldout_neutral(ctx, model, st.folds, beta_default=bd)
+        folds = []
+        oof = heldout_neutral(ctx, model, st.folds, beta_default=bd, fits=folds)
+        final.extra["heldout_folds"] = folds
         worst = None
         for i, c in enumerate(model):
             why = at_bound(ctx, c, final.etas[i])
