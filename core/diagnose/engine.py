@@ -168,6 +168,29 @@ def _per_recording(al, ctx, oof) -> dict:
     return out
 
 
+def _loop_shapes(ctx, final, effects, floor) -> tuple:
+    """A backlash is named only with the shape of a play: where what is left after it still
+    trends with the travel since each reversal, the loop is gradual (a hysteresis), said so."""
+    from .effects.friction import loop_shape
+    notes = ()
+    for e in effects:
+        if e.name != "backlash":
+            continue
+        o = e.outputs[0]
+        sh = loop_shape(ctx, o, final.resid[ctx.slices[o]] * ctx.sigma[o], floor[o])
+        if sh is None:
+            continue
+        e.evidence["loop_shape"] = {"trend_share": round(sh["share"], 3), "swing": sh["swing"],
+                                    "play": not sh["significant"]}
+        if sh["significant"]:
+            notes += (f"{o}: the reversal error is not the step of a play: after the backlash "
+                      f"what is left still swings by {sh['swing']:.3g} {ctx.al.units[o]} with the "
+                      "travel since each reversal (a gradual hysteresis loop, e.g. friction "
+                      "pre-sliding or a Preisach-type loop; the backlash named is its step part "
+                      "only)",)
+    return notes
+
+
 def _same_file(a, b) -> bool:
     """SIM and REC are paths of one file."""
     import os
@@ -425,6 +448,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         fitd["holdout_rms_after"][o] = _rms(oof[sl] * sig[o])
     if al.recordings:
         fitd["recordings"] = _per_recording(al, ctx, oof)
+    shape_notes = _loop_shapes(ctx, final, effects, floor)
     from .noise import check_residual
     fitd["whiteness"] = {}
     white_notes = ()
@@ -494,7 +518,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
         conditions=cond, log=tuple(log), unexplained=tuple(unexplained), local=tuple(local),
-        notes=unit_notes + floor_notes + white_notes + tuple(al.notes) + latency_note + tuple(
+        notes=unit_notes + shape_notes + floor_notes + white_notes + tuple(al.notes) + latency_note + tuple(
             f"column {k!r} taken as {r[1]} ({r[2] or 'no unit'}) from its name: give the unit "
             f"in the header (e.g. {k}[{r[2] or 'unit'}]) or with --unit {k}=UNIT"
             for k, r in al.roles.items() if r[3] == "name" and r[1] != "other"),
