@@ -70,17 +70,9 @@ def direction_of_motion(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarra
     Kept through dwells (the screw stays on the flank it last pushed on); before the first
     motion the first motion's direction is assumed.
     """
-    v = np.gradient(p)
-    vmax = float(np.max(np.abs(v))) if len(v) else 0.0
-    if vmax == 0:
+    if not len(p):
         return np.zeros_like(p)
-    s = np.where(np.abs(v) > rel_threshold * vmax, np.sign(v), 0.0)
-    idx = np.where(s != 0, np.arange(len(s)), 0)
-    np.maximum.accumulate(idx, out=idx)
-    d = s[idx]
-    first = np.flatnonzero(s)[0]
-    d[:first] = s[first]
-    return d
+    return _hold_sign(np.gradient(p), rel_threshold)
 
 
 def step_direction(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarray:
@@ -94,6 +86,8 @@ def step_direction(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarray:
 
 
 def _hold_sign(v: np.ndarray, rel_threshold: float) -> np.ndarray:
+    """The sign of each rate v, held through the rates below rel_threshold of the largest;
+    before the first significant one, its sign (zeros when nothing moves)."""
     vmax = float(np.max(np.abs(v))) if len(v) else 0.0
     if vmax == 0:
         return np.zeros_like(v)
