@@ -826,9 +826,15 @@ def honest_gate(ctx: Context, cands: list, model: list, final: "Fit", st: Settin
         folds = []
         oof = heldout_neutral(ctx, model, st.folds, beta_default=bd, fits=folds)
         final.extra["heldout_folds"] = folds
+        # outputs the whole model predicts worse than no model at all
+        worse = {o for o, sl in ctx.slices.items()
+                 if float(oof[sl] @ oof[sl]) > float(ctx.z0[sl] @ ctx.z0[sl])}
         worst = None
         for i, c in enumerate(model):
             why = at_bound(ctx, c, final.etas[i])
+            if why is None and set(c.outputs) <= worse:
+                why = (f"held out, {', '.join(c.outputs)} worse with the model than without any "
+                       "effect")
             gain = None
             if why is None:
                 rest = model[:i] + model[i + 1:]
