@@ -779,7 +779,19 @@ def neutral_fit(ctx: Context, cands: list, train: np.ndarray, max_nfev: int,
         f1 = fit(ctx, [c], [eta0], train, max_nfev=min(15, max_nfev), target=r)
         etas.append(f1.etas[0])
         r = f1.resid
-    return fit(ctx, cands, etas, train, max_nfev=max_nfev, beta_default=beta_default)
+    f = fit(ctx, cands, etas, train, max_nfev=max_nfev, beta_default=beta_default)
+    # a delay screened before the lags takes up what they explain (they agree to first order):
+    # the joint fit is also started from no delay, the other neutral start, and the better kept
+    off = [j for j, c in enumerate(cands) if c.name == "time_offset"]
+    if off and len(cands) > 1:
+        e2 = list(etas)
+        for j in off:
+            lo, hi = cands[j].bounds(ctx)
+            e2[j] = np.array([float(np.clip(0.0, lo[0], hi[0]))])
+        f2 = fit(ctx, cands, e2, train, max_nfev=max_nfev, beta_default=beta_default)
+        if f2.rss < f.rss:
+            f = f2
+    return f
 
 
 def heldout_neutral(ctx: Context, cands: list, folds: int, max_nfev: int = 30, fits=None,
@@ -826,9 +838,11 @@ def honest_gate(ctx: Context, cands: list, model: list, final: "Fit", st: Settin
         folds = []
         oof = heldout_neutral(ctx, model, st.folds, beta_default=bd, fits=folds)
         final.extra["heldout_folds"] = folds
-        # outputs the whole model predicts worse than no model at all
+        # outputs the whole model predicts worse than no model at all, every parameter refitted
+        # without the block from the final values (the rule of the selection before the gate)
+        _, oof_w = cross_validate(ctx, model, final.etas, st.folds, max_nfev=10, betas=final.betas)
         worse = {o for o, sl in ctx.slices.items()
-                 if float(oof[sl] @ oof[sl]) > float(ctx.z0[sl] @ ctx.z0[sl])}
+                 if float(oof_w[sl] @ oof_w[sl]) > float(ctx.z0[sl] @ ctx.z0[sl])}
         worst = None
         for i, c in enumerate(model):
             why = at_bound(ctx, c, final.etas[i])
