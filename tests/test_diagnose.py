@@ -125,11 +125,12 @@ def test_result_json_keys_follow_the_contract():
     import json
     case = synth.make_case(["scale_error"], seed=2, **SHORT)
     d = json.loads(diagnose(case.sim, case.rec).to_json())
-    assert list(d) == ["outputs", "noise_floor", "mismatch", "effects", "unexplained", "fit",
-                       "alignment", "notes"]
+    assert list(d) == ["outputs", "noise_floor", "mismatch", "effects", "unexplained", "local",
+                       "fit", "alignment", "notes"]
     assert d["unexplained"] == []
     assert d["outputs"] == ["x", "y", "z"]
-    assert set(d["fit"]) == {"rms_before", "rms_after", "holdout_rms_before", "holdout_rms_after"}
+    assert set(d["fit"]) == {"rms_before", "rms_after", "holdout_rms_before", "holdout_rms_after",
+                             "whiteness"}
     (e,) = d["effects"]
     assert set(e) == {"name", "output", "inputs", "params", "uncertainty", "evidence"}
     assert e["name"] == "scale_error" and e["output"] == "y"

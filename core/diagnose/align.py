@@ -62,6 +62,8 @@ class Aligned:
     # output's cell was missing; those samples take no part in fits, noise floors or RMS
     valid: np.ndarray | None = None
     same_clock: bool = False          # SIM and REC share one clock (no clock offset estimated)
+    # several recordings of one machine laid end to end (recordings.join): where each lies
+    recordings: tuple = ()
 
     @property
     def n(self) -> int:
@@ -137,10 +139,53 @@ def choose_interpolant(t: np.ndarray, y: np.ndarray, kinds=("linear", "cubic", "
     return best, INTERPOLANTS[best](t, y), errs[best] / 2 ** _ORDER[best]
 
 
+# REC's own instants are the grid up to this many samples in the common span
+REC_GRID_MAX = 200_000
+
+
+def corners(t: np.ndarray, y: np.ndarray):
+    """SIM as piecewise-linear motion: None when it is not, else (starts, ends, bound, errors)
+    of the steps between two samples that hold a corner, the RMS resampling error bound of
+    linear interpolation over all steps, and the largest error in each such step.
+
+    A slope that changes at one sample only is a corner on that sample (linear interpolation
+    is exact around it); one that changes at two neighbouring samples k, k+1 has its corner
+    between them, where linear interpolation cuts it by up to |change of slope| h / 4.  The
+    signal is piecewise linear when the slope is constant at most samples (60 %) and every
+    change of slope spans at most two samples (acceleration ramps span many)."""
+    n = len(t)
+    if n < 8:
+        return None
+    s = np.diff(y) / np.diff(t)
+    smax = float(np.max(np.abs(s)))
+    if smax == 0:
+        return None
+    ds = np.diff(s)
+    bend = np.abs(ds) > 1e-6 * smax
+    if bend.mean() > 0.4 or not bend.any():
+        return None
+    # runs of consecutive bends
+    edges = np.diff(np.concatenate([[0], bend.astype(np.int8), [0]]))
+    a, b = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    if np.any(b - a > 2):
+        return None
+    two = a[(b - a) == 2]            # bends at interior samples two+1, two+2
+    lo, hi = t[two + 1], t[two + 2]
+    err = np.abs(ds[two] + ds[two + 1]) * (hi - lo) / 4.0
+    bound = float(np.sqrt(np.sum(err ** 2 * (hi - lo) / 3.0) / max(t[-1] - t[0], 1e-300)))
+    return lo, hi, bound, err
+
+
 def _uniform(t: np.ndarray) -> bool:
     d = np.diff(t)
     med = np.median(d)
     return bool(np.max(np.abs(d - med)) <= 0.01 * med)
+
+
+def _d2_sigma(r: np.ndarray) -> float:
+    """sigma of white noise from the MAD of second differences (their variance is 6 sigma^2)."""
+    d2 = np.diff(r, 2)
+    return float(MAD_TO_SIGMA * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
 def noise_sigma(r: np.ndarray, quantum: float = 0.0) -> float:
@@ -154,8 +199,13 @@ def noise_sigma(r: np.ndarray, quantum: float = 0.0) -> float:
     if len(r) < 5:
         s = float(np.std(r))
     else:
-        d2 = np.diff(r, 2)
-        s = float(MAD_TO_SIGMA * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+        s = _d2_sigma(r)
+        if len(r) >= 40:
+            # the same on every other sample: white noise gives the same sigma, while a pattern
+            # that alternates from sample to sample (a full-step or pole-pair error sampled
+            # twice per period, a lag-1 correlation near -1) inflates the first estimate and
+            # cancels in this one; structure is not noise, so the smaller is taken
+            s = min(s, max(_d2_sigma(r[0::2]), _d2_sigma(r[1::2])))
     floor = quantum / np.sqrt(12.0)
     tiny = 1e-9 * max(float(np.max(np.abs(r))) if len(r) else 0.0, 1e-12)
     return max(s, floor, tiny)
@@ -411,8 +461,18 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
     # uniform grid (below)
     rec_in_span = rec.t[(rec.t >= t0) & (rec.t <= t1)]
     rec_irregular = len(rec_in_span) >= 3 and not _uniform(rec_in_span)
-    rec_grid = dtr >= 0.999 * dts or rec_irregular
+    # a piecewise-linear SIM (G1 moves) is exact between its samples, linearly: REC is then
+    # compared on its own instants even when it is the denser file (interpolating REC across a
+    # corner of the path that falls between its samples would cut the corner, micrometres that
+    # no effect has); a smooth SIM is not exact between samples, so the coarser file's instants
+    # stay the grid then
+    from .columns import MOTION_KINDS as _MK
+    piecewise = any(corners(sim.t, sim.columns[k].values) is not None for k in common
+                    if sim.columns[k].kind in _MK + ("other",))
+    rec_grid = (dtr >= 0.999 * dts or rec_irregular
+                or (piecewise and n_rec_in <= REC_GRID_MAX))
     interp = {}
+    kinked = {}  # output -> SIM's corners between samples (corners())
     sim_f, rec_f = {}, {}
     for tab, fs, is_grid in ((sim, sim_f, not rec_grid), (rec, rec_f, rec_grid)):
         for k, c in tab.columns.items():
@@ -426,7 +486,14 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                 # carry a removed value to its neighbours); grid times next to them are set
                 # aside below
                 tt, vv = tt[~rec.excluded], vv[~rec.excluded]
-            name, f, bound = choose_interpolant(tt, vv, kinds)
+            pl = corners(tt, vv) if (tab is sim and k in common and motion) else None
+            if pl is not None:
+                # piecewise linear (G1 moves): linear between its samples is exact except in
+                # the steps that hold a corner between two samples; no overshoot at corners
+                name, f, bound = "linear", _linear(tt, vv), pl[2]
+                kinked[k] = pl
+            else:
+                name, f, bound = choose_interpolant(tt, vv, kinds)
             if tab is rec and k in common and bound > 0:
                 # the cross-validated error of a noisy signal includes its noise (the held-out
                 # sample's and, about half, its neighbours'): what is left is interpolation
@@ -566,6 +633,22 @@ def align(sim: Table, rec: Table, clock_offset: float = 0.0, outputs=None, input
                   "the held-out RMS, the noise floor or the RMS (nothing is interpolated across "
                   "them)",)
         valid &= ~removed
+    if rec_grid and kinked:
+        inside = np.zeros(len(tg), bool)
+        worst = 0.0
+        for k, (lo_c, hi_c, _, err) in kinked.items():
+            if len(lo_c):
+                j = np.searchsorted(lo_c, tg, side="right") - 1
+                jc = np.clip(j, 0, len(lo_c) - 1)
+                inside |= (j >= 0) & (tg > lo_c[jc]) & (tg < hi_c[jc])
+                worst = max(worst, float(np.max(err)))
+        if inside.any():
+            notes += (f"SIM is piecewise linear with {int(sum(len(v[0]) for v in kinked.values()))} "
+                      f"corners between its samples: the {int(inside.sum())} grid samples inside "
+                      "those steps take no part (where the corner lies between two samples no "
+                      f"interpolant knows the path: up to {worst:.3g} "
+                      f"{sim.columns[next(iter(kinked))].unit or 'units'} off there)",)
+            valid &= ~inside
     if valid.sum() < 8 and removed.any():
         raise InputError(f"the row filter leaves {int(valid.sum())} usable samples of the common "
                          "span (expected at least 8)", field="--where")

@@ -15,8 +15,13 @@ def register(subparsers) -> None:
                     "Columns in both files are compared (names are case-sensitive); all other "
                     "columns are inputs. Units mm, deg, s, degC, mm/s, mm/s^2 unless the header "
                     "says, e.g. z[um], vx[mm/s].")
-    p.add_argument("--sim", required=True, metavar="SIM.csv", help="simulated signals (CSV, column t in s)")
-    p.add_argument("--rec", required=True, metavar="REC.csv", help="recorded signals (CSV, column t in s)")
+    p.add_argument("--sim", required=True, action="append", metavar="SIM.csv",
+                   help="simulated signals (CSV, column t in s); repeat with --rec for several "
+                        "recordings of one machine (shared physics, a clock each, each recording "
+                        "predicted from the others), or give a folder of CSV files paired with "
+                        "REC's folder by name")
+    p.add_argument("--rec", required=True, action="append", metavar="REC.csv",
+                   help="recorded signals (CSV, column t in s); one per --sim, in the same order")
     p.add_argument("--json", metavar="OUT.json", help="write the result as JSON")
     p.add_argument("--plot", metavar="OUT.png", help="plot recorded/simulated/corrected and residuals")
     p.add_argument("--report", metavar="OUT.md", help="write a Markdown report")
@@ -69,13 +74,15 @@ def run(args: argparse.Namespace) -> int:
     if args.model:   # resolve the machine before the (long) diagnosis, so a missing one fails fast
         from ..model.simulate import provenance_path, read_provenance
         machine = args.machine
-        if provenance_path(args.sim).is_file():
-            prov = read_provenance(args.sim)
+        if provenance_path(args.sim[0]).is_file():
+            prov = read_provenance(args.sim[0])
             machine, step = machine or prov.machine, prov.step
         if machine is None:
             raise InputError("--model needs the machine: give --machine (SIM has no provenance "
                              "sidecar)", field="--machine")
-    res = diagnose(args.sim, args.rec, outputs=args.output, inputs=args.input, units=units,
+    sims = args.sim[0] if len(args.sim) == 1 else args.sim
+    recs = args.rec[0] if len(args.rec) == 1 else args.rec
+    res = diagnose(sims, recs, outputs=args.output, inputs=args.input, units=units,
                    where=args.where, exclude_rows=args.exclude_rows, same_clock=args.same_clock,
                    dt=args.dt)
     if args.json:

@@ -28,6 +28,8 @@ UNITS.update({
     "c": ("temperature", 1.0, 0.0), "°f": ("temperature", 5.0 / 9.0, -160.0 / 9.0),
     "degf": ("temperature", 5.0 / 9.0, -160.0 / 9.0),
     "rev/min": ("speed", 1.0, 0.0), "u/min": ("speed", 1.0, 0.0), "rev/s": ("speed", 60.0, 0.0),
+    "arcsec": ("angle", 1.0 / 3600.0, 0.0), "arcmin": ("angle", 1.0 / 60.0, 0.0),
+    "'": ("angle", 1.0 / 60.0, 0.0), "h": ("time", 3600.0, 0.0),
 })
 # velocities and accelerations of linear and rotary axes: every length/angle unit over s, min
 for _u, (_k, _f, _) in list(UNITS.items()):
@@ -172,8 +174,10 @@ def _unit_of(unit: str | None):
     ``0.5um`` or ``1e-4 mm``: counts of an encoder or a scale with that resolution."""
     if unit is None:
         return None
-    u = unit.lower().replace(" ", "").replace("sec", "s").replace("inches", "inch")
-    hit = UNITS.get(u)
+    u = unit.lower().replace(" ", "")
+    hit = UNITS.get(u)   # as written first: `arcsec` is no arc-s
+    u = u.replace("sec", "s").replace("inches", "inch")
+    hit = hit or UNITS.get(u)
     if hit is None:
         m = _SCALED.match(u)
         if m and float(m.group("n")) > 0:

@@ -114,7 +114,8 @@ _INDEX = "(row index)"
 # names of a time column other than `t` (English, German, French, Spanish, Italian; a logger's
 # "timestamp"), matched ignoring case
 _TIME_NAMES = ("t", "time", "timestamp", "time_stamp", "zeit", "zeitstempel", "temps", "tiempo",
-               "tempo", "time_s", "t_s", "datetime", "date_time", "horodatage")
+               "tempo", "time_s", "t_s", "datetime", "date_time", "horodatage", "t_ms", "time_ms",
+               "t_us", "time_us", "timestamp_ms", "timestamp_us")
 
 
 def _time_key(keys: list[str]) -> str | None:
@@ -354,6 +355,10 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
     jt = [c[1] for c in cols].index(tkey)
     hdr_t, _, unit_t = cols[jt]
     if origin is None:
+        if not unit_t and units and tkey in units:
+            unit_t = units[tkey]
+        if not unit_t:
+            unit_t = name_unit(tkey)
         ut = _unit_of(unit_t) if unit_t else ("time", 1.0, 0.0)
         if ut is None or ut[0] != "time":
             raise InputError(f"unit {unit_t!r} of {tkey} is not a time unit (s, ms, us, min)",
@@ -372,6 +377,14 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
         src = "unit"
         if unit is None and key in units:
             unit, src = units[key], "option"
+        elif unit is None and name_unit(key):
+            # `pos_um`, `angle_arcmin`: a unit written as the last word of the name
+            unit, src = name_unit(key), "unit"
+        if unit is not None and unit.strip().lower() in COUNTS:
+            raise InputError(f"unit {unit!r} of column {key!r}: a count needs its size; give the "
+                             f"resolution as the unit, e.g. {key}[0.1um] in the header or --unit "
+                             f"{key}=0.0001mm", path, hline if src == "unit" else None,
+                             field=hdr if src == "unit" else f"--unit {key}")
             if _unit_of(unit) is None and unit not in ("", "-", "1"):
                 raise InputError(f"unknown unit {unit!r} given for column {key!r} (expected one of "
                                  "mm, um, nm, in, deg, rad, mm/s, deg/s, mm/s^2, degC, rpm, or a "
@@ -422,8 +435,10 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
         raise InputError(f"t must increase: {t[i + 1]:g} s follows {t[i]:g} s "
                          "(sort the rows)", path, linenos[i + 1] if linenos else None, field=tkey)
     if np.any(dt == 0):
-        # repeated time stamps (a logger's clock coarser than its rate, or a row written twice):
-        # the rows of one time stamp are averaged
+        # a row written twice (the same stamp, the same values) is merged; a time stamp repeated
+        # with other values is refused: which of the two is the reading at that time cannot be
+        # known, and averaging them would make up a value no instrument read
+        _refuse_repeated_stamps(t, columns, path, linenos, tkey)
         t0 = t
         t, columns, k = _merge_repeated(t, columns)
         if excluded is not None:
@@ -432,13 +447,46 @@ def _from_matrix(label: str, cols, data: np.ndarray, linenos, hline: int | None,
             excluded = np.bincount(inv, weights=excluded.astype(float), minlength=len(t)) > 0
         first = int(np.argmax(dt == 0)) + 1
         where = f" (first on line {linenos[first]})" if linenos else ""
-        notes.append(f"{k} rows of {Path(path).name} repeat the time stamp of the row before{where}: "
-                     "the values of one time stamp are averaged")
+        notes.append(f"{k} rows of {Path(path).name} repeat the time stamp and the values of the "
+                     f"row before{where}: each written twice, kept once")
         if len(t) < 2:
             raise InputError("fewer than two distinct times", path, field=tkey)
     if excluded is not None and not excluded.any():
         excluded = None
     return Table(str(path), t, columns, origin, tuple(notes), excluded)
+
+
+# units that count increments of an unknown size
+COUNTS = ("counts", "count", "cnt", "cts", "inc", "incs", "increments", "ticks", "steps")
+# units written as the last word of a column name (`pos_um`, `angle_arcmin`, `t_ms`); `_in`
+# and `_s` are not among them: they mean "input" and "spindle" as often as inch and second
+_NAME_UNITS = ("um", "µm", "nm", "mm", "deg", "rad", "mrad", "urad", "arcmin", "arcsec", "degc",
+               "ms", "us", "mm/s", "mm_s", "um_s", "deg_s")
+_NAME_UNIT = re.compile(r"^.+?[_\-](?P<u>" + "|".join(re.escape(u) for u in _NAME_UNITS) + r")$",
+                        re.IGNORECASE)
+
+
+def name_unit(key: str) -> str | None:
+    """The unit a column's name ends in (``pos_um`` -> 'um', ``t_ms`` -> 'ms'), or None."""
+    m = _NAME_UNIT.match(key)
+    if not m:
+        return None
+    u = m.group("u").lower()
+    return u.replace("_s", "/s") if u.endswith("_s") else u
+
+
+def _refuse_repeated_stamps(t: np.ndarray, columns: dict, path, linenos, tkey) -> None:
+    """InputError naming the first line that repeats the time stamp of the line before with
+    other values in some column."""
+    for i in np.flatnonzero(np.diff(t) == 0):
+        for k, c in columns.items():
+            a, b = c.values[i], c.values[i + 1]
+            if not (a == b or (np.isnan(a) and np.isnan(b))):
+                line = linenos[i + 1] if linenos else None
+                prev = f"line {linenos[i]}" if linenos else "the row before"
+                raise InputError(f"time {t[i + 1]:g} s repeats the time stamp of {prev} with "
+                                 f"another value of {k!r} ({b:g} after {a:g}): t must increase "
+                                 "strictly (each reading at its own time)", path, line, field=tkey)
 
 
 def _merge_repeated(t: np.ndarray, columns: dict):

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +13,8 @@ from . import data as _data
 from . import rows as _rows
 from .._io import InputError
 from .effects import Context, candidates
-from .locate import Mismatch, conditions, empirical_dependence, locate
-from .select import Settings, cross_validate, fit, joint_covariance, model_columns, n_effective, select
+from .locate import Mismatch, conditions, empirical_dependence, local_flags, locate
+from .select import Settings, fit, heldout_neutral, joint_covariance, model_columns, n_effective, select
 
 
 @dataclass(frozen=True)
@@ -62,6 +62,7 @@ class DiagnosisResult:
     log: tuple
     unexplained: tuple = ()  # per output whose residual stays > 3x its noise floor: dicts
     notes: tuple = ()        # alignment and column decisions, in words
+    local: tuple = ()        # spans whose local residual exceeds 3x the floor (locate.local_flags)
     t: np.ndarray = field(repr=False, default=None)
     rec: dict = field(repr=False, default=None)
     sim: dict = field(repr=False, default=None)
@@ -79,6 +80,7 @@ class DiagnosisResult:
             "mismatch": [m.to_dict() for m in self.mismatch],
             "effects": [e.to_dict() for e in self.effects],
             "unexplained": list(self.unexplained),
+            "local": list(self.local),
             "fit": self.fit,
             "alignment": {k: v for k, v in self.alignment.items() if k not in ("sim", "rec")},
             "notes": list(self.notes),
@@ -148,6 +150,47 @@ def _rms(a) -> float:
 UNEXPLAINED_RATIO = 3.0
 
 
+def _per_recording(al, ctx, oof) -> dict:
+    """Held-out RMS before and after per recording and output (each recording predicted by the
+    model fitted on the others), output units."""
+    out = {}
+    for r in al.recordings:
+        inr = (ctx.idx >= r.start) & (ctx.idx < r.stop)
+        d = {"holdout_rms_before": {}, "holdout_rms_after": {}}
+        for o in al.outputs:
+            sl = ctx.slices[o]
+            d["holdout_rms_before"][o] = _rms(ctx.z0[sl][inr] * ctx.sigma[o])
+            d["holdout_rms_after"][o] = _rms(oof[sl][inr] * ctx.sigma[o])
+        b = sum(v ** 2 for v in d["holdout_rms_before"].values())
+        a = sum(v ** 2 for v in d["holdout_rms_after"].values())
+        d["ratio"] = (a / b) ** 0.5 if b > 0 else float("nan")
+        out[r.name] = d
+    return out
+
+
+def _loop_shapes(ctx, final, effects, floor) -> tuple:
+    """A backlash is named only with the shape of a play: where what is left after it still
+    trends with the travel since each reversal, the loop is gradual (a hysteresis), said so."""
+    from .effects.friction import loop_shape
+    notes = ()
+    for e in effects:
+        if e.name != "backlash":
+            continue
+        o = e.outputs[0]
+        sh = loop_shape(ctx, o, final.resid[ctx.slices[o]] * ctx.sigma[o], floor[o])
+        if sh is None:
+            continue
+        e.evidence["loop_shape"] = {"trend_share": round(sh["share"], 3), "swing": sh["swing"],
+                                    "play": not sh["significant"]}
+        if sh["significant"]:
+            notes += (f"{o}: the reversal error is not the step of a play: after the backlash "
+                      f"what is left still swings by {sh['swing']:.3g} {ctx.al.units[o]} with the "
+                      "travel since each reversal (a gradual hysteresis loop, e.g. friction "
+                      "pre-sliding or a Preisach-type loop; the backlash named is its step part "
+                      "only)",)
+    return notes
+
+
 def _same_file(a, b) -> bool:
     """SIM and REC are paths of one file."""
     import os
@@ -157,6 +200,87 @@ def _same_file(a, b) -> bool:
         return os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def _pairs(sim, rec) -> tuple[list, list]:
+    """SIM and REC as equally long lists of sources: one each, lists of several (one machine's
+    recordings), or two folders whose CSV files of the same name are paired."""
+    def many(x):
+        return isinstance(x, (list, tuple))
+    if not many(sim) and not many(rec) and isinstance(sim, (str, Path)) and Path(sim).is_dir():
+        if not (isinstance(rec, (str, Path)) and Path(rec).is_dir()):
+            raise InputError(f"--sim {sim} is a folder: --rec must be a folder too", field="--rec")
+        a = {p.name: p for p in sorted(Path(sim).glob("*.csv"))}
+        b = {p.name: p for p in sorted(Path(rec).glob("*.csv"))}
+        both = sorted(set(a) & set(b))
+        if not both:
+            raise InputError(f"no CSV file of the same name in {sim} and {rec} (SIM and REC of one "
+                             "recording are paired by their file name)", field="--rec")
+        return [a[k] for k in both], [b[k] for k in both]
+    sims = list(sim) if many(sim) else [sim]
+    recs = list(rec) if many(rec) else [rec]
+    if len(sims) != len(recs) or not sims:
+        raise InputError(f"{len(sims)} SIM and {len(recs)} REC sources: give one --rec for each "
+                         "--sim, in the same order", field="--rec")
+    return sims, recs
+
+
+def _recording_names(sims, recs) -> list:
+    """A short distinct name per recording: REC's file name, or its folder and name."""
+    def nm(x, i):
+        return Path(x).name if isinstance(x, (str, Path)) else f"recording {i + 1}"
+    names = [nm(r, i) for i, r in enumerate(recs)]
+    if len(set(names)) < len(names):
+        names = [(Path(r).parent.name if isinstance(r, (str, Path)) else f"recording {i + 1}")
+                 for i, r in enumerate(recs)]
+    if len(set(names)) < len(names):
+        names = [f"recording {i + 1}" for i in range(len(recs))]
+    return names
+
+
+def _aligned_pair(sim, rec, conds, outputs, inputs, units, same_clock, dt):
+    """Load one SIM/REC pair and put it on its grid: (Aligned, SIM table, REC table, same_clock)."""
+    one_log = _same_file(sim, rec)
+    S = _data.load(sim, "SIM", units, conds, dt)
+    R = S if one_log else _data.load(rec, "REC", units, conds, dt)
+    log_notes = ()
+    if one_log:
+        # the commanded and the measured signals of one log: split by the names' role words,
+        # and logged on one clock (no clock offset to estimate; a delay is the machine's)
+        S, R, log_notes = _data.split_log(S, outputs, inputs)
+        same_clock = True
+    filter_notes = _row_filter_notes(conds, S, R) + log_notes
+    S, R, clock_notes = _data.common_clock(S, R)
+    S, outs, pair_notes = _data.pair_columns(S, R, outputs)
+    if one_log:
+        R, kept_notes = _data.compared_only(R, outs or [k for k in R.columns if k in S.columns])
+        pair_notes += kept_notes
+    _refuse_unknown_units(S, R, outs)
+    from .mistakes import time_scale_hint
+    hint = time_scale_hint(S.t, R.t)
+    try:
+        al = _align.align(S, R, outputs=outs, inputs=inputs,
+                          notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes
+                          + pair_notes + ((hint,) if hint else ()), same_clock=same_clock)
+    except InputError as e:
+        if hint:
+            raise InputError(f"{e.what}; {hint}", e.file, e.line, field=e.field) from None
+        raise
+    return al, S, R, same_clock
+
+
+def _refuse_unknown_units(S, R, outs) -> None:
+    """A compared column must have a unit the diagnosis understands: a unit it does not know
+    is refused by name (an input with one is kept as written)."""
+    keys = outs or [k for k in R.columns if k in S.columns]
+    for tab in (S, R):
+        for k in keys:
+            c = tab.columns.get(k)
+            if c is not None and c.kind == "other" and c.kind_from in ("unit", "option") and c.unit:
+                raise InputError(f"unknown unit {c.unit!r} of compared column {k!r} (expected a "
+                                 "length, angle, velocity or acceleration unit: mm, um, nm, inch, "
+                                 "deg, rad, arcmin, arcsec, mm/s, deg/s, mm/s^2, or a resolution "
+                                 "like 0.1um for counts)", tab.path, field=c.header)
 
 
 def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=None,
@@ -180,24 +304,17 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     st = settings or Settings()
     say = progress or (lambda msg: None)
     conds = _rows.parse(where, exclude_rows)
-    one_log = _same_file(sim, rec)
-    S = _data.load(sim, "SIM", units, conds, dt)
-    R = S if one_log else _data.load(rec, "REC", units, conds, dt)
-    log_notes = ()
-    if one_log:
-        # the commanded and the measured signals of one log: split by the names' role words,
-        # and logged on one clock (no clock offset to estimate; a delay is the machine's)
-        S, R, log_notes = _data.split_log(S, outputs, inputs)
-        same_clock = True
-    filter_notes = _row_filter_notes(conds, S, R) + log_notes
-    S, R, clock_notes = _data.common_clock(S, R)
-    S, outputs, pair_notes = _data.pair_columns(S, R, outputs)
-    if one_log:
-        R, kept_notes = _data.compared_only(R, outputs or [k for k in R.columns if k in S.columns])
-        pair_notes += kept_notes
-    al = _align.align(S, R, outputs=outputs, inputs=inputs,
-                      notes=filter_notes + tuple(S.notes) + tuple(R.notes) + clock_notes + pair_notes,
-                      same_clock=same_clock)
+    sims, recs = _pairs(sim, rec)
+    pairs = [_aligned_pair(s, r, conds, outputs, inputs, units, same_clock, dt)
+             for s, r in zip(sims, recs)]
+    if len(pairs) > 1:
+        from .recordings import join
+        names = _recording_names(sims, recs)
+        al = join([p[0] for p in pairs], names)
+        st = replace(st, folds=len(pairs))
+    else:
+        al = pairs[0][0]
+    _, S, R, same_clock = pairs[0]
     say(f"aligned: {al.n} samples every {al.dt:g} s, outputs {', '.join(al.outputs)}")
     mism = locate(al)
     # selection on an evenly strided subset of the grid (filters still run on all samples),
@@ -269,7 +386,8 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                              "REC(t) = SIM(t - delay) is a delay of the machine or its loop, not a "
                              "clock offset"), rms))
             continue
-        if c.name == "time_offset" and (al.clock_offset or set(c.outputs) <= lagged):
+        if c.name == "time_offset" and (al.clock_offset or set(c.outputs) <= lagged
+                                        or any(r.clock_offset_s for r in al.recordings)):
             # the clocks were aligned: what is left of the offset refines that alignment (a
             # latency on top of another clock start cannot be told from it).  Likewise a common
             # delay of outputs that all lag: a transport delay and a first-order lag agree to
@@ -294,12 +412,16 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     oof = np.array(ctx.z0, copy=True)
     if final.cands:
         # held-out prediction: fold models fitted on the selection subset without the block,
-        # evaluated on every sample of the block
-        # every parameter, the nonlinear ones (time constants, leads, widths) included, is
-        # refitted without the held-out block (bounded, from the full fit's values)
-        folds = []
-        cross_validate(ctx_sel, final.cands, final.etas, st.folds, fits=folds, max_nfev=10,
-                       betas=final.betas)
+        # evaluated on every sample of the block; every parameter, the nonlinear ones (time
+        # constants, leads, widths) included, is refitted without the held-out block from the
+        # candidates' own neutral starts (never from the values fitted on all samples)
+        # the selection's last judgement of the chosen model is this prediction (the same
+        # model on the same rows): reused
+        folds = chosen.extra.get("heldout_folds")
+        if not folds or [c.label for c in folds[0].cands] != [c.label for c in final.cands]:
+            folds = []
+            heldout_neutral(ctx_sel, final.cands, st.folds, fits=folds,
+                            beta_default=np.concatenate(final.betas) if final.betas else None)
         starts = [f.extra["held"][0] for f in folds] + [np.inf]
         for i, f in enumerate(folds):
             inblk = (ctx.t >= starts[i]) & (ctx.t < starts[i + 1])
@@ -324,12 +446,39 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
         fitd["rms_after"][o] = _rms(after)
         fitd["holdout_rms_before"][o] = _rms(before)
         fitd["holdout_rms_after"][o] = _rms(oof[sl] * sig[o])
+    if al.recordings:
+        fitd["recordings"] = _per_recording(al, ctx, oof)
+    shape_notes = _loop_shapes(ctx, final, effects, floor)
+    from .noise import check_residual
+    fitd["whiteness"] = {}
+    white_notes = ()
+    for o in al.outputs:
+        w = check_residual(oof[ctx.slices[o]] * sig[o], al.kinds[o],
+                          al.sim[o][rows] if al.kinds[o] == "angle" else None)
+        fitd["whiteness"][o] = {k: v for k, v in w.items() if k != "reasons"}
+        if not w["white"] and fitd["holdout_rms_after"][o] > 1.5 * floor[o]:
+            white_notes += (f"{o}: what is left is not white noise ({'; '.join(w['reasons'])}): "
+                            "structure the effects do not explain, whatever its size against the "
+                            "noise floor",)
+    from .mistakes import value_scale_notes
+    unit_notes = value_scale_notes(al, fitd["rms_after"])
     cond = {o: conditions(al, o, al.rec[o] - al.sim[o], sig[o]) for o in al.outputs}
     unexplained = []
+    floor_notes = ()
     for o in al.outputs:
         sl = ctx.slices[o]
         after = full(final.resid[sl] * sig[o], o)
         worst = max(fitd["rms_after"][o], fitd["holdout_rms_after"][o])
+        # SIM evaluated between its samples is known to its interpolation error only: the floor
+        # a fit can reach is the noise and that resampling error together
+        resample = float(al.interp.get(o, ("", 0.0))[1] or 0.0)
+        total = math.hypot(floor[o], resample)
+        if UNEXPLAINED_RATIO * floor[o] < worst <= UNEXPLAINED_RATIO * total:
+            floor_notes += (f"{o}: the residual ({worst:.3g} {al.units[o]}) is at the resampling "
+                            f"floor: the noise ({floor[o]:.3g}) and SIM's interpolation error "
+                            f"between its samples ({resample:.3g}) together; SIM's samples are too "
+                            "far apart to tell more, not an unexplained effect",)
+            continue
         if worst > UNEXPLAINED_RATIO * floor[o]:
             spans = locate(al, max_spans=3, resid={o: after}, only=(o,))
             unexplained.append({
@@ -339,6 +488,12 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                 "correlates": conditions(al, o, after, floor[o]),
                 "empirical": empirical_dependence(al, o, full(oof[sl] * sig[o], o)),
                 "interpolation_error": al.interp.get(o, ("", 0.0))[1]})
+    local = []
+    for o in al.outputs:
+        if any(u["output"] == o for u in unexplained):
+            continue
+        local += local_flags(al, o, full(oof[ctx.slices[o]] * sig[o], o), floor[o],
+                             UNEXPLAINED_RATIO)
     # the recording-wide conditions of an output belong to the words of each of its spans
     mism = [Mismatch(m.output, m.t_start, m.t_end,
                      m.where + "".join(f"; overall: {c}" for c in cond[m.output]), m.rms)
@@ -350,6 +505,7 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
                  "sim_rate_hz": al.rates["sim"], "rec_rate_hz": al.rates["rec"],
                  "folds": st.folds, "quantum": dict(al.quantum), "at_rest": al.at_rest,
                  "same_clock": bool(same_clock),
+                 "recordings": [r.to_dict() for r in al.recordings],
                  "interpolation": {o: v[0] for o, v in al.interp.items()},
                  "interpolation_error": {o: v[1] for o, v in al.interp.items()},
                  "columns": {k: {"role": r[0], "kind": r[1], "unit": r[2], "kind_from": r[3]}
@@ -361,8 +517,8 @@ def diagnose(sim, rec, settings: Settings | None = None, progress=None, outputs=
     return DiagnosisResult(
         outputs=tuple(al.outputs), units=dict(al.units), noise_floor=floor,
         mismatch=tuple(mism), effects=tuple(effects), fit=fitd, alignment=alignment,
-        conditions=cond, log=tuple(log), unexplained=tuple(unexplained),
-        notes=tuple(al.notes) + latency_note + tuple(
+        conditions=cond, log=tuple(log), unexplained=tuple(unexplained), local=tuple(local),
+        notes=unit_notes + shape_notes + floor_notes + white_notes + tuple(al.notes) + latency_note + tuple(
             f"column {k!r} taken as {r[1]} ({r[2] or 'no unit'}) from its name: give the unit "
             f"in the header (e.g. {k}[{r[2] or 'unit'}]) or with --unit {k}=UNIT"
             for k, r in al.roles.items() if r[3] == "name" and r[1] != "other"),

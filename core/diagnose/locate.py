@@ -175,6 +175,26 @@ def conditions(al: Aligned, o: str, r: np.ndarray, sigma: float) -> list[str]:
     return out
 
 
+def local_flags(al: Aligned, o: str, r: np.ndarray, floor: float, ratio: float = 3.0,
+                max_spans: int = 5) -> list[dict]:
+    """Spans where the residual's local RMS (over the window `locate` uses) exceeds `ratio`
+    times the noise floor, even when the whole record does not: a stick-slip at a few
+    reversals, a fault in one stretch.  Largest first: dicts of t_start, t_end (s), rms, ratio
+    and where (words)."""
+    n = len(r)
+    w = int(np.clip(n // 200, 5, 400))
+    if n < 2 * w or floor <= 0:
+        return []
+    ms = _running_mean(r * r, w)
+    out = []
+    for a, b in spans(ms > (ratio * floor) ** 2, w):
+        rms = float(np.sqrt(np.mean(r[a:b] ** 2)))
+        out.append({"output": o, "t_start": float(al.t[a]), "t_end": float(al.t[b - 1]),
+                    "rms": rms, "ratio": rms / floor, "where": describe(al, a, b)})
+    out.sort(key=lambda d: -d["rms"] * (d["t_end"] - d["t_start"] + al.dt) ** 0.5)
+    return out[:max_spans]
+
+
 def empirical_dependence(al: Aligned, o: str, r: np.ndarray, folds: int = 5,
                          min_gain: float = 0.25):
     """Last resort for a residual no effect explains: the signal it depends on most, as a smooth
@@ -191,10 +211,16 @@ def empirical_dependence(al: Aligned, o: str, r: np.ndarray, folds: int = 5,
     for k, s in al.signals.items():
         if np.ptp(s.values) > 0:
             sigs[k] = s.values
-        if s.source == "sim-output" and s.kind in ("length", "angle", "other", "velocity"):
+        # rates of every logged signal, the other axes' included (a gantry's yaw follows the
+        # acceleration of the axis that drives it; a drift the rate of a temperature)
+        if s.kind in ("length", "angle", "other", "velocity", "angular_velocity", "temperature"):
             v = np.gradient(s.values, al.dt)
             if np.ptp(v) > 0:
                 sigs[f"d{k}/dt"] = v
+            if s.source == "sim-output" and s.kind in ("length", "angle", "other"):
+                a = np.gradient(v, al.dt)
+                if np.ptp(a) > 0:
+                    sigs[f"d2{k}/dt2"] = a
     edges = np.linspace(0, n, folds + 1).astype(int)
     base = float(np.sqrt(np.mean(r * r)))
     best = None

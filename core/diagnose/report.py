@@ -119,8 +119,23 @@ def summary_text(res) -> str:
         lines.append("unexplained mismatch (more than 3x the noise floor after the effects; not noise):")
         lines += _unexplained_lines(res)
     elif not res.effects:
-        lines.append("effects: none (the residual is within 3x the noise floor)")
+        lines.append("effects: none (the residual is within 3x the noise floor)"
+                     + (" over the whole record" if getattr(res, "local", ()) else ""))
+    lines += _local_lines(res)
     return "\n".join(lines)
+
+
+def _local_lines(res, indent="  ") -> list:
+    """The spans whose local residual exceeds 3x the floor (held out), in words."""
+    loc = getattr(res, "local", ())
+    if not loc:
+        return []
+    out = ["locally above 3x the noise floor (held out; not explained there):"]
+    for d in loc:
+        un = res.units[d["output"]]
+        out.append(f"{indent}{d['output']}: t {d['t_start']:.4g}-{d['t_end']:.4g} s, RMS "
+                   f"{_len(d['rms'], un)} = {d['ratio']:.3g}x the floor; {d['where']}")
+    return out
 
 
 def markdown(res, plot_name: str | None = None) -> str:
@@ -163,6 +178,8 @@ def markdown(res, plot_name: str | None = None) -> str:
                 "The residual stays above 3x the noise floor: this is not noise, and no effect of "
                 "the library explains it.", ""]
         out += ["- " + ln.strip() for ln in _unexplained_lines(res, "")]
+    if getattr(res, "local", ()):
+        out += ["", "## Local mismatch", ""] + ["- " + ln.strip() for ln in _local_lines(res)[1:]]
     out += ["", "## Where the residual stands out", ""]
     if res.mismatch:
         out += ["| output | t start (s) | t end (s) | RMS | conditions |", "|---|---|---|---|---|"]

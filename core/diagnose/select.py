@@ -313,6 +313,16 @@ def delta_bic(ctx: Context, f: "Fit", cur: "Fit", neff: float) -> float:
     return min(d_pool, bic_per_output(ctx, f, neff) - bic_per_output(ctx, cur, neff))
 
 
+def fold_blocks(ctx: Context, folds: int) -> list[np.ndarray]:
+    """The held-out blocks of a context's rows: one per recording when it holds several
+    (leave-one-recording-out), else `folds` contiguous blocks of time."""
+    from .recordings import recording_blocks
+    per = recording_blocks(ctx.al, ctx.idx)
+    if per is not None:
+        return [b for b in per if len(b)]
+    return blocks(ctx.n, folds)
+
+
 def blocks(n: int, folds: int) -> list[np.ndarray]:
     edges = np.linspace(0, n, folds + 1).astype(int)
     return [np.arange(edges[i], edges[i + 1]) for i in range(folds)]
@@ -335,7 +345,7 @@ def cross_validate(ctx: Context, cands: list, etas: list, folds: int, max_nfev: 
     if not cands:
         return float(oof @ oof), oof
     O = len(ctx.outputs)
-    for blk in blocks(n, folds):
+    for blk in fold_blocks(ctx, folds):
         held = np.zeros(n, bool)
         held[blk] = True
         rows = np.tile(~held, O)
@@ -662,22 +672,7 @@ def select(ctx: Context, cands: list, settings: Settings | None = None, progress
         evidence.pop(model[i].label, None)
         model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
         final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
-    # held out as reported, every parameter refitted without the block: an effect that leaves
-    # all of its outputs worse than no model at all is not supported by the data (an axis that
-    # moves in one block only: without that block its time constant is anywhere)
-    while model:
-        _, oof = cross_validate(ctx, model, final.etas, st.folds, max_nfev=10, betas=final.betas)
-        worse = {o for o, sl in ctx.slices.items()
-                 if float(oof[sl] @ oof[sl]) > float(ctx.z0[sl] @ ctx.z0[sl])}
-        drop = [i for i, c in enumerate(model) if set(c.outputs) <= worse]
-        if not drop:
-            break
-        i = drop[0]
-        log.append(f"final: {model[i].label} dropped: held out with every parameter refitted, "
-                   f"{', '.join(model[i].outputs)} worse than without any effect")
-        evidence.pop(model[i].label, None)
-        model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
-        final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
+    model, final = honest_gate(ctx, cands, model, final, st, evidence, log)
     return final, evidence, log
 
 
@@ -742,3 +737,149 @@ def _exchange(ctx, cands, model, etas, cur, cv_cur, oof_cur, st, srows, coarse_c
         evidence[c.label] = dict(old, delta_bic_exchange=round(float(d), 2))
         model, etas, cur, cv_cur, oof_cur = m_new, list(f.etas), f, cv_new, oof_new
     return model, etas, cur, cv_cur
+
+
+# a nonlinear parameter within this fraction of its range of a bound sits at the bound: the
+# data do not identify it (a time constant pinned at the shortest the grid allows)
+BOUND_EDGE = 1e-3
+
+
+def at_bound(ctx: Context, c: Candidate, eta) -> str | None:
+    """Which nonlinear parameter of `c` sits at a bound of its range (None: none does)."""
+    lo, hi = c.bounds(ctx)
+    names = list(getattr(c, "nl_names", ())) or [f"parameter {j}" for j in range(len(lo))]
+    for j, (a, b, e) in enumerate(zip(lo, hi, np.atleast_1d(eta))):
+        edge = BOUND_EDGE * (b - a)
+        if e <= a + edge or e >= b - edge:
+            return f"{names[j] if j < len(names) else j} at the {'lower' if e <= a + edge else 'upper'} bound"
+    return None
+
+
+COARSE_ROWS = 2000
+
+
+def neutral_fit(ctx: Context, cands: list, train: np.ndarray, max_nfev: int,
+                beta_default=None) -> Fit:
+    """Fit `cands` on the rows `train` only (a boolean mask over the stacked rows), every
+    nonlinear parameter started from the candidate's own coarse grid on those rows: no value
+    found on the held-out rows enters (the effects in turn, each on what the ones before it
+    leave, then all jointly)."""
+    r = np.array(ctx.z0, copy=True)
+    etas = []
+    # the starting grids on at most about COARSE_ROWS training rows per output (a start, not
+    # the estimate: the joint fit below uses every training row)
+    step = max(1, int(math.ceil(train.sum() / len(ctx.outputs) / COARSE_ROWS)))
+    sparse = train.copy()
+    if step > 1:
+        keep = np.zeros(ctx.n, bool)
+        keep[::step] = True
+        sparse &= np.tile(keep, len(ctx.outputs))
+    for c in cands:
+        eta0 = c.coarse(ctx, r, sparse)
+        f1 = fit(ctx, [c], [eta0], train, max_nfev=min(15, max_nfev), target=r)
+        etas.append(f1.etas[0])
+        r = f1.resid
+    f = fit(ctx, cands, etas, train, max_nfev=max_nfev, beta_default=beta_default)
+    # a delay screened before the lags takes up what they explain (they agree to first order):
+    # the joint fit is also started from no delay, the other neutral start, and the better kept
+    off = [j for j, c in enumerate(cands) if c.name == "time_offset"]
+    if off and len(cands) > 1:
+        e2 = list(etas)
+        for j in off:
+            lo, hi = cands[j].bounds(ctx)
+            e2[j] = np.array([float(np.clip(0.0, lo[0], hi[0]))])
+        f2 = fit(ctx, cands, e2, train, max_nfev=max_nfev, beta_default=beta_default)
+        if f2.rss < f.rss:
+            f = f2
+    return f
+
+
+def heldout_neutral(ctx: Context, cands: list, folds: int, max_nfev: int = 30, fits=None,
+                    beta_default=None) -> np.ndarray:
+    """Out-of-fold whitened residual: each contiguous block predicted by `cands` fitted on the
+    other blocks from neutral starts (`neutral_fit`).  The fold fits are appended to `fits`
+    with the held-out span in fit.extra["held"]."""
+    oof = np.array(ctx.z0, copy=True)
+    if not cands:
+        return oof
+    O = len(ctx.outputs)
+    for blk in fold_blocks(ctx, folds):
+        held = np.zeros(ctx.n, bool)
+        held[blk] = True
+        f = neutral_fit(ctx, cands, np.tile(~held, O), max_nfev, beta_default)
+        hrows = np.tile(held, O)
+        oof[hrows] = f.resid[hrows]
+        if fits is not None:
+            f.extra["held"] = (float(ctx.t[blk[0]]), float(ctx.t[blk[-1]]))
+            fits.append(f)
+    return oof
+
+
+def _clock_instead(ctx: Context, cands: list, model: list, i: int):
+    """On separate clocks a servo lag of a few samples and a clock offset agree to first order:
+    the baseline a lag must beat is the model with a clock offset in its place (None when the
+    clocks are one, the effect is no lag, or the model already has an offset)."""
+    c = model[i]
+    if ctx.al.same_clock or c.name != "servo_lag" or any(m.name == "time_offset" for m in model):
+        return None
+    off = [k for k in cands if k.name == "time_offset"]
+    return off[0] if off else None
+
+
+def honest_gate(ctx: Context, cands: list, model: list, final: "Fit", st: Settings, evidence: dict,
+                log: list):
+    """The tool's own rules applied again after the final fit, with every parameter refitted
+    on the training blocks from neutral starts: an effect stays only if it lowers the held-out
+    error on its own outputs by `cv_min_gain` against the model without it, and none of its
+    nonlinear parameters sits at a bound.  The weakest offender goes first, then the rest are
+    judged again.  Returns (model, final fit)."""
+    while model:
+        bd = np.concatenate(final.betas) if final.betas else None
+        folds = []
+        oof = heldout_neutral(ctx, model, st.folds, beta_default=bd, fits=folds)
+        final.extra["heldout_folds"] = folds
+        # outputs the whole model predicts worse than no model at all, every parameter refitted
+        # without the block from the final values (the rule of the selection before the gate)
+        _, oof_w = cross_validate(ctx, model, final.etas, st.folds, max_nfev=10, betas=final.betas)
+        worse = {o for o, sl in ctx.slices.items()
+                 if float(oof_w[sl] @ oof_w[sl]) > float(ctx.z0[sl] @ ctx.z0[sl])}
+        worst = None
+        for i, c in enumerate(model):
+            why = at_bound(ctx, c, final.etas[i])
+            if why is None and set(c.outputs) <= worse:
+                why = (f"held out, {', '.join(c.outputs)} worse with the model than without any "
+                       "effect")
+            gain = None
+            if why is None:
+                rest = model[:i] + model[i + 1:]
+                clock = _clock_instead(ctx, cands, model, i)
+                base = rest + ([clock] if clock is not None else [])
+                oof0 = heldout_neutral(ctx, base, st.folds) if base else ctx.z0
+                gain = _own_gain(ctx, c, oof0, oof)
+                if gain < st.cv_min_gain:
+                    why = (f"held-out error {-100 * gain:+.1f} % with every parameter refitted on "
+                           "the training blocks" + (" (against a clock offset in its place)"
+                                                    if clock is not None else ""))
+            else:
+                gain = -np.inf
+            if why and (worst is None or gain < worst[0]):
+                worst = (gain, i, why, clock if gain > -np.inf else None)
+            if not why:
+                ev = evidence.get(c.label)
+                if ev is not None:
+                    ev["heldout_error_reduction_neutral"] = round(float(gain), 4)
+        if worst is None:
+            break
+        _, i, why, clock = worst
+        worst_label = model[i].label
+        evidence.pop(model[i].label, None)
+        model, etas = model[:i] + model[i + 1:], final.etas[:i] + final.etas[i + 1:]
+        if clock is not None:
+            # what the lag took is the clocks' difference: the offset takes its place
+            log.append(f"final: {clock.label} replaces {worst_label}: {why}")
+            etas = etas + [clock.coarse(ctx, final.resid + final.contrib[i], np.ones(ctx.N, bool))]
+            model = model + [clock]
+        else:
+            log.append(f"final: {worst_label} dropped: {why}")
+        final = fit(ctx, model, etas, max_nfev=st.max_nfev * 2) if model else fit(ctx, [], [])
+    return model, final

@@ -281,3 +281,94 @@ def write_csv(path, columns: dict) -> None:
     lines = [",".join(keys)]
     lines += [",".join(f"{v:.10g}" for v in row) for row in arr]
     atomic_write(path, "\n".join(lines) + "\n")
+
+
+def polyline_axes(rng, duration: float, corner_dt: float | None = None, vmax: float = 20.0,
+                  axes: str = "xyz"):
+    """Piecewise-linear motion (G1 moves, corners with a velocity jump) of each axis: a function
+    t -> {axis: position, mm}.  Corners fall at multiples of `corner_dt` s when given (a SIM
+    that samples its program at those instants holds every corner), else at random times."""
+    knots = {}
+    for k in axes:
+        lo, hi = RANGES[k]
+        t, tk = 0.0, [0.0]
+        while t < duration + 2.0:
+            t += rng.uniform(0.4, 2.5)
+            if corner_dt:
+                t = round(t / corner_dt) * corner_dt
+            tk.append(t)
+        tk = np.array(tk)
+        pk = np.empty(len(tk))
+        pk[0] = rng.uniform(lo, hi)
+        for i in range(1, len(tk)):
+            # speed at most vmax, sometimes a dwell (same position), inside the range
+            step = rng.uniform(-1, 1) * vmax * (tk[i] - tk[i - 1]) * (rng.uniform() > 0.2)
+            pk[i] = np.clip(pk[i - 1] + step, lo, hi)
+        knots[k] = (tk, pk)
+    return lambda t: {k: np.interp(t, *knots[k]) for k in axes}
+
+
+NULL_KINDS = ("white", "random_walk", "coarse_kinked", "separate_clocks")
+
+
+def null_case(kind: str, seed: int = 0, duration: float = 20.0) -> Case:
+    """A pair whose honest diagnosis names no effect of the machine.
+
+    white: REC = SIM + white noise; random_walk: the same beside 20 random-walk inputs;
+    coarse_kinked: piecewise-linear moves whose corners fall between SIM's 10 Hz samples, REC
+    at 25 Hz (the mismatch is resampling, not physics); separate_clocks: REC on its own clock,
+    started 0.59 ms .. 40 ms off SIM's (a clock offset, not a lag)."""
+    rng = np.random.default_rng(10_000 + seed)
+    if kind == "white":
+        return make_case((), seed=seed, duration=duration, sim_rate=200.0, rec_rate=500.0)
+    if kind == "random_walk":
+        return make_case((), seed=seed, duration=duration, sim_rate=200.0, rec_rate=500.0,
+                         n_junk=20)
+    if kind == "separate_clocks":
+        off = float(rng.choice([5.9e-4, 2e-3, 1.3e-2, 4e-2]))
+        return make_case([("time_offset", {"offset_s": off})], seed=seed, duration=duration,
+                         sim_rate=200.0, rec_rate=500.0)
+    if kind == "coarse_kinked":
+        path = polyline_axes(rng, duration)
+        t_sim = np.arange(0.0, duration, 0.1)
+        t_rec = np.arange(0.0, duration, 0.04)
+        sim = {"t": t_sim, **path(t_sim)}
+        p = path(t_rec)
+        rec = {"t": t_rec, **{k: v + rng.normal(0, 20e-6, len(t_rec)) for k, v in p.items()}}
+        return Case(sim, rec, (), 20e-6, {"duration": duration, "sim_rate": 10.0, "rec_rate": 25.0})
+    raise ValueError(f"unknown null case {kind!r} (expected one of {', '.join(NULL_KINDS)})")
+
+
+def polyline_case(effect: tuple | None = None, seed: int = 0, duration: float = 40.0,
+                  sim_rate: float = 10.0, rec_rate: float = 25.0, noise: float = 20e-6,
+                  corner_dt: float | None = 0.1) -> Case:
+    """G1 moves (piecewise linear, corners at multiples of `corner_dt`) simulated at `sim_rate`
+    and recorded at `rec_rate` with one effect (name, params): backlash on x, servo_lag on y
+    (first-order lag on a 100x finer grid), scale_error on y; or none."""
+    rng = np.random.default_rng(20_000 + seed)
+    path = polyline_axes(rng, duration, corner_dt)
+    t_sim = np.arange(0.0, duration, 1.0 / sim_rate)
+    t_rec = np.arange(0.0, duration, 1.0 / rec_rate)
+    dtf = 1.0 / rec_rate / 100.0
+    tf = np.arange(-2.0, duration + 1.0, dtf)
+    pf = path(tf)
+    errf = {k: np.zeros_like(tf) for k in "xyz"}
+    truth = ()
+    if effect is not None:
+        name, p = effect
+        if name == "backlash":
+            first = np.sign(pf["x"][np.flatnonzero(np.diff(pf["x"]))[0] + 1] - pf["x"][0]) or 1.0
+            errf["x"] = _play(pf["x"], p["backlash_mm"], first) - pf["x"]
+        elif name == "servo_lag":
+            errf["y"] = _first_order(pf["y"], dtf, 1.0 / p["kv_per_s"]) - pf["y"]
+        elif name == "scale_error":
+            errf["y"] = p["scale"] * pf["y"]
+        else:
+            raise ValueError(f"polyline_case: no effect {name!r}")
+        truth = ((name, ("x",) if name == "backlash" else ("y",), dict(p)),)
+    sim = {"t": t_sim, **path(t_sim)}
+    rec = {"t": t_rec}
+    for k in "xyz":
+        rec[k] = (np.interp(t_rec, tf, pf[k] + errf[k]) + rng.normal(0, noise, len(t_rec)))
+    return Case(sim, rec, truth, noise, {"duration": duration, "sim_rate": sim_rate,
+                                          "rec_rate": rec_rate})

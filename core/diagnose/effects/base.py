@@ -70,10 +70,27 @@ def direction_of_motion(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarra
     Kept through dwells (the screw stays on the flank it last pushed on); before the first
     motion the first motion's direction is assumed.
     """
-    v = np.gradient(p)
+    if not len(p):
+        return np.zeros_like(p)
+    return _hold_sign(np.gradient(p), rel_threshold)
+
+
+def step_direction(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarray:
+    """+1/-1 for the direction of each step p[k] -> p[k+1] of a sampled position (n-1 values),
+    held through steps without motion; the first motion's direction before it.
+
+    For a position sampled coarser than the grid it is compared on: between two samples the
+    axis moves as the step says, while a central difference at a sample where it turns (a G1
+    corner) averages the two steps' directions."""
+    return _hold_sign(np.diff(np.asarray(p, float)), rel_threshold)
+
+
+def _hold_sign(v: np.ndarray, rel_threshold: float) -> np.ndarray:
+    """The sign of each rate v, held through the rates below rel_threshold of the largest;
+    before the first significant one, its sign (zeros when nothing moves)."""
     vmax = float(np.max(np.abs(v))) if len(v) else 0.0
     if vmax == 0:
-        return np.zeros_like(p)
+        return np.zeros_like(v)
     s = np.where(np.abs(v) > rel_threshold * vmax, np.sign(v), 0.0)
     idx = np.where(s != 0, np.arange(len(s)), 0)
     np.maximum.accumulate(idx, out=idx)
@@ -81,6 +98,12 @@ def direction_of_motion(p: np.ndarray, rel_threshold: float = 1e-3) -> np.ndarra
     first = np.flatnonzero(s)[0]
     d[:first] = s[first]
     return d
+
+
+def coarse_native(al, tn) -> bool:
+    """Is a signal's own sampling (times tn) coarser than the grid (steps of 1.5 grid steps or
+    more)?  Then its direction between samples is its step's (step_direction)."""
+    return len(tn) >= 2 and float(np.median(np.diff(tn))) > 1.5 * al.dt
 
 
 def visited_spacing(p: np.ndarray) -> float:
@@ -201,7 +224,13 @@ class Context:
         a stop-and-measure grid does not see the motion between readings)."""
         if key not in self._dir:
             sig = self.al.signals[key]
-            if sig.native:
+            if sig.native and coarse_native(self.al, sig.native[0]):
+                tn, vn = sig.native
+                ds = step_direction(vn)
+                # a grid time in (t_k, t_k+1] lies on step k
+                i = np.clip(np.searchsorted(tn, self.al.t, side="left") - 1, 0, len(ds) - 1)
+                self._dir[key] = ds[i]
+            elif sig.native:
                 tn, vn = sig.native
                 dn = direction_of_motion(np.asarray(vn, float))
                 i = np.clip(np.searchsorted(tn, self.al.t, side="right") - 1, 0, len(tn) - 1)

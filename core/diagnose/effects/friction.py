@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Candidate, _se, backlash_play, direction_of_motion  # noqa: F401
+from .base import Candidate, _se, backlash_play, coarse_native, direction_of_motion, step_direction  # noqa: F401
 
 
 class Backlash(Candidate):
@@ -87,6 +87,16 @@ class Backlash(Candidate):
             return {o: self.sign * backlash_play(ctx.values(o), b, ctx.direction(o))}, first
         # a grid coarser than SIM: the reversal positions come from SIM as sampled (on a 10 Hz
         # grid the sample before a reversal can be far from where the axis turned)
+        if not hasattr(self, "_prev") and coarse_native(ctx.al, sig.native[0]):
+            # SIM coarser than the grid: each step of SIM has its own direction; the axis
+            # turned at the sample where the step's direction changed (a G1 corner)
+            tn, vn = sig.native
+            vn = np.asarray(vn, float)
+            ds = step_direction(vn)
+            ch = np.flatnonzero(ds[1:] != ds[:-1]) + 1      # first step of a new direction
+            k = np.searchsorted(tn[ch], ctx.al.t, side="left") - 1 if len(ch) else np.full(ctx.al.n, -1)
+            self._prev = (np.where(k >= 0, vn[ch[np.clip(k, 0, None)]] if len(ch) else 0.0, np.nan),
+                          ctx.direction(o), float(ds[0]))
         if not hasattr(self, "_prev"):
             tn, vn = sig.native
             vn = np.asarray(vn, float)
@@ -281,3 +291,43 @@ class StickSlip(QuadrantGlitch):
         delta, tau = math.exp(eta[0]), math.exp(eta[1])
         return ({f"breakaway_{u}": delta, "tau_s": tau},
                 {f"breakaway_{u}": delta * _se(cov_eta, 0), "tau_s": tau * _se(cov_eta, 1)})
+
+
+def loop_shape(ctx, o: str, resid: np.ndarray, floor: float, bins: int = 8) -> dict | None:
+    """Does the reversal error of output `o` follow a play (a step within the play's travel,
+    flat after it)?  The residual left after a backlash is fitted, signed by the direction of
+    motion, is averaged in bins of the travel since the last reversal (quantiles, moving
+    samples only).  A play leaves no trend; a gradual hysteresis loop (friction pre-sliding,
+    Preisach-type) leaves one sign just after each reversal and the other later.  Returns
+    {"share": variance share of the bin means (noise share removed), "swing": largest minus
+    smallest bin mean (output unit), "significant": bool} or None when there are too few
+    reversals."""
+    al = ctx.al
+    p = al.sim[o][ctx.idx]
+    d = ctx.direction(o)[ctx.idx]
+    ch = np.flatnonzero(d[1:] != d[:-1]) + 1
+    if len(ch) < 4:
+        return None
+    k = np.searchsorted(ch, np.arange(len(p)), side="right") - 1
+    ok = k >= 0
+    p_rev = np.where(ok, p[ch[np.clip(k, 0, None)] - 1], np.nan)
+    travel = np.abs(p - p_rev)
+    v = np.abs(np.gradient(p))
+    moving = ok & (v > 1e-3 * max(float(v.max()), 1e-300)) & np.isfinite(travel)
+    if moving.sum() < 4 * bins:
+        return None
+    x, r = travel[moving], (resid * d)[moving]
+    edges = np.quantile(x, np.linspace(0, 1, bins + 1))
+    b = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)
+    n = np.bincount(b, minlength=bins)
+    m = np.bincount(b, weights=r, minlength=bins) / np.maximum(n, 1)
+    r0 = r - r.mean()
+    tot = float(r0 @ r0)
+    if tot <= 0:
+        return None
+    share = float(np.sum(n * (m - r.mean()) ** 2)) / tot
+    share = max(0.0, (share - bins / len(r)) / (1.0 - bins / len(r)))
+    swing = float(m[n > 0].max() - m[n > 0].min())
+    se = floor / math.sqrt(max(int(n[n > 0].min()), 1))
+    return {"share": share, "swing": swing, "significant": bool(share > 0.2 and swing > 6 * se
+                                                              and swing > 3 * floor)}
