@@ -2,6 +2,8 @@
 runs: a 300-sample sub-range, accelerations as outputs): what a new user would point it at."""
 from pathlib import Path
 
+import pytest
+
 from mtcomp.diagnose import diagnose
 
 DATA = Path(__file__).parent / "data" / "umich"
