@@ -597,8 +597,12 @@ def cosimulate(program, machine, true_errors: ErrorSet, identified_errors: Error
         workdir = tmp.name
     workdir = Path(workdir)
     try:
-        mach_path = _b.build_machine_fmu(machine, workdir / "machine.fmu", true_errors, dynamics, compiler=compiler)
-        comp_path = _b.build_compensator_fmu(machine, workdir / "compensator.fmu", identified, compiler=compiler)
+        # built to run here: the host's binary only (a win64 cross-compile, when mingw-w64 is
+        # installed, would double the build for a DLL this process cannot load)
+        mach_path = _b.build_machine_fmu(machine, workdir / "machine.fmu", true_errors, dynamics, compiler=compiler,
+                                         windows=False)
+        comp_path = _b.build_compensator_fmu(machine, workdir / "compensator.fmu", identified, compiler=compiler,
+                                             windows=False)
         _, p_unc, _ = _run(machine, q, step, mach_path, None, spindle_speed, part(0))
         qc, p_cmp, act = _run(machine, q, step, mach_path, comp_path, spindle_speed, part(K))
     finally:

@@ -89,7 +89,8 @@ def simulate(program, machine, errors: ErrorSet | None = None, dynamics=None, *,
         t, q = interpolate_program(program, machine, step)
     with tempfile.TemporaryDirectory(prefix="mtcomp-sim-") as tmp:
         wd = Path(workdir) if workdir is not None else Path(tmp)
-        mach = build_machine_fmu(machine, wd / "machine.fmu", errors, dynamics, compiler=compiler)
+        # run here: the host's binary only, no win64 cross-compile
+        mach = build_machine_fmu(machine, wd / "machine.fmu", errors, dynamics, compiler=compiler, windows=False)
         drivers = {}
         for name, v in (("spindle_speed", spindle_speed), ("temperature", temperature)):
             if callable(v):
