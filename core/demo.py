@@ -238,8 +238,8 @@ def stage_diagnose(out: Path, seed: int, quick: bool) -> dict:
     from .diagnose import diagnose
     from .errors import ErrorSet
     from .fmu.build import MachineDynamics
-    from .fmu.cosim import cosimulate
     from .machine import load_machine
+    from .model.simulate import simulate
     m = load_machine("vmc-moving-column")
     rng = np.random.default_rng(seed)
     # A program of random moves and dwells on the 3-axis machine, 1 ms samples; each move has
@@ -256,18 +256,20 @@ def stage_diagnose(out: Path, seed: int, quick: bool) -> dict:
     q = np.vstack(q)
     backlash = 0.004  # mm on X: the concealed effect
     d = out / "diagnose"
-    ideal = cosimulate(q, m, ErrorSet(), step=1e-3, workdir=d / "fmu_sim", compiler="cc")
-    real = cosimulate(q, m, ErrorSet(), step=1e-3, workdir=d / "fmu_rec", compiler="cc",
-                      dynamics=MachineDynamics(backlash=(backlash, 0.0, 0.0), noise=2e-5, seed=seed))
+    # the machine FMU alone (the uncompensated run of a co-simulation, without the compensator
+    # loop nobody looks at here): the ideal machine, and the real one with the concealed effect
+    ideal = simulate(q, m, ErrorSet(), step=1e-3, workdir=d / "fmu_sim", compiler="cc")
+    real = simulate(q, m, ErrorSet(), MachineDynamics(backlash=(backlash, 0.0, 0.0), noise=2e-5, seed=seed),
+                    step=1e-3, workdir=d / "fmu_rec", compiler="cc")
     t = ideal.t
-    sim = {"t": t, "x": ideal.p_uncompensated[:, 0], "y": ideal.p_uncompensated[:, 1],
-           "z": ideal.p_uncompensated[:, 2], "cmd_x": q[:, 0], "cmd_y": q[:, 1], "cmd_z": q[:, 2]}
+    sim = {"t": t, "x": ideal.p[:, 0], "y": ideal.p[:, 1],
+           "z": ideal.p[:, 2], "cmd_x": q[:, 0], "cmd_y": q[:, 1], "cmd_z": q[:, 2]}
     # The "recording": its own clock (started 0.25 s after the simulation, 2.5 ms samples), um, a
     # temperature logged that does not matter.
     tr = np.arange(0.25, t[-1] - 0.1, 2.5e-3)
     rec = {"t": tr - 0.25}
     for j, c in enumerate("xyz"):
-        rec[f"{c}[um]"] = np.interp(tr, t, real.p_uncompensated[:, j]) * 1e3
+        rec[f"{c}[um]"] = np.interp(tr, t, real.p[:, j]) * 1e3
     rec["spindle_temp"] = 21.0 + 0.3 * np.sin(tr / 7.0)
     d.mkdir(parents=True, exist_ok=True)
     from .diagnose.synth import write_csv
@@ -352,10 +354,15 @@ class _Serial:
         return False
 
     def submit(self, fn, *a):
+        # run when the result is asked for (`_Stages.wait`), so the stages keep their order
         from concurrent.futures import Future
-        f = Future()
-        f.set_result(fn(*a))
-        return f
+
+        class _Later(Future):
+            def result(self, timeout=None):
+                if not self.done():
+                    self.set_result(fn(*a))
+                return super().result(timeout)
+        return _Later()
 
 
 def _cmd(args) -> int:
