@@ -27,13 +27,21 @@ def test_rs274_agrees_position_by_position(path):
 
 
 def test_cam_post_output_agrees(tmp_path):
-    from mtcomp.cad_plugin.post import post
+    """The post's output in LinuxCNC's dialect: its Fanuc safe-start line (G69 G15 G50.1) is an
+    unknown G code to rs274, which stops there, and LinuxCNC's G28 goes to the stored reference
+    position, so the safe start is the common part and the retract is left out."""
+    from mtcomp.cad_plugin.post import PostOptions, post
     from mtcomp.cad_plugin.toolpath import groove_plate_passes
     from mtcomp.machine import load_machine
     prog = tmp_path / "groove_plate.nc"
-    prog.write_text(post(load_machine("robonano-a0ib"), groove_plate_passes()))
+    opts = PostOptions(preamble="G21\nG17 G40 G49 G80 G90 G94\n{work_offset}", retract="none")
+    prog.write_text(post(load_machine("robonano-a0ib"), groove_plate_passes(), options=opts))
     c = rs274.compare(prog)
     assert c.n_mtcomp >= 50 and c.differing == 0, c.first
+    # the default (Fanuc) safe start is refused by LinuxCNC's interpreter by name
+    fanuc = tmp_path / "fanuc.nc"
+    fanuc.write_text(post(load_machine("robonano-a0ib"), groove_plate_passes()))
+    assert rs274.compare(fanuc).n_rs274 == 0
 
 
 def test_compensated_program_agrees(tmp_path):
@@ -44,7 +52,11 @@ def test_compensated_program_agrees(tmp_path):
     errors, _ = grid_errors("robonano-a0ib", seed=5, reversal=False)
     save_errors(errors, tmp_path / "e.toml")
     out = tmp_path / "comp.nc"
+    # geometric errors live at machine positions: the program's G54 is stated (here: at the
+    # machine origin), as compensate asks for it with tables
+    (tmp_path / "offsets.toml").write_text("[G54]\nX = 0.0\nY = 0.0\nZ = 0.0\nB = 0.0\nC = 0.0\n")
     assert main(["compensate", "--machine", "robonano-a0ib", "--errors", str(tmp_path / "e.toml"),
+                 "--offsets", str(tmp_path / "offsets.toml"),
                  str(ROOT / "examples" / "programs" / "groove5x.nc"), "-o", str(out)]) == 0
     assert out.read_text() != (ROOT / "examples" / "programs" / "groove5x.nc").read_text()
     c = rs274.compare(out)
