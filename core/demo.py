@@ -284,15 +284,39 @@ def stage_diagnose(out: Path, seed: int, quick: bool) -> dict:
 
 # --------------------------------------------------------------------------- stage 7: the loop closed
 def stage_model_loop(out: Path, seed: int, quick: bool) -> dict:
+    """Both parts of the closed loop, one after the other (`--serial`)."""
+    return join_model_loop(out, stage_loop_static(out, seed, quick), stage_loop_dynamics(out, seed))
+
+
+def stage_loop_static(out: Path, seed: int, quick: bool):
+    """The loop's first part (servo lag, backlash, squareness: mtcomp.model.story.run_story) and
+    its figure."""
     from .model.story import run_story
     from .demo_report import plot_model_loop
-    story = run_story(out / "model-loop", quick=quick, seed=seed)
-    png = out / "model-loop" / "model_loop.png"
-    plot_model_loop(story, png)
-    r = {"story": story, "png": png}
-    if story.dynamics is not None:
+    story = run_story(out / "model-loop", quick=quick, seed=seed, dynamics=False)
+    plot_model_loop(story, out / "model-loop" / "model_loop.png")
+    return story
+
+
+def stage_loop_dynamics(out: Path, seed: int):
+    """The loop's second part (friction and thermal drift: run_dynamics_story) and its figure;
+    independent of the first, so it can run in a process of its own."""
+    from .model.story import run_dynamics_story
+    from .demo_report import plot_model_loop
+    dyn = run_dynamics_story(out / "model-loop" / "dynamics", seed=seed)
+    plot_model_loop(dyn, out / "model-loop" / "model_loop_dynamics.png")
+    return dyn
+
+
+def join_model_loop(out: Path, story, dyn) -> dict:
+    """The two parts as one Story (its story.json rewritten with both)."""
+    import json
+    from dataclasses import replace
+    story = replace(story, dynamics=dyn)
+    atomic_write(out / "model-loop" / "story.json", json.dumps(story.to_dict(), indent=2) + "\n")
+    r = {"story": story, "png": out / "model-loop" / "model_loop.png"}
+    if dyn is not None:
         r["png_dynamics"] = out / "model-loop" / "model_loop_dynamics.png"
-        plot_model_loop(story.dynamics, r["png_dynamics"])
     return r
 
 
@@ -313,10 +337,12 @@ def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, str
     st = _Stages(9, stream)
     r = {}
     cpu0 = _cpu_seconds()
-    with (_background(2) if parallel else _Serial()) as pool:
-        # the two long, independent stages start first, each in a process of its own; the rest runs here
+    with (_background(3) if parallel else _Serial()) as pool:
+        # the long, independent stages start first, each in a process of its own (the closed loop
+        # in its two parts); the rest runs here
         diag = pool.submit(_timed, stage_diagnose, out, seed, quick)
-        loop = pool.submit(_timed, stage_model_loop, out, seed, quick)
+        loop = pool.submit(_timed, stage_loop_static, out, seed, quick)
+        loop_dyn = pool.submit(_timed, stage_loop_dynamics, out, seed)
         r["cad"] = st.run("CAD: bowl blank and pyramid (CadQuery, STEP)", stage_cad, out)
         r["tool"] = st.run("tool setting: virtual grooving, estimate with uncertainty", stage_tool_setting, out,
                            seed)
@@ -326,7 +352,8 @@ def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, str
                             quick)
         r["pyramid"] = st.run("pyramid widths and angles vs paper 001 Table 1", stage_pyramid, out, r["cell"])
         r["diagnose"] = st.wait("diagnosis: a recording with a concealed effect", diag)
-        r["loop"] = st.wait("closing the loop: diagnosed model, compensated program", loop)
+        r["loop"] = st.wait("closing the loop: diagnosed model, compensated program",
+                            _Joined(join_model_loop, out, loop, loop_dyn))
     r["verify"] = st.run("verify the programs the demo wrote", stage_verify, r["cell"])
     st.cpu = _cpu_seconds() - cpu0
     r["report"] = st.run("report", write_report, out, r, quick, st.times, st.wall, st.cpu)
@@ -335,6 +362,17 @@ def run(out: str | Path = "mtcomp-demo", quick: bool = False, seed: int = 7, str
                                  f"total {st.wall:.1f} s wall, {_cpu_seconds() - cpu0:.1f} s CPU "
                                  f"(both processes)\n")
     return r
+
+
+class _Joined:
+    """A future of fn(*args, results of the futures): (result, the longer of their times)."""
+
+    def __init__(self, fn, out, *futures):
+        self.fn, self.out, self.futures = fn, out, futures
+
+    def result(self):
+        got = [f.result() for f in self.futures]
+        return self.fn(self.out, *(g[0] for g in got)), max(g[1] for g in got)
 
 
 def _cpu_seconds() -> float:
