@@ -703,7 +703,7 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
                                          provenance=None, force=True, **kw)
     except InputError as exc:
         raise flow.remap_error(fl, exc, filename) from None
-    mode, new = flow.fold(fl, new)
+    mode, new = flow.fold(fl, new, filename)
     note = (f"subprograms: {fl.calls} run(s) followed; each subprogram compensated once (the "
             "correction is the same on every run)" if mode == "once" else
             f"subprograms: {fl.calls} run(s) followed and written out as the blocks they run "
@@ -711,6 +711,10 @@ def _compensate_flow(fl, machine, errors, *, filename, provenance, **kw):
                + ", ".join(Path(f).name for _, f in fl.segments[1:])
                + "; the control's own copies would run uncompensated)" if fl.external else
                "(the correction differs between runs)") + "; the calls are left as comments")
+    if fl.loop_len:
+        note = ((note + "; ") if fl.calls else "") + (
+            f"M99 on line {fl.loop_line + 1} repeats the main program: a second run was "
+            "compensated from the state the first leaves and came out the same; M99 kept")
     src_line = lambda m: ", ".join(dict.fromkeys(  # noqa: E731
         str(int(fl.origin[int(x) - 1]) + 1) for x in m.group(1).split(", ")))
     notes = tuple(re.sub(r"(?<=line\(s\) )(\d+(?:, \d+)*)", src_line, n) for n in report["notes"])

@@ -87,7 +87,7 @@ def test_haas_fanuc_eight_digit_p_and_k_repeat():
 
 
 @pytest.mark.parametrize("text, line, match", [
-    ("G0 X1.\nM99\n", 2, "M99 in the main program"),
+    ("G0 X1.\nM99\nG0 X2.\nM30\n", 2, "M99 before the end of the main program"),
     ("G0 X1.\nM98 P200\nM30\nO100\nM99\n", 2, "O200 is neither in this file"),
     ("G0 X1.\nM97 P20\nM30\n", 2, "no block N20"),
     ("G0 X1.\nM98\nM30\n", 2, "without P"),

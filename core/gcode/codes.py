@@ -55,6 +55,14 @@ _G_HARMLESS = {
     # Fanuc G05.1 Q1 / Q0: AI contour control on / off (look-ahead feed control, the programmed
     # path kept); Q2/Q3 (smooth interpolation, nano smoothing) are refused in parse
     51: "AI contour control (Fanuc G05.1 Q1/Q0)",
+    # Fanuc G05 P10000 / P0: AI (nano) high-precision contour control on / off, a look-ahead
+    # acceleration and feed control that keeps the programmed path (16i/18i/30i); other G5
+    # forms (high-speed cycle machining G05 P1..., LinuxCNC's cubic spline G5 X Y I J P Q,
+    # Haas fine spindle control G5 R) move the axes and are refused in parse
+    50: "AI high-precision contour control (Fanuc G05 P10000/P0)",
+    # G96: the spindle speed follows the X (diameter) position; the axis positions do not
+    # depend on it.  A correction of a few µm in X changes the speed by parts per million
+    960: "constant surface speed (spindle speed only)",
 }
 #: Known G codes that change where the tool goes in a way this reader cannot follow.
 _G_REFUSED = {
@@ -70,7 +78,6 @@ _G_REFUSED = {
     682: "G68.2 tilted working plane transforms the axis words in the control",
     650: "G65 macro call: the macro's motion is not straight-line code in this file",
     660: "G66 modal macro call: the macro's motion is not straight-line code in this file",
-    960: "G96 constant surface speed depends on the commanded position",
 }
 _M_REFUSED = {
     98: "M98 calls a subprogram: expand the program first (gcode.flow.expand; mtcomp "

@@ -36,6 +36,9 @@ _WORD = re.compile(r"([A-Za-z])[ \t]*([-+]?(?:\d+\.?\d*|\.\d+))")
 _COMMENT = re.compile(r"\([^)]*\)")
 _MARK = "(\x02"
 _MARKED = re.compile(r"\(\x02([^)]*)\)")
+#: flow words the reader passes but the output keeps as written (a main program's final M99)
+_KEEP = "(\x03"
+_KEPT = re.compile(r"\(\x03([^)]*)\)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,6 +59,10 @@ class Flow:
     #: and, appended after it, the subprogram files it calls
     segments: tuple = ()
     main_lines: int = 0
+    #: a main program ending in M99 (the control repeats it): ``expanded`` holds two runs, the
+    #: first ``loop_len`` lines long; ``loop_line`` the M99's 0-based line (-1: no such M99)
+    loop_len: int = 0
+    loop_line: int = -1
 
     @property
     def external(self) -> bool:
@@ -82,9 +89,9 @@ def _words(line):
     return [(m.group(1).upper(), float(m.group(2)), m.start(), m.end()) for m in _WORD.finditer(code)]
 
 
-def _mark(line, spans):
+def _mark(line, spans, mark=_MARK):
     for s, e in sorted(spans, reverse=True):
-        line = line[:s] + _MARK + line[s:e] + ")" + line[e:]
+        line = line[:s] + mark + line[s:e] + ")" + line[e:]
     return line
 
 
@@ -235,8 +242,10 @@ def expand(text: str | bytes, filename: str = "<string>", search=None,
             raise InputError(what, file=segments[k][1], line=i - segments[k][0] + 1)
         raise InputError(what, file=filename, line=i + 1)
 
-    if "\x02" in text:
-        fail("control character 0x02 in the program", text[:text.index("\x02")].count("\n"))
+    for cc in "\x02\x03":
+        if cc in text:
+            fail(f"control character 0x{ord(cc):02x} in the program",
+                 text[:text.index(cc)].count("\n"))
     o_at = {}
     for i in cand:
         for a, v, _, _ in info[i]:
@@ -421,8 +430,8 @@ def expand(text: str | bytes, filename: str = "<string>", search=None,
                     run(t, stack + [name], i if call < 0 else call)
             elif 99.0 in m:
                 if not stack:
-                    fail("M99 in the main program returns to its start (an endless loop): "
-                         "not followed", i)
+                    main_loop(i, w)
+                    return
                 if any(a == "P" for a, _, _, _ in w):
                     fail("M99 P (return to a block number of the caller) is not followed", i)
                 spans = [(s, e) for a, v, s, e in w if a == "M" and v == 99.0]
@@ -437,20 +446,50 @@ def expand(text: str | bytes, filename: str = "<string>", search=None,
                 emit(i, line, call)
             i += 1
 
+    loop = []                                     # the line of a main program's final M99
+
+    def main_loop(i, w):
+        """M99 at the end of the main program: the control starts it again (Fanuc, Haas: bar
+        feeders, repeated parts).  Kept as written; `fold` checks that every run is the same."""
+        if any(a == "P" for a, _, _, _ in w):
+            fail("M99 P in the main program (a jump to a block number) is not followed", i)
+        rest = (_COMMENT.sub("", ln).split(";")[0].strip() for ln in lines[i + 1:main_end + 1])
+        if any(r and r != "%" for r in rest):
+            fail("M99 before the end of the main program (a jump back to its start, the "
+                 "blocks after it never run): not followed; M99 as the main program's last "
+                 "block (repeat the program) is", i)
+        emit(i, _mark(lines[i], [(s, e) for a, v, s, e in w if a == "M" and v == 99.0], _KEEP),
+             -1)
+        loop.append(i)
+
     run(0, [], -1)
+    loop_len = 0
+    if loop:
+        # run it again from the state the first run leaves: `fold` keeps the M99 only where
+        # the second run is written the same as the first
+        loop_len, first_calls = len(out), n_calls
+        start = 0
+        while start < main_end and lines[start].strip() == "%":
+            start += 1
+        run(start, [], -1)
+        n_calls = first_calls
     last = lines[main_len - 1] if main_len else ""
     trailer = last if last.strip() == "%" and main_end < main_len - 1 else ""
     return Flow(text="".join(lines) if len(segments) > 1 else text, expanded="".join(out),
                 origin=np.asarray(origin, np.int64),
                 caller=np.asarray(caller, np.int64), added_nl=np.asarray(added, bool),
-                calls=n_calls, trailer=trailer, segments=tuple(segments), main_lines=main_len)
+                calls=n_calls, trailer=trailer, segments=tuple(segments), main_lines=main_len,
+                loop_len=loop_len, loop_line=loop[0] if loop else -1)
 
 
-def fold(flow: Flow, new_expanded: str) -> tuple[str, str]:
+def fold(flow: Flow, new_expanded: str, filename="<string>") -> tuple[str, str]:
     """The rewritten expansion in the file's structure: ("once", text) when every run of every
     source line was rewritten to the same text (subprograms compensated once, calls kept);
     else ("expanded", text): the expansion with the calls written out, the flow words left as
-    comments and the subprogram definitions dropped."""
+    comments and the subprogram definitions dropped.  A main program ending in M99 (two runs
+    in the expansion) keeps its M99; raises InputError (``filename``) when its second run is
+    not written the same as its first (the control would repeat the first run's words from
+    another state)."""
     new = _lines(new_expanded)
     if len(new) == len(flow.origin) and not flow.external:
         src = _lines(flow.text)
@@ -458,7 +497,7 @@ def fold(flow: Flow, new_expanded: str) -> tuple[str, str]:
         got: dict[int, str] = {}
         same = True
         for j, ln in enumerate(new):
-            ln = _MARKED.sub(r"\1", ln)
+            ln = _KEPT.sub(r"\1", _MARKED.sub(r"\1", ln))
             if flow.added_nl[j]:
                 ln = ln[:-nl_len]
             if got.setdefault(int(flow.origin[j]), ln) != ln:
@@ -466,7 +505,22 @@ def fold(flow: Flow, new_expanded: str) -> tuple[str, str]:
                 break
         if same:
             return "once", "".join(got.get(i, s) for i, s in enumerate(src))
-    return "expanded", new_expanded.replace(_MARK, "(") + flow.trailer
+    if flow.loop_len:
+        first, again = new[:flow.loop_len], new[flow.loop_len:]
+        if len(new) != len(flow.origin) or not _repeats(first, again):
+            raise InputError("M99 at the end of the main program repeats it, but the repetition "
+                             "does not run the same compensated blocks as the first run (it "
+                             "starts where the first run ends: incremental moves, unknown "
+                             "positions or modes left set); not followed", file=filename,
+                             line=flow.loop_line + 1)
+        new_expanded = "".join(first)
+    return "expanded", _KEPT.sub(r"\1", new_expanded.replace(_MARK, "(")) + flow.trailer
+
+
+def _repeats(first, again):
+    """Whether the lines ``again`` are the end of ``first`` (the second run of a main program
+    skips its leading '%' lines)."""
+    return len(again) <= len(first) and first[len(first) - len(again):] == again
 
 
 def remap_error(flow: Flow, exc: InputError, filename) -> InputError:

@@ -276,16 +276,7 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
             _fail("G15 H<n> (Okuma work coordinate system selection) switches between work "
                   "coordinate systems: not read (their offsets are the control's)", wline[j],
                   filename)
-    if (g10 == 51).any():
-        # G05.1: only Q1/Q0 (AI contour control, a feed control) leave the path as programmed
-        q_at = np.full(n_lines, np.nan)
-        qi = np.flatnonzero(wlet == _ascii("Q"))
-        q_at[wline[qi]] = value[qi]
-        for L in np.unique(gline[g10 == 51]).tolist():
-            if q_at[L] not in (0.0, 1.0):
-                _fail("G5.1 without Q1/Q0 (Fanuc smooth interpolation Q2, nano smoothing Q3): the "
-                      "control replaces the programmed path by a curve it computes; refusing "
-                      "rather than guessing (G5.1 Q1, AI contour control, is read)", L, filename)
+    cc_line = _contour_control_lines(g10, gline, wlet, wline, value, n_lines, filename)
 
     # -- letters
     # H tool length offset number, D cutter compensation number, Q peck/shift amounts: values
@@ -614,6 +605,9 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
             wcol[ki] = -1
         cyc_zw[wline[zi]], cyc_rw[wline[ri]] = zi, ri
         wcol = np.where(in_cyc & ((wcol == zc) | (wlet == _ascii("R"))), np.int8(-1), wcol)
+    if cc_line is not None:
+        # G5.1 Q1 R<n>: R selects the control's machining condition (precision level), no radius
+        wcol = np.where(cc_line[wline] & (wlet == _ascii("R")), np.int8(-1), wcol)
     wl = _ctok.word_lines(wcol, wline, n_ax, n_lines)    # compiled: one pass, no index arrays
     if wl is not None:
         has_motion, has_arcw, n_arc = wl
@@ -898,6 +892,39 @@ def parse(text: str | bytes, *, axes=("X", "Y", "Z", "A", "B", "C"), filename: s
 #: addresses of whole numbers (tool, length and radius offsets, program and sequence numbers,
 #: M codes, repeat counts): A=0 ... Z=25
 _WHOLE_ADDRESSES = np.array([ord(c) - 65 for c in "DHLMNOT"])
+
+
+def _contour_control_lines(g10, gline, wlet, wline, value, n_lines, filename):
+    """Check the Fanuc look-ahead / contour control codes read as settings (docs/gcode.md,
+    "Control settings codes"): G5.1 only as Q1/Q0 (AI contour control, R the machining
+    condition level), G5 only as P10000/P0 (AI high-precision contour control), alone in its
+    block.  The other forms move the tool along a path the control computes: refused.
+    Returns (n_lines,) bool, the G5.1 lines (their R words are not arc radii), or None."""
+    g51, g5 = gline[g10 == 51], gline[g10 == 50]
+    if not len(g51) and not len(g5):
+        return None
+    q_at, p_at = np.full(n_lines, np.nan), np.full(n_lines, np.nan)
+    qi, pi = np.flatnonzero(wlet == _ascii("Q")), np.flatnonzero(wlet == _ascii("P"))
+    q_at[wline[qi]], p_at[wline[pi]] = value[qi], value[pi]
+    for L in np.unique(g51).tolist():
+        if q_at[L] not in (0.0, 1.0):
+            _fail("G5.1 without Q1/Q0 (Fanuc smooth interpolation Q2, nano smoothing Q3): the "
+                  "control replaces the programmed path by a curve it computes; refusing "
+                  "rather than guessing (G5.1 Q1, AI contour control, is read)", L, filename)
+    if len(g5):
+        # any letter beside G N P (axis words, I J, R, L) makes G5 a motion: LinuxCNC's cubic
+        # spline, Haas fine spindle control, Fanuc high-speed cycle machining
+        other = ~np.isin(wlet, [_ascii(c) for c in "GNP"]) & np.isin(wline, g5)
+        for L in np.unique(g5).tolist():
+            if p_at[L] not in (0.0, 10000.0) or (other & (wline == L)).any():
+                _fail("G5 other than a block of its own G05 P10000 / G05 P0 (Fanuc AI "
+                      "high-precision contour control on/off, which is read): a cubic spline "
+                      "(LinuxCNC), fine spindle control (Haas) or high-speed cycle machining "
+                      "(Fanuc G05 P1..): the control computes the motion; refusing rather than "
+                      "guessing", L, filename)
+    out = np.zeros(n_lines, bool)
+    out[g51] = True
+    return out
 
 
 def _refuse_huge_whole_numbers(wlet, value, wline, data, lp, re_, filename):
