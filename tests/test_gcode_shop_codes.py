@@ -55,9 +55,11 @@ def _check(text, machine, shift=SHIFT):
 LOOP = "%\nO0001 (BAR FEED)\nG90 G54 G0 X0. Y0. Z5.\nG1 Z-1. F100.\nX10. Y5.\nG0 Z5.\nM99\n%\n"
 LOOP_SUB = ("O0001\nG90 G0 X0. Y0. Z5.\nM98 P100\nG0 X20.\nM98 P100\nM99\n"
             "O100\nG91 G1 X5. F100.\nG90 G0 Z5.\nM99\n")
+LOOP_NEXT = "G90 G0 X0. Y0. Z5.\nG1 Z-1. F100.\nM99\nO100\nG0 X2.\nM99\n"     # programs after it
 
 
-@pytest.mark.parametrize("text", [LOOP, LOOP_SUB, LOOP.replace("\n", "\r\n"), LOOP[:-3]])
+@pytest.mark.parametrize("text", [LOOP, LOOP_SUB, LOOP.replace("\n", "\r\n"), LOOP[:-3],
+                                  LOOP_NEXT])
 def test_m99_ending_the_main_program_is_kept_and_each_run_compensated(text, vmc):
     out, rep = _check(text, vmc)
     assert rep["flow"] == "once" and any("repeats the main program" in n for n in rep["notes"])

@@ -453,7 +453,9 @@ def expand(text: str | bytes, filename: str = "<string>", search=None,
         feeders, repeated parts).  Kept as written; `fold` checks that every run is the same."""
         if any(a == "P" for a, _, _, _ in w):
             fail("M99 P in the main program (a jump to a block number) is not followed", i)
-        rest = (_COMMENT.sub("", ln).split(";")[0].strip() for ln in lines[i + 1:main_end + 1])
+        # (up to the next O-numbered program: a file may hold programs after a main without M30)
+        end = min([main_end + 1] + [k for k in o_at.values() if k > i])
+        rest = (_COMMENT.sub("", ln).split(";")[0].strip() for ln in lines[i + 1:end])
         if any(r and r != "%" for r in rest):
             fail("M99 before the end of the main program (a jump back to its start, the "
                  "blocks after it never run): not followed; M99 as the main program's last "
